@@ -1,0 +1,1 @@
+"""Offline tools: synthetic camera, recordings, hardware-in-the-loop."""
