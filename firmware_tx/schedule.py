@@ -133,3 +133,48 @@ def pin_edges(schedule, pin, t0_us, t1_us):
         if level != prev:
             out.append((t, level))
             prev = level
+
+
+# Largest waveform period any valid configuration needs, in ticks: an S2-PSK packet of 30
+# symbols at the protocol's maximum of 64 clocks per symbol (2 ticks per clock).
+MAX_SYMCLK = 64
+MAX_LEVELS = 30 * 2 * MAX_SYMCLK
+
+
+def schedule_into(mode, led_id, rate_hz, symclk, buf):
+    """Like `make_schedule`, but writes the levels into the preallocated bytearray `buf`.
+
+    The returned Schedule's `levels` is a memoryview of the first ticks of `buf`, so
+    reconfiguring a running board never allocates a new waveform buffer (MicroPython's heap
+    fragments when large buffers come and go). `buf` must hold at least the period
+    (`MAX_LEVELS` bytes always suffice); ValueError otherwise, or on a bad configuration.
+    """
+    if mode == "ook":
+        if not OOK_RATE_MIN_HZ <= rate_hz <= OOK_RATE_MAX_HZ:
+            raise ValueError("OOK chip rate must be 1000..50000 Hz")
+        units = ook_packet(led_id)
+        n = len(units)
+        if n > len(buf):
+            raise ValueError("level buffer too small")
+        for i in range(n):
+            buf[i] = units[i]
+        return Schedule("ook", rate_hz, memoryview(buf)[:n], 1, units, 1)
+    if mode == "s2psk":
+        if rate_hz <= 0 or symclk <= 0:
+            raise ValueError("S2-PSK clock and clocks per symbol must be positive")
+        units = s2psk_packet(led_id)
+        n = len(units) * 2 * symclk
+        if n > len(buf):
+            raise ValueError("level buffer too small")
+        levels = memoryview(buf)[:n]
+        s2psk_levels(units, symclk, levels)
+        return Schedule("s2psk", 2 * rate_hz, levels, 2, units, 2 * symclk)
+    if mode == "tone":
+        if rate_hz <= 0:
+            raise ValueError("tone frequency must be positive")
+        if len(buf) < 2:
+            raise ValueError("level buffer too small")
+        buf[0] = 1
+        buf[1] = 0
+        return Schedule("tone", 2 * rate_hz, memoryview(buf)[:2], 1, bytearray(b"\x01\x00"), 1)
+    raise ValueError("unknown mode")
