@@ -1,0 +1,205 @@
+"""S2-PSK decoding from frame-rate samples of an emitter pair (PROTOCOL.md sections 1, 3).
+
+Each frame gives one soft XOR of the two emitters A and B (`pair_xor`, thesis eq. 42:
+bit = s1 XOR s2, in phase = 0). A symbol lasts `symbol_clocks / clk_hz` seconds (80 ms at
+the defaults, about 2.4 frames at 30 fps) and the camera is not synchronised, so symbol timing
+comes from the frame timestamps:
+
+1. keep the last `history_s` seconds of (t, soft XOR) samples;
+2. for each candidate phase of the symbol grid (`n_phases` over one symbol) give every sample
+   a symbol number floor((t - phase) / T); samples within `guard` of a boundary are left out
+   (their exposure may straddle a symbol change). The right phase is the one under which the
+   samples of each symbol agree best: maximum of sum |sum of the symbol's samples|;
+3. fold the symbols modulo the 30-symbol packet (the stream repeats with no gap), find the
+   sync `111000` by cyclic search (every sync symbol right by `sync_margin`), Manchester-decode
+   the 12 data bits by soft decision on each symbol pair, and check CRC-4;
+4. accept only when every packet position has been seen, every pair and sync symbol is right
+   by `min_margin`, and the CRC holds. CRC-4 alone passes 1 in 16 random packets, so the
+   margins carry most of the protection against wrong IDs.
+
+IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from firmware_tx.crc import crc4
+from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN, SYNC
+
+PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
+SYNC_LEN = len(SYNC)
+N_BITS = S2PSK_ID_BITS + S2PSK_CRC_BITS  # 12
+VEHICLE_MIN_ID = 0x80  # PROTOCOL.md section 3: 0x80-0xFF are FV-IDs
+_SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
+_BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)
+_SYNC_IDX = (np.arange(PACKET_LEN)[:, None] + np.arange(SYNC_LEN)[None, :]) % PACKET_LEN
+_CRC4 = np.array([crc4(i) for i in range(1 << S2PSK_ID_BITS)], dtype=np.int64)
+
+
+def pair_xor(a: float, b: float, a_on: float, b_on: float, a_off: float = 0.0,
+             b_off: float = 0.0) -> float:
+    """Soft XOR of two emitters in one frame, in [-1, 1] (> 0: anti-phase = symbol 1).
+
+    a, b: the two blobs' mean intensities; *_on / *_off: their learned fully-on / fully-off
+    levels. After normalising to na, nb in [0, 1], in-phase emitters read na = nb and anti-phase
+    ones na + nb = 1, also when the exposure straddles a clock edge (both then read the same
+    fraction f, or f and 1 - f). The result |na - nb| - |na + nb - 1| is +1 / -1 for clean
+    anti-phase / in-phase samples and shrinks towards 0 as the sample approaches na = nb = 0.5,
+    where both hypotheses fit equally (a half-and-half straddle).
+    """
+    da, db = a_on - a_off, b_on - b_off
+    if da <= 0 or db <= 0:
+        return 0.0
+    na = min(max((a - a_off) / da, 0.0), 1.0)
+    nb = min(max((b - b_off) / db, 0.0), 1.0)
+    return abs(na - nb) - abs(na + nb - 1.0)
+
+
+def decode_symbols(m: np.ndarray, *, sync_margin: float = 0.3, min_margin: float = 0.25
+                   ) -> tuple[int | None, float]:
+    """CRC-4-checked ID from 30 folded soft symbols in arbitrary cyclic order, or None.
+
+    m: float (30,) mean soft symbol per packet position (stream position mod 30). The sync is
+    searched over all 30 rotations; exactly one must have every sync symbol right by
+    `sync_margin`. Returns (id or None, weakest Manchester pair reliability |a - b| / 2).
+    """
+    score = (m[_SYNC_IDX] * _SYNC_T).min(axis=1)
+    hits = np.flatnonzero(score >= sync_margin)
+    if hits.size != 1:
+        return None, 0.0
+    p = np.roll(m, -int(hits[0]))
+    r = 0.5 * (p[SYNC_LEN::2] - p[SYNC_LEN + 1::2])
+    conf = float(np.abs(r).min())
+    if conf < min_margin:
+        return None, conf
+    value = int(_BIT_WEIGHTS @ (r > 0))
+    led_id, crc = value >> S2PSK_CRC_BITS, value & ((1 << S2PSK_CRC_BITS) - 1)
+    if _CRC4[led_id] != crc:
+        return None, conf
+    return led_id, conf
+
+
+def kind_of(led_id: int | None) -> str | None:
+    """'SL' (street light, 0x00-0x7F) or 'FV' (vehicle, 0x80-0xFF)."""
+    if led_id is None:
+        return None
+    return "FV" if led_id >= VEHICLE_MIN_ID else "SL"
+
+
+@dataclass(frozen=True)
+class S2pskState:
+    """`led_id`: CRC-4-valid ID or None (stays until another valid ID persists for
+    `switch_steps` steps); `kind`: 'SL' | 'FV' | None; `samples`: frames fed;
+    `confidence`: weakest Manchester pair reliability of the latest packet estimate."""
+
+    led_id: int | None
+    kind: str | None
+    samples: int
+    confidence: float
+
+
+class S2pskDecoder:
+    """Per-pair S2-PSK decoder driven by frame timestamps.
+
+    Tunables (defaults in brackets):
+      clk_hz [200]: emitter clock; symbol_clocks [16]: clock periods per symbol (both from the
+        LED map); inverted [False]: read in-phase as 1 (the other published polarity).
+      history_s [None = 2.5 packets]: samples older than this are forgotten (a packet is
+        30 symbols = 2.4 s at the defaults).
+      n_phases [16]: symbol-boundary phases tried over one symbol; phase_every [8]: the full
+        phase search runs every this many steps, the steps between reuse the found phase.
+      guard [0.12]: fraction of a symbol at each end whose samples are not used (timestamp
+        jitter and exposure straddling a symbol change).
+      sync_margin [0.3], min_margin [0.3]: see `decode_symbols`.
+      min_samples [1]: samples each packet position needs before a decode is attempted.
+      switch_steps [10]: consecutive steps a different valid ID needs to replace the decoded one.
+    """
+
+    def __init__(self, clk_hz: float = 200.0, symbol_clocks: int = 16, *, inverted: bool = False,
+                 history_s: float | None = None, n_phases: int = 16, guard: float = 0.12,
+                 sync_margin: float = 0.3, min_margin: float = 0.3, min_samples: int = 1,
+                 switch_steps: int = 10, phase_every: int = 8):
+        if clk_hz <= 0 or symbol_clocks <= 0:
+            raise ValueError("clk_hz and symbol_clocks must be positive")
+        self.symbol_s = symbol_clocks / clk_hz
+        self.sign = -1.0 if inverted else 1.0
+        self.history_s = 2.5 * PACKET_LEN * self.symbol_s if history_s is None else history_s
+        self.n_phases = n_phases
+        self.guard = guard
+        self.sync_margin = sync_margin
+        self.min_margin = min_margin
+        self.min_samples = min_samples
+        self.switch_steps = switch_steps
+        self._t = np.zeros(0)
+        self._x = np.zeros(0)
+        self._t0: float | None = None
+        self.phase_every = phase_every
+        self._phase: float | None = None  # symbol-grid phase in symbols, from the last search
+        self._calls = 0
+        self.samples = 0
+        self.led_id: int | None = None
+        self.confidence = 0.0
+        self._cand: int | None = None
+        self._cand_n = 0
+
+    def folded_packet(self) -> tuple[np.ndarray, np.ndarray]:
+        """Mean soft symbol and sample count per stream position mod 30, (30,) each, at the
+        best symbol-grid phase (zeros when there are no samples). The phase is searched over
+        all `n_phases` every `phase_every` calls and reused in between (it only drifts with
+        the emitter's clock error)."""
+        t, x = self._t, self._x
+        if t.size == 0:
+            return np.zeros(PACKET_LEN), np.zeros(PACKET_LEN)
+        if self._phase is None or self._calls % self.phase_every == 0:
+            phases = np.arange(self.n_phases) / self.n_phases  # in symbols
+        else:
+            phases = np.array([self._phase])
+        self._calls += 1
+        u = t[None, :] / self.symbol_s - phases[:, None]  # (P, N) time in symbols
+        sym = np.floor(u)
+        frac = u - sym
+        use = (frac >= self.guard) & (frac <= 1.0 - self.guard)
+        sym = sym.astype(np.int64)
+        smin = int(sym.min())
+        nsym = int(sym.max()) - smin + 1
+        npz = phases.size
+        flat = (np.arange(npz)[:, None] * nsym + (sym - smin)).ravel()
+        w = use.ravel().astype(np.float64)
+        sums = np.bincount(flat, (use * x[None, :]).ravel(), npz * nsym).reshape(npz, nsym)
+        cnt = np.bincount(flat, w, npz * nsym).reshape(npz, nsym)
+        best = int(np.argmax(np.abs(sums).sum(axis=1)))
+        self._phase = float(phases[best])
+        pos = (np.arange(nsym) + smin) % PACKET_LEN
+        m = np.bincount(pos, sums[best], PACKET_LEN)
+        c = np.bincount(pos, cnt[best], PACKET_LEN)
+        return np.where(c > 0, m / np.maximum(c, 1e-12), 0.0), c
+
+    def step(self, t_s: float, soft_xor: float) -> S2pskState:
+        """Feed one frame: its timestamp (s, source clock) and the pair's `pair_xor`."""
+        self.samples += 1
+        if self._t0 is None:
+            self._t0 = float(t_s)
+        t = float(t_s) - self._t0  # small numbers keep the symbol arithmetic exact
+        keep = self._t >= t - self.history_s
+        self._t = np.append(self._t[keep], t)
+        self._x = np.append(self._x[keep], self.sign * float(soft_xor))
+        m, c = self.folded_packet()
+        if c.min() < self.min_samples:
+            self.confidence = 0.0
+            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, 0.0)
+        led_id, conf = decode_symbols(m, sync_margin=self.sync_margin, min_margin=self.min_margin)
+        self.confidence = conf
+        if led_id is not None and led_id != self.led_id:
+            if self.led_id is None:
+                self.led_id = led_id
+            else:
+                self._cand_n = self._cand_n + 1 if led_id == self._cand else 1
+                self._cand = led_id
+                if self._cand_n >= self.switch_steps:
+                    self.led_id, self._cand, self._cand_n = led_id, None, 0
+        elif led_id is not None:
+            self._cand, self._cand_n = None, 0
+        return S2pskState(self.led_id, kind_of(self.led_id), self.samples, conf)
