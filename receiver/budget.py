@@ -1,0 +1,71 @@
+"""Frame budget: stamp each pipeline stage with a replaceable clock.
+
+Usage (one `StageTimer` per frame; the clock is injected so tests can drive it):
+
+    timer = StageTimer(clock)
+    ... detect ...
+    timer.stamp("detect")
+    ... track ...
+    timer.stamp("track")
+    timer.stage_ms   # {"detect": 0.41, "track": 0.05}
+    timer.total_ms   # from construction to the last stamp
+
+`BudgetStats` keeps every frame's totals and per-stage times for the median / p99 summary
+that `occloc run` and `occloc bench` print.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+
+Clock = Callable[[], float]  # seconds, monotonic (time.perf_counter by default)
+
+
+class StageTimer:
+    """Milliseconds spent in each named stage of one frame. Stamping a name twice adds up."""
+
+    def __init__(self, clock: Clock = time.perf_counter):
+        self._clock = clock
+        self._t0 = clock()
+        self._last = self._t0
+        self.stage_ms: dict[str, float] = {}
+
+    def stamp(self, stage: str) -> float:
+        """Close `stage` at the current clock reading; returns its milliseconds."""
+        now = self._clock()
+        ms = (now - self._last) * 1000.0
+        self.stage_ms[stage] = self.stage_ms.get(stage, 0.0) + ms
+        self._last = now
+        return ms
+
+    @property
+    def total_ms(self) -> float:
+        return (self._last - self._t0) * 1000.0
+
+
+def percentile(values, q: float) -> float:
+    """q-th percentile (0-100) of `values`, nan when empty."""
+    return float(np.percentile(values, q)) if len(values) else float("nan")
+
+
+class BudgetStats:
+    """Per-frame total and per-stage milliseconds over a run."""
+
+    def __init__(self):
+        self.total_ms: list[float] = []
+        self.stage_ms: dict[str, list[float]] = {}
+
+    def add(self, total_ms: float, stage_ms: dict[str, float]) -> None:
+        self.total_ms.append(total_ms)
+        for name, ms in stage_ms.items():
+            self.stage_ms.setdefault(name, []).append(ms)
+
+    def summary(self) -> dict:
+        """{"frames", "total": {"median_ms", "p99_ms"}, "stages": {name: {...}}}."""
+        def stat(v):
+            return {"median_ms": percentile(v, 50), "p99_ms": percentile(v, 99)}
+        return {"frames": len(self.total_ms), "total": stat(self.total_ms),
+                "stages": {k: stat(v) for k, v in self.stage_ms.items()}}

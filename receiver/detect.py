@@ -1,0 +1,332 @@
+"""LED blob detection on one gray frame: threshold, merge rolling-shutter stripes, envelope.
+
+Stages (each a plain function on numpy arrays):
+
+1. `detect_scale`: frames bigger than `max_detect_px` are searched on an INTER_AREA
+   downsampled copy (integer factor), envelopes are refined in full-resolution ROIs.
+2. `auto_level`: one global threshold from the (subsampled) gray histogram,
+   `median + k_mad * 1.4826 * MAD`, floored at `median + min_contrast`. The median and MAD
+   follow ambient light and sensor noise; LEDs cover a small part of the frame so they do not
+   move the median.
+3. Threshold + morphological close with a vertical line of `stripe_gap_px + 1` rows: the
+   dark stripes of one LED (an OFF run of chips, or the low half-period of a tone) are bridged,
+   two LEDs side by side are not (the kernel is one column wide).
+4. Per blob, in a full-resolution ROI: a blob level `background + refine_frac * (peak -
+   background)` (half-maximum edge for `refine_frac` = 0.5; clipped blobs use a level just
+   above the background, see `detect`), the lit pixels of this blob only,
+   and their convex hull = the filled envelope of the stripes. Its area is the LED's
+   projected area eta of thesis eq. 18 (not the lit pixels); the hull runs through pixel
+   centres, so `area_px` adds the half-pixel rim (perimeter / 2 + pi / 4, exact for a disc and
+   an axis-aligned square). The centroid comes from the polygon moments of the hull.
+   Limitation: when the LED's top or bottom cap falls in a dark stripe, the envelope stops at
+   the last lit row (up to one stripe gap short).
+5. Rejections: specks (`min_area_px`), regions too big to be a light (`max_area_frac`),
+   implausible shapes (`max_aspect`), and, when stripes are expected (rolling shutter with
+   OOK/tone lights), flat saturated regions whose row profile shows no stripes.
+
+Image coordinates: px, x right, y down, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# 1.4826 * MAD estimates sigma for Gaussian noise.
+MAD_TO_SIGMA = 1.4826
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One LED candidate in full-resolution pixel coordinates.
+
+    `hull`: (K, 2) float64 envelope polygon through pixel centres. `x0, y0, x1, y1`: bounding
+    box of the envelope, half-open ([x0, x1) x [y0, y1)). `border`: the envelope touches the
+    image border. `peak`: brightest gray value. `level`: the gray threshold used for it.
+    `background`: the frame's background gray level.
+    """
+
+    cx: float
+    cy: float
+    area_px: float
+    hull: np.ndarray
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    border: bool
+    peak: float
+    level: float
+    background: float
+
+
+def detect_scale(shape: tuple[int, int], max_detect_px: int = 1_200_000) -> int:
+    """Integer downsampling factor so that the search image has at most `max_detect_px` pixels."""
+    h, w = shape[:2]
+    return max(1, math.ceil(math.sqrt(h * w / max_detect_px)))
+
+
+def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24.0,
+               sample_step: int = 4) -> tuple[float, float]:
+    """(threshold level, background level) in gray values for an (H, W) uint8 image.
+
+    Uses every `sample_step`-th pixel in both directions (the histogram statistics do not need
+    all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
+    least this far above the median (a clean dark frame has MAD 0)."""
+    sample = gray[::sample_step, ::sample_step]
+    hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
+    cdf = np.cumsum(hist)
+    half = cdf[-1] / 2.0
+    med = int(np.searchsorted(cdf, half))
+    # Histogram of |x - med| by folding the histogram around the median.
+    dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
+    mad = int(np.searchsorted(np.cumsum(dev), half))
+    level = max(med + k_mad * MAD_TO_SIGMA * mad, med + min_contrast)
+    return float(min(level, 254.0)), float(med)
+
+
+def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int) -> np.ndarray:
+    """Bridge vertical gaps up to `gap_y_px` rows and horizontal gaps up to `gap_x_px` columns."""
+    if gap_y_px < 1 and gap_x_px < 1:
+        return mask
+    rows, cols = gap_y_px + 1, gap_x_px + 1
+    rows, cols = rows + (rows + 1) % 2, cols + (cols + 1) % 2  # odd sizes keep the kernel centred
+    kernel = np.ones((rows, cols), np.uint8)
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+
+
+def _row_extremes(lit: np.ndarray) -> np.ndarray | None:
+    """(N, 1, 2) int32 leftmost and rightmost nonzero pixel of every row of the uint8 mask
+    `lit`: the same convex hull
+    as all lit pixels, from at most 2 points per row."""
+    first = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), first])
+    if rows.size == 0:
+        return None
+    left = first[rows]
+    right = lit.shape[1] - 1 - lit[rows, ::-1].argmax(axis=1)
+    pts = np.empty((2 * rows.size, 1, 2), np.int32)
+    pts[:rows.size, 0, 0], pts[:rows.size, 0, 1] = left, rows
+    pts[rows.size:, 0, 0], pts[rows.size:, 0, 1] = right, rows
+    return pts
+
+
+def _hull_geometry(pts: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+    """(cx, cy, area_px, hull (K, 2) float64) of integer pixel-centre points (N, 1, 2)."""
+    hull = cv2.convexHull(pts)
+    poly = hull.reshape(-1, 2).astype(np.float64)
+    m = cv2.moments(poly.astype(np.float32))
+    perim = cv2.arcLength(hull, True) if len(poly) > 1 else 0.0
+    # Each pixel centre stands for a disc of radius 1/2: Minkowski sum with it.
+    area = m["m00"] + 0.5 * perim + math.pi / 4.0
+    if m["m00"] > 1e-6:
+        cx, cy = m["m10"] / m["m00"], m["m01"] / m["m00"]
+    else:  # a line or a point: no polygon area
+        cx, cy = (float(v) for v in poly.mean(axis=0))
+    return float(cx), float(cy), float(area), poly
+
+
+def envelope_mask(blob: Blob) -> np.ndarray:
+    """(y1 - y0, x1 - x0) uint8 mask (0/1) of the blob's filled envelope inside its bbox."""
+    mask = np.zeros((blob.y1 - blob.y0, blob.x1 - blob.x0), np.uint8)
+    poly = np.round(blob.hull - (blob.x0, blob.y0)).astype(np.int32)
+    cv2.fillConvexPoly(mask, poly, 1)
+    return mask
+
+
+def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, int]:
+    """Row profile of one blob (issue 4 decoder interface).
+
+    Returns `(profile, weights, y0)`: `profile` float32 (R,) = mean gray over the blob's
+    filled envelope on each image row y0..y0+R-1 (top to bottom, one sensor row apart, i.e.
+    `row_readout_us`), `weights` float32 (R,) = envelope pixels on that row."""
+    mask = envelope_mask(blob)
+    roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
+    if roi.shape != mask.shape or roi.size == 0:  # envelope on the last row/column: no pixels
+        z = np.zeros(mask.shape[0], np.float32)
+        return z, z.copy(), int(blob.y0)
+    weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+    sums = cv2.reduce(cv2.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+    profile = np.divide(sums, weights, out=np.zeros_like(weights), where=weights > 0)
+    return profile, weights, int(blob.y0)
+
+
+def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
+    """Mean gray over the blob's envelope (S2-PSK intensity), also when the LED is dark."""
+    mask = envelope_mask(blob)
+    roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
+    n = int(mask.sum())
+    return float((roi * mask).sum()) / n if n else 0.0
+
+
+def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float = 0.0,
+                 min_weight_frac: float = 0.3) -> float:
+    """Relative modulation (p90 - p10) / (p90 - background) of a row profile over its
+    well-covered rows; 0 for a flat (unstriped) blob, about 1 for full-depth stripes."""
+    good = weights >= min_weight_frac * (weights.max() if weights.size else 0)
+    p = np.sort(profile[good])
+    if p.size < 3:
+        return 0.0
+    lo, hi = float(p[int(0.1 * (p.size - 1))]), float(p[int(round(0.9 * (p.size - 1)))])
+    return float((hi - lo) / (hi - background)) if hi > background else 0.0
+
+
+def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
+           max_detect_px: int = 1_200_000,
+           k_mad: float = 8.0, min_contrast: float = 24.0, refine_frac: float = 0.5,
+           saturated_gray: float = 250.0, saturated_frac: float = 0.03, min_refine_contrast: float = 6.0,
+           min_area_px: float = 12.0, max_area_frac: float = 0.05, max_aspect: float = 4.0,
+           min_fill: float = 0.25,
+           expect_stripes: bool = False, min_stripe_depth: float = 0.8,
+           min_stripe_rows: int = 0, min_rel_area: float = 0.0,
+           level: float | None = None) -> list[Blob]:
+    """LED blobs of an (H, W) uint8 frame, sorted top to bottom.
+
+    Tunables (defaults in brackets):
+      stripe_gap_px [8]: longest dark stripe (rows, full resolution) bridged inside one LED;
+        the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
+      join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
+        bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
+      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
+      k_mad [8], min_contrast [24]: threshold, see `auto_level`.
+      refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
+        maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
+        through the outermost lit pixel centres lies half a pixel inside it on average.
+      saturated_gray [250], saturated_frac [0.03], min_refine_contrast [6]: a blob whose
+        peak reaches `saturated_gray` is clipped (real phone photos: a saturated core in a
+        dimmer, still striped glow); its edge level is background + max(saturated_frac *
+        (255 - background), min_refine_contrast), which keeps the glow and gives the decoders
+        many more stripe rows.
+      min_area_px [12]: smaller envelopes are specks. max_area_frac [0.05]: larger than this
+        fraction of the frame is a window or a lamp, not a transmitter.
+      max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
+        most this elongated, and its contour must fill at least this fraction of the box (a
+        disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
+        blobs are exempt.
+      expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
+        `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
+        about one stripe period; 0 = always checked).
+      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest blob
+        (for single photos of a lamp set, where reflections look like small dim lamps;
+        0 = off, since a moving camera sees near and far lights together).
+      level [None]: fixed global threshold instead of `auto_level`.
+    """
+    h, w = gray.shape[:2]
+    f = detect_scale(gray.shape, max_detect_px)
+    small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    if level is None:
+        level, bg = auto_level(small, k_mad=k_mad, min_contrast=min_contrast)
+    else:
+        bg = float(np.median(small[::4, ::4]))
+    # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
+    # so the coarse search uses a level halfway down to the background.
+    coarse = level if f == 1 else bg + 0.5 * (level - bg)
+    _, mask = cv2.threshold(small, coarse, 255, cv2.THRESH_BINARY)
+    mask = _close(mask, math.ceil(stripe_gap_px / f), math.ceil(join_x_px / f))
+    # findContours + one small fill per blob is several times faster here than
+    # connectedComponentsWithStats, which labels the whole frame.
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    max_area = max_area_frac * h * w
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    alone = _isolated(rects)
+    blobs = []
+    for c, (bx, by, bw, bh), solo in zip(contours, rects.tolist(), alone):
+        if bw * bh * f * f < min_area_px * 0.5 or bw * bh * f * f > 4 * max_area:
+            continue
+        blob = _refine(gray, c, (bx, by, bw, bh), f, bg, level, refine_frac, solo,
+                       saturated_gray=saturated_gray, saturated_frac=saturated_frac,
+                       min_refine_contrast=min_refine_contrast)
+        if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
+            continue
+        # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
+        # a long box, or a thin diagonal bar filling little of its square box.
+        if not blob.border and max_aspect and (max(bw, bh) > max_aspect * min(bw, bh)
+                                               or cv2.contourArea(c) < min_fill * bw * bh):
+            continue
+        if expect_stripes and blob.y1 - blob.y0 >= max(min_stripe_rows, 3):
+            prof, wts, _ = row_profile(gray, blob)
+            if stripe_depth(prof, wts, background=blob.background) < min_stripe_depth:
+                continue
+        blobs.append(blob)
+    if min_rel_area > 0 and blobs:
+        biggest = max(b.area_px for b in blobs)
+        blobs = [b for b in blobs if b.area_px >= min_rel_area * biggest]
+    blobs.sort(key=lambda b: (b.cy, b.cx))
+    return blobs
+
+
+def merge_envelopes(blob: Blob, others: list[np.ndarray], shape: tuple[int, int]) -> Blob:
+    """`blob` with its envelope replaced by the convex hull of its own and `others` (K_i, 2)
+    polygons (px, already moved into this frame). Rolling-shutter stripes hide the rows of an
+    LED that fall in OFF chips; the same LED's envelopes from the previous frames (other chip
+    phases) fill in its caps."""
+    if not others:
+        return blob
+    pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
+    cx, cy, area, poly = _hull_geometry(pts)
+    h, w = shape[:2]
+    x0, y0 = np.floor(poly.min(axis=0)).astype(int)
+    x1, y1 = np.floor(poly.max(axis=0)).astype(int) + 1
+    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h)
+    return Blob(cx, cy, area, poly, x0, y0, x1, y1, blob.border, blob.peak, blob.level, blob.background)
+
+
+def _isolated(rects: np.ndarray) -> np.ndarray:
+    """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
+    if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
+        return np.zeros(len(rects), bool)
+    x0, y0 = rects[:, 0], rects[:, 1]
+    x1, y1 = x0 + rects[:, 2], y0 + rects[:, 3]
+    ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
+          & (y0[:, None] < y1[None, :]) & (y0[None, :] < y1[:, None]))
+    return ov.sum(axis=1) == 1  # only itself
+
+
+def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,
+            saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
+    """Envelope of one coarse component (outer `contour` at search scale), in full resolution.
+    `alone`: no other component's box overlaps this one's (at full resolution the bounding
+    box then holds no foreign pixels above the level, and the component mask is skipped)."""
+    h, w = gray.shape[:2]
+    bx, by, bw, bh = rect
+    if f == 1 and alone:
+        comp = None
+        x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
+    elif f == 1:
+        comp = np.zeros((bh, bw), np.uint8)
+        cv2.drawContours(comp, [contour], -1, 1, thickness=cv2.FILLED, offset=(-bx, -by))
+        x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
+    else:
+        # The component's filled mask with a one search pixel rim (the coarse edge is blurred);
+        # search pixel i covers full-res pixels [i*f, (i+1)*f).
+        pad = 1
+        comp = np.zeros((bh + 2 * pad, bw + 2 * pad), np.uint8)
+        cv2.drawContours(comp, [contour], -1, 1, thickness=cv2.FILLED, offset=(pad - bx, pad - by))
+        comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
+        comp = cv2.resize(comp, (comp.shape[1] * f, comp.shape[0] * f), interpolation=cv2.INTER_NEAREST)
+        x0, y0 = (bx - pad) * f, (by - pad) * f
+        x0c, y0c = max(x0, 0), max(y0, 0)
+        x1c, y1c = min(x0 + comp.shape[1], w), min(y0 + comp.shape[0], h)
+        comp = comp[y0c - y0:y1c - y0, x0c - x0:x1c - x0]
+    roi = gray[y0c:y1c, x0c:x1c]
+    _, peak, _, _ = cv2.minMaxLoc(roi, mask=comp)
+    if peak >= saturated_gray:
+        # Clipped: the true peak is unknown and a fraction of the clipped value would cut into
+        # the light; its edge is taken where it rises out of the background.
+        blob_level = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
+    else:
+        blob_level = max(bg + refine_frac * (peak - bg), min(level, peak - 1))
+    _, lit = cv2.threshold(roi, blob_level, 1, cv2.THRESH_BINARY)
+    pts = _row_extremes(lit if comp is None else cv2.bitwise_and(lit, comp))
+    if pts is None:
+        return None
+    cx, cy, area, poly = _hull_geometry(pts)
+    poly += (x0c, y0c)
+    px0, py0 = np.floor(poly.min(axis=0)).astype(int)
+    px1, py1 = np.floor(poly.max(axis=0)).astype(int) + 1
+    border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
+    return Blob(cx + x0c, cy + y0c, area, poly, int(px0), int(py0), int(px1), int(py1),
+                bool(border), float(peak), float(blob_level), float(bg))

@@ -1,0 +1,197 @@
+"""LED blob detection against synthetic images with known truth, and the real phone photos."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from receiver.bench import bench_scene, render_bench_frame
+from receiver.detect import (auto_level, detect, detect_scale, envelope_mask, row_profile,
+                             stripe_depth)
+
+
+def draw_led(img, cx, cy, r, *, on=230.0, period_rows=0, phase_rows=0, square=False):
+    """Paint a disc (or square of side 2r) centred at (cx, cy) px; with `period_rows` its rows
+    are ON for the first half of each period (rolling-shutter stripes). Pixel (u, v) is inside
+    when its centre is. Returns the truth (area_px = inside pixel count, centroid of them)."""
+    h, w = img.shape
+    ys, xs = np.mgrid[0:h, 0:w]
+    if square:
+        inside = (np.abs(xs - cx) <= r) & (np.abs(ys - cy) <= r)
+    else:
+        inside = (xs - cx) ** 2 + (ys - cy) ** 2 <= r * r
+    lit = inside.copy()
+    if period_rows:
+        lit &= ((ys + phase_rows) % period_rows) < period_rows / 2
+    img[lit] = on
+    return {"area": float(inside.sum()), "cx": float(xs[inside].mean()), "cy": float(ys[inside].mean())}
+
+
+def blank(w=640, h=480, bg=10.0, noise=0.0, seed=0):
+    img = np.full((h, w), bg, np.float64)
+    if noise:
+        img += np.random.default_rng(seed).normal(0, noise, img.shape)
+    return img
+
+
+def u8(img):
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("square", [False, True])
+def test_envelope_area_and_centroid_of_a_plain_led(square):
+    img = blank()
+    truth = draw_led(img, 200.3, 150.6, 30.0, square=square)
+    (b,) = detect(u8(img))
+    assert b.area_px == pytest.approx(truth["area"], rel=0.02)
+    assert b.cx == pytest.approx(truth["cx"], abs=0.15)
+    assert b.cy == pytest.approx(truth["cy"], abs=0.15)
+    assert not b.border
+
+
+def test_stripes_merge_into_one_envelope_not_lit_pixels():
+    img = blank()
+    # Rows 211..269 (59 = 7 * 8 + 3), phase chosen so that the disc's top and bottom rows are
+    # lit: the envelope is then the whole disc.
+    truth = draw_led(img, 320.0, 240.0, 29.5, period_rows=8, phase_rows=(8 - 211 % 8) % 8)
+    blobs = detect(u8(img), stripe_gap_px=5)
+    assert len(blobs) == 1
+    b = blobs[0]
+    lit_pixels = float((u8(img) > 100).sum())
+    assert lit_pixels < 0.6 * truth["area"]
+    assert b.area_px == pytest.approx(truth["area"], rel=0.03)
+    assert (b.cx, b.cy) == pytest.approx((truth["cx"], truth["cy"]), abs=0.3)
+
+
+def test_without_bridging_the_stripes_fall_apart():
+    img = blank()
+    draw_led(img, 320.0, 240.0, 31.0, period_rows=16)
+    # Unbridged, each stripe is a thin bar: split up or rejected as a line, never one LED.
+    assert len(detect(u8(img), stripe_gap_px=0)) != 1
+    assert len(detect(u8(img), stripe_gap_px=9)) == 1
+
+
+def test_ambient_light_and_noise():
+    img = blank(bg=110.0, noise=6.0, seed=4)
+    truths = [draw_led(img, x, y, 18.0, on=250.0, period_rows=6)
+              for x, y in ((100.5, 100.2), (300.0, 120.7), (500.2, 380.9), (160.0, 400.0))]
+    blobs = detect(u8(img), stripe_gap_px=5)
+    assert len(blobs) == 4
+    for t in truths:
+        b = min(blobs, key=lambda b: math.hypot(b.cx - t["cx"], b.cy - t["cy"]))
+        # A cap falling in a 3-row dark stripe shortens the envelope: centroid within 1.5 rows.
+        assert abs(b.cx - t["cx"]) < 0.5 and abs(b.cy - t["cy"]) < 1.6
+    level, bg = auto_level(u8(img))
+    assert 105 <= bg <= 115 and level > bg + 24
+
+
+def test_rejects_specks_lines_and_flat_saturated_regions():
+    img = blank()
+    img[50:52, 50:52] = 255  # speck
+    img[300:303, 100:300] = 255  # a lit edge / line, aspect > 4
+    for i in range(120):  # a thin diagonal bar: square box, nearly empty
+        img[20 + i, 200 + i:203 + i] = 255
+    draw_led(img, 450.0, 150.0, 30.0, on=255.0)  # flat: no stripes
+    striped = draw_led(img, 450.0, 350.0, 30.0, on=255.0, period_rows=8)
+    assert len(detect(u8(img), stripe_gap_px=5)) == 2  # flat disc kept without stripe check
+    blobs = detect(u8(img), stripe_gap_px=5, expect_stripes=True)
+    assert len(blobs) == 1
+    assert blobs[0].cy == pytest.approx(striped["cy"], abs=1.0)
+
+
+def test_window_sized_region_is_not_a_light():
+    img = blank()
+    img[100:400, 100:500] = 250
+    assert detect(u8(img)) == []
+
+
+def test_border_cut_led_is_flagged():
+    img = blank()
+    draw_led(img, 3.0, 200.0, 20.0)
+    draw_led(img, 300.0, 200.0, 20.0)
+    blobs = sorted(detect(u8(img)), key=lambda b: b.cx)
+    assert [b.border for b in blobs] == [True, False]
+
+
+def test_neighbours_stay_apart():
+    img = blank()
+    draw_led(img, 200.0, 200.0, 15.0, period_rows=6)
+    draw_led(img, 236.0, 200.0, 15.0, period_rows=6)  # 6 px gap side by side
+    draw_led(img, 400.0, 200.0, 15.0, period_rows=6)
+    draw_led(img, 400.0, 245.0, 15.0, period_rows=6)  # 15 px gap below
+    assert len(detect(u8(img), stripe_gap_px=4)) == 4
+
+
+def test_row_profile_matches_brute_force():
+    img = blank(noise=3.0)
+    draw_led(img, 100.4, 80.2, 12.0, period_rows=6)
+    g = u8(img)
+    (b,) = detect(g, stripe_gap_px=4)
+    prof, wts, y0 = row_profile(g, b)
+    mask = envelope_mask(b)
+    assert prof.dtype == np.float32 and wts.dtype == np.float32
+    assert y0 == b.y0 and len(prof) == b.y1 - b.y0
+    roi = g[b.y0:b.y1, b.x0:b.x1].astype(np.float64)
+    for r in range(len(prof)):
+        n = mask[r].sum()
+        assert wts[r] == n
+        if n:
+            assert prof[r] == pytest.approx(roi[r][mask[r] > 0].mean(), abs=1e-3)
+    assert stripe_depth(prof, wts, background=10.0) > 0.9
+
+
+def test_big_frames_are_searched_downsampled_and_refined_in_full_resolution():
+    img = blank(4000, 3000, noise=2.0)
+    truths = [draw_led(img, x, y, 40.0, period_rows=20) for x, y in ((800.3, 700.6), (3000.0, 2200.4))]
+    g = u8(img)
+    assert detect_scale(g.shape) > 1
+    blobs = detect(g, stripe_gap_px=12)
+    assert len(blobs) == 2
+    for b, t in zip(blobs, truths):
+        assert math.hypot(b.cx - t["cx"], b.cy - t["cy"]) < 0.5
+        assert b.area_px == pytest.approx(t["area"], rel=0.05)
+
+
+# -- real photos (../shared/real/luxapose) -----------------------------------------------
+
+PHOTO_LEDS = {  # approximate LED centres (px, sensor orientation) read off the photos
+    "x_0_y_1.27.jpg": [(3056, 1341), (4745, 1346), (3894, 2164), (3047, 2969), (4736, 2984)],
+    "small_blob.jpg": [(3986, 592), (1466, 2386), (3784, 2559), (6151, 2692)],
+    "chandelier0_2013-05-11--02-08-21-25.jpg": [(4039, 1214), (3864, 1695), (3411, 1744), (4344, 1838)],
+}
+
+
+def load_photo(luxapose, name):
+    g = cv2.imread(str(luxapose / name), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    if g.shape[0] > g.shape[1]:  # the chandelier photo is stored portrait: back to sensor rows
+        g = cv2.rotate(g, cv2.ROTATE_90_COUNTERCLOCKWISE)
+    return g
+
+
+@pytest.mark.parametrize("name", sorted(PHOTO_LEDS))
+def test_real_photos_find_every_led_and_nothing_else(luxapose, name):
+    g = load_photo(luxapose, name)
+    # 2 kHz stripes of the Lumia 1020 (21.03 us rows): 12-row dark half-periods.
+    blobs = detect(g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24, min_rel_area=0.25)
+    want = PHOTO_LEDS[name]
+    assert len(blobs) == len(want)
+    for x, y in want:
+        b = min(blobs, key=lambda b: math.hypot(b.cx - x, b.cy - y))
+        assert math.hypot(b.cx - x, b.cy - y) < 15
+        assert b.area_px > 1500  # radius > 22 px: the whole striped disc, not one stripe
+
+
+def test_bench_detect_1280x720_16_leds(benchmark):
+    leds = bench_scene()
+    g = render_bench_frame(leds, 0, rng=np.random.default_rng(0))
+    blobs = benchmark(detect, g, stripe_gap_px=12, expect_stripes=True, min_stripe_rows=20)
+    assert len(blobs) == 16
+
+
+def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
+    g = load_photo(luxapose, "x_0_y_1.27.jpg")
+    blobs = benchmark(detect, g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24)
+    assert len(blobs) == 5

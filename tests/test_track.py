@@ -1,0 +1,108 @@
+"""Tracker (gated assignment, coasting) and S2-PSK pairing geometry / blinking checks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from receiver.detect import Blob
+from receiver.pairing import EmitterLevels, Pairer, pair_score
+from receiver.track import Track, Tracker
+
+
+def blob(cx, cy, r=10.0):
+    a = np.pi * r * r
+    hull = np.array([[cx - r, cy - r], [cx + r, cy - r], [cx + r, cy + r], [cx - r, cy + r]])
+    return Blob(cx, cy, a, hull, int(cx - r), int(cy - r), int(cx + r) + 1, int(cy + r) + 1,
+                False, 200.0, 50.0, 10.0)
+
+
+def test_moving_blobs_keep_their_tracks_and_order_does_not_matter():
+    tr = Tracker()
+    rng = np.random.default_rng(1)
+    starts = [(100.0, 100.0), (140.0, 100.0), (300.0, 200.0)]
+    vel = [(6.0, 0.0), (-5.0, 2.0), (0.0, 8.0)]
+    ids = None
+    for k in range(12):
+        blobs = [blob(x + vx * k, y + vy * k) for (x, y), (vx, vy) in zip(starts, vel)]
+        order = rng.permutation(3)
+        tracks = tr.step(k, [blobs[i] for i in order])
+        by_start = {}
+        for t in tracks:
+            j = int(np.argmin([abs(t.cx - (x + vx * k)) + abs(t.cy - (y + vy * k))
+                               for (x, y), (vx, vy) in zip(starts, vel)]))
+            by_start[j] = t.track_id
+        if ids is None:
+            ids = by_start
+        assert by_start == ids and len(tracks) == 3
+
+
+def test_track_coasts_through_dark_frames_then_ends():
+    tr = Tracker(max_missed=3)
+    tr.step(0, [blob(100, 100)])
+    (t0,) = tr.tracks
+    for k in (1, 2, 3):
+        tracks = tr.step(k, [])
+        assert tracks == [t0] and not t0.seen and t0.misses == k
+    tracks = tr.step(4, [blob(101, 100)])  # back after 3 dark frames: same track
+    assert tracks == [t0] and t0.seen and t0.misses == 0
+    for k in range(5, 9):
+        tr.step(k, [])
+    assert tr.tracks == [] and tr.ended == [t0]
+
+
+def test_gate_and_area_change_start_new_tracks():
+    tr = Tracker(gate_px=10.0, gate_size=0.5)
+    tr.step(0, [blob(100, 100)])
+    tracks = tr.step(1, [blob(200, 100)])  # far outside the gate
+    assert len(tracks) == 2 and {t.track_id for t in tracks if t.seen} == {1}
+    tr2 = Tracker()
+    tr2.step(0, [blob(100, 100, r=5)])
+    tracks = tr2.step(1, [blob(101, 100, r=20)])  # 16x the area: another light
+    assert {t.track_id for t in tracks if t.seen} == {1}
+
+
+def test_decoded_id_stays_with_the_track():
+    tr = Tracker()
+    tr.step(0, [blob(100, 100)])
+    tr.tracks[0].led_id = 42
+    for k in range(1, 5):
+        (t,) = tr.step(k, [blob(100 + 3 * k, 100)])
+        assert t.led_id == 42
+
+
+def _track(tid, cx, cy, r=5.0):
+    return Track(tid, blob(cx, cy, r), 0, 0)
+
+
+def test_pair_geometry():
+    a = _track(0, 100, 100)
+    assert pair_score(a, _track(1, 180, 102)) is not None  # same row, 8 diameters apart
+    assert pair_score(a, _track(2, 180, 130)) is None  # other row band
+    assert pair_score(a, _track(3, 180, 100, r=15)) is None  # size differs 9x
+    assert pair_score(a, _track(4, 105, 100)) is None  # overlapping
+    assert pair_score(a, _track(5, 900, 100)) is None  # too far for a pair
+
+
+def test_pairer_pairs_blinking_neighbours_only():
+    a, b = _track(0, 100, 100), _track(1, 180, 101)
+    steady, c = _track(2, 100, 300), _track(3, 180, 300)  # a lamp pair that never blinks
+    rng = np.random.default_rng(2)
+    on = {0: rng.random(12) < 0.5, 1: rng.random(12) < 0.5, 2: np.ones(12, bool), 3: np.ones(12, bool)}
+    pr = Pairer(min_frames=4)
+    for k in range(12):
+        lum = {tid: (200.0 if on[tid][k] else 15.0) for tid in on}
+        pairs = pr.step(None, [a, b, steady, c], lambda g, t: lum[t.track_id])
+        for p in pairs:  # as the pipeline does: every frame's intensities of a pair
+            ia, ib = pr.sample(p, None, lambda g, t: lum[t.track_id])
+            assert (ia, ib) == (lum[p.a.track_id], lum[p.b.track_id])
+    assert len(pairs) == 1 and pairs[0].key == (0, 1)
+    p = pairs[0]
+    assert p.levels_a.on > 150 and p.levels_a.off < 50
+
+
+def test_emitter_levels():
+    lv = EmitterLevels(history=10)
+    for v in [10, 200, 12, 198, 11, 202]:
+        lv.add(v)
+    assert lv.off < 20 and lv.on > 190 and lv.blinks(50)
+    assert not EmitterLevels().blinks(1)
