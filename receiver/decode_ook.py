@@ -37,6 +37,8 @@ more than one term detects every single-bit error); a wrong pair also has a smal
 
 from __future__ import annotations
 
+import cmath
+import math
 from collections import deque
 from dataclasses import dataclass
 from functools import lru_cache
@@ -111,26 +113,30 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     period = period0_rows
     zsum = z.sum()
     if nseg >= 3 and segment_chips > 0:
-        zs = z[:nseg * seg].reshape(nseg, seg).sum(axis=1)
-        w = np.abs(zs)
-        ang = np.concatenate(([0.0], np.cumsum(np.angle(zs[1:] * zs[:-1].conj()))))  # unwrapped
-        c = (np.arange(nseg) + 0.5) * seg
-        sw = w.sum()
+        # A handful of segments: plain Python floats, not a dozen numpy calls on 5 numbers
+        # (this runs for every new light in every frame until its period is learned).
+        zs = z[:nseg * seg].reshape(nseg, seg).sum(axis=1).tolist()
+        w = [abs(v) for v in zs]
+        ang = [0.0]  # unwrapped
+        for cur, prev in zip(zs[1:], zs[:-1]):
+            ang.append(ang[-1] + cmath.phase(cur * prev.conjugate()))
+        c = [(k + 0.5) * seg for k in range(nseg)]
+        sw = sum(w)
         if sw > 0:
-            cm = (w * c).sum() / sw
-            am = (w * ang).sum() / sw
-            den = (w * (c - cm) ** 2).sum()
-            slope = (w * (c - cm) * (ang - am)).sum() / den if den > 0 else 0.0
+            cm = sum(wk * ck for wk, ck in zip(w, c)) / sw
+            am = sum(wk * ak for wk, ak in zip(w, ang)) / sw
+            den = sum(wk * (ck - cm) ** 2 for wk, ck in zip(w, c))
+            slope = sum(wk * (ck - cm) * (ak - am) for wk, ck, ak in zip(w, c, ang)) / den if den > 0 else 0.0
             # angle(r) = -2 pi r / p0 + 2 pi r (1/p - 1/p0) + const
-            f = 1.0 / period0_rows + slope / (2.0 * np.pi)
+            f = 1.0 / period0_rows + slope / (2.0 * math.pi)
             if f > 0:
                 period = min(max(1.0 / f, period0_rows * (1 - max_period_error)),
                              period0_rows * (1 + max_period_error))
         # sum at the refined period from the segment sums (the residual rotation inside one
         # segment is below 0.5 rad for errors within max_period_error)
         df = 1.0 / period - 1.0 / period0_rows
-        zsum = (zs * np.exp(-2j * np.pi * df * c)).sum() + (z[nseg * seg:] * np.exp(
-            -2j * np.pi * df * pos[nseg * seg:])).sum()
+        zsum = sum(zk * cmath.exp(-2j * math.pi * df * ck) for zk, ck in zip(zs, c)) + complex(
+            (z[nseg * seg:] * np.exp(-2j * np.pi * df * pos[nseg * seg:])).sum())
     etot = e.sum()
     coherence = float(abs(zsum) / etot) if etot > 0 else 0.0
     phase = float((-np.angle(zsum) * period / (2.0 * np.pi)) % period)
@@ -140,6 +146,24 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
 @lru_cache(maxsize=512)
 def _arange(n: int) -> np.ndarray:
     return np.arange(n, dtype=np.float64)
+
+
+@lru_cache(maxsize=64)
+def _cyclic_index(n: int) -> np.ndarray:
+    """(54, n) packet position of frame chip k under every cyclic shift: (shift + k) % 54.
+    Read-only: shared by every decoder (per-frame alignment of every track)."""
+    idx = (np.arange(PACKET_LEN)[:, None] + np.arange(n)[None, :]) % PACKET_LEN
+    idx.setflags(write=False)
+    return idx
+
+
+@lru_cache(maxsize=64)
+def _grid_phasor(period0_rows: float, n: int) -> np.ndarray:
+    """exp(-2j pi (r + 0.5) / period0_rows) for r = 0..n-1 (`chip_grid`'s phasor), shared by
+    all decoders of one chip rate; read-only."""
+    ph = np.exp(-2j * np.pi / period0_rows * (np.arange(n) + 0.5))
+    ph.setflags(write=False)
+    return ph
 
 
 @lru_cache(maxsize=512)
@@ -258,7 +282,7 @@ def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
     s = np.clip(soft, -1.0, 1.0)
-    idx = (np.arange(PACKET_LEN)[:, None] + np.arange(s.size)[None, :]) % PACKET_LEN
+    idx = _cyclic_index(s.size)
     den = np.abs(s).sum()
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
 
@@ -375,7 +399,7 @@ class OokDecoder:
         learned = self._period is not None
         p0 = self._period if learned else self.period0_rows
         if self._phasor.size < x.size:
-            self._phasor = np.exp(-2j * np.pi / p0 * (np.arange(2 * x.size) + 0.5))
+            self._phasor = _grid_phasor(p0, 2 * x.size)
         period, phase, coh = chip_grid(x, p0, segment_chips=0.0 if learned else self.segment_chips,
                                        max_period_error=self.max_period_error,
                                        phasor=self._phasor)
@@ -402,7 +426,7 @@ class OokDecoder:
             return None
         m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
         s = np.clip(soft, -1.0, 1.0)
-        idx = (np.arange(PACKET_LEN)[:, None] + np.arange(s.size)[None, :]) % PACKET_LEN
+        idx = _cyclic_index(s.size)
         mm = m[idx]
         num = mm @ s
         den = np.abs(mm) @ np.abs(s)

@@ -18,6 +18,8 @@ Stages (each a plain function on numpy arrays):
    projected area eta of thesis eq. 18 (not the lit pixels); the hull runs through pixel
    centres, so `area_px` adds the half-pixel rim (perimeter / 2 + pi / 4, exact for a disc and
    an axis-aligned square). The centroid comes from the polygon moments of the hull.
+   Isolated blobs (the common case) are refined together: their boxes are stacked into one
+   strip so the per-pixel work is a few array operations per frame, not per blob.
    Limitation: when the LED's top or bottom cap falls in a dark stripe, the envelope stops at
    the last lit row (up to one stripe gap short).
 5. Rejections: specks (`min_area_px`), regions too big to be a light (`max_area_frac`),
@@ -232,13 +234,20 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     max_area = max_area_frac * h * w
     rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
     alone = _isolated(rects)
+    box_px = rects[:, 2] * rects[:, 3] * (f * f)
+    keep = (box_px >= min_area_px * 0.5) & (box_px <= 4 * max_area)
+    sat_kw = dict(saturated_gray=saturated_gray, saturated_frac=saturated_frac,
+                  min_refine_contrast=min_refine_contrast)
+    # Full-resolution isolated components (the common case) are refined together in one
+    # vectorised pass (`_refine_alone_batch`); the rest one by one.
+    batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, **sat_kw)
+    refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
-    for c, (bx, by, bw, bh), solo in zip(contours, rects.tolist(), alone):
-        if bw * bh * f * f < min_area_px * 0.5 or bw * bh * f * f > 4 * max_area:
-            continue
-        blob = _refine(gray, c, (bx, by, bw, bh), f, bg, level, refine_frac, solo,
-                       saturated_gray=saturated_gray, saturated_frac=saturated_frac,
-                       min_refine_contrast=min_refine_contrast)
+    for i in np.flatnonzero(keep).tolist():
+        c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
+        blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
+                                                       refine_frac, bool(alone[i]), **sat_kw)
         if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
@@ -274,6 +283,37 @@ def merge_envelopes(blob: Blob, others: list[np.ndarray], shape: tuple[int, int]
     return Blob(cx, cy, area, poly, x0, y0, x1, y1, blob.border, blob.peak, blob.level, blob.background)
 
 
+def _hull_stats(hull: np.ndarray) -> tuple[float, float, float]:
+    """(cx, cy, area_px) of a cv2.convexHull output (K, 1, 2), as `_hull_geometry` computes
+    them (cv2.moments reads int and float32 vertices into doubles alike)."""
+    m = cv2.moments(hull)
+    area = m["m00"] + 0.5 * (cv2.arcLength(hull, True) if len(hull) > 1 else 0.0) + math.pi / 4.0
+    if m["m00"] > 1e-6:
+        return m["m10"] / m["m00"], m["m01"] / m["m00"], area
+    cx, cy = hull.reshape(-1, 2).astype(np.float64).mean(axis=0)  # a line or a point
+    return float(cx), float(cy), area
+
+
+def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tuple[int, int]) -> list[Blob]:
+    """`merge_envelopes` for many (blob, others) at once, with the same numbers; the per-blob
+    work is cut to the OpenCV calls (the envelope merge runs for every tracked light in every
+    frame)."""
+    h, w = shape[:2]
+    out = []
+    for blob, others in items:
+        if not others:
+            out.append(blob)
+            continue
+        hull = cv2.convexHull(np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2))
+        cx, cy, area = _hull_stats(hull)
+        # boundingRect of float points: floor of the extremes, width floor(max) - floor(min) + 1
+        x0, y0, bw, bh = cv2.boundingRect(hull)
+        out.append(Blob(cx, cy, area, hull.reshape(-1, 2).astype(np.float64), max(x0, 0), max(y0, 0),
+                        min(x0 + bw, w), min(y0 + bh, h), blob.border, blob.peak, blob.level,
+                        blob.background))
+    return out
+
+
 def _isolated(rects: np.ndarray) -> np.ndarray:
     """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
     if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
@@ -283,6 +323,78 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
           & (y0[:, None] < y1[None, :]) & (y0[None, :] < y1[:, None]))
     return ov.sum(axis=1) == 1  # only itself
+
+
+def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast):
+    """Per-blob edge level (gray) for peak gray values `peak` (float or (N,) array), see `detect`."""
+    clipped = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
+    normal = np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1))
+    return np.where(peak >= saturated_gray, clipped, normal)
+
+
+def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
+                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
+
+    The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
+    per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
+    array operations for all blobs instead of a dozen calls per blob; only the convex hull and
+    its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
+    a blob level is negative (odd tunables): the caller then refines one by one."""
+    n = len(rects)
+    if n == 0:
+        return []
+    h, w = gray.shape[:2]
+    bw, bh = rects[:, 2], rects[:, 3]
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum(bh, out=starts[1:])
+    strip = np.zeros((int(starts[-1]), int(bw.max())), np.uint8)  # 0 pads: never above a level
+    peak = np.empty(n)
+    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
+        roi = gray[y:y + hh, x:x + ww]
+        strip[r0:r0 + hh, :ww] = roi
+        peak[i] = cv2.minMaxLoc(roi)[1]
+    blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
+                             min_refine_contrast)
+    if blob_level.min() < 0:  # the zero padding would count as lit: not batchable
+        return None
+    # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
+    # uint8 comparison is several times faster than against a float level
+    first_on = np.minimum(np.floor(blob_level) + 1, 256)
+    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
+        strip[np.repeat(first_on > 255, bh)] = 0
+    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
+    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
+    left = left_all[rows]
+    right = lit.shape[1] - 1 - cv2.flip(lit.view(np.uint8), 1).view(bool)[rows].argmax(axis=1)
+    owner = np.searchsorted(starts, rows, side="right") - 1
+    local_y = rows - starts[owner]
+    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
+    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
+    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
+    segl = seg.tolist()
+    peak_l, level_l, rect_l = peak.tolist(), blob_level.tolist(), rects.tolist()
+    bgf = float(bg)
+    out: list[Blob | None] = []
+    for i in range(n):
+        a, b = segl[i], segl[i + 1]
+        if a == b:
+            out.append(None)
+            continue
+        x0c, y0c = rect_l[i][:2]
+        # the hull in ROI coordinates as in `_refine` (same points, same order)
+        hull = cv2.convexHull(np.concatenate((lpts[a:b], rpts[a:b])).reshape(-1, 1, 2))
+        cx, cy, area = _hull_stats(hull)
+        # integer vertices: boundingRect is the floor / +1 box of `_refine`
+        bx0, by0, bww, bhh = cv2.boundingRect(hull)
+        px0, py0, px1, py1 = bx0 + x0c, by0 + y0c, bx0 + bww + x0c, by0 + bhh + y0c
+        border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
+        poly = hull.reshape(-1, 2).astype(np.float64)
+        poly += (x0c, y0c)
+        out.append(Blob(cx + x0c, cy + y0c, area, poly, px0, py0, px1, py1, border,
+                        peak_l[i], level_l[i], bgf))
+    return out
 
 
 def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,

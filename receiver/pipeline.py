@@ -28,9 +28,10 @@ import numpy as np
 
 from receiver.budget import StageTimer
 from receiver.config import CameraModel, LedMap
-from receiver.detect import Blob, detect, mean_in_mask, merge_envelopes, row_profile, stripe_depth
+from receiver.detect import detect, mean_in_mask, merge_envelopes_many, row_profile, stripe_depth
 from receiver.pairing import Pairer
 from receiver.records import Frame, LedObservation
+from receiver.tone_profile import tone_profile
 from receiver.track import Track, Tracker
 
 DEFAULT_OOK_RATE_HZ = 20000.0  # PROTOCOL.md section 2
@@ -169,9 +170,11 @@ class Receiver:
     detect_kw, tracker_kw, pairer_kw, ook_kw, tone_kw, s2psk_kw: keyword overrides for
     receiver.detect.detect, Tracker, Pairer and the decoders.
     s2psk_inverted [False]: offer PROTOCOL.md's inverted polarity (thesis polarity default).
-    redecode_every [4]: a track whose ID is known feeds its decoders only every this many
-        frames (staggered by track), to keep the frame budget with many lights; tracks without
-        an ID are decoded every frame. 1 = always.
+    redecode_every [8]: a track whose ID is known feeds its decoders only every this many
+        frames (staggered by track), to keep the frame budget with many lights (issue 4: 16
+        lights in 2 ms median); tracks without an ID are decoded every frame. 8 frames re-check
+        a known ID every 0.27 s at 30 fps (a changed ID is taken after the decoder's
+        `switch_frames` consecutive CRC-valid checks). 1 = always.
     stripe_check [None = from the map and camera, `ModePlan.expect_stripes`]: when every light
         must show rolling-shutter stripes, a new track is reported and decoded only once its
         row profile shows stripes (depth >= `min_stripe_depth` [0.8]) or it is shorter than a
@@ -189,7 +192,7 @@ class Receiver:
     def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None,
                  clock=time.perf_counter, detect_kw: dict | None = None, tracker_kw: dict | None = None,
                  pairer_kw: dict | None = None, ook_kw: dict | None = None, tone_kw: dict | None = None,
-                 s2psk_kw: dict | None = None, s2psk_inverted: bool = False, redecode_every: int = 4,
+                 s2psk_kw: dict | None = None, s2psk_inverted: bool = False, redecode_every: int = 8,
                  stripe_check: bool | None = None, min_stripe_depth: float = 0.8, still: bool = False,
                  tone_confirm_frames: int | None = None, envelope_frames: int | None = None):
         self.camera, self.led_map = camera, led_map
@@ -230,7 +233,10 @@ class Receiver:
     def _import_decoders(self) -> dict:
         wanted = {"ook": bool(self.plan.ook_rates), "tone": bool(self.plan.tone_table),
                   "s2psk": bool(self.plan.s2psk)}
-        return {mode: importlib.import_module(f"receiver.decode_{mode}") for mode, on in wanted.items() if on}
+        mods = {mode: importlib.import_module(f"receiver.decode_{mode}") for mode, on in wanted.items() if on}
+        if "ook" in mods:
+            mods["ook"].crc8_table()  # built once here, not inside the first decoded frame
+        return mods
 
     # -- decoder plumbing ----------------------------------------------------------------
 
@@ -244,16 +250,22 @@ class Receiver:
             track.decoders[("tone", 0.0)] = self._decoders["tone"].ToneDecoder(
                 self.plan.tone_table, cam.row_readout_us, **self.tone_kw)
 
-    def _merge(self, t: Track, k: int, shape) -> Blob:
-        """This frame's blob of `t` merged with its last `envelope_frames - 1` blobs."""
+    def _merge_all(self, seen: list[Track], k: int, shape) -> None:
+        """Set each seen track's `envelope`: this frame's blob merged with its last
+        `envelope_frames - 1` blobs (all tracks in one batch, receiver.detect.merge_envelopes_many)."""
         if self.envelope_frames <= 1:
-            return t.blob
-        keep = [(kh, h) for kh, h in t.history if 0 < k - kh < self.envelope_frames]
-        # Moved by the tracker's px/frame velocity (its jitter from the hidden caps limits how
-        # much a static scene gains; a moving one needs the motion).
-        others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in keep]
-        t.history = keep + [(k, t.blob.hull)]
-        return merge_envelopes(t.blob, others, shape)
+            for t in seen:
+                t.envelope = t.blob
+            return
+        items = []
+        for t in seen:
+            keep = [(kh, h) for kh, h in t.history if 0 < k - kh < self.envelope_frames]
+            # Moved by the tracker's px/frame velocity (its jitter from the hidden caps limits how
+            # much a static scene gains; a moving one needs the motion).
+            items.append((t.blob, [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in keep]))
+            t.history = keep + [(k, t.blob.hull)]
+        for t, env in zip(seen, merge_envelopes_many(items, shape)):
+            t.envelope = env
 
     def _accept(self, mode: str, led_id: int | None, rate: float = 0.0) -> bool:
         """Is a check-passed decode an ID of this map (at this rate)?"""
@@ -281,7 +293,10 @@ class Receiver:
         found: tuple[str, int] | None = None
         tone_id = None
         for (mode, rate), dec in t.decoders.items():
-            st = dec.step(profile, weights, t_s)
+            if mode == "tone":  # the LED's whole striped extent, log intensity (tone_profile.py)
+                st = dec.step(*tone_profile(gray, t.envelope or t.blob)[:2], t_s)
+            else:
+                st = dec.step(profile, weights, t_s)
             t.states[(mode, rate)] = st
             if mode == "tone":
                 tone_id = st.led_id if self._accept(mode, st.led_id) else None
@@ -317,9 +332,7 @@ class Receiver:
         blobs = detect(gray, **self.detect_kw)
         timer.stamp("detect")
         tracks = self.tracker.step(frame.index, blobs)
-        for t in tracks:
-            if t.seen:
-                t.envelope = self._merge(t, frame.index, gray.shape)
+        self._merge_all([t for t in tracks if t.seen], frame.index, gray.shape)
         timer.stamp("track")
 
         pair_of: dict[int, object] = {}

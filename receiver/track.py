@@ -11,7 +11,6 @@ implausible area change are left unassigned (new track / missed track).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,16 +87,18 @@ class Tracker:
         tracks = self.tracks
         assigned_blob: dict[int, int] = {}
         if tracks and blobs:
-            cost = np.full((len(tracks), len(blobs)), _FORBIDDEN)
-            bxy = np.array([[b.cx, b.cy] for b in blobs])
-            barea = np.array([b.area_px for b in blobs])
-            for i, t in enumerate(tracks):
-                px, py = t.predict(frame_index)
-                d = np.hypot(bxy[:, 0] - px, bxy[:, 1] - py)
-                gate = self.gate_px + self.gate_size * math.sqrt(max(t.blob.area_px, 1.0))
-                ratio = np.maximum(barea, 1.0) / max(t.blob.area_px, 1.0)
-                ok = (d <= gate) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
-                cost[i, ok] = d[ok]
+            # all track x blob pairs at once (the same arithmetic as one track at a time)
+            bxy = np.array([[b.cx, b.cy, b.area_px] for b in blobs])
+            tst = np.array([[t.blob.cx, t.blob.cy, t.vx, t.vy, frame_index - t.last_frame, t.blob.area_px]
+                            for t in tracks])
+            px = tst[:, 0] + tst[:, 2] * tst[:, 4]
+            py = tst[:, 1] + tst[:, 3] * tst[:, 4]
+            d = np.hypot(bxy[None, :, 0] - px[:, None], bxy[None, :, 1] - py[:, None])
+            tarea = np.maximum(tst[:, 5], 1.0)
+            gate = self.gate_px + self.gate_size * np.sqrt(tarea)
+            ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
+            ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
+            cost = np.where(ok, d, _FORBIDDEN)
             rows, cols = linear_sum_assignment(cost)
             for r, c in zip(rows, cols):
                 if cost[r, c] < _FORBIDDEN:

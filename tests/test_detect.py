@@ -195,3 +195,56 @@ def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
     g = load_photo(luxapose, "x_0_y_1.27.jpg")
     blobs = benchmark(detect, g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24)
     assert len(blobs) == 5
+
+
+def _coarse_components(gray, stripe_gap_px=8, join_x_px=2):
+    """Contours and boxes of the coarse search, as `detect` makes them (full resolution)."""
+    from receiver.detect import _close
+    level, bg = auto_level(gray)
+    _, mask = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
+    contours, _ = cv2.findContours(_close(mask, stripe_gap_px, join_x_px), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_SIMPLE)
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    return contours, rects, level, bg
+
+
+def _same_blob(a, b):
+    return (a.cx == b.cx and a.cy == b.cy and a.area_px == b.area_px and np.array_equal(a.hull, b.hull)
+            and (a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background)
+            == (b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background))
+
+
+def test_batched_refinement_equals_the_per_blob_one():
+    """The vectorised refinement of isolated blobs gives exactly `_refine`'s envelopes: striped
+    discs of several sizes, a clipped one, one on the border, a speck and a square."""
+    from receiver.detect import _refine, _refine_alone_batch
+    img = blank(noise=2.0, seed=3)
+    draw_led(img, 100.3, 120.7, 30, period_rows=7)
+    draw_led(img, 300.0, 100.0, 12, period_rows=5, phase_rows=2)
+    draw_led(img, 500.5, 300.2, 45, on=255.0, period_rows=9)  # saturated
+    draw_led(img, 3.0, 400.0, 20, period_rows=6)  # cut by the left border
+    draw_led(img, 200.0, 400.0, 25, square=True)
+    img[50:52, 600:602] = 200  # a speck
+    gray = u8(img)
+    contours, rects, level, bg = _coarse_components(gray)
+    assert len(rects) >= 6
+    batch = _refine_alone_batch(gray, rects, bg, level, 0.5)
+    for c, r, got in zip(contours, rects.tolist(), batch):
+        want = _refine(gray, c, tuple(r), 1, bg, level, 0.5, True)
+        assert (want is None) == (got is None)
+        assert want is None or _same_blob(want, got)
+
+
+def test_merging_many_envelopes_equals_merging_one_by_one():
+    from receiver.detect import merge_envelopes, merge_envelopes_many
+    leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
+    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
+    assert all(len(b) == 6 for b in per_frame)
+    items = [(b, [per_frame[1][i].hull + (0.35, 0.15), per_frame[0][i].hull + (0.7, 0.3)])
+             for i, b in enumerate(per_frame[2])]
+    items.append((per_frame[2][0], []))  # nothing to merge: the blob itself
+    items.append((per_frame[2][1], [np.array([[1e4, 1e4]])]))  # clipped to the frame
+    got = merge_envelopes_many(items, frames[0].shape)
+    for (blob, others), g in zip(items, got):
+        assert _same_blob(merge_envelopes(blob, others, frames[0].shape), g)

@@ -1,0 +1,504 @@
+"""Positioning: decoded LEDs -> camera position (and orientation), then Kalman tracking.
+
+Frames and conventions
+* World: metres, x, y on the floor, z up; LEDs hang on the ceiling facing down.
+* Camera: OpenCV (x right, y down, z along the optical axis). ``R_cw`` is the world-to-camera
+  rotation, ``X_cam = R_cw @ (X_world - C)``; ``C`` the camera centre in the world (the output
+  position). ``R_cw`` is a proper rotation (det = +1).
+* Image points given to the solvers are undistorted *normalized* coordinates (x/z, y/z).
+
+Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
+* ``"multilateration"`` (ranges only, thesis eqs. 26-34): the linear system of eq. 27,
+  ``[1, -2x_L, -2y_L, -2z_L] [|C|^2, x, y, z]^T = d^2 - |L|^2``. With LEDs off one plane it has
+  full rank and eq. 34 solves it; LEDs on one ceiling leave a one-dimensional null space, so
+  ``x = x_p + eps x_h`` (eq. 29) and the constraint ``x_0 = x_1^2 + x_2^2 + x_3^2`` gives the two
+  roots of eqs. 30-31: the mirror image above the ceiling is rejected. Then a robust nonlinear
+  refinement (`scipy.optimize.least_squares`) of the range residuals weighted by 1/sigma_d.
+* ``"pnp"`` (angles of arrival only, n >= 3): ``cv2.solvePnPGeneric`` (AP3P for 3 points, SQPNP
+  and, for >= 4 coplanar LEDs, IPPE), solutions with the camera above the LEDs dropped, the best
+  one refined with ``cv2.solvePnPRefineLM``.
+* ``"range+angle"``: joint least squares over reprojection residuals (sigma `pixel_sigma`) and
+  range residuals (sigma_d) of the full pose; initialized by PnP (n >= 3) or, with 2 LEDs, by the
+  closed form of `init_two` from the prior tilt (2 ranges + 4 angles fix all 6 unknowns).
+* one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
+  filter coasting, method ``"kalman-coast"``, or is None).
+
+Fix covariance: ``cov = s^2 (J^T J)^-1`` from the whitened residual Jacobian at the solution,
+``s^2 = max(1, chi^2/dof)`` (the sigma model, inflated when the residuals say it is optimistic);
+the position block feeds the Kalman filter as its measurement noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from receiver.config import CameraModel, LedMap
+from receiver.kalman import (DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, PositionKalman,
+                             position_std)
+from receiver.ranging import (DEFAULT_EDGE_OFFSET_PX, ESTIMATORS, contour_geometry,
+                              distance_eq18, distance_oblique, range_sigma_m, ray_unit, undistort_points)
+from receiver.records import LedObservation, LocateResult
+
+SOLVERS = ("auto", "multilateration", "pnp")
+# Robust loss of the nonlinear refinements; residuals are whitened, so f_scale is in sigmas.
+DEFAULT_LOSS = "soft_l1"
+DEFAULT_F_SCALE = 3.0
+# Relative singular value below which eq. 27's matrix counts as rank deficient.
+RANK_TOL = 1e-6
+# A camera centre must be at least this far below the lowest LED (m) -- mirror rejection.
+BELOW_CEILING_M = 0.01
+# With 2 LEDs the tilt comes from the prior orientation (previous frame, else "looking up"):
+# a hand-held phone held up at the ceiling is within about 10 degrees of vertical.
+DEFAULT_TILT_SIGMA_DEG = 10.0
+
+
+@dataclass(frozen=True)
+class Fix:
+    """One frame's unfiltered solution. `C` (3,) world m; `cov` (3, 3) m^2; `R_cw` (3, 3) or None
+    when the solver yields no orientation; `chi2` of the whitened residuals and its `dof`."""
+
+    C: np.ndarray
+    cov: np.ndarray
+    R_cw: np.ndarray | None
+    method: str
+    n_leds: int
+    chi2: float = 0.0
+    dof: int = 0
+
+
+def _jacobian(fun, p: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """Central-difference Jacobian of fun at p (unmodified by any robust loss)."""
+    f0 = fun(p)
+    J = np.empty((len(f0), len(p)))
+    for i in range(len(p)):
+        dp = np.zeros_like(p)
+        dp[i] = step
+        J[:, i] = (fun(p + dp) - fun(p - dp)) / (2 * step)
+    return J
+
+
+def _covariance(fun, p: np.ndarray) -> tuple[np.ndarray, float, int]:
+    r = fun(p)
+    J = _jacobian(fun, p)
+    dof = len(r) - len(p)
+    chi2 = float(r @ r)
+    s2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
+    return np.linalg.pinv(J.T @ J) * s2, chi2, dof
+
+
+# ---------------------------------------------------------------- multilateration, eqs. 26-34
+
+def multilaterate_linear(L: np.ndarray, d: np.ndarray) -> list[np.ndarray]:
+    """Candidate camera centres (3,) from LED positions L (N, 3) and ranges d (N,), eqs. 27-34.
+    Rank 4: the single least-squares solution (eq. 34). Rank 3 (LEDs on one plane): the two roots
+    of eqs. 30-31. Fewer (collinear LEDs, eq. 32 leaves a free parameter): no candidates."""
+    L = np.asarray(L, float)
+    d = np.asarray(d, float)
+    Z0 = np.column_stack([np.ones(len(L)), -2 * L])                 # eq. 27 / 28
+    q0 = d ** 2 - np.sum(L ** 2, axis=1)
+    _, s, Vt = np.linalg.svd(Z0)
+    rank = int(np.sum(s > RANK_TOL * s[0]))
+    if rank >= 4 and len(L) >= 4:
+        x = np.linalg.lstsq(Z0, q0, rcond=None)[0]                  # eq. 34
+        return [x[1:]]
+    if rank != 3:
+        return []
+    xp = np.linalg.pinv(Z0, rcond=RANK_TOL) @ q0                    # particular solution
+    xh = Vt[3]                                                      # homogeneous solution
+    # x = xp + eps xh (eq. 29) must satisfy x0 = x1^2 + x2^2 + x3^2.
+    a = float(xh[1:] @ xh[1:])
+    b = float(2 * xp[1:] @ xh[1:] - xh[0])
+    c = float(xp[1:] @ xp[1:] - xp[0])
+    if a < 1e-15:
+        return []
+    disc = b * b - 4 * a * c
+    # Noisy ranges can make the roots complex: the closest real point is the double root.
+    roots = [(-b - math.sqrt(disc)) / (2 * a), (-b + math.sqrt(disc)) / (2 * a)] if disc > 0 else [-b / (2 * a)]
+    return [(xp + e * xh)[1:] for e in roots]                       # eqs. 30-31
+
+
+def multilaterate(L: np.ndarray, d: np.ndarray, sigma_d: np.ndarray, *, loss: str = DEFAULT_LOSS,
+                  f_scale: float = DEFAULT_F_SCALE, C0: np.ndarray | None = None) -> Fix | None:
+    """Ranges-only camera centre: eqs. 27-34 then robust weighted refinement, camera below the
+    LEDs. `C0` (3,) optional prior used when the linear system has no solution."""
+    L = np.asarray(L, float)
+    d = np.asarray(d, float)
+    w = 1.0 / np.asarray(sigma_d, float)
+    if len(L) < 3:
+        return None
+    z_ceiling = float(L[:, 2].min())
+    cands = multilaterate_linear(L, d)
+    if C0 is not None:
+        cands.append(np.asarray(C0, float))
+    if not cands:
+        return None
+
+    def fun(C):
+        return (np.linalg.norm(L - C, axis=1) - d) * w
+
+    best = None
+    for C in cands:
+        if C[2] > z_ceiling:                        # start from the mirror image's twin
+            C = C.copy()
+            C[2] = 2 * z_ceiling - C[2]
+        if C[2] > z_ceiling - BELOW_CEILING_M:
+            C = C.copy()
+            C[2] = z_ceiling - float(np.median(d))
+        res = least_squares(fun, C, loss=loss, f_scale=f_scale, method="trf")
+        Cr = res.x
+        if Cr[2] > z_ceiling - BELOW_CEILING_M:     # mirror solution above the ceiling: rejected
+            continue
+        if best is None or res.cost < best[1]:
+            best = (Cr, res.cost)
+    if best is None:
+        return None
+    cov, chi2, dof = _covariance(fun, best[0])
+    return Fix(best[0], cov, None, "multilateration", len(L), chi2, dof)
+
+
+# ---------------------------------------------------------------- angles of arrival (PnP)
+
+def _pose_from_cv(rvec, tvec) -> tuple[np.ndarray, np.ndarray]:
+    R, _ = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))
+    return R, -R.T @ np.asarray(tvec, float).reshape(3)
+
+
+def _is_coplanar(L: np.ndarray, tol_m: float = 1e-3) -> bool:
+    if len(L) < 4:
+        return True
+    s = np.linalg.svd(L - L.mean(axis=0), compute_uv=False)
+    return bool(s[2] < tol_m)
+
+
+def pnp_candidates(L: np.ndarray, uv: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pose candidates (R_cw, C) from n >= 3 LEDs: L (N, 3) world, uv (N, 2) normalized. Camera
+    centres above the lowest LED (mirror solutions) are dropped."""
+    L = np.ascontiguousarray(L, dtype=np.float64)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    K = np.eye(3)
+    sols = []
+    flags = [cv2.SOLVEPNP_AP3P] if len(L) == 3 else [cv2.SOLVEPNP_SQPNP]
+    if len(L) >= 4 and _is_coplanar(L):
+        flags.append(cv2.SOLVEPNP_IPPE)
+    for flag in flags:
+        try:
+            if flag == cv2.SOLVEPNP_AP3P:
+                n, rvecs, tvecs = cv2.solveP3P(L, uv, K, None, flags=flag)
+            else:
+                n, rvecs, tvecs, _ = cv2.solvePnPGeneric(L, uv, K, None, flags=flag)
+        except cv2.error:
+            continue
+        for rv, tv in zip(rvecs[:n], tvecs[:n]):
+            sols.append(_pose_from_cv(rv, tv))
+    z_ceiling = float(L[:, 2].min())
+    return [(R, C) for R, C in sols if C[2] < z_ceiling - BELOW_CEILING_M]
+
+
+def init_two(L: np.ndarray, uv: np.ndarray, d: np.ndarray, R_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form pose guess from 2 LEDs with ranges: keep the prior tilt `R_prior`, solve the
+    yaw that turns the camera-frame LED baseline onto the world one, then the centre."""
+    v = ray_unit(uv) * np.asarray(d, float)[:, None]        # camera-frame LED vectors
+    w = v @ R_prior                                          # = R_prior^T v, world-aligned up to yaw
+    a = w[0, :2] - w[1, :2]
+    b = L[0, :2] - L[1, :2]
+    psi = math.atan2(a[0] * b[1] - a[1] * b[0], a @ b)
+    c, s = math.cos(psi), math.sin(psi)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    R_cw = R_prior @ Rz.T
+    C = np.mean(L - w @ Rz.T, axis=0)
+    return R_cw, C
+
+
+def align_rays(rays_cam: np.ndarray, dirs_world: np.ndarray) -> np.ndarray:
+    """Rotation R_cw (det +1) that best turns world directions (N, 3) onto camera rays (N, 3)
+    (Kabsch / Wahba); orientation for ranges-only fixes. Needs 2+ non-parallel directions."""
+    a = np.asarray(rays_cam, float)
+    b = np.asarray(dirs_world, float)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0):
+    has_d = np.isfinite(d)
+    wd = 1.0 / sigma_d[has_d]
+
+    def fun(p):
+        R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
+        X = (L - p[3:]) @ R.T
+        z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)     # behind the camera: huge residual
+        r_ang = ((X[:, :2] / z[:, None]) - uv).ravel() / sigma_uv
+        r_rng = (np.linalg.norm(L[has_d] - p[3:], axis=1) - d[has_d]) * wd
+        if up_prior is None:
+            return np.concatenate([r_ang, r_rng])
+        # World up seen from the camera vs the prior's: a tilt prior, blind to yaw.
+        return np.concatenate([r_ang, r_rng, (R[:, 2] - up_prior) / up_sigma])
+
+    return fun
+
+
+def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS,
+                f_scale=DEFAULT_F_SCALE, R_prior=None, tilt_sigma_rad: float = 1.0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """Joint least squares over reprojection residuals (normalized units, sigma `sigma_uv`) and
+    the finite ranges of d (sigma_d), plus a tilt prior (the world up direction of `R_prior`,
+    sigma `tilt_sigma_rad`) when R_prior is given. Returns (R_cw, C, cov (3, 3) of C, chi2, dof)."""
+    up = None if R_prior is None else np.asarray(R_prior, float)[:, 2]
+    fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad)
+    rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+    p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
+    res = least_squares(fun, p0, loss=loss, f_scale=f_scale, method="trf")
+    cov6, chi2, dof = _covariance(fun, res.x)
+    R, _ = cv2.Rodrigues(res.x[:3].reshape(3, 1))
+    return R, res.x[3:].copy(), cov6[3:, 3:], chi2, dof
+
+
+def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, *,
+              sigma_uv: float, solver: str = "auto", R_prior: np.ndarray | None = None,
+              C_prior: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
+              f_scale: float = DEFAULT_F_SCALE,
+              tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG) -> Fix | None:
+    """One frame's camera position from N LEDs.
+
+    L (N, 3) world m; uv (N, 2) undistorted normalized image points or None (ranges only);
+    d (N,) ranges m (NaN where the LED size is unknown); sigma_d (N,) their 1-sigma, m;
+    sigma_uv: image point 1-sigma in normalized units (pixels / focal_px). `R_prior` (3, 3)
+    orientation guess for 2 LEDs (default: looking straight up), trusted to `tilt_sigma_deg`
+    in tilt: 2 ranges fix the camera on a circle about the LED baseline and the 4 angles add only
+    one more constraint, so the rotation about the baseline needs the prior. `C_prior` (3,):
+    position guess.
+    Returns None when the LEDs do not determine a position.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}")
+    L = np.asarray(L, float).reshape(-1, 3)
+    d = np.asarray(d, float).reshape(-1)
+    sigma_d = np.asarray(sigma_d, float).reshape(-1)
+    n = len(L)
+    has_d = np.isfinite(d) & np.isfinite(sigma_d) & (sigma_d > 0)
+    d = np.where(has_d, d, np.nan)
+    k = int(has_d.sum())
+    if solver == "multilateration" or (uv is None and solver == "auto"):
+        if k < 3:
+            return None
+        return multilaterate(L[has_d], d[has_d], sigma_d[has_d], loss=loss, f_scale=f_scale, C0=C_prior)
+    if uv is None:
+        return None
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    use_ranges = solver == "auto" and k > 0
+    dd = d if use_ranges else np.full(n, np.nan)
+    if n >= 3:
+        cands = pnp_candidates(L, uv)
+        if not cands:
+            return None
+        fun = _joint_fun(L, uv, sigma_uv, dd, sigma_d)
+        # The candidate that explains angles (and ranges) best; ties broken by the prior position.
+        def score(rc):
+            r = fun(np.concatenate([cv2.Rodrigues(rc[0])[0].ravel(), rc[1]]))
+            prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((rc[1] - C_prior) ** 2))
+            return float(r @ r) + prior
+        R0, C0 = min(cands, key=score)
+        if not use_ranges:
+            rvec, _ = cv2.Rodrigues(R0)
+            tvec = -R0 @ C0
+            rvec, tvec = cv2.solvePnPRefineLM(L, uv, np.eye(3), None, rvec, tvec.reshape(3, 1))
+            R0, C0 = _pose_from_cv(rvec, tvec)
+        R, C, cov, chi2, dof = refine_pose(L, uv, sigma_uv, dd, sigma_d, R0, C0, loss=loss, f_scale=f_scale)
+        method = "range+angle" if use_ranges else "pnp"
+    elif n == 2 and use_ranges and k == 2:
+        Rp = R_prior if R_prior is not None else np.eye(3)
+        R0, C0 = init_two(L, uv, d, Rp)
+        R, C, cov, chi2, dof = refine_pose(L, uv, sigma_uv, dd, sigma_d, R0, C0, loss=loss, f_scale=f_scale,
+                                           R_prior=Rp, tilt_sigma_rad=math.radians(tilt_sigma_deg))
+        method = "range+angle"
+    else:
+        return None
+    if C[2] > float(L[:, 2].min()) - BELOW_CEILING_M or not np.all(np.isfinite(C)):
+        return None
+    return Fix(C, cov, R, method, n, chi2, dof)
+
+
+# ---------------------------------------------------------------- orientation as angles
+
+# OpenCV camera axes in the body frame (x forward, y left, z up) -- tools/synth/camera.py.
+CAM_TO_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def rotation_to_ypr_deg(R_cw: np.ndarray) -> tuple[float, float, float]:
+    """Camera orientation as (yaw, pitch, roll) degrees in the truth.jsonl convention of
+    tools/synth/camera.py: camera-to-world ``R_cw^T = Rz(yaw) Ry(-pitch) Rx(roll) B``, B the
+    OpenCV-camera-to-body axes; pitch = +90 looks straight up. At pitch = +-90 (gimbal lock)
+    only yaw -/+ roll is defined and roll is reported as 0."""
+    M = np.asarray(R_cw, float).T @ CAM_TO_BODY.T
+    theta = math.asin(max(-1.0, min(1.0, -M[2, 0])))
+    if abs(math.cos(theta)) < 1e-6:
+        yaw, roll = math.atan2(-M[0, 1], M[1, 1]), 0.0
+    else:
+        yaw, roll = math.atan2(M[1, 0], M[0, 0]), math.atan2(M[2, 1], M[2, 2])
+    return math.degrees(yaw), -math.degrees(theta), math.degrees(roll)
+
+
+def ypr_to_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Inverse of `rotation_to_ypr_deg`: the world-to-camera rotation R_cw."""
+    y, p, r = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
+    cz, sz, cy, sy, cx, sx = math.cos(y), math.sin(y), math.cos(-p), math.sin(-p), math.cos(r), math.sin(r)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
+    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
+    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return (Rz @ Ry @ Rx @ CAM_TO_BODY).T
+
+
+# ---------------------------------------------------------------- the streaming stage
+
+def _xyz(v) -> dict:
+    return {"x": round(float(v[0]), 5), "y": round(float(v[1]), 5), "z": round(float(v[2]), 5)}
+
+
+class Positioner:
+    """Decoded LEDs of one frame -> distances and camera position, Kalman-filtered over frames.
+
+    Options (keywords, documented defaults):
+    `ranging`: "oblique" (default, see receiver.ranging) or "eq18".
+    `solver`: "auto" (ranges + angles), "multilateration" (ranges only) or "pnp" (angles only).
+    `pixel_sigma_px`: 1-sigma of an LED image point, px (0.3: envelope centroids of blobs of
+        hundreds of pixels are good to a fraction of a pixel).
+    `edge_sigma_px`, `model_rel_sigma`: range error model (receiver.ranging.range_sigma_m).
+    `edge_offset_px`: contour-to-true-edge offset for the area bias (receiver.ranging).
+    `kalman`: filter the fixes (PositionKalman with `accel_psd` m^2/s^3, `max_coast_s`).
+    `loss`, `f_scale`: robust loss of the refinements (scipy names; f_scale in sigmas).
+    `ranging_iterations`: with "oblique" ranging, how often the ranges are recomputed with the
+        orientation of the frame's own fix and the fix solved again (the first pass uses the
+        previous frame's orientation, or "looking straight up").
+
+    Border blobs (`border` True) are left out: their area and centroid are cut by the frame edge.
+    LEDs whose ID the map does not know are counted in `unknown_ids`.
+    """
+
+    def __init__(self, camera: CameraModel, led_map: LedMap, *, ranging: str = "oblique",
+                 solver: str = "auto", pixel_sigma_px: float = 0.3, edge_sigma_px: float = 0.1,
+                 model_rel_sigma: float = 0.002, edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX,
+                 kalman: bool = True, accel_psd: float = DEFAULT_ACCEL_PSD,
+                 max_coast_s: float = DEFAULT_MAX_COAST_S, loss: str = DEFAULT_LOSS,
+                 f_scale: float = DEFAULT_F_SCALE, ranging_iterations: int = 3):
+        if ranging not in ESTIMATORS:
+            raise ValueError(f"unknown ranging estimator {ranging!r}")
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}")
+        self.camera, self.led_map = camera, led_map
+        self.ranging, self.solver = ranging, solver
+        self.sigma_uv = pixel_sigma_px / camera.focal_px
+        self.edge_sigma_px, self.model_rel_sigma = edge_sigma_px, model_rel_sigma
+        self.edge_offset_px = edge_offset_px
+        self.loss, self.f_scale = loss, f_scale
+        self.max_coast_s = max_coast_s
+        self.ranging_iterations = ranging_iterations
+        self.kf = PositionKalman(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
+        self.unknown_ids: set[int] = set()
+        self.n_fixes = 0
+        self._R_cw: np.ndarray | None = None
+        self._t_R: float | None = None
+        self._C: np.ndarray | None = None
+
+    def _ranges(self, items, R_cw):
+        d = np.full(len(items), np.nan)
+        sd = np.full(len(items), np.nan)
+        names = [""] * len(items)
+        for i, (obs, led, geo) in enumerate(items):
+            A = led.area_m2
+            if not A:
+                continue
+            if self.ranging == "oblique" and geo is not None:
+                Rw = np.eye(3) if R_cw is None else R_cw
+                d[i] = distance_oblique(geo["area_norm"], A, ray_unit(geo["centroid_norm"]), Rw)
+                names[i] = "oblique-up" if R_cw is None else "oblique-pose"
+                area_px, perim = geo["area_px"], geo["perimeter_px"]
+            else:
+                d[i] = distance_eq18(obs.area_px, A, self.camera.focal_px)
+                names[i] = "eq18"
+                area_px = obs.area_px
+                perim = 4.0 * math.sqrt(max(area_px, 0.0))   # square-ish blob without a contour
+            sd[i] = range_sigma_m(d[i], area_px, perim, self.edge_sigma_px, self.model_rel_sigma)
+        return d, sd, names
+
+    def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
+        items = []
+        for obs in leds:
+            if obs.id is None or obs.border:
+                continue
+            led = self.led_map.lookup(obs.id)
+            if led is None:
+                self.unknown_ids.add(obs.id)
+                continue
+            geo = None
+            if obs.contour is not None and len(obs.contour) >= 3:
+                geo = contour_geometry(obs.contour, self.camera, self.edge_offset_px)
+            items.append((obs, led, geo))
+
+        recent = self._t_R is not None and 0 <= t_s - self._t_R <= self.max_coast_s
+        R_prior = self._R_cw if recent else None
+        d, sd, names = self._ranges(items, R_prior)
+        fix = None
+        if items:
+            L = np.array([led.xyz for _, led, _ in items])
+            uv = undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
+            kw = dict(sigma_uv=self.sigma_uv, solver=self.solver, loss=self.loss, f_scale=self.f_scale,
+                      C_prior=self._C if recent else None)
+            fix = solve_fix(L, uv, d, sd, R_prior=R_prior, **kw)
+            for _ in range(self.ranging_iterations if self.ranging == "oblique" else 0):
+                if fix is None:
+                    break
+                # Foreshortening with this frame's own orientation, then solve again. Ranges-only
+                # fixes carry no orientation: align the camera rays with the LED directions.
+                R = fix.R_cw
+                if R is not None:
+                    d, sd, names = self._ranges(items, R)
+                else:
+                    # Tilt error and range error feed each other back here with a gain of about
+                    # -2/3 (ceiling LEDs), so the plain loop oscillates; averaging old and new
+                    # ranges damps the loop gain to about 1/6.
+                    R = align_rays(ray_unit(uv), L - fix.C)
+                    d_new, sd, names = self._ranges(items, R)
+                    d = np.where(np.isfinite(d), 0.5 * (d + d_new), d_new)
+                fix = solve_fix(L, uv, d, sd, R_prior=R, **kw) or fix
+        distances = {obs.track: (round(float(d[i]), 5), names[i])
+                     for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
+        if fix is not None:
+            self.n_fixes += 1
+            self._C = fix.C
+            if fix.R_cw is not None:
+                self._R_cw, self._t_R = fix.R_cw, t_s
+        return LocateResult(distances=distances, position=self._position(t_s, fix, len(items)))
+
+    def _position(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
+        state = None
+        if self.kf is not None:
+            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if fix is None and state is None:
+            return None
+        if state is not None:
+            x, P = state
+            pos = _xyz(x[:3])
+            pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
+                       filtered=True, std_m=[round(s, 5) for s in position_std(P)],
+                       cov=np.round(P[:3, :3], 8).tolist(),
+                       velocity_mps=[round(float(v), 4) for v in x[3:]])
+        else:
+            pos = _xyz(fix.C)
+            pos.update(method=fix.method, n_leds=n_leds, filtered=False)
+        if fix is not None:
+            pos["raw"] = _xyz(fix.C)
+            pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
+            if fix.R_cw is not None:
+                pos["R_wc"] = np.round(fix.R_cw.T, 6).tolist()   # camera-to-world, columns = camera axes
+                yaw, pitch, roll = rotation_to_ypr_deg(fix.R_cw)
+                pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
+        else:
+            pos["raw"] = None
+        return pos

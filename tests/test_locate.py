@@ -1,0 +1,192 @@
+"""Positioning against synthetic truth: multilateration (eqs. 26-34), PnP, range+angle, the
+mirror rejection, xy addressing, and the Positioner stage end to end."""
+
+import math
+
+import numpy as np
+import pytest
+
+from receiver.config import CameraModel, parse_map
+from receiver.locate import (Positioner, multilaterate, multilaterate_linear, pnp_candidates,
+                             rotation_to_ypr_deg, solve_fix, ypr_to_rotation)
+from receiver.ranging import (led_outline_world, polygon_area_perimeter, polygon_centroid,
+                              project_world, undistort_points)
+from receiver.records import LedObservation
+
+CEILING_M = 3.0
+
+
+def make_camera(dist=(-0.08, 0.02, 0.0, 0.0, 0.0)):
+    K = np.array([[600.0, 0, 640.0], [0, 600.0, 360.0], [0, 0, 1]])
+    return CameraModel(1280, 720, K, np.array(dist, float), fps=30.0)
+
+
+def make_map(addressing="map"):
+    if addressing == "xy":
+        return parse_map({"units": "m", "addressing": "xy", "ceiling_z": CEILING_M, "shape": "square",
+                          "size": [0.1, 0.1], "rate_hz": 20000, "leds": []})
+    leds = [{"id": 10 + 3 * i + j, "mode": "ook", "x": 1.2 * i, "y": 1.2 * j, "z": CEILING_M,
+             "shape": "square", "size": [0.1, 0.1], "rate_hz": 20000} for i in range(3) for j in range(3)]
+    return parse_map({"units": "m", "addressing": "map", "leds": leds})
+
+
+def observe(camera, led_map, C, R_cw, rng=None, px_noise=0.0, ids=None):
+    """What an ideal detector reports: the projected LED outlines as contours (distorted px)."""
+    out = []
+    for track, led in enumerate(led_map.leds.values() if ids is None else [led_map.lookup(i) for i in ids]):
+        Xc = (led.xyz - C) @ R_cw.T
+        if Xc[2] <= 0:
+            continue
+        poly = project_world(led_outline_world(led, 16), camera, R_cw, C)
+        if rng is not None and px_noise:
+            poly = poly + rng.normal(0, px_noise, poly.shape)
+        if poly.min() < 0 or poly[:, 0].max() > camera.width - 1 or poly[:, 1].max() > camera.height - 1:
+            continue
+        area, _ = polygon_area_perimeter(poly)
+        cx, cy = polygon_centroid(poly)
+        out.append(LedObservation(track=track, cx=cx, cy=cy, area_px=area, contour=poly, id=led.id, mode="ook"))
+    return out
+
+
+def test_ypr_round_trip():
+    for ypr in [(10, 20, 30), (-120, 60, -5), (0, -30, 170)]:
+        assert np.allclose(rotation_to_ypr_deg(ypr_to_rotation(*ypr)), ypr, atol=1e-9)
+
+
+def test_multilateration_linear_exact_and_mirror():
+    L = np.array([[0, 0, 3.0], [1.2, 0, 3.0], [0, 1.2, 3.0], [1.2, 1.2, 3.0]])
+    C = np.array([0.4, 0.7, 1.1])
+    d = np.linalg.norm(L - C, axis=1)
+    cands = multilaterate_linear(L, d)
+    # Coplanar LEDs: the two roots of eqs. 30-31 are the camera and its mirror above the ceiling.
+    assert len(cands) == 2
+    zs = sorted(c[2] for c in cands)
+    assert zs[0] == pytest.approx(1.1, abs=1e-9) and zs[1] == pytest.approx(4.9, abs=1e-9)
+    fix = multilaterate(L, d, np.full(4, 0.01))
+    assert np.allclose(fix.C, C, atol=1e-7)
+    # LEDs off one plane: full rank, eq. 34 alone.
+    L2 = L.copy()
+    L2[3, 2] = 2.5
+    (c,) = multilaterate_linear(L2, np.linalg.norm(L2 - C, axis=1))
+    assert np.allclose(c, C, atol=1e-9)
+
+
+def test_multilateration_noisy_covariance_is_honest():
+    rng = np.random.default_rng(1)
+    L = np.array([[0, 0, 3.0], [1.2, 0, 3.0], [0, 1.2, 3.0], [1.2, 1.2, 3.0], [0.6, 2.4, 3.0]])
+    C = np.array([0.5, 0.9, 1.2])
+    sig = 0.01
+    nees = []
+    for _ in range(200):
+        d = np.linalg.norm(L - C, axis=1) + rng.normal(0, sig, len(L))
+        fix = multilaterate(L, d, np.full(len(L), sig), loss="linear")
+        assert fix.C[2] < CEILING_M
+        e = fix.C - C
+        nees.append(e @ np.linalg.solve(fix.cov, e))
+    # chi-square, 3 dof: mean 3; s^2 >= 1 inflation can only make it smaller.
+    assert 1.5 < np.mean(nees) < 3.6
+
+
+def test_pnp_recovers_pose_with_valid_rotation():
+    L = np.array([[0, 0, 3.0], [1.2, 0, 3.0], [0, 1.2, 3.0], [1.2, 1.2, 3.0], [2.4, 1.2, 3.0]])
+    C = np.array([0.8, 0.3, 1.0])
+    R = ypr_to_rotation(30, 75, 5)
+    X = (L - C) @ R.T
+    uv = X[:, :2] / X[:, 2:]
+    fix = solve_fix(L, uv, np.full(5, np.nan), np.full(5, np.nan), sigma_uv=1e-4)
+    assert fix.method == "pnp"
+    assert np.allclose(fix.C, C, atol=1e-6)
+    assert np.allclose(fix.R_cw, R, atol=1e-6)
+    assert np.linalg.det(fix.R_cw) == pytest.approx(1.0, abs=1e-9)
+    # three points: the P3P ambiguity is resolved (camera below the ceiling, best fit).
+    assert any(np.allclose(c, C, atol=1e-6) for _, c in pnp_candidates(L[:3], uv[:3]))
+
+
+def test_two_leds_ranges_and_angles():
+    L = np.array([[0, 0, 3.0], [1.2, 0, 3.0]])
+    C = np.array([0.5, 0.4, 1.2])
+    R = ypr_to_rotation(-40, 86, 0)
+    X = (L - C) @ R.T
+    uv = X[:, :2] / X[:, 2:]
+    d = np.linalg.norm(L - C, axis=1)
+    # The rotation about the LED baseline comes from the tilt prior: exact prior, exact answer;
+    # the "looking up" default is 4 degrees off here and costs centimetres, not metres.
+    fix = solve_fix(L, uv, d, np.full(2, 0.005), sigma_uv=1e-4, R_prior=R, tilt_sigma_deg=1.0)
+    assert fix.method == "range+angle"
+    assert np.linalg.norm(fix.C - C) < 1e-4
+    fix_up = solve_fix(L, uv, d, np.full(2, 0.005), sigma_uv=1e-4)
+    assert 1e-3 < np.linalg.norm(fix_up.C - C) < 0.15
+    assert solve_fix(L[:1], uv[:1], d[:1], np.full(1, 0.005), sigma_uv=1e-4) is None
+
+
+@pytest.mark.parametrize("solver", ["auto", "multilateration", "pnp"])
+def test_positioner_on_projected_scene(solver):
+    cam, m = make_camera(), make_map()
+    C = np.array([1.3, 1.1, 1.0])
+    R = ypr_to_rotation(20, 82, 3)
+    pos = Positioner(cam, m, solver=solver, edge_offset_px=0.0, kalman=False)
+    res = pos.step(0.0, observe(cam, m, C, R))
+    p = res.position
+    assert p["method"] == {"auto": "range+angle", "multilateration": "multilateration", "pnp": "pnp"}[solver]
+    err = math.dist((p["x"], p["y"], p["z"]), C)
+    assert err < {"auto": 0.003, "multilateration": 0.03, "pnp": 0.003}[solver]
+    # Distances from the oblique estimator, within 0.5 % of the truth for every visible LED.
+    for led in observe(cam, m, C, R):
+        d_true = float(np.linalg.norm(m.lookup(led.id).xyz - C))
+        d, name = res.distances[led.track]
+        assert abs(d - d_true) / d_true < 0.005, (name, d, d_true)
+    if solver != "multilateration":
+        Rwc = np.array(p["R_wc"])
+        assert np.allclose(Rwc @ Rwc.T, np.eye(3), atol=1e-5) and np.linalg.det(Rwc) > 0.99999
+        assert np.allclose(Rwc.T, R, atol=2e-3)
+
+
+def test_positioner_xy_addressing_and_unknown_ids():
+    cam, m = make_camera(), make_map("xy")
+    ids = [(x << 8) | y for x in (10, 22) for y in (10, 22)]   # decimetres: (1.0|2.2, 1.0|2.2)
+    C = np.array([1.5, 1.7, 1.2])
+    R = ypr_to_rotation(0, 90, 0)
+    obs = observe(cam, m, C, R, ids=ids)
+    assert len(obs) == 4
+    pos = Positioner(cam, m, edge_offset_px=0.0, kalman=False)
+    p = pos.step(0.0, obs).position
+    assert math.dist((p["x"], p["y"], p["z"]), C) < 0.003
+    m2 = make_map()
+    extra = LedObservation(track=99, cx=5.0, cy=5.0, area_px=100.0, contour=np.zeros((0, 2)), id=4242)
+    pos2 = Positioner(cam, m2, kalman=False)
+    pos2.step(0.0, observe(cam, m2, C, R) + [extra])
+    assert pos2.unknown_ids == {4242}
+
+
+def test_positioner_one_led_and_kalman_coast():
+    cam, m = make_camera(), make_map()
+    C = np.array([1.2, 1.2, 1.0])
+    R = ypr_to_rotation(0, 90, 0)
+    pos = Positioner(cam, m, edge_offset_px=0.0)
+    full = observe(cam, m, C, R)
+    p0 = pos.step(0.0, full).position
+    assert p0["filtered"] is True and p0["raw"] is not None
+    one = [o for o in full if o.id == 14]
+    res = pos.step(0.1, one)
+    assert 14 in [o.id for o in one] and len(res.distances) == 1
+    assert res.position["method"] == "kalman-coast" and res.position["raw"] is None
+    assert res.position["std_m"][0] > p0["std_m"][0]          # coasting: covariance grows
+    assert Positioner(cam, m).step(0.0, one).position is None
+
+
+def test_walk_with_noise_kalman_beats_raw():
+    """A noisy straight walk: filtered error below raw error, both small."""
+    cam, m = make_camera(), make_map()
+    rng = np.random.default_rng(7)
+    pos = Positioner(cam, m, edge_offset_px=0.0, pixel_sigma_px=0.3, edge_sigma_px=0.3)
+    raw_err, filt_err = [], []
+    for k in range(60):
+        t = k / 30.0
+        C = np.array([0.8 + 0.6 * t, 0.9 + 0.2 * t, 1.1])
+        R = ypr_to_rotation(10 * t, 88, 0)
+        p = pos.step(t, observe(cam, m, C, R, rng=rng, px_noise=0.3)).position
+        if k >= 10:
+            raw_err.append(math.dist((p["raw"]["x"], p["raw"]["y"], p["raw"]["z"]), C))
+            filt_err.append(math.dist((p["x"], p["y"], p["z"]), C))
+    assert np.median(filt_err) < np.median(raw_err)
+    assert np.median(filt_err) < 0.02

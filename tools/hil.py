@@ -1,0 +1,164 @@
+"""Hardware in the loop: LED driver -> serial protocol -> synthetic camera -> receiver.
+
+`occloc hil` closes the loop through the real serial protocol (INTERFACES.md):
+
+1. By default starts `python -m firmware_tx` on a pseudo-terminal (`--port` drives a real
+   board instead).
+2. For every light of a synthetic scene, configures the driver with the same command plan
+   `occloc tx --mode M --id N --rate R --start --dump K` sends, and reads back the emitted
+   stream (`DUMP`): OOK chips or S2-PSK symbols from a packet start.
+3. Rebuilds each light's drive waveform from that read-back stream (not from the scene's
+   own encoder), renders the scene through the synthetic camera and runs the receiver.
+4. Reports, per configured ID that came into view, whether and when it came back, and
+   every wrong ID. Exit status 0 only when every ID in view came back and none was wrong.
+
+One driver serves all lights in turn: what is checked is that the stream the driver emits
+for each configuration is what the receiver decodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from firmware_tx.framing import OOK_PACKET_LEN, S2PSK_PACKET_LEN
+from firmware_tx.schedule import Schedule, s2psk_levels
+from receiver.errors import InputError
+
+HELP = "hardware-in-the-loop: configure an LED driver over serial, render its stream, decode it"
+
+SCENE_BY_MODE = {"ook": "indoor-walk", "s2psk": "vehicle"}
+DUMP_UNITS = {"ook": OOK_PACKET_LEN, "s2psk": S2PSK_PACKET_LEN}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", help="serial port URL of a real driver (default: python -m firmware_tx on a pty)")
+    parser.add_argument("--mode", choices=sorted(SCENE_BY_MODE), default="ook",
+                        help="ook: indoor walk scene; s2psk: vehicle scene (default ook)")
+    parser.add_argument("--frames", type=int, default=30, help="frames to render (default 30)")
+    parser.add_argument("--seed", type=int, default=1, help="scene and render seed (default 1)")
+    parser.add_argument("--timeout", type=float, default=2.0, help="serial reply timeout, seconds")
+
+
+def tx_commands(port: str, mode: str, led_id: int, rate_hz: int, symclk: int | None) -> list[str]:
+    """The command lines `occloc tx` sends for this configuration (same parser, same plan)."""
+    from receiver import txhost
+
+    parser = argparse.ArgumentParser()
+    txhost.add_arguments(parser)
+    argv = ["--port", port, "--mode", mode, "--id", str(led_id), "--rate", str(rate_hz)]
+    if symclk is not None:
+        argv += ["--symclk", str(symclk)]
+    argv += ["--start", "--dump", str(DUMP_UNITS[mode])]
+    return txhost.plan_commands(parser.parse_args(argv))
+
+
+def parse_dump(reply: str, n: int) -> bytearray:
+    """Stream units of an `OK DUMP <n> <bits>` reply."""
+    parts = reply.split()
+    if len(parts) != 4 or parts[:2] != ["OK", "DUMP"] or parts[2] != str(n) or len(parts[3]) != n \
+            or set(parts[3]) - {"0", "1"}:
+        raise InputError(f"driver sent a malformed DUMP reply: {reply[:60]!r}")
+    return bytearray(int(c) for c in parts[3])
+
+
+def schedule_from_dump(mode: str, units: bytearray, rate_hz: int, symclk: int) -> Schedule:
+    """Drive schedule rebuilt from what the driver reported it emits (PROTOCOL.md 2-3)."""
+    if mode == "ook":
+        return Schedule("ook", rate_hz, bytearray(units), 1, units, 1)
+    return Schedule("s2psk", 2 * rate_hz, s2psk_levels(units, symclk), 2, units, 2 * symclk)
+
+
+def configure_lights(client, port: str, scene, mode: str) -> dict[int, bytearray]:
+    """Configure the driver for each light of `mode`, read its stream back and swap the
+    light's drive for one built from the read-back stream. Returns id -> dumped units."""
+    from tools.synth.waveform import LedDrive
+
+    dumps = {}
+    for light in scene.lights:
+        if light.mode != mode:
+            continue
+        # The scene's own configuration of this light (vehicles are not in the map).
+        own = light.emitters[0].drive.schedule
+        rate = own.tick_hz if mode == "ook" else own.tick_hz // 2
+        symclk = own.ticks_per_unit // 2 if mode == "s2psk" else None
+        reply = ""
+        for line in tx_commands(port, mode, light.id, rate, symclk):
+            reply = client.command(line)
+        units = parse_dump(reply, DUMP_UNITS[mode])
+        sched = schedule_from_dump(mode, units, rate, symclk or 16)
+        for pin, emitter in enumerate(light.emitters):
+            old = emitter.drive
+            emitter.drive = LedDrive(sched, pin=pin, phase_s=old.phase_s,
+                                     clock_ppm=(old.clock_scale - 1.0) * 1e6)
+        dumps[light.id] = units
+    client.command("STOP")
+    return dumps
+
+
+def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int = 1,
+             progress=None) -> dict:
+    """Configure, render and decode; returns the report (see module docstring)."""
+    from receiver.pipeline import Receiver
+    from receiver.records import Frame
+    from tools.synth import make_scene, render_frames
+
+    scene = make_scene(SCENE_BY_MODE[mode], seed=seed, n_frames=frames)
+    dumps = configure_lights(client, port, scene, mode)
+    rx = Receiver(scene.camera, scene.led_map)
+    first_seen: dict[int, int] = {}
+    first_decoded: dict[int, int] = {}
+    wrong: list[dict] = []
+    for img, truth in render_frames(scene, seed=seed):
+        k = truth["frame"]
+        for led in truth["leds"]:
+            if led.get("visible") and led["id"] in dumps:
+                first_seen.setdefault(led["id"], k)
+        result = rx.process(Frame(k, truth["t"], img))
+        for obs in result.leds:
+            if obs.id is None:
+                continue
+            if obs.id in dumps and obs.id in first_seen:
+                first_decoded.setdefault(obs.id, k)
+            elif obs.id not in dumps:
+                wrong.append({"frame": k, "id": obs.id})
+        if progress:
+            progress(k + 1, frames)
+    ids = sorted(first_seen)
+    per_id = [{"id": i, "stream": "".join(map(str, dumps[i])), "first_in_view": first_seen[i],
+               "decoded_at": first_decoded.get(i)} for i in ids]
+    back = sum(1 for r in per_id if r["decoded_at"] is not None)
+    return {"mode": mode, "frames": frames, "configured": len(dumps), "in_view": len(ids),
+            "came_back": back, "wrong_ids": wrong, "ids": per_id,
+            "ok": back == len(ids) and not wrong and len(ids) > 0}
+
+
+def main(args: argparse.Namespace) -> int:
+    from receiver.txhost import TxClient, VirtualDriver, wait_for_driver
+
+    if args.frames <= 0:
+        raise InputError("--frames must be positive")
+
+    tty = sys.stderr.isatty()
+
+    def progress(done, total):
+        if tty:
+            print(f"\rhil: frame {done}/{total}", end="" if done < total else "\n", file=sys.stderr)
+        elif done % 10 == 0 or done == total:
+            print(f"hil: frame {done}/{total}", file=sys.stderr)
+
+    driver = None if args.port else VirtualDriver()
+    port = args.port or driver.port
+    try:
+        with TxClient(port, timeout_s=args.timeout) as client:
+            pong = wait_for_driver(client)
+            print(f"hil: driver on {port}: {pong}", file=sys.stderr)
+            report = run_loop(client, port, args.mode, args.frames, args.seed, progress)
+    finally:
+        if driver is not None:
+            driver.close()
+    print(json.dumps(report))
+    print(f"hil: {report['came_back']}/{report['in_view']} IDs in view came back, "
+          f"{len(report['wrong_ids'])} wrong IDs -> {'PASS' if report['ok'] else 'FAIL'}", file=sys.stderr)
+    return 0 if report["ok"] else 1

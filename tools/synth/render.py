@@ -1,0 +1,271 @@
+"""Frame renderer: the scene's lights through the camera model into 8-bit gray frames.
+
+Per frame k (start time ``t_k = k / fps + jitter``):
+
+1. Background: every pixel is an independent draw of ``black + ambient + noise`` (thesis
+   eq. 4 with S = ambient), quantised and clamped to 0..255. Because the quantised
+   background takes one value almost everywhere, it is drawn exactly but sparsely: the
+   pixels that differ from the most likely value form a Bernoulli process, sampled by
+   geometric gaps; only those pixels are touched.
+2. Each light whose centre is in front of the camera and near the field of view: its
+   emitters' outlines are projected (perspective + lens distortion) with the camera and
+   carrier poses at the light's own exposure time, ``t_k + cy * t_row + t_exp / 2``
+   (so rolling-shutter skew of moving scenes is reproduced, to first order). The outline
+   polygon's anti-aliased coverage (`tools.synth.raster`) times the row's exposure mean of
+   the firmware waveform (`tools.synth.waveform`) times the radiance gives the signal.
+   Radiance: thesis eq. 10 gives the received power ``P_r ~ I(0) cos^m(phi) cos(psi) / d^2``
+   with the Lambertian pattern of eq. 1 (order m, eq. 8); spread over the LED's image area,
+   which grows as ``cos(phi) / (d^2 cos^3(psi))``, this is a per-pixel level
+   ``led_peak_dn * brightness * cos^(m-1)(phi) * cos^4(psi)``, independent of distance
+   (phi: emission angle from the LED normal, psi: angle off the optical axis).
+3. Lens blur (Gaussian PSF), then for every pixel of each LED patch a fresh noisy value
+   ``black + S + N(0, alpha*S + beta)`` (eq. 4, S = ambient + LED signal), saturation at 255,
+   rounding to 8 bits.
+
+Truth per light (INTERFACES.md plus extra fields):
+``cx, cy``: area centroid of the true projected (distorted) outline polygon, in pixels;
+``distance_m``: camera centre to light centre (pair: midpoint of the two emitters);
+``visible``: every outline point inside the image and the light's front facing the camera;
+``area_px``: true projected area (pair: mean of the two emitters); ``mode``;
+``t``: the time the light's geometry was taken at; pairs add ``emitters`` (A, B) with
+per-emitter ``cx, cy, area_px, visible``. Lights far outside the view are not listed.
+The camera pose in a truth line is the pose at the frame start time ``t``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from tools.synth.camera import (Pose, max_normalized_radius, project_camera_points, rotation_cam_to_world,
+                                world_to_camera)
+from tools.synth.model import Scene
+from tools.synth.raster import coverage, polygon_area_centroid
+
+NEAR_M = 0.05  # closer than this to the camera plane is not drawn
+TRUTH_DIGITS_PX = 4
+TRUTH_DIGITS_M = 5
+
+
+def _rot_z(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def background_pmf(level_dn: float, sigma_dn: float) -> np.ndarray:
+    """Probabilities of the 256 output values of ``clip(round(level + N(0, sigma)), 0, 255)``."""
+    edges = np.arange(-0.5, 256.5, 1.0)
+    if sigma_dn <= 0:
+        p = np.zeros(256)
+        p[int(np.clip(np.floor(level_dn + 0.5), 0, 255))] = 1.0
+        return p
+    z = (edges - level_dn) / (sigma_dn * math.sqrt(2.0))
+    cdf = 0.5 * (1.0 + np.array([math.erf(v) for v in z]))
+    cdf[0], cdf[-1] = 0.0, 1.0
+    return np.diff(cdf)
+
+
+def sparse_background(rng: np.random.Generator, shape, pmf: np.ndarray) -> np.ndarray:
+    """A uint8 image whose pixels are i.i.d. with distribution `pmf` (exact, sparse sampling)."""
+    n = int(shape[0] * shape[1])
+    mode = int(np.argmax(pmf))
+    img = np.full(n, mode, dtype=np.uint8)
+    q = 1.0 - float(pmf[mode])
+    if q > 1e-12:
+        # Positions of the non-mode pixels: a Bernoulli(q) process, i.e. geometric gaps.
+        expect = n * q
+        gaps = rng.geometric(q, size=int(expect + 6 * math.sqrt(expect) + 16))
+        pos = np.cumsum(gaps) - 1
+        while pos[-1] < n:
+            more = np.cumsum(rng.geometric(q, size=len(gaps))) + pos[-1]
+            pos = np.concatenate([pos, more])
+        pos = pos[pos < n]
+        cond = pmf.copy()
+        cond[mode] = 0.0
+        cdf = np.cumsum(cond / cond.sum())
+        vals = np.searchsorted(cdf, rng.random(len(pos)), side="right")
+        img[pos] = np.minimum(vals, 255).astype(np.uint8)
+    return img.reshape(shape)
+
+
+class FrameRenderer:
+    """Renders frame k of `scene` for a given `seed` (each frame has its own RNG stream,
+    so frames can be rendered in any order with identical results)."""
+
+    def __init__(self, scene: Scene, seed: int = 0):
+        self.scene = scene
+        self.seed = int(seed)
+        cam = scene.camera
+        self.cam = cam
+        p = scene.params
+        self.t_row_s = cam.row_readout_us * 1e-6
+        self.t_exp_s = cam.exposure_us * 1e-6
+        self.r_max = max_normalized_radius(cam)
+        self.bg_pmf = background_pmf(p.black_level_dn + p.ambient_dn,
+                                     math.sqrt(p.shot_noise_alpha * p.ambient_dn + p.read_noise_dn ** 2))
+        self.canvas = np.zeros((cam.height, cam.width), dtype=np.float32)
+        self.margin = int(math.ceil(3 * p.psf_sigma_px)) + 1 if p.psf_sigma_px > 0 else 0
+        self.outlines = [[e.outline_local() for e in light.emitters] for light in scene.lights]
+        self.radius_m = np.array([max(np.linalg.norm(o - light.offset, axis=1).max() for o in outl)
+                                  for light, outl in zip(scene.lights, self.outlines)])
+
+    # -- geometry -------------------------------------------------------------------------
+    def _to_world(self, light, pts, vecs, t_s):
+        if light.carrier is None:
+            return pts, vecs
+        pos, yaw = self.scene.carriers[light.carrier](t_s)
+        R = _rot_z(yaw)
+        return pts @ R.T + pos, [v @ R.T for v in vecs]
+
+    def _project(self, light, li, t_s, pose: Pose):
+        """Per emitter: (poly (M,2) or None, area, cx, cy, visible, centre_w, cos_phi, cos_psi)."""
+        out = []
+        R = rotation_cam_to_world(pose.yaw, pose.pitch, pose.roll)
+        for e, outline in zip(light.emitters, self.outlines[li]):
+            pts, (centre, normal) = self._to_world(light, outline, [e.offset, e.normal], t_s)
+            if light.carrier is not None:
+                pos, _ = self.scene.carriers[light.carrier](t_s)
+                centre = centre + pos  # offsets are points: translate (vectors were only rotated)
+            pc = (pts - pose.position) @ R
+            cc = (centre - pose.position) @ R
+            if pc[:, 2].min() <= NEAR_M:
+                out.append(None)
+                continue
+            rn = np.hypot(pc[:, 0] / pc[:, 2], pc[:, 1] / pc[:, 2])
+            if rn.max() > self.r_max:
+                out.append(None)
+                continue
+            poly = project_camera_points(pc, self.cam)
+            area, cx, cy = polygon_area_centroid(poly)
+            to_cam = pose.position - centre
+            d = float(np.linalg.norm(to_cam))
+            cos_phi = float(to_cam @ normal) / (d * float(np.linalg.norm(normal)))
+            cos_psi = float(cc[2]) / float(np.linalg.norm(cc))
+            inside = bool(poly[:, 0].min() >= -0.5 and poly[:, 0].max() <= self.cam.width - 0.5
+                          and poly[:, 1].min() >= -0.5 and poly[:, 1].max() <= self.cam.height - 0.5)
+            out.append(dict(poly=poly, area=area, cx=cx, cy=cy, visible=inside and cos_phi > 0,
+                            centre=centre, cos_phi=cos_phi, cos_psi=cos_psi))
+        return out
+
+    def _candidates(self, pose: Pose, t_s: float):
+        """Indices of lights whose centre is in front and within the (extended) field of view."""
+        idx = []
+        R = rotation_cam_to_world(pose.yaw, pose.pitch, pose.roll)
+        for li, light in enumerate(self.scene.lights):
+            c = light.offset
+            if light.carrier is not None:
+                pos, yaw = self.scene.carriers[light.carrier](t_s)
+                c = _rot_z(yaw) @ c + pos
+            pc = (c - pose.position) @ R
+            if pc[2] <= NEAR_M:
+                continue
+            slack = self.radius_m[li] / pc[2]
+            if math.hypot(pc[0] / pc[2], pc[1] / pc[2]) - slack <= self.r_max:
+                idx.append(li)
+        return idx
+
+    # -- rendering ------------------------------------------------------------------------
+    def frame_time(self, k: int, rng: np.random.Generator) -> float:
+        fps = self.cam.fps or 30.0
+        jitter = rng.normal() * self.scene.params.frame_jitter_us * 1e-6
+        return max(0.0, k / fps + jitter)
+
+    def render(self, k: int):
+        """Frame k: (uint8 image (H, W), truth dict)."""
+        scene, cam, p = self.scene, self.cam, self.scene.params
+        rng = np.random.default_rng([self.seed, int(k)])
+        t_k = self.frame_time(k, rng)
+        img = sparse_background(rng, (cam.height, cam.width), self.bg_pmf)
+        pose0 = scene.trajectory(t_k)
+        t_mid = t_k + 0.5 * cam.height * self.t_row_s + 0.5 * self.t_exp_s
+        leds, regions = [], []
+        for li in self._candidates(scene.trajectory(t_mid), t_mid):
+            light = scene.lights[li]
+            first = self._project(light, li, t_mid, scene.trajectory(t_mid))
+            ok = [g for g in first if g is not None]
+            if not ok:
+                continue
+            cy0 = float(np.mean([g["cy"] for g in ok]))
+            t_led = t_k + min(max(cy0, 0.0), cam.height - 1) * self.t_row_s + 0.5 * self.t_exp_s
+            pose = scene.trajectory(t_led)
+            geo = self._project(light, li, t_led, pose)
+            if any(g is None for g in geo):
+                continue
+            for ei, (e, g) in enumerate(zip(light.emitters, geo)):
+                if g["cos_phi"] <= 0:
+                    continue
+                reg = self._draw_emitter(light, li, ei, e, g, t_k, t_led)
+                if reg is not None:
+                    regions.append(reg)
+            leds.append(self._truth(light, geo, pose, t_led))
+        self._noise(img, regions, rng)
+        truth = {"frame": int(k), "t": round(t_k, 9), "camera": pose0.as_dict(), "leds": leds}
+        if scene.extra_truth is not None:
+            truth.update(scene.extra_truth(t_k))
+        return img, truth
+
+    def _draw_emitter(self, light, li, ei, e, g, t_k, t_led):
+        cam, p = self.cam, self.scene.params
+        poly = g["poly"]
+        m = self.margin
+        r0 = max(int(math.floor(poly[:, 1].min() + 0.5)) - m, 0)
+        r1 = min(int(math.floor(poly[:, 1].max() + 0.5)) + 1 + m, cam.height)
+        c0 = max(int(math.floor(poly[:, 0].min() + 0.5)) - m, 0)
+        c1 = min(int(math.floor(poly[:, 0].max() + 0.5)) + 1 + m, cam.width)
+        if r1 <= r0 or c1 <= c0:
+            return None
+        if p.motion_blur_samples > 1:
+            cov = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+            for s in np.linspace(0.0, self.t_exp_s, p.motion_blur_samples):
+                gs = self._project(light, li, t_led - 0.5 * self.t_exp_s + s,
+                                   self.scene.trajectory(t_led - 0.5 * self.t_exp_s + s))[ei]
+                if gs is not None:
+                    cov += coverage(gs["poly"], r0, r1, c0, c1, p.subrows)
+            cov /= p.motion_blur_samples
+        else:
+            cov = coverage(poly, r0, r1, c0, c1, p.subrows)
+        rows = t_k + np.arange(r0, r1, dtype=np.float64) * self.t_row_s
+        level = e.drive.exposure_mean(rows, self.t_exp_s).astype(np.float32)
+        radiance = (p.led_peak_dn * light.brightness * g["cos_phi"] ** (light.lambertian_m - 1.0)
+                    * g["cos_psi"] ** 4)
+        sig = cov * (level[:, None] * np.float32(radiance))
+        if p.psf_sigma_px > 0:
+            sig = cv2.GaussianBlur(sig, (0, 0), p.psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
+        self.canvas[r0:r1, c0:c1] += sig
+        return (r0, r1, c0, c1)
+
+    def _noise(self, img, regions, rng):
+        p = self.scene.params
+        beta = p.read_noise_dn ** 2
+        for r0, r1, c0, c1 in regions:
+            s = self.canvas[r0:r1, c0:c1] + np.float32(p.ambient_dn)
+            std = np.sqrt(np.float32(p.shot_noise_alpha) * s + np.float32(beta))
+            v = s + np.float32(p.black_level_dn) + std * rng.standard_normal(s.shape, dtype=np.float32)
+            img[r0:r1, c0:c1] = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+        for r0, r1, c0, c1 in regions:
+            self.canvas[r0:r1, c0:c1] = 0.0
+
+    def _truth(self, light, geo, pose: Pose, t_led: float) -> dict:
+        centre = np.mean([g["centre"] for g in geo], axis=0)
+        d = float(np.linalg.norm(centre - pose.position))
+        cx = float(np.mean([g["cx"] for g in geo]))
+        cy = float(np.mean([g["cy"] for g in geo]))
+        rec = {"id": int(light.id), "cx": round(cx, TRUTH_DIGITS_PX), "cy": round(cy, TRUTH_DIGITS_PX),
+               "distance_m": round(d, TRUTH_DIGITS_M), "visible": all(g["visible"] for g in geo),
+               "area_px": round(float(np.mean([g["area"] for g in geo])), 3), "mode": light.mode,
+               "t": round(t_led, 9)}
+        if len(geo) == 2:
+            rec["emitters"] = [{"cx": round(g["cx"], TRUTH_DIGITS_PX), "cy": round(g["cy"], TRUTH_DIGITS_PX),
+                                "area_px": round(g["area"], 3), "visible": g["visible"]} for g in geo]
+        return rec
+
+
+def render_frames(scene: Scene, n_frames: int | None = None, seed: int = 0, start: int = 0):
+    """Iterator of (gray uint8 image (H, W), truth dict) for frames start .. start+n_frames-1."""
+    r = FrameRenderer(scene, seed)
+    n = scene.n_frames if n_frames is None else int(n_frames)
+    for k in range(start, start + n):
+        yield r.render(k)

@@ -1,0 +1,278 @@
+"""Scenes of the synthetic camera (thesis Table 2 values as defaults, all overridable).
+
+`make_scene(name, seed=0, **overrides)` builds a `Scene`. Overrides are split three ways:
+camera keywords (`width, height, focal_px, dist, pixel_size_um, row_readout_us, exposure_us,
+fps`; see `tools.synth.camera.make_camera`), sensor keywords (the fields of
+`tools.synth.model.RenderParams`) and the scene builder's own keywords (documented on each
+builder below). `seed` fixes the scene's random choices (IDs, LED phases, clock errors);
+the noise of each frame is seeded separately by `render_frames(..., seed=...)`.
+
+Camera pose convention: `tools.synth.camera` (yaw about world z, pitch raises the optical
+axis, pitch = +90 looks straight up; at yaw = 0, pitch = 90 the image's down direction is
+world +x and its right is world -y).
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+
+import numpy as np
+
+from receiver.config import Led, LedMap
+from tools.synth.camera import Pose, make_camera
+from tools.synth.model import Emitter, Light, RenderParams, Scene
+from tools.synth.waveform import led_drive
+
+SCENES = ("indoor-walk", "indoor-static", "vehicle")
+CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
+PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
+DOWN = np.array([0.0, 0.0, -1.0])
+OOK_RATE_HZ = 20000  # PROTOCOL.md section 2 default chip rate (Table 2: 20 kbps)
+S2PSK_CLOCK_HZ = 200  # PROTOCOL.md section 3 default
+S2PSK_SYMCLK = 16
+CLOCK_PPM_SPREAD = 50.0  # crystal oscillators: tens of ppm
+
+
+def _drive(rng, mode, led_id, rate_hz, symclk=S2PSK_SYMCLK, pin=0, phase_s=None, ppm=None):
+    d = led_drive(mode, led_id, rate_hz, symclk, pin=0)
+    phase = float(rng.uniform(0.0, d.period_s)) if phase_s is None else phase_s
+    ppm = float(rng.uniform(-CLOCK_PPM_SPREAD, CLOCK_PPM_SPREAD)) if ppm is None else ppm
+    return led_drive(mode, led_id, rate_hz, symclk, pin=pin, phase_s=phase, clock_ppm=ppm)
+
+
+def ceiling_light(rng, led_id, xyz, shape, size, mode="ook", rate_hz=OOK_RATE_HZ, u_axis=(0.0, 1.0, 0.0),
+                  **light_kw) -> Light:
+    """A downward-facing luminaire at `xyz`; for rect, width along `u_axis`, length across it."""
+    e = Emitter(np.asarray(xyz, float), DOWN.copy(), np.asarray(u_axis, float), shape, tuple(size),
+                _drive(rng, mode, led_id, rate_hz))
+    return Light(led_id, mode, [e], **light_kw)
+
+
+def map_entry(light: Light, rate_hz=None, freq_hz=None, symbol_clocks=None) -> Led:
+    c = light.offset
+    e = light.emitters[0]
+    emitters = None
+    if len(light.emitters) == 2:
+        emitters = tuple(tuple(float(v) for v in em.offset) for em in light.emitters)
+    return Led(id=light.id, mode=light.mode, x=float(c[0]), y=float(c[1]), z=float(c[2]), shape=e.shape,
+               size=tuple(float(s) for s in e.size), rate_hz=rate_hz, freq_hz=freq_hz,
+               symbol_clocks=symbol_clocks, emitters=emitters)
+
+
+def indoor_walk(rng, cam, room_m=12.0, ceiling_m=3.0, panel_size_m=(0.3, 0.6), pitch_x_m=0.8, pitch_y_m=0.5,
+                rate_hz=OOK_RATE_HZ, height_m=1.0, speed_mps=1.0, tilt_deg=3.0, start_xy=(3.0, 4.0),
+                heading_deg=20.0, seconds=4.0):
+    """Smartphone walking under a ceiling of OOK panels, camera looking up (map addressing).
+
+    Why these panels: the receiver must read a 54-chip OOK packet within ~3 frames of an LED
+    entering view. One LED image of height h rows shows ``h * rate_hz * row_readout_us * 1e-6``
+    chips per frame, i.e. h / (rows per chip). With 1000 px focal length, a 2 m camera-ceiling
+    distance, 15 us rows and 20 kHz chips (3.33 rows per chip, exposure 20 us < one 50 us
+    chip), a thesis 10x10 cm panel is only ~50 rows = 15 chips. So the walk uses 0.3 x 0.6 m
+    panels (a common ceiling size) with the 0.6 m length along the image's vertical (world x
+    at yaw 0): ~300 rows = 90 chips per frame, more than a whole packet in every frame.
+    Field of view at 2 m: 2.56 m (image x, world y) by 1.44 m (image y, world x). With panel
+    pitch 0.8 m along x and 0.5 m along y, at least floor((1.44-0.6)/0.8) = 1 panel row and
+    floor((2.56-0.3)/0.5) = 4 panel columns are always fully inside the view, so >= 4 LEDs
+    are fully in view (typically 5-8), with ~3 deg of tilt. IDs: distinct random 16-bit.
+    """
+    w, length = panel_size_m
+    xs = np.arange(pitch_x_m / 2, room_m, pitch_x_m)
+    ys = np.arange(pitch_y_m / 2, room_m, pitch_y_m)
+    ids = rng.choice(1 << 16, size=len(xs) * len(ys), replace=False)
+    lights, k = [], 0
+    for x in xs:
+        for y in ys:
+            lights.append(ceiling_light(rng, int(ids[k]), (x, y, ceiling_m), "rect", (w, length), rate_hz=rate_hz))
+            k += 1
+    led_map = LedMap(addressing="map", leds={lt.id: map_entry(lt, rate_hz=rate_hz) for lt in lights})
+    h = math.radians(heading_deg)
+    x0, y0 = start_xy
+    tilt = tilt_deg
+
+    def trajectory(t):
+        # A smooth walk: constant speed along a gently curving path, 1.8 Hz step bob, and the
+        # hand's slow pitch/roll wobble of a few degrees.
+        a = h + 0.15 * math.sin(0.6 * t)
+        return Pose(x0 + speed_mps * (t * math.cos(h) + 0.4 * math.sin(0.6 * t) * -math.sin(h)),
+                    y0 + speed_mps * (t * math.sin(h) + 0.4 * math.sin(0.6 * t) * math.cos(h)),
+                    height_m + 0.02 * math.sin(2 * math.pi * 1.8 * t),
+                    yaw=math.degrees(a - h) * 0.3 + 0.0 * a,
+                    pitch=90.0 - tilt * math.sin(2 * math.pi * 0.35 * t + 0.5),
+                    roll=tilt * 0.8 * math.sin(2 * math.pi * 0.45 * t + 1.3))
+
+    return dict(lights=lights, led_map=led_map, trajectory=trajectory, n_frames=int(round(seconds * cam.fps)),
+                description="indoor walk under 0.3x0.6 m OOK panels")
+
+
+def indoor_static(rng, cam, ceiling_m=3.0, camera_xyz=(2.0, 2.0, 1.0), rate_hz=OOK_RATE_HZ, tone_hz=2000,
+                  seconds=2.0):
+    """Still camera looking straight up under LEDs of several sizes and shapes.
+
+    Image areas span ~150 px (3 cm circle) to ~10000 px (0.15 x 0.3 m rect, 0.2 m square),
+    for distance-from-area accuracy and BER sweeps. One tone-mode LED (2 kHz). The camera is
+    at `camera_xyz` with yaw 0, pitch 90, roll 0: world +x is image down, world +y image left.
+    """
+    cx, cy, _ = camera_xyz
+    # (dx, dy, shape, size, mode): offsets from the point above the camera, metres.
+    layout = [(-0.45, 0.90, "circle", (0.03,), "ook"), (0.45, 0.90, "square", (0.05, 0.05), "ook"),
+              (0.0, 0.45, "square", (0.10, 0.10), "ook"), (-0.35, -0.30, "circle", (0.15,), "ook"),
+              (0.30, -0.80, "square", (0.20, 0.20), "ook"), (0.0, 0.0, "rect", (0.15, 0.30), "ook"),
+              (-0.45, -0.95, "square", (0.10, 0.10), "tone"), (0.45, 0.30, "square", (0.10, 0.10), "ook")]
+    ids = rng.choice(1 << 16, size=len(layout), replace=False)
+    lights, entries = [], {}
+    for (dx, dy, shape, size, mode), led_id in zip(layout, ids):
+        rate = tone_hz if mode == "tone" else rate_hz
+        lt = ceiling_light(rng, int(led_id), (cx + dx, cy + dy, ceiling_m), shape, size, mode=mode, rate_hz=rate)
+        lights.append(lt)
+        entries[lt.id] = map_entry(lt, rate_hz=None if mode == "tone" else rate,
+                                   freq_hz=rate if mode == "tone" else None)
+    pose = Pose(*camera_xyz, yaw=0.0, pitch=90.0, roll=0.0)
+    return dict(lights=lights, led_map=LedMap(addressing="map", leds=entries), trajectory=lambda t: pose,
+                n_frames=int(round(seconds * cam.fps)), description="still camera under LEDs of several sizes")
+
+
+def s2psk_pair(rng, led_id, centre, normal, across, half_size, gap_m, clk_hz, symclk, carrier=None,
+               brightness=1.0) -> Light:
+    """An S2-PSK pair: emitters A (pin A) at centre + across*gap/2 and B at centre - across*gap/2,
+    sharing one schedule and one clock (so B = A XOR symbol at every instant)."""
+    d = _drive(rng, "s2psk", led_id, clk_hz, symclk)
+    ems = []
+    for pin, sgn in ((0, 1.0), (1, -1.0)):
+        drive = led_drive("s2psk", led_id, clk_hz, symclk, pin=pin, phase_s=d.phase_s,
+                          clock_ppm=(d.clock_scale - 1.0) * 1e6)
+        ems.append(Emitter(np.asarray(centre, float) + sgn * np.asarray(across, float) * gap_m / 2,
+                           np.asarray(normal, float), np.asarray(across, float), "rect", tuple(half_size), drive))
+    return Light(led_id, "s2psk", ems, brightness=brightness, carrier=carrier)
+
+
+def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, light_offset_y_m=6.0,
+            head_tilt_deg=45.0, head_half_m=(0.4, 0.3), head_gap_m=0.5, clk_hz=S2PSK_CLOCK_HZ,
+            symclk=S2PSK_SYMCLK, speed0_kmh=40.0, accel_mps2=1.0, cam_height_m=1.2, cam_pitch_deg=8.0,
+            taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0, seconds=6.7):
+    """Night road: host vehicle (HV) with a forward camera, street lights, two forward vehicles.
+
+    Road along world +x, host lane centred on y = 0 (y to the left), lane width 3.5 m (the
+    thesis' 10 m "lane width" is taken as the road width between the light rows' kerbs).
+    Street lights 7 m high every 25 m, alternating sides at y = +-6 m (left row at x = 0, 25,
+    ..., right row offset by 12.5 m); each head is an S2-PSK pair of two 0.4 x 0.3 m halves
+    0.5 m apart across the road, facing down but tilted `head_tilt_deg` towards approaching
+    traffic (-x) so that a forward camera sees the face, not its edge. SL-IDs: distinct random
+    in 0x00-0x7F. The HV starts at x = 0 at 40 km/h and accelerates at 1 m/s^2 (~64 km/h at
+    6.7 s, within Table 2's 0-80 km/h). Camera: 1.2 m high, pitched up 8 deg (plus a little
+    road vibration). Forward vehicles (FV, IDs in 0x80-0xFF, not in the map; the map's
+    `taillight` block describes them): FV1 in the host lane closing from 22 m to ~12 m;
+    FV2 starts in the right lane 38 m ahead and changes to the left lane. Taillights: 0.15 x 0.10 m
+    rects, 1.4 m apart, 1 m high, facing backwards; emitter A is the left one. With the
+    default 200 Hz clock and 16 clocks/symbol a 30-symbol packet lasts 2.4 s, so 6.7 s holds
+    two full packets of every forward vehicle.
+    """
+    tilt = math.radians(head_tilt_deg)
+    normal = np.array([-math.sin(tilt), 0.0, -math.cos(tilt)])
+    across = np.array([0.0, 1.0, 0.0])
+    positions = []
+    for x in np.arange(0.0, road_m, light_spacing_m):
+        positions.append((x, light_offset_y_m))
+        positions.append((x + light_spacing_m / 2, -light_offset_y_m))
+    sl_ids = rng.choice(0x80, size=len(positions), replace=False)
+    lights, entries = [], {}
+    for (x, y), sid in zip(positions, sl_ids):
+        lt = s2psk_pair(rng, int(sid), (x, y, light_height_m), normal, across, head_half_m, head_gap_m,
+                        clk_hz, symclk)
+        lights.append(lt)
+        e = map_entry(lt, rate_hz=clk_hz, symbol_clocks=symclk)
+        entries[lt.id] = e
+    fv_ids = rng.choice(np.arange(0x80, 0x100), size=2, replace=False)
+    v0 = speed0_kmh / 3.6
+
+    def hv_x(t):
+        return v0 * t + 0.5 * accel_mps2 * t * t
+
+    def hv_speed(t):
+        return v0 + accel_mps2 * t
+
+    def fv1(t):  # same lane, slower: gap 22 m -> ~12 m
+        return np.array([hv_x(t) + 22.0 - 10.0 * (1 - math.cos(math.pi * min(t / 6.7, 1.0))) / 2, 0.0, 0.0]), 0.0
+
+    def fv2(t):  # right lane -> left lane between 2 s and 5 s, a little faster than the HV
+        s = min(max((t - 2.0) / 3.0, 0.0), 1.0)
+        y = -3.5 + 7.0 * (3 * s * s - 2 * s * s * s)
+        dydt = 7.0 * (6 * s - 6 * s * s) / 3.0 if 0 < s < 1 else 0.0
+        vx = hv_speed(t) + 0.8
+        return np.array([hv_x(t) + 38.0 + 0.8 * t, y, 0.0]), math.degrees(math.atan2(dydt, vx))
+
+    carriers = {"fv1": fv1, "fv2": fv2}
+    for name, fid in zip(("fv1", "fv2"), fv_ids):
+        lights.append(s2psk_pair(rng, int(fid), (0.0, 0.0, taillight_height_m), (-1.0, 0.0, 0.0),
+                                 np.array([0.0, 1.0, 0.0]), taillight_size_m, taillight_baseline_m, clk_hz, symclk,
+                                 carrier=name))
+    taillight = {"shape": "rect", "size": list(taillight_size_m), "baseline_m": taillight_baseline_m}
+    led_map = LedMap(addressing="map", leds=entries, taillight=taillight)
+
+    def trajectory(t):
+        return Pose(hv_x(t), 0.0, cam_height_m + 0.005 * math.sin(2 * math.pi * 3.1 * t), yaw=0.0,
+                    pitch=cam_pitch_deg + 0.2 * math.sin(2 * math.pi * 1.3 * t), roll=0.0)
+
+    def extra_truth(t):
+        cam_pos = trajectory(t).position
+        fvs = []
+        for name, fid in zip(("fv1", "fv2"), fv_ids):
+            pos, yaw = carriers[name](t)
+            c = pos + np.array([0.0, 0.0, taillight_height_m])
+            rel = c - cam_pos
+            fvs.append({"id": int(fid), "x": round(float(rel[0]), 5), "y": round(float(rel[1]), 5),
+                        "distance_m": round(float(np.linalg.norm(rel)), 5),
+                        "angle_deg": round(math.degrees(math.atan2(rel[1], rel[0])), 5),
+                        "world_x": round(float(pos[0]), 5), "world_y": round(float(pos[1]), 5),
+                        "yaw_deg": round(float(yaw), 5)})
+        return {"vehicle": {"hv": {"x": round(hv_x(t), 5), "y": 0.0, "speed_mps": round(hv_speed(t), 5)},
+                            "fv": fvs}}
+
+    return dict(lights=lights, led_map=led_map, trajectory=trajectory, carriers=carriers,
+                extra_truth=extra_truth, n_frames=int(round(seconds * cam.fps)),
+                description="night road with S2-PSK street lights and forward vehicles")
+
+
+BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "vehicle": vehicle}
+
+CAMERA_DEFAULTS = {
+    # Smartphone main camera at 1280x720: 1000 px focal (65 x 40 deg field of view), mild barrel
+    # distortion, 15 us rows (3.33 rows per 20 kHz chip), 20 us exposure (< one chip).
+    "indoor-walk": dict(focal_px=1000.0, dist=(-0.04, 0.01, 0.0, 0.0, 0.0), pixel_size_um=3.0,
+                        row_readout_us=15.0, exposure_us=20.0, fps=30.0),
+    "indoor-static": dict(focal_px=1000.0, dist=(-0.04, 0.01, 0.0, 0.0, 0.0), pixel_size_um=3.0,
+                          row_readout_us=15.0, exposure_us=20.0, fps=30.0),
+    # Dash camera: 1200 px focal (56 x 33 deg), 100 us exposure << the 2.5 ms S2-PSK half clock.
+    "vehicle": dict(focal_px=1200.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0), pixel_size_um=3.75,
+                    row_readout_us=15.0, exposure_us=100.0, fps=30.0),
+}
+PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "vehicle": dict(psf_sigma_px=0.7)}
+
+
+def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **overrides) -> Scene:
+    """Build scene `name` (one of SCENES) with keyword overrides (see the module docstring)."""
+    from receiver.errors import InputError
+
+    if name not in BUILDERS:
+        raise InputError(f"unknown scene '{name}' (choose from {', '.join(SCENES)})")
+    cam_kw = dict(CAMERA_DEFAULTS[name])
+    par_kw = dict(PARAM_DEFAULTS[name])
+    builder = BUILDERS[name]
+    scene_keys = set(inspect.signature(builder).parameters) - {"rng", "cam"}
+    scene_kw = {}
+    for key, value in overrides.items():
+        if key in CAMERA_KEYS:
+            cam_kw[key] = value
+        elif key in PARAM_KEYS:
+            par_kw[key] = value
+        elif key in scene_keys:
+            scene_kw[key] = value
+        else:
+            raise InputError(f"scene '{name}' has no parameter '{key}'")
+    cam = make_camera(**cam_kw)
+    rng = np.random.default_rng(seed)
+    built = builder(rng, cam, **scene_kw)
+    if n_frames is not None:
+        built["n_frames"] = int(n_frames)
+    return Scene(name=name, camera=cam, params=RenderParams(**par_kw), **built)
