@@ -97,7 +97,10 @@ def _fs_matrix(fs: cv2.FileStorage, key: str, path: str, shape: tuple[int, ...],
         if required:
             raise InputError(f"{path}: missing key '{key}'")
         return None
-    m = node.mat()
+    try:
+        m = node.mat()
+    except cv2.error:  # rows x cols disagreeing with the data length
+        m = None
     if m is None or m.size != int(np.prod(shape)):
         raise InputError(f"{path}: '{key}' must be a {'x'.join(map(str, shape))} !!opencv-matrix")
     return np.asarray(m, dtype=np.float64).reshape(shape)
@@ -109,7 +112,8 @@ def load_camera(path: str) -> CameraModel:
         raise InputError(f"camera file not found: {path}")
     try:
         fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
-    except cv2.error as e:
+    except (cv2.error, SystemError) as e:
+        # OpenCV's parser raises cv2.error, or SystemError from the binding on binary garbage.
         raise InputError(f"{path}: not a readable OpenCV YAML camera file ({_cv_reason(e)})") from None
     if not fs.isOpened():
         raise InputError(f"{path}: not a readable OpenCV YAML camera file")
@@ -160,8 +164,9 @@ def save_camera(path: str, cam: CameraModel) -> None:
     fs.release()
 
 
-def _cv_reason(e: cv2.error) -> str:
-    text = str(e).strip().splitlines()
+def _cv_reason(e: Exception) -> str:
+    cause = e.__cause__ or e.__context__
+    text = str(cause if isinstance(e, SystemError) and cause else e).strip().splitlines()
     return text[-1].strip() if text else "OpenCV error"
 
 

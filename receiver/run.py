@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -42,7 +41,6 @@ def add_arguments(p) -> None:
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
     p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
-    p.add_argument("--server", metavar="udp://HOST:PORT", help="send LEDs to a positioning server")
 
 
 def default_source() -> str:
@@ -117,12 +115,12 @@ def main(args) -> int:
     from receiver.sources import find_recording_files, open_source, parse_size
 
     spec = args.source or default_source()
-    if args.server is not None and not re.fullmatch(r"udp://[^:/]+:\d+", args.server):
-        raise InputError(f"--server must look like udp://HOST:PORT, not {args.server!r}")
     if args.max_frames is not None and args.max_frames < 0:
         raise InputError("--max-frames must not be negative")
     if args.fps is not None and not args.fps > 0:
         raise InputError("--fps must be positive")
+    if spec != "-" and not spec.startswith("/dev/video") and not os.path.exists(spec):
+        raise InputError(f"no such file or folder: {spec}")
     rec = find_recording_files(spec) if spec != "-" and os.path.isdir(spec) else {}
     cam_path = args.camera or rec.get("camera")
     map_path = args.map or rec.get("map")

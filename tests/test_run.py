@@ -104,8 +104,8 @@ def test_bad_inputs_are_one_line_errors(synth_recording, tmp_path, monkeypatch, 
     shutil.copy(rec / "video.mkv", folder / "video.mkv")
     assert cli(["run", str(folder)]) == 2
     assert "camera" in _err_one_line(capsys)
-    assert cli(["run", str(rec), "--server", "tcp://x"]) == 2
-    _err_one_line(capsys)
+    assert cli(["run", str(tmp_path / "missing.mkv")]) == 2
+    assert "no such file" in _err_one_line(capsys)
 
 
 def test_photo_of_other_size_scales_or_rotates_the_camera(tmp_path):
