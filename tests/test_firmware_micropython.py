@@ -7,15 +7,7 @@ import pytest
 
 from micropython_harness import (MicroPythonError, probe_script, run_cpython,
                                  run_micropython)
-
-VECTORS = [
-    ("ook", 0x0000, 0x00, "111000010101010101010101010101010101010101010101010101"),
-    ("ook", 0x002A, 0xD6, "111000010101010101010101011001100110011010011001101001"),
-    ("ook", 0xBEEF, 0x1A, "111000100110101010100110101001101010100101011010011001"),
-    ("s2psk", 0x00, 0x0, "111000010101010101010101010101"),
-    ("s2psk", 0x2A, 0x7, "111000010110011001100101101010"),
-    ("s2psk", 0x81, 0xD, "111000100101010101011010100110"),
-]
+from test_framing import VECTORS  # the PROTOCOL.md table, kept in one place
 
 SESSION = (b"PING\nSTATUS\nID 0xBEEF\nMODE S2PSK\nID 0x2a\r\nmode s2psk\nDUMP 30\n"
            b"RATE 125\nSYMCLK 0x8\nID 256\nSTART\nMODE TONE\n\tdump\t5 \n\n  \nFLY\nID -1\n"
