@@ -67,7 +67,7 @@ def walk():
 
 
 def test_walk_never_a_wrong_id(walk):
-    assert walk["frames"] == 60 and walk["wrong"] == 0
+    assert walk["frames"] == 54 and walk["wrong"] == 0
 
 
 def test_walk_ids_after_the_first_three_frames_of_a_track(walk):

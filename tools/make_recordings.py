@@ -17,7 +17,7 @@ ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 
 # name -> (scene, seed, frames or None for the scene's default)
 RECORDINGS = {
-    "indoor-walk": ("indoor-walk", 1, 60),
+    "indoor-walk": ("indoor-walk", 1, 54),
     "indoor-static": ("indoor-static", 1, 30),
     "vehicle": ("vehicle", 1, 150),
 }
