@@ -47,7 +47,7 @@ def main(args: argparse.Namespace) -> int:
         raise InputError("--frames must be positive")
     try:
         scene = make_scene(args.scene, seed=args.seed, n_frames=args.frames, **parse_overrides(args.set))
-    except TypeError as e:
+    except (TypeError, ValueError) as e:  # e.g. --set fps=abc reaches float('abc') in make_camera
         raise InputError(f"bad --set value: {e}") from None
     write_recording(scene, args.out, seed=args.seed, codec=args.codec)
     return 0
