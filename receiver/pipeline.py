@@ -38,6 +38,9 @@ DEFAULT_OOK_RATE_HZ = 20000.0  # PROTOCOL.md section 2
 DEFAULT_S2PSK_CLK_HZ = 200.0  # PROTOCOL.md section 3
 DEFAULT_SYMBOL_CLOCKS = 16
 FV_ID_MIN = 0x80  # S2-PSK IDs from here on are vehicles (PROTOCOL.md section 3)
+# Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
+# length (recordings/vehicle); specks below it are noise.
+S2PSK_MIN_AREA_PX = 6.0
 # Longest OFF run of an OOK stream in chips: the sync's OFF run (PROTOCOL.md section 1).
 OOK_MAX_OFF_CHIPS = 4
 # Rows added to the longest expected dark stripe (exposure edges, JPEG ringing).
@@ -200,6 +203,10 @@ class Receiver:
         self.clock = clock
         self.plan = ModePlan.from_map(led_map)
         kw = dict(stripe_gap_px=self.plan.stripe_gap_px(camera))
+        if self.plan.s2psk:
+            # One half of a far street-light head is a few px: the pairing sees it alone in
+            # the frames where only that half is lit (receiver.pairing).
+            kw["min_area_px"] = S2PSK_MIN_AREA_PX
         kw.update(detect_kw or {})
         self.detect_kw = kw
         # The flat-region test runs once per new track on the row profile the decoders need
@@ -351,9 +358,16 @@ class Receiver:
                     p.state = found or st
                 if found is not None:
                     p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
-                for t in (p.a, p.b):
+                # The pair follows its emitters itself (receiver.pairing): the tracks whose blob
+                # it explained this frame are its emitters, whichever track they are.
+                for t in p.tracks:
                     pair_of[t.track_id] = p
                     t.led_id, t.mode = p.led_id, ("s2psk" if p.led_id is not None else t.mode)
+            # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
+            # this frame (it may have jumped to another light's blob) carries none.
+            for t in tracks:
+                if t.mode == "s2psk" and t.track_id not in pair_of:
+                    t.led_id, t.mode = None, None
             timer.stamp("pair")
 
         for t in tracks:

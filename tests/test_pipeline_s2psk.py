@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import types
 
+import cv2
 import numpy as np
 import pytest
 
@@ -138,3 +139,51 @@ def test_real_decoder_gets_the_id_from_the_pipeline():
     assert first is not None and first < 150
     (pair,) = rx.pairer.pairs
     assert pair.led_id == LED_ID and pair.kind == "SL"
+
+
+# A far street-light head (PROTOCOL.md section 3: the two halves of one head): two 7x5 px
+# halves whose centres are 9 px apart, blurred so that the 2 px gap between them fills in
+# when both are lit. A and B are then never two blobs of one frame: symbol 0 shows one merged
+# blob or nothing, symbol 1 one half alone. The head drifts slowly (camera motion).
+HEAD_XY = (500.0, 400.0)  # px, midpoint at frame 0
+HEAD_SEP_PX = 9.0
+HEAD_DRIFT_PX = (0.15, -0.1)  # px per frame
+
+
+def _render_head(k, rng, led_id=LED_ID, t0_s=0.0311):
+    sch = make_schedule("s2psk", led_id, CLK_HZ, SYMCLK)
+    t = t0_s + k / FPS + rng.normal(0, 50e-6)
+    lv = sch.levels[int(t * sch.tick_hz) % len(sch.levels)]
+    img = np.zeros((768, 1024), np.float32)
+    mx, my = HEAD_XY[0] + HEAD_DRIFT_PX[0] * k, HEAD_XY[1] + HEAD_DRIFT_PX[1] * k
+    centres = ((mx - HEAD_SEP_PX / 2, my), (mx + HEAD_SEP_PX / 2, my))
+    for (x, y), on in zip(centres, (lv & 1, lv & 2)):
+        if on:
+            x0, y0 = int(round(x)) - 3, int(round(y)) - 2
+            img[y0:y0 + 5, x0:x0 + 7] = 230.0
+    img = cv2.GaussianBlur(img, (0, 0), 1.0) + 8.0 + rng.normal(0, 2.0, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8), centres
+
+
+def test_far_head_whose_halves_merge_decodes_with_the_real_decoder():
+    """The pair follows the head itself (receiver.pairing): the one blob track jumps between
+    A, B and the merged blob, yet the samples come from the right places, the ID arrives
+    after about one packet (2.4 s = 72 frames) and stays on the head's blobs."""
+    rx = Receiver(_camera(), _map())
+    rng = np.random.default_rng(11)
+    first, after, right = None, 0, 0
+    for k in range(150):
+        gray, centres = _render_head(k, rng)
+        res = rx.process(Frame(k, k / FPS, gray))
+        for o in res.leds:
+            assert o.id in (None, LED_ID)
+            if o.id is not None and first is None:
+                first = k
+            if first is not None and k > first:
+                after += 1
+                right += o.id == LED_ID
+    assert first is not None and first <= 100
+    assert after >= 20 and right == after  # once decoded, every blob of the head carries it
+    (pair,) = [p for p in rx.pairer.pairs if p.led_id == LED_ID]
+    for e, (x, y) in zip((pair.a, pair.b), centres):
+        assert abs(e.cx - x) <= 1.5 and abs(e.cy - y) <= 1.5
