@@ -118,6 +118,14 @@ class PositionKalman:
             return None
         return self.kf.x.reshape(6).copy(), self.kf.P.copy()
 
+    def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The prediction (x (6,), P (6, 6)) at t_s without changing the filter; None without a
+        track or when t_s is before the filter's time or beyond `max_coast_s` of coasting."""
+        if self.kf is None or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+            return None
+        x, P = self.state
+        return cv_predict(x, P, t_s - self.t_s, self.q)
+
     def step(self, t_s: float, z: np.ndarray | None = None, R: np.ndarray | None = None):
         self.last_accepted = False
         if self.kf is None:

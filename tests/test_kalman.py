@@ -90,3 +90,17 @@ def test_gate_rejects_outlier_and_restarts_after_repeats():
     kf.step(1.1, np.array([3.0, 0, 1]), R)
     x, _ = kf.step(1.2, np.array([3.0, 0, 1]), R)         # third in a row: the person did move
     assert kf.last_accepted and x[0] == pytest.approx(3.0)
+
+
+def test_predict_at_matches_pure_prediction_and_leaves_the_filter_alone():
+    kf = PositionKalman(accel_psd=0.5)
+    kf.step(0.0, np.array([1.0, 2.0, 1.0]), 0.01 * np.eye(3))
+    kf.step(0.1, np.array([1.1, 2.0, 1.0]), 0.01 * np.eye(3))
+    x, P = kf.state
+    xp, Pp = kf.predict_at(0.25)
+    xe, Pe = cv_predict(x, P, 0.15, 0.5)
+    assert np.allclose(xp, xe) and np.allclose(Pp, Pe)
+    x2, P2 = kf.state
+    assert np.array_equal(x, x2) and np.array_equal(P, P2)
+    assert kf.predict_at(0.05) is None                     # before the filter's time
+    assert kf.predict_at(0.1 + kf.max_coast_s + 0.01) is None

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from receiver.config import CameraModel, parse_map
-from receiver.locate import (Positioner, multilaterate, multilaterate_linear, pnp_candidates,
+from receiver.locate import (Positioner, is_collinear, multilaterate, multilaterate_linear, pnp_candidates,
                              rotation_to_ypr_deg, solve_fix, ypr_to_rotation)
 from receiver.ranging import (led_outline_world, polygon_area_perimeter, polygon_centroid,
                               project_world, undistort_points)
@@ -190,3 +190,48 @@ def test_walk_with_noise_kalman_beats_raw():
             filt_err.append(math.dist((p["x"], p["y"], p["z"]), C))
     assert np.median(filt_err) < np.median(raw_err)
     assert np.median(filt_err) < 0.02
+
+
+def test_is_collinear():
+    row = np.array([[0.4, 0.25 + 0.5 * i, 3.0] for i in range(5)])
+    assert is_collinear(row) and is_collinear(row[:2])
+    two_rows = np.vstack([row, row + [1.2, 0, 0]])
+    assert not is_collinear(two_rows)
+
+
+def test_single_row_uses_tilt_prior_and_flags_the_blind_direction():
+    # One row of LEDs along world y: ranges and angles cannot see a rotation about the row, so
+    # the fix follows the "held up" tilt prior and its covariance says x (across the row) and z
+    # are poorly known, while y (along the row) stays sharp.
+    cam = make_camera(dist=(0.0, 0.0, 0.0, 0.0, 0.0))
+    leds = [{"id": 100 + i, "mode": "ook", "x": 1.0, "y": 0.6 * i, "z": CEILING_M, "shape": "square",
+             "size": [0.1, 0.1], "rate_hz": 20000} for i in range(4)]
+    m = parse_map({"units": "m", "addressing": "map", "leds": leds})
+    C = np.array([1.3, 0.9, 1.0])
+    for pitch, tol_m in [(90.0, 0.003), (88.0, 0.12)]:
+        R = ypr_to_rotation(0.0, pitch, 0.0)
+        pos = Positioner(cam, m, edge_offset_px=0.0, kalman=False)
+        p = pos.step(0.0, observe(cam, m, C, R)).position
+        assert p["method"] == "range+angle" and p["n_leds"] == 4
+        err = np.array([p["x"], p["y"], p["z"]]) - C
+        assert np.linalg.norm(err) < tol_m, (pitch, err)
+        assert abs(err[1]) < 0.003
+        std = p["raw_std_m"]
+        assert std[0] > 10 * std[1]        # across the row: the prior's 10 degrees, not the data
+
+
+def test_blobs_near_the_image_edge_are_left_out():
+    cam, m = make_camera(), make_map()
+    C = np.array([1.3, 1.1, 1.0])
+    R = ypr_to_rotation(20, 82, 3)
+    obs = observe(cam, m, C, R)
+    o = obs[0]
+    shifted = o.contour - o.contour.min(axis=0) + 5.0          # inside the frame but 5 px from it
+    cut = LedObservation(track=o.track, cx=o.cx, cy=o.cy, area_px=o.area_px, contour=shifted,
+                         id=o.id, mode="ook")
+    pos = Positioner(cam, m, kalman=False)
+    res = pos.step(0.0, [cut] + obs[1:])
+    assert o.track not in res.distances
+    assert res.position["n_leds"] == len(obs) - 1
+    res = Positioner(cam, m, kalman=False, border_margin_px=1.0).step(0.0, [cut] + obs[1:])
+    assert o.track in res.distances
