@@ -267,22 +267,6 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     return blobs
 
 
-def merge_envelopes(blob: Blob, others: list[np.ndarray], shape: tuple[int, int]) -> Blob:
-    """`blob` with its envelope replaced by the convex hull of its own and `others` (K_i, 2)
-    polygons (px, already moved into this frame). Rolling-shutter stripes hide the rows of an
-    LED that fall in OFF chips; the same LED's envelopes from the previous frames (other chip
-    phases) fill in its caps."""
-    if not others:
-        return blob
-    pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
-    cx, cy, area, poly = _hull_geometry(pts)
-    h, w = shape[:2]
-    x0, y0 = np.floor(poly.min(axis=0)).astype(int)
-    x1, y1 = np.floor(poly.max(axis=0)).astype(int) + 1
-    x0, y0, x1, y1 = max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h)
-    return Blob(cx, cy, area, poly, x0, y0, x1, y1, blob.border, blob.peak, blob.level, blob.background)
-
-
 def _hull_stats(hull: np.ndarray) -> tuple[float, float, float]:
     """(cx, cy, area_px) of a cv2.convexHull output (K, 1, 2), as `_hull_geometry` computes
     them (cv2.moments reads int and float32 vertices into doubles alike)."""
@@ -295,9 +279,12 @@ def _hull_stats(hull: np.ndarray) -> tuple[float, float, float]:
 
 
 def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tuple[int, int]) -> list[Blob]:
-    """`merge_envelopes` for many (blob, others) at once, with the same numbers; the per-blob
-    work is cut to the OpenCV calls (the envelope merge runs for every tracked light in every
-    frame)."""
+    """Each `blob` of (blob, others) with its envelope replaced by the convex hull of its own and
+    the `others` (K_i, 2) polygons (px, already moved into this frame). Rolling-shutter stripes
+    hide the rows of an LED that fall in OFF chips; the same LED's envelopes from the previous
+    frames (other chip phases) fill in its caps. The merged envelope is flagged `border` when it
+    reaches the image edge, as `detect` flags a blob. The per-blob work is cut to the OpenCV
+    calls: the merge runs for every tracked light in every frame."""
     h, w = shape[:2]
     out = []
     for blob, others in items:
@@ -308,9 +295,12 @@ def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tupl
         cx, cy, area = _hull_stats(hull)
         # boundingRect of float points: floor of the extremes, width floor(max) - floor(min) + 1
         x0, y0, bw, bh = cv2.boundingRect(hull)
+        x1, y1 = x0 + bw, y0 + bh
+        # An envelope carried in from earlier frames can reach past the edge even when this
+        # frame's blob does not: its area and centroid are then cut just the same.
+        border = blob.border or x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h
         out.append(Blob(cx, cy, area, hull.reshape(-1, 2).astype(np.float64), max(x0, 0), max(y0, 0),
-                        min(x0 + bw, w), min(y0 + bh, h), blob.border, blob.peak, blob.level,
-                        blob.background))
+                        min(x1, w), min(y1, h), border, blob.peak, blob.level, blob.background))
     return out
 
 

@@ -235,8 +235,24 @@ def test_batched_refinement_equals_the_per_blob_one():
         assert want is None or _same_blob(want, got)
 
 
+def _merge_reference(blob, others, shape):
+    """Plain one-blob envelope merge (hull of all points, box floored, clipped to the frame,
+    border when the box reaches the edge): the reference the batched merge must equal."""
+    from receiver.detect import Blob, _hull_geometry
+    if not others:
+        return blob
+    pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
+    cx, cy, area, poly = _hull_geometry(pts)
+    h, w = shape[:2]
+    x0, y0 = np.floor(poly.min(axis=0)).astype(int)
+    x1, y1 = np.floor(poly.max(axis=0)).astype(int) + 1
+    border = blob.border or x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h
+    return Blob(cx, cy, area, poly, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h),
+                bool(border), blob.peak, blob.level, blob.background)
+
+
 def test_merging_many_envelopes_equals_merging_one_by_one():
-    from receiver.detect import merge_envelopes, merge_envelopes_many
+    from receiver.detect import merge_envelopes_many
     leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
@@ -247,4 +263,5 @@ def test_merging_many_envelopes_equals_merging_one_by_one():
     items.append((per_frame[2][1], [np.array([[1e4, 1e4]])]))  # clipped to the frame
     got = merge_envelopes_many(items, frames[0].shape)
     for (blob, others), g in zip(items, got):
-        assert _same_blob(merge_envelopes(blob, others, frames[0].shape), g)
+        assert _same_blob(_merge_reference(blob, others, frames[0].shape), g)
+    assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
