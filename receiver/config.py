@@ -223,6 +223,10 @@ class LedMap:
     default_size: tuple[float, ...] | None = None
     default_rate_hz: float | None = None
     taillight: dict | None = None
+    # Handedness of the map's x, y, z (z up): "right" (seen from above, y is x turned 90 degrees
+    # counter-clockwise), "left" (clockwise: a map surveyed in a mirrored frame), or None when
+    # the map does not say (positioning then tells it from the images, receiver.locate).
+    handedness: str | None = None
 
     def lookup(self, led_id: int) -> Led | None:
         """The LED with this ID, or None when the map does not know it."""
@@ -244,6 +248,8 @@ class LedMap:
                        size=list(self.default_size or []), rate_hz=self.default_rate_hz)
         if self.taillight is not None:
             out["taillight"] = self.taillight
+        if self.handedness is not None:
+            out["handedness"] = self.handedness
         leds = []
         for led in self.leds.values():
             d = {"id": led.id, "mode": led.mode, "x": led.x, "y": led.y, "z": led.z}
@@ -347,9 +353,13 @@ def parse_map(obj, path: str = "map.json") -> LedMap:
         _num(taillight, "baseline_m", f"{path}: taillight", positive=True)
     if not leds and addressing == "map":
         raise InputError(f"{path}: the map lists no LEDs")
+    handedness = obj.get("handedness")
+    if handedness not in (None, "right", "left"):
+        raise InputError(f"{path}: 'handedness' must be 'right' or 'left'")
     return LedMap(units=units, addressing=addressing, leds=leds, ceiling_z=ceiling,
                   default_shape=shape, default_size=size,
-                  default_rate_hz=_num(obj, "rate_hz", path, positive=True), taillight=taillight)
+                  default_rate_hz=_num(obj, "rate_hz", path, positive=True), taillight=taillight,
+                  handedness=handedness)
 
 
 def load_map(path: str) -> LedMap:

@@ -496,6 +496,155 @@ def _xyz(v) -> dict:
     return {"x": round(float(v[0]), 5), "y": round(float(v[1]), 5), "z": round(float(v[2]), 5)}
 
 
+# Mirror of the world's y axis and of the camera's x axis (image columns reversed): a map drawn in
+# a left-handed frame is solved in its mirror P = MIRROR_WORLD @ M, and the pose reported back in
+# the map's frame as R = MIRROR_CAM @ R_P @ MIRROR_WORLD, the only way for it to stay a rotation.
+MIRROR_WORLD = np.diag([1.0, -1.0, 1.0])
+MIRROR_CAM = np.diag([-1.0, 1.0, 1.0])
+# With the map's handedness unknown, a frame with this many non-collinear LEDs decides it: the
+# cyclic order of 3+ LEDs seen from below differs between a map and its mirror.
+HANDEDNESS_MIN_LEDS = 3
+# ... when the fit in the chosen frame is this much better (chi^2 ratio) than in the other one.
+HANDEDNESS_CHI2_RATIO = 10.0
+
+
+def is_mirror_fit_better(good: Fix | None, other: Fix | None) -> bool:
+    """True when `good` explains the frame and `other` (the same data in the mirrored world) does
+    not: no fix there (camera above the LEDs), or a chi^2 `HANDEDNESS_CHI2_RATIO` times worse."""
+    if good is None:
+        return False
+    if other is None:
+        return True
+    return other.chi2 > HANDEDNESS_CHI2_RATIO * max(good.chi2, float(good.dof), 1.0)
+
+
+class PoseFilter:
+    """One receiver's positioning state: per frame, the map positions, undistorted image points
+    and ranges of its decoded LEDs -> a fix (`solve_fix`) -> the Kalman filter -> the INTERFACES.md
+    `position` object. `Positioner` holds one; the lighting server holds one per device.
+
+    The map's handedness (`LedMap.handedness`): "right" is solved as it is; "left" in its mirror
+    (`MIRROR_WORLD`), with positions mapped back and the orientation reported against the mirrored
+    camera (`MIRROR_CAM`, image x reversed) so that it is a rotation. A map that does not say is
+    taken as right-handed until the first frame with `HANDEDNESS_MIN_LEDS` non-collinear LEDs,
+    which is solved both ways: when only the mirror explains it (e.g. the Luxapose rig map, whose
+    photo has no pose below the LEDs as surveyed), the map is left-handed for the rest of the run
+    (`handedness`, "detected" in `handedness_source`), and the filter restarts in that frame.
+    All state (filter, priors) lives in the solving frame.
+    """
+
+    def __init__(self, *, handedness: str | None = None, sigma_uv: float, solver: str = "auto",
+                 kalman: bool = True, accel_psd: float = DEFAULT_ACCEL_PSD,
+                 max_coast_s: float = DEFAULT_MAX_COAST_S, loss: str = DEFAULT_LOSS,
+                 f_scale: float = DEFAULT_F_SCALE, tilt_prior: str = "up",
+                 tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG, track_prior: bool = False):
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}")
+        if handedness not in (None, "right", "left"):
+            raise ValueError(f"unknown handedness {handedness!r}")
+        self.handedness = handedness or "right"
+        self.handedness_source = "map" if handedness else "default"
+        self.sigma_uv, self.solver = sigma_uv, solver
+        self.loss, self.f_scale = loss, f_scale
+        self.max_coast_s = max_coast_s
+        self.tilt_prior, self.tilt_sigma_deg, self.track_prior = tilt_prior, tilt_sigma_deg, track_prior
+        self._kalman_args = dict(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
+        self.n_fixes = 0
+        self._restart()
+
+    def _restart(self) -> None:
+        self.kf = PositionKalman(**self._kalman_args) if self._kalman_args is not None else None
+        self._R_cw: np.ndarray | None = None
+        self._t_R: float | None = None
+        self._C: np.ndarray | None = None
+        self._t_C: float | None = None
+
+    @property
+    def mirrored(self) -> bool:
+        return self.handedness == "left"
+
+    def to_solving(self, L_map: np.ndarray) -> np.ndarray:
+        """(N, 3) map-frame points -> the solving frame."""
+        L = np.asarray(L_map, float).reshape(-1, 3)
+        return L @ MIRROR_WORLD if self.mirrored else L
+
+    def R_prior(self, t_s: float) -> np.ndarray | None:
+        """World-to-camera rotation (solving frame) of the last fix, if recent enough."""
+        if self._t_R is not None and 0 <= t_s - self._t_R <= self.max_coast_s:
+            return self._R_cw
+        return None
+
+    def solve(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
+              sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> Fix | None:
+        """One frame's fix in the solving frame (no state change except the handedness decision).
+        L_map (N, 3) map m; uv (N, 2) undistorted normalized image points or None; d, sigma_d (N,)
+        ranges and their 1-sigma, m (NaN where unknown). R_prior: solving-frame orientation guess."""
+        pred = None if self.kf is None or not self.track_prior else self.kf.predict_at(t_s)
+        if pred is not None:
+            C_prior, C_prior_cov = pred[0][:3], pred[1][:3, :3]
+        else:
+            recent = self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s
+            C_prior, C_prior_cov = (self._C if recent else None), None
+        kw = dict(sigma_uv=self.sigma_uv, solver=self.solver, loss=self.loss, f_scale=self.f_scale,
+                  tilt_sigma_deg=self.tilt_sigma_deg,
+                  tilt_prior_R=R_LOOKING_UP if self.tilt_prior == "up" else None)
+        L_map = np.asarray(L_map, float).reshape(-1, 3)
+        fix = solve_fix(self.to_solving(L_map), uv, d, sigma_d, R_prior=R_prior, C_prior=C_prior,
+                        C_prior_cov=C_prior_cov, **kw)
+        if (self.handedness_source == "default" and uv is not None and self.solver != "multilateration"
+                and len(L_map) >= HANDEDNESS_MIN_LEDS and not is_collinear(L_map)):
+            # Undecided map: this frame can tell the map from its mirror.
+            other = "left" if self.handedness == "right" else "right"
+            L_other = L_map @ MIRROR_WORLD if other == "left" else L_map
+            fix_other = solve_fix(L_other, uv, d, sigma_d, **kw)
+            if is_mirror_fit_better(fix_other, fix):
+                self.handedness, self.handedness_source = other, "detected"
+                self._restart()
+                return fix_other
+            if is_mirror_fit_better(fix, fix_other):
+                self.handedness_source = "detected"
+        return fix
+
+    def update(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
+        """Feed one frame's fix (or None) to the filter; the INTERFACES.md `position` object
+        (map frame) or None."""
+        if fix is not None:
+            self.n_fixes += 1
+            self._C, self._t_C = fix.C, t_s
+            if fix.R_cw is not None:
+                self._R_cw, self._t_R = fix.R_cw, t_s
+        state = None
+        if self.kf is not None:
+            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if fix is None and state is None:
+            return None
+        F = MIRROR_WORLD if self.mirrored else np.eye(3)
+        if state is not None:
+            x, P = state
+            P3 = F @ P[:3, :3] @ F
+            pos = _xyz(F @ x[:3])
+            pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
+                       filtered=True, std_m=[round(s, 5) for s in position_std(P3)],
+                       cov=np.round(P3, 8).tolist(),
+                       velocity_mps=[round(float(v), 4) for v in F @ x[3:]])
+        else:
+            pos = _xyz(F @ fix.C)
+            pos.update(method=fix.method, n_leds=n_leds, filtered=False)
+        if fix is not None:
+            pos["raw"] = _xyz(F @ fix.C)
+            pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
+            if fix.R_cw is not None:
+                R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if self.mirrored else fix.R_cw
+                pos["R_wc"] = np.round(R.T, 6).tolist()   # camera-to-world, columns = camera axes
+                yaw, pitch, roll = rotation_to_ypr_deg(R)
+                pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
+        else:
+            pos["raw"] = None
+        if self.handedness_source != "default":
+            pos["handedness"] = self.handedness
+        return pos
+
+
 class Positioner:
     """Decoded LEDs of one frame -> distances and camera position, Kalman-filtered over frames.
 
@@ -526,6 +675,8 @@ class Positioner:
     `border_margin_px`: blobs whose envelope comes this close to the image edge are left out, as
         are blobs flagged `border`: their area and centroid are cut by the frame edge.
     LEDs whose ID the map does not know are counted in `unknown_ids`.
+    `handedness`: "right" or "left" overrides the map's own (`PoseFilter`); None: the map's, or
+        told from the images when the map does not say.
     """
 
     def __init__(self, camera: CameraModel, led_map: LedMap, *, ranging: str = "oblique",
@@ -536,28 +687,25 @@ class Positioner:
                  f_scale: float = DEFAULT_F_SCALE, ranging_iterations: int = 0,
                  border_margin_px: float = DEFAULT_BORDER_MARGIN_PX, tilt_prior: str = "up",
                  tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG, track_prior: bool = False,
-                 ranges_only_iterations: int = 3):
+                 ranges_only_iterations: int = 3, handedness: str | None = None):
         if ranging not in ESTIMATORS:
             raise ValueError(f"unknown ranging estimator {ranging!r}")
-        if solver not in SOLVERS:
-            raise ValueError(f"unknown solver {solver!r}")
         self.camera, self.led_map = camera, led_map
         self.ranging, self.solver = ranging, solver
-        self.sigma_uv = pixel_sigma_px / camera.focal_px
         self.edge_sigma_px, self.model_rel_sigma = edge_sigma_px, model_rel_sigma
         self.edge_offset_px = edge_offset_px
-        self.loss, self.f_scale = loss, f_scale
-        self.max_coast_s = max_coast_s
         self.ranging_iterations = ranging_iterations
         self.ranges_only_iterations = ranges_only_iterations
         self.border_margin_px = border_margin_px
-        self.tilt_prior, self.tilt_sigma_deg, self.track_prior = tilt_prior, tilt_sigma_deg, track_prior
-        self.kf = PositionKalman(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
+        self.pose = PoseFilter(handedness=handedness or led_map.handedness,
+                               sigma_uv=pixel_sigma_px / camera.focal_px, solver=solver, kalman=kalman,
+                               accel_psd=accel_psd, max_coast_s=max_coast_s, loss=loss, f_scale=f_scale,
+                               tilt_prior=tilt_prior, tilt_sigma_deg=tilt_sigma_deg, track_prior=track_prior)
         self.unknown_ids: set[int] = set()
-        self.n_fixes = 0
-        self._R_cw: np.ndarray | None = None
-        self._t_R: float | None = None
-        self._C: np.ndarray | None = None
+
+    @property
+    def n_fixes(self) -> int:
+        return self.pose.n_fixes
 
     def _ranges(self, items, R_cw):
         d = np.full(len(items), np.nan)
@@ -590,7 +738,9 @@ class Positioner:
         return bool(lo[0] <= m or lo[1] <= m or hi[0] >= self.camera.width - 1 - m
                     or hi[1] >= self.camera.height - 1 - m)
 
-    def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
+    def measure(self, leds: list[LedObservation]) -> list:
+        """The frame's usable LEDs: (observation, map LED, contour geometry or None) for every
+        decoded, uncut LED the map knows (unknown IDs are counted in `unknown_ids`)."""
         items = []
         for obs in leds:
             if obs.id is None or obs.border or self._touches_edge(obs):
@@ -603,23 +753,23 @@ class Positioner:
             if obs.contour is not None and len(obs.contour) >= 3:
                 geo = contour_geometry(obs.contour, self.camera, self.edge_offset_px)
             items.append((obs, led, geo))
+        return items
 
-        recent = self._t_R is not None and 0 <= t_s - self._t_R <= self.max_coast_s
-        R_prior = self._R_cw if recent else None
+    def image_points(self, items) -> np.ndarray:
+        """(N, 2) undistorted normalized image points of `measure`'s items."""
+        if not items:
+            return np.zeros((0, 2))
+        return undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
+
+    def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
+        items = self.measure(leds)
+        R_prior = self.pose.R_prior(t_s)
         d, sd, names = self._ranges(items, R_prior)
         fix = None
         if items:
             L = np.array([led.xyz for _, led, _ in items])
-            uv = undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
-            pred = None if self.kf is None or not self.track_prior else self.kf.predict_at(t_s)
-            if pred is not None:
-                C_prior, C_prior_cov = pred[0][:3], pred[1][:3, :3]
-            else:
-                C_prior, C_prior_cov = (self._C if recent else None), None
-            kw = dict(sigma_uv=self.sigma_uv, solver=self.solver, loss=self.loss, f_scale=self.f_scale,
-                      C_prior=C_prior, C_prior_cov=C_prior_cov, tilt_sigma_deg=self.tilt_sigma_deg,
-                      tilt_prior_R=R_LOOKING_UP if self.tilt_prior == "up" else None)
-            fix = solve_fix(L, uv, d, sd, R_prior=R_prior, **kw)
+            uv = self.image_points(items)
+            fix = self.pose.solve(t_s, L, uv, d, sd, R_prior)
             n_iter = self.ranges_only_iterations if self.solver == "multilateration" else self.ranging_iterations
             for _ in range(n_iter if self.ranging == "oblique" else 0):
                 if fix is None:
@@ -633,45 +783,13 @@ class Positioner:
                     # Tilt error and range error feed each other back here with a gain of about
                     # -2/3 (ceiling LEDs), so the plain loop oscillates; averaging old and new
                     # ranges damps the loop gain to about 1/6.
-                    R = align_rays(ray_unit(uv), L - fix.C)
+                    R = align_rays(ray_unit(uv), self.pose.to_solving(L) - fix.C)
                     d_new, sd, names = self._ranges(items, R)
                     d = np.where(np.isfinite(d), 0.5 * (d + d_new), d_new)
-                fix = solve_fix(L, uv, d, sd, R_prior=R, **kw) or fix
+                fix = self.pose.solve(t_s, L, uv, d, sd, R) or fix
             if fix is not None and fix.R_cw is not None and self.ranging == "oblique":
                 # The reported distances use this frame's own orientation (cheap: no new solve).
                 d, sd, names = self._ranges(items, fix.R_cw)
         distances = {obs.track: (round(float(d[i]), 5), names[i])
                      for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
-        if fix is not None:
-            self.n_fixes += 1
-            self._C = fix.C
-            if fix.R_cw is not None:
-                self._R_cw, self._t_R = fix.R_cw, t_s
-        return LocateResult(distances=distances, position=self._position(t_s, fix, len(items)))
-
-    def _position(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
-        state = None
-        if self.kf is not None:
-            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
-        if fix is None and state is None:
-            return None
-        if state is not None:
-            x, P = state
-            pos = _xyz(x[:3])
-            pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
-                       filtered=True, std_m=[round(s, 5) for s in position_std(P)],
-                       cov=np.round(P[:3, :3], 8).tolist(),
-                       velocity_mps=[round(float(v), 4) for v in x[3:]])
-        else:
-            pos = _xyz(fix.C)
-            pos.update(method=fix.method, n_leds=n_leds, filtered=False)
-        if fix is not None:
-            pos["raw"] = _xyz(fix.C)
-            pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
-            if fix.R_cw is not None:
-                pos["R_wc"] = np.round(fix.R_cw.T, 6).tolist()   # camera-to-world, columns = camera axes
-                yaw, pitch, roll = rotation_to_ypr_deg(fix.R_cw)
-                pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
-        else:
-            pos["raw"] = None
-        return pos
+        return LocateResult(distances=distances, position=self.pose.update(t_s, fix, len(items)))

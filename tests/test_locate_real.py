@@ -44,7 +44,7 @@ def test_all_five_leds_decoded(rig):
 
 def test_photo_is_the_mirror_of_the_map(rig):
     cam, led_map, leds, px, L = rig
-    sigma_uv = Positioner(cam, led_map).sigma_uv
+    sigma_uv = Positioner(cam, led_map).pose.sigma_uv
     nan = np.full(len(L), np.nan)
     # As photographed, only the mirror solution above the LED plane fits: rejected.
     assert solve_fix(L, undistort_points(px, cam), nan, nan, sigma_uv=sigma_uv) is None
