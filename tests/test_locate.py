@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from receiver.config import CameraModel, parse_map
-from receiver.locate import (Positioner, is_collinear, multilaterate, multilaterate_linear, pnp_candidates,
+from receiver.locate import (MIRROR_CAM, MIRROR_WORLD, Positioner, is_collinear, multilaterate, multilaterate_linear, pnp_candidates,
                              rotation_to_ypr_deg, solve_fix, ypr_to_rotation)
 from receiver.ranging import (led_outline_world, polygon_area_perimeter, polygon_centroid,
                               project_world, undistort_points)
@@ -235,3 +235,52 @@ def test_blobs_near_the_image_edge_are_left_out():
     assert res.position["n_leds"] == len(obs) - 1
     res = Positioner(cam, m, kalman=False, border_margin_px=1.0).step(0.0, [cut] + obs[1:])
     assert o.track in res.distances
+
+
+def mirrored_map(m, handedness=None):
+    """The same physical LEDs described in a left-handed frame (y negated)."""
+    obj = m.to_json()
+    for led in obj["leds"]:
+        led["y"] = -led["y"]
+    if handedness:
+        obj["handedness"] = handedness
+    return parse_map(obj)
+
+
+@pytest.mark.parametrize("declared", [None, "left"])
+def test_left_handed_map_is_solved_in_its_mirror(declared):
+    cam, m = make_camera(), make_map()
+    C, R = np.array([1.3, 1.1, 1.0]), ypr_to_rotation(20, 82, 3)
+    obs = observe(cam, m, C, R)
+    assert len(obs) >= 3 and not is_collinear(np.array([m.lookup(o.id).xyz for o in obs]))
+    mm = mirrored_map(m, declared)
+    assert Positioner(cam, mm, kalman=False, handedness="right").step(0.0, obs).position is None
+    pos = Positioner(cam, mm, edge_offset_px=0.0, kalman=False)
+    p = pos.step(0.0, obs).position
+    assert p["handedness"] == "left" and pos.pose.handedness_source == ("map" if declared else "detected")
+    assert math.dist((p["x"], p["y"], p["z"]), MIRROR_WORLD @ C) < 0.003
+    Rwc = np.array(p["R_wc"])
+    assert np.allclose(Rwc @ Rwc.T, np.eye(3), atol=1e-5) and np.linalg.det(Rwc) > 0.99999
+    assert np.allclose(Rwc.T, MIRROR_CAM @ R @ MIRROR_WORLD, atol=2e-3)
+    # The filter keeps going in the mirror on later frames, with collinear LEDs too.
+    C2 = C + [0.02, 0.01, 0.0]
+    p2 = pos.step(0.1, observe(cam, m, C2, R)).position
+    assert math.dist((p2["x"], p2["y"], p2["z"]), MIRROR_WORLD @ C2) < 0.003
+
+
+def test_right_handed_map_is_detected_as_such():
+    cam, m = make_camera(), make_map()
+    C, R = np.array([1.3, 1.1, 1.0]), ypr_to_rotation(20, 82, 3)
+    pos = Positioner(cam, m, edge_offset_px=0.0, kalman=False)
+    p = pos.step(0.0, observe(cam, m, C, R)).position
+    assert p["handedness"] == "right" and pos.pose.handedness_source == "detected"
+    assert math.dist((p["x"], p["y"], p["z"]), C) < 0.003
+
+
+def test_map_handedness_round_trip_and_validation():
+    from receiver.errors import InputError
+    m = mirrored_map(make_map(), "left")
+    assert parse_map(m.to_json()).handedness == "left"
+    assert "handedness" not in make_map().to_json()
+    with pytest.raises(InputError, match="handedness"):
+        parse_map({**make_map().to_json(), "handedness": "up"})
