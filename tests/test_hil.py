@@ -47,3 +47,18 @@ def test_cli_absent_port_is_one_line_error():
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("occloc:")
+
+
+def test_s2psk_resolvable_needs_two_separated_emitters_for_a_packet():
+    from tools.hil import packet_frames, resolved_in_frame
+    from tools.synth import make_scene
+    em = [{"cx": 100.0, "cy": 50.0, "area_px": 9.0, "visible": True},
+          {"cx": 106.0, "cy": 50.0, "area_px": 9.0, "visible": True}]
+    led = {"id": 142, "visible": True, "emitters": em}
+    assert resolved_in_frame(led, "s2psk")
+    assert not resolved_in_frame({**led, "emitters": [em[0], {**em[1], "cx": 102.0}]}, "s2psk")
+    assert not resolved_in_frame({**led, "emitters": [em[0], {**em[1], "area_px": 1.5}]}, "s2psk")
+    assert not resolved_in_frame({**led, "visible": False}, "s2psk")
+    assert resolved_in_frame({"id": 1, "visible": True}, "ook")
+    # 30 symbols x 16 clocks / 200 Hz = 2.4 s = 72 frames at 30 fps
+    assert packet_frames(make_scene("vehicle", seed=1, n_frames=2)) == 72
