@@ -41,6 +41,8 @@ def add_arguments(p) -> None:
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
     p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--server", metavar="udp://HOST:PORT",
+                   help="solve positions on a lighting server (occloc serve); ranging stays here")
 
 
 def default_source() -> str:
@@ -72,13 +74,26 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
-def make_positioner(camera, led_map):
-    """receiver.locate.Positioner when that module is available, else None."""
+def make_positioner(camera, led_map, server: str | None = None):
+    """receiver.locate.Positioner when that module is available, else None; with `server`
+    (udp://HOST:PORT) a receiver.netclient.RemotePositioner that solves on that lighting server."""
+    if server is not None:
+        from receiver.netclient import RemotePositioner
+        return RemotePositioner(camera, led_map, server)
     try:
         from receiver.locate import Positioner
     except ImportError:
         return None
     return Positioner(camera, led_map)
+
+
+def _server_text(positioner) -> str:
+    """The summary's note on a lighting server's missing replies ('' when there were none)."""
+    timeouts, errors = getattr(positioner, "timeouts", 0), getattr(positioner, "errors", 0)
+    text = f"; server timeouts: {timeouts}" if timeouts else ""
+    if errors:
+        text += f"; server errors: {errors} (last: {positioner.last_error})"
+    return text
 
 
 class Progress:
@@ -119,6 +134,10 @@ def main(args) -> int:
         raise InputError("--max-frames must not be negative")
     if args.fps is not None and not args.fps > 0:
         raise InputError("--fps must be positive")
+    server = getattr(args, "server", None)
+    if server is not None:
+        from receiver.netclient import parse_udp_url
+        parse_udp_url(server)          # a bad URL is an error before any work
     if spec != "-" and not spec.startswith("/dev/video") and not os.path.exists(spec):
         raise InputError(f"no such file or folder: {spec}")
     rec = find_recording_files(spec) if spec != "-" and os.path.isdir(spec) else {}
@@ -141,7 +160,10 @@ def main(args) -> int:
         if rotate:
             print(f"occloc: {spec}: frames are {src.size[0]}x{src.size[1]}, the camera "
                   f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
-        rx = Receiver(cam, led_map, positioner=make_positioner(cam, led_map), still=src.is_still)
+        # Without --server the two-argument call of older make_positioner replacements (tests).
+        positioner = (make_positioner(cam, led_map, server=server) if server
+                      else make_positioner(cam, led_map))
+        rx = Receiver(cam, led_map, positioner=positioner, still=src.is_still)
         out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout
         summary = RunSummary()
         total = getattr(getattr(src, "inner", src), "frame_count", None) or None
@@ -159,12 +181,15 @@ def main(args) -> int:
                 progress.update(summary.frames, len(summary.ids))
         finally:
             progress.done()
+            if hasattr(positioner, "close"):
+                positioner.close()
             if out is not sys.stdout:
                 out.close()
             else:
                 out.flush()
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped,
-                                        truncated=src.truncated), file=sys.stderr)
+                                        truncated=src.truncated) + _server_text(positioner),
+              file=sys.stderr)
     except OSError as e:
         if isinstance(e, BrokenPipeError):
             raise
