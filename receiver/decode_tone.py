@@ -63,6 +63,11 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     if k1 - k0 < 3:
         return float("nan"), 0.0
     kp = k0 + int(np.argmax(spec[k0:k1 + 1]))
+    if kp == k0 or kp == k1:
+        # The maximum sits on the edge of the searched band: the line is outside it (e.g. below
+        # the lowest frequency a record this short can hold), and the edge value would depend
+        # on the record length, not on the LED. No estimate.
+        return float("nan"), 0.0
     # noise floor over everything above the low limit, not just the searched band (a narrow
     # band would be filled by the peak's own main lobe)
     tail = spec[k0:]

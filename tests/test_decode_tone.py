@@ -182,3 +182,20 @@ def test_tone_profile_benchmark(benchmark):
     prof, w, _ = benchmark(tone_profile, gray, blob)
     est, _ = stripe_frequency_hz(prof, 21.035, w, fmin_hz=1000.0, fmax_hz=6000.0)
     assert abs(est / 3000.0 - 1) < 0.005
+
+
+def test_record_too_short_for_the_tone_is_no_estimate():
+    """A blob spanning 1.38 periods of its 2000 Hz tone (46 rows of 15 us, a 10 cm panel on the
+    bundled static scene): the searched band starts at 1.5 cycles per record (2174 Hz), above
+    the line, so the spectrum's maximum is the band edge, a frequency set by the record length.
+    It must not be reported: in this table it would be read as the 2150 Hz LED."""
+    rng = np.random.default_rng(5)
+    table = {1: 2000.0, 2: 2150.0, 3: 2300.0}
+    for _ in range(20):
+        p, w = synth_profile(2000.0, 15.0, 20.0, 46, rng, noise=2.0)
+        f, _ = stripe_frequency_hz(p, 15.0, w, fmin_hz=1000.0, fmax_hz=3450.0)
+        assert np.isnan(f) or match_tone(f, table) in (1, None), f
+    dec = ToneDecoder(table, 15.0)
+    for _ in range(10):
+        p, w = synth_profile(2000.0, 15.0, 20.0, 46, rng, noise=2.0)
+        assert dec.step(p, w).led_id in (1, None)
