@@ -249,10 +249,11 @@ class Pairer:
         p.mx, p.my = mx + sx, my + sy
         for e, obs, sign in ((p.a, obs_a, -1.0), (p.b, obs_b, 1.0)):
             # An emitter's own single blob becomes its envelope (shape and size); it sits at
-            # the rigid pair's position.
+            # the rigid pair's position, to the nearest whole pixel (`moved`: its centroid stays
+            # the mask's, so sub-pixel steps add up instead of being rounded away every frame).
             x, y = p.mx + sign * hx, p.my + sign * hy
             blob = obs if obs is not None else e.blob
-            e.blob = dataclasses.replace(moved(blob, x, y), cx=x, cy=y)
+            e.blob = moved(blob, x, y)
         if p.misses > self.max_missed:
             return False
         if shape is not None:
@@ -337,8 +338,8 @@ class Pairer:
             if (t.track_id, t.track_id) in self.banned:
                 continue
             a, b = _emitter(t), _emitter(t)
-            a.blob = dataclasses.replace(moved(t.blob, ax, ay), cx=ax, cy=ay)
-            b.blob = dataclasses.replace(moved(t.blob, ax + jx, ay + jy), cx=ax + jx, cy=ay + jy)
+            a.blob = moved(t.blob, ax, ay)
+            b.blob = moved(t.blob, ax + jx, ay + jy)
             self.pairs.append(Pair(a, b, fresh=False, tracks=[t], nearby=[t]))
             busy.add(t.track_id)
             self.jumps.pop(t.track_id, None)

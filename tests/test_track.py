@@ -106,3 +106,21 @@ def test_emitter_levels():
         lv.add(v)
     assert lv.off < 20 and lv.on > 190 and lv.blinks(50)
     assert not EmitterLevels().blinks(1)
+
+
+def test_coasting_pair_moves_its_emitter_masks_with_it():
+    """A far head drifting 0.4 px per frame with both emitters dark: the masks its intensities
+    are read in must follow the pair's own position (whole-pixel steps, never more than half a
+    pixel behind), not stay where the last blob was."""
+    from receiver.pairing import Pair, _emitter
+    a, b = Track(1, blob(100.0, 50.0, 2.0), 0, 0), Track(2, blob(110.0, 50.0, 2.0), 0, 0)
+    p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
+    pr = Pairer(max_missed=100)
+    assert pr._follow(p, [], np.zeros((0, 2)), None)  # forms the geometry
+    p.vx = 0.4
+    for _ in range(20):
+        assert pr._follow(p, [], np.zeros((0, 2)), None)
+    for e, sign in ((p.a, -1.0), (p.b, 1.0)):
+        mask_x = e.blob.hull[:, 0].mean()   # the square mask's centre
+        assert abs(mask_x - (p.mx + sign * 5.0)) <= 0.5 + 1e-9, (mask_x, p.mx)
+    assert abs(p.mx - 113.0) < 1e-9   # 105 + 20 x 0.4
