@@ -504,14 +504,18 @@ MIRROR_CAM = np.diag([-1.0, 1.0, 1.0])
 # With the map's handedness unknown, a frame with this many non-collinear LEDs decides it: the
 # cyclic order of 3+ LEDs seen from below differs between a map and its mirror.
 HANDEDNESS_MIN_LEDS = 3
-# ... when the fit in the chosen frame is this much better (chi^2 ratio) than in the other one.
+# ... when the fit in the chosen frame is this much better (chi^2 ratio) than in the other one,
+# and good in itself: chi^2 per degree of freedom at most this (residuals within ~10 sigma RMS;
+# the Luxapose photo's mirror fit has 22, the bundled walk's first decisive frame 6).
 HANDEDNESS_CHI2_RATIO = 10.0
+HANDEDNESS_MAX_CHI2_DOF = 100.0
 
 
 def is_mirror_fit_better(good: Fix | None, other: Fix | None) -> bool:
-    """True when `good` explains the frame and `other` (the same data in the mirrored world) does
-    not: no fix there (camera above the LEDs), or a chi^2 `HANDEDNESS_CHI2_RATIO` times worse."""
-    if good is None:
+    """True when `good` explains the frame (chi^2 per dof at most `HANDEDNESS_MAX_CHI2_DOF`) and
+    `other` (the same data in the mirrored world) does not: no fix there (camera above the LEDs),
+    or a chi^2 `HANDEDNESS_CHI2_RATIO` times worse."""
+    if good is None or good.chi2 > HANDEDNESS_MAX_CHI2_DOF * max(good.dof, 1):
         return False
     if other is None:
         return True

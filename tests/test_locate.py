@@ -284,3 +284,13 @@ def test_map_handedness_round_trip_and_validation():
     assert "handedness" not in make_map().to_json()
     with pytest.raises(InputError, match="handedness"):
         parse_map({**make_map().to_json(), "handedness": "up"})
+
+
+def test_handedness_needs_a_good_fit_to_decide():
+    from receiver.locate import Fix, is_mirror_fit_better
+    C, cov, R = np.zeros(3), np.eye(3), np.eye(3)
+    good = Fix(C, cov, R, "pnp", 4, chi2=12.0, dof=6)
+    bad = Fix(C, cov, R, "pnp", 4, chi2=700.0, dof=6)       # 117 per dof: explains nothing
+    assert is_mirror_fit_better(good, None) and is_mirror_fit_better(good, bad)
+    assert not is_mirror_fit_better(bad, None) and not is_mirror_fit_better(None, good)
+    assert not is_mirror_fit_better(good, Fix(C, cov, R, "pnp", 4, chi2=100.0, dof=6))  # < 10x
