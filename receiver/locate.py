@@ -744,14 +744,20 @@ class Positioner:
 
     def measure(self, leds: list[LedObservation]) -> list:
         """The frame's usable LEDs: (observation, map LED, contour geometry or None) for every
-        decoded, uncut LED the map knows (unknown IDs are counted in `unknown_ids`)."""
+        decoded, uncut OOK or tone LED the map knows (unknown IDs are counted in `unknown_ids`).
+        S2-PSK lights are left out: a street-light head or a taillight pair is seen as two
+        emitter blobs, not one fixture of the map's size, from a camera looking along the road,
+        not up at a ceiling; placing the vehicle from them is thesis eqs. 44-53, not this
+        indoor solver (whose fixes and ranges from them were metres off on the vehicle scene)."""
         items = []
         for obs in leds:
-            if obs.id is None or obs.border or self._touches_edge(obs):
+            if obs.id is None or obs.border or obs.mode == "s2psk" or self._touches_edge(obs):
                 continue
             led = self.led_map.lookup(obs.id)
             if led is None:
                 self.unknown_ids.add(obs.id)
+                continue
+            if led.mode == "s2psk":
                 continue
             geo = None
             if obs.contour is not None and len(obs.contour) >= 3:

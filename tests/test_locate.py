@@ -294,3 +294,19 @@ def test_handedness_needs_a_good_fit_to_decide():
     assert is_mirror_fit_better(good, None) and is_mirror_fit_better(good, bad)
     assert not is_mirror_fit_better(bad, None) and not is_mirror_fit_better(None, good)
     assert not is_mirror_fit_better(good, Fix(C, cov, R, "pnp", 4, chi2=100.0, dof=6))  # < 10x
+
+
+def test_s2psk_lights_are_not_indoor_fixtures():
+    """Street lights / taillights (S2-PSK) give neither ranges nor fixes here (thesis eqs. 44-53
+    are the vehicle stage's): the same observations as OOK LEDs do."""
+    cam, m = make_camera(), make_map()
+    obj = m.to_json()
+    for led in obj["leds"]:
+        led.update(mode="s2psk", rate_hz=200.0)
+    m2 = parse_map(obj)
+    C, R = np.array([1.3, 1.1, 1.0]), ypr_to_rotation(20, 82, 3)
+    obs = observe(cam, m, C, R)
+    assert Positioner(cam, m, kalman=False).step(0.0, obs).position is not None
+    s2 = [LedObservation(**{**o.__dict__, "mode": "s2psk"}) for o in obs]
+    res = Positioner(cam, m2, kalman=False).step(0.0, s2)
+    assert res.position is None and res.distances == {}
