@@ -25,6 +25,12 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
    already accumulated (only when unambiguous); unalignable frames wait in a short queue and are
    retried as the accumulator fills. Before anything is anchored, frames are chained in an
    arbitrary cyclic frame and rotated into place once the sync shows in the accumulation.
+   With a frame-clock hint (`step(..., clock=, y0=)`, receiver.frameclock: the frame's packet
+   timing measured on lights already decoded, which cancels the frame-start jitter common to
+   all lights), a frame is also placed by timing alone, at the offset this light showed in its
+   own sync-placed frames: small lights whose successive frames barely overlap are then
+   assembled without correlation (`_timed_shift`; checked against the chips it overlaps, and
+   every timed frame must fit the decoded packet at its own shift before the ID is reported).
 5. `decode_packet`: Manchester soft decision per data bit (difference of the pair's two chips),
    reliability = the weakest pair, then CRC-8. An ID whose CRC fails is never reported. A
    packet that relied on a risky alignment (short overlaps: small blobs) is also checked
@@ -57,6 +63,24 @@ SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not ou
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
 _CRC8_TABLE: np.ndarray | None = None
+
+
+def wrap_chips(x: float) -> float:
+    """A packet coordinate difference mapped to [-27, 27) chips."""
+    return (x + 0.5 * PACKET_LEN) % PACKET_LEN - 0.5 * PACKET_LEN
+
+
+def line_predict(obs, k: float, window: int) -> float:
+    """Value at k of a least-squares line through the last `window` (k_i, v_i) of `obs`
+    (v continuous, already unwrapped); the last value when they span fewer than 2 frames."""
+    pts = list(obs)[-window:]
+    if len(pts) == 1 or pts[-1][0] - pts[0][0] < 2:
+        return pts[-1][1]
+    ks = np.array([p[0] for p in pts], dtype=np.float64)
+    vs = np.array([p[1] for p in pts], dtype=np.float64)
+    km = ks.mean()
+    slope = float(((ks - km) * (vs - vs.mean())).sum() / ((ks - km) ** 2).sum())
+    return float(vs.mean() + slope * (k - km))
 
 
 def crc8_table() -> np.ndarray:
@@ -336,6 +360,15 @@ class OokDecoder:
       align_when_decoded [False]: once an ID is decoded, frames without a sync are skipped
         (saves the cyclic alignment, the step's dearest part; ID changes still show in the
         frames with sync).
+      Frame-clock timing (only with a `clock` hint): timing_window [12] frames of offsets in
+        the offset line fit; timing_max_gap [6] frames without an offset reset it;
+        timing_frac [0.25]: a frame whose chip grid is further (chips) from the predicted one
+        is not placed by timing; timing_conflict [0.35]: a sync-placed frame further from the
+        offset line disables timing (for good when the line rests on a sync);
+        timing_min_overlap [4], timing_min_corr [0.3]: a timed frame overlapping that many
+        surely placed chips must correlate with them this well, else timing is disabled;
+        trust_timed [True]: timed placements count as sure once a sync frame has confirmed
+        the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
     """
 
     def __init__(self, rate_hz: float = 20000.0, row_readout_us: float = 15.0,
@@ -346,7 +379,9 @@ class OokDecoder:
                  pending_frames: int = 8, decay: float = 0.9, min_margin: float = 0.25,
                  switch_frames: int = 3, parity_gap: float = 2.0, stale_frames: int = 10,
                  align_when_decoded: bool = False, period_frames: int = 5,
-                 verify_frames: int = 16, verify_min: float = 0.9):
+                 verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
+                 timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
+                 timing_min_overlap: int = 4, timing_min_corr: float = 0.3, trust_timed: bool = True):
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
@@ -354,6 +389,8 @@ class OokDecoder:
         self.period_frames = period_frames
         self._periods: list[float] = []
         self._period: float | None = None  # learned rows per chip
+        self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
+        self.last_period = self.period0_rows
         self.exposure_rows = exposure_us / row_readout_us
         self.min_row_frac = min_row_frac
         self.segment_chips = segment_chips
@@ -386,10 +423,34 @@ class OokDecoder:
         self.confidence = 0.0
         self._cand: int | None = None
         self._cand_n = 0
+        # frame-clock timing (receiver.frameclock): offsets o = shift - (clock coordinate of
+        # frame chip 0) of placed frames, in accumulator coordinates
+        self.timing_window = timing_window
+        self.timing_max_gap = timing_max_gap
+        self.timing_frac = timing_frac
+        self.timing_conflict = timing_conflict
+        self.timing_min_overlap = timing_min_overlap
+        self.timing_min_corr = timing_min_corr
+        self.trust_timed = trust_timed
+        self.timing_ok = True  # False for good after a timing disagreement
+        self._tobs: deque = deque(maxlen=timing_window)  # (k, o)
+        self._t_epoch: int | None = None
+        self._t_confirmed = False  # the offsets are tied to packet coordinates by a sync frame
+        self._t_strong = False  # some offset came from a sync-placed frame
+        self._tc: float | None = None  # this frame: clock coordinate of frame chip 0
+        self._tk = 0
+        self.timed_w = np.zeros(PACKET_LEN)  # weight of timed placements not yet confirmed
+        self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
+                             "weak_reset": 0, "verify_conflict": 0}
+        self.timing_resid: list[float] = []  # |sync-placed offset - prediction|, chips
+        self.timing_frac_resid: list[float] = []  # |timed prediction - frame's chip grid|, chips
+        self._tpl: tuple[int, np.ndarray] | None = None
+        self.timed_frames: deque = deque(maxlen=verify_frames)  # (soft, shift) of timed placements
 
     def frame_chips(self, profile, weights=None) -> tuple[np.ndarray, np.ndarray]:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
+        self.last_start_row = None
         x = np.asarray(profile, dtype=np.float64)
         a, b = trim_rows(weights, x.size, self.min_row_frac)
         x = x[a:b]
@@ -405,6 +466,9 @@ class OokDecoder:
                                        phasor=self._phasor)
         if coh < self.min_coherence:
             return np.zeros(0), np.zeros(0)
+        # where frame chip 0 starts (rows from the profile's first row) and the chip length:
+        # the frame's timing, for the frame clock (receiver.frameclock)
+        self.last_start_row, self.last_period = a + phase, period
         if not learned and x.size >= 3 * self.segment_chips * p0:
             # rows per chip is fixed by the camera and the LED: learn it once, then skip the
             # refinement (half the cost of a step)
@@ -446,29 +510,43 @@ class OokDecoder:
             return int(order[-1])
         return None
 
-    def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False) -> None:
+    def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
+             timed: bool = False) -> None:
         pos = (np.arange(soft.size) + shift) % PACKET_LEN
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
         w = np.bincount(pos, cw, PACKET_LEN)
         self.acc_w += w
         if trusted:
             self.trust_w += w
+        elif timed:
+            self.timed_w += w
 
-    def step(self, profile, weights=None, t_s=None) -> OokState:
+    def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
         """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
         and its per-row pixel counts `weights` (R,) or None. `t_s` is unused (OOK packets are
-        assembled by sync, not by time) and accepted for a uniform decoder interface."""
+        assembled by sync, not by time) and accepted for a uniform decoder interface.
+        Optional timing hint: `clock` (receiver.frameclock.ClockTick of this frame) and `y0`
+        (image row of the profile's first row); with them, frames are also placed by timing
+        (`_timed_shift`)."""
         self.frames += 1
         self.acc *= self.decay
         self.acc_w *= self.decay
         self.trust_w *= self.decay
+        self.timed_w *= self.decay
         soft, cw = self.frame_chips(profile, weights)
+        self._tc = None
+        if clock is not None and y0 is not None and self.last_start_row is not None and self.timing_ok:
+            if clock.epoch != self._t_epoch:
+                self._timing_reset()
+                self._t_epoch = clock.epoch
+            self._tk = clock.k
+            self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
         added = None
         if soft.size >= SYNC_LEN:
             self.recent.append(soft)
             added = self._place(soft, cw)
             if added is None:
-                self.pending.append((soft, cw))
+                self.pending.append((soft, cw, self._tc, self._tk))
             elif added:
                 self._retry_pending()
         if added:
@@ -495,32 +573,183 @@ class OokDecoder:
             else:
                 self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
                 self.anchored = True
+            self._t_observe((-s) % PACKET_LEN if s is not None else 0, sync=s is not None)
             return True
         if s is not None and self.anchored:
             self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
+            self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
         if s is None and self.led_id is not None and not self.align_when_decoded:
             self.pending.clear()  # decoded: frames without sync add little, cost alignments
             return False
+        shift = self._timed_shift(soft)
+        if shift is not None:
+            self._add_timed(soft, cw, shift)
+            if not self.anchored:
+                q = s + shift if s is not None else self._cyclic_sync()
+                if q is not None:
+                    self._rotate(q)
+                    shift = (shift - q) % PACKET_LEN
+            self._t_observe(shift, sync=s is not None, timed=True)
+            return True
         shift = self._align(soft)
         if shift is None:
             if s is None:
                 return None
             # an unanchored guess that the sync frame cannot be fitted to: the sync wins
-            self.pending.append((self._unanchored_chips()))
+            self.pending.append((*self._unanchored_chips(), None, None))
             self._clear()
             self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
             self.anchored = True
+            self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
         self._add(soft, cw, shift, trusted=self.anchored and self._last_align_complete)
         if not self.anchored:
             q = s + shift if s is not None else self._cyclic_sync()
             if q is not None:
-                self.acc = np.roll(self.acc, -q)
-                self.acc_w = np.roll(self.acc_w, -q)
-                self.trust_w = np.roll(self.trust_w, -q)
-                self.anchored = True
+                self._rotate(q)
+                shift = (shift - q) % PACKET_LEN
+        self._t_observe(shift, sync=False)
         return True
+
+    def _add_timed(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
+        """Add a frame placed by the frame clock: trusted once the offsets are tied to packet
+        coordinates by a sync frame, else kept apart (`timed_w`) until one confirms them."""
+        self.timing_stats["timed"] += 1
+        sure = self.anchored and self._t_confirmed
+        self._add(soft, cw, shift, trusted=self.trust_timed and sure, timed=self.trust_timed and not sure)
+        self.timed_frames.append((soft, shift))
+
+    def _rotate(self, q: int) -> None:
+        """Rotate the unanchored accumulator so that its sync (at q) lands on position 0."""
+        self.acc = np.roll(self.acc, -q)
+        self.acc_w = np.roll(self.acc_w, -q)
+        self.trust_w = np.roll(self.trust_w, -q)
+        self.timed_w = np.roll(self.timed_w, -q)
+        self._tobs = deque(((k, o - q) for k, o in self._tobs), maxlen=self._tobs.maxlen)
+        self.timed_frames = deque(((x, (sh - q) % PACKET_LEN) for x, sh in self.timed_frames),
+                                  maxlen=self.timed_frames.maxlen)
+        self.anchored = True
+
+    # -- frame-clock timing -------------------------------------------------------------
+
+    @property
+    def rows_per_chip(self) -> float:
+        """Learned rows per chip (nominal until learned)."""
+        return self._period if self._period is not None else self.period0_rows
+
+    def _timing_reset(self) -> None:
+        self._tobs.clear()
+        self._t_confirmed = False
+        self._t_strong = False
+        self.timed_w[:] = 0.0  # unconfirmed timed chips stay in the accumulator, untrusted
+
+    def _t_predict(self, k: int | None = None) -> float | None:
+        """Offset o of frame k (default: this frame) from the line through the recent
+        offsets, or None."""
+        if not self._tobs:
+            return None
+        if self._tk - self._tobs[-1][0] > self.timing_max_gap:
+            self._timing_reset()
+            return None
+        return line_predict(self._tobs, self._tk if k is None else k, self.timing_window)
+
+    def _t_observe(self, shift: int, *, sync: bool = False, timed: bool = False) -> None:
+        """Record where this frame was placed (accumulator coordinates) against the clock.
+
+        Offsets come from sync-placed frames (strong), timed frames (which only refine the
+        fraction of a chip: tracking the slow drift) and, while there are none, from the
+        first frame or a correlation alignment (weak: these can be off by whole chips).
+        A sync-placed frame that the offset line does not predict (by > timing_conflict
+        chips) disables timing for good when the line rests on a sync, and replaces a weak
+        line. A sync-placed frame that agrees ties the offsets to packet coordinates: the
+        timed chips so far become trusted."""
+        if self._tc is None or not self.timing_ok:
+            return
+        o = wrap_chips(shift - self._tc)
+        pred = self._t_predict()
+        if pred is not None:
+            d = wrap_chips(o - pred)
+            if not (sync or timed):
+                return  # a correlation alignment adds nothing to a line
+            if sync and abs(d) > self.timing_conflict:
+                if self._t_strong:
+                    self._disable_timing("conflict")
+                    return
+                self.timing_stats["weak_reset"] += 1
+                self._timing_reset()
+            else:
+                if sync:
+                    self.timing_resid.append(abs(d))
+                o = pred + d
+        self._tobs.append((self._tk, o))
+        self._t_strong = self._t_strong or sync
+        if sync and self.anchored and not self._t_confirmed:
+            self._t_confirmed = True
+            self.trust_w += self.timed_w
+            self.timed_w[:] = 0.0
+
+    def _disable_timing(self, why: str) -> None:
+        self.timing_stats[why] += 1
+        self.timing_ok = False
+        self._timing_reset()
+
+    def _timed_shift(self, soft: np.ndarray, tc: float | None = None, k: int | None = None) -> int | None:
+        """The frame's shift predicted by the clock, or None: no clock or offset, the frame's
+        chip grid more than `timing_frac` chips off the prediction, or the frame disagrees
+        with the accumulated chips it overlaps (which disables timing). `tc`, `k`: the clock
+        coordinate of the frame's chip 0 and its frame index (default: this frame)."""
+        if tc is None:
+            tc, k = self._tc, None
+        if tc is None or not self.timing_ok:
+            return None
+        pred = self._t_predict(k)
+        if pred is None:
+            return None
+        v = tc + pred
+        r = round(v)
+        if abs(v - r) > self.timing_frac:
+            self.timing_stats["frac"] += 1
+            return None
+        self.timing_frac_resid.append(abs(v - r))
+        shift = int(r) % PACKET_LEN
+        pos = (np.arange(soft.size) + shift) % PACKET_LEN
+        # judged against the chips that were placed mostly where they surely belong (sync,
+        # complete alignment, confirmed timing): a short-overlap alignment may be the wrong one
+        ov = self.trust_w[pos] + self.timed_w[pos] > 0.5 * self.acc_w[pos]
+        if ov.sum() >= self.timing_min_overlap:
+            m = self.acc[pos[ov]] / self.acc_w[pos[ov]]
+            x = np.clip(soft[ov], -1.0, 1.0)
+            den = float(np.abs(m) @ np.abs(x))
+            if den > 0 and float(m @ x) / den < self.timing_min_corr:
+                self._disable_timing("overlap_conflict")
+                return None
+        return shift
+
+    def row0_coordinate(self, profile, weights, y0: int, *, min_chips: int = 16,
+                        min_corr: float = 0.9, min_gap: float = 0.3) -> float | None:
+        """Reference measurement for the frame clock: packet coordinate (chips, mod 54) of
+        sensor row 0 in this frame, `shift - (y0 + start row of chip 0) / rows per chip`,
+        from a unique strong match of the frame's chips with the decoded (CRC-valid) packet;
+        None when not decoded, too few chips, or the match is weak or ambiguous. Does not
+        touch the accumulator."""
+        if self.led_id is None:
+            return None
+        soft, _ = self.frame_chips(profile, weights)
+        if soft.size < min_chips:
+            return None
+        if self._tpl is None or self._tpl[0] != self.led_id:
+            self._tpl = (self.led_id, packet_template(self.led_id))
+        x = np.clip(soft, -1.0, 1.0)
+        den = float(np.abs(x).sum())
+        if den <= 0:
+            return None
+        corr = (self._tpl[1][_cyclic_index(x.size)] @ x) / den
+        order = np.argsort(corr)
+        best, second = corr[order[-1]], corr[order[-2]]
+        if best < min_corr or best - second < min_gap:
+            return None
+        return float((order[-1] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
 
     def _unanchored_chips(self) -> tuple[np.ndarray, np.ndarray]:
         """The unanchored accumulator as one pseudo-frame (known run of chips) for retrying."""
@@ -539,10 +768,19 @@ class OokDecoder:
         return None if s is None else s % PACKET_LEN
 
     def _retry_pending(self) -> None:
+        if self.timing_ok and self._t_strong:
+            # placed by timing from now on: the pending frames with a clock value too, those
+            # without are dropped (a short-overlap alignment is the risky placement)
+            for soft, cw, tc, k in list(self.pending):
+                shift = self._timed_shift(soft, tc, k) if tc is not None else None
+                if shift is not None:
+                    self._add_timed(soft, cw, shift)
+            self.pending.clear()
+            return
         placed = True
         while placed and self.pending:
             placed = False
-            for i, (soft, cw) in enumerate(self.pending):
+            for i, (soft, cw, _, _) in enumerate(self.pending):
                 shift = self._align(soft)
                 if shift is not None:
                     del self.pending[i]
@@ -555,10 +793,7 @@ class OokDecoder:
         if not self.anchored:
             q = self._cyclic_sync()
             if q is not None:
-                self.acc = np.roll(self.acc, -q)
-                self.acc_w = np.roll(self.acc_w, -q)
-                self.trust_w = np.roll(self.trust_w, -q)
-                self.anchored = True
+                self._rotate(q)
 
     def _age_stale(self) -> None:
         self._stale += 1
@@ -571,6 +806,8 @@ class OokDecoder:
         self.acc_w[:] = 0.0
         self.trust_w[:] = 0.0
         self.anchored = False
+        self._timing_reset()
+        self.timed_frames.clear()
 
     def _verified(self, led_id: int) -> bool:
         """A packet whose every data chip was placed by trusted placements (the frame's own
@@ -578,11 +815,30 @@ class OokDecoder:
         other alignments must fit all of the last `verify_frames` frames (there must be that
         many): a 2-chip slip in the assembly is then exposed by the frames straddling it."""
         if (self.trust_w[SYNC_LEN:] > 0).all():
-            return True
+            return self._timed_frames_fit(led_id)
         if len(self.recent) < self.recent.maxlen:
             return False
         t = packet_template(led_id)
         return all(best_cyclic_match(s, t) >= self.verify_min for s in self.recent)
+
+    def _timed_frames_fit(self, led_id: int) -> bool:
+        """Every recent frame placed by timing fits the packet exactly where it was put
+        (normalised correlation >= verify_min at its own shift, not at its best one): a
+        wrong clock value (a whole-chip slip) is exposed by the frame it misplaced. A misfit
+        drops timing for good."""
+        if not self.timed_frames:
+            return True
+        t = packet_template(led_id)
+        for soft, shift in self.timed_frames:
+            x = np.clip(soft, -1.0, 1.0)
+            den = float(np.abs(x).sum())
+            if den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min:
+                if self.timing_ok:
+                    self._disable_timing("verify_conflict")
+                self.timed_frames.clear()
+                self.trust_w[:] = 0.0  # nothing placed so far is sure any more
+                return False
+        return True
 
     def _decode(self) -> None:
         known = self.acc_w > 0

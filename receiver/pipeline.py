@@ -29,6 +29,7 @@ import numpy as np
 from receiver.budget import StageTimer
 from receiver.config import CameraModel, LedMap
 from receiver.detect import detect, mean_in_mask, merge_envelopes_many, row_profile, stripe_depth
+from receiver.frameclock import FrameClock
 from receiver.pairing import Pairer
 from receiver.records import Frame, LedObservation
 from receiver.tone_profile import tone_profile
@@ -190,6 +191,11 @@ class Receiver:
     tone_confirm_frames [None: 1 for a tone-only map or photos, else 3]: consecutive frames a
         tone match must hold before it is reported; with OOK lights in the map, an OOK stripe
         pattern can show a spectral line near a listed tone for a frame or two.
+    frame_clock [True], clock_refs [3]: while some track has no ID, the `clock_refs` tallest
+        decoded OOK tracks of each chip rate are measured every frame (their frame's packet
+        position against their known packet, `OokDecoder.row0_coordinate`) to give the
+        frame's clock (receiver.frameclock); undecoded OOK decoders get it as a timing hint,
+        so small lights whose frames barely overlap are still assembled. Rolling shutter only.
     """
 
     def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None,
@@ -197,7 +203,8 @@ class Receiver:
                  pairer_kw: dict | None = None, ook_kw: dict | None = None, tone_kw: dict | None = None,
                  s2psk_kw: dict | None = None, s2psk_inverted: bool = False, redecode_every: int = 8,
                  stripe_check: bool | None = None, min_stripe_depth: float = 0.8, still: bool = False,
-                 tone_confirm_frames: int | None = None, envelope_frames: int | None = None):
+                 tone_confirm_frames: int | None = None, envelope_frames: int | None = None,
+                 frame_clock: bool = True, clock_refs: int = 3):
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
         self.clock = clock
@@ -233,6 +240,9 @@ class Receiver:
         self.s2psk_inverted = s2psk_inverted
         self.redecode_every = max(1, int(redecode_every))
         self._decoders = self._import_decoders()
+        self.clocks = ({rate: FrameClock() for rate in self.plan.ook_rates}
+                       if frame_clock and camera.rolling_shutter and not still else {})
+        self.clock_refs = clock_refs
         self.frames = 0
         self.decoded_ids: set[int] = set()
         self.last_counts: dict[str, int] = {}
@@ -290,8 +300,32 @@ class Receiver:
             return abs(want - rate) <= RATE_MATCH_REL * want
         return True
 
-    def _decode_track(self, gray: np.ndarray, t: Track, t_s: float) -> None:
-        profile, weights, _ = row_profile(gray, t.envelope or t.blob)
+    def _clock_frame(self, gray: np.ndarray, tracks: list[Track], k: int, skip) -> dict:
+        """{rate: ClockTick or None} of this frame, measured on decoded OOK tracks; empty
+        when every seen track has its ID (nobody needs a clock)."""
+        if not self.clocks or not any(t.seen and t.led_id is None and t.track_id not in skip
+                                      for t in tracks):
+            return {}
+        ticks = {}
+        for rate, clock in self.clocks.items():
+            clock.begin(k)
+            refs = [t for t in tracks if t.seen and t.mode == "ook" and t.track_id not in skip
+                    and getattr(t.decoders.get(("ook", rate)), "led_id", None) is not None]
+            refs.sort(key=lambda t: t.blob.y1 - t.blob.y0, reverse=True)
+            n = 0
+            for t in refs:
+                if n >= self.clock_refs:
+                    break
+                profile, weights, y0 = row_profile(gray, t.envelope or t.blob)
+                u = t.decoders[("ook", rate)].row0_coordinate(profile, weights, y0)
+                if u is not None:
+                    clock.observe(t.track_id, u)
+                    n += 1
+            ticks[rate] = clock.close()
+        return ticks
+
+    def _decode_track(self, gray: np.ndarray, t: Track, t_s: float, ticks: dict | None = None) -> None:
+        profile, weights, y0 = row_profile(gray, t.envelope or t.blob)
         if not t.striped:
             tall = t.blob.y1 - t.blob.y0 >= max(self.min_stripe_rows, 3)
             if tall and stripe_depth(profile, weights, background=t.blob.background) < self.min_stripe_depth:
@@ -302,6 +336,8 @@ class Receiver:
         for (mode, rate), dec in t.decoders.items():
             if mode == "tone":  # the LED's whole striped extent, log intensity (tone_profile.py)
                 st = dec.step(*tone_profile(gray, t.envelope or t.blob)[:2], t_s)
+            elif ticks and ticks.get(rate) is not None:
+                st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
             else:
                 st = dec.step(profile, weights, t_s)
             t.states[(mode, rate)] = st
@@ -370,6 +406,7 @@ class Receiver:
                     t.led_id, t.mode = None, None
             timer.stamp("pair")
 
+        ticks = self._clock_frame(gray, tracks, frame.index, pair_of)
         for t in tracks:
             if not t.seen or t.track_id in pair_of:
                 continue
@@ -380,7 +417,7 @@ class Receiver:
             if t.led_id is not None and (frame.index + t.track_id) % self.redecode_every:
                 continue
             if t.decoders:
-                self._decode_track(gray, t, frame.t_s)
+                self._decode_track(gray, t, frame.t_s, ticks)
         timer.stamp("decode")
 
         leds, info = [], {}
