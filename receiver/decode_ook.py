@@ -365,7 +365,7 @@ class OokDecoder:
         timing_frac [0.25]: a frame whose chip grid is further (chips) from the predicted one
         is not placed by timing; timing_conflict [0.35]: a sync-placed frame further from the
         offset line disables timing (for good when the line rests on a sync);
-        timing_min_overlap [4], timing_min_corr [0.3]: a timed frame overlapping that many
+        timing_min_overlap [4], timing_min_corr [0.6]: a timed frame overlapping that many
         surely placed chips must correlate with them this well, else timing is disabled;
         trust_timed [True]: timed placements count as sure once a sync frame has confirmed
         the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
@@ -381,7 +381,7 @@ class OokDecoder:
                  align_when_decoded: bool = False, period_frames: int = 5,
                  verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
                  timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
-                 timing_min_overlap: int = 4, timing_min_corr: float = 0.3, trust_timed: bool = True):
+                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True):
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
