@@ -159,6 +159,8 @@ class Pairer:
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other.
+    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
+    shift (`pitch_shift`), added to every pair's prediction.
     """
 
     def __init__(self, *, row_band: float = 1.0, max_area_ratio: float = 2.5, min_baseline: float = 1.2,
@@ -167,7 +169,7 @@ class Pairer:
                  merged_ratio: float = 1.5, max_merged: float = 3.0, max_cut: float = 3.0,
                  miss_growth_px: float = 1.0,
                  velocity_gain: float = 0.3, max_missed: int = 10, give_up_frames: int = 110,
-                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5):
+                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5, shake_min_pairs: int = 3):
         self.geom = dict(row_band=row_band, max_area_ratio=max_area_ratio,
                          min_baseline=min_baseline, max_baseline=max_baseline)
         self.min_frames = min_frames
@@ -184,32 +186,29 @@ class Pairer:
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
         self.jump_max_baseline, self.jump_agree = jump_max_baseline, jump_agree
+        self.shake_min_pairs = shake_min_pairs
         self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
 
-    def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape) -> bool:
-        """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
-        `xy`: (N, 2) centroids of `tracks`, px."""
-        p.frames += 1
-        if p.led_id is None and p.frames > self.give_up_frames:
-            self.banned.add(p.key)
-            return False
-        if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
-            p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
-            p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
-            p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
+    def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
+        """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
+        one emitter's area (px^2). Rigid pair: the baseline only scales with the emitters' size
+        (both ~ 1 / distance), so a blob can never pull one emitter onto the other."""
         single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
-        # Rigid pair: the baseline only scales with the emitters' size (both ~ 1 / distance),
-        # so a blob can never pull one emitter onto the other.
         scale = math.sqrt(single / p.area0)
-        hx, hy = 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1]  # half baseline, px
-        mx, my = p.mx + p.vx, p.my + p.vy  # predicted midpoint, px
+        return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
+
+    def _explain(self, p: Pair, tracks: list[Track], xy: np.ndarray, mx: float, my: float,
+                 hx: float, hy: float, single: float):
+        """The blobs pair `p` explains around midpoint (mx, my): (explaining tracks, nearby
+        tracks, their (dx, dy) offsets from where the pair puts them, A's and B's own single
+        blobs or None). Nothing is changed."""
         ax, ay, bx, by = mx - hx, my - hy, mx + hx, my + hy
         # The gate widens while the pair coasts: the prediction error grows (the camera's pitch
         # vibration moves every light by a few px within a second).
         tol = min(self.match_frac * 2 * math.hypot(hx, hy),
                   max(self.match_min_px, self.match_size * math.sqrt(single))) + self.miss_growth_px * p.misses
-        p.tracks, p.nearby, shifts, obs_a, obs_b = [], [], [], None, None
+        explaining, nearby, shifts, obs_a, obs_b = [], [], [], None, None
         # Candidates first, for all tracks at once: within tol of A, B or the midpoint.
         near = np.flatnonzero(np.hypot(xy[:, 0] - mx, xy[:, 1] - my) <= tol + math.hypot(hx, hy))
         for i in near:
@@ -217,13 +216,13 @@ class Pairer:
             da, db, dm = (math.hypot(t.cx - x, t.cy - y) for x, y in ((ax, ay), (bx, by), (mx, my)))
             if min(da, db, dm) > tol:
                 continue
-            p.nearby.append(t)  # not paired anew while this pair lives
+            nearby.append(t)  # not paired anew while this pair lives
             if not t.seen:
                 continue
             if dm < min(da, db):
                 if self.merged_ratio * single < t.blob.area_px <= self.max_merged * single:
                     shifts.append((t.cx - mx, t.cy - my))  # both lit, one blob
-                    p.tracks.append(t)
+                    explaining.append(t)
                 continue  # a small blob between the two: not telling
             # One emitter, perhaps cut by a clock edge during the rolling readout (smaller: it
             # moves the pair but does not replace the emitter's envelope).
@@ -232,12 +231,47 @@ class Pairer:
             if not (1.0 / self.max_cut <= ratio <= self.merged_ratio):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
-            p.tracks.append(t)
+            explaining.append(t)
             if ratio >= 1.0 / self.merged_ratio:
                 if e is p.a:
                     obs_a = t.blob
                 else:
                     obs_b = t.blob
+        return explaining, nearby, shifts, obs_a, obs_b
+
+    def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
+        """This frame's common vertical image shift (px, + down): the median over the pairs that
+        explain a blob of how far it sits below their prediction; 0 with fewer than
+        `shake_min_pairs` such pairs. The camera's pitch vibration moves every light by the same
+        few pixels from frame to frame, which no pair's own velocity predicts, and a pair whose
+        two emitters are dark in this frame (a quarter of the frames) has no blob to correct
+        it: its emitters' intensities would be read beside them. Only the vertical part: a
+        blob is matched to A, B or the midpoint of a blinking pair, so its horizontal offset
+        mixes the shake with which of them lit it."""
+        dys = []
+        for p in self.pairs:
+            if p.base0 is None:
+                continue
+            _, _, shifts, _, _ = self._explain(p, tracks, xy, *self._predict(p))
+            if shifts:
+                dys.append(float(np.mean([d[1] for d in shifts])))
+        return float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+
+    def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0) -> bool:
+        """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
+        `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
+        (`pitch_shift`), px, added to the prediction."""
+        p.frames += 1
+        if p.led_id is None and p.frames > self.give_up_frames:
+            self.banned.add(p.key)
+            return False
+        if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
+            p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
+            p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
+            p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
+        mx, my, hx, hy, single = self._predict(p)
+        my += dy
+        p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
         if not shifts:
             p.misses += 1
             sx = sy = 0.0
@@ -269,7 +303,8 @@ class Pairer:
         live = {t.track_id: t for t in tracks}
         shape = None if gray is None else gray.shape
         xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
-        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape)]
+        dy = self.pitch_shift(tracks, xy)
+        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy)]
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:

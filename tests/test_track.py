@@ -124,3 +124,29 @@ def test_coasting_pair_moves_its_emitter_masks_with_it():
         mask_x = e.blob.hull[:, 0].mean()   # the square mask's centre
         assert abs(mask_x - (p.mx + sign * 5.0)) <= 0.5 + 1e-9, (mask_x, p.mx)
     assert abs(p.mx - 113.0) < 1e-9   # 105 + 20 x 0.4
+
+
+def _formed_pair(pr, x, y, track_ids):
+    from receiver.pairing import Pair, _emitter
+    a = Track(track_ids[0], blob(x, y, 2.0), 0, 0)
+    b = Track(track_ids[1], blob(x + 10.0, y, 2.0), 0, 0)
+    p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
+    assert pr._follow(p, [], np.zeros((0, 2)), None)   # forms the geometry, no blob
+    return p
+
+
+def test_pitch_shake_moves_dark_pairs_with_the_lit_ones():
+    """Three heads show an emitter 3 px lower than predicted (the camera pitched); a fourth is
+    dark this frame. The common shift (median) moves the dark one too, so its emitter masks stay
+    on its lights; x offsets (which emitter lit) do not count."""
+    pr = Pairer(max_missed=100)
+    pairs = [_formed_pair(pr, 100.0 + 60 * i, 50.0, (2 * i, 2 * i + 1)) for i in range(4)]
+    pr.pairs = list(pairs)
+    lit = [Track(100 + i, blob(p.mx - 5.0 + (0.4 if i == 1 else 0.0), p.my + 3.0, 2.0), 1, 1)
+           for i, p in enumerate(pairs[:3])]
+    xy = np.array([[t.cx, t.cy] for t in lit])
+    assert abs(pr.pitch_shift(lit, xy) - 3.0) < 1e-9
+    assert pr.pitch_shift(lit[:2], xy[:2]) == 0.0   # fewer than 3 pairs explain a blob: none
+    pr.step(np.zeros((120, 400), np.uint8), lit, lambda g, t: 0.0)
+    dark = pairs[3]
+    assert abs(dark.my - 53.0) < 1e-9 and abs(dark.a.blob.cy - 53.0) <= 0.5
