@@ -59,6 +59,8 @@ DATA_START = SYNC_LEN  # first Manchester chip = sync edge (chip 3) + SYNC_EDGE_
 assert DATA_START == 3 + SYNC_EDGE_TO_DATA
 N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
 CRC_BITS = N_BITS - OOK_ID_BITS
+# Entries kept of a decoder's (and the frame clock's) timing diagnostics.
+DIAGNOSTICS_LEN = 1000
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
@@ -442,8 +444,10 @@ class OokDecoder:
         self.timed_w = np.zeros(PACKET_LEN)  # weight of timed placements not yet confirmed
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
-        self.timing_resid: list[float] = []  # |sync-placed offset - prediction|, chips
-        self.timing_frac_resid: list[float] = []  # |timed prediction - frame's chip grid|, chips
+        # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
+        # track): |sync-placed offset - prediction| and |timed prediction - frame's chip grid|.
+        self.timing_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
+        self.timing_frac_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self._tpl: tuple[int, np.ndarray] | None = None
         self.timed_frames: deque = deque(maxlen=verify_frames)  # (soft, shift) of timed placements
 

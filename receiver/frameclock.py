@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver.decode_ook import PACKET_LEN, line_predict, wrap_chips as wrap
+from receiver.decode_ook import DIAGNOSTICS_LEN, PACKET_LEN, line_predict, wrap_chips as wrap
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,8 @@ class FrameClock:
         self.k: int | None = None
         self._obs: dict = {}
         self.tick: ClockTick | None = None
-        self.residuals: list[float] = []  # every reference's |disagreement| (diagnostics)
+        # the references' latest |disagreement|s, chips (diagnostics; bounded for long streams)
+        self.residuals: deque = deque(maxlen=DIAGNOSTICS_LEN)
 
     def begin(self, k: int) -> None:
         self.k, self._obs, self.tick = k, {}, None
