@@ -113,19 +113,17 @@ LM_XTOL = 1e-8     # relative step
 LM_FTOL = 1e-8     # relative cost decrease (scipy's ftol)
 
 
-def robust_lm(fun, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-              max_iter: int = 50, step: float = 1e-7) -> np.ndarray:
+def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+              max_iter: int = 50) -> np.ndarray:
     """Minimise sum rho((r/f_scale)^2) of the residual vector fun(p) (the cost of
     scipy.optimize.least_squares with the same loss) by Levenberg-Marquardt on iteratively
-    reweighted normal equations, with `fun.jac(p)` when the residual function has one, else a
-    forward-difference Jacobian (`step` in parameter units).
+    reweighted normal equations, with the Jacobian `jac(p)` of the residuals.
     Why not least_squares itself: for these 3-6 parameter problems its per-iteration overhead
     (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
     Losses other than those in _LOSSES fall back to least_squares."""
     if loss not in _LOSSES:
-        return least_squares(fun, p0, loss=loss, f_scale=f_scale, method="trf").x
+        return least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
     rho, wfun = _LOSSES[loss]
-    jac = getattr(fun, "jac", None)
 
     def cost_w(r):
         z = (r / f_scale) ** 2
@@ -136,14 +134,7 @@ def robust_lm(fun, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float =
     c, w = cost_w(r)
     lam = LM_LAMBDA0
     for _ in range(max_iter):
-        if jac is not None:
-            J = jac(p)
-        else:
-            J = np.empty((len(r), len(p)))
-            for i in range(len(p)):
-                dp = np.zeros_like(p)
-                dp[i] = step
-                J[:, i] = (fun(p + dp) - r) / step
+        J = jac(p)
         Jw = J * w[:, None]
         A = J.T @ Jw
         g = Jw.T @ r
@@ -407,7 +398,7 @@ def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS
     fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    x = robust_lm(fun, p0, loss=loss, f_scale=f_scale)
+    x = robust_lm(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
     R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
     if C_prior is not None:
         fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad)
@@ -621,6 +612,10 @@ class PoseFilter:
             return self._R_cw
         return None
 
+    def keep_orientation(self, t_s: float, R_cw: np.ndarray) -> None:
+        """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`."""
+        self._R_cw, self._t_R = R_cw, t_s
+
     def solve(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
               sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> Fix | None:
         """One frame's fix in the solving frame (no state change except the handedness decision).
@@ -659,7 +654,7 @@ class PoseFilter:
             self.n_fixes += 1
             self._C, self._t_C = fix.C, t_s
             if fix.R_cw is not None:
-                self._R_cw, self._t_R = fix.R_cw, t_s
+                self.keep_orientation(t_s, fix.R_cw)
         state = None
         if self.kf is not None:
             state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
@@ -843,6 +838,12 @@ class Positioner:
             if fix is not None and fix.R_cw is not None and self.ranging == "oblique":
                 # The reported distances use this frame's own orientation (cheap: no new solve).
                 d, sd, names = self._ranges(items, fix.R_cw)
-        distances = {obs.track: (round(float(d[i]), 5), names[i])
-                     for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
-        return LocateResult(distances=distances, position=self.pose.update(t_s, fix, len(items)))
+        return LocateResult(distances=self.distances(items, d, names),
+                            position=self.pose.update(t_s, fix, len(items)))
+
+    @staticmethod
+    def distances(items, d: np.ndarray, names: list[str]) -> dict:
+        """`LocateResult.distances` of `measure`'s items: track -> (distance m, estimator) for
+        every finite range."""
+        return {obs.track: (round(float(d[i]), 5), names[i])
+                for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}

@@ -25,7 +25,6 @@ closed) has no position and is counted in `timeouts`; error replies are counted 
 from __future__ import annotations
 
 import json
-import math
 import os
 import secrets
 import socket
@@ -112,8 +111,6 @@ class RemotePositioner:
         self.errors = 0
         self.last_error: str | None = None
         self._n_fixes = 0
-        self._R_cw: np.ndarray | None = None
-        self._t_R: float | None = None
 
     @property
     def unknown_ids(self) -> set[int]:
@@ -125,15 +122,10 @@ class RemotePositioner:
         """Frames the server had a fix for (`position.raw` not null)."""
         return self._n_fixes
 
-    def _R_prior(self, t_s: float) -> np.ndarray | None:
-        # The rule of PoseFilter.R_prior, on the orientations the server replied.
-        if self._t_R is not None and 0 <= t_s - self._t_R <= self.local.pose.max_coast_s:
-            return self._R_cw
-        return None
-
     def step(self, t_s: float, leds) -> LocateResult:
         items = self.local.measure(leds)[:MAX_LEDS]
-        d, sd, names = self.local._ranges(items, self._R_prior(t_s))
+        # the server's replied orientations, kept by the rule of a local receiver (R_prior)
+        d, sd, names = self.local._ranges(items, self.local.pose.R_prior(t_s))
         request = make_request(self.device, self.seq, t_s, self.local.pose.sigma_uv,
                                [obs.id for obs, _, _ in items], self.local.image_points(items), d, sd)
         self.seq += 1
@@ -143,9 +135,7 @@ class RemotePositioner:
             position, R = self._accept(reply, t_s)
             if R is not None and self.local.ranging == "oblique":
                 d, sd, names = self.local._ranges(items, R)    # this frame's own orientation
-        distances = {obs.track: (round(float(d[i]), 5), names[i])
-                     for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
-        return LocateResult(distances=distances, position=position)
+        return LocateResult(distances=self.local.distances(items, d, names), position=position)
 
     def _accept(self, reply: dict, t_s: float) -> tuple[dict | None, np.ndarray | None]:
         """(position, solving-frame R_cw or None) of a matching reply; keeps its orientation."""
@@ -163,7 +153,7 @@ class RemotePositioner:
             R = None
         if R is None or R.shape != (3, 3) or not np.all(np.isfinite(R)):
             return position, None
-        self._R_cw, self._t_R = R, t_s
+        self.local.pose.keep_orientation(t_s, R)
         return position, R
 
     def _exchange(self, request: dict) -> dict | None:
