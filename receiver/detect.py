@@ -184,7 +184,7 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
            min_fill: float = 0.25,
            expect_stripes: bool = False, min_stripe_depth: float = 0.8,
            min_stripe_rows: int = 0, min_rel_area: float = 0.0,
-           level: float | None = None) -> list[Blob]:
+           level: float | None = None, row_pool: int = 2) -> list[Blob]:
     """LED blobs of an (H, W) uint8 frame, sorted top to bottom.
 
     Tunables (defaults in brackets):
@@ -215,6 +215,13 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
         (for single photos of a lamp set, where reflections look like small dim lamps;
         0 = off, since a moving camera sees near and far lights together).
       level [None]: fixed global threshold instead of `auto_level`.
+      row_pool [2]: at full resolution, with stripes to bridge (stripe_gap_px >= 2 * row_pool),
+        the components are searched on the row-wise maximum of every `row_pool` rows: the
+        close and contour pass cost half as much, and the envelopes are still taken in full
+        resolution over the full-resolution component's rows, so the blobs are the same (a
+        frame where component boxes overlap is searched in full resolution).
+        Stripe gaps up to 3 * row_pool - 2 rows longer than `stripe_gap_px` may be bridged as
+        well. 1 = off.
     """
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, max_detect_px)
@@ -226,14 +233,17 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
-    _, mask = cv2.threshold(small, coarse, 255, cv2.THRESH_BINARY)
-    mask = _close(mask, math.ceil(stripe_gap_px / f), math.ceil(join_x_px / f))
-    # findContours + one small fill per blob is several times faster here than
-    # connectedComponentsWithStats, which labels the whole frame.
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    max_area = max_area_frac * h * w
-    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    pool = row_pool if f == 1 and row_pool > 1 and stripe_gap_px >= 2 * row_pool else 1
+    search = small if pool == 1 else _row_max(gray, pool)
+    contours, rects = _components(search, coarse, stripe_gap_px, join_x_px, f, pool, h)
     alone = _isolated(rects)
+    if pool > 1 and not alone.all():
+        # overlapping boxes are refined within their component's mask, which must be the
+        # full-resolution one for the same envelopes: search this frame in full resolution
+        pool = 1
+        contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool, h)
+        alone = _isolated(rects)
+    max_area = max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
     keep = (box_px >= min_area_px * 0.5) & (box_px <= 4 * max_area)
     sat_kw = dict(saturated_gray=saturated_gray, saturated_frac=saturated_frac,
@@ -241,19 +251,21 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
     batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, **sat_kw)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, pool=pool, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
     for i in np.flatnonzero(keep).tolist():
         c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       refine_frac, bool(alone[i]), **sat_kw)
+                                                       refine_frac, bool(alone[i]), pool=pool,
+                                                       **sat_kw)
         if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
-        # a long box, or a thin diagonal bar filling little of its square box.
+        # a long box, or a thin diagonal bar filling little of its square box (boxes in search
+        # pixels: the full-resolution box over the pooling factor).
         if not blob.border and max_aspect and (max(bw, bh) > max_aspect * min(bw, bh)
-                                               or cv2.contourArea(c) < min_fill * bw * bh):
+                                               or pool * cv2.contourArea(c) < min_fill * bw * bh):
             continue
         if expect_stripes and blob.y1 - blob.y0 >= max(min_stripe_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
@@ -304,6 +316,42 @@ def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tupl
     return out
 
 
+def _components(search: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
+                pool: int, h: int) -> tuple[list, np.ndarray]:
+    """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
+    contours (search pixels) and bounding boxes (N, 4) x, y, w, h, rows in full resolution
+    when the search rows are `pool`-row maxima (`_row_max`) of an image of h rows."""
+    if pool > 1:
+        # a gap of g rows leaves at most floor(g / pool) empty pooled rows, so bridging
+        # ceil((g + 1) / pool) - 1 of them bridges every gap up to stripe_gap_px rows (and,
+        # with the odd kernel of `_close`, some up to 3 * pool - 2 rows longer)
+        gap_y = math.ceil((stripe_gap_px + 1) / pool) - 1
+    else:
+        gap_y = math.ceil(stripe_gap_px / f)
+    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
+    mask = _close(mask, gap_y, math.ceil(join_x_px / f))
+    # findContours + one small fill per blob is several times faster here than
+    # connectedComponentsWithStats, which labels the whole frame.
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    if pool > 1:  # pooled row i covers full-resolution rows [i * pool, (i + 1) * pool)
+        rects[:, 3] = np.minimum((rects[:, 1] + rects[:, 3]) * pool, h) - rects[:, 1] * pool
+        rects[:, 1] *= pool
+    return contours, rects
+
+
+def _row_max(gray: np.ndarray, pool: int) -> np.ndarray:
+    """(ceil(H / pool), W) uint8: maximum over each run of `pool` rows of an (H, W) uint8 image
+    (a lit pixel anywhere in the run lights the pooled pixel; the last run may be shorter)."""
+    out = gray[0::pool]
+    for r in range(1, pool):
+        part = gray[r::pool]
+        if part.shape[0] < out.shape[0]:  # the last run is short: pad it with its own row
+            part = np.concatenate((part, out[part.shape[0]:]))
+        out = cv2.max(out, part)
+    return np.ascontiguousarray(out)
+
+
 def _isolated(rects: np.ndarray) -> np.ndarray:
     """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
     if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
@@ -322,7 +370,17 @@ def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, mi
     return np.where(peak >= saturated_gray, clipped, normal)
 
 
-def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
+def _component_rows(above: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(R,) bool: the rows of a strip of stacked boxes (box i = rows starts[i]:starts[i + 1])
+    from its box's first to its last row where `above` (R,) is set."""
+    c = np.zeros(above.size + 1, np.int64)
+    np.cumsum(above, out=c[1:])
+    owner = np.repeat(np.arange(starts.size - 1), np.diff(starts))
+    r = np.arange(above.size)
+    return (c[r + 1] > c[starts[owner]]) & (c[starts[owner + 1]] > c[r])
+
+
+def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturated_gray=250.0,
                         saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
@@ -330,7 +388,10 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
     array operations for all blobs instead of a dozen calls per blob; only the convex hull and
     its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
-    a blob level is negative (odd tunables): the caller then refines one by one."""
+    a blob level is negative (odd tunables): the caller then refines one by one.
+    `pool` > 1: the boxes come from a row-pooled search and may hold up to pool - 1 rows above
+    and below the component; only the rows from its first to its last one with a pixel above
+    the search `level` are used (the full-resolution search's box)."""
     n = len(rects)
     if n == 0:
         return []
@@ -354,6 +415,9 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
         strip[np.repeat(first_on > 255, bh)] = 0
     lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
+    if pool > 1 and level < 255:
+        rowmax = cv2.reduce(strip, 1, cv2.REDUCE_MAX).ravel()
+        lit &= _component_rows(rowmax >= math.floor(level) + 1, starts)[:, None]
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
     rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
     left = left_all[rows]
@@ -387,15 +451,22 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     return out
 
 
-def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,
-            saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
+def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, pool=1,
+            saturated_gray=250.0, saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
     """Envelope of one coarse component (outer `contour` at search scale), in full resolution.
     `alone`: no other component's box overlaps this one's (at full resolution the bounding
-    box then holds no foreign pixels above the level, and the component mask is skipped)."""
+    box then holds no foreign pixels above the level, and the component mask is skipped).
+    `pool`: the box of an `alone` component comes from a row-pooled search (see
+    `_refine_alone_batch`)."""
     h, w = gray.shape[:2]
     bx, by, bw, bh = rect
     if f == 1 and alone:
         comp = None
+        if pool > 1:
+            rows = np.flatnonzero(cv2.reduce(gray[by:by + bh, bx:bx + bw], 1, cv2.REDUCE_MAX).ravel() > level)
+            if rows.size == 0:
+                return None
+            by, bh = by + int(rows[0]), int(rows[-1] - rows[0]) + 1
         x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
     elif f == 1:
         comp = np.zeros((bh, bw), np.uint8)

@@ -197,14 +197,13 @@ def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
     assert len(blobs) == 5
 
 
-def _coarse_components(gray, stripe_gap_px=8, join_x_px=2):
-    """Contours and boxes of the coarse search, as `detect` makes them (full resolution)."""
-    from receiver.detect import _close
+def _coarse_components(gray, stripe_gap_px=8, join_x_px=2, pool=1):
+    """Contours and boxes of the coarse search, as `detect` makes them (full resolution,
+    rows pooled by `pool`)."""
+    from receiver.detect import _components, _row_max
     level, bg = auto_level(gray)
-    _, mask = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
-    contours, _ = cv2.findContours(_close(mask, stripe_gap_px, join_x_px), cv2.RETR_EXTERNAL,
-                                   cv2.CHAIN_APPROX_SIMPLE)
-    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    search = gray if pool == 1 else _row_max(gray, pool)
+    contours, rects = _components(search, level, stripe_gap_px, join_x_px, 1, pool, gray.shape[0])
     return contours, rects, level, bg
 
 
@@ -214,9 +213,11 @@ def _same_blob(a, b):
             == (b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background))
 
 
-def test_batched_refinement_equals_the_per_blob_one():
+@pytest.mark.parametrize("pool", [1, 2, 3])
+def test_batched_refinement_equals_the_per_blob_one(pool):
     """The vectorised refinement of isolated blobs gives exactly `_refine`'s envelopes: striped
-    discs of several sizes, a clipped one, one on the border, a speck and a square."""
+    discs of several sizes, a clipped one, one on the border, a speck and a square; also on
+    the boxes of a row-pooled search, which both tighten to the same rows."""
     from receiver.detect import _refine, _refine_alone_batch
     img = blank(noise=2.0, seed=3)
     draw_led(img, 100.3, 120.7, 30, period_rows=7)
@@ -226,11 +227,11 @@ def test_batched_refinement_equals_the_per_blob_one():
     draw_led(img, 200.0, 400.0, 25, square=True)
     img[50:52, 600:602] = 200  # a speck
     gray = u8(img)
-    contours, rects, level, bg = _coarse_components(gray)
+    contours, rects, level, bg = _coarse_components(gray, pool=pool)
     assert len(rects) >= 6
-    batch = _refine_alone_batch(gray, rects, bg, level, 0.5)
+    batch = _refine_alone_batch(gray, rects, bg, level, 0.5, pool=pool)
     for c, r, got in zip(contours, rects.tolist(), batch):
-        want = _refine(gray, c, tuple(r), 1, bg, level, 0.5, True)
+        want = _refine(gray, c, tuple(r), 1, bg, level, 0.5, True, pool=pool)
         assert (want is None) == (got is None)
         assert want is None or _same_blob(want, got)
 
@@ -265,3 +266,40 @@ def test_merging_many_envelopes_equals_merging_one_by_one():
     for (blob, others), g in zip(items, got):
         assert _same_blob(_merge_reference(blob, others, frames[0].shape), g)
     assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
+
+
+def test_row_pooled_search_finds_the_same_envelopes():
+    """The component search on pooled rows (detect's row_pool) yields the full-resolution
+    search's blobs exactly: isolated ones, ones whose boxes overlap (component masks) and
+    border-cut ones, on striped lights at every row phase; clipped lights too, whose edge level
+    is just above the noisy background (a box row too many would let noise into the hull)."""
+    img = blank(bg=110.0, noise=6.0, seed=7)
+    for i, y in enumerate((60.3, 61.0, 61.7, 62.4)):
+        draw_led(img, 80.0 + 140 * i, y, 25.0, on=(230.0, 255.0)[i % 2], period_rows=10, phase_rows=i)
+    draw_led(img, 100.0, 300.0, 22.0, on=255.0, period_rows=10)  # boxes of these two overlap
+    for i in range(40):  # a diagonal bar beside it: its box overlaps the disc's
+        img[270 + i, 118 + i:122 + i] = 230
+    draw_led(img, 400.0, 477.0, 20.0, period_rows=10)  # cut by the bottom edge
+    g = u8(img)
+    full = detect(g, stripe_gap_px=8, row_pool=1)
+    assert len(full) >= 6
+    for pool in (2, 3, 4):
+        pooled = detect(g, stripe_gap_px=8, row_pool=pool)
+        assert [(b.x0, b.y0, b.x1, b.y1, b.border) for b in pooled] == \
+            [(b.x0, b.y0, b.x1, b.y1, b.border) for b in full]
+        for a, b in zip(pooled, full):
+            assert (a.cx, a.cy, a.area_px) == (b.cx, b.cy, b.area_px)
+
+
+@pytest.mark.parametrize("pool", [2, 3])
+def test_row_pooled_search_bridges_every_gap_up_to_stripe_gap_px(pool):
+    """Two lit bars `gap` rows apart are one light for every gap <= stripe_gap_px, wherever
+    the gap falls among the pooled rows; a gap of stripe_gap_px + 3 * pool - 1 rows never is."""
+    gap_px = 8
+    for gap in list(range(1, gap_px + 1)) + [gap_px + 3 * pool - 1]:
+        for start in range(100, 100 + pool):
+            img = blank(w=200, h=200)
+            img[start - 20:start, 80:120] = 230
+            img[start + gap:start + gap + 20, 80:120] = 230
+            n = len(detect(u8(img), stripe_gap_px=gap_px, row_pool=pool, max_aspect=0))
+            assert n == (1 if gap <= gap_px else 2), (gap, start, n)
