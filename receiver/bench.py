@@ -153,24 +153,27 @@ def _load_source(args):
 
 
 def run_bench(camera, led_map, frames, *, repeat: int = 1, still: bool = False, clock=time.perf_counter):
-    """Process `frames` (each `repeat` times with a fresh receiver per repetition of a still);
-    returns (BudgetStats, wall seconds)."""
-    from receiver.budget import BudgetStats
+    """Process `frames` (each `repeat` times with a fresh receiver per repetition of a still)
+    on one core (OpenCV single-threaded, `receiver.budget.one_core`); returns (BudgetStats,
+    wall seconds)."""
+    from receiver.budget import BudgetStats, one_core
     from receiver.output import frame_line
     from receiver.pipeline import Receiver
 
     stats = BudgetStats()
-    t0 = clock()
-    for _ in range(max(1, repeat)):
-        rx = Receiver(camera, led_map, clock=clock, still=still)
-        for f in frames:
-            res = rx.process(f)
-            t = clock()
-            frame_line(res)
-            out_ms = (clock() - t) * 1000.0
-            stages = dict(res.stage_ms, output=out_ms)
-            stats.add(res.latency_ms + out_ms, stages)
-    return stats, clock() - t0
+    with one_core():
+        t0 = clock()
+        for _ in range(max(1, repeat)):
+            rx = Receiver(camera, led_map, clock=clock, still=still)
+            for f in frames:
+                res = rx.process(f)
+                t = clock()
+                frame_line(res)
+                out_ms = (clock() - t) * 1000.0
+                stages = dict(res.stage_ms, output=out_ms)
+                stats.add(res.latency_ms + out_ms, stages)
+        wall = clock() - t0
+    return stats, wall
 
 
 def main(args) -> int:

@@ -17,8 +17,10 @@ that `occloc run` and `occloc bench` print.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
+import cv2
 import numpy as np
 
 Clock = Callable[[], float]  # seconds, monotonic (time.perf_counter by default)
@@ -69,3 +71,15 @@ class BudgetStats:
             return {"median_ms": percentile(v, 50), "p99_ms": percentile(v, 99)}
         return {"frames": len(self.total_ms), "total": stat(self.total_ms),
                 "stages": {k: stat(v) for k, v in self.stage_ms.items()}}
+
+
+@contextmanager
+def one_core() -> Iterator[None]:
+    """OpenCV on one thread inside the block (the frame budget is stated for one core; by
+    default OpenCV splits some calls over every core), restored afterwards."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
