@@ -61,6 +61,7 @@ N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
 CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
+PERIOD_FRAMES = 5  # refined periods whose median fixes rows per chip (`period_frames`)
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
@@ -326,6 +327,26 @@ class OokState:
     confidence: float
 
 
+class PeriodLearner:
+    """Rows per chip of one chip rate on one camera, fixed by the median of the first
+    `period_frames` refined periods handed in (`add`). Rows per chip is a camera/LED constant,
+    so the decoders of all lights of a rate can share one learner (receiver.pipeline does):
+    then only the lights of the first frame(s) pay the period refinement, not every new light
+    for its first `period_frames` frames. A decoder made without one learns alone."""
+
+    def __init__(self, period_frames: int = PERIOD_FRAMES):
+        self.period_frames = period_frames
+        self.periods: list[float] = []
+        self.period: float | None = None
+
+    def add(self, period: float) -> None:
+        if self.period is not None:
+            return
+        self.periods.append(period)
+        if len(self.periods) >= self.period_frames:
+            self.period = float(np.median(self.periods))
+
+
 class OokDecoder:
     """Per-blob OOK packet assembler (one per tracked blob; call `step` every frame).
 
@@ -344,6 +365,9 @@ class OokDecoder:
         >= verify_min (`best_cyclic_match`).
       period_frames [5]: the refined chip period (rows) of this many frames is fixed by
         their median (it is a camera/LED constant); later frames only measure the phase.
+      period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
+        and camera (its own `period_frames` counts their refinements together); None: this
+        decoder learns alone.
       min_coherence [0.3]: frames whose transitions do not sit on a chip grid are skipped.
       norm_chips [8]: local normalisation window, chips.
       sync_margin [0.3]: every sync chip must be right by this (soft units).
@@ -380,16 +404,17 @@ class OokDecoder:
                  align_min: float = 0.7, align_gap: float = 0.25, align_min_chips: int = 8,
                  pending_frames: int = 8, decay: float = 0.9, min_margin: float = 0.25,
                  switch_frames: int = 3, parity_gap: float = 2.0, stale_frames: int = 10,
-                 align_when_decoded: bool = False, period_frames: int = 5,
+                 align_when_decoded: bool = False, period_frames: int = PERIOD_FRAMES,
                  verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
                  timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
-                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True):
+                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True,
+                 period_learner: PeriodLearner | None = None):
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
         self._phasor = np.zeros(0, dtype=np.complex128)
         self.period_frames = period_frames
-        self._periods: list[float] = []
+        self._learner = period_learner if period_learner is not None else PeriodLearner(period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
         self.last_period = self.period0_rows
@@ -461,6 +486,9 @@ class OokDecoder:
         if x.size < 4 * self.period0_rows:
             return np.zeros(0), np.zeros(0)
         w = None if weights is None else np.asarray(weights, dtype=np.float64)[a:b]
+        if self._period is None and self._learner.period is not None:
+            self._period = self._learner.period
+            self._phasor = np.zeros(0, dtype=np.complex128)
         learned = self._period is not None
         p0 = self._period if learned else self.period0_rows
         if self._phasor.size < x.size:
@@ -476,9 +504,9 @@ class OokDecoder:
         if not learned and x.size >= 3 * self.segment_chips * p0:
             # rows per chip is fixed by the camera and the LED: learn it once, then skip the
             # refinement (half the cost of a step)
-            self._periods.append(period)
-            if len(self._periods) >= self.period_frames:
-                self._period = float(np.median(self._periods))
+            self._learner.add(period)
+            if self._learner.period is not None:
+                self._period = self._learner.period
                 self._phasor = np.zeros(0, dtype=np.complex128)
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
