@@ -111,10 +111,10 @@ def trim_rows(weights: np.ndarray | None, n: int, min_frac: float) -> tuple[int,
     if weights is None or n == 0:
         return 0, n
     w = np.asarray(weights)
-    ok = w >= min_frac * w.max()
-    if not ok.any():
+    ok = np.flatnonzero(w >= min_frac * w.max())
+    if ok.size == 0:
         return 0, 0
-    return int(ok.argmax()), n - int(ok[::-1].argmax())
+    return int(ok[0]), n - (w.size - 1 - int(ok[-1]))
 
 
 def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
@@ -194,10 +194,15 @@ def _grid_phasor(period0_rows: float, n: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=512)
-def _window_bounds(n: int, win: int) -> tuple[np.ndarray, np.ndarray]:
-    """[lo, hi) of a `win`-long window around each of n items, shifted inwards at the ends."""
-    lo = np.clip(np.arange(n) - win // 2, 0, n - win)
-    return lo, lo + win
+def _window_start(n: int, win: int) -> np.ndarray:
+    """Start of a `win`-long window around each of n items, shifted inwards at the ends."""
+    return np.clip(np.arange(n) - win // 2, 0, n - win)
+
+
+def _clip1(x: np.ndarray) -> np.ndarray:
+    """x clipped to [-1, 1]: the two ufuncs, without np.clip's wrapper (a few us a call, and
+    the decoder clips several small arrays per frame)."""
+    return np.minimum(np.maximum(x, -1.0), 1.0)
 
 
 def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float, *,
@@ -226,12 +231,13 @@ def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float,
         cw = np.interp(centres, rows, w)
         cw *= 1.0 / max(cw.max(), 1e-9)
     win = min(norm_chips, n)
-    lo, hi = _window_bounds(n, win)
+    lo = _window_start(n, win)
     cs = np.zeros(n + 1)
+    # window sums: cs[j + win] - cs[j] for every start j, then picked per chip
     np.cumsum(v, out=cs[1:])
-    d = v - (cs[hi] - cs[lo]) * (1.0 / win)
+    d = v - (cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win)
     np.cumsum(np.abs(d), out=cs[1:])
-    soft = d / np.maximum((cs[hi] - cs[lo]) * (1.0 / win), 1e-9)
+    soft = d / np.maximum((cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win), 1e-9)
     np.minimum(soft, SOFT_CLIP, out=soft)
     np.maximum(soft, -SOFT_CLIP, out=soft)
     return soft, cw
@@ -267,11 +273,11 @@ def pair_parity(soft: np.ndarray, *, cyclic: bool = False, parity_gap: float = 2
     about +1 per pair and the wrong one about 0. Needs a score gap of `parity_gap` (pairs);
     data of alternating bits is Manchester-consistent on both grids and stays unclear.
     """
-    x = np.clip(soft, -1.0, 1.0)
+    x = _clip1(soft)
     if cyclic:
         x = np.concatenate((x, x[:1]))
-    p = -x[:-1] * x[1:]  # p[k] ~ +1 when chips k, k+1 are opposite
-    s0, s1 = p[0::2].sum(), p[1::2].sum()
+    p = x[:-1] * x[1:]  # p[k] ~ -1 when chips k, k+1 are opposite
+    s0, s1 = -np.add.reduce(p[0::2]), -np.add.reduce(p[1::2])
     if abs(s0 - s1) < parity_gap:
         return None
     return 0 if s0 > s1 else 1
@@ -308,7 +314,7 @@ def packet_template(led_id: int) -> np.ndarray:
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
-    s = np.clip(soft, -1.0, 1.0)
+    s = _clip1(soft)
     idx = _cyclic_index(s.size)
     den = np.abs(s).sum()
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
@@ -518,33 +524,40 @@ class OokDecoder:
         (then the true shift was among those compared, and the choice can be trusted)."""
         self._last_align_complete = False
         known = self.acc_w > 0
-        if known.sum() < self.align_min_chips:
+        if np.count_nonzero(known) < self.align_min_chips:
             return None
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
-        s = np.clip(soft, -1.0, 1.0)
+        m = self._mean_packet(known)
+        s = _clip1(soft)
         idx = _cyclic_index(s.size)
-        mm = m[idx]
-        num = mm @ s
-        den = np.abs(mm) @ np.abs(s)
-        overlap = known[idx].sum(axis=1)
+        num = m[idx] @ s
+        den = np.abs(m)[idx] @ np.abs(s)
+        overlap = np.add.reduce(known[idx], axis=1)
         corr = np.where((den > 0) & (overlap >= self.align_min_chips), num / np.maximum(den, 1e-12),
                         -1.0)
-        pf = pair_parity(soft, parity_gap=self.parity_gap)
-        pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
-        if pf is not None and pa is not None:
-            # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
-            # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
-            corr[(np.arange(PACKET_LEN) - (pa - pf)) % 2 == 1] = -1.0
+        pf = pair_parity(s, parity_gap=self.parity_gap)
+        if pf is not None:  # the accumulator's parity only matters against the frame's
+            pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
+            if pa is not None:
+                # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
+                # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
+                corr[(pa - pf + 1) % 2::2] = -1.0
         self._last_align_complete = bool(overlap.min() >= self.align_min_chips)
-        order = np.argsort(corr)
-        best, second = corr[order[-1]], corr[order[-2]]
-        if best >= self.align_min and best - second >= self.align_gap:
-            return int(order[-1])
+        # best and runner-up; tied bests fail the gap whichever of them is taken
+        i = int(corr.argmax())
+        best = corr[i]
+        corr[i] = -np.inf
+        if best >= self.align_min and best - corr.max() >= self.align_gap:
+            return i
         return None
+
+    def _mean_packet(self, known: np.ndarray) -> np.ndarray:
+        """Mean accumulated soft chip per packet position, 0 where nothing is known
+        (`known` = acc_w > 0)."""
+        return np.divide(self.acc, self.acc_w, out=np.zeros(PACKET_LEN), where=known)
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
-        pos = (np.arange(soft.size) + shift) % PACKET_LEN
+        pos = _cyclic_index(soft.size)[shift]
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
         w = np.bincount(pos, cw, PACKET_LEN)
         self.acc_w += w
@@ -585,7 +598,7 @@ class OokDecoder:
             self._decode()
         elif self._stale:  # nothing new to decode, but a failing packet keeps ageing
             self._age_stale()
-        known = int((self.acc_w > 0).sum()) if self.anchored else 0
+        known = int(np.count_nonzero(self.acc_w)) if self.anchored else 0
         return OokState(self.led_id, self.frames, known, self.confidence)
 
     def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
@@ -598,7 +611,7 @@ class OokDecoder:
         each show only part of the sync can still be combined.
         """
         s, _ = find_sync(soft, sync_margin=self.sync_margin)
-        if not (self.acc_w > 0).any():
+        if not self.acc_w.any():  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
                 self.anchored = False
@@ -793,8 +806,7 @@ class OokDecoder:
 
     def _cyclic_sync(self) -> int | None:
         """Sync position in the (unanchored) accumulated packet, or None."""
-        known = self.acc_w > 0
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
+        m = self._mean_packet(self.acc_w > 0)
         ext = np.concatenate((m, m[:SYNC_LEN - 1]))
         s, _ = find_sync(ext, sync_margin=self.sync_margin)
         return None if s is None else s % PACKET_LEN
@@ -877,7 +889,7 @@ class OokDecoder:
         if not (self.anchored and known[SYNC_LEN:].all()):
             self.confidence = 0.0
             return
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
+        m = self._mean_packet(known)
         led_id, conf = decode_packet(m, min_margin=self.min_margin)
         self.confidence = conf
         if led_id is not None:
