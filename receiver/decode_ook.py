@@ -64,6 +64,7 @@ DIAGNOSTICS_LEN = 1000
 PERIOD_FRAMES = 5  # refined periods whose median fixes rows per chip (`period_frames`)
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
+_SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
 _CRC8_TABLE: np.ndarray | None = None
 
@@ -131,9 +132,9 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     """
     d = x[1:] - x[:-1]
     e = d * d
-    pos = np.arange(e.size) + 0.5  # a difference sits between its two rows
     if phasor is None or phasor.size < e.size:
-        phasor = np.exp(-2j * np.pi / period0_rows * pos)
+        # a difference sits between its two rows
+        phasor = np.exp(-2j * np.pi / period0_rows * (np.arange(e.size) + 0.5))
     z = e * phasor[:e.size]
     seg = max(2, int(round(segment_chips * period0_rows)))
     nseg = z.size // seg
@@ -163,10 +164,10 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
         # segment is below 0.5 rad for errors within max_period_error)
         df = 1.0 / period - 1.0 / period0_rows
         zsum = sum(zk * cmath.exp(-2j * math.pi * df * ck) for zk, ck in zip(zs, c)) + complex(
-            (z[nseg * seg:] * np.exp(-2j * np.pi * df * pos[nseg * seg:])).sum())
+            (z[nseg * seg:] * np.exp(-2j * np.pi * df * (np.arange(nseg * seg, e.size) + 0.5))).sum())
     etot = e.sum()
     coherence = float(abs(zsum) / etot) if etot > 0 else 0.0
-    phase = float((-np.angle(zsum) * period / (2.0 * np.pi)) % period)
+    phase = float((-np.arctan2(zsum.imag, zsum.real) * period / (2.0 * np.pi)) % period)
     return period, phase, coherence
 
 
@@ -229,14 +230,14 @@ def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float,
         cw = np.ones(n)
     else:
         cw = np.interp(centres, rows, w)
-        cw *= 1.0 / max(cw.max(), 1e-9)
+        cw *= 1.0 / max(np.maximum.reduce(cw), 1e-9)
     win = min(norm_chips, n)
     lo = _window_start(n, win)
     cs = np.zeros(n + 1)
     # window sums: cs[j + win] - cs[j] for every start j, then picked per chip
-    np.cumsum(v, out=cs[1:])
+    np.add.accumulate(v, out=cs[1:])
     d = v - (cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win)
-    np.cumsum(np.abs(d), out=cs[1:])
+    np.add.accumulate(np.abs(d), out=cs[1:])
     soft = d / np.maximum((cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win), 1e-9)
     np.minimum(soft, SOFT_CLIP, out=soft)
     np.maximum(soft, -SOFT_CLIP, out=soft)
@@ -252,13 +253,17 @@ def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None
     """
     if soft.size < SYNC_LEN:
         return None, 0.0
-    hi, lo = soft > sync_margin, soft < -sync_margin
-    e = soft.size - SYNC_LEN + 1
-    hits = np.flatnonzero(hi[:e] & hi[1:e + 1] & hi[2:e + 2] & lo[3:e + 3] & lo[4:e + 4]
-                          & lo[5:e + 5])
-    if hits.size == 0:
+    # chip signs (+1 / -1, 0 inside the margin) as bytes: the pattern is then a substring
+    # search, a third of the cost of six shifted comparisons on these short arrays
+    code = ((soft > sync_margin).view(np.int8) - (soft < -sync_margin).view(np.int8)).tobytes()
+    hits = []
+    k = code.find(_SYNC_CODE)
+    while k >= 0:
+        hits.append(k)
+        k = code.find(_SYNC_CODE, k + 1)
+    if not hits:
         return None, 0.0
-    if hits.size > 1 and np.any((hits - hits[0]) % PACKET_LEN):
+    if any((k - hits[0]) % PACKET_LEN for k in hits):
         return None, 0.0  # inconsistent syncs: grid or noise trouble, do not trust the frame
     score = [float((soft[k:k + SYNC_LEN] * _SYNC_T).min()) for k in hits]
     best = int(np.argmax(score))
