@@ -61,8 +61,10 @@ N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
 CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
+PERIOD_FRAMES = 5  # refined periods whose median fixes rows per chip (`period_frames`)
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
+_SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
 _CRC8_TABLE: np.ndarray | None = None
 
@@ -110,10 +112,10 @@ def trim_rows(weights: np.ndarray | None, n: int, min_frac: float) -> tuple[int,
     if weights is None or n == 0:
         return 0, n
     w = np.asarray(weights)
-    ok = w >= min_frac * w.max()
-    if not ok.any():
+    ok = np.flatnonzero(w >= min_frac * w.max())
+    if ok.size == 0:
         return 0, 0
-    return int(ok.argmax()), n - int(ok[::-1].argmax())
+    return int(ok[0]), n - (w.size - 1 - int(ok[-1]))
 
 
 def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
@@ -130,9 +132,9 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     """
     d = x[1:] - x[:-1]
     e = d * d
-    pos = np.arange(e.size) + 0.5  # a difference sits between its two rows
     if phasor is None or phasor.size < e.size:
-        phasor = np.exp(-2j * np.pi / period0_rows * pos)
+        # a difference sits between its two rows
+        phasor = np.exp(-2j * np.pi / period0_rows * (np.arange(e.size) + 0.5))
     z = e * phasor[:e.size]
     seg = max(2, int(round(segment_chips * period0_rows)))
     nseg = z.size // seg
@@ -162,10 +164,10 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
         # segment is below 0.5 rad for errors within max_period_error)
         df = 1.0 / period - 1.0 / period0_rows
         zsum = sum(zk * cmath.exp(-2j * math.pi * df * ck) for zk, ck in zip(zs, c)) + complex(
-            (z[nseg * seg:] * np.exp(-2j * np.pi * df * pos[nseg * seg:])).sum())
+            (z[nseg * seg:] * np.exp(-2j * np.pi * df * (np.arange(nseg * seg, e.size) + 0.5))).sum())
     etot = e.sum()
     coherence = float(abs(zsum) / etot) if etot > 0 else 0.0
-    phase = float((-np.angle(zsum) * period / (2.0 * np.pi)) % period)
+    phase = float((-np.arctan2(zsum.imag, zsum.real) * period / (2.0 * np.pi)) % period)
     return period, phase, coherence
 
 
@@ -193,10 +195,15 @@ def _grid_phasor(period0_rows: float, n: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=512)
-def _window_bounds(n: int, win: int) -> tuple[np.ndarray, np.ndarray]:
-    """[lo, hi) of a `win`-long window around each of n items, shifted inwards at the ends."""
-    lo = np.clip(np.arange(n) - win // 2, 0, n - win)
-    return lo, lo + win
+def _window_start(n: int, win: int) -> np.ndarray:
+    """Start of a `win`-long window around each of n items, shifted inwards at the ends."""
+    return np.clip(np.arange(n) - win // 2, 0, n - win)
+
+
+def _clip1(x: np.ndarray) -> np.ndarray:
+    """x clipped to [-1, 1]: the two ufuncs, without np.clip's wrapper (a few us a call, and
+    the decoder clips several small arrays per frame)."""
+    return np.minimum(np.maximum(x, -1.0), 1.0)
 
 
 def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float, *,
@@ -223,14 +230,15 @@ def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float,
         cw = np.ones(n)
     else:
         cw = np.interp(centres, rows, w)
-        cw *= 1.0 / max(cw.max(), 1e-9)
+        cw *= 1.0 / max(np.maximum.reduce(cw), 1e-9)
     win = min(norm_chips, n)
-    lo, hi = _window_bounds(n, win)
+    lo = _window_start(n, win)
     cs = np.zeros(n + 1)
-    np.cumsum(v, out=cs[1:])
-    d = v - (cs[hi] - cs[lo]) * (1.0 / win)
-    np.cumsum(np.abs(d), out=cs[1:])
-    soft = d / np.maximum((cs[hi] - cs[lo]) * (1.0 / win), 1e-9)
+    # window sums: cs[j + win] - cs[j] for every start j, then picked per chip
+    np.add.accumulate(v, out=cs[1:])
+    d = v - (cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win)
+    np.add.accumulate(np.abs(d), out=cs[1:])
+    soft = d / np.maximum((cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win), 1e-9)
     np.minimum(soft, SOFT_CLIP, out=soft)
     np.maximum(soft, -SOFT_CLIP, out=soft)
     return soft, cw
@@ -245,13 +253,17 @@ def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None
     """
     if soft.size < SYNC_LEN:
         return None, 0.0
-    hi, lo = soft > sync_margin, soft < -sync_margin
-    e = soft.size - SYNC_LEN + 1
-    hits = np.flatnonzero(hi[:e] & hi[1:e + 1] & hi[2:e + 2] & lo[3:e + 3] & lo[4:e + 4]
-                          & lo[5:e + 5])
-    if hits.size == 0:
+    # chip signs (+1 / -1, 0 inside the margin) as bytes: the pattern is then a substring
+    # search, a third of the cost of six shifted comparisons on these short arrays
+    code = ((soft > sync_margin).view(np.int8) - (soft < -sync_margin).view(np.int8)).tobytes()
+    hits = []
+    k = code.find(_SYNC_CODE)
+    while k >= 0:
+        hits.append(k)
+        k = code.find(_SYNC_CODE, k + 1)
+    if not hits:
         return None, 0.0
-    if hits.size > 1 and np.any((hits - hits[0]) % PACKET_LEN):
+    if any((k - hits[0]) % PACKET_LEN for k in hits):
         return None, 0.0  # inconsistent syncs: grid or noise trouble, do not trust the frame
     score = [float((soft[k:k + SYNC_LEN] * _SYNC_T).min()) for k in hits]
     best = int(np.argmax(score))
@@ -266,11 +278,11 @@ def pair_parity(soft: np.ndarray, *, cyclic: bool = False, parity_gap: float = 2
     about +1 per pair and the wrong one about 0. Needs a score gap of `parity_gap` (pairs);
     data of alternating bits is Manchester-consistent on both grids and stays unclear.
     """
-    x = np.clip(soft, -1.0, 1.0)
+    x = _clip1(soft)
     if cyclic:
         x = np.concatenate((x, x[:1]))
-    p = -x[:-1] * x[1:]  # p[k] ~ +1 when chips k, k+1 are opposite
-    s0, s1 = p[0::2].sum(), p[1::2].sum()
+    p = x[:-1] * x[1:]  # p[k] ~ -1 when chips k, k+1 are opposite
+    s0, s1 = -np.add.reduce(p[0::2]), -np.add.reduce(p[1::2])
     if abs(s0 - s1) < parity_gap:
         return None
     return 0 if s0 > s1 else 1
@@ -307,7 +319,7 @@ def packet_template(led_id: int) -> np.ndarray:
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
-    s = np.clip(soft, -1.0, 1.0)
+    s = _clip1(soft)
     idx = _cyclic_index(s.size)
     den = np.abs(s).sum()
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
@@ -324,6 +336,26 @@ class OokState:
     frames: int
     chips_known: int
     confidence: float
+
+
+class PeriodLearner:
+    """Rows per chip of one chip rate on one camera, fixed by the median of the first
+    `period_frames` refined periods handed in (`add`). Rows per chip is a camera/LED constant,
+    so the decoders of all lights of a rate can share one learner (receiver.pipeline does):
+    then only the lights of the first frame(s) pay the period refinement, not every new light
+    for its first `period_frames` frames. A decoder made without one learns alone."""
+
+    def __init__(self, period_frames: int = PERIOD_FRAMES):
+        self.period_frames = period_frames
+        self.periods: list[float] = []
+        self.period: float | None = None
+
+    def add(self, period: float) -> None:
+        if self.period is not None:
+            return
+        self.periods.append(period)
+        if len(self.periods) >= self.period_frames:
+            self.period = float(np.median(self.periods))
 
 
 class OokDecoder:
@@ -344,6 +376,9 @@ class OokDecoder:
         >= verify_min (`best_cyclic_match`).
       period_frames [5]: the refined chip period (rows) of this many frames is fixed by
         their median (it is a camera/LED constant); later frames only measure the phase.
+      period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
+        and camera (its own `period_frames` counts their refinements together); None: this
+        decoder learns alone.
       min_coherence [0.3]: frames whose transitions do not sit on a chip grid are skipped.
       norm_chips [8]: local normalisation window, chips.
       sync_margin [0.3]: every sync chip must be right by this (soft units).
@@ -380,16 +415,17 @@ class OokDecoder:
                  align_min: float = 0.7, align_gap: float = 0.25, align_min_chips: int = 8,
                  pending_frames: int = 8, decay: float = 0.9, min_margin: float = 0.25,
                  switch_frames: int = 3, parity_gap: float = 2.0, stale_frames: int = 10,
-                 align_when_decoded: bool = False, period_frames: int = 5,
+                 align_when_decoded: bool = False, period_frames: int = PERIOD_FRAMES,
                  verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
                  timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
-                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True):
+                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True,
+                 period_learner: PeriodLearner | None = None):
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
         self._phasor = np.zeros(0, dtype=np.complex128)
         self.period_frames = period_frames
-        self._periods: list[float] = []
+        self._learner = period_learner if period_learner is not None else PeriodLearner(period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
         self.last_period = self.period0_rows
@@ -461,6 +497,9 @@ class OokDecoder:
         if x.size < 4 * self.period0_rows:
             return np.zeros(0), np.zeros(0)
         w = None if weights is None else np.asarray(weights, dtype=np.float64)[a:b]
+        if self._period is None and self._learner.period is not None:
+            self._period = self._learner.period
+            self._phasor = np.zeros(0, dtype=np.complex128)
         learned = self._period is not None
         p0 = self._period if learned else self.period0_rows
         if self._phasor.size < x.size:
@@ -476,9 +515,9 @@ class OokDecoder:
         if not learned and x.size >= 3 * self.segment_chips * p0:
             # rows per chip is fixed by the camera and the LED: learn it once, then skip the
             # refinement (half the cost of a step)
-            self._periods.append(period)
-            if len(self._periods) >= self.period_frames:
-                self._period = float(np.median(self._periods))
+            self._learner.add(period)
+            if self._learner.period is not None:
+                self._period = self._learner.period
                 self._phasor = np.zeros(0, dtype=np.complex128)
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
@@ -490,33 +529,40 @@ class OokDecoder:
         (then the true shift was among those compared, and the choice can be trusted)."""
         self._last_align_complete = False
         known = self.acc_w > 0
-        if known.sum() < self.align_min_chips:
+        if np.count_nonzero(known) < self.align_min_chips:
             return None
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
-        s = np.clip(soft, -1.0, 1.0)
+        m = self._mean_packet(known)
+        s = _clip1(soft)
         idx = _cyclic_index(s.size)
-        mm = m[idx]
-        num = mm @ s
-        den = np.abs(mm) @ np.abs(s)
-        overlap = known[idx].sum(axis=1)
+        num = m[idx] @ s
+        den = np.abs(m)[idx] @ np.abs(s)
+        overlap = np.add.reduce(known[idx], axis=1)
         corr = np.where((den > 0) & (overlap >= self.align_min_chips), num / np.maximum(den, 1e-12),
                         -1.0)
-        pf = pair_parity(soft, parity_gap=self.parity_gap)
-        pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
-        if pf is not None and pa is not None:
-            # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
-            # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
-            corr[(np.arange(PACKET_LEN) - (pa - pf)) % 2 == 1] = -1.0
+        pf = pair_parity(s, parity_gap=self.parity_gap)
+        if pf is not None:  # the accumulator's parity only matters against the frame's
+            pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
+            if pa is not None:
+                # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
+                # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
+                corr[(pa - pf + 1) % 2::2] = -1.0
         self._last_align_complete = bool(overlap.min() >= self.align_min_chips)
-        order = np.argsort(corr)
-        best, second = corr[order[-1]], corr[order[-2]]
-        if best >= self.align_min and best - second >= self.align_gap:
-            return int(order[-1])
+        # best and runner-up; tied bests fail the gap whichever of them is taken
+        i = int(corr.argmax())
+        best = corr[i]
+        corr[i] = -np.inf
+        if best >= self.align_min and best - corr.max() >= self.align_gap:
+            return i
         return None
+
+    def _mean_packet(self, known: np.ndarray) -> np.ndarray:
+        """Mean accumulated soft chip per packet position, 0 where nothing is known
+        (`known` = acc_w > 0)."""
+        return np.divide(self.acc, self.acc_w, out=np.zeros(PACKET_LEN), where=known)
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
-        pos = (np.arange(soft.size) + shift) % PACKET_LEN
+        pos = _cyclic_index(soft.size)[shift]
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
         w = np.bincount(pos, cw, PACKET_LEN)
         self.acc_w += w
@@ -557,7 +603,7 @@ class OokDecoder:
             self._decode()
         elif self._stale:  # nothing new to decode, but a failing packet keeps ageing
             self._age_stale()
-        known = int((self.acc_w > 0).sum()) if self.anchored else 0
+        known = int(np.count_nonzero(self.acc_w)) if self.anchored else 0
         return OokState(self.led_id, self.frames, known, self.confidence)
 
     def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
@@ -570,7 +616,7 @@ class OokDecoder:
         each show only part of the sync can still be combined.
         """
         s, _ = find_sync(soft, sync_margin=self.sync_margin)
-        if not (self.acc_w > 0).any():
+        if not self.acc_w.any():  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
                 self.anchored = False
@@ -765,8 +811,7 @@ class OokDecoder:
 
     def _cyclic_sync(self) -> int | None:
         """Sync position in the (unanchored) accumulated packet, or None."""
-        known = self.acc_w > 0
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
+        m = self._mean_packet(self.acc_w > 0)
         ext = np.concatenate((m, m[:SYNC_LEN - 1]))
         s, _ = find_sync(ext, sync_margin=self.sync_margin)
         return None if s is None else s % PACKET_LEN
@@ -849,7 +894,7 @@ class OokDecoder:
         if not (self.anchored and known[SYNC_LEN:].all()):
             self.confidence = 0.0
             return
-        m = np.where(known, self.acc / np.where(known, self.acc_w, 1.0), 0.0)
+        m = self._mean_packet(known)
         led_id, conf = decode_packet(m, min_margin=self.min_margin)
         self.confidence = conf
         if led_id is not None:

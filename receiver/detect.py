@@ -152,7 +152,8 @@ def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, i
         return z, z.copy(), int(blob.y0)
     weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
     sums = cv2.reduce(cv2.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
-    profile = np.divide(sums, weights, out=np.zeros_like(weights), where=weights > 0)
+    # a row without envelope pixels sums to 0, so dividing it by 1 gives its 0 profile
+    profile = sums / np.maximum(weights, 1.0)
     return profile, weights, int(blob.y0)
 
 

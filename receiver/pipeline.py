@@ -260,9 +260,15 @@ class Receiver:
     def _attach(self, track: Track) -> None:
         cam = self.camera
         if "ook" in self._decoders:
+            ook = self._decoders["ook"]
+            # Rows per chip is a constant of this camera and the rate: one learner per rate
+            # serves every track, so a new track does not refine it again for its first frames.
+            learners = self.__dict__.setdefault("_period_learners", {})
             for rate in self.plan.ook_rates:
-                track.decoders[("ook", rate)] = self._decoders["ook"].OokDecoder(
-                    rate, cam.row_readout_us, cam.exposure_us, **self.ook_kw)
+                if rate not in learners:
+                    learners[rate] = ook.PeriodLearner(self.ook_kw.get("period_frames", ook.PERIOD_FRAMES))
+                track.decoders[("ook", rate)] = ook.OokDecoder(
+                    rate, cam.row_readout_us, cam.exposure_us, period_learner=learners[rate], **self.ook_kw)
         if "tone" in self._decoders:
             track.decoders[("tone", 0.0)] = self._decoders["tone"].ToneDecoder(
                 self.plan.tone_table, cam.row_readout_us, **self.tone_kw)

@@ -172,3 +172,26 @@ def test_step_benchmark(benchmark):
 
     st = benchmark(one)
     assert st.led_id in (None, 0xBEEF)
+
+
+def test_period_learner_shared_by_decoders():
+    """Decoders sharing a PeriodLearner fix rows per chip from their refinements together: a
+    decoder made after that uses the learned period from its first frame; a decoder without
+    one still learns alone over its own `period_frames` frames."""
+    from receiver.decode_ook import PeriodLearner
+    rng = np.random.default_rng(11)
+    learner = PeriodLearner(period_frames=3)
+    frames = ook_frames(0xBEEF, RATE, T_ROW * 1.03, T_EXP, 200, 4, rng)  # row time 3 % off
+    first = [OokDecoder(RATE, T_ROW, T_EXP, period_learner=learner) for _ in range(3)]
+    for dec, (p, w) in zip(first, frames):
+        dec.step(p, w)
+    assert learner.period is not None and len(learner.periods) == 3
+    assert abs(learner.period / rows_per_chip(RATE, T_ROW * 1.03) - 1) < 0.005
+    late = OokDecoder(RATE, T_ROW, T_EXP, period_learner=learner)
+    late.step(*frames[3])
+    assert late.rows_per_chip == learner.period
+    alone = OokDecoder(RATE, T_ROW, T_EXP, period_frames=3)
+    for p, w in frames[:3]:
+        assert alone.rows_per_chip == alone.period0_rows
+        alone.step(p, w)
+    assert alone.rows_per_chip != alone.period0_rows
