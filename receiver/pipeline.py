@@ -240,6 +240,7 @@ class Receiver:
         self.s2psk_inverted = s2psk_inverted
         self.redecode_every = max(1, int(redecode_every))
         self._decoders = self._import_decoders()
+        self._period_learners: dict = {}  # chip rate -> decode_ook.PeriodLearner (`_attach`)
         self.clocks = ({rate: FrameClock() for rate in self.plan.ook_rates}
                        if frame_clock and camera.rolling_shutter and not still else {})
         self.clock_refs = clock_refs
@@ -263,12 +264,13 @@ class Receiver:
             ook = self._decoders["ook"]
             # Rows per chip is a constant of this camera and the rate: one learner per rate
             # serves every track, so a new track does not refine it again for its first frames.
-            learners = self.__dict__.setdefault("_period_learners", {})
             for rate in self.plan.ook_rates:
-                if rate not in learners:
-                    learners[rate] = ook.PeriodLearner(self.ook_kw.get("period_frames", ook.PERIOD_FRAMES))
+                if rate not in self._period_learners:
+                    self._period_learners[rate] = ook.PeriodLearner(
+                        self.ook_kw.get("period_frames", ook.PERIOD_FRAMES))
                 track.decoders[("ook", rate)] = ook.OokDecoder(
-                    rate, cam.row_readout_us, cam.exposure_us, period_learner=learners[rate], **self.ook_kw)
+                    rate, cam.row_readout_us, cam.exposure_us,
+                    period_learner=self._period_learners[rate], **self.ook_kw)
         if "tone" in self._decoders:
             track.decoders[("tone", 0.0)] = self._decoders["tone"].ToneDecoder(
                 self.plan.tone_table, cam.row_readout_us, **self.tone_kw)
