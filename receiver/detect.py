@@ -371,14 +371,18 @@ def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, mi
     return np.where(peak >= saturated_gray, clipped, normal)
 
 
-def _component_rows(above: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """(R,) bool: the rows of a strip of stacked boxes (box i = rows starts[i]:starts[i + 1])
-    from its box's first to its last row where `above` (R,) is set."""
-    c = np.zeros(above.size + 1, np.int64)
-    np.cumsum(above, out=c[1:])
-    owner = np.repeat(np.arange(starts.size - 1), np.diff(starts))
-    r = np.arange(above.size)
-    return (c[r + 1] > c[starts[owner]]) & (c[starts[owner + 1]] > c[r])
+def _trim_pooled_rows(strip: np.ndarray, starts: np.ndarray, pool: int, on: np.uint8) -> None:
+    """Zero, in place, the rows of a strip of stacked boxes (box i = rows starts[i]:starts[i + 1])
+    that lie above its first or below its last row with a pixel >= `on`. The boxes come from
+    a search on `pool`-row maxima, so those rows are within the box's first and last `pool`
+    rows (its top and bottom pooled rows hold a pixel above the level)."""
+    lo, hi = starts[:-1, None], starts[1:, None] - 1
+    k = np.arange(pool)
+    for edge in (np.minimum(lo + k, hi), np.maximum(hi - k, lo)):  # (N, pool): top down, bottom up
+        lit = (strip[edge] >= on).any(axis=2)
+        # rows before the first lit one from the edge inwards (all of them if none is lit)
+        dark = np.cumsum(lit, axis=1) == 0
+        strip[edge[dark]] = 0
 
 
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturated_gray=250.0,
@@ -415,13 +419,9 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturate
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
     if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
         strip[np.repeat(first_on > 255, bh)] = 0
-    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
     if pool > 1 and level < 255:
-        above = strip >= np.uint8(math.floor(level) + 1)
-        # rows with a pixel above the level; argmax + a lookup is several times faster than
-        # any() or a row max here
-        above = above[np.arange(above.shape[0]), above.argmax(axis=1)]
-        lit &= _component_rows(above, starts)[:, None]
+        _trim_pooled_rows(strip, starts, pool, np.uint8(math.floor(level) + 1))
+    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
     rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
     left = left_all[rows]
