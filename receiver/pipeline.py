@@ -7,7 +7,7 @@
 Stages, each stamped with the injected clock (`FrameResult.stage_ms`, receiver.budget):
 `detect` (receiver.detect), `track` (receiver.track), `pair` (S2-PSK pairs and their soft XOR,
 receiver.pairing + receiver.decode_s2psk), `decode` (row profiles -> OOK / tone decoders),
-`locate` (the positioner, when one is given).
+`report` (the frame's LED observations), `locate` (the positioner, when one is given).
 
 What is decoded follows the map (`ModePlan`): one OOK decoder per distinct OOK chip rate in the
 map (an OOK ID counts only when the map lists it at that rate, or any ID under "xy"
@@ -442,6 +442,7 @@ class Receiver:
             if t.led_id is not None:
                 self.decoded_ids.add(t.led_id)
         leds.sort(key=lambda o: o.track)
+        timer.stamp("report")  # the frame's LED observations (the latency counts every stage)
         position, distances = None, {}
         if self.positioner is not None:
             res = self.positioner.step(frame.t_s, leds)

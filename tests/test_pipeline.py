@@ -62,8 +62,8 @@ def test_stage_times_come_from_the_injected_clock():
     clock = lambda: next(ticks) * 0.001  # every reading advances 1 ms
     rx = Receiver(bench_camera(), bench_map(leds), clock=clock)
     res = rx.process(_frames(leds, 1)[0])
-    assert res.stage_ms == pytest.approx({"detect": 1.0, "track": 1.0, "decode": 1.0})
-    assert res.latency_ms == pytest.approx(3.0)
+    assert res.stage_ms == pytest.approx({"detect": 1.0, "track": 1.0, "decode": 1.0, "report": 1.0})
+    assert res.latency_ms == pytest.approx(4.0)
     assert rx.last_counts["blobs"] == 4
 
 
@@ -105,7 +105,7 @@ def test_run_bench_reports_every_stage():
     stats, wall = run_bench(cam, led_map, frames)
     s = stats.summary()
     assert s["frames"] == 3 and wall > 0
-    assert set(s["stages"]) == {"detect", "track", "decode", "output"}
+    assert set(s["stages"]) == {"detect", "track", "decode", "report", "output"}
 
 
 def test_flat_lamp_stays_silent_when_every_light_must_stripe():
