@@ -158,7 +158,8 @@ class Pairer:
     frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
-    jumps within jump_agree [0.5] diameters of each other.
+    jumps within jump_agree [0.5] diameters of each other, vertically within the larger of that
+    and jump_agree_y_px [4] px (the camera's pitch vibration); the pair's baseline is their mean.
     Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
     shift (`pitch_shift`), added to every pair's prediction.
     """
@@ -169,7 +170,8 @@ class Pairer:
                  merged_ratio: float = 1.5, max_merged: float = 3.0, max_cut: float = 3.0,
                  miss_growth_px: float = 1.0,
                  velocity_gain: float = 0.3, max_missed: int = 10, give_up_frames: int = 110,
-                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5, shake_min_pairs: int = 3):
+                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5, jump_agree_y_px: float = 4.0,
+                 shake_min_pairs: int = 3):
         self.geom = dict(row_band=row_band, max_area_ratio=max_area_ratio,
                          min_baseline=min_baseline, max_baseline=max_baseline)
         self.min_frames = min_frames
@@ -186,6 +188,7 @@ class Pairer:
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
         self.jump_max_baseline, self.jump_agree = jump_max_baseline, jump_agree
+        self.jump_agree_y_px = jump_agree_y_px
         self.shake_min_pairs = shake_min_pairs
         self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
@@ -225,9 +228,13 @@ class Pairer:
                     explaining.append(t)
                 continue  # a small blob between the two: not telling
             # One emitter, perhaps cut by a clock edge during the rolling readout (smaller: it
-            # moves the pair but does not replace the emitter's envelope).
+            # moves the pair but does not replace the emitter's envelope). Its size is judged
+            # against the larger of the two emitters' envelopes: both halves of a head (two
+            # taillights) are the same size, and an emitter seen in few frames keeps an
+            # envelope from when the light was farther (an approaching head grows by several
+            # times in a few seconds).
             e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
-            ratio = max(t.blob.area_px, 1.0) / max(e.blob.area_px, 1.0)
+            ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, 1.0)
             if not (1.0 / self.max_cut <= ratio <= self.merged_ratio):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
@@ -366,8 +373,16 @@ class Pairer:
                 continue
             prev = self.jumps.get(t.track_id)
             self.jumps[t.track_id] = (jx, jy)
-            if prev is None or math.hypot(jx - prev[0], jy - prev[1]) > self.jump_agree * diam:
+            # Each jump is the baseline plus the light's motion over one frame, in opposite
+            # directions for a back-and-forth track (B -> A, A -> B): the left-to-right jumps
+            # then differ by about twice that motion. The camera's pitch vibration moves lights
+            # by 1-2 px per frame, mostly vertically, so the vertical part is allowed
+            # `jump_agree_y_px` as well.
+            if prev is None or abs(jx - prev[0]) > self.jump_agree * diam or abs(jy - prev[1]) > max(
+                    self.jump_agree * diam, self.jump_agree_y_px):
                 continue
+            # their mean is the baseline without the motion
+            jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
             right = t.cx > last.cx  # the current blob is the right-hand emitter
             ax, ay = (t.cx - jx, t.cy - jy) if right else (t.cx, t.cy)
             if (t.track_id, t.track_id) in self.banned:

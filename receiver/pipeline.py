@@ -148,6 +148,21 @@ def tone_runs_match(profile: np.ndarray, weights: np.ndarray, freq_hz: float, ro
     return abs(float(np.median(runs)) / half_rows - 1.0) <= tol
 
 
+def pair_owners(pairs) -> dict[int, object]:
+    """track id -> the S2-PSK pair (receiver.pairing.Pair) whose emitter it is this frame.
+    A pair follows its emitters itself: the tracks whose blob it explained this frame
+    (`Pair.tracks`) are its emitters, whichever track they are. A blob two pairs explain (an
+    emitter of a wide, still undecoded pairing lying on another light) belongs to the decoded
+    one; otherwise to the later pair."""
+    owner: dict[int, object] = {}
+    for p in pairs:
+        for t in p.tracks:
+            other = owner.get(t.track_id)
+            if other is None or other.led_id is None or p.led_id is not None:
+                owner[t.track_id] = p
+    return owner
+
+
 def _decode_info(t: Track, pair) -> dict:
     """Extra output fields of one LED: the measured tone frequency, the S2-PSK ID kind."""
     out = {}
@@ -402,15 +417,14 @@ class Receiver:
                     p.state = found or st
                 if found is not None:
                     p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
-                # The pair follows its emitters itself (receiver.pairing): the tracks whose blob
-                # it explained this frame are its emitters, whichever track they are.
-                for t in p.tracks:
-                    pair_of[t.track_id] = p
-                    t.led_id, t.mode = p.led_id, ("s2psk" if p.led_id is not None else t.mode)
+            pair_of = pair_owners(self.pairer.pairs)
             # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
             # this frame (it may have jumped to another light's blob) carries none.
             for t in tracks:
-                if t.mode == "s2psk" and t.track_id not in pair_of:
+                p = pair_of.get(t.track_id)
+                if p is not None:
+                    t.led_id, t.mode = p.led_id, ("s2psk" if p.led_id is not None else t.mode)
+                elif t.mode == "s2psk":
                     t.led_id, t.mode = None, None
             timer.stamp("pair")
 

@@ -187,3 +187,18 @@ def test_far_head_whose_halves_merge_decodes_with_the_real_decoder():
     (pair,) = [p for p in rx.pairer.pairs if p.led_id == LED_ID]
     for e, (x, y) in zip((pair.a, pair.b), centres):
         assert abs(e.cx - x) <= 1.5 and abs(e.cy - y) <= 1.5
+
+
+def test_a_blob_two_pairs_explain_belongs_to_the_decoded_pair():
+    """A wide, undecoded pairing whose emitter lies on another head explains that head's blob
+    too: the blob stays the decoded head's emitter (it carries its ID), whatever the order."""
+    from types import SimpleNamespace
+    from receiver.pipeline import pair_owners
+    blob_track, other = SimpleNamespace(track_id=7), SimpleNamespace(track_id=8)
+    head = SimpleNamespace(led_id=92, tracks=[blob_track])
+    wide = SimpleNamespace(led_id=None, tracks=[blob_track, other])
+    for pairs in ([head, wide], [wide, head]):
+        owners = pair_owners(pairs)
+        assert owners[7] is head and owners[8] is wide
+    decoded_too = SimpleNamespace(led_id=29, tracks=[blob_track])
+    assert pair_owners([head, decoded_too])[7] is decoded_too  # both decoded: the later one

@@ -150,3 +150,43 @@ def test_pitch_shake_moves_dark_pairs_with_the_lit_ones():
     pr.step(np.zeros((120, 400), np.uint8), lit, lambda g, t: 0.0)
     dark = pairs[3]
     assert abs(dark.my - 53.0) < 1e-9 and abs(dark.a.blob.cy - 53.0) <= 0.5
+
+
+def test_jumping_track_pairs_despite_the_heads_vertical_motion():
+    """A far head whose halves are never two blobs of one frame: one track jumps between A and
+    B (7 px apart) while the camera's pitch moves the head 1.5 px per frame. Consecutive
+    left-to-right jumps then differ by 3 px vertically (twice the motion); the pair still
+    forms, with the baseline free of the motion (mean of the two jumps)."""
+    pr = Pairer()
+    xs = [100.0, 107.0, 100.0, 107.0]  # B <- A -> B ...
+    pairs = []
+    for k, x in enumerate(xs):
+        t = Track(5, blob(x + 0.1 * k, 50.0 - 1.5 * k, 2.0), 0, k)
+        pairs = pr.step(None, [t], lambda g, tr: 100.0)
+        if pairs:
+            break
+    assert len(pairs) == 1, "no pair from the jumping track"
+    p = pairs[0]
+    assert abs((p.b.blob.cx - p.a.blob.cx) - 7.0) <= 1.0
+    assert abs(p.b.blob.cy - p.a.blob.cy) <= 0.5  # a level head: no vertical baseline
+    # without the vertical allowance the same motion forms no pair
+    pr = Pairer(jump_agree_y_px=0.0)
+    for k, x in enumerate(xs):
+        assert not pr.step(None, [Track(5, blob(x + 0.1 * k, 50.0 - 1.5 * k, 2.0), 0, k)],
+                           lambda g, tr: 100.0)
+
+
+def test_an_emitter_with_a_stale_small_envelope_still_explains_its_grown_blob():
+    """An approaching head: B's envelope followed the growing light, A's (seen in few frames)
+    is still the size it was. A blob on A three times A's envelope but the size of B's is A's
+    own single blob: it moves the pair and becomes A's envelope."""
+    from receiver.pairing import Pair, _emitter
+    pr = Pairer(max_missed=100)
+    a, b = Track(1, blob(100.0, 50.0, 2.0), 0, 0), Track(2, blob(110.0, 50.0, 2.0), 0, 0)
+    p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
+    assert pr._follow(p, [], np.zeros((0, 2)), None)  # forms the geometry
+    p.b.blob = blob(110.0, 50.0, 3.5)  # B grew with the light (3x the area)
+    seen = Track(7, blob(100.5, 50.0, 3.4), 1, 1)
+    assert pr._follow(p, [seen], np.array([[seen.cx, seen.cy]]), None)
+    assert p.tracks == [seen] and p.misses == 0
+    assert abs(p.a.blob.area_px - seen.blob.area_px) < 1e-9
