@@ -242,8 +242,8 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
       row_pool [2]: at full resolution, with stripes to bridge (stripe_gap_px >= 2 * row_pool),
         the components are searched on the row-wise maximum of every `row_pool` rows: the
         close and contour pass cost half as much, and the envelopes are still taken in full
-        resolution over the full-resolution component's rows, so the blobs are the same (a
-        frame where component boxes overlap is searched in full resolution).
+        resolution in the full-resolution search's boxes, so the blobs are the same (a frame
+        where component boxes overlap is searched in full resolution).
         Stripe gaps up to 3 * row_pool - 2 rows longer than `stripe_gap_px` may be bridged as
         well. 1 = off.
     """
@@ -258,14 +258,13 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
     pool = row_pool if f == 1 and row_pool > 1 and stripe_gap_px >= 2 * row_pool else 1
-    search = small if pool == 1 else _row_max(gray, pool)
-    contours, rects = _components(search, coarse, stripe_gap_px, join_x_px, f, pool, h)
+    contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
     alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool, h)
+        contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
         alone = _isolated(rects)
     max_area = max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
@@ -275,14 +274,13 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
     batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, pool=pool, **sat_kw)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
     for i in np.flatnonzero(keep).tolist():
         c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       refine_frac, bool(alone[i]), pool=pool,
-                                                       **sat_kw)
+                                                       refine_frac, bool(alone[i]), **sat_kw)
         if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
@@ -331,11 +329,13 @@ def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tupl
     return out
 
 
-def _components(search: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
-                pool: int, h: int) -> tuple[list, np.ndarray]:
+def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
+                pool: int = 1) -> tuple[list, np.ndarray]:
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
-    contours (search pixels) and bounding boxes (N, 4) x, y, w, h, rows in full resolution
-    when the search rows are `pool`-row maxima (`_row_max`) of an image of h rows."""
+    contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
+    full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
+    of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows."""
+    search = image if pool == 1 else _row_max(image, pool)
     if pool > 1:
         # a gap of g rows leaves at most floor(g / pool) empty pooled rows, so bridging
         # ceil((g + 1) / pool) - 1 of them bridges every gap up to stripe_gap_px rows (and,
@@ -349,10 +349,49 @@ def _components(search: np.ndarray, level: float, stripe_gap_px: int, join_x_px:
     # connectedComponentsWithStats, which labels the whole frame.
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
-    if pool > 1:  # pooled row i covers full-resolution rows [i * pool, (i + 1) * pool)
-        rects[:, 3] = np.minimum((rects[:, 1] + rects[:, 3]) * pool, h) - rects[:, 1] * pool
-        rects[:, 1] *= pool
+    if pool > 1 and len(rects):
+        rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
     return contours, rects
+
+
+def _close_reach(gap_y_px: int) -> int:
+    """Rows the full-resolution close (`_close`) reaches beyond a component towards the image's
+    top or bottom edge: half its (odd) kernel height. The close treats the outside of the
+    image as lit, so a component this close to the edge is extended to it."""
+    rows = gap_y_px + 1
+    return (rows + (rows + 1) % 2) // 2
+
+
+def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool: int,
+                        reach: int) -> np.ndarray:
+    """The full-resolution search's boxes (N, 4) x, y, w, h for boxes found on `pool`-row
+    maxima (`rects`, rows in pooled rows): columns are the same; the rows run from the
+    component's first to its last row with a pixel above `level`, extended to the image's top
+    or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
+    first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
+    the pooled close itself reached the image edge: such boxes are searched whole."""
+    h = gray.shape[0]
+    x, w = rects[:, 0], rects[:, 2]
+    y = rects[:, 1] * pool
+    hh = np.minimum((rects[:, 1] + rects[:, 3]) * pool, h) - y
+    on = np.uint8(min(math.floor(level) + 1, 255))
+    n = len(rects)
+    cols = np.minimum(x[:, None] + np.arange(int(w.max())), gray.shape[1] - 1)  # (N, max w)
+    inside = np.arange(cols.shape[1]) < w[:, None]
+    k = np.arange(pool)
+    ends = []
+    for rows in (np.minimum(y[:, None] + k, y[:, None] + hh[:, None] - 1),  # first rows, down
+                 np.maximum(y[:, None] + hh[:, None] - 1 - k, y[:, None])):  # last rows, up
+        lit = ((gray[rows[:, :, None], cols[:, None, :]] >= on) & inside[:, None, :]).any(axis=2)
+        ends.append((rows[np.arange(n), lit.argmax(axis=1)], lit.any(axis=1)))
+    (top, ok_top), (bottom, ok_bottom) = ends
+    for i in np.flatnonzero(~(ok_top & ok_bottom)).tolist():
+        yi, xi = int(y[i]), int(x[i])
+        lit_rows = np.flatnonzero((gray[yi:yi + int(hh[i]), xi:xi + int(w[i])] >= on).any(axis=1))
+        top[i], bottom[i] = yi + lit_rows[0], yi + lit_rows[-1]
+    top = np.where(top <= reach, 0, top)
+    bottom = np.where(h - 1 - bottom <= reach, h - 1, bottom)
+    return np.stack((x, top, w, bottom - top + 1), axis=1)
 
 
 def _row_max(gray: np.ndarray, pool: int) -> np.ndarray:
@@ -385,21 +424,7 @@ def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, mi
     return np.where(peak >= saturated_gray, clipped, normal)
 
 
-def _trim_pooled_rows(strip: np.ndarray, starts: np.ndarray, pool: int, on: np.uint8) -> None:
-    """Zero, in place, the rows of a strip of stacked boxes (box i = rows starts[i]:starts[i + 1])
-    that lie above its first or below its last row with a pixel >= `on`. The boxes come from
-    a search on `pool`-row maxima, so those rows are within the box's first and last `pool`
-    rows (its top and bottom pooled rows hold a pixel above the level)."""
-    lo, hi = starts[:-1, None], starts[1:, None] - 1
-    k = np.arange(pool)
-    for edge in (np.minimum(lo + k, hi), np.maximum(hi - k, lo)):  # (N, pool): top down, bottom up
-        lit = (strip[edge] >= on).any(axis=2)
-        # rows before the first lit one from the edge inwards (all of them if none is lit)
-        dark = np.cumsum(lit, axis=1) == 0
-        strip[edge[dark]] = 0
-
-
-def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturated_gray=250.0,
+def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
                         saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
@@ -407,10 +432,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturate
     per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
     array operations for all blobs instead of a dozen calls per blob; only the convex hull and
     its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
-    a blob level is negative (odd tunables): the caller then refines one by one.
-    `pool` > 1: the boxes come from a row-pooled search and may hold up to pool - 1 rows above
-    and below the component; only the rows from its first to its last one with a pixel above
-    the search `level` are used (the full-resolution search's box)."""
+    a blob level is negative (odd tunables): the caller then refines one by one."""
     n = len(rects)
     if n == 0:
         return []
@@ -433,8 +455,6 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturate
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
     if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
         strip[np.repeat(first_on > 255, bh)] = 0
-    if pool > 1 and level < 255:
-        _trim_pooled_rows(strip, starts, pool, np.uint8(math.floor(level) + 1))
     lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
     rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
@@ -469,22 +489,15 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, pool=1, saturate
     return out
 
 
-def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, pool=1,
-            saturated_gray=250.0, saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
+def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,
+            saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
     """Envelope of one coarse component (outer `contour` at search scale), in full resolution.
     `alone`: no other component's box overlaps this one's (at full resolution the bounding
-    box then holds no foreign pixels above the level, and the component mask is skipped).
-    `pool`: the box of an `alone` component comes from a row-pooled search (see
-    `_refine_alone_batch`)."""
+    box then holds no foreign pixels above the level, and the component mask is skipped)."""
     h, w = gray.shape[:2]
     bx, by, bw, bh = rect
     if f == 1 and alone:
         comp = None
-        if pool > 1:
-            rows = np.flatnonzero(gray[by:by + bh, bx:bx + bw].max(axis=1) > level)
-            if rows.size == 0:
-                return None
-            by, bh = by + int(rows[0]), int(rows[-1] - rows[0]) + 1
         x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
     elif f == 1:
         comp = np.zeros((bh, bw), np.uint8)
