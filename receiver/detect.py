@@ -241,11 +241,13 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
       level [None]: fixed global threshold instead of `auto_level`.
       row_pool [2]: at full resolution, with stripes to bridge (stripe_gap_px >= 2 * row_pool),
         the components are searched on the row-wise maximum of every `row_pool` rows: the
-        close and contour pass cost half as much, and the envelopes are still taken in full
-        resolution in the full-resolution search's boxes, so the blobs are the same (a frame
-        where component boxes overlap is searched in full resolution).
-        Stripe gaps up to 3 * row_pool - 2 rows longer than `stripe_gap_px` may be bridged as
-        well. 1 = off.
+        close and contour pass cost half as much. Every gap the full-resolution search
+        bridges is bridged, the boxes are the full-resolution search's and the envelopes are
+        taken in full resolution within them, so the blobs are the same (a frame where
+        component boxes overlap is searched in full resolution), with two exceptions: gaps up
+        to 3 * row_pool - 2 rows longer may be bridged as well (lights stacked that close
+        merge), and the `min_fill` test uses the pooled component's area (times row_pool),
+        which can decide otherwise for a component within a few % of `min_fill`. 1 = off.
     """
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, max_detect_px)
@@ -337,10 +339,11 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
     of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows."""
     search = image if pool == 1 else _row_max(image, pool)
     if pool > 1:
-        # a gap of g rows leaves at most floor(g / pool) empty pooled rows, so bridging
-        # ceil((g + 1) / pool) - 1 of them bridges every gap up to stripe_gap_px rows (and,
-        # with the odd kernel of `_close`, some up to 3 * pool - 2 rows longer)
-        gap_y = math.ceil((stripe_gap_px + 1) / pool) - 1
+        # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
+        # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
+        # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
+        # bridges every such gap (and, with the odd kernel, some up to 3 * pool - 2 longer).
+        gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
     else:
         gap_y = math.ceil(stripe_gap_px / f)
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
