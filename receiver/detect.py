@@ -239,16 +239,22 @@ def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
         (for single photos of a lamp set, where reflections look like small dim lamps;
         0 = off, since a moving camera sees near and far lights together).
       level [None]: fixed global threshold instead of `auto_level`.
-      row_pool [2]: at full resolution, with stripes to bridge (stripe_gap_px >= 2 * row_pool),
-        the components are searched on the row-wise maximum of every `row_pool` rows: the
-        close and contour pass cost half as much. Every gap the full-resolution search
-        bridges is bridged, the boxes are the full-resolution search's and the envelopes are
-        taken in full resolution within them, so the blobs are the same (a frame where
-        component boxes overlap is searched in full resolution), with two exceptions: gaps up
-        to 3 * row_pool - 2 rows longer may be bridged as well (lights stacked that close
-        merge), and the `min_fill` test uses the pooled component's area (times row_pool),
-        which can decide otherwise for a component within a few % of `min_fill`. 1 = off.
+      row_pool [2]: 2 = at full resolution, with stripes to bridge (stripe_gap_px >= 4), the
+        components are searched on the maximum of every 2 rows: the close and contour pass
+        cost half as much. Every gap the full-resolution search bridges is bridged, the boxes
+        are the full-resolution search's and the envelopes are taken in full resolution within
+        them, so the blobs are the same (a frame where component boxes overlap is searched in
+        full resolution), except that the pooled rows may join lights the full-resolution
+        search keeps apart: stacked up to 4 rows closer than stripe_gap_px, touching diagonally
+        (within join_x_px columns) across a pair of pooled rows, or within a row or two of
+        each other at the top or bottom edge (the pooled close reaches the edge from up to 2
+        rows farther); and the `min_fill` test uses the pooled component's area (times 2),
+        which can decide otherwise within a few % of `min_fill`. 1 = off (full resolution).
+        Other values are refused: with 3 rows the pooled close can reach the bottom edge from
+        a row less far than the full-resolution one and split what it joins.
     """
+    if row_pool not in (1, 2):
+        raise ValueError(f"row_pool must be 1 or 2, not {row_pool!r}")
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, max_detect_px)
     small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
