@@ -562,7 +562,7 @@ class OokDecoder:
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
-        pos = _cyclic_index(soft.size)[shift]
+        pos = _cyclic_index(soft.size)[shift % PACKET_LEN]
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
         w = np.bincount(pos, cw, PACKET_LEN)
         self.acc_w += w

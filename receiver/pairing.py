@@ -158,8 +158,9 @@ class Pairer:
     frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
-    jumps within jump_agree [0.5] diameters of each other, vertically within the larger of that
-    and jump_agree_y_px [4] px (the camera's pitch vibration); the pair's baseline is their mean.
+    jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
+    vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
+    mean.
     Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
     shift (`pitch_shift`), added to every pair's prediction.
     """
@@ -376,10 +377,10 @@ class Pairer:
             # Each jump is the baseline plus the light's motion over one frame, in opposite
             # directions for a back-and-forth track (B -> A, A -> B): the left-to-right jumps
             # then differ by about twice that motion. The camera's pitch vibration moves lights
-            # by 1-2 px per frame, mostly vertically, so the vertical part is allowed
-            # `jump_agree_y_px` as well.
-            if prev is None or abs(jx - prev[0]) > self.jump_agree * diam or abs(jy - prev[1]) > max(
-                    self.jump_agree * diam, self.jump_agree_y_px):
+            # by 1-2 px per frame, mostly vertically, so `jump_agree_y_px` of the vertical
+            # difference is forgiven before the two must agree within jump_agree diameters.
+            if prev is None or math.hypot(jx - prev[0], max(abs(jy - prev[1]) - self.jump_agree_y_px, 0.0)
+                                          ) > self.jump_agree * diam:
                 continue
             # their mean is the baseline without the motion
             jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
