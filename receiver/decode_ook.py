@@ -424,7 +424,6 @@ class OokDecoder:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
         self._phasor = np.zeros(0, dtype=np.complex128)
-        self.period_frames = period_frames
         self._learner = period_learner if period_learner is not None else PeriodLearner(period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)

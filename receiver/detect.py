@@ -94,10 +94,15 @@ def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int) -> np.ndarray:
     """Bridge vertical gaps up to `gap_y_px` rows and horizontal gaps up to `gap_x_px` columns."""
     if gap_y_px < 1 and gap_x_px < 1:
         return mask
-    rows, cols = gap_y_px + 1, gap_x_px + 1
-    rows, cols = rows + (rows + 1) % 2, cols + (cols + 1) % 2  # odd sizes keep the kernel centred
-    kernel = np.ones((rows, cols), np.uint8)
+    kernel = np.ones((_close_size(gap_y_px), _close_size(gap_x_px)), np.uint8)
     return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+
+
+def _close_size(gap_px: int) -> int:
+    """Kernel size (px) of `_close` bridging gaps up to `gap_px`: gap + 1, made odd so the
+    kernel stays centred (it then bridges one more when gap + 1 is even)."""
+    size = gap_px + 1
+    return size + (size + 1) % 2
 
 
 def _row_extremes(lit: np.ndarray) -> np.ndarray | None:
@@ -343,15 +348,15 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
     full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
     of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows."""
-    search = image if pool == 1 else _row_max(image, pool)
     if pool > 1:
+        search = _row_max(image, pool)
         # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
         # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
         # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
         # bridges every such gap (and, with the odd kernel, some up to 3 * pool - 2 longer).
         gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
     else:
-        gap_y = math.ceil(stripe_gap_px / f)
+        search, gap_y = image, math.ceil(stripe_gap_px / f)
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
     mask = _close(mask, gap_y, math.ceil(join_x_px / f))
     # findContours + one small fill per blob is several times faster here than
@@ -367,8 +372,7 @@ def _close_reach(gap_y_px: int) -> int:
     """Rows the full-resolution close (`_close`) reaches beyond a component towards the image's
     top or bottom edge: half its (odd) kernel height. The close treats the outside of the
     image as lit, so a component this close to the edge is extended to it."""
-    rows = gap_y_px + 1
-    return (rows + (rows + 1) % 2) // 2
+    return _close_size(gap_y_px) // 2
 
 
 def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool: int,
