@@ -4,9 +4,9 @@
     for frame in source:
         result = rx.process(frame)      # FrameResult
 
-Stages, each stamped with the injected clock (`FrameResult.stage_ms`, receiver.budget):
-`detect` (receiver.detect), `track` (receiver.track), `pair` (S2-PSK pairs and their soft XOR,
-receiver.pairing + receiver.decode_s2psk), `decode` (row profiles -> OOK / tone decoders),
+Stages, each stamped with the injected clock (`FrameResult.stage_ms`, receiver.core.budget):
+`detect` (receiver.vision.detect), `track` (receiver.vision.track), `pair` (S2-PSK pairs and their soft XOR,
+receiver.vision.pairing + receiver.decode.s2psk), `decode` (row profiles -> OOK / tone decoders),
 `report` (the frame's LED observations), `locate` (the positioner, when one is given).
 
 What is decoded follows the map (`ModePlan`): one OOK decoder per distinct OOK chip rate in the
@@ -22,18 +22,21 @@ from __future__ import annotations
 import importlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from receiver.budget import StageTimer
-from receiver.config import CameraModel, LedMap
-from receiver.detect import detect, mean_in_mask, merge_envelopes_many, row_profile, stripe_depth
-from receiver.frameclock import FrameClock
-from receiver.pairing import Pairer
-from receiver.records import Frame, LedObservation
-from receiver.tone_profile import tone_profile
-from receiver.track import Track, Tracker
+from receiver.core.budget import StageTimer
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import LedMap
+from receiver.vision.detect import detect
+from receiver.vision.profile import mean_in_mask, row_profile, stripe_depth
+from receiver.vision.envelope import merge_envelopes_many
+from receiver.decode.frameclock import FrameClock
+from receiver.vision.pairing import Pairer
+from receiver.core.records import Frame, FrameResult, LedObservation
+from receiver.vision.tone_profile import tone_profile
+from receiver.vision.track import Track, Tracker
 
 DEFAULT_OOK_RATE_HZ = 20000.0  # PROTOCOL.md section 2
 DEFAULT_S2PSK_CLK_HZ = 200.0  # PROTOCOL.md section 3
@@ -48,34 +51,12 @@ OOK_MAX_OFF_CHIPS = 4
 STRIPE_GAP_MARGIN_ROWS = 2
 # Dark-stripe gap bridged when the camera has a global shutter (no stripes).
 GLOBAL_SHUTTER_GAP_PX = 2
-# Photos: blobs smaller than this fraction of the biggest are reflections (receiver.detect).
+# Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
 STILL_MIN_REL_AREA = 0.25
 # Tone match check in maps that also hold OOK lights: stripe runs within this of half a period.
 TONE_RUN_TOL = 0.35
 # A rate in the map matches a decoder's rate within this relative tolerance.
 RATE_MATCH_REL = 0.01
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """Everything the receiver made of one frame.
-
-    `frame`, `t_s`: the source's index and timestamp; `latency_ms`: processing time of this
-    frame (injected clock); `leds`: the LEDs seen in this frame; `distances`:
-    track -> (distance_m, estimator) from the positioner; `position`: INTERFACES.md position
-    object or None; `vehicle`: None (filled by vehicle positioning); `stage_ms`: per stage;
-    `info`: track -> extra output fields of its LED (`freq_hz` of a tone decode, `kind` 'SL' /
-    'FV' of an S2-PSK pair)."""
-
-    frame: int
-    t_s: float
-    latency_ms: float
-    leds: list[LedObservation]
-    position: dict | None = None
-    vehicle: dict | None = None
-    stage_ms: dict[str, float] = field(default_factory=dict)
-    distances: dict[int, tuple[float, str]] = field(default_factory=dict)
-    info: dict[int, dict] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -149,7 +130,7 @@ def tone_runs_match(profile: np.ndarray, weights: np.ndarray, freq_hz: float, ro
 
 
 def pair_owners(pairs) -> dict[int, object]:
-    """track id -> the S2-PSK pair (receiver.pairing.Pair) whose emitter it is this frame.
+    """track id -> the S2-PSK pair (receiver.vision.pairing.Pair) whose emitter it is this frame.
     A pair follows its emitters itself: the tracks whose blob it explained this frame
     (`Pair.tracks`) are its emitters, whichever track they are. A blob two pairs explain (an
     emitter of a wide, still undecoded pairing lying on another light) belongs to the decoded
@@ -183,11 +164,11 @@ def _intensity(gray: np.ndarray, track: Track) -> float:
 class Receiver:
     """Streaming receiver (init/process). One instance per camera stream.
 
-    camera, led_map: receiver.config models (camera already scaled to the frame size).
+    camera, led_map: receiver.io models (camera already scaled to the frame size).
     positioner: object with `step(t_s, leds) -> LocateResult`, or None (no distances/position).
     clock: seconds, monotonic; stamps the stages (tests inject a fake).
     detect_kw, tracker_kw, pairer_kw, ook_kw, tone_kw, s2psk_kw: keyword overrides for
-    receiver.detect.detect, Tracker, Pairer and the decoders.
+    receiver.vision.detect.detect, Tracker, Pairer and the decoders.
     s2psk_inverted [False]: offer PROTOCOL.md's inverted polarity (thesis polarity default).
     redecode_every [8]: a track whose ID is known feeds its decoders only every this many
         frames (staggered by track), to keep the frame budget with many lights (issue 4: 16
@@ -209,7 +190,7 @@ class Receiver:
     frame_clock [True], clock_refs [3]: while some track has no ID, the `clock_refs` tallest
         decoded OOK tracks of each chip rate are measured every frame (their frame's packet
         position against their known packet, `OokDecoder.row0_coordinate`) to give the
-        frame's clock (receiver.frameclock); undecoded OOK decoders get it as a timing hint,
+        frame's clock (receiver.decode.frameclock); undecoded OOK decoders get it as a timing hint,
         so small lights whose frames barely overlap are still assembled. Rolling shutter only.
     """
 
@@ -227,12 +208,12 @@ class Receiver:
         kw = dict(stripe_gap_px=self.plan.stripe_gap_px(camera))
         if self.plan.s2psk:
             # One half of a far street-light head is a few px: the pairing sees it alone in
-            # the frames where only that half is lit (receiver.pairing).
+            # the frames where only that half is lit (receiver.vision.pairing).
             kw["min_area_px"] = S2PSK_MIN_AREA_PX
         kw.update(detect_kw or {})
         self.detect_kw = kw
         # The flat-region test runs once per new track on the row profile the decoders need
-        # anyway, instead of in every frame's detection (receiver.detect.stripe_depth).
+        # anyway, instead of in every frame's detection (receiver.vision.detect.stripe_depth).
         self.stripe_check = self.plan.expect_stripes(camera) if stripe_check is None else stripe_check
         self.min_stripe_rows = int(math.ceil(self.plan.stripe_period_px(camera)))
         self.min_stripe_depth = min_stripe_depth
@@ -266,7 +247,7 @@ class Receiver:
     def _import_decoders(self) -> dict:
         wanted = {"ook": bool(self.plan.ook_rates), "tone": bool(self.plan.tone_table),
                   "s2psk": bool(self.plan.s2psk)}
-        mods = {mode: importlib.import_module(f"receiver.decode_{mode}") for mode, on in wanted.items() if on}
+        mods = {mode: importlib.import_module(f"receiver.decode.{mode}") for mode, on in wanted.items() if on}
         if "ook" in mods:
             mods["ook"].crc8_table()  # built once here, not inside the first decoded frame
         return mods
@@ -292,7 +273,7 @@ class Receiver:
 
     def _merge_all(self, seen: list[Track], k: int, shape) -> None:
         """Set each seen track's `envelope`: this frame's blob merged with its last
-        `envelope_frames - 1` blobs (all tracks in one batch, receiver.detect.merge_envelopes_many)."""
+        `envelope_frames - 1` blobs (all tracks in one batch, receiver.vision.detect.merge_envelopes_many)."""
         if self.envelope_frames <= 1:
             for t in seen:
                 t.envelope = t.blob

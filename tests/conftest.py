@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.bench import bench_camera, bench_map, bench_scene, render_bench_frame
-from receiver.config import save_camera
+from receiver.cli.bench import bench_camera, bench_map, bench_scene, render_bench_frame
+from receiver.io.camera import save_camera
 
 # Real phone photos (../shared/real/luxapose beside the clone, see its README).
 LUXAPOSE = Path(__file__).resolve().parents[2] / "shared" / "real" / "luxapose"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from receiver.bench import bench_frames, bench_ids, bench_scene
-from receiver.budget import one_core
+from receiver.cli.bench import bench_frames, bench_ids, bench_scene
+from receiver.core.budget import one_core
 from receiver.cli import main as cli
 from receiver.pipeline import Receiver
 

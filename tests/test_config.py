@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from receiver.config import LedMap, load_camera, load_map, parse_map, save_camera, save_map
-from receiver.errors import InputError
+from receiver.io.ledmap import LedMap, load_map, parse_map, save_map
+from receiver.io.camera import load_camera, save_camera
+from receiver.core.errors import InputError
 
 CAMERA = """%YAML:1.0
 ---

@@ -5,8 +5,7 @@ import pytest
 
 from firmware_tx.crc import crc8
 from firmware_tx.framing import OOK_PACKET_LEN
-from receiver.decode_ook import (OokDecoder, chip_grid, crc8_table, decode_profile_once,
-                                 rows_per_chip)
+from receiver.decode.ook import OokDecoder, chip_grid, crc8_table, decode_profile_once, rows_per_chip
 from signals import ook_frames
 
 VECTOR_IDS = [0x0000, 0x002A, 0xBEEF]
@@ -178,7 +177,7 @@ def test_period_learner_shared_by_decoders():
     """Decoders sharing a PeriodLearner fix rows per chip from their refinements together: a
     decoder made after that uses the learned period from its first frame; a decoder without
     one still learns alone over its own `period_frames` frames."""
-    from receiver.decode_ook import PeriodLearner
+    from receiver.decode.ook import PeriodLearner
     rng = np.random.default_rng(11)
     learner = PeriodLearner(period_frames=3)
     frames = ook_frames(0xBEEF, RATE, T_ROW * 1.03, T_EXP, 200, 4, rng)  # row time 3 % off

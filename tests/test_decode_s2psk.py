@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from firmware_tx.framing import s2psk_packet
-from receiver.decode_s2psk import (PACKET_LEN, S2pskDecoder, decode_symbols, kind_of,
-                                   pair_xor)
+from receiver.decode.s2psk import PACKET_LEN, S2pskDecoder, decode_symbols, kind_of, pair_xor
 from signals import s2psk_samples
 
 # the levels s2psk_samples renders by default: offsets (10, 15), gains (180, 140)

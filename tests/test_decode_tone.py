@@ -4,10 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.config import load_camera
-from receiver.decode_tone import (ToneDecoder, default_spacing_hz, match_tone,
-                                  stripe_frequency_hz)
-from receiver.tone_profile import tone_profile
+from receiver.io.camera import load_camera
+from receiver.decode.tone import ToneDecoder, default_spacing_hz, match_tone, stripe_frequency_hz
+from receiver.vision.tone_profile import tone_profile
 from signals import tone_profile as synth_profile
 from test_tone_real import PHOTOS
 
@@ -80,7 +79,7 @@ def test_tone_step_benchmark(benchmark):
 def load_sensor_gray(path, cam):
     """Gray photo in sensor orientation (rows = rolling-shutter rows), turned the way
     `occloc run` turns a portrait-stored file of a landscape sensor."""
-    from receiver.run import fit_camera
+    from receiver.io.camera import fit_camera
     g = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
     _, rotate = fit_camera(cam, (g.shape[1], g.shape[0]))
     return cv2.rotate(g, cv2.ROTATE_90_COUNTERCLOCKWISE) if rotate else g
@@ -90,8 +89,8 @@ def load_sensor_gray(path, cam):
 def test_luxapose_photos(photo, luxapose):
     """Detector blobs (the pipeline's still-photo settings) -> tone_profile -> spectral peak:
     every LED of the photo matched, within 1 % of its true frequency (see test_tone_real)."""
-    from receiver.config import load_map
-    from receiver.detect import detect
+    from receiver.io.ledmap import load_map
+    from receiver.vision.detect import detect
     from receiver.pipeline import Receiver
     cam = load_camera(str(luxapose / "camera_lumia1020.yaml"))
     map_name, truth = PHOTOS[photo]
@@ -148,7 +147,8 @@ def test_tone_profile_covers_glow_and_is_accurate():
     """The half-maximum envelope of a saturated LED (only its core, ~3.4 stripe periods) gives a
     noisier frequency; the tone profile reaches into the striped glow: within 0.4 %, and half
     the mean error of the envelope's row profile on the same frames."""
-    from receiver.detect import Blob, row_profile
+    from receiver.core.records import Blob
+    from receiver.vision.profile import row_profile
     rng = np.random.default_rng(6)
     t_row, f = 21.035, 2000.0
     err_tone, err_env = [], []
@@ -175,7 +175,7 @@ def test_tone_profile_covers_glow_and_is_accurate():
 
 
 def test_tone_profile_benchmark(benchmark):
-    from receiver.detect import Blob
+    from receiver.core.records import Blob
     gray = _glowing_led_frame(3000.0, 21.035, 60.0, np.random.default_rng(7))
     hull = np.array([[160.0, 160.0], [240.0, 160.0], [240.0, 240.0], [160.0, 240.0]])
     blob = Blob(200.0, 200.0, 6561.0, hull, 160, 160, 241, 241, False, 255.0, 7.6, 0.0)

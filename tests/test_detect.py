@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.bench import bench_scene, render_bench_frame
-from receiver.detect import (auto_level, detect, detect_scale, envelope_mask, row_profile,
-                             stripe_depth)
+from receiver.cli.bench import bench_scene, render_bench_frame
+from receiver.vision.detect import auto_level, detect, detect_scale
+from receiver.vision.profile import envelope_mask, row_profile, stripe_depth
 
 
 def draw_led(img, cx, cy, r, *, on=230.0, period_rows=0, phase_rows=0, square=False):
@@ -200,7 +200,7 @@ def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
 def _coarse_components(gray, stripe_gap_px=8, join_x_px=2, pool=1):
     """Contours and boxes of the coarse search, as `detect` makes them (full resolution,
     rows pooled by `pool`)."""
-    from receiver.detect import _components
+    from receiver.vision.detect import _components
     level, bg = auto_level(gray)
     contours, rects = _components(gray, level, stripe_gap_px, join_x_px, 1, pool)
     return contours, rects, level, bg
@@ -217,7 +217,7 @@ def test_batched_refinement_equals_the_per_blob_one(pool):
     """The vectorised refinement of isolated blobs gives exactly `_refine`'s envelopes: striped
     discs of several sizes, a clipped one, one on the border, a speck and a square; also on
     the boxes of a row-pooled search, which both tighten to the same rows."""
-    from receiver.detect import _refine, _refine_alone_batch
+    from receiver.vision.detect import _refine, _refine_alone_batch
     img = blank(noise=2.0, seed=3)
     draw_led(img, 100.3, 120.7, 30, period_rows=7)
     draw_led(img, 300.0, 100.0, 12, period_rows=5, phase_rows=2)
@@ -238,7 +238,8 @@ def test_batched_refinement_equals_the_per_blob_one(pool):
 def _merge_reference(blob, others, shape):
     """Plain one-blob envelope merge (hull of all points, box floored, clipped to the frame,
     border when the box reaches the edge): the reference the batched merge must equal."""
-    from receiver.detect import Blob, _hull_geometry
+    from receiver.core.records import Blob
+    from receiver.vision.detect import _hull_geometry
     if not others:
         return blob
     pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
@@ -252,7 +253,7 @@ def _merge_reference(blob, others, shape):
 
 
 def test_merging_many_envelopes_equals_merging_one_by_one():
-    from receiver.detect import merge_envelopes_many
+    from receiver.vision.envelope import merge_envelopes_many
     leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]

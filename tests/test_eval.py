@@ -12,9 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.errors import InputError
-from receiver.evaluate import evaluate, load_run, load_truth, match_leds
-from receiver.plots import FIG_DPI, PANEL_SIZE_IN, plot_eval
+from receiver.core.errors import InputError
+from receiver.evaluate.metrics import evaluate, match_leds
+from receiver.io.truth import load_run, load_truth
+from receiver.evaluate.plots import FIG_DPI, PANEL_SIZE_IN, plot_eval
 
 ROOT = Path(__file__).resolve().parents[1]
 WALK = ROOT / "recordings" / "indoor-walk"

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from firmware_tx.schedule import make_schedule
-from receiver.decode_ook import OokDecoder
-from receiver.frameclock import ClockTick, FrameClock
+from receiver.decode.ook import OokDecoder
+from receiver.decode.frameclock import ClockTick, FrameClock
 from signals import pin_waveform, row_profile
 
 RATE, T_ROW, T_EXP, FPS = 20000.0, 15.0, 20.0, 30.0

@@ -6,8 +6,8 @@ import sys
 import pytest
 
 from firmware_tx.framing import ook_packet, to_str
-from receiver.errors import InputError
-from receiver.txhost import TxClient, VirtualDriver, wait_for_driver
+from receiver.core.errors import InputError
+from receiver.io.txlink import TxClient, VirtualDriver, wait_for_driver
 from tools.hil import parse_dump, run_loop, tx_commands
 
 

@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from receiver.kalman import (PositionKalman, cv_predict, cv_update, process_noise, transition)
+from receiver.locate.kalman import PositionKalman, cv_predict, cv_update, process_noise, transition
 
 
 def simulate(rng, n=400, dt=0.05, q=0.5, sigma=0.03):

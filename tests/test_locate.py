@@ -6,12 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from receiver.config import CameraModel, parse_map
-from receiver.locate import (MIRROR_CAM, MIRROR_WORLD, Positioner, is_collinear, multilaterate, multilaterate_linear, pnp_candidates,
-                             rotation_to_ypr_deg, solve_fix, ypr_to_rotation)
-from receiver.ranging import (led_outline_world, polygon_area_perimeter, polygon_centroid,
-                              project_world, undistort_points)
-from receiver.records import LedObservation
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import parse_map
+from receiver.locate.posefilter import MIRROR_CAM, MIRROR_WORLD
+from receiver.locate.indoor import Positioner
+from receiver.locate.pose import is_collinear, pnp_candidates, rotation_to_ypr_deg, solve_fix, ypr_to_rotation
+from receiver.locate.multilat import multilaterate, multilaterate_linear
+from receiver.locate.ranging import led_outline_world, polygon_area_perimeter, polygon_centroid, project_world, undistort_points
+from receiver.core.records import LedObservation
 
 CEILING_M = 3.0
 
@@ -278,7 +280,7 @@ def test_right_handed_map_is_detected_as_such():
 
 
 def test_map_handedness_round_trip_and_validation():
-    from receiver.errors import InputError
+    from receiver.core.errors import InputError
     m = mirrored_map(make_map(), "left")
     assert parse_map(m.to_json()).handedness == "left"
     assert "handedness" not in make_map().to_json()
@@ -287,7 +289,8 @@ def test_map_handedness_round_trip_and_validation():
 
 
 def test_handedness_needs_a_good_fit_to_decide():
-    from receiver.locate import Fix, is_mirror_fit_better
+    from receiver.locate.pose import Fix
+    from receiver.locate.posefilter import is_mirror_fit_better
     C, cov, R = np.zeros(3), np.eye(3), np.eye(3)
     good = Fix(C, cov, R, "pnp", 4, chi2=12.0, dof=6)
     bad = Fix(C, cov, R, "pnp", 4, chi2=700.0, dof=6)       # 117 per dof: explains nothing
@@ -315,7 +318,8 @@ def test_s2psk_lights_are_not_indoor_fixtures():
 def test_joint_residual_jacobian_is_the_derivative():
     """The analytic Jacobian the solver uses (`fun.jac`) equals central differences, with and
     without the tilt and position priors and a missing range."""
-    from receiver.locate import _jacobian, _joint_fun
+    from receiver.locate.lsq import _jacobian
+    from receiver.locate.pose import _joint_fun
     import cv2
     rng = np.random.default_rng(0)
     L = np.array([[0, 0, 3.0], [1.2, 0, 3], [0, 1.2, 3], [1.2, 1.2, 3], [0.6, 2.4, 3]])

@@ -7,7 +7,7 @@ LED sizes, so angles only (PnP). The LEDs, their centroids and IDs come from the
 The photo is the *mirror image* of the rig as map_test_rig.json describes it (the original
 project reflects its image points before solving). As surveyed, the only pose that fits lies above
 the LED plane, the mirror solution the solver rejects; the map does not declare its handedness,
-so positioning tells it from this frame (receiver.locate.PoseFilter) and solves in the mirror.
+so positioning tells it from this frame (receiver.locate.posefilter.PoseFilter) and solves in the mirror.
 Acceptance (issue 5): within 3 cm of the surveyed truth with a valid rotation matrix; measured
 2.95 cm (the peer system: 3.7 cm, with a matrix that is not a rotation).
 """
@@ -17,11 +17,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from receiver.config import load_camera, load_map
-from receiver.locate import Positioner, solve_fix
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
+from receiver.locate.indoor import Positioner
+from receiver.locate.pose import solve_fix
 from receiver.pipeline import Receiver
-from receiver.ranging import undistort_points
-from receiver.sources import open_source
+from receiver.locate.ranging import undistort_points
+from receiver.io.sources import open_source
 
 TRUTH = np.array([0.0, 0.0127, 0.0])
 ACCEPT_M = 0.03  # issue 5; measured 2.95 cm through the product, 2.92 cm with the image flipped

@@ -8,11 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from receiver.bench import bench_camera, bench_frames, bench_map, bench_scene, render_bench_frame, run_bench
-from receiver.config import parse_map
-from receiver.output import frame_line
-from receiver.pipeline import FrameResult, ModePlan, Receiver
-from receiver.records import Frame, LocateResult
+from receiver.cli.bench import bench_camera, bench_frames, bench_map, bench_scene, render_bench_frame, run_bench
+from receiver.io.ledmap import parse_map
+from receiver.io.output import frame_line
+from receiver.core.records import FrameResult
+from receiver.pipeline import ModePlan, Receiver
+from receiver.core.records import Frame, LocateResult
 
 
 def _frames(leds, n, seed=0):

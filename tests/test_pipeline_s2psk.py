@@ -1,6 +1,6 @@
 """S2-PSK plumbing of the pipeline: pairing, per-frame intensities -> pair_xor -> decoder.
 
-The decoder itself is the decoder module's (receiver.decode_s2psk, tested on its own); here a
+The decoder itself is the decoder module's (receiver.decode.s2psk, tested on its own); here a
 recording stand-in replaces it, so the test checks exactly what the pipeline feeds it: the right
 two blobs, one sample per frame with the frame time, a soft XOR whose sign is the transmitted
 symbol (PROTOCOL.md section 3, thesis polarity), and the ID reaching both emitters' tracks.
@@ -16,9 +16,10 @@ import pytest
 
 from firmware_tx.framing import s2psk_packet
 from firmware_tx.schedule import make_schedule
-from receiver.config import CameraModel, parse_map
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import parse_map
 from receiver.pipeline import Receiver
-from receiver.records import Frame
+from receiver.core.records import Frame
 
 LED_ID = 0x2A
 CLK_HZ, SYMCLK = 200.0, 16
@@ -82,9 +83,9 @@ def _pair_xor(a, b, a_on, b_on, a_off=0.0, b_off=0.0):
 
 @pytest.fixture
 def stand_in(monkeypatch):
-    mod = types.ModuleType("receiver.decode_s2psk")
+    mod = types.ModuleType("receiver.decode.s2psk")
     mod.S2pskDecoder, mod.pair_xor = StandInDecoder, _pair_xor
-    monkeypatch.setitem(__import__("sys").modules, "receiver.decode_s2psk", mod)
+    monkeypatch.setitem(__import__("sys").modules, "receiver.decode.s2psk", mod)
     StandInDecoder.instances = []
     return mod
 
@@ -126,7 +127,7 @@ def test_inverted_polarity_option_reaches_the_decoder(stand_in):
 
 
 def test_real_decoder_gets_the_id_from_the_pipeline():
-    """With receiver.decode_s2psk itself: the 30-symbol packet lasts 2.4 s (72 frames)."""
+    """With receiver.decode.s2psk itself: the 30-symbol packet lasts 2.4 s (72 frames)."""
     rx = Receiver(_camera(), _map())
     rng = np.random.default_rng(7)
     first = None
@@ -166,7 +167,7 @@ def _render_head(k, rng, led_id=LED_ID, t0_s=0.0311):
 
 
 def test_far_head_whose_halves_merge_decodes_with_the_real_decoder():
-    """The pair follows the head itself (receiver.pairing): the one blob track jumps between
+    """The pair follows the head itself (receiver.vision.pairing): the one blob track jumps between
     A, B and the merged blob, yet the samples come from the right places, the ID arrives
     after about one packet (2.4 s = 72 frames) and stays on the head's blobs."""
     rx = Receiver(_camera(), _map())

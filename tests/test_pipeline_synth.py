@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from receiver.pipeline import Receiver
-from receiver.records import Frame
+from receiver.core.records import Frame
 from tools.synth import make_scene, render_frames
 
 

@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from receiver.config import load_camera, load_map
-from receiver.locate import Positioner
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
+from receiver.locate.indoor import Positioner
 from receiver.pipeline import Receiver
-from receiver.sources import open_source
+from receiver.io.sources import open_source
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 # Issue 5 acceptance: median / p95 3D error of the filtered position, metres.
@@ -22,7 +23,7 @@ FILTERED_MEDIAN_M = 0.05
 FILTERED_P95_M = 0.15
 # Raw (unfiltered) fixes: the honest level reached (about 8 / 11.5 cm measured): on most frames
 # only one row of panels is whole in the image, so the tilt about that row comes from the
-# "held up at the ceiling" prior (receiver.locate.Positioner, `tilt_prior`).
+# "held up at the ceiling" prior (receiver.locate.indoor.Positioner, `tilt_prior`).
 RAW_MEDIAN_M = 0.10
 RAW_P95_M = 0.15
 

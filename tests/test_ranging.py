@@ -7,11 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.config import CameraModel, Led
-from receiver.locate import ypr_to_rotation
-from receiver.ranging import (contour_geometry, distance_eq18, estimate_distance,
-                              led_outline_world, polygon_area_perimeter, project_world,
-                              range_sigma_m, steiner_area)
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import Led
+from receiver.locate.pose import ypr_to_rotation
+from receiver.locate.ranging import contour_geometry, distance_eq18, estimate_distance, led_outline_world, polygon_area_perimeter, project_world, range_sigma_m, steiner_area
 
 LED = Led(id=1, mode="ook", x=0.0, y=0.0, z=3.0, shape="square", size=(0.1, 0.1))
 

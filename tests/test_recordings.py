@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from receiver.config import load_camera, load_map
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
 from receiver.pipeline import Receiver
-from receiver.sources import open_source
+from receiver.io.sources import open_source
 
 RECORDINGS = Path(__file__).resolve().parents[1] / "recordings"
 GATE_PX = 15.0

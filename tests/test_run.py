@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from receiver.cli import main as cli
-from receiver.run import Progress, fit_camera
-from receiver.bench import bench_camera
+from receiver.cli.run import Progress
+from receiver.io.camera import fit_camera
+from receiver.cli.bench import bench_camera
 
 REQUIRED = {"frame", "t", "latency_ms", "leds", "position", "vehicle"}
 LED_REQUIRED = {"track", "id", "mode", "cx", "cy", "area_px", "distance_m"}
@@ -23,7 +24,7 @@ LED_REQUIRED = {"track", "id", "mode", "cx", "cy", "area_px", "distance_m"}
 def no_positioner(monkeypatch):
     """These tests are about frames in / lines out; positioning has its own tests (and the
     bench map's LED positions are not a consistent scene)."""
-    monkeypatch.setattr("receiver.run.make_positioner", lambda camera, led_map: None)
+    monkeypatch.setattr("receiver.cli.run.make_positioner", lambda camera, led_map: None)
 
 
 def _lines(text):
@@ -114,7 +115,7 @@ def test_photo_of_other_size_scales_or_rotates_the_camera(tmp_path):
     assert not rot and scaled.width == 640 and scaled.row_readout_us == pytest.approx(2 * cam.row_readout_us)
     same, rot = fit_camera(cam, (720, 1280))
     assert rot and same is cam
-    from receiver.errors import InputError
+    from receiver.core.errors import InputError
     with pytest.raises(InputError, match="aspect"):
         fit_camera(cam, (640, 640))
 

@@ -1,4 +1,4 @@
-"""The lighting server (`occloc serve`, receiver.server) and its client (receiver.netclient):
+"""The lighting server (`occloc serve`, receiver.serve.server) and its client (receiver.serve.client):
 the v1 datagram protocol without sockets (valid, unknown IDs, every malformed kind, seq order,
 forgetting, device cap), 50 devices at once over real UDP with garbage mixed in, RemotePositioner
 step for step equal to a local Positioner, the command line, and a per-datagram benchmark.
@@ -24,13 +24,15 @@ import numpy as np
 import pytest
 
 from receiver.cli import main as cli
-from receiver.config import load_camera, load_map
-from receiver.errors import InputError
-from receiver.locate import Positioner, ypr_to_rotation
-from receiver.netclient import RemotePositioner, parse_udp_url
-from receiver.records import LedObservation
-from receiver.server import (MAX_DATAGRAM_BYTES, MAX_LEDS, BackgroundServer, LightingServer, encode,
-                             make_request)
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
+from receiver.core.errors import InputError
+from receiver.locate.indoor import Positioner
+from receiver.locate.pose import ypr_to_rotation
+from receiver.serve.client import RemotePositioner, parse_udp_url
+from receiver.core.records import LedObservation
+from receiver.serve.wire import MAX_DATAGRAM_BYTES, MAX_LEDS, encode, make_request
+from receiver.serve.server import BackgroundServer, LightingServer
 from test_locate import mirrored_map, observe
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -279,7 +281,7 @@ def test_solver_failure_is_an_internal_error(walk_map, monkeypatch):
     def boom(*a, **k):
         raise np.linalg.LinAlgError("singular")
 
-    monkeypatch.setattr("receiver.locate.PoseFilter.solve", boom)
+    monkeypatch.setattr("receiver.locate.posefilter.PoseFilter.solve", boom)
     assert srv.handle(encode(request("a", 1, 0.1, *frame))) == {
         "v": 1, "error": "internal_error", "detail": "LinAlgError", "device": "a", "seq": 1}
     assert "a" not in srv.devices and srv.counters["internal_error"] == 1

@@ -8,11 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.bench import bench_camera
-from receiver.errors import InputError
-from receiver.records import Frame
-from receiver.sources import (FrameSource, LatestFrameSource, V4l2Source, open_source, parse_size,
-                              to_gray)
+from receiver.cli.bench import bench_camera
+from receiver.core.errors import InputError
+from receiver.core.records import Frame
+from receiver.io.sources import FrameSource, LatestFrameSource, V4l2Source, open_source, parse_size, to_gray
 
 
 def _gradient(k: int, w: int = 64, h: int = 48) -> np.ndarray:

@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 
 from firmware_tx.schedule import Schedule, make_schedule
-from receiver.config import LedMap, load_camera, load_map, save_camera, save_map
+from receiver.io.ledmap import LedMap, load_map, save_map
+from receiver.io.camera import load_camera, save_camera
 from tools.synth import make_scene, render_frames
 from tools.synth.camera import Pose, make_camera, project_camera_points, rotation_cam_to_world, world_to_camera
 from tools.synth.model import Emitter, Light, RenderParams, Scene

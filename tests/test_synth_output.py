@@ -1,5 +1,5 @@
 """Synthetic camera output (issue 3): determinism, recording files round-trip through
-receiver.config, `occloc synth` command line, and the render-speed benchmark."""
+receiver.io, `occloc synth` command line, and the render-speed benchmark."""
 
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from receiver.config import load_camera, load_map
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
 from tools.synth.recording import write_recording
 from tools.synth.render import FrameRenderer, render_frames
 from tools.synth.scenes import make_scene

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from firmware_tx.framing import s2psk_packet
-from receiver.config import LedMap
+from receiver.io.ledmap import LedMap
 from tools.synth.camera import Pose, make_camera
 from tools.synth.model import Emitter, Light, RenderParams, Scene
 from tools.synth.render import FrameRenderer

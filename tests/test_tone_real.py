@@ -1,7 +1,7 @@
 """Tone decoding on the real Luxapose photos through `occloc run` (issue 4: every LED found,
 its frequency within 1 % of nominal; the peer reads x_0_y_1.27 as 2069/2507/3029/3514/4019 Hz).
 
-The pipeline feeds the tone decoder `receiver.tone_profile.tone_profile` (the LED's whole
+The pipeline feeds the tone decoder `receiver.vision.tone_profile.tone_profile` (the LED's whole
 striped extent, core columns, log intensity), not the half-maximum envelope's row profile.
 
 Truth: the nominal frequency, except where the photo's stripes themselves show another one

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from receiver.detect import Blob
-from receiver.pairing import EmitterLevels, Pairer, pair_score
-from receiver.track import Track, Tracker
+from receiver.core.records import Blob
+from receiver.vision.pairing import EmitterLevels, Pairer, pair_score
+from receiver.vision.track import Track, Tracker
 
 
 def blob(cx, cy, r=10.0):
@@ -112,7 +112,7 @@ def test_coasting_pair_moves_its_emitter_masks_with_it():
     """A far head drifting 0.4 px per frame with both emitters dark: the masks its intensities
     are read in must follow the pair's own position (whole-pixel steps, never more than half a
     pixel behind), not stay where the last blob was."""
-    from receiver.pairing import Pair, _emitter
+    from receiver.vision.pairing import Pair, _emitter
     a, b = Track(1, blob(100.0, 50.0, 2.0), 0, 0), Track(2, blob(110.0, 50.0, 2.0), 0, 0)
     p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
     pr = Pairer(max_missed=100)
@@ -127,7 +127,7 @@ def test_coasting_pair_moves_its_emitter_masks_with_it():
 
 
 def _formed_pair(pr, x, y, track_ids):
-    from receiver.pairing import Pair, _emitter
+    from receiver.vision.pairing import Pair, _emitter
     a = Track(track_ids[0], blob(x, y, 2.0), 0, 0)
     b = Track(track_ids[1], blob(x + 10.0, y, 2.0), 0, 0)
     p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
@@ -180,7 +180,7 @@ def test_an_emitter_with_a_stale_small_envelope_still_explains_its_grown_blob():
     """An approaching head: B's envelope followed the growing light, A's (seen in few frames)
     is still the size it was. A blob on A three times A's envelope but the size of B's is A's
     own single blob: it moves the pair and becomes A's envelope."""
-    from receiver.pairing import Pair, _emitter
+    from receiver.vision.pairing import Pair, _emitter
     pr = Pairer(max_missed=100)
     a, b = Track(1, blob(100.0, 50.0, 2.0), 0, 0), Track(2, blob(110.0, 50.0, 2.0), 0, 0)
     p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])

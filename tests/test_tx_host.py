@@ -12,8 +12,9 @@ import serial
 
 from firmware_tx import VERSION
 from receiver import cli
-from receiver.errors import InputError
-from receiver.txhost import TxClient, VirtualDriver, add_arguments, plan_commands, wait_for_driver
+from receiver.core.errors import InputError
+from receiver.io.txlink import TxClient, VirtualDriver, wait_for_driver
+from receiver.cli.tx import add_arguments, plan_commands
 
 TIMEOUT_S = 5.0
 PONG = "OK PONG " + VERSION

@@ -32,7 +32,7 @@ import sys
 
 from firmware_tx.framing import OOK_PACKET_LEN, S2PSK_PACKET_LEN
 from firmware_tx.schedule import Schedule, s2psk_levels
-from receiver.errors import InputError
+from receiver.core.errors import InputError
 
 HELP = "hardware-in-the-loop: configure an LED driver over serial, render its stream, decode it"
 
@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def tx_commands(port: str, mode: str, led_id: int, rate_hz: int, symclk: int | None) -> list[str]:
     """The command lines `occloc tx` sends for this configuration (same parser, same plan)."""
-    from receiver import txhost
+    from receiver.cli import tx as txhost
 
     parser = argparse.ArgumentParser()
     txhost.add_arguments(parser)
@@ -116,7 +116,7 @@ def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int =
              progress=None) -> dict:
     """Configure, render and decode; returns the report (see module docstring)."""
     from receiver.pipeline import Receiver
-    from receiver.records import Frame
+    from receiver.core.records import Frame
     from tools.synth import make_scene, render_frames
 
     scene = make_scene(SCENE_BY_MODE[mode], seed=seed, n_frames=frames)
@@ -179,7 +179,7 @@ def resolved_in_frame(led: dict, mode: str) -> bool:
 
 
 def main(args: argparse.Namespace) -> int:
-    from receiver.txhost import TxClient, VirtualDriver, wait_for_driver
+    from receiver.io.txlink import TxClient, VirtualDriver, wait_for_driver
 
     if args.frames is None:
         args.frames = DEFAULT_FRAMES[args.mode]

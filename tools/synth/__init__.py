@@ -7,7 +7,7 @@ Usage in tests and notebooks::
     for img, truth in render_frames(scene, seed=7):   # img: (H, W) uint8 gray
         print(truth["frame"], truth["t"], [(d["id"], d["cx"], d["cy"]) for d in truth["leds"]])
 
-`scene.camera` is a `receiver.config.CameraModel`, `scene.led_map` a `receiver.config.LedMap`.
+`scene.camera` is a `receiver.io.CameraModel`, `scene.led_map` a `receiver.io.LedMap`.
 `tools.synth.recording.write_recording(scene, out_dir, seed=...)` writes a recording folder
 (INTERFACES.md). Geometry conventions: `tools.synth.camera`; rendering and truth: `tools.synth.render`.
 """

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver.config import CameraModel
+from receiver.io.camera import CameraModel
 
 # OpenCV camera axes expressed in the body frame (x forward, y left, z up): columns are
 # camera x (right) = -y_body, camera y (down) = -z_body, camera z (optical axis) = +x_body.

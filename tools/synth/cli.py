@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def parse_overrides(items: list[str]) -> dict:
     """`KEY=VALUE` pairs; VALUE is a Python literal (number, tuple, string)."""
-    from receiver.errors import InputError
+    from receiver.core.errors import InputError
 
     out = {}
     for item in items:
@@ -39,7 +39,7 @@ def parse_overrides(items: list[str]) -> dict:
 
 
 def main(args: argparse.Namespace) -> int:
-    from receiver.errors import InputError
+    from receiver.core.errors import InputError
     from tools.synth.recording import write_recording
     from tools.synth.scenes import make_scene
 

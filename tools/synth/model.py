@@ -18,7 +18,8 @@ from typing import Callable
 
 import numpy as np
 
-from receiver.config import CameraModel, LedMap, shape_area_m2
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import LedMap, shape_area_m2
 from tools.synth.camera import Pose
 from tools.synth.waveform import LedDrive
 

@@ -15,8 +15,9 @@ import sys
 
 import cv2
 
-from receiver.config import save_camera, save_map
-from receiver.errors import InputError
+from receiver.io.camera import save_camera
+from receiver.io.ledmap import save_map
+from receiver.core.errors import InputError
 from tools.synth.model import Scene
 from tools.synth.render import render_frames
 

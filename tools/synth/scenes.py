@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from receiver.config import Led, LedMap
+from receiver.io.ledmap import Led, LedMap
 from tools.synth.camera import Pose, make_camera
 from tools.synth.model import Emitter, Light, RenderParams, Scene
 from tools.synth.waveform import led_drive
@@ -252,7 +252,7 @@ PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "vehicle": dict(psf_si
 
 def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **overrides) -> Scene:
     """Build scene `name` (one of SCENES) with keyword overrides (see the module docstring)."""
-    from receiver.errors import InputError
+    from receiver.core.errors import InputError
 
     if name not in BUILDERS:
         raise InputError(f"unknown scene '{name}' (choose from {', '.join(SCENES)})")

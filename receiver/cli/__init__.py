@@ -1,0 +1,114 @@
+"""`occloc` command line: a thin dispatcher over subcommand modules.
+
+Each subcommand lives in its own module exposing `HELP` (one line), `add_arguments(parser)`
+and `main(args) -> int`. Only modules that exist are listed, and a module is imported only
+when its subcommand runs (so `occloc tx` does not pay for OpenCV). Every `InputError`
+becomes `occloc: <reason>` on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import os
+import sys
+
+from receiver.core.errors import InputError
+
+# subcommand -> module; help text comes from the module's HELP string.
+SUBCOMMANDS = {
+    "run": "receiver.cli.run",
+    "bench": "receiver.cli.bench",
+    "tx": "receiver.cli.tx",
+    "serve": "receiver.cli.serve",
+    "eval": "receiver.cli.eval",
+}
+
+# Developer commands: the synthetic camera and hardware-in-the-loop live in the source
+# checkout's `tools/` (not in the installed wheel); they are offered when that folder is there.
+DEV_SUBCOMMANDS = {
+    "synth": "tools.synth.cli",
+    "hil": "tools.hil",
+}
+
+EXIT_BAD_INPUT = 2
+
+
+def _source_checkout() -> str | None:
+    """The repository root when this package runs from a source checkout with its `tools/`."""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return root if os.path.isfile(os.path.join(root, "tools", "synth", "__init__.py")) else None
+
+
+def _available() -> dict[str, str]:
+    commands = dict(SUBCOMMANDS)
+    root = _source_checkout()
+    if root is not None:
+        if root not in sys.path:
+            sys.path.append(root)  # after site-packages: never shadows an installed module
+        commands.update(DEV_SUBCOMMANDS)
+    out = {}
+    for name, module in commands.items():
+        try:
+            if importlib.util.find_spec(module) is not None:
+                out[name] = module
+        except ModuleNotFoundError:
+            pass
+    return out
+
+
+def _help_line(module: str) -> str:
+    # Read the HELP line from the source without importing heavy dependencies.
+    spec = importlib.util.find_spec(module)
+    try:
+        with open(spec.origin, encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("HELP = "):
+                    return line[len("HELP = "):].strip().strip("\"'")
+    except (OSError, TypeError):
+        pass
+    return ""
+
+
+def build_parser(commands: dict[str, str], selected: str | None = None) -> argparse.ArgumentParser:
+    from receiver import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="occloc",
+        description="Localization and ID reception with optical camera communication.")
+    parser.add_argument("--version", action="version", version=f"occloc {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module in commands.items():
+        p = sub.add_parser(name, help=_help_line(module), description=_help_line(module))
+        if name == selected:
+            importlib.import_module(module).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    commands = _available()
+    selected = next((a for a in argv if not a.startswith("-")), None)
+    if selected not in commands:
+        selected = None
+    parser = build_parser(commands, selected)
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        return int(importlib.import_module(commands[args.command]).main(args) or 0)
+    except InputError as e:
+        print(f"occloc: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("occloc: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        # Downstream closed the pipe (e.g. `occloc run | head`): not an error of ours.
+        try:
+            sys.stdout = None
+        finally:
+            return 0
+

@@ -1,0 +1,42 @@
+"""`occloc eval`: score a run's JSON Lines against truth.jsonl (metrics in
+`receiver.evaluate.metrics`, PNG with `--plot`).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+from receiver.core.errors import InputError
+from receiver.evaluate.metrics import DEFAULT_AREA_BINS_PX, DEFAULT_GATE_PX, evaluate, format_table
+from receiver.io.truth import load_run, load_truth
+
+HELP = "score a run's JSON Lines output against truth.jsonl (ID rate, distance/position error, latency)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("run", metavar="RUN.jsonl", help="output of `occloc run --out`")
+    parser.add_argument("--truth", required=True, help="the recording's truth.jsonl")
+    parser.add_argument("--plot", metavar="OUT.png", help="write trajectory/error plots (PNG)")
+    parser.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    parser.add_argument("--gate-px", type=float, default=DEFAULT_GATE_PX,
+                        help=f"LED match gate in pixels (default {DEFAULT_GATE_PX:g})")
+
+
+def main(args) -> int:
+    if not (args.gate_px > 0):
+        raise InputError(f"--gate-px must be positive, got {args.gate_px}")
+    truth = load_truth(args.truth)
+    run = load_run(args.run, truth)
+    metrics, series = evaluate(run, truth, gate_px=args.gate_px)
+    if args.json:
+        print(json.dumps(metrics))
+    else:
+        print(format_table(metrics))
+    if args.plot:
+        from receiver.evaluate.plots import plot_eval
+
+        plot_eval(series, args.plot, area_bins_px=DEFAULT_AREA_BINS_PX)
+        print(f"occloc: wrote {args.plot}", file=sys.stderr)
+    return 0

@@ -1,0 +1,175 @@
+"""`occloc run`: frames in, one JSON line per frame out (INTERFACES.md "Receiver command line").
+
+SOURCE picks the frame source (receiver.io.sources); camera and map come from the recording folder
+or --camera/--map. Frames whose size differs from the camera file: a 90-degree-rotated still
+(portrait photo of a landscape sensor) is turned back so that image rows are sensor rows again
+(assumed: portrait = sensor turned clockwise); another size with the same aspect ratio scales
+the camera (`CameraModel.scaled`); anything else is an error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import time
+
+import cv2
+from receiver.io.camera import fit_camera
+from receiver.io.sources import default_source
+
+HELP = "receive LEDs from a recording, video, photos, raw pipe or camera: JSON lines per frame"
+# Without a tty, a progress line every this many frames.
+PROGRESS_EVERY_FRAMES = 100
+# Seconds between redraws of the tty progress line.
+PROGRESS_REDRAW_S = 0.2
+
+
+def add_arguments(p) -> None:
+    p.add_argument("source", nargs="?", metavar="SOURCE",
+                   help="recording folder, video file, image or image folder, '-' (raw frames on stdin) "
+                        "or /dev/videoN (default: the bundled recordings/indoor-walk)")
+    p.add_argument("--camera", metavar="FILE", help="camera.yaml (default: the recording's)")
+    p.add_argument("--map", metavar="FILE", help="LED map.json (default: the recording's)")
+    p.add_argument("--out", metavar="FILE", help="write JSON lines here instead of standard output")
+    p.add_argument("--realtime", action="store_true",
+                   help="always process the newest frame; frames that arrive meanwhile are dropped and counted")
+    p.add_argument("--size", metavar="WxH", help="frame size of raw frames on stdin (or to request from a camera)")
+    p.add_argument("--pix-fmt", choices=("gray", "bgr24"), default=None, help="raw frame format on stdin (gray)")
+    p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
+    p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
+    p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--server", metavar="udp://HOST:PORT",
+                   help="solve positions on a lighting server (occloc serve); ranging stays here")
+
+
+def _rotated(source):
+    from receiver.core.records import Frame
+    for f in source:
+        yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
+
+
+def make_positioner(camera, led_map, server: str | None = None):
+    """receiver.locate.indoor.Positioner when that module is available, else None; with `server`
+    (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server."""
+    if server is not None:
+        from receiver.serve.client import RemotePositioner
+        return RemotePositioner(camera, led_map, server)
+    try:
+        from receiver.locate.indoor import Positioner
+    except ImportError:
+        return None
+    return Positioner(camera, led_map)
+
+
+def _server_text(positioner) -> str:
+    """The summary's note on a lighting server's missing replies ('' when there were none)."""
+    timeouts, errors = getattr(positioner, "timeouts", 0), getattr(positioner, "errors", 0)
+    text = f"; server timeouts: {timeouts}" if timeouts else ""
+    if errors:
+        text += f"; server errors: {errors} (last: {positioner.last_error})"
+    return text
+
+
+class Progress:
+    """One updating line on a tty, or a line every `every` frames otherwise."""
+
+    def __init__(self, stream, total: int | None = None, every: int = PROGRESS_EVERY_FRAMES,
+                 clock=time.monotonic):
+        self.stream, self.total, self.every, self.clock = stream, total, every, clock
+        self.tty = hasattr(stream, "isatty") and stream.isatty()
+        self._last = -1e9
+        self._drawn = False
+
+    def update(self, n: int, ids: int) -> None:
+        of = f"/{self.total}" if self.total else ""
+        if self.tty:
+            now = self.clock()
+            if now - self._last >= PROGRESS_REDRAW_S:
+                self.stream.write(f"\rframe {n}{of}, {ids} IDs decoded")
+                self.stream.flush()
+                self._last, self._drawn = now, True
+        elif n % self.every == 0:
+            self.stream.write(f"frame {n}{of}, {ids} IDs decoded\n")
+
+    def done(self) -> None:
+        if self.tty and self._drawn:
+            self.stream.write("\n")
+
+
+def main(args) -> int:
+    from receiver.io.camera import load_camera
+    from receiver.io.ledmap import load_map
+    from receiver.core.errors import InputError
+    from receiver.io.output import RunSummary, frame_line
+    from receiver.pipeline import Receiver
+    from receiver.io.sources import find_recording_files, open_source, parse_size
+
+    spec = args.source or default_source()
+    if args.max_frames is not None and args.max_frames < 0:
+        raise InputError("--max-frames must not be negative")
+    if args.fps is not None and not args.fps > 0:
+        raise InputError("--fps must be positive")
+    server = getattr(args, "server", None)
+    if server is not None:
+        from receiver.serve.client import parse_udp_url
+        parse_udp_url(server)          # a bad URL is an error before any work
+    if spec != "-" and not spec.startswith("/dev/video") and not os.path.exists(spec):
+        raise InputError(f"no such file or folder: {spec}")
+    rec = find_recording_files(spec) if spec != "-" and os.path.isdir(spec) else {}
+    cam_path = args.camera or rec.get("camera")
+    map_path = args.map or rec.get("map")
+    if cam_path is None:
+        raise InputError(f"{spec}: no camera file (give --camera FILE)")
+    if map_path is None:
+        raise InputError(f"{spec}: no LED map (give --map FILE)")
+    cam = load_camera(cam_path)
+    led_map = load_map(map_path)
+    if args.fps is not None:
+        cam = dataclasses.replace(cam, fps=args.fps)
+    size = parse_size(args.size)
+    src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam)
+    try:
+        if src.size is None:
+            raise InputError(f"{spec}: frame size unknown")
+        cam, rotate = fit_camera(cam, src.size)
+        if rotate:
+            print(f"occloc: {spec}: frames are {src.size[0]}x{src.size[1]}, the camera "
+                  f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
+        # Without --server the two-argument call of older make_positioner replacements (tests).
+        positioner = (make_positioner(cam, led_map, server=server) if server
+                      else make_positioner(cam, led_map))
+        rx = Receiver(cam, led_map, positioner=positioner, still=src.is_still)
+        out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout
+        summary = RunSummary()
+        total = getattr(getattr(src, "inner", src), "frame_count", None) or None
+        if args.max_frames is not None and total:
+            total = min(total, args.max_frames)
+        progress = Progress(sys.stderr, total)
+        frames = _rotated(src) if rotate else src
+        try:
+            for frame in frames:
+                if args.max_frames is not None and summary.frames >= args.max_frames:
+                    break
+                res = rx.process(frame)
+                out.write(frame_line(res, profile=args.profile) + "\n")
+                summary.add(res)
+                progress.update(summary.frames, len(summary.ids))
+        finally:
+            progress.done()
+            if hasattr(positioner, "close"):
+                positioner.close()
+            if out is not sys.stdout:
+                out.close()
+            else:
+                out.flush()
+        print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped,
+                                        truncated=src.truncated) + _server_text(positioner),
+              file=sys.stderr)
+    except OSError as e:
+        if isinstance(e, BrokenPipeError):
+            raise
+        raise InputError(f"{getattr(e, 'filename', None) or spec}: {e.strerror or e}") from None
+    finally:
+        src.close()
+    return 0

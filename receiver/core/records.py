@@ -1,0 +1,103 @@
+"""Small frozen records passed between receiver stages.
+
+Image coordinates: pixels, x to the right, y down, origin at the centre of the top-left
+pixel, as OpenCV uses them; they are *distorted* (as seen in the frame) unless a name says
+`undist`. Times: seconds from the source's own clock (never wall-clock taken in a stage).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One LED candidate in full-resolution pixel coordinates.
+
+    `hull`: (K, 2) float64 envelope polygon through pixel centres. `x0, y0, x1, y1`: bounding
+    box of the envelope, half-open ([x0, x1) x [y0, y1)). `border`: the envelope touches the
+    image border. `peak`: brightest gray value. `level`: the gray threshold used for it.
+    `background`: the frame's background gray level.
+    """
+
+    cx: float
+    cy: float
+    area_px: float
+    hull: np.ndarray
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    border: bool
+    peak: float
+    level: float
+    background: float
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One video frame. `gray` is (H, W) uint8; `index` counts frames the source delivered
+    (0-based, gaps mean dropped frames); `t_s` is the source's timestamp in seconds."""
+
+    index: int
+    t_s: float
+    gray: np.ndarray
+
+
+@dataclass(frozen=True)
+class LedObservation:
+    """One LED blob in one frame, after detection, tracking and decoding.
+
+    `cx, cy`: sub-pixel centroid of the blob envelope (the filled hull of its rolling-shutter
+    stripes), px. `area_px`: envelope area eta (px^2), the LED's projected area for eq. 18.
+    `contour`: (K, 2) float64 envelope polygon, px. `border`: the blob touches the image
+    border (area and centroid are then biased). `id`/`mode` are None until decoded.
+    `peak`: brightest pixel value in the blob (0-255).
+    """
+
+    track: int
+    cx: float
+    cy: float
+    area_px: float
+    contour: np.ndarray
+    border: bool = False
+    id: int | None = None
+    mode: str | None = None
+    peak: float = 0.0
+
+
+@dataclass(frozen=True)
+class LocateResult:
+    """What positioning makes of one frame's decoded LEDs.
+
+    `distances`: track -> (distance_m, estimator name) for every decoded LED whose size is
+    known. `position`: the INTERFACES.md `position` object (x, y, z, method, n_leds, plus
+    optional extras such as `raw`, `cov`, `yaw_deg`...) or None when it cannot be computed.
+    """
+
+    distances: dict[int, tuple[float, str]] = field(default_factory=dict)
+    position: dict | None = None
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Everything the receiver made of one frame.
+
+    `frame`, `t_s`: the source's index and timestamp; `latency_ms`: processing time of this
+    frame (injected clock); `leds`: the LEDs seen in this frame; `distances`:
+    track -> (distance_m, estimator) from the positioner; `position`: INTERFACES.md position
+    object or None; `vehicle`: None (filled by vehicle positioning); `stage_ms`: per stage;
+    `info`: track -> extra output fields of its LED (`freq_hz` of a tone decode, `kind` 'SL' /
+    'FV' of an S2-PSK pair)."""
+
+    frame: int
+    t_s: float
+    latency_ms: float
+    leds: list[LedObservation]
+    position: dict | None = None
+    vehicle: dict | None = None
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    distances: dict[int, tuple[float, str]] = field(default_factory=dict)
+    info: dict[int, dict] = field(default_factory=dict)

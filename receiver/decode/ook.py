@@ -1,0 +1,921 @@
+"""OOK decoding from rolling-shutter row profiles (PROTOCOL.md sections 1-2).
+
+One LED blob gives, per frame, a row profile: the chip stream sampled once per sensor row
+(`row_readout_us` apart), each sample the mean over the row's exposure `exposure_us`, times an
+unknown gain that varies slowly across the blob, plus an offset and noise. A chip covers
+`rows_per_chip = 1e6 / (rate_hz * row_readout_us)` rows (typically 2.5..6).
+
+Stages, each a small function on numpy arrays (all vectorised; no loops over rows):
+
+1. `chip_grid`: refine the chip period and find the chip-boundary phase from the data. The
+   squared first difference of the profile is large at chip transitions, which all lie on the
+   grid `phase + k * period`; its complex Fourier sum at the nominal chip frequency, taken over
+   short segments, drifts linearly in angle when the row time is mis-calibrated. A weighted line
+   fit to the unwrapped segment angles gives the true period (so +-several % row-time errors are
+   harmless), the whole-profile sum at that period gives the phase. The exposure shifts every
+   edge and every chip centre by the same half exposure, so it cancels and need not be known.
+2. `soft_chips`: sample each whole chip at its centre (mean of three points over its middle
+   half) and normalise locally (running mean and mean absolute deviation over `norm_chips`
+   chips; Manchester keeps every such window close to 50 % ON), giving soft chips ~ +-1.
+3. `find_sync`: the 6-chip pattern `111000` (sync ON run of 3..4, OFF run of 3..4, PROTOCOL.md
+   section 1) with every chip on the right side by `sync_margin`; Manchester data never has
+   runs of 3, so it occurs once per 54-chip period.
+4. `OokDecoder.step`: soft chips of each frame are added into a 54-chip periodic accumulator,
+   aligned by the frame's sync or, without sync, by the best cyclic alignment against what is
+   already accumulated (only when unambiguous); unalignable frames wait in a short queue and are
+   retried as the accumulator fills. Before anything is anchored, frames are chained in an
+   arbitrary cyclic frame and rotated into place once the sync shows in the accumulation.
+   With a frame-clock hint (`step(..., clock=, y0=)`, receiver.decode.frameclock: the frame's packet
+   timing measured on lights already decoded, which cancels the frame-start jitter common to
+   all lights), a frame is also placed by timing alone, at the offset this light showed in its
+   own sync-placed frames: small lights whose successive frames barely overlap are then
+   assembled without correlation (`_timed_shift`; checked against the chips it overlaps, and
+   every timed frame must fit the decoded packet at its own shift before the ID is reported).
+5. `decode_packet`: Manchester soft decision per data bit (difference of the pair's two chips),
+   reliability = the weakest pair, then CRC-8. An ID whose CRC fails is never reported. A
+   packet that relied on a risky alignment (short overlaps: small blobs) is also checked
+   against the last frames as a whole template before its ID is reported (`_verified`).
+
+A single wrong chip changes at most one Manchester pair, so it is either outvoted in the
+accumulator or it yields one wrong bit, which CRC-8 always detects (any CRC whose polynomial has
+more than one term detects every single-bit error); a wrong pair also has a small margin.
+"""
+
+from __future__ import annotations
+
+import cmath
+import math
+from collections import deque
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
+
+PACKET_LEN = OOK_PACKET_LEN  # 54 chips
+SYNC_LEN = len(SYNC)  # 6 chips
+DATA_START = SYNC_LEN  # first Manchester chip = sync edge (chip 3) + SYNC_EDGE_TO_DATA
+assert DATA_START == 3 + SYNC_EDGE_TO_DATA
+N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
+CRC_BITS = N_BITS - OOK_ID_BITS
+# Entries kept of a decoder's (and the frame clock's) timing diagnostics.
+DIAGNOSTICS_LEN = 1000
+PERIOD_FRAMES = 5  # refined periods whose median fixes rows per chip (`period_frames`)
+SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
+_SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
+_SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
+_BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
+_CRC8_TABLE: np.ndarray | None = None
+
+
+def wrap_chips(x: float) -> float:
+    """A packet coordinate difference mapped to [-27, 27) chips."""
+    return (x + 0.5 * PACKET_LEN) % PACKET_LEN - 0.5 * PACKET_LEN
+
+
+def line_predict(obs, k: float, window: int) -> float:
+    """Value at k of a least-squares line through the last `window` (k_i, v_i) of `obs`
+    (v continuous, already unwrapped); the last value when they span fewer than 2 frames."""
+    pts = list(obs)[-window:]
+    if len(pts) == 1 or pts[-1][0] - pts[0][0] < 2:
+        return pts[-1][1]
+    ks = np.array([p[0] for p in pts], dtype=np.float64)
+    vs = np.array([p[1] for p in pts], dtype=np.float64)
+    km = ks.mean()
+    slope = float(((ks - km) * (vs - vs.mean())).sum() / ((ks - km) ** 2).sum())
+    return float(vs.mean() + slope * (k - km))
+
+
+def crc8_table() -> np.ndarray:
+    """CRC-8 (PROTOCOL.md section 5) of every 16-bit ID, uint8 (65536,), built once
+    vectorised (same MSB-first register as firmware_tx.crc.crc8)."""
+    global _CRC8_TABLE
+    if _CRC8_TABLE is None:
+        v = np.arange(1 << OOK_ID_BITS, dtype=np.int64)
+        reg = np.zeros_like(v)
+        for i in range(OOK_ID_BITS - 1, -1, -1):
+            fb = ((reg >> 7) & 1) ^ ((v >> i) & 1)
+            reg = ((reg << 1) & 0xFF) ^ (fb * 0x07)
+        _CRC8_TABLE = reg.astype(np.uint8)
+    return _CRC8_TABLE
+
+
+def rows_per_chip(rate_hz: float, row_readout_us: float) -> float:
+    """Nominal chip length in sensor rows (PROTOCOL.md section 2: 1 / (chip_rate * t_row))."""
+    return 1e6 / (rate_hz * row_readout_us)
+
+
+def trim_rows(weights: np.ndarray | None, n: int, min_frac: float) -> tuple[int, int]:
+    """[start, stop) of the rows between the first and last row holding at least `min_frac`
+    of the widest row's pixels (the blob's thin top and bottom are mostly noise)."""
+    if weights is None or n == 0:
+        return 0, n
+    w = np.asarray(weights)
+    ok = np.flatnonzero(w >= min_frac * w.max())
+    if ok.size == 0:
+        return 0, 0
+    return int(ok[0]), n - (w.size - 1 - int(ok[-1]))
+
+
+def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
+              max_period_error: float = 0.08, phasor: np.ndarray | None = None
+              ) -> tuple[float, float, float]:
+    """Chip period and boundary phase of a row profile.
+
+    x: float64 (R,) profile. period0_rows: nominal rows per chip.
+    Returns (period_rows, phase_rows, coherence): chip boundaries (as seen in the samples)
+    lie at rows `phase_rows + k * period_rows`, phase in [0, period); coherence in [0, 1] is
+    |sum(e * exp(-i w r))| / sum(e) of the transition energy e (1 = every edge on the grid,
+    ~1/sqrt(R) for noise). `phasor`: optional cached exp(-2j pi (r + 0.5) / period0_rows) for
+    r = 0.. at least R-2 (saves the dearest line when called every frame).
+    """
+    d = x[1:] - x[:-1]
+    e = d * d
+    if phasor is None or phasor.size < e.size:
+        # a difference sits between its two rows
+        phasor = np.exp(-2j * np.pi / period0_rows * (np.arange(e.size) + 0.5))
+    z = e * phasor[:e.size]
+    seg = max(2, int(round(segment_chips * period0_rows)))
+    nseg = z.size // seg
+    period = period0_rows
+    zsum = z.sum()
+    if nseg >= 3 and segment_chips > 0:
+        # A handful of segments: plain Python floats, not a dozen numpy calls on 5 numbers
+        # (this runs for every new light in every frame until its period is learned).
+        zs = z[:nseg * seg].reshape(nseg, seg).sum(axis=1).tolist()
+        w = [abs(v) for v in zs]
+        ang = [0.0]  # unwrapped
+        for cur, prev in zip(zs[1:], zs[:-1]):
+            ang.append(ang[-1] + cmath.phase(cur * prev.conjugate()))
+        c = [(k + 0.5) * seg for k in range(nseg)]
+        sw = sum(w)
+        if sw > 0:
+            cm = sum(wk * ck for wk, ck in zip(w, c)) / sw
+            am = sum(wk * ak for wk, ak in zip(w, ang)) / sw
+            den = sum(wk * (ck - cm) ** 2 for wk, ck in zip(w, c))
+            slope = sum(wk * (ck - cm) * (ak - am) for wk, ck, ak in zip(w, c, ang)) / den if den > 0 else 0.0
+            # angle(r) = -2 pi r / p0 + 2 pi r (1/p - 1/p0) + const
+            f = 1.0 / period0_rows + slope / (2.0 * math.pi)
+            if f > 0:
+                period = min(max(1.0 / f, period0_rows * (1 - max_period_error)),
+                             period0_rows * (1 + max_period_error))
+        # sum at the refined period from the segment sums (the residual rotation inside one
+        # segment is below 0.5 rad for errors within max_period_error)
+        df = 1.0 / period - 1.0 / period0_rows
+        zsum = sum(zk * cmath.exp(-2j * math.pi * df * ck) for zk, ck in zip(zs, c)) + complex(
+            (z[nseg * seg:] * np.exp(-2j * np.pi * df * (np.arange(nseg * seg, e.size) + 0.5))).sum())
+    etot = e.sum()
+    coherence = float(abs(zsum) / etot) if etot > 0 else 0.0
+    phase = float((-np.arctan2(zsum.imag, zsum.real) * period / (2.0 * np.pi)) % period)
+    return period, phase, coherence
+
+
+@lru_cache(maxsize=512)
+def _arange(n: int) -> np.ndarray:
+    return np.arange(n, dtype=np.float64)
+
+
+@lru_cache(maxsize=64)
+def _cyclic_index(n: int) -> np.ndarray:
+    """(54, n) packet position of frame chip k under every cyclic shift: (shift + k) % 54.
+    Read-only: shared by every decoder (per-frame alignment of every track)."""
+    idx = (np.arange(PACKET_LEN)[:, None] + np.arange(n)[None, :]) % PACKET_LEN
+    idx.setflags(write=False)
+    return idx
+
+
+@lru_cache(maxsize=64)
+def _grid_phasor(period0_rows: float, n: int) -> np.ndarray:
+    """exp(-2j pi (r + 0.5) / period0_rows) for r = 0..n-1 (`chip_grid`'s phasor), shared by
+    all decoders of one chip rate; read-only."""
+    ph = np.exp(-2j * np.pi / period0_rows * (np.arange(n) + 0.5))
+    ph.setflags(write=False)
+    return ph
+
+
+@lru_cache(maxsize=512)
+def _window_start(n: int, win: int) -> np.ndarray:
+    """Start of a `win`-long window around each of n items, shifted inwards at the ends."""
+    return np.clip(np.arange(n) - win // 2, 0, n - win)
+
+
+def _clip1(x: np.ndarray) -> np.ndarray:
+    """x clipped to [-1, 1]: the two ufuncs, without np.clip's wrapper (a few us a call, and
+    the decoder clips several small arrays per frame)."""
+    return np.minimum(np.maximum(x, -1.0), 1.0)
+
+
+def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float, *,
+               exposure_rows: float = 0.0, norm_chips: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Soft values (~ +1 ON, ~ -1 OFF) and weights of the whole chips in a profile.
+
+    Chip k spans samples [phase + (k-1) p, phase + k p) with phase in [0, p); its centre is
+    sampled at three points over the middle of the part not blurred by the exposure (linear
+    interpolation between rows). Weights: the row weights at the chip centre relative to the
+    widest row (rows with fewer pixels are noisier). Normalisation: running mean and mean
+    absolute deviation over `norm_chips` chips.
+    Returns (soft (n,), weight (n,)), chip 0 being the first whole chip from the top.
+    """
+    n_rows = x.size
+    n = int((n_rows - 1 - phase) // period)
+    if n <= 0:
+        return np.zeros(0), np.zeros(0)
+    centres = _arange(n) * period + (phase + 0.5 * period)
+    h = 0.25 * max(period - exposure_rows, 0.0)
+    rows = _arange(n_rows)
+    vals = np.interp(np.concatenate((centres - h, centres, centres + h)), rows, x)
+    v = (vals[:n] + vals[n:2 * n] + vals[2 * n:]) * (1.0 / 3.0)
+    if w is None:
+        cw = np.ones(n)
+    else:
+        cw = np.interp(centres, rows, w)
+        cw *= 1.0 / max(np.maximum.reduce(cw), 1e-9)
+    win = min(norm_chips, n)
+    lo = _window_start(n, win)
+    cs = np.zeros(n + 1)
+    # window sums: cs[j + win] - cs[j] for every start j, then picked per chip
+    np.add.accumulate(v, out=cs[1:])
+    d = v - (cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win)
+    np.add.accumulate(np.abs(d), out=cs[1:])
+    soft = d / np.maximum((cs[win:] - cs[:n + 1 - win])[lo] * (1.0 / win), 1e-9)
+    np.minimum(soft, SOFT_CLIP, out=soft)
+    np.maximum(soft, -SOFT_CLIP, out=soft)
+    return soft, cw
+
+
+def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None, float]:
+    """Index of the first chip of `111000` in the frame's soft chips, or None.
+
+    Every one of the 6 chips must be on the right side by at least `sync_margin`. When the
+    frame shows the sync more than once the occurrences must be a whole packet apart.
+    Returns (index, margin of the weakest sync chip).
+    """
+    if soft.size < SYNC_LEN:
+        return None, 0.0
+    # chip signs (+1 / -1, 0 inside the margin) as bytes: the pattern is then a substring
+    # search, a third of the cost of six shifted comparisons on these short arrays
+    code = ((soft > sync_margin).view(np.int8) - (soft < -sync_margin).view(np.int8)).tobytes()
+    hits = []
+    k = code.find(_SYNC_CODE)
+    while k >= 0:
+        hits.append(k)
+        k = code.find(_SYNC_CODE, k + 1)
+    if not hits:
+        return None, 0.0
+    if any((k - hits[0]) % PACKET_LEN for k in hits):
+        return None, 0.0  # inconsistent syncs: grid or noise trouble, do not trust the frame
+    score = [float((soft[k:k + SYNC_LEN] * _SYNC_T).min()) for k in hits]
+    best = int(np.argmax(score))
+    return int(hits[best]), score[best]
+
+
+def pair_parity(soft: np.ndarray, *, cyclic: bool = False, parity_gap: float = 2.0) -> int | None:
+    """Which chips start Manchester pairs: 0 (even indices) or 1 (odd), or None if unclear.
+
+    Inside Manchester data the two chips of a pair are always opposite, while chips across a
+    pair boundary are equal whenever two successive bits are equal, so the right grid scores
+    about +1 per pair and the wrong one about 0. Needs a score gap of `parity_gap` (pairs);
+    data of alternating bits is Manchester-consistent on both grids and stays unclear.
+    """
+    x = _clip1(soft)
+    if cyclic:
+        x = np.concatenate((x, x[:1]))
+    p = x[:-1] * x[1:]  # p[k] ~ -1 when chips k, k+1 are opposite
+    s0, s1 = -np.add.reduce(p[0::2]), -np.add.reduce(p[1::2])
+    if abs(s0 - s1) < parity_gap:
+        return None
+    return 0 if s0 > s1 else 1
+
+
+def decode_packet(m: np.ndarray, *, min_margin: float = 0.25) -> tuple[int | None, float]:
+    """CRC-checked ID from a 54-chip soft packet (sync first), or None.
+
+    m: float (54,), mean soft chip per packet position (0 = unknown). Bit i comes from the
+    Manchester pair (m[6+2i], m[7+2i]) as sign(a - b); its reliability is |a - b| / 2. The
+    packet is accepted only when every pair and every sync chip is right by `min_margin` and
+    the CRC-8 matches. Returns (id or None, weakest pair reliability).
+    """
+    r = 0.5 * (m[DATA_START::2] - m[DATA_START + 1::2])
+    conf = float(np.abs(r).min())
+    sync_ok = float((m[:SYNC_LEN] * _SYNC_T).min()) >= min_margin
+    if conf < min_margin or not sync_ok:
+        return None, conf
+    value = int(_BIT_WEIGHTS @ (r > 0))
+    led_id, crc = value >> CRC_BITS, value & ((1 << CRC_BITS) - 1)
+    if crc8_table()[led_id] != crc:
+        return None, conf
+    return led_id, conf
+
+
+def packet_template(led_id: int) -> np.ndarray:
+    """The 54-chip packet of an ID as +-1 floats (sync first)."""
+    value = (led_id << CRC_BITS) | int(crc8_table()[led_id])
+    bits = (value >> np.arange(N_BITS - 1, -1, -1)) & 1
+    data = np.stack([bits, 1 - bits], axis=1).ravel() * 2.0 - 1.0  # Manchester: 1 -> 1 0
+    return np.concatenate((_SYNC_T, data))
+
+
+def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
+    """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
+    fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
+    s = _clip1(soft)
+    idx = _cyclic_index(s.size)
+    den = np.abs(s).sum()
+    return float((template[idx] @ s).max() / den) if den > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class OokState:
+    """Decoder state after a frame. `led_id`: CRC-valid ID or None (once decoded it stays
+    unless another CRC-valid ID is decoded in `switch_frames` consecutive frames);
+    `frames`: frames fed; `chips_known`: packet positions seen (of 54); `confidence`: weakest
+    Manchester pair reliability of the current accumulated packet (0..~1)."""
+
+    led_id: int | None
+    frames: int
+    chips_known: int
+    confidence: float
+
+
+class PeriodLearner:
+    """Rows per chip of one chip rate on one camera, fixed by the median of the first
+    `period_frames` refined periods handed in (`add`). Rows per chip is a camera/LED constant,
+    so the decoders of all lights of a rate can share one learner (receiver.pipeline does):
+    then only the lights of the first frame(s) pay the period refinement, not every new light
+    for its first `period_frames` frames. A decoder made without one learns alone."""
+
+    def __init__(self, period_frames: int = PERIOD_FRAMES):
+        self.period_frames = period_frames
+        self.periods: list[float] = []
+        self.period: float | None = None
+
+    def add(self, period: float) -> None:
+        if self.period is not None:
+            return
+        self.periods.append(period)
+        if len(self.periods) >= self.period_frames:
+            self.period = float(np.median(self.periods))
+
+
+class OokDecoder:
+    """Per-blob OOK packet assembler (one per tracked blob; call `step` every frame).
+
+    Tunables (defaults in brackets):
+      rate_hz [20000]: chip rate from the LED map; row_readout_us [15]: sensor row time t_row;
+      exposure_us [0]: row exposure (only narrows the sampled part of a chip; 0 if unknown).
+      min_row_frac [0.25]: rows with fewer pixels than this fraction of the widest row are
+        trimmed from the blob's top and bottom.
+      segment_chips [6]: segment length for the period refinement (drift per segment must stay
+        under half a chip: 6 chips tolerate ~8 % row-time error); max_period_error [0.08].
+      verify_frames [16], verify_min [0.9]: a CRC-valid packet assembled by cyclic alignment
+        could be a wrong assembly (a 2-chip slip) that happens to pass CRC-8 (1 in 256); unless
+        every data chip was placed where it surely belongs (by its frame's sync, or by an
+        alignment that could compare every shift), a new ID is reported only when each of the
+        last `verify_frames` frames fits its full packet somewhere with normalised correlation
+        >= verify_min (`best_cyclic_match`).
+      period_frames [5]: the refined chip period (rows) of this many frames is fixed by
+        their median (it is a camera/LED constant); later frames only measure the phase.
+      period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
+        and camera (its own `period_frames` counts their refinements together); None: this
+        decoder learns alone.
+      min_coherence [0.3]: frames whose transitions do not sit on a chip grid are skipped.
+      norm_chips [8]: local normalisation window, chips.
+      sync_margin [0.3]: every sync chip must be right by this (soft units).
+      align_min [0.7], align_gap [0.25], align_min_chips [8]: a frame without sync is placed
+        by its best cyclic correlation with the accumulated packet only when that correlation
+        is >= align_min, beats every other shift by align_gap and overlaps >= align_min_chips.
+      pending_frames [8]: unplaceable frames kept and retried as the packet fills.
+      decay [0.9]: accumulator memory per frame (< 1 lets a changed LED take over).
+      min_margin [0.25]: decode threshold on every Manchester pair and sync chip.
+      switch_frames [3]: consecutive frames a different CRC-valid ID needs to replace the
+        decoded one.
+      parity_gap [2.0]: Manchester pair-grid evidence (pairs) needed to restrict a cyclic
+        alignment to shifts of the right parity (`pair_parity`).
+      stale_frames [10]: a full accumulator that yields no CRC-valid packet for this many
+        frames is cleared (a wrong alignment must not lock the decoder up forever).
+      align_when_decoded [False]: once an ID is decoded, frames without a sync are skipped
+        (saves the cyclic alignment, the step's dearest part; ID changes still show in the
+        frames with sync).
+      Frame-clock timing (only with a `clock` hint): timing_window [12] frames of offsets in
+        the offset line fit; timing_max_gap [6] frames without an offset reset it;
+        timing_frac [0.25]: a frame whose chip grid is further (chips) from the predicted one
+        is not placed by timing; timing_conflict [0.35]: a sync-placed frame further from the
+        offset line disables timing (for good when the line rests on a sync);
+        timing_min_overlap [4], timing_min_corr [0.6]: a timed frame overlapping that many
+        surely placed chips must correlate with them this well, else timing is disabled;
+        trust_timed [True]: timed placements count as sure once a sync frame has confirmed
+        the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
+    """
+
+    def __init__(self, rate_hz: float = 20000.0, row_readout_us: float = 15.0,
+                 exposure_us: float = 0.0, *, min_row_frac: float = 0.25,
+                 segment_chips: float = 6.0, max_period_error: float = 0.08,
+                 min_coherence: float = 0.3, norm_chips: int = 8, sync_margin: float = 0.3,
+                 align_min: float = 0.7, align_gap: float = 0.25, align_min_chips: int = 8,
+                 pending_frames: int = 8, decay: float = 0.9, min_margin: float = 0.25,
+                 switch_frames: int = 3, parity_gap: float = 2.0, stale_frames: int = 10,
+                 align_when_decoded: bool = False, period_frames: int = PERIOD_FRAMES,
+                 verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
+                 timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
+                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True,
+                 period_learner: PeriodLearner | None = None):
+        if rate_hz <= 0 or row_readout_us <= 0:
+            raise ValueError("rate_hz and row_readout_us must be positive")
+        self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
+        self._phasor = np.zeros(0, dtype=np.complex128)
+        self._learner = period_learner if period_learner is not None else PeriodLearner(period_frames)
+        self._period: float | None = None  # learned rows per chip
+        self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
+        self.last_period = self.period0_rows
+        self.exposure_rows = exposure_us / row_readout_us
+        self.min_row_frac = min_row_frac
+        self.segment_chips = segment_chips
+        self.max_period_error = max_period_error
+        self.min_coherence = min_coherence
+        self.norm_chips = norm_chips
+        self.sync_margin = sync_margin
+        self.align_min = align_min
+        self.align_gap = align_gap
+        self.align_min_chips = align_min_chips
+        self.decay = decay
+        self.min_margin = min_margin
+        self.switch_frames = switch_frames
+        self.parity_gap = parity_gap
+        self.stale_frames = stale_frames
+        self.align_when_decoded = align_when_decoded
+        self._stale = 0
+        self.acc = np.zeros(PACKET_LEN)  # sum of weighted soft chips per packet position
+        self.acc_w = np.zeros(PACKET_LEN)  # sum of weights
+        # weight placed where it surely belongs: by the frame's own sync, or by an alignment
+        # for which every cyclic shift overlapped enough known chips to be judged
+        self.trust_w = np.zeros(PACKET_LEN)
+        self._last_align_complete = False
+        self.pending: deque = deque(maxlen=pending_frames)
+        self.recent: deque = deque(maxlen=verify_frames)  # soft chips of the latest frames
+        self.verify_min = verify_min
+        self.anchored = False  # accumulator positions are packet positions (sync at 0)
+        self.frames = 0
+        self.led_id: int | None = None
+        self.confidence = 0.0
+        self._cand: int | None = None
+        self._cand_n = 0
+        # frame-clock timing (receiver.decode.frameclock): offsets o = shift - (clock coordinate of
+        # frame chip 0) of placed frames, in accumulator coordinates
+        self.timing_window = timing_window
+        self.timing_max_gap = timing_max_gap
+        self.timing_frac = timing_frac
+        self.timing_conflict = timing_conflict
+        self.timing_min_overlap = timing_min_overlap
+        self.timing_min_corr = timing_min_corr
+        self.trust_timed = trust_timed
+        self.timing_ok = True  # False for good after a timing disagreement
+        self._tobs: deque = deque(maxlen=timing_window)  # (k, o)
+        self._t_epoch: int | None = None
+        self._t_confirmed = False  # the offsets are tied to packet coordinates by a sync frame
+        self._t_strong = False  # some offset came from a sync-placed frame
+        self._tc: float | None = None  # this frame: clock coordinate of frame chip 0
+        self._tk = 0
+        self.timed_w = np.zeros(PACKET_LEN)  # weight of timed placements not yet confirmed
+        self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
+                             "weak_reset": 0, "verify_conflict": 0}
+        # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
+        # track): |sync-placed offset - prediction| and |timed prediction - frame's chip grid|.
+        self.timing_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
+        self.timing_frac_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
+        self._tpl: tuple[int, np.ndarray] | None = None
+        self.timed_frames: deque = deque(maxlen=verify_frames)  # (soft, shift) of timed placements
+
+    def frame_chips(self, profile, weights=None) -> tuple[np.ndarray, np.ndarray]:
+        """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
+        profile is too short or shows no chip grid."""
+        self.last_start_row = None
+        x = np.asarray(profile, dtype=np.float64)
+        a, b = trim_rows(weights, x.size, self.min_row_frac)
+        x = x[a:b]
+        if x.size < 4 * self.period0_rows:
+            return np.zeros(0), np.zeros(0)
+        w = None if weights is None else np.asarray(weights, dtype=np.float64)[a:b]
+        if self._period is None and self._learner.period is not None:
+            self._period = self._learner.period
+            self._phasor = np.zeros(0, dtype=np.complex128)
+        learned = self._period is not None
+        p0 = self._period if learned else self.period0_rows
+        if self._phasor.size < x.size:
+            self._phasor = _grid_phasor(p0, 2 * x.size)
+        period, phase, coh = chip_grid(x, p0, segment_chips=0.0 if learned else self.segment_chips,
+                                       max_period_error=self.max_period_error,
+                                       phasor=self._phasor)
+        if coh < self.min_coherence:
+            return np.zeros(0), np.zeros(0)
+        # where frame chip 0 starts (rows from the profile's first row) and the chip length:
+        # the frame's timing, for the frame clock (receiver.decode.frameclock)
+        self.last_start_row, self.last_period = a + phase, period
+        if not learned and x.size >= 3 * self.segment_chips * p0:
+            # rows per chip is fixed by the camera and the LED: learn it once, then skip the
+            # refinement (half the cost of a step)
+            self._learner.add(period)
+            if self._learner.period is not None:
+                self._period = self._learner.period
+                self._phasor = np.zeros(0, dtype=np.complex128)
+        return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
+                          norm_chips=self.norm_chips)
+
+    def _align(self, soft: np.ndarray) -> int | None:
+        """Cyclic shift placing frame chip k at packet position (k + shift) % 54, from the
+        correlation with the accumulated packet; None when weak or ambiguous. Sets
+        `_last_align_complete` when every shift overlapped >= align_min_chips known chips
+        (then the true shift was among those compared, and the choice can be trusted)."""
+        self._last_align_complete = False
+        known = self.acc_w > 0
+        if np.count_nonzero(known) < self.align_min_chips:
+            return None
+        m = self._mean_packet(known)
+        s = _clip1(soft)
+        idx = _cyclic_index(s.size)
+        num = m[idx] @ s
+        den = np.abs(m)[idx] @ np.abs(s)
+        overlap = np.add.reduce(known[idx], axis=1)
+        corr = np.where((den > 0) & (overlap >= self.align_min_chips), num / np.maximum(den, 1e-12),
+                        -1.0)
+        pf = pair_parity(s, parity_gap=self.parity_gap)
+        if pf is not None:  # the accumulator's parity only matters against the frame's
+            pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
+            if pa is not None:
+                # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
+                # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
+                corr[(pa - pf + 1) % 2::2] = -1.0
+        self._last_align_complete = bool(overlap.min() >= self.align_min_chips)
+        # best and runner-up; tied bests fail the gap whichever of them is taken
+        i = int(corr.argmax())
+        best = corr[i]
+        corr[i] = -np.inf
+        if best >= self.align_min and best - corr.max() >= self.align_gap:
+            return i
+        return None
+
+    def _mean_packet(self, known: np.ndarray) -> np.ndarray:
+        """Mean accumulated soft chip per packet position, 0 where nothing is known
+        (`known` = acc_w > 0)."""
+        return np.divide(self.acc, self.acc_w, out=np.zeros(PACKET_LEN), where=known)
+
+    def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
+             timed: bool = False) -> None:
+        pos = _cyclic_index(soft.size)[shift % PACKET_LEN]
+        self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
+        w = np.bincount(pos, cw, PACKET_LEN)
+        self.acc_w += w
+        if trusted:
+            self.trust_w += w
+        elif timed:
+            self.timed_w += w
+
+    def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
+        """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
+        and its per-row pixel counts `weights` (R,) or None. `t_s` is unused (OOK packets are
+        assembled by sync, not by time) and accepted for a uniform decoder interface.
+        Optional timing hint: `clock` (receiver.decode.frameclock.ClockTick of this frame) and `y0`
+        (image row of the profile's first row); with them, frames are also placed by timing
+        (`_timed_shift`)."""
+        self.frames += 1
+        self.acc *= self.decay
+        self.acc_w *= self.decay
+        self.trust_w *= self.decay
+        self.timed_w *= self.decay
+        soft, cw = self.frame_chips(profile, weights)
+        self._tc = None
+        if clock is not None and y0 is not None and self.last_start_row is not None and self.timing_ok:
+            if clock.epoch != self._t_epoch:
+                self._timing_reset()
+                self._t_epoch = clock.epoch
+            self._tk = clock.k
+            self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
+        added = None
+        if soft.size >= SYNC_LEN:
+            self.recent.append(soft)
+            added = self._place(soft, cw)
+            if added is None:
+                self.pending.append((soft, cw, self._tc, self._tk))
+            elif added:
+                self._retry_pending()
+        if added:
+            self._decode()
+        elif self._stale:  # nothing new to decode, but a failing packet keeps ageing
+            self._age_stale()
+        known = int(np.count_nonzero(self.acc_w)) if self.anchored else 0
+        return OokState(self.led_id, self.frames, known, self.confidence)
+
+    def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
+        """Add one frame's chips to the accumulator: True when added, None when it cannot be
+        placed yet, False when deliberately skipped.
+
+        Until a sync has been seen the accumulator is kept in an arbitrary cyclic frame
+        ("unanchored"): frames are chained by correlation, and the whole accumulator is
+        rotated to packet coordinates as soon as the sync shows in it. So two frames that
+        each show only part of the sync can still be combined.
+        """
+        s, _ = find_sync(soft, sync_margin=self.sync_margin)
+        if not self.acc_w.any():  # (weights are never negative)
+            if s is None:
+                self._add(soft, cw, 0)
+                self.anchored = False
+            else:
+                self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
+                self.anchored = True
+            self._t_observe((-s) % PACKET_LEN if s is not None else 0, sync=s is not None)
+            return True
+        if s is not None and self.anchored:
+            self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
+            self._t_observe((-s) % PACKET_LEN, sync=True)
+            return True
+        if s is None and self.led_id is not None and not self.align_when_decoded:
+            self.pending.clear()  # decoded: frames without sync add little, cost alignments
+            return False
+        shift = self._timed_shift(soft)
+        if shift is not None:
+            self._add_timed(soft, cw, shift)
+            if not self.anchored:
+                q = s + shift if s is not None else self._cyclic_sync()
+                if q is not None:
+                    self._rotate(q)
+                    shift = (shift - q) % PACKET_LEN
+            self._t_observe(shift, sync=s is not None, timed=True)
+            return True
+        shift = self._align(soft)
+        if shift is None:
+            if s is None:
+                return None
+            # an unanchored guess that the sync frame cannot be fitted to: the sync wins
+            self.pending.append((*self._unanchored_chips(), None, None))
+            self._clear()
+            self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
+            self.anchored = True
+            self._t_observe((-s) % PACKET_LEN, sync=True)
+            return True
+        self._add(soft, cw, shift, trusted=self.anchored and self._last_align_complete)
+        if not self.anchored:
+            q = s + shift if s is not None else self._cyclic_sync()
+            if q is not None:
+                self._rotate(q)
+                shift = (shift - q) % PACKET_LEN
+        self._t_observe(shift, sync=False)
+        return True
+
+    def _add_timed(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
+        """Add a frame placed by the frame clock: trusted once the offsets are tied to packet
+        coordinates by a sync frame, else kept apart (`timed_w`) until one confirms them."""
+        self.timing_stats["timed"] += 1
+        sure = self.anchored and self._t_confirmed
+        self._add(soft, cw, shift, trusted=self.trust_timed and sure, timed=self.trust_timed and not sure)
+        self.timed_frames.append((soft, shift))
+
+    def _rotate(self, q: int) -> None:
+        """Rotate the unanchored accumulator so that its sync (at q) lands on position 0."""
+        self.acc = np.roll(self.acc, -q)
+        self.acc_w = np.roll(self.acc_w, -q)
+        self.trust_w = np.roll(self.trust_w, -q)
+        self.timed_w = np.roll(self.timed_w, -q)
+        self._tobs = deque(((k, o - q) for k, o in self._tobs), maxlen=self._tobs.maxlen)
+        self.timed_frames = deque(((x, (sh - q) % PACKET_LEN) for x, sh in self.timed_frames),
+                                  maxlen=self.timed_frames.maxlen)
+        self.anchored = True
+
+    # -- frame-clock timing -------------------------------------------------------------
+
+    @property
+    def rows_per_chip(self) -> float:
+        """Learned rows per chip (nominal until learned)."""
+        return self._period if self._period is not None else self.period0_rows
+
+    def _timing_reset(self) -> None:
+        self._tobs.clear()
+        self._t_confirmed = False
+        self._t_strong = False
+        self.timed_w[:] = 0.0  # unconfirmed timed chips stay in the accumulator, untrusted
+
+    def _t_predict(self, k: int | None = None) -> float | None:
+        """Offset o of frame k (default: this frame) from the line through the recent
+        offsets, or None."""
+        if not self._tobs:
+            return None
+        if self._tk - self._tobs[-1][0] > self.timing_max_gap:
+            self._timing_reset()
+            return None
+        return line_predict(self._tobs, self._tk if k is None else k, self.timing_window)
+
+    def _t_observe(self, shift: int, *, sync: bool = False, timed: bool = False) -> None:
+        """Record where this frame was placed (accumulator coordinates) against the clock.
+
+        Offsets come from sync-placed frames (strong), timed frames (which only refine the
+        fraction of a chip: tracking the slow drift) and, while there are none, from the
+        first frame or a correlation alignment (weak: these can be off by whole chips).
+        A sync-placed frame that the offset line does not predict (by > timing_conflict
+        chips) disables timing for good when the line rests on a sync, and replaces a weak
+        line. A sync-placed frame that agrees ties the offsets to packet coordinates: the
+        timed chips so far become trusted."""
+        if self._tc is None or not self.timing_ok:
+            return
+        o = wrap_chips(shift - self._tc)
+        pred = self._t_predict()
+        if pred is not None:
+            d = wrap_chips(o - pred)
+            if not (sync or timed):
+                return  # a correlation alignment adds nothing to a line
+            if sync and abs(d) > self.timing_conflict:
+                if self._t_strong:
+                    self._disable_timing("conflict")
+                    return
+                self.timing_stats["weak_reset"] += 1
+                self._timing_reset()
+            else:
+                if sync:
+                    self.timing_resid.append(abs(d))
+                o = pred + d
+        self._tobs.append((self._tk, o))
+        self._t_strong = self._t_strong or sync
+        if sync and self.anchored and not self._t_confirmed:
+            self._t_confirmed = True
+            self.trust_w += self.timed_w
+            self.timed_w[:] = 0.0
+
+    def _disable_timing(self, why: str) -> None:
+        self.timing_stats[why] += 1
+        self.timing_ok = False
+        self._timing_reset()
+
+    def _timed_shift(self, soft: np.ndarray, tc: float | None = None, k: int | None = None) -> int | None:
+        """The frame's shift predicted by the clock, or None: no clock or offset, the frame's
+        chip grid more than `timing_frac` chips off the prediction, or the frame disagrees
+        with the accumulated chips it overlaps (which disables timing). `tc`, `k`: the clock
+        coordinate of the frame's chip 0 and its frame index (default: this frame)."""
+        if tc is None:
+            tc, k = self._tc, None
+        if tc is None or not self.timing_ok:
+            return None
+        pred = self._t_predict(k)
+        if pred is None:
+            return None
+        v = tc + pred
+        r = round(v)
+        if abs(v - r) > self.timing_frac:
+            self.timing_stats["frac"] += 1
+            return None
+        self.timing_frac_resid.append(abs(v - r))
+        shift = int(r) % PACKET_LEN
+        pos = (np.arange(soft.size) + shift) % PACKET_LEN
+        # judged against the chips that were placed mostly where they surely belong (sync,
+        # complete alignment, confirmed timing): a short-overlap alignment may be the wrong one
+        ov = self.trust_w[pos] + self.timed_w[pos] > 0.5 * self.acc_w[pos]
+        if ov.sum() >= self.timing_min_overlap:
+            m = self.acc[pos[ov]] / self.acc_w[pos[ov]]
+            x = np.clip(soft[ov], -1.0, 1.0)
+            den = float(np.abs(m) @ np.abs(x))
+            if den > 0 and float(m @ x) / den < self.timing_min_corr:
+                self._disable_timing("overlap_conflict")
+                return None
+        return shift
+
+    def row0_coordinate(self, profile, weights, y0: int, *, min_chips: int = 16,
+                        min_corr: float = 0.9, min_gap: float = 0.3) -> float | None:
+        """Reference measurement for the frame clock: packet coordinate (chips, mod 54) of
+        sensor row 0 in this frame, `shift - (y0 + start row of chip 0) / rows per chip`,
+        from a unique strong match of the frame's chips with the decoded (CRC-valid) packet;
+        None when not decoded, too few chips, or the match is weak or ambiguous. Does not
+        touch the accumulator."""
+        if self.led_id is None:
+            return None
+        soft, _ = self.frame_chips(profile, weights)
+        if soft.size < min_chips:
+            return None
+        if self._tpl is None or self._tpl[0] != self.led_id:
+            self._tpl = (self.led_id, packet_template(self.led_id))
+        x = np.clip(soft, -1.0, 1.0)
+        den = float(np.abs(x).sum())
+        if den <= 0:
+            return None
+        corr = (self._tpl[1][_cyclic_index(x.size)] @ x) / den
+        order = np.argsort(corr)
+        best, second = corr[order[-1]], corr[order[-2]]
+        if best < min_corr or best - second < min_gap:
+            return None
+        return float((order[-1] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
+
+    def _unanchored_chips(self) -> tuple[np.ndarray, np.ndarray]:
+        """The unanchored accumulator as one pseudo-frame (known run of chips) for retrying."""
+        known = self.acc_w > 0
+        start = int(np.argmin(known)) if not known.all() else 0
+        order = (np.arange(PACKET_LEN) + start) % PACKET_LEN
+        order = order[known[order]]
+        return self.acc[order] / self.acc_w[order], np.minimum(self.acc_w[order], 1.0)
+
+    def _cyclic_sync(self) -> int | None:
+        """Sync position in the (unanchored) accumulated packet, or None."""
+        m = self._mean_packet(self.acc_w > 0)
+        ext = np.concatenate((m, m[:SYNC_LEN - 1]))
+        s, _ = find_sync(ext, sync_margin=self.sync_margin)
+        return None if s is None else s % PACKET_LEN
+
+    def _retry_pending(self) -> None:
+        if self.timing_ok and self._t_strong:
+            # placed by timing from now on: the pending frames with a clock value too, those
+            # without are dropped (a short-overlap alignment is the risky placement)
+            for soft, cw, tc, k in list(self.pending):
+                shift = self._timed_shift(soft, tc, k) if tc is not None else None
+                if shift is not None:
+                    self._add_timed(soft, cw, shift)
+            self.pending.clear()
+            return
+        placed = True
+        while placed and self.pending:
+            placed = False
+            for i, (soft, cw, _, _) in enumerate(self.pending):
+                shift = self._align(soft)
+                if shift is not None:
+                    del self.pending[i]
+                    self._place_at(soft, cw, shift)
+                    placed = True
+                    break
+
+    def _place_at(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
+        self._add(soft, cw, shift, trusted=self.anchored and self._last_align_complete)
+        if not self.anchored:
+            q = self._cyclic_sync()
+            if q is not None:
+                self._rotate(q)
+
+    def _age_stale(self) -> None:
+        self._stale += 1
+        if self._stale >= self.stale_frames:
+            self._clear()
+            self._stale = 0
+
+    def _clear(self) -> None:
+        self.acc[:] = 0.0
+        self.acc_w[:] = 0.0
+        self.trust_w[:] = 0.0
+        self.anchored = False
+        self._timing_reset()
+        self.timed_frames.clear()
+
+    def _verified(self, led_id: int) -> bool:
+        """A packet whose every data chip was placed by trusted placements (the frame's own
+        sync, or a complete alignment, see `_align`) is accepted as it is. One that needed
+        other alignments must fit all of the last `verify_frames` frames (there must be that
+        many): a 2-chip slip in the assembly is then exposed by the frames straddling it."""
+        if (self.trust_w[SYNC_LEN:] > 0).all():
+            return self._timed_frames_fit(led_id)
+        if len(self.recent) < self.recent.maxlen:
+            return False
+        t = packet_template(led_id)
+        return all(best_cyclic_match(s, t) >= self.verify_min for s in self.recent)
+
+    def _timed_frames_fit(self, led_id: int) -> bool:
+        """Every recent frame placed by timing fits the packet exactly where it was put
+        (normalised correlation >= verify_min at its own shift, not at its best one): a
+        wrong clock value (a whole-chip slip) is exposed by the frame it misplaced. A misfit
+        drops timing for good."""
+        if not self.timed_frames:
+            return True
+        t = packet_template(led_id)
+        for soft, shift in self.timed_frames:
+            x = np.clip(soft, -1.0, 1.0)
+            den = float(np.abs(x).sum())
+            if den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min:
+                if self.timing_ok:
+                    self._disable_timing("verify_conflict")
+                self.timed_frames.clear()
+                self.trust_w[:] = 0.0  # nothing placed so far is sure any more
+                return False
+        return True
+
+    def _decode(self) -> None:
+        known = self.acc_w > 0
+        if not (self.anchored and known[SYNC_LEN:].all()):
+            self.confidence = 0.0
+            return
+        m = self._mean_packet(known)
+        led_id, conf = decode_packet(m, min_margin=self.min_margin)
+        self.confidence = conf
+        if led_id is not None:
+            self._stale = 0
+        else:
+            self._age_stale()
+        if led_id is None or led_id == self.led_id:
+            self._cand, self._cand_n = None, 0
+            return
+        if not self._verified(led_id):
+            return
+        if self.led_id is None:
+            self.led_id = led_id
+            return
+        self._cand_n = self._cand_n + 1 if led_id == self._cand else 1
+        self._cand = led_id
+        if self._cand_n >= self.switch_frames:
+            self.led_id, self._cand, self._cand_n = led_id, None, 0
+
+
+def decode_profile_once(profile, rate_hz: float, row_readout_us: float, exposure_us: float = 0.0,
+                        weights=None, **tunables) -> int | None:
+    """CRC-valid ID from a single row profile (needs a whole packet, 54 chips, in view)."""
+    dec = OokDecoder(rate_hz, row_readout_us, exposure_us, **tunables)
+    return dec.step(profile, weights).led_id

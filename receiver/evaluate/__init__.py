@@ -1,0 +1,2 @@
+"""Scoring a run against truth (`metrics`) and its PNG plots (`plots`).
+"""

@@ -1,0 +1,229 @@
+"""LED map (`map.json`, INTERFACES.md "LED map"): `Led`, `LedMap`, parsing with one-line
+errors (`parse_map`, `load_map`) and writing (`save_map`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from receiver.core.errors import InputError
+
+LED_MODES = ("ook", "s2psk", "tone")
+SHAPES = ("circle", "square", "rect")
+
+
+@dataclass(frozen=True)
+class Led:
+    """One light of the map. Position in metres (world frame); `size` per `shape`:
+    circle -> [diameter], square/rect -> [width, length]. `rate_hz` is the OOK chip rate or
+    the S2-PSK clock, `freq_hz` the tone frequency. S2-PSK pairs may give `emitters`
+    ([[x, y, z], [x, y, z]]) or `baseline_m`."""
+
+    id: int
+    mode: str
+    x: float
+    y: float
+    z: float
+    shape: str | None = None
+    size: tuple[float, ...] | None = None
+    rate_hz: float | None = None
+    freq_hz: float | None = None
+    symbol_clocks: int | None = None
+    baseline_m: float | None = None
+    emitters: tuple[tuple[float, float, float], ...] | None = None
+
+    @property
+    def xyz(self) -> np.ndarray:
+        return np.array([self.x, self.y, self.z], dtype=np.float64)
+
+    @property
+    def area_m2(self) -> float | None:
+        """Physical emitting area A_LED of thesis eq. 18 (one emitter), or None if unknown."""
+        return shape_area_m2(self.shape, self.size)
+
+
+def shape_area_m2(shape: str | None, size) -> float | None:
+    if shape is None or not size:
+        return None
+    if shape == "circle":
+        return math.pi * (size[0] / 2) ** 2
+    if shape == "square":
+        return size[0] * (size[1] if len(size) > 1 else size[0])
+    return size[0] * size[1]
+
+
+@dataclass(frozen=True)
+class LedMap:
+    """The LED map. `leds` is keyed by ID. With `addressing == 'xy'`, IDs not listed are
+    resolved from their bits (PROTOCOL.md section 2: high byte x, low byte y, decimetres)."""
+
+    units: str = "m"
+    addressing: str = "map"
+    leds: dict[int, Led] = field(default_factory=dict)
+    ceiling_z: float | None = None
+    default_shape: str | None = None
+    default_size: tuple[float, ...] | None = None
+    default_rate_hz: float | None = None
+    taillight: dict | None = None
+    # Handedness of the map's x, y, z (z up): "right" (seen from above, y is x turned 90 degrees
+    # counter-clockwise), "left" (clockwise: a map surveyed in a mirrored frame), or None when
+    # the map does not say (positioning then tells it from the images, receiver.locate).
+    handedness: str | None = None
+
+    def lookup(self, led_id: int) -> Led | None:
+        """The LED with this ID, or None when the map does not know it."""
+        led = self.leds.get(led_id)
+        if led is not None or self.addressing != "xy" or not 0 <= led_id <= 0xFFFF:
+            return led
+        return Led(id=led_id, mode="ook", x=(led_id >> 8) / 10.0, y=(led_id & 0xFF) / 10.0,
+                   z=float(self.ceiling_z), shape=self.default_shape, size=self.default_size,
+                   rate_hz=self.default_rate_hz)
+
+    def by_mode(self, mode: str) -> list[Led]:
+        return [led for led in self.leds.values() if led.mode == mode]
+
+    def to_json(self) -> dict:
+        """The map as INTERFACES.md writes it."""
+        out: dict = {"units": self.units, "addressing": self.addressing}
+        if self.addressing == "xy":
+            out.update(ceiling_z=self.ceiling_z, shape=self.default_shape,
+                       size=list(self.default_size or []), rate_hz=self.default_rate_hz)
+        if self.taillight is not None:
+            out["taillight"] = self.taillight
+        if self.handedness is not None:
+            out["handedness"] = self.handedness
+        leds = []
+        for led in self.leds.values():
+            d = {"id": led.id, "mode": led.mode, "x": led.x, "y": led.y, "z": led.z}
+            for key in ("shape", "rate_hz", "freq_hz", "symbol_clocks", "baseline_m"):
+                if getattr(led, key) is not None:
+                    d[key] = getattr(led, key)
+            if led.size is not None:
+                d["size"] = list(led.size)
+            if led.emitters is not None:
+                d["emitters"] = [list(e) for e in led.emitters]
+            leds.append(d)
+        out["leds"] = leds
+        return out
+
+
+def _num(d: dict, key: str, where: str, required: bool = False, positive: bool = False):
+    v = d.get(key)
+    if v is None:
+        if required:
+            raise InputError(f"{where}: missing '{key}'")
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{where}: '{key}' must be a finite number")
+    if positive and v <= 0:
+        raise InputError(f"{where}: '{key}' must be positive")
+    return float(v)
+
+
+def _shape(d: dict, where: str):
+    shape, size = d.get("shape"), d.get("size")
+    if shape is None and size is None:
+        return None, None
+    if shape not in SHAPES:
+        raise InputError(f"{where}: 'shape' must be one of {', '.join(SHAPES)}")
+    if (not isinstance(size, list) or not 1 <= len(size) <= 2
+            or not all(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0 for s in size)):
+        raise InputError(f"{where}: 'size' must be a list of 1 or 2 positive numbers (metres)")
+    if shape == "rect" and len(size) != 2:
+        raise InputError(f"{where}: a rect needs 'size': [width, length]")
+    return shape, tuple(float(s) for s in size)
+
+
+def _led(d, i: int, path: str) -> Led:
+    where = f"{path}: leds[{i}]"
+    if not isinstance(d, dict):
+        raise InputError(f"{where} must be an object")
+    led_id = d.get("id")
+    if isinstance(led_id, bool) or not isinstance(led_id, int) or led_id < 0:
+        raise InputError(f"{where}: 'id' must be a non-negative integer")
+    mode = d.get("mode", "ook")
+    if mode not in LED_MODES:
+        raise InputError(f"{where}: 'mode' must be one of {', '.join(LED_MODES)}")
+    x, y, z = (_num(d, k, where, required=True) for k in ("x", "y", "z"))
+    shape, size = _shape(d, where)
+    freq = _num(d, "freq_hz", where, positive=True)
+    if mode == "tone" and freq is None:
+        raise InputError(f"{where}: tone LEDs need 'freq_hz'")
+    symclk = d.get("symbol_clocks")
+    if symclk is not None and (isinstance(symclk, bool) or not isinstance(symclk, int) or symclk <= 0):
+        raise InputError(f"{where}: 'symbol_clocks' must be a positive integer")
+    emitters = d.get("emitters")
+    if emitters is not None:
+        try:
+            emitters = tuple(tuple(float(c) for c in e) for e in emitters)
+        except (TypeError, ValueError):
+            emitters = None
+        if emitters is None or len(emitters) != 2 or any(len(e) != 3 for e in emitters):
+            raise InputError(f"{where}: 'emitters' must be two [x, y, z] points")
+    return Led(id=led_id, mode=mode, x=x, y=y, z=z, shape=shape, size=size,
+               rate_hz=_num(d, "rate_hz", where, positive=True), freq_hz=freq,
+               symbol_clocks=symclk, baseline_m=_num(d, "baseline_m", where, positive=True),
+               emitters=emitters)
+
+
+def parse_map(obj, path: str = "map.json") -> LedMap:
+    """Validate a decoded map.json object."""
+    if not isinstance(obj, dict):
+        raise InputError(f"{path}: the map must be a JSON object")
+    units = obj.get("units", "m")
+    if units != "m":
+        raise InputError(f"{path}: only 'units': 'm' is supported")
+    addressing = obj.get("addressing", "map")
+    if addressing not in ("map", "xy"):
+        raise InputError(f"{path}: 'addressing' must be 'map' or 'xy'")
+    raw = obj.get("leds", [])
+    if not isinstance(raw, list):
+        raise InputError(f"{path}: 'leds' must be a list")
+    leds: dict[int, Led] = {}
+    for i, d in enumerate(raw):
+        led = _led(d, i, path)
+        if led.id in leds:
+            raise InputError(f"{path}: LED id {led.id} listed twice")
+        leds[led.id] = led
+    ceiling = _num(obj, "ceiling_z", path, required=addressing == "xy")
+    shape, size = _shape(obj, path)
+    taillight = obj.get("taillight")
+    if taillight is not None:
+        if not isinstance(taillight, dict):
+            raise InputError(f"{path}: 'taillight' must be an object")
+        _shape(taillight, f"{path}: taillight")
+        _num(taillight, "baseline_m", f"{path}: taillight", positive=True)
+    if not leds and addressing == "map":
+        raise InputError(f"{path}: the map lists no LEDs")
+    handedness = obj.get("handedness")
+    if handedness not in (None, "right", "left"):
+        raise InputError(f"{path}: 'handedness' must be 'right' or 'left'")
+    return LedMap(units=units, addressing=addressing, leds=leds, ceiling_z=ceiling,
+                  default_shape=shape, default_size=size,
+                  default_rate_hz=_num(obj, "rate_hz", path, positive=True), taillight=taillight,
+                  handedness=handedness)
+
+
+def load_map(path: str) -> LedMap:
+    """Read and validate a map.json file."""
+    if not os.path.isfile(path):
+        raise InputError(f"map file not found: {path}")
+    try:
+        with open(path, encoding="utf-8") as f:
+            obj = json.load(f)
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"{path}: not valid JSON ({e.__class__.__name__}: {str(e).splitlines()[0]})") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    return parse_map(obj, path)
+
+
+def save_map(path: str, led_map: LedMap) -> None:
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(led_map.to_json(), f, indent=1)
+        f.write("\n")

@@ -1,0 +1,529 @@
+"""Frame sources behind one tiny interface: `open_source(spec)` -> iterable of `Frame`.
+
+The SOURCE string picks the kind (like pyserial's `serial_for_url`):
+
+* a recording folder (`video.*`, `camera.yaml`, `map.json`, optional `truth.jsonl`),
+* a video file (anything OpenCV's FFmpeg backend reads: FFV1, MJPEG, H.264 ...),
+* a still image or a folder of images (JPEG/PNG),
+* `-`: raw frames on standard input (`--size WxH --pix-fmt gray|bgr24`, as
+  `ffmpeg ... -f rawvideo -` writes them),
+* a V4L2 device `/dev/videoN`.
+
+Every frame is converted to gray once, as cheaply as the source allows: video files are read
+with `CAP_PROP_CONVERT_RGB` off, which gives the Y plane directly for YUV codecs (MJPEG,
+H.264) and gray for gray FFV1; a V4L2 camera is asked for GREY or YUYV (Y taken from the packed
+bytes); images are decoded straight to gray. Images are read in stored (sensor) orientation,
+ignoring EXIF rotation, because the rolling-shutter rows must stay image rows.
+
+Timestamps (`Frame.t_s`) come from the source: video index / fps (CAP_PROP_POS_MSEC when the
+container gives no rate), V4L2 buffer timestamps (CAP_PROP_POS_MSEC), images and pipes
+index / fps or 0 when no rate is known. A frame that cannot be decoded mid-stream is skipped
+and counted (`skipped`); a V4L2 timestamp gap counts as dropped frames (`dropped`) and leaves
+a gap in `Frame.index`. Bad input raises `InputError` with one line.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import re
+import sys
+import threading
+from pathlib import Path
+import time
+from typing import Callable, Iterator
+
+# FFmpeg's own log lines ("moov atom not found" ...) would follow our one-line errors on
+# stderr; AV_LOG_QUIET (-8) unless the user asked otherwise. Read when OpenCV loads FFmpeg.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from receiver.core.errors import InputError  # noqa: E402
+from receiver.core.records import Frame
+
+IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+V4L2_RE = re.compile(r"^/dev/video\d+$")
+PIX_FMTS = {"gray": 1, "bgr24": 3}
+# V4L2 pixel formats, most useful first: raw luma keeps the stripes, MJPEG blurs them.
+V4L2_FOURCCS = ("GREY", "YUYV", "MJPG")
+# A frame interval longer than this many nominal intervals means frames were dropped.
+DROP_GAP_FACTOR = 1.5
+# Consecutive undecodable frames after which a video is taken as ended, not corrupt.
+MAX_CONSECUTIVE_BAD = 25
+
+
+def _warn(msg: str) -> None:
+    print(f"occloc: warning: {msg}", file=sys.stderr)
+
+
+def to_gray(img: np.ndarray | None, width: int | None = None, height: int | None = None):
+    """(H, W) uint8 gray from whatever a capture returned, or None if it is not a frame.
+
+    Accepts gray (H, W), (H, W, 1), BGR (H, W, 3), BGRA (H, W, 4), and packed YUYV
+    ((H, 2W) or (1, 2WH) bytes) when `width` and `height` are given."""
+    if img is None or img.size == 0:
+        return None
+    if img.dtype != np.uint8:
+        return None
+    if img.ndim == 3:
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        elif img.shape[2] == 3:
+            return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        elif img.shape[2] == 4:
+            return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+        else:
+            return None
+    if width and height and img.ndim == 2:
+        if img.shape == (height, width):
+            return img
+        if img.size == 2 * width * height:  # YUYV: Y0 U Y1 V ..., luma at even bytes
+            return np.ascontiguousarray(img.reshape(height, 2 * width)[:, ::2])
+        return None
+    return img if img.ndim == 2 else None
+
+
+class FrameSource:
+    """Iterable of `Frame`. Attributes after (or during) iteration:
+
+    kind: 'recording' | 'video' | 'images' | 'stdin' | 'v4l2'; path: what was opened;
+    size: (width, height) px or None until known; fps: nominal frames/s (0 = unknown);
+    camera_path, map_path, truth_path: files of a recording folder (None otherwise);
+    skipped: undecodable frames skipped mid-stream; dropped: frames lost (V4L2 timestamp
+    gaps, --realtime overwrites); truncated: frames missing at the end (a video file cut
+    short, or 1 when a raw pipe ended inside a frame); truncated_bytes: that partial frame's bytes.
+    """
+
+    kind = "?"
+
+    def __init__(self, path: str):
+        self.path = path
+        self.size: tuple[int, int] | None = None
+        self.fps = 0.0
+        self.camera_path: str | None = None
+        self.map_path: str | None = None
+        self.truth_path: str | None = None
+        self.skipped = 0
+        self.dropped = 0
+        self.truncated = 0
+        self.truncated_bytes = 0
+        self.is_still = False
+
+    def __iter__(self) -> Iterator[Frame]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+
+class VideoFileSource(FrameSource):
+    kind = "video"
+
+    def __init__(self, path: str, *, fps: float = 0.0, capture_factory=cv2.VideoCapture):
+        super().__init__(path)
+        if not os.path.isfile(path):
+            raise InputError(f"no such file: {path}")
+        self._factory = capture_factory
+        cap = self._open(convert=False)
+        w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
+        h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        if w <= 0 or h <= 0:
+            cap.release()
+            raise InputError(f"{path}: no video stream")
+        self.size = (w, h)
+        self.fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) or fps
+        self.frame_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        self._cap = cap
+
+    def _open(self, convert: bool):
+        level = cv2.utils.logging.getLogLevel()
+        # FFmpeg warns on every raw YUV frame ("treated as 8UC1"): that is the Y plane we want.
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        try:
+            cap = self._factory(self.path, cv2.CAP_FFMPEG)
+            if not cap.isOpened():
+                raise InputError(f"{self.path}: not a readable video file")
+            if not convert:
+                cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+        finally:
+            cv2.utils.logging.setLogLevel(level)
+        return cap
+
+    def __iter__(self) -> Iterator[Frame]:
+        w, h = self.size
+        cap, index, bad_run, converting, yielded = self._cap, 0, 0, False, 0
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        try:
+            while True:
+                ok, img = cap.read()
+                if not ok:
+                    # Past the known end, or many failures in a row: the file has ended.
+                    if (self.frame_count and index >= self.frame_count) or not self.frame_count \
+                            or bad_run >= MAX_CONSECUTIVE_BAD:
+                        break
+                    bad_run += 1
+                    self.skipped += 1
+                    index += 1
+                    continue
+                gray = to_gray(img, w, h)
+                if gray is None and index == 0 and not converting:
+                    # The raw format is not luma-first: fall back to OpenCV's BGR conversion.
+                    cap.release()
+                    cap = self._cap = self._open(convert=True)
+                    converting = True
+                    continue
+                if gray is None:
+                    self.skipped += 1
+                    index += 1
+                    continue
+                bad_run = 0
+                yielded += 1
+                if self.fps > 0:
+                    t = index / self.fps
+                else:
+                    t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+                yield Frame(index, t, gray)
+                index += 1
+        finally:
+            cv2.utils.logging.setLogLevel(level)
+        if bad_run:
+            # Failures up to the end are a file cut short (truncated), not corrupt frames.
+            self.skipped -= bad_run
+            self.truncated = bad_run
+            _warn(f"{self.path}: file ends {bad_run} frames before its stated length (truncated)")
+        if yielded == 0:
+            raise InputError(f"{self.path}: no decodable video frames")
+
+    def close(self) -> None:
+        self._cap.release()
+
+
+class ImageSource(FrameSource):
+    """A still image or a folder of images (sorted by name). Unreadable images in a folder are
+    skipped and counted; a single unreadable image is an error."""
+
+    kind = "images"
+
+    def __init__(self, path: str, *, fps: float = 0.0):
+        super().__init__(path)
+        if os.path.isdir(path):
+            files = sorted(p for p in glob.glob(os.path.join(path, "*"))
+                           if p.lower().endswith(IMAGE_EXTS))
+            if not files:
+                raise InputError(f"{path}: no images in folder")
+        else:
+            files = [path]
+        self.files = files
+        self.fps = fps
+        self.is_still = True
+        first = self._read(files[0])
+        if first is None and len(files) == 1:
+            raise InputError(f"{path}: not a readable image")
+        self._first = first
+        if first is not None:
+            self.size = (first.shape[1], first.shape[0])
+
+    @staticmethod
+    def _read(path: str):
+        return cv2.imread(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i, path in enumerate(self.files):
+            if i == 0 and self._first is not None:
+                gray, self._first = self._first, None
+            else:
+                gray = self._read(path)
+            if gray is None:
+                self.skipped += 1
+                continue
+            if self.size is None:
+                self.size = (gray.shape[1], gray.shape[0])
+            yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
+
+
+class RawPipeSource(FrameSource):
+    """Raw frames (gray or bgr24, `size` = (W, H)) from a binary stream (standard input)."""
+
+    kind = "stdin"
+
+    def __init__(self, stream, size: tuple[int, int] | None, pix_fmt: str | None, *, fps: float = 0.0):
+        super().__init__("-")
+        if size is None:
+            raise InputError("reading frames from stdin needs --size WxH (and --pix-fmt gray|bgr24)")
+        pix_fmt = pix_fmt or "gray"
+        if pix_fmt not in PIX_FMTS:
+            raise InputError(f"--pix-fmt must be one of {', '.join(PIX_FMTS)}, not {pix_fmt!r}")
+        self.size = size
+        self.pix_fmt = pix_fmt
+        self.fps = fps
+        self._stream = stream
+        self.frame_bytes = size[0] * size[1] * PIX_FMTS[pix_fmt]
+
+    def _read_exact(self, n: int) -> bytes:
+        chunks, got = [], 0
+        while got < n:
+            b = self._stream.read(n - got)
+            if not b:
+                break
+            chunks.append(b)
+            got += len(b)
+        return b"".join(chunks)
+
+    def __iter__(self) -> Iterator[Frame]:
+        w, h = self.size
+        index = 0
+        while True:
+            buf = self._read_exact(self.frame_bytes)
+            if len(buf) < self.frame_bytes:
+                if buf and index == 0:
+                    raise InputError(
+                        f"stdin: only {len(buf)} bytes, less than one {w}x{h} {self.pix_fmt} frame "
+                        f"({self.frame_bytes} bytes): wrong --size or --pix-fmt?")
+                if buf:
+                    self.truncated = 1
+                    self.truncated_bytes = len(buf)
+                    _warn(f"stdin ended inside frame {index} ({len(buf)} of {self.frame_bytes} bytes): "
+                          f"frame dropped (wrong --size or --pix-fmt?)")
+                return
+            arr = np.frombuffer(buf, np.uint8)
+            if self.pix_fmt == "gray":
+                gray = arr.reshape(h, w)
+            else:
+                gray = cv2.cvtColor(arr.reshape(h, w, 3), cv2.COLOR_BGR2GRAY)
+            yield Frame(index, index / self.fps if self.fps > 0 else 0.0, gray)
+            index += 1
+
+
+class V4l2Source(FrameSource):
+    """A V4L2 camera. Settings order matters to drivers: FOURCC, then size, then fps, then
+    exposure. Every set() is read back; a refused or altered setting is a warning on stderr.
+
+    `camera`: CameraModel (size, fps, exposure_us) or None; `size` overrides its size.
+    `capture_factory(path, api)` builds the capture (tests inject a fake)."""
+
+    kind = "v4l2"
+
+    def __init__(self, path: str, *, camera=None, size=None, capture_factory=cv2.VideoCapture,
+                 warn: Callable[[str], None] = _warn):
+        super().__init__(path)
+        self._warn = warn
+        if capture_factory is cv2.VideoCapture and not os.path.exists(path):
+            raise InputError(f"no such camera device: {path}")
+        cap = capture_factory(path, cv2.CAP_V4L2)
+        if cap is None or not cap.isOpened():
+            raise InputError(f"{path}: cannot open camera device")
+        self._cap = cap
+        self.fourcc = self._set_fourcc()
+        if self.fourcc in ("GREY", "YUYV"):
+            # Raw luma: keep OpenCV from converting to BGR and back.
+            self._set(cv2.CAP_PROP_CONVERT_RGB, 0, "CONVERT_RGB", quiet=True)
+        if size is None and camera is not None:
+            size = (camera.width, camera.height)
+        if size is not None:
+            self._set(cv2.CAP_PROP_FRAME_WIDTH, size[0], "width")
+            self._set(cv2.CAP_PROP_FRAME_HEIGHT, size[1], "height")
+        if camera is not None and camera.fps > 0:
+            self._set(cv2.CAP_PROP_FPS, camera.fps, "fps")
+        if camera is not None and camera.exposure_us > 0:
+            # V4L2 manual exposure: AUTO_EXPOSURE 1 = manual; EXPOSURE in 100 us units.
+            self._set(cv2.CAP_PROP_AUTO_EXPOSURE, 1, "auto exposure (1 = manual)")
+            self._set(cv2.CAP_PROP_EXPOSURE, camera.exposure_us / 100.0, "exposure (100 us units)")
+        self.size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        self.fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) or (camera.fps if camera else 0.0)
+
+    def _set(self, prop, value, name: str, quiet: bool = False) -> bool:
+        self._cap.set(prop, value)
+        got = self._cap.get(prop)
+        if abs(float(got) - float(value)) > 1e-6 * max(1.0, abs(float(value))):
+            if not quiet:
+                self._warn(f"{self.path}: camera refused {name} = {value:g} (reads back {got:g})")
+            return False
+        return True
+
+    def _set_fourcc(self) -> str:
+        for code in V4L2_FOURCCS:
+            want = cv2.VideoWriter_fourcc(*code)
+            self._cap.set(cv2.CAP_PROP_FOURCC, want)
+            if int(self._cap.get(cv2.CAP_PROP_FOURCC)) == want:
+                return code
+        got = int(self._cap.get(cv2.CAP_PROP_FOURCC))
+        name = "".join(chr((got >> (8 * i)) & 0xFF) for i in range(4))
+        self._warn(f"{self.path}: camera refused GREY/YUYV/MJPG, using its format {name!r}")
+        return name
+
+    def __iter__(self) -> Iterator[Frame]:
+        w, h = self.size
+        index, last_t, bad_run = 0, None, 0
+        period = 1.0 / self.fps if self.fps > 0 else 0.0
+        while True:
+            ok, img = self._cap.read()
+            if not ok:
+                bad_run += 1
+                if bad_run >= MAX_CONSECUTIVE_BAD:
+                    return
+                continue
+            t = float(self._cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+            gray = to_gray(img, w, h)
+            if gray is None:
+                self.skipped += 1
+                bad_run += 1
+                if bad_run >= MAX_CONSECUTIVE_BAD:
+                    return
+                continue
+            bad_run = 0
+            if last_t is not None and period > 0 and t - last_t > DROP_GAP_FACTOR * period:
+                lost = int(round((t - last_t) / period)) - 1
+                self.dropped += lost
+                index += lost
+            last_t = t
+            yield Frame(index, t, gray)
+            index += 1
+
+    def close(self) -> None:
+        self._cap.release()
+
+
+class LatestFrameSource(FrameSource):
+    """--realtime: a reader thread keeps only the newest frame of `inner`; frames overwritten
+    before the consumer took them are counted in `dropped`. File sources are paced at their
+    frame timestamps (a file stands in for a live camera); live sources are read as they come.
+    `clock`/`sleep` are injectable."""
+
+    def __init__(self, inner: FrameSource, *, pace: bool = False, clock=time.monotonic, sleep=time.sleep):
+        super().__init__(inner.path)
+        self.inner = inner
+        self.kind = inner.kind
+        self.size, self.fps = inner.size, inner.fps
+        self.camera_path, self.map_path, self.truth_path = inner.camera_path, inner.map_path, inner.truth_path
+        self.is_still = inner.is_still
+        self._pace, self._clock, self._sleep = pace, clock, sleep
+        self._cond = threading.Condition()
+        self._latest: Frame | None = None
+        self._done = False
+        self._error: BaseException | None = None
+        self._stop = False
+        self._overwritten = 0
+
+    def _reader(self):
+        try:
+            t0 = None
+            for frame in self.inner:
+                if self._stop:
+                    break
+                if self._pace:
+                    if t0 is None:
+                        t0 = self._clock() - frame.t_s
+                    delay = t0 + frame.t_s - self._clock()
+                    if delay > 0:
+                        self._sleep(delay)
+                with self._cond:
+                    if self._latest is not None:
+                        self._overwritten += 1
+                    self._latest = frame
+                    self._cond.notify()
+        except BaseException as e:  # handed to the consumer thread
+            self._error = e
+        finally:
+            with self._cond:
+                self._done = True
+                self._cond.notify()
+
+    def __iter__(self) -> Iterator[Frame]:
+        th = threading.Thread(target=self._reader, daemon=True)
+        th.start()
+        try:
+            while True:
+                with self._cond:
+                    while self._latest is None and not self._done:
+                        self._cond.wait()
+                    frame, self._latest = self._latest, None
+                    done = self._done
+                if frame is not None:
+                    self._sync()
+                    yield frame
+                elif done:
+                    break
+            if self._error is not None:
+                raise self._error
+        finally:
+            self._stop = True
+            self._sync()
+
+    def _sync(self):
+        self.size = self.inner.size
+        self.skipped = self.inner.skipped
+        self.truncated, self.truncated_bytes = self.inner.truncated, self.inner.truncated_bytes
+        self.dropped = self.inner.dropped + self._overwritten
+
+    def close(self) -> None:
+        self._stop = True
+        self.inner.close()
+
+
+def find_recording_files(folder: str) -> dict[str, str | None]:
+    """{'video', 'camera', 'map', 'truth'} paths in a recording folder (None when absent)."""
+    videos = sorted(p for p in glob.glob(os.path.join(folder, "video.*")) if os.path.isfile(p))
+
+    def opt(name):
+        p = os.path.join(folder, name)
+        return p if os.path.isfile(p) else None
+    return {"video": videos[0] if videos else None, "camera": opt("camera.yaml"),
+            "map": opt("map.json"), "truth": opt("truth.jsonl")}
+
+
+def parse_size(text: str | None) -> tuple[int, int] | None:
+    """'1280x720' -> (1280, 720); InputError on anything else."""
+    if text is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", str(text))
+    if not m or int(m.group(1)) <= 0 or int(m.group(2)) <= 0:
+        raise InputError(f"--size must look like 1280x720, not {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: bool = False,
+                camera=None, stdin=None, capture_factory=cv2.VideoCapture) -> FrameSource:
+    """Open the SOURCE argument of `occloc run` (see module docstring).
+
+    size: (W, H) or 'WxH' for raw pipes / V4L2; pix_fmt: 'gray' | 'bgr24' for pipes;
+    realtime: wrap in `LatestFrameSource`; camera: CameraModel for rates, size and exposure;
+    stdin: binary stream for '-' (default sys.stdin.buffer); capture_factory: the
+    cv2.VideoCapture constructor (tests pass a fake)."""
+    if isinstance(size, str):
+        size = parse_size(size)
+    fps = camera.fps if camera is not None else 0.0
+    spec = str(spec)
+    if spec == "-":
+        src = RawPipeSource(stdin if stdin is not None else sys.stdin.buffer, size, pix_fmt, fps=fps)
+    elif V4L2_RE.match(spec):
+        src = V4l2Source(spec, camera=camera, size=size, capture_factory=capture_factory)
+    elif os.path.isdir(spec):
+        files = find_recording_files(spec)
+        if files["video"] is not None:
+            src = VideoFileSource(files["video"], fps=fps, capture_factory=capture_factory)
+            src.kind = "recording"
+            src.camera_path, src.map_path, src.truth_path = files["camera"], files["map"], files["truth"]
+        else:
+            src = ImageSource(spec, fps=fps)
+            src.camera_path, src.map_path = files["camera"], files["map"]
+    elif not os.path.exists(spec):
+        raise InputError(f"no such file or folder: {spec}")
+    elif spec.lower().endswith(IMAGE_EXTS):
+        src = ImageSource(spec, fps=fps)
+    else:
+        src = VideoFileSource(spec, fps=fps, capture_factory=capture_factory)
+    if realtime:
+        src = LatestFrameSource(src, pace=src.kind in ("video", "recording", "images"))
+    return src
+
+
+def default_source() -> str:
+    import receiver
+    path = Path(receiver.__file__).resolve().parent.parent / "recordings" / "indoor-walk"
+    if not path.is_dir():
+        from receiver.core.errors import InputError
+        raise InputError(f"no SOURCE given and the default recording is missing: {path}")
+    return str(path)

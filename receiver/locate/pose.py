@@ -1,0 +1,342 @@
+"""Positioning: decoded LEDs -> camera position (and orientation), then Kalman tracking.
+
+Frames and conventions
+* World: metres, x, y on the floor, z up; LEDs hang on the ceiling facing down.
+* Camera: OpenCV (x right, y down, z along the optical axis). ``R_cw`` is the world-to-camera
+  rotation, ``X_cam = R_cw @ (X_world - C)``; ``C`` the camera centre in the world (the output
+  position). ``R_cw`` is a proper rotation (det = +1).
+* Image points given to the solvers are undistorted *normalized* coordinates (x/z, y/z).
+
+Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
+* ``"multilateration"`` (ranges only, thesis eqs. 26-34): the linear system of eq. 27,
+  ``[1, -2x_L, -2y_L, -2z_L] [|C|^2, x, y, z]^T = d^2 - |L|^2``. With LEDs off one plane it has
+  full rank and eq. 34 solves it; LEDs on one ceiling leave a one-dimensional null space, so
+  ``x = x_p + eps x_h`` (eq. 29) and the constraint ``x_0 = x_1^2 + x_2^2 + x_3^2`` gives the two
+  roots of eqs. 30-31: the mirror image above the ceiling is rejected. Then a robust nonlinear
+  refinement (`scipy.optimize.least_squares`) of the range residuals weighted by 1/sigma_d.
+* ``"pnp"`` (angles of arrival only, n >= 3): ``cv2.solvePnPGeneric`` (AP3P for 3 points, SQPNP
+  and, for >= 4 coplanar LEDs, IPPE), solutions with the camera above the LEDs dropped, the best
+  one refined with ``cv2.solvePnPRefineLM``.
+* ``"range+angle"``: joint least squares over reprojection residuals (sigma `pixel_sigma`) and
+  range residuals (sigma_d) of the full pose; initialized by PnP (n >= 3) or, with 2 LEDs, by the
+  closed form of `init_two` from the prior tilt (2 ranges + 4 angles fix all 6 unknowns).
+* collinear LEDs (one row of ceiling panels -- on the bundled walk usually the only row whose
+  panels are whole in the frame -- or 2 LEDs): ranges and angles fix the camera on a circle about
+  the LED line, blind to a rotation of the rig about it; "range+angle" with a weak tilt prior
+  (a phone held up at the ceiling, `DEFAULT_TILT_SIGMA_DEG`) picks the point, and the fix
+  covariance is large along the blind direction so the Kalman filter leans on its prediction.
+  This, not the image-point convention, was the ~0.5 m error of the first version: it chained
+  the previous frame's orientation as the prior (a random walk of the tilt) and used blobs cut
+  by the image edge whose `border` flag was not set (their area gives ranges off by 10-25 %).
+* one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
+  filter coasting, method ``"kalman-coast"``, or is None).
+
+Fix covariance: ``cov = s^2 (J^T J)^-1`` from the whitened residual Jacobian at the solution,
+``s^2 = max(1, chi^2/dof)`` (the sigma model, inflated when the residuals say it is optimistic);
+the position block feeds the Kalman filter as its measurement noise.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from receiver.locate.ranging import ray_unit
+from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS, _covariance, robust_lm
+from receiver.locate.multilat import multilaterate
+from receiver.locate.lsq import BELOW_CEILING_M, Fix
+
+SOLVERS = ("auto", "multilateration", "pnp")
+# With 2 LEDs the tilt comes from the prior orientation (previous frame, else "looking up"):
+# a hand-held phone held up at the ceiling is within about 10 degrees of vertical.
+DEFAULT_TILT_SIGMA_DEG = 10.0
+# LEDs whose RMS distance from their best-fit line is below this (m) are collinear: ranges and
+# angles are then blind to a rotation of the whole rig about that line (a row of ceiling panels).
+COLLINEAR_RMS_M = 0.05
+
+
+# ---------------------------------------------------------------- angles of arrival (PnP)
+
+def _pose_from_cv(rvec, tvec) -> tuple[np.ndarray, np.ndarray]:
+    R, _ = cv2.Rodrigues(np.asarray(rvec, float).reshape(3, 1))
+    return R, -R.T @ np.asarray(tvec, float).reshape(3)
+
+
+def _is_coplanar(L: np.ndarray, tol_m: float = 1e-3) -> bool:
+    if len(L) < 4:
+        return True
+    s = np.linalg.svd(L - L.mean(axis=0), compute_uv=False)
+    return bool(s[2] < tol_m)
+
+
+def is_collinear(L: np.ndarray, tol_rms_m: float = COLLINEAR_RMS_M) -> bool:
+    """True when the points L (N, 3) lie within `tol_rms_m` (RMS) of one line (always for N <= 2)."""
+    L = np.asarray(L, float).reshape(-1, 3)
+    if len(L) <= 2:
+        return True
+    s = np.linalg.svd(L - L.mean(axis=0), compute_uv=False)
+    return bool(math.hypot(s[1], s[2]) / math.sqrt(len(L)) < tol_rms_m)
+
+
+def pnp_candidates(L: np.ndarray, uv: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pose candidates (R_cw, C) from n >= 3 LEDs: L (N, 3) world, uv (N, 2) normalized. Camera
+    centres above the lowest LED (mirror solutions) are dropped."""
+    L = np.ascontiguousarray(L, dtype=np.float64)
+    uv = np.ascontiguousarray(uv, dtype=np.float64)
+    K = np.eye(3)
+    sols = []
+    flags = [cv2.SOLVEPNP_AP3P] if len(L) == 3 else [cv2.SOLVEPNP_SQPNP]
+    if len(L) >= 4 and _is_coplanar(L):
+        flags.append(cv2.SOLVEPNP_IPPE)
+    for flag in flags:
+        try:
+            if flag == cv2.SOLVEPNP_AP3P:
+                n, rvecs, tvecs = cv2.solveP3P(L, uv, K, None, flags=flag)
+            else:
+                n, rvecs, tvecs, _ = cv2.solvePnPGeneric(L, uv, K, None, flags=flag)
+        except cv2.error:
+            continue
+        for rv, tv in zip(rvecs[:n], tvecs[:n]):
+            sols.append(_pose_from_cv(rv, tv))
+    z_ceiling = float(L[:, 2].min())
+    return [(R, C) for R, C in sols if C[2] < z_ceiling - BELOW_CEILING_M]
+
+
+def init_two(L: np.ndarray, uv: np.ndarray, d: np.ndarray, R_prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form pose guess from 2 LEDs with ranges: keep the prior tilt `R_prior`, solve the
+    yaw that turns the camera-frame LED baseline onto the world one, then the centre."""
+    v = ray_unit(uv) * np.asarray(d, float)[:, None]        # camera-frame LED vectors
+    w = v @ R_prior                                          # = R_prior^T v, world-aligned up to yaw
+    a = w[0, :2] - w[1, :2]
+    b = L[0, :2] - L[1, :2]
+    psi = math.atan2(a[0] * b[1] - a[1] * b[0], a @ b)
+    c, s = math.cos(psi), math.sin(psi)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    R_cw = R_prior @ Rz.T
+    C = np.mean(L - w @ Rz.T, axis=0)
+    return R_cw, C
+
+
+def _farthest_pair(L: np.ndarray, usable: np.ndarray) -> tuple[int, int]:
+    """Indices of the two usable points of L (N, 3) farthest apart (the best baseline)."""
+    idx = np.flatnonzero(usable)
+    D = np.linalg.norm(L[idx, None, :] - L[None, idx, :], axis=2)
+    a, b = np.unravel_index(int(np.argmax(D)), D.shape)
+    return int(idx[a]), int(idx[b])
+
+
+def align_rays(rays_cam: np.ndarray, dirs_world: np.ndarray) -> np.ndarray:
+    """Rotation R_cw (det +1) that best turns world directions (N, 3) onto camera rays (N, 3)
+    (Kabsch / Wahba); orientation for ranges-only fixes. Needs 2+ non-parallel directions."""
+    a = np.asarray(rays_cam, float)
+    b = np.asarray(dirs_world, float)
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior=None, C_prior_cov=None):
+    """Whitened residuals of a pose p = (Rodrigues vector of R_cw (3), C (3)): reprojection
+    (normalized units / sigma_uv, 2 per LED), the finite ranges of d / sigma_d, the tilt prior
+    (world up seen from the camera vs `up_prior`, / up_sigma) and the position prior (whitened by
+    C_prior_cov). The returned function carries its analytic Jacobian as `fun.jac(p)` (the
+    Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences."""
+    has_d = np.isfinite(d)
+    wd = 1.0 / sigma_d[has_d]
+    # Whitening of the position prior: r = W (C - C_prior) with W^T W = cov^-1.
+    W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+
+    def _pose(p):
+        R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
+        Y = L - p[3:]
+        X = Y @ R.T
+        z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)     # behind the camera: huge residual
+        return R, dR, Y, X, z
+
+    def fun(p):
+        R, _, Y, X, z = _pose(p)
+        r_ang = ((X[:, :2] / z[:, None]) - uv).ravel() / sigma_uv
+        r_rng = (np.linalg.norm(Y[has_d], axis=1) - d[has_d]) * wd
+        parts = [r_ang, r_rng]
+        if up_prior is not None:
+            # World up seen from the camera vs the prior's: a tilt prior, blind to yaw.
+            parts.append((R[:, 2] - up_prior) / up_sigma)
+        if W is not None:
+            parts.append(W @ (p[3:] - C_prior))
+        return np.concatenate(parts)
+
+    def jac(p):
+        R, dR, Y, X, z = _pose(p)
+        n = len(L)
+        dRk = dR.reshape(3, 3, 3)                        # dRk[k] = dR / d rvec_k
+        # dX_i / d rvec_k = dRk[k] @ Y_i ; dX_i / dC = -R
+        dX = np.empty((n, 3, 6))
+        dX[:, :, :3] = np.einsum("kab,nb->nak", dRk, Y)
+        dX[:, :, 3:] = -R[None, :, :]
+        x, y = X[:, 0], X[:, 1]
+        # d(x/z) = (dx - x/z dz) / z, d(y/z) likewise
+        du = (dX[:, 0, :] - (x / z)[:, None] * dX[:, 2, :]) / z[:, None]
+        dv = (dX[:, 1, :] - (y / z)[:, None] * dX[:, 2, :]) / z[:, None]
+        J_ang = np.stack([du, dv], axis=1).reshape(2 * n, 6) / sigma_uv
+        Yd = Y[has_d]
+        J_rng = np.zeros((len(Yd), 6))
+        J_rng[:, 3:] = -(Yd / np.linalg.norm(Yd, axis=1, keepdims=True)) * wd[:, None]
+        parts = [J_ang, J_rng]
+        if up_prior is not None:
+            J_up = np.zeros((3, 6))
+            J_up[:, :3] = dRk[:, :, 2].T / up_sigma       # d R[:, 2] / d rvec_k
+            parts.append(J_up)
+        if W is not None:
+            J_c = np.zeros((3, 6))
+            J_c[:, 3:] = W
+            parts.append(J_c)
+        return np.vstack(parts)
+
+    fun.jac = jac
+    return fun
+
+
+def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS,
+                f_scale=DEFAULT_F_SCALE, R_prior=None, tilt_sigma_rad: float = 1.0,
+                C_prior=None, C_prior_cov=None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """Joint least squares over reprojection residuals (normalized units, sigma `sigma_uv`) and
+    the finite ranges of d (sigma_d), plus a tilt prior (the world up direction of `R_prior`,
+    sigma `tilt_sigma_rad`) when R_prior is given, plus a position prior `C_prior` (3,) of
+    covariance `C_prior_cov` (3, 3) m^2 when given. Returns (R_cw, C, cov (3, 3) of C, chi2, dof).
+
+    The returned covariance leaves the position prior out (it is the prediction of the filter the
+    fix is fed to: counting it twice would make the filter overconfident); the weak tilt prior
+    stays in, so a direction the LEDs cannot see gets a large but finite variance."""
+    up = None if R_prior is None else np.asarray(R_prior, float)[:, 2]
+    fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
+    rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+    p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
+    x = robust_lm(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
+    R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
+    if C_prior is not None:
+        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad)
+    cov6, chi2, dof = _covariance(fun, x)
+    return R, x[3:].copy(), cov6[3:, 3:], chi2, dof
+
+
+def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, *,
+              sigma_uv: float, solver: str = "auto", R_prior: np.ndarray | None = None,
+              C_prior: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
+              f_scale: float = DEFAULT_F_SCALE,
+              tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG,
+              C_prior_cov: np.ndarray | None = None,
+              tilt_prior_R: np.ndarray | None = None) -> Fix | None:
+    """One frame's camera position from N LEDs.
+
+    L (N, 3) world m; uv (N, 2) undistorted normalized image points or None (ranges only);
+    d (N,) ranges m (NaN where the LED size is unknown); sigma_d (N,) their 1-sigma, m;
+    sigma_uv: image point 1-sigma in normalized units (pixels / focal_px). `R_prior` (3, 3)
+    orientation guess for 2 LEDs (default: looking straight up), trusted to `tilt_sigma_deg`
+    in tilt: 2 ranges fix the camera on a circle about the LED baseline and the 4 angles add only
+    one more constraint, so the rotation about the baseline needs the prior. `C_prior` (3,):
+    position guess; with `C_prior_cov` (3, 3) m^2 (the tracking filter's prediction) it is also a
+    prior for collinear LEDs (a single row of panels, or 2 LEDs), whose ranges and angles leave
+    the rotation of the camera about the LED line free: the prior pins that one direction and
+    is left out of the fix covariance (`refine_pose`), so the filter sees it as unmeasured.
+    `tilt_prior_R` (3, 3): the tilt prior's orientation (only its world-up direction counts) when
+    it should differ from `R_prior`, e.g. "looking straight up"; it also weighs in on n >= 3
+    (choice among the P3P poses and the refinement), sigma `tilt_sigma_deg`.
+    Returns None when the LEDs do not determine a position.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}")
+    L = np.asarray(L, float).reshape(-1, 3)
+    d = np.asarray(d, float).reshape(-1)
+    sigma_d = np.asarray(sigma_d, float).reshape(-1)
+    n = len(L)
+    has_d = np.isfinite(d) & np.isfinite(sigma_d) & (sigma_d > 0)
+    d = np.where(has_d, d, np.nan)
+    k = int(has_d.sum())
+    if solver == "multilateration" or (uv is None and solver == "auto"):
+        if k < 3:
+            return None
+        return multilaterate(L[has_d], d[has_d], sigma_d[has_d], loss=loss, f_scale=f_scale, C0=C_prior)
+    if uv is None:
+        return None
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    use_ranges = solver == "auto" and k > 0
+    dd = d if use_ranges else np.full(n, np.nan)
+    if n >= 2 and is_collinear(L):
+        # Collinear LEDs: PnP is degenerate; 2+ ranges and the angles fix the camera on a circle
+        # about the LED line, the prior tilt (and the predicted position) pick the point on it.
+        if not use_ranges or k < 2:
+            return None
+        i, j = _farthest_pair(L, has_d)
+        Rp = R_prior if R_prior is not None else np.eye(3)
+        R0, C0 = init_two(L[[i, j]], uv[[i, j]], d[[i, j]], Rp)
+        use_c = C_prior is not None and C_prior_cov is not None
+        R, C, cov, chi2, dof = refine_pose(L, uv, sigma_uv, dd, sigma_d, R0, C0, loss=loss, f_scale=f_scale,
+                                           R_prior=Rp if tilt_prior_R is None else tilt_prior_R,
+                                           tilt_sigma_rad=math.radians(tilt_sigma_deg),
+                                           C_prior=C_prior if use_c else None,
+                                           C_prior_cov=C_prior_cov if use_c else None)
+        method = "range+angle"
+    elif n >= 3:
+        cands = pnp_candidates(L, uv)
+        if not cands:
+            return None
+        # The tilt prior (when given) also picks among P3P's up to 4 poses and keeps few-LED
+        # fixes from flipping to a pose no hand holds the phone in; it is weak (10 degrees), so
+        # well-determined fixes are not pulled by it.
+        up_t = None if tilt_prior_R is None else np.asarray(tilt_prior_R, float)[:, 2]
+        tilt_rad = math.radians(tilt_sigma_deg)
+        fun = _joint_fun(L, uv, sigma_uv, dd, sigma_d, up_t, tilt_rad)
+        # The candidate that explains angles (and ranges) best; ties broken by the prior position.
+        def score(rc):
+            r = fun(np.concatenate([cv2.Rodrigues(rc[0])[0].ravel(), rc[1]]))
+            prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((rc[1] - C_prior) ** 2))
+            return float(r @ r) + prior
+        R0, C0 = min(cands, key=score)
+        if not use_ranges:
+            rvec, _ = cv2.Rodrigues(R0)
+            tvec = -R0 @ C0
+            rvec, tvec = cv2.solvePnPRefineLM(L, uv, np.eye(3), None, rvec, tvec.reshape(3, 1))
+            R0, C0 = _pose_from_cv(rvec, tvec)
+        R, C, cov, chi2, dof = refine_pose(L, uv, sigma_uv, dd, sigma_d, R0, C0, loss=loss, f_scale=f_scale,
+                                           R_prior=tilt_prior_R, tilt_sigma_rad=tilt_rad)
+        method = "range+angle" if use_ranges else "pnp"
+    else:
+        return None
+    if C[2] > float(L[:, 2].min()) - BELOW_CEILING_M or not np.all(np.isfinite(C)):
+        return None
+    return Fix(C, cov, R, method, n, chi2, dof)
+
+
+# ---------------------------------------------------------------- orientation as angles
+
+# OpenCV camera axes in the body frame (x forward, y left, z up) -- tools/synth/camera.py.
+CAM_TO_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def rotation_to_ypr_deg(R_cw: np.ndarray) -> tuple[float, float, float]:
+    """Camera orientation as (yaw, pitch, roll) degrees in the truth.jsonl convention of
+    tools/synth/camera.py: camera-to-world ``R_cw^T = Rz(yaw) Ry(-pitch) Rx(roll) B``, B the
+    OpenCV-camera-to-body axes; pitch = +90 looks straight up. At pitch = +-90 (gimbal lock)
+    only yaw -/+ roll is defined and roll is reported as 0."""
+    M = np.asarray(R_cw, float).T @ CAM_TO_BODY.T
+    theta = math.asin(max(-1.0, min(1.0, -M[2, 0])))
+    if abs(math.cos(theta)) < 1e-6:
+        yaw, roll = math.atan2(-M[0, 1], M[1, 1]), 0.0
+    else:
+        yaw, roll = math.atan2(M[1, 0], M[0, 0]), math.atan2(M[2, 1], M[2, 2])
+    return math.degrees(yaw), -math.degrees(theta), math.degrees(roll)
+
+
+def ypr_to_rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> np.ndarray:
+    """Inverse of `rotation_to_ypr_deg`: the world-to-camera rotation R_cw."""
+    y, p, r = (math.radians(a) for a in (yaw_deg, pitch_deg, roll_deg))
+    cz, sz, cy, sy, cx, sx = math.cos(y), math.sin(y), math.cos(-p), math.sin(-p), math.cos(r), math.sin(r)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1.0]])
+    Ry = np.array([[cy, 0, sy], [0, 1.0, 0], [-sy, 0, cy]])
+    Rx = np.array([[1.0, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    return (Rz @ Ry @ Rx @ CAM_TO_BODY).T

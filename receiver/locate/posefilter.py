@@ -1,0 +1,179 @@
+"""One device's positioning state: solve a frame's fix (`receiver.locate.pose.solve_fix`) in the
+map's frame or its mirror (map handedness), then the constant-velocity Kalman filter
+(`receiver.locate.kalman`) that coasts between fixes. Used by the local indoor positioner and,
+one per device, by the lighting server.
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, PositionKalman, position_std
+from receiver.locate.ranging import R_LOOKING_UP
+from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
+from receiver.locate.lsq import Fix
+from receiver.locate.pose import DEFAULT_TILT_SIGMA_DEG, SOLVERS, is_collinear, rotation_to_ypr_deg, solve_fix
+
+
+# ---------------------------------------------------------------- the streaming stage
+
+def _xyz(v) -> dict:
+    return {"x": round(float(v[0]), 5), "y": round(float(v[1]), 5), "z": round(float(v[2]), 5)}
+
+
+# Mirror of the world's y axis and of the camera's x axis (image columns reversed): a map drawn in
+# a left-handed frame is solved in its mirror P = MIRROR_WORLD @ M, and the pose reported back in
+# the map's frame as R = MIRROR_CAM @ R_P @ MIRROR_WORLD, the only way for it to stay a rotation.
+MIRROR_WORLD = np.diag([1.0, -1.0, 1.0])
+MIRROR_CAM = np.diag([-1.0, 1.0, 1.0])
+# With the map's handedness unknown, a frame with this many non-collinear LEDs decides it: the
+# cyclic order of 3+ LEDs seen from below differs between a map and its mirror.
+HANDEDNESS_MIN_LEDS = 3
+# ... when the fit in the chosen frame is this much better (chi^2 ratio) than in the other one,
+# and good in itself: chi^2 per degree of freedom at most this (residuals within ~10 sigma RMS;
+# the Luxapose photo's mirror fit has 22, the bundled walk's first decisive frame 6).
+HANDEDNESS_CHI2_RATIO = 10.0
+HANDEDNESS_MAX_CHI2_DOF = 100.0
+
+
+def is_mirror_fit_better(good: Fix | None, other: Fix | None) -> bool:
+    """True when `good` explains the frame (chi^2 per dof at most `HANDEDNESS_MAX_CHI2_DOF`) and
+    `other` (the same data in the mirrored world) does not: no fix there (camera above the LEDs),
+    or a chi^2 `HANDEDNESS_CHI2_RATIO` times worse."""
+    if good is None or good.chi2 > HANDEDNESS_MAX_CHI2_DOF * max(good.dof, 1):
+        return False
+    if other is None:
+        return True
+    return other.chi2 > HANDEDNESS_CHI2_RATIO * max(good.chi2, float(good.dof), 1.0)
+
+
+class PoseFilter:
+    """One receiver's positioning state: per frame, the map positions, undistorted image points
+    and ranges of its decoded LEDs -> a fix (`solve_fix`) -> the Kalman filter -> the INTERFACES.md
+    `position` object. `Positioner` holds one; the lighting server holds one per device.
+
+    The map's handedness (`LedMap.handedness`): "right" is solved as it is; "left" in its mirror
+    (`MIRROR_WORLD`), with positions mapped back and the orientation reported against the mirrored
+    camera (`MIRROR_CAM`, image x reversed) so that it is a rotation. A map that does not say is
+    taken as right-handed until the first frame with `HANDEDNESS_MIN_LEDS` non-collinear LEDs,
+    which is solved both ways: when only the mirror explains it (e.g. the Luxapose rig map, whose
+    photo has no pose below the LEDs as surveyed), the map is left-handed for the rest of the run
+    (`handedness`, "detected" in `handedness_source`), and the filter restarts in that frame.
+    All state (filter, priors) lives in the solving frame.
+    """
+
+    def __init__(self, *, handedness: str | None = None, sigma_uv: float, solver: str = "auto",
+                 kalman: bool = True, accel_psd: float = DEFAULT_ACCEL_PSD,
+                 max_coast_s: float = DEFAULT_MAX_COAST_S, loss: str = DEFAULT_LOSS,
+                 f_scale: float = DEFAULT_F_SCALE, tilt_prior: str = "up",
+                 tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG, track_prior: bool = False):
+        if solver not in SOLVERS:
+            raise ValueError(f"unknown solver {solver!r}")
+        if handedness not in (None, "right", "left"):
+            raise ValueError(f"unknown handedness {handedness!r}")
+        self.handedness = handedness or "right"
+        self.handedness_source = "map" if handedness else "default"
+        self.sigma_uv, self.solver = sigma_uv, solver
+        self.loss, self.f_scale = loss, f_scale
+        self.max_coast_s = max_coast_s
+        self.tilt_prior, self.tilt_sigma_deg, self.track_prior = tilt_prior, tilt_sigma_deg, track_prior
+        self._kalman_args = dict(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
+        self.n_fixes = 0
+        self._restart()
+
+    def _restart(self) -> None:
+        self.kf = PositionKalman(**self._kalman_args) if self._kalman_args is not None else None
+        self._R_cw: np.ndarray | None = None
+        self._t_R: float | None = None
+        self._C: np.ndarray | None = None
+        self._t_C: float | None = None
+
+    @property
+    def mirrored(self) -> bool:
+        return self.handedness == "left"
+
+    def to_solving(self, L_map: np.ndarray) -> np.ndarray:
+        """(N, 3) map-frame points -> the solving frame."""
+        L = np.asarray(L_map, float).reshape(-1, 3)
+        return L @ MIRROR_WORLD if self.mirrored else L
+
+    def R_prior(self, t_s: float) -> np.ndarray | None:
+        """World-to-camera rotation (solving frame) of the last fix, if recent enough."""
+        if self._t_R is not None and 0 <= t_s - self._t_R <= self.max_coast_s:
+            return self._R_cw
+        return None
+
+    def keep_orientation(self, t_s: float, R_cw: np.ndarray) -> None:
+        """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`."""
+        self._R_cw, self._t_R = R_cw, t_s
+
+    def solve(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
+              sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> Fix | None:
+        """One frame's fix in the solving frame (no state change except the handedness decision).
+        L_map (N, 3) map m; uv (N, 2) undistorted normalized image points or None; d, sigma_d (N,)
+        ranges and their 1-sigma, m (NaN where unknown). R_prior: solving-frame orientation guess."""
+        pred = None if self.kf is None or not self.track_prior else self.kf.predict_at(t_s)
+        if pred is not None:
+            C_prior, C_prior_cov = pred[0][:3], pred[1][:3, :3]
+        else:
+            recent = self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s
+            C_prior, C_prior_cov = (self._C if recent else None), None
+        kw = dict(sigma_uv=self.sigma_uv, solver=self.solver, loss=self.loss, f_scale=self.f_scale,
+                  tilt_sigma_deg=self.tilt_sigma_deg,
+                  tilt_prior_R=R_LOOKING_UP if self.tilt_prior == "up" else None)
+        L_map = np.asarray(L_map, float).reshape(-1, 3)
+        fix = solve_fix(self.to_solving(L_map), uv, d, sigma_d, R_prior=R_prior, C_prior=C_prior,
+                        C_prior_cov=C_prior_cov, **kw)
+        if (self.handedness_source == "default" and uv is not None and self.solver != "multilateration"
+                and len(L_map) >= HANDEDNESS_MIN_LEDS and not is_collinear(L_map)):
+            # Undecided map: this frame can tell the map from its mirror.
+            other = "left" if self.handedness == "right" else "right"
+            L_other = L_map @ MIRROR_WORLD if other == "left" else L_map
+            fix_other = solve_fix(L_other, uv, d, sigma_d, **kw)
+            if is_mirror_fit_better(fix_other, fix):
+                self.handedness, self.handedness_source = other, "detected"
+                self._restart()
+                return fix_other
+            if is_mirror_fit_better(fix, fix_other):
+                self.handedness_source = "detected"
+        return fix
+
+    def update(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
+        """Feed one frame's fix (or None) to the filter; the INTERFACES.md `position` object
+        (map frame) or None."""
+        if fix is not None:
+            self.n_fixes += 1
+            self._C, self._t_C = fix.C, t_s
+            if fix.R_cw is not None:
+                self.keep_orientation(t_s, fix.R_cw)
+        state = None
+        if self.kf is not None:
+            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if fix is None and state is None:
+            return None
+        F = MIRROR_WORLD if self.mirrored else np.eye(3)
+        if state is not None:
+            x, P = state
+            P3 = F @ P[:3, :3] @ F
+            pos = _xyz(F @ x[:3])
+            pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
+                       filtered=True, std_m=[round(s, 5) for s in position_std(P3)],
+                       cov=np.round(P3, 8).tolist(),
+                       velocity_mps=[round(float(v), 4) for v in F @ x[3:]])
+        else:
+            pos = _xyz(F @ fix.C)
+            pos.update(method=fix.method, n_leds=n_leds, filtered=False)
+        if fix is not None:
+            pos["raw"] = _xyz(F @ fix.C)
+            pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
+            if fix.R_cw is not None:
+                R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if self.mirrored else fix.R_cw
+                pos["R_wc"] = np.round(R.T, 6).tolist()   # camera-to-world, columns = camera axes
+                yaw, pitch, roll = rotation_to_ypr_deg(R)
+                pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
+        else:
+            pos["raw"] = None
+        if self.handedness_source != "default":
+            pos["handedness"] = self.handedness
+        return pos

@@ -1,0 +1,205 @@
+"""Ranging: camera-to-LED distance from the LED's projected area (photogrammetry).
+
+Two estimators, selected by name:
+
+* ``"eq18"`` -- thesis eq. 18, ``d = f/rho * sqrt(A_LED / eta)``: the LED is assumed to face the
+  camera on the optical axis, the lens has no distortion and eta is exact.
+* ``"oblique"`` -- what eq. 18 ignores, removed:
+
+  1. lens distortion: the blob contour is undistorted (``cv2.undistortPoints``) into normalized
+     image coordinates (pinhole plane at unit focal length) before its area is taken;
+  2. perspective and foreshortening. A small planar patch of area A at distance d, whose normal
+     makes the angle theta with the viewing ray, subtends the solid angle
+     ``Omega = A cos(theta) / d^2``. A patch of the image plane z = 1 seen along a ray at the angle
+     alpha from the optical axis lies at 1/cos(alpha) and is tilted by alpha, so it subtends
+     ``Omega = a cos(alpha)^3`` per unit normalized area a. Equating both:
+
+         a = A cos(theta) / (d^2 cos(alpha)^3)   =>   d = sqrt(A cos(theta) / (a cos(alpha)^3))
+
+     which is eq. 18 when theta = alpha = 0 (a = eta / (f/rho)^2). theta needs the LED normal in
+     the camera frame: LEDs face straight down (world -z) and the camera orientation comes from
+     the previous pose; without one the camera is assumed to look straight up, so theta = alpha
+     and ``d = f/rho * sqrt(A/eta) / cos(alpha)`` (the depth of a fronto-parallel patch, divided
+     by cos(alpha)). The small-patch approximation errs by O((size/d)^2): 4e-4 for 10 cm at 2.5 m;
+  3. threshold / blur bias of eta: a contour traced through the centres of the boundary pixels
+     (as ``cv2.findContours`` returns it) lies half a pixel inside the true edge. For a convex
+     shape grown outward by delta pixels the area is ``A + P delta + pi delta^2`` (Steiner's
+     formula, P the perimeter), so eta is corrected with ``edge_offset_px`` (default 0.5 px).
+     The bias matters most for small blobs: its relative size is about 2 delta / sqrt(eta).
+
+Frames: image points are OpenCV pixels (x right, y down), distorted as in the frame; the camera
+frame is OpenCV's (x right, y down, z along the optical axis); the world frame has z up.
+``R_cw`` below is the world-to-camera rotation (``X_cam = R_cw @ (X_world - C)``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from receiver.io.camera import CameraModel
+
+ESTIMATORS = ("eq18", "oblique")
+
+# Contour through the boundary pixel centres: the true edge is half a pixel further out.
+DEFAULT_EDGE_OFFSET_PX = 0.5
+# LEDs are mounted on the ceiling facing down (world frame, z up).
+LED_NORMAL_WORLD = np.array([0.0, 0.0, -1.0])
+# A camera looking straight up with image x along world x: camera axes = world axes.
+R_LOOKING_UP = np.eye(3)
+
+
+def distance_eq18(area_px: float, area_m2: float, focal_px: float) -> float:
+    """Thesis eq. 18: ``d = f/rho * sqrt(A_LED / eta)`` in metres (eta in px^2, f/rho in px)."""
+    if area_px <= 0 or area_m2 <= 0:
+        return float("nan")
+    return focal_px * math.sqrt(area_m2 / area_px)
+
+
+def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z)."""
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
+    if len(pts) == 0:
+        return np.zeros((0, 2))
+    return cv2.undistortPoints(pts, camera.K, camera.dist).reshape(-1, 2)
+
+
+def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
+    """Area (shoelace, absolute) and perimeter of a closed (K, 2) polygon, in its own units."""
+    p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+    if len(p) < 3:
+        return 0.0, 0.0
+    q = np.roll(p, -1, axis=0)
+    area = 0.5 * abs(float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])))
+    perim = float(np.sum(np.hypot(*(q - p).T)))
+    return area, perim
+
+
+def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
+    """Area centroid of a closed (K, 2) polygon, or None when it is degenerate."""
+    p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
+    if len(p) < 3:
+        return None
+    q = np.roll(p, -1, axis=0)
+    cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
+    a = 0.5 * float(np.sum(cross))
+    if abs(a) < 1e-12:
+        return None
+    return np.array([np.sum((p[:, 0] + q[:, 0]) * cross), np.sum((p[:, 1] + q[:, 1]) * cross)]) / (6 * a)
+
+
+def steiner_area(area: float, perimeter: float, offset: float) -> float:
+    """Area of a convex shape grown outward by `offset` (same units): A + P*offset + pi*offset^2."""
+    return area + perimeter * offset + math.pi * offset * offset
+
+
+def ray_unit(xy_norm: np.ndarray) -> np.ndarray:
+    """Unit viewing ray(s) in the camera frame for (N, 2) or (2,) normalized image points."""
+    xy = np.asarray(xy_norm, dtype=np.float64)
+    v = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], axis=-1)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def distance_oblique(area_norm: float, area_m2: float, ray_cam: np.ndarray,
+                     R_cw: np.ndarray = R_LOOKING_UP,
+                     led_normal_world: np.ndarray = LED_NORMAL_WORLD) -> float:
+    """Distance (m) from the normalized projected area `area_norm` of a planar LED of area
+    `area_m2` seen along the unit camera-frame ray `ray_cam`, camera orientation `R_cw`
+    (world-to-camera). Implements ``d = sqrt(A cos(theta) / (a cos(alpha)^3))`` (module doc)."""
+    if area_norm <= 0 or area_m2 <= 0:
+        return float("nan")
+    cos_alpha = float(ray_cam[2])
+    cos_theta = abs(float(np.dot(R_cw @ led_normal_world, ray_cam)))
+    if cos_alpha <= 0 or cos_theta <= 1e-3:
+        return float("nan")
+    return math.sqrt(area_m2 * cos_theta / (area_norm * cos_alpha ** 3))
+
+
+def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
+                     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX) -> dict | None:
+    """Undistorted geometry of one blob envelope.
+
+    Returns {"area_norm": bias-corrected normalized area, "centroid_norm": (2,) normalized
+    centroid of the undistorted polygon, "area_px", "perimeter_px": of the distorted polygon},
+    or None when the contour has fewer than 3 points or no area.
+    `edge_offset_px`: outward offset of the true edge from the contour (module doc, item 3).
+    """
+    c = np.asarray(contour_px, dtype=np.float64).reshape(-1, 2)
+    area_px, perim_px = polygon_area_perimeter(c)
+    if area_px <= 0:
+        return None
+    und = undistort_points(c, camera)
+    area_n, _ = polygon_area_perimeter(und)
+    cen = polygon_centroid(und)
+    if area_n <= 0 or cen is None:
+        return None
+    # The edge bias is a pixel-scale effect, so it is applied as a ratio measured in pixels.
+    corr = steiner_area(area_px, perim_px, edge_offset_px) / area_px
+    return {"area_norm": area_n * corr, "centroid_norm": cen, "area_px": area_px,
+            "perimeter_px": perim_px}
+
+
+def range_sigma_m(distance_m: float, area_px: float, perimeter_px: float,
+                  edge_sigma_px: float = 0.1, model_rel_sigma: float = 0.002) -> float:
+    """Expected 1-sigma error of a range, metres.
+
+    d ~ eta^-1/2, so sigma_d / d = sigma_eta / (2 eta); an edge located to within `edge_sigma_px`
+    all around moves eta by about ``edge_sigma_px * perimeter``. `model_rel_sigma` covers what the
+    model leaves out (small-patch approximation, residual calibration error).
+    """
+    if not (area_px > 0 and math.isfinite(distance_m)):
+        return float("inf")
+    rel = model_rel_sigma + edge_sigma_px * perimeter_px / (2.0 * area_px)
+    return distance_m * rel
+
+
+def estimate_distance(contour_px: np.ndarray, area_px: float, area_m2: float,
+                      camera: CameraModel, estimator: str = "oblique",
+                      R_cw: np.ndarray | None = None,
+                      edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX) -> tuple[float, str]:
+    """Distance (m) to one LED and the name of the estimator that produced it.
+
+    `estimator`: "eq18" (uses `area_px` and `camera.focal_px`) or "oblique" (uses `contour_px`;
+    falls back to eq. 18 when the contour is unusable). `R_cw`: camera orientation for the
+    foreshortening term; None means "assume the camera looks straight up" and the name says
+    so ("oblique-up" vs "oblique-pose").
+    """
+    if estimator not in ESTIMATORS:
+        raise ValueError(f"unknown ranging estimator {estimator!r}")
+    if estimator == "oblique":
+        g = contour_geometry(contour_px, camera, edge_offset_px)
+        if g is not None:
+            R = R_LOOKING_UP if R_cw is None else R_cw
+            d = distance_oblique(g["area_norm"], area_m2, ray_unit(g["centroid_norm"]), R)
+            if math.isfinite(d):
+                return d, "oblique-up" if R_cw is None else "oblique-pose"
+    return distance_eq18(area_px, area_m2, camera.focal_px), "eq18"
+
+
+def led_outline_world(led, points_per_side: int = 8) -> np.ndarray:
+    """(K, 3) world points on the outline of a ceiling LED (facing down, sides along world x/y),
+    dense enough that the outline stays a good polygon after lens distortion."""
+    if led.shape == "circle":
+        r = led.size[0] / 2
+        a = np.linspace(0, 2 * np.pi, 4 * points_per_side, endpoint=False)
+        xy = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    else:
+        w = led.size[0] / 2
+        h = (led.size[1] if len(led.size) > 1 else led.size[0]) / 2
+        t = np.linspace(-1, 1, points_per_side, endpoint=False)
+        xy = np.concatenate([np.column_stack([t * w, -h + 0 * t]), np.column_stack([w + 0 * t, t * h]),
+                             np.column_stack([-t * w, h + 0 * t]), np.column_stack([-w + 0 * t, -t * h])])
+    return np.column_stack([led.x + xy[:, 0], led.y + xy[:, 1], np.full(len(xy), led.z)])
+
+
+def project_world(points_world: np.ndarray, camera: CameraModel, R_cw: np.ndarray,
+                  C: np.ndarray) -> np.ndarray:
+    """The forward model: (K, 3) world points -> (K, 2) distorted pixels for a camera at C (3,)
+    with world-to-camera rotation R_cw (frames in the module doc)."""
+    rvec, _ = cv2.Rodrigues(np.asarray(R_cw, float))
+    tvec = -np.asarray(R_cw, float) @ np.asarray(C, float)
+    px, _ = cv2.projectPoints(np.asarray(points_world, float).reshape(-1, 1, 3), rvec, tvec,
+                              camera.K, camera.dist)
+    return px.reshape(-1, 2)

@@ -1,0 +1,198 @@
+"""Lighting-server datagram format v1, shared by the server and the client: limits, request
+parsing with a reason for every rejection (`parse_request` -> `Request` or `ProtocolError`),
+request building (`make_request`) and strict JSON encoding (`encode`). Format: README
+"Lighting server".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+PROTOCOL_VERSION = 1
+# One request must fit here: 64 LEDs with full-precision numbers, 10-digit IDs and pixel
+# centroids take about 11 kB (8 kB with the IDs and no centroids `make_request` writes).
+MAX_DATAGRAM_BYTES = 16384
+MAX_LEDS = 64
+MAX_DEVICE_CHARS = 64
+MAX_SEQ = 2 ** 53          # exact in any JSON implementation's doubles
+MAX_LED_ID = 2 ** 31 - 1
+# |u|, |v| limit of normalized image points: 100 is 89.4 degrees off the optical axis.
+MAX_ABS_UV = 100.0
+# Counted reasons for dropping a request, in the order the summary lists them.
+REASONS = ("oversized", "bad_json", "not_object", "bad_version", "missing_field", "bad_type",
+           "bad_value", "too_many_leds", "too_many_devices", "old_seq", "internal_error")
+
+
+class ProtocolError(Exception):
+    """A request that is dropped: `reason` (one of REASONS), `detail` (one line), and the
+    request's `device` / `seq` when they could be read."""
+
+    def __init__(self, reason: str, detail: str = "", device: str | None = None, seq: int | None = None):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason, self.detail, self.device, self.seq = reason, detail, device, seq
+
+    def reply(self) -> dict:
+        out = {"v": PROTOCOL_VERSION, "error": self.reason}
+        if self.detail:
+            out["detail"] = self.detail
+        if self.device is not None:
+            out["device"] = self.device
+        if self.seq is not None:
+            out["seq"] = self.seq
+        return out
+
+
+@dataclass(frozen=True)
+class Request:
+    """A validated request. uv (N, 2) normalized image points; d, sigma_d (N,) metres, NaN where
+    the LED has no range; t seconds (device clock); sigma_uv normalized units."""
+
+    device: str
+    seq: int
+    t: float
+    sigma_uv: float
+    ids: tuple[int, ...]
+    uv: np.ndarray
+    d: np.ndarray
+    sigma_d: np.ndarray
+
+
+# ---------------------------------------------------------------- validation
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not JSON")
+
+
+def _get(obj: dict, key: str, where: str):
+    if key not in obj:
+        raise ProtocolError("missing_field", f"{where}{key} is missing")
+    return obj[key]
+
+
+def _int(v, where: str, lo: int, hi: int) -> int:
+    if type(v) is not int:
+        raise ProtocolError("bad_type", f"{where} must be an integer")
+    if not lo <= v <= hi:
+        raise ProtocolError("bad_value", f"{where} must be in {lo}..{hi}")
+    return v
+
+
+def _number(v, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ProtocolError("bad_type", f"{where} must be a number")
+    try:
+        f = float(v)
+    except OverflowError:
+        f = math.inf
+    if not math.isfinite(f):
+        raise ProtocolError("bad_value", f"{where} must be finite")
+    return f
+
+
+def _positive_or_none(v, where: str) -> float:
+    """A positive number, or NaN for null."""
+    if v is None:
+        return math.nan
+    f = _number(v, where)
+    if f <= 0:
+        raise ProtocolError("bad_value", f"{where} must be positive")
+    return f
+
+
+def _decode(data: bytes) -> dict:
+    if len(data) > MAX_DATAGRAM_BYTES:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
+    try:
+        obj = json.loads(data.decode("utf-8"), parse_constant=_reject_constant)
+    except (ValueError, RecursionError) as e:
+        raise ProtocolError("bad_json", str(e).splitlines()[0][:80] if str(e) else "") from None
+    if not isinstance(obj, dict):
+        raise ProtocolError("not_object", "the datagram must be a JSON object")
+    v = obj.get("v")
+    if type(v) is not int or v != PROTOCOL_VERSION:
+        raise ProtocolError("bad_version", f"v must be {PROTOCOL_VERSION}")
+    return obj
+
+
+def _parse_led(item, i: int) -> tuple[int, float, float, float, float]:
+    """(id, u, v, d, sigma_d) of leds[i]; d and sigma_d NaN when the LED has no range."""
+    where = f"leds[{i}]."
+    if not isinstance(item, dict):
+        raise ProtocolError("bad_type", f"leds[{i}] must be an object")
+    led_id = _int(_get(item, "id", where), where + "id", 0, MAX_LED_ID)
+    u, v = (_number(_get(item, k, where), where + k) for k in ("u", "v"))
+    if abs(u) > MAX_ABS_UV or abs(v) > MAX_ABS_UV:
+        raise ProtocolError("bad_value", f"{where}u/v beyond {MAX_ABS_UV:g}")
+    d = _positive_or_none(item.get("distance_m"), where + "distance_m")
+    sd = _positive_or_none(item.get("sigma_m"), where + "sigma_m")
+    if math.isnan(d) != math.isnan(sd):
+        raise ProtocolError("bad_value", f"{where}distance_m and sigma_m: both numbers or both null")
+    for k in ("cx", "cy"):
+        if k in item:
+            _number(item[k], where + k)
+    return led_id, u, v, d, sd
+
+
+def _parse_body(obj: dict, device: str, seq: int) -> Request:
+    t = _number(_get(obj, "t", ""), "t")
+    sigma_uv = _number(_get(obj, "sigma_uv", ""), "sigma_uv")
+    if sigma_uv <= 0:
+        raise ProtocolError("bad_value", "sigma_uv must be positive")
+    leds = _get(obj, "leds", "")
+    if not isinstance(leds, list):
+        raise ProtocolError("bad_type", "leds must be a list")
+    if len(leds) > MAX_LEDS:
+        raise ProtocolError("too_many_leds", f"{len(leds)} LEDs > {MAX_LEDS}")
+    if "camera" in obj and not isinstance(obj["camera"], dict):
+        raise ProtocolError("bad_type", "camera must be an object")
+    rows = [_parse_led(item, i) for i, item in enumerate(leds)]
+    ids = tuple(r[0] for r in rows)
+    if len(set(ids)) != len(ids):
+        raise ProtocolError("bad_value", "an LED id is listed twice")
+    arr = np.array([r[1:] for r in rows], dtype=np.float64).reshape(-1, 4)
+    return Request(device, seq, t, sigma_uv, ids, arr[:, :2], arr[:, 2].copy(), arr[:, 3].copy())
+
+
+def parse_request(data: bytes) -> Request:
+    """Validate one datagram (format v1, module docstring); raises ProtocolError."""
+    obj = _decode(data)
+    device = _get(obj, "device", "")
+    if not isinstance(device, str):
+        raise ProtocolError("bad_type", "device must be a string")
+    if not 1 <= len(device) <= MAX_DEVICE_CHARS:
+        raise ProtocolError("bad_value", f"device must have 1..{MAX_DEVICE_CHARS} characters")
+    try:
+        seq = _int(_get(obj, "seq", ""), "seq", 0, MAX_SEQ)
+    except ProtocolError as e:
+        e.device = device
+        raise
+    try:
+        return _parse_body(obj, device, seq)
+    except ProtocolError as e:
+        e.device, e.seq = device, seq
+        raise
+
+
+def make_request(device: str, seq: int, t_s: float, sigma_uv: float, ids, uv: np.ndarray,
+                 d: np.ndarray, sigma_d: np.ndarray) -> dict:
+    """A v1 request. ids (N,) LED IDs; uv (N, 2) undistorted normalized image points; d, sigma_d
+    (N,) ranges and their 1-sigma in metres -- a range that is not finite and positive with a
+    finite positive sigma is sent as null (the solver would not use it either)."""
+    leds = []
+    for i, led_id in enumerate(ids):
+        di, si = float(d[i]), float(sigma_d[i])
+        has_d = math.isfinite(di) and math.isfinite(si) and di > 0 and si > 0
+        leds.append({"id": int(led_id), "u": float(uv[i][0]), "v": float(uv[i][1]),
+                     "distance_m": di if has_d else None, "sigma_m": si if has_d else None})
+    return {"v": PROTOCOL_VERSION, "device": device, "seq": int(seq), "t": float(t_s),
+            "sigma_uv": float(sigma_uv), "leds": leds}
+
+
+def encode(msg: dict) -> bytes:
+    """A request or reply as a compact UTF-8 JSON datagram."""
+    return json.dumps(msg, separators=(",", ":")).encode("utf-8")

@@ -1,0 +1,452 @@
+"""LED blob detection on one gray frame: threshold, merge rolling-shutter stripes, envelope.
+
+Stages (each a plain function on numpy arrays):
+
+1. `detect_scale`: frames bigger than `max_detect_px` are searched on an INTER_AREA
+   downsampled copy (integer factor), envelopes are refined in full-resolution ROIs.
+2. `auto_level`: one global threshold from the (subsampled) gray histogram,
+   `median + k_mad * 1.4826 * MAD`, floored at `median + min_contrast`. The median and MAD
+   follow ambient light and sensor noise; LEDs cover a small part of the frame so they do not
+   move the median.
+3. Threshold + morphological close with a vertical line of `stripe_gap_px + 1` rows: the
+   dark stripes of one LED (an OFF run of chips, or the low half-period of a tone) are bridged,
+   two LEDs side by side are not (the kernel is one column wide).
+4. Per blob, in a full-resolution ROI: a blob level `background + refine_frac * (peak -
+   background)` (half-maximum edge for `refine_frac` = 0.5; clipped blobs use a level just
+   above the background, see `detect`), the lit pixels of this blob only,
+   and their convex hull = the filled envelope of the stripes. Its area is the LED's
+   projected area eta of thesis eq. 18 (not the lit pixels); the hull runs through pixel
+   centres, so `area_px` adds the half-pixel rim (perimeter / 2 + pi / 4, exact for a disc and
+   an axis-aligned square). The centroid comes from the polygon moments of the hull.
+   Isolated blobs (the common case) are refined together: their boxes are stacked into one
+   strip so the per-pixel work is a few array operations per frame, not per blob.
+   Limitation: when the LED's top or bottom cap falls in a dark stripe, the envelope stops at
+   the last lit row (up to one stripe gap short).
+5. Rejections: specks (`min_area_px`), regions too big to be a light (`max_area_frac`),
+   implausible shapes (`max_aspect`), and, when stripes are expected (rolling shutter with
+   OOK/tone lights), flat saturated regions whose row profile shows no stripes.
+
+Image coordinates: px, x right, y down, origin at the centre of the top-left pixel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+from receiver.core.records import Blob
+from receiver.vision.profile import row_profile, stripe_depth
+
+# 1.4826 * MAD estimates sigma for Gaussian noise.
+MAD_TO_SIGMA = 1.4826
+
+
+def detect_scale(shape: tuple[int, int], max_detect_px: int = 1_200_000) -> int:
+    """Integer downsampling factor so that the search image has at most `max_detect_px` pixels."""
+    h, w = shape[:2]
+    return max(1, math.ceil(math.sqrt(h * w / max_detect_px)))
+
+
+def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24.0,
+               sample_step: int = 4) -> tuple[float, float]:
+    """(threshold level, background level) in gray values for an (H, W) uint8 image.
+
+    Uses every `sample_step`-th pixel in both directions (the histogram statistics do not need
+    all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
+    least this far above the median (a clean dark frame has MAD 0)."""
+    sample = gray[::sample_step, ::sample_step]
+    hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
+    cdf = np.cumsum(hist)
+    half = cdf[-1] / 2.0
+    med = int(np.searchsorted(cdf, half))
+    # Histogram of |x - med| by folding the histogram around the median.
+    dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
+    mad = int(np.searchsorted(np.cumsum(dev), half))
+    level = max(med + k_mad * MAD_TO_SIGMA * mad, med + min_contrast)
+    return float(min(level, 254.0)), float(med)
+
+
+def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int) -> np.ndarray:
+    """Bridge vertical gaps up to `gap_y_px` rows and horizontal gaps up to `gap_x_px` columns."""
+    if gap_y_px < 1 and gap_x_px < 1:
+        return mask
+    kernel = np.ones((_close_size(gap_y_px), _close_size(gap_x_px)), np.uint8)
+    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+
+
+def _close_size(gap_px: int) -> int:
+    """Kernel size (px) of `_close` bridging gaps up to `gap_px`: gap + 1, made odd so the
+    kernel stays centred (it then bridges one more when gap + 1 is even)."""
+    size = gap_px + 1
+    return size + (size + 1) % 2
+
+
+def _row_extremes(lit: np.ndarray) -> np.ndarray | None:
+    """(N, 1, 2) int32 leftmost and rightmost nonzero pixel of every row of the uint8 mask
+    `lit`: the same convex hull
+    as all lit pixels, from at most 2 points per row."""
+    first = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), first])
+    if rows.size == 0:
+        return None
+    left = first[rows]
+    right = lit.shape[1] - 1 - lit[rows, ::-1].argmax(axis=1)
+    pts = np.empty((2 * rows.size, 1, 2), np.int32)
+    pts[:rows.size, 0, 0], pts[:rows.size, 0, 1] = left, rows
+    pts[rows.size:, 0, 0], pts[rows.size:, 0, 1] = right, rows
+    return pts
+
+
+def _hull_geometry(pts: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+    """(cx, cy, area_px, hull (K, 2) float64) of integer pixel-centre points (N, 1, 2)."""
+    hull = cv2.convexHull(pts)
+    cx, cy, area = _hull_stats_many([hull])
+    return float(cx[0]), float(cy[0]), float(area[0]), hull.reshape(-1, 2).astype(np.float64)
+
+
+def _hull_stats_many(hulls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(cx, cy, area_px), each (N,) float64, of N convex polygons (cv2.convexHull outputs
+    (K_i, 1, 2), vertices in order, int or float): the polygon's centroid (Green's theorem, the
+    moments cv2.moments gives) and its area plus the half-pixel rim, perimeter / 2 + pi / 4 (each
+    vertex is a pixel centre standing for a disc of radius 1/2: the Minkowski sum with it). A
+    polygon of no area (a line, a point) has the mean of its vertices as centroid. All N at
+    once: a few array operations instead of two OpenCV calls and a 24-entry dict per polygon."""
+    n = len(hulls)
+    k = np.fromiter((len(hh) for hh in hulls), np.int64, n)
+    starts = np.zeros(n, np.int64)
+    np.cumsum(k[:-1], out=starts[1:])
+    p = np.concatenate(hulls).reshape(-1, 2).astype(np.float64)
+    nxt = np.arange(1, p.shape[0] + 1)
+    nxt[starts + k - 1] = starts  # each polygon closes on its first vertex
+    x, y = p[:, 0], p[:, 1]
+    xn, yn = x[nxt], y[nxt]
+    cross = x * yn - xn * y
+    a2 = np.add.reduceat(cross, starts)  # twice the signed area
+    sx = np.add.reduceat((x + xn) * cross, starts)
+    sy = np.add.reduceat((y + yn) * cross, starts)
+    perim = np.add.reduceat(np.hypot(xn - x, yn - y), starts)
+    m00 = 0.5 * np.abs(a2)
+    flat = m00 <= 1e-6
+    safe = np.where(flat, 1.0, a2)
+    cx, cy = sx / (3.0 * safe), sy / (3.0 * safe)
+    if flat.any():
+        cx[flat] = np.add.reduceat(x, starts)[flat] / k[flat]
+        cy[flat] = np.add.reduceat(y, starts)[flat] / k[flat]
+    return cx, cy, m00 + 0.5 * perim + math.pi / 4.0
+
+
+def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
+           max_detect_px: int = 1_200_000,
+           k_mad: float = 8.0, min_contrast: float = 24.0, refine_frac: float = 0.5,
+           saturated_gray: float = 250.0, saturated_frac: float = 0.03, min_refine_contrast: float = 6.0,
+           min_area_px: float = 12.0, max_area_frac: float = 0.05, max_aspect: float = 4.0,
+           min_fill: float = 0.25,
+           expect_stripes: bool = False, min_stripe_depth: float = 0.8,
+           min_stripe_rows: int = 0, min_rel_area: float = 0.0,
+           level: float | None = None, row_pool: int = 2) -> list[Blob]:
+    """LED blobs of an (H, W) uint8 frame, sorted top to bottom.
+
+    Tunables (defaults in brackets):
+      stripe_gap_px [8]: longest dark stripe (rows, full resolution) bridged inside one LED;
+        the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
+      join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
+        bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
+      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
+      k_mad [8], min_contrast [24]: threshold, see `auto_level`.
+      refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
+        maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
+        through the outermost lit pixel centres lies half a pixel inside it on average.
+      saturated_gray [250], saturated_frac [0.03], min_refine_contrast [6]: a blob whose
+        peak reaches `saturated_gray` is clipped (real phone photos: a saturated core in a
+        dimmer, still striped glow); its edge level is background + max(saturated_frac *
+        (255 - background), min_refine_contrast), which keeps the glow and gives the decoders
+        many more stripe rows.
+      min_area_px [12]: smaller envelopes are specks. max_area_frac [0.05]: larger than this
+        fraction of the frame is a window or a lamp, not a transmitter.
+      max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
+        most this elongated, and its contour must fill at least this fraction of the box (a
+        disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
+        blobs are exempt.
+      expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
+        `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
+        about one stripe period; 0 = always checked).
+      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest blob
+        (for single photos of a lamp set, where reflections look like small dim lamps;
+        0 = off, since a moving camera sees near and far lights together).
+      level [None]: fixed global threshold instead of `auto_level`.
+      row_pool [2]: 2 = at full resolution, with stripes to bridge (stripe_gap_px >= 4), the
+        components are searched on the maximum of every 2 rows: the close and contour pass
+        cost half as much. Every gap the full-resolution search bridges is bridged, the boxes
+        are the full-resolution search's and the envelopes are taken in full resolution within
+        them, so the blobs are the same (a frame where component boxes overlap is searched in
+        full resolution), except that the pooled rows may join lights the full-resolution
+        search keeps apart: stacked up to 4 rows closer than stripe_gap_px, touching diagonally
+        (within join_x_px columns) across a pair of pooled rows, or within a row or two of
+        each other at the top or bottom edge (the pooled close reaches the edge from up to 2
+        rows farther); and the `min_fill` test uses the pooled component's area (times 2),
+        which can decide otherwise within a few % of `min_fill`. 1 = off (full resolution).
+        Other values are refused: with 3 rows the pooled close can reach the bottom edge from
+        a row less far than the full-resolution one and split what it joins.
+    """
+    if row_pool not in (1, 2):
+        raise ValueError(f"row_pool must be 1 or 2, not {row_pool!r}")
+    h, w = gray.shape[:2]
+    f = detect_scale(gray.shape, max_detect_px)
+    small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    if level is None:
+        level, bg = auto_level(small, k_mad=k_mad, min_contrast=min_contrast)
+    else:
+        bg = float(np.median(small[::4, ::4]))
+    # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
+    # so the coarse search uses a level halfway down to the background.
+    coarse = level if f == 1 else bg + 0.5 * (level - bg)
+    pool = row_pool if f == 1 and row_pool > 1 and stripe_gap_px >= 2 * row_pool else 1
+    contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
+    alone = _isolated(rects)
+    if pool > 1 and not alone.all():
+        # overlapping boxes are refined within their component's mask, which must be the
+        # full-resolution one for the same envelopes: search this frame in full resolution
+        pool = 1
+        contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
+        alone = _isolated(rects)
+    max_area = max_area_frac * h * w
+    box_px = rects[:, 2] * rects[:, 3] * (f * f)
+    keep = (box_px >= min_area_px * 0.5) & (box_px <= 4 * max_area)
+    sat_kw = dict(saturated_gray=saturated_gray, saturated_frac=saturated_frac,
+                  min_refine_contrast=min_refine_contrast)
+    # Full-resolution isolated components (the common case) are refined together in one
+    # vectorised pass (`_refine_alone_batch`); the rest one by one.
+    batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, **sat_kw)
+    refined = dict(zip(batch.tolist(), done)) if done is not None else {}
+    blobs = []
+    for i in np.flatnonzero(keep).tolist():
+        c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
+        blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
+                                                       refine_frac, bool(alone[i]), **sat_kw)
+        if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
+            continue
+        # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
+        # a long box, or a thin diagonal bar filling little of its square box (boxes in search
+        # pixels: the full-resolution box over the pooling factor).
+        if not blob.border and max_aspect and (max(bw, bh) > max_aspect * min(bw, bh)
+                                               or pool * cv2.contourArea(c) < min_fill * bw * bh):
+            continue
+        if expect_stripes and blob.y1 - blob.y0 >= max(min_stripe_rows, 3):
+            prof, wts, _ = row_profile(gray, blob)
+            if stripe_depth(prof, wts, background=blob.background) < min_stripe_depth:
+                continue
+        blobs.append(blob)
+    if min_rel_area > 0 and blobs:
+        biggest = max(b.area_px for b in blobs)
+        blobs = [b for b in blobs if b.area_px >= min_rel_area * biggest]
+    blobs.sort(key=lambda b: (b.cy, b.cx))
+    return blobs
+
+
+def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
+                pool: int = 1) -> tuple[list, np.ndarray]:
+    """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
+    contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
+    full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
+    of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows."""
+    if pool > 1:
+        search = _row_max(image, pool)
+        # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
+        # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
+        # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
+        # bridges every such gap (and, with the odd kernel, some up to 3 * pool - 2 longer).
+        gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
+    else:
+        search, gap_y = image, math.ceil(stripe_gap_px / f)
+    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
+    mask = _close(mask, gap_y, math.ceil(join_x_px / f))
+    # findContours + one small fill per blob is several times faster here than
+    # connectedComponentsWithStats, which labels the whole frame.
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    if pool > 1 and len(rects):
+        rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
+    return contours, rects
+
+
+def _close_reach(gap_y_px: int) -> int:
+    """Rows the full-resolution close (`_close`) reaches beyond a component towards the image's
+    top or bottom edge: half its (odd) kernel height. The close treats the outside of the
+    image as lit, so a component this close to the edge is extended to it."""
+    return _close_size(gap_y_px) // 2
+
+
+def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool: int,
+                        reach: int) -> np.ndarray:
+    """The full-resolution search's boxes (N, 4) x, y, w, h for boxes found on `pool`-row
+    maxima (`rects`, rows in pooled rows): columns are the same; the rows run from the
+    component's first to its last row with a pixel above `level`, extended to the image's top
+    or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
+    first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
+    the pooled close itself reached the image edge: such boxes are searched whole."""
+    h = gray.shape[0]
+    x, w = rects[:, 0], rects[:, 2]
+    y = rects[:, 1] * pool
+    hh = np.minimum((rects[:, 1] + rects[:, 3]) * pool, h) - y
+    on = np.uint8(min(math.floor(level) + 1, 255))
+    n = len(rects)
+    cols = np.minimum(x[:, None] + np.arange(int(w.max())), gray.shape[1] - 1)  # (N, max w)
+    inside = np.arange(cols.shape[1]) < w[:, None]
+    k = np.arange(pool)
+    ends = []
+    for rows in (np.minimum(y[:, None] + k, y[:, None] + hh[:, None] - 1),  # first rows, down
+                 np.maximum(y[:, None] + hh[:, None] - 1 - k, y[:, None])):  # last rows, up
+        lit = ((gray[rows[:, :, None], cols[:, None, :]] >= on) & inside[:, None, :]).any(axis=2)
+        ends.append((rows[np.arange(n), lit.argmax(axis=1)], lit.any(axis=1)))
+    (top, ok_top), (bottom, ok_bottom) = ends
+    for i in np.flatnonzero(~(ok_top & ok_bottom)).tolist():
+        yi, xi = int(y[i]), int(x[i])
+        lit_rows = np.flatnonzero((gray[yi:yi + int(hh[i]), xi:xi + int(w[i])] >= on).any(axis=1))
+        top[i], bottom[i] = yi + lit_rows[0], yi + lit_rows[-1]
+    top = np.where(top <= reach, 0, top)
+    bottom = np.where(h - 1 - bottom <= reach, h - 1, bottom)
+    return np.stack((x, top, w, bottom - top + 1), axis=1)
+
+
+def _row_max(gray: np.ndarray, pool: int) -> np.ndarray:
+    """(ceil(H / pool), W) uint8: maximum over each run of `pool` rows of an (H, W) uint8 image
+    (a lit pixel anywhere in the run lights the pooled pixel; the last run may be shorter)."""
+    out = gray[0::pool]
+    for r in range(1, pool):
+        part = gray[r::pool]
+        if part.shape[0] < out.shape[0]:  # the last run is short: pad it with its own row
+            part = np.concatenate((part, out[part.shape[0]:]))
+        out = cv2.max(out, part)
+    return np.ascontiguousarray(out)
+
+
+def _isolated(rects: np.ndarray) -> np.ndarray:
+    """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
+    if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
+        return np.zeros(len(rects), bool)
+    x0, y0 = rects[:, 0], rects[:, 1]
+    x1, y1 = x0 + rects[:, 2], y0 + rects[:, 3]
+    ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
+          & (y0[:, None] < y1[None, :]) & (y0[None, :] < y1[:, None]))
+    return ov.sum(axis=1) == 1  # only itself
+
+
+def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast):
+    """Per-blob edge level (gray) for peak gray values `peak` (float or (N,) array), see `detect`."""
+    clipped = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
+    normal = np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1))
+    return np.where(peak >= saturated_gray, clipped, normal)
+
+
+def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
+                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
+
+    The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
+    per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
+    array operations for all blobs instead of a dozen calls per blob; only the convex hull and
+    its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
+    a blob level is negative (odd tunables): the caller then refines one by one."""
+    n = len(rects)
+    if n == 0:
+        return []
+    h, w = gray.shape[:2]
+    bw, bh = rects[:, 2], rects[:, 3]
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum(bh, out=starts[1:])
+    strip = np.zeros((int(starts[-1]), int(bw.max())), np.uint8)  # 0 pads: never above a level
+    peak = np.empty(n)
+    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
+        roi = gray[y:y + hh, x:x + ww]
+        strip[r0:r0 + hh, :ww] = roi
+        peak[i] = cv2.minMaxLoc(roi)[1]
+    blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
+                             min_refine_contrast)
+    if blob_level.min() < 0:  # the zero padding would count as lit: not batchable
+        return None
+    # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
+    # uint8 comparison is several times faster than against a float level
+    first_on = np.minimum(np.floor(blob_level) + 1, 256)
+    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
+        strip[np.repeat(first_on > 255, bh)] = 0
+    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
+    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
+    left = left_all[rows]
+    right = lit.shape[1] - 1 - cv2.flip(lit.view(np.uint8), 1).view(bool)[rows].argmax(axis=1)
+    owner = np.searchsorted(starts, rows, side="right") - 1
+    local_y = rows - starts[owner]
+    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
+    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
+    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
+    segl = seg.tolist()
+    peak_l, level_l, rect_l = peak.tolist(), blob_level.tolist(), rects.tolist()
+    bgf = float(bg)
+    out: list[Blob | None] = [None] * n
+    found = [i for i in range(n) if segl[i] < segl[i + 1]]
+    # the hulls in ROI coordinates as in `_refine` (same points, same order)
+    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
+                            .reshape(-1, 1, 2)) for i in found]
+    if not found:
+        return out
+    stats = zip(*(v.tolist() for v in _hull_stats_many(hulls)))
+    for i, hull, (cx, cy, area) in zip(found, hulls, stats):
+        x0c, y0c = rect_l[i][:2]
+        # integer vertices: boundingRect is the floor / +1 box of `_refine`
+        bx0, by0, bww, bhh = cv2.boundingRect(hull)
+        px0, py0, px1, py1 = bx0 + x0c, by0 + y0c, bx0 + bww + x0c, by0 + bhh + y0c
+        border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
+        poly = hull.reshape(-1, 2).astype(np.float64)
+        poly += (x0c, y0c)
+        out[i] = Blob(cx + x0c, cy + y0c, area, poly, px0, py0, px1, py1, border,
+                      peak_l[i], level_l[i], bgf)
+    return out
+
+
+def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,
+            saturated_frac=0.03, min_refine_contrast=6.0) -> Blob | None:
+    """Envelope of one coarse component (outer `contour` at search scale), in full resolution.
+    `alone`: no other component's box overlaps this one's (at full resolution the bounding
+    box then holds no foreign pixels above the level, and the component mask is skipped)."""
+    h, w = gray.shape[:2]
+    bx, by, bw, bh = rect
+    if f == 1 and alone:
+        comp = None
+        x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
+    elif f == 1:
+        comp = np.zeros((bh, bw), np.uint8)
+        cv2.drawContours(comp, [contour], -1, 1, thickness=cv2.FILLED, offset=(-bx, -by))
+        x0c, y0c, x1c, y1c = bx, by, bx + bw, by + bh
+    else:
+        # The component's filled mask with a one search pixel rim (the coarse edge is blurred);
+        # search pixel i covers full-res pixels [i*f, (i+1)*f).
+        pad = 1
+        comp = np.zeros((bh + 2 * pad, bw + 2 * pad), np.uint8)
+        cv2.drawContours(comp, [contour], -1, 1, thickness=cv2.FILLED, offset=(pad - bx, pad - by))
+        comp = cv2.dilate(comp, np.ones((3, 3), np.uint8))
+        comp = cv2.resize(comp, (comp.shape[1] * f, comp.shape[0] * f), interpolation=cv2.INTER_NEAREST)
+        x0, y0 = (bx - pad) * f, (by - pad) * f
+        x0c, y0c = max(x0, 0), max(y0, 0)
+        x1c, y1c = min(x0 + comp.shape[1], w), min(y0 + comp.shape[0], h)
+        comp = comp[y0c - y0:y1c - y0, x0c - x0:x1c - x0]
+    roi = gray[y0c:y1c, x0c:x1c]
+    _, peak, _, _ = cv2.minMaxLoc(roi, mask=comp)
+    if peak >= saturated_gray:
+        # Clipped: the true peak is unknown and a fraction of the clipped value would cut into
+        # the light; its edge is taken where it rises out of the background.
+        blob_level = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
+    else:
+        blob_level = max(bg + refine_frac * (peak - bg), min(level, peak - 1))
+    _, lit = cv2.threshold(roi, blob_level, 1, cv2.THRESH_BINARY)
+    pts = _row_extremes(lit if comp is None else cv2.bitwise_and(lit, comp))
+    if pts is None:
+        return None
+    cx, cy, area, poly = _hull_geometry(pts)
+    poly += (x0c, y0c)
+    px0, py0 = np.floor(poly.min(axis=0)).astype(int)
+    px1, py1 = np.floor(poly.max(axis=0)).astype(int) + 1
+    border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
+    return Blob(cx + x0c, cy + y0c, area, poly, int(px0), int(py0), int(px1), int(py1),
+                bool(border), float(peak), float(blob_level), float(bg))

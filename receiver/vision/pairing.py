@@ -1,0 +1,407 @@
+"""S2-PSK pairing: which two tracked blobs are the A/B emitters of one transmitter.
+
+A pair (PROTOCOL.md section 3: two taillights of a car, two halves of a street-light head):
+* the same row band: |cy_a - cy_b| <= `row_band` x the mean blob diameter,
+* similar size: area ratio <= `max_area_ratio`,
+* a plausible baseline: horizontal centre distance between `min_baseline` and
+  `max_baseline` blob diameters (taillights 1.4 m apart, 0.15 m wide: ~9 diameters),
+* a consistent on/off pattern: both emitters blink (each is lit in about half the frames),
+  checked over the frames seen so far once `min_frames` are in.
+Candidates are paired greedily, best score first, each track in at most one pair.
+
+Once formed, a pair follows its two emitters itself instead of relying on the blob tracks. The
+two halves of a street-light head are only ~0.1 m apart: beyond a few tens of metres they
+show as one blob whenever both are lit (symbol 0, half of each clock period), and as one
+single blob on either side otherwise (symbol 1); A and B are never two separate blobs of the
+same frame. Blob tracks then jump between A, B and the merged centroid, so a pair bound to
+two tracks read its intensities in the wrong places and died with them. Instead the pair
+keeps its own geometry: a midpoint moving at constant velocity (px/frame) and a rigid
+baseline vector that only scales with the emitters' size (both ~ 1 / distance), corrected each
+frame from the blobs it explains: a single blob near A or B, a merged blob (area well above
+one emitter's) near the midpoint. Far heads never show two blobs, so their pairs come from
+one track that jumps back and forth by the same baseline (`_pair_jumpers`). Tracks whose blob is explained by a
+pair are its `tracks` (they carry its ID) and are not paired again. A pair ends after
+`max_missed` frames without such a blob, when an emitter leaves the image, or when it has not
+decoded after `give_up_frames` (a wrong pairing: its two tracks are then never paired again).
+
+Per frame, each emitter's intensity is the mean gray inside its envelope at its current
+position (also when dark, so no frame is lost); `EmitterLevels` learns its on/off levels from
+recent frames, and `pair_xor` (receiver.decode.s2psk) turns the two intensities into the soft
+XOR of one sample.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from receiver.core.records import Blob
+from receiver.vision.track import Track
+
+
+class EmitterLevels:
+    """Running on/off levels of one emitter from its last `history` intensities (gray):
+    on = the `q_on` percentile, off = the `q_off` percentile."""
+
+    def __init__(self, *, history: int = 48, q_on: float = 90.0, q_off: float = 10.0):
+        self.values: deque = deque(maxlen=history)
+        self.q_on, self.q_off = q_on, q_off
+        self._levels: tuple[float, float] | None = None  # (off, on) of the current values
+        self._n = 0
+
+    def add(self, value: float) -> None:
+        self.values.append(float(value))
+        self._levels = None
+
+    def _off_on(self) -> tuple[float, float]:
+        # Both percentiles in one call, once per new value (read several times per frame).
+        if self._levels is None or len(self.values) != self._n:  # also after direct appends
+            off, on = np.percentile(np.fromiter(self.values, float), (self.q_off, self.q_on))
+            self._levels, self._n = (float(off), float(on)), len(self.values)
+        return self._levels
+
+    @property
+    def on(self) -> float:
+        return self._off_on()[1] if self.values else 0.0
+
+    @property
+    def off(self) -> float:
+        return self._off_on()[0] if self.values else 0.0
+
+    def blinks(self, min_swing: float) -> bool:
+        """Both levels seen, apart by at least `min_swing` gray values."""
+        return len(self.values) >= 2 and self.on - self.off >= min_swing
+
+
+def moved(blob: Blob, cx: float, cy: float) -> Blob:
+    """`blob` translated (by whole pixels, so its envelope mask keeps its shape) to (cx, cy)."""
+    dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
+    if dx == 0 and dy == 0:
+        return blob
+    return dataclasses.replace(blob, cx=blob.cx + dx, cy=blob.cy + dy, hull=blob.hull + (dx, dy),
+                               x0=blob.x0 + dx, x1=blob.x1 + dx, y0=blob.y0 + dy, y1=blob.y1 + dy)
+
+
+@dataclass
+class Pair:
+    """Two emitters paired as one S2-PSK transmitter (`a` is the left one in the image).
+
+    `a`, `b`: the pair's own emitter records (Track objects outside the tracker, with the
+    founding tracks' ids): `blob` is the emitter's envelope at its current position (px).
+    `tracks`: the tracker's tracks whose blob this pair explained in the latest frame."""
+
+    a: Track
+    b: Track
+    levels_a: EmitterLevels = field(default_factory=EmitterLevels)
+    levels_b: EmitterLevels = field(default_factory=EmitterLevels)
+    decoder: object = None  # the pipeline's decoders of this pair
+    state: object = None  # their latest state
+    led_id: int | None = None
+    kind: str | None = None
+    fresh: bool = True  # formed this frame: its levels already hold this frame's intensities
+    tracks: list = field(default_factory=list)
+    nearby: list = field(default_factory=list)  # tracks near its emitters, also coasting ones
+    vx: float = 0.0  # px per frame, both emitters
+    vy: float = 0.0
+    frames: int = 0  # frames since the pair formed
+    misses: int = 0  # consecutive frames without a blob it explains
+    mx: float = 0.0  # midpoint, px
+    my: float = 0.0
+    base0: tuple | None = None  # b - a at formation, px
+    area0: float = 1.0  # one emitter's area at formation, px
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.a.track_id, self.b.track_id)
+
+
+def _emitter(t: Track) -> Track:
+    """The pair's own copy of a founding track (the tracker keeps moving the original)."""
+    return Track(t.track_id, t.blob, t.first_frame, t.last_frame, vx=t.vx, vy=t.vy)
+
+
+def pair_score(a: Track, b: Track, *, row_band: float = 1.0, max_area_ratio: float = 2.5,
+               min_baseline: float = 1.2, max_baseline: float = 25.0) -> float | None:
+    """Geometric pairing cost (lower is better) of two tracks, None when implausible."""
+    da, db = math.sqrt(max(a.blob.area_px, 1.0)), math.sqrt(max(b.blob.area_px, 1.0))
+    diam = 0.5 * (da + db)
+    dy = abs(a.cy - b.cy)
+    dx = abs(a.cx - b.cx)
+    ratio = max(a.blob.area_px, 1.0) / max(b.blob.area_px, 1.0)
+    if dy > row_band * diam or not (1 / max_area_ratio <= ratio <= max_area_ratio):
+        return None
+    if not (min_baseline * diam <= dx <= max_baseline * diam):
+        return None
+    return dy / diam + abs(math.log(ratio)) + 0.01 * dx / diam
+
+
+class Pairer:
+    """Keeps S2-PSK pairs over frames (init/step).
+
+    Tunables: row_band [1.0], max_area_ratio [2.5], min_baseline [1.2], max_baseline [25]
+    (see `pair_score`, units of blob diameters); min_frames [4]: frames of intensity history
+    before the on/off check; min_swing [20]: gray levels between an emitter's on and off.
+    Following a formed pair: a blob explains an emitter (or the midpoint) within match_size
+    [1.5] emitter diameters (at least match_min_px [3] px), at most match_frac [0.75] of the
+    baseline, widened by miss_growth_px [1] px per frame without an explained blob (the
+    camera's pitch vibration moves far lights by a few px within a second). merged_ratio [1.5],
+    max_merged [3]: a blob nearest the midpoint with 1.5 to 3 times one emitter's area is both
+    emitters lit (two halves and the blurred gap); one nearest an emitter must be within
+    merged_ratio of its area, or down to 1 / max_cut [3] of it (cut by a clock edge during the
+    rolling readout). velocity_gain [0.3]: smoothing of the px/frame velocity. max_missed [10]:
+    frames without an explained blob before the pair ends (both emitters are dark in about a
+    quarter of the frames). give_up_frames [110]: a pair still without an ID after this many
+    frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
+    Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
+    of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
+    jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
+    vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
+    mean.
+    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
+    shift (`pitch_shift`), added to every pair's prediction.
+    """
+
+    def __init__(self, *, row_band: float = 1.0, max_area_ratio: float = 2.5, min_baseline: float = 1.2,
+                 max_baseline: float = 25.0, min_frames: int = 4, min_swing: float = 20.0,
+                 match_frac: float = 0.75, match_min_px: float = 3.0, match_size: float = 1.5,
+                 merged_ratio: float = 1.5, max_merged: float = 3.0, max_cut: float = 3.0,
+                 miss_growth_px: float = 1.0,
+                 velocity_gain: float = 0.3, max_missed: int = 10, give_up_frames: int = 110,
+                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5, jump_agree_y_px: float = 4.0,
+                 shake_min_pairs: int = 3):
+        self.geom = dict(row_band=row_band, max_area_ratio=max_area_ratio,
+                         min_baseline=min_baseline, max_baseline=max_baseline)
+        self.min_frames = min_frames
+        self.min_swing = min_swing
+        self.match_frac, self.match_min_px, self.match_size = match_frac, match_min_px, match_size
+        self.max_cut = max_cut
+        self.max_merged = max_merged
+        self.miss_growth_px = miss_growth_px
+        self.merged_ratio = merged_ratio
+        self.velocity_gain = velocity_gain
+        self.max_missed = max_missed
+        self.give_up_frames = give_up_frames
+        self.pairs: list[Pair] = []
+        self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
+        self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
+        self.jump_max_baseline, self.jump_agree = jump_max_baseline, jump_agree
+        self.jump_agree_y_px = jump_agree_y_px
+        self.shake_min_pairs = shake_min_pairs
+        self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
+        self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
+
+    def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
+        """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
+        one emitter's area (px^2). Rigid pair: the baseline only scales with the emitters' size
+        (both ~ 1 / distance), so a blob can never pull one emitter onto the other."""
+        single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
+        scale = math.sqrt(single / p.area0)
+        return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
+
+    def _explain(self, p: Pair, tracks: list[Track], xy: np.ndarray, mx: float, my: float,
+                 hx: float, hy: float, single: float):
+        """The blobs pair `p` explains around midpoint (mx, my): (explaining tracks, nearby
+        tracks, their (dx, dy) offsets from where the pair puts them, A's and B's own single
+        blobs or None). Nothing is changed."""
+        ax, ay, bx, by = mx - hx, my - hy, mx + hx, my + hy
+        # The gate widens while the pair coasts: the prediction error grows (the camera's pitch
+        # vibration moves every light by a few px within a second).
+        tol = min(self.match_frac * 2 * math.hypot(hx, hy),
+                  max(self.match_min_px, self.match_size * math.sqrt(single))) + self.miss_growth_px * p.misses
+        explaining, nearby, shifts, obs_a, obs_b = [], [], [], None, None
+        # Candidates first, for all tracks at once: within tol of A, B or the midpoint.
+        near = np.flatnonzero(np.hypot(xy[:, 0] - mx, xy[:, 1] - my) <= tol + math.hypot(hx, hy))
+        for i in near:
+            t = tracks[i]
+            da, db, dm = (math.hypot(t.cx - x, t.cy - y) for x, y in ((ax, ay), (bx, by), (mx, my)))
+            if min(da, db, dm) > tol:
+                continue
+            nearby.append(t)  # not paired anew while this pair lives
+            if not t.seen:
+                continue
+            if dm < min(da, db):
+                if self.merged_ratio * single < t.blob.area_px <= self.max_merged * single:
+                    shifts.append((t.cx - mx, t.cy - my))  # both lit, one blob
+                    explaining.append(t)
+                continue  # a small blob between the two: not telling
+            # One emitter, perhaps cut by a clock edge during the rolling readout (smaller: it
+            # moves the pair but does not replace the emitter's envelope). Its size is judged
+            # against the larger of the two emitters' envelopes: both halves of a head (two
+            # taillights) are the same size, and an emitter seen in few frames keeps an
+            # envelope from when the light was farther (an approaching head grows by several
+            # times in a few seconds).
+            e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
+            ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, 1.0)
+            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio):
+                continue  # another light's blob
+            shifts.append((t.cx - x, t.cy - y))
+            explaining.append(t)
+            if ratio >= 1.0 / self.merged_ratio:
+                if e is p.a:
+                    obs_a = t.blob
+                else:
+                    obs_b = t.blob
+        return explaining, nearby, shifts, obs_a, obs_b
+
+    def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
+        """This frame's common vertical image shift (px, + down): the median over the pairs that
+        explain a blob of how far it sits below their prediction; 0 with fewer than
+        `shake_min_pairs` such pairs. The camera's pitch vibration moves every light by the same
+        few pixels from frame to frame, which no pair's own velocity predicts, and a pair whose
+        two emitters are dark in this frame (a quarter of the frames) has no blob to correct
+        it: its emitters' intensities would be read beside them. Only the vertical part: a
+        blob is matched to A, B or the midpoint of a blinking pair, so its horizontal offset
+        mixes the shake with which of them lit it."""
+        dys = []
+        for p in self.pairs:
+            if p.base0 is None:
+                continue
+            _, _, shifts, _, _ = self._explain(p, tracks, xy, *self._predict(p))
+            if shifts:
+                dys.append(float(np.mean([d[1] for d in shifts])))
+        return float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+
+    def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0) -> bool:
+        """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
+        `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
+        (`pitch_shift`), px, added to the prediction."""
+        p.frames += 1
+        if p.led_id is None and p.frames > self.give_up_frames:
+            self.banned.add(p.key)
+            return False
+        if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
+            p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
+            p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
+            p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
+        mx, my, hx, hy, single = self._predict(p)
+        my += dy
+        p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
+        if not shifts:
+            p.misses += 1
+            sx = sy = 0.0
+        else:
+            p.misses = 0
+            sx, sy = (float(v) for v in np.mean(shifts, axis=0))
+            p.vx += self.velocity_gain * sx
+            p.vy += self.velocity_gain * sy
+        p.mx, p.my = mx + sx, my + sy
+        for e, obs, sign in ((p.a, obs_a, -1.0), (p.b, obs_b, 1.0)):
+            # An emitter's own single blob becomes its envelope (shape and size); it sits at
+            # the rigid pair's position, to the nearest whole pixel (`moved`: its centroid stays
+            # the mask's, so sub-pixel steps add up instead of being rounded away every frame).
+            x, y = p.mx + sign * hx, p.my + sign * hy
+            blob = obs if obs is not None else e.blob
+            e.blob = moved(blob, x, y)
+        if p.misses > self.max_missed:
+            return False
+        if shape is not None:
+            h, w = shape[:2]
+            for e in (p.a, p.b):
+                if e.blob.x0 < 0 or e.blob.y0 < 0 or e.blob.x1 > w or e.blob.y1 > h:
+                    return False
+        return True
+
+    def step(self, gray: np.ndarray, tracks: list[Track], intensity) -> list[Pair]:
+        """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
+        mean gray in its envelope. Returns the live pairs; their levels are updated."""
+        live = {t.track_id: t for t in tracks}
+        shape = None if gray is None else gray.shape
+        xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
+        dy = self.pitch_shift(tracks, xy)
+        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy)]
+        paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
+        for tid in list(self.levels):
+            if tid not in live or tid in paired:
+                del self.levels[tid]
+        for t in tracks:
+            if t.track_id not in paired:
+                self.levels.setdefault(t.track_id, EmitterLevels()).add(intensity(gray, t))
+        free = [t for t in tracks if t.track_id not in paired and len(self.levels[t.track_id].values) >= self.min_frames
+                and self.levels[t.track_id].blinks(self.min_swing)]
+        cands = []
+        for i, a in enumerate(free):
+            for b in free[i + 1:]:
+                s = pair_score(a, b, **self.geom)
+                if s is not None:
+                    cands.append((s, a, b))
+        cands.sort(key=lambda c: c[0])
+        taken: set[int] = set()
+        for _, a, b in cands:
+            if a.track_id in taken or b.track_id in taken:
+                continue
+            if a.cx > b.cx:
+                a, b = b, a
+            if (a.track_id, b.track_id) in self.banned:
+                continue
+            p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
+            # The history that proved the blinking also seeds the pair's level estimates.
+            for lv, t in ((p.levels_a, a), (p.levels_b, b)):
+                for v in self.levels.pop(t.track_id).values:
+                    lv.add(v)
+            taken.update((a.track_id, b.track_id))
+            self.pairs.append(p)
+        self._pair_jumpers(tracks, paired | taken)
+        return self.pairs
+
+    def _pair_jumpers(self, tracks: list[Track], busy: set[int]) -> None:
+        """Pairs from single tracks that jump between two places: a far head's halves are
+        never two blobs of one frame (module docstring), so one track takes the blob of
+        whichever half is lit. Two jumps of about the same baseline between single-emitter-
+        sized blobs (either direction) make a pair at the two places."""
+        live = {t.track_id for t in tracks}
+        for d in (self.last_seen, self.jumps):
+            for tid in [tid for tid in d if tid not in live]:
+                del d[tid]
+        for t in tracks:
+            last = self.last_seen.get(t.track_id)
+            if not t.seen:
+                continue
+            self.last_seen[t.track_id] = t.blob
+            if last is None or t.track_id in busy:
+                continue
+            jx, jy = t.cx - last.cx, t.cy - last.cy
+            if jx < 0:
+                jx, jy = -jx, -jy  # left-to-right baseline either way
+            diam = math.sqrt(max(0.5 * (t.blob.area_px + last.area_px), 1.0))
+            ratio = max(t.blob.area_px, 1.0) / max(last.area_px, 1.0)
+            if not (self.geom["min_baseline"] * diam <= jx <= self.jump_max_baseline * diam
+                    and abs(jy) <= self.geom["row_band"] * diam
+                    and 1.0 / self.merged_ratio <= ratio <= self.merged_ratio):
+                continue
+            prev = self.jumps.get(t.track_id)
+            self.jumps[t.track_id] = (jx, jy)
+            # Each jump is the baseline plus the light's motion over one frame, in opposite
+            # directions for a back-and-forth track (B -> A, A -> B): the left-to-right jumps
+            # then differ by about twice that motion. The camera's pitch vibration moves lights
+            # by 1-2 px per frame, mostly vertically, so `jump_agree_y_px` of the vertical
+            # difference is forgiven before the two must agree within jump_agree diameters.
+            if prev is None or math.hypot(jx - prev[0], max(abs(jy - prev[1]) - self.jump_agree_y_px, 0.0)
+                                          ) > self.jump_agree * diam:
+                continue
+            # their mean is the baseline without the motion
+            jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
+            right = t.cx > last.cx  # the current blob is the right-hand emitter
+            ax, ay = (t.cx - jx, t.cy - jy) if right else (t.cx, t.cy)
+            if (t.track_id, t.track_id) in self.banned:
+                continue
+            a, b = _emitter(t), _emitter(t)
+            a.blob = moved(t.blob, ax, ay)
+            b.blob = moved(t.blob, ax + jx, ay + jy)
+            self.pairs.append(Pair(a, b, fresh=False, tracks=[t], nearby=[t]))
+            busy.add(t.track_id)
+            self.jumps.pop(t.track_id, None)
+
+    @staticmethod
+    def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:
+        """This frame's (a, b) intensities of a pair; updates its levels."""
+        if p.fresh:
+            p.fresh = False
+            return p.levels_a.values[-1], p.levels_b.values[-1]
+        ia, ib = intensity(gray, p.a), intensity(gray, p.b)
+        p.levels_a.add(ia)
+        p.levels_b.add(ib)
+        return ia, ib

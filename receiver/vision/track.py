@@ -1,0 +1,128 @@
+"""Frame-to-frame blob tracking: gated optimal assignment, tracks that coast through misses.
+
+Each `Track` keeps its last blob (the envelope is where an S2-PSK emitter's intensity is read
+while it is dark), a constant-velocity prediction in px/frame, the decoder objects the
+pipeline attached and the decoded ID, which stays with the track.
+
+Assignment: cost = distance (px) between a track's predicted centroid and a blob centroid,
+solved by `scipy.optimize.linear_sum_assignment`; pairs beyond the gate or with an
+implausible area change are left unassigned (new track / missed track).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from receiver.core.records import Blob
+
+# Cost standing in for "not allowed" in the assignment matrix (finite: scipy needs a solution).
+_FORBIDDEN = 1e9
+
+
+@dataclass
+class Track:
+    """One tracked light. Positions in px (image frame, see receiver.core.records)."""
+
+    track_id: int
+    blob: Blob
+    first_frame: int
+    last_frame: int
+    vx: float = 0.0  # px per frame
+    vy: float = 0.0
+    hits: int = 1
+    misses: int = 0  # consecutive frames without a blob
+    seen: bool = True  # a blob was assigned in the latest frame
+    led_id: int | None = None
+    mode: str | None = None
+    striped: bool = False  # its row profile has shown stripes (set by the pipeline)
+    tone_last: int | None = None  # the pipeline's tone-match confirmation
+    tone_run: int = 0
+    envelope: Blob | None = None  # this frame's blob merged with recent ones (pipeline)
+    history: list = field(default_factory=list)  # [(frame index, hull (K, 2))] of recent frames
+    decoders: dict = field(default_factory=dict)  # filled by the pipeline
+    states: dict = field(default_factory=dict)
+
+    @property
+    def cx(self) -> float:
+        return self.blob.cx
+
+    @property
+    def cy(self) -> float:
+        return self.blob.cy
+
+    def predict(self, frame_index: int) -> tuple[float, float]:
+        dt = frame_index - self.last_frame
+        return self.blob.cx + self.vx * dt, self.blob.cy + self.vy * dt
+
+
+class Tracker:
+    """Gated assignment tracker (init/step).
+
+    Tunables (defaults in brackets):
+      gate_px [30]: fixed part of the association gate, px.
+      gate_size [1.5]: plus this many blob diameters (sqrt(area)), so big near lights may move
+        more per frame than small far ones.
+      max_area_ratio [4]: larger area change between frames is another light.
+      max_missed [10]: frames a track survives without a blob (an S2-PSK emitter is dark in
+        about half the frames, a blob may also leave the view briefly).
+      velocity_gain [0.5]: smoothing of the px/frame velocity estimate (1 = last step only).
+    """
+
+    def __init__(self, *, gate_px: float = 30.0, gate_size: float = 1.5, max_area_ratio: float = 4.0,
+                 max_missed: int = 10, velocity_gain: float = 0.5):
+        self.gate_px = gate_px
+        self.gate_size = gate_size
+        self.max_area_ratio = max_area_ratio
+        self.max_missed = max_missed
+        self.velocity_gain = velocity_gain
+        self.tracks: list[Track] = []
+        self._next_id = 0
+        self.ended: list[Track] = []  # tracks dropped in the latest step
+
+    def step(self, frame_index: int, blobs: list[Blob]) -> list[Track]:
+        """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob)."""
+        tracks = self.tracks
+        assigned_blob: dict[int, int] = {}
+        if tracks and blobs:
+            # all track x blob pairs at once (the same arithmetic as one track at a time)
+            bxy = np.array([[b.cx, b.cy, b.area_px] for b in blobs])
+            tst = np.array([[t.blob.cx, t.blob.cy, t.vx, t.vy, frame_index - t.last_frame, t.blob.area_px]
+                            for t in tracks])
+            px = tst[:, 0] + tst[:, 2] * tst[:, 4]
+            py = tst[:, 1] + tst[:, 3] * tst[:, 4]
+            d = np.hypot(bxy[None, :, 0] - px[:, None], bxy[None, :, 1] - py[:, None])
+            tarea = np.maximum(tst[:, 5], 1.0)
+            gate = self.gate_px + self.gate_size * np.sqrt(tarea)
+            ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
+            ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
+            cost = np.where(ok, d, _FORBIDDEN)
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols):
+                if cost[r, c] < _FORBIDDEN:
+                    assigned_blob[r] = c
+        used = set(assigned_blob.values())
+        alive, self.ended = [], []
+        for i, t in enumerate(tracks):
+            if i in assigned_blob:
+                b = blobs[assigned_blob[i]]
+                dt = max(frame_index - t.last_frame, 1)
+                g = self.velocity_gain if t.hits > 1 else 1.0
+                t.vx = (1 - g) * t.vx + g * (b.cx - t.blob.cx) / dt
+                t.vy = (1 - g) * t.vy + g * (b.cy - t.blob.cy) / dt
+                t.blob, t.last_frame, t.seen = b, frame_index, True
+                t.hits += 1
+                t.misses = 0
+                alive.append(t)
+            else:
+                t.seen = False
+                t.misses += 1
+                (alive if t.misses <= self.max_missed else self.ended).append(t)
+        for j, b in enumerate(blobs):
+            if j not in used:
+                alive.append(Track(self._next_id, b, frame_index, frame_index))
+                self._next_id += 1
+        self.tracks = alive
+        return alive
