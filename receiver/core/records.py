@@ -101,3 +101,28 @@ class FrameResult:
     stage_ms: dict[str, float] = field(default_factory=dict)
     distances: dict[int, tuple[float, str]] = field(default_factory=dict)
     info: dict[int, dict] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PairObservation:
+    """One S2-PSK pair in one frame (a street-light head's two halves, or a car's two
+    taillights; receiver.vision.pairing), what the vehicle locator works from.
+
+    `key`: the pair's stable key for its whole life (its founding tracks' ids). `led_id`: the
+    decoded S2-PSK ID or None; `kind`: "SL" (0x00-0x7F), "FV" (0x80-0xFF) or None.
+    `a_px`, `b_px`: (x, y) centroids of emitters A and B, distorted image px (where the pair
+    puts them this frame). `area_a_px`, `area_b_px`: their envelope areas, px^2.
+    `separation_px`: |b - a|, px. `both_visible`: both emitters were seen as separate blobs in
+    this frame; when False (one emitter lit, merged, or hidden) the separation and areas are the
+    pair's prediction, not a measurement, and no range may be taken from them.
+    """
+
+    key: tuple[int, int]
+    led_id: int | None
+    kind: str | None
+    a_px: tuple[float, float]
+    b_px: tuple[float, float]
+    area_a_px: float
+    area_b_px: float
+    separation_px: float
+    both_visible: bool
