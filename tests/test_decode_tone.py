@@ -99,7 +99,7 @@ def test_luxapose_photos(photo, luxapose):
     rx = Receiver(cam, led_map, still=True)
     dec = ToneDecoder({i: led.freq_hz for i, led in led_map.leds.items()}, cam.row_readout_us)
     found = {}
-    for blob in detect(gray, **rx.detect_kw):
+    for blob in detect(gray, settings=rx.settings.detect):
         prof, w, _ = tone_profile(gray, blob)
         f, q = stripe_frequency_hz(prof, cam.row_readout_us, w, fmin_hz=dec.fmin_hz, fmax_hz=dec.fmax_hz)
         led = match_tone(f, dec.table) if q >= dec.min_quality else None

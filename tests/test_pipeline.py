@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 
@@ -12,7 +13,8 @@ from receiver.cli.bench import bench_camera, bench_frames, bench_map, bench_scen
 from receiver.io.ledmap import parse_map
 from receiver.io.output import frame_line
 from receiver.core.records import FrameResult
-from receiver.pipeline import ModePlan, Receiver
+from receiver.decode.policy import ModePlan
+from receiver.pipeline import Receiver
 from receiver.core.records import Frame, LocateResult
 
 
@@ -74,8 +76,9 @@ class FakePositioner:
 
     def step(self, t_s, leds):
         self.calls.append((t_s, [o.track for o in leds]))
-        return LocateResult(distances={o.track: (2.5 + o.track, "eq18") for o in leds},
-                            position={"x": 1.0, "y": 2.0, "z": 0.0, "method": "fake", "n_leds": len(leds)})
+        return LocateResult(position={"x": 1.0, "y": 2.0, "z": 0.0, "method": "fake", "n_leds": len(leds)},
+                            leds=[dataclasses.replace(o, distance_m=2.5 + o.track, distance_estimator="eq18")
+                                  for o in leds])
 
 
 def test_positioner_results_reach_the_json_line():
@@ -139,7 +142,7 @@ def test_decoded_tracks_keep_their_id_between_rechecks():
 
 def test_tone_runs_match_tells_a_tone_from_ook_stripes():
     from firmware_tx.framing import ook_packet
-    from receiver.pipeline import tone_runs_match
+    from receiver.decode.policy import tone_runs_match
     rows = np.arange(120)
     t_row_us = 15.0
     tone = np.where((rows * t_row_us * 1e-6 * 2000.0) % 1.0 < 0.5, 200.0, 5.0)  # 2 kHz

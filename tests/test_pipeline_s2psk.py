@@ -61,8 +61,9 @@ class StandInDecoder:
 
     instances: list = []
 
-    def __init__(self, clk_hz=200.0, symbol_clocks=16, *, inverted=False, after=20):
-        self.clk_hz, self.symbol_clocks, self.inverted = clk_hz, symbol_clocks, inverted
+    def __init__(self, clk_hz=200.0, symbol_clocks=16, *, settings=None, after=20):
+        self.clk_hz, self.symbol_clocks = clk_hz, symbol_clocks
+        self.inverted = bool(settings is not None and settings.inverted)
         self.samples: list[tuple[float, float]] = []
         self.after = after
         StandInDecoder.instances.append(self)
@@ -83,11 +84,10 @@ def _pair_xor(a, b, a_on, b_on, a_off=0.0, b_off=0.0):
 
 @pytest.fixture
 def stand_in(monkeypatch):
-    mod = types.ModuleType("receiver.decode.s2psk")
-    mod.S2pskDecoder, mod.pair_xor = StandInDecoder, _pair_xor
-    monkeypatch.setitem(__import__("sys").modules, "receiver.decode.s2psk", mod)
+    # the decoder the policy makes and the soft XOR the pipeline computes
+    monkeypatch.setattr("receiver.decode.policy.S2pskDecoder", StandInDecoder)
+    monkeypatch.setattr("receiver.pipeline.pair_xor", _pair_xor)
     StandInDecoder.instances = []
-    return mod
 
 
 def test_pair_found_fed_every_frame_and_id_on_both_tracks(stand_in):

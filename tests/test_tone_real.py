@@ -47,8 +47,8 @@ PHOTOS = {
 
 
 def test_pipeline_uses_tone_profile():
-    import receiver.pipeline
-    assert hasattr(receiver.pipeline, "tone_profile"), "pipeline must feed ToneDecoder tone_profile()"
+    import receiver.decode.policy
+    assert hasattr(receiver.decode.policy, "tone_profile"), "the policy must feed ToneDecoder tone_profile()"
 
 
 @pytest.mark.parametrize("photo", sorted(PHOTOS))

@@ -21,7 +21,7 @@ HELP = "time the receiver per stage (median/p99 ms, frames/s) on a synthetic sce
 
 BENCH_SIZE = (1280, 720)
 BENCH_LEDS = 16
-BENCH_RATE_HZ = 20000.0
+BENCH_RATE_HZ = 20000.0  # PROTOCOL.md's default chip rate, spelled out: the bench scene is fixed
 BENCH_ROW_US = 20.0  # 2.5 rows per chip at 20 kHz
 BENCH_FPS = 30.0
 BENCH_RADIUS_PX = 40.0  # 80 rows = 32 chips: most of a packet per frame

@@ -39,6 +39,8 @@ def add_arguments(p) -> None:
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
     p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--settings-out", metavar="FILE",
+                   help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve); ranging stays here")
 
@@ -97,6 +99,29 @@ class Progress:
             self.stream.write("\n")
 
 
+def write_settings(path: str, rx) -> None:
+    """The receiver's resolved settings and its locator's, as one JSON object, written to a
+    temporary file renamed into place."""
+    import json
+    import tempfile
+
+    from receiver.core.settings import settings_json
+
+    loc = getattr(rx.positioner, "local", rx.positioner)  # a server client ranges locally
+    obj = {"receiver": settings_json(rx.settings),
+           "locate": settings_json(loc.settings) if getattr(loc, "settings", None) is not None else None}
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".settings-", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(obj, f, indent=1, sort_keys=True)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
 def main(args) -> int:
     from receiver.io.camera import load_camera
     from receiver.io.ledmap import load_map
@@ -140,6 +165,8 @@ def main(args) -> int:
         positioner = (make_positioner(cam, led_map, server=server) if server
                       else make_positioner(cam, led_map))
         rx = Receiver(cam, led_map, positioner=positioner, still=src.is_still)
+        if getattr(args, "settings_out", None):
+            write_settings(args.settings_out, rx)
         out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout
         summary = RunSummary()
         total = getattr(getattr(src, "inner", src), "frame_count", None) or None

@@ -47,63 +47,6 @@ class Frame:
 
 
 @dataclass(frozen=True)
-class LedObservation:
-    """One LED blob in one frame, after detection, tracking and decoding.
-
-    `cx, cy`: sub-pixel centroid of the blob envelope (the filled hull of its rolling-shutter
-    stripes), px. `area_px`: envelope area eta (px^2), the LED's projected area for eq. 18.
-    `contour`: (K, 2) float64 envelope polygon, px. `border`: the blob touches the image
-    border (area and centroid are then biased). `id`/`mode` are None until decoded.
-    `peak`: brightest pixel value in the blob (0-255).
-    """
-
-    track: int
-    cx: float
-    cy: float
-    area_px: float
-    contour: np.ndarray
-    border: bool = False
-    id: int | None = None
-    mode: str | None = None
-    peak: float = 0.0
-
-
-@dataclass(frozen=True)
-class LocateResult:
-    """What positioning makes of one frame's decoded LEDs.
-
-    `distances`: track -> (distance_m, estimator name) for every decoded LED whose size is
-    known. `position`: the INTERFACES.md `position` object (x, y, z, method, n_leds, plus
-    optional extras such as `raw`, `cov`, `yaw_deg`...) or None when it cannot be computed.
-    """
-
-    distances: dict[int, tuple[float, str]] = field(default_factory=dict)
-    position: dict | None = None
-
-
-@dataclass(frozen=True)
-class FrameResult:
-    """Everything the receiver made of one frame.
-
-    `frame`, `t_s`: the source's index and timestamp; `latency_ms`: processing time of this
-    frame (injected clock); `leds`: the LEDs seen in this frame; `distances`:
-    track -> (distance_m, estimator) from the positioner; `position`: INTERFACES.md position
-    object or None; `vehicle`: None (filled by vehicle positioning); `stage_ms`: per stage;
-    `info`: track -> extra output fields of its LED (`freq_hz` of a tone decode, `kind` 'SL' /
-    'FV' of an S2-PSK pair)."""
-
-    frame: int
-    t_s: float
-    latency_ms: float
-    leds: list[LedObservation]
-    position: dict | None = None
-    vehicle: dict | None = None
-    stage_ms: dict[str, float] = field(default_factory=dict)
-    distances: dict[int, tuple[float, str]] = field(default_factory=dict)
-    info: dict[int, dict] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
 class PairObservation:
     """One S2-PSK pair in one frame (a street-light head's two halves, or a car's two
     taillights; receiver.vision.pairing), what the vehicle locator works from.
@@ -126,3 +69,66 @@ class PairObservation:
     area_b_px: float
     separation_px: float
     both_visible: bool
+
+
+@dataclass(frozen=True)
+class LedObservation:
+    """One LED blob in one frame, after detection, tracking, decoding and (when a locator ran)
+    ranging.
+
+    `cx, cy`: sub-pixel centroid of the blob envelope (the filled hull of its rolling-shutter
+    stripes), px. `area_px`: envelope area eta (px^2), the LED's projected area for eq. 18.
+    `contour`: (K, 2) float64 envelope polygon, px. `border`: the blob touches the image
+    border (area and centroid are then biased). `id`/`mode` are None until decoded.
+    `peak`: brightest pixel value in the blob (0-255). `distance_m`, `distance_estimator`: the
+    range to the LED and the estimator that gave it (receiver.locate.ranging), None when not
+    ranged. `freq_hz`: a tone LED's measured stripe frequency (Hz, 0.1 Hz), else None.
+    `kind`: an S2-PSK light's "SL" or "FV" once decoded, else None.
+    """
+
+    track: int
+    cx: float
+    cy: float
+    area_px: float
+    contour: np.ndarray
+    border: bool = False
+    id: int | None = None
+    mode: str | None = None
+    peak: float = 0.0
+    distance_m: float | None = None
+    distance_estimator: str | None = None
+    freq_hz: float | None = None
+    kind: str | None = None
+
+
+@dataclass(frozen=True)
+class LocateResult:
+    """What a locator makes of one frame's LED observations.
+
+    `position`: the INTERFACES.md `position` object (x, y, z, method, n_leds, plus optional
+    extras such as `raw`, `cov`, `yaw_deg`...) or None when it cannot be computed. `leds`: the
+    frame's observations, each ranged one with its `distance_m` and `distance_estimator`.
+    """
+
+    position: dict | None
+    leds: list[LedObservation]
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """Everything the receiver made of one frame.
+
+    `frame`, `t_s`: the source's index and timestamp; `latency_ms`: processing time of this
+    frame (injected clock); `leds`: the LEDs seen in this frame, each carrying its own ID,
+    range and decode details; `position`: INTERFACES.md position object or None; `vehicle`:
+    the INTERFACES.md vehicle object or None; `stage_ms`: per stage; `pairs`: the S2-PSK pairs
+    followed in this frame."""
+
+    frame: int
+    t_s: float
+    latency_ms: float
+    leds: list[LedObservation]
+    position: dict | None = None
+    vehicle: dict | None = None
+    stage_ms: dict[str, float] = field(default_factory=dict)
+    pairs: tuple[PairObservation, ...] = ()

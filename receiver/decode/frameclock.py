@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from receiver.decode.ook import DIAGNOSTICS_LEN, PACKET_LEN, line_predict, wrap_chips as wrap
+from receiver.decode.settings import FrameClockSettings
+from receiver.core.settings import resolve_settings
 
 
 @dataclass(frozen=True)
@@ -58,15 +60,15 @@ class FrameClock:
     Per frame: `begin(k)`, then `observe(key, u)` for each reference light (u from
     `OokDecoder.row0_coordinate`), then `close()` -> ClockTick or None.
 
-    window [12]: frames of a reference's offset history in its line fit.
-    max_gap [6]: a reference unseen for more frames than this loses its offset.
-    max_resid [0.2]: chips a reference may disagree with the consensus.
+    Tunables: `FrameClockSettings` (receiver.decode.settings), given as `settings=` or as
+    keyword overrides of its fields.
     """
 
-    def __init__(self, *, window: int = 12, max_gap: int = 6, max_resid: float = 0.2):
-        self.window = window
-        self.max_gap = max_gap
-        self.max_resid = max_resid
+    def __init__(self, *, settings: FrameClockSettings | None = None, **overrides):
+        s = self.settings = resolve_settings(settings, FrameClockSettings, overrides)
+        self.window = s.window
+        self.max_gap = s.max_gap
+        self.max_resid = s.max_resid
         self.epoch = 0
         self.refs: dict = {}  # key -> deque of (k, d) with d = u - c (unwrapped)
         self.k: int | None = None

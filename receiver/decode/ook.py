@@ -52,6 +52,9 @@ from functools import lru_cache
 import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
+from receiver.decode.settings import OokSettings
+from receiver.core.settings import resolve_settings
+from receiver.core import protocol
 
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
 SYNC_LEN = len(SYNC)  # 6 chips
@@ -61,7 +64,7 @@ N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
 CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
-PERIOD_FRAMES = 5  # refined periods whose median fixes rows per chip (`period_frames`)
+PERIOD_FRAMES = OokSettings.period_frames  # refined periods whose median fixes rows per chip
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
@@ -361,89 +364,38 @@ class PeriodLearner:
 class OokDecoder:
     """Per-blob OOK packet assembler (one per tracked blob; call `step` every frame).
 
-    Tunables (defaults in brackets):
-      rate_hz [20000]: chip rate from the LED map; row_readout_us [15]: sensor row time t_row;
-      exposure_us [0]: row exposure (only narrows the sampled part of a chip; 0 if unknown).
-      min_row_frac [0.25]: rows with fewer pixels than this fraction of the widest row are
-        trimmed from the blob's top and bottom.
-      segment_chips [6]: segment length for the period refinement (drift per segment must stay
-        under half a chip: 6 chips tolerate ~8 % row-time error); max_period_error [0.08].
-      verify_frames [16], verify_min [0.9]: a CRC-valid packet assembled by cyclic alignment
-        could be a wrong assembly (a 2-chip slip) that happens to pass CRC-8 (1 in 256); unless
-        every data chip was placed where it surely belongs (by its frame's sync, or by an
-        alignment that could compare every shift), a new ID is reported only when each of the
-        last `verify_frames` frames fits its full packet somewhere with normalised correlation
-        >= verify_min (`best_cyclic_match`).
-      period_frames [5]: the refined chip period (rows) of this many frames is fixed by
-        their median (it is a camera/LED constant); later frames only measure the phase.
-      period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
-        and camera (its own `period_frames` counts their refinements together); None: this
-        decoder learns alone.
-      min_coherence [0.3]: frames whose transitions do not sit on a chip grid are skipped.
-      norm_chips [8]: local normalisation window, chips.
-      sync_margin [0.3]: every sync chip must be right by this (soft units).
-      align_min [0.7], align_gap [0.25], align_min_chips [8]: a frame without sync is placed
-        by its best cyclic correlation with the accumulated packet only when that correlation
-        is >= align_min, beats every other shift by align_gap and overlaps >= align_min_chips.
-      pending_frames [8]: unplaceable frames kept and retried as the packet fills.
-      decay [0.9]: accumulator memory per frame (< 1 lets a changed LED take over).
-      min_margin [0.25]: decode threshold on every Manchester pair and sync chip.
-      switch_frames [3]: consecutive frames a different CRC-valid ID needs to replace the
-        decoded one.
-      parity_gap [2.0]: Manchester pair-grid evidence (pairs) needed to restrict a cyclic
-        alignment to shifts of the right parity (`pair_parity`).
-      stale_frames [10]: a full accumulator that yields no CRC-valid packet for this many
-        frames is cleared (a wrong alignment must not lock the decoder up forever).
-      align_when_decoded [False]: once an ID is decoded, frames without a sync are skipped
-        (saves the cyclic alignment, the step's dearest part; ID changes still show in the
-        frames with sync).
-      Frame-clock timing (only with a `clock` hint): timing_window [12] frames of offsets in
-        the offset line fit; timing_max_gap [6] frames without an offset reset it;
-        timing_frac [0.25]: a frame whose chip grid is further (chips) from the predicted one
-        is not placed by timing; timing_conflict [0.35]: a sync-placed frame further from the
-        offset line disables timing (for good when the line rests on a sync);
-        timing_min_overlap [4], timing_min_corr [0.6]: a timed frame overlapping that many
-        surely placed chips must correlate with them this well, else timing is disabled;
-        trust_timed [True]: timed placements count as sure once a sync frame has confirmed
-        the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
+    Tunables: `OokSettings` (receiver.decode.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
 
-    def __init__(self, rate_hz: float = 20000.0, row_readout_us: float = 15.0,
-                 exposure_us: float = 0.0, *, min_row_frac: float = 0.25,
-                 segment_chips: float = 6.0, max_period_error: float = 0.08,
-                 min_coherence: float = 0.3, norm_chips: int = 8, sync_margin: float = 0.3,
-                 align_min: float = 0.7, align_gap: float = 0.25, align_min_chips: int = 8,
-                 pending_frames: int = 8, decay: float = 0.9, min_margin: float = 0.25,
-                 switch_frames: int = 3, parity_gap: float = 2.0, stale_frames: int = 10,
-                 align_when_decoded: bool = False, period_frames: int = PERIOD_FRAMES,
-                 verify_frames: int = 16, verify_min: float = 0.9, timing_window: int = 12,
-                 timing_max_gap: int = 6, timing_frac: float = 0.25, timing_conflict: float = 0.35,
-                 timing_min_overlap: int = 4, timing_min_corr: float = 0.6, trust_timed: bool = True,
-                 period_learner: PeriodLearner | None = None):
+    def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
+                 period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
+                 **overrides):
+        s = self.settings = resolve_settings(settings, OokSettings, overrides)
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
         self._phasor = np.zeros(0, dtype=np.complex128)
-        self._learner = period_learner if period_learner is not None else PeriodLearner(period_frames)
+        self._learner = period_learner if period_learner is not None else PeriodLearner(s.period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
         self.last_period = self.period0_rows
         self.exposure_rows = exposure_us / row_readout_us
-        self.min_row_frac = min_row_frac
-        self.segment_chips = segment_chips
-        self.max_period_error = max_period_error
-        self.min_coherence = min_coherence
-        self.norm_chips = norm_chips
-        self.sync_margin = sync_margin
-        self.align_min = align_min
-        self.align_gap = align_gap
-        self.align_min_chips = align_min_chips
-        self.decay = decay
-        self.min_margin = min_margin
-        self.switch_frames = switch_frames
-        self.parity_gap = parity_gap
-        self.stale_frames = stale_frames
-        self.align_when_decoded = align_when_decoded
+        self.min_row_frac = s.min_row_frac
+        self.segment_chips = s.segment_chips
+        self.max_period_error = s.max_period_error
+        self.min_coherence = s.min_coherence
+        self.norm_chips = s.norm_chips
+        self.sync_margin = s.sync_margin
+        self.align_min = s.align_min
+        self.align_gap = s.align_gap
+        self.align_min_chips = s.align_min_chips
+        self.decay = s.decay
+        self.min_margin = s.min_margin
+        self.switch_frames = s.switch_frames
+        self.parity_gap = s.parity_gap
+        self.stale_frames = s.stale_frames
+        self.align_when_decoded = s.align_when_decoded
         self._stale = 0
         self.acc = np.zeros(PACKET_LEN)  # sum of weighted soft chips per packet position
         self.acc_w = np.zeros(PACKET_LEN)  # sum of weights
@@ -451,9 +403,9 @@ class OokDecoder:
         # for which every cyclic shift overlapped enough known chips to be judged
         self.trust_w = np.zeros(PACKET_LEN)
         self._last_align_complete = False
-        self.pending: deque = deque(maxlen=pending_frames)
-        self.recent: deque = deque(maxlen=verify_frames)  # soft chips of the latest frames
-        self.verify_min = verify_min
+        self.pending: deque = deque(maxlen=s.pending_frames)
+        self.recent: deque = deque(maxlen=s.verify_frames)  # soft chips of the latest frames
+        self.verify_min = s.verify_min
         self.anchored = False  # accumulator positions are packet positions (sync at 0)
         self.frames = 0
         self.led_id: int | None = None
@@ -462,15 +414,15 @@ class OokDecoder:
         self._cand_n = 0
         # frame-clock timing (receiver.decode.frameclock): offsets o = shift - (clock coordinate of
         # frame chip 0) of placed frames, in accumulator coordinates
-        self.timing_window = timing_window
-        self.timing_max_gap = timing_max_gap
-        self.timing_frac = timing_frac
-        self.timing_conflict = timing_conflict
-        self.timing_min_overlap = timing_min_overlap
-        self.timing_min_corr = timing_min_corr
-        self.trust_timed = trust_timed
+        self.timing_window = s.timing_window
+        self.timing_max_gap = s.timing_max_gap
+        self.timing_frac = s.timing_frac
+        self.timing_conflict = s.timing_conflict
+        self.timing_min_overlap = s.timing_min_overlap
+        self.timing_min_corr = s.timing_min_corr
+        self.trust_timed = s.trust_timed
         self.timing_ok = True  # False for good after a timing disagreement
-        self._tobs: deque = deque(maxlen=timing_window)  # (k, o)
+        self._tobs: deque = deque(maxlen=s.timing_window)  # (k, o)
         self._t_epoch: int | None = None
         self._t_confirmed = False  # the offsets are tied to packet coordinates by a sync frame
         self._t_strong = False  # some offset came from a sync-placed frame
@@ -484,7 +436,7 @@ class OokDecoder:
         self.timing_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self.timing_frac_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self._tpl: tuple[int, np.ndarray] | None = None
-        self.timed_frames: deque = deque(maxlen=verify_frames)  # (soft, shift) of timed placements
+        self.timed_frames: deque = deque(maxlen=s.verify_frames)  # (soft, shift) of timed placements
 
     def frame_chips(self, profile, weights=None) -> tuple[np.ndarray, np.ndarray]:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the

@@ -28,11 +28,13 @@ import numpy as np
 
 from firmware_tx.crc import crc4
 from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN, SYNC
+from receiver.decode.settings import S2pskSettings
+from receiver.core.settings import resolve_settings
+from receiver.core import protocol
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
 N_BITS = S2PSK_ID_BITS + S2PSK_CRC_BITS  # 12
-VEHICLE_MIN_ID = 0x80  # PROTOCOL.md section 3: 0x80-0xFF are FV-IDs
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)
 _SYNC_IDX = (np.arange(PACKET_LEN)[:, None] + np.arange(SYNC_LEN)[None, :]) % PACKET_LEN
@@ -86,7 +88,7 @@ def kind_of(led_id: int | None) -> str | None:
     """'SL' (street light, 0x00-0x7F) or 'FV' (vehicle, 0x80-0xFF)."""
     if led_id is None:
         return None
-    return "FV" if led_id >= VEHICLE_MIN_ID else "SL"
+    return "FV" if led_id >= protocol.FV_ID_MIN else "SL"
 
 
 @dataclass(frozen=True)
@@ -104,39 +106,28 @@ class S2pskState:
 class S2pskDecoder:
     """Per-pair S2-PSK decoder driven by frame timestamps.
 
-    Tunables (defaults in brackets):
-      clk_hz [200]: emitter clock; symbol_clocks [16]: clock periods per symbol (both from the
-        LED map); inverted [False]: read in-phase as 1 (the other published polarity).
-      history_s [None = 2.5 packets]: samples older than this are forgotten (a packet is
-        30 symbols = 2.4 s at the defaults).
-      n_phases [16]: symbol-boundary phases tried over one symbol; phase_every [8]: the full
-        phase search runs every this many steps, the steps between reuse the found phase.
-      guard [0.12]: fraction of a symbol at each end whose samples are not used (timestamp
-        jitter and exposure straddling a symbol change).
-      sync_margin [0.3], min_margin [0.3]: see `decode_symbols`.
-      min_samples [1]: samples each packet position needs before a decode is attempted.
-      switch_steps [10]: consecutive steps a different valid ID needs to replace the decoded one.
+    Tunables: `S2pskSettings` (receiver.decode.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
 
-    def __init__(self, clk_hz: float = 200.0, symbol_clocks: int = 16, *, inverted: bool = False,
-                 history_s: float | None = None, n_phases: int = 16, guard: float = 0.12,
-                 sync_margin: float = 0.3, min_margin: float = 0.3, min_samples: int = 1,
-                 switch_steps: int = 10, phase_every: int = 8):
+    def __init__(self, clk_hz: float = protocol.S2PSK_CLOCK_HZ, symbol_clocks: int = protocol.S2PSK_SYMBOL_CLOCKS, *,
+                 settings: S2pskSettings | None = None, **overrides):
+        s = self.settings = resolve_settings(settings, S2pskSettings, overrides)
         if clk_hz <= 0 or symbol_clocks <= 0:
             raise ValueError("clk_hz and symbol_clocks must be positive")
         self.symbol_s = symbol_clocks / clk_hz
-        self.sign = -1.0 if inverted else 1.0
-        self.history_s = 2.5 * PACKET_LEN * self.symbol_s if history_s is None else history_s
-        self.n_phases = n_phases
-        self.guard = guard
-        self.sync_margin = sync_margin
-        self.min_margin = min_margin
-        self.min_samples = min_samples
-        self.switch_steps = switch_steps
+        self.sign = -1.0 if s.inverted else 1.0
+        self.history_s = 2.5 * PACKET_LEN * self.symbol_s if s.history_s is None else s.history_s
+        self.n_phases = s.n_phases
+        self.guard = s.guard
+        self.sync_margin = s.sync_margin
+        self.min_margin = s.min_margin
+        self.min_samples = s.min_samples
+        self.switch_steps = s.switch_steps
         self._t = np.zeros(0)
         self._x = np.zeros(0)
         self._t0: float | None = None
-        self.phase_every = phase_every
+        self.phase_every = s.phase_every
         self._phase: float | None = None  # symbol-grid phase in symbols, from the last search
         self._calls = 0
         self.samples = 0

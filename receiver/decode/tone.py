@@ -34,8 +34,11 @@ from functools import lru_cache
 import numpy as np
 
 from receiver.decode.ook import trim_rows
+from receiver.decode.settings import ToneSettings
+from receiver.core.settings import resolve_settings
+from receiver.core import protocol
 
-MIN_SPACING_HZ = 50.0  # PROTOCOL.md section 4: channels are at least 50 Hz apart
+MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
 
 
 @lru_cache(maxsize=64)
@@ -144,27 +147,23 @@ class ToneDecoder:
     """Per-blob tone decoder: averages the stripe frequency over frames, then matches it.
 
     table: {id: freq_hz} of the map's tone LEDs; row_readout_us: t_row.
-    spacing_hz [None = smallest gap in the table, >= 50 Hz]; min_quality [30]: frames whose
-    spectral peak is weaker than this are ignored (pure noise profiles of 30-300 rows reach
-    up to ~25; there is no CRC in tone mode, so this gate is what keeps a non-LED blob out);
-    memory [0.8]: per-frame forgetting of the running mean (a blob that changes LED is followed);
-    fmin_hz / fmax_hz: see `stripe_frequency_hz` (fmin defaults to half the lowest listed
-    frequency, fmax to 1.5 times the highest, so harmonics and envelope stay out of the search).
+    Tunables: `ToneSettings` (receiver.decode.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
 
     def __init__(self, table: dict[int, float], row_readout_us: float, *,
-                 spacing_hz: float | None = None, min_quality: float = 30.0, memory: float = 0.8,
-                 fmin_hz: float | None = None, fmax_hz: float | None = None):
+                 settings: ToneSettings | None = None, **overrides):
+        s = self.settings = resolve_settings(settings, ToneSettings, overrides)
         if row_readout_us <= 0:
             raise ValueError("tone decoding needs a rolling shutter (row_readout_us > 0)")
         self.table = dict(table)
         self.row_readout_us = row_readout_us
-        self.spacing_hz = spacing_hz
-        self.min_quality = min_quality
-        self.memory = memory
+        self.spacing_hz = s.spacing_hz
+        self.min_quality = s.min_quality
+        self.memory = s.memory
         f = list(self.table.values()) or [1000.0]
-        self.fmin_hz = 0.5 * min(f) if fmin_hz is None else fmin_hz
-        self.fmax_hz = 1.5 * max(f) if fmax_hz is None else fmax_hz
+        self.fmin_hz = 0.5 * min(f) if s.fmin_hz is None else s.fmin_hz
+        self.fmax_hz = 1.5 * max(f) if s.fmax_hz is None else s.fmax_hz
         self.frames = 0
         self._sum = 0.0
         self._w = 0.0

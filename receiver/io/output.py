@@ -37,11 +37,13 @@ def frame_record(res: FrameResult, *, profile: bool = False) -> dict:
         d = {"track": o.track, "id": o.id, "mode": o.mode, "cx": _num(o.cx, PX_DECIMALS),
              "cy": _num(o.cy, PX_DECIMALS), "area_px": _num(o.area_px, AREA_DECIMALS),
              "distance_m": None, "border": bool(o.border)}
-        d.update(res.info.get(o.track, {}))
-        dist = res.distances.get(o.track)
-        if dist is not None:
-            d["distance_m"] = _num(dist[0], M_DECIMALS)
-            d["distance_estimator"] = dist[1]
+        if o.kind is not None:
+            d["kind"] = o.kind
+        if o.freq_hz is not None:
+            d["freq_hz"] = o.freq_hz
+        if o.distance_m is not None:
+            d["distance_m"] = _num(o.distance_m, M_DECIMALS)
+            d["distance_estimator"] = o.distance_estimator
         leds.append(d)
     rec = {"frame": res.frame, "t": _num(res.t_s, T_DECIMALS),
            "latency_ms": _num(res.latency_ms, MS_DECIMALS), "leds": leds,

@@ -34,6 +34,7 @@ frame is OpenCV's (x right, y down, z along the optical axis); the world frame h
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -203,3 +204,107 @@ def project_world(points_world: np.ndarray, camera: CameraModel, R_cw: np.ndarra
     px, _ = cv2.projectPoints(np.asarray(points_world, float).reshape(-1, 1, 3), rvec, tvec,
                               camera.K, camera.dist)
     return px.reshape(-1, 2)
+
+
+class Ranger:
+    """The ranging stage: which of a frame's LED observations can be ranged, and their ranges.
+
+    Callable on its own (`range_leds`), and the one API both the local positioner
+    (receiver.locate.indoor) and the lighting-server client (receiver.serve.client) use.
+    `settings`: the locate stage's `PositionerSettings` (its `ranging` estimator, `edge_sigma_px`,
+    `model_rel_sigma`, `edge_offset_px`, `border_margin_px`). IDs the map does not know are
+    counted in `unknown_ids`.
+    """
+
+    def __init__(self, camera: CameraModel, led_map, settings):
+        if settings.ranging not in ESTIMATORS:
+            raise ValueError(f"unknown ranging estimator {settings.ranging!r}")
+        self.camera, self.led_map = camera, led_map
+        self.estimator = settings.ranging
+        self.edge_sigma_px, self.model_rel_sigma = settings.edge_sigma_px, settings.model_rel_sigma
+        self.edge_offset_px = settings.edge_offset_px
+        self.border_margin_px = settings.border_margin_px
+        self.unknown_ids: set[int] = set()
+
+    def _touches_edge(self, obs) -> bool:
+        if obs.contour is None or len(obs.contour) == 0:
+            return False
+        c = np.asarray(obs.contour, float).reshape(-1, 2)
+        m = self.border_margin_px
+        lo = c.min(axis=0)
+        hi = c.max(axis=0)
+        return bool(lo[0] <= m or lo[1] <= m or hi[0] >= self.camera.width - 1 - m
+                    or hi[1] >= self.camera.height - 1 - m)
+
+    def usable(self, leds) -> list:
+        """The frame's rangeable LEDs: (observation, map LED, contour geometry or None) for every
+        decoded, uncut OOK or tone LED the map knows (unknown IDs are counted in `unknown_ids`).
+        Blobs within `border_margin_px` of the image edge are left out (their area is cut).
+        S2-PSK lights are left out: a street-light head or a taillight pair is seen as two
+        emitter blobs, not one fixture of the map's size, from a camera looking along the road;
+        they are ranged as pairs by the vehicle locator (receiver.locate.vehicle)."""
+        items = []
+        for obs in leds:
+            if obs.id is None or obs.border or obs.mode == "s2psk" or self._touches_edge(obs):
+                continue
+            led = self.led_map.lookup(obs.id)
+            if led is None:
+                self.unknown_ids.add(obs.id)
+                continue
+            if led.mode == "s2psk":
+                continue
+            geo = None
+            if obs.contour is not None and len(obs.contour) >= 3:
+                geo = contour_geometry(obs.contour, self.camera, self.edge_offset_px)
+            items.append((obs, led, geo))
+        return items
+
+    def ranges(self, items, R_cw: np.ndarray | None):
+        """(d (N,) m, sigma_d (N,) m, estimator names) of `usable`'s items, NaN where the LED's
+        size is unknown. `R_cw`: the camera orientation for the oblique estimator's
+        foreshortening (None: looking straight up)."""
+        d = np.full(len(items), np.nan)
+        sd = np.full(len(items), np.nan)
+        names = [""] * len(items)
+        for i, (obs, led, geo) in enumerate(items):
+            A = led.area_m2
+            if not A:
+                continue
+            if self.estimator == "oblique" and geo is not None:
+                Rw = np.eye(3) if R_cw is None else R_cw
+                d[i] = distance_oblique(geo["area_norm"], A, ray_unit(geo["centroid_norm"]), Rw)
+                names[i] = "oblique-up" if R_cw is None else "oblique-pose"
+                area_px, perim = geo["area_px"], geo["perimeter_px"]
+            else:
+                d[i] = distance_eq18(obs.area_px, A, self.camera.focal_px)
+                names[i] = "eq18"
+                area_px = obs.area_px
+                perim = 4.0 * math.sqrt(max(area_px, 0.0))   # square-ish blob without a contour
+            sd[i] = range_sigma_m(d[i], area_px, perim, self.edge_sigma_px, self.model_rel_sigma)
+        return d, sd, names
+
+    def image_points(self, items) -> np.ndarray:
+        """(N, 2) undistorted normalized image points of `usable`'s items."""
+        if not items:
+            return np.zeros((0, 2))
+        return undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
+
+    @staticmethod
+    def annotate(leds, items, d: np.ndarray, names: list[str]) -> list:
+        """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
+        item with a finite range; the others unchanged."""
+        ranged = {id(obs): (round(float(d[i]), 5), names[i])
+                  for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
+        if not ranged:
+            return list(leds)
+        out = []
+        for o in leds:
+            r = ranged.get(id(o))
+            out.append(o if r is None else dataclasses.replace(o, distance_m=r[0], distance_estimator=r[1]))
+        return out
+
+    def range_leds(self, leds, R_cw: np.ndarray | None = None) -> list:
+        """Ranging without a positioner: `leds` with the ranges of the rangeable ones."""
+        items = self.usable(leds)
+        d, _, names = self.ranges(items, R_cw)
+        return self.annotate(leds, items, d, names)

@@ -123,19 +123,20 @@ class RemotePositioner:
         return self._n_fixes
 
     def step(self, t_s: float, leds) -> LocateResult:
-        items = self.local.measure(leds)[:MAX_LEDS]
+        ranger = self.local.ranger
+        items = ranger.usable(leds)[:MAX_LEDS]
         # the server's replied orientations, kept by the rule of a local receiver (R_prior)
-        d, sd, names = self.local._ranges(items, self.local.pose.R_prior(t_s))
+        d, sd, names = ranger.ranges(items, self.local.pose.R_prior(t_s))
         request = make_request(self.device, self.seq, t_s, self.local.pose.sigma_uv,
-                               [obs.id for obs, _, _ in items], self.local.image_points(items), d, sd)
+                               [obs.id for obs, _, _ in items], ranger.image_points(items), d, sd)
         self.seq += 1
         reply = self._exchange(request)
         position = None
         if reply is not None:
             position, R = self._accept(reply, t_s)
             if R is not None and self.local.ranging == "oblique":
-                d, sd, names = self.local._ranges(items, R)    # this frame's own orientation
-        return LocateResult(distances=self.local.distances(items, d, names), position=position)
+                d, sd, names = ranger.ranges(items, R)    # this frame's own orientation
+        return LocateResult(position=position, leds=ranger.annotate(leds, items, d, names))
 
     def _accept(self, reply: dict, t_s: float) -> tuple[dict | None, np.ndarray | None]:
         """(position, solving-frame R_cw or None) of a matching reply; keeps its orientation."""

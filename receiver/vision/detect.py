@@ -37,6 +37,8 @@ import cv2
 import numpy as np
 from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
+from receiver.vision.settings import DetectSettings
+from receiver.core.settings import resolve_settings
 
 # 1.4826 * MAD estimates sigma for Gaussian noise.
 MAD_TO_SIGMA = 1.4826
@@ -136,111 +138,66 @@ def _hull_stats_many(hulls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, n
     return cx, cy, m00 + 0.5 * perim + math.pi / 4.0
 
 
-def detect(gray: np.ndarray, *, stripe_gap_px: int = 8, join_x_px: int = 2,
-           max_detect_px: int = 1_200_000,
-           k_mad: float = 8.0, min_contrast: float = 24.0, refine_frac: float = 0.5,
-           saturated_gray: float = 250.0, saturated_frac: float = 0.03, min_refine_contrast: float = 6.0,
-           min_area_px: float = 12.0, max_area_frac: float = 0.05, max_aspect: float = 4.0,
-           min_fill: float = 0.25,
-           expect_stripes: bool = False, min_stripe_depth: float = 0.8,
-           min_stripe_rows: int = 0, min_rel_area: float = 0.0,
-           level: float | None = None, row_pool: int = 2) -> list[Blob]:
+def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overrides) -> list[Blob]:
     """LED blobs of an (H, W) uint8 frame, sorted top to bottom.
 
-    Tunables (defaults in brackets):
-      stripe_gap_px [8]: longest dark stripe (rows, full resolution) bridged inside one LED;
-        the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
-      join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
-        bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
-      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
-      k_mad [8], min_contrast [24]: threshold, see `auto_level`.
-      refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
-        maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
-        through the outermost lit pixel centres lies half a pixel inside it on average.
-      saturated_gray [250], saturated_frac [0.03], min_refine_contrast [6]: a blob whose
-        peak reaches `saturated_gray` is clipped (real phone photos: a saturated core in a
-        dimmer, still striped glow); its edge level is background + max(saturated_frac *
-        (255 - background), min_refine_contrast), which keeps the glow and gives the decoders
-        many more stripe rows.
-      min_area_px [12]: smaller envelopes are specks. max_area_frac [0.05]: larger than this
-        fraction of the frame is a window or a lamp, not a transmitter.
-      max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
-        most this elongated, and its contour must fill at least this fraction of the box (a
-        disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
-        blobs are exempt.
-      expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
-        `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
-        about one stripe period; 0 = always checked).
-      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest blob
-        (for single photos of a lamp set, where reflections look like small dim lamps;
-        0 = off, since a moving camera sees near and far lights together).
-      level [None]: fixed global threshold instead of `auto_level`.
-      row_pool [2]: 2 = at full resolution, with stripes to bridge (stripe_gap_px >= 4), the
-        components are searched on the maximum of every 2 rows: the close and contour pass
-        cost half as much. Every gap the full-resolution search bridges is bridged, the boxes
-        are the full-resolution search's and the envelopes are taken in full resolution within
-        them, so the blobs are the same (a frame where component boxes overlap is searched in
-        full resolution), except that the pooled rows may join lights the full-resolution
-        search keeps apart: stacked up to 4 rows closer than stripe_gap_px, touching diagonally
-        (within join_x_px columns) across a pair of pooled rows, or within a row or two of
-        each other at the top or bottom edge (the pooled close reaches the edge from up to 2
-        rows farther); and the `min_fill` test uses the pooled component's area (times 2),
-        which can decide otherwise within a few % of `min_fill`. 1 = off (full resolution).
-        Other values are refused: with 3 rows the pooled close can reach the bottom edge from
-        a row less far than the full-resolution one and split what it joins.
+    Tunables: `DetectSettings` (receiver.vision.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
-    if row_pool not in (1, 2):
-        raise ValueError(f"row_pool must be 1 or 2, not {row_pool!r}")
+    s = resolve_settings(settings, DetectSettings, overrides)
+    level = s.level
+    if s.row_pool not in (1, 2):
+        raise ValueError(f"row_pool must be 1 or 2, not {s.row_pool!r}")
     h, w = gray.shape[:2]
-    f = detect_scale(gray.shape, max_detect_px)
+    f = detect_scale(gray.shape, s.max_detect_px)
     small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
     if level is None:
-        level, bg = auto_level(small, k_mad=k_mad, min_contrast=min_contrast)
+        level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast)
     else:
         bg = float(np.median(small[::4, ::4]))
     # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
-    pool = row_pool if f == 1 and row_pool > 1 and stripe_gap_px >= 2 * row_pool else 1
-    contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
+    pool = s.row_pool if f == 1 and s.row_pool > 1 and s.stripe_gap_px >= 2 * s.row_pool else 1
+    contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool)
     alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects = _components(small, coarse, stripe_gap_px, join_x_px, f, pool)
+        contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool)
         alone = _isolated(rects)
-    max_area = max_area_frac * h * w
+    max_area = s.max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
-    keep = (box_px >= min_area_px * 0.5) & (box_px <= 4 * max_area)
-    sat_kw = dict(saturated_gray=saturated_gray, saturated_frac=saturated_frac,
-                  min_refine_contrast=min_refine_contrast)
+    keep = (box_px >= s.min_area_px * 0.5) & (box_px <= 4 * max_area)
+    sat_kw = dict(saturated_gray=s.saturated_gray, saturated_frac=s.saturated_frac,
+                  min_refine_contrast=s.min_refine_contrast)
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
     batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, refine_frac, **sat_kw)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
     for i in np.flatnonzero(keep).tolist():
         c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       refine_frac, bool(alone[i]), **sat_kw)
-        if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
+                                                       s.refine_frac, bool(alone[i]), **sat_kw)
+        if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
         # a long box, or a thin diagonal bar filling little of its square box (boxes in search
         # pixels: the full-resolution box over the pooling factor).
-        if not blob.border and max_aspect and (max(bw, bh) > max_aspect * min(bw, bh)
-                                               or pool * cv2.contourArea(c) < min_fill * bw * bh):
+        if not blob.border and s.max_aspect and (max(bw, bh) > s.max_aspect * min(bw, bh)
+                                               or pool * cv2.contourArea(c) < s.min_fill * bw * bh):
             continue
-        if expect_stripes and blob.y1 - blob.y0 >= max(min_stripe_rows, 3):
+        if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
-            if stripe_depth(prof, wts, background=blob.background) < min_stripe_depth:
+            if stripe_depth(prof, wts, background=blob.background) < s.min_stripe_depth:
                 continue
         blobs.append(blob)
-    if min_rel_area > 0 and blobs:
+    if s.min_rel_area > 0 and blobs:
         biggest = max(b.area_px for b in blobs)
-        blobs = [b for b in blobs if b.area_px >= min_rel_area * biggest]
+        blobs = [b for b in blobs if b.area_px >= s.min_rel_area * biggest]
     blobs.sort(key=lambda b: (b.cy, b.cx))
     return blobs
 

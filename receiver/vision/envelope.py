@@ -37,3 +37,31 @@ def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tupl
         out[i] = Blob(cx, cy, area, hull.reshape(-1, 2).astype(np.float64), max(x0, 0), max(y0, 0),
                       min(x1, w), min(y1, h), border, blob.peak, blob.level, blob.background)
     return out
+
+
+class EnvelopeHistory:
+    """Each tracked light's envelope over its last `frames` frames (init/step).
+
+    `step(tracks, k, shape)` returns {track_id: envelope Blob} for the tracks seen in frame `k`:
+    this frame's blob merged with its hulls of the previous `frames - 1` frames, each moved by
+    the track's px/frame velocity (its jitter from the hidden caps limits how much a static
+    scene gains; a moving one needs the motion). `frames` 1 = this frame's blob alone.
+    `forget(track_ids)` drops the history of ended tracks."""
+
+    def __init__(self, frames: int):
+        self.frames = max(1, int(frames))
+        self._hulls: dict[int, list] = {}  # track id -> [(frame index, hull (K, 2))]
+
+    def step(self, tracks, k: int, shape) -> dict:
+        if self.frames <= 1:
+            return {t.track_id: t.blob for t in tracks}
+        items = []
+        for t in tracks:
+            keep = [(kh, h) for kh, h in self._hulls.get(t.track_id, ()) if 0 < k - kh < self.frames]
+            items.append((t.blob, [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in keep]))
+            self._hulls[t.track_id] = keep + [(k, t.blob.hull)]
+        return {t.track_id: env for t, env in zip(tracks, merge_envelopes_many(items, shape))}
+
+    def forget(self, track_ids) -> None:
+        for i in track_ids:
+            self._hulls.pop(i, None)

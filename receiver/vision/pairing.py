@@ -33,6 +33,7 @@ XOR of one sample.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -41,6 +42,8 @@ import numpy as np
 
 from receiver.core.records import Blob
 from receiver.vision.track import Track
+from receiver.vision.settings import PairSettings
+from receiver.core.settings import resolve_settings
 
 
 class EmitterLevels:
@@ -98,9 +101,7 @@ class Pair:
     b: Track
     levels_a: EmitterLevels = field(default_factory=EmitterLevels)
     levels_b: EmitterLevels = field(default_factory=EmitterLevels)
-    decoder: object = None  # the pipeline's decoders of this pair
-    state: object = None  # their latest state
-    led_id: int | None = None
+    led_id: int | None = None  # its decoded S2-PSK ID (receiver.decode.policy), None until then
     kind: str | None = None
     fresh: bool = True  # formed this frame: its levels already hold this frame's intensities
     tracks: list = field(default_factory=list)
@@ -111,6 +112,8 @@ class Pair:
     misses: int = 0  # consecutive frames without a blob it explains
     mx: float = 0.0  # midpoint, px
     my: float = 0.0
+    both_seen: bool = False  # both emitters' own blobs were seen apart in the latest frame
+    uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
 
@@ -165,32 +168,26 @@ class Pairer:
     shift (`pitch_shift`), added to every pair's prediction.
     """
 
-    def __init__(self, *, row_band: float = 1.0, max_area_ratio: float = 2.5, min_baseline: float = 1.2,
-                 max_baseline: float = 25.0, min_frames: int = 4, min_swing: float = 20.0,
-                 match_frac: float = 0.75, match_min_px: float = 3.0, match_size: float = 1.5,
-                 merged_ratio: float = 1.5, max_merged: float = 3.0, max_cut: float = 3.0,
-                 miss_growth_px: float = 1.0,
-                 velocity_gain: float = 0.3, max_missed: int = 10, give_up_frames: int = 110,
-                 jump_max_baseline: float = 4.0, jump_agree: float = 0.5, jump_agree_y_px: float = 4.0,
-                 shake_min_pairs: int = 3):
-        self.geom = dict(row_band=row_band, max_area_ratio=max_area_ratio,
-                         min_baseline=min_baseline, max_baseline=max_baseline)
-        self.min_frames = min_frames
-        self.min_swing = min_swing
-        self.match_frac, self.match_min_px, self.match_size = match_frac, match_min_px, match_size
-        self.max_cut = max_cut
-        self.max_merged = max_merged
-        self.miss_growth_px = miss_growth_px
-        self.merged_ratio = merged_ratio
-        self.velocity_gain = velocity_gain
-        self.max_missed = max_missed
-        self.give_up_frames = give_up_frames
+    def __init__(self, *, settings: PairSettings | None = None, **overrides):
+        s = self.settings = resolve_settings(settings, PairSettings, overrides)
+        self.geom = dict(row_band=s.row_band, max_area_ratio=s.max_area_ratio,
+                         min_baseline=s.min_baseline, max_baseline=s.max_baseline)
+        self.min_frames = s.min_frames
+        self.min_swing = s.min_swing
+        self.match_frac, self.match_min_px, self.match_size = s.match_frac, s.match_min_px, s.match_size
+        self.max_cut = s.max_cut
+        self.max_merged = s.max_merged
+        self.miss_growth_px = s.miss_growth_px
+        self.merged_ratio = s.merged_ratio
+        self.velocity_gain = s.velocity_gain
+        self.max_missed = s.max_missed
+        self.give_up_frames = s.give_up_frames
         self.pairs: list[Pair] = []
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
-        self.jump_max_baseline, self.jump_agree = jump_max_baseline, jump_agree
-        self.jump_agree_y_px = jump_agree_y_px
-        self.shake_min_pairs = shake_min_pairs
+        self.jump_max_baseline, self.jump_agree = s.jump_max_baseline, s.jump_agree
+        self.jump_agree_y_px = s.jump_agree_y_px
+        self.shake_min_pairs = s.shake_min_pairs
         self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
 
@@ -280,6 +277,7 @@ class Pairer:
         mx, my, hx, hy, single = self._predict(p)
         my += dy
         p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
+        p.both_seen = obs_a is not None and obs_b is not None
         if not shifts:
             p.misses += 1
             sx = sy = 0.0

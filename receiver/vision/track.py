@@ -11,12 +11,14 @@ implausible area change are left unassigned (new track / missed track).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from receiver.core.records import Blob
+from receiver.vision.settings import TrackSettings
+from receiver.core.settings import resolve_settings
 
 # Cost standing in for "not allowed" in the assignment matrix (finite: scipy needs a solution).
 _FORBIDDEN = 1e9
@@ -35,15 +37,6 @@ class Track:
     hits: int = 1
     misses: int = 0  # consecutive frames without a blob
     seen: bool = True  # a blob was assigned in the latest frame
-    led_id: int | None = None
-    mode: str | None = None
-    striped: bool = False  # its row profile has shown stripes (set by the pipeline)
-    tone_last: int | None = None  # the pipeline's tone-match confirmation
-    tone_run: int = 0
-    envelope: Blob | None = None  # this frame's blob merged with recent ones (pipeline)
-    history: list = field(default_factory=list)  # [(frame index, hull (K, 2))] of recent frames
-    decoders: dict = field(default_factory=dict)  # filled by the pipeline
-    states: dict = field(default_factory=dict)
 
     @property
     def cx(self) -> float:
@@ -61,23 +54,17 @@ class Track:
 class Tracker:
     """Gated assignment tracker (init/step).
 
-    Tunables (defaults in brackets):
-      gate_px [30]: fixed part of the association gate, px.
-      gate_size [1.5]: plus this many blob diameters (sqrt(area)), so big near lights may move
-        more per frame than small far ones.
-      max_area_ratio [4]: larger area change between frames is another light.
-      max_missed [10]: frames a track survives without a blob (an S2-PSK emitter is dark in
-        about half the frames, a blob may also leave the view briefly).
-      velocity_gain [0.5]: smoothing of the px/frame velocity estimate (1 = last step only).
+    Tunables: `TrackSettings` (receiver.vision.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
 
-    def __init__(self, *, gate_px: float = 30.0, gate_size: float = 1.5, max_area_ratio: float = 4.0,
-                 max_missed: int = 10, velocity_gain: float = 0.5):
-        self.gate_px = gate_px
-        self.gate_size = gate_size
-        self.max_area_ratio = max_area_ratio
-        self.max_missed = max_missed
-        self.velocity_gain = velocity_gain
+    def __init__(self, *, settings: TrackSettings | None = None, **overrides):
+        s = self.settings = resolve_settings(settings, TrackSettings, overrides)
+        self.gate_px = s.gate_px
+        self.gate_size = s.gate_size
+        self.max_area_ratio = s.max_area_ratio
+        self.max_missed = s.max_missed
+        self.velocity_gain = s.velocity_gain
         self.tracks: list[Track] = []
         self._next_id = 0
         self.ended: list[Track] = []  # tracks dropped in the latest step

@@ -1,0 +1,179 @@
+"""Settings of this stage: one frozen dataclass per component, defaults documented."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class OokSettings:
+    """Tunables of `OokDecoder` (defaults in brackets).
+
+      rate_hz [20000]: chip rate from the LED map; row_readout_us [15]: sensor row time t_row;
+      exposure_us [0]: row exposure (only narrows the sampled part of a chip; 0 if unknown).
+      min_row_frac [0.25]: rows with fewer pixels than this fraction of the widest row are
+        trimmed from the blob's top and bottom.
+      segment_chips [6]: segment length for the period refinement (drift per segment must stay
+        under half a chip: 6 chips tolerate ~8 % row-time error); max_period_error [0.08].
+      verify_frames [16], verify_min [0.9]: a CRC-valid packet assembled by cyclic alignment
+        could be a wrong assembly (a 2-chip slip) that happens to pass CRC-8 (1 in 256); unless
+        every data chip was placed where it surely belongs (by its frame's sync, or by an
+        alignment that could compare every shift), a new ID is reported only when each of the
+        last `verify_frames` frames fits its full packet somewhere with normalised correlation
+        >= verify_min (`best_cyclic_match`).
+      period_frames [5]: the refined chip period (rows) of this many frames is fixed by
+        their median (it is a camera/LED constant); later frames only measure the phase.
+      period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
+        and camera (its own `period_frames` counts their refinements together); None: this
+        decoder learns alone.
+      min_coherence [0.3]: frames whose transitions do not sit on a chip grid are skipped.
+      norm_chips [8]: local normalisation window, chips.
+      sync_margin [0.3]: every sync chip must be right by this (soft units).
+      align_min [0.7], align_gap [0.25], align_min_chips [8]: a frame without sync is placed
+        by its best cyclic correlation with the accumulated packet only when that correlation
+        is >= align_min, beats every other shift by align_gap and overlaps >= align_min_chips.
+      pending_frames [8]: unplaceable frames kept and retried as the packet fills.
+      decay [0.9]: accumulator memory per frame (< 1 lets a changed LED take over).
+      min_margin [0.25]: decode threshold on every Manchester pair and sync chip.
+      switch_frames [3]: consecutive frames a different CRC-valid ID needs to replace the
+        decoded one.
+      parity_gap [2.0]: Manchester pair-grid evidence (pairs) needed to restrict a cyclic
+        alignment to shifts of the right parity (`pair_parity`).
+      stale_frames [10]: a full accumulator that yields no CRC-valid packet for this many
+        frames is cleared (a wrong alignment must not lock the decoder up forever).
+      align_when_decoded [False]: once an ID is decoded, frames without a sync are skipped
+        (saves the cyclic alignment, the step's dearest part; ID changes still show in the
+        frames with sync).
+      Frame-clock timing (only with a `clock` hint): timing_window [12] frames of offsets in
+        the offset line fit; timing_max_gap [6] frames without an offset reset it;
+        timing_frac [0.25]: a frame whose chip grid is further (chips) from the predicted one
+        is not placed by timing; timing_conflict [0.35]: a sync-placed frame further from the
+        offset line disables timing (for good when the line rests on a sync);
+        timing_min_overlap [4], timing_min_corr [0.6]: a timed frame overlapping that many
+        surely placed chips must correlate with them this well, else timing is disabled;
+        trust_timed [True]: timed placements count as sure once a sync frame has confirmed
+        the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
+    
+    """
+
+    min_row_frac: float = 0.25
+    segment_chips: float = 6.0
+    max_period_error: float = 0.08
+    min_coherence: float = 0.3
+    norm_chips: int = 8
+    sync_margin: float = 0.3
+    align_min: float = 0.7
+    align_gap: float = 0.25
+    align_min_chips: int = 8
+    pending_frames: int = 8
+    decay: float = 0.9
+    min_margin: float = 0.25
+    switch_frames: int = 3
+    parity_gap: float = 2.0
+    stale_frames: int = 10
+    align_when_decoded: bool = False
+    period_frames: int = 5
+    verify_frames: int = 16
+    verify_min: float = 0.9
+    timing_window: int = 12
+    timing_max_gap: int = 6
+    timing_frac: float = 0.25
+    timing_conflict: float = 0.35
+    timing_min_overlap: int = 4
+    timing_min_corr: float = 0.6
+    trust_timed: bool = True
+
+
+@dataclass(frozen=True)
+class ToneSettings:
+    """Tunables of `ToneDecoder` (defaults in brackets).
+
+    spacing_hz [None = smallest gap in the table, >= 50 Hz]; min_quality [30]: frames whose
+    spectral peak is weaker than this are ignored (pure noise profiles of 30-300 rows reach
+    up to ~25; there is no CRC in tone mode, so this gate is what keeps a non-LED blob out);
+    memory [0.8]: per-frame forgetting of the running mean (a blob that changes LED is followed);
+    fmin_hz / fmax_hz: see `stripe_frequency_hz` (fmin defaults to half the lowest listed
+    frequency, fmax to 1.5 times the highest, so harmonics and envelope stay out of the search).
+    """
+
+    spacing_hz: float | None = None
+    min_quality: float = 30.0
+    memory: float = 0.8
+    fmin_hz: float | None = None
+    fmax_hz: float | None = None
+
+
+@dataclass(frozen=True)
+class S2pskSettings:
+    """Tunables of `S2pskDecoder` (defaults in brackets).
+
+      clk_hz [200]: emitter clock; symbol_clocks [16]: clock periods per symbol (both from the
+        LED map); inverted [False]: read in-phase as 1 (the other published polarity).
+      history_s [None = 2.5 packets]: samples older than this are forgotten (a packet is
+        30 symbols = 2.4 s at the defaults).
+      n_phases [16]: symbol-boundary phases tried over one symbol; phase_every [8]: the full
+        phase search runs every this many steps, the steps between reuse the found phase.
+      guard [0.12]: fraction of a symbol at each end whose samples are not used (timestamp
+        jitter and exposure straddling a symbol change).
+      sync_margin [0.3], min_margin [0.3]: see `decode_symbols`.
+      min_samples [1]: samples each packet position needs before a decode is attempted.
+      switch_steps [10]: consecutive steps a different valid ID needs to replace the decoded one.
+    
+    """
+
+    inverted: bool = False
+    history_s: float | None = None
+    n_phases: int = 16
+    guard: float = 0.12
+    sync_margin: float = 0.3
+    min_margin: float = 0.3
+    min_samples: int = 1
+    switch_steps: int = 10
+    phase_every: int = 8
+
+
+@dataclass(frozen=True)
+class FrameClockSettings:
+    """Tunables of `FrameClock` (defaults in brackets).
+
+    window [12]: frames of a reference's offset history in its line fit.
+    max_gap [6]: a reference unseen for more frames than this loses its offset.
+    max_resid [0.2]: chips a reference may disagree with the consensus.
+    """
+
+    window: int = 12
+    max_gap: int = 6
+    max_resid: float = 0.2
+
+
+@dataclass(frozen=True)
+class PolicySettings:
+    """Tunables of the decoding policy (`receiver.decode.policy`; defaults in brackets).
+
+    redecode_every [8]: a track whose ID is known feeds its decoders only every this many
+        frames (staggered by track), to keep the frame budget with many lights (16 lights in
+        2 ms median); tracks without an ID are decoded every frame. 8 frames re-check a known
+        ID every 0.27 s at 30 fps (a changed ID is taken after the decoder's `switch_frames`
+        consecutive CRC-valid checks). 1 = always; cost grows with it.
+    stripe_check [None = from the map and camera, `ModePlan.expect_stripes`]: when every light
+        must show rolling-shutter stripes, a new track is reported and decoded only once its
+        row profile shows stripes (depth >= `min_stripe_depth` [0.8]) or it is shorter than a
+        stripe period; flat bright regions (lamps, windows) stay silent.
+    tone_confirm_frames [None: 1 for a tone-only map or photos, else 3]: consecutive frames a
+        tone match must hold before it is reported; with OOK lights in the map, an OOK stripe
+        pattern can show a spectral line near a listed tone for a frame or two.
+    frame_clock [True], clock_refs [3]: while some track has no ID, the `clock_refs` tallest
+        decoded OOK tracks of each chip rate are measured every frame (their frame's packet
+        position against their known packet, `OokDecoder.row0_coordinate`) to give the
+        frame's clock (receiver.decode.frameclock); undecoded OOK decoders get it as a timing
+        hint, so small lights whose frames barely overlap are still assembled. Rolling shutter
+        only. Costs one row profile and packet match per reference per frame, only while a
+        light lacks its ID.
+    """
+
+    redecode_every: int = 8
+    stripe_check: bool | None = None
+    min_stripe_depth: float = 0.8
+    tone_confirm_frames: int | None = None
+    frame_clock: bool = True
+    clock_refs: int = 3

@@ -1,0 +1,143 @@
+"""Settings of this stage: one frozen dataclass per component, defaults documented."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class DetectSettings:
+    """Tunables of `detect` (defaults in brackets).
+
+      stripe_gap_px [8]: longest dark stripe (rows, full resolution) bridged inside one LED;
+        the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
+      join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
+        bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
+      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
+      k_mad [8], min_contrast [24]: threshold, see `auto_level`.
+      refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
+        maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
+        through the outermost lit pixel centres lies half a pixel inside it on average.
+      saturated_gray [250], saturated_frac [0.03], min_refine_contrast [6]: a blob whose
+        peak reaches `saturated_gray` is clipped (real phone photos: a saturated core in a
+        dimmer, still striped glow); its edge level is background + max(saturated_frac *
+        (255 - background), min_refine_contrast), which keeps the glow and gives the decoders
+        many more stripe rows.
+      min_area_px [12]: smaller envelopes are specks. max_area_frac [0.05]: larger than this
+        fraction of the frame is a window or a lamp, not a transmitter.
+      max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
+        most this elongated, and its contour must fill at least this fraction of the box (a
+        disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
+        blobs are exempt.
+      expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
+        `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
+        about one stripe period; 0 = always checked).
+      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest blob
+        (for single photos of a lamp set, where reflections look like small dim lamps;
+        0 = off, since a moving camera sees near and far lights together).
+      level [None]: fixed global threshold instead of `auto_level`.
+      row_pool [2]: 2 = at full resolution, with stripes to bridge (stripe_gap_px >= 4), the
+        components are searched on the maximum of every 2 rows: the close and contour pass
+        cost half as much. Every gap the full-resolution search bridges is bridged, the boxes
+        are the full-resolution search's and the envelopes are taken in full resolution within
+        them, so the blobs are the same (a frame where component boxes overlap is searched in
+        full resolution), except that the pooled rows may join lights the full-resolution
+        search keeps apart: stacked up to 4 rows closer than stripe_gap_px, touching diagonally
+        (within join_x_px columns) across a pair of pooled rows, or within a row or two of
+        each other at the top or bottom edge (the pooled close reaches the edge from up to 2
+        rows farther); and the `min_fill` test uses the pooled component's area (times 2),
+        which can decide otherwise within a few % of `min_fill`. 1 = off (full resolution).
+        Other values are refused: with 3 rows the pooled close can reach the bottom edge from
+        a row less far than the full-resolution one and split what it joins.
+    
+    """
+
+    stripe_gap_px: int = 8
+    join_x_px: int = 2
+    max_detect_px: int = 1_200_000
+    k_mad: float = 8.0
+    min_contrast: float = 24.0
+    refine_frac: float = 0.5
+    saturated_gray: float = 250.0
+    saturated_frac: float = 0.03
+    min_refine_contrast: float = 6.0
+    min_area_px: float = 12.0
+    max_area_frac: float = 0.05
+    max_aspect: float = 4.0
+    min_fill: float = 0.25
+    expect_stripes: bool = False
+    min_stripe_depth: float = 0.8
+    min_stripe_rows: int = 0
+    min_rel_area: float = 0.0
+    level: float | None = None
+    row_pool: int = 2
+
+
+@dataclass(frozen=True)
+class TrackSettings:
+    """Tunables of `Tracker` (defaults in brackets).
+
+      gate_px [30]: fixed part of the association gate, px.
+      gate_size [1.5]: plus this many blob diameters (sqrt(area)), so big near lights may move
+        more per frame than small far ones.
+      max_area_ratio [4]: larger area change between frames is another light.
+      max_missed [10]: frames a track survives without a blob (an S2-PSK emitter is dark in
+        about half the frames, a blob may also leave the view briefly).
+      velocity_gain [0.5]: smoothing of the px/frame velocity estimate (1 = last step only).
+    
+    """
+
+    gate_px: float = 30.0
+    gate_size: float = 1.5
+    max_area_ratio: float = 4.0
+    max_missed: int = 10
+    velocity_gain: float = 0.5
+
+
+@dataclass(frozen=True)
+class PairSettings:
+    """Tunables of `Pairer` (defaults in brackets).
+
+    (see `pair_score`, units of blob diameters); min_frames [4]: frames of intensity history
+    before the on/off check; min_swing [20]: gray levels between an emitter's on and off.
+    Following a formed pair: a blob explains an emitter (or the midpoint) within match_size
+    [1.5] emitter diameters (at least match_min_px [3] px), at most match_frac [0.75] of the
+    baseline, widened by miss_growth_px [1] px per frame without an explained blob (the
+    camera's pitch vibration moves far lights by a few px within a second). merged_ratio [1.5],
+    max_merged [3]: a blob nearest the midpoint with 1.5 to 3 times one emitter's area is both
+    emitters lit (two halves and the blurred gap); one nearest an emitter must be within
+    merged_ratio of its area, or down to 1 / max_cut [3] of it (cut by a clock edge during the
+    rolling readout). velocity_gain [0.3]: smoothing of the px/frame velocity. max_missed [10]:
+    frames without an explained blob before the pair ends (both emitters are dark in about a
+    quarter of the frames). give_up_frames [110]: a pair still without an ID after this many
+    frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
+    Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
+    of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
+    jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
+    vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
+    mean.
+    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
+    shift (`pitch_shift`), added to every pair's prediction.
+    
+    """
+
+    row_band: float = 1.0
+    max_area_ratio: float = 2.5
+    min_baseline: float = 1.2
+    max_baseline: float = 25.0
+    min_frames: int = 4
+    min_swing: float = 20.0
+    match_frac: float = 0.75
+    match_min_px: float = 3.0
+    match_size: float = 1.5
+    merged_ratio: float = 1.5
+    max_merged: float = 3.0
+    max_cut: float = 3.0
+    miss_growth_px: float = 1.0
+    velocity_gain: float = 0.3
+    max_missed: int = 10
+    give_up_frames: int = 110
+    jump_max_baseline: float = 4.0
+    jump_agree: float = 0.5
+    jump_agree_y_px: float = 4.0
+    shake_min_pairs: int = 3
