@@ -452,8 +452,8 @@ def _pct(st: dict, nd=3) -> str:
 
 def _hv_row(g: dict) -> str:
     e, lat = g["error_2d_m"], g["lateral_m"]
-    return (f"2D median {_fmt(e['p50'], 100, ' cm')}  p95 {_fmt(e['p95'], 100, ' cm')}  "
-            f"lateral median {_fmt(lat['p50'], 100, ' cm')}  p95 {_fmt(lat['p95'], 100, ' cm')}  (n={g['frames']})")
+    return (f"2D median {_fmt(e['p50'], unit=' m')}  p95 {_fmt(e['p95'], unit=' m')}  "
+            f"lateral median {_fmt(lat['p50'], unit=' m')}  p95 {_fmt(lat['p95'], unit=' m')}  (n={g['frames']})")
 
 
 def _vehicle_rows(v: dict) -> list[tuple[str, str]]:
