@@ -255,8 +255,8 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
     """(metrics, series) of a vehicle scene, (None, None) unless some run frame has a `vehicle`
     object and some truth frame (of the run's) has one.
 
-    series: `t_s` (N,) over the run's frames; `hv_true_xy` (N, 2) and `hv` {name: (N, 2) x, y}
-    for "filtered", "raw" and each `hv_<name>` object, with `hv_err_m` {name: (N,)} their 2D
+    series: `t_s` (N,) over the run's frames (sorted); `hv_true_xy` (N, 2) and `hv` {name: (N, 2)
+    x, y} for "filtered", "raw" and "hv_<name>" per further object, with `hv_err_m` {name: (N,)} their 2D
     errors, nan where absent; `fv` {label: {"t_s", "true_m", "run_m"}} per truth FV (label its ID
     or "#index"), (N,) truth distance (nan when not visible) and matched run distance (nan when
     none).
@@ -272,7 +272,7 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
     hv_frames = truth_hv_frames = 0
     main = {"filtered": _hv_group(), "raw": _hv_group()}
     by_method, extra = {}, {}
-    per_frame = {}
+    per_frame, per_extra = {}, {}  # series name -> {row: (x, y, 2D error)}
     speed_err, heading_err = [], []
 
     fv_err, fv_true_d, fv_bear = [], [], []
@@ -306,7 +306,7 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
                 if hv["heading_deg"] is not None and true_hv["heading_deg"] is not None:
                     heading_err.append(abs(float(_wrap_deg(hv["heading_deg"] - true_hv["heading_deg"]))))
             for name, fix in rv["extra"].items():
-                _hv_add(extra, name, fix, true_hv, k, per_frame)
+                _hv_add(extra, name, fix, true_hv, k, per_extra)
                 _hv_add(by_method, fix["method"] or name, fix, true_hv, k)
 
         truth_fv = tv["fv"]
@@ -380,7 +380,8 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
         "fv_bearing_error_deg": _stats(fv_bear),
         "fv_time_to_first_distance": first,
     }
-    hv_xy = {name: np.full((n, 2), np.nan) for name in ("filtered", "raw", *sorted(extra))}
+    per_frame.update({f"hv_{name}": rows for name, rows in per_extra.items()})
+    hv_xy = {name: np.full((n, 2), np.nan) for name in ("filtered", "raw", *sorted(per_frame))}
     hv_err = {name: np.full(n, np.nan) for name in hv_xy}
     for name, rows in per_frame.items():
         for k, (x, y, e) in rows.items():

@@ -123,7 +123,7 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
         styles = _hv_styles(vs["hv"])
         for name, xy in vs["hv"].items():
             if np.isfinite(xy).any():
-                ax.plot(xy[:, 0], xy[:, 1], **styles[name], label=_hv_label(name))
+                ax.plot(xy[:, 0], xy[:, 1], **styles[name], label=name)
         ys = np.concatenate([a[:, 1] for a in (tru, *vs["hv"].values())])
         ys = ys[np.isfinite(ys)]
         half = max(ROAD_MIN_HALF_WIDTH_M, float(np.abs(ys).max()) * 1.1 if ys.size else 0.0)
@@ -153,7 +153,7 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
         for name, err in vs["hv_err_m"].items():
             if np.isfinite(err).any():
                 st = dict(styles[name], ls="-" if name == "filtered" else "none")
-                ax.plot(t, err, **st, label=_hv_label(name))
+                ax.plot(t, err, **st, label=name)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("HV 2D position error (m)")
         ax.set_title("Host vehicle error over time")
@@ -165,10 +165,6 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
         _save(fig, path, dpi)
     finally:
         plt.close(fig)
-
-
-def _hv_label(name: str) -> str:
-    return name if name in ("filtered", "raw") else f"hv_{name}"
 
 
 def _hv_styles(fixes: dict) -> dict:
