@@ -9,10 +9,12 @@ import sys
 
 
 from receiver.core.errors import InputError
-from receiver.evaluate.metrics import DEFAULT_AREA_BINS_PX, DEFAULT_GATE_PX, evaluate, format_table
+from receiver.evaluate.metrics import (DEFAULT_AREA_BINS_PX, DEFAULT_FV_GATE_DEG, DEFAULT_GATE_PX, evaluate,
+                                      format_table, json_safe)
 from receiver.io.truth import load_run, load_truth
 
-HELP = "score a run's JSON Lines output against truth.jsonl (ID rate, distance/position error, latency)"
+HELP = ("score a run's JSON Lines output against truth.jsonl (ID rate, distance/position error, latency; "
+        "HV/FV errors in vehicle scenes)")
 
 
 def add_arguments(parser) -> None:
@@ -22,16 +24,21 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     parser.add_argument("--gate-px", type=float, default=DEFAULT_GATE_PX,
                         help=f"LED match gate in pixels (default {DEFAULT_GATE_PX:g})")
+    parser.add_argument("--fv-gate-deg", type=float, default=DEFAULT_FV_GATE_DEG,
+                        help="bearing gate for matching forward vehicles without a decoded ID, degrees "
+                             f"(default {DEFAULT_FV_GATE_DEG:g})")
 
 
 def main(args) -> int:
     if not (args.gate_px > 0):
         raise InputError(f"--gate-px must be positive, got {args.gate_px}")
+    if not (args.fv_gate_deg > 0):
+        raise InputError(f"--fv-gate-deg must be positive, got {args.fv_gate_deg}")
     truth = load_truth(args.truth)
     run = load_run(args.run, truth)
-    metrics, series = evaluate(run, truth, gate_px=args.gate_px)
+    metrics, series = evaluate(run, truth, gate_px=args.gate_px, fv_gate_deg=args.fv_gate_deg)
     if args.json:
-        print(json.dumps(metrics))
+        print(json.dumps(json_safe(metrics), allow_nan=False))
     else:
         print(format_table(metrics))
     if args.plot:
