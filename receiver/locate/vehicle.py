@@ -186,6 +186,12 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
     return und[:, 0, 0], und[:, 1, 0], det[:, 0], det[:, 1]
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross is slow on small arrays)."""
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
 def _rays(u: np.ndarray) -> np.ndarray:
     v = np.concatenate([u, np.ones((len(u), 1))], axis=1)
     return v / np.linalg.norm(v, axis=1, keepdims=True)
@@ -198,8 +204,9 @@ def _perimeter_k(S1, S2, r, circle):
     and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
     p1 = S1 - np.sum(S1 * r, axis=1, keepdims=True) * r
     p2 = S2 - np.sum(S2 * r, axis=1, keepdims=True) * r
-    l1, l2 = np.linalg.norm(p1, axis=1), np.linalg.norm(p2, axis=1)
-    ar = np.linalg.norm(np.cross(p1, p2), axis=1)
+    l1, l2 = np.sqrt(np.sum(p1 * p1, axis=1)), np.sqrt(np.sum(p2 * p2, axis=1))
+    c = _cross(p1, p2)
+    ar = np.sqrt(np.sum(c * c, axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
         k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
@@ -368,14 +375,23 @@ class VehicleLocator:
             else:
                 B = None
             w, h = _sides(led.shape, led.size)
-            self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h,
+            if B is not None:
+                L = float(np.linalg.norm(B))
+            else:
+                L = led.baseline_m if led.baseline_m else math.nan
+            Bw = B if B is not None else np.array([0.0, L, 0.0])
+            row = np.concatenate([Bw, nrm, [np.nan if A is None else A, w, h, float(led.shape == "circle"),
+                                            float(B is not None), 1.0, L]])
+            self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
                                     circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz)
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
             w, h = _sides(tl["shape"], tl["size"])
-            self._tl = dict(area=shape_area_m2(tl["shape"], tl["size"]), w=w, h=h,
-                            circle=tl["shape"] == "circle", baseline=float(tl["baseline_m"]))
+            A = shape_area_m2(tl["shape"], tl["size"])
+            Lb = float(tl["baseline_m"])
+            self._tl = dict(area=A, w=w, h=h, circle=tl["shape"] == "circle", baseline=Lb,
+                            row=np.array([0.0, 0, 0, 0, 0, 0, A, w, h, float(tl["shape"] == "circle"), 0, 0, Lb]))
 
     # -------------------------------------------------------------------------- ranging
     def _role(self, p: PairObservation) -> str | None:
@@ -386,9 +402,9 @@ class VehicleLocator:
         return "FV?" if self._tl is not None else None
 
     def _range_pairs(self, pairs, R_cw, pose_known: bool):
-        """Range every usable pair. Returns (list aligned with pairs of (res, k) or (None, None),
-        res dict, indices, roles) or None when no pair is usable."""
-        idx, roles = [], []
+        """Range every usable pair (vectorised). Returns (list aligned with pairs of (res, k) or
+        (None, None), res dict) or None when no pair is usable."""
+        idx, roles, consts = [], [], []
         for i, p in enumerate(pairs):
             if not p.both_visible:
                 continue
@@ -396,59 +412,39 @@ class VehicleLocator:
             if role is not None:
                 idx.append(i)
                 roles.append(role)
+                consts.append(self._sl[p.led_id]["row"] if role == "SL" else self._tl["row"])
         if not idx:
             return None
         n = len(idx)
-        a = np.array([pairs[i].a_px for i in idx], float)
-        b = np.array([pairs[i].b_px for i in idx], float)
-        eta_a = np.array([pairs[i].area_a_px for i in idx], float)
-        eta_b = np.array([pairs[i].area_b_px for i in idx], float)
-        ua, ub, ja, jb = _undistort(self.camera, a, b)
+        ab = np.array([pairs[i].a_px + pairs[i].b_px for i in idx], float)
+        eta = np.array([(pairs[i].area_a_px, pairs[i].area_b_px) for i in idx], float)
+        cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
+        ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
         R = self.R_nominal if R_cw is None else R_cw
         Lv = level_rotation(R)                     # rows: ahead, left, up in camera frame
-        area = np.empty(n)
-        S1 = np.empty((n, 3))
-        S2 = np.empty((n, 3))
-        circ = np.zeros(n, bool)
-        Bc = np.empty((n, 3))
-        nc = np.empty((n, 3))
-        bm = np.empty(n)
         osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
-        # Taillight baseline error from an unknown FV heading (module doc).
-        um = 0.5 * (ua + ub)
-        rays_m = _rays(um)
+        rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
         bearing = np.arctan2(lev[:, 1], lev[:, 0])
+        is_sl = cst[:, 11] > 0
+        known_b = is_sl & (cst[:, 10] > 0) & pose_known
+        # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
+        # the heading, facing back along it (module doc).
+        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * Lv[1])
+        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -Lv[0])
+        # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
+        perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
+        perp = perp / np.maximum(np.sqrt(np.sum(perp * perp, axis=1, keepdims=True)), 1e-12)
+        unk = is_sl & ~known_b
+        Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
         sy = math.radians(self.s.taillight_yaw_sigma_deg)
-        for k, (i, role) in enumerate(zip(idx, roles)):
-            p = pairs[i]
-            if role == "SL":
-                c = self._sl[p.led_id]
-                area[k], circ[k] = c["area"], c["circle"]
-                nc[k] = R @ c["normal"]
-                if c["B"] is not None and pose_known:
-                    Bc[k] = R @ c["B"]
-                    bm[k] = self.s.baseline_model_rel
-                else:
-                    L = c["baseline"] if c["baseline"] else (np.linalg.norm(c["B"]) if c["B"] is not None else np.nan)
-                    # Unknown azimuth: horizontal, perpendicular to the line of sight.
-                    perp = np.cross(Lv[2], rays_m[k])
-                    nrm = np.linalg.norm(perp)
-                    Bc[k] = L * perp / nrm if nrm > 1e-9 else np.nan
-                    bm[k] = 0.05
-                # Sides: size[0] along the baseline (across the road), size[1] along n x B.
-                across = Bc[k] / np.linalg.norm(Bc[k])
-                S1[k] = c["w"] * across
-                S2[k] = c["h"] * np.cross(nc[k], across)
-            else:
-                t = self._tl
-                area[k], circ[k] = t["area"], t["circle"]
-                Bc[k] = t["baseline"] * Lv[1]          # horizontal, perpendicular to the heading
-                nc[k] = -Lv[0]                          # facing back along the heading
-                S1[k], S2[k] = t["w"] * Lv[1], t["h"] * Lv[2]
-                bm[k] = abs(math.tan(bearing[k])) * sy + 0.5 * sy * sy + self.s.baseline_model_rel
-        res = range_core(ua, ub, ja, jb, eta_a, eta_b, area, S1, S2, circ, Bc, nc, np.full(n, osig), bm,
-                         self.focal, self.s)
+        bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
+                      np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
+        across = Bc / np.sqrt(np.sum(Bc * Bc, axis=1, keepdims=True))
+        S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
+        S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
+        res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
+                         np.full(n, osig), bm, self.focal, self.s)
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
