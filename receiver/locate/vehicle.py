@@ -551,8 +551,10 @@ class VehicleLocator:
                     self.hv_reason = "street-light pose solve failed"
                 else:
                     R, C, cov = solved
-                    out = self._range_pairs(pairs, R, True)      # final ranges with the pose
-                    aligned, res = out
+                    if R_prior is None:
+                        # Final ranges with the solved pose. While tracking, the ranges taken with
+                        # the previous frame's orientation stand (one frame of rotation: negligible).
+                        aligned, res = self._range_pairs(pairs, R, True)
                     yaw = math.radians(rotation_to_ypr_deg(R)[0])
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k))
                     self.hv_reason = None
