@@ -1,0 +1,179 @@
+"""Road-frame tracking of the host vehicle (HV): an extended Kalman filter on a
+constant-velocity / constant-turn-rate model, and a 1-D constant-velocity filter for the
+distance to a forward vehicle.
+
+Road (map) frame: metres, x along the road, y to the left, z up; heading psi in radians from
++x towards +y (counter-clockwise seen from above).
+
+`RoadKalman` state ``s = [x, y, psi, v, omega]`` (m, m, rad, m/s, rad/s). Prediction over dt
+(first order in dt, exact when omega = 0)::
+
+    x += v cos(psi) dt,  y += v sin(psi) dt,  psi += omega dt
+
+with white-noise longitudinal acceleration (spectral density `accel_psd`, m^2/s^3) driving v and
+white yaw acceleration (`yaw_accel_psd`, rad^2/s^3) driving omega; their effect on position and
+heading over the step is included through the integrated noise gain. Measurements:
+position (x, y) with its 2x2 covariance (a street-light fix), heading psi (the camera's yaw
+from the pose, assumed mounted straight ahead), and speed v (odometry, thesis eq. 48's V_HV).
+The heading innovation is wrapped to (-pi, pi].
+
+`RangeKalman`: state ``[d, d_dot]`` with white acceleration noise; d_dot is the range rate
+(negative = closing).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def wrap_pi(a: float) -> float:
+    """Angle wrapped to (-pi, pi]."""
+    return -((-a + math.pi) % (2 * math.pi) - math.pi)
+
+
+class RoadKalman:
+    """EKF of the HV in the road frame (module doc). `None` state until the first fix."""
+
+    def __init__(self, *, accel_psd: float, yaw_accel_psd: float, init_speed_sigma: float,
+                 init_omega_sigma: float, gate_chi2: float, max_rejects: int, max_coast_s: float):
+        self.accel_psd = accel_psd
+        self.yaw_accel_psd = yaw_accel_psd
+        self.init_speed_sigma = init_speed_sigma
+        self.init_omega_sigma = init_omega_sigma
+        self.gate_chi2 = gate_chi2
+        self.max_rejects = max_rejects
+        self.max_coast_s = max_coast_s
+        self.reset()
+
+    def reset(self) -> None:
+        self.s: np.ndarray | None = None
+        self.P: np.ndarray | None = None
+        self.t: float | None = None
+        self.t_fix: float | None = None
+        self.rejects = 0
+
+    @property
+    def started(self) -> bool:
+        return self.s is not None
+
+    def start(self, t_s: float, xy: np.ndarray, cov_xy: np.ndarray, psi: float, psi_sigma: float,
+              speed: float | None, speed_sigma: float) -> None:
+        self.s = np.array([xy[0], xy[1], psi, 0.0 if speed is None else speed, 0.0])
+        P = np.zeros((5, 5))
+        P[:2, :2] = cov_xy
+        P[2, 2] = psi_sigma ** 2
+        P[3, 3] = (self.init_speed_sigma if speed is None else speed_sigma) ** 2
+        P[4, 4] = self.init_omega_sigma ** 2
+        self.P = P
+        self.t = self.t_fix = t_s
+        self.rejects = 0
+
+    @staticmethod
+    def _model(s: np.ndarray, P: np.ndarray, dt: float, qa: float, qw: float):
+        x, y, psi, v, w = s
+        c, sn = math.cos(psi), math.sin(psi)
+        s2 = np.array([x + v * c * dt, y + v * sn * dt, psi + w * dt, v, w])
+        F = np.eye(5)
+        F[0, 2], F[0, 3] = -v * sn * dt, c * dt
+        F[1, 2], F[1, 3] = v * c * dt, sn * dt
+        F[2, 4] = dt
+        # White accelerations a (on v) and alpha (on omega), integrated over dt.
+        G = np.array([[0.5 * c * dt * dt, 0.0], [0.5 * sn * dt * dt, 0.0], [0.0, 0.5 * dt * dt],
+                      [dt, 0.0], [0.0, dt]])
+        Q = G @ np.diag([qa / dt, qw / dt]) @ G.T if dt > 0 else np.zeros((5, 5))
+        return s2, F @ P @ F.T + Q
+
+    def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """State and covariance predicted to t_s (the filter itself is unchanged)."""
+        if self.s is None:
+            return None
+        dt = max(0.0, t_s - self.t)
+        return self._model(self.s, self.P, dt, self.accel_psd, self.yaw_accel_psd)
+
+    def predict(self, t_s: float) -> None:
+        if self.s is None:
+            return
+        self.s, self.P = self.predict_at(t_s)
+        self.t = max(self.t, t_s)
+
+    def coast_s(self, t_s: float) -> float:
+        return math.inf if self.t_fix is None else t_s - self.t_fix
+
+    def expired(self, t_s: float) -> bool:
+        return self.s is None or self.coast_s(t_s) > self.max_coast_s
+
+    def _update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, angle_rows=()) -> float:
+        y = z - H @ self.s
+        for i in angle_rows:
+            y[i] = wrap_pi(y[i])
+        S = H @ self.P @ H.T + R
+        Si = np.linalg.inv(S)
+        m2 = float(y @ Si @ y)
+        K = self.P @ H.T @ Si
+        self.s = self.s + K @ y
+        self.s[2] = wrap_pi(self.s[2])
+        IKH = np.eye(5) - K @ H
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
+        return m2
+
+    def gate(self, xy: np.ndarray, cov_xy: np.ndarray) -> float:
+        """Mahalanobis^2 of a position fix against the current (predicted) state."""
+        y = xy - self.s[:2]
+        return float(y @ np.linalg.solve(self.P[:2, :2] + cov_xy, y))
+
+    def update_fix(self, t_s: float, xy: np.ndarray, cov_xy: np.ndarray, psi: float | None,
+                   psi_sigma: float) -> bool:
+        """Position (+ heading) fix; returns False when gated out (then nothing changes)."""
+        if self.gate(xy, cov_xy) > self.gate_chi2:
+            self.rejects += 1
+            return False
+        self.rejects = 0
+        if psi is None:
+            H = np.zeros((2, 5))
+            H[0, 0] = H[1, 1] = 1.0
+            self._update(np.asarray(xy, float), H, cov_xy)
+        else:
+            H = np.zeros((3, 5))
+            H[0, 0] = H[1, 1] = H[2, 2] = 1.0
+            R = np.zeros((3, 3))
+            R[:2, :2] = cov_xy
+            R[2, 2] = psi_sigma ** 2
+            self._update(np.array([xy[0], xy[1], psi]), H, R, angle_rows=(2,))
+        self.t_fix = t_s
+        return True
+
+    def update_speed(self, speed: float, sigma: float) -> None:
+        H = np.zeros((1, 5))
+        H[0, 3] = 1.0
+        self._update(np.array([speed]), H, np.array([[sigma ** 2]]))
+
+
+class RangeKalman:
+    """Constant-velocity filter of one distance (module doc)."""
+
+    def __init__(self, t_s: float, d: float, sigma: float, rate_sigma: float, accel_psd: float):
+        self.x = np.array([d, 0.0])
+        self.P = np.diag([sigma ** 2, rate_sigma ** 2])
+        self.t = t_s
+        self.t_meas = t_s
+        self.q = accel_psd
+
+    def predict(self, t_s: float) -> None:
+        dt = max(0.0, t_s - self.t)
+        if dt > 0:
+            F = np.array([[1.0, dt], [0.0, 1.0]])
+            Q = self.q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
+            self.x = F @ self.x
+            self.P = F @ self.P @ F.T + Q
+        self.t = max(self.t, t_s)
+
+    def update(self, t_s: float, d: float, sigma: float) -> None:
+        S = self.P[0, 0] + sigma ** 2
+        K = self.P[:, 0] / S
+        y = d - self.x[0]
+        self.x = self.x + K * y
+        self.P = self.P - np.outer(K, self.P[0, :])
+        self.P = 0.5 * (self.P + self.P.T)
+        self.t_meas = t_s

@@ -1,0 +1,731 @@
+"""Vehicle positioning from S2-PSK pairs (thesis chapter 5.3): the host vehicle (HV) placed from
+street lights (SL), forward vehicles (FV) located from their taillights.
+
+Frames and units
+* Road / map frame: metres, x along the road, y to the left, z up (the map's frame; curved roads
+  are fine, nothing assumes the lights lie on a line).
+* Camera frame: OpenCV (x right, y down, z forward). ``R_cw`` is the world-to-camera rotation,
+  ``X_cam = R_cw @ (X_world - C)``, C the camera centre (receiver.locate.pose conventions).
+* Level frame of the camera: x = the optical axis projected on the horizontal plane (ahead),
+  y to the left, z up, origin at the camera. FV ``x``, ``y`` and ``angle_deg`` are given in it.
+* Image points: distorted pixels in, undistorted normalized coordinates (x/z, y/z) inside.
+* Angles in the output: degrees; heading counter-clockwise from road +x.
+
+Ranging of one pair (`range_pair`, `VehicleLocator`; distance from the camera to the pair's
+midpoint, metres):
+* ``"eq18"``: thesis eq. 18 per emitter, ``d = f/rho sqrt(A_LED / eta)`` with the emitter area
+  (SL: the map entry's shape/size, FV: the map's `taillight` block), averaged over the two
+  emitters. Kept as the thesis reference: it assumes the emitter faces the camera on the axis.
+* ``"oblique"``: eq. 18 with what it leaves out corrected (as receiver.locate.ranging's
+  ``distance_oblique``): the envelope's area grown by the half-pixel edge offset (Steiner,
+  perimeter from the shape), mapped to normalized image area through the local Jacobian of the
+  undistortion, and ``d = sqrt(A cos(theta) / (a cos(alpha)^3))`` with theta the angle between
+  the emitter normal and the ray. Street-light panels face down (map `normal`, default
+  [0, 0, -1]) and are seen at grazing angles (theta ~ 80 deg at 30 m): plain eq. 18 then reads
+  ``1/sqrt(cos theta)`` (2x and more) too far; the correction needs the camera orientation, and
+  its sigma grows as ``0.5 tan(theta) sigma_orientation``.
+* ``"baseline"``: ``d = f B / separation_px`` generalised to any baseline orientation: with the
+  two unit rays r_a, r_b and the baseline vector B_cam (camera frame), the emitters are at
+  ``s_a r_a`` and ``s_b r_b`` with ``s_b r_b - s_a r_a = B_cam``, solved in least squares;
+  d = |s_a r_a + s_b r_b| / 2 (= f B / sep for a baseline perpendicular to the axis). SL: B from
+  the map's emitter positions, turned by the camera orientation; taillights: B horizontal and
+  perpendicular to the FV heading, taken as the HV's (perpendicular to the camera axis in the
+  level frame). sigma/d = sqrt(2) sigma_px / separation_px (+ a model term).
+* ``"fused"``: inverse-variance mean of "oblique" and "baseline".
+No range from half a pair (`both_visible` False).
+
+Host vehicle (`hv`):
+* ``"eq44-47"``: thesis eqs. 44-47. Flat distances a_j = sqrt(D_j^2 - (z_SL - h_cam)^2) to two
+  street lights SL1 (nearer), SL2 at spacing d_SL-SL give c (eq. 46, along the SL1->SL2 line)
+  and h (eq. 47, across it); the side of the line comes from the image (which light is further
+  left). Works for any two mapped lights.
+* ``"pose"``: the full camera pose (R_cw, C) from the angles of arrival of every decoded SL
+  emitter centroid (undistorted) and their "oblique" ranges, one robust Levenberg-Marquardt
+  solve (receiver.locate.pose's joint residuals, soft-L1) with the camera height
+  (`camera_height_m`) and the nominal tilt as weak priors. Initialised from the previous pose,
+  else by a 2-D registration of the lights' camera-frame positions (ranged, nominal tilt) onto
+  the map (any road shape).
+* then `RoadKalman` (receiver.locate.road_kalman; state x, y, heading, speed, turn rate) fed the
+  fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
+  (method ``"kalman-coast"``). ``raw`` is the unfiltered fix.
+
+Forward vehicles (`fv`): bearing from the horizontal displacement of the pair midpoint
+(thesis eq. 52), undistorted and turned into the level frame (pitch/roll from the HV pose when
+known, else the nominal pitch); distance "fused"; a per-pair `RangeKalman` gives the range rate
+(``rel_speed_mps``, negative = closing) and ``ttc_s = d / -rate`` when closing; ``zone`` as
+thesis Figure 27 ("safe", "min", "critical") from the time headway d / V_HV (distance thresholds
+when V_HV is unknown), tightened by ttc; ``road_x``, ``road_y`` = P_HV + rotation(heading) (x, y)
+(eq. 53) when the HV is placed. A pair still undecoded (kind None) is taken as an FV when its
+midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max_height_m`
+above the road.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from receiver.core.records import PairObservation
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import LedMap, shape_area_m2
+from receiver.locate.lsq import _covariance, robust_lm
+from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
+from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
+
+ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
+HV_METHODS = ("pose", "eq44-47")
+ZONES = ("safe", "min", "critical")
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@dataclass(frozen=True)
+class VehicleSettings:
+    """All settings of vehicle positioning (module doc), with their defaults' reasons."""
+
+    # Ranging ----------------------------------------------------------------------------------
+    range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
+    centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
+    edge_offset_px: float = 0.5         # the envelope lies half a pixel inside the true edge
+    edge_sigma_px: float = 0.1          # edge location 1-sigma all around, px (range_sigma_m)
+    area_model_rel: float = 0.01        # eq. 18 model error (small patch, calibration), relative
+    baseline_model_rel: float = 0.002   # baseline ranging model error with a known baseline
+    taillight_yaw_sigma_deg: float = 5.0  # FV heading vs HV heading (taillight baseline direction)
+    orient_sigma_pose_deg: float = 0.3  # camera orientation 1-sigma when the pose is solved
+    orient_sigma_prior_deg: float = 5.0  # ... when only the nominal tilt is known
+    # Camera mounting (weak priors) -----------------------------------------------------------
+    camera_height_m: float = 1.2        # above the road; thesis Table 2 car camera ~1.2 m
+    camera_height_sigma_m: float = 0.3
+    camera_pitch_deg: float = 0.0       # nominal pitch (up positive), roll assumed 0
+    tilt_sigma_deg: float = 10.0        # weak prior on the tilt (matters with one light only)
+    # Host vehicle -----------------------------------------------------------------------------
+    hv_method: str = "pose"             # the fix fed to the filter: "pose" or "eq44-47"
+    min_lights: int = 2                 # street lights (pairs) needed for a fix
+    pose_loss: str = "soft_l1"
+    pose_f_scale: float = 3.0           # sigmas
+    pose_max_iter: int = 20
+    heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
+    accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
+    yaw_accel_psd: float = 0.05         # rad^2/s^3
+    init_speed_sigma_mps: float = 15.0
+    init_omega_sigma_rps: float = 0.2
+    speed_sigma_mps: float = 0.3        # odometry 1-sigma
+    gate_chi2: float = 13.8             # chi-square 2 dof, 99.9 %
+    max_rejects: int = 3
+    max_coast_s: float = 2.0            # forget the HV track after this long without a fix
+    # Forward vehicles -------------------------------------------------------------------------
+    fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3
+    fv_rate_sigma_mps: float = 10.0     # initial range-rate uncertainty
+    fv_drop_s: float = 1.0              # forget an FV track unseen this long
+    fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
+    fv_max_height_m: float = 2.5
+    closing_min_mps: float = 0.2        # ttc only when closing faster than this
+    headway_safe_s: float = 2.0         # Figure 27: "safe" at >= 2 s headway (two-second rule)
+    headway_min_s: float = 1.0          # "min" between 1 and 2 s, "critical" below 1 s
+    ttc_critical_s: float = 2.0         # ttc below this is "critical" whatever the headway
+    ttc_min_s: float = 4.0              # ttc below this is at least "min"
+    safe_distance_m: float = 30.0       # without V_HV: distance thresholds instead of headway
+    min_distance_m: float = 15.0
+
+
+@dataclass(frozen=True)
+class VehicleResult:
+    """`vehicle`: INTERFACES.md vehicle object {"hv": {...} | None, "fv": [...]}, or None when no
+    pair is in view and no HV track is kept. `ranges`: aligned with the input pairs, each
+    (distance_m, sigma_m, estimator) or None."""
+
+    vehicle: dict | None
+    ranges: tuple = field(default_factory=tuple)
+
+
+# ------------------------------------------------------------------------------ helpers
+
+def _sides(shape: str | None, size) -> tuple[float, float]:
+    """Side lengths (m) of an emitter: [width, length] (width along the pair's baseline), a
+    circle's diameter twice; NaN when unknown."""
+    if not size:
+        return math.nan, math.nan
+    return float(size[0]), float(size[1] if len(size) > 1 and shape != "circle" else size[0])
+
+
+def _finite(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _r(v, nd=4):
+    v = _finite(v)
+    return None if v is None else round(v, nd)
+
+
+def level_rotation(R_cw: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation turning camera-frame vectors into the camera's level frame (module doc):
+    rows are the level axes (ahead, left, up) expressed in the camera frame."""
+    up = R_cw[:, 2]                       # world up in the camera frame
+    fwd = np.array([0.0, 0.0, 1.0]) - up * up[2]
+    n = np.linalg.norm(fwd)
+    fwd = fwd / n if n > 1e-9 else np.array([0.0, -1.0, 0.0])
+    left = np.cross(up, fwd)
+    return np.vstack([fwd, left, up])
+
+
+def nominal_rotation(settings: VehicleSettings, yaw_deg: float = 0.0) -> np.ndarray:
+    return ypr_to_rotation(yaw_deg, settings.camera_pitch_deg, 0.0)
+
+
+def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
+    """Normalized points of a, b (N, 2) and the px^2 -> normalized area factor at each."""
+    n = len(a_px)
+    off = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    pts = np.concatenate([a_px[:, None, :] + off, b_px[:, None, :] + off], axis=1).reshape(-1, 1, 2)
+    und = cv2.undistortPoints(pts, camera.K, camera.dist).reshape(n, 2, 3, 2)
+    j1 = und[:, :, 1] - und[:, :, 0]
+    j2 = und[:, :, 2] - und[:, :, 0]
+    det = np.abs(j1[..., 0] * j2[..., 1] - j1[..., 1] * j2[..., 0])      # (N, 2)
+    return und[:, 0, 0], und[:, 1, 0], det[:, 0], det[:, 1]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross is slow on small arrays)."""
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
+def _rays(u: np.ndarray) -> np.ndarray:
+    v = np.concatenate([u, np.ones((len(u), 1))], axis=1)
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _perimeter_k(S1, S2, r, circle):
+    """P / sqrt(area) of an emitter with side (or diameter) vectors S1, S2 (N, 3, camera frame,
+    metres) seen along the unit rays r (N, 3): the sides' components across the ray (a locally
+    parallel projection; scale-free, so no distance is needed). Foreshortened panels are long
+    and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
+    p1 = S1 - np.sum(S1 * r, axis=1, keepdims=True) * r
+    p2 = S2 - np.sum(S2 * r, axis=1, keepdims=True) * r
+    l1, l2 = np.sqrt(np.sum(p1 * p1, axis=1)), np.sqrt(np.sum(p2 * p2, axis=1))
+    c = _cross(p1, p2)
+    ar = np.sqrt(np.sum(c * c, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
+        k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
+    return np.where(circle, k_circ, k_rect)
+
+
+def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
+               base_model_rel, focal_px, settings: VehicleSettings):
+    """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
+    factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
+    `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
+    fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
+    (N,). Returns a dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed)."""
+    ra, rb = _rays(ua), _rays(ub)
+    um = 0.5 * (ua + ub)
+    # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
+    proj = B_cam[:, :2] - um * B_cam[:, 2:3]
+    flip = np.sum(proj * (ub - ua), axis=1) < 0
+    B = np.where(flip[:, None], -B_cam, B_cam)
+    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares.
+    raa = np.ones(len(ra))
+    rab = np.sum(ra * rb, axis=1)
+    ba, bb = -np.sum(ra * B, axis=1), np.sum(rb * B, axis=1)
+    det = raa * raa - rab * rab
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sa = (raa * ba + rab * bb) / det          # normal matrix [[1, -rab], [-rab, 1]]
+        sb = (raa * bb + rab * ba) / det
+        d_base = 0.5 * np.linalg.norm(sa[:, None] * ra + sb[:, None] * rb, axis=1)
+        sep_px = np.linalg.norm(ub - ua, axis=1) * focal_px
+        s_base = d_base * (math.sqrt(2.0) * settings.centroid_sigma_px / sep_px + base_model_rel)
+        ok = (det > 1e-14) & (sa > 0) & (sb > 0)
+        d_base = np.where(ok, d_base, np.nan)
+        # Areas (eq. 18 and its corrected form).
+        off = settings.edge_offset_px
+        out = {}
+        da_ob, ea, eb, kp = [], [], [], []
+        for eta, j, r in ((eta_a, ja, ra), (eta_b, jb, rb)):
+            kperim = _perimeter_k(S1, S2, r, circle)
+            eta_c = eta + kperim * np.sqrt(np.maximum(eta, 0)) * off + math.pi * off * off
+            a_norm = eta_c * j
+            cos_al = r[:, 2]
+            cos_th = np.abs(np.sum(n_cam * r, axis=1))
+            d = np.sqrt(area_m2 * cos_th / (a_norm * cos_al ** 3))
+            d = np.where((eta > 0) & (cos_th > 1e-3), d, np.nan)
+            da_ob.append(d)
+            tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
+            ea.append(settings.edge_sigma_px * kperim / (2.0 * np.sqrt(eta)))
+            kp.append(kperim)
+            eb.append(0.5 * tan_th * orient_sigma_rad)
+        d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
+        out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
+        out["eq18_sigma"] = out["eq18"] * (settings.area_model_rel + 0.5 * (ea[0] + ea[1]))
+        out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
+        P = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
+        d_ob = np.linalg.norm(P, axis=1)
+        fore = 0.5 * (eb[0] + eb[1])
+        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + settings.area_model_rel ** 2)
+        wa = 1.0 / s_ob ** 2
+        wb = 1.0 / s_base ** 2
+        fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
+        wa = np.where(fa, wa, 0.0)
+        wb = np.where(fb, wb, 0.0)
+        wsum = wa + wb
+        d_f = (wa * np.where(fa, d_ob, 0) + wb * np.where(fb, d_base, 0)) / wsum
+        s_f = 1.0 / np.sqrt(wsum)
+    out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
+               fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
+               d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + settings.area_model_rel ** 2),
+               s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + settings.area_model_rel ** 2),
+               ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa)
+    return out
+
+
+def _pick(res: dict, i: int, estimator: str):
+    """(distance, sigma, estimator) of pair i, falling back from "fused" to what exists."""
+    order = [estimator] if estimator != "fused" else ["fused"]
+    for name in order:
+        d, s = res[name][i], res[name + "_sigma"][i]
+        if np.isfinite(d) and np.isfinite(s) and d > 0:
+            if name == "fused":
+                fa = np.isfinite(res["oblique"][i]) and np.isfinite(res["oblique_sigma"][i])
+                fb = np.isfinite(res["baseline"][i]) and np.isfinite(res["baseline_sigma"][i])
+                name = "fused" if fa and fb else ("baseline" if fb else "oblique")
+            return float(d), float(s), name
+    return None
+
+
+def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: float,
+            sl2_left_of_sl1: bool) -> np.ndarray | None:
+    """Thesis eqs. 44-47: HV (camera) road position (x, y) from the direct distances D1 (nearer)
+    and D2 to street lights at sl1, sl2 (3,) and the camera height. `sl2_left_of_sl1`: SL2 is
+    seen further left in the image than SL1 (tells the side of the SL1-SL2 line)."""
+    dz1, dz2 = sl1[2] - cam_height, sl2[2] - cam_height
+    a1s, a2s = D1 * D1 - dz1 * dz1, D2 * D2 - dz2 * dz2          # flat distances squared
+    if a1s <= 0 or a2s <= 0:
+        return None
+    vec = sl2[:2] - sl1[:2]
+    dsl = float(np.linalg.norm(vec))
+    if dsl < 1e-6:
+        return None
+    u = vec / dsl
+    c = ((a2s - a1s) - dsl * dsl) / (2.0 * dsl)                  # eq. 46
+    h = math.sqrt(max(a1s - c * c, 0.0))                          # eq. 47
+    n = np.array([-u[1], u[0]])                                  # left normal of SL1 -> SL2
+    # cross_z(SL1 - P, SL2 - P) = -s h dsl; seen counter-clockwise (SL2 left of SL1) -> > 0.
+    s = -1.0 if sl2_left_of_sl1 else 1.0
+    # a1^2 = c^2 + h^2 (eq. 44): the foot point F of the camera on the line lies c before SL1
+    # (SL1 = F + c u, SL2 = F + (c + d) u, eq. 45) and P = F - s h n.
+    return sl1[:2] - c * u - s * h * n
+
+
+def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
+               settings: VehicleSettings = VehicleSettings(), R_cw: np.ndarray | None = None,
+               estimator: str | None = None) -> tuple[float, float, str] | None:
+    """Distance (m), its 1-sigma (m) and the estimator name of one pair, or None (half a pair,
+    unknown SL, missing sizes). `R_cw`: camera orientation (else the nominal tilt, yaw 0)."""
+    loc = VehicleLocator(camera, led_map, settings)
+    est = estimator or settings.range_estimator
+    if est not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {est!r}")
+    out = loc._range_pairs([pair], R_cw, R_cw is not None)
+    if out is None or out[0][0][0] is None:
+        return None
+    res, k = out[0][0]
+    return _pick(res, k, est)
+
+
+# ------------------------------------------------------------------------------ locator
+
+class VehicleLocator:
+    """Streaming vehicle positioning (module doc). `hv_reason`: why the HV is not placed
+    (None when it is)."""
+
+    def __init__(self, camera: CameraModel, led_map: LedMap, settings: VehicleSettings = VehicleSettings()):
+        if settings.range_estimator not in ESTIMATORS:
+            raise ValueError(f"unknown estimator {settings.range_estimator!r}")
+        if settings.hv_method not in HV_METHODS:
+            raise ValueError(f"unknown hv_method {settings.hv_method!r}")
+        self.camera = camera
+        self.map = led_map
+        self.s = settings
+        self.focal = camera.focal_px
+        self.R_nominal = nominal_rotation(settings)
+        self.kf = RoadKalman(accel_psd=settings.accel_psd, yaw_accel_psd=settings.yaw_accel_psd,
+                             init_speed_sigma=settings.init_speed_sigma_mps,
+                             init_omega_sigma=settings.init_omega_sigma_rps,
+                             gate_chi2=settings.gate_chi2, max_rejects=settings.max_rejects,
+                             max_coast_s=settings.max_coast_s)
+        self.R_last: np.ndarray | None = None     # last solved camera orientation
+        self.hv_reason: str | None = "no street light seen yet"
+        self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
+        self.fv_tracks: dict = {}
+        # Per-SL constants.
+        self._sl = {}
+        for led in led_map.leds.values():
+            if led.mode != "s2psk" or not 0 <= led.id <= 0x7F:
+                continue
+            A = led.area_m2
+            em = None if led.emitters is None else np.asarray(led.emitters, float)
+            normal = getattr(led, "normal", None)
+            nrm = DOWN if normal is None else np.asarray(normal, float) / np.linalg.norm(normal)
+            if em is not None:
+                B = em[1] - em[0]
+            elif led.baseline_m is not None:
+                B = None
+            else:
+                B = None
+            w, h = _sides(led.shape, led.size)
+            if B is not None:
+                L = float(np.linalg.norm(B))
+            else:
+                L = led.baseline_m if led.baseline_m else math.nan
+            Bw = B if B is not None else np.array([0.0, L, 0.0])
+            row = np.concatenate([Bw, nrm, [np.nan if A is None else A, w, h, float(led.shape == "circle"),
+                                            float(B is not None), 1.0, L]])
+            self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
+                                    circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz)
+        tl = led_map.taillight
+        self._tl = None
+        if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
+            w, h = _sides(tl["shape"], tl["size"])
+            A = shape_area_m2(tl["shape"], tl["size"])
+            Lb = float(tl["baseline_m"])
+            self._tl = dict(area=A, w=w, h=h, circle=tl["shape"] == "circle", baseline=Lb,
+                            row=np.array([0.0, 0, 0, 0, 0, 0, A, w, h, float(tl["shape"] == "circle"), 0, 0, Lb]))
+
+    # -------------------------------------------------------------------------- ranging
+    def _role(self, p: PairObservation) -> str | None:
+        if p.led_id is not None and 0 <= p.led_id <= 0x7F:
+            return "SL" if p.led_id in self._sl else None
+        if p.led_id is not None and p.led_id > 0x7F:
+            return "FV" if self._tl is not None else None
+        return "FV?" if self._tl is not None else None
+
+    def _range_pairs(self, pairs, R_cw, pose_known: bool):
+        """Range every usable pair (vectorised). Returns (list aligned with pairs of (res, k) or
+        (None, None), res dict) or None when no pair is usable."""
+        idx, roles, consts = [], [], []
+        for i, p in enumerate(pairs):
+            if not p.both_visible:
+                continue
+            role = self._role(p)
+            if role is not None:
+                idx.append(i)
+                roles.append(role)
+                consts.append(self._sl[p.led_id]["row"] if role == "SL" else self._tl["row"])
+        if not idx:
+            return None
+        n = len(idx)
+        ab = np.array([pairs[i].a_px + pairs[i].b_px for i in idx], float)
+        eta = np.array([(pairs[i].area_a_px, pairs[i].area_b_px) for i in idx], float)
+        cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
+        ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
+        R = self.R_nominal if R_cw is None else R_cw
+        Lv = level_rotation(R)                     # rows: ahead, left, up in camera frame
+        osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
+        rays_m = _rays(0.5 * (ua + ub))
+        lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
+        bearing = np.arctan2(lev[:, 1], lev[:, 0])
+        is_sl = cst[:, 11] > 0
+        known_b = is_sl & (cst[:, 10] > 0) & pose_known
+        # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
+        # the heading, facing back along it (module doc).
+        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * Lv[1])
+        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -Lv[0])
+        # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
+        perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
+        perp = perp / np.maximum(np.sqrt(np.sum(perp * perp, axis=1, keepdims=True)), 1e-12)
+        unk = is_sl & ~known_b
+        Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
+        sy = math.radians(self.s.taillight_yaw_sigma_deg)
+        bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
+                      np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
+        across = Bc / np.sqrt(np.sum(Bc * Bc, axis=1, keepdims=True))
+        S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
+        S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
+        res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
+                         np.full(n, osig), bm, self.focal, self.s)
+        res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
+        aligned = [(None, None)] * len(pairs)
+        for k, i in enumerate(idx):
+            aligned[i] = (res, k)
+        return aligned, res
+
+    # -------------------------------------------------------------------------- HV pose
+    def _init_pose(self, P_cam: np.ndarray, L: np.ndarray):
+        """2-D registration (yaw, x, y) of camera-frame points P_cam (M, 3) onto map points L
+        (M, 3) with the nominal tilt; returns (R0, C0) or None."""
+        R_t = self.R_nominal
+        Q = P_cam @ R_t                             # = R_t^T P: world axes rotated by the yaw
+        q, l = Q[:, :2], L[:, :2]
+        qc, lc = q - q.mean(0), l - l.mean(0)
+        sxx = float(np.sum(qc * lc))
+        sxy = float(np.sum(qc[:, 0] * lc[:, 1] - qc[:, 1] * lc[:, 0]))
+        if abs(sxx) + abs(sxy) < 1e-9:
+            return None
+        yaw = math.atan2(sxy, sxx)
+        Rz = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+        C = l.mean(0) - Rz @ q.mean(0)
+        return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
+            np.array([C[0], C[1], self.s.camera_height_m])
+
+    def _solve_pose(self, pairs, res, sl_k, R0, C0):
+        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None."""
+        Ls, uvs, ds, sds = [], [], [], []
+        flip = res["flip"]
+        for k in sl_k:
+            c = self._sl[pairs[res["idx"][k]].led_id]
+            em = c["em"]
+            ea, eb = (em[1], em[0]) if flip[k] else (em[0], em[1])
+            Ls += [ea, eb]
+            uvs += [res["ua"][k], res["ub"][k]]
+            ds += [res["d_a"][k], res["d_b"][k]]
+            sds += [res["s_a"][k], res["s_b"][k]]
+        L = np.array(Ls)
+        uv = np.array(uvs)
+        d = np.array(ds)
+        sd = np.array(sds)
+        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0))
+        d[bad] = np.nan
+        sd[bad] = 1.0
+        sigma_uv = self.s.centroid_sigma_px / self.focal
+        hs = self.s.camera_height_sigma_m
+        C_prior = np.array([C0[0], C0[1], self.s.camera_height_m])
+        cov = np.diag([1e8, 1e8, hs * hs])
+        up = self.R_nominal[:, 2]
+        fun = _joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov)
+        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+        p0 = np.concatenate([rvec.ravel(), C0])
+        x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale,
+                      max_iter=self.s.pose_max_iter)
+        if not np.all(np.isfinite(x)):
+            return None
+        R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
+        C = x[3:].copy()
+        if C[2] >= float(L[:, 2].min()):
+            return None
+        cov6, chi2, dof = _covariance(fun, x)
+        return R, C, cov6[3:5, 3:5]
+
+    # -------------------------------------------------------------------------- step
+    def step(self, t_s: float, pairs: list[PairObservation], speed_mps: float | None = None) -> VehicleResult:
+        s = self.s
+        pairs = list(pairs)
+        if speed_mps is not None and not math.isfinite(speed_mps):
+            speed_mps = None
+        tracked = self.kf.started and not self.kf.expired(t_s)
+        if self.kf.started and not tracked:
+            self.kf.reset()
+            self.R_last = None
+        R_prior = self.R_last if tracked else None
+        out = self._range_pairs(pairs, R_prior, R_prior is not None)
+        fix = None
+        self.last_fix = None
+        sl_k = []
+        if out is not None:
+            aligned, res = out
+            sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL"
+                    and self._sl[pairs[res["idx"][k]].led_id]["em"] is not None
+                    and np.isfinite(res["fused"][k])]
+            n_sl_any = sum(1 for r in res["roles"] if r == "SL")
+            if n_sl_any and not sl_k:
+                self.hv_reason = "the map gives no emitter positions for the street lights in view"
+            elif len(sl_k) < s.min_lights:
+                self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            else:
+                if R_prior is not None:
+                    pred = self.kf.predict_at(t_s)[0]
+                    R0, C0 = R_prior, np.array([pred[0], pred[1], s.camera_height_m])
+                    init = (R0, C0)
+                else:
+                    P_cam = np.array([res["fused"][k] * _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
+                                      for k in sl_k])
+                    Lm = np.array([self._sl[pairs[res["idx"][k]].led_id]["em"].mean(0) for k in sl_k])
+                    init = self._init_pose(P_cam, Lm)
+                    if init is not None:
+                        # Re-range with the initial orientation (baseline direction, normals).
+                        out = self._range_pairs(pairs, init[0], True)
+                        aligned, res = out
+                solved = None if init is None else self._solve_pose(pairs, res, sl_k, *init)
+                if solved is None:
+                    self.hv_reason = "street-light pose solve failed"
+                else:
+                    R, C, cov = solved
+                    if R_prior is None:
+                        # Final ranges with the solved pose. While tracking, the ranges taken with
+                        # the previous frame's orientation stand (one frame of rotation: negligible).
+                        aligned, res = self._range_pairs(pairs, R, True)
+                    yaw = math.radians(rotation_to_ypr_deg(R)[0])
+                    fix = dict(pose=(C, cov, yaw, R), n=len(sl_k))
+                    self.hv_reason = None
+            if fix is not None or len(sl_k) >= 2:
+                e = self._eq44_47(pairs, res, sl_k, fix)
+                if fix is not None:
+                    fix["eq44-47"] = e
+                self.last_fix = {"pose": None if fix is None else tuple(fix["pose"][0][:2]), "eq44-47": e}
+        else:
+            aligned, res = [(None, None)] * len(pairs), None
+            if not self.kf.started:
+                self.hv_reason = "no street light in view"
+
+        hv = self._update_hv(t_s, fix, speed_mps)
+        fv, not_fv = self._update_fv(t_s, pairs, aligned, res, hv)
+        ranges = tuple(None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
+                       for i, (r, k) in enumerate(aligned))
+        any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
+        vehicle = None if (not any_pair and hv is None) else {"hv": hv, "fv": fv}
+        return VehicleResult(vehicle=vehicle, ranges=ranges)
+
+    def _eq44_47(self, pairs, res, sl_k, fix):
+        """Thesis eqs. 44-47 from the two nearest ranged street lights (x, y) or None."""
+        if len(sl_k) < 2:
+            return None
+        ks = sorted(sl_k, key=lambda k: res["fused"][k])[:2]
+        k1, k2 = ks
+        c1 = self._sl[pairs[res["idx"][k1]].led_id]
+        c2 = self._sl[pairs[res["idx"][k2]].led_id]
+        sl1 = c1["em"].mean(0)
+        sl2 = c2["em"].mean(0)
+        # Which is further left, in the level frame (positive bearing = left).
+        left = bool(res["bearing"][k2] > res["bearing"][k1])
+        p = eq44_47(float(res["fused"][k1]), float(res["fused"][k2]), sl1, sl2, self.s.camera_height_m, left)
+        return None if p is None else (float(p[0]), float(p[1]))
+
+    def _update_hv(self, t_s: float, fix, speed):
+        s = self.s
+        kf = self.kf
+        raw, xy, meth = None, None, "kalman-coast"
+        if fix is not None:
+            C, cov, yaw, R = fix["pose"]
+            if s.hv_method == "eq44-47":
+                e = fix.get("eq44-47")
+                if e is not None:
+                    # eqs. 44-47 use two ranges only: inflate the pose covariance as its stand-in.
+                    xy, cov, meth = np.array(e), cov * 4.0 + np.eye(2) * 0.25, "eq44-47"
+            else:
+                xy, meth = C[:2], "pose"
+        if xy is not None:
+            raw = {"x": _r(xy[0]), "y": _r(xy[1]), "method": meth}
+            psig = math.radians(s.heading_sigma_deg)
+            if not kf.started:
+                kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
+                accepted = True
+            else:
+                kf.predict(t_s)
+                accepted = kf.update_fix(t_s, xy, cov, yaw, psig)
+                if not accepted and kf.rejects >= s.max_rejects:
+                    kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
+                    accepted = True
+            if accepted:
+                self.R_last = R
+            else:
+                meth = "kalman-coast"
+        elif kf.started:
+            if kf.expired(t_s):
+                kf.reset()
+                self.R_last = None
+                self.hv_reason = self.hv_reason or "HV track lost"
+            else:
+                kf.predict(t_s)
+        if not kf.started:
+            return None
+        if speed is not None:
+            kf.update_speed(speed, s.speed_sigma_mps)
+        st, P = kf.s, kf.P
+        std = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
+        hv = {"x": _r(st[0]), "y": _r(st[1]), "std_m": _r(std), "heading_deg": _r(math.degrees(st[2]), 3),
+              "speed_mps": _r(st[3], 3), "method": meth, "n_lights": 0 if fix is None else fix["n"],
+              "raw": raw}
+        if hv["x"] is None or hv["y"] is None or hv["std_m"] is None:
+            kf.reset()
+            self.R_last = None
+            self.hv_reason = "HV filter diverged"
+            return None
+        return hv
+
+    def _update_fv(self, t_s, pairs, aligned, res, hv):
+        s = self.s
+        out = []
+        seen = set()
+        not_fv = set()          # undecoded pairs found not to be taillights (no range reported)
+        v_hv = None if hv is None else hv["speed_mps"]
+        R = self.R_last
+        for i, p in enumerate(pairs):
+            role = self._role(p)
+            if role not in ("FV", "FV?"):
+                continue
+            key = p.key
+            tr = self.fv_tracks.get(key)
+            r, k = aligned[i]
+            meas = None
+            if r is not None:
+                d, sd = r["fused"][k], r["fused_sigma"][k]
+                if np.isfinite(d) and np.isfinite(sd) and sd > 0:
+                    lev = r["lev"][k]
+                    if role == "FV?":
+                        z = s.camera_height_m + d * lev[2]
+                        if not s.fv_min_height_m <= z <= s.fv_max_height_m:
+                            not_fv.add(i)
+                            continue
+                    meas = (float(d), float(sd), float(r["bearing"][k]), lev)
+            if meas is None and tr is None:
+                continue
+            if tr is None:
+                tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd),
+                      "id": None, "bearing": meas[2], "lev": meas[3]}
+                self.fv_tracks[key] = tr
+            else:
+                tr["kf"].predict(t_s)
+                if meas is not None:
+                    tr["kf"].update(t_s, meas[0], meas[1])
+            if meas is not None:
+                tr["bearing"], tr["lev"] = meas[2], meas[3]
+            if p.led_id is not None and p.led_id > 0x7F:
+                tr["id"] = int(p.led_id)
+            seen.add(key)
+            x_kf = tr["kf"].x
+            d = float(x_kf[0])
+            rate = float(x_kf[1])
+            std = math.sqrt(max(tr["kf"].P[0, 0], 0.0))
+            lev = tr["lev"]
+            hnorm = math.hypot(lev[0], lev[1])
+            flat = d * hnorm                     # horizontal distance
+            x = flat * math.cos(tr["bearing"])
+            y = flat * math.sin(tr["bearing"])
+            ttc = d / -rate if rate < -s.closing_min_mps else None
+            zone = self._zone(d, v_hv, ttc)
+            road_x = road_y = None
+            if hv is not None:
+                psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
+                road_x = hv["x"] + math.cos(psi) * x - math.sin(psi) * y       # eq. 53
+                road_y = hv["y"] + math.sin(psi) * x + math.cos(psi) * y
+            out.append({"id": tr["id"], "distance_m": _r(d), "angle_deg": _r(math.degrees(tr["bearing"])),
+                        "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
+                        "ttc_s": _r(ttc, 3), "zone": zone, "road_x": _r(road_x), "road_y": _r(road_y),
+                        "coasting": meas is None})
+        for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
+            del self.fv_tracks[key]
+        return out, not_fv
+
+    def _zone(self, d: float, v_hv: float | None, ttc: float | None) -> str:
+        """Thesis Figure 27 zones (module doc; thresholds in VehicleSettings)."""
+        s = self.s
+        if v_hv is not None and v_hv > 1.0:
+            hw = d / v_hv
+            zone = 0 if hw >= s.headway_safe_s else (1 if hw >= s.headway_min_s else 2)
+        else:
+            zone = 0 if d >= s.safe_distance_m else (1 if d >= s.min_distance_m else 2)
+        if ttc is not None:
+            if ttc < s.ttc_critical_s:
+                zone = 2
+            elif ttc < s.ttc_min_s:
+                zone = max(zone, 1)
+        return ZONES[zone]
+
+
+def zone_for(d: float, v_hv: float | None, ttc: float | None,
+             settings: VehicleSettings = VehicleSettings()) -> str:
+    """The Figure 27 zone of a forward vehicle at d m, HV speed v_hv (m/s or None), ttc (s or None)."""
+    loc = VehicleLocator.__new__(VehicleLocator)
+    loc.s = settings
+    return loc._zone(d, v_hv, ttc)
