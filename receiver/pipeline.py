@@ -98,6 +98,21 @@ def pair_observation(p) -> PairObservation:
                            separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen)
 
 
+def _with_pair_ranges(leds: list[LedObservation], pair_of: dict, pairs: list, ranges) -> list[LedObservation]:
+    """Each S2-PSK emitter observation with its pair's range (`ranges` aligned with `pairs`;
+    an entry is (distance_m, sigma_m, estimator) or None: no range from half a pair)."""
+    by_uid = {p.uid: r for p, r in zip(pairs, ranges) if r is not None}
+    if not by_uid:
+        return leds
+    out = []
+    for o in leds:
+        p = pair_of.get(o.track)
+        r = by_uid.get(p.uid) if p is not None else None
+        out.append(o if r is None else dataclasses.replace(o, distance_m=round(float(r[0]), 5),
+                                                           distance_estimator=r[2]))
+    return out
+
+
 def _intensity(gray: np.ndarray, track: Track) -> float:
     return mean_in_mask(gray, track.blob)
 
@@ -108,6 +123,10 @@ class Receiver:
     camera, led_map: receiver.io models (camera already scaled to the frame size).
     positioner: object with `step(t_s, leds) -> LocateResult` (its `leds` are the given
         observations with their ranges), or None (no distances, no position).
+    vehicle: the vehicle locator (receiver.locate.vehicle.VehicleLocator: `step(t_s, pairs,
+        speed_mps) -> VehicleResult`), or None: street lights and taillight pairs are then
+        decoded but not ranged, and `FrameResult.vehicle` stays None.
+    speed: `speed(t_s) -> m/s or None`, the host vehicle's odometry (optional).
     clock: seconds, monotonic; stamps the stages (tests inject a fake).
     still [False]: the frames are unrelated photos (see STILL_MIN_REL_AREA).
     settings: ReceiverSettings; `overrides`: its top-level fields by name (e.g.
@@ -115,8 +134,9 @@ class Receiver:
         `min_stripe_depth`, `tone_confirm_frames`, `frame_clock`, `clock_refs`).
     """
 
-    def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None, clock=time.perf_counter,
-                 still: bool = False, settings: ReceiverSettings | None = None, **overrides):
+    def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None, vehicle=None, speed=None,
+                 clock=time.perf_counter, still: bool = False, settings: ReceiverSettings | None = None,
+                 **overrides):
         policy_names = {f.name for f in dataclasses.fields(PolicySettings)}
         policy_kw = {k: overrides.pop(k) for k in list(overrides) if k in policy_names}
         s = resolve_settings(settings, ReceiverSettings, overrides)
@@ -124,6 +144,8 @@ class Receiver:
             s = dataclasses.replace(s, policy=dataclasses.replace(s.policy, **policy_kw))
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
+        self.vehicle = vehicle if self.pairer_wanted(led_map) else None
+        self.speed = speed
         self.clock = clock
         self.plan = plan = ModePlan.from_map(led_map)
         self.settings = s = self._resolve(s, camera, plan, still)
@@ -141,6 +163,10 @@ class Receiver:
         self.frames = 0
         self.decoded_ids: set[int] = set()
         self.last_counts: dict[str, int] = {}
+
+    @staticmethod
+    def pairer_wanted(led_map: LedMap) -> bool:
+        return bool(ModePlan.from_map(led_map).s2psk)
 
     @staticmethod
     def _resolve(s: ReceiverSettings, camera: CameraModel, plan: ModePlan, still: bool) -> ReceiverSettings:
@@ -286,13 +312,19 @@ class Receiver:
         leds.sort(key=lambda o: o.track)
         pairs = tuple(pair_observation(p) for p in self.pairer.pairs) if self.pairer is not None else ()
         timer.stamp("report")  # the frame's observations (the latency counts every stage)
-        position = None
+        position = vehicle = None
         if self.positioner is not None:
             res = self.positioner.step(frame.t_s, leds)
             position, leds = res.position, res.leds
             timer.stamp("locate")
+        if self.vehicle is not None:
+            speed = self.speed(frame.t_s) if self.speed is not None else None
+            vres = self.vehicle.step(frame.t_s, pairs, speed)
+            vehicle = vres.vehicle
+            leds = _with_pair_ranges(leds, pair_of, self.pairer.pairs, vres.ranges)
+            timer.stamp("vehicle")
         self.frames += 1
         self.last_counts = {"blobs": len(blobs), "tracks": len(tracks),
                             "decoded": sum(o.id is not None for o in leds), "pairs": len(pairs)}
-        return FrameResult(frame.index, frame.t_s, timer.total_ms, leds, position, None,
+        return FrameResult(frame.index, frame.t_s, timer.total_ms, leds, position, vehicle,
                            dict(timer.stage_ms), pairs)

@@ -39,6 +39,8 @@ def add_arguments(p) -> None:
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
     p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--odometry", metavar="FILE",
+                   help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
@@ -62,6 +64,15 @@ def make_positioner(camera, led_map, server: str | None = None):
     except ImportError:
         return None
     return Positioner(camera, led_map)
+
+
+def make_vehicle_locator(camera, led_map):
+    """receiver.locate.vehicle.VehicleLocator for maps with S2-PSK street lights or a taillight
+    block (the vehicle scenes), else None."""
+    if not (led_map.by_mode("s2psk") or led_map.taillight is not None):
+        return None
+    from receiver.locate.vehicle import VehicleLocator
+    return VehicleLocator(camera, led_map)
 
 
 def _server_text(positioner) -> str:
@@ -164,7 +175,12 @@ def main(args) -> int:
         # Without --server the two-argument call of older make_positioner replacements (tests).
         positioner = (make_positioner(cam, led_map, server=server) if server
                       else make_positioner(cam, led_map))
-        rx = Receiver(cam, led_map, positioner=positioner, still=src.is_still)
+        vehicle = make_vehicle_locator(cam, led_map)
+        speed = None
+        if getattr(args, "odometry", None):
+            from receiver.io.odometry import load_odometry
+            speed = load_odometry(args.odometry)
+        rx = Receiver(cam, led_map, positioner=positioner, vehicle=vehicle, speed=speed, still=src.is_still)
         if getattr(args, "settings_out", None):
             write_settings(args.settings_out, rx)
         out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout

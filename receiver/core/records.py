@@ -55,9 +55,12 @@ class PairObservation:
     decoded S2-PSK ID or None; `kind`: "SL" (0x00-0x7F), "FV" (0x80-0xFF) or None.
     `a_px`, `b_px`: (x, y) centroids of emitters A and B, distorted image px (where the pair
     puts them this frame). `area_a_px`, `area_b_px`: their envelope areas, px^2.
-    `separation_px`: |b - a|, px. `both_visible`: both emitters were seen as separate blobs in
-    this frame; when False (one emitter lit, merged, or hidden) the separation and areas are the
-    pair's prediction, not a measurement, and no range may be taken from them.
+    `separation_px`: |b - a|, px. `both_visible`: one emitter's own blob was seen in this frame and the other's
+    within the last `receiver.vision.pairing.BOTH_SEEN_FRAMES` frames, as separate blobs (an
+    S2-PSK head lights one emitter at a time for half its symbols, and far heads merge when
+    both are lit): the pair's separation is then a measurement. When False (one emitter hidden
+    or long unseen) the separation and areas are the pair's prediction, and no range may be
+    taken from them.
     """
 
     key: tuple[int, int]

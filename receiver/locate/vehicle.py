@@ -73,7 +73,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
 from receiver.locate.lsq import _covariance, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
-from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
+from receiver.locate.road_kalman import RangeKalman, RoadKalman
 
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")

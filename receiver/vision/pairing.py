@@ -89,6 +89,11 @@ def moved(blob: Blob, cx: float, cy: float) -> Blob:
                                x0=blob.x0 + dx, x1=blob.x1 + dx, y0=blob.y0 + dy, y1=blob.y1 + dy)
 
 
+# A pair's baseline counts as measured while both emitters' own blobs were seen within this
+# many frames, the latest in this frame (receiver.core.records.PairObservation.both_visible).
+BOTH_SEEN_FRAMES = 3
+
+
 @dataclass
 class Pair:
     """Two emitters paired as one S2-PSK transmitter (`a` is the left one in the image).
@@ -112,7 +117,12 @@ class Pair:
     misses: int = 0  # consecutive frames without a blob it explains
     mx: float = 0.0  # midpoint, px
     my: float = 0.0
-    both_seen: bool = False  # both emitters' own blobs were seen apart in the latest frame
+    # Both emitters' own blobs were seen apart, each within the last BOTH_SEEN_FRAMES frames
+    # (S2-PSK lights one emitter at a time for half the symbols and far heads merge when both
+    # are lit, so the two are rarely seen apart in one frame): the baseline is then measured.
+    both_seen: bool = False
+    seen_a: int = -10**9  # `frames` count when A's / B's own blob was last seen
+    seen_b: int = -10**9
     uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
@@ -277,7 +287,12 @@ class Pairer:
         mx, my, hx, hy, single = self._predict(p)
         my += dy
         p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
-        p.both_seen = obs_a is not None and obs_b is not None
+        if obs_a is not None:
+            p.seen_a = p.frames
+        if obs_b is not None:
+            p.seen_b = p.frames
+        p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
+            p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
         if not shifts:
             p.misses += 1
             sx = sy = 0.0
