@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -12,8 +13,11 @@ import pytest
 from receiver.cli.bench import bench_camera, bench_map, bench_scene, render_bench_frame
 from receiver.io.camera import save_camera
 
-# Real phone photos (../shared/real/luxapose beside the clone, see its README).
-LUXAPOSE = Path(__file__).resolve().parents[2] / "shared" / "real" / "luxapose"
+# Real phone photos (../shared/real/luxapose beside the clone, see its README). OCCLOC_SHARED
+# names another shared folder (the one holding real/); without the photos those tests skip.
+SHARED = Path(os.environ.get("OCCLOC_SHARED") or Path(__file__).resolve().parents[2] / "shared")
+REAL = SHARED / "real"
+LUXAPOSE = REAL / "luxapose"
 
 # The synthetic recording: the bench scene with LEDs big enough (radius 40 px = 32 chips of
 # 20 kHz at 20 us/row) that the OOK decoder sees most of a packet per frame.
@@ -22,10 +26,26 @@ REC_LEDS = 8
 REC_FRAMES = 10
 
 
+def real_dir(sub: str = "") -> Path:
+    """The shared real-photo folder (or its subfolder `sub`); skips the calling test when it
+    is absent (a clone without ../shared beside it, or OCCLOC_SHARED pointing elsewhere)."""
+    path = REAL / sub if sub else REAL
+    if not path.is_dir():
+        pytest.skip(f"{path} not found: real-photo tests need the shared folder (../shared/real) "
+                    "beside the repository, or OCCLOC_SHARED=DIR holding real/")
+    return path
+
+
+@pytest.fixture(scope="session")
+def real() -> Path:
+    """../shared/real (skip when absent)."""
+    return real_dir()
+
+
 @pytest.fixture(scope="session")
 def luxapose() -> Path:
-    assert LUXAPOSE.is_dir(), f"missing {LUXAPOSE}"
-    return LUXAPOSE
+    """../shared/real/luxapose, the Luxapose photos (skip when absent)."""
+    return real_dir("luxapose")
 
 
 @pytest.fixture(scope="session")
