@@ -175,6 +175,7 @@ class FrameRenderer:
                                   for light, outl in zip(scene.lights, self.outlines)])
         self.bodies = list(getattr(scene, "bodies", None) or [])
         self.body_corners = [b.corners_local() for b in self.bodies]
+        self.body_edges = [_box_edge_points(c) for c in self.body_corners]
         extra = scene.extra_truth
         self.extra_takes_leds = extra is not None and len(inspect.signature(extra).parameters) >= 2
 
@@ -240,15 +241,18 @@ class FrameRenderer:
             return out
         R = rotation_cam_to_world(pose.yaw, pose.pitch, pose.roll)
         cam_w = pose.position
-        for body, corners in zip(self.bodies, self.body_corners):
+        for body, corners, edges in zip(self.bodies, self.body_corners, self.body_edges):
             if body.carrier == light.carrier:
                 continue  # a car's own body is behind its taillights, never in front
             pos, yaw = self.scene.carriers[body.carrier](t_s)
             Rb = _rot_z(yaw)
             cw = corners @ Rb.T + pos
-            pc = (_box_edge_points(cw) - cam_w) @ R
+            pc = (edges @ Rb.T + pos - cam_w) @ R
             if pc[:, 2].min() <= NEAR_M:
                 continue  # straddles the camera plane: not a case of a forward scene
+            uv = project_camera_points(pc, self.cam)
+            u_lo, v_lo = uv.min(axis=0)
+            u_hi, v_hi = uv.max(axis=0)
             hull = None
             # Depth order in the body frame, where the box is axis-aligned.
             cam_b = Rb.T @ (cam_w - pos)
@@ -257,13 +261,16 @@ class FrameRenderer:
             for ei, g in enumerate(geo):
                 if g is None:
                     continue
+                e_lo, e_hi = g["poly"].min(axis=0) - 1.0, g["poly"].max(axis=0) + 1.0
+                if e_hi[0] < u_lo or e_lo[0] > u_hi or e_hi[1] < v_lo or e_lo[1] > v_hi:
+                    continue  # the image boxes do not meet (street lights above the traffic)
                 tgt_b = Rb.T @ (g["centre"] - pos)
                 u = _ray_box_entry(cam_b, tgt_b, lo, hi)
                 in_front = u < 1.0 if u is not None else near < float(np.linalg.norm(g["centre"] - cam_w))
                 if not in_front:
                     continue
                 if hull is None:
-                    hull = convex_hull(project_camera_points(pc, self.cam))
+                    hull = convex_hull(uv)
                 out[ei].append(hull)
         return out
 
