@@ -83,3 +83,139 @@ def test_exact_coverage_of_a_square_is_its_pixel_overlap():
     cov = coverage_exact(sq, 0, 3, 0, 5)
     expect = np.outer([0.2, 1.0, 0.6], [0.3, 1.0, 1.0, 1.0, 0.2])
     np.testing.assert_allclose(cov, expect, atol=1e-6)
+
+
+# -- occlusion by forward-vehicle bodies --------------------------------------------------------
+
+def taillight_pair(led_id, carrier):
+    """Two steady 0.15 x 0.10 m rear lights 1.4 m apart, 1 m high, on `carrier`'s rear face."""
+    ems = [Emitter(np.array([0.0, dy, 1.0]), np.array([-1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), "rect",
+                   (0.15, 0.10), steady()) for dy in (0.7, -0.7)]
+    return Light(led_id, "s2psk", ems, carrier=carrier)
+
+
+def two_car_scene(near_y_m):
+    """Camera 1.2 m high looking down the road; a car 15 m ahead at lateral `near_y_m` and a car
+    35 m ahead in the camera's lane, each with a body and taillights."""
+    cars = {"near": lambda t: (np.array([15.0, near_y_m, 0.0]), 0.0),
+            "far": lambda t: (np.array([35.0, 0.0, 0.0]), 0.0)}
+    return Scene(name="cars", camera=make_camera(focal_px=F_PX, exposure_us=100.0),
+                 lights=[taillight_pair(0x81, "near"), taillight_pair(0x82, "far")],
+                 trajectory=lambda t: Pose(0.0, 0.0, 1.2), led_map=LedMap(addressing="map", leds={}),
+                 params=quiet_params(psf_sigma_px=0.7), n_frames=1, carriers=cars,
+                 bodies=[Body("near"), Body("far")])
+
+
+def lit(img, em):
+    u, v = int(round(em["cx"])), int(round(em["cy"]))
+    return float(img[v - 1:v + 2, u - 1:u + 2].max())
+
+
+def test_taillights_behind_a_nearer_body_are_dark_and_not_visible():
+    img, truth = FrameRenderer(two_car_scene(0.0)).render(0)
+    by_id = {d["id"]: d for d in truth["leds"]}
+    near, far = by_id[0x81], by_id[0x82]
+    assert near["visible"] and near["occluded_frac"] == 0.0  # its own body never hides it
+    assert all(lit(img, em) > 0.5 * PEAK_DN for em in near["emitters"])
+    assert not far["visible"] and far["occluded_frac"] == 1.0
+    for em in far["emitters"]:
+        assert not em["visible"] and em["occluded_frac"] == 1.0
+        assert lit(img, em) == 0.0  # fully behind the body: no light at all
+
+
+def test_partly_hidden_pair_one_taillight_dark():
+    # Near car 1 m to the right: its rear face (y in -1.9..-0.1 at 15 m) hides, at 35 m, the
+    # lateral band -4.4..-0.23 m: the far car's right light (y = -0.7) but not its left (+0.7).
+    img, truth = FrameRenderer(two_car_scene(-1.0)).render(0)
+    far = {d["id"]: d for d in truth["leds"]}[0x82]
+    a, b = far["emitters"]
+    assert a["visible"] and a["occluded_frac"] == 0.0 and lit(img, a) > 0.5 * PEAK_DN
+    assert not b["visible"] and b["occluded_frac"] == 1.0 and lit(img, b) == 0.0
+    assert not far["visible"]
+
+
+def test_no_occlusion_when_the_near_car_is_in_another_lane():
+    img, truth = FrameRenderer(two_car_scene(3.5)).render(0)
+    far = {d["id"]: d for d in truth["leds"]}[0x82]
+    assert far["visible"] and far["occluded_frac"] == 0.0
+    assert all(lit(img, em) > 0.5 * PEAK_DN for em in far["emitters"])
+
+
+# -- the vehicle scene ----------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def veh():
+    return make_scene("vehicle", seed=1)
+
+
+def test_scene_length_and_speed_range(veh):
+    assert veh.n_frames / veh.camera.fps >= 8.0  # several 2.4 s packets of every street light
+    for t in np.linspace(0.0, veh.n_frames / veh.camera.fps, 50):
+        hv = veh.extra_truth(float(t))["vehicle"]["hv"]
+        assert 0.0 <= hv["speed_mps"] <= 80.0 / 3.6  # thesis Table 2: 0-80 km/h
+
+
+def test_street_lights_face_straight_down(veh):
+    heads = [lt for lt in veh.lights if lt.carrier is None]
+    assert len(heads) > 20
+    for lt in heads:
+        for e in lt.emitters:
+            np.testing.assert_allclose(e.normal, [0.0, 0.0, -1.0])
+
+
+def test_lane_change_moves_the_host_3p5_m_left_with_the_camera_yaw_following(veh):
+    t_end = veh.n_frames / veh.camera.fps
+    hv0 = veh.extra_truth(0.0)["vehicle"]["hv"]
+    hv1 = veh.extra_truth(t_end)["vehicle"]["hv"]
+    assert hv1["y"] - hv0["y"] == pytest.approx(3.5, abs=0.02)
+    headings = [veh.extra_truth(float(t))["vehicle"]["hv"]["heading_deg"] for t in np.linspace(0, t_end, 91)]
+    assert max(headings) > 3.0 and min(headings) > -1e-6  # turns left, then straightens
+    assert abs(headings[0]) < 1e-6 and abs(headings[-1]) < 0.5
+
+
+def test_shake_in_pitch_and_yaw_is_bounded_and_seeded(veh):
+    ts = np.arange(0.0, 8.0, 0.002)
+    yaw_err, pitch_err = [], []
+    for t in ts:
+        pose = veh.trajectory(float(t))
+        heading = veh.extra_truth(float(t))["vehicle"]["hv"]["heading_deg"]
+        yaw_err.append(pose.yaw - heading)
+        pitch_err.append(pose.pitch - 8.0 - 0.2 * math.sin(2 * math.pi * 1.3 * t))
+    yaw_err, pitch_err = np.array(yaw_err), np.array(pitch_err)
+    for err in (yaw_err, pitch_err):
+        assert np.abs(err).max() <= 0.3 + 1e-4  # shake_deg (heading is rounded to 1e-5 deg)
+        assert err.std() > 0.05  # present, a few tenths of a degree
+    other = make_scene("vehicle", seed=2)
+    assert other.trajectory(1.234).yaw != veh.trajectory(1.234).yaw
+    assert make_scene("vehicle", seed=1).trajectory(1.234) == veh.trajectory(1.234)
+
+
+def test_forward_vehicle_occluded_in_a_rendered_frame(veh):
+    """Frame 150 (5 s): FV2 has cut in front of FV1 (truth says hidden); FV1's taillights are dark
+    in the image, FV2's are lit."""
+    img, truth = FrameRenderer(veh, seed=1).render(150)
+    fvs = truth["vehicle"]["fv"]
+    assert len(fvs) == 3
+    for f in fvs:
+        assert {"id", "x", "y", "distance_m", "angle_deg", "world_x", "world_y", "yaw_deg", "visible",
+                "rel_speed_mps"} <= set(f)
+        assert f["distance_m"] == pytest.approx(math.sqrt(f["x"] ** 2 + f["y"] ** 2 + 0.2 ** 2), abs=0.02)
+    hidden = [f for f in fvs if not f["visible"]]
+    assert hidden and hidden[0]["occluded_frac"] == 1.0
+    by_id = {d["id"]: d for d in truth["leds"]}
+    rec = by_id[hidden[0]["id"]]
+    assert not rec["visible"] and all(lit(img, em) < 0.1 * PEAK_DN for em in rec["emitters"])
+    shown = [by_id[f["id"]] for f in fvs if f["visible"]]
+    assert shown and all(r["visible"] for r in shown)
+
+
+def test_curved_road_option():
+    sc = make_scene("vehicle", seed=1, curve_radius_m=400.0)
+    heads = [lt for lt in sc.lights if lt.carrier is None]
+    xy = np.array([lt.offset[:2] for lt in heads[0::2][:8]])  # the builder alternates left, right
+    # Left-row lights on a circle of radius 400 - 6 m about (0, 400): not on a straight line.
+    np.testing.assert_allclose(np.hypot(xy[:, 0], xy[:, 1] - 400.0), 394.0, atol=1e-6)
+    hv = sc.extra_truth(2.0)["vehicle"]["hv"]
+    assert hv["heading_deg"] == pytest.approx(math.degrees(hv["s_m"] / 400.0), abs=0.01)
+    assert math.hypot(hv["x"], hv["y"] - 400.0) == pytest.approx(400.0, abs=1e-3)
+    assert set(sc.led_map.leds) == set(make_scene("vehicle", seed=1).led_map.leds)
