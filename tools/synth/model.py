@@ -8,6 +8,8 @@ or two (an S2-PSK pair: emitter A on pin A, emitter B on pin B of the same sched
 Lights on a vehicle give `offset`, `normal`, `u_axis` in the vehicle's body frame
 (x forward, y left, z up, origin on the road under the vehicle's rear centre) and name the
 vehicle in `carrier`; `Scene.carriers[name](t_s)` returns that vehicle's (position, yaw_deg).
+A vehicle may also have an opaque `Body` (a box in the same body frame) that hides the
+lights behind it from the camera (per pixel, in `tools.synth.render`).
 """
 
 from __future__ import annotations
@@ -78,6 +80,26 @@ class Light:
 
 
 @dataclass(frozen=True)
+class Body:
+    """Opaque box of the vehicle `carrier`, in its body frame (x forward, y left, z up, metres;
+    origin on the road under the rear centre): x in [0, length], y in [-width/2, width/2],
+    z in [z0, z0 + height]. Its rear face (width x height) is what a following camera sees.
+    The body hides other lights behind it; it is not drawn itself (a dark car at night is
+    as dark as the unlit background) and never hides its own carrier's lights."""
+
+    carrier: str
+    length: float = 4.5
+    width: float = 1.8
+    height: float = 1.4
+    z0: float = 0.15
+
+    def corners_local(self) -> np.ndarray:
+        """(8, 3) box corners in the body frame."""
+        xs, ys, zs = (0.0, self.length), (-self.width / 2, self.width / 2), (self.z0, self.z0 + self.height)
+        return np.array([[x, y, z] for x in xs for y in ys for z in zs], dtype=np.float64)
+
+
+@dataclass(frozen=True)
 class RenderParams:
     """Sensor and optics of the synthetic camera (every value in DN = 8-bit digital numbers).
 
@@ -91,6 +113,10 @@ class RenderParams:
     psf_sigma_px: Gaussian lens blur (0 = none).
     subrows: y supersampling of the coverage (x is exact).
     motion_blur_samples: poses averaged over the exposure window (1 = no motion blur).
+    exact_coverage_rows: shapes whose projected outline spans fewer image rows than this get
+      exact area coverage (`raster.coverage_exact`) instead of `subrows` sampling, which
+      loses or doubles the flux of shapes about a pixel tall or less. Above it the sampled
+      coverage is kept (bit-exact with the recordings made before the exact path existed).
     frame_jitter_us: standard deviation of each frame's start time around k / fps.
     """
 
@@ -103,6 +129,7 @@ class RenderParams:
     subrows: int = 4
     motion_blur_samples: int = 1
     frame_jitter_us: float = 100.0
+    exact_coverage_rows: float = 8.0
 
 
 @dataclass
@@ -110,7 +137,9 @@ class Scene:
     """Everything needed to render frames of one scene.
 
     trajectory(t_s) -> camera `Pose`; carriers[name](t_s) -> (position (3,), yaw_deg);
-    extra_truth(t_s) -> dict of scene-specific truth added to each truth line (or None).
+    extra_truth(t_s, leds) -> dict of scene-specific truth added to each truth line (or None);
+    `leds` is the frame's list of per-light truth records (so visibility can be reported).
+    bodies: opaque vehicle bodies (`Body`) that occlude lights behind them.
     """
 
     name: str
@@ -122,4 +151,5 @@ class Scene:
     n_frames: int = 90
     carriers: dict = field(default_factory=dict)
     extra_truth: Callable | None = None
+    bodies: list = field(default_factory=list)
     description: str = ""

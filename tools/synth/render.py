@@ -25,15 +25,27 @@ Per frame k (start time ``t_k = k / fps + jitter``):
 Truth per light (INTERFACES.md plus extra fields):
 ``cx, cy``: area centroid of the true projected (distorted) outline polygon, in pixels;
 ``distance_m``: camera centre to light centre (pair: midpoint of the two emitters);
-``visible``: every outline point inside the image and the light's front facing the camera;
+``visible``: every outline point inside the image, the light's front facing the camera and,
+in scenes with vehicle bodies, not more than ``OCCLUDED_MAX`` of its area hidden by a body;
 ``area_px``: true projected area (pair: mean of the two emitters); ``mode``;
 ``t``: the time the light's geometry was taken at; pairs add ``emitters`` (A, B) with
 per-emitter ``cx, cy, area_px, visible``. Lights far outside the view are not listed.
 The camera pose in a truth line is the pose at the frame start time ``t``.
+
+Occlusion (scenes with `Scene.bodies`): each vehicle body is an opaque box. For every emitter,
+the bodies in front of it (the camera-to-emitter ray enters the box before reaching the
+emitter; if the ray misses the box, a body nearer than the emitter is taken as in front) are
+projected, their silhouette is the convex hull of the projected box edges, and the emitter's
+coverage is multiplied per pixel by ``1 - coverage(silhouette)`` before the PSF. Inside a pixel
+the product treats the two shapes as independent (exact when the silhouette covers a pixel
+fully or not at all). Truth then adds ``occluded_frac`` (the hidden fraction of the emitter's
+in-image area) per light (pairs: per emitter too); cx, cy and area_px stay the unoccluded
+geometric values, so an evaluator sees where the light would be.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import cv2
@@ -42,9 +54,14 @@ import numpy as np
 from tools.synth.camera import (Pose, max_normalized_radius, project_camera_points, rotation_cam_to_world,
                                 world_to_camera)
 from tools.synth.model import Scene
-from tools.synth.raster import coverage, polygon_area_centroid
+from tools.synth.raster import coverage, coverage_exact, polygon_area_centroid
 
 NEAR_M = 0.05  # closer than this to the camera plane is not drawn
+# Above this hidden fraction an emitter is not `visible`: its blob is cut, so its centroid and
+# area (thesis eq. 52/53's n_IS and Hd_IS) are no longer the light's. 1 % leaves room for
+# the per-pixel product's spurious overlap along edges the two shapes share within a pixel.
+OCCLUDED_MAX = 0.01
+BOX_EDGE_SAMPLES = 8  # points per box edge, so lens distortion can bend a silhouette's edges
 TRUTH_DIGITS_PX = 4
 TRUTH_DIGITS_M = 5
 
@@ -53,6 +70,51 @@ def _rot_z(deg: float) -> np.ndarray:
     a = math.radians(deg)
     c, s = math.cos(a), math.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def convex_hull(points: np.ndarray) -> np.ndarray:
+    """Convex hull (counter-clockwise in (u, v)) of (N, 2) points, Andrew's monotone chain."""
+    pts = sorted(set(map(tuple, np.asarray(points, dtype=np.float64))))
+    if len(pts) < 3:
+        return np.array(pts, dtype=np.float64)
+
+    def half(seq):
+        h = []
+        for q in seq:
+            while len(h) >= 2 and ((h[-1][0] - h[-2][0]) * (q[1] - h[-2][1])
+                                   - (h[-1][1] - h[-2][1]) * (q[0] - h[-2][0])) <= 0:
+                h.pop()
+            h.append(q)
+        return h
+
+    lower, upper = half(pts), half(reversed(pts))
+    return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
+
+
+def _box_edge_points(corners: np.ndarray) -> np.ndarray:
+    """Points along the 12 edges of a box given by its 8 corners (index bits = x, y, z)."""
+    s = np.linspace(0.0, 1.0, BOX_EDGE_SAMPLES)[:, None]
+    out = []
+    for i in range(8):
+        for bit in (4, 2, 1):
+            if not i & bit:
+                out.append(corners[i] + s * (corners[i | bit] - corners[i]))
+    return np.concatenate(out)
+
+
+def _ray_box_entry(origin: np.ndarray, target: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Slab test of the ray origin + u (target - origin), u >= 0, against an axis-aligned box:
+    the entry parameter u (1 = at the target) or None if the ray misses the box."""
+    d = target - origin
+    u0, u1 = 0.0, math.inf
+    for a in range(3):
+        if abs(d[a]) < 1e-15:
+            if origin[a] < lo[a] or origin[a] > hi[a]:
+                return None
+            continue
+        ta, tb = (lo[a] - origin[a]) / d[a], (hi[a] - origin[a]) / d[a]
+        u0, u1 = max(u0, min(ta, tb)), min(u1, max(ta, tb))
+    return u0 if u0 <= u1 else None
 
 
 def background_pmf(level_dn: float, sigma_dn: float) -> np.ndarray:
@@ -111,6 +173,11 @@ class FrameRenderer:
         self.outlines = [[e.outline_local() for e in light.emitters] for light in scene.lights]
         self.radius_m = np.array([max(np.linalg.norm(o - light.offset, axis=1).max() for o in outl)
                                   for light, outl in zip(scene.lights, self.outlines)])
+        self.bodies = list(getattr(scene, "bodies", None) or [])
+        self.body_corners = [b.corners_local() for b in self.bodies]
+        self.body_edges = [_box_edge_points(c) for c in self.body_corners]
+        extra = scene.extra_truth
+        self.extra_takes_leds = extra is not None and len(inspect.signature(extra).parameters) >= 2
 
     # -- geometry -------------------------------------------------------------------------
     def _to_world(self, light, pts, vecs, t_s):
@@ -167,6 +234,53 @@ class FrameRenderer:
                 idx.append(li)
         return idx
 
+    def _occluders(self, light, geo, t_s: float, pose: Pose):
+        """Per emitter: the image silhouettes (convex polygons) of the bodies in front of it."""
+        out = [[] for _ in geo]
+        if not self.bodies:
+            return out
+        R = rotation_cam_to_world(pose.yaw, pose.pitch, pose.roll)
+        cam_w = pose.position
+        for body, corners, edges in zip(self.bodies, self.body_corners, self.body_edges):
+            if body.carrier == light.carrier:
+                continue  # a car's own body is behind its taillights, never in front
+            pos, yaw = self.scene.carriers[body.carrier](t_s)
+            Rb = _rot_z(yaw)
+            cw = corners @ Rb.T + pos
+            pc = (edges @ Rb.T + pos - cam_w) @ R
+            if pc[:, 2].min() <= NEAR_M:
+                continue  # straddles the camera plane: not a case of a forward scene
+            uv = project_camera_points(pc, self.cam)
+            u_lo, v_lo = uv.min(axis=0)
+            u_hi, v_hi = uv.max(axis=0)
+            hull = None
+            # Depth order in the body frame, where the box is axis-aligned.
+            cam_b = Rb.T @ (cam_w - pos)
+            lo, hi = corners.min(axis=0), corners.max(axis=0)
+            near = float(np.linalg.norm(cw - cam_w, axis=1).min())
+            for ei, g in enumerate(geo):
+                if g is None:
+                    continue
+                e_lo, e_hi = g["poly"].min(axis=0) - 1.0, g["poly"].max(axis=0) + 1.0
+                if e_hi[0] < u_lo or e_lo[0] > u_hi or e_hi[1] < v_lo or e_lo[1] > v_hi:
+                    continue  # the image boxes do not meet (street lights above the traffic)
+                tgt_b = Rb.T @ (g["centre"] - pos)
+                u = _ray_box_entry(cam_b, tgt_b, lo, hi)
+                in_front = u < 1.0 if u is not None else near < float(np.linalg.norm(g["centre"] - cam_w))
+                if not in_front:
+                    continue
+                if hull is None:
+                    hull = convex_hull(uv)
+                out[ei].append(hull)
+        return out
+
+    def _cover(self, poly, r0, r1, c0, c1):
+        """Pixel coverage of `poly`: exact for shapes under `exact_coverage_rows` rows tall."""
+        p = self.scene.params
+        if float(np.ptp(poly[:, 1])) < p.exact_coverage_rows:
+            return coverage_exact(poly, r0, r1, c0, c1)
+        return coverage(poly, r0, r1, c0, c1, p.subrows)
+
     # -- rendering ------------------------------------------------------------------------
     def frame_time(self, k: int, rng: np.random.Generator) -> float:
         fps = self.cam.fps or 30.0
@@ -194,20 +308,22 @@ class FrameRenderer:
             geo = self._project(light, li, t_led, pose)
             if any(g is None for g in geo):
                 continue
+            occ = self._occluders(light, geo, t_led, pose)
             for ei, (e, g) in enumerate(zip(light.emitters, geo)):
+                g["occluded"] = 0.0
                 if g["cos_phi"] <= 0:
                     continue
-                reg = self._draw_emitter(light, li, ei, e, g, t_k, t_led)
+                reg = self._draw_emitter(light, li, ei, e, g, t_k, t_led, occ[ei])
                 if reg is not None:
                     regions.append(reg)
             leds.append(self._truth(light, geo, pose, t_led))
         self._noise(img, regions, rng)
         truth = {"frame": int(k), "t": round(t_k, 9), "camera": pose0.as_dict(), "leds": leds}
         if scene.extra_truth is not None:
-            truth.update(scene.extra_truth(t_k))
+            truth.update(scene.extra_truth(t_k, leds) if self.extra_takes_leds else scene.extra_truth(t_k))
         return img, truth
 
-    def _draw_emitter(self, light, li, ei, e, g, t_k, t_led):
+    def _draw_emitter(self, light, li, ei, e, g, t_k, t_led, occluders=()):
         cam, p = self.cam, self.scene.params
         poly = g["poly"]
         m = self.margin
@@ -223,10 +339,21 @@ class FrameRenderer:
                 gs = self._project(light, li, t_led - 0.5 * self.t_exp_s + s,
                                    self.scene.trajectory(t_led - 0.5 * self.t_exp_s + s))[ei]
                 if gs is not None:
-                    cov += coverage(gs["poly"], r0, r1, c0, c1, p.subrows)
+                    cov += self._cover(gs["poly"], r0, r1, c0, c1)
             cov /= p.motion_blur_samples
         else:
-            cov = coverage(poly, r0, r1, c0, c1, p.subrows)
+            cov = self._cover(poly, r0, r1, c0, c1)
+        if occluders:
+            mask = np.ones_like(cov)
+            for hull in occluders:
+                if (hull[:, 0].max() < c0 - 0.5 or hull[:, 0].min() > c1 - 0.5
+                        or hull[:, 1].max() < r0 - 0.5 or hull[:, 1].min() > r1 - 0.5):
+                    continue
+                mask *= 1.0 - self._cover(hull, r0, r1, c0, c1)
+            total = float(cov.sum(dtype=np.float64))
+            cov = cov * mask
+            if total > 0:
+                g["occluded"] = max(0.0, 1.0 - float(cov.sum(dtype=np.float64)) / total)
         rows = t_k + np.arange(r0, r1, dtype=np.float64) * self.t_row_s
         level = e.drive.exposure_mean(rows, self.t_exp_s).astype(np.float32)
         radiance = (p.led_peak_dn * light.brightness * g["cos_phi"] ** (light.lambertian_m - 1.0)
@@ -249,6 +376,10 @@ class FrameRenderer:
             self.canvas[r0:r1, c0:c1] = 0.0
 
     def _truth(self, light, geo, pose: Pose, t_led: float) -> dict:
+        occl = bool(self.bodies)
+        for g in geo:
+            if occl and g["occluded"] > OCCLUDED_MAX:
+                g["visible"] = False
         centre = np.mean([g["centre"] for g in geo], axis=0)
         d = float(np.linalg.norm(centre - pose.position))
         cx = float(np.mean([g["cx"] for g in geo]))
@@ -257,9 +388,14 @@ class FrameRenderer:
                "distance_m": round(d, TRUTH_DIGITS_M), "visible": all(g["visible"] for g in geo),
                "area_px": round(float(np.mean([g["area"] for g in geo])), 3), "mode": light.mode,
                "t": round(t_led, 9)}
+        if occl:  # only in scenes with bodies, so the other scenes' truth files keep their bytes
+            rec["occluded_frac"] = round(float(np.mean([g["occluded"] for g in geo])), 4)
         if len(geo) == 2:
             rec["emitters"] = [{"cx": round(g["cx"], TRUTH_DIGITS_PX), "cy": round(g["cy"], TRUTH_DIGITS_PX),
                                 "area_px": round(g["area"], 3), "visible": g["visible"]} for g in geo]
+            if occl:
+                for em, g in zip(rec["emitters"], geo):
+                    em["occluded_frac"] = round(float(g["occluded"]), 4)
         return rec
 
 

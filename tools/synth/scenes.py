@@ -21,10 +21,10 @@ import numpy as np
 
 from receiver.io.ledmap import Led, LedMap
 from tools.synth.camera import Pose, make_camera
-from tools.synth.model import Emitter, Light, RenderParams, Scene
+from tools.synth.model import Body, Emitter, Light, RenderParams, Scene
 from tools.synth.waveform import led_drive
 
-SCENES = ("indoor-walk", "indoor-static", "vehicle")
+SCENES = ("indoor-walk", "indoor-static", "vehicle", "vehicle-road")
 CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
 PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -147,6 +147,52 @@ def s2psk_pair(rng, led_id, centre, normal, across, half_size, gap_m, clk_hz, sy
     return Light(led_id, "s2psk", ems, brightness=brightness, carrier=carrier)
 
 
+def road_point(s_m: float, lateral_m: float, curve_radius_m: float | None = None):
+    """Road frame -> world: (x, y, heading_rad) of the point `lateral_m` left of the centre line
+    (the host lane's centre) at arc length `s_m` along it. Straight road (None): x = s, y =
+    lateral, heading 0. Curve of radius R (> 0 bends left, < 0 right) starting at the origin
+    heading +x: centre of curvature at (0, R), heading s / R."""
+    if curve_radius_m is None:
+        return float(s_m), float(lateral_m), 0.0
+    R = float(curve_radius_m)
+    a = s_m / R
+    return (R - lateral_m) * math.sin(a), R - (R - lateral_m) * math.cos(a), a
+
+
+def smoothstep5(u: float) -> float:
+    """Quintic 0 -> 1 ramp on u in [0, 1] with zero slope and curvature at both ends (a lane
+    change without a jerk in lateral acceleration at its start and end)."""
+    u = min(max(u, 0.0), 1.0)
+    return u * u * u * (10.0 + u * (-15.0 + 6.0 * u))
+
+
+def _shake(rng, amplitude_deg: float, n: int = 3, f_lo_hz: float = 2.0, f_hi_hz: float = 17.0):
+    """Road vibration of one camera axis: a sum of `n` sinusoids of random frequency and phase
+    whose amplitudes add up to `amplitude_deg`, so ``|shake(t)| <= amplitude_deg`` always."""
+    freqs = rng.uniform(f_lo_hz, f_hi_hz, n)
+    phases = rng.uniform(0.0, 2 * math.pi, n)
+    w = rng.uniform(0.5, 1.0, n)
+    amps = amplitude_deg * w / w.sum()
+    comps = [(float(a), 2 * math.pi * float(f), float(p)) for a, f, p in zip(amps, freqs, phases)]
+
+    def shake(t):
+        return sum(a * math.sin(om * t + p) for a, om, p in comps)
+
+    return shake
+
+
+# Forward vehicles, in road coordinates relative to the HV (gap = FV's s minus the HV's s):
+# (name, gap at t=0 m, gap rate m/s, lateral at t=0 m, lateral after the change m,
+#  lane change start s, lane change duration s). Why this script: FV2's cut-in puts its body
+# between the HV and FV1 (FV1's taillights are hidden first partly, then fully, while the HV
+# is in the host lane); the HV's own lane change to the left then uncovers FV1, and FV3
+# pulling into the host lane between FV2 and FV1 covers one of FV1's taillights from the
+# left lane (and the side of FV2's body grazes FV3's right taillight).
+FV_SCRIPT = (("fv1", 46.0, 0.45, 0.0, 0.0, 0.0, 0.0),
+             ("fv2", 24.0, -0.65, 3.5, 0.0, 2.0, 2.5),
+             ("fv3", 34.0, -0.25, -3.5, 0.0, 5.0, 2.5))
+
+
 def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, light_offset_y_m=6.0,
             head_tilt_deg=45.0, head_half_m=(0.4, 0.3), head_gap_m=0.5, clk_hz=S2PSK_CLOCK_HZ,
             symclk=S2PSK_SYMCLK, speed0_kmh=40.0, accel_mps2=1.0, cam_height_m=1.2, cam_pitch_deg=8.0,
@@ -234,7 +280,180 @@ def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, li
                 description="night road with S2-PSK street lights and forward vehicles")
 
 
-BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "vehicle": vehicle}
+def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, light_offset_y_m=6.0,
+            head_tilt_deg=0.0, head_half_m=(0.4, 0.3), head_gap_m=0.5, clk_hz=S2PSK_CLOCK_HZ,
+            symclk=S2PSK_SYMCLK, speed0_kmh=50.0, accel_mps2=0.5, cam_height_m=1.2, cam_pitch_deg=8.0,
+            shake_deg=0.3, lane_change_start_s=4.0, lane_change_s=3.5, lane_change_m=3.5,
+            taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0,
+            body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0):
+    """Night road: host vehicle (HV) with a forward camera, S2-PSK street lights (SL), three
+    forward vehicles (FV) with opaque bodies that hide each other's taillights.
+
+    Road frame: arc length s along the host lane's centre line, lateral offset l to the left
+    (metres); `road_point` maps it to the world frame (x, y floor, z up). Straight by default
+    (world x = s, y = l); `curve_radius_m` bends it (> 0 left, < 0 right) with the lights,
+    the HV and the FVs following the curve. Lane width 3.5 m (the thesis' 10 m "lane width",
+    Table 2, is taken as the road width between the light rows' kerbs).
+
+    Street lights (Table 2: 7 m high, 25 m apart): alternating sides at l = +-6 m (left row at
+    s = 0, 25, ..., right row offset by 12.5 m). Each head is an S2-PSK pair (PROTOCOL.md
+    section 3; thesis eqs. 40-42) of two horizontal 0.4 x 0.3 m panels facing straight down
+    (normal [0, 0, -1], as ceiling LEDs are; `head_tilt_deg` > 0 tilts them towards approaching
+    traffic), 0.5 m apart across the road. Seen from the 1.2 m camera a head 100 m ahead is
+    ~5 px wide and ~0.2 px tall (foreshortening by sin(elevation)): the renderer's exact
+    coverage keeps its flux. The HV's position follows from the SLs' ranges by thesis eqs.
+    44-47. SL-IDs: distinct random in 0x00-0x7F.
+
+    HV: starts at s = 0, l = 0 at `speed0_kmh` (50) accelerating at `accel_mps2` (0.5): 64 km/h
+    at 8 s, inside Table 2's 0-80 km/h. From `lane_change_start_s` (4 s) over
+    `lane_change_s` (3.5 s) it moves `lane_change_m` (3.5 m) left on a quintic ramp
+    (`smoothstep5`); its heading is the direction of its velocity, and the camera's yaw
+    follows it. Camera: `cam_height_m` high at the HV's reference point, pitched up
+    `cam_pitch_deg`; on top, a 3.1 Hz 5 mm bounce with a 1.3 Hz 0.2 deg pitch nod, and road
+    vibration in pitch and yaw: per axis three sinusoids (2-17 Hz, seeded) summing to at most
+    `shake_deg`.
+
+    FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
+    `FV_SCRIPT` (gaps 46, 24, 34 m; FV2 cuts in from the left lane at 2-4.5 s, FV3 from the
+    right lane at 5-7.5 s). Taillights: 0.15 x 0.10 m rects, 1.4 m apart, 1 m high on the
+    body's rear face, facing backwards; emitter A is the left one. Bodies (`model.Body`):
+    `body_size_m` = (length, width, height) = 4.5 x 1.8 x 1.4 m boxes from `body_z0_m` up.
+
+    Length: `seconds` = 8 s = 240 frames at 30 fps; a 30-symbol packet at 200 Hz / 16 clocks
+    lasts 2.4 s, so the SLs in view early are seen for several packets before they pass
+    overhead, and FV1 for more than one packet before FV2 hides it. (8 s, not more: the
+    FFV1 video of this scene is ~90 kB a frame, dominated by the sensor's read noise in the
+    dark background, and all bundled recordings must stay under 40 MB.)
+
+    Truth ("vehicle", at each frame's start time): ``hv`` {x, y (world), s_m, lateral_m
+    (road frame), heading_deg, speed_mps}; ``fv`` entries {id, x (ahead), y (left) relative to
+    the camera in its horizontal frame (rotated by the camera's yaw, not pitch or roll),
+    distance_m (camera to the taillight pair's midpoint), angle_deg (bearing of that midpoint
+    from the optical axis, positive left: thesis eq. 52's theta_FV), world_x, world_y, yaw_deg,
+    s_m, lateral_m, speed_mps, rel_speed_mps (FV ground speed minus HV ground speed, thesis
+    eq. 53's Delta V_FV), range_rate_mps (d distance_m / dt), visible (both emitters in the
+    image, facing the camera and not occluded; false when the FV is out of view),
+    occluded_frac (mean hidden fraction of the two taillights)}.
+    """
+    R_curve = None if curve_radius_m is None else float(curve_radius_m)
+    tilt = math.radians(head_tilt_deg)
+    positions = []
+    for s in np.arange(0.0, road_m, light_spacing_m):
+        positions.append((float(s), light_offset_y_m))
+        positions.append((float(s) + light_spacing_m / 2, -light_offset_y_m))
+    sl_ids = rng.choice(0x80, size=len(positions), replace=False)
+    lights, entries = [], {}
+    for (s, lat), sid in zip(positions, sl_ids):
+        x, y, a = road_point(s, lat, R_curve)
+        fwd = np.array([math.cos(a), math.sin(a), 0.0])
+        across = np.array([-math.sin(a), math.cos(a), 0.0])  # the pair's halves straddle the road's width
+        normal = DOWN if tilt == 0.0 else -math.sin(tilt) * fwd - math.cos(tilt) * np.array([0.0, 0.0, 1.0])
+        lt = s2psk_pair(rng, int(sid), (x, y, light_height_m), normal, across, head_half_m, head_gap_m,
+                        clk_hz, symclk)
+        lights.append(lt)
+        entries[lt.id] = map_entry(lt, rate_hz=clk_hz, symbol_clocks=symclk)
+    fv_ids = rng.choice(np.arange(0x80, 0x100), size=len(FV_SCRIPT), replace=False)
+    v0 = speed0_kmh / 3.6
+    dt = 1e-3  # central differences for headings and speeds (paths are smooth at this scale)
+
+    def hv_road(t):
+        return v0 * t + 0.5 * accel_mps2 * t * t, lane_change_m * smoothstep5((t - lane_change_start_s) / lane_change_s)
+
+    def hv_xy(t):
+        x, y, _ = road_point(*hv_road(t), R_curve)
+        return np.array([x, y])
+
+    def velocity(path, t):
+        return (path(t + dt) - path(t - dt)) / (2 * dt)
+
+    def heading_deg(path, t):
+        vel = velocity(path, t)
+        return math.degrees(math.atan2(vel[1], vel[0]))
+
+    def fv_road(spec, t):
+        _, gap0, rate, l0, l1, t0, dur = spec
+        s_hv, _ = hv_road(t)
+        lat = l0 if dur <= 0 else l0 + (l1 - l0) * smoothstep5((t - t0) / dur)
+        return s_hv + gap0 + rate * t, lat
+
+    def fv_xy_fn(spec):
+        def xy(t):
+            x, y, _ = road_point(*fv_road(spec, t), R_curve)
+            return np.array([x, y])
+        return xy
+
+    fv_xy = {spec[0]: fv_xy_fn(spec) for spec in FV_SCRIPT}
+
+    def carrier_fn(name):
+        path = fv_xy[name]
+
+        def carrier(t):
+            p = path(t)
+            return np.array([p[0], p[1], 0.0]), heading_deg(path, t)
+        return carrier
+
+    carriers = {spec[0]: carrier_fn(spec[0]) for spec in FV_SCRIPT}
+    for spec, fid in zip(FV_SCRIPT, fv_ids):
+        lights.append(s2psk_pair(rng, int(fid), (0.0, 0.0, taillight_height_m), (-1.0, 0.0, 0.0),
+                                 np.array([0.0, 1.0, 0.0]), taillight_size_m, taillight_baseline_m, clk_hz, symclk,
+                                 carrier=spec[0]))
+    length, width, height = body_size_m
+    bodies = [Body(spec[0], length=length, width=width, height=height, z0=body_z0_m) for spec in FV_SCRIPT]
+    taillight = {"shape": "rect", "size": list(taillight_size_m), "baseline_m": taillight_baseline_m}
+    led_map = LedMap(addressing="map", leds=entries, taillight=taillight)
+    shake_pitch = _shake(rng, shake_deg)
+    shake_yaw = _shake(rng, shake_deg)
+
+    def trajectory(t):
+        x, y = hv_xy(t)
+        return Pose(float(x), float(y), cam_height_m + 0.005 * math.sin(2 * math.pi * 3.1 * t),
+                    yaw=heading_deg(hv_xy, t) + shake_yaw(t),
+                    pitch=cam_pitch_deg + 0.2 * math.sin(2 * math.pi * 1.3 * t) + shake_pitch(t), roll=0.0)
+
+    def fv_rel(name, t):
+        """Taillight-pair midpoint relative to the camera at t: (x ahead, y left) in the camera's
+        horizontal frame and the 3-D distance."""
+        pose = trajectory(t)
+        pos, yaw = carriers[name](t)
+        rel = pos + np.array([0.0, 0.0, taillight_height_m]) - pose.position
+        c, s = math.cos(math.radians(pose.yaw)), math.sin(math.radians(pose.yaw))
+        return c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1], float(np.linalg.norm(rel))
+
+    def r5(v):
+        return round(float(v), 5)
+
+    def extra_truth(t, leds=()):
+        by_id = {d["id"]: d for d in leds}
+        hv_s, hv_l = hv_road(t)
+        hv_p = hv_xy(t)
+        hv_v = float(np.linalg.norm(velocity(hv_xy, t)))
+        fvs = []
+        for spec, fid in zip(FV_SCRIPT, fv_ids):
+            name = spec[0]
+            x, y, d = fv_rel(name, t)
+            pos, yaw = carriers[name](t)
+            s_fv, l_fv = fv_road(spec, t)
+            v = float(np.linalg.norm(velocity(fv_xy[name], t)))
+            rate = (fv_rel(name, t + dt)[2] - fv_rel(name, t - dt)[2]) / (2 * dt)
+            rec = by_id.get(int(fid))
+            fvs.append({"id": int(fid), "x": r5(x), "y": r5(y), "distance_m": r5(d),
+                        "angle_deg": r5(math.degrees(math.atan2(y, x))), "world_x": r5(pos[0]),
+                        "world_y": r5(pos[1]), "yaw_deg": r5(yaw), "s_m": r5(s_fv), "lateral_m": r5(l_fv),
+                        "speed_mps": r5(v), "rel_speed_mps": r5(v - hv_v), "range_rate_mps": r5(rate),
+                        "visible": bool(rec is not None and rec["visible"]),
+                        "occluded_frac": None if rec is None else rec.get("occluded_frac")})
+        return {"vehicle": {"hv": {"x": r5(hv_p[0]), "y": r5(hv_p[1]), "s_m": r5(hv_s), "lateral_m": r5(hv_l),
+                                   "heading_deg": r5(heading_deg(hv_xy, t)), "speed_mps": r5(hv_v)},
+                            "fv": fvs}}
+
+    return dict(lights=lights, led_map=led_map, trajectory=trajectory, carriers=carriers, bodies=bodies,
+                extra_truth=extra_truth, n_frames=int(round(seconds * cam.fps)),
+                description="night road: down-facing S2-PSK street lights, HV lane change, three FVs "
+                            "that occlude each other")
+
+
+BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "vehicle": vehicle,
+            "vehicle-road": vehicle_road}
 
 CAMERA_DEFAULTS = {
     # Smartphone main camera at 1280x720: 1000 px focal (65 x 40 deg field of view), mild barrel
@@ -247,7 +466,12 @@ CAMERA_DEFAULTS = {
     "vehicle": dict(focal_px=1200.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0), pixel_size_um=3.75,
                     row_readout_us=15.0, exposure_us=100.0, fps=30.0),
 }
-PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "vehicle": dict(psf_sigma_px=0.7)}
+CAMERA_DEFAULTS["vehicle-road"] = CAMERA_DEFAULTS["vehicle"]
+# The bundled `vehicle` recording was rendered with the sampled coverage throughout
+# (exact_coverage_rows 0 keeps it bit-exact); `vehicle-road` has sub-pixel-tall far heads,
+# which only the exact coverage renders with their true flux.
+PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
+                  "vehicle-road": dict(psf_sigma_px=0.7)}
 
 
 def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **overrides) -> Scene:
