@@ -120,7 +120,8 @@ def write_settings(path: str, rx) -> None:
 
     loc = getattr(rx.positioner, "local", rx.positioner)  # a server client ranges locally
     obj = {"receiver": settings_json(rx.settings),
-           "locate": settings_json(loc.settings) if getattr(loc, "settings", None) is not None else None}
+           "locate": settings_json(loc.settings) if getattr(loc, "settings", None) is not None else None,
+           "vehicle": settings_json(rx.vehicle.s) if rx.vehicle is not None else None}
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".settings-", dir=folder)
     try:

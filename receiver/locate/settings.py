@@ -68,3 +68,52 @@ class PositionerSettings:
     track_prior: bool = False
     ranges_only_iterations: int = 3
     handedness: str | None = None
+
+
+@dataclass(frozen=True)
+class VehicleSettings:
+    """All settings of vehicle positioning (module doc), with their defaults' reasons."""
+
+    # Ranging ----------------------------------------------------------------------------------
+    range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
+    centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
+    edge_offset_px: float = 0.5         # the envelope lies half a pixel inside the true edge
+    edge_sigma_px: float = 0.1          # edge location 1-sigma all around, px (range_sigma_m)
+    area_model_rel: float = 0.01        # eq. 18 model error (small patch, calibration), relative
+    baseline_model_rel: float = 0.002   # baseline ranging model error with a known baseline
+    taillight_yaw_sigma_deg: float = 5.0  # FV heading vs HV heading (taillight baseline direction)
+    orient_sigma_pose_deg: float = 0.3  # camera orientation 1-sigma when the pose is solved
+    orient_sigma_prior_deg: float = 5.0  # ... when only the nominal tilt is known
+    # Camera mounting (weak priors) -----------------------------------------------------------
+    camera_height_m: float = 1.2        # above the road; thesis Table 2 car camera ~1.2 m
+    camera_height_sigma_m: float = 0.3
+    camera_pitch_deg: float = 0.0       # nominal pitch (up positive), roll assumed 0
+    tilt_sigma_deg: float = 10.0        # weak prior on the tilt (matters with one light only)
+    # Host vehicle -----------------------------------------------------------------------------
+    hv_method: str = "pose"             # the fix fed to the filter: "pose" or "eq44-47"
+    min_lights: int = 2                 # street lights (pairs) needed for a fix
+    pose_loss: str = "soft_l1"
+    pose_f_scale: float = 3.0           # sigmas
+    pose_max_iter: int = 20
+    heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
+    accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
+    yaw_accel_psd: float = 0.05         # rad^2/s^3
+    init_speed_sigma_mps: float = 15.0
+    init_omega_sigma_rps: float = 0.2
+    speed_sigma_mps: float = 0.3        # odometry 1-sigma
+    gate_chi2: float = 13.8             # chi-square 2 dof, 99.9 %
+    max_rejects: int = 3
+    max_coast_s: float = 2.0            # forget the HV track after this long without a fix
+    # Forward vehicles -------------------------------------------------------------------------
+    fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3
+    fv_rate_sigma_mps: float = 10.0     # initial range-rate uncertainty
+    fv_drop_s: float = 1.0              # forget an FV track unseen this long
+    fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
+    fv_max_height_m: float = 2.5
+    closing_min_mps: float = 0.2        # ttc only when closing faster than this
+    headway_safe_s: float = 2.0         # Figure 27: "safe" at >= 2 s headway (two-second rule)
+    headway_min_s: float = 1.0          # "min" between 1 and 2 s, "critical" below 1 s
+    ttc_critical_s: float = 2.0         # ttc below this is "critical" whatever the headway
+    ttc_min_s: float = 4.0              # ttc below this is at least "min"
+    safe_distance_m: float = 30.0       # without V_HV: distance thresholds instead of headway
+    min_distance_m: float = 15.0
