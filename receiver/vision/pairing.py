@@ -155,27 +155,8 @@ def pair_score(a: Track, b: Track, *, row_band: float = 1.0, max_area_ratio: flo
 class Pairer:
     """Keeps S2-PSK pairs over frames (init/step).
 
-    Tunables: row_band [1.0], max_area_ratio [2.5], min_baseline [1.2], max_baseline [25]
-    (see `pair_score`, units of blob diameters); min_frames [4]: frames of intensity history
-    before the on/off check; min_swing [20]: gray levels between an emitter's on and off.
-    Following a formed pair: a blob explains an emitter (or the midpoint) within match_size
-    [1.5] emitter diameters (at least match_min_px [3] px), at most match_frac [0.75] of the
-    baseline, widened by miss_growth_px [1] px per frame without an explained blob (the
-    camera's pitch vibration moves far lights by a few px within a second). merged_ratio [1.5],
-    max_merged [3]: a blob nearest the midpoint with 1.5 to 3 times one emitter's area is both
-    emitters lit (two halves and the blurred gap); one nearest an emitter must be within
-    merged_ratio of its area, or down to 1 / max_cut [3] of it (cut by a clock edge during the
-    rolling readout). velocity_gain [0.3]: smoothing of the px/frame velocity. max_missed [10]:
-    frames without an explained blob before the pair ends (both emitters are dark in about a
-    quarter of the frames). give_up_frames [110]: a pair still without an ID after this many
-    frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
-    Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
-    of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
-    jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
-    vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
-    mean.
-    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
-    shift (`pitch_shift`), added to every pair's prediction.
+    Tunables: `PairSettings` (receiver.vision.settings), given as `settings=` or as keyword
+    overrides of its fields.
     """
 
     def __init__(self, *, settings: PairSettings | None = None, **overrides):
