@@ -22,7 +22,8 @@ class Led:
     """One light of the map. Position in metres (world frame); `size` per `shape`:
     circle -> [diameter], square/rect -> [width, length]. `rate_hz` is the OOK chip rate or
     the S2-PSK clock, `freq_hz` the tone frequency. S2-PSK pairs may give `emitters`
-    ([[x, y, z], [x, y, z]]) or `baseline_m`."""
+    ([[x, y, z], [x, y, z]]) or `baseline_m`. `normal`: the unit vector the emitting face
+    points along (map frame), None = facing down [0, 0, -1] (INTERFACES.md)."""
 
     id: int
     mode: str
@@ -36,6 +37,7 @@ class Led:
     symbol_clocks: int | None = None
     baseline_m: float | None = None
     emitters: tuple[tuple[float, float, float], ...] | None = None
+    normal: tuple[float, float, float] | None = None
 
     @property
     def xyz(self) -> np.ndarray:
@@ -107,6 +109,8 @@ class LedMap:
                 d["size"] = list(led.size)
             if led.emitters is not None:
                 d["emitters"] = [list(e) for e in led.emitters]
+            if led.normal is not None:
+                d["normal"] = list(led.normal)
             leds.append(d)
         out["leds"] = leds
         return out
@@ -163,12 +167,24 @@ def _led(d, i: int, path: str) -> Led:
             emitters = tuple(tuple(float(c) for c in e) for e in emitters)
         except (TypeError, ValueError):
             emitters = None
-        if emitters is None or len(emitters) != 2 or any(len(e) != 3 for e in emitters):
-            raise InputError(f"{where}: 'emitters' must be two [x, y, z] points")
+        if (emitters is None or len(emitters) != 2 or any(len(e) != 3 for e in emitters)
+                or not all(math.isfinite(c) for e in emitters for c in e)):
+            raise InputError(f"{where}: 'emitters' must be two [x, y, z] points (finite metres)")
+    normal = d.get("normal")
+    if normal is not None:
+        try:
+            normal = tuple(float(c) for c in normal if not isinstance(c, bool))
+        except (TypeError, ValueError):
+            normal = ()
+        norm = math.sqrt(sum(c * c for c in normal)) if len(normal) == 3 and all(
+            math.isfinite(c) for c in normal) else 0.0
+        if not norm > 1e-9:
+            raise InputError(f"{where}: 'normal' must be a non-zero [nx, ny, nz] vector")
+        normal = tuple(c / norm for c in normal)
     return Led(id=led_id, mode=mode, x=x, y=y, z=z, shape=shape, size=size,
                rate_hz=_num(d, "rate_hz", where, positive=True), freq_hz=freq,
                symbol_clocks=symclk, baseline_m=_num(d, "baseline_m", where, positive=True),
-               emitters=emitters)
+               emitters=emitters, normal=normal)
 
 
 def parse_map(obj, path: str = "map.json") -> LedMap:
