@@ -96,3 +96,34 @@ def test_run_with_a_malformed_odometry_file_is_a_one_line_error(tmp_path):
                           cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and "speed_mps" in proc.stderr
+
+
+def test_map_without_street_light_positions_leaves_the_host_unplaced_with_a_reason(tmp_path):
+    m = json.loads((REC / "map.json").read_text())
+    for led in m["leds"]:
+        led.pop("emitters", None)
+    bad = tmp_path / "map.json"
+    bad.write_text(json.dumps(m))
+    out = tmp_path / "o.jsonl"
+    proc = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(REC), "--map", str(bad),
+                           "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr
+    assert "host placed in 0 (the map gives no emitter positions" in proc.stderr
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    assert all(rec["vehicle"] is None or rec["vehicle"]["hv"] is None for rec in lines)
+    assert any(rec["vehicle"] and rec["vehicle"]["fv"] for rec in lines)  # the cars ahead still are
+
+
+def test_map_without_taillight_block_gives_no_forward_vehicle_ranges(tmp_path):
+    m = json.loads((REC / "map.json").read_text())
+    m.pop("taillight")
+    bad = tmp_path / "map.json"
+    bad.write_text(json.dumps(m))
+    out = tmp_path / "o.jsonl"
+    proc = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(REC), "--map", str(bad),
+                           "--max-frames", "100", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr
+    for rec in map(json.loads, out.read_text().splitlines()):
+        for fv in (rec["vehicle"] or {}).get("fv", []):
+            assert fv["distance_m"] is None

@@ -207,8 +207,9 @@ def main(args) -> int:
                 out.close()
             else:
                 out.flush()
-        print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped,
-                                        truncated=src.truncated) + _server_text(positioner),
+        hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
+        print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
+                                        hv_reason=hv_reason) + _server_text(positioner),
               file=sys.stderr)
     except OSError as e:
         if isinstance(e, BrokenPipeError):

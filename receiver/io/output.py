@@ -75,6 +75,8 @@ class RunSummary:
         self.led_frames = 0
         self.decoded_led_frames = 0
         self.positions = 0
+        self.vehicle_frames = 0  # frames with a vehicle object
+        self.hv_frames = 0  # ... of them with the host vehicle placed
 
     def add(self, res: FrameResult) -> None:
         self.frames += 1
@@ -85,14 +87,23 @@ class RunSummary:
                 self.ids.add(o.id)
                 self.decoded_led_frames += 1
         self.positions += res.position is not None
+        if res.vehicle is not None:
+            self.vehicle_frames += 1
+            self.hv_frames += res.vehicle.get("hv") is not None
 
-    def text(self, *, skipped: int = 0, dropped: int = 0, truncated: int = 0) -> str:
+    def text(self, *, skipped: int = 0, dropped: int = 0, truncated: int = 0,
+             hv_reason: str | None = None) -> str:
+        """The summary line; `hv_reason`: why the host vehicle is not placed (vehicle scenes)."""
         ids = ", ".join(str(i) for i in sorted(self.ids)) or "none"
         line = (f"{self.frames} frames, {self.led_frames} LED observations "
                 f"({self.decoded_led_frames} with ID), decoded IDs: {ids}; "
                 f"positions: {self.positions}; latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
                 f"p99 {percentile(self.latency_ms, 99):.2f} ms; skipped corrupt frames: {skipped}; "
                 f"dropped: {dropped}")
+        if self.vehicle_frames or hv_reason:
+            line += f"; vehicle frames: {self.vehicle_frames}, host placed in {self.hv_frames}"
+            if hv_reason and self.hv_frames == 0:
+                line += f" ({hv_reason})"
         if truncated:
             line += f"; truncated: {truncated} frame(s) missing at the end"
         return line
