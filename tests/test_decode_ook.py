@@ -5,7 +5,7 @@ import pytest
 
 from firmware_tx.crc import crc8
 from firmware_tx.framing import OOK_PACKET_LEN
-from receiver.decode.ook import OokDecoder, chip_grid, crc8_table, decode_profile_once, rows_per_chip
+from receiver.decode.ook import OokDecoder, chip_grid, crc8_table, rows_per_chip
 from signals import ook_frames
 
 VECTOR_IDS = [0x0000, 0x002A, 0xBEEF]
@@ -27,7 +27,7 @@ def test_single_frame_whole_packet(led_id):
     rng = np.random.default_rng(led_id)
     for _ in range(5):
         (p, w), = ook_frames(led_id, RATE, T_ROW, T_EXP, 260, 1, rng, noise=5.0)
-        assert decode_profile_once(p, RATE, T_ROW, T_EXP, weights=w) == led_id
+        assert OokDecoder(RATE, T_ROW, T_EXP).step(p, w).led_id == led_id
 
 
 @pytest.mark.parametrize("err", [-0.03, 0.0, 0.03])

@@ -10,9 +10,24 @@ import pytest
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import Led
 from receiver.locate.pose import ypr_to_rotation
-from receiver.locate.ranging import contour_geometry, distance_eq18, estimate_distance, led_outline_world, polygon_area_perimeter, project_world, range_sigma_m, steiner_area
+from receiver.core.records import LedObservation
+from receiver.io.ledmap import LedMap
+from receiver.locate.ranging import (Ranger, contour_geometry, distance_eq18, led_outline_world,
+                                     polygon_area_perimeter, project_world, range_sigma_m, steiner_area)
+from receiver.locate.settings import PositionerSettings
 
 LED = Led(id=1, mode="ook", x=0.0, y=0.0, z=3.0, shape="square", size=(0.1, 0.1))
+
+
+def estimate_distance(contour, area_px, cam, estimator, R_cw=None, edge_offset_px=0.5):
+    """(distance m, estimator) of LED through the product's ranging stage (`Ranger`)."""
+    ranger = Ranger(cam, LedMap(leds={LED.id: LED}),
+                    PositionerSettings(ranging=estimator, edge_offset_px=edge_offset_px,
+                                       border_margin_px=-math.inf))  # outlines may leave the frame here
+    obs = LedObservation(track=0, cx=float(contour[:, 0].mean()), cy=float(contour[:, 1].mean()),
+                         area_px=area_px, contour=contour, id=LED.id, mode="ook")
+    (o,) = ranger.range_leds([obs], R_cw)
+    return o.distance_m, o.distance_estimator
 
 
 def camera(dist=(0, 0, 0, 0, 0)):
@@ -36,8 +51,8 @@ def test_oblique_removes_foreshortening_and_distortion(ypr, C):
     contour = project_world(led_outline_world(LED, 32), cam, R, C)
     area_px, _ = polygon_area_perimeter(contour)
     d_true = float(np.linalg.norm(LED.xyz - C))
-    d_obl, name = estimate_distance(contour, area_px, LED.area_m2, cam, "oblique", R_cw=R, edge_offset_px=0)
-    d_18, name18 = estimate_distance(contour, area_px, LED.area_m2, cam, "eq18")
+    d_obl, name = estimate_distance(contour, area_px, cam, "oblique", R_cw=R, edge_offset_px=0)
+    d_18, name18 = estimate_distance(contour, area_px, cam, "eq18")
     assert (name, name18) == ("oblique-pose", "eq18")
     assert abs(d_obl / d_true - 1) < 1e-3
     # eq. 18 ignores all of it (its error can cancel when the camera tilts towards the LED).
@@ -49,7 +64,7 @@ def test_oblique_assuming_camera_looks_up():
     R = ypr_to_rotation(0, 90, 0)
     C = np.array([1.0, 0.7, 1.0])
     contour = project_world(led_outline_world(LED, 16), cam, R, C)
-    d, name = estimate_distance(contour, 0.0, LED.area_m2, cam, "oblique", edge_offset_px=0)
+    d, name = estimate_distance(contour, 0.0, cam, "oblique", edge_offset_px=0)
     assert name == "oblique-up"
     assert d == pytest.approx(np.linalg.norm(LED.xyz - C), rel=1e-3)
 

@@ -379,7 +379,6 @@ class OokDecoder:
         self._learner = period_learner if period_learner is not None else PeriodLearner(s.period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
-        self.last_period = self.period0_rows
         self.exposure_rows = exposure_us / row_readout_us
         self.min_row_frac = s.min_row_frac
         self.segment_chips = s.segment_chips
@@ -462,7 +461,7 @@ class OokDecoder:
             return np.zeros(0), np.zeros(0)
         # where frame chip 0 starts (rows from the profile's first row) and the chip length:
         # the frame's timing, for the frame clock (receiver.decode.frameclock)
-        self.last_start_row, self.last_period = a + phase, period
+        self.last_start_row = a + phase
         if not learned and x.size >= 3 * self.segment_chips * p0:
             # rows per chip is fixed by the camera and the LED: learn it once, then skip the
             # refinement (half the cost of a step)
@@ -864,10 +863,3 @@ class OokDecoder:
         self._cand = led_id
         if self._cand_n >= self.switch_frames:
             self.led_id, self._cand, self._cand_n = led_id, None, 0
-
-
-def decode_profile_once(profile, rate_hz: float, row_readout_us: float, exposure_us: float = 0.0,
-                        weights=None, **tunables) -> int | None:
-    """CRC-valid ID from a single row profile (needs a whole packet, 54 chips, in view)."""
-    dec = OokDecoder(rate_hz, row_readout_us, exposure_us, **tunables)
-    return dec.step(profile, weights).led_id

@@ -156,29 +156,6 @@ def range_sigma_m(distance_m: float, area_px: float, perimeter_px: float,
     return distance_m * rel
 
 
-def estimate_distance(contour_px: np.ndarray, area_px: float, area_m2: float,
-                      camera: CameraModel, estimator: str = "oblique",
-                      R_cw: np.ndarray | None = None,
-                      edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX) -> tuple[float, str]:
-    """Distance (m) to one LED and the name of the estimator that produced it.
-
-    `estimator`: "eq18" (uses `area_px` and `camera.focal_px`) or "oblique" (uses `contour_px`;
-    falls back to eq. 18 when the contour is unusable). `R_cw`: camera orientation for the
-    foreshortening term; None means "assume the camera looks straight up" and the name says
-    so ("oblique-up" vs "oblique-pose").
-    """
-    if estimator not in ESTIMATORS:
-        raise ValueError(f"unknown ranging estimator {estimator!r}")
-    if estimator == "oblique":
-        g = contour_geometry(contour_px, camera, edge_offset_px)
-        if g is not None:
-            R = R_LOOKING_UP if R_cw is None else R_cw
-            d = distance_oblique(g["area_norm"], area_m2, ray_unit(g["centroid_norm"]), R)
-            if math.isfinite(d):
-                return d, "oblique-up" if R_cw is None else "oblique-pose"
-    return distance_eq18(area_px, area_m2, camera.focal_px), "eq18"
-
-
 def led_outline_world(led, points_per_side: int = 8) -> np.ndarray:
     """(K, 3) world points on the outline of a ceiling LED (facing down, sides along world x/y),
     dense enough that the outline stays a good polygon after lens distortion."""
