@@ -539,7 +539,14 @@ class VehicleLocator:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
-        vehicle = None if (not any_pair and hv is None) else {"hv": hv, "fv": fv}
+        vehicle = None
+        if any_pair or hv is not None:
+            e = None if self.last_fix is None else self.last_fix.get("eq44-47")
+            # Thesis eqs. 44-47 beside the main fix (receiver.evaluate reads any hv_<name> object);
+            # why the HV is unplaced as `unplaced_reason` (an hv_ name would be read as a fix).
+            vehicle = {"hv": hv, "fv": fv,
+                       "hv_eq44_47": None if e is None else {"x": _r(e[0]), "y": _r(e[1]), "method": "eq44-47"},
+                       "unplaced_reason": None if hv is not None else self.hv_reason}
         return VehicleResult(vehicle=vehicle, ranges=ranges)
 
     def _pose_ranges(self, pairs, ranges, fix):
@@ -561,7 +568,9 @@ class VehicleLocator:
         """Thesis eqs. 44-47 from the two nearest ranged street lights (x, y) or None."""
         if len(sl_k) < 2:
             return None
-        ks = sorted(sl_k, key=lambda k: res["fused"][k])[:2]
+        # The image's own ranges (the baseline: geometry only), not the pose's (circular).
+        rng = np.where(np.isfinite(res["baseline"]), res["baseline"], res["fused"])
+        ks = sorted(sl_k, key=lambda k: rng[k])[:2]
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
         c2 = self._sl[pairs[res["idx"][k2]].led_id]
@@ -569,7 +578,7 @@ class VehicleLocator:
         sl2 = c2["em"].mean(0)
         # Which is further left, in the level frame (positive bearing = left).
         left = bool(res["bearing"][k2] > res["bearing"][k1])
-        p = eq44_47(float(res["fused"][k1]), float(res["fused"][k2]), sl1, sl2, self.s.camera_height_m, left)
+        p = eq44_47(float(rng[k1]), float(rng[k2]), sl1, sl2, self.s.camera_height_m, left)
         return None if p is None else (float(p[0]), float(p[1]))
 
     def _update_hv(self, t_s: float, fix, speed):
