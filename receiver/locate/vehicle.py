@@ -432,7 +432,7 @@ class VehicleLocator:
         return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
             np.array([C[0], C[1], self.s.camera_height_m])
 
-    def _solve_pose(self, pairs, res, sl_k, R0, C0):
+    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None):
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None."""
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
@@ -460,7 +460,7 @@ class VehicleLocator:
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
         x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale,
-                      max_iter=self.s.pose_max_iter)
+                      max_iter=self.s.pose_max_iter if max_iter is None else max_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
@@ -509,7 +509,9 @@ class VehicleLocator:
                         # Re-range with the initial orientation (baseline direction, normals).
                         out = self._range_pairs(pairs, init[0], True)
                         aligned, res = out
-                solved = None if init is None else self._solve_pose(pairs, res, sl_k, *init)
+                # Warm start from the filter's prediction while tracking: a few iterations do.
+                solved = None if init is None else self._solve_pose(
+                    pairs, res, sl_k, *init, max_iter=s.pose_track_iter if R_prior is not None else None)
                 if solved is None:
                     self.hv_reason = "street-light pose solve failed"
                 else:
