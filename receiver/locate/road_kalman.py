@@ -151,29 +151,49 @@ class RoadKalman:
 
 
 class RangeKalman:
-    """Constant-velocity filter of one distance (module doc)."""
+    """Constant-velocity filter of one distance (module doc), in scalars (2 states: numpy's
+    per-call overhead would dominate). `update` gates the innovation at `gate_chi2` (None: no
+    gate) and returns whether the range was taken; `rejects` counts consecutive gated ones."""
 
-    def __init__(self, t_s: float, d: float, sigma: float, rate_sigma: float, accel_psd: float):
-        self.x = np.array([d, 0.0])
-        self.P = np.diag([sigma ** 2, rate_sigma ** 2])
+    def __init__(self, t_s: float, d: float, sigma: float, rate_sigma: float, accel_psd: float,
+                 gate_chi2: float | None = None):
+        self.d, self.v = float(d), 0.0
+        self.p00, self.p01, self.p11 = sigma * sigma, 0.0, rate_sigma * rate_sigma
         self.t = t_s
         self.t_meas = t_s
         self.q = accel_psd
+        self.gate = gate_chi2
+        self.rejects = 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.array([self.d, self.v])
+
+    @property
+    def P(self) -> np.ndarray:
+        return np.array([[self.p00, self.p01], [self.p01, self.p11]])
 
     def predict(self, t_s: float) -> None:
-        dt = max(0.0, t_s - self.t)
+        dt = t_s - self.t
         if dt > 0:
-            F = np.array([[1.0, dt], [0.0, 1.0]])
-            Q = self.q * np.array([[dt ** 3 / 3, dt ** 2 / 2], [dt ** 2 / 2, dt]])
-            self.x = F @ self.x
-            self.P = F @ self.P @ F.T + Q
-        self.t = max(self.t, t_s)
+            q = self.q
+            self.d += self.v * dt
+            p00 = self.p00 + 2 * dt * self.p01 + dt * dt * self.p11 + q * dt ** 3 / 3
+            p01 = self.p01 + dt * self.p11 + q * dt * dt / 2
+            self.p00, self.p01, self.p11 = p00, p01, self.p11 + q * dt
+            self.t = t_s
 
-    def update(self, t_s: float, d: float, sigma: float) -> None:
-        S = self.P[0, 0] + sigma ** 2
-        K = self.P[:, 0] / S
-        y = d - self.x[0]
-        self.x = self.x + K * y
-        self.P = self.P - np.outer(K, self.P[0, :])
-        self.P = 0.5 * (self.P + self.P.T)
+    def update(self, t_s: float, d: float, sigma: float) -> bool:
+        S = self.p00 + sigma * sigma
+        y = d - self.d
+        if self.gate is not None and y * y > self.gate * S:
+            self.rejects += 1
+            return False
+        k0, k1 = self.p00 / S, self.p01 / S
+        self.d += k0 * y
+        self.v += k1 * y
+        p00, p01, p11 = self.p00, self.p01, self.p11
+        self.p00, self.p01, self.p11 = p00 - k0 * p00, p01 - k0 * p01, p11 - k1 * p01
         self.t_meas = t_s
+        self.rejects = 0
+        return True

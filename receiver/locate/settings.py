@@ -77,11 +77,16 @@ class VehicleSettings:
     # Ranging ----------------------------------------------------------------------------------
     range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
     centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
-    edge_offset_px: float = 0.5         # the envelope lies half a pixel inside the true edge
+    edge_offset_px: float = 0.0         # envelope vs true edge: with the lens blur (bundled vehicle
+                                        # recording) the envelope of a small taillight is its true
+                                        # area (eq. 18 median -0.2 %); 0.5 px read 20 % short at 40 m
+    fv_centroid_sigma_px: float = 1.0   # taillight centroids: blobs of ~12 px, striped, partner
+                                        # emitter up to a few frames old (separation std ~1.5 px)
     edge_sigma_px: float = 0.1          # edge location 1-sigma all around, px (range_sigma_m)
     area_model_rel: float = 0.01        # eq. 18 model error (small patch, calibration), relative
     baseline_model_rel: float = 0.002   # baseline ranging model error with a known baseline
     taillight_yaw_sigma_deg: float = 5.0  # FV heading vs HV heading (taillight baseline direction)
+    consistency_sigmas: float = 4.0     # area vs baseline range disagreement that drops the area one
     orient_sigma_pose_deg: float = 0.3  # camera orientation 1-sigma when the pose is solved
     orient_sigma_prior_deg: float = 5.0  # ... when only the nominal tilt is known
     # Camera mounting (weak priors) -----------------------------------------------------------
@@ -95,6 +100,7 @@ class VehicleSettings:
     pose_loss: str = "soft_l1"
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20
+    pose_track_iter: int = 8            # iterations warm-started from the previous pose (3: HV p95 4.0 m)
     heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
     accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
     yaw_accel_psd: float = 0.05         # rad^2/s^3
@@ -108,6 +114,10 @@ class VehicleSettings:
     fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3
     fv_rate_sigma_mps: float = 10.0     # initial range-rate uncertainty
     fv_drop_s: float = 1.0              # forget an FV track unseen this long
+    fv_gate_chi2: float = 9.0           # range innovation gate (3 sigma) of an FV track
+    fv_max_rejects: int = 4             # consecutive gated ranges that restart the track
+    fv_dup_deg: float = 0.5             # FV entries closer in bearing are one vehicle (one kept)
+    fv_coast_max_rel: float = 0.05      # a coasting FV entry is reported while its std <= this x d
     fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
     fv_max_height_m: float = 2.5
     closing_min_mps: float = 0.2        # ttc only when closing faster than this

@@ -168,7 +168,7 @@ def _perimeter_k(S1, S2, r, circle):
 
 
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
-               base_model_rel, focal_px, settings: VehicleSettings):
+               base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None):
     """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
     factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
     `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
@@ -190,7 +190,8 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         sb = (raa * bb + rab * ba) / det
         d_base = 0.5 * np.linalg.norm(sa[:, None] * ra + sb[:, None] * rb, axis=1)
         sep_px = np.linalg.norm(ub - ua, axis=1) * focal_px
-        s_base = d_base * (math.sqrt(2.0) * settings.centroid_sigma_px / sep_px + base_model_rel)
+        csig = settings.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
+        s_base = d_base * (math.sqrt(2.0) * csig / sep_px + base_model_rel)
         ok = (det > 1e-14) & (sa > 0) & (sb > 0)
         d_base = np.where(ok, d_base, np.nan)
         # Areas (eq. 18 and its corrected form).
@@ -221,6 +222,12 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         wa = 1.0 / s_ob ** 2
         wb = 1.0 / s_base ** 2
         fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
+        # The area range rests on the emitter's normal and size (a map entry without the normal
+        # of a tilted head reads it several times too short); the baseline only on geometry.
+        # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
+        with np.errstate(invalid="ignore"):
+            clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
+        fa = fa & ~clash
         wa = np.where(fa, wa, 0.0)
         wb = np.where(fb, wb, 0.0)
         wsum = wa + wb
@@ -230,7 +237,7 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
                fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
                d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + settings.area_model_rel ** 2),
                s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + settings.area_model_rel ** 2),
-               ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa)
+               ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
     return out
 
 
@@ -310,6 +317,7 @@ class VehicleLocator:
                              gate_chi2=settings.gate_chi2, max_rejects=settings.max_rejects,
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
+        self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
         self.fv_tracks: dict = {}
@@ -374,7 +382,7 @@ class VehicleLocator:
         eta = np.array([(pairs[i].area_a_px, pairs[i].area_b_px) for i in idx], float)
         cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
         ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
-        R = self.R_nominal if R_cw is None else R_cw
+        R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
         Lv = level_rotation(R)                     # rows: ahead, left, up in camera frame
         osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
         rays_m = _rays(0.5 * (ua + ub))
@@ -398,7 +406,8 @@ class VehicleLocator:
         S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
         S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
-                         np.full(n, osig), bm, self.focal, self.s)
+                         np.full(n, osig), bm, self.focal, self.s,
+                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px))
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
@@ -423,7 +432,7 @@ class VehicleLocator:
         return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
             np.array([C[0], C[1], self.s.camera_height_m])
 
-    def _solve_pose(self, pairs, res, sl_k, R0, C0):
+    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None):
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None."""
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
@@ -451,7 +460,7 @@ class VehicleLocator:
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
         x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale,
-                      max_iter=self.s.pose_max_iter)
+                      max_iter=self.s.pose_max_iter if max_iter is None else max_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
@@ -500,7 +509,9 @@ class VehicleLocator:
                         # Re-range with the initial orientation (baseline direction, normals).
                         out = self._range_pairs(pairs, init[0], True)
                         aligned, res = out
-                solved = None if init is None else self._solve_pose(pairs, res, sl_k, *init)
+                # Warm start from the filter's prediction while tracking: a few iterations do.
+                solved = None if init is None else self._solve_pose(
+                    pairs, res, sl_k, *init, max_iter=s.pose_track_iter if R_prior is not None else None)
                 if solved is None:
                     self.hv_reason = "street-light pose solve failed"
                 else:
@@ -524,17 +535,44 @@ class VehicleLocator:
 
         hv = self._update_hv(t_s, fix, speed_mps)
         fv, not_fv = self._update_fv(t_s, pairs, aligned, res, hv)
-        ranges = tuple(None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
-                       for i, (r, k) in enumerate(aligned))
+        ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
+                  for i, (r, k) in enumerate(aligned)]
+        if fix is not None:
+            self._pose_ranges(pairs, ranges, fix)
+        ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
-        vehicle = None if (not any_pair and hv is None) else {"hv": hv, "fv": fv}
+        vehicle = None
+        if any_pair or hv is not None:
+            e = None if self.last_fix is None else self.last_fix.get("eq44-47")
+            # Thesis eqs. 44-47 beside the main fix (receiver.evaluate reads any hv_<name> object);
+            # why the HV is unplaced as `unplaced_reason` (an hv_ name would be read as a fix).
+            vehicle = {"hv": hv, "fv": fv,
+                       "hv_eq44_47": None if e is None else {"x": _r(e[0]), "y": _r(e[1]), "method": "eq44-47"},
+                       "unplaced_reason": None if hv is not None else self.hv_reason}
         return VehicleResult(vehicle=vehicle, ranges=ranges)
+
+    def _pose_ranges(self, pairs, ranges, fix):
+        """SL pairs with mapped emitters: the distance from the frame's solved camera centre to
+        the head (estimator "pose"; its sigma from the pose covariance along the line of
+        sight). Far more exact than either image measurement of a small, foreshortened head."""
+        C, cov = fix["pose"][0], fix["pose"][1]
+        for i, p in enumerate(pairs):
+            c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
+            if c is None or c["em"] is None:
+                continue
+            v = c["em"].mean(0) - C
+            d = math.sqrt(float(v @ v))
+            u = v[:2] / d
+            sd = math.sqrt(max(float(u @ cov @ u), 0.0) + (self.s.camera_height_sigma_m * v[2] / d) ** 2 * 0.01)
+            ranges[i] = (d, sd, "pose")
 
     def _eq44_47(self, pairs, res, sl_k, fix):
         """Thesis eqs. 44-47 from the two nearest ranged street lights (x, y) or None."""
         if len(sl_k) < 2:
             return None
-        ks = sorted(sl_k, key=lambda k: res["fused"][k])[:2]
+        # The image's own ranges (the baseline: geometry only), not the pose's (circular).
+        rng = np.where(np.isfinite(res["baseline"]), res["baseline"], res["fused"])
+        ks = sorted(sl_k, key=lambda k: rng[k])[:2]
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
         c2 = self._sl[pairs[res["idx"][k2]].led_id]
@@ -542,7 +580,7 @@ class VehicleLocator:
         sl2 = c2["em"].mean(0)
         # Which is further left, in the level frame (positive bearing = left).
         left = bool(res["bearing"][k2] > res["bearing"][k1])
-        p = eq44_47(float(res["fused"][k1]), float(res["fused"][k2]), sl1, sl2, self.s.camera_height_m, left)
+        p = eq44_47(float(rng[k1]), float(rng[k2]), sl1, sl2, self.s.camera_height_m, left)
         return None if p is None else (float(p[0]), float(p[1]))
 
     def _update_hv(self, t_s: float, fix, speed):
@@ -572,6 +610,8 @@ class VehicleLocator:
                     accepted = True
             if accepted:
                 self.R_last = R
+                _, pitch, roll = rotation_to_ypr_deg(R)
+                self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
             else:
                 meth = "kalman-coast"
         elif kf.started:
@@ -614,9 +654,18 @@ class VehicleLocator:
             meas = None
             if r is not None:
                 d, sd = r["fused"][k], r["fused_sigma"][k]
-                if np.isfinite(d) and np.isfinite(sd) and sd > 0:
+                if r["area_clash"][k]:
+                    # Area and baseline ranges of a taillight pair disagree: not a taillight pair
+                    # (an undecoded street light, 7x apart) or a wrong pairing this frame.
+                    if role == "FV?" and tr is None:
+                        not_fv.add(i)
+                        continue
+                    not_fv.add(i)
+                elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
-                    if role == "FV?":
+                    if role == "FV?" and self.R_tilt is not None:
+                        # Height window only once the camera's tilt is known (the nominal tilt
+                        # may be off by degrees: metres of height at 30 m).
                         z = s.camera_height_m + d * lev[2]
                         if not s.fv_min_height_m <= z <= s.fv_max_height_m:
                             not_fv.add(i)
@@ -625,22 +674,25 @@ class VehicleLocator:
             if meas is None and tr is None:
                 continue
             if tr is None:
-                tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd),
+                tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd, s.fv_gate_chi2),
                       "id": None, "bearing": meas[2], "lev": meas[3]}
                 self.fv_tracks[key] = tr
             else:
                 tr["kf"].predict(t_s)
-                if meas is not None:
-                    tr["kf"].update(t_s, meas[0], meas[1])
+                if meas is not None and not tr["kf"].update(t_s, meas[0], meas[1]):
+                    if tr["kf"].rejects >= s.fv_max_rejects:
+                        tr["kf"] = RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd,
+                                               s.fv_gate_chi2)
+                    else:
+                        meas = None
             if meas is not None:
                 tr["bearing"], tr["lev"] = meas[2], meas[3]
             if p.led_id is not None and p.led_id > 0x7F:
                 tr["id"] = int(p.led_id)
             seen.add(key)
-            x_kf = tr["kf"].x
-            d = float(x_kf[0])
-            rate = float(x_kf[1])
-            std = math.sqrt(max(tr["kf"].P[0, 0], 0.0))
+            kf = tr["kf"]
+            d, rate = kf.d, kf.v
+            std = math.sqrt(max(kf.p00, 0.0))
             lev = tr["lev"]
             hnorm = math.hypot(lev[0], lev[1])
             flat = d * hnorm                     # horizontal distance
@@ -659,7 +711,25 @@ class VehicleLocator:
                         "coasting": meas is None})
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
-        return out, not_fv
+        return self._dedupe_fv(out), not_fv
+
+    def _dedupe_fv(self, out: list[dict]) -> list[dict]:
+        """One entry per forward vehicle: a pair re-formed under a new key, or a stale coasting
+        track, shows up at the bearing of the live one. Entries are kept decoded first, then
+        measured this frame, then the surest; one within `fv_dup_deg` of a kept entry's bearing is
+        dropped, as is a coasting one whose std exceeds `fv_coast_max_rel` of its distance."""
+        s = self.s
+        out = [e for e in out if not e["coasting"] or (e["std_m"] or 0.0) <= s.fv_coast_max_rel * (e["distance_m"] or 0.0)]
+        if len(out) < 2:
+            return out
+        order = sorted(out, key=lambda e: (e["id"] is None, e["coasting"], e["std_m"] if e["std_m"] is not None else 1e9))
+        kept = []
+        for e in order:
+            a = e["angle_deg"]
+            if a is not None and any(k["angle_deg"] is not None and abs(k["angle_deg"] - a) < s.fv_dup_deg for k in kept):
+                continue
+            kept.append(e)
+        return [e for e in out if any(e is k for k in kept)]
 
     def _zone(self, d: float, v_hv: float | None, ttc: float | None) -> str:
         """Thesis Figure 27 zones (module doc; thresholds in VehicleSettings)."""
