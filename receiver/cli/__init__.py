@@ -23,6 +23,8 @@ SUBCOMMANDS = {
     "tx": "receiver.cli.tx",
     "serve": "receiver.cli.serve",
     "eval": "receiver.cli.eval",
+    "calibrate": "receiver.cli.calibrate",
+    "check": "receiver.cli.check",
 }
 
 # Developer commands: the synthetic camera and hardware-in-the-loop live in the source

@@ -1,0 +1,210 @@
+"""Camera intrinsics from views of a chessboard or a ChArUco board (`calibrate_views`).
+
+Board specs (`parse_board`): `chess:COLSxROWS` counts *inner corners* as OpenCV's
+findChessboardCorners does; `charuco:COLSxROWS:DICT` counts *squares* (cv2.aruco.CharucoBoard)
+with an ArUco dictionary name such as DICT_4X4_50.
+
+Views are filtered before calibrating:
+* blurred: chessboards by `cv2.estimateChessboardSharpness` (mean edge width in px above
+  `max_blur_px`), ChArUco boards by the variance of the Laplacian inside the board's corner hull
+  (below `min_laplacian_var`);
+* duplicates: a view whose corners lie within `min_move_frac` of the image diagonal (mean
+  distance of the common corners) of an accepted view adds nothing (a still board in a video);
+* too few corners (ChArUco: fewer than 6 detected).
+Then `cv2.calibrateCameraExtended` on the accepted views (at most `max_views`, spread evenly),
+which gives the RMS reprojection error and the per-view errors.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from receiver.core.errors import InputError
+
+
+@dataclass(frozen=True)
+class Board:
+    kind: str  # "chess" | "charuco"
+    cols: int
+    rows: int
+    square_m: float
+    marker_m: float | None = None
+    dictionary: str | None = None
+
+    def object_points(self) -> np.ndarray:
+        """(N, 3) float32 inner-corner positions of a chessboard (metres, z = 0), row-major as
+        findChessboardCorners orders them."""
+        g = np.mgrid[0:self.cols, 0:self.rows].T.reshape(-1, 2).astype(np.float32)
+        return np.hstack((g * self.square_m, np.zeros((g.shape[0], 1), np.float32)))
+
+    def charuco(self):
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        return cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_m, self.marker_m, d)
+
+
+def parse_board(spec: str, square_mm: float, marker_mm: float | None = None) -> Board:
+    """Board from 'chess:9x6' or 'charuco:7x5:DICT_4X4_50' and the square (and marker) size."""
+    if square_mm is None or not square_mm > 0:
+        raise InputError("--square-mm must be positive")
+    m = re.fullmatch(r"(chess|charuco):(\d+)[xX](\d+)(?::(\w+))?", spec or "")
+    if not m:
+        raise InputError(f"--board must be chess:COLSxROWS or charuco:COLSxROWS:DICT, not {spec!r}")
+    kind, cols, rows, dname = m.group(1), int(m.group(2)), int(m.group(3)), m.group(4)
+    if cols < 2 or rows < 2:
+        raise InputError("--board needs at least 2x2 corners/squares")
+    if kind == "chess":
+        if dname:
+            raise InputError("a chess board takes no dictionary")
+        return Board("chess", cols, rows, square_mm / 1000.0)
+    if not dname or not dname.startswith("DICT_") or not hasattr(cv2.aruco, dname):
+        raise InputError(f"unknown ArUco dictionary {dname!r} (e.g. DICT_4X4_50)")
+    if marker_mm is None or not 0 < marker_mm < square_mm:
+        raise InputError("a charuco board needs --marker-mm, smaller than --square-mm")
+    return Board("charuco", cols, rows, square_mm / 1000.0, marker_mm / 1000.0, dname)
+
+
+@dataclass
+class ViewStats:
+    seen: int = 0
+    found: int = 0
+    blurred: int = 0
+    duplicate: int = 0
+    accepted: int = 0
+
+
+@dataclass
+class CalibrationResult:
+    K: np.ndarray
+    dist: np.ndarray
+    rms_px: float
+    per_view_px: list[float]
+    frames: list[int]
+    size: tuple[int, int]
+    stats: ViewStats = field(default_factory=ViewStats)
+
+    def to_json(self) -> dict:
+        return {"rms_px": round(self.rms_px, 4), "views": len(self.frames),
+                "fx": round(float(self.K[0, 0]), 3), "fy": round(float(self.K[1, 1]), 3),
+                "cx": round(float(self.K[0, 2]), 3), "cy": round(float(self.K[1, 2]), 3),
+                "dist": [round(float(v), 6) for v in self.dist.ravel()[:5]],
+                "per_view_px": [round(float(v), 4) for v in self.per_view_px],
+                "frames_used": self.frames, "frames_seen": self.stats.seen,
+                "found": self.stats.found, "rejected_blurred": self.stats.blurred,
+                "rejected_duplicate": self.stats.duplicate,
+                "image_width": self.size[0], "image_height": self.size[1]}
+
+
+class ViewCollector:
+    """Detects the board in frames and keeps the sharp, distinct views."""
+
+    def __init__(self, board: Board, *, max_blur_px: float = 4.0, min_laplacian_var: float = 20.0,
+                 min_move_frac: float = 0.02):
+        self.board = board
+        self.max_blur_px = max_blur_px
+        self.min_laplacian_var = min_laplacian_var
+        self.min_move_frac = min_move_frac
+        self.views: list[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = []
+        self.stats = ViewStats()
+        self.size: tuple[int, int] | None = None
+        if board.kind == "charuco":
+            self._cb = board.charuco()
+            self._det = cv2.aruco.CharucoDetector(self._cb)
+
+    def add(self, index: int, gray: np.ndarray) -> str:
+        """Look at one frame: 'accepted', 'none', 'blurred' or 'duplicate'."""
+        h, w = gray.shape[:2]
+        if self.size is None:
+            self.size = (w, h)
+        elif self.size != (w, h):
+            raise InputError(f"frame {index} is {w}x{h}, earlier frames {self.size[0]}x{self.size[1]}")
+        self.stats.seen += 1
+        found = self._detect(gray)
+        if found is None:
+            return "none"
+        self.stats.found += 1
+        img_pts, obj_pts, ids = found
+        if self._blurred(gray, img_pts):
+            self.stats.blurred += 1
+            return "blurred"
+        if self._duplicate(img_pts, ids, math.hypot(w, h)):
+            self.stats.duplicate += 1
+            return "duplicate"
+        self.views.append((index, img_pts, obj_pts, ids))
+        self.stats.accepted += 1
+        return "accepted"
+
+    def _detect(self, gray):
+        b = self.board
+        if b.kind == "chess":
+            flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+            ok, corners = cv2.findChessboardCorners(gray, (b.cols, b.rows), flags=flags)
+            if not ok:
+                return None
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+            corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
+            return corners.reshape(-1, 2).astype(np.float32), b.object_points(), None
+        cc, cids, _mc, _mids = self._det.detectBoard(gray)
+        if cids is None or len(cids) < 6:
+            return None
+        obj, img = self._cb.matchImagePoints(cc, cids)
+        if obj is None or len(obj) < 6:
+            return None
+        return img.reshape(-1, 2).astype(np.float32), obj.reshape(-1, 3).astype(np.float32), cids.ravel()
+
+    def _blurred(self, gray, pts) -> bool:
+        b = self.board
+        if b.kind == "chess":
+            sharp = cv2.estimateChessboardSharpness(gray, (b.cols, b.rows), pts.reshape(-1, 1, 2))
+            return float(sharp[0][0]) > self.max_blur_px
+        hull = cv2.convexHull(pts.astype(np.float32)).astype(np.int32)
+        mask = np.zeros(gray.shape[:2], np.uint8)
+        cv2.fillConvexPoly(mask, hull, 1)
+        lap = cv2.Laplacian(gray, cv2.CV_32F)
+        var = float(lap[mask > 0].var()) if mask.any() else 0.0
+        return var < self.min_laplacian_var
+
+    def _duplicate(self, pts, ids, diag) -> bool:
+        lim = self.min_move_frac * diag
+        for _i, p, _o, vids in self.views:
+            if ids is None:
+                if p.shape == pts.shape and float(np.linalg.norm(p - pts, axis=1).mean()) < lim:
+                    return True
+            else:
+                common, a, c = np.intersect1d(vids, ids, return_indices=True)
+                if common.size >= 0.8 * max(len(ids), 1) and \
+                        float(np.linalg.norm(p[a] - pts[c], axis=1).mean()) < lim:
+                    return True
+        return False
+
+
+def calibrate_views(col: ViewCollector, *, max_views: int = 40, K0: np.ndarray | None = None,
+                    min_views: int = 4) -> CalibrationResult:
+    """cv2.calibrateCameraExtended over the collector's views (k1 k2 p1 p2 k3)."""
+    if not col.views:
+        raise InputError(f"no usable board view in {col.stats.seen} frames "
+                         f"(found {col.stats.found}, blurred {col.stats.blurred}, "
+                         f"duplicates {col.stats.duplicate})")
+    if len(col.views) < min_views:
+        raise InputError(f"only {len(col.views)} usable board views (need {min_views}): "
+                         f"move the board to more positions and angles")
+    views = col.views
+    if len(views) > max_views:
+        keep = np.linspace(0, len(views) - 1, max_views).round().astype(int)
+        views = [views[i] for i in keep]
+    obj = [v[2] for v in views]
+    img = [v[1].reshape(-1, 1, 2) for v in views]
+    flags = 0
+    K = None
+    if K0 is not None:
+        K, flags = np.array(K0, np.float64), cv2.CALIB_USE_INTRINSIC_GUESS
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    rms, K, dist, _r, _t, _si, _se, per_view = cv2.calibrateCameraExtended(
+        obj, img, col.size, K, None, flags=flags, criteria=crit)
+    return CalibrationResult(K, dist.ravel()[:5] if dist.size >= 5 else np.pad(dist.ravel(), (0, 5 - dist.size)),
+                             float(rms), [float(v) for v in np.asarray(per_view).ravel()],
+                             [int(v[0]) for v in views], col.size, col.stats)

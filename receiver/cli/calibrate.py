@@ -1,0 +1,182 @@
+"""`occloc calibrate intrinsics|rows`: set up a real camera's camera.yaml (INTERFACES.md).
+
+* `intrinsics SOURCE --board chess:COLSxROWS --square-mm S --out FILE [--camera EXISTING]`
+  (or `--board charuco:COLSxROWS:DICT --marker-mm M`): board views from a video, image folder or
+  camera; camera_matrix and distortion_coefficients measured, image size from the frames, and the
+  keys calibration does not measure (pixel_size_um, focal_length_mm, row_readout_us,
+  exposure_us, fps) kept from EXISTING.
+* `rows SOURCE --camera FILE (--freq-hz F | --ook-rate HZ) [--out FILE2] [--map MAP]`: the row
+  readout time (and an exposure estimate) from a tone or OOK LED of known rate; written as
+  `row_readout_us` into FILE2, or into FILE (replaced atomically) without --out.
+
+Progress goes to standard error, the result is one JSON line on standard output. Files are written
+to a temporary file in the same folder and renamed into place; an input is never overwritten
+(except FILE by `rows` without --out, which is the point).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import sys
+import tempfile
+
+HELP = "calibrate a camera: intrinsics from a chess/ChArUco board, row readout time from an LED"
+
+
+def add_arguments(p) -> None:
+    sub = p.add_subparsers(dest="what", metavar="WHAT")
+    sub.required = True
+    a = sub.add_parser("intrinsics", help="camera matrix and distortion from board views",
+                       description="camera matrix and distortion from views of a chessboard or ChArUco board")
+    a.add_argument("source", metavar="SOURCE", help="video file, image or image folder, or /dev/videoN")
+    a.add_argument("--board", required=True, metavar="SPEC",
+                   help="chess:COLSxROWS (inner corners, as OpenCV counts them) or "
+                        "charuco:COLSxROWS:DICT (squares, e.g. charuco:7x5:DICT_4X4_50)")
+    a.add_argument("--square-mm", type=float, required=True, metavar="S", help="square side, mm")
+    a.add_argument("--marker-mm", type=float, metavar="M", help="ChArUco marker side, mm")
+    a.add_argument("--out", required=True, metavar="FILE", help="camera.yaml to write")
+    a.add_argument("--camera", metavar="EXISTING",
+                   help="camera.yaml whose unmeasured keys (pixel size, focal length, row time, exposure, fps) are kept")
+    a.add_argument("--max-frames", type=int, metavar="N", help="look at no more than N frames")
+    a.add_argument("--max-views", type=int, default=40, metavar="N", help="calibrate on at most N views (40)")
+    a.add_argument("--max-blur-px", type=float, default=4.0, metavar="PX",
+                   help="reject chessboard views whose edges are wider than this (4 px)")
+    a.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
+    r = sub.add_parser("rows", help="row readout time (and exposure) from a tone or OOK LED",
+                       description="rolling-shutter row readout time from the stripes of an LED of known rate")
+    r.add_argument("source", metavar="SOURCE", help="recording folder, video file, images or /dev/videoN")
+    r.add_argument("--camera", required=True, metavar="FILE", help="camera.yaml (its row_readout_us is the starting guess)")
+    g = r.add_mutually_exclusive_group(required=True)
+    g.add_argument("--freq-hz", type=float, metavar="F", help="a tone LED blinking at F Hz")
+    g.add_argument("--ook-rate", type=float, metavar="HZ", help="an OOK LED at HZ chips per second")
+    r.add_argument("--out", metavar="FILE2", help="write the camera file here (default: update FILE)")
+    r.add_argument("--map", metavar="MAP", help="LED map: warn when the exposure is too long for its chip rates")
+    r.add_argument("--max-frames", type=int, default=300, metavar="N", help="frames to read (300)")
+    r.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
+
+
+def _progress(msg: str) -> None:
+    print(f"occloc calibrate: {msg}", file=sys.stderr)
+
+
+def _same(a: str, b: str | None) -> bool:
+    if not b or not os.path.exists(a) or not os.path.exists(b):
+        return bool(b) and os.path.abspath(a) == os.path.abspath(b)
+    return os.path.samefile(a, b)
+
+
+def write_camera_atomic(path: str, cam) -> None:
+    """save_camera to a temporary .yaml beside `path`, then rename it into place."""
+    from receiver.io.camera import save_camera
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".camera-", suffix=".yaml", dir=folder)
+    os.close(fd)
+    try:
+        save_camera(tmp, cam)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _open(spec: str, size):
+    from receiver.core.errors import InputError
+    from receiver.io.sources import open_source, parse_size
+    if not spec.startswith("/dev/video") and not os.path.exists(spec):
+        raise InputError(f"no such file or folder: {spec}")
+    return open_source(spec, size=parse_size(size))
+
+
+def run_intrinsics(args) -> dict:
+    import numpy as np
+    from receiver.calibrate.intrinsics import ViewCollector, calibrate_views, parse_board
+    from receiver.core.errors import InputError
+    from receiver.io.camera import CameraModel, load_camera
+
+    board = parse_board(args.board, args.square_mm, args.marker_mm)
+    for inp in (args.source, args.camera):
+        if inp and _same(args.out, inp):
+            raise InputError(f"--out {args.out} is an input: choose another file")
+    existing = load_camera(args.camera) if args.camera else None
+    col = ViewCollector(board, max_blur_px=args.max_blur_px)
+    src = _open(args.source, args.size)
+    try:
+        for frame in src:
+            if args.max_frames is not None and col.stats.seen >= args.max_frames:
+                break
+            what = col.add(frame.index, frame.gray)
+            if what != "none" or col.stats.seen % 50 == 0:
+                _progress(f"frame {frame.index}: {what} ({col.stats.accepted} views)")
+    finally:
+        src.close()
+    res = calibrate_views(col, max_views=args.max_views)
+    for i, e in zip(res.frames, res.per_view_px):
+        _progress(f"view frame {i}: {e:.3f} px")
+    _progress(f"RMS reprojection error {res.rms_px:.3f} px over {len(res.frames)} views")
+    w, h = res.size
+    keep = {}
+    if existing is not None:
+        ex = existing if (existing.width, existing.height) == (w, h) else existing.scaled(w, h)
+        keep = dict(pixel_size_um=ex.pixel_size_um, focal_length_mm=ex.focal_length_mm,
+                    row_readout_us=ex.row_readout_us, exposure_us=ex.exposure_us, fps=ex.fps)
+    cam = CameraModel(w, h, np.asarray(res.K, np.float64), np.asarray(res.dist, np.float64).ravel()[:5],
+                      **keep)
+    if cam.fps == 0 and getattr(src, "fps", 0):
+        cam = dataclasses.replace(cam, fps=float(src.fps))
+    write_camera_atomic(args.out, cam)
+    out = res.to_json()
+    out["out"] = args.out
+    return out
+
+
+def run_rows(args) -> dict:
+    from receiver.calibrate.rows import exposure_warning, measure_row_time
+    from receiver.core.errors import InputError
+    from receiver.io.camera import load_camera
+
+    cam = load_camera(args.camera)
+    out_path = args.out or args.camera
+    if args.out and _same(args.out, args.source):
+        raise InputError(f"--out {args.out} is the SOURCE: choose another file")
+    if args.max_frames is not None and args.max_frames <= 0:
+        raise InputError("--max-frames must be positive")
+    mode, rate = ("tone", args.freq_hz) if args.freq_hz is not None else ("ook", args.ook_rate)
+    if not rate > 0:
+        raise InputError("the LED's rate must be positive")
+    src = _open(args.source, args.size)
+    try:
+        res = measure_row_time(src, mode=mode, rate_hz=rate, prior_row_us=cam.row_readout_us,
+                               max_frames=args.max_frames, progress=_progress)
+    finally:
+        src.close()
+    if src.size is not None and src.size != (cam.width, cam.height):
+        _progress(f"frames are {src.size[0]}x{src.size[1]}, the camera file {cam.width}x{cam.height}: "
+                  f"row time measured in the frames' rows")
+    rates = [2 * rate if mode == "tone" else rate]
+    if args.map:
+        from receiver.io.ledmap import load_map
+        m = load_map(args.map)
+        rates += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
+        rates += [2 * led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
+        if m.default_rate_hz:
+            rates.append(m.default_rate_hz)
+    warn = exposure_warning(res.exposure_us, rates)
+    if warn:
+        print(f"occloc: warning: {warn}", file=sys.stderr)
+    _progress(f"row readout {res.t_row_us:.4f} us +- {res.stderr_us:.4f} (standard error), "
+              f"spread {res.spread_us:.4f} us over {res.blobs} blobs in {res.frames} frames; "
+              f"exposure ~{res.exposure_us if res.exposure_us is None else round(res.exposure_us, 1)} us")
+    new = dataclasses.replace(cam, row_readout_us=float(res.t_row_us))
+    write_camera_atomic(out_path, new)
+    d = res.to_json()
+    d.update(previous_row_readout_us=cam.row_readout_us, out=out_path, warning=warn)
+    return d
+
+
+def main(args) -> int:
+    res = run_intrinsics(args) if args.what == "intrinsics" else run_rows(args)
+    print(json.dumps(res))
+    return 0

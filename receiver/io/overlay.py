@@ -1,0 +1,125 @@
+"""Annotated video of what the receiver sees (`OverlayWriter`, for `occloc run --overlay FILE`).
+
+Per frame, on a BGR copy of the gray frame (OpenCV drawing only): each LED's envelope, track
+number, decoded ID and distance; the S2-PSK pairs (a line between the emitters and the ID); the
+position (text); the vehicle picture (hv and fv text); and a small top-view inset of the map
+(LED positions, the estimated camera position). Output: FFV1 AVI (MJPG when FFV1 is missing)
+for a video path, or a PNG when the path ends in .png (a single photo: the last frame written).
+"""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+
+from receiver.core.errors import InputError
+
+INSET = (200, 150)  # top-view inset size, px
+GREEN, YELLOW, CYAN, WHITE, RED = (0, 255, 0), (0, 255, 255), (255, 255, 0), (255, 255, 255), (0, 0, 255)
+
+
+class OverlayWriter:
+    """OverlayWriter(path, size=(w, h), fps, camera, led_map); .write(gray, frame_result); .close()."""
+
+    def __init__(self, path: str, size, fps: float, camera=None, led_map=None):
+        self.path, self.size = path, (int(size[0]), int(size[1]))
+        self.fps = float(fps) if fps and fps > 0 else 30.0
+        self.camera, self.led_map = camera, led_map
+        self.png = path.lower().endswith(".png")
+        self._writer = None
+        self._last = None
+        self._pts = None
+        if led_map is not None and led_map.leds:
+            self._pts = np.array([[l.x, l.y] for l in led_map.leds.values()], np.float64)
+        if not self.png:
+            for fourcc in ("FFV1", "MJPG"):
+                w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), self.fps, self.size, True)
+                if w.isOpened():
+                    self._writer = w
+                    break
+            if self._writer is None:
+                raise InputError(f"{path}: cannot write an FFV1 or MJPG video")
+
+    def _map_xy(self, x, y, lo, scale, origin):
+        return (int(origin[0] + (x - lo[0]) * scale), int(origin[1] + INSET[1] - 8 - (y - lo[1]) * scale))
+
+    def _inset(self, img, position) -> None:
+        if self._pts is None:
+            return
+        h, w = img.shape[:2]
+        iw, ih = min(INSET[0], w // 3), min(INSET[1], h // 3)
+        ox, oy = w - iw - 8, 8
+        roi = img[oy:oy + ih, ox:ox + iw]
+        roi[:] = (roi * 0.35).astype(np.uint8)
+        cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, 1)
+        pts = self._pts
+        if position is not None:
+            pts = np.vstack((pts, [[position["x"], position["y"]]]))
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
+        for x, y in self._pts:
+            p = (int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale))
+            cv2.circle(img, p, 2, YELLOW, -1)
+        if position is not None:
+            p = (int(ox + 8 + (position["x"] - lo[0]) * scale), int(oy + ih - 8 - (position["y"] - lo[1]) * scale))
+            cv2.drawMarker(img, p, RED, cv2.MARKER_CROSS, 10, 2)
+
+    def annotate(self, gray: np.ndarray, res) -> np.ndarray:
+        """The annotated BGR frame."""
+        img = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR) if gray.ndim == 2 else gray.copy()
+        if (img.shape[1], img.shape[0]) != self.size:
+            img = cv2.resize(img, self.size)
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        for led in getattr(res, "leds", []) or []:
+            c = np.asarray(led.contour, np.float64).reshape(-1, 2)
+            colour = GREEN if led.id is not None else YELLOW
+            if c.size:
+                cv2.polylines(img, [np.round(c).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
+            label = f"#{led.track}" + (f" id {led.id}" if led.id is not None else "")
+            if led.distance_m is not None:
+                label += f" {led.distance_m:.2f} m"
+            y0 = int(c[:, 1].min()) - 4 if c.size else int(led.cy)
+            cv2.putText(img, label, (int(led.cx) - 30, max(y0, 10)), font, 0.4, colour, 1, cv2.LINE_AA)
+        for pr in getattr(res, "pairs", ()) or ():
+            a = tuple(int(round(v)) for v in pr.a_px)
+            b = tuple(int(round(v)) for v in pr.b_px)
+            cv2.line(img, a, b, CYAN, 1, cv2.LINE_AA)
+            txt = f"{pr.kind or ''} {pr.led_id}" if pr.led_id is not None else "pair"
+            cv2.putText(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - 6), font, 0.4, CYAN, 1, cv2.LINE_AA)
+        lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
+        pos = getattr(res, "position", None)
+        if pos:
+            lines.append(f"pos x {pos['x']:.2f} y {pos['y']:.2f} z {pos.get('z', 0):.2f} m "
+                         f"({pos.get('method', '')}, {pos.get('n_leds', '')} LEDs)")
+        veh = getattr(res, "vehicle", None)
+        if veh:
+            hv = veh.get("hv")
+            if hv:
+                lines.append(f"hv x {hv.get('x', 0):.1f} y {hv.get('y', 0):.1f} m")
+            for fv in veh.get("fv", []) or []:
+                lines.append(f"fv {fv.get('id')} {fv.get('distance_m', 0) or 0:.1f} m "
+                             f"{fv.get('angle_deg', 0) or 0:+.1f} deg")
+        for i, t in enumerate(lines):
+            cv2.putText(img, t, (8, 18 + 16 * i), font, 0.45, WHITE, 1, cv2.LINE_AA)
+        self._inset(img, pos)
+        return img
+
+    def write(self, gray: np.ndarray, frame_result) -> None:
+        img = self.annotate(gray, frame_result)
+        if self.png:
+            self._last = img
+        else:
+            self._writer.write(img)
+
+    def close(self) -> None:
+        if self.png:
+            if self._last is not None:
+                folder = os.path.dirname(os.path.abspath(self.path))
+                tmp = os.path.join(folder, ".overlay-" + os.path.basename(self.path))
+                cv2.imwrite(tmp, self._last)
+                os.replace(tmp, self.path)
+        elif self._writer is not None:
+            self._writer.release()
+            self._writer = None
