@@ -48,6 +48,14 @@ class PositionerSettings:
     LEDs whose ID the map does not know are counted in `unknown_ids`.
     `handedness`: "right" or "left" overrides the map's own (`PoseFilter`); None: the map's, or
         told from the images when the map does not say.
+    `outline` [True]: where the pipeline measured a decoded LED's stripe edge points
+        (`LedObservation.edge_px`) and the map knows its shape and size, the pose is refined on
+        the LEDs' outlines (receiver.locate.outline_pose; LEDs cut by the image border still
+        contribute their visible edges) and those LEDs' ranges are the distances to the fitted
+        fixtures (`distance_estimator` "outline"); the others keep `ranging`. False: today's
+        centroid + area solve only.
+    `centroid_sigma_px` [1.5]: 1-sigma of an envelope centroid in the outline solve (its caps
+        can miss up to two chips).
     """
 
     ranging: str = "oblique"
@@ -68,6 +76,8 @@ class PositionerSettings:
     track_prior: bool = False
     ranges_only_iterations: int = 3
     handedness: str | None = None
+    outline: bool = True
+    centroid_sigma_px: float = 1.5
 
 
 @dataclass(frozen=True)
