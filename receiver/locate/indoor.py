@@ -70,7 +70,9 @@ class Positioner:
             if i is not None:
                 uv = undistort_points(np.array([[obs.cx, obs.cy]]), cam)[0]
             targets.append(OutlineTarget(self.pose.to_solving(led.xyz)[0], led.shape, half,
-                                         undistort_points(pts, cam), np.asarray(sig, float) / cam.focal_px, uv))
+                                         undistort_points(pts, cam),
+                                         np.hypot(np.asarray(sig, float), self.settings.edge_model_sigma_px)
+                                         / cam.focal_px, uv))
             where.append(i)
         return targets, where
 

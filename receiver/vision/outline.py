@@ -33,6 +33,8 @@ SIDE_PX = 2
 MIN_RUN_PX = 2 * SIDE_PX + 5
 # Floor of a point's sigma, px.
 MIN_SIGMA_PX = 0.05
+# Rows per averaged edge point (`stripe_edge_points`' bin_rows).
+DEFAULT_BIN_ROWS = 4
 # Noise of one pixel's gray value assumed for the sigma (gray levels, incl. quantisation).
 NOISE_GRAY = 2.0
 
@@ -53,14 +55,17 @@ def _bbox(blob_or_contour, shape, pad: int):
 
 
 def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, border_px: int = 2,
-                       min_contrast: float = MIN_CONTRAST) -> tuple[np.ndarray, np.ndarray]:
+                       min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel left and right ends of the lit rows of one LED blob (module doc).
 
     `gray`: (H, W) uint8 frame; `blob_or_contour`: a `Blob` (its `hull`, `background`) or a
     (K, 2) envelope polygon, px. Each row of the envelope's bounding box (grown by `pad` px
     sideways) whose brightest run is lit contributes its first and last crossing of the half
     level. Points within `border_px` of the image edge are dropped (a cut LED keeps its
-    visible edges). Returns ((N, 2) float64 distorted px (x, y) with y the row's centre,
+    visible edges). `bin_rows` > 1: the points of each side are averaged over bins of that many
+    rows (the mean of points on a straight edge lies on it; sigma / sqrt(n)), which cuts the
+    pose solve's work by that factor at no cost in information along straight edges. Returns ((N, 2) float64 distorted px (x, y) with y the row's centre,
     (N,) float64 1-sigma px); empty arrays when nothing qualifies. Vectorised over rows.
     """
     x0, x1, y0, y1, bg_blob = _bbox(blob_or_contour, gray.shape, pad)
@@ -102,13 +107,19 @@ def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, borde
         contrast = plateau - outside
         good = np.isfinite(pos) & (contrast >= min_contrast)
         s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
-        pts.append(np.column_stack([pos + x0, rows + y0])[good])
-        sig.append(s[good])
-    p = np.concatenate(pts).astype(np.float64)
-    s = np.concatenate(sig).astype(np.float64)
-    h, w = gray.shape[:2]
-    keep = ((p[:, 0] >= border_px) & (p[:, 0] <= w - 1 - border_px)
-            & (p[:, 1] >= border_px) & (p[:, 1] <= h - 1 - border_px))
-    # An edge pixel sampled at the ROI's own border (the blob reaches past it) is not an edge.
-    keep &= (p[:, 0] > x0 + 1) & (p[:, 0] < x1 - 2)
-    return p[keep], s[keep]
+        x = pos + x0
+        y = (rows + y0).astype(np.float64)
+        h, w = gray.shape[:2]
+        good &= (x >= border_px) & (x <= w - 1 - border_px) & (y >= border_px) & (y <= h - 1 - border_px)
+        # An edge pixel sampled at the ROI's own border (the blob reaches past it) is not an edge.
+        good &= (x > x0 + 1) & (x < x1 - 2)
+        x, y, s = x[good], y[good], s[good].astype(np.float64)
+        if bin_rows > 1 and x.size:
+            b = ((y - y0) // bin_rows).astype(np.int64)
+            _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
+            x = np.bincount(inv, x) / cnt
+            y = np.bincount(inv, y) / cnt
+            s = np.sqrt(np.bincount(inv, s * s)) / cnt
+        pts.append(np.column_stack([x, y]))
+        sig.append(s)
+    return np.concatenate(pts).astype(np.float64), np.concatenate(sig).astype(np.float64)
