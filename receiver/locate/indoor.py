@@ -20,6 +20,12 @@ from receiver.locate.settings import PositionerSettings
 from receiver.core.settings import resolve_settings
 
 
+# An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
+GOOD_OUTLINE_CHI2_DOF = 4.0
+# Outline points that may veto a centroid fix they cannot be fitted from.
+MIN_VETO_POINTS = 40
+
+
 class Positioner:
     """Decoded LEDs of one frame -> distances and camera position, Kalman-filtered over frames.
 
@@ -82,18 +88,22 @@ class Positioner:
         targets, where = self._outline_targets(leds, items)
         if not targets:
             return fix, d, names
+        # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
+        # 2 LEDs and a tilted phone the tilt prior can put it on the wrong branch) the tracked
+        # orientation with this frame's range or the tracked position.
+        starts = []
         if fix is not None and fix.R_cw is not None:
-            R0, C0 = fix.R_cw, fix.C
-        else:
-            # No centroid fix (one LED): start from the tracked orientation and this LED's range.
-            if R_prior is None:
-                return fix, d, names
+            starts.append((fix.R_cw, fix.C))
+        if R_prior is not None:
             k = next((j for j, i in enumerate(where) if i is not None and math.isfinite(d[i])), None)
-            if k is None:
-                return fix, d, names
-            t = targets[k]
-            R0 = R_prior
-            C0 = t.xyz - d[where[k]] * (R_prior.T @ ray_unit(t.uv))
+            if k is not None:
+                t = targets[k]
+                starts.append((R_prior, t.xyz - d[where[k]] * (R_prior.T @ ray_unit(t.uv))))
+            pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
+            if pred is not None:
+                starts.append((R_prior, pred[0][:3]))
+        if not starts:
+            return fix, d, names
         C_prior = C_cov = None
         if len(targets) == 1 and targets[0].shape == "circle":
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
@@ -101,11 +111,21 @@ class Positioner:
                 return fix, d, names
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
         s = self.settings
-        up = np.eye(3)[:, 2] if s.tilt_prior == "up" else (R0[:, 2] if R_prior is None else R_prior[:, 2])
-        ofix = solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
-                                  centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
-                                  tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
-                                  C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+        ofix = None
+        for R0, C0 in starts:
+            up = np.eye(3)[:, 2] if s.tilt_prior == "up" else R0[:, 2]
+            cand = solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
+                                      centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
+                                      tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
+                                      C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+            if cand is not None and (ofix is None or cand.chi2 / cand.dof < ofix.chi2 / ofix.dof):
+                ofix = cand
+            if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
+                break
+        if ofix is None and fix is not None and sum(len(t.pts) for t in targets) >= MIN_VETO_POINTS:
+            # The frame's own outlines contradict the centroid fix from every start: no fix
+            # (the filter coasts) rather than a confident wrong one.
+            return None, d, names
         if ofix is None:
             return fix, d, names
         d = np.array(d, float)
