@@ -37,6 +37,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import detect
 from receiver.vision.envelope import EnvelopeHistory
+from receiver.vision.outline import stripe_edge_points
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
@@ -304,9 +305,12 @@ class Receiver:
                 kind = p.kind
             elif math.isfinite(light.freq_hz):
                 freq = round(light.freq_hz, 1)
+            # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
+            edges = (stripe_edge_points(gray, b) if self.positioner is not None and light.led_id is not None
+                     and p is None and light.mode != "s2psk" else None)
             leds.append(LedObservation(track=t.track_id, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull,
                                        border=b.border, id=light.led_id, mode=light.mode, peak=b.peak,
-                                       freq_hz=freq, kind=kind))
+                                       freq_hz=freq, kind=kind, edge_px=edges))
             if light.led_id is not None:
                 self.decoded_ids.add(light.led_id)
         leds.sort(key=lambda o: o.track)

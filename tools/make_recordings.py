@@ -19,6 +19,7 @@ ROOT = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
 RECORDINGS = {
     "indoor-walk": ("indoor-walk", 1, 54),
     "indoor-static": ("indoor-static", 1, 30),
+    "indoor-sparse": ("indoor-sparse", 1, 90),
     "vehicle": ("vehicle", 1, 150),
 }
 

@@ -87,6 +87,9 @@ class LedObservation:
     range to the LED and the estimator that gave it (receiver.locate.ranging), None when not
     ranged. `freq_hz`: a tone LED's measured stripe frequency (Hz, 0.1 Hz), else None.
     `kind`: an S2-PSK light's "SL" or "FV" once decoded, else None.
+    `edge_px`: ((N, 2) distorted px, (N,) 1-sigma px) sub-pixel ends of the blob's lit stripes,
+    points on the LED's outline (receiver.vision.outline.stripe_edge_points), or None when not
+    measured (S2-PSK, undecoded, photos of unknown sizes); not part of the JSON output.
     """
 
     track: int
@@ -102,6 +105,7 @@ class LedObservation:
     distance_estimator: str | None = None
     freq_hz: float | None = None
     kind: str | None = None
+    edge_px: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)

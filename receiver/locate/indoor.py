@@ -5,16 +5,25 @@ undistorted image points -> `PoseFilter` -> the INTERFACES.md `position` object.
 from __future__ import annotations
 
 
+import math
+
 import numpy as np
 
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
-from receiver.locate.ranging import Ranger, ESTIMATORS, ray_unit
+from receiver.locate.ranging import Ranger, ESTIMATORS, ray_unit, undistort_points
+from receiver.locate.outline_pose import OutlineTarget, fixture_half_extents, solve_outline_pose
 from receiver.core.records import LedObservation, LocateResult
 from receiver.locate.pose import align_rays
 from receiver.locate.posefilter import PoseFilter
 from receiver.locate.settings import PositionerSettings
 from receiver.core.settings import resolve_settings
+
+
+# An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
+GOOD_OUTLINE_CHI2_DOF = 4.0
+# Outline points that may veto a centroid fix they cannot be fitted from.
+MIN_VETO_POINTS = 40
 
 
 class Positioner:
@@ -44,6 +53,88 @@ class Positioner:
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
                                accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
                                tilt_prior=s.tilt_prior, tilt_sigma_deg=s.tilt_sigma_deg, track_prior=s.track_prior)
+
+    def _outline_targets(self, leds, items):
+        """(targets, item index or None) of the LEDs with measured edge points and a known
+        shape and size (receiver.locate.outline_pose); LEDs cut by the image border (not in
+        `items`) come with their edges only."""
+        index = {id(o): i for i, (o, _, _) in enumerate(items)}
+        cam = self.camera
+        targets, where = [], []
+        for obs in leds:
+            if obs.edge_px is None or obs.id is None or obs.mode == "s2psk":
+                continue
+            led = self.led_map.lookup(obs.id)
+            if led is None or led.mode == "s2psk" or (led.normal is not None and led.normal[2] > -0.999):
+                continue
+            half = fixture_half_extents(led.shape, led.size)
+            pts, sig = obs.edge_px
+            if half is None or len(pts) < 6:
+                continue
+            i = index.get(id(obs))
+            uv = None
+            if i is not None:
+                uv = undistort_points(np.array([[obs.cx, obs.cy]]), cam)[0]
+            targets.append(OutlineTarget(self.pose.to_solving(led.xyz)[0], led.shape, half,
+                                         undistort_points(pts, cam),
+                                         np.hypot(np.asarray(sig, float), self.settings.edge_model_sigma_px)
+                                         / cam.focal_px, uv))
+            where.append(i)
+        return targets, where
+
+    def _outline(self, t_s, leds, items, fix, d, names, R_prior):
+        """The frame's fix and ranges refined on the LEDs' outlines (`PositionerSettings.outline`),
+        or the given ones when no outline is usable."""
+        targets, where = self._outline_targets(leds, items)
+        if not targets:
+            return fix, d, names
+        # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
+        # 2 LEDs and a tilted phone the tilt prior can put it on the wrong branch) the tracked
+        # orientation with this frame's range or the tracked position.
+        starts = []
+        if fix is not None and fix.R_cw is not None:
+            starts.append((fix.R_cw, fix.C))
+        if R_prior is not None:
+            k = next((j for j, i in enumerate(where) if i is not None and math.isfinite(d[i])), None)
+            if k is not None:
+                t = targets[k]
+                starts.append((R_prior, t.xyz - d[where[k]] * (R_prior.T @ ray_unit(t.uv))))
+            pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
+            if pred is not None:
+                starts.append((R_prior, pred[0][:3]))
+        if not starts:
+            return fix, d, names
+        C_prior = C_cov = None
+        if len(targets) == 1 and targets[0].shape == "circle":
+            pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
+            if pred is None:
+                return fix, d, names
+            C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
+        s = self.settings
+        ofix = None
+        for R0, C0 in starts:
+            up = np.eye(3)[:, 2] if s.tilt_prior == "up" else R0[:, 2]
+            cand = solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
+                                      centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
+                                      tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
+                                      C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+            if cand is not None and (ofix is None or cand.chi2 / cand.dof < ofix.chi2 / ofix.dof):
+                ofix = cand
+            if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
+                break
+        if ofix is None and fix is not None and sum(len(t.pts) for t in targets) >= MIN_VETO_POINTS:
+            # The frame's own outlines contradict the centroid fix from every start: no fix
+            # (the filter coasts) rather than a confident wrong one.
+            return None, d, names
+        if ofix is None:
+            return fix, d, names
+        d = np.array(d, float)
+        names = list(names)
+        for t, i in zip(targets, where):
+            if i is not None:
+                d[i] = float(np.linalg.norm(t.xyz - ofix.C))
+                names[i] = "outline"
+        return ofix, d, names
 
     @property
     def unknown_ids(self) -> set[int]:
@@ -83,5 +174,7 @@ class Positioner:
             if fix is not None and fix.R_cw is not None and self.ranging == "oblique":
                 # The reported distances use this frame's own orientation (cheap: no new solve).
                 d, sd, names = self.ranger.ranges(items, fix.R_cw)
+        if self.settings.outline and not self.pose.mirrored:
+            fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior)
         return LocateResult(position=self.pose.update(t_s, fix, len(items)),
                             leds=self.ranger.annotate(leds, items, d, names))

@@ -24,7 +24,7 @@ from tools.synth.camera import Pose, make_camera
 from tools.synth.model import Body, Emitter, Light, RenderParams, Scene
 from tools.synth.waveform import led_drive
 
-SCENES = ("indoor-walk", "indoor-static", "vehicle", "vehicle-road")
+SCENES = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle", "vehicle-road")
 CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
 PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -131,6 +131,43 @@ def indoor_static(rng, cam, ceiling_m=3.0, camera_xyz=(2.0, 2.0, 1.0), rate_hz=O
     pose = Pose(*camera_xyz, yaw=0.0, pitch=90.0, roll=0.0)
     return dict(lights=lights, led_map=LedMap(addressing="map", leds=entries), trajectory=lambda t: pose,
                 n_frames=int(round(seconds * cam.fps)), description="still camera under LEDs of several sizes")
+
+
+def indoor_sparse(rng, cam, room_m=9.0, ceiling_m=2.8, panel_m=0.25, pitch_m=1.1, rate_hz=OOK_RATE_HZ,
+                  height_m=1.15, speed_mps=0.8, tilt_deg=(15.0, 30.0), start_xy=(2.2, 3.1), heading_deg=10.0,
+                  seconds=2.0):
+    """Walking with a phone held as people hold it, under a sparse ceiling: 0.25 m square OOK
+    panels on a 1.1 m grid, ceiling 2.8 m, camera 1.1-1.2 m above the floor and tilted 15-30
+    degrees from vertical towards the walking direction (the tilt swings between the two limits
+    at 0.3 Hz, with a few degrees of roll wobble and the step bob). At ~1.7 m from the
+    ceiling the 40 x 65 degree view covers ~1.2 x 2.1 m of it, so one or two whole panels are in
+    view at a time; each is ~140 rows tall (~42 chips per frame, less than a 54-chip packet, so
+    a new panel needs two or three frames to be decoded). IDs: distinct random 16-bit.
+    """
+    xs = np.arange(pitch_m / 2, room_m, pitch_m)
+    ys = np.arange(pitch_m / 2, room_m, pitch_m)
+    ids = rng.choice(1 << 16, size=len(xs) * len(ys), replace=False)
+    lights, k = [], 0
+    for x in xs:
+        for y in ys:
+            lights.append(ceiling_light(rng, int(ids[k]), (x, y, ceiling_m), "square", (panel_m, panel_m),
+                                        rate_hz=rate_hz))
+            k += 1
+    led_map = LedMap(addressing="map", leds={lt.id: map_entry(lt, rate_hz=rate_hz) for lt in lights})
+    h = math.radians(heading_deg)
+    x0, y0 = start_xy
+    t_lo, t_hi = tilt_deg
+
+    def trajectory(t):
+        a = h + 0.1 * math.sin(0.8 * t)
+        tilt = 0.5 * (t_lo + t_hi) + 0.5 * (t_hi - t_lo) * math.sin(2 * math.pi * 0.3 * t)
+        return Pose(x0 + speed_mps * t * math.cos(h) - 0.1 * math.sin(0.8 * t) * math.sin(h),
+                    y0 + speed_mps * t * math.sin(h) + 0.1 * math.sin(0.8 * t) * math.cos(h),
+                    height_m + 0.02 * math.sin(2 * math.pi * 1.8 * t),
+                    yaw=math.degrees(a), pitch=90.0 - tilt, roll=3.0 * math.sin(2 * math.pi * 0.45 * t + 1.3))
+
+    return dict(lights=lights, led_map=led_map, trajectory=trajectory, n_frames=int(round(seconds * cam.fps)),
+                description="walk under sparse 0.25 m square panels, phone tilted 15-30 deg")
 
 
 def s2psk_pair(rng, led_id, centre, normal, across, half_size, gap_m, clk_hz, symclk, carrier=None,
@@ -452,7 +489,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
                             "that occlude each other")
 
 
-BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "vehicle": vehicle,
+BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "indoor-sparse": indoor_sparse,
+            "vehicle": vehicle,
             "vehicle-road": vehicle_road}
 
 CAMERA_DEFAULTS = {
@@ -462,6 +500,8 @@ CAMERA_DEFAULTS = {
                         row_readout_us=15.0, exposure_us=20.0, fps=30.0),
     "indoor-static": dict(focal_px=1000.0, dist=(-0.04, 0.01, 0.0, 0.0, 0.0), pixel_size_um=3.0,
                           row_readout_us=15.0, exposure_us=20.0, fps=30.0),
+    "indoor-sparse": dict(focal_px=1000.0, dist=(-0.04, 0.01, 0.0, 0.0, 0.0), pixel_size_um=3.0,
+                          row_readout_us=15.0, exposure_us=20.0, fps=30.0),
     # Dash camera: 1200 px focal (56 x 33 deg), 100 us exposure << the 2.5 ms S2-PSK half clock.
     "vehicle": dict(focal_px=1200.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0), pixel_size_um=3.75,
                     row_readout_us=15.0, exposure_us=100.0, fps=30.0),
@@ -470,7 +510,7 @@ CAMERA_DEFAULTS["vehicle-road"] = CAMERA_DEFAULTS["vehicle"]
 # The bundled `vehicle` recording was rendered with the sampled coverage throughout
 # (exact_coverage_rows 0 keeps it bit-exact); `vehicle-road` has sub-pixel-tall far heads,
 # which only the exact coverage renders with their true flux.
-PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
+PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "indoor-sparse": {}, "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
                   "vehicle-road": dict(psf_sigma_px=0.7)}
 
 
