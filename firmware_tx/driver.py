@@ -7,10 +7,10 @@ the driver exactly as it was.
 Configuration rules (also the serial protocol's, INTERFACES.md):
 
 * `mode`: 'ook' (default), 's2psk' or 'tone'.
-* `led_id`: one ID shared by all modes, default 0. OOK carries 16 bits, S2-PSK 8 bits; tone
-  mode has no ID on air but keeps (and range-checks, 16 bits) the configured one. Switching to
-  a mode whose ID range does not hold the current ID is refused (`ConflictError`): the driver
-  never silently truncates an identity. Set a smaller ID first.
+* `led_id`: the current mode's ID. Each mode keeps its own (`ids`, default 0), as it keeps its
+  rate, so `MODE` always succeeds and an identity is never truncated: OOK carries 16 bits,
+  S2-PSK 8 bits; tone mode has no ID on air but keeps (and range-checks, 16 bits) its own.
+  `MODE S2PSK` then `ID 42` sets the S2-PSK ID and leaves the OOK one as it was.
 * `rate`: each mode remembers its own rate, so switching modes back and forth never leaves an
   OOK chip rate as an S2-PSK clock. Defaults and ranges per mode (`DEFAULT_RATE_HZ`,
   `RATE_RANGE_HZ`): OOK chip rate 20000 Hz (1000..50000, PROTOCOL.md section 2), S2-PSK clock
@@ -39,9 +39,11 @@ class Driver:
     def __init__(self, backend):
         self.backend = backend
         self.mode = "ook"
-        self.led_id = 0
+        self.led_id = 0          # ids[mode], kept in step
+        self.ids = {}
         self.rates = {}
         for m in MODES:
+            self.ids[m] = 0
             self.rates[m] = DEFAULT_RATE_HZ[m]
         self.symclk = DEFAULT_SYMCLK
         self.running = False
@@ -67,14 +69,14 @@ class Driver:
     def set_mode(self, mode):
         if mode not in MODES:
             raise ValueError("unknown mode")
-        if self.led_id > ID_MAX[mode]:
-            raise ConflictError("id does not fit the mode")
         self.mode = mode
+        self.led_id = self.ids[mode]
         self._apply()
 
     def set_id(self, led_id):
         if not 0 <= led_id <= ID_MAX[self.mode]:
             raise ValueError("id must be 0..%d in %s" % (ID_MAX[self.mode], self.mode))
+        self.ids[self.mode] = led_id
         self.led_id = led_id
         self._apply()
 

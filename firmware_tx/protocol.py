@@ -6,12 +6,12 @@ and the host's `python -m firmware_tx` only move bytes; everything here runs on 
 
 Lines (`LineReader`):
 
-* A line ends in `\\n`; a `\\r` right before it is dropped (`\\r\\n` tolerated). Empty or
-  blank lines get no reply.
+* A line ends in `\\n`, `\\r` or `\\r\\n`, all alike (a `\\n` right after a `\\r` is part of
+  that line end, not an empty line). Empty or blank lines get no reply.
 * At most `MAX_LINE` = 64 characters (without the line end). A longer line gets one
   `ERR 4` when its `\\n` arrives; its bytes are not stored, so the buffer stays bounded.
 * Only printable ASCII (0x20-0x7E) and tab; anything else (non-ASCII, non-UTF-8, control
-  bytes, a lone `\\r`) makes the whole line `ERR 5`.
+  bytes) makes the whole line `ERR 5`.
 * A partial line waits for the rest; `finish()` (end of input) treats it as a last line.
 
 Commands (`Protocol.handle`): keywords and mode names are case-insensitive; arguments are
@@ -29,11 +29,10 @@ Error codes (`ERR <code> <reason>`; a bad line changes nothing):
 | 3 | value out of range for the current mode |
 | 4 | line longer than 64 characters |
 | 5 | bad characters: non-ASCII, non-UTF-8 or control bytes |
-| 6 | conflict: a valid value the configuration cannot take (MODE S2PSK with an ID > 255) |
+| 6 | conflict (reserved; no command gives it since each mode keeps its own ID) |
 """
 
 from firmware_tx import VERSION
-from firmware_tx.driver import ConflictError
 from firmware_tx.framing import to_str
 
 MAX_LINE = 64
@@ -77,7 +76,6 @@ class LineReader:
         self._n = 0
         self._too_long = False
         self._bad = False
-        self._cr = False
 
     def _end(self):
         if self._too_long:
@@ -90,14 +88,6 @@ class LineReader:
         return out
 
     def _put(self, b):
-        if b == _CR:
-            if self._cr:
-                self._bad = True  # "\r\r": the first one was not part of a line end
-            self._cr = True
-            return
-        if self._cr:
-            self._cr = False
-            self._bad = True  # a carriage return inside the line
         if not (0x20 <= b <= 0x7E or b == _TAB):
             self._bad = True
         if self._n >= self.max_line:
@@ -109,17 +99,21 @@ class LineReader:
     def feed(self, data):
         out = []
         for b in data:
-            if b == _NL:
+            if b == _NL or b == _CR:
+                after_cr = self._cr
+                self._cr = b == _CR
+                if b == _NL and after_cr:
+                    continue  # the "\n" of a "\r\n": one line end
                 out.append(self._end())
             else:
+                self._cr = False
                 self._put(b)
         return out
 
     def finish(self):
         """End of input: the pending partial line, if any, as a list of 0 or 1 items."""
-        if self._n or self._too_long or self._bad or self._cr:
-            if self._cr:
-                self._cr = False
+        self._cr = False
+        if self._n or self._too_long or self._bad:
             return [self._end()]
         return []
 
@@ -205,10 +199,7 @@ class Protocol:
             mode = MODE_NAMES.get(args[0].upper())
             if mode is None:
                 return err(ERR_SYNTAX, "mode must be OOK, S2PSK or TONE")
-            try:
-                d.set_mode(mode)
-            except ConflictError:
-                return err(ERR_CONFLICT, "id %d does not fit %s" % (d.led_id, MODE_LABELS[mode]))
+            d.set_mode(mode)
             return "OK MODE " + MODE_LABELS[mode]
         n = parse_number(args[0])
         if n is None:

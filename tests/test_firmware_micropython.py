@@ -11,12 +11,12 @@ from test_framing import VECTORS  # the PROTOCOL.md table, kept in one place
 
 SESSION = (b"PING\nSTATUS\nID 0xBEEF\nMODE S2PSK\nID 0x2a\r\nmode s2psk\nDUMP 30\n"
            b"RATE 125\nSYMCLK 0x8\nID 256\nSTART\nMODE TONE\n\tdump\t5 \n\n  \nFLY\nID -1\n"
-           b"\xff\xfe\nID \xc3\xa9\n" + b"X" * 100 + b"\nMODE OOK\nSTATUS\nPI")
+           b"\xff\xfe\nID \xc3\xa9\n" + b"X" * 100 + b"\nMODE OOK\rSTATUS\r\nPI")
 SESSION_REPLIES = [
     "OK PONG 1.0.0",
     "OK STATUS mode=OOK id=0 rate=20000 symclk=16 running=0",
     "OK ID 48879",
-    "ERR 6 id 48879 does not fit S2PSK",
+    "OK MODE S2PSK",  # each mode keeps its own ID
     "OK ID 42",
     "OK MODE S2PSK",
     "OK DUMP 30 111000010110011001100101101010",
@@ -32,7 +32,7 @@ SESSION_REPLIES = [
     "ERR 5 non-ASCII or control characters",
     "ERR 4 line longer than 64 characters",
     "OK MODE OOK",
-    "OK STATUS mode=OOK id=42 rate=20000 symclk=8 running=1",
+    "OK STATUS mode=OOK id=48879 rate=20000 symclk=8 running=1",  # after a CR-only line end
     "ERR 1 unknown command",  # "PI", ended by the newline before the garbage
 ]
 

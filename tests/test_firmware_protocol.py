@@ -22,7 +22,7 @@ def new_proto():
 
 def state(proto):
     d = proto.driver
-    return (d.mode, d.led_id, dict(d.rates), d.symclk, d.running, bytes(d.schedule.levels),
+    return (d.mode, d.led_id, dict(d.ids), dict(d.rates), d.symclk, d.running, bytes(d.schedule.levels),
             d.schedule.tick_hz)
 
 
@@ -35,7 +35,8 @@ SESSION = [
     ("STATUS", "OK STATUS mode=OOK id=0 rate=20000 symclk=16 running=0"),
     ("id 0xBEEF", "OK ID 48879"),
     ("DUMP 54", "OK DUMP 54 111000100110101010100110101001101010100101011010011001"),
-    ("MODE S2PSK", "ERR 6 id 48879 does not fit S2PSK"),
+    ("MODE S2PSK", "OK MODE S2PSK"),      # each mode keeps its own ID: S2-PSK's is still 0
+    ("STATUS", "OK STATUS mode=S2PSK id=0 rate=200 symclk=16 running=0"),
     ("ID 0x2a", "OK ID 42"),
     ("Mode s2psk", "OK MODE S2PSK"),
     ("DUMP 32", "OK DUMP 32 11100001011001100110010110101011"),
@@ -45,10 +46,10 @@ SESSION = [
     ("ID 256", "ERR 3 id must be 0..255 in s2psk"),
     ("START", "OK START"),
     ("MODE TONE", "OK MODE TONE"),
-    ("STATUS", "OK STATUS mode=TONE id=42 rate=2000 symclk=8 running=1"),
+    ("STATUS", "OK STATUS mode=TONE id=0 rate=2000 symclk=8 running=1"),
     ("DUMP 5", "OK DUMP 5 10101"),
     ("MODE OOK", "OK MODE OOK"),
-    ("STATUS", "OK STATUS mode=OOK id=42 rate=20000 symclk=8 running=1"),
+    ("STATUS", "OK STATUS mode=OOK id=48879 rate=20000 symclk=8 running=1"),
     ("RATE 999", "ERR 3 rate must be 1000..50000 Hz in ook"),
     ("RATE 50001", "ERR 3 rate must be 1000..50000 Hz in ook"),
     ("RATE 3000", "OK RATE 3000"),
@@ -63,7 +64,10 @@ SESSION = [
     ("ID 12a", "ERR 2 not a number"),
     ("MODE FSK", "ERR 2 mode must be OOK, S2PSK or TONE"),
     ("DUMP 0", "ERR 3 dump length must be 1..1024"),
-    ("STATUS", "OK STATUS mode=OOK id=42 rate=3000 symclk=8 running=0"),
+    ("STATUS", "OK STATUS mode=OOK id=48879 rate=3000 symclk=8 running=0"),
+    ("MODE S2PSK", "OK MODE S2PSK"),
+    ("STATUS", "OK STATUS mode=S2PSK id=42 rate=125 symclk=8 running=0"),
+    ("MODE OOK", "OK MODE OOK"),
 ]
 
 
@@ -111,7 +115,7 @@ def test_overlong_line_one_error_bounded_buffer():
 
 
 @pytest.mark.parametrize("bad", [b"\xff\xfe\n", "ID \u00e9\n".encode(), b"ID\x00 5\n",
-                                 b"ID 5\rX\n", b"PI\x1bNG\n", b"STATUS\r\r\n"])
+                                 b"PI\x1bNG\n", b"PI\x0bNG\r"])
 def test_bad_characters(bad):
     proto, _ = new_proto()
     before = state(proto)
@@ -154,9 +158,8 @@ def test_running_reconfiguration_restarts_backend_with_new_waveform():
 def expected_reply_count(data):
     """Independent count of the lines that must get a reply: complete, not blank."""
     n = 0
-    for seg in data.split(b"\n")[:-1]:
-        if seg.endswith(b"\r"):
-            seg = seg[:-1]
+    # CR, LF and CRLF end lines alike: normalise to LF (a CRLF is one end)
+    for seg in data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")[:-1]:
         if seg.strip(b" \t") or any(not (0x20 <= b <= 0x7E or b == 9) for b in seg):
             n += 1
     return n
@@ -204,7 +207,7 @@ def test_every_error_leaves_state_unchanged():
     proto, _ = new_proto()
     talk(proto, "ID 300\nRATE 7000\nSTART\n")
     before = state(proto)
-    bad = ["MODE S2PSK", "ID 65536", "ID 0x10000", "RATE 0", "RATE 60000", "SYMCLK 0",
+    bad = ["ID 65536", "ID 0x10000", "RATE 0", "RATE 60000", "SYMCLK 0",
            "SYMCLK 1000", "DUMP 5000", "XYZ", "MODE", "ID x", "START 1", "A" * 70]
     for line in bad:
         r = talk(proto, line + "\n")
@@ -216,6 +219,36 @@ def test_linereader_items():
     lr = LineReader(max_line=8)
     assert lr.feed(b"abc\r\ndefghijkl\n\xff\nok") == ["abc", 4, 5]
     assert lr.finish() == ["ok"]
+
+
+def test_cr_lf_and_crlf_end_lines_alike():
+    """Before: a line ended by CR alone got no reply until a LF came (and then ERR 5)."""
+    for end in (b"\r", b"\n", b"\r\n"):
+        proto, _ = new_proto()
+        assert proto.feed(b"PING" + end) == ["OK PONG " + VERSION], end
+        assert proto.feed(b"ID 5" + end + b"STATUS" + end) == [
+            "OK ID 5", "OK STATUS mode=OOK id=5 rate=20000 symclk=16 running=0"], end
+    proto, _ = new_proto()
+    # CRLF split between feeds is still one line end; CR CR is an empty line (no reply)
+    assert proto.feed(b"PING\r") == ["OK PONG " + VERSION]
+    assert proto.feed(b"\nPING\r\r\n\n") == ["OK PONG " + VERSION]
+    assert proto.feed(b"ID 5\rX\n") == ["OK ID 5", "ERR 1 unknown command"]
+    assert proto.feed(b"Q" * 100 + b"\r\n") == ["ERR 4 line longer than 64 characters"]
+
+
+def test_mode_always_succeeds_and_each_mode_keeps_its_id():
+    """Before: with an OOK ID above 255, MODE S2PSK was refused (ERR 6), so `MODE S2PSK` then
+    `ID 42` failed."""
+    proto, _ = new_proto()
+    assert talk(proto, "ID 4660\nMODE S2PSK\nID 42\nSTATUS\n") == [
+        "OK ID 4660", "OK MODE S2PSK", "OK ID 42",
+        "OK STATUS mode=S2PSK id=42 rate=200 symclk=16 running=0"]
+    ref, _ = new_proto()
+    talk(ref, "MODE S2PSK\nID 42\n")
+    assert talk(proto, "DUMP 64\n") == talk(ref, "DUMP 64\n")      # the S2-PSK ID on air
+    assert talk(proto, "MODE TONE\nSTATUS\nMODE OOK\nSTATUS\nDUMP 54\n")[1:4:2] == [
+        "OK STATUS mode=TONE id=0 rate=2000 symclk=16 running=0",
+        "OK STATUS mode=OOK id=4660 rate=20000 symclk=16 running=0"]
 
 
 class _FakeStdin:

@@ -475,11 +475,11 @@ def test_remote_positioner_timeouts_stale_replies_and_errors(walk_map):
             client = rp.sock.getsockname()
             for msg in ({"v": 1, "device": "dev", "seq": 0, "position": {"x": 9.0}},
                         b"garbage", {"v": 1, "device": "other", "seq": 1, "position": {"x": 8.0}},
-                        {"v": 1, "device": "dev", "seq": 1, "position": {"x": 1.0, "raw": None},
+                        {"v": 1, "device": "dev", "seq": 1, "position": {"x": 1.0, "y": 2.0, "z": 0.5, "raw": None},
                          "unknown_ids": [77], "n_used": 0, "solve_R_cw": None},
                         {"v": 1, "error": "too_many_devices", "device": "dev", "seq": 2}):
                 fake.sendto(msg if isinstance(msg, bytes) else encode(msg), client)
-            assert rp.step(0.1, []).position == {"x": 1.0, "raw": None}
+            assert rp.step(0.1, []).position == {"x": 1.0, "y": 2.0, "z": 0.5, "raw": None}
             assert rp.unknown_ids == {77} and rp.n_fixes == 0 and rp.timeouts == 1
             assert rp.step(0.2, []).position is None          # the error reply to seq 2
             assert rp.errors == 1 and rp.last_error == "too_many_devices"
@@ -530,6 +530,8 @@ def serve_process(*args):
     try:
         line = _first_line(proc.stderr, 60.0)
         assert line.startswith("occloc serve: listening on udp://127.0.0.1:"), line
+        ready = _first_line(proc.stderr, 60.0)      # the solver is imported after the announcement
+        assert ready.strip() == "occloc serve: ready", ready
         yield proc, line.split()[-1]
     finally:
         if proc.poll() is None:

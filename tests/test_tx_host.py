@@ -51,7 +51,7 @@ def test_module_over_pty_with_pyserial_split_writes_and_garbage():
             time.sleep(0.05)  # the driver sees a partial line first
             port.write(b"NG\nID 0x")
             port.write(b"2A\r\n")
-            port.write(bytes(b for b in range(256) if b != 10) + b"\n")  # every other byte
+            port.write(bytes(b for b in range(256) if b not in (10, 13)) + b"\n")  # every other byte
             port.write(b"Q" * 200 + b"\n")
             port.write(b"ID \x80\x81\x00\n")
             port.write(b"START\nSTATUS\n")
@@ -95,15 +95,15 @@ def test_occloc_tx_configures_pty_driver(capsys):
                                 "--rate", "125", "--symclk", "8", "--start", "--dump", "30"],
                                capsys)
         assert (rc, err) == (0, "")
-        assert out == [PONG, "OK ID 42", "OK MODE S2PSK", "OK RATE 125", "OK SYMCLK 8",
+        assert out == [PONG, "OK MODE S2PSK", "OK ID 42", "OK RATE 125", "OK SYMCLK 8",
                        "OK START", "OK DUMP 30 111000010110011001100101101010"]
         rc, out, _ = run_cli(["tx", "--port", drv.port, "--status"], capsys)
         assert out == [PONG, "OK STATUS mode=S2PSK id=42 rate=125 symclk=8 running=1"]
-        # An ERR reply: one line on stderr, exit status 2, no traceback.
+        # An ID that does not fit the driver's current mode (S2-PSK): refused before sending
+        # it, one line on stderr, exit status 2, no traceback.
         rc, out, err = run_cli(["tx", "--port", drv.port, "--id", "300"], capsys)
         assert rc == 2 and out == [PONG]
-        assert err == ("occloc: LED driver on %s refused 'ID 300': "
-                       "ERR 3 id must be 0..255 in s2psk" % drv.port)
+        assert err == "occloc: --id must be 0..255 in s2psk mode, not 300"
         # A wide ID with a mode switch to OOK: the switch goes first.
         rc, out, _ = run_cli(["tx", "--port", drv.port, "--mode", "ook", "--id", "48879",
                               "--stop"], capsys)
@@ -176,7 +176,7 @@ def _args(argv):
 @pytest.mark.parametrize("argv,lines", [
     ([], ["PING", "STATUS"]),
     (["--dump", "5"], ["PING", "DUMP 5"]),
-    (["--mode", "s2psk", "--id", "7"], ["PING", "ID 7", "MODE S2PSK"]),
+    (["--mode", "s2psk", "--id", "7"], ["PING", "MODE S2PSK", "ID 7"]),
     (["--mode", "ook", "--id", "0x1234"], ["PING", "MODE OOK", "ID 4660"]),
     (["--id", "300", "--rate", "3000", "--start"], ["PING", "ID 300", "RATE 3000", "START"]),
     (["--symclk", "4", "--stop", "--dump", "2"], ["PING", "SYMCLK 4", "STOP", "DUMP 2"]),
@@ -190,3 +190,57 @@ def test_bad_cli_numbers_rejected_by_argparse(capsys):
         cli.main(["tx", "--port", "loop://", "--id", "-3"])
     assert e.value.code == 2
     assert "must not be negative" in capsys.readouterr().err
+
+
+STATUS0 = "OK STATUS mode=OOK id=0 rate=20000 symclk=16 running=0"
+
+
+@pytest.mark.parametrize("argv, err", [
+    (["--mode", "tone", "--id", "4660", "--rate", "1", "--start"], "--rate must be 100..25000 Hz in tone mode"),
+    (["--mode", "s2psk", "--id", "256"], "--id must be 0..255 in s2psk mode"),
+    (["--mode", "ook", "--rate", "999"], "--rate must be 1000..50000 Hz in ook mode"),
+    (["--mode", "ook", "--id", "65536"], "--id must be 0..65535 in ook mode"),
+    (["--mode", "s2psk", "--rate", "5000"], "--rate must be 10..2000 Hz in s2psk mode"),
+    (["--symclk", "65", "--start"], "--symclk must be 1..64"),
+    (["--rate", "60000", "--start"], "--rate must be 1000..50000 Hz in ook mode"),   # the driver's mode
+])
+def test_occloc_tx_invalid_plan_changes_nothing(capsys, argv, err):
+    """Before: `--mode tone --id 4660 --rate 1 --start` exited 2 with MODE and ID applied."""
+    with VirtualDriver() as drv:
+        with TxClient(drv.port, timeout_s=TIMEOUT_S) as c:
+            wait_for_driver(c)
+        rc, out, got = run_cli(["tx", "--port", drv.port, *argv], capsys)
+        assert rc == 2 and got.startswith("occloc: " + err), got
+        assert "\n" not in got
+        with TxClient(drv.port, timeout_s=TIMEOUT_S) as c:
+            assert c.command("STATUS") == STATUS0
+
+
+def test_occloc_tx_rolls_back_on_an_err_reply(capsys, monkeypatch):
+    """A driver that refuses a command the plan thought valid: the STATUS read before is put back."""
+    import receiver.cli.tx as tx
+
+    monkeypatch.setattr(tx, "check_plan", lambda args, mode: None)   # let a bad value through
+    with VirtualDriver() as drv:
+        with TxClient(drv.port, timeout_s=TIMEOUT_S) as c:
+            wait_for_driver(c)
+            assert c.command("ID 7") == "OK ID 7" and c.command("RATE 3000") == "OK RATE 3000"
+        rc, out, err = run_cli(["tx", "--port", drv.port, "--mode", "ook", "--id", "9", "--rate", "999",
+                                "--start"], capsys)
+        assert rc == 2 and out == [PONG, "OK MODE OOK", "OK ID 9"]
+        assert "refused 'RATE 999': ERR 3" in err
+        with TxClient(drv.port, timeout_s=TIMEOUT_S) as c:
+            assert c.command("STATUS") == "OK STATUS mode=OOK id=7 rate=3000 symclk=16 running=0"
+
+
+def test_occloc_tx_mode_then_wide_and_narrow_ids(capsys):
+    with VirtualDriver() as drv:
+        with TxClient(drv.port, timeout_s=TIMEOUT_S) as c:
+            wait_for_driver(c)
+        rc, out, _ = run_cli(["tx", "--port", drv.port, "--mode", "ook", "--id", "4660"], capsys)
+        assert rc == 0 and out == [PONG, "OK MODE OOK", "OK ID 4660"]
+        rc, out, _ = run_cli(["tx", "--port", drv.port, "--mode", "s2psk", "--id", "42", "--status"], capsys)
+        assert rc == 0 and out == [PONG, "OK MODE S2PSK", "OK ID 42",
+                                   "OK STATUS mode=S2PSK id=42 rate=200 symclk=16 running=0"]
+        rc, out, _ = run_cli(["tx", "--port", drv.port, "--mode", "ook", "--status"], capsys)
+        assert out[-1] == "OK STATUS mode=OOK id=4660 rate=20000 symclk=16 running=0"

@@ -1,5 +1,11 @@
-"""`occloc serve`: run the lighting server (`receiver.serve.server`) until SIGINT / SIGTERM,
-then print its counters.
+"""`occloc serve`: run the lighting server (`receiver.serve.server`) until SIGINT / SIGTERM /
+SIGHUP, then print its counters.
+
+Start-up order: the stop signals are caught first (a signal at any later point of start-up still
+ends with the summary and exit 0), then the map is loaded (numpy only), the port bound and
+`listening on ...` printed, and only then the solver and Kalman filter (SciPy, ~2 s) imported,
+followed by `ready`; datagrams arriving meanwhile wait in the socket's buffer (a client with a
+short reply timeout should wait for `ready`).
 """
 
 from __future__ import annotations
@@ -9,24 +15,53 @@ import signal
 import sys
 
 from receiver.core.errors import InputError
-from receiver.serve.server import (DEFAULT_FORGET_S, DEFAULT_HOST, DEFAULT_MAX_DEVICES, DEFAULT_PORT, LightingServer,
+from receiver.serve.server import (DEFAULT_FORGET_S, DEFAULT_HOST, DEFAULT_MAX_DEVICES,
+                                   DEFAULT_MAX_DEVICES_PER_SOURCE, DEFAULT_PORT, LightingServer,
                                    format_url, serve_until)
 
 HELP = "lighting server: devices upload LED IDs, image points and ranges over UDP, get positions back"
 
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")
+                     if hasattr(signal, name))
+
 
 # ---------------------------------------------------------------- command line
 
-async def _serve_cli(server: LightingServer, host: str, port: int) -> None:
+class _EarlyStop:
+    """Catches the stop signals from the start of `main` until the event loop takes over."""
+
+    def __init__(self):
+        self.signum = None
+        self._old = {}
+        for sig in STOP_SIGNALS:
+            self._old[sig] = signal.signal(sig, self._catch)
+
+    def _catch(self, signum, _frame) -> None:
+        self.signum = signum
+
+    def restore(self) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+async def _serve_cli(server: LightingServer, host: str, port: int, early: _EarlyStop) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in STOP_SIGNALS:
         loop.add_signal_handler(sig, stop.set)
+    try:
+        if early.signum is not None:   # a signal before the loop's handlers were in place
+            return
 
-    def ready(address):
-        print(f"occloc serve: listening on {format_url(address)}", file=sys.stderr, flush=True)
+        def ready(address):
+            print(f"occloc serve: listening on {format_url(address)}", file=sys.stderr, flush=True)
+            server.warm_up()           # signals meanwhile are queued for the loop
+            print("occloc serve: ready", file=sys.stderr, flush=True)
 
-    await serve_until(server, host, port, stop, ready)
+        await serve_until(server, host, port, stop, ready)
+    finally:
+        for sig in STOP_SIGNALS:
+            loop.remove_signal_handler(sig)
 
 
 def add_arguments(p) -> None:
@@ -40,20 +75,40 @@ def add_arguments(p) -> None:
                    help=f"forget a device silent for longer than this (default {DEFAULT_FORGET_S:g} s)")
     p.add_argument("--max-devices", type=int, default=DEFAULT_MAX_DEVICES, metavar="N",
                    help=f"devices held at once (default {DEFAULT_MAX_DEVICES})")
+    p.add_argument("--max-devices-per-source", type=int, default=DEFAULT_MAX_DEVICES_PER_SOURCE, metavar="N",
+                   help="devices one source address (IP) may hold at once "
+                        f"(default {DEFAULT_MAX_DEVICES_PER_SOURCE})")
+
+
+def _default_map() -> str:
+    # The bundled walk recording's map (receiver.io.sources.default_source's folder, without
+    # importing that module's OpenCV).
+    from pathlib import Path
+
+    import receiver
+
+    path = Path(receiver.__file__).resolve().parent.parent / "recordings" / "indoor-walk" / "map.json"
+    if not path.is_file():
+        raise InputError(f"no --map given and the default map is missing: {path}")
+    return str(path)
 
 
 def main(args) -> int:
-    from pathlib import Path
+    early = _EarlyStop()
+    try:
+        from receiver.io.ledmap import load_map
 
-    from receiver.io.ledmap import load_map
-    from receiver.io.sources import default_source
-
-    if not args.forget_s > 0:
-        raise InputError("--forget-s must be positive")
-    if args.max_devices < 1:
-        raise InputError("--max-devices must be at least 1")
-    led_map = load_map(args.map or str(Path(default_source()) / "map.json"))
-    server = LightingServer(led_map, forget_s=args.forget_s, max_devices=args.max_devices)
-    asyncio.run(_serve_cli(server, args.host, args.port))
+        if not args.forget_s > 0:
+            raise InputError("--forget-s must be positive")
+        if args.max_devices < 1:
+            raise InputError("--max-devices must be at least 1")
+        if args.max_devices_per_source < 1:
+            raise InputError("--max-devices-per-source must be at least 1")
+        led_map = load_map(args.map or _default_map())
+        server = LightingServer(led_map, forget_s=args.forget_s, max_devices=args.max_devices,
+                                max_devices_per_source=args.max_devices_per_source)
+        asyncio.run(_serve_cli(server, args.host, args.port, early))
+    finally:
+        early.restore()
     print(f"occloc serve: {server.summary()}", file=sys.stderr, flush=True)
     return 0

@@ -1,10 +1,15 @@
-"""`occloc tx`: configure an LED driver (firmware_tx) over a serial port; the command plan is
-validated before anything is sent. The serial link itself is `receiver.io.txlink`.
+"""`occloc tx`: configure an LED driver (firmware_tx) over a serial port. The whole command
+plan is validated before anything is changed (`check_plan`: with --mode before the port is
+opened, else against the mode a STATUS read reports); should the driver still refuse a command
+(ERR), the configuration read before is restored and the exit status is 2. The serial link
+itself is `receiver.io.txlink`.
 """
 
 from __future__ import annotations
 
 import argparse
+
+from receiver.core.errors import InputError
 from receiver.io.txlink import DEFAULT_TIMEOUT_S, TxClient
 
 
@@ -50,20 +55,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"seconds to wait for each reply (default {DEFAULT_TIMEOUT_S:g})")
 
 
+def check_plan(args: argparse.Namespace, mode: str | None) -> None:
+    """InputError unless every value fits `mode` (the --mode given, else the driver's current
+    one; None: unknown, only mode-free checks): ID 16-bit OOK/tone, 8-bit S2-PSK; RATE the
+    mode's range (OOK chip rate 1-50 kHz, S2-PSK clock, tone frequency); SYMCLK 1..64. The
+    ranges are the firmware's own (`firmware_tx.driver`)."""
+    from firmware_tx.driver import ID_MAX, RATE_RANGE_HZ, SYMCLK_RANGE
+
+    if args.symclk is not None and not SYMCLK_RANGE[0] <= args.symclk <= SYMCLK_RANGE[1]:
+        raise InputError("--symclk must be %d..%d" % SYMCLK_RANGE)
+    if args.dump is not None and not 1 <= args.dump <= 1024:
+        raise InputError("--dump must be 1..1024")
+    if mode is None:
+        return
+    if args.id is not None and not 0 <= args.id <= ID_MAX[mode]:
+        raise InputError(f"--id must be 0..{ID_MAX[mode]} in {mode} mode, not {args.id}")
+    if args.rate is not None:
+        lo, hi = RATE_RANGE_HZ[mode]
+        if not lo <= args.rate <= hi:
+            raise InputError(f"--rate must be {lo}..{hi} Hz in {mode} mode, not {args.rate}")
+
+
 def plan_commands(args: argparse.Namespace) -> list[str]:
-    """The command lines `occloc tx` sends, in order (PING first, queries last)."""
+    """The command lines `occloc tx` sends, in order (PING first, queries last). Each mode
+    keeps its own ID and rate on the driver, so MODE goes first and ID / RATE set that mode's."""
     lines = ["PING"]
-    mode = f"MODE {args.mode.upper()}" if args.mode else None
-    led_id = f"ID {args.id}" if args.id is not None else None
-    # An 8-bit ID fits every mode, so set it before switching (an S2-PSK switch refuses a
-    # wider ID still in place); a wider ID needs OOK/tone, so switch first.
-    if led_id and (mode is None or args.id <= 0xFF):
-        lines.append(led_id)
-        led_id = None
-    if mode:
-        lines.append(mode)
-    if led_id:
-        lines.append(led_id)
+    if args.mode:
+        lines.append(f"MODE {args.mode.upper()}")
+    if args.id is not None:
+        lines.append(f"ID {args.id}")
     if args.rate is not None:
         lines.append(f"RATE {args.rate}")
     if args.symclk is not None:
@@ -79,8 +99,52 @@ def plan_commands(args: argparse.Namespace) -> list[str]:
     return lines
 
 
+CHANGES = ("MODE", "ID", "RATE", "SYMCLK", "START", "STOP")
+
+
+def parse_status(reply: str) -> dict:
+    """{'mode': 'ook', 'id': .., 'rate': .., 'symclk': .., 'running': 0/1} of a STATUS reply."""
+    fields = dict(w.split("=", 1) for w in reply.split()[2:] if "=" in w)
+    try:
+        return {"mode": fields["mode"].lower(), "id": int(fields["id"]), "rate": int(fields["rate"]),
+                "symclk": int(fields["symclk"]), "running": int(fields["running"])}
+    except (KeyError, ValueError):
+        raise InputError(f"not a STATUS reply: {reply[:60]!r}") from None
+
+
+def restore_commands(before: dict) -> list[str]:
+    """Lines putting the current mode's configuration back as `before` (a parsed STATUS)."""
+    return [f"MODE {before['mode'].upper()}", f"ID {before['id']}", f"RATE {before['rate']}",
+            f"SYMCLK {before['symclk']}", "START" if before["running"] else "STOP"]
+
+
 def main(args: argparse.Namespace) -> int:
+    check_plan(args, args.mode)            # before the port is even opened
+    lines = plan_commands(args)
+    changes = any(line.split()[0] in CHANGES for line in lines)
     with TxClient(args.port, timeout_s=args.timeout) as client:
-        for line in plan_commands(args):
-            print(client.command(line), flush=True)
+        print(client.command(lines[0]), flush=True)          # PING
+        before = None
+        if changes:
+            before = parse_status(client.command("STATUS"))   # for checks and a rollback
+            if args.mode is None:
+                check_plan(args, before["mode"] if before["mode"] in ("ook", "s2psk", "tone") else None)
+        for line in lines[1:]:
+            try:
+                reply = client.command(line)
+            except InputError:
+                if before is not None and line.split()[0] in CHANGES:
+                    _roll_back(client, before)
+                raise
+            print(reply, flush=True)
     return 0
+
+
+def _roll_back(client, before: dict) -> None:
+    """Best effort: restore the STATUS read before the plan (the current mode's ID, rate,
+    symclk and running state; another mode's values the plan changed stay changed)."""
+    for line in restore_commands(before):
+        try:
+            client.command(line)
+        except InputError:
+            pass

@@ -20,11 +20,17 @@ At most `receiver.serve.wire.MAX_LEDS` LEDs (the first, in track order) are sent
 Every wait is bounded: a frame whose reply does not come within `timeout_s` (or whose port is
 closed) has no position and is counted in `timeouts`; error replies are counted in `errors`
 (`last_error` keeps the reason); replies to older frames are discarded.
+
+A reply is checked as strictly as the server checks a request (`check_reply`): wrong types,
+NaN / infinite or out-of-range numbers in `position`, or a `solve_R_cw` / `R_wc` that is not a
+rotation (orthonormal, det +1 within ROTATION_TOL) make it refused: counted in `errors` with
+`last_error` "bad_reply: <reason>", and the frame has no position (nothing of it is kept).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import secrets
 import socket
@@ -40,6 +46,10 @@ from receiver.serve.wire import MAX_DEVICE_CHARS, MAX_LEDS, PROTOCOL_VERSION, en
 
 DEFAULT_TIMEOUT_S = 0.2
 MAX_REPLY_BYTES = 65535
+# Plausibility of replied numbers: coordinates within 1e6 m of the map origin, a rotation
+# orthonormal with det +1 within ROTATION_TOL (the reply's R_wc is rounded to 6 decimals).
+MAX_ABS_COORD_M = 1e6
+ROTATION_TOL = 1e-5
 # The local Positioner's options the client may set: ranging and image points only.
 CLIENT_OPTIONS = frozenset({"ranging", "pixel_sigma_px", "edge_sigma_px", "model_rel_sigma",
                             "edge_offset_px", "border_margin_px"})
@@ -80,11 +90,81 @@ def _connect(url: str) -> socket.socket:
 
 
 def _reply_object(data: bytes) -> dict | None:
+    # Lenient parse (NaN / Infinity tokens read as floats) so that a reply to this frame with
+    # non-finite numbers is recognised as one, then refused by `check_reply`.
     try:
         obj = json.loads(data)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
     return obj if isinstance(obj, dict) and obj.get("v") == PROTOCOL_VERSION else None
+
+
+class BadReply(ValueError):
+    """A reply that does not hold what the protocol promises (the reason, one line)."""
+
+
+def _is_number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def _finite_tree(v, where: str) -> None:
+    """Every number in a JSON value finite (json may give inf for 1e999)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        raise BadReply(f"{where} is not finite")
+    if isinstance(v, dict):
+        for k, x in v.items():
+            _finite_tree(x, f"{where}.{k}")
+    elif isinstance(v, list):
+        for i, x in enumerate(v):
+            _finite_tree(x, f"{where}[{i}]")
+
+
+def _xyz(obj, where: str) -> None:
+    if not isinstance(obj, dict):
+        raise BadReply(f"{where} must be an object")
+    for k in ("x", "y", "z"):
+        if not _is_number(obj.get(k)) or abs(obj[k]) > MAX_ABS_COORD_M:
+            raise BadReply(f"{where}.{k} must be a finite number within {MAX_ABS_COORD_M:g} m")
+
+
+def check_rotation(value, where: str) -> np.ndarray:
+    """A 3 x 3 rotation (list of lists of numbers, orthonormal, det +1 within ROTATION_TOL)."""
+    if not (isinstance(value, list) and len(value) == 3
+            and all(isinstance(r, list) and len(r) == 3 and all(_is_number(x) for x in r) for r in value)):
+        raise BadReply(f"{where} must be 3 x 3 finite numbers")
+    R = np.array(value, dtype=np.float64)
+    if (np.max(np.abs(R)) > 1.0 + ROTATION_TOL or np.max(np.abs(R @ R.T - np.eye(3))) > ROTATION_TOL
+            or abs(float(np.linalg.det(R)) - 1.0) > ROTATION_TOL):
+        raise BadReply(f"{where} is not a rotation")
+    return R
+
+
+def check_reply(reply: dict) -> tuple[dict | None, np.ndarray | None]:
+    """(position or None, solve_R_cw or None) of a non-error reply; BadReply when anything in
+    it is malformed (types, non-finite or out-of-range numbers, a matrix that is no rotation)."""
+    position = reply.get("position")
+    if position is not None:
+        if not isinstance(position, dict):
+            raise BadReply("position must be an object or null")
+        _finite_tree(position, "position")
+        _xyz(position, "position")
+        if position.get("raw") is not None:
+            _xyz(position["raw"], "position.raw")
+        for k in ("std_m", "velocity_mps", "raw_std_m"):
+            if k in position and not (isinstance(position[k], list) and len(position[k]) == 3
+                                      and all(_is_number(x) for x in position[k])):
+                raise BadReply(f"position.{k} must be 3 finite numbers")
+        if "R_wc" in position:
+            check_rotation(position["R_wc"], "position.R_wc")
+        if "n_leds" in position and type(position["n_leds"]) is not int:
+            raise BadReply("position.n_leds must be an integer")
+    ids = reply.get("unknown_ids", [])
+    if not isinstance(ids, list) or not all(type(i) is int for i in ids):
+        raise BadReply("unknown_ids must be a list of integers")
+    if "n_used" in reply and (type(reply["n_used"]) is not int or reply["n_used"] < 0):
+        raise BadReply("n_used must be a non-negative integer")
+    R = reply.get("solve_R_cw")
+    return position, None if R is None else check_rotation(R, "solve_R_cw")
 
 
 class RemotePositioner:
@@ -139,22 +219,19 @@ class RemotePositioner:
         return LocateResult(position=position, leds=ranger.annotate(leds, items, d, names))
 
     def _accept(self, reply: dict, t_s: float) -> tuple[dict | None, np.ndarray | None]:
-        """(position, solving-frame R_cw or None) of a matching reply; keeps its orientation."""
-        position = reply.get("position")
-        if not isinstance(position, dict):
-            position = None
-        ids = reply.get("unknown_ids")
-        if isinstance(ids, list):
-            self.local.unknown_ids.update(i for i in ids if type(i) is int)
+        """(position, solving-frame R_cw or None) of a matching reply, checked (`check_reply`);
+        keeps its orientation. A malformed reply counts as a server error and gives nothing."""
+        try:
+            position, R = check_reply(reply)
+        except BadReply as e:
+            self.errors += 1
+            self.last_error = f"bad_reply: {e}"
+            return None, None
+        self.local.unknown_ids.update(reply.get("unknown_ids", []))
         if position is not None and position.get("raw") is not None:
             self._n_fixes += 1
-        try:
-            R = np.array(reply.get("solve_R_cw"), dtype=np.float64)
-        except (TypeError, ValueError):
-            R = None
-        if R is None or R.shape != (3, 3) or not np.all(np.isfinite(R)):
-            return position, None
-        self.local.pose.keep_orientation(t_s, R)
+        if R is not None:
+            self.local.pose.keep_orientation(t_s, R)
         return position, R
 
     def _exchange(self, request: dict) -> dict | None:

@@ -24,7 +24,7 @@ Request (device -> server), one per frame, also for frames without LEDs (the fil
   * `leds` (at most `MAX_LEDS`): `id` integer 0..2^31-1, unique in the datagram; `u`, `v` the
     undistorted normalized image point of the LED (OpenCV camera frame: x right, y down, divided
     by z; `receiver.locate.indoor.Positioner.image_points`), |u|, |v| <= `MAX_ABS_UV`; `distance_m`,
-    `sigma_m`: camera-to-LED range and its 1-sigma, metres, both positive numbers or both null /
+    `sigma_m`: camera-to-LED range and its 1-sigma, metres, in DISTANCE_RANGE_M and SIGMA_M_RANGE, or both null /
     absent (no range); `cx`, `cy` (optional): the distorted centroid in pixels, informational.
   * `camera` (optional object) and any other keys: informational, ignored.
   * Numbers must be finite (`NaN`, `Infinity` or overflowing literals are rejected); booleans are
@@ -46,11 +46,16 @@ Error reply, for a request that is dropped as malformed or refused (never for `o
     {"v": 1, "error": "<reason>", "detail": "<one line>", "device": ..., "seq": ...}
   with `device` / `seq` present when they could be read. Reasons (each counted): `oversized`,
   `bad_json` (not UTF-8, not JSON, NaN/Infinity tokens, nesting too deep), `not_object`,
-  `bad_version` (`v` missing or not 1), `missing_field`, `bad_type`, `bad_value`,
-  `too_many_leds`, `too_many_devices` (a new device beyond `max_devices`), `internal_error`
-  (the solver failed; the device's filter is dropped). Dropped silently: `old_seq`.
+  `bad_version` (`v` missing or not 1), `missing_field`, `bad_type`, `bad_value` (also a
+  number outside its physical range: `receiver.serve.wire` DISTANCE_RANGE_M ...),
+  `too_many_leds`, `too_many_devices` (a new device beyond `max_devices`),
+  `too_many_devices_per_source` (a new device beyond `max_devices_per_source` for one source
+  host), `internal_error` (the solver failed or gave a non-finite result; the device's filter
+  is dropped, so no NaN state is kept). Dropped silently: `old_seq`. Replies are strict JSON
+  (`handle_datagram`: never NaN / Infinity; an unencodable reply becomes `internal_error`).
 
-Limits keep every datagram's work bounded: `MAX_DATAGRAM_BYTES`, `MAX_LEDS`, `max_devices`.
+Limits keep every datagram's work bounded: `MAX_DATAGRAM_BYTES`, `MAX_LEDS`, `max_devices`,
+`max_devices_per_source`.
 Forgetting uses the server's monotonic clock at reception; silent devices are swept lazily when
 any datagram arrives (a device is forgotten when silent for more than `forget_s`; an `old_seq`
 datagram does not count as hearing from it, so a device that restarts its seq at 0 under the same
@@ -72,22 +77,42 @@ from dataclasses import dataclass
 import numpy as np
 
 from receiver.core.errors import InputError
-from receiver.locate.posefilter import PoseFilter
-from receiver.serve.wire import PROTOCOL_VERSION, ProtocolError, REASONS, Request, encode, parse_request
+from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
+                                 parse_request)
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 9720
 # Thesis 4.4: stop serving a device after this much silence (s, server clock).
 DEFAULT_FORGET_S = 5.0
 DEFAULT_MAX_DEVICES = 10000
+# Devices one source address (IP, any port) may hold at once, so one client cannot fill the table.
+DEFAULT_MAX_DEVICES_PER_SOURCE = 64
 
 
 # ---------------------------------------------------------------- the server's state
+
+def _pose_filter_class():
+    """`receiver.locate.posefilter.PoseFilter`, imported on first use: it pulls in the solver and
+    the Kalman filter's SciPy (about 2 s), which `occloc serve` loads after it has announced
+    itself (`LightingServer.warm_up`)."""
+    from receiver.locate.posefilter import PoseFilter
+
+    return PoseFilter
+
 
 @dataclass
 class _Device:
     pose: PoseFilter
     seq: int
     seen: float           # server monotonic time of the last accepted datagram, s
+    source: object = None  # the source address (host) that created it, None without a socket
+
+
+def _str_or_none(v):
+    return v if isinstance(v, str) else None
+
+
+def _int_or_none(v):
+    return v if type(v) is int else None
 
 
 class LightingServer:
@@ -95,25 +120,31 @@ class LightingServer:
 
     `led_map`: receiver.io.LedMap. `forget_s`: a device silent for longer (server clock
     `clock()`, seconds, monotonic) is forgotten. `max_devices`: devices held at once; a new one
-    beyond it gets a `too_many_devices` error. `counters`: datagrams, replies, positions,
+    beyond it gets a `too_many_devices` error. `max_devices_per_source`: devices created from
+    one source address (its host, any port) held at once; a new one beyond it gets a
+    `too_many_devices_per_source` error. `counters`: datagrams, replies, positions,
     new_devices, forgotten and each reason of REASONS.
     """
 
     def __init__(self, led_map, *, forget_s: float = DEFAULT_FORGET_S,
-                 max_devices: int = DEFAULT_MAX_DEVICES, clock=time.monotonic):
+                 max_devices: int = DEFAULT_MAX_DEVICES,
+                 max_devices_per_source: int = DEFAULT_MAX_DEVICES_PER_SOURCE, clock=time.monotonic):
         self.led_map, self.forget_s, self.max_devices, self.clock = led_map, forget_s, max_devices, clock
+        self.max_devices_per_source = max_devices_per_source
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
+        self.per_source: Counter = Counter()                      # source host -> devices held
         self.counters: Counter = Counter()
 
-    def handle(self, data: bytes) -> dict | None:
-        """One datagram in; the reply (a position or an error) or None (dropped silently)."""
+    def handle(self, data: bytes, source=None) -> dict | None:
+        """One datagram in; the reply (a position or an error) or None (dropped silently).
+        `source`: the sender's address ((host, port, ...) or None); devices are bounded per host."""
         self.counters["datagrams"] += 1
         now = self.clock()
         self._forget_silent(now)
         req = None
         try:
             req = parse_request(data)
-            reply = self._locate(req, now)
+            reply = self._locate(req, now, None if source is None else source[0])
         except ProtocolError as e:
             self.counters[e.reason] += 1
             if e.reason == "old_seq":
@@ -122,29 +153,63 @@ class LightingServer:
         except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
             self.counters["internal_error"] += 1
             if req is not None:
-                self.devices.pop(req.device, None)   # its filter may be half updated
+                self._drop(req.device)               # its filter may be half updated
             reply = ProtocolError("internal_error", type(e).__name__, getattr(req, "device", None),
                                   getattr(req, "seq", None)).reply()
         self.counters["replies"] += 1
         return reply
+
+    def warm_up(self) -> None:
+        """Import the solver and filter now rather than at the first device's datagram."""
+        _pose_filter_class()
+
+    def handle_datagram(self, data: bytes, source=None) -> bytes | None:
+        """`handle`, encoded as strict JSON (never NaN / Infinity): what the socket sends back.
+        A reply that cannot be encoded becomes an `internal_error` reply."""
+        reply = self.handle(data, source)
+        if reply is None:
+            return None
+        try:
+            return encode(reply)
+        except (TypeError, ValueError) as e:
+            self.counters["internal_error"] += 1
+            if "error" not in reply:
+                self._drop(reply.get("device"))
+            return encode(ProtocolError("internal_error", f"unencodable reply: {type(e).__name__}",
+                                        _str_or_none(reply.get("device")),
+                                        _int_or_none(reply.get("seq"))).reply())
 
     def _forget_silent(self, now: float) -> None:
         while self.devices:
             name, dev = next(iter(self.devices.items()))
             if now - dev.seen <= self.forget_s:
                 break
-            del self.devices[name]
+            self._drop(name)
             self.counters["forgotten"] += 1
 
-    def _device(self, req: Request, now: float) -> _Device:
+    def _drop(self, name) -> None:
+        dev = self.devices.pop(name, None)
+        if dev is not None and dev.source is not None:
+            self.per_source[dev.source] -= 1
+            if self.per_source[dev.source] <= 0:
+                del self.per_source[dev.source]
+
+    def _device(self, req: Request, now: float, source) -> _Device:
         """The request's device (new ones are created), after the seq check; marks it heard."""
         dev = self.devices.get(req.device)
         if dev is None:
             if len(self.devices) >= self.max_devices:
                 raise ProtocolError("too_many_devices", f"the server holds {self.max_devices} devices",
                                     req.device, req.seq)
-            dev = _Device(PoseFilter(handedness=self.led_map.handedness, sigma_uv=req.sigma_uv), -1, now)
+            if source is not None and self.per_source[source] >= self.max_devices_per_source:
+                raise ProtocolError("too_many_devices_per_source",
+                                    f"this address holds {self.max_devices_per_source} devices",
+                                    req.device, req.seq)
+            dev = _Device(_pose_filter_class()(handedness=self.led_map.handedness, sigma_uv=req.sigma_uv), -1, now,
+                          source)
             self.devices[req.device] = dev
+            if source is not None:
+                self.per_source[source] += 1
             self.counters["new_devices"] += 1
         elif req.seq <= dev.seq:
             raise ProtocolError("old_seq", device=req.device, seq=req.seq)
@@ -152,10 +217,10 @@ class LightingServer:
         self.devices.move_to_end(req.device)
         return dev
 
-    def _locate(self, req: Request, now: float) -> dict:
+    def _locate(self, req: Request, now: float, source=None) -> dict:
         """Map lookup, fix (`PoseFilter.solve`) and filter (`PoseFilter.update`) of one request,
         as `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
-        pf = self._device(req, now).pose
+        pf = self._device(req, now, source).pose
         pf.sigma_uv = req.sigma_uv
         leds = [self.led_map.lookup(i) for i in req.ids]
         used = [k for k, led in enumerate(leds) if led is not None]
@@ -164,11 +229,15 @@ class LightingServer:
             L = np.array([leds[k].xyz for k in used])
             fix = pf.solve(req.t, L, req.uv[used], req.d[used], req.sigma_d[used], pf.R_prior(req.t))
         position = pf.update(req.t, fix, len(used))
-        self.counters["positions"] += position is not None
-        return {"v": PROTOCOL_VERSION, "device": req.device, "seq": req.seq, "position": position,
+        reply = {"v": PROTOCOL_VERSION, "device": req.device, "seq": req.seq, "position": position,
                 "unknown_ids": sorted({i for i, led in zip(req.ids, leds) if led is None}),
                 "n_used": len(used),
                 "solve_R_cw": None if fix is None or fix.R_cw is None else fix.R_cw.tolist()}
+        if not all_finite(reply):
+            # The solver or filter overflowed: never reply with (or keep) a NaN state.
+            raise FloatingPointError("non-finite result")
+        self.counters["positions"] += position is not None
+        return reply
 
     def summary(self) -> str:
         """One line of counters for the end of a run."""
@@ -190,9 +259,9 @@ class _UdpProtocol(asyncio.DatagramProtocol):
         self.transport = transport
 
     def datagram_received(self, data: bytes, addr) -> None:
-        reply = self.server.handle(data)
-        if reply is not None:
-            self.transport.sendto(encode(reply), addr)
+        out = self.server.handle_datagram(data, addr)
+        if out is not None:
+            self.transport.sendto(out, addr)
 
     def error_received(self, exc: Exception) -> None:
         # E.g. ICMP port unreachable for a reply to a device that went away.

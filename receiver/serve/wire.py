@@ -23,9 +23,17 @@ MAX_SEQ = 2 ** 53          # exact in any JSON implementation's doubles
 MAX_LED_ID = 2 ** 31 - 1
 # |u|, |v| limit of normalized image points: 100 is 89.4 degrees off the optical axis.
 MAX_ABS_UV = 100.0
+# Physical ranges of the other numbers (beyond them the solver's arithmetic overflows or the
+# value means nothing): a range 1 mm..10 km, its 1-sigma 1 um..1 km, the image-point 1-sigma
+# 1e-9..1 normalized units (1 = 45 degrees), the frame time |t| <= 1e9 s (31 years).
+DISTANCE_RANGE_M = (1e-3, 1e4)
+SIGMA_M_RANGE = (1e-6, 1e3)
+SIGMA_UV_RANGE = (1e-9, 1.0)
+MAX_ABS_T_S = 1e9
 # Counted reasons for dropping a request, in the order the summary lists them.
 REASONS = ("oversized", "bad_json", "not_object", "bad_version", "missing_field", "bad_type",
-           "bad_value", "too_many_leds", "too_many_devices", "old_seq", "internal_error")
+           "bad_value", "too_many_leds", "too_many_devices", "too_many_devices_per_source", "old_seq",
+           "internal_error")
 
 
 class ProtocolError(Exception):
@@ -94,14 +102,21 @@ def _number(v, where: str) -> float:
     return f
 
 
-def _positive_or_none(v, where: str) -> float:
-    """A positive number, or NaN for null."""
+def _in_range(v, where: str, lo: float, hi: float, unit: str = "") -> float:
+    """A number in lo..hi (`positive` named in the reason when it is not)."""
+    f = _number(v, where)
+    if f <= 0 < lo:
+        raise ProtocolError("bad_value", f"{where} must be positive")
+    if not lo <= f <= hi:
+        raise ProtocolError("bad_value", f"{where} must be in {lo:g}..{hi:g}{unit}")
+    return f
+
+
+def _range_or_none(v, where: str, lo: float, hi: float) -> float:
+    """A number in lo..hi metres, or NaN for null."""
     if v is None:
         return math.nan
-    f = _number(v, where)
-    if f <= 0:
-        raise ProtocolError("bad_value", f"{where} must be positive")
-    return f
+    return _in_range(v, where, lo, hi, " m")
 
 
 def _decode(data: bytes) -> dict:
@@ -128,8 +143,8 @@ def _parse_led(item, i: int) -> tuple[int, float, float, float, float]:
     u, v = (_number(_get(item, k, where), where + k) for k in ("u", "v"))
     if abs(u) > MAX_ABS_UV or abs(v) > MAX_ABS_UV:
         raise ProtocolError("bad_value", f"{where}u/v beyond {MAX_ABS_UV:g}")
-    d = _positive_or_none(item.get("distance_m"), where + "distance_m")
-    sd = _positive_or_none(item.get("sigma_m"), where + "sigma_m")
+    d = _range_or_none(item.get("distance_m"), where + "distance_m", *DISTANCE_RANGE_M)
+    sd = _range_or_none(item.get("sigma_m"), where + "sigma_m", *SIGMA_M_RANGE)
     if math.isnan(d) != math.isnan(sd):
         raise ProtocolError("bad_value", f"{where}distance_m and sigma_m: both numbers or both null")
     for k in ("cx", "cy"):
@@ -139,10 +154,8 @@ def _parse_led(item, i: int) -> tuple[int, float, float, float, float]:
 
 
 def _parse_body(obj: dict, device: str, seq: int) -> Request:
-    t = _number(_get(obj, "t", ""), "t")
-    sigma_uv = _number(_get(obj, "sigma_uv", ""), "sigma_uv")
-    if sigma_uv <= 0:
-        raise ProtocolError("bad_value", "sigma_uv must be positive")
+    t = _in_range(_get(obj, "t", ""), "t", -MAX_ABS_T_S, MAX_ABS_T_S, " s")
+    sigma_uv = _in_range(_get(obj, "sigma_uv", ""), "sigma_uv", *SIGMA_UV_RANGE)
     leds = _get(obj, "leds", "")
     if not isinstance(leds, list):
         raise ProtocolError("bad_type", "leds must be a list")
@@ -181,12 +194,14 @@ def parse_request(data: bytes) -> Request:
 def make_request(device: str, seq: int, t_s: float, sigma_uv: float, ids, uv: np.ndarray,
                  d: np.ndarray, sigma_d: np.ndarray) -> dict:
     """A v1 request. ids (N,) LED IDs; uv (N, 2) undistorted normalized image points; d, sigma_d
-    (N,) ranges and their 1-sigma in metres -- a range that is not finite and positive with a
-    finite positive sigma is sent as null (the solver would not use it either)."""
+    (N,) ranges and their 1-sigma in metres -- a range outside DISTANCE_RANGE_M or with a sigma
+    outside SIGMA_M_RANGE (NaN, infinite, non-positive ...) is sent as null, which the server
+    accepts (the request's other LEDs still count), where the value would be refused."""
     leds = []
     for i, led_id in enumerate(ids):
         di, si = float(d[i]), float(sigma_d[i])
-        has_d = math.isfinite(di) and math.isfinite(si) and di > 0 and si > 0
+        has_d = (DISTANCE_RANGE_M[0] <= di <= DISTANCE_RANGE_M[1]
+                 and SIGMA_M_RANGE[0] <= si <= SIGMA_M_RANGE[1])
         leds.append({"id": int(led_id), "u": float(uv[i][0]), "v": float(uv[i][1]),
                      "distance_m": di if has_d else None, "sigma_m": si if has_d else None})
     return {"v": PROTOCOL_VERSION, "device": device, "seq": int(seq), "t": float(t_s),
@@ -194,5 +209,17 @@ def make_request(device: str, seq: int, t_s: float, sigma_uv: float, ids, uv: np
 
 
 def encode(msg: dict) -> bytes:
-    """A request or reply as a compact UTF-8 JSON datagram."""
-    return json.dumps(msg, separators=(",", ":")).encode("utf-8")
+    """A request or reply as a compact UTF-8 JSON datagram. Strict JSON: a NaN or infinity
+    anywhere raises ValueError (never `NaN` / `Infinity` tokens on the wire)."""
+    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode("utf-8")
+
+
+def all_finite(obj) -> bool:
+    """True when every number in a JSON-like value (dicts, lists, tuples) is finite."""
+    if isinstance(obj, float):
+        return math.isfinite(obj)
+    if isinstance(obj, dict):
+        return all(all_finite(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return all(all_finite(v) for v in obj)
+    return True
