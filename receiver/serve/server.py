@@ -73,12 +73,16 @@ import threading
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from receiver.core.errors import InputError
 from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
                                  parse_request)
+
+if TYPE_CHECKING:  # the solver is imported once the socket is bound (start-up latency)
+    from receiver.locate.posefilter import PoseFilter
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 9720
 # Thesis 4.4: stop serving a device after this much silence (s, server clock).
