@@ -37,25 +37,27 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import detect
 from receiver.vision.envelope import EnvelopeHistory
-from receiver.vision.motion import frame_shift
+from receiver.vision.motion import frame_shift, vertical_shift
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 
 # Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
-# length (recordings/vehicle); specks below it are noise.
+# length (recordings/vehicle); specks below it are noise (with the fixed 24-gray floor).
 S2PSK_MIN_AREA_PX = 6.0
-# Faint far emitters (opt-in, `S2PSK_FAINT_DETECT`): the threshold follows the measured background
-# noise (receiver.vision.detect.noise_sigma: 8 sigma, ~3 gray on a dark sensor of ~0.4 gray
-# noise) with a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking 20-50
-# gray is found; noise then lights no pixel, so the area floor is one lit pixel (hull area with
-# the half-pixel rim: pi / 4), and one- or two-row components (sub-pixel-tall panels) skip the
-# shape test. Not the default: on recordings/vehicle it moves SL 391 -> 413 but FV 114 -> 92
-# resolvable light-frames (FV 206 decodes 30 frames later), and on the vehicle-road scene the
-# pairs it feeds do not survive the camera's yaw shake (SL 0 right either way; FV 39 -> 0 there).
-# Select it with ReceiverSettings(detect=DetectSettings(stripe_gap_px=..., **S2PSK_FAINT_DETECT)).
-S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3)
+# Faint far emitters (opt-in: DetectSettings(**S2PSK_FAINT_DETECT, stripe_gap_px=...) in
+# ReceiverSettings.detect): the threshold follows the measured background noise
+# (receiver.vision.detect.noise_sigma: 8 sigma, ~3 gray on a dark sensor of ~0.4 gray noise) with
+# a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking 20-50 gray is found;
+# noise then lights no pixel, so the area floor is one lit pixel (hull area with the half-pixel
+# rim: pi / 4). Components under 3 rows skip the shape test (a sub-pixel-tall panel seen from
+# below is one or two rows several px wide) and the aspect limit is 12 (two blurred halves of a
+# far head side by side are ~18 x 4 px). Measured (README "S2-PSK pairs"): recordings/vehicle
+# SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
+# SL 401, FV 113, and /work/vr_rec (vehicle-road seed 1) FV 39 -> 103 of 287, but hil --mode
+# s2psk seeds 3 and 4 then have 5 and 12 wrong LED-frames: not the default.
+S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
 # Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
@@ -281,7 +283,7 @@ class Receiver:
         blobs = detect(gray, settings=self.settings.detect)
         timer.stamp("detect")
         shift = None
-        if self.pairer is not None and self.settings.pair.shake_2d:
+        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d"):
             # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
             # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
             # track's and pair's prediction.
@@ -291,7 +293,11 @@ class Receiver:
             for old in self._prev_xy[1:]:  # older frames vote too (each head blinks)
                 votes.append((xy[None, :, :] - old[:, None, :]).reshape(-1, 2))
             prev = self._prev_xy[0] if self._prev_xy else np.zeros((0, 2))
-            shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
+            if self.settings.pair.shake == "vertical":
+                dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
+                shift = None if dy is None else (0.0, dy)
+            else:
+                shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
             s_ = shift or (0.0, 0.0)
             # the older frames' blobs, moved by this frame's shift (as if seen in this view)
             self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]

@@ -137,3 +137,17 @@ def test_vehicle_road_clip_far_emitters_found_without_false_blobs():
     assert lit >= 6
     # measured: faint 9, default 1 of 15
     assert found["faint"] >= 0.55 * lit and found["faint"] >= 3 * found["default"], (found, lit)
+
+
+def test_vertical_shift_is_right_whichever_half_of_a_head_is_lit():
+    from receiver.vision.motion import vertical_shift
+    rng = np.random.default_rng(9)
+    mids = rng.uniform((50, 50), (W - 50, H - 50), size=(12, 2))
+    half = rng.uniform(3.0, 5.0, size=12)
+
+    def lit(shift):  # each head shows A, B or its merged midpoint, at random
+        side = rng.integers(-1, 2, size=12)
+        return mids + np.stack((side * half, np.zeros(12)), axis=1) + shift
+
+    prev, cur = lit((0.0, 0.0)), lit((5.5, -7.2))
+    assert vertical_shift(prev, cur) == pytest.approx(-7.2, abs=0.01)

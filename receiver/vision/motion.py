@@ -51,3 +51,28 @@ def frame_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14.0,
         return None
     m = near.mean(axis=0)
     return float(m[0]), float(m[1])
+
+
+def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14.0, bin_px: float = 0.5,
+                   refine_px: float = 1.0, min_votes: int = 3, extra: np.ndarray | None = None) -> float | None:
+    """dy px, the common vertical image shift (pitch) alone: the mode of the vertical parts of
+    the displacements within `radius_px` (as `frame_shift`). Street-light heads are horizontal,
+    so whichever half of a head is lit in either frame, its displacement's vertical part is the
+    shift: every head votes right, unlike the horizontal part (ambiguous by the baseline)."""
+    d = (xy[None, :, :] - prev_xy[:, None, :]).reshape(-1, 2)
+    if extra is not None and len(extra):
+        d = np.concatenate((d, np.asarray(extra, float).reshape(-1, 2)))
+    d = d[(np.abs(d[:, 0]) <= radius_px) & (np.abs(d[:, 1]) <= radius_px)]
+    if len(d) < min_votes:
+        return None
+    nb = int(np.ceil(radius_px / bin_px))
+    idx = np.clip(np.floor(d[:, 1] / bin_px + 0.5).astype(np.int64) + nb, 0, 2 * nb)
+    h = np.bincount(idx, minlength=2 * nb + 1).astype(float)
+    sm = h.copy()
+    sm[1:] += h[:-1]
+    sm[:-1] += h[1:]
+    peak = (int(np.argmax(sm)) - nb) * bin_px
+    near = d[np.abs(d[:, 1] - peak) <= refine_px, 1]
+    if len(near) < min_votes:
+        return None
+    return float(np.median(near))

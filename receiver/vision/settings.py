@@ -123,15 +123,19 @@ class PairSettings:
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
     mean.
-    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
-    shift (`pitch_shift`), added to every pair's prediction. shake_2d [False] (experimental):
-    instead, the frame's common image shift in x and y (pitch and yaw vibration) is the mode of
-    the blobs' displacements from the last frames and from the pairs' predicted emitters, within
-    shake_radius_px [14] px (receiver.vision.motion), added to every track's and pair's
-    prediction (on vehicle-road seed 1 it is within 2 px of the far lights' true shift in 2/3
-    of the frames only, and it costs recordings/vehicle right IDs: off).
-    
-    """
+    Camera shake: shake ["pitch"]: how the frame's common image shift (the camera's pitch
+    and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
+    pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
+    displacements from the last frames and from the pairs' predicted emitters, within
+    shake_radius_px [14] px (receiver.vision.motion.vertical_shift; heads are horizontal, so each
+    votes right whichever half is lit); "2d": x and y by `frame_shift` (experimental: the
+    horizontal part is ambiguous by the baseline, wrong by > 2 px in a third of the frames of
+    vehicle-road); "pitch" (the default): only the pairs' median vertical offset (`pitch_shift`,
+    needs shake_min_pairs [3] pairs explaining a blob), the tracks none. Without agreement in a
+    frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
+    s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
+    recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+        """
 
     row_band: float = 1.0
     max_area_ratio: float = 2.5
@@ -153,5 +157,5 @@ class PairSettings:
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
     shake_min_pairs: int = 3
-    shake_2d: bool = False
+    shake: str = "pitch"
     shake_radius_px: float = 14.0
