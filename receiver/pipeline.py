@@ -55,8 +55,9 @@ S2PSK_MIN_AREA_PX = 6.0
 # below is one or two rows several px wide) and the aspect limit is 12 (two blurred halves of a
 # far head side by side are ~18 x 4 px). Measured (README "S2-PSK pairs"): recordings/vehicle
 # SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
-# SL 401, FV 113, and /work/vr_rec (vehicle-road seed 1) FV 39 -> 103 of 287, but hil --mode
-# s2psk seeds 3 and 4 then have 5 and 12 wrong LED-frames: not the default.
+# SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
+# 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
+# not the default.
 S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3

@@ -182,6 +182,7 @@ class Pairer:
         self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
+        self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
@@ -199,15 +200,19 @@ class Pairer:
         ax, ay, bx, by = mx - hx, my - hy, mx + hx, my + hy
         # The gate widens while the pair coasts: the prediction error grows (the camera's pitch
         # vibration moves every light by a few px within a second).
-        tol = min(self.match_frac * 2 * math.hypot(hx, hy),
-                  max(self.match_min_px, self.match_size * math.sqrt(single))) + self.miss_growth_px * p.misses
+        tol0 = min(self.match_frac * 2 * math.hypot(hx, hy), max(self.match_min_px, self.match_size * math.sqrt(single)))
+        tol = tol0 + self.miss_growth_px * p.misses
+        # With the frame's vertical shift measured (`shake` "vertical" / "2d"), the vertical
+        # prediction error does not grow while the pair coasts: only the horizontal gate widens
+        # (else a coasting pair reaches the heads just above or below it, farther down the road).
+        tol_y = tol0 + self.miss_growth_px if self.vertical_known else math.inf
         explaining, nearby, shifts, obs_a, obs_b = [], [], [], None, None
         # Candidates first, for all tracks at once: within tol of A, B or the midpoint.
         near = np.flatnonzero(np.hypot(xy[:, 0] - mx, xy[:, 1] - my) <= tol + math.hypot(hx, hy))
         for i in near:
             t = tracks[i]
             da, db, dm = (math.hypot(t.cx - x, t.cy - y) for x, y in ((ax, ay), (bx, by), (mx, my)))
-            if min(da, db, dm) > tol:
+            if min(da, db, dm) > tol or abs(t.cy - my) > tol_y + abs(hy):
                 continue
             nearby.append(t)  # not paired anew while this pair lives
             if not t.seen:
@@ -333,6 +338,7 @@ class Pairer:
         else:
             dx, dy = shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
+        self.vertical_known = shift is not None
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx)]
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
