@@ -37,6 +37,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import detect
 from receiver.vision.envelope import EnvelopeHistory
+from receiver.vision.motion import frame_shift, vertical_shift
 from receiver.vision.outline import stripe_edge_points
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
@@ -44,8 +45,23 @@ from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 
 # Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
-# length (recordings/vehicle); specks below it are noise.
+# length (recordings/vehicle); specks below it are noise (with the fixed 24-gray floor).
 S2PSK_MIN_AREA_PX = 6.0
+# Faint far emitters (opt-in: DetectSettings(**S2PSK_FAINT_DETECT, stripe_gap_px=...) in
+# ReceiverSettings.detect): the threshold follows the measured background noise
+# (receiver.vision.detect.noise_sigma: 8 sigma, ~3 gray on a dark sensor of ~0.4 gray noise) with
+# a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking 20-50 gray is found;
+# noise then lights no pixel, so the area floor is one lit pixel (hull area with the half-pixel
+# rim: pi / 4). Components under 3 rows skip the shape test (a sub-pixel-tall panel seen from
+# below is one or two rows several px wide) and the aspect limit is 12 (two blurred halves of a
+# far head side by side are ~18 x 4 px). Measured (README "S2-PSK pairs"): recordings/vehicle
+# SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
+# SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
+# 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
+# not the default.
+S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
+# Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
+SHAKE_FRAMES = 3
 # Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
 STILL_MIN_REL_AREA = 0.25
 
@@ -161,6 +177,8 @@ class Receiver:
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
+        self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
+        self.shift = None  # this frame's common image shift, px (S2-PSK maps)
         self.frames = 0
         self.decoded_ids: set[int] = set()
         self.last_counts: dict[str, int] = {}
@@ -234,7 +252,7 @@ class Receiver:
 
     def _pairs(self, gray: np.ndarray, frame: Frame, tracks: list[Track]) -> dict:
         """Follow and decode the S2-PSK pairs; {track id: owning pair} of this frame."""
-        live = self.pairer.step(gray, tracks, _intensity)
+        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift)
         for p in live:
             decs = self.pair_decoders.get(p.uid)
             if decs is None:
@@ -266,7 +284,27 @@ class Receiver:
         gray = frame.gray
         blobs = detect(gray, settings=self.settings.detect)
         timer.stamp("detect")
-        tracks = self.tracker.step(frame.index, blobs)
+        shift = None
+        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d"):
+            # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
+            # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
+            # track's and pair's prediction.
+            xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
+            r = self.settings.pair.shake_radius_px
+            votes = [self.pairer.shift_votes(xy, r)]
+            for old in self._prev_xy[1:]:  # older frames vote too (each head blinks)
+                votes.append((xy[None, :, :] - old[:, None, :]).reshape(-1, 2))
+            prev = self._prev_xy[0] if self._prev_xy else np.zeros((0, 2))
+            if self.settings.pair.shake == "vertical":
+                dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
+                shift = None if dy is None else (0.0, dy)
+            else:
+                shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
+            s_ = shift or (0.0, 0.0)
+            # the older frames' blobs, moved by this frame's shift (as if seen in this view)
+            self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
+        self.shift = shift
+        tracks = self.tracker.step(frame.index, blobs, shift=shift)
         for t in self.tracker.ended:
             self.lights.pop(t.track_id, None)
         self.envelopes.forget(t.track_id for t in self.tracker.ended)

@@ -21,12 +21,14 @@ import json
 import pytest
 
 from receiver.cli import main as cli
-from test_recordings import RECORDINGS, _score
+from test_recordings import RECORDINGS, _score, score_resolvable
 
 # README "Measured": right LED-frames after a track's 3rd frame / all of them.
 STATIC_RIGHT_AFTER3, STATIC_TOTAL_AFTER3 = 103, 216
 STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 552, 1709
+# `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames).
+VEHICLE_RESOLVABLE = {"SL": (391, 658), "FV": (114, 156)}
 STATIC_DISTANCE_MEDIAN_MAX = 0.010     # README: 0.96 %; measured by occloc eval: 0.79 %
 
 
@@ -59,6 +61,14 @@ def test_vehicle_ids_no_worse_than_measured():
     assert s["right_after3"] >= VEHICLE_RIGHT_AFTER3, (
         f"vehicle: {s['right_after3']}/{s['total_after3']} right LED-frames after a track's 3rd "
         f"frame, README measured {VEHICLE_RIGHT_AFTER3}/{VEHICLE_TOTAL_AFTER3}")
+
+
+def test_vehicle_resolvable_id_rate_no_worse_than_measured():
+    r = score_resolvable(RECORDINGS / "vehicle")
+    assert r["wrong_ids"] == 0, r
+    for kind, (right, qualifying) in VEHICLE_RESOLVABLE.items():
+        assert r[kind]["qualifying"] == qualifying, r
+        assert r[kind]["right"] >= right, (kind, r[kind])
 
 
 def _run_eval(name: str, tmp_path) -> dict:

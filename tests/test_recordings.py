@@ -62,6 +62,27 @@ def _score(name: str, max_frames: int | None = None) -> dict:
     return s
 
 
+def score_resolvable(folder, max_frames: int | None = None, receiver=None) -> dict:
+    """`occloc eval`'s S2-PSK resolvable ID rate (receiver.evaluate.metrics.s2psk_resolvable)
+    of the receiver on a recording folder (its video, camera, map and truth.jsonl): the frames go
+    through `frame_record` and the truth lines through `truth_frame`, as `occloc run` and
+    `occloc eval` read them. Returns the metric's dict (SL / FV right, qualifying; wrong_ids)."""
+    from receiver.evaluate.metrics import s2psk_packet_s, s2psk_resolvable
+    from receiver.io.output import frame_record
+    from receiver.io.truth import run_frame, truth_frame
+
+    folder = Path(folder)
+    led_map = load_map(str(folder / "map.json"))
+    rx = receiver or Receiver(load_camera(str(folder / "camera.yaml")), led_map)
+    truth = dict(truth_frame(json.loads(line)) for line in (folder / "truth.jsonl").open() if line.strip())
+    run = []
+    for frame in open_source(str(folder)):
+        if max_frames is not None and frame.index >= max_frames:
+            break
+        run.append(run_frame(frame_record(rx.process(frame))))
+    return s2psk_resolvable(run, truth, packet_s=s2psk_packet_s(led_map) or 2.4)
+
+
 @pytest.fixture(scope="module")
 def walk():
     return _score("indoor-walk")

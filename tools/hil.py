@@ -18,7 +18,14 @@ are told apart: both in view with at least `MIN_EMITTER_AREA_PX` and `MIN_SEPARA
 apart, for `packet frames + 1` frames in a row. The vehicle scene also holds street lights
 hundreds of metres away that are in the frustum but one or two pixels large; they are
 reported, not required. The S2-PSK default of `S2PSK_DEFAULT_FRAMES` frames holds two
-packets (30 frames, the OOK default, is less than half of one).
+packets (30 frames, the OOK default, is less than half of one); `--scene vehicle-road` (the
+realistic road: heads as horizontal panels facing down, pitch and yaw shake, occluding FVs)
+renders its whole 240 frames by default.
+
+S2-PSK also reports the LED-frame score of `occloc eval` (receiver.evaluate.metrics
+`s2psk_resolvable`): of the light-frames whose whole preceding packet had both emitters >= 1 px
+large and >= 4 px apart, the share that carry the right ID, SL and FV separately; the run
+passes only when both shares are at least `MIN_RESOLVABLE_RATE` and no ID is wrong.
 
 One driver serves all lights in turn: what is checked is that the stream the driver emits
 for each configuration is what the receiver decodes.
@@ -37,6 +44,10 @@ from receiver.core.errors import InputError
 HELP = "hardware-in-the-loop: configure an LED driver over serial, render its stream, decode it"
 
 SCENE_BY_MODE = {"ook": "indoor-walk", "s2psk": "vehicle"}
+SCENES_BY_MODE = {"ook": ("indoor-walk",), "s2psk": ("vehicle", "vehicle-road")}
+SCENE_FRAMES = {"vehicle-road": 240}
+# Required share of the resolvable S2-PSK light-frames that carry the right ID (SL and FV each).
+MIN_RESOLVABLE_RATE = 0.95
 DUMP_UNITS = {"ook": OOK_PACKET_LEN, "s2psk": S2PSK_PACKET_LEN}
 DEFAULT_FRAMES = {"ook": 30, "s2psk": 180}
 S2PSK_DEFAULT_FRAMES = DEFAULT_FRAMES["s2psk"]
@@ -50,8 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", help="serial port URL of a real driver (default: python -m firmware_tx on a pty)")
     parser.add_argument("--mode", choices=sorted(SCENE_BY_MODE), default="ook",
                         help="ook: indoor walk scene; s2psk: vehicle scene (default ook)")
+    parser.add_argument("--scene", default=None,
+                        help="synthetic scene (default: indoor-walk for ook, vehicle for s2psk; s2psk "
+                             "also takes vehicle-road)")
     parser.add_argument("--frames", type=int, default=None,
-                        help="frames to render (default 30 for ook, 180 = two packets for s2psk)")
+                        help="frames to render (default 30 for ook, 180 = two packets for s2psk, "
+                             "240 for vehicle-road)")
     parser.add_argument("--seed", type=int, default=1, help="scene and render seed (default 1)")
     parser.add_argument("--timeout", type=float, default=2.0, help="serial reply timeout, seconds")
 
@@ -113,13 +128,22 @@ def configure_lights(client, port: str, scene, mode: str) -> dict[int, bytearray
 
 
 def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int = 1,
-             progress=None) -> dict:
+             progress=None, scene_name: str | None = None) -> dict:
     """Configure, render and decode; returns the report (see module docstring)."""
+    from receiver.evaluate.metrics import s2psk_packet_s, s2psk_resolvable
+    from receiver.io.output import frame_record
+    from receiver.io.truth import run_frame, truth_frame
     from receiver.pipeline import Receiver
     from receiver.core.records import Frame
     from tools.synth import make_scene, render_frames
 
-    scene = make_scene(SCENE_BY_MODE[mode], seed=seed, n_frames=frames)
+    scene_name = scene_name or SCENE_BY_MODE[mode]
+    if scene_name not in SCENES_BY_MODE[mode]:
+        raise InputError(f"--scene {scene_name} has no {mode} lights (choose from "
+                         f"{', '.join(SCENES_BY_MODE[mode])})")
+    scene = make_scene(scene_name, seed=seed, n_frames=frames)
+    truth_frames: dict[int, dict] = {}
+    run_frames: list[dict] = []
     dumps = configure_lights(client, port, scene, mode)
     rx = Receiver(scene.camera, scene.led_map)
     first_seen: dict[int, int] = {}
@@ -136,6 +160,9 @@ def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int =
             run[led["id"]] = run.get(led["id"], 0) + 1 if ok else 0
             runs[led["id"]] = max(runs.get(led["id"], 0), run[led["id"]])
         result = rx.process(Frame(k, truth["t"], img))
+        if mode == "s2psk":
+            truth_frames[k] = truth_frame(truth)[1]
+            run_frames.append(run_frame(frame_record(result)))
         for obs in result.leds:
             if obs.id is None:
                 continue
@@ -152,10 +179,15 @@ def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int =
     back = sum(1 for r in per_id if r["decoded_at"] is not None)
     resolvable = [r for r in per_id if r["resolvable"]]
     back_res = sum(1 for r in resolvable if r["decoded_at"] is not None)
-    return {"mode": mode, "frames": frames, "configured": len(dumps), "in_view": len(ids),
+    ok = back_res == len(resolvable) and not wrong and len(resolvable) > 0
+    led_frames = None
+    if mode == "s2psk":
+        led_frames = s2psk_resolvable(run_frames, truth_frames, packet_s=s2psk_packet_s(scene.led_map) or 2.4)
+        ok = ok and led_frames["wrong_ids"] == 0 and all(
+            led_frames[k]["rate"] is None or led_frames[k]["rate"] >= MIN_RESOLVABLE_RATE for k in ("SL", "FV"))
+    return {"mode": mode, "scene": scene_name, "frames": frames, "configured": len(dumps), "in_view": len(ids),
             "came_back": back, "resolvable": len(resolvable), "came_back_resolvable": back_res,
-            "wrong_ids": wrong, "ids": per_id,
-            "ok": back_res == len(resolvable) and not wrong and len(resolvable) > 0}
+            "wrong_ids": wrong, "ids": per_id, "resolvable_led_frames": led_frames, "ok": ok}
 
 
 def packet_frames(scene) -> int:
@@ -181,8 +213,12 @@ def resolved_in_frame(led: dict, mode: str) -> bool:
 def main(args: argparse.Namespace) -> int:
     from receiver.io.txlink import TxClient, VirtualDriver, wait_for_driver
 
+    scene = getattr(args, "scene", None) or SCENE_BY_MODE[args.mode]
+    if scene not in SCENES_BY_MODE[args.mode]:
+        raise InputError(f"--scene {scene} has no {args.mode} lights (choose from "
+                         f"{', '.join(SCENES_BY_MODE[args.mode])})")
     if args.frames is None:
-        args.frames = DEFAULT_FRAMES[args.mode]
+        args.frames = SCENE_FRAMES.get(scene, DEFAULT_FRAMES[args.mode])
     if args.frames <= 0:
         raise InputError("--frames must be positive")
 
@@ -200,7 +236,7 @@ def main(args: argparse.Namespace) -> int:
         with TxClient(port, timeout_s=args.timeout) as client:
             pong = wait_for_driver(client)
             print(f"hil: driver on {port}: {pong}", file=sys.stderr)
-            report = run_loop(client, port, args.mode, args.frames, args.seed, progress)
+            report = run_loop(client, port, args.mode, args.frames, args.seed, progress, scene_name=scene)
     finally:
         if driver is not None:
             driver.close()
@@ -208,4 +244,9 @@ def main(args: argparse.Namespace) -> int:
     print(f"hil: {report['came_back_resolvable']}/{report['resolvable']} resolvable IDs came back "
           f"({report['came_back']}/{report['in_view']} of all in view), "
           f"{len(report['wrong_ids'])} wrong IDs -> {'PASS' if report['ok'] else 'FAIL'}", file=sys.stderr)
+    lf = report.get("resolvable_led_frames")
+    if lf is not None:
+        print("hil: resolvable light-frames with the right ID: " + ", ".join(
+            f"{k} {lf[k]['right']}/{lf[k]['qualifying']}" for k in ("SL", "FV"))
+            + f"; {lf['wrong_ids']} wrong (need >= {100 * MIN_RESOLVABLE_RATE:g} % each)", file=sys.stderr)
     return 0 if report["ok"] else 1

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 
 from receiver.core.errors import InputError
-from receiver.evaluate.metrics import (DEFAULT_AREA_BINS_PX, DEFAULT_FV_GATE_DEG, DEFAULT_GATE_PX, evaluate,
-                                      format_table, json_safe)
+from receiver.evaluate.metrics import (DEFAULT_AREA_BINS_PX, DEFAULT_FV_GATE_DEG, DEFAULT_GATE_PX,
+                                      DEFAULT_S2PSK_PACKET_S, evaluate, format_table, json_safe, s2psk_packet_s)
 from receiver.io.truth import load_run, load_truth
 
 HELP = ("score a run's JSON Lines output against truth.jsonl (ID rate, distance/position error, latency; "
@@ -27,6 +28,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--fv-gate-deg", type=float, default=DEFAULT_FV_GATE_DEG,
                         help="bearing gate for matching forward vehicles without a decoded ID, degrees "
                              f"(default {DEFAULT_FV_GATE_DEG:g})")
+    parser.add_argument("--map", help="the recording's map.json, for each S2-PSK light's packet duration "
+                                      "(default: map.json beside the truth file if there is one, else "
+                                      f"{DEFAULT_S2PSK_PACKET_S:g} s)")
 
 
 def main(args) -> int:
@@ -36,7 +40,17 @@ def main(args) -> int:
         raise InputError(f"--fv-gate-deg must be positive, got {args.fv_gate_deg}")
     truth = load_truth(args.truth)
     run = load_run(args.run, truth)
-    metrics, series = evaluate(run, truth, gate_px=args.gate_px, fv_gate_deg=args.fv_gate_deg)
+    map_path = args.map
+    if map_path is None:
+        beside = Path(args.truth).with_name("map.json")
+        map_path = str(beside) if beside.is_file() else None
+    packet_s = DEFAULT_S2PSK_PACKET_S
+    if map_path is not None:
+        from receiver.io.ledmap import load_map
+
+        packet_s = s2psk_packet_s(load_map(map_path)) or DEFAULT_S2PSK_PACKET_S
+    metrics, series = evaluate(run, truth, gate_px=args.gate_px, fv_gate_deg=args.fv_gate_deg,
+                               s2psk_packet_s=packet_s)
     if args.json:
         print(json.dumps(json_safe(metrics), allow_nan=False))
     else:

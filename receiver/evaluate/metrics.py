@@ -14,6 +14,15 @@ because the receiver reports the emitters as separate blobs. From the matches:
 * position error = 3D Euclidean distance (m) between the run's `position` (filtered) or its
   `position.raw` and the truth camera x, y, z (world frame: x, y on the floor, z up).
 * latency p50/p99 over the run's `latency_ms`.
+* S2-PSK resolvable ID rate (`s2psk_resolvable`): per truth S2-PSK light and frame, the
+  light-frame qualifies when in every truth frame of the packet before it (one 30-symbol
+  packet: 2.4 s at 200 Hz / 16 clocks, per light from the map's rate_hz / symbol_clocks), up to
+  and including this one, the light is listed with both emitters visible (an occluded emitter
+  is not), each of at least `min_area_px` (1 px^2) and `min_separation_px` (4 px) apart; it is
+  right when a run LED matched to one of its emitters (the matching above) carries its ID.
+  Reported as right / qualifying for SL (IDs 0x00-0x7F) and FV (0x80-0xFF) separately, with
+  the S2-PSK wrong IDs: a decoded S2-PSK LED matched to a light of another ID, or unmatched
+  with an ID that no S2-PSK light of that frame has.
 
 S2-PSK lights: the run reports each emitter as an LED; both are matched to the truth entry's
 emitters and compared against the entry's `distance_m` (the distance to the head or taillight
@@ -59,6 +68,14 @@ DEFAULT_FV_GATE_DEG = 2.0
 DEFAULT_FV_BANDS_M = (25.0, 50.0, 100.0)
 
 
+# One S2-PSK packet at the protocol defaults (PROTOCOL.md 3): 30 symbols of 16 clocks at 200 Hz.
+DEFAULT_S2PSK_PACKET_S = 30 * 16 / 200.0
+# The physical bound of the resolvable ID rate: both emitters at least this large and this far apart.
+S2PSK_MIN_EMITTER_AREA_PX = 1.0
+S2PSK_MIN_SEPARATION_PX = 4.0
+FV_ID_MIN = 0x80
+
+
 # ---------------------------------------------------------------- matching and metrics
 
 
@@ -83,6 +100,97 @@ def match_leds(run_xy: np.ndarray, truth_xy: np.ndarray, *, gate_px: float = DEF
     return out
 
 
+def s2psk_packet_s(led_map) -> dict[int, float]:
+    """ID -> one packet's duration (s) of every S2-PSK light of a receiver.io LedMap (30
+    symbols of `symbol_clocks` clocks at `rate_hz`, protocol defaults where the map is silent)."""
+    out = {}
+    for led in led_map.by_mode("s2psk"):
+        out[int(led.id)] = 30 * (led.symbol_clocks or 16) / (led.rate_hz or 200.0)
+    return out
+
+
+def s2psk_qualifying(truth: dict[int, dict], frames, *, packet_s=DEFAULT_S2PSK_PACKET_S,
+                     min_area_px: float = S2PSK_MIN_EMITTER_AREA_PX,
+                     min_separation_px: float = S2PSK_MIN_SEPARATION_PX) -> dict[int, set]:
+    """frame -> IDs of the S2-PSK lights that qualify in it (see the module docstring), for the
+    truth frames `frames` (sorted ints; a frame missing from `truth` breaks every run).
+    `packet_s`: seconds, one number or {id: seconds} (others: the protocol default)."""
+    start: dict[int, float] = {}  # id -> t of the first frame of its current run of good frames
+    out: dict[int, set] = {}
+    prev = None
+    for f in frames:
+        tr = truth.get(f)
+        if tr is None or tr.get("t") is None or (prev is not None and f != prev + 1):
+            start = {}
+        prev = f
+        if tr is None or tr.get("t") is None:
+            out[f] = set()
+            continue
+        t = tr["t"]
+        now = {}
+        for led_id, ems in tr.get("s2psk", ()):
+            (ax, ay, aa, av), (bx, by, ba, bv) = ems
+            if av and bv and aa >= min_area_px and ba >= min_area_px \
+                    and math.hypot(bx - ax, by - ay) >= min_separation_px:
+                now[led_id] = start.get(led_id, t)
+        start = now
+        ps = packet_s if not isinstance(packet_s, dict) else None
+        out[f] = {i for i, t0 in start.items()
+                  if t - t0 >= (ps if ps is not None else packet_s.get(i, DEFAULT_S2PSK_PACKET_S)) - 1e-6}
+    return out
+
+
+def s2psk_resolvable(run: list[dict], truth: dict[int, dict], *, gate_px: float = DEFAULT_GATE_PX,
+                     packet_s=DEFAULT_S2PSK_PACKET_S, min_area_px: float = S2PSK_MIN_EMITTER_AREA_PX,
+                     min_separation_px: float = S2PSK_MIN_SEPARATION_PX) -> dict:
+    """The S2-PSK resolvable ID rate (module docstring) of a run (`load_run` frames) against
+    its truth (`load_truth`). Over the truth frames from the run's first to its last (a frame the
+    run skipped has no right ID). Returns {"SL": {"right", "qualifying", "rate", "right_any"},
+    "FV": ..., "wrong_ids", "packet_s", "min_area_px", "min_separation_px"}; `right_any`: right
+    light-frames, qualifying or not."""
+    out = {"packet_s": packet_s if not isinstance(packet_s, dict) else
+           (sorted(set(packet_s.values())) or [DEFAULT_S2PSK_PACKET_S]),
+           "min_area_px": min_area_px, "min_separation_px": min_separation_px, "wrong_ids": 0}
+    groups = {k: {"right": 0, "qualifying": 0, "rate": None, "right_any": 0} for k in ("SL", "FV")}
+    by_frame = {fr["frame"]: fr for fr in run}
+    if not by_frame:
+        return {**out, **groups}
+    lo, hi = min(by_frame), max(by_frame)
+    frames = list(range(lo, hi + 1))
+    qual = s2psk_qualifying(truth, frames, packet_s=packet_s, min_area_px=min_area_px,
+                            min_separation_px=min_separation_px)
+    wrong = 0
+    for f in frames:
+        tr, fr = truth.get(f), by_frame.get(f)
+        right: set = set()
+        if tr is not None and fr is not None:
+            targets = tr["targets"]
+            s2_ids = {i for i, _ in tr.get("s2psk", ())}
+            m = match_leds(np.array([(o["cx"], o["cy"]) for o in fr["leds"]]).reshape(-1, 2),
+                           np.array([t[:2] for t in targets]).reshape(-1, 2), gate_px=gate_px)
+            for o, j in zip(fr["leds"], m):
+                if o["id"] is None:
+                    continue
+                if j is None:
+                    wrong += o.get("kind") is not None and o["id"] not in s2_ids
+                    continue
+                true_id = targets[j][2]
+                if o["id"] == true_id:
+                    right.add(true_id)
+                elif o.get("kind") is not None or true_id in s2_ids:
+                    wrong += 1
+            for i in right & s2_ids:
+                groups["FV" if i >= FV_ID_MIN else "SL"]["right_any"] += 1
+        for i in qual.get(f, ()):
+            g = groups["FV" if i >= FV_ID_MIN else "SL"]
+            g["qualifying"] += 1
+            g["right"] += i in right
+    for g in groups.values():
+        g["rate"] = g["right"] / g["qualifying"] if g["qualifying"] else None
+    out["wrong_ids"] = wrong
+    return {**out, **groups}
+
+
 def _stats(values, qs=(50, 95)) -> dict:
     v = np.asarray(values, float)
     out = {"n": int(v.size)}
@@ -101,8 +209,9 @@ def _bin_label(lo: float, hi: float) -> str:
 
 def evaluate(run: list[dict], truth: dict[int, dict], *, gate_px: float = DEFAULT_GATE_PX,
              area_bins_px=DEFAULT_AREA_BINS_PX, fv_gate_deg: float = DEFAULT_FV_GATE_DEG,
-             fv_bands_m=DEFAULT_FV_BANDS_M) -> tuple[dict, dict]:
-    """(metrics, series). metrics is JSON-ready (None where undefined, `vehicle` None outside
+             fv_bands_m=DEFAULT_FV_BANDS_M, s2psk_packet_s=DEFAULT_S2PSK_PACKET_S) -> tuple[dict, dict]:
+    """(metrics, series). `s2psk_packet_s`: see `s2psk_resolvable` (`s2psk_packet_s(led_map)`
+    gives the map's). metrics is JSON-ready (None where undefined, `vehicle` None outside
     vehicle scenes); series holds the per-frame arrays the plots need: t_s (N,),
     true/filtered/raw xyz (N, 3) with nan where the run has no position, their 3D errors (N,),
     per distance sample with an area its area_px and rel. error, and `vehicle` (see
@@ -174,6 +283,8 @@ def evaluate(run: list[dict], truth: dict[int, dict], *, gate_px: float = DEFAUL
     }
     vehicle, vehicle_series = evaluate_vehicle(run, truth, fv_gate_deg=fv_gate_deg, fv_bands_m=fv_bands_m)
     metrics["vehicle"] = vehicle
+    metrics["s2psk_resolvable"] = (s2psk_resolvable(run, truth, gate_px=gate_px, packet_s=s2psk_packet_s)
+                                   if any(tr.get("s2psk") for tr in truth.values()) else None)
     has = np.isfinite(dist_area)
     series = {"t_s": t_s, "true_xyz": true_xyz, "filtered_xyz": filt_xyz, "raw_xyz": raw_xyz,
               "filtered_err_m": filt_err, "raw_err_m": raw_err,
@@ -441,6 +552,12 @@ def format_table(m: dict) -> str:
                                          f"  (n={pe['n']})"))
     la = m["latency_ms"]
     rows.append(("latency", f"p50 {_fmt(la['p50'], unit=' ms')}  p99 {_fmt(la['p99'], unit=' ms')}  (n={la['n']})"))
+    sr = m.get("s2psk_resolvable")
+    if sr is not None:
+        # "S2-PSK resolvable ID rate": right / qualifying light-frames (s2psk_resolvable)
+        text = "; ".join(f"{kind} {_fmt(sr[kind]['rate'], 100, ' %')} ({sr[kind]['right']}/{sr[kind]['qualifying']}, "
+                         f"{sr[kind]['right_any']} right in all)" for kind in ("SL", "FV"))
+        rows.append(("S2-PSK resolvable", f"ID rate {text}; wrong {sr['wrong_ids']}"))
     if m.get("vehicle") is not None:
         rows += _vehicle_rows(m["vehicle"])
     width = max(len(r[0]) for r in rows)

@@ -197,7 +197,9 @@ def _run_vehicle(v, where: str):
 
 def load_truth(path: str) -> dict[int, dict]:
     """frame -> {"xyz": (3,) camera position in m, "targets": list of (cx, cy, id, distance_m),
-    "t": time in s or None, "vehicle": see the module docstring, None without one}.
+    "t": time in s or None, "vehicle": see the module docstring, None without one,
+    "s2psk": list of (id, emitters) per truth S2-PSK light with two emitters, each emitter
+    (cx, cy, area_px, visible) with an occluded emitter (`occluded_frac` above 1 %) not visible}.
 
     Only visible LEDs become match targets; an S2-PSK entry with `emitters` gives one target
     per visible emitter, both carrying the entry's ID and distance.
@@ -205,25 +207,46 @@ def load_truth(path: str) -> dict[int, dict]:
     truth = {}
     for n, obj in read_jsonl(path, "truth"):
         where = f"{path}:{n}"
-        frame = _frame_index(obj, where)
+        frame, rec = truth_frame(obj, where)
         if frame in truth:
             raise InputError(f"{where}: duplicate frame {frame}")
-        xyz = _xyz(obj.get("camera"), f"{where} camera")
-        targets = []
-        for i, led in enumerate(_leds(obj, where)):
-            w = f"{where} leds[{i}]"
-            led_id = led.get("id")
-            dist = _number(led.get("distance_m"), f"{w}.distance_m")
-            emitters = led.get("emitters")
-            points = emitters if isinstance(emitters, list) and emitters else [led]
-            for p in points:
-                if not isinstance(p, dict) or not p.get("visible", True):
-                    continue
-                targets.append((_number(p.get("cx"), f"{w}.cx", allow_none=False),
-                                _number(p.get("cy"), f"{w}.cy", allow_none=False), led_id, dist))
-        truth[frame] = {"xyz": xyz, "targets": targets, "t": _number(obj.get("t"), f"{where}.t"),
-                        "vehicle": _truth_vehicle(obj.get("vehicle"), _leds(obj, where), f"{where} vehicle")}
+        truth[frame] = rec
     return truth
+
+
+# An emitter hidden by more than this fraction is not visible (tools.synth.render.OCCLUDED_MAX).
+OCCLUDED_MAX = 0.01
+
+
+def truth_frame(obj: dict, where: str = "truth") -> tuple[int, dict]:
+    """(frame index, record of `load_truth`) of one truth object (a truth.jsonl line)."""
+    frame = _frame_index(obj, where)
+    xyz = _xyz(obj.get("camera"), f"{where} camera")
+    targets, s2psk = [], []
+    for i, led in enumerate(_leds(obj, where)):
+        w = f"{where} leds[{i}]"
+        led_id = led.get("id")
+        dist = _number(led.get("distance_m"), f"{w}.distance_m")
+        emitters = led.get("emitters")
+        points = emitters if isinstance(emitters, list) and emitters else [led]
+        for p in points:
+            if not isinstance(p, dict) or not p.get("visible", True):
+                continue
+            targets.append((_number(p.get("cx"), f"{w}.cx", allow_none=False),
+                            _number(p.get("cy"), f"{w}.cy", allow_none=False), led_id, dist))
+        if led.get("mode") == "s2psk" and isinstance(emitters, list) and len(emitters) == 2 \
+                and all(isinstance(e, dict) for e in emitters):
+            ems = []
+            for e in emitters:
+                occ = _number(e.get("occluded_frac"), f"{w}.emitters.occluded_frac") or 0.0
+                ems.append((_number(e.get("cx"), f"{w}.emitters.cx", allow_none=False),
+                            _number(e.get("cy"), f"{w}.emitters.cy", allow_none=False),
+                            _number(e.get("area_px"), f"{w}.emitters.area_px") or 0.0,
+                            bool(e.get("visible", True)) and occ <= OCCLUDED_MAX))
+            s2psk.append((led_id, tuple(ems)))
+    return frame, {"xyz": xyz, "targets": targets, "t": _number(obj.get("t"), f"{where}.t"),
+                   "vehicle": _truth_vehicle(obj.get("vehicle"), _leds(obj, where), f"{where} vehicle"),
+                   "s2psk": s2psk}
 
 
 def load_run(path: str, truth: dict[int, dict]) -> list[dict]:
@@ -232,33 +255,40 @@ def load_run(path: str, truth: dict[int, dict]) -> list[dict]:
     frames, seen = [], set()
     for n, obj in read_jsonl(path, "run"):
         where = f"{path}:{n}"
-        frame = _frame_index(obj, where)
+        fr = run_frame(obj, where)
+        frame = fr["frame"]
         if frame in seen:
             raise InputError(f"{where}: duplicate frame {frame}")
         if frame not in truth:
             raise InputError(f"{where}: frame {frame} is not in the truth file (wrong truth for this run?)")
         seen.add(frame)
-        leds = []
-        for i, led in enumerate(_leds(obj, where)):
-            w = f"{where} leds[{i}]"
-            led_id = led.get("id")
-            if led_id is not None and (isinstance(led_id, bool) or not isinstance(led_id, int)):
-                raise InputError(f"{w}: 'id' must be an integer or null")
-            leds.append({"cx": _number(led.get("cx"), f"{w}.cx", allow_none=False),
-                         "cy": _number(led.get("cy"), f"{w}.cy", allow_none=False),
-                         "id": led_id,
-                         "area_px": _number(led.get("area_px"), f"{w}.area_px"),
-                         "distance_m": _number(led.get("distance_m"), f"{w}.distance_m"),
-                         "estimator": str(led.get("distance_estimator") or "unnamed"),
-                         "kind": _str_or_none(led.get("kind"), f"{w}.kind")})
-        pos = obj.get("position")
-        filt = raw = None
-        if pos is not None:
-            filt = _xyz(pos, f"{where} position")
-            if pos.get("raw") is not None:
-                raw = _xyz(pos["raw"], f"{where} position.raw")
-        frames.append({"frame": frame, "t": _number(obj.get("t"), f"{where}.t"),
-                       "latency_ms": _number(obj.get("latency_ms"), f"{where}.latency_ms"),
-                       "leds": leds, "filtered": filt, "raw": raw,
-                       "vehicle": _run_vehicle(obj.get("vehicle"), f"{where} vehicle")})
+        frames.append(fr)
     return frames
+
+
+def run_frame(obj: dict, where: str = "run") -> dict:
+    """One run object (an `occloc run` line, receiver.io.output.frame_record) as `load_run` reads it."""
+    frame = _frame_index(obj, where)
+    leds = []
+    for i, led in enumerate(_leds(obj, where)):
+        w = f"{where} leds[{i}]"
+        led_id = led.get("id")
+        if led_id is not None and (isinstance(led_id, bool) or not isinstance(led_id, int)):
+            raise InputError(f"{w}: 'id' must be an integer or null")
+        leds.append({"cx": _number(led.get("cx"), f"{w}.cx", allow_none=False),
+                     "cy": _number(led.get("cy"), f"{w}.cy", allow_none=False),
+                     "id": led_id,
+                     "area_px": _number(led.get("area_px"), f"{w}.area_px"),
+                     "distance_m": _number(led.get("distance_m"), f"{w}.distance_m"),
+                     "estimator": str(led.get("distance_estimator") or "unnamed"),
+                     "kind": _str_or_none(led.get("kind"), f"{w}.kind")})
+    pos = obj.get("position")
+    filt = raw = None
+    if pos is not None:
+        filt = _xyz(pos, f"{where} position")
+        if pos.get("raw") is not None:
+            raw = _xyz(pos["raw"], f"{where} position.raw")
+    return {"frame": frame, "t": _number(obj.get("t"), f"{where}.t"),
+            "latency_ms": _number(obj.get("latency_ms"), f"{where}.latency_ms"),
+            "leds": leds, "filtered": filt, "raw": raw,
+            "vehicle": _run_vehicle(obj.get("vehicle"), f"{where} vehicle")}

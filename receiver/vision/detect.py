@@ -51,12 +51,13 @@ def detect_scale(shape: tuple[int, int], max_detect_px: int = 1_200_000) -> int:
 
 
 def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24.0,
-               sample_step: int = 4) -> tuple[float, float]:
+               sample_step: int = 4, fine_noise: bool = False) -> tuple[float, float]:
     """(threshold level, background level) in gray values for an (H, W) uint8 image.
 
     Uses every `sample_step`-th pixel in both directions (the histogram statistics do not need
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
-    least this far above the median (a clean dark frame has MAD 0)."""
+    least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
+    `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
     sample = gray[::sample_step, ::sample_step]
     hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
     cdf = np.cumsum(hist)
@@ -65,8 +66,41 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     # Histogram of |x - med| by folding the histogram around the median.
     dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
     mad = int(np.searchsorted(np.cumsum(dev), half))
-    level = max(med + k_mad * MAD_TO_SIGMA * mad, med + min_contrast)
+    sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
+    level = max(med + k_mad * sigma, med + min_contrast)
     return float(min(level, 254.0)), float(med)
+
+
+def noise_sigma(hist: np.ndarray, med: int, mad: int) -> float:
+    """Gaussian noise sigma (gray levels) of a background with histogram `hist` (256,), median
+    `med` and MAD `mad` (integers), resolved below one gray level.
+
+    A MAD of 0 or 1 gray level says little (8-bit rounding: a dark sensor's noise of a fraction
+    of a level gives MAD 0, one of 0.5-1.5 levels MAD 1), and a background clipped at black has
+    no lower half to measure. The upper tail does: the fraction f of samples at or above med + 1
+    (raw value >= med + 0.5) is Q(0.5 / sigma) for noise centred on the median, so sigma =
+    0.5 / Q^-1(f). Lights (a small fraction of the frame) barely move f while noise makes it a
+    few % or more. From MAD 2 on, 1.4826 * MAD as usual."""
+    if mad >= 2:
+        return MAD_TO_SIGMA * mad
+    n = float(hist.sum())
+    if n <= 0:
+        return 0.0
+    f = float(hist[med + 1:].sum()) / n
+    f = min(max(f, 1e-6), 0.49)
+    return 0.5 / _q_inverse(f)
+
+
+def _q_inverse(f: float) -> float:
+    """z with P(N(0, 1) > z) = f, for 0 < f < 0.5 (bisection on erfc)."""
+    lo, hi = 0.0, 8.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if 0.5 * math.erfc(mid / math.sqrt(2.0)) > f:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int) -> np.ndarray:
@@ -152,7 +186,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overri
     f = detect_scale(gray.shape, s.max_detect_px)
     small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
     if level is None:
-        level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast)
+        level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast, fine_noise=s.fine_noise)
     else:
         bg = float(np.median(small[::4, ::4]))
     # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
@@ -186,8 +220,10 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overri
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
         # a long box, or a thin diagonal bar filling little of its square box (boxes in search
-        # pixels: the full-resolution box over the pooling factor).
-        if not blob.border and s.max_aspect and (max(bw, bh) > s.max_aspect * min(bw, bh)
+        # pixels: the full-resolution box over the pooling factor). Components under
+        # `shape_min_rows` rows are exempt (a sub-pixel-tall panel is one row several px wide,
+        # and a one-row contour has no area to fill its box with).
+        if not blob.border and s.max_aspect and bh >= s.shape_min_rows and (max(bw, bh) > s.max_aspect * min(bw, bh)
                                                or pool * cv2.contourArea(c) < s.min_fill * bw * bh):
             continue
         if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):

@@ -181,6 +181,8 @@ class Pairer:
         self.shake_min_pairs = s.shake_min_pairs
         self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
+        self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
+        self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
@@ -198,15 +200,19 @@ class Pairer:
         ax, ay, bx, by = mx - hx, my - hy, mx + hx, my + hy
         # The gate widens while the pair coasts: the prediction error grows (the camera's pitch
         # vibration moves every light by a few px within a second).
-        tol = min(self.match_frac * 2 * math.hypot(hx, hy),
-                  max(self.match_min_px, self.match_size * math.sqrt(single))) + self.miss_growth_px * p.misses
+        tol0 = min(self.match_frac * 2 * math.hypot(hx, hy), max(self.match_min_px, self.match_size * math.sqrt(single)))
+        tol = tol0 + self.miss_growth_px * p.misses
+        # With the frame's vertical shift measured (`shake` "vertical" / "2d"), the vertical
+        # prediction error does not grow while the pair coasts: only the horizontal gate widens
+        # (else a coasting pair reaches the heads just above or below it, farther down the road).
+        tol_y = tol0 + self.miss_growth_px if self.vertical_known else math.inf
         explaining, nearby, shifts, obs_a, obs_b = [], [], [], None, None
         # Candidates first, for all tracks at once: within tol of A, B or the midpoint.
         near = np.flatnonzero(np.hypot(xy[:, 0] - mx, xy[:, 1] - my) <= tol + math.hypot(hx, hy))
         for i in near:
             t = tracks[i]
             da, db, dm = (math.hypot(t.cx - x, t.cy - y) for x, y in ((ax, ay), (bx, by), (mx, my)))
-            if min(da, db, dm) > tol:
+            if min(da, db, dm) > tol or abs(t.cy - my) > tol_y + abs(hy):
                 continue
             nearby.append(t)  # not paired anew while this pair lives
             if not t.seen:
@@ -235,6 +241,24 @@ class Pairer:
                     obs_b = t.blob
         return explaining, nearby, shifts, obs_a, obs_b
 
+    def shift_votes(self, xy: np.ndarray, radius_px: float) -> np.ndarray:
+        """(K, 2) displacement votes for the frame's common image shift (receiver.vision.motion):
+        for every formed pair and every blob centroid of `xy` (N, 2) within `radius_px` of its
+        predicted midpoint, the blob's offset from the predicted A, B and midpoint (one of them
+        is the shift when the blob is this pair's; the others scatter by the pair's baseline)."""
+        out = []
+        if len(xy) == 0:
+            return np.zeros((0, 2))
+        for p in self.pairs:
+            if p.base0 is None:
+                continue
+            mx, my, hx, hy, _ = self._predict(p)
+            d = xy - (mx, my)
+            d = d[(np.abs(d[:, 0]) <= radius_px + abs(hx)) & (np.abs(d[:, 1]) <= radius_px + abs(hy))]
+            if len(d):
+                out += [d, d + (hx, hy), d - (hx, hy)]
+        return np.concatenate(out) if out else np.zeros((0, 2))
+
     def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
         """This frame's common vertical image shift (px, + down): the median over the pairs that
         explain a blob of how far it sits below their prediction; 0 with fewer than
@@ -253,7 +277,8 @@ class Pairer:
                 dys.append(float(np.mean([d[1] for d in shifts])))
         return float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
 
-    def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0) -> bool:
+    def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0,
+                dx: float = 0.0) -> bool:
         """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
         `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
         (`pitch_shift`), px, added to the prediction."""
@@ -266,6 +291,7 @@ class Pairer:
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
             p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
         mx, my, hx, hy, single = self._predict(p)
+        mx += dx
         my += dy
         p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
         if obs_a is not None:
@@ -299,14 +325,21 @@ class Pairer:
                     return False
         return True
 
-    def step(self, gray: np.ndarray, tracks: list[Track], intensity) -> list[Pair]:
+    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None) -> list[Pair]:
         """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
-        mean gray in its envelope. Returns the live pairs; their levels are updated."""
+        mean gray in its envelope. `shift`: the frame's common image shift (dx, dy) px from the
+        previous frame (receiver.vision.motion), or None: the vertical one from the pairs
+        (`pitch_shift`). Returns the live pairs; their levels are updated."""
         live = {t.track_id: t for t in tracks}
         shape = None if gray is None else gray.shape
         xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
-        dy = self.pitch_shift(tracks, xy)
-        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy)]
+        if shift is None:
+            dx, dy = 0.0, self.pitch_shift(tracks, xy)
+        else:
+            dx, dy = shift
+        self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
+        self.vertical_known = shift is not None
+        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx)]
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
@@ -357,7 +390,8 @@ class Pairer:
             self.last_seen[t.track_id] = t.blob
             if last is None or t.track_id in busy:
                 continue
-            jx, jy = t.cx - last.cx, t.cy - last.cy
+            # the jump without the camera's shake of this frame
+            jx, jy = t.cx - last.cx - self.shift[0], t.cy - last.cy - self.shift[1]
             if jx < 0:
                 jx, jy = -jx, -jy  # left-to-right baseline either way
             diam = math.sqrt(max(0.5 * (t.blob.area_px + last.area_px), 1.0))
@@ -378,7 +412,7 @@ class Pairer:
                 continue
             # their mean is the baseline without the motion
             jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
-            right = t.cx > last.cx  # the current blob is the right-hand emitter
+            right = t.cx - last.cx - self.shift[0] > 0  # the current blob is the right-hand emitter
             ax, ay = (t.cx - jx, t.cy - jy) if right else (t.cx, t.cy)
             if (t.track_id, t.track_id) in self.banned:
                 continue

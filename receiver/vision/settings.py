@@ -15,6 +15,9 @@ class DetectSettings:
         bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
       max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
       k_mad [8], min_contrast [24]: threshold, see `auto_level`.
+      fine_noise [False]: the noise sigma of that threshold resolved below one gray level
+        (`noise_sigma`: a dark, clipped background of MAD 0); the pipeline sets it, with a
+        small `min_contrast`, for S2-PSK maps, whose far emitters peak 20-50 gray over ~0.4.
       refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
         maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
         through the outermost lit pixel centres lies half a pixel inside it on average.
@@ -28,7 +31,9 @@ class DetectSettings:
       max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
         most this elongated, and its contour must fill at least this fraction of the box (a
         disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
-        blobs are exempt.
+        blobs are exempt, and so are components under shape_min_rows [0] rows tall (full
+        resolution; the pipeline sets 3 for S2-PSK maps: far street-light heads seen from below
+        are one or two rows tall and several px wide).
       expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
         `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
         about one stripe period; 0 = always checked).
@@ -57,6 +62,7 @@ class DetectSettings:
     max_detect_px: int = 1_200_000
     k_mad: float = 8.0
     min_contrast: float = 24.0
+    fine_noise: bool = False
     refine_frac: float = 0.5
     saturated_gray: float = 250.0
     saturated_frac: float = 0.03
@@ -65,6 +71,7 @@ class DetectSettings:
     max_area_frac: float = 0.05
     max_aspect: float = 4.0
     min_fill: float = 0.25
+    shape_min_rows: int = 0
     expect_stripes: bool = False
     min_stripe_depth: float = 0.8
     min_stripe_rows: int = 0
@@ -116,10 +123,19 @@ class PairSettings:
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
     mean.
-    Camera shake: shake_min_pairs [3] pairs explaining a blob give the frame's common vertical
-    shift (`pitch_shift`), added to every pair's prediction.
-    
-    """
+    Camera shake: shake ["pitch"]: how the frame's common image shift (the camera's pitch
+    and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
+    pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
+    displacements from the last frames and from the pairs' predicted emitters, within
+    shake_radius_px [14] px (receiver.vision.motion.vertical_shift; heads are horizontal, so each
+    votes right whichever half is lit); "2d": x and y by `frame_shift` (experimental: the
+    horizontal part is ambiguous by the baseline, wrong by > 2 px in a third of the frames of
+    vehicle-road); "pitch" (the default): only the pairs' median vertical offset (`pitch_shift`,
+    needs shake_min_pairs [3] pairs explaining a blob), the tracks none. Without agreement in a
+    frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
+    s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
+    recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+        """
 
     row_band: float = 1.0
     max_area_ratio: float = 2.5
@@ -141,3 +157,5 @@ class PairSettings:
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
     shake_min_pairs: int = 3
+    shake: str = "pitch"
+    shake_radius_px: float = 14.0

@@ -37,6 +37,7 @@ class Track:
     hits: int = 1
     misses: int = 0  # consecutive frames without a blob
     seen: bool = True  # a blob was assigned in the latest frame
+    shift0: tuple = (0.0, 0.0)  # the tracker's accumulated image shift when its blob was taken
 
     @property
     def cx(self) -> float:
@@ -68,9 +69,16 @@ class Tracker:
         self.tracks: list[Track] = []
         self._next_id = 0
         self.ended: list[Track] = []  # tracks dropped in the latest step
+        self.shift_sum = (0.0, 0.0)  # accumulated common image shift (camera shake), px
 
-    def step(self, frame_index: int, blobs: list[Blob]) -> list[Track]:
-        """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob)."""
+    def step(self, frame_index: int, blobs: list[Blob], shift=None) -> list[Track]:
+        """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob).
+        `shift`: this frame's common image shift (dx, dy) px from the previous frame (camera
+        shake, receiver.vision.motion) or None: added to every prediction, and taken out of the
+        velocities (a track's velocity is its light's own motion)."""
+        if shift is not None:
+            self.shift_sum = (self.shift_sum[0] + shift[0], self.shift_sum[1] + shift[1])
+        sx, sy = self.shift_sum
         tracks = self.tracks
         assigned_blob: dict[int, int] = {}
         if tracks and blobs:
@@ -80,6 +88,9 @@ class Tracker:
                             for t in tracks])
             px = tst[:, 0] + tst[:, 2] * tst[:, 4]
             py = tst[:, 1] + tst[:, 3] * tst[:, 4]
+            if shift is not None or sx or sy:
+                px = px + np.array([sx - t.shift0[0] for t in tracks])
+                py = py + np.array([sy - t.shift0[1] for t in tracks])
             d = np.hypot(bxy[None, :, 0] - px[:, None], bxy[None, :, 1] - py[:, None])
             tarea = np.maximum(tst[:, 5], 1.0)
             gate = self.gate_px + self.gate_size * np.sqrt(tarea)
@@ -97,9 +108,11 @@ class Tracker:
                 b = blobs[assigned_blob[i]]
                 dt = max(frame_index - t.last_frame, 1)
                 g = self.velocity_gain if t.hits > 1 else 1.0
-                t.vx = (1 - g) * t.vx + g * (b.cx - t.blob.cx) / dt
-                t.vy = (1 - g) * t.vy + g * (b.cy - t.blob.cy) / dt
+                ox, oy = sx - t.shift0[0], sy - t.shift0[1]
+                t.vx = (1 - g) * t.vx + g * (b.cx - t.blob.cx - ox) / dt
+                t.vy = (1 - g) * t.vy + g * (b.cy - t.blob.cy - oy) / dt
                 t.blob, t.last_frame, t.seen = b, frame_index, True
+                t.shift0 = self.shift_sum
                 t.hits += 1
                 t.misses = 0
                 alive.append(t)
@@ -109,7 +122,7 @@ class Tracker:
                 (alive if t.misses <= self.max_missed else self.ended).append(t)
         for j, b in enumerate(blobs):
             if j not in used:
-                alive.append(Track(self._next_id, b, frame_index, frame_index))
+                alive.append(Track(self._next_id, b, frame_index, frame_index, shift0=self.shift_sum))
                 self._next_id += 1
         self.tracks = alive
         return alive
