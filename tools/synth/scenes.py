@@ -55,9 +55,12 @@ def map_entry(light: Light, rate_hz=None, freq_hz=None, symbol_clocks=None) -> L
     emitters = None
     if len(light.emitters) == 2:
         emitters = tuple(tuple(float(v) for v in em.offset) for em in light.emitters)
+    # INTERFACES.md: a mapped LED faces down unless the map says otherwise (tilted heads do).
+    n = np.asarray(e.normal, float) / np.linalg.norm(e.normal)
+    normal = None if np.allclose(n, (0.0, 0.0, -1.0)) else tuple(round(float(v), 9) for v in n)
     return Led(id=light.id, mode=light.mode, x=float(c[0]), y=float(c[1]), z=float(c[2]), shape=e.shape,
                size=tuple(float(s) for s in e.size), rate_hz=rate_hz, freq_hz=freq_hz,
-               symbol_clocks=symbol_clocks, emitters=emitters)
+               symbol_clocks=symbol_clocks, emitters=emitters, normal=normal)
 
 
 def indoor_walk(rng, cam, room_m=12.0, ceiling_m=3.0, panel_size_m=(0.3, 0.6), pitch_x_m=0.8, pitch_y_m=0.5,
