@@ -180,7 +180,8 @@ def _led(d, i: int, path: str) -> Led:
             math.isfinite(c) for c in normal) else 0.0
         if not norm > 1e-9:
             raise InputError(f"{where}: 'normal' must be a non-zero [nx, ny, nz] vector")
-        normal = tuple(c / norm for c in normal)
+        if abs(norm - 1.0) > 1e-9:  # a unit vector is kept as written (round trips exactly)
+            normal = tuple(c / norm for c in normal)
     return Led(id=led_id, mode=mode, x=x, y=y, z=z, shape=shape, size=size,
                rate_hz=_num(d, "rate_hz", where, positive=True), freq_hz=freq,
                symbol_clocks=symclk, baseline_m=_num(d, "baseline_m", where, positive=True),
