@@ -51,10 +51,10 @@ def _bbox(blob_or_contour, shape, pad: int):
         bg = None
     h, w = shape[:2]
     lo, hi = hull.min(axis=0), hull.max(axis=0)
-    x0 = max(int(math.floor(lo[0])) - pad, 0)
-    x1 = min(int(math.ceil(hi[0])) + pad + 1, w)
-    y0 = max(int(math.floor(lo[1])) - 1, 0)
-    y1 = min(int(math.ceil(hi[1])) + 2, h)
+    x0 = max(math.floor(lo[0]) - pad, 0)
+    x1 = min(math.ceil(hi[0]) + pad + 1, w)
+    y0 = max(math.floor(lo[1]) - 1, 0)
+    y1 = min(math.ceil(hi[1]) + 2, h)
     return x0, x1, y0, y1, bg
 
 
