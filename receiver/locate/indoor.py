@@ -62,7 +62,7 @@ class Positioner:
         `items`) come with their edges only."""
         index = {id(o): i for i, (o, _, _) in enumerate(items)}
         cam = self.camera
-        targets, where = [], []
+        chosen = []
         for obs in leds:
             if obs.edge_px is None or obs.id is None or obs.mode == "s2psk":
                 continue
@@ -70,17 +70,22 @@ class Positioner:
             if led is None or led.mode == "s2psk" or (led.normal is not None and led.normal[2] > -0.999):
                 continue
             half = fixture_half_extents(led.shape, led.size)
-            pts, sig = obs.edge_px
-            if half is None or len(pts) < 6:
+            if half is None or len(obs.edge_px[0]) < 6:
                 continue
-            i = index.get(id(obs))
-            uv = None
-            if i is not None:
-                uv = undistort_points(np.array([[obs.cx, obs.cy]]), cam)[0]
-            targets.append(OutlineTarget(self.pose.to_solving(led.xyz)[0], led.shape, half,
-                                         undistort_points(pts, cam),
-                                         np.hypot(np.asarray(sig, float), self.settings.edge_model_sigma_px)
-                                         / cam.focal_px, uv))
+            chosen.append((obs, led, half, index.get(id(obs))))
+        if not chosen:
+            return [], []
+        # One undistortion for every edge point and centroid of the frame.
+        pts = [np.asarray(o.edge_px[0], float).reshape(-1, 2) for o, _, _, _ in chosen]
+        cen = np.array([[o.cx, o.cy] for o, _, _, _ in chosen], float)
+        und = undistort_points(np.concatenate(pts + [cen]), cam)
+        ends = np.cumsum([0] + [len(q) for q in pts])
+        L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
+        targets, where = [], []
+        for k, (obs, led, half, i) in enumerate(chosen):
+            sig = np.hypot(np.asarray(obs.edge_px[1], float), self.settings.edge_model_sigma_px) / cam.focal_px
+            uv = und[ends[-1] + k] if i is not None else None
+            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig, uv))
             where.append(i)
         return targets, where
 

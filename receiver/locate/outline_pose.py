@@ -195,14 +195,16 @@ class _Problem:
             return first
         R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
         q = _project(R, p[3:], self.corners).reshape(-1, 4, 2)             # (T, 4, 2)
-        a = q[self.tix]                                                    # (M, 4, 2)
-        ab = np.roll(a, -1, axis=1) - a
-        L2 = np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-18)
-        rel = self.P_all[:, None, :] - a
-        s = np.clip(np.einsum("mkj,mkj->mk", rel, ab) / L2, 0, 1)
-        d = rel - s[..., None] * ab
-        lab = np.argmin(np.einsum("mkj,mkj->mk", d, d), axis=1)
-        dc = np.min(np.einsum("mkj,mkj->mk", rel, rel), axis=1)
+        ab = np.roll(q, -1, axis=1) - q
+        inv_L2 = 1.0 / np.maximum(np.sum(ab * ab, axis=2), 1e-18)            # (T, 4)
+        t = self.tix
+        relx = self.P_all[:, 0, None] - q[t, :, 0]                            # (M, 4)
+        rely = self.P_all[:, 1, None] - q[t, :, 1]
+        abx, aby = ab[t, :, 0], ab[t, :, 1]
+        s = np.clip((relx * abx + rely * aby) * inv_L2[t], 0.0, 1.0)
+        ex, ey = relx - s * abx, rely - s * aby
+        lab = np.argmin(ex * ex + ey * ey, axis=1)
+        dc = np.min(relx * relx + rely * rely, axis=1)
         lab[dc < (CORNER_GUARD_PX / self.focal_px) ** 2] = -1
         if keep_minor and self.labels is not None:
             old = self.labels
