@@ -131,31 +131,25 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     side = np.repeat(np.array([-1, 1]), n)
     led2 = led[rows2]
     W1 = Wr1[rows2]
-    flat = buf.ravel()
-    base = rows2 * Wmax
-
-    def at(col):
-        return flat[base + np.minimum(np.maximum(col, 0), W1)].astype(np.float32)
-
-    # Plateau: SIDE_PX pixels inside, from 2 px past the coarse crossing; outside: SIDE_PX
-    # pixels from 3 px outside it (clamped into the box), clear of the ~0.6 px blur.
-    plateau = at(start - side * 2)
-    outside = at(start + side * 3)
-    for j in range(1, SIDE_PX):
-        plateau += at(start - side * (2 + j))
-        outside += at(start + side * (3 + j))
-    plateau /= np.float32(SIDE_PX)
-    outside /= np.float32(SIDE_PX)
+    # One gather of every pixel used, per point along its side's outward direction: the
+    # plateau (SIDE_PX pixels from 2 px inside the coarse crossing), the outside (SIDE_PX pixels
+    # from 3 px outside it) and the walk -1..3 (clamped into the box; clear of the ~0.6 px blur).
+    ar = np.arange(SIDE_PX)
+    offs = np.concatenate([-(2 + ar), 3 + ar, np.arange(-1, 4)])
+    cols = np.minimum(np.maximum(start[:, None] + side[:, None] * offs, 0), W1[:, None])
+    vals = buf.ravel()[rows2[:, None] * Wmax + cols].astype(np.float32)
+    plateau = vals[:, :SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
+    outside = vals[:, SIDE_PX:2 * SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
     thr = 0.5 * (plateau + outside)
-    # The straddling pair around `start`: walk from the inner pixel outward (at most 3 px).
-    pos = np.full(2 * n, np.nan)
-    for k in range(-1, 3):
-        a = np.minimum(np.maximum(start + side * k, 0), W1)          # nearer the inside
-        b = np.minimum(np.maximum(start + side * (k + 1), 0), W1)    # one pixel further out
-        va, vb = flat[base + a].astype(np.float32), flat[base + b].astype(np.float32)
-        hit = np.isnan(pos) & (va >= thr) & (vb < thr) & (a != b)
-        frac = (va - thr) / np.maximum(va - vb, 1e-6)
-        pos = np.where(hit, a + side * frac, pos)
+    # The straddling pair around `start`: the first of the walk's pixel pairs (nearer the inside,
+    # one pixel further out) that crosses the half level, at most 3 px out.
+    a, v = cols[:, 2 * SIDE_PX:], vals[:, 2 * SIDE_PX:]
+    hit = (v[:, :-1] >= thr[:, None]) & (v[:, 1:] < thr[:, None]) & (a[:, :-1] != a[:, 1:])
+    k = np.argmax(hit, axis=1)
+    ii = np.arange(2 * n)
+    va, vb = v[ii, k], v[ii, k + 1]
+    frac = (va - thr) / np.maximum(va - vb, 1e-6)
+    pos = np.where(hit[ii, k], a[ii, k] + side * frac, np.nan)
     contrast = plateau - outside
     good = np.isfinite(pos) & (contrast >= min_contrast)
     s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
