@@ -198,13 +198,23 @@ class _Problem:
         ab = np.roll(q, -1, axis=1) - q
         inv_L2 = 1.0 / np.maximum(np.sum(ab * ab, axis=2), 1e-18)            # (T, 4)
         t = self.tix
-        relx = self.P_all[:, 0, None] - q[t, :, 0]                            # (M, 4)
-        rely = self.P_all[:, 1, None] - q[t, :, 1]
-        abx, aby = ab[t, :, 0], ab[t, :, 1]
-        s = np.clip((relx * abx + rely * aby) * inv_L2[t], 0.0, 1.0)
-        ex, ey = relx - s * abx, rely - s * aby
-        lab = np.argmin(ex * ex + ey * ey, axis=1)
-        dc = np.min(relx * relx + rely * rely, axis=1)
+        px, py = self.P_all[:, 0], self.P_all[:, 1]
+        # The four edges one after the other over (M,) arrays (short-axis reductions are slow):
+        # the nearest edge (the first on ties, as argmin) and the nearest corner.
+        lab = np.zeros(len(t), np.int64)
+        for k in range(4):
+            relx, rely = px - q[t, k, 0], py - q[t, k, 1]
+            abx, aby = ab[t, k, 0], ab[t, k, 1]
+            s = np.clip((relx * abx + rely * aby) * inv_L2[t, k], 0.0, 1.0)
+            ex, ey = relx - s * abx, rely - s * aby
+            d2, c2 = ex * ex + ey * ey, relx * relx + rely * rely
+            if k == 0:
+                best, dc = d2, c2
+            else:
+                closer = d2 < best
+                lab[closer] = k
+                best = np.minimum(best, d2)
+                dc = np.minimum(dc, c2)
         lab[dc < (CORNER_GUARD_PX / self.focal_px) ** 2] = -1
         if keep_minor and self.labels is not None:
             old = self.labels
