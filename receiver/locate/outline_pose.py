@@ -165,11 +165,19 @@ class _Problem:
         self.circles = [t for t in targets if t.shape == "circle"]
         self.n_poly = len(poly)
         if poly:
-            corners = np.stack([_corners(t) for t in poly])                  # (T, 4, 3)
+            # The corners of every target at once (`_corners`), and the next corner of each.
+            xyz = np.array([t.xyz for t in poly], float)                     # (T, 3)
+            half = np.array([t.half for t in poly], float)                   # (T, 2)
+            sgn = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+            off = np.zeros((len(poly), 4, 3))
+            off[:, :, :2] = sgn[None] * half[:, None, :]
+            corners = xyz[:, None, :] + off                                  # (T, 4, 3)
             self.corners = corners.reshape(-1, 3)
             self.A = self.corners
-            self.B = np.roll(corners, -1, axis=1).reshape(-1, 3)
-            self.AxB = np.cross(self.A, self.B)
+            self.B = corners[:, [1, 2, 3, 0]].reshape(-1, 3)
+            a, b = self.A, self.B
+            self.AxB = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                                        a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
             self.D = self.A - self.B
             # dm/dC_j = e_j x (A - B): (E, 3, 3) [edge, component, j].
             self.dm_dC = np.einsum("jab,eb->eaj", _CROSS, self.D)
