@@ -76,8 +76,8 @@ def _warm_problem(folder, k):
             break
     targets, R0, C0 = seen["warm"]
     s = pos.settings
-    kw = dict(focal_px=cam.focal_px, centroid_sigma_px=s.centroid_sigma_px, up_prior=np.array([0.0, 0.0, 1.0]),
-              tilt_sigma_rad=np.radians(s.tilt_sigma_deg), loss=s.loss, f_scale=s.f_scale)
+    kw = {"focal_px": cam.focal_px, "centroid_sigma_px": s.centroid_sigma_px, "up_prior": np.array([0.0, 0.0, 1.0]),
+          "tilt_sigma_rad": np.radians(s.tilt_sigma_deg), "loss": s.loss, "f_scale": s.f_scale}
     return targets, R0, C0, kw
 
 
