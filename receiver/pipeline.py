@@ -38,7 +38,7 @@ from receiver.io.ledmap import LedMap
 from receiver.vision.detect import detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import frame_shift, vertical_shift
-from receiver.vision.outline import stripe_edge_points
+from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
@@ -331,6 +331,11 @@ class Receiver:
             policy.step_light(light, gray, blob, row_profile(gray, blob), frame.t_s, ticks)
         timer.stamp("decode")
 
+        # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
+        want = [t.track_id for t in seen if self.positioner is not None and t.track_id not in pair_of
+                and self._light(t.track_id).striped and self._light(t.track_id).led_id is not None
+                and self._light(t.track_id).mode != "s2psk"]
+        edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want])))
         leds = []
         for t in seen:
             light = self._light(t.track_id)
@@ -343,9 +348,7 @@ class Receiver:
                 kind = p.kind
             elif math.isfinite(light.freq_hz):
                 freq = round(light.freq_hz, 1)
-            # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
-            edges = (stripe_edge_points(gray, b) if self.positioner is not None and light.led_id is not None
-                     and p is None and light.mode != "s2psk" else None)
+            edges = edge_of.get(t.track_id)
             leds.append(LedObservation(track=t.track_id, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull,
                                        border=b.border, id=light.led_id, mode=light.mode, peak=b.peak,
                                        freq_hz=freq, kind=kind, edge_px=edges))

@@ -4,21 +4,23 @@ undistorted image points -> `PoseFilter` -> the INTERFACES.md `position` object.
 
 from __future__ import annotations
 
-
 import math
 
 import numpy as np
 
+from receiver.core.records import LedObservation, LocateResult
+from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
-from receiver.locate.ranging import Ranger, ESTIMATORS, ray_unit, undistort_points
-from receiver.locate.outline_pose import OutlineTarget, fixture_half_extents, solve_outline_pose
-from receiver.core.records import LedObservation, LocateResult
+from receiver.locate.outline_pose import (
+    OutlineTarget,
+    fixture_half_extents,
+    solve_outline_pose,
+)
 from receiver.locate.pose import align_rays
 from receiver.locate.posefilter import PoseFilter
+from receiver.locate.ranging import ESTIMATORS, Ranger, ray_unit, undistort_points
 from receiver.locate.settings import PositionerSettings
-from receiver.core.settings import resolve_settings
-
 
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
 GOOD_OUTLINE_CHI2_DOF = 4.0
@@ -60,7 +62,7 @@ class Positioner:
         `items`) come with their edges only."""
         index = {id(o): i for i, (o, _, _) in enumerate(items)}
         cam = self.camera
-        targets, where = [], []
+        chosen = []
         for obs in leds:
             if obs.edge_px is None or obs.id is None or obs.mode == "s2psk":
                 continue
@@ -68,24 +70,67 @@ class Positioner:
             if led is None or led.mode == "s2psk" or (led.normal is not None and led.normal[2] > -0.999):
                 continue
             half = fixture_half_extents(led.shape, led.size)
-            pts, sig = obs.edge_px
-            if half is None or len(pts) < 6:
+            if half is None or len(obs.edge_px[0]) < 6:
                 continue
-            i = index.get(id(obs))
-            uv = None
-            if i is not None:
-                uv = undistort_points(np.array([[obs.cx, obs.cy]]), cam)[0]
-            targets.append(OutlineTarget(self.pose.to_solving(led.xyz)[0], led.shape, half,
-                                         undistort_points(pts, cam),
-                                         np.hypot(np.asarray(sig, float), self.settings.edge_model_sigma_px)
-                                         / cam.focal_px, uv))
+            chosen.append((obs, led, half, index.get(id(obs))))
+        if not chosen:
+            return [], []
+        # One undistortion for every edge point and centroid of the frame.
+        pts = [np.asarray(o.edge_px[0], float).reshape(-1, 2) for o, _, _, _ in chosen]
+        cen = np.array([[o.cx, o.cy] for o, _, _, _ in chosen], float)
+        und = undistort_points(np.concatenate(pts + [cen]), cam)
+        ends = np.cumsum([0] + [len(q) for q in pts])
+        L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
+        targets, where = [], []
+        for k, (obs, led, half, i) in enumerate(chosen):
+            sig = np.hypot(np.asarray(obs.edge_px[1], float), self.settings.edge_model_sigma_px) / cam.focal_px
+            uv = und[ends[-1] + k] if i is not None else None
+            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig, uv))
             where.append(i)
         return targets, where
 
-    def _outline(self, t_s, leds, items, fix, d, names, R_prior):
-        """The frame's fix and ranges refined on the LEDs' outlines (`PositionerSettings.outline`),
-        or the given ones when no outline is usable."""
+    def _solve_outline(self, targets, R0, C0, C_prior, C_cov):
+        s = self.settings
+        up = np.eye(3)[:, 2] if s.tilt_prior == "up" else R0[:, 2]
+        return solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
+                                  centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
+                                  tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
+                                  C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+
+    @staticmethod
+    def _with_outline_ranges(ofix, targets, where, d, names):
+        d = np.array(d, float)
+        names = list(names)
+        for t, i in zip(targets, where):
+            if i is not None:
+                d[i] = float(np.linalg.norm(t.xyz - ofix.C))
+                names[i] = "outline"
+        return d, names
+
+    def _outline_warm(self, t_s, leds, items, R_prior):
+        """Warm start: the outline solve from the tracked orientation and the filter's predicted
+        position, before (and instead of) the centroid solve. Returns (fix, d, names) when that
+        fit passes `GOOD_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
+        None)) for `_outline`, which then tries its other starts only."""
         targets, where = self._outline_targets(leds, items)
+        if not targets:
+            return None, (targets, where, None)
+        pred = self.pose.kf.predict_at(t_s)
+        C_prior = C_cov = None
+        if len(targets) == 1 and targets[0].shape == "circle":
+            C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
+        cand = self._solve_outline(targets, R_prior, pred[0][:3], C_prior, C_cov)
+        if cand is None or cand.chi2 / cand.dof > GOOD_OUTLINE_CHI2_DOF:
+            return None, (targets, where, cand)
+        d, _, names = self.ranger.ranges(items, cand.R_cw if self.ranging == "oblique" else R_prior)
+        d, names = self._with_outline_ranges(cand, targets, where, d, names)
+        return (cand, d, names), None
+
+    def _outline(self, t_s, leds, items, fix, d, names, R_prior, warm=None):
+        """The frame's fix and ranges refined on the LEDs' outlines (`PositionerSettings.outline`),
+        or the given ones when no outline is usable. `warm`: (targets, where, candidate) of a
+        failed warm start (`_outline_warm`), whose start is not tried again."""
+        targets, where = self._outline_targets(leds, items) if warm is None else warm[:2]
         if not targets:
             return fix, d, names
         # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
@@ -100,9 +145,10 @@ class Positioner:
                 t = targets[k]
                 starts.append((R_prior, t.xyz - d[where[k]] * (R_prior.T @ ray_unit(t.uv))))
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
-            if pred is not None:
+            if pred is not None and warm is None:
                 starts.append((R_prior, pred[0][:3]))
-        if not starts:
+        ofix = warm[2] if warm is not None else None
+        if not starts and ofix is None:
             return fix, d, names
         C_prior = C_cov = None
         if len(targets) == 1 and targets[0].shape == "circle":
@@ -110,14 +156,8 @@ class Positioner:
             if pred is None:
                 return fix, d, names
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
-        s = self.settings
-        ofix = None
         for R0, C0 in starts:
-            up = np.eye(3)[:, 2] if s.tilt_prior == "up" else R0[:, 2]
-            cand = solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
-                                      centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
-                                      tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
-                                      C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+            cand = self._solve_outline(targets, R0, C0, C_prior, C_cov)
             if cand is not None and (ofix is None or cand.chi2 / cand.dof < ofix.chi2 / ofix.dof):
                 ofix = cand
             if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
@@ -128,12 +168,7 @@ class Positioner:
             return None, d, names
         if ofix is None:
             return fix, d, names
-        d = np.array(d, float)
-        names = list(names)
-        for t, i in zip(targets, where):
-            if i is not None:
-                d[i] = float(np.linalg.norm(t.xyz - ofix.C))
-                names[i] = "outline"
+        d, names = self._with_outline_ranges(ofix, targets, where, d, names)
         return ofix, d, names
 
     @property
@@ -148,6 +183,16 @@ class Positioner:
     def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
         items = self.ranger.usable(leds)
         R_prior = self.pose.R_prior(t_s)
+        outline = self.settings.outline and not self.pose.mirrored
+        warm = None
+        if (outline and R_prior is not None and self.pose.kf is not None and self.pose.handedness_source != "default"
+                and self.pose.kf.predict_at(t_s) is not None):
+            # Tracking: the outlines from the last pose first; the centroid solve only when that fails.
+            done, warm = self._outline_warm(t_s, leds, items, R_prior)
+            if done is not None:
+                fix, d, names = done
+                return LocateResult(position=self.pose.update(t_s, fix, len(items)),
+                                    leds=self.ranger.annotate(leds, items, d, names))
         d, sd, names = self.ranger.ranges(items, R_prior)
         fix = None
         if items:
@@ -174,7 +219,7 @@ class Positioner:
             if fix is not None and fix.R_cw is not None and self.ranging == "oblique":
                 # The reported distances use this frame's own orientation (cheap: no new solve).
                 d, sd, names = self.ranger.ranges(items, fix.R_cw)
-        if self.settings.outline and not self.pose.mirrored:
-            fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior)
+        if outline:
+            fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior, warm)
         return LocateResult(position=self.pose.update(t_s, fix, len(items)),
                             leds=self.ranger.annotate(leds, items, d, names))

@@ -37,8 +37,18 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
-from receiver.locate.lsq import BELOW_CEILING_M, DEFAULT_F_SCALE, DEFAULT_LOSS, Fix, robust_lm
+from receiver.locate.lsq import (
+    _LOSSES,
+    BELOW_CEILING_M,
+    DEFAULT_F_SCALE,
+    DEFAULT_LOSS,
+    LM_LAMBDA0,
+    LM_LAMBDA_MAX,
+    Fix,
+)
 
 CORNER_GUARD_PX = 2.0
 DEFAULT_CENTROID_SIGMA_PX = 1.5
@@ -49,6 +59,15 @@ FREE_SIGMA_M = 1.0
 MAX_CHI2_DOF = 50.0
 # Levenberg-Marquardt iterations per round (a good start converges in 3-5).
 MAX_ITER = 4
+# Convergence of a Levenberg-Marquardt round: the largest step component (rad, m), or the relative
+# cost decrease of a step.
+STEP_TOL = 2e-4
+COST_RTOL = 1e-6
+# A second round (`solve_outline_pose`) is run only when more points than this (count, fraction)
+# changed edges at the first round's pose (0: any; skipping a handful of corner points moved the
+# walk median 0.51 -> 0.62 cm).
+MINOR_SWITCHES = 0
+MINOR_SWITCH_FRACTION = 0.0
 
 
 @dataclass
@@ -121,96 +140,240 @@ def _circle_residuals(t: OutlineTarget, R, C) -> np.ndarray:
     return val / np.maximum(g, 1e-12) / t.sigma
 
 
-def _stack_edges(targets):
-    """Every assigned point of the frame's squares / rects and its edge: (P (M, 2), 1/sigma (M,),
-    edge index (M,), edge corners A (E, 3), B (E, 3)), for one vectorised residual."""
-    P, w, idx, A, B = [np.zeros((0, 2))], [np.zeros(0)], [np.zeros(0, int)], [], []
-    for t in targets:
-        if t.shape == "circle" or t.labels is None:
-            continue
-        use = t.labels >= 0
-        q = _corners(t)
-        P.append(t.pts[use])
-        w.append(1.0 / t.sigma[use])
-        idx.append(t.labels[use] + len(A))
-        A.extend(q)
-        B.extend(np.roll(q, -1, axis=0))
-    A = np.array(A).reshape(-1, 3)
-    B = np.array(B).reshape(-1, 3)
-    return np.concatenate(P), np.concatenate(w), np.concatenate(idx).astype(int), A, B
+# Cross products e_j x d as a matrix: _CROSS[j] @ d = e_j x d.
+_CROSS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
+                   [[0, 0, 1], [0, 0, 0], [-1, 0, 0]],
+                   [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], float)
 
 
-def _make_fun(targets, sigma_c, up, up_sigma, C_prior, W):
-    """Whitened residuals of p = (Rodrigues vector of R_cw, C). An edge point's residual is its
-    distance to the image line of its edge: the plane through the camera centre and the edge's
-    corners A, B has the camera-frame normal n = R ((A - C) x (B - C)), the line (n0, n1, n2)."""
-    P, w, idx, A, B = _stack_edges(targets)
-    circles = [t for t in targets if t.shape == "circle"]
-    cen = [t for t in targets if t.uv is not None]
-    L = np.array([t.xyz for t in cen]).reshape(-1, 3)
-    uv = np.array([t.uv for t in cen]).reshape(-1, 2)
+class _Problem:
+    """The whitened residuals of one frame's outline solve and their analytic Jacobian, over
+    p = (Rodrigues vector of R_cw, C), vectorised over all points of all LEDs.
 
-    def fun(p):
+    Squares / rects: every point of every such target is stacked once (`P` (M, 2), its
+    target `tix`); `assign` labels the points with their edges at a pose (no Python loop over
+    LEDs) and the residual of a labelled point is its distance to the image line of its edge:
+    the plane through the camera centre and the edge's corners A, B has the camera-frame
+    normal n = R m with m = (A - C) x (B - C) = A x B + C x (A - B), the line (n0, n1, n2) / |(n0, n1)|.
+    Circles (module doc): Sampson distances, their Jacobian by forward differences."""
+
+    def __init__(self, targets, focal_px, sigma_c, up, up_sigma):
+        self.focal_px = focal_px
+        self.sigma_c, self.up, self.up_sigma = sigma_c, up, up_sigma
+        self.C_prior = self.W = None
+        poly = [t for t in targets if t.shape != "circle"]
+        self.circles = [t for t in targets if t.shape == "circle"]
+        self.n_poly = len(poly)
+        if poly:
+            # The corners of every target at once (`_corners`), and the next corner of each.
+            xyz = np.array([t.xyz for t in poly], float)                     # (T, 3)
+            half = np.array([t.half for t in poly], float)                   # (T, 2)
+            sgn = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+            off = np.zeros((len(poly), 4, 3))
+            off[:, :, :2] = sgn[None] * half[:, None, :]
+            corners = xyz[:, None, :] + off                                  # (T, 4, 3)
+            self.corners = corners.reshape(-1, 3)
+            self.A = self.corners
+            self.B = corners[:, [1, 2, 3, 0]].reshape(-1, 3)
+            a, b = self.A, self.B
+            self.AxB = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                                        a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+            self.D = self.A - self.B
+            # dm/dC_j = e_j x (A - B): (E, 3, 3) [edge, component, j].
+            self.dm_dC = np.einsum("jab,eb->eaj", _CROSS, self.D)
+            counts = [len(t.pts) for t in poly]
+            self.P_all = np.concatenate([t.pts for t in poly])
+            self.w_all = 1.0 / np.concatenate([t.sigma for t in poly])
+            self.tix = np.repeat(np.arange(len(poly)), counts)
+        cen = [t for t in targets if t.uv is not None]
+        self.L = np.array([t.xyz for t in cen]).reshape(-1, 3)
+        self.uv = np.array([t.uv for t in cen]).reshape(-1, 2)
+        self.labels = None
+        self.S = None
+
+    def assign(self, p, keep_minor: bool = False) -> bool:
+        """Label the square / rect points with their edges at pose p (`assign_edges`, all LEDs
+        at once); True when the labels changed. `keep_minor`: keep the current labels (and
+        return False) unless more than `MINOR_SWITCHES` or `MINOR_SWITCH_FRACTION` of the points
+        moved from one edge to another (points that only crossed the corner guard do not count;
+        a few points next to a corner flip between its two edges, which lie close to them anyway)."""
+        if not self.n_poly:
+            first = self.labels is None
+            self.labels = np.zeros(0, int)
+            return first
         R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
+        q = _project(R, p[3:], self.corners).reshape(-1, 4, 2)             # (T, 4, 2)
+        ab = np.roll(q, -1, axis=1) - q
+        inv_L2 = 1.0 / np.maximum(np.sum(ab * ab, axis=2), 1e-18)            # (T, 4)
+        t = self.tix
+        px, py = self.P_all[:, 0], self.P_all[:, 1]
+        # The four edges one after the other over (M,) arrays (short-axis reductions are slow):
+        # the nearest edge (the first on ties, as argmin) and the nearest corner.
+        lab = np.zeros(len(t), np.int64)
+        for k in range(4):
+            relx, rely = px - q[t, k, 0], py - q[t, k, 1]
+            abx, aby = ab[t, k, 0], ab[t, k, 1]
+            s = np.clip((relx * abx + rely * aby) * inv_L2[t, k], 0.0, 1.0)
+            ex, ey = relx - s * abx, rely - s * aby
+            d2, c2 = ex * ex + ey * ey, relx * relx + rely * rely
+            if k == 0:
+                best, dc = d2, c2
+            else:
+                closer = d2 < best
+                lab[closer] = k
+                best = np.minimum(best, d2)
+                dc = np.minimum(dc, c2)
+        lab[dc < (CORNER_GUARD_PX / self.focal_px) ** 2] = -1
+        if keep_minor and self.labels is not None:
+            old = self.labels
+            switched = int(np.count_nonzero((lab != old) & (lab >= 0) & (old >= 0)))
+            if switched <= max(MINOR_SWITCHES, MINOR_SWITCH_FRACTION * len(lab)):
+                return False
+        changed = self.labels is None or not np.array_equal(lab, self.labels)
+        self.labels = lab
+        use = np.flatnonzero(lab >= 0)
+        # r = S @ (the edges' unit lines, flattened): row i holds w_i (x_i, y_i, 1) at its edge.
+        e3 = 3 * (self.tix[use] * 4 + lab[use])
+        w = self.w_all[use]
+        P = self.P_all[use]
+        vals = np.column_stack([P[:, 0] * w, P[:, 1] * w, w]).ravel()
+        cols = (e3[:, None] + np.arange(3)).ravel()
+        self.S = csr_matrix((vals, cols, np.arange(0, 3 * len(use) + 1, 3)), shape=(len(use), len(self.A) * 3))
+        return changed
+
+    def __call__(self, p, jac: bool = True):
+        R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
         C = p[3:]
-        parts = []
-        if len(A):
-            a, b = A - C, B - C
-            m = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                                 a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+        dRk = dR.reshape(3, 3, 3)                      # dRk[k] = dR / d rvec_k
+        parts, jparts = [], []
+        if self.n_poly and self.S.shape[0]:
+            m = self.AxB + self.dm_dC @ C
             n = m @ R.T
-            n = n / np.maximum(np.hypot(n[:, 0], n[:, 1]), 1e-15)[:, None]
-            nn = n[idx]
-            parts.append((P[:, 0] * nn[:, 0] + P[:, 1] * nn[:, 1] + nn[:, 2]) * w)
-        parts += [_circle_residuals(t, R, C) for t in circles]
-        if len(L):
-            parts.append(((_project(R, C, L) - uv) / sigma_c).ravel())
-        if up is not None:
-            parts.append((R[:, 2] - up) / up_sigma)
-        if C_prior is not None:
-            parts.append(W @ (C - C_prior))
-        return np.concatenate(parts)
-    return fun
+            rho = np.maximum(np.hypot(n[:, 0], n[:, 1]), 1e-15)
+            nh = n / rho[:, None]
+            parts.append(self.S @ nh.ravel())
+            if jac:
+                dn = np.empty((len(n), 3, 6))
+                dn[:, :, :3] = (m @ dRk.transpose(0, 2, 1)).transpose(1, 2, 0)   # (dRk[k] @ m_e)[a]
+                dn[:, :, 3:] = R @ self.dm_dC                                       # R (e_j x D_e)
+                drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
+                dnh = dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
+                jparts.append(self.S @ dnh.reshape(-1, 6))
+        for t in self.circles:
+            r0 = _circle_residuals(t, R, C)
+            parts.append(r0)
+            if jac:
+                Jc = np.empty((len(r0), 6))
+                for i in range(6):
+                    q = p.copy()
+                    q[i] += 1e-7
+                    Rq, _ = cv2.Rodrigues(q[:3].reshape(3, 1))
+                    Jc[:, i] = (_circle_residuals(t, Rq, q[3:]) - r0) / 1e-7
+                jparts.append(Jc)
+        if len(self.L):
+            Y = self.L - C
+            X = Y @ R.T
+            z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)
+            parts.append(((X[:, :2] / z[:, None] - self.uv) / self.sigma_c).ravel())
+            if jac:
+                dX = np.empty((len(Y), 3, 6))
+                dX[:, :, :3] = np.einsum("kab,nb->nak", dRk, Y)
+                dX[:, :, 3:] = -R[None]
+                du = (dX[:, 0] - (X[:, 0] / z)[:, None] * dX[:, 2]) / z[:, None]
+                dv = (dX[:, 1] - (X[:, 1] / z)[:, None] * dX[:, 2]) / z[:, None]
+                jparts.append(np.stack([du, dv], axis=1).reshape(-1, 6) / self.sigma_c)
+        if self.up is not None:
+            parts.append((R[:, 2] - self.up) / self.up_sigma)
+            if jac:
+                J_up = np.zeros((3, 6))
+                J_up[:, :3] = dRk[:, :, 2].T / self.up_sigma
+                jparts.append(J_up)
+        if self.C_prior is not None:
+            parts.append(self.W @ (C - self.C_prior))
+            if jac:
+                J_c = np.zeros((3, 6))
+                J_c[:, 3:] = self.W
+                jparts.append(J_c)
+        r = np.concatenate(parts)
+        return (r, np.concatenate(jparts)) if jac else r
 
 
-def _fd_jac(fun, p, step=1e-7):
-    """Forward-difference Jacobian (6 extra evaluations of the vectorised residual)."""
-    f0 = fun(p)
-    J = np.empty((len(f0), len(p)))
-    for i in range(len(p)):
-        q = p.copy()
-        q[i] += step
-        J[:, i] = (fun(q) - f0) / step
-    return J
+def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
+    """`receiver.locate.lsq.robust_lm` (the same IRLS Levenberg-Marquardt) on a problem that gives
+    residuals and Jacobian in one call, stopping once a step moves the pose by less than
+    `STEP_TOL` (m, rad) or lowers the cost by less than `COST_RTOL` of it (a warm start from the
+    last frame's pose gets there in 1-3 iterations). Returns (p, converged, r, J) with the
+    residuals and Jacobian at p."""
+    p = np.asarray(p0, float).copy()
+    r, J = prob(p)
+    if loss not in _LOSSES:
+        p = least_squares(lambda q: prob(q, False), p, jac=lambda q: prob(q)[1], loss=loss,
+                          f_scale=f_scale, method="trf").x
+        r, J = prob(p)
+        return p, True, r, J
+    rho, wfun = _LOSSES[loss]
+
+    def cost_w(r):
+        z = (r / f_scale) ** 2
+        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
+
+    c, z = cost_w(r)
+    lam = LM_LAMBDA0
+    for _ in range(max_iter):
+        Jw = J * wfun(z)[:, None]
+        A = J.T @ Jw
+        g = Jw.T @ r
+        D = np.diag(np.maximum(np.diag(A), 1e-12))
+        while True:
+            try:
+                dp = np.linalg.solve(A + lam * D, -g)
+            except np.linalg.LinAlgError:
+                dp = np.zeros_like(p)
+            p_new = p + dp
+            r_new, J_new = prob(p_new)
+            c_new, z_new = cost_w(r_new)
+            if c_new <= c:
+                break
+            lam *= 10.0
+            if lam > LM_LAMBDA_MAX:
+                return p, True, r, J
+        done = float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
+        p, r, J, c, z = p_new, r_new, J_new, c_new, z_new
+        lam = max(lam / 10.0, 1e-12)
+        if done:
+            return p, True, r, J
+    return p, False, r, J
 
 
 def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
                        centroid_sigma_px: float = DEFAULT_CENTROID_SIGMA_PX, up_prior: np.ndarray | None = None,
                        tilt_sigma_rad: float = math.radians(10.0), C_prior: np.ndarray | None = None,
                        C_prior_cov: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
-                       f_scale: float = DEFAULT_F_SCALE, rounds: int = 2) -> Fix | None:
+                       f_scale: float = DEFAULT_F_SCALE, rounds: int = 2, max_iter: int = MAX_ITER) -> Fix | None:
     """Pose (R_cw, C) from the outline targets of one frame, started at (R0, C0) (module doc).
     Returns a `Fix` (method "outline") or None when the outlines do not determine a trustworthy
-    position (too few points, camera not below the LEDs, residuals far beyond their sigmas)."""
+    position (too few points, camera not below the LEDs, residuals far beyond their sigmas).
+    Each of the `rounds` assigns the points to edges at the current pose and runs at most
+    `max_iter` Levenberg-Marquardt iterations; a round whose assignment did not change after a
+    converged one is skipped."""
     targets = [t for t in targets if len(t.pts) >= 3]
     if not targets:
         return None
     only_circle = len(targets) == 1 and targets[0].shape == "circle"
     if only_circle and C_prior is None:
         return None
-    W = None
+    prob = _Problem(targets, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad)
     if C_prior is not None:
-        W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
-    sigma_c = centroid_sigma_px / focal_px
+        prob.C_prior = np.asarray(C_prior, float)
+        prob.W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    for _ in range(rounds):
-        R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
-        for t in targets:
-            if t.shape != "circle":
-                t.labels = assign_edges(t, R, p[3:], focal_px)
-        fun = _make_fun(targets, sigma_c, up_prior, tilt_sigma_rad, C_prior, W)
-        p = robust_lm(fun, lambda q: _fd_jac(fun, q), p, loss=loss, f_scale=f_scale, max_iter=MAX_ITER)
+    converged = False
+    for k in range(rounds):
+        changed = prob.assign(p, keep_minor=k > 0 and converged)
+        if k > 0 and converged and not changed:
+            break
+        p, converged, r, J = _lm(prob, p, loss, f_scale, max_iter)
     R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
     C = p[3:].copy()
     z_min = min(float(t.xyz[2]) for t in targets)
@@ -218,9 +381,12 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
         return None
     # Covariance: without the tracked-position prior (the filter holds it), with a weak one that
     # marks directions the outlines leave free (module doc).
-    fun_c = _make_fun(targets, sigma_c, up_prior, tilt_sigma_rad, C, np.eye(3) / FREE_SIGMA_M)
-    r = fun_c(p)
-    J = _fd_jac(fun_c, p)
+    # (The residuals at p with the prior swapped: the tracked one's rows out, the weak one's in.)
+    if prob.C_prior is not None:
+        r, J = r[:-3], J[:-3]
+    J_free = np.zeros((3, 6))
+    J_free[:, 3:] = np.eye(3) / FREE_SIGMA_M
+    r, J = np.concatenate([r, np.zeros(3)]), np.vstack([J, J_free])
     dof = len(r) - len(p)
     chi2 = float(r @ r)
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:

@@ -23,6 +23,9 @@ what the model leaves out (PSF asymmetry, quantisation).
 
 from __future__ import annotations
 
+import math
+
+import cv2
 import numpy as np
 
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
@@ -47,10 +50,11 @@ def _bbox(blob_or_contour, shape, pad: int):
         hull = np.asarray(blob_or_contour, float).reshape(-1, 2)
         bg = None
     h, w = shape[:2]
-    x0 = max(int(np.floor(hull[:, 0].min())) - pad, 0)
-    x1 = min(int(np.ceil(hull[:, 0].max())) + pad + 1, w)
-    y0 = max(int(np.floor(hull[:, 1].min())) - 1, 0)
-    y1 = min(int(np.ceil(hull[:, 1].max())) + 2, h)
+    lo, hi = hull.min(axis=0), hull.max(axis=0)
+    x0 = max(math.floor(lo[0]) - pad, 0)
+    x1 = min(math.ceil(hi[0]) + pad + 1, w)
+    y0 = max(math.floor(lo[1]) - 1, 0)
+    y1 = min(math.ceil(hi[1]) + 2, h)
     return x0, x1, y0, y1, bg
 
 
@@ -65,61 +69,119 @@ def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, borde
     level. Points within `border_px` of the image edge are dropped (a cut LED keeps its
     visible edges). `bin_rows` > 1: the points of each side are averaged over bins of that many
     rows (the mean of points on a straight edge lies on it; sigma / sqrt(n)), which cuts the
-    pose solve's work by that factor at no cost in information along straight edges. Returns ((N, 2) float64 distorted px (x, y) with y the row's centre,
-    (N,) float64 1-sigma px); empty arrays when nothing qualifies. Vectorised over rows.
+    pose solve's work by that factor at no cost in information along straight edges. Returns
+    ((N, 2) float64 distorted px (x, y) with y the row's centre, (N,) float64 1-sigma px), the
+    left side's points first, each side by row; empty arrays when nothing qualifies.
+    One LED of `stripe_edge_points_batch`.
     """
-    x0, x1, y0, y1, bg_blob = _bbox(blob_or_contour, gray.shape, pad)
+    return stripe_edge_points_batch(gray, [blob_or_contour], pad=pad, border_px=border_px,
+                                    min_contrast=min_contrast, bin_rows=bin_rows)[0]
+
+
+def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px: int = 2,
+                             min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS
+                             ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`stripe_edge_points` of every blob (or envelope polygon) of one frame, in one pass: the
+    bounding-box rows of all blobs are gathered into one (rows, widest box) uint8 array (zero
+    padded: never lit) and every step after that is one numpy operation over all rows of all
+    blobs. Returns one (points, sigma) pair per blob, in order."""
     empty = (np.zeros((0, 2)), np.zeros(0))
-    if x1 - x0 < MIN_RUN_PX + 2 or y1 <= y0:
-        return empty
-    roi = np.asarray(gray[y0:y1, x0:x1], dtype=np.float32)
-    R, W = roi.shape
-    rmax = roi.max(axis=1)
-    bg = np.float32(bg_blob if bg_blob is not None else np.percentile(roi, 5))
-    lit = roi >= (bg + 0.5 * (rmax - bg))[:, None]
+    out = [empty] * len(blobs)
+    h, w = gray.shape[:2]
+    boxes = []
+    for i, b in enumerate(blobs):
+        x0, x1, y0, y1, bg = _bbox(b, gray.shape, pad)
+        if x1 - x0 < MIN_RUN_PX + 2 or y1 <= y0:
+            continue
+        if bg is None:
+            bg = np.percentile(np.asarray(gray[y0:y1, x0:x1], dtype=np.float32), 5)
+        boxes.append((i, x0, x1, y0, y1, bg))
+    if not boxes:
+        return out
+    nb = len(boxes)
+    bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
+    X0, X1, Y0, Y1 = bx.T
+    Rb, Wb = Y1 - Y0, X1 - X0
+    r_off = np.concatenate([[0], np.cumsum(Rb)])
+    Wmax = int(Wb.max())
+    buf = np.zeros((int(r_off[-1]), Wmax), np.uint8)
+    for k, (_, x0, x1, y0, y1, _) in enumerate(boxes):
+        buf[r_off[k]:r_off[k + 1], :x1 - x0] = gray[y0:y1, x0:x1]
+    # Per-row constants of each row's blob.
+    led = np.repeat(np.arange(nb), Rb)
+    bg = np.repeat(np.array([b[5] for b in boxes], dtype=np.float32), Rb)
+    Wr1 = (Wb - 1)[led]
+    rmax = buf.max(axis=1).astype(np.float32)
+    thr_lit = bg + np.float32(0.5) * (rmax - bg)
+    # uint8 v >= thr  <=>  v >= ceil(thr); rows with thr outside 0..255 fail `has` below.
+    lit = buf >= np.clip(np.ceil(thr_lit), 0, 255).astype(np.uint8)[:, None]
     has = (rmax - bg) >= min_contrast
-    # Coarse crossings: first and last lit pixel of each row.
+    # Coarse crossings: first and last lit pixel of each row (the zero padding is never lit
+    # for a row that has contrast).
     first = np.argmax(lit, axis=1)
-    last = W - 1 - np.argmax(lit[:, ::-1], axis=1)
+    last = np.minimum(Wmax - 1 - np.argmax(cv2.flip(lit.view(np.uint8), 1).view(bool), axis=1), Wr1)
     ok = has & (last - first + 1 >= MIN_RUN_PX)
     rows = np.flatnonzero(ok)
     if rows.size == 0:
-        return empty
-    pts, sig = [], []
+        return out
+    n = rows.size
+    # Both sides at once: the left ends, then the right ends.
+    rows2 = np.concatenate([rows, rows])
+    start = np.concatenate([first[rows], last[rows]])
+    side = np.repeat(np.array([-1, 1]), n)
+    led2 = led[rows2]
+    W1 = Wr1[rows2]
+    # One gather of every pixel used, per point along its side's outward direction: the
+    # plateau (SIDE_PX pixels from 2 px inside the coarse crossing), the outside (SIDE_PX pixels
+    # from 3 px outside it) and the walk -1..3 (clamped into the box; clear of the ~0.6 px blur).
     ar = np.arange(SIDE_PX)
-    for side, start in ((-1, first[rows]), (1, last[rows])):
-        # Plateau: SIDE_PX pixels inside, from 2 px past the coarse crossing; outside: SIDE_PX
-        # pixels from 3 px outside it (clamped into the ROI), clear of the ~0.6 px blur.
-        inner = np.clip(start[:, None] - side * (2 + ar)[None, :], 0, W - 1)
-        outer = np.clip(start[:, None] + side * (3 + ar)[None, :], 0, W - 1)
-        plateau = roi[rows[:, None], inner].mean(axis=1)
-        outside = roi[rows[:, None], outer].mean(axis=1)
-        thr = 0.5 * (plateau + outside)
-        # The straddling pair around `start`: walk from the inner pixel outward (at most 3 px).
-        pos = np.full(rows.size, np.nan)
-        for k in range(-1, 3):
-            a = np.clip(start + side * k, 0, W - 1)          # nearer the inside
-            b = np.clip(start + side * (k + 1), 0, W - 1)    # one pixel further out
-            va, vb = roi[rows, a], roi[rows, b]
-            hit = np.isnan(pos) & (va >= thr) & (vb < thr) & (a != b)
-            frac = (va - thr) / np.maximum(va - vb, 1e-6)
-            pos = np.where(hit, a + side * frac, pos)
-        contrast = plateau - outside
-        good = np.isfinite(pos) & (contrast >= min_contrast)
-        s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
-        x = pos + x0
-        y = (rows + y0).astype(np.float64)
-        h, w = gray.shape[:2]
-        good &= (x >= border_px) & (x <= w - 1 - border_px) & (y >= border_px) & (y <= h - 1 - border_px)
-        # An edge pixel sampled at the ROI's own border (the blob reaches past it) is not an edge.
-        good &= (x > x0 + 1) & (x < x1 - 2)
-        x, y, s = x[good], y[good], s[good].astype(np.float64)
-        if bin_rows > 1 and x.size:
-            b = ((y - y0) // bin_rows).astype(np.int64)
-            _, inv, cnt = np.unique(b, return_inverse=True, return_counts=True)
-            x = np.bincount(inv, x) / cnt
-            y = np.bincount(inv, y) / cnt
-            s = np.sqrt(np.bincount(inv, s * s)) / cnt
-        pts.append(np.column_stack([x, y]))
-        sig.append(s)
-    return np.concatenate(pts).astype(np.float64), np.concatenate(sig).astype(np.float64)
+    offs = np.concatenate([-(2 + ar), 3 + ar, np.arange(-1, 4)])
+    cols = np.minimum(np.maximum(start[:, None] + side[:, None] * offs, 0), W1[:, None])
+    vals = buf.ravel()[rows2[:, None] * Wmax + cols].astype(np.float32)
+    plateau = vals[:, :SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
+    outside = vals[:, SIDE_PX:2 * SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
+    thr = 0.5 * (plateau + outside)
+    # The straddling pair around `start`: the first of the walk's pixel pairs (nearer the inside,
+    # one pixel further out) that crosses the half level, at most 3 px out.
+    a, v = cols[:, 2 * SIDE_PX:], vals[:, 2 * SIDE_PX:]
+    hit = (v[:, :-1] >= thr[:, None]) & (v[:, 1:] < thr[:, None]) & (a[:, :-1] != a[:, 1:])
+    k = np.argmax(hit, axis=1)
+    ii = np.arange(2 * n)
+    va, vb = v[ii, k], v[ii, k + 1]
+    frac = (va - thr) / np.maximum(va - vb, 1e-6)
+    pos = np.where(hit[ii, k], a[ii, k] + side * frac, np.nan)
+    contrast = plateau - outside
+    good = np.isfinite(pos) & (contrast >= min_contrast)
+    s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
+    x0r, x1r = X0[led2], X1[led2]
+    x = pos + x0r
+    yl = rows2 - r_off[led2]                          # row within its box
+    y = (yl + Y0[led2]).astype(np.float64)
+    good &= (x >= border_px) & (x <= w - 1 - border_px) & (y >= border_px) & (y <= h - 1 - border_px)
+    # An edge pixel sampled at the box's own border (the blob reaches past it) is not an edge.
+    good &= (x > x0r + 1) & (x < x1r - 2)
+    s = s.astype(np.float64)
+    if bin_rows > 1:
+        # Bins of `bin_rows` rows per blob and side, numbered blob by blob, left side first.
+        nbin = (Rb + bin_rows - 1) // bin_rows
+        b_off = np.concatenate([[0], np.cumsum(2 * nbin)])
+        key = (b_off[led2] + (side > 0) * nbin[led2] + yl // bin_rows)[good]
+        m = int(b_off[-1])
+        cnt = np.bincount(key, minlength=m)
+        used = np.flatnonzero(cnt)
+        c = cnt[used]
+        px = np.bincount(key, x[good], m)[used] / c
+        py = np.bincount(key, y[good], m)[used] / c
+        ps = np.sqrt(np.bincount(key, (s * s)[good], m)[used]) / c
+        owner = np.searchsorted(b_off, used, side="right") - 1
+    else:
+        order = np.argsort(led2 * 2 + (side > 0), kind="stable")
+        sel = order[good[order]]
+        px, py, ps, owner = x[sel], y[sel], s[sel], led2[sel]
+    pts = np.column_stack([px, py])
+    ends = np.searchsorted(owner, np.arange(nb + 1), side="left")
+    for k in range(nb):
+        e0, e1 = ends[k], ends[k + 1]
+        if e1 > e0:
+            out[boxes[k][0]] = (pts[e0:e1], ps[e0:e1])
+    return out

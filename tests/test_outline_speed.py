@@ -1,0 +1,110 @@
+"""Speed of the outline path (receiver.vision.outline, receiver.locate.outline_pose): the edge
+points of one frame, batched over its LEDs, and one warm-started outline solve, as
+pytest-benchmark tests (skipped in timing under the project's --benchmark-disable: run with
+`pytest tests/test_outline_speed.py --benchmark-enable`), plus the checks that make the fast
+paths safe: the batch equals the per-LED points, the analytic Jacobian equals central
+differences."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
+from receiver.io.sources import open_source
+from receiver.locate import outline_pose
+from receiver.locate.indoor import Positioner
+from receiver.pipeline import Receiver
+from receiver.vision.detect import detect
+from receiver.vision.outline import stripe_edge_points, stripe_edge_points_batch
+
+WALK = Path(__file__).resolve().parents[1] / "recordings" / "indoor-walk"
+STATIC = Path(__file__).resolve().parents[1] / "recordings" / "indoor-static"
+
+
+def _frame_blobs(folder, k=5):
+    for i, f in enumerate(open_source(str(folder))):
+        if i == k:
+            return f.gray, detect(f.gray)
+    raise AssertionError("recording too short")
+
+
+def test_edge_points_batch_equals_per_led():
+    for folder in (WALK, STATIC):
+        gray, blobs = _frame_blobs(folder)
+        assert blobs
+        batch = stripe_edge_points_batch(gray, blobs)
+        for b, (p, s) in zip(blobs, batch):
+            p1, s1 = stripe_edge_points(gray, b)
+            assert np.array_equal(p, p1) and np.array_equal(s, s1)
+        assert sum(len(p) for p, _ in batch) > 0
+
+
+def test_edge_points_frame_benchmark(benchmark):
+    gray, blobs = _frame_blobs(WALK)
+    out = benchmark(stripe_edge_points_batch, gray, blobs)
+    assert len(out) == len(blobs)
+
+
+def _warm_problem(folder, k):
+    """(targets, R0, C0, solve keywords) of frame k of a recording as the Positioner's warm start
+    sees them (the tracked orientation and the filter's predicted position)."""
+    cam, led_map = load_camera(str(folder / "camera.yaml")), load_map(str(folder / "map.json"))
+    pos = Positioner(cam, led_map)
+    rx = Receiver(cam, led_map, positioner=pos)
+    seen = {}
+    step = pos.step
+
+    def spy(t_s, leds):
+        items = pos.ranger.usable(leds)
+        targets, _ = pos._outline_targets(leds, items)
+        R0 = pos.pose.R_prior(t_s)
+        pred = pos.pose.kf.predict_at(t_s) if pos.pose.kf is not None else None
+        if R0 is not None and pred is not None:
+            seen["warm"] = (targets, R0, pred[0][:3])
+        return step(t_s, leds)
+
+    pos.step = spy
+    for i, f in enumerate(open_source(str(folder))):
+        seen.pop("warm", None)
+        rx.process(f)
+        if i == k:
+            break
+    targets, R0, C0 = seen["warm"]
+    s = pos.settings
+    kw = {"focal_px": cam.focal_px, "centroid_sigma_px": s.centroid_sigma_px, "up_prior": np.array([0.0, 0.0, 1.0]),
+          "tilt_sigma_rad": np.radians(s.tilt_sigma_deg), "loss": s.loss, "f_scale": s.f_scale}
+    return targets, R0, C0, kw
+
+
+def test_outline_solve_frame_benchmark(benchmark):
+    targets, R0, C0, kw = _warm_problem(WALK, 20)
+    fix = benchmark(outline_pose.solve_outline_pose, targets, R0, C0, **kw)
+    assert fix is not None and fix.chi2 / fix.dof < 4.0
+    # A start 1 cm further off lands within a few mm (the edge assignment near the corners
+    # depends on the start: different points are left out, ~1-2 mm).
+    far = outline_pose.solve_outline_pose(targets, R0, C0 + np.array([0.01, -0.006, 0.004]), **kw)
+    assert far is not None and far.chi2 / far.dof < 4.0 and np.linalg.norm(far.C - fix.C) < 3e-3
+
+
+@pytest.mark.parametrize("folder,k", [(WALK, 20), (STATIC, 10)])
+def test_analytic_jacobian_matches_differences(folder, k):
+    targets, R0, C0, kw = _warm_problem(folder, k)
+    targets = [t for t in targets if len(t.pts) >= 3]
+    prob = outline_pose._Problem(targets, kw["focal_px"], kw["centroid_sigma_px"] / kw["focal_px"],
+                                 kw["up_prior"], kw["tilt_sigma_rad"])
+    rvec, _ = cv2.Rodrigues(R0)
+    p = np.concatenate([rvec.ravel(), C0])
+    prob.assign(p)
+    r, J = prob(p)
+    Jn = np.empty_like(J)
+    for i in range(6):
+        e = np.zeros(6)
+        e[i] = 1e-6
+        Jn[:, i] = (prob(p + e, False) - prob(p - e, False)) / 2e-6
+    assert np.allclose(r, prob(p, False))
+    assert np.abs(J - Jn).max() <= 1e-5 * np.abs(Jn).max()
