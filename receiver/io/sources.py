@@ -260,12 +260,27 @@ class RawPipeSource(FrameSource):
         self.pix_fmt = pix_fmt
         self.fps = fps
         self._stream = stream
+        # A real file descriptor is read with os.read: no buffered-reader lock, so a reader
+        # thread still blocked in it at interpreter shutdown cannot abort the process
+        # ("Fatal Python error: _enter_buffered_busy").
+        try:
+            self._fd = stream.fileno()
+        except (AttributeError, OSError, ValueError):
+            self._fd = None
         self.frame_bytes = size[0] * size[1] * PIX_FMTS[pix_fmt]
+
+    def _read(self, n: int) -> bytes:
+        if self._fd is not None:
+            try:
+                return os.read(self._fd, min(n, 1 << 20))
+            except OSError as e:
+                raise InputError(f"stdin: {e.strerror or e}") from None
+        return self._stream.read(n)
 
     def _read_exact(self, n: int) -> bytes:
         chunks, got = [], 0
         while got < n:
-            b = self._stream.read(n - got)
+            b = self._read(n - got)
             if not b:
                 break
             chunks.append(b)
@@ -405,7 +420,15 @@ class LatestFrameSource(FrameSource):
         self._done = False
         self._error: BaseException | None = None
         self._stop = False
+        self._stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
         self._overwritten = 0
+
+    def _wait(self, delay: float) -> None:
+        if self._sleep is time.sleep:
+            self._stop_event.wait(delay)  # a stop wakes the pacing wait at once
+        else:
+            self._sleep(delay)
 
     def _reader(self):
         try:
@@ -418,7 +441,9 @@ class LatestFrameSource(FrameSource):
                         t0 = self._clock() - frame.t_s
                     delay = t0 + frame.t_s - self._clock()
                     if delay > 0:
-                        self._sleep(delay)
+                        self._wait(delay)
+                if self._stop:
+                    break
                 with self._cond:
                     if self._latest is not None:
                         self._overwritten += 1
@@ -432,7 +457,7 @@ class LatestFrameSource(FrameSource):
                 self._cond.notify()
 
     def __iter__(self) -> Iterator[Frame]:
-        th = threading.Thread(target=self._reader, daemon=True)
+        th = self._thread = threading.Thread(target=self._reader, daemon=True, name="occloc-reader")
         th.start()
         try:
             while True:
@@ -449,8 +474,18 @@ class LatestFrameSource(FrameSource):
             if self._error is not None:
                 raise self._error
         finally:
-            self._stop = True
+            self._stop_reader()
             self._sync()
+
+    def _stop_reader(self) -> None:
+        """Stop the reader thread and wait for it, so that the capture is never released while
+        the thread is inside read(). A pipe reader blocked in os.read (no writer data) cannot be
+        woken; it is a daemon without buffered-IO locks and is left behind after a short wait."""
+        self._stop = True
+        self._stop_event.set()
+        th = self._thread
+        if th is not None and th is not threading.current_thread():
+            th.join(timeout=None if self.inner.kind in ("video", "recording", "images") else 1.0)
 
     def _sync(self):
         self.size = self.inner.size
@@ -459,8 +494,10 @@ class LatestFrameSource(FrameSource):
         self.dropped = self.inner.dropped + self._overwritten
 
     def close(self) -> None:
-        self._stop = True
-        self.inner.close()
+        self._stop_reader()
+        th = self._thread
+        if th is None or not th.is_alive():
+            self.inner.close()
 
 
 def find_recording_files(folder: str) -> dict[str, str | None]:
