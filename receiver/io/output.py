@@ -55,7 +55,9 @@ def frame_record(res: FrameResult, *, profile: bool = False) -> dict:
 
 def frame_line(res: FrameResult, *, profile: bool = False) -> str:
     """One JSON line (no newline). numpy scalars in a positioner's dict are converted."""
-    return json.dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
+    from receiver.io.files import dumps
+    # allow_nan=False: a positioner's NaN becomes null, never the non-JSON token NaN
+    return dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
 
 
 def _jsonable(v):
