@@ -208,13 +208,17 @@ class ImageSource(FrameSource):
     kind = "images"
 
     def __init__(self, path: str, *, fps: float = 0.0):
+        from receiver.io.files import check_regular
+
         super().__init__(path)
         if os.path.isdir(path):
+            # only regular files: a FIFO or device named *.png would block imread forever
             files = sorted(p for p in glob.glob(os.path.join(path, "*"))
-                           if p.lower().endswith(IMAGE_EXTS))
+                           if p.lower().endswith(IMAGE_EXTS) and os.path.isfile(p))
             if not files:
                 raise InputError(f"{path}: no images in folder")
         else:
+            check_regular(path, "image")
             files = [path]
         self.files = files
         self.fps = fps
@@ -241,6 +245,13 @@ class ImageSource(FrameSource):
                 continue
             if self.size is None:
                 self.size = (gray.shape[1], gray.shape[0])
+            elif (gray.shape[1], gray.shape[0]) != self.size:
+                # The camera was fitted to the first image's size: another size would be read
+                # with the wrong intrinsics (wrong distances), so it is skipped, and said.
+                self.skipped += 1
+                _warn(f"{path}: {gray.shape[1]}x{gray.shape[0]}, not the {self.size[0]}x{self.size[1]} "
+                      f"of the folder's first image: skipped (run images of another size separately)")
+                continue
             yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
 
 
@@ -534,6 +545,8 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     fps = camera.fps if camera is not None else 0.0
     spec = str(spec)
     if spec == "-":
+        if stdin is None and sys.stdin is None:
+            raise InputError("standard input is closed: nothing to read frames from")
         src = RawPipeSource(stdin if stdin is not None else sys.stdin.buffer, size, pix_fmt, fps=fps)
     elif V4L2_RE.match(spec):
         src = V4l2Source(spec, camera=camera, size=size, capture_factory=capture_factory)
@@ -551,6 +564,8 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     elif spec.lower().endswith(IMAGE_EXTS):
         src = ImageSource(spec, fps=fps)
     else:
+        from receiver.io.files import check_regular
+        check_regular(spec, "video")
         src = VideoFileSource(spec, fps=fps, capture_factory=capture_factory)
     if realtime:
         src = LatestFrameSource(src, pace=src.kind in ("video", "recording", "images"))
