@@ -151,9 +151,25 @@ class VideoFileSource(FrameSource):
             cv2.utils.logging.setLogLevel(level)
         return cap
 
+    def _container_index(self, cap, prev: int) -> int:
+        """The frame index of the frame just read, from the container's timestamp
+        (CAP_PROP_POS_MSEC x fps), not from a count of decoded frames: a damaged chunk that the
+        demuxer drops, or that fails to decode more than once, must not shift later frames.
+        Falls back to prev + 1 when the container gives no usable timestamp."""
+        ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
+        if not (self.fps > 0 and np.isfinite(ms) and ms >= 0):
+            return prev + 1
+        k = int(round(ms * self.fps / 1000.0))
+        limit = max(self.frame_count, 0) * 2 + MAX_CONSECUTIVE_BAD
+        if k <= prev or (self.frame_count and k > limit):
+            return prev + 1  # a timestamp that goes back or far past the end is not trusted
+        return k
+
     def __iter__(self) -> Iterator[Frame]:
         w, h = self.size
-        cap, index, bad_run, converting, yielded = self._cap, 0, 0, False, 0
+        cap, bad_run, converting, yielded = self._cap, 0, False, 0
+        prev = -1        # index of the last frame read (decodable or not)
+        fails = 0        # read failures since the last good read
         level = cv2.utils.logging.getLogLevel()
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         try:
@@ -161,23 +177,25 @@ class VideoFileSource(FrameSource):
                 ok, img = cap.read()
                 if not ok:
                     # Past the known end, or many failures in a row: the file has ended.
-                    if (self.frame_count and index >= self.frame_count) or not self.frame_count \
+                    if (self.frame_count and prev + 1 + fails >= self.frame_count) or not self.frame_count \
                             or bad_run >= MAX_CONSECUTIVE_BAD:
                         break
                     bad_run += 1
-                    self.skipped += 1
-                    index += 1
+                    fails += 1
                     continue
                 gray = to_gray(img, w, h)
-                if gray is None and index == 0 and not converting:
+                if gray is None and prev < 0 and not converting:
                     # The raw format is not luma-first: fall back to OpenCV's BGR conversion.
                     cap.release()
                     cap = self._cap = self._open(convert=True)
                     converting = True
                     continue
+                index = self._container_index(cap, prev)
+                # frames between the previous one and this were lost (undecodable or dropped)
+                self.skipped += index - prev - 1
+                prev, fails = index, 0
                 if gray is None:
                     self.skipped += 1
-                    index += 1
                     continue
                 bad_run = 0
                 yielded += 1
@@ -186,14 +204,13 @@ class VideoFileSource(FrameSource):
                 else:
                     t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
                 yield Frame(index, t, gray)
-                index += 1
         finally:
             cv2.utils.logging.setLogLevel(level)
-        if bad_run:
+        missing = self.frame_count - (prev + 1) if self.frame_count else 0
+        if bad_run and missing > 0:
             # Failures up to the end are a file cut short (truncated), not corrupt frames.
-            self.skipped -= bad_run
-            self.truncated = bad_run
-            _warn(f"{self.path}: file ends {bad_run} frames before its stated length (truncated)")
+            self.truncated = missing
+            _warn(f"{self.path}: file ends {missing} frames before its stated length (truncated)")
         if yielded == 0:
             raise InputError(f"{self.path}: no decodable video frames")
 
