@@ -182,6 +182,8 @@ def load_camera(path: str) -> CameraModel:
         row = _fs_real(fs, "row_readout_us", path) or 0.0
         exp = _fs_real(fs, "exposure_us", path) or 0.0
         fps = _fs_real(fs, "fps", path) or 0.0
+    except (cv2.error, SystemError) as e:  # e.g. a top level that is not a map: getNode asserts
+        raise InputError(f"{path}: not a readable OpenCV YAML camera file ({_cv_reason(e)})") from None
     finally:
         fs.release()
     for key, v in (("image_width", w), ("image_height", h)):
