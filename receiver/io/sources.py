@@ -54,6 +54,55 @@ DROP_GAP_FACTOR = 1.5
 MAX_CONSECUTIVE_BAD = 25
 
 
+# Implausible frames (a decoder's garbage after damaged data, which decodes "fine"): a frame
+# whose mean brightness jumps from the last accepted frame's by more than
+# max(IMPLAUSIBLE_MEAN_FACTOR x the typical frame-to-frame step, IMPLAUSIBLE_MEAN_DN), or whose
+# thumbnail differs from the previous (accepted) frame's by more than
+# max(IMPLAUSIBLE_MAD_FACTOR x the typical difference, typical + IMPLAUSIBLE_MAD_DN), is skipped
+# and counted. A change that lasts IMPLAUSIBLE_MAX_RUN frames is taken as real (the scene changed).
+IMPLAUSIBLE_MEAN_DN = 8.0
+IMPLAUSIBLE_MEAN_FACTOR = 6.0
+IMPLAUSIBLE_MAD_DN = 20.0
+IMPLAUSIBLE_MAD_FACTOR = 4.0
+IMPLAUSIBLE_MAX_RUN = 30
+THUMB_SIZE = (32, 18)
+
+
+class PlausibilityCheck:
+    """Judges each decoded frame of a video against its accepted neighbours (see constants)."""
+
+    def __init__(self):
+        from collections import deque
+        self.ref = None            # (thumbnail, mean) of the last accepted frame
+        self.prev_ok = False       # was the previous decoded frame accepted?
+        self.steps = deque(maxlen=16)
+        self.mads = deque(maxlen=16)
+        self.run = 0
+
+    def accept(self, gray: np.ndarray) -> bool:
+        th = cv2.resize(gray, THUMB_SIZE, interpolation=cv2.INTER_AREA).astype(np.float32)
+        mean = float(th.mean())
+        if self.ref is None:
+            self.ref, self.prev_ok = (th, mean), True
+            return True
+        step = abs(mean - self.ref[1])
+        mad = float(np.abs(th - self.ref[0]).mean())
+        typ_step = float(np.median(self.steps)) if self.steps else 0.0
+        typ_mad = float(np.median(self.mads)) if self.mads else None
+        bad = step > max(IMPLAUSIBLE_MEAN_FACTOR * typ_step, IMPLAUSIBLE_MEAN_DN)
+        if not bad and self.prev_ok and typ_mad is not None and len(self.mads) >= 3:
+            bad = mad > max(IMPLAUSIBLE_MAD_FACTOR * typ_mad, typ_mad + IMPLAUSIBLE_MAD_DN)
+        if bad and self.run < IMPLAUSIBLE_MAX_RUN:
+            self.run += 1
+            self.prev_ok = False
+            return False
+        if self.prev_ok and not bad:
+            self.steps.append(step)
+            self.mads.append(mad)
+        self.ref, self.prev_ok, self.run = (th, mean), True, 0
+        return True
+
+
 def _warn(msg: str) -> None:
     print(f"occloc: warning: {msg}", file=sys.stderr)
 
@@ -168,6 +217,8 @@ class VideoFileSource(FrameSource):
     def __iter__(self) -> Iterator[Frame]:
         w, h = self.size
         cap, bad_run, converting, yielded = self._cap, 0, False, 0
+        check = PlausibilityCheck()
+        implausible = 0
         prev = -1        # index of the last frame read (decodable or not)
         fails = 0        # read failures since the last good read
         level = cv2.utils.logging.getLogLevel()
@@ -197,6 +248,10 @@ class VideoFileSource(FrameSource):
                 if gray is None:
                     self.skipped += 1
                     continue
+                if not check.accept(gray):
+                    self.skipped += 1
+                    implausible += 1
+                    continue
                 bad_run = 0
                 yielded += 1
                 if self.fps > 0:
@@ -206,6 +261,9 @@ class VideoFileSource(FrameSource):
                 yield Frame(index, t, gray)
         finally:
             cv2.utils.logging.setLogLevel(level)
+        if implausible:
+            _warn(f"{self.path}: skipped {implausible} implausible frames (brightness or content jumps "
+                  f"from their neighbours: decoder garbage after damaged data?)")
         missing = self.frame_count - (prev + 1) if self.frame_count else 0
         if bad_run and missing > 0:
             # Failures up to the end are a file cut short (truncated), not corrupt frames.
