@@ -211,4 +211,7 @@ def dumps(obj, **kw) -> str:
     try:
         return json.dumps(obj, allow_nan=False, **kw)
     except ValueError:
+        default = kw.get("default")
+        if default is not None:  # apply it first, so that what it returns is cleaned too
+            kw = dict(kw, default=lambda v: finite_or_none(default(v)))
         return json.dumps(finite_or_none(obj), allow_nan=False, **kw)
