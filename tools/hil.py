@@ -221,6 +221,10 @@ def main(args: argparse.Namespace) -> int:
         args.frames = SCENE_FRAMES.get(scene, DEFAULT_FRAMES[args.mode])
     if args.frames <= 0:
         raise InputError("--frames must be positive")
+    if not 0 <= args.seed < 2 ** 32:  # numpy seeds are non-negative; checked before any driver starts
+        raise InputError(f"--seed must be within 0..{2 ** 32 - 1}, not {args.seed}")
+    if not (args.timeout > 0 and args.timeout <= 3600):
+        raise InputError(f"--timeout must be within 0..3600 s, not {args.timeout}")
 
     tty = sys.stderr.isatty()
 

@@ -33,11 +33,35 @@ def add_arguments(parser) -> None:
                                       f"{DEFAULT_S2PSK_PACKET_S:g} s)")
 
 
+def _write_plot(series, path: str, plot_eval) -> None:
+    """The PNG goes to a temporary sibling renamed into place: a failed plot leaves no half file."""
+    import os
+    import tempfile
+
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".plot-", suffix=".png", dir=folder)
+    except OSError as e:
+        raise InputError(f"cannot write {path}: {e.strerror or e}") from None
+    os.close(fd)
+    try:
+        plot_eval(series, tmp, area_bins_px=DEFAULT_AREA_BINS_PX)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def main(args) -> int:
     if not (args.gate_px > 0):
         raise InputError(f"--gate-px must be positive, got {args.gate_px}")
     if not (args.fv_gate_deg > 0):
         raise InputError(f"--fv-gate-deg must be positive, got {args.fv_gate_deg}")
+    from receiver.io.files import refuse_overwrite
+
+    refuse_overwrite(args.plot, [args.run, args.truth], "--plot")
     truth = load_truth(args.truth)
     run = load_run(args.run, truth)
     map_path = args.map
@@ -58,6 +82,6 @@ def main(args) -> int:
     if args.plot:
         from receiver.evaluate.plots import plot_eval
 
-        plot_eval(series, args.plot, area_bins_px=DEFAULT_AREA_BINS_PX)
+        _write_plot(series, args.plot, plot_eval)
         print(f"occloc: wrote {args.plot}", file=sys.stderr)
     return 0

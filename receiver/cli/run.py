@@ -10,7 +10,9 @@ the camera (`CameraModel.scaled`); anything else is an error.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
+import signal
 import sys
 import time
 
@@ -110,31 +112,92 @@ class Progress:
             self.stream.write("\n")
 
 
-def write_settings(path: str, rx) -> None:
-    """The receiver's resolved settings and its locator's, as one JSON object, written to a
-    temporary file renamed into place."""
-    import json
-    import tempfile
+# Signals that stop a run cleanly: the frame loop ends, whole lines are flushed, the summary is
+# printed and the exit status is 128 + the signal's number.
+STOP_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+FPS_RANGE = (0.1, 10_000.0)
 
+
+class StopRun(BaseException):
+    """Raised by the stop-signal handler while the frame loop waits for a frame."""
+
+
+class SignalStop:
+    """Turns SIGINT/SIGTERM/SIGHUP into a clean stop of the frame loop. While the loop waits
+    for a frame (`waiting`), the handler raises StopRun so that a blocked read ends; while a
+    frame is processed or its line written, it only sets `signum` and the loop stops after
+    the line (a line is never cut)."""
+
+    def __init__(self):
+        self.signum: int | None = None
+        self.waiting = False
+        self._old = {}
+
+    def _handler(self, signum, frame):
+        self.signum = signum
+        if self.waiting:
+            raise StopRun()
+
+    def __enter__(self):
+        import threading
+        if threading.current_thread() is threading.main_thread():
+            for sig in STOP_SIGNALS:
+                try:
+                    if sig != signal.SIGTERM and signal.getsignal(sig) is signal.SIG_IGN:
+                        continue  # nohup / a background job: an ignored SIGINT/SIGHUP stays ignored
+                    self._old[sig] = signal.signal(sig, self._handler)
+                except (OSError, ValueError):
+                    pass
+        return self
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+def _frames_until_stopped(frames, stop: SignalStop):
+    it = iter(frames)
+    while stop.signum is None:
+        stop.waiting = True
+        try:
+            if stop.signum is not None:
+                return
+            frame = next(it)
+        except (StopIteration, StopRun):
+            return
+        finally:
+            stop.waiting = False
+        yield frame
+
+
+def write_settings(path: str, rx) -> None:
+    """The receiver's resolved settings and its locators', as one JSON object, written to a
+    temporary file renamed into place."""
     from receiver.core.settings import settings_json
+    from receiver.io.files import AtomicWriter, dumps
 
     loc = getattr(rx.positioner, "local", rx.positioner)  # a server client ranges locally
     obj = {"receiver": settings_json(rx.settings),
            "locate": settings_json(loc.settings) if getattr(loc, "settings", None) is not None else None,
            "vehicle": settings_json(rx.vehicle.s) if rx.vehicle is not None else None}
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".settings-", dir=folder)
+    out = AtomicWriter(path)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(obj, f, indent=1, sort_keys=True)
-            f.write("\n")
-        os.replace(tmp, path)
+        out.write(dumps(obj, indent=1, sort_keys=True) + "\n")
+        out.commit()
     except BaseException:
-        os.unlink(tmp)
+        out.discard()
         raise
 
 
 def main(args) -> int:
+    # Stop signals are caught from the start: one that comes before the first frame ends the
+    # run with an empty output and the summary, like one that comes later.
+    with SignalStop() as stop:
+        return _main(args, stop)
+
+
+def _main(args, stop: "SignalStop") -> int:
     from receiver.io.camera import load_camera
     from receiver.io.ledmap import load_map
     from receiver.core.errors import InputError
@@ -142,11 +205,17 @@ def main(args) -> int:
     from receiver.pipeline import Receiver
     from receiver.io.sources import find_recording_files, open_source, parse_size
 
+    from receiver.io.files import AtomicWriter, refuse_overwrite
+
     spec = args.source or default_source()
     if args.max_frames is not None and args.max_frames < 0:
         raise InputError("--max-frames must not be negative")
-    if args.fps is not None and not args.fps > 0:
-        raise InputError("--fps must be positive")
+    if args.fps is not None and not (math.isfinite(args.fps) and FPS_RANGE[0] <= args.fps <= FPS_RANGE[1]):
+        raise InputError(f"--fps must be within {FPS_RANGE[0]:g}..{FPS_RANGE[1]:g}, not {args.fps:g}")
+    if args.out is None and sys.stdout is None:
+        raise InputError("standard output is closed: give --out FILE")
+    if spec == "-" and sys.stdin is None:
+        raise InputError("standard input is closed: nothing to read frames from")
     server = getattr(args, "server", None)
     if server is not None:
         from receiver.serve.client import parse_udp_url
@@ -160,8 +229,14 @@ def main(args) -> int:
         raise InputError(f"{spec}: no camera file (give --camera FILE)")
     if map_path is None:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
+    inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
+    refuse_overwrite(args.out, inputs, "--out")
+    refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
+    if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
+        raise InputError(f"{cam_path}: row_readout_us 0 (global shutter), but the map has OOK or tone "
+                         f"lights, which need a rolling shutter (give the sensor's row readout time)")
     if args.fps is not None:
         cam = dataclasses.replace(cam, fps=args.fps)
     size = parse_size(args.size)
@@ -184,33 +259,43 @@ def main(args) -> int:
         rx = Receiver(cam, led_map, positioner=positioner, vehicle=vehicle, speed=speed, still=src.is_still)
         if getattr(args, "settings_out", None):
             write_settings(args.settings_out, rx)
-        out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout
+        # A file is written to a temporary sibling and renamed into place at the end (also after
+        # a stop signal); standard output streams line by line.
+        out = AtomicWriter(args.out) if args.out else sys.stdout
         summary = RunSummary()
         total = getattr(getattr(src, "inner", src), "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
         progress = Progress(sys.stderr, total)
         frames = _rotated(src) if rotate else src
+        ok = False
         try:
-            for frame in frames:
+            for frame in _frames_until_stopped(frames, stop):
                 if args.max_frames is not None and summary.frames >= args.max_frames:
                     break
                 res = rx.process(frame)
                 out.write(frame_line(res, profile=args.profile) + "\n")
+                if out is sys.stdout and args.realtime:
+                    out.flush()
                 summary.add(res)
                 progress.update(summary.frames, len(summary.ids))
+            ok = True
         finally:
             progress.done()
             if hasattr(positioner, "close"):
                 positioner.close()
             if out is not sys.stdout:
-                out.close()
+                out.commit() if ok else out.discard()
             else:
                 out.flush()
         hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
                                         hv_reason=hv_reason) + _server_text(positioner),
               file=sys.stderr)
+        if stop.signum is not None:
+            name = signal.Signals(stop.signum).name
+            print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)
+            return 128 + stop.signum
     except OSError as e:
         if isinstance(e, BrokenPipeError):
             raise

@@ -103,10 +103,68 @@ def _fs_matrix(fs: cv2.FileStorage, key: str, path: str, shape: tuple[int, ...],
     return np.asarray(m, dtype=np.float64).reshape(shape)
 
 
+# Physical ranges of every number of a camera file: the one place they are checked
+# (`check_camera`). (low, high) inclusive; `ZERO_OK` keys may also be exactly 0
+# (row_readout_us 0 = global shutter, fps 0 = unknown).
+CAMERA_RANGES = {
+    "image_width": (1, 100_000),
+    "image_height": (1, 100_000),
+    "pixel_size_um": (0.1, 100.0),
+    "focal_length_mm": (0.1, 1000.0),
+    "row_readout_us": (0.01, 10_000.0),
+    "exposure_us": (0.0, 1e6),
+    "fps": (0.1, 10_000.0),
+    "focal_px": (1.0, 1e6),          # fx, fy of camera_matrix
+    "principal_px": (-1e6, 1e6),     # cx, cy of camera_matrix
+    "distortion": (-1000.0, 1000.0),  # each of k1 k2 p1 p2 k3
+}
+ZERO_OK = ("row_readout_us", "fps")
+
+
+def _check_range(path: str, key: str, v) -> None:
+    if v is None:
+        return
+    lo, hi = CAMERA_RANGES[key]
+    v = float(v)
+    if key in ZERO_OK and v == 0:
+        return
+    if not (math.isfinite(v) and lo <= v <= hi):
+        extra = " (or 0)" if key in ZERO_OK else ""
+        raise InputError(f"{path}: {key} must be within {lo:g}..{hi:g}{extra}, got {v:g}")
+
+
+def check_camera(cam: CameraModel, path: str = "camera") -> CameraModel:
+    """Every number of the camera within its physical range (CAMERA_RANGES); InputError otherwise."""
+    _check_range(path, "image_width", cam.width)
+    _check_range(path, "image_height", cam.height)
+    for key in ("pixel_size_um", "focal_length_mm", "row_readout_us", "exposure_us", "fps"):
+        _check_range(path, key, getattr(cam, key))
+    K = np.asarray(cam.K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+        raise InputError(f"{path}: camera_matrix must be a finite 3x3 matrix")
+    _check_range(path, "focal_px", K[0, 0])
+    _check_range(path, "focal_px", K[1, 1])
+    _check_range(path, "principal_px", K[0, 2])
+    _check_range(path, "principal_px", K[1, 2])
+    d = np.asarray(cam.dist, dtype=np.float64).ravel()
+    if d.size != 5:
+        raise InputError(f"{path}: distortion_coefficients must hold 5 numbers")
+    for v in d:
+        _check_range(path, "distortion", v)
+    return cam
+
+
 def load_camera(path: str) -> CameraModel:
     """Read a camera file (OpenCV FileStorage YAML)."""
+    from receiver.io.files import MAX_CAMERA_BYTES, check_nesting, read_bytes
+
     if not os.path.isfile(path):
         raise InputError(f"camera file not found: {path}")
+    # cv2.FileStorage recurses per nesting level: 50,000 '[' are a SIGSEGV, not an error.
+    text = read_bytes(path, "camera file", MAX_CAMERA_BYTES).decode("utf-8", "replace")
+    if "\0" in text or "\ufffd" in text:
+        raise InputError(f"{path}: not a readable OpenCV YAML camera file (binary data)")
+    check_nesting(text, path, yaml=True)
     try:
         fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as e:
@@ -124,8 +182,12 @@ def load_camera(path: str) -> CameraModel:
         row = _fs_real(fs, "row_readout_us", path) or 0.0
         exp = _fs_real(fs, "exposure_us", path) or 0.0
         fps = _fs_real(fs, "fps", path) or 0.0
+    except (cv2.error, SystemError) as e:  # e.g. a top level that is not a map: getNode asserts
+        raise InputError(f"{path}: not a readable OpenCV YAML camera file ({_cv_reason(e)})") from None
     finally:
         fs.release()
+    for key, v in (("image_width", w), ("image_height", h)):
+        _check_range(path, key, v)
     if w <= 0 or h <= 0 or w != int(w) or h != int(h):
         raise InputError(f"{path}: image_width and image_height must be positive integers")
     if K is None:
@@ -133,6 +195,8 @@ def load_camera(path: str) -> CameraModel:
             raise InputError(f"{path}: needs camera_matrix, or focal_length_mm and pixel_size_um")
         f = flen * 1000.0 / pix
         K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1]], dtype=np.float64)
+    for key, v in (("pixel_size_um", pix), ("focal_length_mm", flen)):
+        _check_range(path, key, v)
     if not (K[0, 0] > 0 and K[1, 1] > 0 and np.all(np.isfinite(K))):
         raise InputError(f"{path}: camera_matrix must have positive fx, fy")
     if dist is None:
@@ -142,7 +206,9 @@ def load_camera(path: str) -> CameraModel:
             raise InputError(f"{path}: {name} must be positive")
     if row < 0 or exp < 0 or fps < 0:
         raise InputError(f"{path}: row_readout_us, exposure_us and fps must not be negative")
-    return CameraModel(int(w), int(h), K, dist, pix, flen, row, exp, fps)
+    if not all(math.isfinite(v) for v in (row, exp, fps)):
+        raise InputError(f"{path}: row_readout_us, exposure_us and fps must be finite numbers")
+    return check_camera(CameraModel(int(w), int(h), K, dist, pix, flen, row, exp, fps), path)
 
 
 def save_camera(path: str, cam: CameraModel) -> None:

@@ -4,7 +4,6 @@ errors (`parse_map`, `load_map`) and writing (`save_map`).
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -15,6 +14,19 @@ from receiver.core.errors import InputError
 
 LED_MODES = ("ook", "s2psk", "tone")
 SHAPES = ("circle", "square", "rect")
+
+# Physical ranges of every number of a map file, the one place they are checked.
+# Coordinates (x, y, z, ceiling_z, emitters): finite, |v| < MAX_COORD_M. Rates per mode from
+# PROTOCOL.md: OOK chip rate 1-50 kHz (section 2); S2-PSK clock 1 Hz-10 kHz (section 3 names
+# 125/200 Hz and fixes no range; the camera frame rate bounds what is usable); tone 10 Hz-100 kHz
+# (section 4: typically 1-10 kHz).
+MAX_COORD_M = 1e6
+SIZE_RANGE_M = (1e-4, 100.0)
+BASELINE_RANGE_M = (1e-4, 1000.0)
+RATE_RANGE_HZ = {"ook": (1000.0, 50_000.0), "s2psk": (1.0, 10_000.0), "tone": (1.0, 100_000.0)}
+FREQ_RANGE_HZ = (10.0, 100_000.0)
+MAX_ID = 0xFFFF
+MAX_SYMBOL_CLOCKS = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -116,17 +128,48 @@ class LedMap:
         return out
 
 
-def _num(d: dict, key: str, where: str, required: bool = False, positive: bool = False):
+def _num(d: dict, key: str, where: str, required: bool = False, positive: bool = False,
+         lo: float | None = None, hi: float | None = None):
     v = d.get(key)
     if v is None:
         if required:
             raise InputError(f"{where}: missing '{key}'")
         return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"{where}: '{key}' must be a finite number")
+    try:
+        v = float(v)
+    except OverflowError:
+        v = math.inf
+    if not math.isfinite(v):
         raise InputError(f"{where}: '{key}' must be a finite number")
     if positive and v <= 0:
         raise InputError(f"{where}: '{key}' must be positive")
-    return float(v)
+    if lo is not None and not lo <= v <= hi:
+        raise InputError(f"{where}: '{key}' must be within {lo:g}..{hi:g}, got {v:g}")
+    return v
+
+
+def _coord(d: dict, key: str, where: str, required: bool = False):
+    return _num(d, key, where, required=required, lo=-MAX_COORD_M, hi=MAX_COORD_M)
+
+
+def _vector(v, n: int, lo: float, hi: float):
+    """A tuple of n finite floats within lo..hi from a JSON list, or None."""
+    if not isinstance(v, list) or len(v) != n:
+        return None
+    out = []
+    for c in v:
+        if isinstance(c, bool) or not isinstance(c, (int, float)):
+            return None
+        try:
+            c = float(c)
+        except OverflowError:
+            return None
+        if not (math.isfinite(c) and lo <= c <= hi):
+            return None
+        out.append(c)
+    return tuple(out)
 
 
 def _shape(d: dict, where: str):
@@ -136,8 +179,9 @@ def _shape(d: dict, where: str):
     if shape not in SHAPES:
         raise InputError(f"{where}: 'shape' must be one of {', '.join(SHAPES)}")
     if (not isinstance(size, list) or not 1 <= len(size) <= 2
-            or not all(isinstance(s, (int, float)) and not isinstance(s, bool) and s > 0 for s in size)):
-        raise InputError(f"{where}: 'size' must be a list of 1 or 2 positive numbers (metres)")
+            or _vector(size, len(size), *SIZE_RANGE_M) is None):
+        raise InputError(f"{where}: 'size' must be a list of 1 or 2 numbers within "
+                         f"{SIZE_RANGE_M[0]:g}..{SIZE_RANGE_M[1]:g} (metres)")
     if shape == "rect" and len(size) != 2:
         raise InputError(f"{where}: a rect needs 'size': [width, length]")
     return shape, tuple(float(s) for s in size)
@@ -148,34 +192,32 @@ def _led(d, i: int, path: str) -> Led:
     if not isinstance(d, dict):
         raise InputError(f"{where} must be an object")
     led_id = d.get("id")
-    if isinstance(led_id, bool) or not isinstance(led_id, int) or led_id < 0:
-        raise InputError(f"{where}: 'id' must be a non-negative integer")
+    if isinstance(led_id, bool) or not isinstance(led_id, int) or not 0 <= led_id <= MAX_ID:
+        raise InputError(f"{where}: 'id' must be an integer 0..{MAX_ID}")
     mode = d.get("mode", "ook")
     if mode not in LED_MODES:
         raise InputError(f"{where}: 'mode' must be one of {', '.join(LED_MODES)}")
-    x, y, z = (_num(d, k, where, required=True) for k in ("x", "y", "z"))
+    x, y, z = (_coord(d, k, where, required=True) for k in ("x", "y", "z"))
     shape, size = _shape(d, where)
-    freq = _num(d, "freq_hz", where, positive=True)
+    freq = _num(d, "freq_hz", where, positive=True, lo=FREQ_RANGE_HZ[0], hi=FREQ_RANGE_HZ[1])
+    rate = _num(d, "rate_hz", where, positive=True, lo=RATE_RANGE_HZ[mode][0], hi=RATE_RANGE_HZ[mode][1])
     if mode == "tone" and freq is None:
         raise InputError(f"{where}: tone LEDs need 'freq_hz'")
     symclk = d.get("symbol_clocks")
-    if symclk is not None and (isinstance(symclk, bool) or not isinstance(symclk, int) or symclk <= 0):
-        raise InputError(f"{where}: 'symbol_clocks' must be a positive integer")
+    if symclk is not None and (isinstance(symclk, bool) or not isinstance(symclk, int)
+                               or not 0 < symclk <= MAX_SYMBOL_CLOCKS):
+        raise InputError(f"{where}: 'symbol_clocks' must be an integer 1..{MAX_SYMBOL_CLOCKS}")
     emitters = d.get("emitters")
     if emitters is not None:
-        try:
-            emitters = tuple(tuple(float(c) for c in e) for e in emitters)
-        except (TypeError, ValueError):
+        if isinstance(emitters, list) and len(emitters) == 2:
+            emitters = tuple(_vector(e, 3, -MAX_COORD_M, MAX_COORD_M) for e in emitters)
+        else:
             emitters = None
-        if (emitters is None or len(emitters) != 2 or any(len(e) != 3 for e in emitters)
-                or not all(math.isfinite(c) for e in emitters for c in e)):
+        if emitters is None or any(e is None for e in emitters):
             raise InputError(f"{where}: 'emitters' must be two [x, y, z] points (finite metres)")
     normal = d.get("normal")
     if normal is not None:
-        try:
-            normal = tuple(float(c) for c in normal if not isinstance(c, bool))
-        except (TypeError, ValueError):
-            normal = ()
+        normal = _vector(normal, 3, -MAX_COORD_M, MAX_COORD_M) or ()
         norm = math.sqrt(sum(c * c for c in normal)) if len(normal) == 3 and all(
             math.isfinite(c) for c in normal) else 0.0
         if not norm > 1e-9:
@@ -183,8 +225,9 @@ def _led(d, i: int, path: str) -> Led:
         if abs(norm - 1.0) > 1e-9:  # a unit vector is kept as written (round trips exactly)
             normal = tuple(c / norm for c in normal)
     return Led(id=led_id, mode=mode, x=x, y=y, z=z, shape=shape, size=size,
-               rate_hz=_num(d, "rate_hz", where, positive=True), freq_hz=freq,
-               symbol_clocks=symclk, baseline_m=_num(d, "baseline_m", where, positive=True),
+               rate_hz=rate, freq_hz=freq,
+               symbol_clocks=symclk, baseline_m=_num(d, "baseline_m", where, positive=True,
+                                                     lo=BASELINE_RANGE_M[0], hi=BASELINE_RANGE_M[1]),
                emitters=emitters, normal=normal)
 
 
@@ -207,14 +250,15 @@ def parse_map(obj, path: str = "map.json") -> LedMap:
         if led.id in leds:
             raise InputError(f"{path}: LED id {led.id} listed twice")
         leds[led.id] = led
-    ceiling = _num(obj, "ceiling_z", path, required=addressing == "xy")
+    ceiling = _coord(obj, "ceiling_z", path, required=addressing == "xy")
     shape, size = _shape(obj, path)
     taillight = obj.get("taillight")
     if taillight is not None:
         if not isinstance(taillight, dict):
             raise InputError(f"{path}: 'taillight' must be an object")
         _shape(taillight, f"{path}: taillight")
-        _num(taillight, "baseline_m", f"{path}: taillight", positive=True)
+        _num(taillight, "baseline_m", f"{path}: taillight", positive=True,
+             lo=BASELINE_RANGE_M[0], hi=BASELINE_RANGE_M[1])
     if not leds and addressing == "map":
         raise InputError(f"{path}: the map lists no LEDs")
     handedness = obj.get("handedness")
@@ -222,25 +266,29 @@ def parse_map(obj, path: str = "map.json") -> LedMap:
         raise InputError(f"{path}: 'handedness' must be 'right' or 'left'")
     return LedMap(units=units, addressing=addressing, leds=leds, ceiling_z=ceiling,
                   default_shape=shape, default_size=size,
-                  default_rate_hz=_num(obj, "rate_hz", path, positive=True), taillight=taillight,
+                  default_rate_hz=_num(obj, "rate_hz", path, positive=True, lo=RATE_RANGE_HZ["ook"][0],
+                                       hi=RATE_RANGE_HZ["ook"][1]), taillight=taillight,
                   handedness=handedness)
 
 
 def load_map(path: str) -> LedMap:
     """Read and validate a map.json file."""
+    from receiver.io.files import load_json
+
     if not os.path.isfile(path):
         raise InputError(f"map file not found: {path}")
-    try:
-        with open(path, encoding="utf-8") as f:
-            obj = json.load(f)
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise InputError(f"{path}: not valid JSON ({e.__class__.__name__}: {str(e).splitlines()[0]})") from None
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror})") from None
-    return parse_map(obj, path)
+    # size and nesting guard, NaN/Infinity and huge integers refused (receiver.io.files)
+    return parse_map(load_json(path, "map file"), path)
 
 
 def save_map(path: str, led_map: LedMap) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        json.dump(led_map.to_json(), f, indent=1)
-        f.write("\n")
+    """Write the map (a temporary file renamed into place; NaN/Infinity never written)."""
+    from receiver.io.files import AtomicWriter, dumps
+
+    w = AtomicWriter(path)
+    try:
+        w.write(dumps(led_map.to_json(), indent=1) + "\n")
+        w.commit()
+    except BaseException:
+        w.discard()
+        raise

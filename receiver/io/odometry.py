@@ -46,13 +46,10 @@ def _number(obj: dict, key: str, where: str) -> float:
 
 
 def load_odometry(path: str) -> Odometry:
-    try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_ODOMETRY_BYTES + 1)
-    except OSError as e:
-        raise InputError(f"{path}: {e.strerror or e}") from None
-    if len(data) > MAX_ODOMETRY_BYTES:
-        raise InputError(f"{path}: larger than {MAX_ODOMETRY_BYTES // (1024 * 1024)} MB")
+    from receiver.io.files import read_bytes
+
+    # a regular file only (a FIFO would block), at most MAX_ODOMETRY_BYTES
+    data = read_bytes(path, "odometry file", MAX_ODOMETRY_BYTES)
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError:

@@ -9,7 +9,6 @@ known), `freq_hz` (tone LEDs: measured stripe frequency), `kind` (S2-PSK: 'SL' o
 
 from __future__ import annotations
 
-import json
 import math
 
 from receiver.core.budget import percentile
@@ -55,7 +54,9 @@ def frame_record(res: FrameResult, *, profile: bool = False) -> dict:
 
 def frame_line(res: FrameResult, *, profile: bool = False) -> str:
     """One JSON line (no newline). numpy scalars in a positioner's dict are converted."""
-    return json.dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
+    from receiver.io.files import dumps
+    # allow_nan=False: a positioner's NaN becomes null, never the non-JSON token NaN
+    return dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
 
 
 def _jsonable(v):

@@ -54,6 +54,55 @@ DROP_GAP_FACTOR = 1.5
 MAX_CONSECUTIVE_BAD = 25
 
 
+# Implausible frames (a decoder's garbage after damaged data, which decodes "fine"): a frame
+# whose mean brightness jumps from the last accepted frame's by more than
+# max(IMPLAUSIBLE_MEAN_FACTOR x the typical frame-to-frame step, IMPLAUSIBLE_MEAN_DN), or whose
+# thumbnail differs from the previous (accepted) frame's by more than
+# max(IMPLAUSIBLE_MAD_FACTOR x the typical difference, typical + IMPLAUSIBLE_MAD_DN), is skipped
+# and counted. A change that lasts IMPLAUSIBLE_MAX_RUN frames is taken as real (the scene changed).
+IMPLAUSIBLE_MEAN_DN = 8.0
+IMPLAUSIBLE_MEAN_FACTOR = 6.0
+IMPLAUSIBLE_MAD_DN = 20.0
+IMPLAUSIBLE_MAD_FACTOR = 4.0
+IMPLAUSIBLE_MAX_RUN = 30
+THUMB_SIZE = (32, 18)
+
+
+class PlausibilityCheck:
+    """Judges each decoded frame of a video against its accepted neighbours (see constants)."""
+
+    def __init__(self):
+        from collections import deque
+        self.ref = None            # (thumbnail, mean) of the last accepted frame
+        self.prev_ok = False       # was the previous decoded frame accepted?
+        self.steps = deque(maxlen=16)
+        self.mads = deque(maxlen=16)
+        self.run = 0
+
+    def accept(self, gray: np.ndarray) -> bool:
+        th = cv2.resize(gray, THUMB_SIZE, interpolation=cv2.INTER_AREA).astype(np.float32)
+        mean = float(th.mean())
+        if self.ref is None:
+            self.ref, self.prev_ok = (th, mean), True
+            return True
+        step = abs(mean - self.ref[1])
+        mad = float(np.abs(th - self.ref[0]).mean())
+        typ_step = float(np.median(self.steps)) if self.steps else 0.0
+        typ_mad = float(np.median(self.mads)) if self.mads else None
+        bad = step > max(IMPLAUSIBLE_MEAN_FACTOR * typ_step, IMPLAUSIBLE_MEAN_DN)
+        if not bad and self.prev_ok and typ_mad is not None and len(self.mads) >= 3:
+            bad = mad > max(IMPLAUSIBLE_MAD_FACTOR * typ_mad, typ_mad + IMPLAUSIBLE_MAD_DN)
+        if bad and self.run < IMPLAUSIBLE_MAX_RUN:
+            self.run += 1
+            self.prev_ok = False
+            return False
+        if self.prev_ok and not bad:
+            self.steps.append(step)
+            self.mads.append(mad)
+        self.ref, self.prev_ok, self.run = (th, mean), True, 0
+        return True
+
+
 def _warn(msg: str) -> None:
     print(f"occloc: warning: {msg}", file=sys.stderr)
 
@@ -151,9 +200,27 @@ class VideoFileSource(FrameSource):
             cv2.utils.logging.setLogLevel(level)
         return cap
 
+    def _container_index(self, cap, prev: int) -> int:
+        """The frame index of the frame just read, from the container's timestamp
+        (CAP_PROP_POS_MSEC x fps), not from a count of decoded frames: a damaged chunk that the
+        demuxer drops, or that fails to decode more than once, must not shift later frames.
+        Falls back to prev + 1 when the container gives no usable timestamp."""
+        ms = float(cap.get(cv2.CAP_PROP_POS_MSEC))
+        if not (self.fps > 0 and np.isfinite(ms) and ms >= 0):
+            return prev + 1
+        k = int(round(ms * self.fps / 1000.0))
+        limit = max(self.frame_count, 0) * 2 + MAX_CONSECUTIVE_BAD
+        if k <= prev or (self.frame_count and k > limit):
+            return prev + 1  # a timestamp that goes back or far past the end is not trusted
+        return k
+
     def __iter__(self) -> Iterator[Frame]:
         w, h = self.size
-        cap, index, bad_run, converting, yielded = self._cap, 0, 0, False, 0
+        cap, bad_run, converting, yielded = self._cap, 0, False, 0
+        check = PlausibilityCheck()
+        implausible = 0
+        prev = -1        # index of the last frame read (decodable or not)
+        fails = 0        # read failures since the last good read
         level = cv2.utils.logging.getLogLevel()
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         try:
@@ -161,23 +228,29 @@ class VideoFileSource(FrameSource):
                 ok, img = cap.read()
                 if not ok:
                     # Past the known end, or many failures in a row: the file has ended.
-                    if (self.frame_count and index >= self.frame_count) or not self.frame_count \
+                    if (self.frame_count and prev + 1 + fails >= self.frame_count) or not self.frame_count \
                             or bad_run >= MAX_CONSECUTIVE_BAD:
                         break
                     bad_run += 1
-                    self.skipped += 1
-                    index += 1
+                    fails += 1
                     continue
                 gray = to_gray(img, w, h)
-                if gray is None and index == 0 and not converting:
+                if gray is None and prev < 0 and not converting:
                     # The raw format is not luma-first: fall back to OpenCV's BGR conversion.
                     cap.release()
                     cap = self._cap = self._open(convert=True)
                     converting = True
                     continue
+                index = self._container_index(cap, prev)
+                # frames between the previous one and this were lost (undecodable or dropped)
+                self.skipped += index - prev - 1
+                prev, fails = index, 0
                 if gray is None:
                     self.skipped += 1
-                    index += 1
+                    continue
+                if not check.accept(gray):
+                    self.skipped += 1
+                    implausible += 1
                     continue
                 bad_run = 0
                 yielded += 1
@@ -186,14 +259,16 @@ class VideoFileSource(FrameSource):
                 else:
                     t = float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
                 yield Frame(index, t, gray)
-                index += 1
         finally:
             cv2.utils.logging.setLogLevel(level)
-        if bad_run:
+        if implausible:
+            _warn(f"{self.path}: skipped {implausible} implausible frames (brightness or content jumps "
+                  f"from their neighbours: decoder garbage after damaged data?)")
+        missing = self.frame_count - (prev + 1) if self.frame_count else 0
+        if bad_run and missing > 0:
             # Failures up to the end are a file cut short (truncated), not corrupt frames.
-            self.skipped -= bad_run
-            self.truncated = bad_run
-            _warn(f"{self.path}: file ends {bad_run} frames before its stated length (truncated)")
+            self.truncated = missing
+            _warn(f"{self.path}: file ends {missing} frames before its stated length (truncated)")
         if yielded == 0:
             raise InputError(f"{self.path}: no decodable video frames")
 
@@ -208,13 +283,17 @@ class ImageSource(FrameSource):
     kind = "images"
 
     def __init__(self, path: str, *, fps: float = 0.0):
+        from receiver.io.files import check_regular
+
         super().__init__(path)
         if os.path.isdir(path):
+            # only regular files: a FIFO or device named *.png would block imread forever
             files = sorted(p for p in glob.glob(os.path.join(path, "*"))
-                           if p.lower().endswith(IMAGE_EXTS))
+                           if p.lower().endswith(IMAGE_EXTS) and os.path.isfile(p))
             if not files:
                 raise InputError(f"{path}: no images in folder")
         else:
+            check_regular(path, "image")
             files = [path]
         self.files = files
         self.fps = fps
@@ -241,6 +320,13 @@ class ImageSource(FrameSource):
                 continue
             if self.size is None:
                 self.size = (gray.shape[1], gray.shape[0])
+            elif (gray.shape[1], gray.shape[0]) != self.size:
+                # The camera was fitted to the first image's size: another size would be read
+                # with the wrong intrinsics (wrong distances), so it is skipped, and said.
+                self.skipped += 1
+                _warn(f"{path}: {gray.shape[1]}x{gray.shape[0]}, not the {self.size[0]}x{self.size[1]} "
+                      f"of the folder's first image: skipped (run images of another size separately)")
+                continue
             yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
 
 
@@ -260,12 +346,27 @@ class RawPipeSource(FrameSource):
         self.pix_fmt = pix_fmt
         self.fps = fps
         self._stream = stream
+        # A real file descriptor is read with os.read: no buffered-reader lock, so a reader
+        # thread still blocked in it at interpreter shutdown cannot abort the process
+        # ("Fatal Python error: _enter_buffered_busy").
+        try:
+            self._fd = stream.fileno()
+        except (AttributeError, OSError, ValueError):
+            self._fd = None
         self.frame_bytes = size[0] * size[1] * PIX_FMTS[pix_fmt]
+
+    def _read(self, n: int) -> bytes:
+        if self._fd is not None:
+            try:
+                return os.read(self._fd, min(n, 1 << 20))
+            except OSError as e:
+                raise InputError(f"stdin: {e.strerror or e}") from None
+        return self._stream.read(n)
 
     def _read_exact(self, n: int) -> bytes:
         chunks, got = [], 0
         while got < n:
-            b = self._stream.read(n - got)
+            b = self._read(n - got)
             if not b:
                 break
             chunks.append(b)
@@ -405,7 +506,15 @@ class LatestFrameSource(FrameSource):
         self._done = False
         self._error: BaseException | None = None
         self._stop = False
+        self._stop_event = threading.Event()
+        self._thread: threading.Thread | None = None
         self._overwritten = 0
+
+    def _wait(self, delay: float) -> None:
+        if self._sleep is time.sleep:
+            self._stop_event.wait(delay)  # a stop wakes the pacing wait at once
+        else:
+            self._sleep(delay)
 
     def _reader(self):
         try:
@@ -418,7 +527,9 @@ class LatestFrameSource(FrameSource):
                         t0 = self._clock() - frame.t_s
                     delay = t0 + frame.t_s - self._clock()
                     if delay > 0:
-                        self._sleep(delay)
+                        self._wait(delay)
+                if self._stop:
+                    break
                 with self._cond:
                     if self._latest is not None:
                         self._overwritten += 1
@@ -432,7 +543,7 @@ class LatestFrameSource(FrameSource):
                 self._cond.notify()
 
     def __iter__(self) -> Iterator[Frame]:
-        th = threading.Thread(target=self._reader, daemon=True)
+        th = self._thread = threading.Thread(target=self._reader, daemon=True, name="occloc-reader")
         th.start()
         try:
             while True:
@@ -449,8 +560,18 @@ class LatestFrameSource(FrameSource):
             if self._error is not None:
                 raise self._error
         finally:
-            self._stop = True
+            self._stop_reader()
             self._sync()
+
+    def _stop_reader(self) -> None:
+        """Stop the reader thread and wait for it, so that the capture is never released while
+        the thread is inside read(). A pipe reader blocked in os.read (no writer data) cannot be
+        woken; it is a daemon without buffered-IO locks and is left behind after a short wait."""
+        self._stop = True
+        self._stop_event.set()
+        th = self._thread
+        if th is not None and th is not threading.current_thread():
+            th.join(timeout=None if self.inner.kind in ("video", "recording", "images") else 1.0)
 
     def _sync(self):
         self.size = self.inner.size
@@ -459,8 +580,10 @@ class LatestFrameSource(FrameSource):
         self.dropped = self.inner.dropped + self._overwritten
 
     def close(self) -> None:
-        self._stop = True
-        self.inner.close()
+        self._stop_reader()
+        th = self._thread
+        if th is None or not th.is_alive():
+            self.inner.close()
 
 
 def find_recording_files(folder: str) -> dict[str, str | None]:
@@ -497,6 +620,8 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     fps = camera.fps if camera is not None else 0.0
     spec = str(spec)
     if spec == "-":
+        if stdin is None and sys.stdin is None:
+            raise InputError("standard input is closed: nothing to read frames from")
         src = RawPipeSource(stdin if stdin is not None else sys.stdin.buffer, size, pix_fmt, fps=fps)
     elif V4L2_RE.match(spec):
         src = V4l2Source(spec, camera=camera, size=size, capture_factory=capture_factory)
@@ -514,6 +639,8 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     elif spec.lower().endswith(IMAGE_EXTS):
         src = ImageSource(spec, fps=fps)
     else:
+        from receiver.io.files import check_regular
+        check_regular(spec, "video")
         src = VideoFileSource(spec, fps=fps, capture_factory=capture_factory)
     if realtime:
         src = LatestFrameSource(src, pace=src.kind in ("video", "recording", "images"))

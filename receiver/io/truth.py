@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import numpy as np
 
@@ -30,22 +31,27 @@ POSITION_KEYS = ("x", "y", "z")
 
 
 def read_jsonl(path: str, what: str) -> list[tuple[int, dict]]:
-    """(line number, object) for every non-empty line of a JSON Lines file."""
+    """(line number, object) for every non-empty line of a JSON Lines file (a regular file of
+    at most MAX_JSONL_BYTES; every line nesting-checked before json sees it, NaN/Infinity and
+    numbers too long for Python refused)."""
+    from receiver.io.files import MAX_JSONL_BYTES, check_nesting, loads, read_bytes
+
+    if not os.path.exists(path):
+        raise InputError(f"cannot read {what} file {path}: No such file or directory")
     try:
-        with open(path, encoding="utf-8") as f:
-            lines = f.readlines()
-    except OSError as e:
-        raise InputError(f"cannot read {what} file {path}: {e.strerror or e}") from None
+        text = read_bytes(path, f"{what} file", MAX_JSONL_BYTES).decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(f"{what} file {path} is not UTF-8 text") from None
     out = []
-    for n, line in enumerate(lines, 1):
+    for n, line in enumerate(text.split("\n"), 1):
         if not line.strip():
             continue
+        where = f"{path}:{n}"
+        check_nesting(line, where)
         try:
-            obj = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise InputError(f"{path}:{n}: malformed JSON ({e.msg})") from None
+            obj = loads(line, where)
+        except InputError as e:
+            raise InputError(str(e).replace("not valid JSON", "malformed JSON")) from None
         if not isinstance(obj, dict):
             raise InputError(f"{path}:{n}: expected a JSON object per line")
         out.append((n, obj))
@@ -261,8 +267,11 @@ def load_run(path: str, truth: dict[int, dict]) -> list[dict]:
             raise InputError(f"{where}: duplicate frame {frame}")
         if frame not in truth:
             raise InputError(f"{where}: frame {frame} is not in the truth file (wrong truth for this run?)")
+        if not isinstance(obj.get("leds", []), list):
+            raise InputError(f"{where}: 'leds' must be a list of objects")
         seen.add(frame)
         frames.append(fr)
+    check_same_recording(frames, truth, path)
     return frames
 
 
@@ -292,3 +301,28 @@ def run_frame(obj: dict, where: str = "run") -> dict:
             "latency_ms": _number(obj.get("latency_ms"), f"{where}.latency_ms"),
             "leds": leds, "filtered": filt, "raw": raw,
             "vehicle": _run_vehicle(obj.get("vehicle"), f"{where} vehicle")}
+
+
+# A run "belongs" to a truth file when at least this share of its decoded IDs (over all frames)
+# are IDs the truth shows; wrong decodes are rare (a few per thousand), another recording's
+# truth shares almost no random 16-bit ID.
+MIN_SHARED_ID_FRACTION = 0.5
+MIN_IDS_TO_JUDGE = 3
+
+
+def check_same_recording(frames: list[dict], truth: dict[int, dict], path: str) -> None:
+    """InputError when the run evidently comes from another recording than the truth: its frame
+    times disagree with the truth's, or most of its decoded LED IDs never occur in the truth."""
+    for f in frames:
+        tt = truth[f["frame"]].get("t")
+        if f["t"] is not None and tt is not None and abs(f["t"] - tt) > 0.5:
+            raise InputError(f"{path}: frame {f['frame']} is at t={f['t']:g} s in the run but "
+                             f"{tt:g} s in the truth (wrong truth for this run?)")
+    truth_ids = {tgt[2] for v in truth.values() for tgt in v["targets"]}
+    truth_ids |= {fv.get("id") for v in truth.values() if v.get("vehicle") for fv in v["vehicle"]["fv"]}
+    run_ids = [led["id"] for f in frames for led in f["leds"] if led["id"] is not None]
+    if len(set(run_ids)) >= MIN_IDS_TO_JUDGE:
+        shared = sum(i in truth_ids for i in run_ids) / len(run_ids)
+        if shared < MIN_SHARED_ID_FRACTION:
+            raise InputError(f"{path}: only {100 * shared:.0f}% of the run's decoded IDs occur in the "
+                             f"truth file (wrong truth for this run?)")

@@ -20,6 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene, camera or sensor parameter, e.g. --set fps=60 "
                              "--set panel_size_m=(0.1,0.1) (repeatable)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the recording in an existing, non-empty --out folder")
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -43,11 +45,16 @@ def main(args: argparse.Namespace) -> int:
     from tools.synth.recording import write_recording
     from tools.synth.scenes import make_scene
 
-    if args.frames is not None and args.frames <= 0:
-        raise InputError("--frames must be positive")
+    from tools.synth.recording import check_out_dir
+
+    if args.frames is not None and not 0 < args.frames <= 1_000_000:
+        raise InputError("--frames must be within 1..1000000")
+    if not 0 <= args.seed < 2 ** 32:
+        raise InputError(f"--seed must be within 0..{2 ** 32 - 1}, not {args.seed}")
+    check_out_dir(args.out, force=args.force)
     try:
         scene = make_scene(args.scene, seed=args.seed, n_frames=args.frames, **parse_overrides(args.set))
-    except (TypeError, ValueError) as e:  # e.g. --set fps=abc reaches float('abc') in make_camera
+    except (TypeError, ValueError, OverflowError) as e:  # e.g. --set fps=abc reaches float('abc') in make_camera
         raise InputError(f"bad --set value: {e}") from None
     write_recording(scene, args.out, seed=args.seed, codec=args.codec)
     return 0

@@ -18,6 +18,7 @@ import cv2
 from receiver.io.camera import save_camera
 from receiver.io.ledmap import save_map
 from receiver.core.errors import InputError
+from receiver.io.files import dumps
 from tools.synth.model import Scene
 from tools.synth.render import render_frames
 
@@ -26,34 +27,70 @@ from tools.synth.render import render_frames
 CODECS = {"ffv1": ("FFV1", "video.avi"), "mjpeg": ("MJPG", "video.avi")}
 
 
+RECORDING_FILES = ("camera.yaml", "map.json", "truth.jsonl")
+
+
+def check_out_dir(out_dir: str, force: bool = False) -> None:
+    """InputError unless `out_dir` can take a recording: a new folder, an empty one, or (with
+    `force`) an existing one whose recording files are then replaced."""
+    if os.path.lexists(out_dir) and not os.path.isdir(out_dir):
+        raise InputError(f"--out {out_dir} exists and is not a folder")
+    if os.path.isdir(out_dir) and os.listdir(out_dir) and not force:
+        raise InputError(f"--out {out_dir} is a folder that is not empty: refusing to overwrite it "
+                         f"(give --force to replace its recording)")
+
+
 def write_recording(scene: Scene, out_dir: str, seed: int = 0, codec: str = "ffv1",
                     n_frames: int | None = None, progress=True) -> str:
-    """Render `scene` into `out_dir`; returns the video path. Progress on stderr."""
+    """Render `scene` into `out_dir`; returns the video path. Progress on stderr.
+
+    Every file is written under a temporary name in `out_dir` and renamed into place when the
+    whole recording is written: an interrupted render leaves the old files (or none), never half."""
     if codec not in CODECS:
         raise InputError(f"unknown codec '{codec}' (choose from {', '.join(CODECS)})")
-    os.makedirs(out_dir, exist_ok=True)
-    for name in os.listdir(out_dir):  # a stale video of the other codec would shadow this one
-        if name.startswith("video."):
-            os.remove(os.path.join(out_dir, name))
+    if os.path.lexists(out_dir) and not os.path.isdir(out_dir):
+        raise InputError(f"cannot write {out_dir}: it exists and is not a folder")
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"cannot write {out_dir}: {e.strerror or e}") from None
     fourcc, name = CODECS[codec]
     cam = scene.camera
     fps = cam.fps or 30.0
     video = os.path.join(out_dir, name)
-    writer = cv2.VideoWriter(video, cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height),
+    tmp = {n: os.path.join(out_dir, f".{n}.tmp-{os.getpid()}") for n in (name,) + RECORDING_FILES}
+    # the temporary video keeps its extension: OpenCV picks the container from it
+    tmp[name] = os.path.join(out_dir, f".tmp-{os.getpid()}-{name}")
+    writer = cv2.VideoWriter(tmp[name], cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height),
                              isColor=False)
     if not writer.isOpened():
         raise InputError(f"cannot write {video}: OpenCV has no {fourcc} encoder")
     n = scene.n_frames if n_frames is None else int(n_frames)
+    done = False
     try:
-        with open(os.path.join(out_dir, "truth.jsonl"), "w", encoding="utf-8") as truth_file:
-            for img, truth in render_frames(scene, n_frames=n, seed=seed):
-                writer.write(img)
-                truth_file.write(json.dumps(truth, separators=(",", ":")) + "\n")
-                k = truth["frame"] + 1
-                if progress and (k % 10 == 0 or k == n):
-                    print(f"synth {scene.name}: frame {k}/{n}", file=sys.stderr)
+        try:
+            with open(tmp["truth.jsonl"], "w", encoding="utf-8") as truth_file:
+                for img, truth in render_frames(scene, n_frames=n, seed=seed):
+                    writer.write(img)
+                    truth_file.write(dumps(truth, separators=(",", ":")) + "\n")
+                    k = truth["frame"] + 1
+                    if progress and (k % 10 == 0 or k == n):
+                        print(f"synth {scene.name}: frame {k}/{n}", file=sys.stderr)
+        finally:
+            writer.release()
+        save_camera(tmp["camera.yaml"], cam)
+        save_map(tmp["map.json"], scene.led_map)
+        for stale in os.listdir(out_dir):  # a stale video of the other codec would shadow this one
+            if stale.startswith("video.") and stale != name:
+                os.remove(os.path.join(out_dir, stale))
+        for final, t in tmp.items():
+            os.replace(t, os.path.join(out_dir, final))
+        done = True
+    except OSError as e:
+        raise InputError(f"cannot write {out_dir}: {e.strerror or e}") from None
     finally:
-        writer.release()
-    save_camera(os.path.join(out_dir, "camera.yaml"), cam)
-    save_map(os.path.join(out_dir, "map.json"), scene.led_map)
+        if not done:
+            for t in tmp.values():
+                if os.path.exists(t):
+                    os.remove(t)
     return video

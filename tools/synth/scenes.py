@@ -537,9 +537,67 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
             scene_kw[key] = value
         else:
             raise InputError(f"scene '{name}' has no parameter '{key}'")
-    cam = make_camera(**cam_kw)
+    cam = _checked_camera(cam_kw)
+    params = _checked_params(par_kw)
+    for key, value in scene_kw.items():
+        _check_override_value(key, value)
     rng = np.random.default_rng(seed)
     built = builder(rng, cam, **scene_kw)
     if n_frames is not None:
         built["n_frames"] = int(n_frames)
-    return Scene(name=name, camera=cam, params=RenderParams(**par_kw), **built)
+    return Scene(name=name, camera=cam, params=params, **built)
+
+
+# Bounds of the sensor parameters (RenderParams): all finite and non-negative; at most these.
+PARAM_MAX = {"led_peak_dn": 1e4, "ambient_dn": 1e4, "black_level_dn": 255.0, "shot_noise_alpha": 100.0,
+             "read_noise_dn": 1e3, "psf_sigma_px": 100.0, "subrows": 64, "motion_blur_samples": 64,
+             "frame_jitter_us": 1e6, "exact_coverage_rows": 1e4}
+INT_PARAMS = ("subrows", "motion_blur_samples")
+
+
+def _finite_numbers(value) -> bool:
+    vals = value if isinstance(value, (tuple, list)) else (value,)
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in vals)
+
+
+def _check_override_value(key: str, value) -> None:
+    """Scene keywords: numbers (or tuples of numbers) must be finite; strings reach the builder."""
+    from receiver.core.errors import InputError
+
+    if isinstance(value, (int, float, tuple, list)) and not isinstance(value, bool) and not _finite_numbers(value):
+        raise InputError(f"bad --set value: {key}={value!r}: numbers must be finite")
+
+
+def _checked_camera(cam_kw: dict):
+    """make_camera(**cam_kw) with every value checked: the physical ranges of a camera file
+    (receiver.io.camera.check_camera), 5 distortion coefficients, integer sizes."""
+    from receiver.core.errors import InputError
+    from receiver.io.camera import check_camera
+
+    for key, value in cam_kw.items():
+        if key == "dist":
+            if not isinstance(value, (tuple, list)) or len(value) != 5 or not _finite_numbers(value):
+                raise InputError(f"bad --set value: dist must be 5 finite numbers (k1,k2,p1,p2,k3), not {value!r}")
+        elif not _finite_numbers(value) or isinstance(value, (tuple, list)):
+            raise InputError(f"bad --set value: {key} must be a finite number, not {value!r}")
+        elif key in ("width", "height") and value != int(value):
+            raise InputError(f"bad --set value: {key} must be a whole number of pixels, not {value!r}")
+    try:
+        cam = make_camera(**cam_kw)
+    except (TypeError, ValueError, OverflowError) as e:
+        raise InputError(f"bad --set value: {e}") from None
+    check_camera(cam, "bad --set value")
+    if not cam.fps > 0:
+        raise InputError("bad --set value: fps must be positive (the synthetic camera needs a frame rate)")
+    return cam
+
+
+def _checked_params(par_kw: dict) -> RenderParams:
+    from receiver.core.errors import InputError
+
+    for key, value in par_kw.items():
+        if not _finite_numbers(value) or isinstance(value, (tuple, list)) or not 0 <= value <= PARAM_MAX[key]:
+            raise InputError(f"bad --set value: {key} must be a number within 0..{PARAM_MAX[key]:g}, not {value!r}")
+        if key in INT_PARAMS and (value != int(value) or value < 1):
+            raise InputError(f"bad --set value: {key} must be a positive whole number, not {value!r}")
+    return RenderParams(**par_kw)
