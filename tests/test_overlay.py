@@ -56,3 +56,25 @@ def test_png_and_video(tmp_path):
         assert f.shape == (240, 320, 3)
         n += 1
     assert n == 5
+
+
+def test_occloc_run_overlay_writes_the_picture_and_never_an_input(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    walk = root / "recordings" / "indoor-walk"
+    png = tmp_path / "o.png"
+    proc = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(walk), "--max-frames", "3",
+                           "--overlay", str(png), "--out", str(tmp_path / "o.jsonl")],
+                          cwd=root, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    img = cv2.imread(str(png))
+    assert img is not None and img.shape[:2] == (720, 1280)
+    assert not list(tmp_path.glob(".*tmp*"))  # the temporary sibling was renamed into place
+    before = (walk / "map.json").read_bytes()
+    proc = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(walk), "--max-frames", "1",
+                           "--overlay", str(walk / "map.json")], cwd=root, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert (walk / "map.json").read_bytes() == before

@@ -43,6 +43,9 @@ def add_arguments(p) -> None:
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     p.add_argument("--odometry", metavar="FILE",
                    help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
+    p.add_argument("--overlay", metavar="FILE",
+                   help="write the frames annotated with what the receiver saw: a video (.avi), "
+                        "or the last frame as a PNG (.png, e.g. for a photo)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
@@ -171,6 +174,27 @@ def _frames_until_stopped(frames, stop: SignalStop):
         yield frame
 
 
+def _open_overlay(path: str | None, cam, led_map):
+    """(OverlayWriter on a temporary sibling of `path`, path) or None; renamed into place by
+    `_close_overlay` (a crash never leaves a half video under the name asked for)."""
+    if not path:
+        return None
+    from receiver.io.overlay import OverlayWriter
+    folder, name = os.path.split(os.path.abspath(path))
+    stem, ext = os.path.splitext(name)
+    tmp = os.path.join(folder, f".{stem}.{os.getpid()}.tmp{ext or '.avi'}")
+    return OverlayWriter(tmp, (cam.width, cam.height), cam.fps, cam, led_map), tmp, path
+
+
+def _close_overlay(overlay, ok: bool) -> None:
+    writer, tmp, path = overlay
+    writer.close()
+    if ok and os.path.exists(tmp):
+        os.replace(tmp, path)
+    elif os.path.exists(tmp):
+        os.unlink(tmp)
+
+
 def write_settings(path: str, rx) -> None:
     """The receiver's resolved settings and its locators', as one JSON object, written to a
     temporary file renamed into place."""
@@ -232,6 +256,8 @@ def _main(args, stop: "SignalStop") -> int:
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     refuse_overwrite(args.out, inputs, "--out")
     refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
+    refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
+                     "--overlay")
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
     if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
@@ -268,12 +294,15 @@ def _main(args, stop: "SignalStop") -> int:
             total = min(total, args.max_frames)
         progress = Progress(sys.stderr, total)
         frames = _rotated(src) if rotate else src
+        overlay = _open_overlay(getattr(args, "overlay", None), cam, led_map)
         ok = False
         try:
             for frame in _frames_until_stopped(frames, stop):
                 if args.max_frames is not None and summary.frames >= args.max_frames:
                     break
                 res = rx.process(frame)
+                if overlay is not None:
+                    overlay[0].write(frame.gray, res)
                 out.write(frame_line(res, profile=args.profile) + "\n")
                 if out is sys.stdout and args.realtime:
                     out.flush()
@@ -284,6 +313,8 @@ def _main(args, stop: "SignalStop") -> int:
             progress.done()
             if hasattr(positioner, "close"):
                 positioner.close()
+            if overlay is not None:
+                _close_overlay(overlay, ok)
             if out is not sys.stdout:
                 out.commit() if ok else out.discard()
             else:
