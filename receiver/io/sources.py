@@ -330,6 +330,34 @@ class ImageSource(FrameSource):
             yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
 
 
+# A raw frame's row stride is judged from the autocorrelation of its bytes: an image is much more
+# like itself one row down than at any other nearby shift. Another lag must beat the stated
+# stride by this factor (and the frame must have some structure) before the size is doubted.
+STRIDE_DOUBT_RATIO = 1.5
+STRIDE_MIN_STD = 2.0  # gray levels: flatter frames cannot tell
+
+
+def likely_row_stride(data: np.ndarray, stride: int) -> int | None:
+    """The row stride (bytes) the frame's bytes suggest, when it clearly differs from `stride`
+    (the one --size and --pix-fmt give); None when they agree or the frame cannot tell.
+    Vertical edges line up one row down only at the true stride, so the normalised
+    autocorrelation (FFT) of the byte stream's differences is compared over lags from half to
+    twice the stated stride."""
+    x = np.diff(data.astype(np.float64))
+    sd = float(x.std())
+    if sd < STRIDE_MIN_STD or x.size < 4 * stride:
+        return None
+    x /= sd
+    n = 1 << int(np.ceil(np.log2(x.size + 2 * stride + 1)))
+    f = np.fft.rfft(x, n)
+    ac = np.fft.irfft(f * np.conj(f), n)[:2 * stride + 1] / np.arange(x.size, x.size - 2 * stride - 1, -1)
+    lo = max(stride // 2, 2)
+    best = lo + int(np.argmax(ac[lo:]))
+    if abs(best - stride) <= 1 or ac[best] <= STRIDE_DOUBT_RATIO * max(float(ac[stride]), 0.02):
+        return None
+    return best
+
+
 class RawPipeSource(FrameSource):
     """Raw frames (gray or bgr24, `size` = (W, H)) from a binary stream (standard input)."""
 
@@ -390,6 +418,13 @@ class RawPipeSource(FrameSource):
                           f"frame dropped (wrong --size or --pix-fmt?)")
                 return
             arr = np.frombuffer(buf, np.uint8)
+            if index == 0:
+                stride = likely_row_stride(arr, w * PIX_FMTS[self.pix_fmt])
+                if stride is not None:
+                    _warn(f"stdin: the first frame's bytes repeat every {stride} bytes, not every "
+                          f"{w * PIX_FMTS[self.pix_fmt]} (a {w}-px {self.pix_fmt} row): wrong --size or "
+                          f"--pix-fmt? (a {self.frame_bytes // stride}-row frame of {stride} bytes per row "
+                          f"would fit)")
             if self.pix_fmt == "gray":
                 gray = arr.reshape(h, w)
             else:
