@@ -153,24 +153,12 @@ def blob_profiles(gray: np.ndarray, stripe_gap_px: int, *, min_rows: int = 8):
     return out
 
 
-def edge_blur_px(gray: np.ndarray, blob, *, pad: int = 6) -> float | None:
-    """Gaussian blur sigma (px) of a blob's left and right edges: the 10-90 % width of the
-    column profile over its lit rows is 2.563 sigma for a blurred step (less the pixel's own
-    1/12 px^2 variance). None when the blob is too small or too dim to tell."""
-    h, w = gray.shape[:2]
-    x0, x1 = blob.x0 - pad, blob.x1 + pad
-    if x0 < 0 or x1 > w or blob.x1 - blob.x0 < 8:
-        return None
-    band = gray[blob.y0:blob.y1, x0:x1].astype(np.float32)
-    rows = band[:, pad:-pad].mean(axis=1)
-    lo, hi = float(rows.min()), float(rows.max())
-    lit = rows >= lo + 0.8 * (hi - lo)
-    if lit.sum() < 2 or hi - blob.background < 20:
-        return None
-    prof = band[lit].mean(axis=0)
-    bg = float(np.median(np.concatenate((prof[:2], prof[-2:]))))
+def _step_width(prof: np.ndarray, pad: int, span: int) -> float | None:
+    """Mean 10-90 % width (px) of the two edges of one column profile of a lit blob, None when
+    the profile does not show a clean step on each side."""
     n = prof.size
-    core = prof[pad + (blob.x1 - blob.x0) // 4: n - pad - (blob.x1 - blob.x0) // 4]
+    bg = float(np.median(np.concatenate((prof[:2], prof[-2:]))))
+    core = prof[pad + span // 4: n - pad - span // 4]
     if core.size < 2:
         return None
     top = float(np.median(core))
@@ -184,12 +172,35 @@ def edge_blur_px(gray: np.ndarray, blob, *, pad: int = 6) -> float | None:
         i90 = np.flatnonzero(side >= 0.9)
         if i10.size == 0 or i90.size == 0 or i10[0] == 0:
             return None
+
         def at(level, i):
             a, b = side[i - 1], side[i]
             return i - 1 + (level - a) / (b - a) if b != a else float(i)
         widths.append(at(0.9, int(i90[0])) - at(0.1, int(i10[0])))
-    wdt = float(np.mean(widths))
-    var = (wdt / 2.563) ** 2 - 1.0 / 12.0
+    return float(np.mean(widths))
+
+
+def edge_blur_px(gray: np.ndarray, blob, *, pad: int = 6, max_rows: int = 24) -> float | None:
+    """Gaussian blur sigma (px) of a blob's left and right edges: the 10-90 % width of a row's
+    column profile is 2.563 sigma for a blurred step (less the pixel's own 1/12 px^2 variance).
+    Measured row by row (the median over up to `max_rows` lit rows): an LED seen rotated has
+    slanted edges, which a profile averaged over rows would smear into false blur. None when the
+    blob is too small or too dim to tell."""
+    h, w = gray.shape[:2]
+    x0, x1 = blob.x0 - pad, blob.x1 + pad
+    if x0 < 0 or x1 > w or blob.x1 - blob.x0 < 8:
+        return None
+    band = gray[blob.y0:blob.y1, x0:x1].astype(np.float32)
+    rows = band[:, pad:-pad].mean(axis=1)
+    lo, hi = float(rows.min()), float(rows.max())
+    lit = np.flatnonzero(rows >= lo + 0.8 * (hi - lo))
+    if lit.size < 2 or hi - blob.background < 20:
+        return None
+    lit = lit[np.linspace(0, lit.size - 1, min(lit.size, max_rows)).round().astype(int)]
+    widths = [wd for wd in (_step_width(band[r], pad, blob.x1 - blob.x0) for r in lit) if wd is not None]
+    if not widths:
+        return None
+    var = (float(np.median(widths)) / 2.563) ** 2 - 1.0 / 12.0
     return float(math.sqrt(max(var, 0.0)))
 
 
