@@ -277,13 +277,9 @@ class Receiver:
                 light.led_id, light.mode = None, None
         return pair_of
 
-    # -- the frame ----------------------------------------------------------------------
-
-    def process(self, frame: Frame) -> FrameResult:
-        timer = StageTimer(self.clock)
-        gray = frame.gray
-        blobs = detect(gray, settings=self.settings.detect)
-        timer.stamp("detect")
+    def _frame_shift(self, blobs) -> tuple[float, float] | None:
+        """The frame's common image shift (dx, dy) px from the camera's shake, or None (off, or
+        not measurable): `PairSettings.shake` "vertical" or "2d" (receiver.vision.motion)."""
         shift = None
         if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d"):
             # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
@@ -303,6 +299,16 @@ class Receiver:
             s_ = shift or (0.0, 0.0)
             # the older frames' blobs, moved by this frame's shift (as if seen in this view)
             self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
+        return shift
+
+    # -- the frame ----------------------------------------------------------------------
+
+    def process(self, frame: Frame) -> FrameResult:
+        timer = StageTimer(self.clock)
+        gray = frame.gray
+        blobs = detect(gray, settings=self.settings.detect)
+        timer.stamp("detect")
+        shift = self._frame_shift(blobs)
         self.shift = shift
         tracks = self.tracker.step(frame.index, blobs, shift=shift)
         for t in self.tracker.ended:
