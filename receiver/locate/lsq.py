@@ -38,35 +38,31 @@ _LOSSES = {
     "huber": (lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
               lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))),
 }
-# Levenberg-Marquardt damping bounds and stopping rule of `robust_lm`.
+# Levenberg-Marquardt damping bounds (`lm_iterate`) and stopping rule of `robust_lm`.
 LM_LAMBDA0, LM_LAMBDA_MAX = 1e-3, 1e8
 LM_XTOL = 1e-8     # relative step
 LM_FTOL = 1e-8     # relative cost decrease (scipy's ftol)
 
 
-def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-              max_iter: int = 50) -> np.ndarray:
-    """Minimise sum rho((r/f_scale)^2) of the residual vector fun(p) (the cost of
-    scipy.optimize.least_squares with the same loss) by Levenberg-Marquardt on iteratively
-    reweighted normal equations, with the Jacobian `jac(p)` of the residuals.
-    Why not least_squares itself: for these 3-6 parameter problems its per-iteration overhead
-    (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
-    Losses other than those in _LOSSES fall back to least_squares."""
-    if loss not in _LOSSES:
-        return least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
+def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+               max_iter: int = 50):
+    """Minimise sum rho((r/f_scale)^2) (the cost of scipy.optimize.least_squares with the same
+    loss, one of `_LOSSES`) by Levenberg-Marquardt on iteratively reweighted normal equations.
+    `fun_jac(p) -> (r, J)`: residuals and their Jacobian; `done(dp, p, c, c_new) -> bool`: the
+    stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r, J)
+    with the residuals and Jacobian at p; converged is False when `max_iter` ran out."""
     rho, wfun = _LOSSES[loss]
 
-    def cost_w(r):
+    def cost_z(r):
         z = (r / f_scale) ** 2
-        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), wfun(z)
+        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
 
     p = np.asarray(p0, float).copy()
-    r = fun(p)
-    c, w = cost_w(r)
+    r, J = fun_jac(p)
+    c, z = cost_z(r)
     lam = LM_LAMBDA0
     for _ in range(max_iter):
-        J = jac(p)
-        Jw = J * w[:, None]
+        Jw = J * wfun(z)[:, None]
         A = J.T @ Jw
         g = Jw.T @ r
         D = np.diag(np.maximum(np.diag(A), 1e-12))
@@ -76,19 +72,35 @@ def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: fl
             except np.linalg.LinAlgError:
                 dp = np.zeros_like(p)
             p_new = p + dp
-            r_new = fun(p_new)
-            c_new, w_new = cost_w(r_new)
+            r_new, J_new = fun_jac(p_new)
+            c_new, z_new = cost_z(r_new)
             if c_new <= c:
                 break
             lam *= 10.0
             if lam > LM_LAMBDA_MAX:
-                return p
-        done = np.linalg.norm(dp) <= LM_XTOL * (1.0 + np.linalg.norm(p)) or c - c_new <= LM_FTOL * c
-        p, r, c, w = p_new, r_new, c_new, w_new
+                return p, True, r, J
+        stop = done(dp, p, c, c_new)
+        p, r, J, c, z = p_new, r_new, J_new, c_new, z_new
         lam = max(lam / 10.0, 1e-12)
-        if done:
-            break
-    return p
+        if stop:
+            return p, True, r, J
+    return p, False, r, J
+
+
+def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+              max_iter: int = 50) -> np.ndarray:
+    """`lm_iterate` on residuals `fun(p)` with Jacobian `jac(p)`, stopping on a relative step
+    below `LM_XTOL` or a relative cost decrease below `LM_FTOL`.
+    Why not least_squares itself: for these 3-6 parameter problems its per-iteration overhead
+    (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
+    Losses other than those in _LOSSES fall back to least_squares."""
+    if loss not in _LOSSES:
+        return least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
+
+    def done(dp, p, c, c_new):
+        return np.linalg.norm(dp) <= LM_XTOL * (1.0 + np.linalg.norm(p)) or c - c_new <= LM_FTOL * c
+
+    return lm_iterate(lambda q: (fun(q), jac(q)), p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
 
 
 def _covariance(fun, p: np.ndarray) -> tuple[np.ndarray, float, int]:

@@ -42,11 +42,10 @@ from scipy.sparse import csr_matrix
 
 from receiver.locate.lsq import (
     _LOSSES,
+    lm_iterate,
     BELOW_CEILING_M,
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
-    LM_LAMBDA0,
-    LM_LAMBDA_MAX,
     Fix,
 )
 
@@ -299,50 +298,20 @@ class _Problem:
 
 
 def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
-    """`receiver.locate.lsq.robust_lm` (the same IRLS Levenberg-Marquardt) on a problem that gives
-    residuals and Jacobian in one call, stopping once a step moves the pose by less than
-    `STEP_TOL` (m, rad) or lowers the cost by less than `COST_RTOL` of it (a warm start from the
-    last frame's pose gets there in 1-3 iterations). Returns (p, converged, r, J) with the
-    residuals and Jacobian at p."""
-    p = np.asarray(p0, float).copy()
-    r, J = prob(p)
+    """`receiver.locate.lsq.lm_iterate` on a problem that gives residuals and Jacobian in one
+    call, stopping once a step moves the pose by less than `STEP_TOL` (m, rad) or lowers the
+    cost by less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in
+    1-3 iterations). Returns (p, converged, r, J) with the residuals and Jacobian at p."""
     if loss not in _LOSSES:
-        p = least_squares(lambda q: prob(q, False), p, jac=lambda q: prob(q)[1], loss=loss,
+        p = least_squares(lambda q: prob(q, False), np.asarray(p0, float), jac=lambda q: prob(q)[1], loss=loss,
                           f_scale=f_scale, method="trf").x
         r, J = prob(p)
         return p, True, r, J
-    rho, wfun = _LOSSES[loss]
 
-    def cost_w(r):
-        z = (r / f_scale) ** 2
-        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
+    def done(dp, p, c, c_new):
+        return float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
 
-    c, z = cost_w(r)
-    lam = LM_LAMBDA0
-    for _ in range(max_iter):
-        Jw = J * wfun(z)[:, None]
-        A = J.T @ Jw
-        g = Jw.T @ r
-        D = np.diag(np.maximum(np.diag(A), 1e-12))
-        while True:
-            try:
-                dp = np.linalg.solve(A + lam * D, -g)
-            except np.linalg.LinAlgError:
-                dp = np.zeros_like(p)
-            p_new = p + dp
-            r_new, J_new = prob(p_new)
-            c_new, z_new = cost_w(r_new)
-            if c_new <= c:
-                break
-            lam *= 10.0
-            if lam > LM_LAMBDA_MAX:
-                return p, True, r, J
-        done = float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
-        p, r, J, c, z = p_new, r_new, J_new, c_new, z_new
-        lam = max(lam / 10.0, 1e-12)
-        if done:
-            return p, True, r, J
-    return p, False, r, J
+    return lm_iterate(prob, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
 def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
