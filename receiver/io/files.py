@@ -215,3 +215,33 @@ def dumps(obj, **kw) -> str:
         if default is not None:  # apply it first, so that what it returns is cleaned too
             kw = dict(kw, default=lambda v: finite_or_none(default(v)))
         return json.dumps(finite_or_none(obj), allow_nan=False, **kw)
+
+
+def read_jsonl(path: str, what: str, *, require: bool = True,
+               max_bytes: int = MAX_JSONL_BYTES) -> list[tuple[int, dict]]:
+    """(line number, object) for every non-empty line of a JSON Lines file (a regular file of
+    at most `max_bytes`; every line nesting-checked before json sees it, NaN/Infinity and
+    numbers too long for Python refused). `require`: an empty file is an error."""
+
+    if not os.path.exists(path):
+        raise InputError(f"cannot read {what} file {path}: No such file or directory")
+    try:
+        text = read_bytes(path, f"{what} file", max_bytes).decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{what} file {path} is not UTF-8 text") from None
+    out = []
+    for n, line in enumerate(text.split("\n"), 1):
+        if not line.strip():
+            continue
+        where = f"{path}:{n}"
+        check_nesting(line, where)
+        try:
+            obj = loads(line, where)
+        except InputError as e:
+            raise InputError(str(e).replace("not valid JSON", "malformed JSON")) from None
+        if not isinstance(obj, dict):
+            raise InputError(f"{path}:{n}: expected a JSON object per line")
+        out.append((n, obj))
+    if require and not out:
+        raise InputError(f"{what} file {path} has no frames")
+    return out

@@ -9,7 +9,6 @@ None outside the logged span (no extrapolation).
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
@@ -46,25 +45,11 @@ def _number(obj: dict, key: str, where: str) -> float:
 
 
 def load_odometry(path: str) -> Odometry:
-    from receiver.io.files import read_bytes
+    from receiver.io.files import read_jsonl
 
-    # a regular file only (a FIFO would block), at most MAX_ODOMETRY_BYTES
-    data = read_bytes(path, "odometry file", MAX_ODOMETRY_BYTES)
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not UTF-8 text") from None
     ts, vs = [], []
-    for n, line in enumerate(text.splitlines(), 1):
-        if not line.strip():
-            continue
+    for n, obj in read_jsonl(path, "odometry", require=False, max_bytes=MAX_ODOMETRY_BYTES):
         where = f"{path} line {n}"
-        try:
-            obj = json.loads(line, parse_constant=lambda c: float("nan"))
-        except (ValueError, RecursionError):
-            raise InputError(f"{where}: not a JSON object") from None
-        if not isinstance(obj, dict):
-            raise InputError(f"{where}: not a JSON object")
         t, v = _number(obj, "t", where), _number(obj, "speed_mps", where)
         if not 0.0 <= v <= MAX_SPEED_MPS:
             raise InputError(f"{where}: speed_mps {v:g} outside 0..{MAX_SPEED_MPS:g} m/s")

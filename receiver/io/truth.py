@@ -19,45 +19,15 @@ from __future__ import annotations
 
 import json
 import math
-import os
 
 import numpy as np
 
 from receiver.core.errors import InputError
+from receiver.io.files import read_jsonl
 POSITION_KEYS = ("x", "y", "z")
 
 
 # ---------------------------------------------------------------- reading
-
-
-def read_jsonl(path: str, what: str) -> list[tuple[int, dict]]:
-    """(line number, object) for every non-empty line of a JSON Lines file (a regular file of
-    at most MAX_JSONL_BYTES; every line nesting-checked before json sees it, NaN/Infinity and
-    numbers too long for Python refused)."""
-    from receiver.io.files import MAX_JSONL_BYTES, check_nesting, loads, read_bytes
-
-    if not os.path.exists(path):
-        raise InputError(f"cannot read {what} file {path}: No such file or directory")
-    try:
-        text = read_bytes(path, f"{what} file", MAX_JSONL_BYTES).decode("utf-8")
-    except UnicodeDecodeError:
-        raise InputError(f"{what} file {path} is not UTF-8 text") from None
-    out = []
-    for n, line in enumerate(text.split("\n"), 1):
-        if not line.strip():
-            continue
-        where = f"{path}:{n}"
-        check_nesting(line, where)
-        try:
-            obj = loads(line, where)
-        except InputError as e:
-            raise InputError(str(e).replace("not valid JSON", "malformed JSON")) from None
-        if not isinstance(obj, dict):
-            raise InputError(f"{path}:{n}: expected a JSON object per line")
-        out.append((n, obj))
-    if not out:
-        raise InputError(f"{what} file {path} has no frames")
-    return out
 
 
 def _number(v, where: str, *, allow_none: bool = True):
