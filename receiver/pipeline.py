@@ -161,10 +161,10 @@ class Receiver:
             s = dataclasses.replace(s, policy=dataclasses.replace(s.policy, **policy_kw))
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
-        self.vehicle = vehicle if self.pairer_wanted(led_map) else None
         self.speed = speed
         self.clock = clock
         self.plan = plan = ModePlan.from_map(led_map)
+        self.vehicle = vehicle if plan.s2psk else None
         self.settings = s = self._resolve(s, camera, plan, still)
         self.min_stripe_rows = int(math.ceil(plan.stripe_period_px(camera)))
         self.stripe_check = s.policy.stripe_check
@@ -182,10 +182,6 @@ class Receiver:
         self.frames = 0
         self.decoded_ids: set[int] = set()
         self.last_counts: dict[str, int] = {}
-
-    @staticmethod
-    def pairer_wanted(led_map: LedMap) -> bool:
-        return bool(ModePlan.from_map(led_map).s2psk)
 
     @staticmethod
     def _resolve(s: ReceiverSettings, camera: CameraModel, plan: ModePlan, still: bool) -> ReceiverSettings:
@@ -338,9 +334,12 @@ class Receiver:
         timer.stamp("decode")
 
         # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
-        want = [t.track_id for t in seen if self.positioner is not None and t.track_id not in pair_of
-                and self._light(t.track_id).striped and self._light(t.track_id).led_id is not None
-                and self._light(t.track_id).mode != "s2psk"]
+        want = []
+        if self.positioner is not None:
+            for t in seen:
+                light = self._light(t.track_id)
+                if t.track_id not in pair_of and light.striped and light.led_id is not None and light.mode != "s2psk":
+                    want.append(t.track_id)
         edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want])))
         leds = []
         for t in seen:
