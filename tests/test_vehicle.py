@@ -94,10 +94,13 @@ def visible(P, R, C, margin=4):
 
 
 def pair_obs(key, led_id, kind, ca, cb, area_a, area_b, both=True):
-    return PairObservation(key=key, led_id=led_id, kind=kind, a_px=(float(ca[0]), float(ca[1])),
-                           b_px=(float(cb[0]), float(cb[1])), area_a_px=float(area_a),
+    """Both emitters measured in this frame (`both`), else B last seen 2 frames ago."""
+    a = (float(ca[0]), float(ca[1]))
+    b = (float(cb[0]), float(cb[1]))
+    return PairObservation(key=key, led_id=led_id, kind=kind, a_px=a, b_px=b, area_a_px=float(area_a),
                            area_b_px=float(area_b), separation_px=float(np.hypot(*(cb - ca))),
-                           both_visible=both)
+                           both_visible=both, a_seen=(a, float(area_a), 0),
+                           b_seen=(b, float(area_b), 0 if both else 2))
 
 
 def camera_pose(s, radius=None, lateral=0.0, yaw_off=0.0, pitch=PITCH, roll=0.0):
@@ -192,12 +195,15 @@ def test_half_pair_gives_no_range():
     lmap = make_map()
     R, C, psi = camera_pose(0.0)
     p, _ = fv_pair((20.0, 0.0), R, C, psi)
-    half = PairObservation(**{**p.__dict__, "both_visible": False})
-    assert range_pair(half, CAM, lmap, SETTINGS) is None
-    loc = VehicleLocator(CAM, lmap, SETTINGS)
-    res = loc.step(0.0, [half])
-    assert res.ranges == (None,)
-    assert res.vehicle is None or res.vehicle["fv"] == []
+    assert range_pair(p, CAM, lmap, SETTINGS) is not None
+    # B last measured a frame ago (its own blob dark or hidden now), or never seen alone.
+    for b_seen in ((p.b_seen[0], p.b_seen[1], 1), None):
+        half = PairObservation(**{**p.__dict__, "both_visible": False, "b_seen": b_seen})
+        assert range_pair(half, CAM, lmap, SETTINGS) is None
+        loc = VehicleLocator(CAM, lmap, SETTINGS)
+        res = loc.step(0.0, [half])
+        assert res.ranges == (None,)
+        assert res.vehicle is None or res.vehicle["fv"] == []
 
 
 # ------------------------------------------------------------------------------ host vehicle

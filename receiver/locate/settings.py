@@ -95,8 +95,12 @@ class VehicleSettings:
     edge_offset_px: float = 0.0         # envelope vs true edge: with the lens blur (bundled vehicle
                                         # recording) the envelope of a small taillight is its true
                                         # area (eq. 18 median -0.2 %); 0.5 px read 20 % short at 40 m
-    fv_centroid_sigma_px: float = 1.0   # taillight centroids: blobs of ~12 px, striped, partner
-                                        # emitter up to a few frames old (separation std ~1.5 px)
+    fv_centroid_sigma_px: float = 0.2   # taillight centroids, both measured in the same frame
+                                        # (vehicle.fv_measured): bundled recording, separation
+                                        # error |median| 0.39 % of 44-125 px (~0.2 px each)
+    fv_area_model_rel: float = 0.05     # taillight eq. 18 model error: striped 10-50 px envelopes,
+                                        # cut by clock edges (bundled recording: "oblique" +3.1 %
+                                        # signed, 4.0 % |median|), relative
     edge_sigma_px: float = 0.1          # edge location 1-sigma all around, px (range_sigma_m)
     area_model_rel: float = 0.01        # eq. 18 model error (small patch, calibration), relative
     baseline_model_rel: float = 0.002   # baseline ranging model error with a known baseline

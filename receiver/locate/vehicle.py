@@ -168,12 +168,14 @@ def _perimeter_k(S1, S2, r, circle):
 
 
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
-               base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None):
+               base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None, area_model_rel=None):
     """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
     factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
     `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
     fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
-    (N,). Returns a dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed)."""
+    (N,); centroid_sigma_px, area_model_rel: scalars or (N,) (default: the settings'). Returns a
+    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed)."""
+    amr = settings.area_model_rel if area_model_rel is None else area_model_rel
     ra, rb = _rays(ua), _rays(ub)
     um = 0.5 * (ua + ub)
     # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
@@ -213,12 +215,12 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
             eb.append(0.5 * tan_th * orient_sigma_rad)
         d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
         out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
-        out["eq18_sigma"] = out["eq18"] * (settings.area_model_rel + 0.5 * (ea[0] + ea[1]))
+        out["eq18_sigma"] = out["eq18"] * (amr + 0.5 * (ea[0] + ea[1]))
         out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
         P = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
         d_ob = np.linalg.norm(P, axis=1)
         fore = 0.5 * (eb[0] + eb[1])
-        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + settings.area_model_rel ** 2)
+        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + amr ** 2)
         wa = 1.0 / s_ob ** 2
         wb = 1.0 / s_base ** 2
         fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
@@ -235,8 +237,8 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         s_f = 1.0 / np.sqrt(wsum)
     out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
                fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
-               d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + settings.area_model_rel ** 2),
-               s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + settings.area_model_rel ** 2),
+               d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + amr ** 2),
+               s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + amr ** 2),
                ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
     return out
 
@@ -277,6 +279,20 @@ def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: 
     # a1^2 = c^2 + h^2 (eq. 44): the foot point F of the camera on the line lies c before SL1
     # (SL1 = F + c u, SL2 = F + (c + d) u, eq. 45) and P = F - s h n.
     return sl1[:2] - c * u - s * h * n
+
+
+def fv_measured(p: PairObservation):
+    """((ax, ay, bx, by), (area_a, area_b)) of a taillight pair whose two emitters were both
+    measured in this frame (`a_seen`, `b_seen` of age 0), else None. A taillight pair is ranged
+    from these measured centroids only: the pair's rigid-model positions `a_px`, `b_px` carry
+    the baseline from its founding frame scaled by the square root of the emitters' envelope
+    areas (an area measurement, a few % off on 10-50 px striped blobs) and rounded to whole
+    pixels, and a partner emitter seen frames ago has moved by the camera's shake and the
+    car's motion since."""
+    a, b = p.a_seen, p.b_seen
+    if a is None or b is None or a[2] != 0 or b[2] != 0:
+        return None
+    return (a[0][0], a[0][1], b[0][0], b[0][1]), (a[1], b[1])
 
 
 def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
@@ -366,24 +382,35 @@ class VehicleLocator:
     def _range_pairs(self, pairs, R_cw, pose_known: bool):
         """Range every usable pair (vectorised). Returns (list aligned with pairs of (res, k) or
         (None, None), res dict) or None when no pair is usable."""
-        idx, roles, consts = [], [], []
+        R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
+        Lv = self.Lv = level_rotation(R)           # rows: ahead, left, up in camera frame
+        idx, roles, consts, ab, eta = [], [], [], [], []
         for i, p in enumerate(pairs):
-            if not p.both_visible:
-                continue
             role = self._role(p)
-            if role is not None:
-                idx.append(i)
-                roles.append(role)
-                consts.append(self._sl[p.led_id]["row"] if role == "SL" else self._tl["row"])
+            if role is None:
+                continue
+            if role == "SL":
+                if not p.both_visible:
+                    continue
+                ab.append(p.a_px + p.b_px)
+                eta.append((p.area_a_px, p.area_b_px))
+                consts.append(self._sl[p.led_id]["row"])
+            else:
+                m = fv_measured(p)
+                if m is None:
+                    continue
+                ab.append(m[0])
+                eta.append(m[1])
+                consts.append(self._tl["row"])
+            idx.append(i)
+            roles.append(role)
         if not idx:
             return None
         n = len(idx)
-        ab = np.array([pairs[i].a_px + pairs[i].b_px for i in idx], float)
-        eta = np.array([(pairs[i].area_a_px, pairs[i].area_b_px) for i in idx], float)
+        ab = np.array(ab, float)
+        eta = np.array(eta, float)
         cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
         ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
-        R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
-        Lv = level_rotation(R)                     # rows: ahead, left, up in camera frame
         osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
         rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
@@ -407,7 +434,8 @@ class VehicleLocator:
         S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
                          np.full(n, osig), bm, self.focal, self.s,
-                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px))
+                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px),
+                         np.where(is_sl, self.s.area_model_rel, self.s.fv_area_model_rel))
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
@@ -637,9 +665,41 @@ class VehicleLocator:
             return None
         return hv
 
+    def _fv_directions(self, pairs, aligned) -> dict:
+        """{pair index: (bearing rad, level-frame unit ray (3,))} of the tracked taillight pairs
+        not ranged this frame: their midpoint from the emitter measured in this frame and the
+        track's last measured separation (px, scaled by the distance ratio: the image scales as
+        1 / distance), else the pair's predicted midpoint. The bearing follows the camera's
+        shake every frame; the separation of one emitter and a partner seen frames ago does not
+        range, but places the midpoint to a fraction of a pixel."""
+        mids, where = [], []
+        for i, p in enumerate(pairs):
+            if aligned[i][0] is not None:
+                continue
+            tr = self.fv_tracks.get(p.key)
+            if tr is None or self._role(p) not in ("FV", "FV?"):
+                continue
+            sep = tr.get("sep_px")
+            a, b = p.a_seen, p.b_seen
+            k = 0.0 if sep is None else 0.5 * tr["sep_d"] / max(tr["kf"].d, 1e-6)
+            if sep is not None and a is not None and a[2] == 0:
+                mids.append((a[0][0] + k * sep[0], a[0][1] + k * sep[1]))
+            elif sep is not None and b is not None and b[2] == 0:
+                mids.append((b[0][0] - k * sep[0], b[0][1] - k * sep[1]))
+            else:
+                mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+            where.append(i)
+        if not where:
+            return {}
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K, self.camera.dist)
+        lev = _rays(und.reshape(-1, 2)) @ self.Lv.T
+        bearing = np.arctan2(lev[:, 1], lev[:, 0])
+        return {i: (float(bearing[j]), lev[j]) for j, i in enumerate(where)}
+
     def _update_fv(self, t_s, pairs, aligned, res, hv):
         s = self.s
         out = []
+        dirs = self._fv_directions(pairs, aligned)
         seen = set()
         not_fv = set()          # undecoded pairs found not to be taillights (no range reported)
         v_hv = None if hv is None else hv["speed_mps"]
@@ -670,7 +730,8 @@ class VehicleLocator:
                         if not s.fv_min_height_m <= z <= s.fv_max_height_m:
                             not_fv.add(i)
                             continue
-                    meas = (float(d), float(sd), float(r["bearing"][k]), lev)
+                    m = fv_measured(p)[0]
+                    meas = (float(d), float(sd), float(r["bearing"][k]), lev, (m[2] - m[0], m[3] - m[1]))
             if meas is None and tr is None:
                 continue
             if tr is None:
@@ -687,6 +748,9 @@ class VehicleLocator:
                         meas = None
             if meas is not None:
                 tr["bearing"], tr["lev"] = meas[2], meas[3]
+                tr["sep_px"], tr["sep_d"] = meas[4], meas[0]
+            elif i in dirs:
+                tr["bearing"], tr["lev"] = dirs[i]
             if p.led_id is not None and p.led_id > 0x7F:
                 tr["id"] = int(p.led_id)
             seen.add(key)
