@@ -120,6 +120,8 @@ class VehicleSettings:
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20
     pose_track_iter: int = 8            # iterations warm-started from the previous pose (3: HV p95 4.0 m)
+    pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
+    pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
     heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
     accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
     yaw_accel_psd: float = 0.05         # rad^2/s^3

@@ -71,7 +71,7 @@ import numpy as np
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
-from receiver.locate.lsq import _covariance, robust_lm
+from receiver.locate.lsq import _LOSSES, LM_FTOL, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman
@@ -116,12 +116,11 @@ def _r(v, nd=4):
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:
     """(3, 3) rotation turning camera-frame vectors into the camera's level frame (module doc):
     rows are the level axes (ahead, left, up) expressed in the camera frame."""
-    up = R_cw[:, 2]                       # world up in the camera frame
-    fwd = np.array([0.0, 0.0, 1.0]) - up * up[2]
-    n = np.linalg.norm(fwd)
-    fwd = fwd / n if n > 1e-9 else np.array([0.0, -1.0, 0.0])
-    left = np.cross(up, fwd)
-    return np.vstack([fwd, left, up])
+    ux, uy, uz = (float(v) for v in R_cw[:, 2])      # world up in the camera frame
+    fx, fy, fz = -ux * uz, -uy * uz, 1.0 - uz * uz    # the optical axis minus its up component
+    n = math.sqrt(fx * fx + fy * fy + fz * fz)
+    fx, fy, fz = (fx / n, fy / n, fz / n) if n > 1e-9 else (0.0, -1.0, 0.0)
+    return np.array([[fx, fy, fz], [uy * fz - uz * fy, uz * fx - ux * fz, ux * fy - uy * fx], [ux, uy, uz]])
 
 
 def nominal_rotation(settings: VehicleSettings, yaw_deg: float = 0.0) -> np.ndarray:
@@ -147,8 +146,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _rays(u: np.ndarray) -> np.ndarray:
-    v = np.concatenate([u, np.ones((len(u), 1))], axis=1)
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.empty((len(u), 3))
+    v[:, :2] = u
+    v[:, 2] = 1.0
+    return v / np.sqrt(np.add.reduce(v * v, 1))[:, None]
 
 
 def _perimeter_k(S1, S2, r, circle):
@@ -156,11 +157,11 @@ def _perimeter_k(S1, S2, r, circle):
     metres) seen along the unit rays r (N, 3): the sides' components across the ray (a locally
     parallel projection; scale-free, so no distance is needed). Foreshortened panels are long
     and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
-    p1 = S1 - np.sum(S1 * r, axis=1, keepdims=True) * r
-    p2 = S2 - np.sum(S2 * r, axis=1, keepdims=True) * r
-    l1, l2 = np.sqrt(np.sum(p1 * p1, axis=1)), np.sqrt(np.sum(p2 * p2, axis=1))
+    p1 = S1 - np.add.reduce(S1 * r, 1, keepdims=True) * r
+    p2 = S2 - np.add.reduce(S2 * r, 1, keepdims=True) * r
+    l1, l2 = np.sqrt(np.add.reduce(p1 * p1, 1)), np.sqrt(np.add.reduce(p2 * p2, 1))
     c = _cross(p1, p2)
-    ar = np.sqrt(np.sum(c * c, axis=1))
+    ar = np.sqrt(np.add.reduce(c * c, 1))
     with np.errstate(divide="ignore", invalid="ignore"):
         k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
         k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
@@ -174,51 +175,58 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
     fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
     (N,); centroid_sigma_px, area_model_rel: scalars or (N,) (default: the settings'). Returns a
-    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed)."""
+    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed). The two emitters' area
+    ranges are computed in one pass over 2N rows (A's then B's)."""
     amr = settings.area_model_rel if area_model_rel is None else area_model_rel
-    ra, rb = _rays(ua), _rays(ub)
+    n = len(ua)
+    r2 = _rays(np.concatenate([ua, ub]))          # (2N, 3): A's rays, then B's
+    ra, rb = r2[:n], r2[n:]
     um = 0.5 * (ua + ub)
     # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
     proj = B_cam[:, :2] - um * B_cam[:, 2:3]
-    flip = np.sum(proj * (ub - ua), axis=1) < 0
+    flip = np.add.reduce(proj * (ub - ua), 1) < 0
     B = np.where(flip[:, None], -B_cam, B_cam)
-    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares.
-    raa = np.ones(len(ra))
-    rab = np.sum(ra * rb, axis=1)
-    ba, bb = -np.sum(ra * B, axis=1), np.sum(rb * B, axis=1)
-    det = raa * raa - rab * rab
+    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
+    rab = np.add.reduce(ra * rb, 1)
+    ba, bb = -np.add.reduce(ra * B, 1), np.add.reduce(rb * B, 1)
+    det = 1.0 - rab * rab
     with np.errstate(divide="ignore", invalid="ignore"):
-        sa = (raa * ba + rab * bb) / det          # normal matrix [[1, -rab], [-rab, 1]]
-        sb = (raa * bb + rab * ba) / det
-        d_base = 0.5 * np.linalg.norm(sa[:, None] * ra + sb[:, None] * rb, axis=1)
-        sep_px = np.linalg.norm(ub - ua, axis=1) * focal_px
+        sa = (ba + rab * bb) / det
+        sb = (bb + rab * ba) / det
+        P = sa[:, None] * ra + sb[:, None] * rb
+        d_base = 0.5 * np.sqrt(np.add.reduce(P * P, 1))
+        du = ub - ua
+        sep_px = np.sqrt(np.add.reduce(du * du, 1)) * focal_px
         csig = settings.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
         s_base = d_base * (math.sqrt(2.0) * csig / sep_px + base_model_rel)
         ok = (det > 1e-14) & (sa > 0) & (sb > 0)
         d_base = np.where(ok, d_base, np.nan)
-        # Areas (eq. 18 and its corrected form).
+        # Areas (eq. 18 and its corrected form), both emitters at once.
         off = settings.edge_offset_px
+        eta = np.concatenate([eta_a, eta_b])
+        j2 = np.concatenate([ja, jb])
+        S1_2, S2_2 = np.concatenate([S1, S1]), np.concatenate([S2, S2])
+        n2 = np.concatenate([n_cam, n_cam])
+        A2 = np.concatenate([area_m2, area_m2])
+        kperim = _perimeter_k(S1_2, S2_2, r2, np.concatenate([circle, circle]))
+        sq_eta = np.sqrt(np.maximum(eta, 0))
+        eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
+        cos_al = r2[:, 2]
+        cos_th = np.abs(np.add.reduce(n2 * r2, 1))
+        d2 = np.sqrt(A2 * cos_th / (eta_c * j2 * cos_al ** 3))
+        d2 = np.where((eta > 0) & (cos_th > 1e-3), d2, np.nan)
+        tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
+        ea2 = settings.edge_sigma_px * kperim / (2.0 * sq_eta)
+        eb2 = 0.5 * tan_th * np.concatenate([orient_sigma_rad, orient_sigma_rad])
+        ea, eb = (ea2[:n], ea2[n:]), (eb2[:n], eb2[n:])
+        da_ob = (d2[:n], d2[n:])
         out = {}
-        da_ob, ea, eb, kp = [], [], [], []
-        for eta, j, r in ((eta_a, ja, ra), (eta_b, jb, rb)):
-            kperim = _perimeter_k(S1, S2, r, circle)
-            eta_c = eta + kperim * np.sqrt(np.maximum(eta, 0)) * off + math.pi * off * off
-            a_norm = eta_c * j
-            cos_al = r[:, 2]
-            cos_th = np.abs(np.sum(n_cam * r, axis=1))
-            d = np.sqrt(area_m2 * cos_th / (a_norm * cos_al ** 3))
-            d = np.where((eta > 0) & (cos_th > 1e-3), d, np.nan)
-            da_ob.append(d)
-            tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
-            ea.append(settings.edge_sigma_px * kperim / (2.0 * np.sqrt(eta)))
-            kp.append(kperim)
-            eb.append(0.5 * tan_th * orient_sigma_rad)
         d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
         out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
         out["eq18_sigma"] = out["eq18"] * (amr + 0.5 * (ea[0] + ea[1]))
         out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
-        P = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
-        d_ob = np.linalg.norm(P, axis=1)
+        Pa = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
+        d_ob = np.sqrt(np.add.reduce(Pa * Pa, 1))
         fore = 0.5 * (eb[0] + eb[1])
         s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + amr ** 2)
         wa = 1.0 / s_ob ** 2
@@ -227,18 +235,18 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         # The area range rests on the emitter's normal and size (a map entry without the normal
         # of a tilted head reads it several times too short); the baseline only on geometry.
         # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
-        with np.errstate(invalid="ignore"):
-            clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
+        clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
         fa = fa & ~clash
         wa = np.where(fa, wa, 0.0)
         wb = np.where(fb, wb, 0.0)
         wsum = wa + wb
         d_f = (wa * np.where(fa, d_ob, 0) + wb * np.where(fb, d_base, 0)) / wsum
         s_f = 1.0 / np.sqrt(wsum)
+        amr2 = np.concatenate([amr, amr]) if np.ndim(amr) else amr
+        sab = d2 * np.sqrt(ea2 ** 2 + eb2 ** 2 + amr2 ** 2)
     out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
                fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
-               d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + amr ** 2),
-               s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + amr ** 2),
+               d_a=da_ob[0], d_b=da_ob[1], s_a=sab[:n], s_b=sab[n:],
                ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
     return out
 
@@ -333,6 +341,7 @@ class VehicleLocator:
                              gate_chi2=settings.gate_chi2, max_rejects=settings.max_rejects,
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
+        self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
@@ -422,14 +431,15 @@ class VehicleLocator:
         Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * Lv[1])
         nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -Lv[0])
         # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
-        perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
-        perp = perp / np.maximum(np.sqrt(np.sum(perp * perp, axis=1, keepdims=True)), 1e-12)
         unk = is_sl & ~known_b
-        Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
+        if unk.any():
+            perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
+            perp = perp / np.maximum(np.sqrt(np.add.reduce(perp * perp, 1, keepdims=True)), 1e-12)
+            Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
         sy = math.radians(self.s.taillight_yaw_sigma_deg)
         bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
                       np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
-        across = Bc / np.sqrt(np.sum(Bc * Bc, axis=1, keepdims=True))
+        across = Bc / np.sqrt(np.add.reduce(Bc * Bc, 1, keepdims=True))
         S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
         S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
@@ -487,15 +497,32 @@ class VehicleLocator:
         fun = _joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov)
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
-        x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale,
-                      max_iter=self.s.pose_max_iter if max_iter is None else max_iter)
+        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
+        if self.s.pose_loss not in _LOSSES:
+            x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale, max_iter=n_iter)
+            r, J = fun(x), fun.jac(x)
+        else:
+            rot_tol, pos_tol = self.s.pose_rot_tol_rad, self.s.pose_pos_tol_m
+
+            def done(dp, q, c, c_new):
+                # Converged once a step moves the camera by less than the output's resolution
+                # (a warm start from the road filter's prediction: 1-3 steps).
+                return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
+                    or c - c_new <= LM_FTOL * c
+
+            x, _, r, J = lm_iterate(lambda q: (fun(q), fun.jac(q)), p0, done, loss=self.s.pose_loss,
+                                    f_scale=self.s.pose_f_scale, max_iter=n_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
         C = x[3:].copy()
         if C[2] >= float(L[:, 2].min()):
             return None
-        cov6, chi2, dof = _covariance(fun, x)
+        # Covariance from the final residuals and Jacobian (receiver.locate.lsq._covariance's
+        # formula without evaluating them again).
+        dof = len(r) - len(x)
+        s2 = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
+        cov6 = np.linalg.pinv(J.T @ J) * s2
         return R, C, cov6[3:5, 3:5]
 
     # -------------------------------------------------------------------------- step
@@ -526,7 +553,8 @@ class VehicleLocator:
             else:
                 if R_prior is not None:
                     pred = self.kf.predict_at(t_s)[0]
-                    R0, C0 = R_prior, np.array([pred[0], pred[1], s.camera_height_m])
+                    # The camera's height as last solved (it may sit off the prior by decimetres).
+                    R0, C0 = R_prior, np.array([pred[0], pred[1], self.z_last])
                     init = (R0, C0)
                 else:
                     P_cam = np.array([res["fused"][k] * _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
@@ -638,6 +666,7 @@ class VehicleLocator:
                     accepted = True
             if accepted:
                 self.R_last = R
+                self.z_last = float(fix["pose"][0][2])
                 _, pitch, roll = rotation_to_ypr_deg(R)
                 self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
             else:
