@@ -552,10 +552,10 @@ class VehicleLocator:
         sl_k = []
         if out is not None:
             aligned, res = out
-            sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL"
-                    and self._sl[pairs[res["idx"][k]].led_id]["em"] is not None
-                    and np.isfinite(res["fused"][k])]
-            n_sl_any = sum(1 for r in res["roles"] if r == "SL")
+            fused_ok = np.isfinite(res["fused"])
+            sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL" and fused_ok[k]
+                    and self._sl[pairs[res["idx"][k]].led_id]["em"] is not None]
+            n_sl_any = res["roles"].count("SL")
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
             elif len(sl_k) < s.min_lights:
