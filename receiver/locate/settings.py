@@ -142,6 +142,13 @@ class VehicleSettings:
     fv_max_rejects: int = 4             # consecutive gated ranges that restart the track
     fv_dup_deg: float = 0.5             # FV entries closer in bearing are one vehicle (one kept)
     fv_coast_max_rel: float = 0.05      # a coasting FV entry is reported while its std <= this x d
+    fv_lateral_sigma_m: float = 0.05    # FV lateral position (level frame) 1-sigma floor, m
+    fv_bearing_sigma_deg: float = 0.05  # ... and its bearing's 1-sigma (bundled recording 0.04 deg)
+    fv_lateral_rate_sigma_mps: float = 2.0  # initial lateral-rate uncertainty
+    fv_lateral_accel_psd: float = 0.5   # lateral relative acceleration density (lane change), m^2/s^3
+    fv_yaw_min_frames: int = 10         # lateral positions before the FV's yaw is estimated
+    fv_yaw_min_speed_mps: float = 3.0   # ... and FV ground speed needed (yaw = atan2(vy, vx))
+    fv_yaw_max_rad: float = 0.5         # |yaw| clipped here (~29 deg)
     fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
     fv_max_height_m: float = 2.5
     closing_min_mps: float = 0.2        # ttc only when closing faster than this

@@ -403,7 +403,7 @@ class VehicleLocator:
         (None, None), res dict) or None when no pair is usable."""
         R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
         Lv = self.Lv = level_rotation(R)           # rows: ahead, left, up in camera frame
-        idx, roles, consts, ab, eta = [], [], [], [], []
+        idx, roles, consts, ab, eta, yaw = [], [], [], [], [], []
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role is None:
@@ -421,6 +421,10 @@ class VehicleLocator:
                 ab.append(m[0])
                 eta.append(m[1])
                 consts.append(self._tl["row"])
+                tr = self.fv_tracks.get(p.key)
+                yaw.append(0.0 if tr is None else tr["yaw"])
+            if role == "SL":
+                yaw.append(0.0)
             idx.append(i)
             roles.append(role)
         if not idx:
@@ -428,6 +432,7 @@ class VehicleLocator:
         n = len(idx)
         ab = np.array(ab, float)
         eta = np.array(eta, float)
+        yaw = np.array(yaw, float)
         cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
         ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
         osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
@@ -437,9 +442,11 @@ class VehicleLocator:
         is_sl = cst[:, 11] > 0
         known_b = is_sl & (cst[:, 10] > 0) & pose_known
         # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
-        # the heading, facing back along it (module doc).
-        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * Lv[1])
-        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -Lv[0])
+        # the FV's heading, facing back along it (module doc): the heading is the camera's
+        # turned by the track's yaw estimate (`_fv_yaw`; 0 until known).
+        cy, sy_ = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * (cy * Lv[1] - sy_ * Lv[0]))
+        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -(cy * Lv[0] + sy_ * Lv[1]))
         # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
         unk = is_sl & ~known_b
         if unk.any():
@@ -450,7 +457,7 @@ class VehicleLocator:
         bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
                       np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
         across = Bc / np.sqrt(np.add.reduce(Bc * Bc, 1, keepdims=True))
-        S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
+        S1 = across * cst[:, 7:8]
         S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
                          np.full(n, osig), bm, self.focal, self.s,
@@ -775,7 +782,7 @@ class VehicleLocator:
                 continue
             if tr is None:
                 tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd, s.fv_gate_chi2),
-                      "id": None, "bearing": meas[2], "lev": meas[3]}
+                      "id": None, "bearing": meas[2], "lev": meas[3], "ykf": None, "yaw": 0.0}
                 self.fv_tracks[key] = tr
             else:
                 tr["kf"].predict(t_s)
@@ -801,6 +808,8 @@ class VehicleLocator:
             flat = d * hnorm                     # horizontal distance
             x = flat * math.cos(tr["bearing"])
             y = flat * math.sin(tr["bearing"])
+            if meas is not None or i in dirs:
+                self._fv_yaw(tr, t_s, x, y, flat, rate, v_hv)
             ttc = d / -rate if rate < -s.closing_min_mps else None
             zone = self._zone(d, v_hv, ttc)
             road_x = road_y = None
@@ -815,6 +824,37 @@ class VehicleLocator:
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
         return self._dedupe_fv(out), not_fv
+
+    def _fv_yaw(self, tr: dict, t_s: float, x: float, y: float, flat: float, rate: float, v_hv) -> None:
+        """Update the track's lateral filter (y, level frame, a `RangeKalman`) and from it its
+        heading relative to the camera (`tr["yaw"]`, rad, positive left): the FV's ground
+        velocity in the HV frame is (V_HV + dx/dt - omega y, dy/dt + omega x) (omega: the HV's
+        turn rate). A lane change yaws a car by 10-15 deg, which shortens its taillight baseline
+        as seen by cos(yaw) (thesis eqs. 52-53 take it across the line of sight): ~3 % of range.
+        0 until V_HV is known and the filter has `fv_yaw_min_frames` positions."""
+        s = self.s
+        sig = max(s.fv_lateral_sigma_m, flat * math.radians(s.fv_bearing_sigma_deg))
+        yk = tr["ykf"]
+        if yk is None:
+            tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
+                                         s.fv_gate_chi2)
+            tr["n_y"] = 1
+        else:
+            yk.predict(t_s)
+            if yk.update(t_s, y, sig):
+                tr["n_y"] += 1
+            elif yk.rejects >= s.fv_max_rejects:
+                tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
+                                             s.fv_gate_chi2)
+                tr["n_y"] = 1
+        tr["yaw"] = 0.0
+        if v_hv is None or tr["n_y"] < s.fv_yaw_min_frames:
+            return
+        omega = float(self.kf.s[4]) if self.kf.started else 0.0
+        xdot = rate * (x / max(math.hypot(x, y), 1e-6))       # d-dot along the line of sight
+        vx, vy = v_hv + xdot - omega * y, yk.v + omega * x
+        if vx > s.fv_yaw_min_speed_mps:
+            tr["yaw"] = max(-s.fv_yaw_max_rad, min(s.fv_yaw_max_rad, math.atan2(vy, vx)))
 
     def _dedupe_fv(self, out: list[dict]) -> list[dict]:
         """One entry per forward vehicle: a pair re-formed under a new key, or a stale coasting
