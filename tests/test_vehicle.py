@@ -374,7 +374,8 @@ def test_fv_bearing_follows_the_image_between_ranged_frames():
                                 "a_px": p.a_px, "b_px": p.b_px, "both_visible": False})
     res = loc.step(1 / 30, [only_a])
     fv1 = res.vehicle["fv"][0]
-    assert res.ranges == (None,)
+    # no range of its own: the LEDs carry the track's filtered distance
+    assert res.ranges[0][2] == "fv-track" and res.ranges[0][0] == pytest.approx(fv0["distance_m"], rel=0.005)
     assert fv1["angle_deg"] - fv0["angle_deg"] == pytest.approx(-1.0, abs=0.03)
     assert fv1["distance_m"] == pytest.approx(fv0["distance_m"], rel=0.005)
 

@@ -607,9 +607,12 @@ class VehicleLocator:
                 self.hv_reason = "no street light in view"
 
         hv = self._update_hv(t_s, fix, speed_mps)
-        fv, not_fv = self._update_fv(t_s, pairs, aligned, res, hv)
+        fv, not_fv, tracked = self._update_fv(t_s, pairs, aligned, res, hv)
         ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
                   for i, (r, k) in enumerate(aligned)]
+        for i, rng in tracked.items():
+            if ranges[i] is None:
+                ranges[i] = rng
         if fix is not None:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
@@ -748,6 +751,7 @@ class VehicleLocator:
         dirs = self._fv_directions(pairs, aligned)
         seen = set()
         not_fv = set()          # undecoded pairs found not to be taillights (no range reported)
+        tracked = {}            # pair index -> (d, sigma, "fv-track") of unranged tracked pairs
         v_hv = None if hv is None else hv["speed_mps"]
         R = self.R_last
         for i, p in enumerate(pairs):
@@ -817,13 +821,17 @@ class VehicleLocator:
                 psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
                 road_x = hv["x"] + math.cos(psi) * x - math.sin(psi) * y       # eq. 53
                 road_y = hv["y"] + math.sin(psi) * x + math.cos(psi) * y
+            if meas is None and i in dirs:
+                # A tracked pair without a range of its own this frame: its LED observations
+                # carry the track's filtered distance (estimator "fv-track").
+                tracked[i] = (float(d), float(std), "fv-track")
             out.append({"id": tr["id"], "distance_m": _r(d), "angle_deg": _r(math.degrees(tr["bearing"])),
                         "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
                         "ttc_s": _r(ttc, 3), "zone": zone, "road_x": _r(road_x), "road_y": _r(road_y),
                         "coasting": meas is None})
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
-        return self._dedupe_fv(out), not_fv
+        return self._dedupe_fv(out), not_fv, tracked
 
     def _fv_yaw(self, tr: dict, t_s: float, x: float, y: float, flat: float, rate: float, v_hv) -> None:
         """Update the track's lateral filter (y, level frame, a `RangeKalman`) and from it its
