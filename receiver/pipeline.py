@@ -112,7 +112,16 @@ def pair_observation(p) -> PairObservation:
     a, b = p.a.blob, p.b.blob
     return PairObservation(key=p.key, led_id=p.led_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
                            area_a_px=a.area_px, area_b_px=b.area_px,
-                           separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen)
+                           separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen,
+                           a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames))
+
+
+def _seen(obs, frames: int):
+    """PairObservation.a_seen / b_seen of a pair's (blob, frames count) record, or None."""
+    if obs is None:
+        return None
+    blob, f = obs
+    return (blob.cx, blob.cy), blob.area_px, frames - f
 
 
 def _with_pair_ranges(leds: list[LedObservation], pair_of: dict, pairs: list, ranges) -> list[LedObservation]:

@@ -94,10 +94,13 @@ def visible(P, R, C, margin=4):
 
 
 def pair_obs(key, led_id, kind, ca, cb, area_a, area_b, both=True):
-    return PairObservation(key=key, led_id=led_id, kind=kind, a_px=(float(ca[0]), float(ca[1])),
-                           b_px=(float(cb[0]), float(cb[1])), area_a_px=float(area_a),
+    """Both emitters measured in this frame (`both`), else B last seen 2 frames ago."""
+    a = (float(ca[0]), float(ca[1]))
+    b = (float(cb[0]), float(cb[1]))
+    return PairObservation(key=key, led_id=led_id, kind=kind, a_px=a, b_px=b, area_a_px=float(area_a),
                            area_b_px=float(area_b), separation_px=float(np.hypot(*(cb - ca))),
-                           both_visible=both)
+                           both_visible=both, a_seen=(a, float(area_a), 0),
+                           b_seen=(b, float(area_b), 0 if both else 2))
 
 
 def camera_pose(s, radius=None, lateral=0.0, yaw_off=0.0, pitch=PITCH, roll=0.0):
@@ -192,12 +195,15 @@ def test_half_pair_gives_no_range():
     lmap = make_map()
     R, C, psi = camera_pose(0.0)
     p, _ = fv_pair((20.0, 0.0), R, C, psi)
-    half = PairObservation(**{**p.__dict__, "both_visible": False})
-    assert range_pair(half, CAM, lmap, SETTINGS) is None
-    loc = VehicleLocator(CAM, lmap, SETTINGS)
-    res = loc.step(0.0, [half])
-    assert res.ranges == (None,)
-    assert res.vehicle is None or res.vehicle["fv"] == []
+    assert range_pair(p, CAM, lmap, SETTINGS) is not None
+    # B last measured a frame ago (its own blob dark or hidden now), or never seen alone.
+    for b_seen in ((p.b_seen[0], p.b_seen[1], 1), None):
+        half = PairObservation(**{**p.__dict__, "both_visible": False, "b_seen": b_seen})
+        assert range_pair(half, CAM, lmap, SETTINGS) is None
+        loc = VehicleLocator(CAM, lmap, SETTINGS)
+        res = loc.step(0.0, [half])
+        assert res.ranges == (None,)
+        assert res.vehicle is None or res.vehicle["fv"] == []
 
 
 # ------------------------------------------------------------------------------ host vehicle
@@ -333,6 +339,45 @@ def test_fv_undecoded_pair_tracked_from_first_frame_then_id():
     und = PairObservation(**{**sl.__dict__, "led_id": None, "kind": None, "key": (77, 78)})
     res = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, [und])
     assert res.vehicle["fv"] == [] and res.ranges == (None,)
+
+
+def test_fv_ranged_from_measured_centroids_not_the_pairs_model_positions():
+    """`a_px`/`b_px` are the pairing's rigid model (baseline scaled by the envelope areas, whole
+    pixels): 3 px off in separation at 40 m is 5 % of range. The range comes from the emitters'
+    own measured centroids (`a_seen`, `b_seen`), and moves with them."""
+    lmap = make_map()
+    R, C, psi = camera_pose(0.0)
+    p, mid = fv_pair((40.0, 0.5), R, C, psi)
+    truth = float(np.linalg.norm(mid - C))
+    model = PairObservation(**{**p.__dict__, "a_px": (p.a_px[0] - 1.5, p.a_px[1]),
+                               "b_px": (p.b_px[0] + 1.5, p.b_px[1])})
+    d, _, est = range_pair(model, CAM, lmap, SETTINGS)
+    assert est in ("fused", "baseline") and abs(d / truth - 1) < 0.003
+    sep = p.b_seen[0][0] - p.a_seen[0][0]
+    moved = PairObservation(**{**p.__dict__, "b_seen": ((p.b_seen[0][0] + 0.05 * sep, p.b_seen[0][1]),
+                                                        p.b_seen[1], 0)})
+    d2, _, _ = range_pair(moved, CAM, lmap, SETTINGS)
+    assert d2 / truth == pytest.approx(1 / 1.05, rel=0.01)
+
+
+def test_fv_bearing_follows_the_image_between_ranged_frames():
+    """A frame where only emitter A is measured (B dark) gives no range, but the bearing comes
+    from A and the last measured separation: a yaw of the camera moves it at once."""
+    lmap = make_map()
+    R, C, psi = camera_pose(0.0)
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    p, _ = fv_pair((25.0, 1.0), R, C, psi)
+    fv0 = loc.step(0.0, [p]).vehicle["fv"][0]
+    R2 = ypr_to_rotation(1.0, PITCH, 0.0)           # the camera turned 1 deg left
+    q, _ = fv_pair((25.0, 1.0), R2, C, psi)
+    only_a = PairObservation(**{**q.__dict__, "b_seen": (p.b_seen[0], p.b_seen[1], 1),
+                                "a_px": p.a_px, "b_px": p.b_px, "both_visible": False})
+    res = loc.step(1 / 30, [only_a])
+    fv1 = res.vehicle["fv"][0]
+    # no range of its own: the LEDs carry the track's filtered distance
+    assert res.ranges[0][2] == "fv-track" and res.ranges[0][0] == pytest.approx(fv0["distance_m"], rel=0.005)
+    assert fv1["angle_deg"] - fv0["angle_deg"] == pytest.approx(-1.0, abs=0.03)
+    assert fv1["distance_m"] == pytest.approx(fv0["distance_m"], rel=0.005)
 
 
 def test_fv_closing_speed_ttc_and_zone():

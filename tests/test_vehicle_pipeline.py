@@ -60,7 +60,9 @@ def test_forward_vehicles_ranged_and_s2psk_leds_carry_distances(run_lines):
             assert fv["zone"] in ("safe", "min", "critical")
             if fv["id"] in tv and fv["distance_m"] is not None:
                 rel.append(abs(fv["distance_m"] / tv[fv["id"]]["distance_m"] - 1))
-    assert len(rel) >= 100 and np.median(rel) <= 0.03  # measured 1.4-2.4 %
+    # measured: 148 decoded entries, median 0.57 % (ranged from the emitters' measured centroids;
+    # from the pairing's rigid-model positions it was 2.2 %)
+    assert len(rel) >= 100 and np.median(rel) <= 0.01
     ranged = [o for rec in run_lines for o in rec["leds"] if o["mode"] == "s2psk" and o["distance_m"] is not None]
     assert ranged and all(o["distance_estimator"] for o in ranged)
 
@@ -127,3 +129,25 @@ def test_map_without_taillight_block_gives_no_forward_vehicle_ranges(tmp_path):
     for rec in map(json.loads, out.read_text().splitlines()):
         for fv in (rec["vehicle"] or {}).get("fv", []):
             assert fv["distance_m"] is None
+
+
+def test_forward_vehicles_from_the_pairs_first_frame_and_no_phantoms(run_lines):
+    """Each truth FV has a distance within 5 frames of first being visible (the pairing needs 4
+    frames of blinking history; the locator ranges a pair from its founding frame), and no frame
+    reports more FVs than the truth shows (undecoded street-light pairs are not taken as FVs)."""
+    truth = _truth()
+    first_seen, first_range = {}, {}
+    for rec in run_lines:
+        tfv = truth[rec["frame"]]["vehicle"]["fv"]
+        fvs = (rec["vehicle"] or {}).get("fv", [])
+        assert len(fvs) <= len(tfv)
+        for f in tfv:
+            first_seen.setdefault(f["id"], rec["frame"])
+        for fv in fvs:
+            near = min(tfv, key=lambda f: abs(f["angle_deg"] - fv["angle_deg"]))
+            assert abs(near["angle_deg"] - fv["angle_deg"]) < 2.0
+            if fv["distance_m"] is not None:
+                first_range.setdefault(near["id"], rec["frame"])
+    assert set(first_range) == set(first_seen)
+    # measured: 4 frames for both FVs (was 5 and 7)
+    assert all(first_range[i] - first_seen[i] <= 5 for i in first_seen)

@@ -61,6 +61,10 @@ class PairObservation:
     both are lit): the pair's separation is then a measurement. When False (one emitter hidden
     or long unseen) the separation and areas are the pair's prediction, and no range may be
     taken from them.
+    `a_seen`, `b_seen`: emitter A's / B's own blob as measured when last seen, ((cx, cy) distorted
+    px, area px^2, age in frames: 0 = this frame), or None when never seen alone. Unlike `a_px`,
+    `b_px` (the pair's rigid model, to the nearest whole pixel) these are measurements: two of
+    age 0 give the pair's separation to a fraction of a pixel.
     """
 
     key: tuple[int, int]
@@ -72,6 +76,8 @@ class PairObservation:
     area_b_px: float
     separation_px: float
     both_visible: bool
+    a_seen: tuple | None = None
+    b_seen: tuple | None = None
 
 
 @dataclass(frozen=True)

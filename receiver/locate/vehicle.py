@@ -32,7 +32,12 @@ midpoint, metres):
   perpendicular to the FV heading, taken as the HV's (perpendicular to the camera axis in the
   level frame). sigma/d = sqrt(2) sigma_px / separation_px (+ a model term).
 * ``"fused"``: inverse-variance mean of "oblique" and "baseline".
-No range from half a pair (`both_visible` False).
+No range from half a pair: a street light needs `both_visible`; a taillight pair is ranged only
+in frames where both emitters' own blobs are measured (`fv_measured`: `a_seen`, `b_seen` of age
+0, the measured centroids, not the pairing's rigid-model positions `a_px`, `b_px`, whose
+separation is the founding one scaled by the envelope areas: on the bundled recording 2.1 %
+|median| off, the measured one 0.39 %). The pairing's founding frame is such a frame, so a pair
+has a distance from the frame it is formed.
 
 Host vehicle (`hv`):
 * ``"eq44-47"``: thesis eqs. 44-47. Flat distances a_j = sqrt(D_j^2 - (z_SL - h_cam)^2) to two
@@ -51,13 +56,18 @@ Host vehicle (`hv`):
 
 Forward vehicles (`fv`): bearing from the horizontal displacement of the pair midpoint
 (thesis eq. 52), undistorted and turned into the level frame (pitch/roll from the HV pose when
-known, else the nominal pitch); distance "fused"; a per-pair `RangeKalman` gives the range rate
+known, else the nominal pitch), every frame: in frames without a range from the emitter measured
+in the frame and the last measured separation (`_fv_directions`); distance "fused" (with the
+taillight sigmas the area range weighs ~1/20 of the baseline one); between ranged frames the
+filter predicts; a per-pair `RangeKalman` gives the range rate
 (``rel_speed_mps``, negative = closing) and ``ttc_s = d / -rate`` when closing; ``zone`` as
 thesis Figure 27 ("safe", "min", "critical") from the time headway d / V_HV (distance thresholds
 when V_HV is unknown), tightened by ttc; ``road_x``, ``road_y`` = P_HV + rotation(heading) (x, y)
 (eq. 53) when the HV is placed. A pair still undecoded (kind None) is taken as an FV when its
 midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max_height_m`
-above the road.
+above the road (once the camera's tilt is known) and its area and baseline ranges agree (a street
+light's emitters are ~7x larger for their spacing than taillights; two far heads paired across
+the road clash likewise: scale-free, so it holds before the tilt is known).
 """
 
 from __future__ import annotations
@@ -71,7 +81,7 @@ import numpy as np
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
-from receiver.locate.lsq import _covariance, robust_lm
+from receiver.locate.lsq import _LOSSES, LM_FTOL, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman
@@ -116,12 +126,11 @@ def _r(v, nd=4):
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:
     """(3, 3) rotation turning camera-frame vectors into the camera's level frame (module doc):
     rows are the level axes (ahead, left, up) expressed in the camera frame."""
-    up = R_cw[:, 2]                       # world up in the camera frame
-    fwd = np.array([0.0, 0.0, 1.0]) - up * up[2]
-    n = np.linalg.norm(fwd)
-    fwd = fwd / n if n > 1e-9 else np.array([0.0, -1.0, 0.0])
-    left = np.cross(up, fwd)
-    return np.vstack([fwd, left, up])
+    ux, uy, uz = (float(v) for v in R_cw[:, 2])      # world up in the camera frame
+    fx, fy, fz = -ux * uz, -uy * uz, 1.0 - uz * uz    # the optical axis minus its up component
+    n = math.sqrt(fx * fx + fy * fy + fz * fz)
+    fx, fy, fz = (fx / n, fy / n, fz / n) if n > 1e-9 else (0.0, -1.0, 0.0)
+    return np.array([[fx, fy, fz], [uy * fz - uz * fy, uz * fx - ux * fz, ux * fy - uy * fx], [ux, uy, uz]])
 
 
 def nominal_rotation(settings: VehicleSettings, yaw_deg: float = 0.0) -> np.ndarray:
@@ -147,8 +156,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _rays(u: np.ndarray) -> np.ndarray:
-    v = np.concatenate([u, np.ones((len(u), 1))], axis=1)
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.empty((len(u), 3))
+    v[:, :2] = u
+    v[:, 2] = 1.0
+    return v / np.sqrt(np.add.reduce(v * v, 1))[:, None]
 
 
 def _perimeter_k(S1, S2, r, circle):
@@ -156,11 +167,11 @@ def _perimeter_k(S1, S2, r, circle):
     metres) seen along the unit rays r (N, 3): the sides' components across the ray (a locally
     parallel projection; scale-free, so no distance is needed). Foreshortened panels are long
     and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
-    p1 = S1 - np.sum(S1 * r, axis=1, keepdims=True) * r
-    p2 = S2 - np.sum(S2 * r, axis=1, keepdims=True) * r
-    l1, l2 = np.sqrt(np.sum(p1 * p1, axis=1)), np.sqrt(np.sum(p2 * p2, axis=1))
+    p1 = S1 - np.add.reduce(S1 * r, 1, keepdims=True) * r
+    p2 = S2 - np.add.reduce(S2 * r, 1, keepdims=True) * r
+    l1, l2 = np.sqrt(np.add.reduce(p1 * p1, 1)), np.sqrt(np.add.reduce(p2 * p2, 1))
     c = _cross(p1, p2)
-    ar = np.sqrt(np.sum(c * c, axis=1))
+    ar = np.sqrt(np.add.reduce(c * c, 1))
     with np.errstate(divide="ignore", invalid="ignore"):
         k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
         k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
@@ -168,75 +179,84 @@ def _perimeter_k(S1, S2, r, circle):
 
 
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
-               base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None):
+               base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None, area_model_rel=None):
     """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
     factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
     `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
     fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
-    (N,). Returns a dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed)."""
-    ra, rb = _rays(ua), _rays(ub)
+    (N,); centroid_sigma_px, area_model_rel: scalars or (N,) (default: the settings'). Returns a
+    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed). The two emitters' area
+    ranges are computed in one pass over 2N rows (A's then B's)."""
+    amr = settings.area_model_rel if area_model_rel is None else area_model_rel
+    n = len(ua)
+    r2 = _rays(np.concatenate([ua, ub]))          # (2N, 3): A's rays, then B's
+    ra, rb = r2[:n], r2[n:]
     um = 0.5 * (ua + ub)
     # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
     proj = B_cam[:, :2] - um * B_cam[:, 2:3]
-    flip = np.sum(proj * (ub - ua), axis=1) < 0
+    flip = np.add.reduce(proj * (ub - ua), 1) < 0
     B = np.where(flip[:, None], -B_cam, B_cam)
-    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares.
-    raa = np.ones(len(ra))
-    rab = np.sum(ra * rb, axis=1)
-    ba, bb = -np.sum(ra * B, axis=1), np.sum(rb * B, axis=1)
-    det = raa * raa - rab * rab
+    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
+    rab = np.add.reduce(ra * rb, 1)
+    ba, bb = -np.add.reduce(ra * B, 1), np.add.reduce(rb * B, 1)
+    det = 1.0 - rab * rab
     with np.errstate(divide="ignore", invalid="ignore"):
-        sa = (raa * ba + rab * bb) / det          # normal matrix [[1, -rab], [-rab, 1]]
-        sb = (raa * bb + rab * ba) / det
-        d_base = 0.5 * np.linalg.norm(sa[:, None] * ra + sb[:, None] * rb, axis=1)
-        sep_px = np.linalg.norm(ub - ua, axis=1) * focal_px
+        sa = (ba + rab * bb) / det
+        sb = (bb + rab * ba) / det
+        P = sa[:, None] * ra + sb[:, None] * rb
+        d_base = 0.5 * np.sqrt(np.add.reduce(P * P, 1))
+        du = ub - ua
+        sep_px = np.sqrt(np.add.reduce(du * du, 1)) * focal_px
         csig = settings.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
         s_base = d_base * (math.sqrt(2.0) * csig / sep_px + base_model_rel)
         ok = (det > 1e-14) & (sa > 0) & (sb > 0)
         d_base = np.where(ok, d_base, np.nan)
-        # Areas (eq. 18 and its corrected form).
+        # Areas (eq. 18 and its corrected form), both emitters at once.
         off = settings.edge_offset_px
+        eta = np.concatenate([eta_a, eta_b])
+        j2 = np.concatenate([ja, jb])
+        S1_2, S2_2 = np.concatenate([S1, S1]), np.concatenate([S2, S2])
+        n2 = np.concatenate([n_cam, n_cam])
+        A2 = np.concatenate([area_m2, area_m2])
+        kperim = _perimeter_k(S1_2, S2_2, r2, np.concatenate([circle, circle]))
+        sq_eta = np.sqrt(np.maximum(eta, 0))
+        eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
+        cos_al = r2[:, 2]
+        cos_th = np.abs(np.add.reduce(n2 * r2, 1))
+        d2 = np.sqrt(A2 * cos_th / (eta_c * j2 * cos_al ** 3))
+        d2 = np.where((eta > 0) & (cos_th > 1e-3), d2, np.nan)
+        tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
+        ea2 = settings.edge_sigma_px * kperim / (2.0 * sq_eta)
+        eb2 = 0.5 * tan_th * np.concatenate([orient_sigma_rad, orient_sigma_rad])
+        ea, eb = (ea2[:n], ea2[n:]), (eb2[:n], eb2[n:])
+        da_ob = (d2[:n], d2[n:])
         out = {}
-        da_ob, ea, eb, kp = [], [], [], []
-        for eta, j, r in ((eta_a, ja, ra), (eta_b, jb, rb)):
-            kperim = _perimeter_k(S1, S2, r, circle)
-            eta_c = eta + kperim * np.sqrt(np.maximum(eta, 0)) * off + math.pi * off * off
-            a_norm = eta_c * j
-            cos_al = r[:, 2]
-            cos_th = np.abs(np.sum(n_cam * r, axis=1))
-            d = np.sqrt(area_m2 * cos_th / (a_norm * cos_al ** 3))
-            d = np.where((eta > 0) & (cos_th > 1e-3), d, np.nan)
-            da_ob.append(d)
-            tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
-            ea.append(settings.edge_sigma_px * kperim / (2.0 * np.sqrt(eta)))
-            kp.append(kperim)
-            eb.append(0.5 * tan_th * orient_sigma_rad)
         d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
         out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
-        out["eq18_sigma"] = out["eq18"] * (settings.area_model_rel + 0.5 * (ea[0] + ea[1]))
+        out["eq18_sigma"] = out["eq18"] * (amr + 0.5 * (ea[0] + ea[1]))
         out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
-        P = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
-        d_ob = np.linalg.norm(P, axis=1)
+        Pa = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
+        d_ob = np.sqrt(np.add.reduce(Pa * Pa, 1))
         fore = 0.5 * (eb[0] + eb[1])
-        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + settings.area_model_rel ** 2)
+        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + amr ** 2)
         wa = 1.0 / s_ob ** 2
         wb = 1.0 / s_base ** 2
         fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
         # The area range rests on the emitter's normal and size (a map entry without the normal
         # of a tilted head reads it several times too short); the baseline only on geometry.
         # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
-        with np.errstate(invalid="ignore"):
-            clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
+        clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
         fa = fa & ~clash
         wa = np.where(fa, wa, 0.0)
         wb = np.where(fb, wb, 0.0)
         wsum = wa + wb
         d_f = (wa * np.where(fa, d_ob, 0) + wb * np.where(fb, d_base, 0)) / wsum
         s_f = 1.0 / np.sqrt(wsum)
+        amr2 = np.concatenate([amr, amr]) if np.ndim(amr) else amr
+        sab = d2 * np.sqrt(ea2 ** 2 + eb2 ** 2 + amr2 ** 2)
     out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
                fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
-               d_a=da_ob[0], d_b=da_ob[1], s_a=da_ob[0] * np.sqrt(ea[0] ** 2 + eb[0] ** 2 + settings.area_model_rel ** 2),
-               s_b=da_ob[1] * np.sqrt(ea[1] ** 2 + eb[1] ** 2 + settings.area_model_rel ** 2),
+               d_a=da_ob[0], d_b=da_ob[1], s_a=sab[:n], s_b=sab[n:],
                ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
     return out
 
@@ -279,6 +299,20 @@ def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: 
     return sl1[:2] - c * u - s * h * n
 
 
+def fv_measured(p: PairObservation):
+    """((ax, ay, bx, by), (area_a, area_b)) of a taillight pair whose two emitters were both
+    measured in this frame (`a_seen`, `b_seen` of age 0), else None. A taillight pair is ranged
+    from these measured centroids only: the pair's rigid-model positions `a_px`, `b_px` carry
+    the baseline from its founding frame scaled by the square root of the emitters' envelope
+    areas (an area measurement, a few % off on 10-50 px striped blobs) and rounded to whole
+    pixels, and a partner emitter seen frames ago has moved by the camera's shake and the
+    car's motion since."""
+    a, b = p.a_seen, p.b_seen
+    if a is None or b is None or a[2] != 0 or b[2] != 0:
+        return None
+    return (a[0][0], a[0][1], b[0][0], b[0][1]), (a[1], b[1])
+
+
 def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
                settings: VehicleSettings = VehicleSettings(), R_cw: np.ndarray | None = None,
                estimator: str | None = None) -> tuple[float, float, str] | None:
@@ -317,6 +351,7 @@ class VehicleLocator:
                              gate_chi2=settings.gate_chi2, max_rejects=settings.max_rejects,
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
+        self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
@@ -366,24 +401,40 @@ class VehicleLocator:
     def _range_pairs(self, pairs, R_cw, pose_known: bool):
         """Range every usable pair (vectorised). Returns (list aligned with pairs of (res, k) or
         (None, None), res dict) or None when no pair is usable."""
-        idx, roles, consts = [], [], []
+        R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
+        Lv = self.Lv = level_rotation(R)           # rows: ahead, left, up in camera frame
+        idx, roles, consts, ab, eta, yaw = [], [], [], [], [], []
         for i, p in enumerate(pairs):
-            if not p.both_visible:
-                continue
             role = self._role(p)
-            if role is not None:
-                idx.append(i)
-                roles.append(role)
-                consts.append(self._sl[p.led_id]["row"] if role == "SL" else self._tl["row"])
+            if role is None:
+                continue
+            if role == "SL":
+                if not p.both_visible:
+                    continue
+                ab.append(p.a_px + p.b_px)
+                eta.append((p.area_a_px, p.area_b_px))
+                consts.append(self._sl[p.led_id]["row"])
+            else:
+                m = fv_measured(p)
+                if m is None:
+                    continue
+                ab.append(m[0])
+                eta.append(m[1])
+                consts.append(self._tl["row"])
+                tr = self.fv_tracks.get(p.key)
+                yaw.append(0.0 if tr is None else tr["yaw"])
+            if role == "SL":
+                yaw.append(0.0)
+            idx.append(i)
+            roles.append(role)
         if not idx:
             return None
         n = len(idx)
-        ab = np.array([pairs[i].a_px + pairs[i].b_px for i in idx], float)
-        eta = np.array([(pairs[i].area_a_px, pairs[i].area_b_px) for i in idx], float)
+        ab = np.array(ab, float)
+        eta = np.array(eta, float)
+        yaw = np.array(yaw, float)
         cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
         ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
-        R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
-        Lv = level_rotation(R)                     # rows: ahead, left, up in camera frame
         osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
         rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
@@ -391,23 +442,27 @@ class VehicleLocator:
         is_sl = cst[:, 11] > 0
         known_b = is_sl & (cst[:, 10] > 0) & pose_known
         # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
-        # the heading, facing back along it (module doc).
-        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * Lv[1])
-        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -Lv[0])
+        # the FV's heading, facing back along it (module doc): the heading is the camera's
+        # turned by the track's yaw estimate (`_fv_yaw`; 0 until known).
+        cy, sy_ = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * (cy * Lv[1] - sy_ * Lv[0]))
+        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -(cy * Lv[0] + sy_ * Lv[1]))
         # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
-        perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
-        perp = perp / np.maximum(np.sqrt(np.sum(perp * perp, axis=1, keepdims=True)), 1e-12)
         unk = is_sl & ~known_b
-        Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
+        if unk.any():
+            perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
+            perp = perp / np.maximum(np.sqrt(np.add.reduce(perp * perp, 1, keepdims=True)), 1e-12)
+            Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
         sy = math.radians(self.s.taillight_yaw_sigma_deg)
         bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
                       np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
-        across = Bc / np.sqrt(np.sum(Bc * Bc, axis=1, keepdims=True))
-        S1 = np.where(is_sl[:, None], across, Lv[1]) * cst[:, 7:8]
+        across = Bc / np.sqrt(np.add.reduce(Bc * Bc, 1, keepdims=True))
+        S1 = across * cst[:, 7:8]
         S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
                          np.full(n, osig), bm, self.focal, self.s,
-                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px))
+                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px),
+                         np.where(is_sl, self.s.area_model_rel, self.s.fv_area_model_rel))
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
@@ -459,15 +514,32 @@ class VehicleLocator:
         fun = _joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov)
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
-        x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale,
-                      max_iter=self.s.pose_max_iter if max_iter is None else max_iter)
+        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
+        if self.s.pose_loss not in _LOSSES:
+            x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale, max_iter=n_iter)
+            r, J = fun(x), fun.jac(x)
+        else:
+            rot_tol, pos_tol = self.s.pose_rot_tol_rad, self.s.pose_pos_tol_m
+
+            def done(dp, q, c, c_new):
+                # Converged once a step moves the camera by less than the output's resolution
+                # (a warm start from the road filter's prediction: 1-3 steps).
+                return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
+                    or c - c_new <= LM_FTOL * c
+
+            x, _, r, J = lm_iterate(lambda q: (fun(q), fun.jac(q)), p0, done, loss=self.s.pose_loss,
+                                    f_scale=self.s.pose_f_scale, max_iter=n_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
         C = x[3:].copy()
         if C[2] >= float(L[:, 2].min()):
             return None
-        cov6, chi2, dof = _covariance(fun, x)
+        # Covariance from the final residuals and Jacobian (receiver.locate.lsq._covariance's
+        # formula without evaluating them again).
+        dof = len(r) - len(x)
+        s2 = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
+        cov6 = np.linalg.pinv(J.T @ J) * s2
         return R, C, cov6[3:5, 3:5]
 
     # -------------------------------------------------------------------------- step
@@ -487,10 +559,10 @@ class VehicleLocator:
         sl_k = []
         if out is not None:
             aligned, res = out
-            sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL"
-                    and self._sl[pairs[res["idx"][k]].led_id]["em"] is not None
-                    and np.isfinite(res["fused"][k])]
-            n_sl_any = sum(1 for r in res["roles"] if r == "SL")
+            fused_ok = np.isfinite(res["fused"])
+            sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL" and fused_ok[k]
+                    and self._sl[pairs[res["idx"][k]].led_id]["em"] is not None]
+            n_sl_any = res["roles"].count("SL")
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
             elif len(sl_k) < s.min_lights:
@@ -498,7 +570,8 @@ class VehicleLocator:
             else:
                 if R_prior is not None:
                     pred = self.kf.predict_at(t_s)[0]
-                    R0, C0 = R_prior, np.array([pred[0], pred[1], s.camera_height_m])
+                    # The camera's height as last solved (it may sit off the prior by decimetres).
+                    R0, C0 = R_prior, np.array([pred[0], pred[1], self.z_last])
                     init = (R0, C0)
                 else:
                     P_cam = np.array([res["fused"][k] * _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
@@ -534,9 +607,12 @@ class VehicleLocator:
                 self.hv_reason = "no street light in view"
 
         hv = self._update_hv(t_s, fix, speed_mps)
-        fv, not_fv = self._update_fv(t_s, pairs, aligned, res, hv)
+        fv, not_fv, tracked = self._update_fv(t_s, pairs, aligned, res, hv)
         ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
                   for i, (r, k) in enumerate(aligned)]
+        for i, rng in tracked.items():
+            if ranges[i] is None:
+                ranges[i] = rng
         if fix is not None:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
@@ -610,6 +686,7 @@ class VehicleLocator:
                     accepted = True
             if accepted:
                 self.R_last = R
+                self.z_last = float(fix["pose"][0][2])
                 _, pitch, roll = rotation_to_ypr_deg(R)
                 self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
             else:
@@ -637,11 +714,44 @@ class VehicleLocator:
             return None
         return hv
 
+    def _fv_directions(self, pairs, aligned) -> dict:
+        """{pair index: (bearing rad, level-frame unit ray (3,))} of the tracked taillight pairs
+        not ranged this frame: their midpoint from the emitter measured in this frame and the
+        track's last measured separation (px, scaled by the distance ratio: the image scales as
+        1 / distance), else the pair's predicted midpoint. The bearing follows the camera's
+        shake every frame; the separation of one emitter and a partner seen frames ago does not
+        range, but places the midpoint to a fraction of a pixel."""
+        mids, where = [], []
+        for i, p in enumerate(pairs):
+            if aligned[i][0] is not None:
+                continue
+            tr = self.fv_tracks.get(p.key)
+            if tr is None or self._role(p) not in ("FV", "FV?"):
+                continue
+            sep = tr.get("sep_px")
+            a, b = p.a_seen, p.b_seen
+            k = 0.0 if sep is None else 0.5 * tr["sep_d"] / max(tr["kf"].d, 1e-6)
+            if sep is not None and a is not None and a[2] == 0:
+                mids.append((a[0][0] + k * sep[0], a[0][1] + k * sep[1]))
+            elif sep is not None and b is not None and b[2] == 0:
+                mids.append((b[0][0] - k * sep[0], b[0][1] - k * sep[1]))
+            else:
+                mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+            where.append(i)
+        if not where:
+            return {}
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K, self.camera.dist)
+        lev = _rays(und.reshape(-1, 2)) @ self.Lv.T
+        bearing = np.arctan2(lev[:, 1], lev[:, 0])
+        return {i: (float(bearing[j]), lev[j]) for j, i in enumerate(where)}
+
     def _update_fv(self, t_s, pairs, aligned, res, hv):
         s = self.s
         out = []
+        dirs = self._fv_directions(pairs, aligned)
         seen = set()
         not_fv = set()          # undecoded pairs found not to be taillights (no range reported)
+        tracked = {}            # pair index -> (d, sigma, "fv-track") of unranged tracked pairs
         v_hv = None if hv is None else hv["speed_mps"]
         R = self.R_last
         for i, p in enumerate(pairs):
@@ -670,12 +780,13 @@ class VehicleLocator:
                         if not s.fv_min_height_m <= z <= s.fv_max_height_m:
                             not_fv.add(i)
                             continue
-                    meas = (float(d), float(sd), float(r["bearing"][k]), lev)
+                    m = fv_measured(p)[0]
+                    meas = (float(d), float(sd), float(r["bearing"][k]), lev, (m[2] - m[0], m[3] - m[1]))
             if meas is None and tr is None:
                 continue
             if tr is None:
                 tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd, s.fv_gate_chi2),
-                      "id": None, "bearing": meas[2], "lev": meas[3]}
+                      "id": None, "bearing": meas[2], "lev": meas[3], "ykf": None, "yaw": 0.0}
                 self.fv_tracks[key] = tr
             else:
                 tr["kf"].predict(t_s)
@@ -687,6 +798,9 @@ class VehicleLocator:
                         meas = None
             if meas is not None:
                 tr["bearing"], tr["lev"] = meas[2], meas[3]
+                tr["sep_px"], tr["sep_d"] = meas[4], meas[0]
+            elif i in dirs:
+                tr["bearing"], tr["lev"] = dirs[i]
             if p.led_id is not None and p.led_id > 0x7F:
                 tr["id"] = int(p.led_id)
             seen.add(key)
@@ -698,6 +812,8 @@ class VehicleLocator:
             flat = d * hnorm                     # horizontal distance
             x = flat * math.cos(tr["bearing"])
             y = flat * math.sin(tr["bearing"])
+            if meas is not None or i in dirs:
+                self._fv_yaw(tr, t_s, x, y, flat, rate, v_hv)
             ttc = d / -rate if rate < -s.closing_min_mps else None
             zone = self._zone(d, v_hv, ttc)
             road_x = road_y = None
@@ -705,13 +821,48 @@ class VehicleLocator:
                 psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
                 road_x = hv["x"] + math.cos(psi) * x - math.sin(psi) * y       # eq. 53
                 road_y = hv["y"] + math.sin(psi) * x + math.cos(psi) * y
+            if meas is None and i in dirs:
+                # A tracked pair without a range of its own this frame: its LED observations
+                # carry the track's filtered distance (estimator "fv-track").
+                tracked[i] = (float(d), float(std), "fv-track")
             out.append({"id": tr["id"], "distance_m": _r(d), "angle_deg": _r(math.degrees(tr["bearing"])),
                         "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
                         "ttc_s": _r(ttc, 3), "zone": zone, "road_x": _r(road_x), "road_y": _r(road_y),
                         "coasting": meas is None})
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
-        return self._dedupe_fv(out), not_fv
+        return self._dedupe_fv(out), not_fv, tracked
+
+    def _fv_yaw(self, tr: dict, t_s: float, x: float, y: float, flat: float, rate: float, v_hv) -> None:
+        """Update the track's lateral filter (y, level frame, a `RangeKalman`) and from it its
+        heading relative to the camera (`tr["yaw"]`, rad, positive left): the FV's ground
+        velocity in the HV frame is (V_HV + dx/dt - omega y, dy/dt + omega x) (omega: the HV's
+        turn rate). A lane change yaws a car by 10-15 deg, which shortens its taillight baseline
+        as seen by cos(yaw) (thesis eqs. 52-53 take it across the line of sight): ~3 % of range.
+        0 until V_HV is known and the filter has `fv_yaw_min_frames` positions."""
+        s = self.s
+        sig = max(s.fv_lateral_sigma_m, flat * math.radians(s.fv_bearing_sigma_deg))
+        yk = tr["ykf"]
+        if yk is None:
+            tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
+                                         s.fv_gate_chi2)
+            tr["n_y"] = 1
+        else:
+            yk.predict(t_s)
+            if yk.update(t_s, y, sig):
+                tr["n_y"] += 1
+            elif yk.rejects >= s.fv_max_rejects:
+                tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
+                                             s.fv_gate_chi2)
+                tr["n_y"] = 1
+        tr["yaw"] = 0.0
+        if v_hv is None or tr["n_y"] < s.fv_yaw_min_frames:
+            return
+        omega = float(self.kf.s[4]) if self.kf.started else 0.0
+        xdot = rate * (x / max(math.hypot(x, y), 1e-6))       # d-dot along the line of sight
+        vx, vy = v_hv + xdot - omega * y, yk.v + omega * x
+        if vx > s.fv_yaw_min_speed_mps:
+            tr["yaw"] = max(-s.fv_yaw_max_rad, min(s.fv_yaw_max_rad, math.atan2(vy, vx)))
 
     def _dedupe_fv(self, out: list[dict]) -> list[dict]:
         """One entry per forward vehicle: a pair re-formed under a new key, or a stale coasting

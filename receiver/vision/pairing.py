@@ -123,6 +123,11 @@ class Pair:
     both_seen: bool = False
     seen_a: int = -10**9  # `frames` count when A's / B's own blob was last seen
     seen_b: int = -10**9
+    # A's / B's own blob as observed when last seen (unmoved: the measured centroid, distorted px)
+    # and its `frames` count; the vehicle locator ranges taillight pairs from these
+    # (receiver.core.records.PairObservation.a_seen).
+    obs_a: tuple | None = None  # (blob, frames)
+    obs_b: tuple | None = None
     uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
@@ -296,8 +301,10 @@ class Pairer:
         p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
         if obs_a is not None:
             p.seen_a = p.frames
+            p.obs_a = (obs_a, p.frames)
         if obs_b is not None:
             p.seen_b = p.frames
+            p.obs_b = (obs_b, p.frames)
         p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
             p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
         if not shifts:
@@ -364,7 +371,8 @@ class Pairer:
                 a, b = b, a
             if (a.track_id, b.track_id) in self.banned:
                 continue
-            p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b])
+            p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], 
+                     obs_a=(a.blob, 0) if a.seen else None, obs_b=(b.blob, 0) if b.seen else None)
             # The history that proved the blinking also seeds the pair's level estimates.
             for lv, t in ((p.levels_a, a), (p.levels_b, b)):
                 for v in self.levels.pop(t.track_id).values:
