@@ -35,7 +35,7 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
                                       ToneSettings)
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
-from receiver.vision.detect import detect
+from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import frame_shift, vertical_shift
 from receiver.vision.outline import stripe_edge_points_batch
@@ -168,6 +168,7 @@ class Receiver:
         self.settings = s = self._resolve(s, camera, plan, still)
         self.min_stripe_rows = int(math.ceil(plan.stripe_period_px(camera)))
         self.stripe_check = s.policy.stripe_check
+        self.scratch = Scratch()  # detection's work buffers, kept across frames
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
         self.pairer = Pairer(settings=s.pair) if plan.s2psk else None
@@ -302,7 +303,7 @@ class Receiver:
     def process(self, frame: Frame) -> FrameResult:
         timer = StageTimer(self.clock)
         gray = frame.gray
-        blobs = detect(gray, settings=self.settings.detect)
+        blobs = detect(gray, settings=self.settings.detect, scratch=self.scratch)
         timer.stamp("detect")
         shift = self._frame_shift(blobs)
         self.shift = shift
