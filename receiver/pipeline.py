@@ -341,7 +341,7 @@ class Receiver:
                 light = self._light(t.track_id)
                 if t.track_id not in pair_of and light.striped and light.led_id is not None and light.mode != "s2psk":
                     want.append(t.track_id)
-        edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want])))
+        edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)))
         leds = []
         for t in seen:
             light = self._light(t.track_id)

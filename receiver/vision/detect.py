@@ -245,7 +245,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
     batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, **sat_kw)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
     for i in np.flatnonzero(keep).tolist():
@@ -391,7 +391,8 @@ def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, mi
 
 
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
-                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+                        saturated_frac=0.03, min_refine_contrast=6.0,
+                        scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
     The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
@@ -406,11 +407,15 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     bw, bh = rects[:, 2], rects[:, 3]
     starts = np.zeros(n + 1, np.int64)
     np.cumsum(bh, out=starts[1:])
-    strip = np.zeros((int(starts[-1]), int(bw.max())), np.uint8)  # 0 pads: never above a level
+    if scratch is None:
+        scratch = Scratch()
+    shape = (int(starts[-1]), int(bw.max()))
+    strip = scratch.get("refine_strip", shape)
     peak = np.empty(n)
     for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
         roi = gray[y:y + hh, x:x + ww]
         strip[r0:r0 + hh, :ww] = roi
+        strip[r0:r0 + hh, ww:] = 0  # 0 pads: never above a level
         peak[i] = cv2.minMaxLoc(roi)[1]
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
@@ -421,11 +426,13 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
     if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
         strip[np.repeat(first_on > 255, bh)] = 0
-    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
+    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
+                           out=scratch.get("refine_lit", shape).view(bool))
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
     rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
     left = left_all[rows]
-    right = lit.shape[1] - 1 - cv2.flip(lit.view(np.uint8), 1).view(bool)[rows].argmax(axis=1)
+    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
+    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
     owner = np.searchsorted(starts, rows, side="right") - 1
     local_y = rows - starts[owner]
     lpts = np.stack((left, local_y), axis=1).astype(np.int32)
