@@ -219,9 +219,11 @@ class Receiver:
             light = self.lights[track_id] = self.policy.new_light()
         return light
 
-    def _clock_frame(self, gray: np.ndarray, seen: list[Track], env: dict, k: int, skip) -> dict:
+    def _clock_frame(self, gray: np.ndarray, seen: list[Track], env: dict, k: int, skip,
+                     profiles: dict) -> dict:
         """{rate: ClockTick or None} of this frame, measured on decoded OOK tracks; empty
-        when every seen track has its ID (nobody needs a clock)."""
+        when every seen track has its ID (nobody needs a clock). `profiles`: this frame's row
+        profiles by track id, filled here and reused by the decoders."""
         if not self.clocks or not any(self._light(t.track_id).led_id is None and t.track_id not in skip
                                       for t in seen):
             return {}
@@ -239,7 +241,10 @@ class Receiver:
             for t in refs:
                 if n >= self.settings.policy.clock_refs:
                     break
-                profile, weights, y0 = row_profile(gray, env[t.track_id])
+                prof = profiles.get(t.track_id)
+                if prof is None:
+                    prof = profiles[t.track_id] = row_profile(gray, env[t.track_id])
+                profile, weights, y0 = prof
                 u = self.lights[t.track_id].decoder("ook", rate).row0_coordinate(profile, weights, y0)
                 if u is not None:
                     clock.observe(t.track_id, u)
@@ -320,7 +325,8 @@ class Receiver:
             pair_of = self._pairs(gray, frame, tracks)
             timer.stamp("pair")
 
-        ticks = self._clock_frame(gray, seen, env, frame.index, pair_of)
+        profiles: dict[int, tuple] = {}  # track id -> its row profile in this frame
+        ticks = self._clock_frame(gray, seen, env, frame.index, pair_of, profiles)
         policy = self.policy
         for t in seen:
             if t.track_id in pair_of:
@@ -331,7 +337,9 @@ class Receiver:
             if not light.decoders or not policy.due(light, frame.index, t.track_id):
                 continue
             blob = env[t.track_id]
-            policy.step_light(light, gray, blob, row_profile(gray, blob), frame.t_s, ticks)
+            prof = profiles.get(t.track_id)
+            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob),
+                              frame.t_s, ticks)
         timer.stamp("decode")
 
         # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
