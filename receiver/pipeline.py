@@ -35,7 +35,7 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
                                       ToneSettings)
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
-from receiver.vision.detect import detect
+from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import frame_shift, vertical_shift
 from receiver.vision.outline import stripe_edge_points_batch
@@ -177,6 +177,7 @@ class Receiver:
         self.settings = s = self._resolve(s, camera, plan, still)
         self.min_stripe_rows = int(math.ceil(plan.stripe_period_px(camera)))
         self.stripe_check = s.policy.stripe_check
+        self.scratch = Scratch()  # detection's work buffers, kept across frames
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
         self.pairer = Pairer(settings=s.pair) if plan.s2psk else None
@@ -227,9 +228,11 @@ class Receiver:
             light = self.lights[track_id] = self.policy.new_light()
         return light
 
-    def _clock_frame(self, gray: np.ndarray, seen: list[Track], env: dict, k: int, skip) -> dict:
+    def _clock_frame(self, gray: np.ndarray, seen: list[Track], env: dict, k: int, skip,
+                     profiles: dict) -> dict:
         """{rate: ClockTick or None} of this frame, measured on decoded OOK tracks; empty
-        when every seen track has its ID (nobody needs a clock)."""
+        when every seen track has its ID (nobody needs a clock). `profiles`: this frame's row
+        profiles by track id, filled here and reused by the decoders."""
         if not self.clocks or not any(self._light(t.track_id).led_id is None and t.track_id not in skip
                                       for t in seen):
             return {}
@@ -247,7 +250,10 @@ class Receiver:
             for t in refs:
                 if n >= self.settings.policy.clock_refs:
                     break
-                profile, weights, y0 = row_profile(gray, env[t.track_id])
+                prof = profiles.get(t.track_id)
+                if prof is None:
+                    prof = profiles[t.track_id] = row_profile(gray, env[t.track_id])
+                profile, weights, y0 = prof
                 u = self.lights[t.track_id].decoder("ook", rate).row0_coordinate(profile, weights, y0)
                 if u is not None:
                     clock.observe(t.track_id, u)
@@ -311,7 +317,7 @@ class Receiver:
     def process(self, frame: Frame) -> FrameResult:
         timer = StageTimer(self.clock)
         gray = frame.gray
-        blobs = detect(gray, settings=self.settings.detect)
+        blobs = detect(gray, settings=self.settings.detect, scratch=self.scratch)
         timer.stamp("detect")
         shift = self._frame_shift(blobs)
         self.shift = shift
@@ -328,7 +334,8 @@ class Receiver:
             pair_of = self._pairs(gray, frame, tracks)
             timer.stamp("pair")
 
-        ticks = self._clock_frame(gray, seen, env, frame.index, pair_of)
+        profiles: dict[int, tuple] = {}  # track id -> its row profile in this frame
+        ticks = self._clock_frame(gray, seen, env, frame.index, pair_of, profiles)
         policy = self.policy
         for t in seen:
             if t.track_id in pair_of:
@@ -339,7 +346,9 @@ class Receiver:
             if not light.decoders or not policy.due(light, frame.index, t.track_id):
                 continue
             blob = env[t.track_id]
-            policy.step_light(light, gray, blob, row_profile(gray, blob), frame.t_s, ticks)
+            prof = profiles.get(t.track_id)
+            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob),
+                              frame.t_s, ticks)
         timer.stamp("decode")
 
         # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
@@ -349,7 +358,7 @@ class Receiver:
                 light = self._light(t.track_id)
                 if t.track_id not in pair_of and light.striped and light.led_id is not None and light.mode != "s2psk":
                     want.append(t.track_id)
-        edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want])))
+        edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)))
         leds = []
         for t in seen:
             light = self._light(t.track_id)

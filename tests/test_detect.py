@@ -327,3 +327,37 @@ def test_row_pooled_search_equals_full_resolution_at_the_top_and_bottom_edges(he
 def test_row_pool_other_than_1_or_2_is_refused():
     with pytest.raises(ValueError):
         detect(np.zeros((50, 50), np.uint8), row_pool=3)
+
+
+@pytest.mark.parametrize("pool", [1, 2])
+def test_cropped_close_and_contours_equal_the_whole_frame_search(pool):
+    """`_components` closes and searches only the box of the lit pixels (grown by the kernel)
+    in reused buffers: its contours (in order) and boxes equal those of a close and contour
+    search of the whole frame, also for lights at every edge and corner (the close treats the
+    outside of the frame as lit) and for an empty frame."""
+    from receiver.vision.detect import Scratch, _close_reach, _close_size, _components, _pooled_boxes_exact, _row_max
+    rng = np.random.default_rng(7)
+    scratch = Scratch()
+    for trial in range(12):
+        img = blank(noise=2.0, seed=trial)
+        for _ in range(int(rng.integers(0, 7))):
+            x, y = float(rng.uniform(-5, img.shape[1] + 5)), float(rng.uniform(-5, img.shape[0] + 5))
+            draw_led(img, x, y, float(rng.uniform(3, 40)), period_rows=float(rng.uniform(4, 9)),
+                     square=bool(rng.integers(0, 2)))
+        gray = u8(img)
+        level, _ = auto_level(gray)
+        for gap, join in ((8, 2), (3, 0), (0, 0)):
+            got_c, got_r = _components(gray, level, gap, join, 1, pool, scratch)
+            search = _row_max(gray, pool) if pool > 1 else gray
+            gap_y = math.ceil((2 * _close_reach(gap) + 1) / pool) - 1 if pool > 1 else gap
+            _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
+            if gap_y >= 1 or join >= 1:
+                kernel = np.ones((_close_size(gap_y), _close_size(join)), np.uint8)
+                mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+            want_c, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            want_r = np.array([cv2.boundingRect(c) for c in want_c], np.int64).reshape(-1, 4)
+            if pool > 1 and len(want_r):
+                want_r = _pooled_boxes_exact(gray, want_r, level, pool, _close_reach(gap))
+            assert len(got_c) == len(want_c)
+            assert all(np.array_equal(a, b) for a, b in zip(got_c, want_c))
+            assert np.array_equal(got_r, want_r)

@@ -103,12 +103,46 @@ def _q_inverse(f: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int) -> np.ndarray:
-    """Bridge vertical gaps up to `gap_y_px` rows and horizontal gaps up to `gap_x_px` columns."""
+def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int, scratch: "Scratch | None" = None) -> np.ndarray:
+    """Bridge vertical gaps up to `gap_y_px` rows and horizontal gaps up to `gap_x_px` columns
+    (a morphological close: dilate, then erode, into `scratch` buffers when given)."""
     if gap_y_px < 1 and gap_x_px < 1:
         return mask
-    kernel = np.ones((_close_size(gap_y_px), _close_size(gap_x_px)), np.uint8)
-    return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+    kernel = _ones_kernel(_close_size(gap_y_px), _close_size(gap_x_px))
+    if scratch is None:
+        return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
+    # the same as MORPH_CLOSE (the same default borders), without frame-sized temporaries
+    dil = cv2.dilate(mask, kernel, dst=scratch.get("dilate", mask.shape))
+    return cv2.erode(dil, kernel, dst=scratch.get("close", mask.shape))
+
+
+_KERNELS: dict = {}
+
+
+def _ones_kernel(h: int, w: int) -> np.ndarray:
+    k = _KERNELS.get((h, w))
+    if k is None:
+        k = _KERNELS[(h, w)] = np.ones((h, w), np.uint8)
+    return k
+
+
+class Scratch:
+    """Work buffers kept from frame to frame (one per receiver, `detect(..., scratch=)`), so a
+    frame allocates no frame-sized temporaries (each would cost its page faults again).
+    `get(name, shape)` is an uninitialised C-contiguous uint8 array of that shape, a view of
+    a buffer that is only reallocated when a larger one is needed."""
+
+    def __init__(self):
+        self._bufs: dict[str, np.ndarray] = {}
+
+    def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        n = 1
+        for d in shape:
+            n *= int(d)
+        buf = self._bufs.get(name)
+        if buf is None or buf.size < n:
+            buf = self._bufs[name] = np.empty(max(n, 1), np.uint8)
+        return buf[:n].reshape(shape)
 
 
 def _close_size(gap_px: int) -> int:
@@ -172,11 +206,13 @@ def _hull_stats_many(hulls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, n
     return cx, cy, m00 + 0.5 * perim + math.pi / 4.0
 
 
-def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overrides) -> list[Blob]:
+def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch: Scratch | None = None,
+           **overrides) -> list[Blob]:
     """LED blobs of an (H, W) uint8 frame, sorted top to bottom.
 
     Tunables: `DetectSettings` (receiver.vision.settings), given as `settings=` or as keyword
-    overrides of its fields.
+    overrides of its fields. `scratch`: work buffers kept across frames (`Scratch`, one per
+    stream; the results never refer to them), or None.
     """
     s = resolve_settings(settings, DetectSettings, overrides)
     level = s.level
@@ -193,13 +229,13 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overri
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
     pool = s.row_pool if f == 1 and s.row_pool > 1 and s.stripe_gap_px >= 2 * s.row_pool else 1
-    contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool)
+    contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
     alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool)
+        contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
@@ -209,7 +245,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overri
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
     batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, **sat_kw)
+    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
     for i in np.flatnonzero(keep).tolist():
@@ -239,13 +275,14 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, **overri
 
 
 def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
-                pool: int = 1) -> tuple[list, np.ndarray]:
+                pool: int = 1, scratch: Scratch | None = None) -> tuple[list, np.ndarray]:
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
     full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
-    of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows."""
+    of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows.
+    `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
     if pool > 1:
-        search = _row_max(image, pool)
+        search = _row_max(image, pool, scratch)
         # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
         # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
         # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
@@ -253,11 +290,23 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
         gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
     else:
         search, gap_y = image, math.ceil(stripe_gap_px / f)
-    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
-    mask = _close(mask, gap_y, math.ceil(join_x_px / f))
+    gap_x = math.ceil(join_x_px / f)
+    dst = scratch.get("mask", search.shape) if scratch is not None else None
+    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
+    # The close and the contour search run on the box of the lit pixels grown by the kernel
+    # size (clipped to the frame): outside it the closed mask is 0, and within it the close
+    # is the whole frame's (a pixel within half a kernel of the box's inner edge is more than
+    # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
+    bx, by, bw, bh = cv2.boundingRect(mask)
+    if bw == 0:
+        return [], np.zeros((0, 4), np.int64)
+    my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
+    y0, x0 = max(by - my, 0), max(bx - mx, 0)
+    y1, x1 = min(by + bh + my, mask.shape[0]), min(bx + bw + mx, mask.shape[1])
+    closed = _close(mask[y0:y1, x0:x1], gap_y, gap_x, scratch)
     # findContours + one small fill per blob is several times faster here than
     # connectedComponentsWithStats, which labels the whole frame.
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
     rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
     if pool > 1 and len(rects):
         rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
@@ -303,16 +352,24 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     return np.stack((x, top, w, bottom - top + 1), axis=1)
 
 
-def _row_max(gray: np.ndarray, pool: int) -> np.ndarray:
+def _row_max(gray: np.ndarray, pool: int, scratch: Scratch | None = None) -> np.ndarray:
     """(ceil(H / pool), W) uint8: maximum over each run of `pool` rows of an (H, W) uint8 image
-    (a lit pixel anywhere in the run lights the pooled pixel; the last run may be shorter)."""
-    out = gray[0::pool]
+    (a lit pixel anywhere in the run lights the pooled pixel; the last run may be shorter).
+    Written into a `scratch` buffer when given."""
+    h = gray.shape[0]
+    ho = -(-h // pool)
+    out = scratch.get("pool", (ho, gray.shape[1])) if scratch is not None else np.empty((ho, gray.shape[1]), np.uint8)
+    first = gray[0::pool]
+    if pool == 1:
+        out[:] = first
+        return out
     for r in range(1, pool):
-        part = gray[r::pool]
-        if part.shape[0] < out.shape[0]:  # the last run is short: pad it with its own row
-            part = np.concatenate((part, out[part.shape[0]:]))
-        out = cv2.max(out, part)
-    return np.ascontiguousarray(out)
+        part = gray[r::pool]  # the last run is short when pool does not divide H: its own rows
+        n = part.shape[0]
+        cv2.max(first[:n] if r == 1 else out[:n], part, dst=out[:n])
+        if r == 1 and n < ho:
+            out[n:] = first[n:]
+    return out
 
 
 def _isolated(rects: np.ndarray) -> np.ndarray:
@@ -334,7 +391,8 @@ def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, mi
 
 
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
-                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+                        saturated_frac=0.03, min_refine_contrast=6.0,
+                        scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
     The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
@@ -349,11 +407,15 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     bw, bh = rects[:, 2], rects[:, 3]
     starts = np.zeros(n + 1, np.int64)
     np.cumsum(bh, out=starts[1:])
-    strip = np.zeros((int(starts[-1]), int(bw.max())), np.uint8)  # 0 pads: never above a level
+    if scratch is None:
+        scratch = Scratch()
+    shape = (int(starts[-1]), int(bw.max()))
+    strip = scratch.get("refine_strip", shape)
     peak = np.empty(n)
     for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
         roi = gray[y:y + hh, x:x + ww]
         strip[r0:r0 + hh, :ww] = roi
+        strip[r0:r0 + hh, ww:] = 0  # 0 pads: never above a level
         peak[i] = cv2.minMaxLoc(roi)[1]
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
@@ -364,11 +426,13 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
     if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
         strip[np.repeat(first_on > 255, bh)] = 0
-    lit = strip >= np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None]
+    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
+                           out=scratch.get("refine_lit", shape).view(bool))
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
     rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
     left = left_all[rows]
-    right = lit.shape[1] - 1 - cv2.flip(lit.view(np.uint8), 1).view(bool)[rows].argmax(axis=1)
+    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
+    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
     owner = np.searchsorted(starts, rows, side="right") - 1
     local_y = rows - starts[owner]
     lpts = np.stack((left, local_y), axis=1).astype(np.int32)

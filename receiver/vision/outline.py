@@ -28,6 +28,8 @@ import math
 import cv2
 import numpy as np
 
+from receiver.vision.detect import Scratch
+
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
 MIN_CONTRAST = 20.0
 # Pixels of plateau and of outside sampled next to each edge.
@@ -58,6 +60,38 @@ def _bbox(blob_or_contour, shape, pad: int):
     return x0, x1, y0, y1, bg
 
 
+def _boxes(gray: np.ndarray, blobs, pad: int) -> list[tuple]:
+    """(index, x0, x1, y0, y1, background) of the blobs (or polygons) whose box (`_bbox`) can
+    hold a run: the boxes of `Blob`s all at once (the same floor / ceil of their hulls'
+    extremes), a polygon's background the 5th percentile of its box."""
+    hh, ww = gray.shape[:2]
+    boxes = []
+    if all(hasattr(b, "hull") for b in blobs):
+        if not blobs:
+            return boxes
+        hulls = [np.asarray(b.hull, float).reshape(-1, 2) for b in blobs]
+        starts = np.zeros(len(hulls), np.int64)
+        np.cumsum([len(p) for p in hulls[:-1]], out=starts[1:])
+        pts = np.concatenate(hulls)
+        lo, hi = np.minimum.reduceat(pts, starts), np.maximum.reduceat(pts, starts)
+        x0 = np.maximum(np.floor(lo[:, 0]).astype(np.int64) - pad, 0).tolist()
+        x1 = np.minimum(np.ceil(hi[:, 0]).astype(np.int64) + pad + 1, ww).tolist()
+        y0 = np.maximum(np.floor(lo[:, 1]).astype(np.int64) - 1, 0).tolist()
+        y1 = np.minimum(np.ceil(hi[:, 1]).astype(np.int64) + 2, hh).tolist()
+        for i, b in enumerate(blobs):
+            if x1[i] - x0[i] >= MIN_RUN_PX + 2 and y1[i] > y0[i]:
+                boxes.append((i, x0[i], x1[i], y0[i], y1[i], float(getattr(b, "background", 0.0))))
+        return boxes
+    for i, b in enumerate(blobs):
+        x0, x1, y0, y1, bg = _bbox(b, gray.shape, pad)
+        if x1 - x0 < MIN_RUN_PX + 2 or y1 <= y0:
+            continue
+        if bg is None:
+            bg = np.percentile(np.asarray(gray[y0:y1, x0:x1], dtype=np.float32), 5)
+        boxes.append((i, x0, x1, y0, y1, bg))
+    return boxes
+
+
 def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, border_px: int = 2,
                        min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -79,34 +113,32 @@ def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, borde
 
 
 def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px: int = 2,
-                             min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS
-                             ) -> list[tuple[np.ndarray, np.ndarray]]:
+                             min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS,
+                             scratch: Scratch | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """`stripe_edge_points` of every blob (or envelope polygon) of one frame, in one pass: the
     bounding-box rows of all blobs are gathered into one (rows, widest box) uint8 array (zero
     padded: never lit) and every step after that is one numpy operation over all rows of all
-    blobs. Returns one (points, sigma) pair per blob, in order."""
+    blobs. `scratch`: work buffers kept across frames (receiver.vision.detect.Scratch), or None.
+    Returns one (points, sigma) pair per blob, in order."""
     empty = (np.zeros((0, 2)), np.zeros(0))
     out = [empty] * len(blobs)
     h, w = gray.shape[:2]
-    boxes = []
-    for i, b in enumerate(blobs):
-        x0, x1, y0, y1, bg = _bbox(b, gray.shape, pad)
-        if x1 - x0 < MIN_RUN_PX + 2 or y1 <= y0:
-            continue
-        if bg is None:
-            bg = np.percentile(np.asarray(gray[y0:y1, x0:x1], dtype=np.float32), 5)
-        boxes.append((i, x0, x1, y0, y1, bg))
+    boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
+    if scratch is None:
+        scratch = Scratch()
     nb = len(boxes)
     bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
     X0, X1, Y0, Y1 = bx.T
     Rb, Wb = Y1 - Y0, X1 - X0
     r_off = np.concatenate([[0], np.cumsum(Rb)])
     Wmax = int(Wb.max())
-    buf = np.zeros((int(r_off[-1]), Wmax), np.uint8)
-    for k, (_, x0, x1, y0, y1, _) in enumerate(boxes):
-        buf[r_off[k]:r_off[k + 1], :x1 - x0] = gray[y0:y1, x0:x1]
+    nrows = int(r_off[-1])
+    buf = scratch.get("edge_rows", (nrows, Wmax))
+    for (_, x0, x1, y0, y1, _), r0, r1 in zip(boxes, r_off[:-1].tolist(), r_off[1:].tolist()):
+        buf[r0:r1, :x1 - x0] = gray[y0:y1, x0:x1]
+        buf[r0:r1, x1 - x0:] = 0
     # Per-row constants of each row's blob.
     led = np.repeat(np.arange(nb), Rb)
     bg = np.repeat(np.array([b[5] for b in boxes], dtype=np.float32), Rb)
@@ -114,12 +146,14 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     rmax = buf.max(axis=1).astype(np.float32)
     thr_lit = bg + np.float32(0.5) * (rmax - bg)
     # uint8 v >= thr  <=>  v >= ceil(thr); rows with thr outside 0..255 fail `has` below.
-    lit = buf >= np.clip(np.ceil(thr_lit), 0, 255).astype(np.uint8)[:, None]
+    lit = np.greater_equal(buf, np.clip(np.ceil(thr_lit), 0, 255).astype(np.uint8)[:, None],
+                           out=scratch.get("edge_lit", (nrows, Wmax)).view(bool))
     has = (rmax - bg) >= min_contrast
     # Coarse crossings: first and last lit pixel of each row (the zero padding is never lit
     # for a row that has contrast).
     first = np.argmax(lit, axis=1)
-    last = np.minimum(Wmax - 1 - np.argmax(cv2.flip(lit.view(np.uint8), 1).view(bool), axis=1), Wr1)
+    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("edge_flip", (nrows, Wmax)))
+    last = np.minimum(Wmax - 1 - np.argmax(flipped.view(bool), axis=1), Wr1)
     ok = has & (last - first + 1 >= MIN_RUN_PX)
     rows = np.flatnonzero(ok)
     if rows.size == 0:
