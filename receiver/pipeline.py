@@ -180,11 +180,12 @@ class Receiver:
         self.scratch = Scratch()  # detection's work buffers, kept across frames
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
-        self.pairer = Pairer(settings=s.pair) if plan.s2psk else None
+        self.pairer = Pairer(settings=s.pair, new_id=self.tracker.new_id) if plan.s2psk else None
         self.policy = DecodePolicy(camera, led_map, plan, s.policy, ook=s.ook, tone=s.tone, s2psk=s.s2psk,
                                    min_stripe_rows=self.min_stripe_rows)
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
+        self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
@@ -263,19 +264,37 @@ class Receiver:
 
     def _pairs(self, gray: np.ndarray, frame: Frame, tracks: list[Track]) -> dict:
         """Follow and decode the S2-PSK pairs; {track id: owning pair} of this frame."""
-        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift)
+        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s)
         for p in live:
             decs = self.pair_decoders.get(p.uid)
             if decs is None:
                 decs = self.pair_decoders[p.uid] = self.policy.new_pair_decoders()
+                if p.backlog:
+                    # The frames before the pair formed go to a second set of decoders: the
+                    # founding tracks may have followed other blobs before (a wrong history
+                    # must not hold the pair's own samples back); whichever decodes first wins.
+                    early = self.early_decoders[p.uid] = self.policy.new_pair_decoders()
+                    for t_s, *ab in p.backlog:
+                        self.policy.step_pair(early, t_s, pair_xor(*ab))
+                    p.backlog = []
             a, b = self.pairer.sample(p, gray, _intensity)
             x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
-            found, _ = self.policy.step_pair(decs, frame.t_s, x)
+            due = self.policy.pair_due(p.led_id, frame.index, p.uid)
+            found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
+            early = self.early_decoders.get(p.uid)
+            if early is not None:
+                if found is None:
+                    found, _ = self.policy.step_pair(early, frame.t_s, x)
+                    if found is not None:  # from now on the decoders that found the ID
+                        self.pair_decoders[p.uid] = early
+                if found is not None:
+                    del self.early_decoders[p.uid]
             if found is not None:
                 p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
         uids = {p.uid for p in live}
         for uid in [u for u in self.pair_decoders if u not in uids]:
             del self.pair_decoders[uid]
+            self.early_decoders.pop(uid, None)
         pair_of = pair_owners(self.pairer.pairs)
         # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
         # this frame (it may have jumped to another light's blob) carries none.
@@ -360,23 +379,31 @@ class Receiver:
                     want.append(t.track_id)
         edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)))
         leds = []
+        # A pair's blobs, and the blobs by its emitters it did not take (not paired anew while it
+        # lives), are reported as the pair's emitters below.
+        covered = {t.track_id for p in self.pairer.pairs for t in p.nearby} if self.pairer is not None else ()
         for t in seen:
+            if t.track_id in pair_of or t.track_id in covered:
+                continue
             light = self._light(t.track_id)
-            p = pair_of.get(t.track_id)
-            if not (light.striped or p is not None):
+            if not light.striped:
                 continue
             b = env[t.track_id]
-            kind = freq = None
-            if p is not None:
-                kind = p.kind
-            elif math.isfinite(light.freq_hz):
-                freq = round(light.freq_hz, 1)
+            freq = round(light.freq_hz, 1) if math.isfinite(light.freq_hz) else None
             edges = edge_of.get(t.track_id)
             leds.append(LedObservation(track=t.track_id, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull,
                                        border=b.border, id=light.led_id, mode=light.mode, peak=b.peak,
-                                       freq_hz=freq, kind=kind, edge_px=edges))
+                                       freq_hz=freq, edge_px=edges))
             if light.led_id is not None:
                 self.decoded_ids.add(light.led_id)
+        emitter_of = {}  # LED id -> its S2-PSK pair
+        for oid, b, p in (self.pairer.emitters() if self.pairer is not None else ()):
+            emitter_of[oid] = p
+            leds.append(LedObservation(track=oid, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull,
+                                       border=b.border, id=p.led_id, mode="s2psk" if p.led_id is not None else None,
+                                       peak=b.peak, kind=p.kind))
+            if p.led_id is not None:
+                self.decoded_ids.add(p.led_id)
         leds.sort(key=lambda o: o.track)
         pairs = tuple(pair_observation(p) for p in self.pairer.pairs) if self.pairer is not None else ()
         timer.stamp("report")  # the frame's observations (the latency counts every stage)
@@ -389,7 +416,7 @@ class Receiver:
             speed = self.speed(frame.t_s) if self.speed is not None else None
             vres = self.vehicle.step(frame.t_s, pairs, speed)
             vehicle = vres.vehicle
-            leds = _with_pair_ranges(leds, pair_of, self.pairer.pairs, vres.ranges)
+            leds = _with_pair_ranges(leds, emitter_of, self.pairer.pairs, vres.ranges)
             timer.stamp("vehicle")
         self.frames += 1
         self.last_counts = {"blobs": len(blobs), "tracks": len(tracks),

@@ -150,3 +150,19 @@ def test_step_benchmark(benchmark):
         return dec.step(state["t"], x[i])
 
     benchmark(one)
+
+
+def test_stored_only_samples_decode_at_the_next_check():
+    """`decode=False` keeps the sample and skips the decode; the next decoding step sees every
+    stored sample (a decoded pair is re-checked every few frames, receiver.decode.policy)."""
+    rng = np.random.default_rng(8)
+    t, a, b = s2psk_samples(0x12, 200, 16, 120, rng)
+    ref, lazy = S2pskDecoder(), S2pskDecoder()
+    for i, (ti, ai, bi) in enumerate(zip(t, a, b)):
+        x = pair_xor(ai, bi, A_ON, B_ON, A_OFF, B_OFF)
+        r = ref.step(ti, x)
+        s = lazy.step(ti, x, decode=i == len(t) - 1)
+        if i < len(t) - 1:
+            assert s.led_id is None  # nothing decoded while only stored
+    assert r.led_id == s.led_id == 0x12
+    assert np.array_equal(ref._t, lazy._t) and np.array_equal(ref._x, lazy._x)

@@ -34,6 +34,8 @@ def _score(name: str, max_frames: int | None = None) -> dict:
         for d in visible:
             first_seen.setdefault(d["id"], frame.index)
         first = {tr.track_id: tr.first_frame for tr in rx.tracker.tracks}
+        for p in (rx.pairer.pairs if rx.pairer is not None else ()):  # S2-PSK emitters: their founding tracks'
+            first.update(zip(p.ids, (p.a.first_frame, p.b.first_frame)))
         for o in res.leds:
             if o.id is not None and all(o.id != d["id"] for d in t["leds"]):
                 s["wrong"] += 1  # an ID that is nowhere in this frame's scene

@@ -190,3 +190,14 @@ def test_an_emitter_with_a_stale_small_envelope_still_explains_its_grown_blob():
     assert pr._follow(p, [seen], np.array([[seen.cx, seen.cy]]), None)
     assert p.tracks == [seen] and p.misses == 0
     assert abs(p.a.blob.area_px - seen.blob.area_px) < 1e-9
+
+
+def test_emitter_levels_equal_numpy_percentiles():
+    """The levels come from a sorted copy kept per value; they must be np.percentile's."""
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        lv = EmitterLevels(history=int(rng.integers(2, 60)))
+        for _ in range(int(rng.integers(1, 120))):
+            lv.add(float(rng.choice([rng.normal(100, 40), round(rng.normal(50, 30)), 12.0])))
+            off, on = np.percentile(np.fromiter(lv.values, float), (10.0, 90.0))
+            assert (lv.off, lv.on) == (float(off), float(on))

@@ -182,6 +182,11 @@ class DecodePolicy:
         """One S2-PSK decoder per (clock, symbol clocks) of the map: a pair is any of them."""
         return {(clk, nsym): S2pskDecoder(clk, nsym, settings=self.s2psk) for clk, nsym in self.plan.s2psk}
 
+    def pair_due(self, led_id: int | None, frame_index: int, uid: int) -> bool:
+        """Decode an S2-PSK pair's samples in this frame? One whose ID is known only every
+        `redecode_every` frames (staggered by pair); its samples are stored every frame."""
+        return led_id is None or not (frame_index + uid) % self.settings.redecode_every
+
     def due(self, light: LightDecoder, frame_index: int, track_id: int) -> bool:
         """Decode this light in this frame? A light whose ID is known feeds its decoders only
         every `redecode_every` frames (staggered by track)."""
@@ -227,11 +232,12 @@ class DecodePolicy:
         ok = tone_id is not None and light._tone_run >= self.settings.tone_confirm_frames
         light.led_id, light.mode = (tone_id, "tone") if ok else (None, None)
 
-    def step_pair(self, decoders: dict, t_s: float, xor: float):
-        """Feed one pair's soft XOR of this frame; (accepted state or None, latest state)."""
+    def step_pair(self, decoders: dict, t_s: float, xor: float, decode: bool = True):
+        """Feed one pair's soft XOR of this frame; (accepted state or None, latest state).
+        `decode` False: the samples are only stored (`pair_due`)."""
         found = state = None
         for (clk, _), dec in decoders.items():
-            st = dec.step(t_s, xor)
+            st = dec.step(t_s, xor, decode)
             if found is None and accept(self.led_map, "s2psk", st.led_id, clk):
                 found = st
             state = found or st

@@ -168,15 +168,25 @@ class S2pskDecoder:
         c = np.bincount(pos, cnt[best], PACKET_LEN)
         return np.where(c > 0, m / np.maximum(c, 1e-12), 0.0), c
 
-    def step(self, t_s: float, soft_xor: float) -> S2pskState:
-        """Feed one frame: its timestamp (s, source clock) and the pair's `pair_xor`."""
+    def step(self, t_s: float, soft_xor: float, decode: bool = True) -> S2pskState:
+        """Feed one frame: its timestamp (s, source clock) and the pair's `pair_xor`.
+        `decode` False: only store the sample (a pair whose ID is known is re-checked every few
+        frames, receiver.decode.policy). No decode is tried either while the samples span less
+        than 28 symbols: they cannot cover all 30 packet positions yet."""
         self.samples += 1
         if self._t0 is None:
             self._t0 = float(t_s)
         t = float(t_s) - self._t0  # small numbers keep the symbol arithmetic exact
-        keep = self._t >= t - self.history_s
-        self._t = np.append(self._t[keep], t)
-        self._x = np.append(self._x[keep], self.sign * float(soft_xor))
+        if self._t.size and self._t[0] < t - self.history_s:
+            keep = self._t >= t - self.history_s
+            self._t, self._x = self._t[keep], self._x[keep]
+        self._t = np.append(self._t, t)
+        self._x = np.append(self._x, self.sign * float(soft_xor))
+        if not decode or t - self._t[0] < (PACKET_LEN - 2) * self.symbol_s:
+            if decode:
+                self._calls += 1
+                self._phase = None  # the first decode searches every phase
+            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, self.confidence)
         m, c = self.folded_packet()
         if c.min() < self.min_samples:
             self.confidence = 0.0

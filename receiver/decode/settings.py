@@ -154,7 +154,9 @@ class PolicySettings:
         frames (staggered by track), to keep the frame budget with many lights (16 lights in
         2 ms median); tracks without an ID are decoded every frame. 8 frames re-check a known
         ID every 0.27 s at 30 fps (a changed ID is taken after the decoder's `switch_frames`
-        consecutive CRC-valid checks). 1 = always; cost grows with it.
+        consecutive CRC-valid checks). 1 = always; cost grows with it. S2-PSK pairs alike
+        (`DecodePolicy.pair_due`): a decoded pair's samples are stored every frame and decoded
+        every this many frames, so a changed ID takes `switch_steps` such checks.
     stripe_check [None = from the map and camera, `ModePlan.expect_stripes`]: when every light
         must show rolling-shutter stripes, a new track is reported and decoded only once its
         row profile shows stripes (depth >= `min_stripe_depth` [0.8]) or it is shorter than a

@@ -32,6 +32,7 @@ XOR of one sample.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import itertools
 import math
@@ -48,32 +49,39 @@ from receiver.core.settings import resolve_settings
 
 class EmitterLevels:
     """Running on/off levels of one emitter from its last `history` intensities (gray):
-    on = the `q_on` percentile, off = the `q_off` percentile."""
+    on = the `q_on` percentile, off = the `q_off` percentile (numpy's linear interpolation,
+    computed on a sorted copy kept up to date per value: no array is built per frame)."""
 
     def __init__(self, *, history: int = 48, q_on: float = 90.0, q_off: float = 10.0):
         self.values: deque = deque(maxlen=history)
         self.q_on, self.q_off = q_on, q_off
-        self._levels: tuple[float, float] | None = None  # (off, on) of the current values
-        self._n = 0
+        self._sorted: list[float] = []
 
     def add(self, value: float) -> None:
-        self.values.append(float(value))
-        self._levels = None
+        v = float(value)
+        if len(self.values) == self.values.maxlen:
+            del self._sorted[bisect.bisect_left(self._sorted, self.values[0])]
+        self.values.append(v)
+        bisect.insort(self._sorted, v)
 
-    def _off_on(self) -> tuple[float, float]:
-        # Both percentiles in one call, once per new value (read several times per frame).
-        if self._levels is None or len(self.values) != self._n:  # also after direct appends
-            off, on = np.percentile(np.fromiter(self.values, float), (self.q_off, self.q_on))
-            self._levels, self._n = (float(off), float(on)), len(self.values)
-        return self._levels
+    def _quantile(self, q: float) -> float:
+        """np.percentile(values, q) (method "linear"), with numpy's own lerp arithmetic."""
+        v = self._sorted
+        n, qq = len(v), q / 100.0
+        pos = (n - 1) * qq  # numpy's virtual index
+        lo = min(max(int(math.floor(pos)), 0), n - 1)
+        t = pos - lo
+        a, b = v[lo], v[min(lo + 1, n - 1)]
+        d = b - a
+        return b - d * (1.0 - t) if t >= 0.5 else a + d * t
 
     @property
     def on(self) -> float:
-        return self._off_on()[1] if self.values else 0.0
+        return self._quantile(self.q_on) if self.values else 0.0
 
     @property
     def off(self) -> float:
-        return self._off_on()[0] if self.values else 0.0
+        return self._quantile(self.q_off) if self.values else 0.0
 
     def blinks(self, min_swing: float) -> bool:
         """Both levels seen, apart by at least `min_swing` gray values."""
@@ -131,6 +139,10 @@ class Pair:
     uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
+    ids: tuple[int, int] = (-1, -1)  # the LED ids of emitters A and B in the output (`Pairer.emitters`)
+    # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
+    # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
+    backlog: list = field(default_factory=list)
 
     @property
     def key(self) -> tuple[int, int]:
@@ -164,8 +176,15 @@ class Pairer:
     overrides of its fields.
     """
 
-    def __init__(self, *, settings: PairSettings | None = None, **overrides):
+    def __init__(self, *, settings: PairSettings | None = None, new_id=None, **overrides):
+        """`new_id() -> int`: fresh LED ids for the pairs' emitters, never a track's id
+        (receiver.vision.track.Tracker.new_id); None: a counter of this pairer's own."""
         s = self.settings = resolve_settings(settings, PairSettings, overrides)
+        self.new_id = new_id if new_id is not None else itertools.count().__next__
+        self.report_coast_frames = s.report_coast_frames
+        self.backlog_frames = s.backlog_frames
+        # per unpaired track, its last `backlog_frames` frames: (t_s, seen, area px, intensity)
+        self.past: dict[int, deque] = {}
         self.geom = dict(row_band=s.row_band, max_area_ratio=s.max_area_ratio,
                          min_baseline=s.min_baseline, max_baseline=s.max_baseline)
         self.min_frames = s.min_frames
@@ -198,10 +217,10 @@ class Pairer:
         return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
 
     def _explain(self, p: Pair, tracks: list[Track], xy: np.ndarray, mx: float, my: float,
-                 hx: float, hy: float, single: float):
+                 hx: float, hy: float, single: float, exclude=()):
         """The blobs pair `p` explains around midpoint (mx, my): (explaining tracks, nearby
         tracks, their (dx, dy) offsets from where the pair puts them, A's and B's own single
-        blobs or None). Nothing is changed."""
+        blobs or None). Tracks in `exclude` (ids) are only nearby. Nothing is changed."""
         ax, ay, bx, by = mx - hx, my - hy, mx + hx, my + hy
         # The gate widens while the pair coasts: the prediction error grows (the camera's pitch
         # vibration moves every light by a few px within a second).
@@ -220,7 +239,7 @@ class Pairer:
             if min(da, db, dm) > tol or abs(t.cy - my) > tol_y + abs(hy):
                 continue
             nearby.append(t)  # not paired anew while this pair lives
-            if not t.seen:
+            if not t.seen or t.track_id in exclude:
                 continue
             if dm < min(da, db):
                 if self.merged_ratio * single < t.blob.area_px <= self.max_merged * single:
@@ -273,17 +292,45 @@ class Pairer:
         it: its emitters' intensities would be read beside them. Only the vertical part: a
         blob is matched to A, B or the midpoint of a blinking pair, so its horizontal offset
         mixes the shake with which of them lit it."""
-        dys = []
+        return self._first_pass(tracks, xy)[0]
+
+    def _first_pass(self, tracks: list[Track], xy: np.ndarray) -> tuple[float, dict]:
+        """(`pitch_shift`, {pair uid: ids of the tracks it must not take}) of this frame, from
+        every formed pair's explained blobs at its prediction. A blob that two decoded pairs
+        explain (two lights overlapping in the image, a car's taillight on another's) moves
+        neither: it would drag one's emitter onto the other light. A blob a decoded pair
+        explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
+        dys, claims = [], {}
         for p in self.pairs:
             if p.base0 is None:
                 continue
-            _, _, shifts, _, _ = self._explain(p, tracks, xy, *self._predict(p))
+            mx, my, hx, hy, single = pred = self._predict(p)
+            expl, _, shifts, _, _ = self._explain(p, tracks, xy, *pred)
             if shifts:
                 dys.append(float(np.mean([d[1] for d in shifts])))
-        return float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            mine = {t.track_id for t in expl}
+            if p.led_id is not None and len(xy):
+                # a decoded pair also claims the blobs on its own emitters that it did not take
+                # (another light's blob merged with one of them)
+                tol = max(self.match_min_px, self.match_size * math.sqrt(single))
+                d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
+                               np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
+                mine.update(tracks[i].track_id for i in np.flatnonzero(d <= tol) if tracks[i].seen)
+            for tid in mine:
+                claims.setdefault(tid, []).append(p)
+        exclude: dict[int, set] = {}
+        for tid, ps in claims.items():
+            if len(ps) < 2:
+                continue
+            decoded = [p for p in ps if p.led_id is not None]
+            for p in ps:
+                if len(decoded) >= 2 or (decoded and p.led_id is None):
+                    exclude.setdefault(p.uid, set()).add(tid)
+        pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+        return pitch, exclude
 
     def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0,
-                dx: float = 0.0) -> bool:
+                dx: float = 0.0, exclude=()) -> bool:
         """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
         `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
         (`pitch_shift`), px, added to the prediction."""
@@ -298,7 +345,7 @@ class Pairer:
         mx, my, hx, hy, single = self._predict(p)
         mx += dx
         my += dy
-        p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single)
+        p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
         if obs_a is not None:
             p.seen_a = p.frames
             p.obs_a = (obs_a, p.frames)
@@ -332,28 +379,32 @@ class Pairer:
                     return False
         return True
 
-    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None) -> list[Pair]:
+    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None) -> list[Pair]:
         """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
         mean gray in its envelope. `shift`: the frame's common image shift (dx, dy) px from the
         previous frame (receiver.vision.motion), or None: the vertical one from the pairs
-        (`pitch_shift`). Returns the live pairs; their levels are updated."""
+        (`pitch_shift`). `t_s`: the frame's time (s), for the new pairs' `backlog` (None: no
+        backlog). Returns the live pairs; their levels are updated."""
         live = {t.track_id: t for t in tracks}
         shape = None if gray is None else gray.shape
         xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
-        if shift is None:
-            dx, dy = 0.0, self.pitch_shift(tracks, xy)
-        else:
-            dx, dy = shift
+        pitch, exclude = self._first_pass(tracks, xy)
+        dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
         self.vertical_known = shift is not None
-        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx)]
+        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
                 del self.levels[tid]
+                self.past.pop(tid, None)
         for t in tracks:
             if t.track_id not in paired:
-                self.levels.setdefault(t.track_id, EmitterLevels()).add(intensity(gray, t))
+                v = intensity(gray, t)
+                self.levels.setdefault(t.track_id, EmitterLevels()).add(v)
+                if t_s is not None and self.backlog_frames > 0:
+                    self.past.setdefault(t.track_id, deque(maxlen=self.backlog_frames)).append(
+                        (float(t_s), t.seen, t.blob.area_px, v))
         free = [t for t in tracks if t.track_id not in paired and len(self.levels[t.track_id].values) >= self.min_frames
                 and self.levels[t.track_id].blinks(self.min_swing)]
         cands = []
@@ -371,12 +422,13 @@ class Pairer:
                 a, b = b, a
             if (a.track_id, b.track_id) in self.banned:
                 continue
-            p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], 
+            p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], ids=(self.new_id(), self.new_id()),
                      obs_a=(a.blob, 0) if a.seen else None, obs_b=(b.blob, 0) if b.seen else None)
             # The history that proved the blinking also seeds the pair's level estimates.
             for lv, t in ((p.levels_a, a), (p.levels_b, b)):
                 for v in self.levels.pop(t.track_id).values:
                     lv.add(v)
+            p.backlog = self._two_track_backlog(p, self.past.pop(a.track_id, ()), self.past.pop(b.track_id, ()))
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
@@ -427,9 +479,63 @@ class Pairer:
             a, b = _emitter(t), _emitter(t)
             a.blob = moved(t.blob, ax, ay)
             b.blob = moved(t.blob, ax + jx, ay + jy)
-            self.pairs.append(Pair(a, b, fresh=False, tracks=[t], nearby=[t]))
+            p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
+            p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
+            self.pairs.append(p)
             busy.add(t.track_id)
             self.jumps.pop(t.track_id, None)
+
+    @staticmethod
+    def _two_track_backlog(p: Pair, past_a, past_b) -> list[tuple]:
+        """`Pair.backlog` of a pair of two tracks: the frames before this one in which both
+        were read, with the pair's levels (seeded by the same history). The decoder then
+        starts from the tracks' birth, not from the pair's formation 4-15 frames later, and
+        has its packet when the light's is whole."""
+        va = {t: v for t, _, _, v in past_a}
+        la, lb = p.levels_a, p.levels_b
+        lv = (la.on, lb.on, la.off, lb.off)
+        return [(t, va[t], vb) + lv for t, _, _, vb in list(past_b)[:-1] if t in va]  # this frame: the pair's own
+
+    def _jumper_backlog(self, past, area_now: float, area_last: float) -> list[tuple]:
+        """`Pair.backlog` of a pair from one jumping track (a far head it alone followed,
+        `_pair_jumpers`), from its blob sizes: a blob of one emitter's size is one half lit,
+        anti-phase (a = 1, b = 0); a merged blob (over `merged_ratio` of one emitter, both lit)
+        or none (both dark) is in phase (1, 1) / (0, 0); levels on 1, off 0."""
+        single = max(0.5 * (area_now + area_last), 1.0)
+        out = []
+        for t, seen, area, _ in list(past)[:-1]:  # this frame: the pair's own sample
+            b = 0.0 if seen and area <= self.merged_ratio * single else float(seen)
+            out.append((t, float(seen), b, 1.0, 1.0, 0.0, 0.0))
+        return out
+
+    def emitters(self) -> list[tuple[int, Blob, Pair]]:
+        """This frame's S2-PSK emitter observations: (LED id, envelope at the emitter's current
+        position, its pair) for both emitters of every live pair that explained a blob within
+        the last `report_coast_frames` frames. An emitter is reported also when it is dark in
+        this frame: S2-PSK lights each emitter in half of every 5 ms clock period, so a frame
+        exposed for 0.1 ms sees both halves of a head dark in about a quarter of the frames
+        (symbol 0, off half-period) and one half dark in another half of them (symbol 1); the
+        pair knows where they are (it reads their intensities there), and its ID belongs to
+        both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
+        left out (one head followed by two pairs: the LED is the decoded one's)."""
+        live = [p for p in self.pairs if p.misses <= self.report_coast_frames]
+        dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
+               for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))]
+        xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
+        owner = np.array([id(p) for _, _, p, _ in dec])
+        out = []
+        for k, (i, b, p, own) in enumerate(dec):
+            # An emitter without its own blob in this frame sits where the pair predicts it: left
+            # out when that is as near another decoded pair's emitter (overlapping lights).
+            d = np.hypot(*(xy - (b.cx, b.cy)).T)[owner != id(p)]
+            if own or not d.size or d.min() > max(self.match_min_px, self.match_size * math.sqrt(max(b.area_px, 1.0))):
+                out.append((i, b, p))
+        for p in live:
+            if p.led_id is None:
+                for i, e in zip(p.ids, (p.a, p.b)):
+                    if not len(xy) or np.hypot(*(xy - (e.blob.cx, e.blob.cy)).T).min() > self.match_min_px:
+                        out.append((i, e.blob, p))
+        return out
 
     @staticmethod
     def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:

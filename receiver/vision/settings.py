@@ -135,6 +135,14 @@ class PairSettings:
     frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
     s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
     recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+    Output: report_coast_frames [3]: a pair's two emitters are reported as LEDs (with the
+    pair's ID) every frame, dark or lit, while the pair has explained a blob within this many
+    frames (both halves are dark together in runs of 1-3 frames; a pair coasting longer may
+    have lost its light, e.g. behind another car) (`Pairer.emitters`).
+    backlog_frames [90]: frames of each unpaired track's history (time, seen, area, intensity)
+    kept so that a new pair's decoder starts from the tracks' first frames (`Pair.backlog`):
+    a pair forms 4-40 frames after its light appears, and without them its ID would come that
+    much after the light's first whole packet. 0 = off.
         """
 
     row_band: float = 1.0
@@ -159,3 +167,5 @@ class PairSettings:
     shake_min_pairs: int = 3
     shake: str = "pitch"
     shake_radius_px: float = 14.0
+    report_coast_frames: int = 3
+    backlog_frames: int = 90

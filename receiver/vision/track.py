@@ -71,6 +71,12 @@ class Tracker:
         self.ended: list[Track] = []  # tracks dropped in the latest step
         self.shift_sum = (0.0, 0.0)  # accumulated common image shift (camera shake), px
 
+    def new_id(self) -> int:
+        """A fresh id from the tracks' id counter (never a track's), for records that stand for
+        an LED without a track of their own (an S2-PSK pair's emitters, receiver.vision.pairing)."""
+        self._next_id += 1
+        return self._next_id - 1
+
     def step(self, frame_index: int, blobs: list[Blob], shift=None) -> list[Track]:
         """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob).
         `shift`: this frame's common image shift (dx, dy) px from the previous frame (camera
