@@ -343,8 +343,8 @@ def _main(args, stop: "SignalStop") -> int:
                 out.flush()
         hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
-                                        hv_reason=hv_reason) + _server_text(positioner)
-              + f"; threads: {n_threads}", file=sys.stderr)
+                                        hv_reason=hv_reason) + f"; threads: {n_threads}"
+              + _server_text(positioner), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)
