@@ -9,7 +9,9 @@ becomes `occloc: <reason>` on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
+import importlib.machinery
 import importlib.util
 import os
 import sys
@@ -50,25 +52,40 @@ def _available() -> dict[str, str]:
         if root not in sys.path:
             sys.path.append(root)  # after site-packages: never shadows an installed module
         commands.update(DEV_SUBCOMMANDS)
-    out = {}
-    for name, module in commands.items():
-        try:
-            if importlib.util.find_spec(module) is not None:
-                out[name] = module
-        except ModuleNotFoundError:
-            pass
-    return out
+    return {name: module for name, module in commands.items() if _find_spec(module) is not None}
+
+
+def _find_spec(module: str):
+    """The module's spec without running any package's `__init__` below the top level (an
+    `importlib.util.find_spec` of `tools.synth.cli` would import `tools.synth`, i.e. OpenCV);
+    None when it is not there."""
+    top, *rest = module.split(".")
+    try:
+        spec = importlib.util.find_spec(top)
+    except (ImportError, ValueError):
+        return None
+    for part in rest:
+        if spec is None or spec.submodule_search_locations is None:
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(part, list(spec.submodule_search_locations))
+    return spec
 
 
 def _help_line(module: str) -> str:
-    # Read the HELP line from the source without importing heavy dependencies.
-    spec = importlib.util.find_spec(module)
+    """The module's `HELP = "..."` (or a parenthesised run of string literals over several
+    lines), read from its source without importing it or its dependencies."""
+    spec = _find_spec(module)
     try:
         with open(spec.origin, encoding="utf-8") as f:
-            for line in f:
+            lines = iter(f)
+            for line in lines:
                 if line.startswith("HELP = "):
-                    return line[len("HELP = "):].strip().strip("\"'")
-    except (OSError, TypeError):
+                    text = line[len("HELP = "):].strip()
+                    while text.startswith("(") and not text.endswith(")"):
+                        text += " " + next(lines).strip()
+                    value = ast.literal_eval(text)
+                    return value if isinstance(value, str) else ""
+    except (OSError, TypeError, ValueError, SyntaxError, StopIteration):
         pass
     return ""
 

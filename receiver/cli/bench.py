@@ -1,162 +1,154 @@
-"""`occloc bench`: per-stage and total median / p99 milliseconds of the receiver, frames/s.
+"""`occloc bench`: per-stage and whole-frame median / p99 milliseconds of the receiver, frames/s,
+and (`--instructions`, where valgrind is installed) instructions per frame.
 
-Without SOURCE it runs the built-in synthetic scene (`bench_scene`): 1280x720, 16 OOK LEDs
-(PROTOCOL.md packets at 20 kHz on a rolling shutter, drifting across the image), the budget
-case of issue 4. With SOURCE it runs that recording / video / photo (camera and map as for
-`occloc run`). Frames are decoded from the source (or rendered) before timing starts, so the
-numbers are receiver processing only; `output` is the JSON line formatting, timed separately
-and included in `total`.
+Without SOURCE it runs every bundled recording (`recordings/*` of a source checkout) and the
+built-in synthetic scene (`receiver.cli.benchscene`: 1280x720, 16 OOK LEDs, a map of real LED
+positions); with SOURCE that recording / video / photo (camera and map as for `occloc run`).
+Each case runs the WHOLE pipeline of `occloc run`: detect .. decode, report, positioning
+(`make_positioner`) and the vehicle stage (`make_vehicle_locator`) where the map has one, plus
+the JSON line formatting (`output`, timed separately and included in `total`). It runs on one
+core (OpenCV on one thread, `receiver.core.budget.one_core`), and the frames are decoded (or
+rendered) into memory before timing starts, so video decoding is not timed. Times are the main
+thread's CPU time by default (`--clock cpu`: on one core all the work is on that thread, and it
+does not count the time other processes take the core; `--clock wall` for elapsed time).
+
+Instructions per frame: the same case re-runs in a child process under
+`valgrind --tool=callgrind`, collecting only while the timed frames are processed (the child
+processes its frames inside one `functools.reduce` call, callgrind's `--toggle-collect`), and the
+count is divided by those frames; start-up, imports and decoding are not counted.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
-from dataclasses import dataclass
 
-import numpy as np
+HELP = "time the whole receiver per stage (median/p99 ms, instructions/frame) on the bundled recordings or a SOURCE"
 
-HELP = "time the receiver per stage (median/p99 ms, frames/s) on a synthetic scene or a SOURCE"
+SCENE = "synthetic"          # the name of the built-in scene's case
+DEFAULT_FRAMES = 300         # frames per case (the bundled recordings have 30-150)
+DEFAULT_INSTR_FRAMES = 5     # frames counted under callgrind per case
+# Frames processed before the counted ones under callgrind (IDs decoded, trackers settled).
+INSTR_WARM_FRAMES = 10
+# The C function the child runs its counted frames in (CPython's functools.reduce).
+INSTR_TOGGLE = "functools_reduce"
 
-BENCH_SIZE = (1280, 720)
-BENCH_LEDS = 16
-BENCH_RATE_HZ = 20000.0  # PROTOCOL.md's default chip rate, spelled out: the bench scene is fixed
-BENCH_ROW_US = 20.0  # 2.5 rows per chip at 20 kHz
-BENCH_FPS = 30.0
-BENCH_RADIUS_PX = 40.0  # 80 rows = 32 chips: most of a packet per frame
-BENCH_ON_GRAY = 220.0
-BENCH_OFF_GRAY = 12.0
-BENCH_NOISE_GRAY = 2.0
+# Clocks of --clock (seconds): the main thread's CPU time, or elapsed time.
+CLOCKS = {"cpu": time.thread_time, "wall": time.perf_counter}
 
-
-@dataclass(frozen=True)
-class SceneLed:
-    led_id: int
-    cx: float  # px at frame 0
-    cy: float
-    radius_px: float
-    phase_s: float  # the LED's packet start relative to t = 0
+# The scene's names, from before the scene had its own module (tests and tools import them here).
+_SCENE_NAMES = ("BENCH_SIZE", "BENCH_LEDS", "BENCH_RATE_HZ", "BENCH_ROW_US", "BENCH_FPS", "BENCH_RADIUS_PX",
+                "BENCH_ON_GRAY", "BENCH_OFF_GRAY", "BENCH_NOISE_GRAY", "BENCH_CEILING_M", "SceneLed",
+                "bench_ids", "bench_scene", "render_bench_frame", "bench_camera", "bench_map", "bench_frames")
 
 
-def bench_ids(n: int = BENCH_LEDS) -> list[int]:
-    """n distinct 16-bit IDs spread over the code space."""
-    return [(0x0101 + 0x1F13 * i) & 0xFFFF for i in range(n)]
-
-
-def bench_scene(n_leds: int = BENCH_LEDS, size=BENCH_SIZE, radius_px: float = BENCH_RADIUS_PX,
-                seed: int = 0) -> list[SceneLed]:
-    """LEDs on a jittered grid (px), random packet phases."""
-    rng = np.random.default_rng(seed)
-    w, h = size
-    cols = int(np.ceil(np.sqrt(n_leds * w / h)))
-    rows = int(np.ceil(n_leds / cols))
-    leds = []
-    for i, led_id in enumerate(bench_ids(n_leds)):
-        r, c = divmod(i, cols)
-        cx = (c + 0.5) * w / cols + rng.uniform(-0.1, 0.1) * w / cols
-        cy = (r + 0.5) * h / rows + rng.uniform(-0.1, 0.1) * h / rows
-        leds.append(SceneLed(led_id, cx, cy, radius_px, rng.uniform(0, 1.0)))
-    return leds
-
-
-def render_bench_frame(leds: list[SceneLed], k: int, *, size=BENCH_SIZE, fps: float = BENCH_FPS,
-                       rate_hz: float = BENCH_RATE_HZ, row_readout_us: float = BENCH_ROW_US,
-                       drift_px: tuple[float, float] = (0.7, 0.3), on_gray: float = BENCH_ON_GRAY,
-                       off_gray: float = BENCH_OFF_GRAY, noise_gray: float = BENCH_NOISE_GRAY,
-                       rng: np.random.Generator | None = None) -> np.ndarray:
-    """(H, W) uint8 frame k: discs striped by their OOK chip stream sampled per row (instant
-    exposure at t_k + row * t_row), moving by `drift_px` per frame, with Gaussian noise."""
-    from firmware_tx.framing import ook_packet
-    w, h = size
-    img = np.full((h, w), off_gray, np.float32)
-    t_k = k / fps
-    yy = np.arange(h)
-    for led in leds:
-        chips = np.frombuffer(bytes(ook_packet(led.led_id)), np.uint8)
-        cx, cy = led.cx + drift_px[0] * k, led.cy + drift_px[1] * k
-        r = led.radius_px
-        y0, y1 = max(int(cy - r) - 1, 0), min(int(cy + r) + 2, h)
-        x0, x1 = max(int(cx - r) - 1, 0), min(int(cx + r) + 2, w)
-        if y1 <= y0 or x1 <= x0:
-            continue
-        t_rows = t_k + yy[y0:y1] * row_readout_us * 1e-6 + led.phase_s
-        chip = chips[np.floor(t_rows * rate_hz).astype(np.int64) % len(chips)]
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        inside = (xs - cx) ** 2 + (ys - cy) ** 2 <= r * r
-        level = np.where(chip[:, None] > 0, on_gray, off_gray)
-        img[y0:y1, x0:x1] = np.where(inside, level, img[y0:y1, x0:x1])
-    if noise_gray > 0:
-        rng = rng if rng is not None else np.random.default_rng(k)
-        img += rng.normal(0.0, noise_gray, img.shape).astype(np.float32)
-    return np.clip(img + 0.5, 0, 255).astype(np.uint8)
-
-
-def bench_camera(size=BENCH_SIZE, row_readout_us: float = BENCH_ROW_US, fps: float = BENCH_FPS):
-    from receiver.io.camera import CameraModel
-    w, h = size
-    K = np.array([[1000.0, 0, (w - 1) / 2], [0, 1000.0, (h - 1) / 2], [0, 0, 1]])
-    return CameraModel(w, h, K, np.zeros(5), row_readout_us=row_readout_us, exposure_us=0.0, fps=fps)
-
-
-def bench_map(leds: list[SceneLed], rate_hz: float = BENCH_RATE_HZ):
-    from receiver.io.ledmap import parse_map
-    return parse_map({"units": "m", "leds": [
-        {"id": led.led_id, "mode": "ook", "x": float(i), "y": 0.0, "z": 3.0, "shape": "circle",
-         "size": [0.1], "rate_hz": rate_hz} for i, led in enumerate(leds)]})
-
-
-def bench_frames(n: int, *, seed: int = 0):
-    """(camera, map, frames) of the built-in scene."""
-    from receiver.core.records import Frame
-    leds = bench_scene(seed=seed)
-    rng = np.random.default_rng(seed)
-    frames = [Frame(k, k / BENCH_FPS, render_bench_frame(leds, k, rng=rng)) for k in range(n)]
-    return bench_camera(), bench_map(leds), frames
+def __getattr__(name: str):
+    # The scene (numpy) loads only when used: `occloc bench --help` and the parser stay light.
+    if name in _SCENE_NAMES:
+        from receiver.cli import benchscene
+        return getattr(benchscene, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def add_arguments(p) -> None:
     p.add_argument("source", nargs="?", metavar="SOURCE",
-                   help="recording, video or photo (default: built-in 1280x720 16-LED synthetic scene)")
-    p.add_argument("--frames", type=int, default=300, metavar="N", help="frames to time (300)")
+                   help="recording, video or photo (default: every bundled recording and the built-in "
+                        "1280x720 16-LED synthetic scene)")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, metavar="N",
+                   help=f"frames to time per case ({DEFAULT_FRAMES}; a recording's own length when shorter)")
     p.add_argument("--camera", metavar="FILE", help="camera.yaml for a bare video/photo")
     p.add_argument("--map", metavar="FILE", help="map.json for a bare video/photo")
     p.add_argument("--repeat", type=int, default=1, metavar="R",
-                   help="process each loaded frame R times (photos: 1 frame, so e.g. 20)")
+                   help="process the loaded frames R times, each time with a fresh receiver (photos: 1 frame, "
+                        "so e.g. 20)")
+    p.add_argument("--clock", choices=tuple(CLOCKS), default="cpu",
+                   help="cpu: the main thread's CPU time (default; steady on a shared machine, and with OpenCV "
+                        "on one thread all the work is on that thread); wall: elapsed time")
+    p.add_argument("--scene-only", action="store_true", help="only the built-in synthetic scene")
+    p.add_argument("--json", action="store_true", help="print one JSON object (machines) instead of the tables")
+    p.add_argument("--instructions", action="store_true",
+                   help=f"also count instructions per frame under valgrind's callgrind "
+                        f"({DEFAULT_INSTR_FRAMES} frames after {INSTR_WARM_FRAMES}; slow: minutes per case)")
+    p.add_argument("--instr-frames", type=int, default=DEFAULT_INSTR_FRAMES, metavar="K",
+                   help=f"frames counted per case with --instructions ({DEFAULT_INSTR_FRAMES})")
+    # The child of --instructions: process frames [W, W+K) of the case inside functools.reduce.
+    p.add_argument("--_count", nargs=3, metavar=("CASE", "W", "K"), help=argparse.SUPPRESS)
 
 
-def _load_source(args):
-    from receiver.io.camera import load_camera
-    from receiver.io.ledmap import load_map
+# ---------------------------------------------------------------- cases
+
+def bundled_recordings() -> list[str]:
+    """The bundled recording folders (recordings/* with a video) of a source checkout, by name."""
+    from receiver.io.sources import find_recording_files
+    import receiver
+    root = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(receiver.__file__))), "recordings")
+    if not os.path.isdir(root):
+        return []
+    out = []
+    for name in sorted(os.listdir(root)):
+        path = os.path.join(root, name)
+        if os.path.isdir(path) and find_recording_files(path).get("video"):
+            out.append(path)
+    return out
+
+
+def load_case(spec: str, n_frames: int, camera: str | None = None, map_path: str | None = None):
+    """(camera, map, frames, still) of a case: SCENE or a recording / video / photo, its frames
+    decoded (rendered) into memory, turned to sensor orientation as `occloc run` does."""
+    if spec == SCENE:
+        from receiver.cli.benchscene import bench_frames
+        cam, led_map, frames = bench_frames(n_frames)
+        return cam, led_map, frames, False
+    import cv2
     from receiver.core.errors import InputError
     from receiver.core.records import Frame
-    from receiver.io.camera import fit_camera
+    from receiver.io.camera import fit_camera, load_camera
+    from receiver.io.ledmap import load_map
     from receiver.io.sources import find_recording_files, open_source
-    import cv2
 
-    rec = find_recording_files(args.source) if os.path.isdir(args.source) else {}
-    cam_path, map_path = args.camera or rec.get("camera"), args.map or rec.get("map")
+    if not os.path.exists(spec):
+        raise InputError(f"no such file or folder: {spec}")
+    rec = find_recording_files(spec) if os.path.isdir(spec) else {}
+    cam_path, map_path = camera or rec.get("camera"), map_path or rec.get("map")
     if cam_path is None or map_path is None:
-        raise InputError(f"{args.source}: needs a camera file and a map (--camera, --map)")
+        raise InputError(f"{spec}: needs a camera file and a map (--camera, --map)")
     cam, led_map = load_camera(cam_path), load_map(map_path)
-    src = open_source(args.source, camera=cam)
+    src = open_source(spec, camera=cam, threads=1)
     try:
         cam, rotate = fit_camera(cam, src.size)
         frames = []
         for f in src:
-            if len(frames) >= args.frames:
+            if len(frames) >= n_frames:
                 break
             g = cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE) if rotate else f.gray
             frames.append(Frame(f.index, f.t_s, g))
     finally:
         src.close()
+    if not frames:
+        raise InputError(f"{spec}: no frames")
     return cam, led_map, frames, src.is_still
 
 
-def run_bench(camera, led_map, frames, *, repeat: int = 1, still: bool = False, clock=time.perf_counter):
-    """Process `frames` (each `repeat` times with a fresh receiver per repetition of a still)
-    on one core (OpenCV single-threaded, `receiver.core.budget.one_core`); returns (BudgetStats,
-    wall seconds)."""
+def whole_receiver(camera, led_map, *, still: bool = False, clock=time.perf_counter):
+    """A receiver as `occloc run` builds it: with the map's positioner and vehicle stage."""
+    from receiver.cli.run import make_positioner, make_vehicle_locator
+    from receiver.pipeline import Receiver
+    return Receiver(camera, led_map, positioner=make_positioner(camera, led_map),
+                    vehicle=make_vehicle_locator(camera, led_map), clock=clock, still=still)
+
+
+def run_bench(camera, led_map, frames, *, repeat: int = 1, still: bool = False, clock=time.perf_counter,
+              whole: bool = False):
+    """Process `frames` (each `repeat` times, with a fresh receiver per repetition) on one core
+    (OpenCV single-threaded, `receiver.core.budget.one_core`); returns (BudgetStats, wall
+    seconds). whole: the receiver of `occloc run` (`whole_receiver`: positioning, vehicle
+    stage); else the receiver alone (detect .. report)."""
     from receiver.core.budget import BudgetStats, one_core
     from receiver.io.output import frame_line
     from receiver.pipeline import Receiver
@@ -165,7 +157,8 @@ def run_bench(camera, led_map, frames, *, repeat: int = 1, still: bool = False, 
     with one_core():
         t0 = clock()
         for _ in range(max(1, repeat)):
-            rx = Receiver(camera, led_map, clock=clock, still=still)
+            rx = (whole_receiver(camera, led_map, still=still, clock=clock) if whole
+                  else Receiver(camera, led_map, clock=clock, still=still))
             for f in frames:
                 res = rx.process(f)
                 t = clock()
@@ -177,25 +170,137 @@ def run_bench(camera, led_map, frames, *, repeat: int = 1, still: bool = False, 
     return stats, wall
 
 
+# ---------------------------------------------------------------- instructions (callgrind)
+
+def _count_child(args) -> int:
+    """Under callgrind: process frames [0, W) of the case, then [W, W+K) inside one
+    functools.reduce call, the only place callgrind collects (--toggle-collect)."""
+    import functools
+    from receiver.core.budget import one_core
+    from receiver.io.output import frame_line
+
+    spec, w, k = args._count[0], int(args._count[1]), int(args._count[2])
+    cam, led_map, frames, still = load_case(spec, w + k, args.camera, args.map)
+    w = min(w, max(0, len(frames) - k))  # a short source (a photo): fewer warm frames
+    warm, counted = frames[:w], frames[w:w + k]
+    with one_core():
+        rx = whole_receiver(cam, led_map, still=still)
+        for f in warm:
+            frame_line(rx.process(f))
+        functools.reduce(lambda n, f: (frame_line(rx.process(f)), n + 1)[1], counted, 0)
+    print(json.dumps({"frames": len(counted)}))
+    return 0
+
+
+def count_instructions(spec: str, k: int, *, warm: int = INSTR_WARM_FRAMES, camera=None, map_path=None,
+                       valgrind: str | None = None) -> dict:
+    """{"instructions_per_frame", "frames"} of the case's frames [warm, warm+k) under callgrind,
+    or {"instructions_per_frame": None, "note": why} when valgrind is absent or fails."""
+    valgrind = valgrind or shutil.which("valgrind")
+    if valgrind is None:
+        return {"instructions_per_frame": None, "note": "valgrind not installed: instructions not counted"}
+    with tempfile.TemporaryDirectory(prefix="occloc-cg-") as tmp:
+        out = os.path.join(tmp, "callgrind.out")
+        cmd = [valgrind, "--tool=callgrind", f"--callgrind-out-file={out}", "--collect-atstart=no",
+               f"--toggle-collect={INSTR_TOGGLE}", sys.executable, "-m", "receiver.cli", "bench",
+               "--_count", spec, str(warm), str(k)]
+        if camera:
+            cmd += ["--camera", camera]
+        if map_path:
+            cmd += ["--map", map_path]
+        env = dict(os.environ)
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        env.update({"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        if proc.returncode != 0:
+            last = (proc.stderr.strip().splitlines() or ["?"])[-1]
+            return {"instructions_per_frame": None, "note": f"callgrind run failed: {last}"}
+        frames = json.loads(proc.stdout.strip().splitlines()[-1])["frames"]
+        total = callgrind_total(out)
+    if not frames or not total:
+        return {"instructions_per_frame": None,
+                "note": f"callgrind collected nothing (no {INSTR_TOGGLE} symbol in this Python?)"}
+    return {"instructions_per_frame": total / frames, "frames": frames}
+
+
+def callgrind_total(path: str) -> int:
+    """Instructions (Ir) a callgrind output file says it collected."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if line.startswith(("summary:", "totals:")):
+                return int(line.split()[1])
+    return 0
+
+
+# ---------------------------------------------------------------- command
+
+def _case_name(spec: str) -> str:
+    return spec if spec == SCENE else os.path.basename(os.path.normpath(spec))
+
+
+def bench_case(spec: str, args) -> dict:
+    """One case's row: frames, size, frames/s (elapsed), per-stage and total median / p99 ms (--clock)."""
+    cam, led_map, frames, still = load_case(spec, args.frames, args.camera, args.map)
+    clock = CLOCKS[getattr(args, "clock", "cpu")]
+    t0 = time.perf_counter()
+    stats, _ = run_bench(cam, led_map, frames, repeat=args.repeat, still=still, whole=True, clock=clock)
+    wall = time.perf_counter() - t0
+    s = stats.summary()
+    return {"case": _case_name(spec), "frames": s["frames"],
+            "size": [int(frames[0].gray.shape[1]), int(frames[0].gray.shape[0])],
+            "frames_per_s": s["frames"] / wall if wall > 0 else None,
+            "total": s["total"], "stages": s["stages"]}
+
+
+def _print_tables(rows: list[dict], clock: str, out) -> None:
+    what = "main-thread CPU ms" if clock == "cpu" else "elapsed ms"
+    print(f"whole pipeline (detect .. locate, vehicle, JSON line) on one core, {what}; frames decoded into "
+          f"memory before timing (video decoding not timed)", file=out)
+    for row in rows:
+        fps = f"{row['frames_per_s']:.1f} frames/s" if row["frames_per_s"] else "-"
+        print(f"\n{row['case']}: {row['frames']} frames {row['size'][0]}x{row['size'][1]}, {fps} (one core)",
+              file=out)
+        print(f"{'stage':<10}{'median ms':>11}{'p99 ms':>10}", file=out)
+        for name, st in list(row["stages"].items()) + [("total", row["total"])]:
+            print(f"{name:<10}{st['median_ms']:>11.3f}{st['p99_ms']:>10.3f}", file=out)
+        if "instructions_per_frame" in row:
+            ipf = row["instructions_per_frame"]
+            print(f"instructions/frame: {ipf / 1e6:.2f} M ({row['instr_frames']} frames, callgrind)" if ipf
+                  else f"instructions/frame: - ({row['instr_note']})", file=out)
+    print(f"\n{'case':<16}{'frames':>7}{'median ms':>11}{'p99 ms':>9}{'M instr':>9}", file=out)
+    for row in rows:
+        ipf = row.get("instructions_per_frame")
+        print(f"{row['case']:<16}{row['frames']:>7}{row['total']['median_ms']:>11.3f}{row['total']['p99_ms']:>9.3f}"
+              f"{(f'{ipf / 1e6:.2f}' if ipf else '-'):>9}", file=out)
+
+
 def main(args) -> int:
     from receiver.core.errors import InputError
-    if args.frames <= 0 or args.repeat <= 0:
-        raise InputError("--frames and --repeat must be positive")
-    if args.source is None:
-        print(f"occloc bench: rendering {args.frames} frames of the built-in scene "
-              f"({BENCH_SIZE[0]}x{BENCH_SIZE[1]}, {BENCH_LEDS} OOK LEDs)", file=sys.stderr)
-        cam, led_map, frames = bench_frames(args.frames)
-        still = False
+    if getattr(args, "_count", None):
+        return _count_child(args)
+    if args.frames <= 0 or args.repeat <= 0 or args.instr_frames <= 0:
+        raise InputError("--frames, --repeat and --instr-frames must be positive")
+    if args.source is not None:
+        specs = [args.source]
     else:
-        cam, led_map, frames, still = _load_source(args)
-        if not frames:
-            raise InputError(f"{args.source}: no frames")
-    stats, wall = run_bench(cam, led_map, frames, repeat=args.repeat, still=still)
-    s = stats.summary()
-    n = s["frames"]
-    print(f"{n} frames {frames[0].gray.shape[1]}x{frames[0].gray.shape[0]}, "
-          f"{n / wall:.1f} frames/s (one core)")
-    print(f"{'stage':<10}{'median ms':>11}{'p99 ms':>10}")
-    for name, st in list(s["stages"].items()) + [("total", s["total"])]:
-        print(f"{name:<10}{st['median_ms']:>11.3f}{st['p99_ms']:>10.3f}")
+        if args.camera or args.map:
+            raise InputError("--camera and --map need a SOURCE")
+        specs = ([] if args.scene_only else bundled_recordings()) + [SCENE]
+    rows = []
+    for spec in specs:
+        print(f"occloc bench: {_case_name(spec)} ...", file=sys.stderr, flush=True)
+        row = bench_case(spec, args)
+        if args.instructions:
+            c = count_instructions(spec, args.instr_frames, camera=args.camera, map_path=args.map)
+            row["instructions_per_frame"] = c["instructions_per_frame"]
+            row["instr_frames"] = c.get("frames")
+            if "note" in c:
+                row["instr_note"] = c["note"]
+        rows.append(row)
+    if args.json:
+        print(json.dumps({"one_core": True, "frames_predecoded": True, "clock": args.clock, "cases": rows},
+                         indent=1))
+    else:
+        _print_tables(rows, args.clock, sys.stdout)
     return 0

@@ -9,22 +9,23 @@ the camera (`CameraModel.scaled`); anything else is an error.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import signal
 import sys
 import time
 
-import cv2
-from receiver.io.camera import fit_camera
-from receiver.io.sources import default_source
+# Nothing heavy at module level: `occloc run --help` and the argument set-up (`add_arguments`)
+# must not load OpenCV, numpy or the pipeline; `_main` imports what a run needs.
+from receiver.core.budget import DEFAULT_THREADS, limit_blas_threads, threads
 
 HELP = "receive LEDs from a recording, video, photos, raw pipe or camera: JSON lines per frame"
 # Without a tty, a progress line every this many frames.
 PROGRESS_EVERY_FRAMES = 100
 # Seconds between redraws of the tty progress line.
 PROGRESS_REDRAW_S = 0.2
+# Upper bound of --threads (a typo like 1000 would start that many OpenCV workers).
+MAX_THREADS = 256
 
 
 def add_arguments(p) -> None:
@@ -50,9 +51,24 @@ def add_arguments(p) -> None:
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve); ranging stays here")
+    p.add_argument("--threads", type=_threads, default=DEFAULT_THREADS, metavar="N",
+                   help=f"threads for OpenCV, video decoding and numpy's BLAS (default {DEFAULT_THREADS}: "
+                        f"the frame budget is stated for one core)")
+
+
+def _threads(text: str) -> int:
+    import argparse
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= MAX_THREADS:
+        raise argparse.ArgumentTypeError(f"must be a whole number 1..{MAX_THREADS}, not {text!r}")
+    return n
 
 
 def _rotated(source):
+    import cv2
     from receiver.core.records import Frame
     for f in source:
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
@@ -217,17 +233,21 @@ def write_settings(path: str, rx) -> None:
 def main(args) -> int:
     # Stop signals are caught from the start: one that comes before the first frame ends the
     # run with an empty output and the summary, like one that comes later.
-    with SignalStop() as stop:
+    n = getattr(args, "threads", DEFAULT_THREADS)
+    limit_blas_threads(n)  # before numpy's first import (no effect when run in-process after it)
+    with SignalStop() as stop, threads(n):
         return _main(args, stop)
 
 
 def _main(args, stop: "SignalStop") -> int:
+    import dataclasses
     from receiver.io.camera import load_camera
     from receiver.io.ledmap import load_map
     from receiver.core.errors import InputError
     from receiver.io.output import RunSummary, frame_line
     from receiver.pipeline import Receiver
-    from receiver.io.sources import find_recording_files, open_source, parse_size
+    from receiver.io.camera import fit_camera
+    from receiver.io.sources import default_source, find_recording_files, open_source, parse_size
 
     from receiver.io.files import AtomicWriter, refuse_overwrite
 
@@ -266,7 +286,9 @@ def _main(args, stop: "SignalStop") -> int:
     if args.fps is not None:
         cam = dataclasses.replace(cam, fps=args.fps)
     size = parse_size(args.size)
-    src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam)
+    n_threads = getattr(args, "threads", DEFAULT_THREADS)
+    src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam,
+                      threads=n_threads)
     try:
         if src.size is None:
             raise InputError(f"{spec}: frame size unknown")
@@ -321,8 +343,8 @@ def _main(args, stop: "SignalStop") -> int:
                 out.flush()
         hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
-                                        hv_reason=hv_reason) + _server_text(positioner),
-              file=sys.stderr)
+                                        hv_reason=hv_reason) + f"; threads: {n_threads}"
+              + _server_text(positioner), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)

@@ -12,16 +12,29 @@ Usage (one `StageTimer` per frame; the clock is injected so tests can drive it):
 
 `BudgetStats` keeps every frame's totals and per-stage times for the median / p99 summary
 that `occloc run` and `occloc bench` print.
+
+Threads: the budget is stated for one core (`DEFAULT_THREADS`). `threads(n)` / `one_core()` put
+OpenCV on n threads inside a block; `limit_blas_threads(n)` caps numpy's BLAS pool, which only
+works before numpy is first imported (the command line calls it first thing). Video decoding
+threads are the frame source's (`receiver.io.sources.open_source(threads=)`).
 """
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
-import cv2
-import numpy as np
+# numpy and OpenCV are imported where they are used: this module is loaded before either
+# (limit_blas_threads must run before numpy's first import to take effect).
+
+# Threads the frame budget (issue 14) is stated for: one core.
+DEFAULT_THREADS = 1
+# Environment variables that size the BLAS / OpenMP pools of numpy's (and SciPy's) BLAS when
+# it loads: OpenBLAS, an OpenMP build, MKL.
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 Clock = Callable[[], float]  # seconds, monotonic (time.perf_counter by default)
 
@@ -50,6 +63,7 @@ class StageTimer:
 
 def percentile(values, q: float) -> float:
     """q-th percentile (0-100) of `values`, nan when empty."""
+    import numpy as np
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
@@ -73,13 +87,30 @@ class BudgetStats:
                 "stages": {k: stat(v) for k, v in self.stage_ms.items()}}
 
 
+def limit_blas_threads(n: int, environ=os.environ, modules=sys.modules) -> bool:
+    """Size numpy's BLAS thread pool to n threads: sets `BLAS_THREAD_VARS` when numpy is not loaded
+    yet (read once, when its BLAS library loads). Returns False, changing nothing, when numpy is
+    already loaded (then the pool is what the environment said at that time)."""
+    if "numpy" in modules:
+        return False
+    for name in BLAS_THREAD_VARS:
+        environ[name] = str(int(n))
+    return True
+
+
 @contextmanager
-def one_core() -> Iterator[None]:
-    """OpenCV on one thread inside the block (the frame budget is stated for one core; by
-    default OpenCV splits some calls over every core), restored afterwards."""
+def threads(n: int) -> Iterator[None]:
+    """OpenCV on n threads inside the block (by default OpenCV splits some calls over every
+    core), restored afterwards."""
+    import cv2
     before = cv2.getNumThreads()
-    cv2.setNumThreads(1)
+    cv2.setNumThreads(int(n))
     try:
         yield
     finally:
         cv2.setNumThreads(before)
+
+
+def one_core():
+    """OpenCV on one thread inside the block: the frame budget is stated for one core."""
+    return threads(1)

@@ -170,11 +170,15 @@ class FrameSource:
 class VideoFileSource(FrameSource):
     kind = "video"
 
-    def __init__(self, path: str, *, fps: float = 0.0, capture_factory=cv2.VideoCapture):
+    def __init__(self, path: str, *, fps: float = 0.0, capture_factory=cv2.VideoCapture,
+                 threads: int | None = None):
         super().__init__(path)
         if not os.path.isfile(path):
             raise InputError(f"no such file: {path}")
         self._factory = capture_factory
+        # FFmpeg's decoding threads (CAP_PROP_N_THREADS, open-only); None: OpenCV's default
+        # (one per core).
+        self.threads = threads
         cap = self._open(convert=False)
         w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
@@ -191,7 +195,10 @@ class VideoFileSource(FrameSource):
         # FFmpeg warns on every raw YUV frame ("treated as 8UC1"): that is the Y plane we want.
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         try:
-            cap = self._factory(self.path, cv2.CAP_FFMPEG)
+            if self.threads is None:
+                cap = self._factory(self.path, cv2.CAP_FFMPEG)
+            else:
+                cap = self._factory(self.path, cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, int(self.threads)])
             if not cap.isOpened():
                 raise InputError(f"{self.path}: not a readable video file")
             if not convert:
@@ -643,13 +650,15 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 
 def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: bool = False,
-                camera=None, stdin=None, capture_factory=cv2.VideoCapture) -> FrameSource:
+                camera=None, stdin=None, capture_factory=cv2.VideoCapture,
+                threads: int | None = None) -> FrameSource:
     """Open the SOURCE argument of `occloc run` (see module docstring).
 
     size: (W, H) or 'WxH' for raw pipes / V4L2; pix_fmt: 'gray' | 'bgr24' for pipes;
     realtime: wrap in `LatestFrameSource`; camera: CameraModel for rates, size and exposure;
     stdin: binary stream for '-' (default sys.stdin.buffer); capture_factory: the
-    cv2.VideoCapture constructor (tests pass a fake)."""
+    cv2.VideoCapture constructor (tests pass a fake); threads: video decoding threads of a video
+    file or recording (FFmpeg, CAP_PROP_N_THREADS; None: OpenCV's default, one per core)."""
     if isinstance(size, str):
         size = parse_size(size)
     fps = camera.fps if camera is not None else 0.0
@@ -663,7 +672,7 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     elif os.path.isdir(spec):
         files = find_recording_files(spec)
         if files["video"] is not None:
-            src = VideoFileSource(files["video"], fps=fps, capture_factory=capture_factory)
+            src = VideoFileSource(files["video"], fps=fps, capture_factory=capture_factory, threads=threads)
             src.kind = "recording"
             src.camera_path, src.map_path, src.truth_path = files["camera"], files["map"], files["truth"]
         else:
@@ -676,7 +685,7 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     else:
         from receiver.io.files import check_regular
         check_regular(spec, "video")
-        src = VideoFileSource(spec, fps=fps, capture_factory=capture_factory)
+        src = VideoFileSource(spec, fps=fps, capture_factory=capture_factory, threads=threads)
     if realtime:
         src = LatestFrameSource(src, pace=src.kind in ("video", "recording", "images"))
     return src
