@@ -362,16 +362,14 @@ def _mutations(rng, base: bytes, obj: dict):
 
 def test_seeded_fuzz_of_the_datagram_parser(walk_map):
     """Random mutations of valid requests: every reply is a valid reply or an error reply with
-    a known reason, strict JSON (never NaN), never an exception. Bounded count and time."""
+    a known reason, strict JSON (never NaN), never an exception. A fixed count, never a clock:
+    on a loaded machine a time bound made the last counter check depend on where it cut."""
     rng = np.random.default_rng(20240607)
     srv = LightingServer(walk_map, clock=FakeClock())
     ids, uv, d = scene(walk_map, C0, rng=np.random.default_rng(1))
     seen = set()
-    t_end = time.monotonic() + 15.0
-    n = 0
-    for n in range(1500):
-        if time.monotonic() > t_end:
-            break
+    count = 600
+    for n in range(count):
         seq = n
         base_obj = request(f"fz-{n % 7}", seq, 0.01 * n, ids, uv, d)
         base_obj["leds"][0]["cx"] = 600.5
@@ -389,7 +387,6 @@ def test_seeded_fuzz_of_the_datagram_parser(walk_map):
         else:
             assert set(reply) == {"v", "device", "seq", "position", "unknown_ids", "n_used", "solve_R_cw"}
             seen.add("ok")
-    assert n > 300
     assert {"ok", "bad_json", "bad_type", "bad_value"} <= seen, seen
     c = srv.counters
-    assert c["datagrams"] == n + 1 and c["replies"] + c["old_seq"] == c["datagrams"]
+    assert c["datagrams"] == count and c["replies"] + c["old_seq"] == c["datagrams"]
