@@ -100,7 +100,12 @@ def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: fl
     def done(dp, p, c, c_new):
         return np.linalg.norm(dp) <= LM_XTOL * (1.0 + np.linalg.norm(p)) or c - c_new <= LM_FTOL * c
 
-    return lm_iterate(lambda q: (fun(q), jac(q)), p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
+    # `fun.fun_jac` (e.g. receiver.locate.pose._joint_fun): both from one evaluation of the pose.
+    fun_jac = getattr(fun, "fun_jac", None) if jac is getattr(fun, "jac", None) else None
+    if fun_jac is None:
+        def fun_jac(q):
+            return fun(q), jac(q)
+    return lm_iterate(fun_jac, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
 
 
 def _covariance(fun, p: np.ndarray) -> tuple[np.ndarray, float, int]:

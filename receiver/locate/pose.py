@@ -144,7 +144,8 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     (normalized units / sigma_uv, 2 per LED), the finite ranges of d / sigma_d, the tilt prior
     (world up seen from the camera vs `up_prior`, / up_sigma) and the position prior (whitened by
     C_prior_cov). The returned function carries its analytic Jacobian as `fun.jac(p)` (the
-    Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences."""
+    Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences; and
+    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `robust_lm` iterates on)."""
     has_d = np.isfinite(d)
     wd = 1.0 / sigma_d[has_d]
     # Whitening of the position prior: r = W (C - C_prior) with W^T W = cov^-1.
@@ -157,8 +158,8 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
         z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)     # behind the camera: huge residual
         return R, dR, Y, X, z
 
-    def fun(p):
-        R, _, Y, X, z = _pose(p)
+    def _residuals(p, pose):
+        R, _, Y, X, z = pose
         r_ang = ((X[:, :2] / z[:, None]) - uv).ravel() / sigma_uv
         r_rng = (np.linalg.norm(Y[has_d], axis=1) - d[has_d]) * wd
         parts = [r_ang, r_rng]
@@ -169,8 +170,8 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
             parts.append(W @ (p[3:] - C_prior))
         return np.concatenate(parts)
 
-    def jac(p):
-        R, dR, Y, X, z = _pose(p)
+    def _jacobian(pose):
+        R, dR, Y, X, z = pose
         n = len(L)
         dRk = dR.reshape(3, 3, 3)                        # dRk[k] = dR / d rvec_k
         # dX_i / d rvec_k = dRk[k] @ Y_i ; dX_i / dC = -R
@@ -196,7 +197,17 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
             parts.append(J_c)
         return np.vstack(parts)
 
-    fun.jac = jac
+    def fun(p):
+        return _residuals(p, _pose(p))
+
+    def jac(p):
+        return _jacobian(_pose(p))
+
+    def fun_jac(p):
+        pose = _pose(p)
+        return _residuals(p, pose), _jacobian(pose)
+
+    fun.jac, fun.fun_jac = jac, fun_jac
     return fun
 
 

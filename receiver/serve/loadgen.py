@@ -1,0 +1,159 @@
+"""Load generator for the lighting server (issue 14: datagrams/s per process and the reply
+latency under that load), over UDP: `python -m receiver.serve.loadgen [udp://HOST:PORT]
+--rate R --seconds S`. Without a URL it starts `occloc serve --port 0` as a subprocess (its own
+process, so the generator does not share its interpreter).
+
+Requests: `devices` devices, each walking slowly under a 2 x 2 block of the map's ceiling LEDs
+(four LEDs per datagram, pinhole image points and ranges with small noise), sent open loop at
+`rate` datagrams/s (paced in bursts of at most 1 ms). Replies are matched to their requests by
+(device, seq); the latency is send -> reply on this machine's monotonic clock. Report: sent,
+replies, achieved replies/s, lost (no reply within `drain_s` after the last send), latency
+p50 / p99 / max in ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from receiver.serve.wire import encode, make_request
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_MAP = ROOT / "recordings" / "indoor-walk" / "map.json"
+SIGMA_UV = 3e-4
+SIGMA_M = 0.002
+
+
+def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0) -> list[tuple[str, int, bytes]]:
+    """n encoded 4-LED requests, round robin over `devices` devices: (device, seq, datagram)."""
+    from receiver.locate.pose import ypr_to_rotation
+    rng = np.random.default_rng(seed)
+    leds = list(led_map.leds.values())
+    xyz = np.array([led.xyz for led in leds])
+    R = ypr_to_rotation(10.0, 88.0, 2.0)
+    out = []
+    for k in range(n):
+        dev, seq = k % devices, k // devices
+        C = np.array([xyz[:, 0].mean() + 0.3 * np.sin(0.01 * seq + dev),
+                      xyz[:, 1].mean() + 0.3 * np.cos(0.01 * seq + dev), 1.0])
+        cols = [sorted(set(xyz[:, a]), key=lambda c: abs(c - C[a]))[:2] for a in (0, 1)]
+        near = np.flatnonzero(np.isin(xyz[:, 0], cols[0]) & np.isin(xyz[:, 1], cols[1]))[:4]
+        L = xyz[near]
+        Xc = (L - C) @ R.T
+        uv = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, 1e-4, (len(L), 2))
+        d = np.linalg.norm(L - C, axis=1) + rng.normal(0, 1e-3, len(L))
+        name = f"load-{dev}"
+        req = make_request(name, seq, seq / 30.0, SIGMA_UV, [leds[i].id for i in near], uv, d,
+                           np.full(len(L), SIGMA_M))
+        out.append((name, seq, encode(req)))
+    return out
+
+
+def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 1.0) -> dict:
+    """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second; the report."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    sock.connect(address)
+    sock.settimeout(0.05)
+    sent_at: dict[tuple[str, int], float] = {}
+    lat: list[float] = []
+    done = threading.Event()
+    last_reply = [0.0]
+
+    def receive():
+        while True:
+            try:
+                data = sock.recv(65536)
+            except socket.timeout:
+                if done.is_set():
+                    return
+                continue
+            except OSError:
+                return
+            now = time.monotonic()
+            rep = json.loads(data)
+            t0 = sent_at.get((rep.get("device"), rep.get("seq")))
+            if t0 is not None:
+                lat.append(now - t0)
+                last_reply[0] = now
+    rx = threading.Thread(target=receive, daemon=True)
+    rx.start()
+    start = time.monotonic()
+    k = 0
+    while k < len(datagrams):
+        due = min(len(datagrams), int((time.monotonic() - start) * rate) + 1)
+        while k < due:
+            dev, seq, data = datagrams[k]
+            sent_at[(dev, seq)] = time.monotonic()
+            sock.send(data)
+            k += 1
+        time.sleep(0.0005)
+    send_s = time.monotonic() - start
+    time.sleep(drain_s)
+    done.set()
+    rx.join(5.0)
+    sock.close()
+    ms = np.array(lat) * 1e3
+    span = (last_reply[0] - start) if len(lat) else float("nan")
+    return {"sent": len(datagrams), "send_s": round(send_s, 3), "replies": len(lat),
+            "lost": len(datagrams) - len(lat), "replies_per_s": round(len(lat) / span, 1) if len(lat) else 0.0,
+            "p50_ms": round(float(np.percentile(ms, 50)), 3) if len(ms) else None,
+            "p99_ms": round(float(np.percentile(ms, 99)), 3) if len(ms) else None,
+            "max_ms": round(float(ms.max()), 3) if len(ms) else None}
+
+
+def start_server(args=()) -> tuple[subprocess.Popen, tuple[str, int]]:
+    """`occloc serve --port 0` as a subprocess, once ready: (process, (host, port))."""
+    proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "serve", "--port", "0", *args], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    line = proc.stderr.readline()
+    if "listening on udp://" not in line:
+        proc.kill()
+        raise RuntimeError(f"occloc serve did not start: {line.strip()}")
+    proc.stderr.readline()                      # "occloc serve: ready"
+    host, port = line.split("udp://")[1].strip().rsplit(":", 1)
+    return proc, (host, int(port))
+
+
+def main(argv=None) -> int:
+    from receiver.io.ledmap import load_map
+    from receiver.serve.client import parse_udp_url
+    p = argparse.ArgumentParser(prog="python -m receiver.serve.loadgen", description=__doc__.split("\n\n")[0])
+    p.add_argument("url", nargs="?", help="udp://HOST:PORT of a running occloc serve (default: start one)")
+    p.add_argument("--rate", type=float, default=3000.0, help="datagrams per second (3000)")
+    p.add_argument("--seconds", type=float, default=3.0, help="how long to send (3)")
+    p.add_argument("--devices", type=int, default=50, help="devices the datagrams come from (50)")
+    p.add_argument("--map", default=str(DEFAULT_MAP), help="LED map (the bundled walk's)")
+    a = p.parse_args(argv)
+    if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0:
+        print("loadgen: --rate, --seconds and --devices must be positive", file=sys.stderr)
+        return 2
+    dg = four_led_datagrams(load_map(a.map), int(a.rate * a.seconds), a.devices)
+    proc = None
+    if a.url:
+        address = parse_udp_url(a.url)
+    else:
+        proc, address = start_server()
+    try:
+        print(json.dumps(run_load(address, dg, a.rate)))
+    finally:
+        if proc is not None:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:     # still working through a backlog
+                proc.kill()
+                proc.wait(10)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
