@@ -12,6 +12,10 @@ squares Jacobian, so nothing is tuned per scene except the documented accelerati
 
 `PositionKalman` (the streaming stage, on filterpy's KalmanFilter) and the pure functions
 `cv_predict` / `cv_update` (same maths on arrays) must agree; a test checks it.
+
+filterpy is imported when a track first needs a prediction or an update, not at the first fix:
+importing it runs its whole package, scipy.stats included (~1.5 s CPU here), and a single photo
+only ever starts a track, whose state is the fix itself.
 """
 
 from __future__ import annotations
@@ -19,7 +23,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 # A walking person holding a phone: accelerations of about 1 m/s^2 that persist for ~0.5 s,
 # i.e. q ~ sigma_a^2 * tau = 0.5 m^2/s^3 (white-noise-acceleration equivalent).
@@ -94,41 +97,58 @@ class PositionKalman:
         self.gate_chi2 = gate_chi2
         self.max_rejects = max_rejects
         self.max_coast_s = max_coast_s
-        self.kf: KalmanFilter | None = None
+        self.kf = None  # filterpy KalmanFilter, made from `_init` when first needed
+        self._init: tuple[np.ndarray, np.ndarray] | None = None  # (x (6,), P (6, 6)) of a new track
         self.t_s: float | None = None
         self.t_fix_s: float | None = None
         self.rejects = 0
         self.last_accepted = False
 
     def reset(self) -> None:
-        self.kf, self.t_s, self.t_fix_s, self.rejects = None, None, None, 0
+        self.kf, self._init, self.t_s, self.t_fix_s, self.rejects = None, None, None, None, 0
+
+    @property
+    def tracking(self) -> bool:
+        return self.kf is not None or self._init is not None
 
     def _start(self, t_s: float, z: np.ndarray, R: np.ndarray) -> None:
-        kf = KalmanFilter(dim_x=6, dim_z=3)
-        kf.x = np.concatenate([z, np.zeros(3)]).reshape(6, 1)
-        kf.P = np.zeros((6, 6))
-        kf.P[:3, :3] = R
-        kf.P[3:, 3:] = self.init_vel_sigma ** 2 * np.eye(3)
-        kf.H = H.copy()
-        self.kf, self.t_s, self.t_fix_s, self.rejects = kf, t_s, t_s, 0
+        P = np.zeros((6, 6))
+        P[:3, :3] = R
+        P[3:, 3:] = self.init_vel_sigma ** 2 * np.eye(3)
+        self.kf, self._init = None, (np.concatenate([z, np.zeros(3)]), P)
+        self.t_s, self.t_fix_s, self.rejects = t_s, t_s, 0
+
+    def _filter(self):
+        """The filterpy filter of the current track, made from the track's start on first use."""
+        if self.kf is None:
+            from filterpy.kalman import KalmanFilter
+            x, P = self._init
+            kf = KalmanFilter(dim_x=6, dim_z=3)
+            kf.x = x.reshape(6, 1)
+            kf.P = P
+            kf.H = H.copy()
+            self.kf, self._init = kf, None
+        return self.kf
 
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if self.kf is None:
-            return None
-        return self.kf.x.reshape(6).copy(), self.kf.P.copy()
+        if self.kf is not None:
+            return self.kf.x.reshape(6).copy(), self.kf.P.copy()
+        if self._init is not None:
+            return self._init[0].copy(), self._init[1].copy()
+        return None
 
     def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The prediction (x (6,), P (6, 6)) at t_s without changing the filter; None without a
         track or when t_s is before the filter's time or beyond `max_coast_s` of coasting."""
-        if self.kf is None or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
             return None
         x, P = self.state
         return cv_predict(x, P, t_s - self.t_s, self.q)
 
     def step(self, t_s: float, z: np.ndarray | None = None, R: np.ndarray | None = None):
         self.last_accepted = False
-        if self.kf is None:
+        if not self.tracking:
             if z is None:
                 return None
             self._start(t_s, np.asarray(z, float), np.asarray(R, float))
@@ -140,9 +160,10 @@ class PositionKalman:
             self.reset()
             return self.step(t_s, z, R)
         if dt > 0:
-            self.kf.F = transition(dt)
-            self.kf.Q = process_noise(dt, self.q)
-            self.kf.predict()
+            kf = self._filter()
+            kf.F = transition(dt)
+            kf.Q = process_noise(dt, self.q)
+            kf.predict()
             self.t_s = t_s
         if z is not None:
             z = np.asarray(z, float)
@@ -155,7 +176,7 @@ class PositionKalman:
                     self.last_accepted = True
                     return self.state
             else:
-                self.kf.update(z.reshape(3, 1), R=R)
+                self._filter().update(z.reshape(3, 1), R=R)
                 self.t_fix_s, self.rejects = t_s, 0
                 self.last_accepted = True
         if self.t_fix_s is not None and t_s - self.t_fix_s > self.max_coast_s:
