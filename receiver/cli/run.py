@@ -51,6 +51,9 @@ def add_arguments(p) -> None:
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve); ranging stays here")
+    p.add_argument("--server-timeout", type=_seconds, default=None, metavar="S",
+                   help="longest wait for a server's reply to a frame (default 0.2 s); a frame "
+                        "without one has no position and is counted in the summary")
     p.add_argument("--threads", type=_threads, default=DEFAULT_THREADS, metavar="N",
                    help=f"threads for OpenCV, video decoding and numpy's BLAS (default {DEFAULT_THREADS}: "
                         f"the frame budget is stated for one core)")
@@ -67,6 +70,18 @@ def _threads(text: str) -> int:
     return n
 
 
+def _seconds(text: str) -> float:
+    import argparse
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not 0 < v <= 60:
+        raise argparse.ArgumentTypeError(f"must be seconds in (0, 60], not {text!r}")
+    return v
+
+
 def _rotated(source):
     import cv2
     from receiver.core.records import Frame
@@ -74,12 +89,14 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
-def make_positioner(camera, led_map, server: str | None = None):
+def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None):
     """receiver.locate.indoor.Positioner when that module is available, else None; with `server`
-    (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server."""
+    (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server
+    (waiting `server_timeout_s` for a reply, default the client's)."""
     if server is not None:
         from receiver.serve.client import RemotePositioner
-        return RemotePositioner(camera, led_map, server)
+        kw = {} if server_timeout_s is None else {"timeout_s": server_timeout_s}
+        return RemotePositioner(camera, led_map, server, **kw)
     try:
         from receiver.locate.indoor import Positioner
     except ImportError:
@@ -297,7 +314,8 @@ def _main(args, stop: "SignalStop") -> int:
             print(f"occloc: {spec}: frames are {src.size[0]}x{src.size[1]}, the camera "
                   f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
         # Without --server the two-argument call of older make_positioner replacements (tests).
-        positioner = (make_positioner(cam, led_map, server=server) if server
+        positioner = (make_positioner(cam, led_map, server=server,
+                                      server_timeout_s=getattr(args, "server_timeout", None)) if server
                       else make_positioner(cam, led_map))
         vehicle = make_vehicle_locator(cam, led_map)
         speed = None
