@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
 from receiver.locate.lsq import (
     _LOSSES,
@@ -148,22 +149,19 @@ class _Problem:
     """The whitened residuals of one frame's outline solve and their analytic Jacobian, over
     p = (Rodrigues vector of R_cw, C), vectorised over all points of all LEDs.
 
-    Squares / rects: every point of every such target is stacked once (`P_all` (M, 2), its
+    Squares / rects: every point of every such target is stacked once (`P` (M, 2), its
     target `tix`); `assign` labels the points with their edges at a pose (no Python loop over
     LEDs) and the residual of a labelled point is its distance to the image line of its edge:
     the plane through the camera centre and the edge's corners A, B has the camera-frame
     normal n = R m with m = (A - C) x (B - C) = A x B + C x (A - B), the line (n0, n1, n2) / |(n0, n1)|.
-    A point's residual is w (x, y, 1) . line of its edge and its Jacobian row w (x, y, 1) . d line / dp:
-    the lines and their derivatives are built once per edge, then gathered to the points.
-    Circles (module doc): Sampson distances of all circles at once, their Jacobian by forward
-    differences (the six perturbed poses evaluated together with the pose itself)."""
+    Circles (module doc): Sampson distances, their Jacobian by forward differences."""
 
     def __init__(self, targets, focal_px, sigma_c, up, up_sigma):
         self.focal_px = focal_px
         self.sigma_c, self.up, self.up_sigma = sigma_c, up, up_sigma
         self.C_prior = self.W = None
         poly = [t for t in targets if t.shape != "circle"]
-        circles = [t for t in targets if t.shape == "circle"]
+        self.circles = [t for t in targets if t.shape == "circle"]
         self.n_poly = len(poly)
         if poly:
             # The corners of every target at once (`_corners`), and the next corner of each.
@@ -186,21 +184,11 @@ class _Problem:
             self.P_all = np.concatenate([t.pts for t in poly])
             self.w_all = 1.0 / np.concatenate([t.sigma for t in poly])
             self.tix = np.repeat(np.arange(len(poly)), counts)
-        self.n_circ = len(circles)
-        if circles:
-            # Every circle's points stacked (homogeneous, `cix` their circle), the circles' centres
-            # and radii (`_circle_residuals`, all circles at once).
-            self.c_xyz = np.array([t.xyz for t in circles], float)          # (Tc, 3)
-            self.c_r2 = np.array([t.half[0] ** 2 for t in circles], float)   # (Tc,)
-            pts = np.concatenate([t.pts for t in circles])
-            self.c_x = np.column_stack([pts, np.ones(len(pts))])             # (Nc, 3)
-            self.c_sigma = np.concatenate([t.sigma for t in circles])
-            self.cix = np.repeat(np.arange(len(circles)), [len(t.pts) for t in circles])
         cen = [t for t in targets if t.uv is not None]
         self.L = np.array([t.xyz for t in cen]).reshape(-1, 3)
         self.uv = np.array([t.uv for t in cen]).reshape(-1, 2)
         self.labels = None
-        self.eix = self.a = None
+        self.S = None
 
     def assign(self, p, keep_minor: bool = False) -> bool:
         """Label the square / rect points with their edges at pose p (`assign_edges`, all LEDs
@@ -217,15 +205,23 @@ class _Problem:
         ab = np.roll(q, -1, axis=1) - q
         inv_L2 = 1.0 / np.maximum(np.sum(ab * ab, axis=2), 1e-18)            # (T, 4)
         t = self.tix
-        # The four edges of each point's target side by side, (M, 4): the nearest edge (the
-        # first on ties) and the nearest corner.
-        relx = self.P_all[:, 0, None] - q[t, :, 0]
-        rely = self.P_all[:, 1, None] - q[t, :, 1]
-        abx, aby = ab[t, :, 0], ab[t, :, 1]
-        s = np.clip((relx * abx + rely * aby) * inv_L2[t], 0.0, 1.0)
-        ex, ey = relx - s * abx, rely - s * aby
-        lab = np.argmin(ex * ex + ey * ey, axis=1)
-        dc = np.min(relx * relx + rely * rely, axis=1)
+        px, py = self.P_all[:, 0], self.P_all[:, 1]
+        # The four edges one after the other over (M,) arrays (short-axis reductions are slow):
+        # the nearest edge (the first on ties, as argmin) and the nearest corner.
+        lab = np.zeros(len(t), np.int64)
+        for k in range(4):
+            relx, rely = px - q[t, k, 0], py - q[t, k, 1]
+            abx, aby = ab[t, k, 0], ab[t, k, 1]
+            s = np.clip((relx * abx + rely * aby) * inv_L2[t, k], 0.0, 1.0)
+            ex, ey = relx - s * abx, rely - s * aby
+            d2, c2 = ex * ex + ey * ey, relx * relx + rely * rely
+            if k == 0:
+                best, dc = d2, c2
+            else:
+                closer = d2 < best
+                lab[closer] = k
+                best = np.minimum(best, d2)
+                dc = np.minimum(dc, c2)
         lab[dc < (CORNER_GUARD_PX / self.focal_px) ** 2] = -1
         if keep_minor and self.labels is not None:
             old = self.labels
@@ -235,65 +231,44 @@ class _Problem:
         changed = self.labels is None or not np.array_equal(lab, self.labels)
         self.labels = lab
         use = np.flatnonzero(lab >= 0)
-        # A point's residual is a[i] . (the unit line of edge eix[i]): a = w (x, y, 1).
-        self.eix = self.tix[use] * 4 + lab[use]
+        # r = S @ (the edges' unit lines, flattened): row i holds w_i (x_i, y_i, 1) at its edge.
+        e3 = 3 * (self.tix[use] * 4 + lab[use])
         w = self.w_all[use]
-        self.a = np.column_stack([self.P_all[use] * w[:, None], w])
+        P = self.P_all[use]
+        vals = np.column_stack([P[:, 0] * w, P[:, 1] * w, w]).ravel()
+        cols = (e3[:, None] + np.arange(3)).ravel()
+        self.S = csr_matrix((vals, cols, np.arange(0, 3 * len(use) + 1, 3)), shape=(len(use), len(self.A) * 3))
         return changed
-
-    def _circles(self, p, jac: bool):
-        """Sampson residuals of every circle's points at pose p (`_circle_residuals`) and, with
-        `jac`, their forward-difference Jacobian (steps of 1e-7)."""
-        if jac:
-            ps = np.repeat(p[None], 7, axis=0)
-            ps[np.arange(1, 7), np.arange(6)] += 1e-7
-        else:
-            ps = p[None]
-        Rs = np.array([cv2.Rodrigues(q[:3].reshape(3, 1))[0] for q in ps])        # (K, 3, 3)
-        # H = [R e_x, R e_y, R (L - C)] per pose and circle: (K, Tc, 3, 3).
-        H = np.empty((len(ps), self.n_circ, 3, 3))
-        H[:, :, :, 0] = Rs[:, None, :, 0]
-        H[:, :, :, 1] = Rs[:, None, :, 1]
-        H[:, :, :, 2] = np.einsum("kab,ktb->kta", Rs, self.c_xyz[None] - ps[:, None, 3:])
-        try:
-            Hi = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
-            r = np.full((len(ps), len(self.c_x)), 1e3)
-        else:
-            dg = np.ones((self.n_circ, 3))
-            dg[:, 2] = -self.c_r2
-            Ci = np.einsum("ktba,tb,ktbc->ktac", Hi, dg, Hi)                     # Hi^T diag Hi
-            Cx = np.einsum("knij,nj->kni", Ci[:, self.cix], self.c_x)             # (K, Nc, 3)
-            val = np.einsum("nj,knj->kn", self.c_x, Cx)
-            g = 2.0 * np.hypot(Cx[..., 0], Cx[..., 1])
-            r = val / np.maximum(g, 1e-12) / self.c_sigma
-        if not jac:
-            return r[0], None
-        return r[0], ((r[1:] - r[0]) / 1e-7).T
 
     def __call__(self, p, jac: bool = True):
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
         C = p[3:]
         dRk = dR.reshape(3, 3, 3)                      # dRk[k] = dR / d rvec_k
         parts, jparts = [], []
-        if self.n_poly and len(self.eix):
+        if self.n_poly and self.S.shape[0]:
             m = self.AxB + self.dm_dC @ C
             n = m @ R.T
             rho = np.maximum(np.hypot(n[:, 0], n[:, 1]), 1e-15)
             nh = n / rho[:, None]
-            a = self.a
-            parts.append(np.einsum("ij,ij->i", a, nh[self.eix]))
+            parts.append(self.S @ nh.ravel())
             if jac:
                 dn = np.empty((len(n), 3, 6))
                 dn[:, :, :3] = (m @ dRk.transpose(0, 2, 1)).transpose(1, 2, 0)   # (dRk[k] @ m_e)[a]
                 dn[:, :, 3:] = R @ self.dm_dC                                       # R (e_j x D_e)
                 drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
                 dnh = dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
-                jparts.append(np.einsum("ij,ijk->ik", a, dnh[self.eix]))
-        if self.n_circ:
-            r0, Jc = self._circles(p, jac)
+                jparts.append(self.S @ dnh.reshape(-1, 6))
+        for t in self.circles:
+            r0 = _circle_residuals(t, R, C)
             parts.append(r0)
-            jparts.append(Jc)
+            if jac:
+                Jc = np.empty((len(r0), 6))
+                for i in range(6):
+                    q = p.copy()
+                    q[i] += 1e-7
+                    Rq, _ = cv2.Rodrigues(q[:3].reshape(3, 1))
+                    Jc[:, i] = (_circle_residuals(t, Rq, q[3:]) - r0) / 1e-7
+                jparts.append(Jc)
         if len(self.L):
             Y = self.L - C
             X = Y @ R.T
