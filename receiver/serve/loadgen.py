@@ -58,7 +58,8 @@ def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0) -> list[tup
 
 
 def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 1.0) -> dict:
-    """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second; the report."""
+    """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second, then wait up to
+    `drain_s` for the replies still missing; the report."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     sock.connect(address)
@@ -97,7 +98,9 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             k += 1
         time.sleep(0.0005)
     send_s = time.monotonic() - start
-    time.sleep(drain_s)
+    drain_end = time.monotonic() + drain_s      # wait for the last replies, at most drain_s
+    while len(lat) < len(datagrams) and time.monotonic() < drain_end:
+        time.sleep(0.01)
     done.set()
     rx.join(5.0)
     sock.close()
