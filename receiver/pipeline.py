@@ -379,9 +379,11 @@ class Receiver:
                     want.append(t.track_id)
         edge_of = dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)))
         leds = []
-        # A pair's blobs, and the blobs by its emitters it did not take (not paired anew while it
-        # lives), are reported as the pair's emitters below.
-        covered = {t.track_id for p in self.pairer.pairs for t in p.nearby} if self.pairer is not None else ()
+        # A reported pair's blobs, and the blobs by its emitters it did not take (not paired anew
+        # while it lives), are reported as the pair's emitters below; a pair coasting longer than
+        # `report_coast_frames` reports nothing, so the blobs near it stay in the output.
+        covered = {t.track_id for p in self.pairer.pairs if p.misses <= self.pairer.report_coast_frames
+                   for t in p.nearby} if self.pairer is not None else ()
         for t in seen:
             if t.track_id in pair_of or t.track_id in covered:
                 continue

@@ -28,7 +28,7 @@ STATIC_RIGHT_AFTER3, STATIC_TOTAL_AFTER3 = 103, 216
 STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 # vehicle: every live S2-PSK pair reports both emitters every frame (receiver.vision.pairing
 # `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs (was 552/1709).
-VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1521, 4032
+VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1521, 4048
 # `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames;
 # was SL 391, FV 114 before pair emitters were reported dark too and new pairs got their backlog).
 VEHICLE_RESOLVABLE = {"SL": (602, 658), "FV": (156, 156)}

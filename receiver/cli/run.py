@@ -17,6 +17,7 @@ import time
 
 # Nothing heavy at module level: `occloc run --help` and the argument set-up (`add_arguments`)
 # must not load OpenCV, numpy or the pipeline; `_main` imports what a run needs.
+from receiver.cli.args import seconds_up_to
 from receiver.core.budget import DEFAULT_THREADS, limit_blas_threads, threads
 
 HELP = "receive LEDs from a recording, video, photos, raw pipe or camera: JSON lines per frame"
@@ -51,7 +52,7 @@ def add_arguments(p) -> None:
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve); ranging stays here")
-    p.add_argument("--server-timeout", type=_seconds, default=None, metavar="S",
+    p.add_argument("--server-timeout", type=seconds_up_to(60.0), default=None, metavar="S",
                    help="longest wait for a server's reply to a frame (default 0.2 s); a frame "
                         "without one has no position and is counted in the summary")
     p.add_argument("--threads", type=_threads, default=DEFAULT_THREADS, metavar="N",
@@ -68,18 +69,6 @@ def _threads(text: str) -> int:
     if not 1 <= n <= MAX_THREADS:
         raise argparse.ArgumentTypeError(f"must be a whole number 1..{MAX_THREADS}, not {text!r}")
     return n
-
-
-def _seconds(text: str) -> float:
-    import argparse
-    import math
-    try:
-        v = float(text)
-    except ValueError:
-        v = math.nan
-    if not 0 < v <= 60:
-        raise argparse.ArgumentTypeError(f"must be seconds in (0, 60], not {text!r}")
-    return v
 
 
 def _rotated(source):

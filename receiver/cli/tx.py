@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from receiver.cli.args import seconds_up_to
 from receiver.core.errors import InputError
 from receiver.io.txlink import DEFAULT_TIMEOUT_S, TxClient
 
@@ -26,14 +27,7 @@ def _number(text: str) -> int:
     return value
 
 
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0 < value <= 600:
-        raise argparse.ArgumentTypeError("timeout must be in (0, 600] s")
-    return value
+_seconds = seconds_up_to(600.0)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

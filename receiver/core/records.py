@@ -92,7 +92,9 @@ class LedObservation:
     `peak`: brightest pixel value in the blob (0-255). `distance_m`, `distance_estimator`: the
     range to the LED and the estimator that gave it (receiver.locate.ranging), None when not
     ranged. `freq_hz`: a tone LED's measured stripe frequency (Hz, 0.1 Hz), else None.
-    `kind`: an S2-PSK light's "SL" or "FV" once decoded, else None.
+    `kind`: an S2-PSK light's "SL" or "FV" once decoded, else None. An S2-PSK pair's emitter
+    (receiver.vision.pairing `Pairer.emitters`) is reported also when dark: then `track` is the
+    emitter's own id (never a track's) and `cx, cy, area_px` are the pair's model of it.
     `edge_px`: ((N, 2) distorted px, (N,) 1-sigma px) sub-pixel ends of the blob's lit stripes,
     points on the LED's outline (receiver.vision.outline.stripe_edge_points), or None when not
     measured (S2-PSK, undecoded, photos of unknown sizes); not part of the JSON output.

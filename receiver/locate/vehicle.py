@@ -527,7 +527,7 @@ class VehicleLocator:
                 return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
                     or c - c_new <= LM_FTOL * c
 
-            x, _, r, J = lm_iterate(lambda q: (fun(q), fun.jac(q)), p0, done, loss=self.s.pose_loss,
+            x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
                                     f_scale=self.s.pose_f_scale, max_iter=n_iter)
         if not np.all(np.isfinite(x)):
             return None
@@ -730,7 +730,9 @@ class VehicleLocator:
                 continue
             sep = tr.get("sep_px")
             a, b = p.a_seen, p.b_seen
-            k = 0.0 if sep is None else 0.5 * tr["sep_d"] / max(tr["kf"].d, 1e-6)
+            if tr["kf"].d <= 0:             # a coasting track's distance passed zero: no model
+                sep = None
+            k = 0.0 if sep is None else 0.5 * tr["sep_d"] / tr["kf"].d
             if sep is not None and a is not None and a[2] == 0:
                 mids.append((a[0][0] + k * sep[0], a[0][1] + k * sep[1]))
             elif sep is not None and b is not None and b[2] == 0:

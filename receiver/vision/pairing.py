@@ -20,7 +20,8 @@ baseline vector that only scales with the emitters' size (both ~ 1 / distance), 
 frame from the blobs it explains: a single blob near A or B, a merged blob (area well above
 one emitter's) near the midpoint. Far heads never show two blobs, so their pairs come from
 one track that jumps back and forth by the same baseline (`_pair_jumpers`). Tracks whose blob is explained by a
-pair are its `tracks` (they carry its ID) and are not paired again. A pair ends after
+pair are its `tracks` and are not paired again; the pair's two emitters (`Pair.ids`, reported by
+`Pairer.emitters`, lit or dark) carry its ID in the output instead of those tracks. A pair ends after
 `max_missed` frames without such a blob, when an emitter leaves the image, or when it has not
 decoded after `give_up_frames` (a wrong pairing: its two tracks are then never paired again).
 
