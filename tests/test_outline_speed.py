@@ -108,3 +108,48 @@ def test_analytic_jacobian_matches_differences(folder, k):
         Jn[:, i] = (prob(p + e, False) - prob(p - e, False)) / 2e-6
     assert np.allclose(r, prob(p, False))
     assert np.abs(J - Jn).max() <= 1e-5 * np.abs(Jn).max()
+
+
+def _circle_targets(rng, n=5):
+    """n circles on a 3 m ceiling with noisy normalized edge points, seen from below."""
+    out = []
+    for _ in range(n):
+        xyz = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), 3.0])
+        r = rng.uniform(0.05, 0.15)
+        a = rng.uniform(0, 2 * np.pi, 40)
+        pts = (xyz[:2] + r * np.column_stack([np.cos(a), np.sin(a)])) / 2.0 + rng.normal(0, 1e-4, (40, 2))
+        out.append(outline_pose.OutlineTarget(xyz, "circle", (r, r), pts, np.full(40, 1e-3)))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_batched_circles_equal_the_per_circle_residuals(seed):
+    """`_Problem._circles` (all circles and the six perturbed poses in one batch) equals the
+    per-circle `_circle_residuals` and its forward differences, and a circle seen edge-on falls
+    back to its own 1e3 residuals without spoiling the others."""
+    rng = np.random.default_rng(seed)
+    targets = _circle_targets(rng)
+    prob = outline_pose._Problem(targets, 1000.0, 1.0, np.array([0.0, 0.0, 1.0]), 0.1)
+    p = np.concatenate([rng.normal(0, 0.05, 3), [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 1.0]])
+    r, J = prob._circles(p, True)
+    R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
+    r_ref = np.concatenate([outline_pose._circle_residuals(t, R, p[3:]) for t in targets])
+    J_ref = np.empty((len(r_ref), 6))
+    for i in range(6):
+        q = p.copy()
+        q[i] += 1e-7
+        Rq, _ = cv2.Rodrigues(q[:3].reshape(3, 1))
+        J_ref[:, i] = (np.concatenate([outline_pose._circle_residuals(t, Rq, q[3:]) for t in targets]) - r_ref) / 1e-7
+    assert np.allclose(r, r_ref, rtol=1e-9, atol=1e-12)
+    assert np.allclose(J, J_ref, rtol=1e-5, atol=1e-6)
+    assert np.array_equal(prob._circles(p, False)[0], r)
+    # The first circle edge-on: its centre in the plane through the camera centre spanned by
+    # R e_x and R e_y (here the camera sits at the circle's height).
+    flat = [outline_pose.OutlineTarget(np.array([0.5, 0.0, 1.0]), "circle", (0.1, 0.1), targets[0].pts,
+                                       targets[0].sigma)] + targets[1:]
+    prob = outline_pose._Problem(flat, 1000.0, 1.0, np.array([0.0, 0.0, 1.0]), 0.1)
+    p0 = np.zeros(6)
+    p0[5] = 1.0
+    r0, _ = prob._circles(p0, False)
+    n0 = len(targets[0].pts)
+    assert np.all(r0[:n0] == 1e3) and np.all(np.abs(r0[n0:]) < 1e3)

@@ -162,6 +162,16 @@ class _Problem:
         self.C_prior = self.W = None
         poly = [t for t in targets if t.shape != "circle"]
         self.circles = [t for t in targets if t.shape == "circle"]
+        if self.circles:
+            # Every circle's points stacked (homogeneous, `cix` their circle), the circles' centres
+            # and radii: `_circles` evaluates all circles, and the six perturbed poses of their
+            # forward-difference Jacobian, in one batch.
+            pts = np.concatenate([t.pts for t in self.circles])
+            self.c_xyz = np.array([t.xyz for t in self.circles], float)           # (Tc, 3)
+            self.c_r2 = np.array([t.half[0] ** 2 for t in self.circles], float)   # (Tc,)
+            self.c_x = np.column_stack([pts, np.ones(len(pts))])                   # (Nc, 3)
+            self.c_sigma = np.concatenate([t.sigma for t in self.circles])
+            self.cix = np.repeat(np.arange(len(self.circles)), [len(t.pts) for t in self.circles])
         self.n_poly = len(poly)
         if poly:
             # The corners of every target at once (`_corners`), and the next corner of each.
@@ -240,6 +250,37 @@ class _Problem:
         self.S = csr_matrix((vals, cols, np.arange(0, 3 * len(use) + 1, 3)), shape=(len(use), len(self.A) * 3))
         return changed
 
+    def _circles(self, p, jac: bool):
+        """`_circle_residuals` of every circle at pose p and, with `jac`, their forward-difference
+        Jacobian (steps of 1e-7): the pose and its six perturbations evaluated together. A
+        singular circle homography (a circle seen edge-on) falls back to the per-circle loop,
+        which gives that circle alone its 1e3 residuals."""
+        ps = np.repeat(p[None], 7 if jac else 1, axis=0)
+        if jac:
+            ps[np.arange(1, 7), np.arange(6)] += 1e-7
+        Rs = np.array([cv2.Rodrigues(q[:3].reshape(3, 1))[0] for q in ps])        # (K, 3, 3)
+        # H = [R e_x, R e_y, R (L - C)] per pose and circle: (K, Tc, 3, 3).
+        H = np.empty((len(ps), len(self.circles), 3, 3))
+        H[:, :, :, 0] = Rs[:, None, :, 0]
+        H[:, :, :, 1] = Rs[:, None, :, 1]
+        H[:, :, :, 2] = np.einsum("kab,ktb->kta", Rs, self.c_xyz[None] - ps[:, None, 3:])
+        try:
+            Hi = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            r = np.array([np.concatenate([_circle_residuals(t, R, q[3:]) for t in self.circles])
+                          for R, q in zip(Rs, ps)])
+        else:
+            dg = np.ones((len(self.circles), 3))
+            dg[:, 2] = -self.c_r2
+            Ci = np.einsum("ktba,tb,ktbc->ktac", Hi, dg, Hi)                     # Hi^T diag Hi
+            Cx = np.einsum("knij,nj->kni", Ci[:, self.cix], self.c_x)             # (K, Nc, 3)
+            val = np.einsum("nj,knj->kn", self.c_x, Cx)
+            g = 2.0 * np.hypot(Cx[..., 0], Cx[..., 1])
+            r = val / np.maximum(g, 1e-12) / self.c_sigma
+        if not jac:
+            return r[0], None
+        return r[0], ((r[1:] - r[0]) / 1e-7).T
+
     def __call__(self, p, jac: bool = True):
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
         C = p[3:]
@@ -258,16 +299,10 @@ class _Problem:
                 drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
                 dnh = dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
                 jparts.append(self.S @ dnh.reshape(-1, 6))
-        for t in self.circles:
-            r0 = _circle_residuals(t, R, C)
+        if self.circles:
+            r0, Jc = self._circles(p, jac)
             parts.append(r0)
             if jac:
-                Jc = np.empty((len(r0), 6))
-                for i in range(6):
-                    q = p.copy()
-                    q[i] += 1e-7
-                    Rq, _ = cv2.Rodrigues(q[:3].reshape(3, 1))
-                    Jc[:, i] = (_circle_residuals(t, Rq, q[3:]) - r0) / 1e-7
                 jparts.append(Jc)
         if len(self.L):
             Y = self.L - C
