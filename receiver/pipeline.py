@@ -37,7 +37,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
-from receiver.vision.motion import frame_shift, vertical_shift
+from receiver.vision.motion import frame_shift, vertical_shift, yaw_pitch_shift
 from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
@@ -309,9 +309,10 @@ class Receiver:
 
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
         """The frame's common image shift (dx, dy) px from the camera's shake, or None (off, or
-        not measurable): `PairSettings.shake` "vertical" or "2d" (receiver.vision.motion)."""
+        not measurable): `PairSettings.shake` "vertical", "2d" or "yawpitch"
+        (receiver.vision.motion)."""
         shift = None
-        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d"):
+        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d", "yawpitch"):
             # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
             # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
             # track's and pair's prediction.
@@ -324,6 +325,10 @@ class Receiver:
             if self.settings.pair.shake == "vertical":
                 dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
                 shift = None if dy is None else (0.0, dy)
+            elif self.settings.pair.shake == "yawpitch":
+                # each blob of this frame against the last frames' blobs (one vote per cell)
+                refs = np.concatenate(self._prev_xy) if self._prev_xy else np.zeros((0, 2))
+                shift = yaw_pitch_shift(refs, xy, radius_px=r, extra=votes[0])
             else:
                 shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
             s_ = shift or (0.0, 0.0)
