@@ -58,7 +58,11 @@ S2PSK_MIN_AREA_PX = 6.0
 # SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
 # SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
 # 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
-# not the default.
+# not the default. On main 901aa1c (README "S2-PSK pairs" method, resolvable light-frames):
+# with shake "vertical", vehicle-road seeds 1/2 FV 59/0 -> 138/166 of 287/284, SL 0/0, 0 wrong,
+# but recordings/vehicle SL 602 -> 595 of 658 and HV filtered 2D median 0.03 -> 0.07 m; alone,
+# recordings/vehicle FV 156 -> 125 of 156. Far heads (1-6 px^2) need it; near ones need only
+# max_aspect (a head seen from below is a 23 x 6 px bar at 27 m: aspect 4 drops it).
 S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
