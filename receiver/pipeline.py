@@ -37,7 +37,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
-from receiver.vision.motion import frame_shift, vertical_shift
+from receiver.vision.motion import frame_shift, vertical_shift, yaw_pitch_shift
 from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
@@ -58,7 +58,11 @@ S2PSK_MIN_AREA_PX = 6.0
 # SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
 # SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
 # 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
-# not the default.
+# not the default. On main 901aa1c (README "S2-PSK pairs" method, resolvable light-frames):
+# with shake "vertical", vehicle-road seeds 1/2 FV 59/0 -> 138/166 of 287/284, SL 0/0, 0 wrong,
+# but recordings/vehicle SL 602 -> 595 of 658 and HV filtered 2D median 0.03 -> 0.07 m; alone,
+# recordings/vehicle FV 156 -> 125 of 156. Far heads (1-6 px^2) need it; near ones need only
+# max_aspect (a head seen from below is a 23 x 6 px bar at 27 m: aspect 4 drops it).
 S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
@@ -309,9 +313,10 @@ class Receiver:
 
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
         """The frame's common image shift (dx, dy) px from the camera's shake, or None (off, or
-        not measurable): `PairSettings.shake` "vertical" or "2d" (receiver.vision.motion)."""
+        not measurable): `PairSettings.shake` "vertical", "2d" or "yawpitch"
+        (receiver.vision.motion)."""
         shift = None
-        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d"):
+        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d", "yawpitch"):
             # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
             # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
             # track's and pair's prediction.
@@ -324,6 +329,10 @@ class Receiver:
             if self.settings.pair.shake == "vertical":
                 dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
                 shift = None if dy is None else (0.0, dy)
+            elif self.settings.pair.shake == "yawpitch":
+                # each blob of this frame against the last frames' blobs (one vote per cell)
+                refs = np.concatenate(self._prev_xy) if self._prev_xy else np.zeros((0, 2))
+                shift = yaw_pitch_shift(refs, xy, radius_px=r, extra=votes[0])
             else:
                 shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
             s_ = shift or (0.0, 0.0)

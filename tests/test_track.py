@@ -201,3 +201,24 @@ def test_emitter_levels_equal_numpy_percentiles():
             lv.add(float(rng.choice([rng.normal(100, 40), round(rng.normal(50, 30)), 12.0])))
             off, on = np.percentile(np.fromiter(lv.values, float), (10.0, 90.0))
             assert (lv.off, lv.on) == (float(off), float(on))
+
+
+def test_jumping_track_pairs_when_the_measured_shake_spans_a_dark_frame():
+    """Yaw shake of up to 6 px per frame, measured (`shift`): the head's track is dark every
+    other frame, so each jump spans two frames' shake. Taking out only the latest frame's
+    shift leaves the other frame's in the jump (13 px, then 2 px: no pair); the shift added up
+    since the track's previous blob leaves the 7 px baseline twice."""
+    xs = [100.0, None, 107.0, None, 100.0]  # A, dark, B, dark, A
+    shifts = [(0.0, 0.0), (6.0, 0.0), (-2.0, 0.0), (5.0, 0.0), (-3.0, 0.0)]
+    pr = Pairer()
+    pairs, offset, last = [], 0.0, 100.0
+    for k, (x, s) in enumerate(zip(xs, shifts)):
+        offset += s[0]
+        seen = x is not None
+        last = x if seen else last
+        t = Track(5, blob(last + (offset if seen else 0.0), 50.0, 2.0), 0, k, seen=seen)
+        pairs = pr.step(None, [t], lambda g, tr: 100.0, shift=s)
+        if pairs:
+            break
+    assert len(pairs) == 1, "no pair from the jumping track"
+    assert abs((pairs[0].b.blob.cx - pairs[0].a.blob.cx) - 7.0) <= 1.0

@@ -76,3 +76,38 @@ def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14
     if len(near) < min_votes:
         return None
     return float(np.median(near))
+
+
+
+def yaw_pitch_shift(ref_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14.0, bin_px: float = 0.5,
+                    refine_px: float = 1.0, row_px: float = 1.0, min_votes: int = 3,
+                    extra: np.ndarray | None = None) -> tuple[float, float] | None:
+    """(dx, dy) px from this frame's blob centroids `xy` (M, 2) and the last frames' `ref_xy`
+    (N, 2, all in the previous frame's view). The vertical shift first (`vertical_shift`: every
+    head votes right whichever half is lit), then the horizontal one: each blob of this frame
+    votes once per 'bin_px' cell for the horizontal parts of its displacements to the
+    reference blobs whose vertical part is within `row_px` of dy (the same half or the whole
+    head seen in one of the last frames: these agree; the head's other half: these scatter by
+    each head's own baseline). None when fewer than `min_votes` agree."""
+    dy = vertical_shift(ref_xy, xy, radius_px=radius_px, bin_px=bin_px, refine_px=refine_px,
+                        min_votes=min_votes, extra=extra)
+    if dy is None or not len(ref_xy) or not len(xy):
+        return None
+    d = xy[:, None, :] - ref_xy[None, :, :]  # (M, N, 2)
+    owner = np.broadcast_to(np.arange(len(xy))[:, None], d.shape[:2]).reshape(-1)
+    d = d.reshape(-1, 2)
+    ok = (np.abs(d[:, 0]) <= radius_px) & (np.abs(d[:, 1] - dy) <= row_px)
+    d, owner = d[ok], owner[ok]
+    if len(d) < min_votes:
+        return None
+    nb = int(np.ceil(radius_px / bin_px))
+    idx = np.clip(np.floor(d[:, 0] / bin_px + 0.5).astype(np.int64) + nb, 0, 2 * nb)
+    n = 2 * nb + 1
+    # one vote per blob and cell, spread to the two neighbour cells (the smoothing)
+    cells = np.unique(np.concatenate([owner * (n + 2) + idx + k for k in (0, 1, 2)]))
+    h = np.bincount(cells % (n + 2), minlength=n + 2)[1:n + 1].astype(float)
+    peak = (int(np.argmax(h)) - nb) * bin_px
+    sel = np.abs(d[:, 0] - peak) <= refine_px
+    if len(np.unique(owner[sel])) < min_votes:
+        return None
+    return float(np.median(d[sel, 0])), dy

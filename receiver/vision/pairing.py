@@ -204,9 +204,11 @@ class Pairer:
         self.jump_max_baseline, self.jump_agree = s.jump_max_baseline, s.jump_agree
         self.jump_agree_y_px = s.jump_agree_y_px
         self.shake_min_pairs = s.shake_min_pairs
-        self.last_seen: dict[int, Blob] = {}  # per track, its latest blob (for jumps)
+        self.shake_x_wide = s.shake_x_wide
+        self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
+        self.shift_sum = (0.0, 0.0)  # the measured shifts added up, px (jumps over dark frames)
         self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
@@ -344,7 +346,8 @@ class Pairer:
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
             p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
         mx, my, hx, hy, single = self._predict(p)
-        mx += dx
+        if self.shake_x_wide or p.a.track_id == p.b.track_id:  # `PairSettings.shake_x_wide`
+            mx += dx
         my += dy
         p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
         if obs_a is not None:
@@ -392,6 +395,7 @@ class Pairer:
         pitch, exclude = self._first_pass(tracks, xy)
         dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
+        self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
         self.vertical_known = shift is not None
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
@@ -448,11 +452,14 @@ class Pairer:
             last = self.last_seen.get(t.track_id)
             if not t.seen:
                 continue
-            self.last_seen[t.track_id] = t.blob
+            self.last_seen[t.track_id] = (t.blob, self.shift_sum)
             if last is None or t.track_id in busy:
                 continue
-            # the jump without the camera's shake of this frame
-            jx, jy = t.cx - last.cx - self.shift[0], t.cy - last.cy - self.shift[1]
+            # the jump without the camera's shake since the track's previous blob (it may have
+            # been dark for a few frames)
+            last, s0 = last
+            ox, oy = self.shift_sum[0] - s0[0], self.shift_sum[1] - s0[1]
+            jx, jy = t.cx - last.cx - ox, t.cy - last.cy - oy
             if jx < 0:
                 jx, jy = -jx, -jy  # left-to-right baseline either way
             diam = math.sqrt(max(0.5 * (t.blob.area_px + last.area_px), 1.0))
@@ -473,7 +480,7 @@ class Pairer:
                 continue
             # their mean is the baseline without the motion
             jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
-            right = t.cx - last.cx - self.shift[0] > 0  # the current blob is the right-hand emitter
+            right = t.cx - last.cx - ox > 0  # the current blob is the right-hand emitter
             ax, ay = (t.cx - jx, t.cy - jy) if right else (t.cx, t.cy)
             if (t.track_id, t.track_id) in self.banned:
                 continue

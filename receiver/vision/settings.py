@@ -122,7 +122,8 @@ class PairSettings:
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
-    mean.
+    mean. A jump is taken less the measured image shift ("vertical", "2d", "yawpitch") added up
+    since the track's previous blob (it may have been dark for frames in between).
     Camera shake: shake ["pitch"]: how the frame's common image shift (the camera's pitch
     and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
     pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
@@ -135,6 +136,15 @@ class PairSettings:
     frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
     s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
     recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+    "yawpitch" (experimental): dy as "vertical", then dx from only the displacements whose
+    vertical part agrees with dy, each blob of this frame voting once per cell against the
+    blobs of the last frames (receiver.vision.motion.yaw_pitch_shift); on vehicle-road (seed 1,
+    faint detection) dx is still off by > 2 px in 61 of 233 frames, and on recordings/vehicle
+    (no yaw) its dx p50 error is 1.2 px: not the default. shake_x_wide [False]: the horizontal
+    shift ("2d", "yawpitch") moves also pairs formed from two tracks (taillights, near heads),
+    not only those from one jumping track (far heads); with the true shift of vehicle-road
+    (from its truth, a diagnosis only) True gives FV 0 and False FV 136 of 287 resolvable
+    light-frames (cause not found).
     Output: report_coast_frames [3]: a pair's two emitters are reported as LEDs (with the
     pair's ID) every frame, dark or lit, while the pair has explained a blob within this many
     frames (both halves are dark together in runs of 1-3 frames; a pair coasting longer may
@@ -167,5 +177,6 @@ class PairSettings:
     shake_min_pairs: int = 3
     shake: str = "pitch"
     shake_radius_px: float = 14.0
+    shake_x_wide: bool = False
     report_coast_frames: int = 3
     backlog_frames: int = 90
