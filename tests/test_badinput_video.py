@@ -114,22 +114,32 @@ def test_image_of_another_size_in_a_folder_is_skipped_and_said(tmp_path, capsys)
     assert "b.png: 64x36" in capsys.readouterr().err
 
 
+def _unread(pipe) -> int:
+    """Bytes waiting in a pipe (FIONREAD on its read end)."""
+    import fcntl
+    import struct
+    import termios
+    return struct.unpack("i", fcntl.ioctl(pipe.fileno(), termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_stop_signals_flush_whole_lines_and_print_the_summary(tmp_path, sig):
     # before: SIGTERM/SIGHUP killed the process (lines lost, no summary); SIGINT: no summary
     out = tmp_path / "o.jsonl"
     writer = subprocess.Popen([sys.executable, "-c",
                                "import sys,time; sys.stdout.buffer.write(bytes(64*36*5)); sys.stdout.flush(); "
-                               "time.sleep(30)"], stdout=subprocess.PIPE)
+                               "time.sleep(600)"], stdout=subprocess.PIPE)   # killed below
     p = subprocess.Popen([sys.executable, "-m", "receiver.cli", "run", "-", "--size", "64x36", "--fps", "30",
                           "--camera", os.path.join(STATIC, "camera.yaml"), "--map", os.path.join(STATIC, "map.json"),
                           "--out", str(out)], cwd=ROOT, stdin=writer.stdout, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 40
         # wait until the run has opened its output (a temp file beside it) and read the 5 frames
-        while time.monotonic() < deadline and not any(q.name.startswith(".o.jsonl") for q in tmp_path.iterdir()):
+        # (nothing left unread in the pipe), not for a fixed time: the machine may be slow
+        while time.monotonic() < deadline and not (
+                any(q.name.startswith(".o.jsonl") for q in tmp_path.iterdir()) and _unread(writer.stdout) == 0):
             time.sleep(0.1)
-        time.sleep(1.5)
+        time.sleep(1.5)                  # the last frame read is processed meanwhile
         p.send_signal(sig)
         _, err = p.communicate(timeout=30)
     finally:
