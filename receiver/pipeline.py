@@ -35,6 +35,7 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
                                       ToneSettings)
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.locate.kalman import preload as preload_filter
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import frame_shift, vertical_shift, yaw_pitch_shift
@@ -174,6 +175,8 @@ class Receiver:
             s = dataclasses.replace(s, policy=dataclasses.replace(s.policy, **policy_kw))
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
+        if positioner is not None and not still:
+            preload_filter()      # before the first frame, not inside the second one's latency
         self.speed = speed
         self.clock = clock
         self.plan = plan = ModePlan.from_map(led_map)

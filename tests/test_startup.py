@@ -118,3 +118,19 @@ def test_run_threads_must_be_a_sensible_count(bad, capsys):
     with pytest.raises(SystemExit) as e:
         cli(["run", str(STATIC), "--threads", bad])
     assert e.value.code == 2 and "--threads" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("still", [False, True])
+def test_the_position_filter_is_imported_before_a_stream_and_never_for_a_photo(still):
+    """filterpy (whose package imports scipy.stats, ~1.5 s) is imported when a stream's receiver
+    is built, before its first frame: lazily inside the second frame it cost that frame ~0.7 s of
+    latency. A still photo's receiver never imports it (its single fix starts the filter only)."""
+    mods = _modules_after(
+        "from receiver.io.camera import load_camera\n"
+        "from receiver.io.ledmap import load_map\n"
+        "from receiver.locate.indoor import Positioner\n"
+        "from receiver.pipeline import Receiver\n"
+        f"cam = load_camera({str(STATIC / 'camera.yaml')!r})\n"
+        f"m = load_map({str(STATIC / 'map.json')!r})\n"
+        f"Receiver(cam, m, positioner=Positioner(cam, m), still={still})\n")
+    assert bool(_loaded(mods, ("filterpy",))) is (not still)

@@ -185,6 +185,12 @@ class PositionKalman:
         return self.state
 
 
+def preload() -> None:
+    """Import filterpy now (~1.5 s CPU: its package imports scipy.stats), so that a stream's
+    second frame does not pay for it; a single photo never needs it (see the module doc)."""
+    import filterpy.kalman  # noqa: F401
+
+
 def position_std(P: np.ndarray) -> list[float]:
     """1-sigma of x, y, z from a (>=3, >=3) covariance."""
     return [math.sqrt(max(0.0, float(P[i, i]))) for i in range(3)]
