@@ -44,6 +44,7 @@ from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
+from receiver.vision.track import preload as preload_assignment
 
 # Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
 # length (recordings/vehicle); specks below it are noise (with the fixed 24-gray floor).
@@ -175,8 +176,10 @@ class Receiver:
             s = dataclasses.replace(s, policy=dataclasses.replace(s.policy, **policy_kw))
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
-        if positioner is not None and not still:
-            preload_filter()      # before the first frame, not inside the second one's latency
+        if not still:             # before the first frame, not inside the second one's latency
+            preload_assignment()
+            if positioner is not None:
+                preload_filter()
         self.speed = speed
         self.clock = clock
         self.plan = plan = ModePlan.from_map(led_map)

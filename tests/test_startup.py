@@ -121,7 +121,7 @@ def test_run_threads_must_be_a_sensible_count(bad, capsys):
 
 
 @pytest.mark.parametrize("still", [False, True])
-def test_the_position_filter_is_imported_before_a_stream_and_never_for_a_photo(still):
+def test_the_filter_and_scipy_are_imported_before_a_stream_and_never_for_a_photo(still):
     """filterpy (whose package imports scipy.stats, ~1.5 s) is imported when a stream's receiver
     is built, before its first frame: lazily inside the second frame it cost that frame ~0.7 s of
     latency. A still photo's receiver never imports it (its single fix starts the filter only)."""
@@ -134,3 +134,7 @@ def test_the_position_filter_is_imported_before_a_stream_and_never_for_a_photo(s
         f"m = load_map({str(STATIC / 'map.json')!r})\n"
         f"Receiver(cam, m, positioner=Positioner(cam, m), still={still})\n")
     assert bool(_loaded(mods, ("filterpy",))) is (not still)
+    # scipy too: the tracker's assignment and the solvers' fallbacks import it where they need
+    # it, which a photo never does (0.8 s of a 1.0 s photo command); a stream preloads it.
+    assert bool(_loaded(mods, ("scipy.optimize",))) is (not still)
+    assert still is not bool(_loaded(mods, ("scipy",)))

@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 # Robust loss of the nonlinear refinements; residuals are whitened, so f_scale is in sigmas.
 DEFAULT_LOSS = "soft_l1"
@@ -95,6 +94,7 @@ def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: fl
     (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
     Losses other than those in _LOSSES fall back to least_squares."""
     if loss not in _LOSSES:
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
         return least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
 
     def done(dp, p, c, c_new):

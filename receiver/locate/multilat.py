@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import least_squares
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS, _covariance
 from receiver.locate.lsq import BELOW_CEILING_M, Fix
 
@@ -75,6 +74,7 @@ def multilaterate(L: np.ndarray, d: np.ndarray, sigma_d: np.ndarray, *, loss: st
         if C[2] > z_ceiling - BELOW_CEILING_M:
             C = C.copy()
             C[2] = z_ceiling - float(np.median(d))
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
         res = least_squares(fun, C, loss=loss, f_scale=f_scale, method="trf")
         Cr = res.x
         if Cr[2] > z_ceiling - BELOW_CEILING_M:     # mirror solution above the ceiling: rejected

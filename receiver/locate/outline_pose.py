@@ -37,8 +37,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
 
 from receiver.locate.lsq import (
     _LOSSES,
@@ -247,6 +245,7 @@ class _Problem:
         P = self.P_all[use]
         vals = np.column_stack([P[:, 0] * w, P[:, 1] * w, w]).ravel()
         cols = (e3[:, None] + np.arange(3)).ravel()
+        from scipy.sparse import csr_matrix  # lazy: not needed by a map of unknown sizes (a photo)
         self.S = csr_matrix((vals, cols, np.arange(0, 3 * len(use) + 1, 3)), shape=(len(use), len(self.A) * 3))
         return changed
 
@@ -338,6 +337,7 @@ def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
     cost by less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in
     1-3 iterations). Returns (p, converged, r, J) with the residuals and Jacobian at p."""
     if loss not in _LOSSES:
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
         p = least_squares(lambda q: prob(q, False), np.asarray(p0, float), jac=lambda q: prob(q)[1], loss=loss,
                           f_scale=f_scale, method="trf").x
         r, J = prob(p)

@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from receiver.core.records import Blob
 from receiver.vision.settings import TrackSettings
@@ -50,6 +49,13 @@ class Track:
     def predict(self, frame_index: int) -> tuple[float, float]:
         dt = frame_index - self.last_frame
         return self.blob.cx + self.vx * dt, self.blob.cy + self.vy * dt
+
+
+def preload() -> None:
+    """Import scipy.optimize now (~0.8 s CPU), before a stream's first frame: the assignment
+    below and the locate stage's fallbacks import it where they need it, which a single photo
+    never does (its frame has no tracks to assign)."""
+    import scipy.optimize  # noqa: F401
 
 
 class Tracker:
@@ -103,6 +109,7 @@ class Tracker:
             ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
             ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
             cost = np.where(ok, d, _FORBIDDEN)
+            from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
             rows, cols = linear_sum_assignment(cost)
             for r, c in zip(rows, cols):
                 if cost[r, c] < _FORBIDDEN:
