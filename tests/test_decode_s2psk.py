@@ -166,3 +166,11 @@ def test_stored_only_samples_decode_at_the_next_check():
             assert s.led_id is None  # nothing decoded while only stored
     assert r.led_id == s.led_id == 0x12
     assert np.array_equal(ref._t, lazy._t) and np.array_equal(ref._x, lazy._x)
+
+
+def test_a_history_shorter_than_a_packet_is_refused():
+    """A decode needs a whole 30-symbol packet of samples: a shorter `history_s` would silently
+    never decode, so it is refused (one packet, 2.4 s at the defaults, is the least)."""
+    with pytest.raises(ValueError, match="whole packet"):
+        S2pskDecoder(history_s=2.0)
+    assert S2pskDecoder(history_s=2.4).history_s == 2.4

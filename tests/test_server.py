@@ -592,6 +592,12 @@ def test_serve_stops_on_sigterm_with_a_summary():
                        "0 forgotten, 0 held; dropped/refused: bad_json 1")
 
 
+def test_server_timeout_without_a_server_is_an_error(capsys):
+    assert cli(["run", str(WALK), "--server-timeout", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--server-timeout needs --server" in err[0]
+
+
 def test_run_counts_server_timeouts(capsys):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))

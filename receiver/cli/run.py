@@ -267,6 +267,8 @@ def _main(args, stop: "SignalStop") -> int:
     if spec == "-" and sys.stdin is None:
         raise InputError("standard input is closed: nothing to read frames from")
     server = getattr(args, "server", None)
+    if server is None and getattr(args, "server_timeout", None) is not None:
+        raise InputError("--server-timeout needs --server udp://HOST:PORT")
     if server is not None:
         from receiver.serve.client import parse_udp_url
         parse_udp_url(server)          # a bad URL is an error before any work

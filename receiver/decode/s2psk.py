@@ -118,6 +118,10 @@ class S2pskDecoder:
         self.symbol_s = symbol_clocks / clk_hz
         self.sign = -1.0 if s.inverted else 1.0
         self.history_s = 2.5 * PACKET_LEN * self.symbol_s if s.history_s is None else s.history_s
+        if not self.history_s >= PACKET_LEN * self.symbol_s:
+            # A decode needs a whole packet of samples (it waits for PACKET_LEN - 2 symbols).
+            raise ValueError(f"history_s must hold a whole packet ({PACKET_LEN * self.symbol_s:g} s), "
+                             f"not {self.history_s:g} s")
         self.n_phases = s.n_phases
         self.guard = s.guard
         self.sync_margin = s.sync_margin
