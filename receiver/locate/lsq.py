@@ -108,13 +108,18 @@ def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: fl
     return lm_iterate(fun_jac, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
 
 
-def _covariance(fun, p: np.ndarray) -> tuple[np.ndarray, float, int]:
-    r = fun(p)
-    J = fun.jac(p) if hasattr(fun, "jac") else _jacobian(fun, p)
-    dof = len(r) - len(p)
+def covariance_at(r: np.ndarray, J: np.ndarray, n_params: int) -> tuple[np.ndarray, float, int]:
+    """(cov, chi2, dof) of a solution from its whitened residuals r and Jacobian J (module doc)."""
+    dof = len(r) - n_params
     chi2 = float(r @ r)
     s2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
     return np.linalg.pinv(J.T @ J) * s2, chi2, dof
+
+
+def _covariance(fun, p: np.ndarray) -> tuple[np.ndarray, float, int]:
+    r = fun(p)
+    J = fun.jac(p) if hasattr(fun, "jac") else _jacobian(fun, p)
+    return covariance_at(r, J, len(p))
 
 
 # A camera centre must be at least this far below the lowest LED (m) -- mirror rejection.

@@ -81,7 +81,7 @@ import numpy as np
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
-from receiver.locate.lsq import _LOSSES, LM_FTOL, lm_iterate, robust_lm
+from receiver.locate.lsq import _LOSSES, LM_FTOL, covariance_at, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman
@@ -535,11 +535,8 @@ class VehicleLocator:
         C = x[3:].copy()
         if C[2] >= float(L[:, 2].min()):
             return None
-        # Covariance from the final residuals and Jacobian (receiver.locate.lsq._covariance's
-        # formula without evaluating them again).
-        dof = len(r) - len(x)
-        s2 = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
-        cov6 = np.linalg.pinv(J.T @ J) * s2
+        # Covariance from the final residuals and Jacobian (not evaluated again).
+        cov6, _, _ = covariance_at(r, J, len(x))
         return R, C, cov6[3:5, 3:5]
 
     # -------------------------------------------------------------------------- step
