@@ -184,13 +184,14 @@ class DecodePolicy:
 
     def pair_due(self, led_id: int | None, frame_index: int, uid: int) -> bool:
         """Decode an S2-PSK pair's samples in this frame? One whose ID is known only every
-        `redecode_every` frames (staggered by pair); its samples are stored every frame."""
+        `redecode_every` frames (staggered by pair); its samples are stored every frame.
+        (`due` asks the same of a light, staggered by its track id.)"""
         return led_id is None or not (frame_index + uid) % self.settings.redecode_every
 
     def due(self, light: LightDecoder, frame_index: int, track_id: int) -> bool:
         """Decode this light in this frame? A light whose ID is known feeds its decoders only
         every `redecode_every` frames (staggered by track)."""
-        return light.led_id is None or not (frame_index + track_id) % self.settings.redecode_every
+        return self.pair_due(light.led_id, frame_index, track_id)
 
     def step_light(self, light: LightDecoder, gray: np.ndarray, blob, profile_wy, t_s: float,
                    ticks: dict | None = None) -> None:
