@@ -63,6 +63,18 @@ def map_entry(light: Light, rate_hz=None, freq_hz=None, symbol_clocks=None) -> L
                symbol_clocks=symbol_clocks, emitters=emitters, normal=normal)
 
 
+def panel_grid(rng, room_m, pitch_m, ceiling_m, shape, size, rate_hz):
+    """OOK panels on a regular ceiling grid of a square room: (lights, map). `pitch_m` (along x,
+    along y); panels at half a pitch from the walls; IDs distinct random 16-bit, drawn before
+    the panels' drives (the order the bundled recordings were rendered with)."""
+    xs = np.arange(pitch_m[0] / 2, room_m, pitch_m[0])
+    ys = np.arange(pitch_m[1] / 2, room_m, pitch_m[1])
+    ids = iter(rng.choice(1 << 16, size=len(xs) * len(ys), replace=False))
+    lights = [ceiling_light(rng, int(next(ids)), (x, y, ceiling_m), shape, tuple(size), rate_hz=rate_hz)
+              for x in xs for y in ys]
+    return lights, LedMap(addressing="map", leds={lt.id: map_entry(lt, rate_hz=rate_hz) for lt in lights})
+
+
 def indoor_walk(rng, cam, room_m=12.0, ceiling_m=3.0, panel_size_m=(0.3, 0.6), pitch_x_m=0.8, pitch_y_m=0.5,
                 rate_hz=OOK_RATE_HZ, height_m=1.0, speed_mps=1.0, tilt_deg=3.0, start_xy=(3.0, 4.0),
                 heading_deg=20.0, seconds=4.0):
@@ -80,16 +92,7 @@ def indoor_walk(rng, cam, room_m=12.0, ceiling_m=3.0, panel_size_m=(0.3, 0.6), p
     floor((2.56-0.3)/0.5) = 4 panel columns are always fully inside the view, so >= 4 LEDs
     are fully in view (typically 5-8), with ~3 deg of tilt. IDs: distinct random 16-bit.
     """
-    w, length = panel_size_m
-    xs = np.arange(pitch_x_m / 2, room_m, pitch_x_m)
-    ys = np.arange(pitch_y_m / 2, room_m, pitch_y_m)
-    ids = rng.choice(1 << 16, size=len(xs) * len(ys), replace=False)
-    lights, k = [], 0
-    for x in xs:
-        for y in ys:
-            lights.append(ceiling_light(rng, int(ids[k]), (x, y, ceiling_m), "rect", (w, length), rate_hz=rate_hz))
-            k += 1
-    led_map = LedMap(addressing="map", leds={lt.id: map_entry(lt, rate_hz=rate_hz) for lt in lights})
+    lights, led_map = panel_grid(rng, room_m, (pitch_x_m, pitch_y_m), ceiling_m, "rect", panel_size_m, rate_hz)
     h = math.radians(heading_deg)
     x0, y0 = start_xy
     tilt = tilt_deg
@@ -147,16 +150,7 @@ def indoor_sparse(rng, cam, room_m=9.0, ceiling_m=2.8, panel_m=0.25, pitch_m=1.1
     view at a time; each is ~140 rows tall (~42 chips per frame, less than a 54-chip packet, so
     a new panel needs two or three frames to be decoded). IDs: distinct random 16-bit.
     """
-    xs = np.arange(pitch_m / 2, room_m, pitch_m)
-    ys = np.arange(pitch_m / 2, room_m, pitch_m)
-    ids = rng.choice(1 << 16, size=len(xs) * len(ys), replace=False)
-    lights, k = [], 0
-    for x in xs:
-        for y in ys:
-            lights.append(ceiling_light(rng, int(ids[k]), (x, y, ceiling_m), "square", (panel_m, panel_m),
-                                        rate_hz=rate_hz))
-            k += 1
-    led_map = LedMap(addressing="map", leds={lt.id: map_entry(lt, rate_hz=rate_hz) for lt in lights})
+    lights, led_map = panel_grid(rng, room_m, (pitch_m, pitch_m), ceiling_m, "square", (panel_m, panel_m), rate_hz)
     h = math.radians(heading_deg)
     x0, y0 = start_xy
     t_lo, t_hi = tilt_deg
