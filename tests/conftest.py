@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.cli.bench import bench_camera, bench_map, bench_scene, render_bench_frame
+from receiver.cli.benchscene import bench_camera, bench_map, bench_scene, render_bench_frame
 from receiver.io.camera import save_camera
 
 # Real phone photos (../shared/real/luxapose beside the clone, see its README). OCCLOC_SHARED

@@ -7,7 +7,7 @@ def test_raw_pipe_with_a_wrong_size_or_pixel_format_is_said():
 
     import numpy as np
 
-    from receiver.cli.bench import bench_scene, render_bench_frame
+    from receiver.cli.benchscene import bench_scene, render_bench_frame
     from receiver.io.sources import RawPipeSource, likely_row_stride
 
     img = render_bench_frame(bench_scene(), 0)  # 1280 x 720, 16 striped discs

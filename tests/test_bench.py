@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.cli.bench import (bench_frames, bench_ids, bench_scene, callgrind_total, count_instructions, load_case,
-                                whole_receiver)
+from receiver.cli.bench import callgrind_total, count_instructions, load_case, whole_receiver
+from receiver.cli.benchscene import bench_frames, bench_ids, bench_scene
 from receiver.core.budget import one_core
 from receiver.cli import main as cli
 from receiver.pipeline import Receiver

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.cli.bench import bench_scene, render_bench_frame
+from receiver.cli.benchscene import bench_scene, render_bench_frame
 from receiver.vision.detect import auto_level, detect, detect_scale
 from receiver.vision.profile import envelope_mask, row_profile, stripe_depth
 

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from receiver.cli.bench import bench_camera, bench_frames, bench_map, bench_scene, render_bench_frame, run_bench
+from receiver.cli.bench import run_bench
+from receiver.cli.benchscene import bench_camera, bench_frames, bench_map, bench_scene, render_bench_frame
 from receiver.io.ledmap import parse_map
 from receiver.io.output import frame_line
 from receiver.core.records import FrameResult

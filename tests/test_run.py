@@ -14,7 +14,7 @@ import pytest
 from receiver.cli import main as cli
 from receiver.cli.run import Progress
 from receiver.io.camera import fit_camera
-from receiver.cli.bench import bench_camera
+from receiver.cli.benchscene import bench_camera
 
 REQUIRED = {"frame", "t", "latency_ms", "leds", "position", "vehicle"}
 LED_REQUIRED = {"track", "id", "mode", "cx", "cy", "area_px", "distance_m"}

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.cli.bench import bench_camera
+from receiver.cli.benchscene import bench_camera
 from receiver.core.errors import InputError
 from receiver.core.records import Frame
 from receiver.io.sources import FrameSource, LatestFrameSource, V4l2Source, open_source, parse_size, to_gray

@@ -42,20 +42,6 @@ INSTR_TOGGLE = "functools_reduce"
 # Clocks of --clock (seconds): the main thread's CPU time, or elapsed time.
 CLOCKS = {"cpu": time.thread_time, "wall": time.perf_counter}
 
-# The scene's names, from before the scene had its own module (tests and tools import them here).
-_SCENE_NAMES = ("BENCH_SIZE", "BENCH_LEDS", "BENCH_RATE_HZ", "BENCH_ROW_US", "BENCH_FPS", "BENCH_RADIUS_PX",
-                "BENCH_ON_GRAY", "BENCH_OFF_GRAY", "BENCH_NOISE_GRAY", "BENCH_CEILING_M", "SceneLed",
-                "bench_ids", "bench_scene", "render_bench_frame", "bench_camera", "bench_map", "bench_frames")
-
-
-def __getattr__(name: str):
-    # The scene (numpy) loads only when used: `occloc bench --help` and the parser stay light.
-    if name in _SCENE_NAMES:
-        from receiver.cli import benchscene
-        return getattr(benchscene, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def add_arguments(p) -> None:
     p.add_argument("source", nargs="?", metavar="SOURCE",
                    help="recording, video or photo (default: every bundled recording and the built-in "
@@ -196,6 +182,7 @@ def count_instructions(spec: str, k: int, *, warm: int = INSTR_WARM_FRAMES, came
                        valgrind: str | None = None) -> dict:
     """{"instructions_per_frame", "frames"} of the case's frames [warm, warm+k) under callgrind,
     or {"instructions_per_frame": None, "note": why} when valgrind is absent or fails."""
+    from receiver.core.budget import BLAS_THREAD_VARS
     valgrind = valgrind or shutil.which("valgrind")
     if valgrind is None:
         return {"instructions_per_frame": None, "note": "valgrind not installed: instructions not counted"}
@@ -211,7 +198,7 @@ def count_instructions(spec: str, k: int, *, warm: int = INSTR_WARM_FRAMES, came
         env = dict(os.environ)
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        env.update({"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"})
+        env.update(dict.fromkeys(BLAS_THREAD_VARS, "1"))
         proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
         if proc.returncode != 0:
             last = (proc.stderr.strip().splitlines() or ["?"])[-1]
