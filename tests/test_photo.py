@@ -1,4 +1,4 @@
-"""Photos (issue 14): the search image of a big frame and the real 33 MP photo through `detect`.
+"""Photos (issue 14): the search image of a big frame, and the run summary's percentile (numpy's numbers without numpy.ma).
 
 Speed is not tested here (benchmarks, never timed unit tests); what the fast path must keep is:
 search pixel (i, j) is the rounded mean of full-resolution rows [i f, (i + 1) f) and columns
@@ -6,6 +6,8 @@ search pixel (i, j) is the rounded mean of full-resolution rows [i f, (i + 1) f)
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -77,3 +79,13 @@ def test_a_big_frame_is_searched_the_same_everywhere():
     assert b.area_px == pytest.approx(a.area_px, abs=1e-6)
     assert np.allclose(b.hull - a.hull, (dx, dy))
     assert (b.x0 - a.x0, b.y0 - a.y0, b.x1 - a.x1, b.y1 - a.y1) == (dx, dy, dx, dy)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 100, 1001])
+def test_percentile_is_numpys(n):
+    from receiver.core.budget import percentile
+    rng = np.random.default_rng(n)
+    for values in (rng.exponential(5.0, n), rng.integers(0, 4, n).astype(float), np.round(rng.normal(3, 1, n), 2)):
+        for q in (0, 1, 10, 25, 33.3, 50, 66.7, 90, 99, 99.9, 100):
+            assert percentile(list(values), q) == float(np.percentile(values, q)), (n, q)
+    assert math.isnan(percentile([], 50)) and math.isnan(percentile([1.0, float("nan")], 50))
