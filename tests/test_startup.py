@@ -138,3 +138,16 @@ def test_the_filter_and_scipy_are_imported_before_a_stream_and_never_for_a_photo
     # it, which a photo never does (0.8 s of a 1.0 s photo command); a stream preloads it.
     assert bool(_loaded(mods, ("scipy.optimize",))) is (not still)
     assert still is not bool(_loaded(mods, ("scipy",)))
+
+
+def test_a_photo_run_imports_only_what_a_photo_uses(luxapose, tmp_path):
+    """`occloc run PHOTO` (the real 33 MP photo): no scipy, no filterpy, nothing of NOT_FOR_RUN,
+    and no numpy.ma (np.percentile's np.unique imported it for the summary line alone)."""
+    out = tmp_path / "o.jsonl"
+    mods = _modules_after(
+        f"from receiver.cli import main\nassert main(['run', {str(luxapose / 'x_0_y_1.27.jpg')!r}, "
+        f"'--camera', {str(luxapose / 'camera_lumia1020.yaml')!r}, '--map', {str(luxapose / 'map_test_rig.json')!r}, "
+        f"'--out', {str(out)!r}]) == 0")
+    assert json.loads(out.read_text())["position"]["n_leds"] == 5  # it did place the phone
+    unused = ("scipy", "filterpy", "numpy.ma") + NOT_FOR_RUN
+    assert not _loaded(mods, unused), _loaded(mods, unused)
