@@ -151,3 +151,57 @@ def test_a_photo_run_imports_only_what_a_photo_uses(luxapose, tmp_path):
     assert json.loads(out.read_text())["position"]["n_leds"] == 5  # it did place the phone
     unused = ("scipy", "filterpy", "numpy.ma") + NOT_FOR_RUN
     assert not _loaded(mods, unused), _loaded(mods, unused)
+
+
+def test_top_level_help_imports_no_ast_and_reads_each_help_line_once():
+    mods = _modules_after("import builtins, receiver.cli as c\nopened = []\nreal = builtins.open\n"
+                          "builtins.open = lambda f, *a, **k: (opened.append(str(f)), real(f, *a, **k))[1]\n"
+                          "c.build_parser(c._available()).format_help()\nc._help_line('receiver.cli.run')\n"
+                          "assert len(opened) == len(set(opened)) == len(c._available()), opened")
+    assert not _loaded(mods, ("ast",)), "ast (9 M instructions) is not needed to read a HELP line"
+
+
+@pytest.mark.parametrize("text", ['"one line"', "('a long'\n 'one, in two')", "'it''s'", '"tab\\there \\u00e9"',
+                                  '(\n "x"\n)', "r'raw\\n'", "'''triple'''"])
+def test_help_string_literal_is_what_ast_reads(text):
+    import ast
+    import receiver.cli as c
+    assert c._string_literal(text) == ast.literal_eval(text)
+
+
+@pytest.mark.parametrize("text", ["42", "-'a'", "'a' * 10_000", "__import__('os')", "x", "('a', 'b')", "f'{x}'",
+                                  "(lambda: 'a')()", "'a'.upper()", "'unterminated", "'a' if x else 'b'"])
+def test_help_string_literal_refuses_anything_else(text):
+    import receiver.cli as c
+    with pytest.raises((ValueError, SyntaxError)):
+        c._string_literal(text)
+
+
+def test_every_command_has_its_help_line():
+    import ast
+    import receiver.cli as c
+    for name, module in c._available().items():
+        tree = ast.parse(Path(c._find_spec(module).origin).read_text(encoding="utf-8"))
+        want = next(ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                    and [getattr(t, "id", None) for t in n.targets] == ["HELP"])
+        assert want and c._help_line(module) == want, name
+
+
+@pytest.mark.parametrize("argv,every", [(["run", "x"], False), (["--help"], True), ([], True),
+                                        (["--he", "run"], True), (["-h", "run"], True),
+                                        (["run", "--help"], False), (["--version", "run"], False),
+                                        (["nosuch"], True)])
+def test_other_commands_help_lines_are_read_only_when_the_top_level_help_can_show_them(argv, every):
+    import receiver.cli as c
+    selected = next((a for a in argv if not a.startswith("-")), None)
+    selected = selected if selected in c._available() else None
+    assert c._needs_every_help(argv, selected) is every
+
+
+def test_top_level_help_after_a_command_name_still_lists_every_help_line(capsys):
+    import receiver.cli as c
+    with pytest.raises(SystemExit):
+        cli(["-h", "run"])
+    out = " ".join(capsys.readouterr().out.split())
+    for module in c._available().values():
+        assert " ".join(c._help_line(module).split()[:3]) in out

@@ -9,7 +9,6 @@ becomes `occloc: <reason>` on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
-import ast
 import importlib
 import importlib.machinery
 import importlib.util
@@ -71,9 +70,19 @@ def _find_spec(module: str):
     return spec
 
 
+_HELP_LINES: dict[str, str] = {}
+
+
 def _help_line(module: str) -> str:
     """The module's `HELP = "..."` (or a parenthesised run of string literals over several
-    lines), read from its source without importing it or its dependencies."""
+    lines), read from its source without importing it or its dependencies ('' when it has none)."""
+    text = _HELP_LINES.get(module)
+    if text is None:
+        text = _HELP_LINES[module] = _read_help_line(module)
+    return text
+
+
+def _read_help_line(module: str) -> str:
     spec = _find_spec(module)
     try:
         with open(spec.origin, encoding="utf-8") as f:
@@ -83,14 +92,34 @@ def _help_line(module: str) -> str:
                     text = line[len("HELP = "):].strip()
                     while text.startswith("(") and not text.endswith(")"):
                         text += " " + next(lines).strip()
-                    value = ast.literal_eval(text)
-                    return value if isinstance(value, str) else ""
+                    return _string_literal(text)
     except (OSError, TypeError, ValueError, SyntaxError, StopIteration):
         pass
     return ""
 
 
-def build_parser(commands: dict[str, str], selected: str | None = None) -> argparse.ArgumentParser:
+def _string_literal(text: str) -> str:
+    """The value of a Python expression of string literals (adjacent ones are one string), as
+    ast.literal_eval reads it, without importing `ast` (9 M of the 153 M instructions of
+    `occloc --help`) and without evaluating anything: the expression is compiled, and its value taken
+    when the code is nothing but the return of one string constant (the compiler also folds
+    e.g. 'a' * 3 into one). ValueError otherwise (names, numbers, calls, containers)."""
+    code = compile(text, "<HELP>", "eval", dont_inherit=True)
+    if (code.co_code != _ONE_CONSTANT or code.co_names or len(code.co_consts) != 1
+            or not isinstance(code.co_consts[0], str)):
+        raise ValueError(f"not a string literal: {text!r}")
+    return code.co_consts[0]
+
+
+# The bytecode of an expression that is one constant (this interpreter's opcodes).
+_ONE_CONSTANT = compile("''", "<HELP>", "eval", dont_inherit=True).co_code
+
+
+def build_parser(commands: dict[str, str], selected: str | None = None, *,
+                 every_help: bool = True) -> argparse.ArgumentParser:
+    """The parser of `commands`; the `selected` command's own arguments are added (its module
+    imported). `every_help` False: the other commands get no help line (read from their source
+    otherwise), for a command line whose top-level help cannot be printed (`_needs_every_help`)."""
     from receiver import __version__
 
     parser = argparse.ArgumentParser(
@@ -99,10 +128,20 @@ def build_parser(commands: dict[str, str], selected: str | None = None) -> argpa
     parser.add_argument("--version", action="version", version=f"occloc {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module in commands.items():
-        p = sub.add_parser(name, help=_help_line(module), description=_help_line(module))
+        text = _help_line(module) if every_help or name == selected else None
+        p = sub.add_parser(name, help=text, description=text)
         if name == selected:
             importlib.import_module(module).add_arguments(p)
     return parser
+
+
+def _needs_every_help(argv: list[str], selected: str | None) -> bool:
+    """Can this command line print the top-level help (which lists every command's help line)?
+    Without a command, or with -h / --help (or an abbreviation of it) before the command."""
+    if selected is None:
+        return True
+    before = argv[:argv.index(selected)]
+    return any(a == "-h" or (len(a) > 2 and "--help".startswith(a)) for a in before)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -111,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     selected = next((a for a in argv if not a.startswith("-")), None)
     if selected not in commands:
         selected = None
-    parser = build_parser(commands, selected)
+    parser = build_parser(commands, selected, every_help=_needs_every_help(argv, selected))
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help(sys.stderr)
