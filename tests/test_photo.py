@@ -1,4 +1,5 @@
-"""Photos (issue 14): the search image of a big frame, and the run summary's percentile (numpy's numbers without numpy.ma).
+"""Photos (issue 14): the search image of a big frame, and the run summary's percentile
+(numpy's numbers without numpy.ma).
 
 Speed is not tested here (benchmarks, never timed unit tests); what the fast path must keep is:
 search pixel (i, j) is the rounded mean of full-resolution rows [i f, (i + 1) f) and columns
@@ -62,7 +63,8 @@ def _paint_led(img, cx, cy, r, period_rows=24):
     d = np.hypot(xs - cx, ys - cy)
     glow = np.clip(40.0 * (2.0 - d / r), 0, None)
     on = (d <= r) & ((ys % period_rows) < period_rows // 2)
-    img[y0:y0 + ys.shape[0], x0:x0 + xs.shape[1]] = np.where(on, 255, np.maximum(img[y0:y0 + ys.shape[0], x0:x0 + xs.shape[1]], glow)).astype(np.uint8)
+    roi = img[y0:y0 + ys.shape[0], x0:x0 + xs.shape[1]]
+    roi[:] = np.where(on, 255, np.maximum(roi, glow)).astype(np.uint8)
 
 
 def test_a_big_frame_is_searched_the_same_everywhere():
@@ -85,7 +87,8 @@ def test_a_big_frame_is_searched_the_same_everywhere():
 def test_percentile_is_numpys(n):
     from receiver.core.budget import percentile
     rng = np.random.default_rng(n)
-    for values in (rng.exponential(5.0, n), rng.integers(0, 4, n).astype(float), np.round(rng.normal(3, 1, n), 2)):
+    for values in (rng.exponential(5.0, n), rng.integers(0, 4, n).astype(float),
+                   np.round(rng.normal(3, 1, n), 2)):
         for q in (0, 1, 10, 25, 33.3, 50, 66.7, 90, 99, 99.9, 100):
             assert percentile(list(values), q) == float(np.percentile(values, q)), (n, q)
     assert math.isnan(percentile([], 50)) and math.isnan(percentile([1.0, float("nan")], 50))

@@ -106,9 +106,9 @@ def _read_help_line(module: str) -> str:
 def _string_literal(text: str) -> str:
     """The value of a Python expression of string literals (adjacent ones are one string), as
     ast.literal_eval reads it, without importing `ast` (9 M of the 153 M instructions of
-    `occloc --help`) and without evaluating anything: the expression is compiled, and its value taken
-    when the code is nothing but the return of one string constant (the compiler also folds
-    e.g. 'a' * 3 into one). ValueError otherwise (names, numbers, calls, containers)."""
+    `occloc --help`) and without evaluating anything: the expression is compiled, and its value
+    taken when the code is nothing but the return of one string constant (the compiler also
+    folds e.g. 'a' * 3 into one). ValueError otherwise (names, numbers, calls, containers)."""
     code = compile(text, "<HELP>", "eval", dont_inherit=True)
     if (code.co_code != _ONE_CONSTANT or code.co_names or len(code.co_consts) != 1
             or not isinstance(code.co_consts[0], str)):
