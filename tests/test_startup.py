@@ -138,3 +138,113 @@ def test_the_filter_and_scipy_are_imported_before_a_stream_and_never_for_a_photo
     # it, which a photo never does (0.8 s of a 1.0 s photo command); a stream preloads it.
     assert bool(_loaded(mods, ("scipy.optimize",))) is (not still)
     assert still is not bool(_loaded(mods, ("scipy",)))
+
+
+def test_a_photo_run_imports_only_what_a_photo_uses(luxapose, tmp_path):
+    """`occloc run PHOTO` (the real 33 MP photo): no scipy, no filterpy, nothing of NOT_FOR_RUN,
+    and no numpy.ma (np.percentile's np.unique imported it for the summary line alone)."""
+    out = tmp_path / "o.jsonl"
+    mods = _modules_after(
+        f"from receiver.cli import main\nassert main(['run', {str(luxapose / 'x_0_y_1.27.jpg')!r}, "
+        f"'--camera', {str(luxapose / 'camera_lumia1020.yaml')!r}, '--map', {str(luxapose / 'map_test_rig.json')!r}, "
+        f"'--out', {str(out)!r}]) == 0")
+    assert json.loads(out.read_text())["position"]["n_leds"] == 5  # it did place the phone
+    unused = ("scipy", "filterpy", "numpy.ma") + NOT_FOR_RUN
+    assert not _loaded(mods, unused), _loaded(mods, unused)
+
+
+def test_top_level_help_imports_no_ast_and_reads_each_help_line_once():
+    mods = _modules_after("import builtins, receiver.cli as c\nopened = []\nreal = builtins.open\n"
+                          "builtins.open = lambda f, *a, **k: (opened.append(str(f)), real(f, *a, **k))[1]\n"
+                          "c.build_parser(c._available()).format_help()\nc._help_line('receiver.cli.run')\n"
+                          "assert len(opened) == len(set(opened)) == len(c._available()), opened")
+    assert not _loaded(mods, ("ast",)), "ast (9 M instructions) is not needed to read a HELP line"
+
+
+@pytest.mark.parametrize("text", ['"one line"', "('a long'\n 'one, in two')", "'it''s'", '"tab\\there \\u00e9"',
+                                  '(\n "x"\n)', "r'raw\\n'", "'''triple'''"])
+def test_help_string_literal_is_what_ast_reads(text):
+    import ast
+    import receiver.cli as c
+    assert c._string_literal(text) == ast.literal_eval(text)
+
+
+@pytest.mark.parametrize("text", ["42", "-'a'", "'a' * 10_000", "__import__('os')", "x", "('a', 'b')", "f'{x}'",
+                                  "(lambda: 'a')()", "'a'.upper()", "'unterminated", "'a' if x else 'b'"])
+def test_help_string_literal_refuses_anything_else(text):
+    import receiver.cli as c
+    with pytest.raises((ValueError, SyntaxError)):
+        c._string_literal(text)
+
+
+def test_every_command_has_its_help_line():
+    import ast
+    import receiver.cli as c
+    for name, module in c._available().items():
+        tree = ast.parse(Path(c._find_spec(module).origin).read_text(encoding="utf-8"))
+        want = next(ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                    and [getattr(t, "id", None) for t in n.targets] == ["HELP"])
+        assert want and c._help_line(module) == want, name
+
+
+@pytest.mark.parametrize("argv,every", [(["run", "x"], False), (["--help"], True), ([], True),
+                                        (["--he", "run"], True), (["-h", "run"], True),
+                                        (["run", "--help"], False), (["--version", "run"], False),
+                                        (["nosuch"], True)])
+def test_other_commands_help_lines_are_read_only_when_the_top_level_help_can_show_them(argv, every):
+    import receiver.cli as c
+    selected = next((a for a in argv if not a.startswith("-")), None)
+    selected = selected if selected in c._available() else None
+    assert c._needs_every_help(argv, selected) is every
+
+
+def test_top_level_help_after_a_command_name_still_lists_every_help_line(capsys):
+    import receiver.cli as c
+    with pytest.raises(SystemExit):
+        cli(["-h", "run"])
+    out = " ".join(capsys.readouterr().out.split())
+    for module in c._available().values():
+        assert " ".join(c._help_line(module).split()[:3]) in out
+
+
+def _console(argv: list[str], before: str = "") -> subprocess.CompletedProcess:
+    """`occloc ARGV` through the console entry in a fresh interpreter whose __main__ holds an
+    object that prints 'torn down' when the interpreter's tear-down frees it."""
+    code = (f"import sys\n{before}\nclass Probe:\n    def __del__(self):\n        print('torn down', flush=True)\n"
+            f"probe = Probe()\nsys.argv = ['occloc'] + {argv!r}\nfrom receiver.cli import console\nconsole()\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          cwd=str(ROOT), timeout=600)
+
+
+def test_console_photo_run_ends_without_tear_down_and_every_line_is_out(luxapose, tmp_path):
+    photo = [str(luxapose / "x_0_y_1.27.jpg"), "--camera", str(luxapose / "camera_lumia1020.yaml"),
+             "--map", str(luxapose / "map_test_rig.json")]
+    out = tmp_path / "o.jsonl"
+    p = _console(["run", *photo, "--out", str(out)])
+    assert p.returncode == 0, p.stderr
+    assert json.loads(out.read_text())["position"]["n_leds"] == 5 and "; threads: 1" in p.stderr
+    assert "torn down" not in p.stdout  # os._exit: the tear-down did not run
+    p = _console(["run", *photo])  # the line on a pipe (block-buffered) is out all the same
+    assert p.returncode == 0 and json.loads(p.stdout)["position"]["n_leds"] == 5
+    assert "torn down" not in p.stdout
+
+
+def test_console_tears_down_after_other_commands_or_with_atexit_work(tmp_path):
+    p = _console(["eval", str(tmp_path / "none.jsonl"), "--truth", str(tmp_path / "none.jsonl")])
+    assert p.returncode == 2 and "torn down" in p.stdout
+    # a stream imports scipy, which imports logging, whose atexit callback flushes its handlers
+    p = _console(["run", str(STATIC), "--max-frames", "2", "--out", str(tmp_path / "o.jsonl")],
+                 before="import atexit\natexit.register(lambda: print('atexit ran', flush=True))")
+    assert p.returncode == 0 and "atexit ran" in p.stdout and "torn down" in p.stdout
+    assert len((tmp_path / "o.jsonl").read_text().splitlines()) == 2
+    p = _console(["run", str(tmp_path / "nosuch")])
+    assert p.returncode == 2 and "no such file" in p.stderr  # a bad input's exit status survives
+
+
+@pytest.mark.parametrize("argv,code,text", [(["--help"], 0, "usage: occloc"), (["run", "--help"], 0, "--threads"),
+                                            (["run", "--threads", "0"], 2, "--threads"), ([], 2, "COMMAND")])
+def test_console_ends_without_tear_down_when_no_command_ran(argv, code, text):
+    p = _console(argv)
+    assert p.returncode == code and text in p.stdout + p.stderr
+    assert "torn down" not in p.stdout

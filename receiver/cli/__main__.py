@@ -1,7 +1,5 @@
 """`python -m receiver.cli` = `occloc`."""
 
-import sys
+from receiver.cli import console
 
-from receiver.cli import main
-
-sys.exit(main())
+console()

@@ -3,7 +3,8 @@
 Stages (each a plain function on numpy arrays):
 
 1. `detect_scale`: frames bigger than `max_detect_px` are searched on an INTER_AREA
-   downsampled copy (integer factor), envelopes are refined in full-resolution ROIs.
+   downsampled copy (integer factor, `search_image`), envelopes are refined in
+   full-resolution ROIs.
 2. `auto_level`: one global threshold from the (subsampled) gray histogram,
    `median + k_mad * 1.4826 * MAD`, floored at `median + min_contrast`. The median and MAD
    follow ambient light and sensor noise; LEDs cover a small part of the frame so they do not
@@ -48,6 +49,20 @@ def detect_scale(shape: tuple[int, int], max_detect_px: int = 1_200_000) -> int:
     """Integer downsampling factor so that the search image has at most `max_detect_px` pixels."""
     h, w = shape[:2]
     return max(1, math.ceil(math.sqrt(h * w / max_detect_px)))
+
+
+def search_image(gray: np.ndarray, f: int) -> np.ndarray:
+    """The (H // f, W // f) uint8 search image of an (H, W) uint8 frame: the mean of each f x f
+    block, rounded (search pixel (i, j) is full-resolution rows [i f, (i + 1) f) and columns
+    [j f, (j + 1) f), as `_refine` maps it back). The last H mod f rows and W mod f columns, less
+    than one block, are left out: at an exact integer factor OpenCV's INTER_AREA takes its fast
+    block-sum path (a 33 MP photo at f = 6: ~11 ms, 0.16 G instructions), while the frame's own
+    size (a scale of e.g. 7712 / 1285 = 6.0016) takes the general area resampler, ~4x the work,
+    whose blocks drift up to a pixel from [i f, (i + 1) f)."""
+    if f == 1:
+        return gray
+    h, w = gray.shape[:2]
+    return cv2.resize(gray[:h // f * f, :w // f * f], (w // f, h // f), interpolation=cv2.INTER_AREA)
 
 
 def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24.0,
@@ -220,7 +235,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         raise ValueError(f"row_pool must be 1 or 2, not {s.row_pool!r}")
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, s.max_detect_px)
-    small = gray if f == 1 else cv2.resize(gray, (w // f, h // f), interpolation=cv2.INTER_AREA)
+    small = search_image(gray, f)
     if level is None:
         level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast, fine_noise=s.fine_noise)
     else:
