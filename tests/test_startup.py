@@ -240,11 +240,3 @@ def test_console_tears_down_after_other_commands_or_with_atexit_work(tmp_path):
     assert len((tmp_path / "o.jsonl").read_text().splitlines()) == 2
     p = _console(["run", str(tmp_path / "nosuch")])
     assert p.returncode == 2 and "no such file" in p.stderr  # a bad input's exit status survives
-
-
-@pytest.mark.parametrize("argv,code,text", [(["--help"], 0, "usage: occloc"), (["run", "--help"], 0, "--threads"),
-                                            (["run", "--threads", "0"], 2, "--threads"), ([], 2, "COMMAND")])
-def test_console_ends_without_tear_down_when_no_command_ran(argv, code, text):
-    p = _console(argv)
-    assert p.returncode == code and text in p.stdout + p.stderr
-    assert "torn down" not in p.stdout

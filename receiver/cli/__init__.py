@@ -150,7 +150,6 @@ def _needs_every_help(argv: list[str], selected: str | None) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    global _dispatched
     argv = list(sys.argv[1:] if argv is None else argv)
     commands = _available()
     selected = next((a for a in argv if not a.startswith("-")), None)
@@ -161,7 +160,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
-    _dispatched = args.command
     try:
         return int(importlib.import_module(commands[args.command]).main(args) or 0)
     except InputError as e:
@@ -178,28 +176,19 @@ def main(argv: list[str] | None = None) -> int:
             return 0
 
 
+
 def console() -> None:
-    """The `occloc` console script: `main()` on the command line, then the exit. The process
-    ends at once (os._exit), skipping the interpreter's tear-down that frees every module's
-    objects one by one (51 M instructions, 4 % of a photo's `occloc run`; 7 M, 5 % of
-    `occloc --help`), after a command in NO_TEARDOWN or when no command ran (help, version,
-    usage error) and nothing is left for the tear-down to do (`_nothing_left_at_exit`).
-    Otherwise, and after any other command, `sys.exit` as usual."""
-    global _dispatched
-    _dispatched = None
-    try:
-        code = main(sys.argv[1:])
-    except SystemExit as e:
-        if _dispatched is not None or not (e.code is None or isinstance(e.code, int)):
-            raise
-        code = e.code or 0  # argparse printed the help or version (0) or a usage error (2)
-    if (_dispatched is None or _dispatched in NO_TEARDOWN) and _nothing_left_at_exit():
+    """The `occloc` console script: `main()` on the command line, then the exit. After `occloc
+    run` (NO_TEARDOWN) the process ends at once (os._exit) when nothing is left for the
+    interpreter's tear-down to do but free every module's objects one by one (53 M
+    instructions, 4 % of a photo's command): standard streams flushed, no atexit callback, no
+    other live non-daemon thread. Otherwise, and after any other command, `sys.exit` as usual."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command in NO_TEARDOWN and _nothing_left_at_exit():
         os._exit(code)
     sys.exit(code)
-
-
-# The command `main` last handed the work to (None until one is): `console`'s exit decision.
-_dispatched: str | None = None
 
 
 def _nothing_left_at_exit() -> bool:
