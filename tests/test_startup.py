@@ -205,38 +205,3 @@ def test_top_level_help_after_a_command_name_still_lists_every_help_line(capsys)
     out = " ".join(capsys.readouterr().out.split())
     for module in c._available().values():
         assert " ".join(c._help_line(module).split()[:3]) in out
-
-
-def _console(argv: list[str], before: str = "") -> subprocess.CompletedProcess:
-    """`occloc ARGV` through the console entry in a fresh interpreter whose __main__ holds an
-    object that prints 'torn down' when the interpreter's tear-down frees it."""
-    code = (f"import sys\n{before}\nclass Probe:\n    def __del__(self):\n        print('torn down', flush=True)\n"
-            f"probe = Probe()\nsys.argv = ['occloc'] + {argv!r}\nfrom receiver.cli import console\nconsole()\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          cwd=str(ROOT), timeout=600)
-
-
-def test_console_photo_run_ends_without_tear_down_and_every_line_is_out(luxapose, tmp_path):
-    photo = [str(luxapose / "x_0_y_1.27.jpg"), "--camera", str(luxapose / "camera_lumia1020.yaml"),
-             "--map", str(luxapose / "map_test_rig.json")]
-    out = tmp_path / "o.jsonl"
-    p = _console(["run", *photo, "--out", str(out)])
-    assert p.returncode == 0, p.stderr
-    assert json.loads(out.read_text())["position"]["n_leds"] == 5 and "; threads: 1" in p.stderr
-    assert "torn down" not in p.stdout  # os._exit: the tear-down did not run
-    p = _console(["run", *photo])  # the line on a pipe (block-buffered) is out all the same
-    assert p.returncode == 0 and json.loads(p.stdout)["position"]["n_leds"] == 5
-    assert "torn down" not in p.stdout
-
-
-def test_console_tears_down_after_other_commands_or_with_atexit_work(tmp_path):
-    p = _console(["eval", str(tmp_path / "none.jsonl"), "--truth", str(tmp_path / "none.jsonl")])
-    assert p.returncode == 2 and "torn down" in p.stdout
-    # a stream imports scipy, which imports logging, whose atexit callback flushes its handlers
-    p = _console(["run", str(STATIC), "--max-frames", "2", "--out", str(tmp_path / "o.jsonl")],
-                 before="import atexit\natexit.register(lambda: print('atexit ran', flush=True))")
-    assert p.returncode == 0 and "atexit ran" in p.stdout and "torn down" in p.stdout
-    assert len((tmp_path / "o.jsonl").read_text().splitlines()) == 2
-    p = _console(["run", str(tmp_path / "nosuch")])
-    assert p.returncode == 2 and "no such file" in p.stderr  # a bad input's exit status survives

@@ -37,11 +37,6 @@ DEV_SUBCOMMANDS = {
 
 EXIT_BAD_INPUT = 2
 
-# Commands whose outputs are all written, flushed and closed before `main` returns (standard
-# output flushed by `console`), so the `occloc` process may end without the interpreter's
-# tear-down (`console`).
-NO_TEARDOWN = frozenset({"run"})
-
 
 def _source_checkout() -> str | None:
     """The repository root when this package runs from a source checkout with its `tools/`."""
@@ -175,37 +170,3 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             return 0
 
-
-
-def console() -> None:
-    """The `occloc` console script: `main()` on the command line, then the exit. After `occloc
-    run` (NO_TEARDOWN) the process ends at once (os._exit) when nothing is left for the
-    interpreter's tear-down to do but free every module's objects one by one (53 M
-    instructions, 4 % of a photo's command): standard streams flushed, no atexit callback, no
-    other live non-daemon thread. Otherwise, and after any other command, `sys.exit` as usual."""
-    argv = sys.argv[1:]
-    code = main(argv)
-    command = next((a for a in argv if not a.startswith("-")), None)
-    if command in NO_TEARDOWN and _nothing_left_at_exit():
-        os._exit(code)
-    sys.exit(code)
-
-
-def _nothing_left_at_exit() -> bool:
-    """Would the interpreter's shut-down do nothing the user sees? Flushes the standard streams
-    (False when that fails: the ordinary exit then reports it as it would have)."""
-    try:
-        for stream in (sys.stdout, sys.stderr):
-            if stream is not None:
-                stream.flush()
-    except (OSError, ValueError):
-        return False
-    import atexit
-    callbacks = getattr(atexit, "_ncallbacks", None)  # CPython; elsewhere: always tear down
-    if callbacks is None or callbacks() != 0:
-        return False
-    threading = sys.modules.get("threading")
-    if threading is not None and any(t.is_alive() and not t.daemon and t is not threading.main_thread()
-                                     for t in threading.enumerate()):
-        return False
-    return True

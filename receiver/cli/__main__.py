@@ -1,5 +1,7 @@
 """`python -m receiver.cli` = `occloc`."""
 
-from receiver.cli import console
+import sys
 
-console()
+from receiver.cli import main
+
+sys.exit(main())
