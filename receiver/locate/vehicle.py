@@ -178,86 +178,146 @@ def _perimeter_k(S1, S2, r, circle):
     return np.where(circle, k_circ, k_rect)
 
 
+NAN = math.nan
+SQRT2 = math.sqrt(2.0)
+
+
+def _sqrt(x: float) -> float:
+    """math.sqrt with numpy's IEEE results: NaN for a negative or NaN argument."""
+    return math.sqrt(x) if x >= 0.0 else NAN
+
+
+def _div(a: float, b: float) -> float:
+    """a / b with numpy's IEEE results for b == 0 (+-inf, NaN for 0/0 or NaN)."""
+    try:
+        return a / b
+    except ZeroDivisionError:
+        return NAN if a != a or a == 0.0 else math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def _area_range(rx, ry, rz, cos3, eta, j, A, S1, S2, circle, nx, ny, nz, osig, off, edge_sigma):
+    """One emitter's area range (module doc, "oblique"): (d, ea, eb) with d the distance along
+    the ray r (unit, camera frame), ea / eb its relative edge / foreshortening sigmas."""
+    # P / sqrt(area) of the emitter seen along r (`_perimeter_k`).
+    s1x, s1y, s1z = S1
+    s2x, s2y, s2z = S2
+    k1 = s1x * rx + s1y * ry + s1z * rz
+    k2 = s2x * rx + s2y * ry + s2z * rz
+    p1x, p1y, p1z = s1x - k1 * rx, s1y - k1 * ry, s1z - k1 * rz
+    p2x, p2y, p2z = s2x - k2 * rx, s2y - k2 * ry, s2z - k2 * rz
+    l1 = math.sqrt(p1x * p1x + p1y * p1y + p1z * p1z)
+    l2 = math.sqrt(p2x * p2x + p2y * p2y + p2z * p2z)
+    cx, cy, cz = p1y * p2z - p1z * p2y, p1z * p2x - p1x * p2z, p1x * p2y - p1y * p2x
+    ar = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if circle:
+        kperim = _div((math.pi / 2) * (l1 + l2), math.sqrt(math.pi * ar / 4))
+    else:
+        kperim = _div(2.0 * (l1 + l2), math.sqrt(ar))
+    sq_eta = _sqrt(max(eta, 0.0))
+    eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
+    cos_th = abs(nx * rx + ny * ry + nz * rz)
+    d = _sqrt(_div(A * cos_th, eta_c * j * cos3)) if eta > 0 and cos_th > 1e-3 else NAN
+    tan_th = _div(_sqrt(max(1.0 - cos_th * cos_th, 0.0)), max(cos_th, 1e-3))
+    return d, _div(edge_sigma * kperim, 2.0 * sq_eta), 0.5 * tan_th * osig
+
+
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
                base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None, area_model_rel=None):
-    """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
-    factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
-    `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
-    fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
-    (N,); centroid_sigma_px, area_model_rel: scalars or (N,) (default: the settings'). Returns a
-    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed). The two emitters' area
-    ranges are computed in one pass over 2N rows (A's then B's)."""
-    amr = settings.area_model_rel if area_model_rel is None else area_model_rel
+    """Ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area factors;
+    eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and `circle` (N,)
+    bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
+    n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel (N,); centroid_sigma_px,
+    area_model_rel: scalars or (N,) (default: the settings'). Returns a dict of length-N lists
+    of floats (NaN where unavailable; `flip`: B reversed) and the unit rays `ra`, `rb` (N, 3).
+    Scalar math per pair (a frame has 1-15 pairs: numpy's per-call overhead dominated the
+    vectorised form, ~220 calls); the rays and cos(alpha)^3 stay vectorised (numpy's own
+    rounding of the power, so the numbers are the vectorised form's to the last bit)."""
+    s = settings
     n = len(ua)
     r2 = _rays(np.concatenate([ua, ub]))          # (2N, 3): A's rays, then B's
     ra, rb = r2[:n], r2[n:]
-    um = 0.5 * (ua + ub)
-    # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
-    proj = B_cam[:, :2] - um * B_cam[:, 2:3]
-    flip = np.add.reduce(proj * (ub - ua), 1) < 0
-    B = np.where(flip[:, None], -B_cam, B_cam)
-    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
-    rab = np.add.reduce(ra * rb, 1)
-    ba, bb = -np.add.reduce(ra * B, 1), np.add.reduce(rb * B, 1)
-    det = 1.0 - rab * rab
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sa = (ba + rab * bb) / det
-        sb = (bb + rab * ba) / det
-        P = sa[:, None] * ra + sb[:, None] * rb
-        d_base = 0.5 * np.sqrt(np.add.reduce(P * P, 1))
-        du = ub - ua
-        sep_px = np.sqrt(np.add.reduce(du * du, 1)) * focal_px
-        csig = settings.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
-        s_base = d_base * (math.sqrt(2.0) * csig / sep_px + base_model_rel)
-        ok = (det > 1e-14) & (sa > 0) & (sb > 0)
-        d_base = np.where(ok, d_base, np.nan)
-        # Areas (eq. 18 and its corrected form), both emitters at once.
-        off = settings.edge_offset_px
-        eta = np.concatenate([eta_a, eta_b])
-        j2 = np.concatenate([ja, jb])
-        S1_2, S2_2 = np.concatenate([S1, S1]), np.concatenate([S2, S2])
-        n2 = np.concatenate([n_cam, n_cam])
-        A2 = np.concatenate([area_m2, area_m2])
-        kperim = _perimeter_k(S1_2, S2_2, r2, np.concatenate([circle, circle]))
-        sq_eta = np.sqrt(np.maximum(eta, 0))
-        eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
-        cos_al = r2[:, 2]
-        cos_th = np.abs(np.add.reduce(n2 * r2, 1))
-        d2 = np.sqrt(A2 * cos_th / (eta_c * j2 * cos_al ** 3))
-        d2 = np.where((eta > 0) & (cos_th > 1e-3), d2, np.nan)
-        tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
-        ea2 = settings.edge_sigma_px * kperim / (2.0 * sq_eta)
-        eb2 = 0.5 * tan_th * np.concatenate([orient_sigma_rad, orient_sigma_rad])
-        ea, eb = (ea2[:n], ea2[n:]), (eb2[:n], eb2[n:])
-        da_ob = (d2[:n], d2[n:])
-        out = {}
-        d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
-        out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
-        out["eq18_sigma"] = out["eq18"] * (amr + 0.5 * (ea[0] + ea[1]))
-        out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
-        Pa = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
-        d_ob = np.sqrt(np.add.reduce(Pa * Pa, 1))
-        fore = 0.5 * (eb[0] + eb[1])
-        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + amr ** 2)
-        wa = 1.0 / s_ob ** 2
-        wb = 1.0 / s_base ** 2
-        fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
+    cos3 = (r2[:, 2] ** 3).tolist()
+    R2 = r2.tolist()
+    amr = s.area_model_rel if area_model_rel is None else area_model_rel
+    csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
+    amr_l = np.broadcast_to(amr, (n,)).tolist()
+    csig_l = np.broadcast_to(csig, (n,)).tolist()
+    cols = [np.asarray(v, float).tolist() for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel)]
+    UA, UB, S1l, S2l, Bl, Nl = (np.asarray(v, float).tolist() for v in (ua, ub, S1, S2, B_cam, n_cam))
+    CIRC = np.asarray(circle, bool).tolist()
+    off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
+    keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
+            "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
+    out = {k: [] for k in keys}
+    for i in range(n):
+        ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm = (c[i] for c in cols)
+        amr_i, csig_i = amr_l[i], csig_l[i]
+        uax, uay = UA[i]
+        ubx, uby = UB[i]
+        rax, ray, raz = R2[i]
+        rbx, rby, rbz = R2[n + i]
+        bx, by, bz = Bl[i]
+        # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
+        umx, umy = 0.5 * (uax + ubx), 0.5 * (uay + uby)
+        dux, duy = ubx - uax, uby - uay
+        flip = (bx - umx * bz) * dux + (by - umy * bz) * duy < 0
+        if flip:
+            bx, by, bz = -bx, -by, -bz
+        # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
+        rab = rax * rbx + ray * rby + raz * rbz
+        ba = -(rax * bx + ray * by + raz * bz)
+        bb = rbx * bx + rby * by + rbz * bz
+        det = 1.0 - rab * rab
+        sa = _div(ba + rab * bb, det)
+        sb = _div(bb + rab * ba, det)
+        px, py, pz = sa * rax + sb * rbx, sa * ray + sb * rby, sa * raz + sb * rbz
+        d_base = 0.5 * _sqrt(px * px + py * py + pz * pz)
+        sep_px = math.sqrt(dux * dux + duy * duy) * focal_px
+        s_base = d_base * (_div(SQRT2 * csig_i, sep_px) + bm)
+        if not (det > 1e-14 and sa > 0 and sb > 0):
+            d_base = NAN
+        # Areas (eq. 18 and its corrected form), each emitter.
+        nx, ny, nz = Nl[i]
+        S1i, S2i, circ = S1l[i], S2l[i], CIRC[i]
+        da, ea_a, eb_a = _area_range(rax, ray, raz, cos3[i], eta_a_i, ja_i, A, S1i, S2i, circ, nx, ny, nz, osig,
+                                     off, esig)
+        db, ea_b, eb_b = _area_range(rbx, rby, rbz, cos3[n + i], eta_b_i, jb_i, A, S1i, S2i, circ, nx, ny, nz,
+                                     osig, off, esig)
+        if eta_a_i > 0 and eta_b_i > 0:
+            d18 = 0.5 * focal_px * (_sqrt(_div(A, eta_a_i)) + _sqrt(_div(A, eta_b_i)))
+        else:
+            d18 = NAN
+        s18 = d18 * (amr_i + 0.5 * (ea_a + ea_b))
+        if not math.isfinite(s18):
+            d18 = NAN
+        pax, pay, paz = 0.5 * (da * rax + db * rbx), 0.5 * (da * ray + db * rby), 0.5 * (da * raz + db * rbz)
+        d_ob = _sqrt(pax * pax + pay * pay + paz * paz)
+        fore = 0.5 * (eb_a + eb_b)
+        s_ob = d_ob * _sqrt((ea_a * ea_a + ea_b * ea_b) / 4 + fore * fore + amr_i * amr_i)
+        wa = _div(1.0, s_ob * s_ob)
+        wb = _div(1.0, s_base * s_base)
+        fa = math.isfinite(d_ob) and math.isfinite(wa)
+        fb = math.isfinite(d_base) and math.isfinite(wb)
         # The area range rests on the emitter's normal and size (a map entry without the normal
         # of a tilted head reads it several times too short); the baseline only on geometry.
         # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
-        clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
-        fa = fa & ~clash
-        wa = np.where(fa, wa, 0.0)
-        wb = np.where(fb, wb, 0.0)
+        clash = fa and fb and abs(d_ob - d_base) > cons * _sqrt(s_ob * s_ob + s_base * s_base)
+        fa = fa and not clash
+        wa = wa if fa else 0.0
+        wb = wb if fb else 0.0
         wsum = wa + wb
-        d_f = (wa * np.where(fa, d_ob, 0) + wb * np.where(fb, d_base, 0)) / wsum
-        s_f = 1.0 / np.sqrt(wsum)
-        amr2 = np.concatenate([amr, amr]) if np.ndim(amr) else amr
-        sab = d2 * np.sqrt(ea2 ** 2 + eb2 ** 2 + amr2 ** 2)
-    out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
-               fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
-               d_a=da_ob[0], d_b=da_ob[1], s_a=sab[:n], s_b=sab[n:],
-               ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
+        if wsum > 0:
+            d_f = (wa * (d_ob if fa else 0.0) + wb * (d_base if fb else 0.0)) / wsum
+            s_f = 1.0 / math.sqrt(wsum)
+        else:
+            d_f = s_f = NAN
+        amr2 = amr_i * amr_i
+        vals = (d18, s18, d_ob, s_ob, d_base, s_base, d_f, s_f, da, db,
+                da * _sqrt(ea_a * ea_a + eb_a * eb_a + amr2), db * _sqrt(ea_b * ea_b + eb_b * eb_b + amr2),
+                flip, fb and not fa, clash)
+        for k, v in zip(keys, vals):
+            out[k].append(v)
+    out.update(ra=ra, rb=rb)
     return out
 
 
@@ -266,10 +326,10 @@ def _pick(res: dict, i: int, estimator: str):
     order = [estimator] if estimator != "fused" else ["fused"]
     for name in order:
         d, s = res[name][i], res[name + "_sigma"][i]
-        if np.isfinite(d) and np.isfinite(s) and d > 0:
+        if math.isfinite(d) and math.isfinite(s) and d > 0:
             if name == "fused":
-                fa = np.isfinite(res["oblique"][i]) and np.isfinite(res["oblique_sigma"][i])
-                fb = np.isfinite(res["baseline"][i]) and np.isfinite(res["baseline_sigma"][i])
+                fa = math.isfinite(res["oblique"][i]) and math.isfinite(res["oblique_sigma"][i])
+                fb = math.isfinite(res["baseline"][i]) and math.isfinite(res["baseline_sigma"][i])
                 name = "fused" if fa and fb else ("baseline" if fb else "oblique")
             return float(d), float(s), name
     return None
