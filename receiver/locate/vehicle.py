@@ -441,6 +441,11 @@ class VehicleLocator:
                                             float(B is not None), 1.0, L]])
             self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
                                     circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz)
+        # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
+        heads = [c["em"].mean(0) if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
+                 if c["em"] is not None or c["xyz"] is not None]
+        self._sl_heads = np.array(heads, float).reshape(-1, 3)
+        self._sl_seen_at = (None, None)           # (t_s, normalized image points) of the heads, per frame
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
@@ -832,6 +837,18 @@ class VehicleLocator:
                     not_fv.add(i)
                 elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
+                    if role == "FV?" and not self._taillight_like(p, r, k):
+                        not_fv.add(i)
+                        self.fv_tracks.pop(key, None)
+                        continue
+                    if role == "FV?" and self._on_mapped_sl(t_s, r["ua"][k], r["ub"][k], hv, R):
+                        # Two far street-light heads (undecoded yet) line up as a taillight pair:
+                        # areas and spacing agree by chance (vfar scene: 200 m heads read as a car
+                        # at 30 m). The placed HV projects the map's heads; one on an emitter
+                        # settles it.
+                        not_fv.add(i)
+                        self.fv_tracks.pop(key, None)
+                        continue
                     if role == "FV?" and self.R_tilt is not None:
                         # Height window only once the camera's tilt is known (the nominal tilt
                         # may be off by degrees: metres of height at 30 m).
@@ -891,6 +908,41 @@ class VehicleLocator:
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
         return self._dedupe_fv(out), not_fv, tracked
+
+    def _taillight_like(self, p: PairObservation, res: dict, k: int) -> bool:
+        """An undecoded pair's two measured emitters look like one car's taillights: level (their
+        baseline within `fv_max_tilt_deg` of horizontal in the camera's level frame; a car's
+        lamps are mounted level) and of like area (within `fv_max_area_ratio`). Two far
+        street-light heads paired across the road are neither, as a rule (vehicle scene, FVs at
+        53-56 m: heads 3 px apart vertically over 42 px, areas 24 and 11 px^2, read as a car at 40 m)."""
+        s = self.s
+        a_area, b_area = fv_measured(p)[1]
+        if max(a_area, b_area) > s.fv_max_area_ratio * max(min(a_area, b_area), 1e-9):
+            return False
+        la, lb = self.Lv @ res["ra"][k], self.Lv @ res["rb"][k]
+        rise = abs(float(lb[2] - la[2]))
+        run = math.hypot(float(lb[0] - la[0]), float(lb[1] - la[1]))
+        return rise <= math.tan(math.radians(s.fv_max_tilt_deg)) * run
+
+    def _on_mapped_sl(self, t_s: float, ua, ub, hv: dict | None, R) -> bool:
+        """Whether either emitter (normalized image points ua, ub) lies within
+        `fv_sl_gate_deg` of a mapped street-light head projected from the placed HV (camera at
+        hv x, y and the last solved height, orientation R); False while the HV is unplaced."""
+        if hv is None or R is None or not len(self._sl_heads):
+            return False
+        if self._sl_seen_at[0] != t_s:
+            X = (self._sl_heads - np.array([hv["x"], hv["y"], self.z_last])) @ R.T
+            X = X[X[:, 2] > 1.0]
+            self._sl_seen_at = (t_s, X[:, :2] / X[:, 2:3])
+        P = self._sl_seen_at[1]
+        if not len(P):
+            return False
+        g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
+        for u in (ua, ub):
+            d = P - u
+            if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:
+                return True
+        return False
 
     def _fv_yaw(self, tr: dict, t_s: float, x: float, y: float, flat: float, rate: float, v_hv) -> None:
         """Update the track's lateral filter (y, level frame, a `RangeKalman`) and from it its
