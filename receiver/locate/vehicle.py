@@ -440,9 +440,10 @@ class VehicleLocator:
             row = np.concatenate([Bw, nrm, [np.nan if A is None else A, w, h, float(led.shape == "circle"),
                                             float(B is not None), 1.0, L]])
             self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
-                                    circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz)
+                                    circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz,
+                                    head=None if em is None else em.mean(0))
         # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
-        heads = [c["em"].mean(0) if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
+        heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
         self._sl_seen_at = (None, None)           # (t_s, normalized image points) of the heads, per frame
@@ -638,7 +639,7 @@ class VehicleLocator:
                 else:
                     P_cam = np.array([res["fused"][k] * _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
                                       for k in sl_k])
-                    Lm = np.array([self._sl[pairs[res["idx"][k]].led_id]["em"].mean(0) for k in sl_k])
+                    Lm = np.array([self._sl[pairs[res["idx"][k]].led_id]["head"] for k in sl_k])
                     init = self._init_pose(P_cam, Lm)
                     if init is not None:
                         # Re-range with the initial orientation (baseline direction, normals).
@@ -698,7 +699,7 @@ class VehicleLocator:
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
                 continue
-            v = c["em"].mean(0) - C
+            v = c["head"] - C
             d = math.sqrt(float(v @ v))
             u = v[:2] / d
             sd = math.sqrt(max(float(u @ cov @ u), 0.0) + (self.s.camera_height_sigma_m * v[2] / d) ** 2 * 0.01)
@@ -714,8 +715,8 @@ class VehicleLocator:
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
         c2 = self._sl[pairs[res["idx"][k2]].led_id]
-        sl1 = c1["em"].mean(0)
-        sl2 = c2["em"].mean(0)
+        sl1 = c1["head"]
+        sl2 = c2["head"]
         # Which is further left, in the level frame (positive bearing = left).
         left = bool(res["bearing"][k2] > res["bearing"][k1])
         p = eq44_47(float(rng[k1]), float(rng[k2]), sl1, sl2, self.s.camera_height_m, left)
@@ -818,6 +819,7 @@ class VehicleLocator:
         tracked = {}            # pair index -> (d, sigma, "fv-track") of unranged tracked pairs
         v_hv = None if hv is None else hv["speed_mps"]
         R = self.R_last
+        cpsi = spsi = None
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role not in ("FV", "FV?"):
@@ -894,9 +896,11 @@ class VehicleLocator:
             zone = self._zone(d, v_hv, ttc)
             road_x = road_y = None
             if hv is not None:
-                psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
-                road_x = hv["x"] + math.cos(psi) * x - math.sin(psi) * y       # eq. 53
-                road_y = hv["y"] + math.sin(psi) * x + math.cos(psi) * y
+                if cpsi is None:        # the HV heading: once per frame
+                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
+                    cpsi, spsi = math.cos(psi), math.sin(psi)
+                road_x = hv["x"] + cpsi * x - spsi * y       # eq. 53
+                road_y = hv["y"] + spsi * x + cpsi * y
             if meas is None and i in dirs:
                 # A tracked pair without a range of its own this frame: its LED observations
                 # carry the track's filtered distance (estimator "fv-track").
