@@ -149,33 +149,11 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
     return und[:, 0, 0], und[:, 1, 0], det[:, 0], det[:, 1]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (np.cross is slow on small arrays)."""
-    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
-
-
 def _rays(u: np.ndarray) -> np.ndarray:
     v = np.empty((len(u), 3))
     v[:, :2] = u
     v[:, 2] = 1.0
     return v / np.sqrt(np.add.reduce(v * v, 1))[:, None]
-
-
-def _perimeter_k(S1, S2, r, circle):
-    """P / sqrt(area) of an emitter with side (or diameter) vectors S1, S2 (N, 3, camera frame,
-    metres) seen along the unit rays r (N, 3): the sides' components across the ray (a locally
-    parallel projection; scale-free, so no distance is needed). Foreshortened panels are long
-    and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
-    p1 = S1 - np.add.reduce(S1 * r, 1, keepdims=True) * r
-    p2 = S2 - np.add.reduce(S2 * r, 1, keepdims=True) * r
-    l1, l2 = np.sqrt(np.add.reduce(p1 * p1, 1)), np.sqrt(np.add.reduce(p2 * p2, 1))
-    c = _cross(p1, p2)
-    ar = np.sqrt(np.add.reduce(c * c, 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
-        k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
-    return np.where(circle, k_circ, k_rect)
 
 
 NAN = math.nan
@@ -197,8 +175,11 @@ def _div(a: float, b: float) -> float:
 
 def _area_range(rx, ry, rz, cos3, eta, j, A, S1, S2, circle, nx, ny, nz, osig, off, edge_sigma):
     """One emitter's area range (module doc, "oblique"): (d, ea, eb) with d the distance along
-    the ray r (unit, camera frame), ea / eb its relative edge / foreshortening sigmas."""
-    # P / sqrt(area) of the emitter seen along r (`_perimeter_k`).
+    the ray r (unit, camera frame), ea / eb its relative edge / foreshortening sigmas. S1, S2:
+    the emitter's side (or diameter) vectors (camera frame, m); their components across the ray
+    (a locally parallel projection; scale-free, so no distance is needed) give the seen
+    outline's P / sqrt(area): foreshortened panels are long and thin, so their perimeter is far
+    above the shape's own P / sqrt(A)."""
     s1x, s1y, s1z = S1
     s2x, s2y, s2z = S2
     k1 = s1x * rx + s1y * ry + s1z * rz
@@ -221,11 +202,18 @@ def _area_range(rx, ry, rz, cos3, eta, j, A, S1, S2, circle, nx, ny, nz, osig, o
     return d, _div(edge_sigma * kperim, 2.0 * sq_eta), 0.5 * tan_th * osig
 
 
+def _floats(v, n: int) -> list:
+    """Rows of v as Python floats: an array's `tolist()`, a list as it is, a scalar n times."""
+    if isinstance(v, np.ndarray):
+        return np.broadcast_to(v, (n,) + v.shape[1:]).tolist() if v.ndim == 0 or len(v) != n else v.tolist()
+    return v if isinstance(v, list) else [float(v)] * n
+
+
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
                base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None, area_model_rel=None):
     """Ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area factors;
     eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and `circle` (N,)
-    bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
+    bool (`_area_range`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
     n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel (N,); centroid_sigma_px,
     area_model_rel: scalars or (N,) (default: the settings'). Returns a dict of length-N lists
     of floats (NaN where unavailable; `flip`: B reversed) and the unit rays `ra`, `rb` (N, 3).
@@ -242,9 +230,9 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
     amr_l = np.broadcast_to(amr, (n,)).tolist()
     csig_l = np.broadcast_to(csig, (n,)).tolist()
-    cols = [np.asarray(v, float).tolist() for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel)]
-    UA, UB, S1l, S2l, Bl, Nl = (np.asarray(v, float).tolist() for v in (ua, ub, S1, S2, B_cam, n_cam))
-    CIRC = np.asarray(circle, bool).tolist()
+    cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel)]
+    UA, UB, S1l, S2l, Bl, Nl = (_floats(v, n) for v in (ua, ub, S1, S2, B_cam, n_cam))
+    CIRC = circle.tolist() if isinstance(circle, np.ndarray) else list(circle)
     off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
@@ -505,35 +493,70 @@ class VehicleLocator:
         rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
         bearing = np.arctan2(lev[:, 1], lev[:, 0])
-        is_sl = cst[:, 11] > 0
-        known_b = is_sl & (cst[:, 10] > 0) & pose_known
-        # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
-        # the FV's heading, facing back along it (module doc): the heading is the camera's
-        # turned by the track's yaw estimate (`_fv_yaw`; 0 until known).
-        cy, sy_ = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * (cy * Lv[1] - sy_ * Lv[0]))
-        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -(cy * Lv[0] + sy_ * Lv[1]))
-        # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
-        unk = is_sl & ~known_b
-        if unk.any():
-            perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
-            perp = perp / np.maximum(np.sqrt(np.add.reduce(perp * perp, 1, keepdims=True)), 1e-12)
-            Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
-        sy = math.radians(self.s.taillight_yaw_sigma_deg)
-        bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
-                      np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
-        across = Bc / np.sqrt(np.add.reduce(Bc * Bc, 1, keepdims=True))
-        S1 = across * cst[:, 7:8]
-        S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
+        Bc, nc, S1, S2, bm = self._pair_geometry(R, Lv, cst, roles, yaw, rays_m, bearing, pose_known)
+        s = self.s
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
-                         np.full(n, osig), bm, self.focal, self.s,
-                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px),
-                         np.where(is_sl, self.s.area_model_rel, self.s.fv_area_model_rel))
+                         [osig] * n, bm, self.focal, s,
+                         [s.centroid_sigma_px if r == "SL" else s.fv_centroid_sigma_px for r in roles],
+                         [s.area_model_rel if r == "SL" else s.fv_area_model_rel for r in roles])
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
             aligned[i] = (res, k)
         return aligned, res
+
+    def _pair_geometry(self, R, Lv, cst, roles, yaw, rays_m, bearing, pose_known: bool):
+        """Per pair (lists of Python floats): the baseline B_cam (3,) and emitter normal n_cam
+        (3,) in the camera frame, the emitter side vectors S1, S2 (3,) (`_area_range`) and the
+        baseline model error (relative). SL: B and normal turned into the camera frame
+        (orientation R); taillights: horizontal baseline across the FV's heading, facing back
+        along it (module doc): the heading is the camera's turned by the track's yaw estimate
+        (`_fv_yaw`; 0 until known). Scalar per pair; the rotations, cos/sin/tan stay numpy
+        calls (their rounding is numpy's, as in the vectorised form this replaced)."""
+        s = self.s
+        sl_rows = [k for k, r in enumerate(roles) if r == "SL"]
+        if sl_rows:
+            Bsl, nsl = (cst[:, 0:3] @ R.T).tolist(), (cst[:, 3:6] @ R.T).tolist()
+        fv_rows = len(sl_rows) < len(roles)
+        if fv_rows:
+            cy, sy_ = np.cos(yaw).tolist(), np.sin(yaw).tolist()
+            tan_b = np.abs(np.tan(bearing)).tolist()
+        C = cst.tolist()
+        (l0x, l0y, l0z), (l1x, l1y, l1z), (l2x, l2y, l2z) = Lv.tolist()
+        sy = math.radians(s.taillight_yaw_sigma_deg)
+        Bs, ns, S1s, S2s, bms = [], [], [], [], []
+        for k, role in enumerate(roles):
+            c = C[k]
+            L, w, h = c[12], c[7], c[8]
+            if role == "SL":
+                B, nrm = Bsl[k], nsl[k]
+                known_b = c[10] > 0 and pose_known
+                if not known_b:
+                    # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
+                    rx, ry, rz = rays_m[k].tolist()
+                    px, py, pz = l2y * rz - l2z * ry, l2z * rx - l2x * rz, l2x * ry - l2y * rx
+                    m = max(math.sqrt(px * px + py * py + pz * pz), 1e-12)
+                    B = [L * (px / m), L * (py / m), L * (pz / m)]
+                bm = s.baseline_model_rel if known_b else 0.05
+            else:
+                ck, sk = cy[k], sy_[k]
+                B = [L * (ck * l1x - sk * l0x), L * (ck * l1y - sk * l0y), L * (ck * l1z - sk * l0z)]
+                nrm = [-(ck * l0x + sk * l1x), -(ck * l0y + sk * l1y), -(ck * l0z + sk * l1z)]
+                bm = tan_b[k] * sy + 0.5 * sy * sy + s.baseline_model_rel
+            bx, by, bz = B
+            nb = math.sqrt(bx * bx + by * by + bz * bz)
+            ax, ay, az = _div(bx, nb), _div(by, nb), _div(bz, nb)
+            if role == "SL":
+                nx, ny, nz = nrm
+                S2 = [(ny * az - nz * ay) * h, (nz * ax - nx * az) * h, (nx * ay - ny * ax) * h]
+            else:
+                S2 = [l2x * h, l2y * h, l2z * h]
+            Bs.append(B)
+            ns.append(nrm)
+            S1s.append([ax * w, ay * w, az * w])
+            S2s.append(S2)
+            bms.append(bm)
+        return Bs, ns, S1s, S2s, bms
 
     # -------------------------------------------------------------------------- HV pose
     def _init_pose(self, P_cam: np.ndarray, L: np.ndarray):
