@@ -205,7 +205,7 @@ def _area_range(rx, ry, rz, cos3, eta, j, A, S1, S2, circle, nx, ny, nz, osig, o
 def _floats(v, n: int) -> list:
     """Rows of v as Python floats: an array's `tolist()`, a list as it is, a scalar n times."""
     if isinstance(v, np.ndarray):
-        return np.broadcast_to(v, (n,) + v.shape[1:]).tolist() if v.ndim == 0 or len(v) != n else v.tolist()
+        return [float(v)] * n if v.ndim == 0 else v.tolist()
     return v if isinstance(v, list) else [float(v)] * n
 
 
@@ -228,23 +228,15 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     R2 = r2.tolist()
     amr = s.area_model_rel if area_model_rel is None else area_model_rel
     csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
-    amr_l = np.broadcast_to(amr, (n,)).tolist()
-    csig_l = np.broadcast_to(csig, (n,)).tolist()
-    cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel)]
-    UA, UB, S1l, S2l, Bl, Nl = (_floats(v, n) for v in (ua, ub, S1, S2, B_cam, n_cam))
-    CIRC = circle.tolist() if isinstance(circle, np.ndarray) else list(circle)
+    cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel, amr, csig,
+                                    ua, ub, S1, S2, B_cam, n_cam)]
+    cols += [circle.tolist() if isinstance(circle, np.ndarray) else list(circle), R2[:n], R2[n:], cos3[:n], cos3[n:]]
     off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
-    out = {k: [] for k in keys}
-    for i in range(n):
-        ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm = (c[i] for c in cols)
-        amr_i, csig_i = amr_l[i], csig_l[i]
-        uax, uay = UA[i]
-        ubx, uby = UB[i]
-        rax, ray, raz = R2[i]
-        rbx, rby, rbz = R2[n + i]
-        bx, by, bz = Bl[i]
+    rows = []
+    for (ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, (uax, uay), (ubx, uby), S1i, S2i, (bx, by, bz),
+         (nx, ny, nz), circ, (rax, ray, raz), (rbx, rby, rbz), cos3_a, cos3_b) in zip(*cols):
         # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
         umx, umy = 0.5 * (uax + ubx), 0.5 * (uay + uby)
         dux, duy = ubx - uax, uby - uay
@@ -265,11 +257,9 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         if not (det > 1e-14 and sa > 0 and sb > 0):
             d_base = NAN
         # Areas (eq. 18 and its corrected form), each emitter.
-        nx, ny, nz = Nl[i]
-        S1i, S2i, circ = S1l[i], S2l[i], CIRC[i]
-        da, ea_a, eb_a = _area_range(rax, ray, raz, cos3[i], eta_a_i, ja_i, A, S1i, S2i, circ, nx, ny, nz, osig,
+        da, ea_a, eb_a = _area_range(rax, ray, raz, cos3_a, eta_a_i, ja_i, A, S1i, S2i, circ, nx, ny, nz, osig,
                                      off, esig)
-        db, ea_b, eb_b = _area_range(rbx, rby, rbz, cos3[n + i], eta_b_i, jb_i, A, S1i, S2i, circ, nx, ny, nz,
+        db, ea_b, eb_b = _area_range(rbx, rby, rbz, cos3_b, eta_b_i, jb_i, A, S1i, S2i, circ, nx, ny, nz,
                                      osig, off, esig)
         if eta_a_i > 0 and eta_b_i > 0:
             d18 = 0.5 * focal_px * (_sqrt(_div(A, eta_a_i)) + _sqrt(_div(A, eta_b_i)))
@@ -300,11 +290,10 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         else:
             d_f = s_f = NAN
         amr2 = amr_i * amr_i
-        vals = (d18, s18, d_ob, s_ob, d_base, s_base, d_f, s_f, da, db,
-                da * _sqrt(ea_a * ea_a + eb_a * eb_a + amr2), db * _sqrt(ea_b * ea_b + eb_b * eb_b + amr2),
-                flip, fb and not fa, clash)
-        for k, v in zip(keys, vals):
-            out[k].append(v)
+        rows.append((d18, s18, d_ob, s_ob, d_base, s_base, d_f, s_f, da, db,
+                     da * _sqrt(ea_a * ea_a + eb_a * eb_a + amr2), db * _sqrt(ea_b * ea_b + eb_b * eb_b + amr2),
+                     flip, fb and not fa, clash))
+    out = dict(zip(keys, (list(c) for c in zip(*rows)))) if rows else {k: [] for k in keys}
     out.update(ra=ra, rb=rb)
     return out
 
