@@ -67,7 +67,15 @@ when V_HV is unknown), tightened by ttc; ``road_x``, ``road_y`` = P_HV + rotatio
 midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max_height_m`
 above the road (once the camera's tilt is known) and its area and baseline ranges agree (a street
 light's emitters are ~7x larger for their spacing than taillights; two far heads paired across
-the road clash likewise: scale-free, so it holds before the tilt is known).
+the road clash likewise: scale-free, so it holds before the tilt is known), its two emitters are
+level (`fv_max_tilt_deg`) and of like area (`fv_max_area_ratio`), and, once the HV is placed,
+neither emitter lies on a mapped street light projected from the HV pose (`fv_sl_gate_deg`):
+two far heads 200 m away, one each side of the road, can pass the area/baseline test by chance
+(read as a car at 30-40 m).
+
+Cost (`range_core`, `_pair_geometry`): a frame has 1-15 pairs, so the per-pair math is scalar
+Python; only what numpy rounds differently from scalar math (matrix products, cos/sin/tan,
+x**3) stays in numpy calls, so the numbers are the former vectorised form's to the last bit.
 """
 
 from __future__ import annotations
