@@ -126,6 +126,7 @@ def test_map_without_taillight_block_gives_no_forward_vehicle_ranges(tmp_path):
                            "--max-frames", "100", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
                           timeout=600)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
+    assert "forward vehicles not ranged (the map has no taillight block" in proc.stderr.splitlines()[-1]
     for rec in map(json.loads, out.read_text().splitlines()):
         for fv in (rec["vehicle"] or {}).get("fv", []):
             assert fv["distance_m"] is None

@@ -378,7 +378,8 @@ def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
 
 class VehicleLocator:
     """Streaming vehicle positioning (module doc). `hv_reason`: why the HV is not placed
-    (None when it is)."""
+    (None when it is); `fv_reason`: why taillight pairs are not ranged (None when they are, or
+    no pair other than a decoded street light was seen)."""
 
     def __init__(self, camera: CameraModel, led_map: LedMap, settings: VehicleSettings = VehicleSettings()):
         if settings.range_estimator not in ESTIMATORS:
@@ -399,6 +400,7 @@ class VehicleLocator:
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
+        self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
         self.fv_tracks: dict = {}
         # Per-SL constants.
@@ -700,6 +702,9 @@ class VehicleLocator:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
+        if self._tl is None and self.fv_reason is None and any(p.kind != "SL" for p in pairs):
+            # A pair that is no decoded street light may be a car's taillights: say why it is not.
+            self.fv_reason = "the map has no taillight block with shape, size and baseline_m"
         vehicle = None
         if any_pair or hv is not None:
             e = None if self.last_fix is None else self.last_fix.get("eq44-47")
