@@ -433,7 +433,7 @@ class VehicleLocator:
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
-        self._sl_seen_at = (None, None)           # (t_s, normalized image points) of the heads, per frame
+        self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
@@ -959,11 +959,12 @@ class VehicleLocator:
         hv x, y and the last solved height, orientation R); False while the HV is unplaced."""
         if hv is None or R is None or not len(self._sl_heads):
             return False
-        if self._sl_seen_at[0] != t_s:
+        key = (t_s, hv["x"], hv["y"], self.z_last)
+        if self._sl_seen_at[0] != key or self._sl_seen_at[1] is not R:
             X = (self._sl_heads - np.array([hv["x"], hv["y"], self.z_last])) @ R.T
             X = X[X[:, 2] > 1.0]
-            self._sl_seen_at = (t_s, X[:, :2] / X[:, 2:3])
-        P = self._sl_seen_at[1]
+            self._sl_seen_at = (key, R, X[:, :2] / X[:, 2:3])
+        P = self._sl_seen_at[2]
         if not len(P):
             return False
         g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
