@@ -493,6 +493,45 @@ def test_outputs_never_nan():
             assert r is None or all(math.isfinite(x) for x in r[:2])
 
 
+@pytest.mark.parametrize("value", [1e9, -1e9, 1e300, float("inf"), float("nan"), 0.0])
+def test_absurd_centroids_and_areas_never_raise_nor_give_infinite_numbers(value):
+    """Every pair's emitter A (and, for some, its area) set to an absurd value, frame after frame:
+    the locator neither raises nor reports a non-finite number."""
+    lmap = make_map()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    for i in range(6):
+        R, C, psi = camera_pose(1.0 * i)
+        p, _ = fv_pair((20.0, 0.0), R, C, psi)
+        pairs = []
+        for k, q in enumerate(sl_pairs(lmap, R, C) + [p]):
+            a, area = q.a_px, q.area_a_px
+            if k % 3 == 0:                  # one emitter's area only (its range then absurd alone)
+                area = value
+            elif k % 3 == 1:                # one emitter's centroid
+                a = (value, q.a_px[1]) if k % 2 else (q.a_px[0], value)
+            pairs.append(PairObservation(**{**q.__dict__, "a_px": a, "area_a_px": area, "a_seen": (a, area, 0)}))
+        res = loc.step(i / 30, pairs)
+        json.dumps(res.vehicle, allow_nan=False)
+        for r in res.ranges:
+            assert r is None or all(math.isfinite(x) for x in r[:2]), r
+
+
+def test_a_pose_solve_with_an_infinite_covariance_is_no_fix(monkeypatch):
+    """Residuals that overflow (absurd ranges) give an infinite fix covariance: the frame then
+    has no fix (and no "pose" ranges with an infinite sigma), rather than one no gate can judge."""
+    import receiver.locate.vehicle as vehicle_mod
+
+    lmap = make_map()
+    R, C, psi = camera_pose(3.0)
+    pairs = sl_pairs(lmap, R, C)
+    assert VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs).vehicle["hv"] is not None
+    monkeypatch.setattr(vehicle_mod, "covariance_at", lambda r, J, n: (np.full((n, n), np.inf), np.inf, 1))
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    res = loc.step(0.0, pairs)
+    assert res.vehicle["hv"] is None and loc.hv_reason == "street-light pose solve failed"
+    assert all(r is None or r[2] != "pose" for r in res.ranges)
+
+
 # ------------------------------------------------------------------------------ cost
 
 def test_vehicle_step_benchmark(benchmark):

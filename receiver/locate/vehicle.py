@@ -615,8 +615,10 @@ class VehicleLocator:
                 return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
                     or c - c_new <= LM_FTOL * c
 
-            x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
-                                    f_scale=self.s.pose_f_scale, max_iter=n_iter)
+            # Absurd ranges may overflow the whitened residuals: no fix then (below), no warning.
+            with np.errstate(over="ignore", invalid="ignore"):
+                x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
+                                        f_scale=self.s.pose_f_scale, max_iter=n_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
@@ -624,8 +626,12 @@ class VehicleLocator:
         if C[2] >= float(L[:, 2].min()):
             return None
         # Covariance from the final residuals and Jacobian (not evaluated again).
-        cov6, _, _ = covariance_at(r, J, len(x))
-        return R, C, cov6[3:5, 3:5]
+        with np.errstate(over="ignore", invalid="ignore"):
+            cov6, _, _ = covariance_at(r, J, len(x))
+        cov = cov6[3:5, 3:5]
+        if not np.all(np.isfinite(cov)):
+            return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
+        return R, C, cov
 
     # -------------------------------------------------------------------------- step
     def step(self, t_s: float, pairs: list[PairObservation], speed_mps: float | None = None) -> VehicleResult:
