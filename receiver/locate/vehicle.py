@@ -71,7 +71,9 @@ the road clash likewise: scale-free, so it holds before the tilt is known), its 
 level (`fv_max_tilt_deg`) and of like area (`fv_max_area_ratio`), and, once the HV is placed,
 neither emitter lies on a mapped street light projected from the HV pose (`fv_sl_gate_deg`):
 two far heads 200 m away, one each side of the road, can pass the area/baseline test by chance
-(read as a car at 30-40 m).
+(read as a car at 30-40 m). A new undecoded pair that shares a lamp (founding track) with a live
+pair already tracked as an FV is not one either: at 50+ m one taillight of each of two cars side
+by side also passes the area test (tiny blobs read large, the cross baseline short).
 
 Cost (`range_core`, `_pair_geometry`): a frame has 1-15 pairs, so the per-pair math is scalar
 Python; only what numpy rounds differently from scalar math (matrix products, cos/sin/tan,
@@ -851,6 +853,8 @@ class VehicleLocator:
         v_hv = None if hv is None else hv["speed_mps"]
         R = self.R_last
         cpsi = spsi = None
+        # Emitter tracks of the live pairs already tracked as FVs: one lamp is one car's.
+        owner = {t: p.key for p in pairs if p.key in self.fv_tracks for t in p.key}
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role not in ("FV", "FV?"):
@@ -870,6 +874,12 @@ class VehicleLocator:
                     not_fv.add(i)
                 elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
+                    if role == "FV?" and tr is None and any(owner.get(t, p.key) != p.key for t in p.key):
+                        # A new pairing of a lamp an FV track already owns with another lamp: at
+                        # 50+ m one taillight of each of two cars side by side pass the area
+                        # test (tiny blobs read large), so the lamp stays with its car.
+                        not_fv.add(i)
+                        continue
                     if role == "FV?" and not self._taillight_like(p, r, k):
                         not_fv.add(i)
                         self.fv_tracks.pop(key, None)
