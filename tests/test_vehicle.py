@@ -341,6 +341,36 @@ def test_fv_undecoded_pair_tracked_from_first_frame_then_id():
     assert res.vehicle["fv"] == [] and res.ranges == (None,)
 
 
+def _ghost_pair(lmap, R, C, dz_px=0.0, area_ratio=1.0):
+    """An undecoded pair made of two far mapped street-light heads (~200 m ahead, one each side
+    of the road), its areas those of taillights at the distance its separation gives: area and
+    baseline ranges agree, as they can by chance. `dz_px` lowers B by that many pixels,
+    `area_ratio` scales B's area."""
+    far = sorted((led for led in lmap.leds.values() if 190.0 < led.x - C[0] < 215.0), key=lambda led: led.x)[:2]
+    ca, cb = (project(np.asarray(led.emitters).mean(0)[None], R, C)[0] for led in far)
+    cb = cb + np.array([0.0, dz_px])
+    d = CAM.focal_px * TL_BASE / float(np.hypot(*(cb - ca)))
+    area = CAM.focal_px ** 2 * TL_SIZE[0] * TL_SIZE[1] / d ** 2
+    return pair_obs((700, 701), None, None, ca, cb, area, area * area_ratio)
+
+
+def test_undecoded_pair_on_far_mapped_street_lights_is_no_forward_vehicle():
+    lmap = make_map(n=24)
+    R, C, psi = camera_pose(20.0)
+    ghost = _ghost_pair(lmap, R, C)
+    # Alone (HV unplaced), it passes for a taillight pair ...
+    fv = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, [ghost]).vehicle["fv"]
+    assert len(fv) == 1 and 15.0 < fv[0]["distance_m"] < 40.0
+    # ... but once the street lights place the HV, the map's heads are seen where its emitters are.
+    res = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, sl_pairs(lmap, R, C, max_range=80.0) + [ghost])
+    assert res.vehicle["hv"] is not None
+    assert res.vehicle["fv"] == [] and res.ranges[-1] is None
+    # Without the HV: a pair that is not level, or of unlike areas, is no taillight pair either.
+    for kw in (dict(dz_px=6.0), dict(area_ratio=2.5)):
+        res = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, [_ghost_pair(lmap, R, C, **kw)])
+        assert res.vehicle["fv"] == [], kw
+
+
 def test_fv_ranged_from_measured_centroids_not_the_pairs_model_positions():
     """`a_px`/`b_px` are the pairing's rigid model (baseline scaled by the envelope areas, whole
     pixels): 3 px off in separation at 40 m is 5 % of range. The range comes from the emitters'
@@ -461,6 +491,45 @@ def test_outputs_never_nan():
         json.dumps(res.vehicle, allow_nan=False)
         for r in res.ranges:
             assert r is None or all(math.isfinite(x) for x in r[:2])
+
+
+@pytest.mark.parametrize("value", [1e9, -1e9, 1e300, float("inf"), float("nan"), 0.0])
+def test_absurd_centroids_and_areas_never_raise_nor_give_infinite_numbers(value):
+    """Every pair's emitter A (and, for some, its area) set to an absurd value, frame after frame:
+    the locator neither raises nor reports a non-finite number."""
+    lmap = make_map()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    for i in range(6):
+        R, C, psi = camera_pose(1.0 * i)
+        p, _ = fv_pair((20.0, 0.0), R, C, psi)
+        pairs = []
+        for k, q in enumerate(sl_pairs(lmap, R, C) + [p]):
+            a, area = q.a_px, q.area_a_px
+            if k % 3 == 0:                  # one emitter's area only (its range then absurd alone)
+                area = value
+            elif k % 3 == 1:                # one emitter's centroid
+                a = (value, q.a_px[1]) if k % 2 else (q.a_px[0], value)
+            pairs.append(PairObservation(**{**q.__dict__, "a_px": a, "area_a_px": area, "a_seen": (a, area, 0)}))
+        res = loc.step(i / 30, pairs)
+        json.dumps(res.vehicle, allow_nan=False)
+        for r in res.ranges:
+            assert r is None or all(math.isfinite(x) for x in r[:2]), r
+
+
+def test_a_pose_solve_with_an_infinite_covariance_is_no_fix(monkeypatch):
+    """Residuals that overflow (absurd ranges) give an infinite fix covariance: the frame then
+    has no fix (and no "pose" ranges with an infinite sigma), rather than one no gate can judge."""
+    import receiver.locate.vehicle as vehicle_mod
+
+    lmap = make_map()
+    R, C, psi = camera_pose(3.0)
+    pairs = sl_pairs(lmap, R, C)
+    assert VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs).vehicle["hv"] is not None
+    monkeypatch.setattr(vehicle_mod, "covariance_at", lambda r, J, n: (np.full((n, n), np.inf), np.inf, 1))
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    res = loc.step(0.0, pairs)
+    assert res.vehicle["hv"] is None and loc.hv_reason == "street-light pose solve failed"
+    assert all(r is None or r[2] != "pose" for r in res.ranges)
 
 
 # ------------------------------------------------------------------------------ cost

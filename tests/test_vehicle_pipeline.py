@@ -90,6 +90,25 @@ def test_odometry_file_checked_line_by_line(tmp_path):
         assert "\n" not in str(e.value)
 
 
+def test_odometry_on_another_time_axis_is_named_in_the_summary(tmp_path):
+    odo = load_odometry_text(tmp_path, '{"t": 100.0, "speed_mps": 10}\n{"t": 101.0, "speed_mps": 12}\n')
+    assert odo.note() is None                       # not asked yet
+    assert odo(0.5) is None and "covers none of the frames" in odo.note()
+    assert odo(100.5) == pytest.approx(11.0) and odo.note() is None
+    late = tmp_path / "late.jsonl"
+    late.write_text('{"t": 100.0, "speed_mps": 10}\n{"t": 101.0, "speed_mps": 12}\n')
+    proc = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(REC), "--max-frames", "3",
+                           "--odometry", str(late), "--out", str(tmp_path / "o.jsonl")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "odometry covers none of the frames (log t 100..101 s" in proc.stderr
+
+
+def load_odometry_text(tmp_path, text):
+    f = tmp_path / "odo_text.jsonl"
+    f.write_text(text)
+    return load_odometry(str(f))
+
+
 def test_run_with_a_malformed_odometry_file_is_a_one_line_error(tmp_path):
     bad = tmp_path / "odo.jsonl"
     bad.write_text('{"t": 0.0, "speed_mps": "fast"}\n')
@@ -126,6 +145,7 @@ def test_map_without_taillight_block_gives_no_forward_vehicle_ranges(tmp_path):
                            "--max-frames", "100", "--out", str(out)], cwd=ROOT, capture_output=True, text=True,
                           timeout=600)
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
+    assert "forward vehicles not ranged (the map has no taillight block" in proc.stderr.splitlines()[-1]
     for rec in map(json.loads, out.read_text().splitlines()):
         for fv in (rec["vehicle"] or {}).get("fv", []):
             assert fv["distance_m"] is None

@@ -351,8 +351,11 @@ def _main(args, stop: "SignalStop") -> int:
             else:
                 out.flush()
         hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
+        fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
-                                        hv_reason=hv_reason) + f"; threads: {n_threads}"
+                                        hv_reason=hv_reason)
+              + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
+              + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
               + _server_text(positioner), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name

@@ -21,10 +21,26 @@ MAX_GAP_S = 2.0  # no interpolation across a longer gap in the log
 
 
 class Odometry:
+    """`odo(t_s)`: the speed at t_s (module doc). `asked` / `answered` count the calls and those
+    with a speed; `note()` says when a log answered none (a time axis other than the video's)."""
+
     def __init__(self, t_s: np.ndarray, speed_mps: np.ndarray):
         self.t_s, self.speed_mps = t_s, speed_mps
+        self.asked = self.answered = 0
+
+    def note(self) -> str | None:
+        if self.asked and not self.answered:
+            return (f"odometry covers none of the frames (log t {self.t_s[0]:g}..{self.t_s[-1]:g} s, "
+                    f"on the video's time axis)")
+        return None
 
     def __call__(self, t_s: float) -> float | None:
+        self.asked += 1
+        v = self._speed(t_s)
+        self.answered += v is not None
+        return v
+
+    def _speed(self, t_s: float) -> float | None:
         t = self.t_s
         if t.size == 0 or not t[0] <= t_s <= t[-1]:
             return None

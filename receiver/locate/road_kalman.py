@@ -53,6 +53,7 @@ class RoadKalman:
         self.t: float | None = None
         self.t_fix: float | None = None
         self.rejects = 0
+        self._pred = None        # (t_s, t, s, P, prediction) of the last predict_at
 
     @property
     def started(self) -> bool:
@@ -86,16 +87,25 @@ class RoadKalman:
         return s2, F @ P @ F.T + Q
 
     def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """State and covariance predicted to t_s (the filter itself is unchanged)."""
+        """State and covariance predicted to t_s (the filter itself is unchanged). The last
+        prediction is kept until the state changes: the locator asks for the frame's prediction
+        (the pose solve's warm start) before it predicts the filter to the same time."""
         if self.s is None:
             return None
+        key = (t_s, self.t, self.s, self.P)
+        c = self._pred
+        if c is not None and c[0] == t_s and c[1] == self.t and c[2] is self.s and c[3] is self.P:
+            return c[4]
         dt = max(0.0, t_s - self.t)
-        return self._model(self.s, self.P, dt, self.accel_psd, self.yaw_accel_psd)
+        out = self._model(self.s, self.P, dt, self.accel_psd, self.yaw_accel_psd)
+        self._pred = (*key, out)
+        return out
 
     def predict(self, t_s: float) -> None:
         if self.s is None:
             return
-        self.s, self.P = self.predict_at(t_s)
+        s, P = self.predict_at(t_s)
+        self.s, self.P = s.copy(), P.copy()      # the kept prediction stays unchanged by updates
         self.t = max(self.t, t_s)
 
     def coast_s(self, t_s: float) -> float:

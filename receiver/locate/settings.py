@@ -151,6 +151,11 @@ class VehicleSettings:
     fv_yaw_max_rad: float = 0.5         # |yaw| clipped here (~29 deg)
     fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
     fv_max_height_m: float = 2.5
+    fv_max_tilt_deg: float = 3.0        # an undecoded pair is a taillight pair only if its baseline is
+                                        # this level (camera's level frame; road cross-slope, body roll)
+    fv_max_area_ratio: float = 2.0      # ... and its two emitters' areas within this ratio
+    fv_sl_gate_deg: float = 0.5         # an undecoded pair with an emitter this close to a mapped street
+                                        # light (projected from the placed HV) is no taillight pair
     closing_min_mps: float = 0.2        # ttc only when closing faster than this
     headway_safe_s: float = 2.0         # Figure 27: "safe" at >= 2 s headway (two-second rule)
     headway_min_s: float = 1.0          # "min" between 1 and 2 s, "critical" below 1 s

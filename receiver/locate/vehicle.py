@@ -67,7 +67,17 @@ when V_HV is unknown), tightened by ttc; ``road_x``, ``road_y`` = P_HV + rotatio
 midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max_height_m`
 above the road (once the camera's tilt is known) and its area and baseline ranges agree (a street
 light's emitters are ~7x larger for their spacing than taillights; two far heads paired across
-the road clash likewise: scale-free, so it holds before the tilt is known).
+the road clash likewise: scale-free, so it holds before the tilt is known), its two emitters are
+level (`fv_max_tilt_deg`) and of like area (`fv_max_area_ratio`), and, once the HV is placed,
+neither emitter lies on a mapped street light projected from the HV pose (`fv_sl_gate_deg`):
+two far heads 200 m away, one each side of the road, can pass the area/baseline test by chance
+(read as a car at 30-40 m). A new undecoded pair that shares a lamp (founding track) with a live
+pair already tracked as an FV is not one either: at 50+ m one taillight of each of two cars side
+by side also passes the area test (tiny blobs read large, the cross baseline short).
+
+Cost (`range_core`, `_pair_geometry`): a frame has 1-15 pairs, so the per-pair math is scalar
+Python; only what numpy rounds differently from scalar math (matrix products, cos/sin/tan,
+x**3) stays in numpy calls, so the numbers are the former vectorised form's to the last bit.
 """
 
 from __future__ import annotations
@@ -149,12 +159,6 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
     return und[:, 0, 0], und[:, 1, 0], det[:, 0], det[:, 1]
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (np.cross is slow on small arrays)."""
-    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
-
-
 def _rays(u: np.ndarray) -> np.ndarray:
     v = np.empty((len(u), 3))
     v[:, :2] = u
@@ -162,102 +166,145 @@ def _rays(u: np.ndarray) -> np.ndarray:
     return v / np.sqrt(np.add.reduce(v * v, 1))[:, None]
 
 
-def _perimeter_k(S1, S2, r, circle):
-    """P / sqrt(area) of an emitter with side (or diameter) vectors S1, S2 (N, 3, camera frame,
-    metres) seen along the unit rays r (N, 3): the sides' components across the ray (a locally
-    parallel projection; scale-free, so no distance is needed). Foreshortened panels are long
-    and thin, so their perimeter is far above the shape's own P / sqrt(A)."""
-    p1 = S1 - np.add.reduce(S1 * r, 1, keepdims=True) * r
-    p2 = S2 - np.add.reduce(S2 * r, 1, keepdims=True) * r
-    l1, l2 = np.sqrt(np.add.reduce(p1 * p1, 1)), np.sqrt(np.add.reduce(p2 * p2, 1))
-    c = _cross(p1, p2)
-    ar = np.sqrt(np.add.reduce(c * c, 1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        k_rect = 2.0 * (l1 + l2) / np.sqrt(ar)
-        k_circ = (math.pi / 2) * (l1 + l2) / np.sqrt(math.pi * ar / 4)
-    return np.where(circle, k_circ, k_rect)
+NAN = math.nan
+SQRT2 = math.sqrt(2.0)
+
+
+def _sqrt(x: float) -> float:
+    """math.sqrt with numpy's IEEE results: NaN for a negative or NaN argument."""
+    return math.sqrt(x) if x >= 0.0 else NAN
+
+
+def _div(a: float, b: float) -> float:
+    """a / b with numpy's IEEE results for b == 0 (+-inf, NaN for 0/0 or NaN)."""
+    try:
+        return a / b
+    except ZeroDivisionError:
+        return NAN if a != a or a == 0.0 else math.copysign(math.inf, a) * math.copysign(1.0, b)
+
+
+def _area_range(rx, ry, rz, cos3, eta, j, A, S1, S2, circle, nx, ny, nz, osig, off, edge_sigma):
+    """One emitter's area range (module doc, "oblique"): (d, ea, eb) with d the distance along
+    the ray r (unit, camera frame), ea / eb its relative edge / foreshortening sigmas. S1, S2:
+    the emitter's side (or diameter) vectors (camera frame, m); their components across the ray
+    (a locally parallel projection; scale-free, so no distance is needed) give the seen
+    outline's P / sqrt(area): foreshortened panels are long and thin, so their perimeter is far
+    above the shape's own P / sqrt(A)."""
+    s1x, s1y, s1z = S1
+    s2x, s2y, s2z = S2
+    k1 = s1x * rx + s1y * ry + s1z * rz
+    k2 = s2x * rx + s2y * ry + s2z * rz
+    p1x, p1y, p1z = s1x - k1 * rx, s1y - k1 * ry, s1z - k1 * rz
+    p2x, p2y, p2z = s2x - k2 * rx, s2y - k2 * ry, s2z - k2 * rz
+    l1 = math.sqrt(p1x * p1x + p1y * p1y + p1z * p1z)
+    l2 = math.sqrt(p2x * p2x + p2y * p2y + p2z * p2z)
+    cx, cy, cz = p1y * p2z - p1z * p2y, p1z * p2x - p1x * p2z, p1x * p2y - p1y * p2x
+    ar = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if circle:
+        kperim = _div((math.pi / 2) * (l1 + l2), math.sqrt(math.pi * ar / 4))
+    else:
+        kperim = _div(2.0 * (l1 + l2), math.sqrt(ar))
+    sq_eta = _sqrt(max(eta, 0.0))
+    eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
+    cos_th = abs(nx * rx + ny * ry + nz * rz)
+    d = _sqrt(_div(A * cos_th, eta_c * j * cos3)) if eta > 0 and cos_th > 1e-3 else NAN
+    tan_th = _div(_sqrt(max(1.0 - cos_th * cos_th, 0.0)), max(cos_th, 1e-3))
+    return d, _div(edge_sigma * kperim, 2.0 * sq_eta), 0.5 * tan_th * osig
+
+
+def _floats(v, n: int) -> list:
+    """Rows of v as Python floats: an array's `tolist()`, a list as it is, a scalar n times."""
+    if isinstance(v, np.ndarray):
+        return [float(v)] * n if v.ndim == 0 else v.tolist()
+    return v if isinstance(v, list) else [float(v)] * n
 
 
 def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_cam, orient_sigma_rad,
                base_model_rel, focal_px, settings: VehicleSettings, centroid_sigma_px=None, area_model_rel=None):
-    """Vectorised ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area
-    factors; eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and
-    `circle` (N,) bool (`_perimeter_k`); B_cam (N, 3) baseline a -> b (sign
-    fixed here from the image); n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel
-    (N,); centroid_sigma_px, area_model_rel: scalars or (N,) (default: the settings'). Returns a
-    dict of (N,) arrays (NaN where unavailable) and `flip` (B reversed). The two emitters' area
-    ranges are computed in one pass over 2N rows (A's then B's)."""
-    amr = settings.area_model_rel if area_model_rel is None else area_model_rel
+    """Ranging of N pairs (module doc). ua, ub (N, 2) normalized; ja, jb (N,) area factors;
+    eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and `circle` (N,)
+    bool (`_area_range`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
+    n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel (N,); centroid_sigma_px,
+    area_model_rel: scalars or (N,) (default: the settings'). Returns a dict of length-N lists
+    of floats (NaN where unavailable; `flip`: B reversed) and the unit rays `ra`, `rb` (N, 3).
+    Scalar math per pair (a frame has 1-15 pairs: numpy's per-call overhead dominated the
+    vectorised form, ~220 calls); the rays and cos(alpha)^3 stay vectorised (numpy's own
+    rounding of the power, so the numbers are the vectorised form's to the last bit)."""
+    s = settings
     n = len(ua)
     r2 = _rays(np.concatenate([ua, ub]))          # (2N, 3): A's rays, then B's
     ra, rb = r2[:n], r2[n:]
-    um = 0.5 * (ua + ub)
-    # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
-    proj = B_cam[:, :2] - um * B_cam[:, 2:3]
-    flip = np.add.reduce(proj * (ub - ua), 1) < 0
-    B = np.where(flip[:, None], -B_cam, B_cam)
-    # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
-    rab = np.add.reduce(ra * rb, 1)
-    ba, bb = -np.add.reduce(ra * B, 1), np.add.reduce(rb * B, 1)
-    det = 1.0 - rab * rab
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sa = (ba + rab * bb) / det
-        sb = (bb + rab * ba) / det
-        P = sa[:, None] * ra + sb[:, None] * rb
-        d_base = 0.5 * np.sqrt(np.add.reduce(P * P, 1))
-        du = ub - ua
-        sep_px = np.sqrt(np.add.reduce(du * du, 1)) * focal_px
-        csig = settings.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
-        s_base = d_base * (math.sqrt(2.0) * csig / sep_px + base_model_rel)
-        ok = (det > 1e-14) & (sa > 0) & (sb > 0)
-        d_base = np.where(ok, d_base, np.nan)
-        # Areas (eq. 18 and its corrected form), both emitters at once.
-        off = settings.edge_offset_px
-        eta = np.concatenate([eta_a, eta_b])
-        j2 = np.concatenate([ja, jb])
-        S1_2, S2_2 = np.concatenate([S1, S1]), np.concatenate([S2, S2])
-        n2 = np.concatenate([n_cam, n_cam])
-        A2 = np.concatenate([area_m2, area_m2])
-        kperim = _perimeter_k(S1_2, S2_2, r2, np.concatenate([circle, circle]))
-        sq_eta = np.sqrt(np.maximum(eta, 0))
-        eta_c = eta + kperim * sq_eta * off + math.pi * off * off if off else eta
-        cos_al = r2[:, 2]
-        cos_th = np.abs(np.add.reduce(n2 * r2, 1))
-        d2 = np.sqrt(A2 * cos_th / (eta_c * j2 * cos_al ** 3))
-        d2 = np.where((eta > 0) & (cos_th > 1e-3), d2, np.nan)
-        tan_th = np.sqrt(np.maximum(1.0 - cos_th ** 2, 0.0)) / np.maximum(cos_th, 1e-3)
-        ea2 = settings.edge_sigma_px * kperim / (2.0 * sq_eta)
-        eb2 = 0.5 * tan_th * np.concatenate([orient_sigma_rad, orient_sigma_rad])
-        ea, eb = (ea2[:n], ea2[n:]), (eb2[:n], eb2[n:])
-        da_ob = (d2[:n], d2[n:])
-        out = {}
-        d18 = 0.5 * focal_px * (np.sqrt(area_m2 / eta_a) + np.sqrt(area_m2 / eta_b))
-        out["eq18"] = np.where((eta_a > 0) & (eta_b > 0), d18, np.nan)
-        out["eq18_sigma"] = out["eq18"] * (amr + 0.5 * (ea[0] + ea[1]))
-        out["eq18"] = np.where(np.isfinite(out["eq18_sigma"]), out["eq18"], np.nan)
-        Pa = 0.5 * (da_ob[0][:, None] * ra + da_ob[1][:, None] * rb)
-        d_ob = np.sqrt(np.add.reduce(Pa * Pa, 1))
-        fore = 0.5 * (eb[0] + eb[1])
-        s_ob = d_ob * np.sqrt((ea[0] ** 2 + ea[1] ** 2) / 4 + fore ** 2 + amr ** 2)
-        wa = 1.0 / s_ob ** 2
-        wb = 1.0 / s_base ** 2
-        fa, fb = np.isfinite(d_ob) & np.isfinite(wa), np.isfinite(d_base) & np.isfinite(wb)
+    cos3 = (r2[:, 2] ** 3).tolist()
+    R2 = r2.tolist()
+    amr = s.area_model_rel if area_model_rel is None else area_model_rel
+    csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
+    cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel, amr, csig,
+                                    ua, ub, S1, S2, B_cam, n_cam)]
+    cols += [circle.tolist() if isinstance(circle, np.ndarray) else list(circle), R2[:n], R2[n:], cos3[:n], cos3[n:]]
+    off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
+    keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
+            "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
+    rows = []
+    for (ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, (uax, uay), (ubx, uby), S1i, S2i, (bx, by, bz),
+         (nx, ny, nz), circ, (rax, ray, raz), (rbx, rby, rbz), cos3_a, cos3_b) in zip(*cols):
+        # Image direction of the baseline at the midpoint: d(x/z) = (dX - u dZ) / Z.
+        umx, umy = 0.5 * (uax + ubx), 0.5 * (uay + uby)
+        dux, duy = ubx - uax, uby - uay
+        flip = (bx - umx * bz) * dux + (by - umy * bz) * duy < 0
+        if flip:
+            bx, by, bz = -bx, -by, -bz
+        # Baseline: [-ra, rb] [sa, sb]^T = B in least squares (normal matrix [[1, -rab], [-rab, 1]]).
+        rab = rax * rbx + ray * rby + raz * rbz
+        ba = -(rax * bx + ray * by + raz * bz)
+        bb = rbx * bx + rby * by + rbz * bz
+        det = 1.0 - rab * rab
+        sa = _div(ba + rab * bb, det)
+        sb = _div(bb + rab * ba, det)
+        px, py, pz = sa * rax + sb * rbx, sa * ray + sb * rby, sa * raz + sb * rbz
+        d_base = 0.5 * _sqrt(px * px + py * py + pz * pz)
+        sep_px = math.sqrt(dux * dux + duy * duy) * focal_px
+        s_base = d_base * (_div(SQRT2 * csig_i, sep_px) + bm)
+        if not (det > 1e-14 and sa > 0 and sb > 0):
+            d_base = NAN
+        # Areas (eq. 18 and its corrected form), each emitter.
+        da, ea_a, eb_a = _area_range(rax, ray, raz, cos3_a, eta_a_i, ja_i, A, S1i, S2i, circ, nx, ny, nz, osig,
+                                     off, esig)
+        db, ea_b, eb_b = _area_range(rbx, rby, rbz, cos3_b, eta_b_i, jb_i, A, S1i, S2i, circ, nx, ny, nz,
+                                     osig, off, esig)
+        if eta_a_i > 0 and eta_b_i > 0:
+            d18 = 0.5 * focal_px * (_sqrt(_div(A, eta_a_i)) + _sqrt(_div(A, eta_b_i)))
+        else:
+            d18 = NAN
+        s18 = d18 * (amr_i + 0.5 * (ea_a + ea_b))
+        if not math.isfinite(s18):
+            d18 = NAN
+        pax, pay, paz = 0.5 * (da * rax + db * rbx), 0.5 * (da * ray + db * rby), 0.5 * (da * raz + db * rbz)
+        d_ob = _sqrt(pax * pax + pay * pay + paz * paz)
+        fore = 0.5 * (eb_a + eb_b)
+        s_ob = d_ob * _sqrt((ea_a * ea_a + ea_b * ea_b) / 4 + fore * fore + amr_i * amr_i)
+        wa = _div(1.0, s_ob * s_ob)
+        wb = _div(1.0, s_base * s_base)
+        fa = math.isfinite(d_ob) and math.isfinite(wa)
+        fb = math.isfinite(d_base) and math.isfinite(wb)
         # The area range rests on the emitter's normal and size (a map entry without the normal
         # of a tilted head reads it several times too short); the baseline only on geometry.
         # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
-        clash = fa & fb & (np.abs(d_ob - d_base) > settings.consistency_sigmas * np.sqrt(s_ob ** 2 + s_base ** 2))
-        fa = fa & ~clash
-        wa = np.where(fa, wa, 0.0)
-        wb = np.where(fb, wb, 0.0)
+        clash = fa and fb and abs(d_ob - d_base) > cons * _sqrt(s_ob * s_ob + s_base * s_base)
+        fa = fa and not clash
+        wa = wa if fa else 0.0
+        wb = wb if fb else 0.0
         wsum = wa + wb
-        d_f = (wa * np.where(fa, d_ob, 0) + wb * np.where(fb, d_base, 0)) / wsum
-        s_f = 1.0 / np.sqrt(wsum)
-        amr2 = np.concatenate([amr, amr]) if np.ndim(amr) else amr
-        sab = d2 * np.sqrt(ea2 ** 2 + eb2 ** 2 + amr2 ** 2)
-    out.update(oblique=d_ob, oblique_sigma=s_ob, baseline=d_base, baseline_sigma=s_base,
-               fused=np.where(wsum > 0, d_f, np.nan), fused_sigma=np.where(wsum > 0, s_f, np.nan),
-               d_a=da_ob[0], d_b=da_ob[1], s_a=sab[:n], s_b=sab[n:],
-               ra=ra, rb=rb, flip=flip, base_fused_only=fb & ~fa, area_clash=clash)
+        if wsum > 0:
+            d_f = (wa * (d_ob if fa else 0.0) + wb * (d_base if fb else 0.0)) / wsum
+            s_f = 1.0 / math.sqrt(wsum)
+        else:
+            d_f = s_f = NAN
+        amr2 = amr_i * amr_i
+        rows.append((d18, s18, d_ob, s_ob, d_base, s_base, d_f, s_f, da, db,
+                     da * _sqrt(ea_a * ea_a + eb_a * eb_a + amr2), db * _sqrt(ea_b * ea_b + eb_b * eb_b + amr2),
+                     flip, fb and not fa, clash))
+    out = dict(zip(keys, (list(c) for c in zip(*rows)))) if rows else {k: [] for k in keys}
+    out.update(ra=ra, rb=rb)
     return out
 
 
@@ -266,10 +313,10 @@ def _pick(res: dict, i: int, estimator: str):
     order = [estimator] if estimator != "fused" else ["fused"]
     for name in order:
         d, s = res[name][i], res[name + "_sigma"][i]
-        if np.isfinite(d) and np.isfinite(s) and d > 0:
+        if math.isfinite(d) and math.isfinite(s) and d > 0:
             if name == "fused":
-                fa = np.isfinite(res["oblique"][i]) and np.isfinite(res["oblique_sigma"][i])
-                fb = np.isfinite(res["baseline"][i]) and np.isfinite(res["baseline_sigma"][i])
+                fa = math.isfinite(res["oblique"][i]) and math.isfinite(res["oblique_sigma"][i])
+                fb = math.isfinite(res["baseline"][i]) and math.isfinite(res["baseline_sigma"][i])
                 name = "fused" if fa and fb else ("baseline" if fb else "oblique")
             return float(d), float(s), name
     return None
@@ -333,7 +380,8 @@ def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
 
 class VehicleLocator:
     """Streaming vehicle positioning (module doc). `hv_reason`: why the HV is not placed
-    (None when it is)."""
+    (None when it is); `fv_reason`: why taillight pairs are not ranged (None when they are, or
+    no pair other than a decoded street light was seen)."""
 
     def __init__(self, camera: CameraModel, led_map: LedMap, settings: VehicleSettings = VehicleSettings()):
         if settings.range_estimator not in ESTIMATORS:
@@ -354,6 +402,7 @@ class VehicleLocator:
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
+        self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
         self.fv_tracks: dict = {}
         # Per-SL constants.
@@ -380,7 +429,13 @@ class VehicleLocator:
             row = np.concatenate([Bw, nrm, [np.nan if A is None else A, w, h, float(led.shape == "circle"),
                                             float(B is not None), 1.0, L]])
             self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
-                                    circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz)
+                                    circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz,
+                                    head=None if em is None else em.mean(0))
+        # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
+        heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
+                 if c["em"] is not None or c["xyz"] is not None]
+        self._sl_heads = np.array(heads, float).reshape(-1, 3)
+        self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
@@ -439,35 +494,70 @@ class VehicleLocator:
         rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
         bearing = np.arctan2(lev[:, 1], lev[:, 0])
-        is_sl = cst[:, 11] > 0
-        known_b = is_sl & (cst[:, 10] > 0) & pose_known
-        # SL: B and normal turned into the camera frame; taillights: horizontal baseline across
-        # the FV's heading, facing back along it (module doc): the heading is the camera's
-        # turned by the track's yaw estimate (`_fv_yaw`; 0 until known).
-        cy, sy_ = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        Bc = np.where(is_sl[:, None], cst[:, 0:3] @ R.T, cst[:, 12:13] * (cy * Lv[1] - sy_ * Lv[0]))
-        nc = np.where(is_sl[:, None], cst[:, 3:6] @ R.T, -(cy * Lv[0] + sy_ * Lv[1]))
-        # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
-        unk = is_sl & ~known_b
-        if unk.any():
-            perp = _cross(np.broadcast_to(Lv[2], rays_m.shape), rays_m)
-            perp = perp / np.maximum(np.sqrt(np.add.reduce(perp * perp, 1, keepdims=True)), 1e-12)
-            Bc = np.where(unk[:, None], cst[:, 12:13] * perp, Bc)
-        sy = math.radians(self.s.taillight_yaw_sigma_deg)
-        bm = np.where(is_sl, np.where(known_b, self.s.baseline_model_rel, 0.05),
-                      np.abs(np.tan(bearing)) * sy + 0.5 * sy * sy + self.s.baseline_model_rel)
-        across = Bc / np.sqrt(np.add.reduce(Bc * Bc, 1, keepdims=True))
-        S1 = across * cst[:, 7:8]
-        S2 = np.where(is_sl[:, None], _cross(nc, across), Lv[2]) * cst[:, 8:9]
+        Bc, nc, S1, S2, bm = self._pair_geometry(R, Lv, cst, roles, yaw, rays_m, bearing, pose_known)
+        s = self.s
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
-                         np.full(n, osig), bm, self.focal, self.s,
-                         np.where(is_sl, self.s.centroid_sigma_px, self.s.fv_centroid_sigma_px),
-                         np.where(is_sl, self.s.area_model_rel, self.s.fv_area_model_rel))
+                         [osig] * n, bm, self.focal, s,
+                         [s.centroid_sigma_px if r == "SL" else s.fv_centroid_sigma_px for r in roles],
+                         [s.area_model_rel if r == "SL" else s.fv_area_model_rel for r in roles])
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
             aligned[i] = (res, k)
         return aligned, res
+
+    def _pair_geometry(self, R, Lv, cst, roles, yaw, rays_m, bearing, pose_known: bool):
+        """Per pair (lists of Python floats): the baseline B_cam (3,) and emitter normal n_cam
+        (3,) in the camera frame, the emitter side vectors S1, S2 (3,) (`_area_range`) and the
+        baseline model error (relative). SL: B and normal turned into the camera frame
+        (orientation R); taillights: horizontal baseline across the FV's heading, facing back
+        along it (module doc): the heading is the camera's turned by the track's yaw estimate
+        (`_fv_yaw`; 0 until known). Scalar per pair; the rotations, cos/sin/tan stay numpy
+        calls (their rounding is numpy's, as in the vectorised form this replaced)."""
+        s = self.s
+        sl_rows = [k for k, r in enumerate(roles) if r == "SL"]
+        if sl_rows:
+            Bsl, nsl = (cst[:, 0:3] @ R.T).tolist(), (cst[:, 3:6] @ R.T).tolist()
+        fv_rows = len(sl_rows) < len(roles)
+        if fv_rows:
+            cy, sy_ = np.cos(yaw).tolist(), np.sin(yaw).tolist()
+            tan_b = np.abs(np.tan(bearing)).tolist()
+        C = cst.tolist()
+        (l0x, l0y, l0z), (l1x, l1y, l1z), (l2x, l2y, l2z) = Lv.tolist()
+        sy = math.radians(s.taillight_yaw_sigma_deg)
+        Bs, ns, S1s, S2s, bms = [], [], [], [], []
+        for k, role in enumerate(roles):
+            c = C[k]
+            L, w, h = c[12], c[7], c[8]
+            if role == "SL":
+                B, nrm = Bsl[k], nsl[k]
+                known_b = c[10] > 0 and pose_known
+                if not known_b:
+                    # SL of unknown baseline azimuth: horizontal, perpendicular to the line of sight.
+                    rx, ry, rz = rays_m[k].tolist()
+                    px, py, pz = l2y * rz - l2z * ry, l2z * rx - l2x * rz, l2x * ry - l2y * rx
+                    m = max(math.sqrt(px * px + py * py + pz * pz), 1e-12)
+                    B = [L * (px / m), L * (py / m), L * (pz / m)]
+                bm = s.baseline_model_rel if known_b else 0.05
+            else:
+                ck, sk = cy[k], sy_[k]
+                B = [L * (ck * l1x - sk * l0x), L * (ck * l1y - sk * l0y), L * (ck * l1z - sk * l0z)]
+                nrm = [-(ck * l0x + sk * l1x), -(ck * l0y + sk * l1y), -(ck * l0z + sk * l1z)]
+                bm = tan_b[k] * sy + 0.5 * sy * sy + s.baseline_model_rel
+            bx, by, bz = B
+            nb = math.sqrt(bx * bx + by * by + bz * bz)
+            ax, ay, az = _div(bx, nb), _div(by, nb), _div(bz, nb)
+            if role == "SL":
+                nx, ny, nz = nrm
+                S2 = [(ny * az - nz * ay) * h, (nz * ax - nx * az) * h, (nx * ay - ny * ax) * h]
+            else:
+                S2 = [l2x * h, l2y * h, l2z * h]
+            Bs.append(B)
+            ns.append(nrm)
+            S1s.append([ax * w, ay * w, az * w])
+            S2s.append(S2)
+            bms.append(bm)
+        return Bs, ns, S1s, S2s, bms
 
     # -------------------------------------------------------------------------- HV pose
     def _init_pose(self, P_cam: np.ndarray, L: np.ndarray):
@@ -527,8 +617,10 @@ class VehicleLocator:
                 return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
                     or c - c_new <= LM_FTOL * c
 
-            x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
-                                    f_scale=self.s.pose_f_scale, max_iter=n_iter)
+            # Absurd ranges may overflow the whitened residuals: no fix then (below), no warning.
+            with np.errstate(over="ignore", invalid="ignore"):
+                x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
+                                        f_scale=self.s.pose_f_scale, max_iter=n_iter)
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
@@ -536,8 +628,12 @@ class VehicleLocator:
         if C[2] >= float(L[:, 2].min()):
             return None
         # Covariance from the final residuals and Jacobian (not evaluated again).
-        cov6, _, _ = covariance_at(r, J, len(x))
-        return R, C, cov6[3:5, 3:5]
+        with np.errstate(over="ignore", invalid="ignore"):
+            cov6, _, _ = covariance_at(r, J, len(x))
+        cov = cov6[3:5, 3:5]
+        if not np.all(np.isfinite(cov)):
+            return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
+        return R, C, cov
 
     # -------------------------------------------------------------------------- step
     def step(self, t_s: float, pairs: list[PairObservation], speed_mps: float | None = None) -> VehicleResult:
@@ -573,7 +669,7 @@ class VehicleLocator:
                 else:
                     P_cam = np.array([res["fused"][k] * _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
                                       for k in sl_k])
-                    Lm = np.array([self._sl[pairs[res["idx"][k]].led_id]["em"].mean(0) for k in sl_k])
+                    Lm = np.array([self._sl[pairs[res["idx"][k]].led_id]["head"] for k in sl_k])
                     init = self._init_pose(P_cam, Lm)
                     if init is not None:
                         # Re-range with the initial orientation (baseline direction, normals).
@@ -614,6 +710,9 @@ class VehicleLocator:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
+        if self._tl is None and self.fv_reason is None and any(p.kind != "SL" for p in pairs):
+            # A pair that is no decoded street light may be a car's taillights: say why it is not.
+            self.fv_reason = "the map has no taillight block with shape, size and baseline_m"
         vehicle = None
         if any_pair or hv is not None:
             e = None if self.last_fix is None else self.last_fix.get("eq44-47")
@@ -633,7 +732,7 @@ class VehicleLocator:
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
                 continue
-            v = c["em"].mean(0) - C
+            v = c["head"] - C
             d = math.sqrt(float(v @ v))
             u = v[:2] / d
             sd = math.sqrt(max(float(u @ cov @ u), 0.0) + (self.s.camera_height_sigma_m * v[2] / d) ** 2 * 0.01)
@@ -649,8 +748,8 @@ class VehicleLocator:
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
         c2 = self._sl[pairs[res["idx"][k2]].led_id]
-        sl1 = c1["em"].mean(0)
-        sl2 = c2["em"].mean(0)
+        sl1 = c1["head"]
+        sl2 = c2["head"]
         # Which is further left, in the level frame (positive bearing = left).
         left = bool(res["bearing"][k2] > res["bearing"][k1])
         p = eq44_47(float(rng[k1]), float(rng[k2]), sl1, sl2, self.s.camera_height_m, left)
@@ -753,6 +852,9 @@ class VehicleLocator:
         tracked = {}            # pair index -> (d, sigma, "fv-track") of unranged tracked pairs
         v_hv = None if hv is None else hv["speed_mps"]
         R = self.R_last
+        cpsi = spsi = None
+        # Emitter tracks of the live pairs already tracked as FVs: one lamp is one car's.
+        owner = {t: p.key for p in pairs if p.key in self.fv_tracks for t in p.key}
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role not in ("FV", "FV?"):
@@ -772,6 +874,24 @@ class VehicleLocator:
                     not_fv.add(i)
                 elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
+                    if role == "FV?" and tr is None and any(owner.get(t, p.key) != p.key for t in p.key):
+                        # A new pairing of a lamp an FV track already owns with another lamp: at
+                        # 50+ m one taillight of each of two cars side by side pass the area
+                        # test (tiny blobs read large), so the lamp stays with its car.
+                        not_fv.add(i)
+                        continue
+                    if role == "FV?" and not self._taillight_like(p, r, k):
+                        not_fv.add(i)
+                        self.fv_tracks.pop(key, None)
+                        continue
+                    if role == "FV?" and self._on_mapped_sl(t_s, r["ua"][k], r["ub"][k], hv, R):
+                        # Two far street-light heads (undecoded yet) line up as a taillight pair:
+                        # areas and spacing agree by chance (vfar scene: 200 m heads read as a car
+                        # at 30 m). The placed HV projects the map's heads; one on an emitter
+                        # settles it.
+                        not_fv.add(i)
+                        self.fv_tracks.pop(key, None)
+                        continue
                     if role == "FV?" and self.R_tilt is not None:
                         # Height window only once the camera's tilt is known (the nominal tilt
                         # may be off by degrees: metres of height at 30 m).
@@ -817,9 +937,11 @@ class VehicleLocator:
             zone = self._zone(d, v_hv, ttc)
             road_x = road_y = None
             if hv is not None:
-                psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
-                road_x = hv["x"] + math.cos(psi) * x - math.sin(psi) * y       # eq. 53
-                road_y = hv["y"] + math.sin(psi) * x + math.cos(psi) * y
+                if cpsi is None:        # the HV heading: once per frame
+                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
+                    cpsi, spsi = math.cos(psi), math.sin(psi)
+                road_x = hv["x"] + cpsi * x - spsi * y       # eq. 53
+                road_y = hv["y"] + spsi * x + cpsi * y
             if meas is None and i in dirs:
                 # A tracked pair without a range of its own this frame: its LED observations
                 # carry the track's filtered distance (estimator "fv-track").
@@ -831,6 +953,42 @@ class VehicleLocator:
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
         return self._dedupe_fv(out), not_fv, tracked
+
+    def _taillight_like(self, p: PairObservation, res: dict, k: int) -> bool:
+        """An undecoded pair's two measured emitters look like one car's taillights: level (their
+        baseline within `fv_max_tilt_deg` of horizontal in the camera's level frame; a car's
+        lamps are mounted level) and of like area (within `fv_max_area_ratio`). Two far
+        street-light heads paired across the road are neither, as a rule (vehicle scene, FVs at
+        53-56 m: heads 3 px apart vertically over 42 px, areas 24 and 11 px^2, read as a car at 40 m)."""
+        s = self.s
+        a_area, b_area = fv_measured(p)[1]
+        if max(a_area, b_area) > s.fv_max_area_ratio * max(min(a_area, b_area), 1e-9):
+            return False
+        la, lb = self.Lv @ res["ra"][k], self.Lv @ res["rb"][k]
+        rise = abs(float(lb[2] - la[2]))
+        run = math.hypot(float(lb[0] - la[0]), float(lb[1] - la[1]))
+        return rise <= math.tan(math.radians(s.fv_max_tilt_deg)) * run
+
+    def _on_mapped_sl(self, t_s: float, ua, ub, hv: dict | None, R) -> bool:
+        """Whether either emitter (normalized image points ua, ub) lies within
+        `fv_sl_gate_deg` of a mapped street-light head projected from the placed HV (camera at
+        hv x, y and the last solved height, orientation R); False while the HV is unplaced."""
+        if hv is None or R is None or not len(self._sl_heads):
+            return False
+        key = (t_s, hv["x"], hv["y"], self.z_last)
+        if self._sl_seen_at[0] != key or self._sl_seen_at[1] is not R:
+            X = (self._sl_heads - np.array([hv["x"], hv["y"], self.z_last])) @ R.T
+            X = X[X[:, 2] > 1.0]
+            self._sl_seen_at = (key, R, X[:, :2] / X[:, 2:3])
+        P = self._sl_seen_at[2]
+        if not len(P):
+            return False
+        g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
+        for u in (ua, ub):
+            d = P - u
+            if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:
+                return True
+        return False
 
     def _fv_yaw(self, tr: dict, t_s: float, x: float, y: float, flat: float, rate: float, v_hv) -> None:
         """Update the track's lateral filter (y, level frame, a `RangeKalman`) and from it its

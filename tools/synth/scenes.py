@@ -230,7 +230,8 @@ FV_SCRIPT = (("fv1", 46.0, 0.45, 0.0, 0.0, 0.0, 0.0),
 def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, light_offset_y_m=6.0,
             head_tilt_deg=45.0, head_half_m=(0.4, 0.3), head_gap_m=0.5, clk_hz=S2PSK_CLOCK_HZ,
             symclk=S2PSK_SYMCLK, speed0_kmh=40.0, accel_mps2=1.0, cam_height_m=1.2, cam_pitch_deg=8.0,
-            taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0, seconds=6.7):
+            taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0, seconds=6.7,
+            fv1_gap_m=22.0, fv1_closing_m=10.0, fv2_gap_m=38.0, fv2_gain_mps=0.8):
     """Night road: host vehicle (HV) with a forward camera, street lights, two forward vehicles.
 
     Road along world +x, host lane centred on y = 0 (y to the left), lane width 3.5 m (the
@@ -242,8 +243,11 @@ def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, li
     in 0x00-0x7F. The HV starts at x = 0 at 40 km/h and accelerates at 1 m/s^2 (~64 km/h at
     6.7 s, within Table 2's 0-80 km/h). Camera: 1.2 m high, pitched up 8 deg (plus a little
     road vibration). Forward vehicles (FV, IDs in 0x80-0xFF, not in the map; the map's
-    `taillight` block describes them): FV1 in the host lane closing from 22 m to ~12 m;
-    FV2 starts in the right lane 38 m ahead and changes to the left lane. Taillights: 0.15 x 0.10 m
+    `taillight` block describes them): FV1 in the host lane closing from 22 m to ~12 m
+    (`fv1_gap_m`, less `fv1_closing_m` over the 6.7 s); FV2 starts in the right lane 38 m ahead
+    (`fv2_gap_m`), gains `fv2_gain_mps` on the HV and changes to the left lane. Far forward
+    vehicles (thesis 50-100 m band): e.g. ``--set fv1_gap_m=95 --set fv1_closing_m=40 --set
+    fv2_gap_m=70``. Taillights: 0.15 x 0.10 m
     rects, 1.4 m apart, 1 m high, facing backwards; emitter A is the left one. With the
     default 200 Hz clock and 16 clocks/symbol a 30-symbol packet lasts 2.4 s, so 6.7 s holds
     two full packets of every forward vehicle.
@@ -272,15 +276,16 @@ def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, li
     def hv_speed(t):
         return v0 + accel_mps2 * t
 
-    def fv1(t):  # same lane, slower: gap 22 m -> ~12 m
-        return np.array([hv_x(t) + 22.0 - 10.0 * (1 - math.cos(math.pi * min(t / 6.7, 1.0))) / 2, 0.0, 0.0]), 0.0
+    def fv1(t):  # same lane, slower: gap 22 m -> ~12 m (defaults)
+        return np.array([hv_x(t) + fv1_gap_m - fv1_closing_m * (1 - math.cos(math.pi * min(t / 6.7, 1.0))) / 2,
+                         0.0, 0.0]), 0.0
 
     def fv2(t):  # right lane -> left lane between 2 s and 5 s, a little faster than the HV
         s = min(max((t - 2.0) / 3.0, 0.0), 1.0)
         y = -3.5 + 7.0 * (3 * s * s - 2 * s * s * s)
         dydt = 7.0 * (6 * s - 6 * s * s) / 3.0 if 0 < s < 1 else 0.0
-        vx = hv_speed(t) + 0.8
-        return np.array([hv_x(t) + 38.0 + 0.8 * t, y, 0.0]), math.degrees(math.atan2(dydt, vx))
+        vx = hv_speed(t) + fv2_gain_mps
+        return np.array([hv_x(t) + fv2_gap_m + fv2_gain_mps * t, y, 0.0]), math.degrees(math.atan2(dydt, vx))
 
     carriers = {"fv1": fv1, "fv2": fv2}
     for name, fid in zip(("fv1", "fv2"), fv_ids):
