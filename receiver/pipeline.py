@@ -30,7 +30,7 @@ from receiver.core.records import Frame, FrameResult, LedObservation, PairObserv
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
 from receiver.decode.policy import DecodePolicy, LightDecoder, ModePlan
-from receiver.decode.s2psk import pair_xor
+from receiver.decode.s2psk import flux_xor, pair_xor
 from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySettings, S2pskSettings,
                                       ToneSettings)
 from receiver.io.camera import CameraModel
@@ -196,6 +196,7 @@ class Receiver:
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
+        self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its head's flux (`PairSettings.flux_jumpers`)
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
@@ -291,6 +292,17 @@ class Receiver:
             x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
+            if self.pairer.reads_flux(p):
+                # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
+                # no side needed, so the yaw shake does not matter): a third decoder set; while
+                # the pair has no ID, whichever set decodes first wins.
+                fx = flux_xor(self.pairer.sample_flux(p, gray), self.pairer.flux_on(p))
+                fdecs = self.flux_decoders.get(p.uid)
+                if fdecs is None:
+                    fdecs = self.flux_decoders[p.uid] = self.policy.new_pair_decoders()
+                ffound, _ = self.policy.step_pair(fdecs, frame.t_s, fx, due)
+                if found is None and ffound is not None and p.led_id is None:
+                    found = ffound
             early = self.early_decoders.get(p.uid)
             if early is not None:
                 if found is None:
@@ -305,6 +317,7 @@ class Receiver:
         for uid in [u for u in self.pair_decoders if u not in uids]:
             del self.pair_decoders[uid]
             self.early_decoders.pop(uid, None)
+            self.flux_decoders.pop(uid, None)
         pair_of = pair_owners(self.pairer.pairs)
         # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
         # this frame (it may have jumped to another light's blob) carries none.

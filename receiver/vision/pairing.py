@@ -144,6 +144,7 @@ class Pair:
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
     backlog: list = field(default_factory=list)
+    flux: deque = field(default_factory=lambda: deque(maxlen=48))  # its head's last fluxes (`Pairer.sample_flux`)
 
     @property
     def key(self) -> tuple[int, int]:
@@ -205,6 +206,9 @@ class Pairer:
         self.jump_agree_y_px = s.jump_agree_y_px
         self.shake_min_pairs = s.shake_min_pairs
         self.shake_x_wide = s.shake_x_wide
+        self.flux_jumpers, self.flux_margin_px, self.flux_floor = s.flux_jumpers, s.flux_margin_px, s.flux_floor
+        self.flux_margin_y_px = s.flux_margin_y_px
+        self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
         self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
@@ -555,3 +559,45 @@ class Pairer:
         p.levels_a.add(ia)
         p.levels_b.add(ib)
         return ia, ib
+
+    def sample_flux(self, p: Pair, gray: np.ndarray) -> float:
+        """This frame's `head_flux` of pair `p` (gray x px), kept in `Pair.flux`."""
+        f = self.head_flux(p, gray)
+        p.flux.append(f)
+        return f
+
+    def reads_flux(self, p: Pair) -> bool:
+        """Pair `p` is read by its head's total flux (`head_flux`), not per emitter: a pair from
+        one jumping track (`_pair_jumpers`: a far head whose halves merge) when
+        `PairSettings.flux_jumpers` is on."""
+        return self.flux_jumpers and p.a.track_id == p.b.track_id
+
+    def flux_on(self, p: Pair) -> float:
+        """Pair `p`'s both-lit flux 2F (gray x px) for `flux_xor`: twice the median of its last
+        `flux_recent` fluxes above `flux_min` (the frames with a half or both lit: one half, F,
+        in two thirds of them). Recent ones only: an approaching head's flux grows as
+        1 / distance^2, doubling within a packet at 60-80 m."""
+        lit = [v for v in p.flux if v > self.flux_min][-self.flux_recent:]
+        return 2.0 * float(np.median(lit)) if lit else 0.0
+
+    def head_flux(self, p: Pair, gray: np.ndarray) -> float:
+        """The summed gray above the background (+ `flux_floor` gray, so sensor noise adds
+        nothing) in a box around pair `p`'s head (gray x px). A far head's halves are a few px
+        apart and the camera's yaw shake moves it by more than that from frame to frame, so
+        which half a blob is cannot be told; but the XOR needs no side: the head's flux is
+        ~0 (both dark), F (one half lit: symbol 1) or 2F (both lit). The box is centred on the
+        blob the pair explained in this frame (whichever half it is), else on the pair's
+        midpoint, and reaches one baseline plus `flux_margin_px` either side, and
+        `flux_margin_px` above and below the emitters' envelopes."""
+        cx, cy = p.mx, p.my
+        base = math.hypot(p.b.cx - p.a.cx, p.b.cy - p.a.cy)
+        half_h = 0.5 * max(p.a.blob.y1 - p.a.blob.y0, p.b.blob.y1 - p.b.blob.y0)
+        mx, my = self.flux_margin_px, self.flux_margin_y_px
+        h, w = gray.shape[:2]
+        x0, x1 = max(int(math.floor(cx - base - mx)), 0), min(int(math.ceil(cx + base + mx)) + 1, w)
+        y0, y1 = max(int(math.floor(cy - half_h - my)), 0), min(int(math.ceil(cy + half_h + my)) + 1, h)
+        if x1 <= x0 or y1 <= y0:
+            return 0.0
+        roi = gray[y0:y1, x0:x1].astype(np.float32)
+        bg = float(p.a.blob.background) + self.flux_floor
+        return float(np.maximum(roi - bg, 0.0).sum())

@@ -116,8 +116,10 @@ class PairSettings:
     merged_ratio of its area, or down to 1 / max_cut [3] of it (cut by a clock edge during the
     rolling readout). velocity_gain [0.3]: smoothing of the px/frame velocity. max_missed [10]:
     frames without an explained blob before the pair ends (both emitters are dark in about a
-    quarter of the frames). give_up_frames [110]: a pair still without an ID after this many
-    frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
+    quarter of the frames). give_up_frames [200]: a pair still without an ID after this many
+    frames (2.8 packets of 2.4 s at 30 fps) is a wrong pairing and ends (110 ended a lane-
+    changing car's right pair with one weak symbol 6 frames before its third pass: hil --mode
+    s2psk seed 2 FV 107 -> 155 of 214).
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
@@ -153,6 +155,14 @@ class PairSettings:
     kept so that a new pair's decoder starts from the tracks' first frames (`Pair.backlog`):
     a pair forms 4-40 frames after its light appears, and without them its ID would come that
     much after the light's first whole packet. 0 = off.
+    Far heads by their flux: flux_jumpers [True]: a pair from one jumping track (a far head)
+    is also read by its head's whole flux (`Pairer.head_flux`: gray above the background +
+    flux_floor [2] summed over a box one baseline plus flux_margin_px [10] either side of its
+    midpoint, flux_margin_y_px [2] above and below its envelopes) into a third decoder set
+    (receiver.decode.s2psk.flux_xor, both-lit level: twice the median of the last
+    flux_recent [12] fluxes over flux_min [4]); no side is needed, so the yaw shake does not
+    matter. Measured (README "S2-PSK pairs"): hil --mode s2psk seeds 1-4 SL +2/+10/+5/0, with
+    S2PSK_FAINT_DETECT and shake "vertical" vehicle-road seeds 1/2 SL 0/0 -> 91/17.
         """
 
     row_band: float = 1.0
@@ -170,7 +180,7 @@ class PairSettings:
     miss_growth_px: float = 1.0
     velocity_gain: float = 0.3
     max_missed: int = 10
-    give_up_frames: int = 110
+    give_up_frames: int = 200
     jump_max_baseline: float = 4.0
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
@@ -180,3 +190,9 @@ class PairSettings:
     shake_x_wide: bool = False
     report_coast_frames: int = 3
     backlog_frames: int = 90
+    flux_jumpers: bool = True
+    flux_margin_px: float = 10.0
+    flux_margin_y_px: float = 2.0
+    flux_floor: float = 2.0
+    flux_min: float = 4.0
+    flux_recent: int = 12
