@@ -101,3 +101,15 @@ def test_head_flux_ignores_noise_and_stays_in_the_image():
     assert pr.head_flux(p, dark) == 0.0
     p.mx = -50.0  # off the image: nothing to read, no error
     assert pr.head_flux(p, dark) == 0.0
+
+
+def test_a_decoded_far_head_drops_its_undecoded_twin_only():
+    pr = Pairer()
+    d, twin, other = _pair(pr), _pair(pr), _pair(pr)
+    d.led_id = 28
+    twin.mx = d.mx - SEP_PX       # the same head, followed a baseline to the left
+    other.mx = d.mx + 40.0        # another head
+    assert pr._drop_twins([d, twin, other]) == [d, other]
+    assert Pairer(drop_twins=False)._drop_twins([d, twin, other]) == [d, twin, other]
+    d.led_id = None               # no decoded head: nothing dropped
+    assert pr._drop_twins([d, twin, other]) == [d, twin, other]

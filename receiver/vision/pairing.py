@@ -209,6 +209,7 @@ class Pairer:
         self.flux_jumpers, self.flux_margin_px, self.flux_floor = s.flux_jumpers, s.flux_margin_px, s.flux_floor
         self.flux_margin_y_px = s.flux_margin_y_px
         self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
+        self.drop_twins = s.drop_twins
         self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
@@ -402,6 +403,7 @@ class Pairer:
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
         self.vertical_known = shift is not None
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+        self.pairs = self._drop_twins(self.pairs)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
@@ -442,6 +444,26 @@ class Pairer:
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
         return self.pairs
+
+    def _drop_twins(self, pairs: list[Pair]) -> list[Pair]:
+        """`pairs` without the undecoded jumper pairs whose midpoint lies on a decoded jumper
+        pair's head (within its baseline plus `match_min_px` horizontally, `match_min_px`
+        vertically): one far head followed twice, half a baseline apart (which half a blob is
+        cannot be told), when one copy decoded; the twin's emitters would sit beside the
+        decoded ones, on nobody's light. Off with `drop_twins` False."""
+        if not self.drop_twins:
+            return pairs
+        heads = [p for p in pairs if p.led_id is not None and p.a.track_id == p.b.track_id]
+        if not heads:
+            return pairs
+        out = []
+        for p in pairs:
+            if p.led_id is None and p.a.track_id == p.b.track_id and any(
+                    abs(p.mx - d.mx) <= abs(d.b.cx - d.a.cx) + self.match_min_px
+                    and abs(p.my - d.my) <= self.match_min_px for d in heads):
+                continue
+            out.append(p)
+        return out
 
     def _pair_jumpers(self, tracks: list[Track], busy: set[int]) -> None:
         """Pairs from single tracks that jump between two places: a far head's halves are

@@ -163,6 +163,9 @@ class PairSettings:
     flux_recent [12] fluxes over flux_min [4]); no side is needed, so the yaw shake does not
     matter. Measured (README "S2-PSK pairs"): hil --mode s2psk seeds 1-4 SL +2/+10/+5/0, with
     S2PSK_FAINT_DETECT and shake "vertical" vehicle-road seeds 1/2 SL 0/0 -> 91/17.
+    drop_twins [True]: an undecoded jumper pair whose midpoint lies within a decoded jumper
+    pair's baseline plus match_min_px (horizontally; match_min_px vertically) is the same
+    far head followed a baseline aside, and ends (`Pairer._drop_twins`).
         """
 
     row_band: float = 1.0
@@ -196,3 +199,4 @@ class PairSettings:
     flux_floor: float = 2.0
     flux_min: float = 4.0
     flux_recent: int = 12
+    drop_twins: bool = True
