@@ -113,3 +113,27 @@ def test_a_decoded_far_head_drops_its_undecoded_twin_only():
     assert Pairer(drop_twins=False)._drop_twins([d, twin, other]) == [d, twin, other]
     d.led_id = None               # no decoded head: nothing dropped
     assert pr._drop_twins([d, twin, other]) == [d, twin, other]
+
+
+def test_head_backlog_reads_every_blob_near_the_head_and_stops_where_it_was_not_seen():
+    pr = Pairer()
+    single = 6.0
+    # oldest first: 6 frames without the head (not yet detected), then one half lit, both lit,
+    # dark, the other half lit; a second head 20 px to the right lit in every frame. The
+    # camera pitches by +1 px per frame (view_sum), which the backlog undoes.
+    states = [None] * 6 + ["a", "ab", "", "b", "a", "ab"]
+    for k, st in enumerate(states):
+        dy = float(k)
+        xy = [(120.0, 50.0 + dy)]
+        area = [single]
+        if st:
+            x = {"a": 97.0, "b": 103.0, "ab": 100.0}[st]
+            xy.append((x, 50.0 + dy))
+            area.append(single if st != "ab" else 2.2 * single)
+        pr.scene_past.append((k / 30.0, (0.0, dy), np.array(xy), np.array(area)))
+    pr.view_sum = (0.0, float(len(states) - 1))
+    # the pair forms in the last frame ("ab"), midpoint (100, 50 + 11), baseline 6 px
+    out = pr._head_backlog(100.0, 50.0 + len(states) - 1, 6.0, single)
+    got = [(a, b) for _, a, b, *_ in out]
+    assert got == [(1.0, 0.0), (1.0, 1.0), (0.0, 0.0), (1.0, 0.0), (1.0, 0.0)]
+    assert [t for t, *_ in out] == [k / 30.0 for k in range(6, 11)]

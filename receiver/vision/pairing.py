@@ -210,6 +210,11 @@ class Pairer:
         self.flux_margin_y_px = s.flux_margin_y_px
         self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
         self.drop_twins = s.drop_twins
+        self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
+        # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
+        # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
+        self.scene_past: deque = deque(maxlen=max(self.backlog_frames, 1))
+        self.view_sum = (0.0, 0.0)  # every frame's image shift added up (measured or `pitch_shift`), px
         self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
@@ -402,6 +407,12 @@ class Pairer:
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
         self.vertical_known = shift is not None
+        self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
+        if t_s is not None and self.backlog_frames > 0 and self.head_backlog:
+            seen = [t for t in tracks if t.seen]
+            self.scene_past.append((float(t_s), self.view_sum,
+                                    np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
+                                    np.array([t.blob.area_px for t in seen], float)))
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         self.pairs = self._drop_twins(self.pairs)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
@@ -515,9 +526,49 @@ class Pairer:
             b.blob = moved(t.blob, ax + jx, ay + jy)
             p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
             p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
+            if self.head_backlog:
+                head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx,
+                                          max(0.5 * (t.blob.area_px + last.area_px), 1.0))
+                if len(head) > len(p.backlog):
+                    p.backlog = head
             self.pairs.append(p)
             busy.add(t.track_id)
             self.jumps.pop(t.track_id, None)
+
+    def _head_backlog(self, mx: float, my: float, base_px: float, single: float) -> list[tuple]:
+        """`Pair.backlog` of a new far-head pair (midpoint (mx, my) and horizontal baseline
+        `base_px` in this frame's view, one emitter's area `single` px^2) from every blob of the
+        last frames near the head, whichever track had it: a far head's blobs are shared by
+        several short tracks (one per half and one for both, each ending when another takes
+        its blobs), so its own track often holds only the last few frames of the packet.
+        Going back frame by frame, the head's place is moved by the image shifts since
+        (`view_sum`) and follows its blobs slowly (the head's own motion); the blobs within
+        half a baseline plus `match_min_px` horizontally and `match_min_px` vertically are
+        classified as in `_jumper_backlog`: none = both dark, up to `merged_ratio` x `single`
+        = one half lit (anti-phase), more = both lit."""
+        hist = list(self.scene_past)[:-1]  # this frame: the pair's own sample
+        sx_now, sy_now = self.view_sum
+        tol_x = 0.5 * abs(base_px) + max(self.match_min_px, math.sqrt(single))
+        tol_y = self.match_min_px
+        cx, cy = mx, my
+        out, kept, empty = [], 0, 0
+        for t_s, (sx, sy), xy, area in reversed(hist):
+            ox, oy = sx_now - sx, sy_now - sy
+            px, py = cx - ox, cy - oy
+            sel = (np.abs(xy[:, 0] - px) <= tol_x) & (np.abs(xy[:, 1] - py) <= tol_y) if len(xy) else np.zeros(0, bool)
+            if not sel.any():
+                empty += 1
+                if empty > self.head_gap_frames:  # lost (or not yet detected): stop there
+                    break
+                out.append((t_s, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0))
+                continue
+            empty, kept = 0, len(out) + 1
+            both = float(area[sel].sum()) > self.merged_ratio * single
+            out.append((t_s, 1.0, 1.0 if both else 0.0, 1.0, 1.0, 0.0, 0.0))
+            c = xy[sel].mean(axis=0)
+            cx += self.head_follow * (c[0] + ox - cx)
+            cy += self.head_follow * (c[1] + oy - cy)
+        return out[:kept][::-1]  # from the oldest frame with a blob
 
     @staticmethod
     def _two_track_backlog(p: Pair, past_a, past_b) -> list[tuple]:

@@ -166,6 +166,14 @@ class PairSettings:
     drop_twins [True]: an undecoded jumper pair whose midpoint lies within a decoded jumper
     pair's baseline plus match_min_px (horizontally; match_min_px vertically) is the same
     far head followed a baseline aside, and ends (`Pairer._drop_twins`).
+    head_backlog [True]: a new far-head (jumper) pair's backlog is read from every blob of the
+    last backlog_frames frames near the head, whichever track had it (`Pairer._head_backlog`:
+    the place moved back by the frames' image shifts, following the blobs by head_follow
+    [0.2] per frame, going back until head_gap_frames [4] frames in a row without a blob),
+    when that is longer than its own track's: far heads' blobs are spread over several short
+    tracks. Measured with S2PSK_FAINT_DETECT and shake "vertical": recordings/vehicle SL
+    595 -> 635 of 658, hil seeds 1-4 SL 829/824/827/736 -> 873/857/877/818; defaults: no
+    change but hil seed 3 SL +1 (the head is found too late by the default detection).
         """
 
     row_band: float = 1.0
@@ -200,3 +208,6 @@ class PairSettings:
     flux_min: float = 4.0
     flux_recent: int = 12
     drop_twins: bool = True
+    head_backlog: bool = True
+    head_follow: float = 0.2
+    head_gap_frames: int = 4
