@@ -46,26 +46,21 @@ from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 from receiver.vision.track import preload as preload_assignment
 
-# Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
-# length (recordings/vehicle); specks below it are noise (with the fixed 24-gray floor).
-S2PSK_MIN_AREA_PX = 6.0
-# Faint far emitters (opt-in: DetectSettings(**S2PSK_FAINT_DETECT, stripe_gap_px=...) in
-# ReceiverSettings.detect): the threshold follows the measured background noise
-# (receiver.vision.detect.noise_sigma: 8 sigma, ~3 gray on a dark sensor of ~0.4 gray noise) with
-# a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking 20-50 gray is found;
-# noise then lights no pixel, so the area floor is one lit pixel (hull area with the half-pixel
-# rim: pi / 4). Components under 3 rows skip the shape test (a sub-pixel-tall panel seen from
-# below is one or two rows several px wide) and the aspect limit is 12 (two blurred halves of a
-# far head side by side are ~18 x 4 px). Measured (README "S2-PSK pairs"): recordings/vehicle
-# SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
-# SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
-# 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
-# not the default. On main 901aa1c (README "S2-PSK pairs" method, resolvable light-frames):
-# with shake "vertical", vehicle-road seeds 1/2 FV 59/0 -> 138/166 of 287/284, SL 0/0, 0 wrong,
-# but recordings/vehicle SL 602 -> 595 of 658 and HV filtered 2D median 0.03 -> 0.07 m; alone,
-# recordings/vehicle FV 156 -> 125 of 156. Far heads (1-6 px^2) need it; near ones need only
-# max_aspect (a head seen from below is a 23 x 6 px bar at 27 m: aspect 4 drops it).
-S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
+# Faint far emitters (the S2-PSK default detection; it was a fixed 24-gray floor and 6 px^2): the threshold
+# follows the measured background noise (receiver.vision.detect.noise_sigma: 12 sigma, ~5 gray on
+# a dark sensor of ~0.4 gray noise; 12, not 8: a truncated noise of 2 gray gave single-pixel
+# specks at 8) with a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking
+# 20-50 gray is found; noise then lights no pixel, so the area floor is one lit pixel (hull area
+# with the half-pixel rim: pi / 4). Components under 3 rows skip the shape test (a
+# sub-pixel-tall panel seen from below is one or two rows several px wide) and the aspect limit
+# is 12 (two blurred halves of a far head side by side are ~18 x 4 px; a near head seen from
+# below is a 23 x 6 px bar at 27 m). Default together with PairSettings(shake="vertical") and the
+# far-head backlog (`head_backlog`), measured (README "S2-PSK pairs", resolvable light-frames):
+# recordings/vehicle SL 604 -> 635 of 658, FV 156/156; hil --mode s2psk seeds 1-4 SL
+# 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214; vehicle-road seeds
+# 1/2 SL 0/0 -> 92/17 of 644/638, FV 58/0 -> 136/166 of 287/284; 0 wrong everywhere; HV filtered
+# 2D median 0.04 -> 0.05 m (p95 0.17 -> 0.21 m).
+S2PSK_FAINT_DETECT = dict(min_area_px=0.75, k_mad=12.0, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
 # Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
@@ -224,7 +219,7 @@ class Receiver:
             if plan.s2psk:
                 # One half of a far street-light head is a few px: the pairing sees it alone
                 # in the frames where only that half is lit (receiver.vision.pairing).
-                kw["min_area_px"] = S2PSK_MIN_AREA_PX
+                kw.update(S2PSK_FAINT_DETECT)
             if still:
                 # One photo: no tracking to weed out reflections, so detection itself drops
                 # flat regions first and then blobs much smaller than the biggest light.

@@ -137,3 +137,14 @@ def test_head_backlog_reads_every_blob_near_the_head_and_stops_where_it_was_not_
     got = [(a, b) for _, a, b, *_ in out]
     assert got == [(1.0, 0.0), (1.0, 1.0), (0.0, 0.0), (1.0, 0.0), (1.0, 0.0)]
     assert [t for t, *_ in out] == [k / 30.0 for k in range(6, 11)]
+
+
+def test_fine_noise_threshold_of_a_truncated_noisy_background_stays_near_the_noise():
+    """8-bit truncation of noise of 2 gray around 8 puts almost half the samples at or above
+    median + 1: the upper-tail estimate alone read sigma ~20 and a threshold of ~120 gray, over
+    every light (the S2-PSK default detection follows the noise)."""
+    from receiver.vision.detect import auto_level
+    rng = np.random.default_rng(5)
+    img = np.clip(rng.normal(8.93, 2.0, (480, 640)), 0, 255).astype(np.uint8)  # truncation
+    level, bg = auto_level(img, k_mad=8.0, min_contrast=4.0, fine_noise=True)
+    assert level - bg <= 8.0 * 2.6

@@ -146,9 +146,13 @@ class Pair:
     backlog: list = field(default_factory=list)
     flux: deque = field(default_factory=lambda: deque(maxlen=48))  # its head's last fluxes (`Pairer.sample_flux`)
 
+    # the key when the founding tracks' ids are a live pair's key already: its emitters' LED ids
+    alias: tuple[int, int] | None = None
+
     @property
     def key(self) -> tuple[int, int]:
-        return (self.a.track_id, self.b.track_id)
+        """Unique among live pairs: the founding tracks' ids (or `alias`)."""
+        return self.alias if self.alias is not None else (self.a.track_id, self.b.track_id)
 
 
 def _emitter(t: Track) -> Track:
@@ -210,6 +214,8 @@ class Pairer:
         self.flux_margin_y_px = s.flux_margin_y_px
         self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
         self.drop_twins = s.drop_twins
+        self.jumper_unseen_frames = s.jumper_unseen_frames
+        self.emitter_gate_larger = s.emitter_gate_larger
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
         # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
@@ -436,6 +442,7 @@ class Pairer:
                 if s is not None:
                     cands.append((s, a, b))
         cands.sort(key=lambda c: c[0])
+        keys = {p.key for p in self.pairs}  # one live pair per key (receiver.locate.vehicle follows pairs by it)
         taken: set[int] = set()
         for _, a, b in cands:
             if a.track_id in taken or b.track_id in taken:
@@ -451,6 +458,11 @@ class Pairer:
                 for v in self.levels.pop(t.track_id).values:
                     lv.add(v)
             p.backlog = self._two_track_backlog(p, self.past.pop(a.track_id, ()), self.past.pop(b.track_id, ()))
+            if p.key in keys:
+                # a live pair's founding tracks, wandered off its light, paired again: the key
+                # must stay one pair's (receiver.locate.vehicle follows pairs by it)
+                p.alias = p.ids
+            keys.add(p.key)
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
@@ -604,16 +616,29 @@ class Pairer:
         both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
         left out (one head followed by two pairs: the LED is the decoded one's)."""
         live = [p for p in self.pairs if p.misses <= self.report_coast_frames]
+        # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
+        # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
+        # frames lies beside the head, on nobody's light, and is not reported (0 = off).
         dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
-               for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))]
+               for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
+               if not (self.jumper_unseen_frames and p.a.track_id == p.b.track_id
+                       and p.frames - seen > self.jumper_unseen_frames)]
         xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
         owner = np.array([id(p) for _, _, p, _ in dec])
+        size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
         out = []
         for k, (i, b, p, own) in enumerate(dec):
             # An emitter without its own blob in this frame sits where the pair predicts it: left
             # out when that is as near another decoded pair's emitter (overlapping lights).
-            d = np.hypot(*(xy - (b.cx, b.cy)).T)[owner != id(p)]
-            if own or not d.size or d.min() > max(self.match_min_px, self.match_size * math.sqrt(max(b.area_px, 1.0))):
+            other = owner != id(p)
+            d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
+            if self.emitter_gate_larger:
+                # both emitters of a pair are the same size: its larger envelope (the other
+                # may be stale), and the larger of the two lights'
+                area = np.maximum(size[k], size[other])
+            else:
+                area = np.full(d.shape, b.area_px)
+            if own or not d.size or (d > np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
                 out.append((i, b, p))
         for p in live:
             if p.led_id is None:

@@ -126,7 +126,7 @@ class PairSettings:
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
     mean. A jump is taken less the measured image shift ("vertical", "2d", "yawpitch") added up
     since the track's previous blob (it may have been dark for frames in between).
-    Camera shake: shake ["pitch"]: how the frame's common image shift (the camera's pitch
+    Camera shake: shake ["vertical"]: how the frame's common image shift (the camera's pitch
     and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
     pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
     displacements from the last frames and from the pairs' predicted emitters, within
@@ -135,9 +135,10 @@ class PairSettings:
     horizontal part is ambiguous by the baseline, wrong by > 2 px in a third of the frames of
     vehicle-road); "pitch" (the default): only the pairs' median vertical offset (`pitch_shift`,
     needs shake_min_pairs [3] pairs explaining a blob), the tracks none. Without agreement in a
-    frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
-    s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
-    recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+    frame, "pitch" is used for it. "vertical" is the default since it is measured together with
+    the faint detection and the far-head backlog (README "S2-PSK pairs"); earlier, alone, hil
+    --mode s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), recordings/vehicle SL
+    362 (pitch: 391) of 658 resolvable light-frames.
     "yawpitch" (experimental): dy as "vertical", then dx from only the displacements whose
     vertical part agrees with dy, each blob of this frame voting once per cell against the
     blobs of the last frames (receiver.vision.motion.yaw_pitch_shift); on vehicle-road (seed 1,
@@ -174,6 +175,14 @@ class PairSettings:
     tracks. Measured with S2PSK_FAINT_DETECT and shake "vertical": recordings/vehicle SL
     595 -> 635 of 658, hil seeds 1-4 SL 829/824/827/736 -> 873/857/877/818; defaults: no
     change but hil seed 3 SL +1 (the head is found too late by the default detection).
+    Reporting: emitter_gate_larger [True]: a decoded emitter without its own blob in this frame
+    is left out when another decoded pair's emitter is within match_size diameters of the
+    larger emitter of the two lights (else: of its own, perhaps stale, envelope; two cars'
+    taillights crossing, hil seed 4 frame 84, had two IDs swapped). jumper_unseen_frames [12]:
+    a decoded far-head (jumper) pair's emitter without a blob of its own for more than this
+    many frames is not reported (0 = off): such a pair may sit a baseline aside of its head
+    (which half a blob was cannot be told) with one emitter on nobody's light, between heads
+    (hil seed 1 frame 179: 14 frames; 8 cost 18-30 right light-frames per seed, 12 none).
         """
 
     row_band: float = 1.0
@@ -196,7 +205,7 @@ class PairSettings:
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
     shake_min_pairs: int = 3
-    shake: str = "pitch"
+    shake: str = "vertical"
     shake_radius_px: float = 14.0
     shake_x_wide: bool = False
     report_coast_frames: int = 3
@@ -211,3 +220,5 @@ class PairSettings:
     head_backlog: bool = True
     head_follow: float = 0.2
     head_gap_frames: int = 4
+    emitter_gate_larger: bool = True
+    jumper_unseen_frames: int = 12
