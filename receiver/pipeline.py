@@ -287,10 +287,10 @@ class Receiver:
             x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
-            if self.pairer.reads_flux(p):
+            if p.led_id is None and self.pairer.reads_flux(p):
                 # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
-                # no side needed, so the yaw shake does not matter): a third decoder set; while
-                # the pair has no ID, whichever set decodes first wins.
+                # no side needed, so the yaw shake does not matter): a third decoder set, fed
+                # until the pair has an ID; whichever set decodes first wins.
                 fx = flux_xor(self.pairer.sample_flux(p, gray), self.pairer.flux_on(p))
                 fdecs = self.flux_decoders.get(p.uid)
                 if fdecs is None:
@@ -308,6 +308,7 @@ class Receiver:
                     del self.early_decoders[p.uid]
             if found is not None:
                 p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
+                self.flux_decoders.pop(p.uid, None)  # fed only until the pair's first ID
         uids = {p.uid for p in live}
         for uid in [u for u in self.pair_decoders if u not in uids]:
             del self.pair_decoders[uid]
