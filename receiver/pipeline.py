@@ -57,7 +57,8 @@ from receiver.vision.track import preload as preload_assignment
 # below is a 23 x 6 px bar at 27 m). Default together with PairSettings(shake="vertical") and the
 # far-head backlog (`head_backlog`), measured (README "S2-PSK pairs", resolvable light-frames):
 # recordings/vehicle SL 604 -> 635 of 658, FV 156/156; hil --mode s2psk seeds 1-4 SL
-# 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214; vehicle-road seeds
+# 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214 (216/214/214/214 with
+# S2pskSettings.sync_margin 0.25); vehicle-road seeds
 # 1/2 SL 0/0 -> 92/17 of 644/638, FV 58/0 -> 136/166 of 287/284; 0 wrong everywhere; HV filtered
 # 2D median 0.04 -> 0.05 m (p95 0.17 -> 0.21 m).
 S2PSK_FAINT_DETECT = dict(min_area_px=0.75, k_mad=12.0, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
