@@ -30,7 +30,7 @@ from receiver.core.records import Frame, FrameResult, LedObservation, PairObserv
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
 from receiver.decode.policy import DecodePolicy, LightDecoder, ModePlan
-from receiver.decode.s2psk import pair_xor
+from receiver.decode.s2psk import flux_xor, pair_xor
 from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySettings, S2pskSettings,
                                       ToneSettings)
 from receiver.io.camera import CameraModel
@@ -46,26 +46,22 @@ from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 from receiver.vision.track import preload as preload_assignment
 
-# Smallest S2-PSK emitter blob (px): a 0.4 x 0.3 m head half at ~150 m with a 1200 px focal
-# length (recordings/vehicle); specks below it are noise (with the fixed 24-gray floor).
-S2PSK_MIN_AREA_PX = 6.0
-# Faint far emitters (opt-in: DetectSettings(**S2PSK_FAINT_DETECT, stripe_gap_px=...) in
-# ReceiverSettings.detect): the threshold follows the measured background noise
-# (receiver.vision.detect.noise_sigma: 8 sigma, ~3 gray on a dark sensor of ~0.4 gray noise) with
-# a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking 20-50 gray is found;
-# noise then lights no pixel, so the area floor is one lit pixel (hull area with the half-pixel
-# rim: pi / 4). Components under 3 rows skip the shape test (a sub-pixel-tall panel seen from
-# below is one or two rows several px wide) and the aspect limit is 12 (two blurred halves of a
-# far head side by side are ~18 x 4 px). Measured (README "S2-PSK pairs"): recordings/vehicle
-# SL 391 -> 413 but FV 114 -> 92 resolvable light-frames; with PairSettings(shake="vertical")
-# SL 401, FV 113, vehicle-road seed 1 FV 39 -> 103 of 287, hil --mode s2psk seeds 1-4 SL
-# 524/487/512/492 -> 557/544/600/483 with 0 wrong, but FV 162/72/176/161 -> 161/71/169/156:
-# not the default. On main 901aa1c (README "S2-PSK pairs" method, resolvable light-frames):
-# with shake "vertical", vehicle-road seeds 1/2 FV 59/0 -> 138/166 of 287/284, SL 0/0, 0 wrong,
-# but recordings/vehicle SL 602 -> 595 of 658 and HV filtered 2D median 0.03 -> 0.07 m; alone,
-# recordings/vehicle FV 156 -> 125 of 156. Far heads (1-6 px^2) need it; near ones need only
-# max_aspect (a head seen from below is a 23 x 6 px bar at 27 m: aspect 4 drops it).
-S2PSK_FAINT_DETECT = dict(min_area_px=0.75, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
+# Faint far emitters (the S2-PSK default detection; it was a fixed 24-gray floor and 6 px^2): the threshold
+# follows the measured background noise (receiver.vision.detect.noise_sigma: 12 sigma, ~5 gray on
+# a dark sensor of ~0.4 gray noise; 12, not 8: a truncated noise of 2 gray gave single-pixel
+# specks at 8) with a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking
+# 20-50 gray is found; noise then lights no pixel, so the area floor is one lit pixel (hull area
+# with the half-pixel rim: pi / 4). Components under 3 rows skip the shape test (a
+# sub-pixel-tall panel seen from below is one or two rows several px wide) and the aspect limit
+# is 12 (two blurred halves of a far head side by side are ~18 x 4 px; a near head seen from
+# below is a 23 x 6 px bar at 27 m). Default together with PairSettings(shake="vertical") and the
+# far-head backlog (`head_backlog`), measured (README "S2-PSK pairs", resolvable light-frames):
+# recordings/vehicle SL 604 -> 635 of 658, FV 156/156; hil --mode s2psk seeds 1-4 SL
+# 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214 (216/214/214/214 with
+# S2pskSettings.sync_margin 0.25); vehicle-road seeds
+# 1/2 SL 0/0 -> 92/17 of 644/638, FV 58/0 -> 136/166 of 287/284; 0 wrong everywhere; HV filtered
+# 2D median 0.04 -> 0.05 m (p95 0.17 -> 0.21 m).
+S2PSK_FAINT_DETECT = dict(min_area_px=0.75, k_mad=12.0, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
 # Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
@@ -197,6 +193,7 @@ class Receiver:
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
+        self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its head's flux (`PairSettings.flux_jumpers`)
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
@@ -224,7 +221,7 @@ class Receiver:
             if plan.s2psk:
                 # One half of a far street-light head is a few px: the pairing sees it alone
                 # in the frames where only that half is lit (receiver.vision.pairing).
-                kw["min_area_px"] = S2PSK_MIN_AREA_PX
+                kw.update(S2PSK_FAINT_DETECT)
             if still:
                 # One photo: no tracking to weed out reflections, so detection itself drops
                 # flat regions first and then blobs much smaller than the biggest light.
@@ -292,6 +289,17 @@ class Receiver:
             x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
+            if p.led_id is None and self.pairer.reads_flux(p):
+                # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
+                # no side needed, so the yaw shake does not matter): a third decoder set, fed
+                # until the pair has an ID; whichever set decodes first wins.
+                fx = flux_xor(self.pairer.sample_flux(p, gray), self.pairer.flux_on(p))
+                fdecs = self.flux_decoders.get(p.uid)
+                if fdecs is None:
+                    fdecs = self.flux_decoders[p.uid] = self.policy.new_pair_decoders()
+                ffound, _ = self.policy.step_pair(fdecs, frame.t_s, fx, due)
+                if found is None and ffound is not None and p.led_id is None:
+                    found = ffound
             early = self.early_decoders.get(p.uid)
             if early is not None:
                 if found is None:
@@ -302,10 +310,12 @@ class Receiver:
                     del self.early_decoders[p.uid]
             if found is not None:
                 p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
+                self.flux_decoders.pop(p.uid, None)  # fed only until the pair's first ID
         uids = {p.uid for p in live}
         for uid in [u for u in self.pair_decoders if u not in uids]:
             del self.pair_decoders[uid]
             self.early_decoders.pop(uid, None)
+            self.flux_decoders.pop(uid, None)
         pair_of = pair_owners(self.pairer.pairs)
         # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
         # this frame (it may have jumped to another light's blob) carries none.

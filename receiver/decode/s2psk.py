@@ -60,6 +60,21 @@ def pair_xor(a: float, b: float, a_on: float, b_on: float, a_off: float = 0.0,
     return abs(na - nb) - abs(na + nb - 1.0)
 
 
+def flux_xor(flux: float, on: float, off: float = 0.0) -> float:
+    """Soft XOR of one frame from a head's total flux (receiver.vision.pairing.Pairer.head_flux),
+    in [-1, 1] (> 0: anti-phase = symbol 1). A head whose two halves cannot be told apart
+    (a far street light) shows ~0 (both dark), F (one half lit) or 2F (both lit); `on` is its
+    learned 2F level and `off` its dark level. With n = (flux - off) / (on - off), one half lit
+    (n = 1/2) gives +1, none or both (n = 0 or 1) -1, linear in between. (A frame exposed
+    across a clock edge of in-phase emitters reads as one half: the pair_xor ambiguity at
+    na = nb = 1/2 moves to n = 1/2.)"""
+    d = on - off
+    if d <= 0:
+        return 0.0
+    n = min(max((flux - off) / d, 0.0), 1.0)
+    return 1.0 - 4.0 * abs(n - 0.5)
+
+
 def decode_symbols(m: np.ndarray, *, sync_margin: float = 0.3, min_margin: float = 0.25
                    ) -> tuple[int | None, float]:
     """CRC-4-checked ID from 30 folded soft symbols in arbitrary cyclic order, or None.

@@ -103,7 +103,10 @@ def noise_sigma(hist: np.ndarray, med: int, mad: int) -> float:
         return 0.0
     f = float(hist[med + 1:].sum()) / n
     f = min(max(f, 1e-6), 0.49)
-    return 0.5 / _q_inverse(f)
+    # Half the samples lie within mad + 1/2 of the median (8-bit rounding or truncation), so sigma
+    # is at most 1.4826 (mad + 1/2): near f = 1/2 the tail estimate alone explodes (truncated noise
+    # of ~2 gray gave 20, a threshold over the lights).
+    return min(0.5 / _q_inverse(f), MAD_TO_SIGMA * (mad + 0.5))
 
 
 def _q_inverse(f: float) -> float:

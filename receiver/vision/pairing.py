@@ -144,10 +144,15 @@ class Pair:
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
     backlog: list = field(default_factory=list)
+    flux: deque = field(default_factory=lambda: deque(maxlen=48))  # its head's last fluxes (`Pairer.sample_flux`)
+
+    # the key when the founding tracks' ids are a live pair's key already: its emitters' LED ids
+    alias: tuple[int, int] | None = None
 
     @property
     def key(self) -> tuple[int, int]:
-        return (self.a.track_id, self.b.track_id)
+        """Unique among live pairs: the founding tracks' ids (or `alias`)."""
+        return self.alias if self.alias is not None else (self.a.track_id, self.b.track_id)
 
 
 def _emitter(t: Track) -> Track:
@@ -205,6 +210,17 @@ class Pairer:
         self.jump_agree_y_px = s.jump_agree_y_px
         self.shake_min_pairs = s.shake_min_pairs
         self.shake_x_wide = s.shake_x_wide
+        self.flux_jumpers, self.flux_margin_px, self.flux_floor = s.flux_jumpers, s.flux_margin_px, s.flux_floor
+        self.flux_margin_y_px = s.flux_margin_y_px
+        self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
+        self.drop_twins = s.drop_twins
+        self.jumper_unseen_frames = s.jumper_unseen_frames
+        self.emitter_gate_larger = s.emitter_gate_larger
+        self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
+        # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
+        # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
+        self.scene_past: deque = deque(maxlen=max(self.backlog_frames, 1))
+        self.view_sum = (0.0, 0.0)  # every frame's image shift added up (measured or `pitch_shift`), px
         self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
         self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
@@ -397,7 +413,14 @@ class Pairer:
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
         self.vertical_known = shift is not None
+        self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
+        if t_s is not None and self.backlog_frames > 0 and self.head_backlog:
+            seen = [t for t in tracks if t.seen]
+            self.scene_past.append((float(t_s), self.view_sum,
+                                    np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
+                                    np.array([t.blob.area_px for t in seen], float)))
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+        self.pairs = self._drop_twins(self.pairs)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
@@ -419,6 +442,7 @@ class Pairer:
                 if s is not None:
                     cands.append((s, a, b))
         cands.sort(key=lambda c: c[0])
+        keys = {p.key for p in self.pairs}  # one live pair per key (receiver.locate.vehicle follows pairs by it)
         taken: set[int] = set()
         for _, a, b in cands:
             if a.track_id in taken or b.track_id in taken:
@@ -434,10 +458,35 @@ class Pairer:
                 for v in self.levels.pop(t.track_id).values:
                     lv.add(v)
             p.backlog = self._two_track_backlog(p, self.past.pop(a.track_id, ()), self.past.pop(b.track_id, ()))
+            if p.key in keys:
+                # a live pair's founding tracks, wandered off its light, paired again: the key
+                # must stay one pair's (receiver.locate.vehicle follows pairs by it)
+                p.alias = p.ids
+            keys.add(p.key)
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
         return self.pairs
+
+    def _drop_twins(self, pairs: list[Pair]) -> list[Pair]:
+        """`pairs` without the undecoded jumper pairs whose midpoint lies on a decoded jumper
+        pair's head (within its baseline plus `match_min_px` horizontally, `match_min_px`
+        vertically): one far head followed twice, half a baseline apart (which half a blob is
+        cannot be told), when one copy decoded; the twin's emitters would sit beside the
+        decoded ones, on nobody's light. Off with `drop_twins` False."""
+        if not self.drop_twins:
+            return pairs
+        heads = [p for p in pairs if p.led_id is not None and p.a.track_id == p.b.track_id]
+        if not heads:
+            return pairs
+        out = []
+        for p in pairs:
+            if p.led_id is None and p.a.track_id == p.b.track_id and any(
+                    abs(p.mx - d.mx) <= abs(d.b.cx - d.a.cx) + self.match_min_px
+                    and abs(p.my - d.my) <= self.match_min_px for d in heads):
+                continue
+            out.append(p)
+        return out
 
     def _pair_jumpers(self, tracks: list[Track], busy: set[int]) -> None:
         """Pairs from single tracks that jump between two places: a far head's halves are
@@ -489,9 +538,49 @@ class Pairer:
             b.blob = moved(t.blob, ax + jx, ay + jy)
             p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
             p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
+            if self.head_backlog:
+                head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx,
+                                          max(0.5 * (t.blob.area_px + last.area_px), 1.0))
+                if len(head) > len(p.backlog):
+                    p.backlog = head
             self.pairs.append(p)
             busy.add(t.track_id)
             self.jumps.pop(t.track_id, None)
+
+    def _head_backlog(self, mx: float, my: float, base_px: float, single: float) -> list[tuple]:
+        """`Pair.backlog` of a new far-head pair (midpoint (mx, my) and horizontal baseline
+        `base_px` in this frame's view, one emitter's area `single` px^2) from every blob of the
+        last frames near the head, whichever track had it: a far head's blobs are shared by
+        several short tracks (one per half and one for both, each ending when another takes
+        its blobs), so its own track often holds only the last few frames of the packet.
+        Going back frame by frame, the head's place is moved by the image shifts since
+        (`view_sum`) and follows its blobs slowly (the head's own motion); the blobs within
+        half a baseline plus `match_min_px` horizontally and `match_min_px` vertically are
+        classified as in `_jumper_backlog`: none = both dark, up to `merged_ratio` x `single`
+        = one half lit (anti-phase), more = both lit."""
+        hist = list(self.scene_past)[:-1]  # this frame: the pair's own sample
+        sx_now, sy_now = self.view_sum
+        tol_x = 0.5 * abs(base_px) + max(self.match_min_px, math.sqrt(single))
+        tol_y = self.match_min_px
+        cx, cy = mx, my
+        out, kept, empty = [], 0, 0
+        for t_s, (sx, sy), xy, area in reversed(hist):
+            ox, oy = sx_now - sx, sy_now - sy
+            px, py = cx - ox, cy - oy
+            sel = (np.abs(xy[:, 0] - px) <= tol_x) & (np.abs(xy[:, 1] - py) <= tol_y) if len(xy) else np.zeros(0, bool)
+            if not sel.any():
+                empty += 1
+                if empty > self.head_gap_frames:  # lost (or not yet detected): stop there
+                    break
+                out.append((t_s, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0))
+                continue
+            empty, kept = 0, len(out) + 1
+            both = float(area[sel].sum()) > self.merged_ratio * single
+            out.append((t_s, 1.0, 1.0 if both else 0.0, 1.0, 1.0, 0.0, 0.0))
+            c = xy[sel].mean(axis=0)
+            cx += self.head_follow * (c[0] + ox - cx)
+            cy += self.head_follow * (c[1] + oy - cy)
+        return out[:kept][::-1]  # from the oldest frame with a blob
 
     @staticmethod
     def _two_track_backlog(p: Pair, past_a, past_b) -> list[tuple]:
@@ -527,16 +616,29 @@ class Pairer:
         both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
         left out (one head followed by two pairs: the LED is the decoded one's)."""
         live = [p for p in self.pairs if p.misses <= self.report_coast_frames]
+        # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
+        # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
+        # frames lies beside the head, on nobody's light, and is not reported (0 = off).
         dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
-               for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))]
+               for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
+               if not (self.jumper_unseen_frames and p.a.track_id == p.b.track_id
+                       and p.frames - seen > self.jumper_unseen_frames)]
         xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
         owner = np.array([id(p) for _, _, p, _ in dec])
+        size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
         out = []
         for k, (i, b, p, own) in enumerate(dec):
             # An emitter without its own blob in this frame sits where the pair predicts it: left
             # out when that is as near another decoded pair's emitter (overlapping lights).
-            d = np.hypot(*(xy - (b.cx, b.cy)).T)[owner != id(p)]
-            if own or not d.size or d.min() > max(self.match_min_px, self.match_size * math.sqrt(max(b.area_px, 1.0))):
+            other = owner != id(p)
+            d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
+            if self.emitter_gate_larger:
+                # both emitters of a pair are the same size: its larger envelope (the other
+                # may be stale), and the larger of the two lights'
+                area = np.maximum(size[k], size[other])
+            else:
+                area = np.full(d.shape, b.area_px)
+            if own or not d.size or (d > np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
                 out.append((i, b, p))
         for p in live:
             if p.led_id is None:
@@ -555,3 +657,45 @@ class Pairer:
         p.levels_a.add(ia)
         p.levels_b.add(ib)
         return ia, ib
+
+    def sample_flux(self, p: Pair, gray: np.ndarray) -> float:
+        """This frame's `head_flux` of pair `p` (gray x px), kept in `Pair.flux`."""
+        f = self.head_flux(p, gray)
+        p.flux.append(f)
+        return f
+
+    def reads_flux(self, p: Pair) -> bool:
+        """Pair `p` is read by its head's total flux (`head_flux`), not per emitter: a pair from
+        one jumping track (`_pair_jumpers`: a far head whose halves merge) when
+        `PairSettings.flux_jumpers` is on."""
+        return self.flux_jumpers and p.a.track_id == p.b.track_id
+
+    def flux_on(self, p: Pair) -> float:
+        """Pair `p`'s both-lit flux 2F (gray x px) for `flux_xor`: twice the median of its last
+        `flux_recent` fluxes above `flux_min` (the frames with a half or both lit: one half, F,
+        in two thirds of them). Recent ones only: an approaching head's flux grows as
+        1 / distance^2, doubling within a packet at 60-80 m."""
+        lit = [v for v in p.flux if v > self.flux_min][-self.flux_recent:]
+        return 2.0 * float(np.median(lit)) if lit else 0.0
+
+    def head_flux(self, p: Pair, gray: np.ndarray) -> float:
+        """The summed gray above the background (+ `flux_floor` gray, so sensor noise adds
+        nothing) in a box around pair `p`'s head (gray x px). A far head's halves are a few px
+        apart and the camera's yaw shake moves it by more than that from frame to frame, so
+        which half a blob is cannot be told; but the XOR needs no side: the head's flux is
+        ~0 (both dark), F (one half lit: symbol 1) or 2F (both lit). The box is centred on the
+        blob the pair explained in this frame (whichever half it is), else on the pair's
+        midpoint, and reaches one baseline plus `flux_margin_px` either side, and
+        `flux_margin_px` above and below the emitters' envelopes."""
+        cx, cy = p.mx, p.my
+        base = math.hypot(p.b.cx - p.a.cx, p.b.cy - p.a.cy)
+        half_h = 0.5 * max(p.a.blob.y1 - p.a.blob.y0, p.b.blob.y1 - p.b.blob.y0)
+        mx, my = self.flux_margin_px, self.flux_margin_y_px
+        h, w = gray.shape[:2]
+        x0, x1 = max(int(math.floor(cx - base - mx)), 0), min(int(math.ceil(cx + base + mx)) + 1, w)
+        y0, y1 = max(int(math.floor(cy - half_h - my)), 0), min(int(math.ceil(cy + half_h + my)) + 1, h)
+        if x1 <= x0 or y1 <= y0:
+            return 0.0
+        roi = gray[y0:y1, x0:x1].astype(np.float32)
+        bg = float(p.a.blob.background) + self.flux_floor
+        return float(np.maximum(roi - bg, 0.0).sum())

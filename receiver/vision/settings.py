@@ -116,15 +116,17 @@ class PairSettings:
     merged_ratio of its area, or down to 1 / max_cut [3] of it (cut by a clock edge during the
     rolling readout). velocity_gain [0.3]: smoothing of the px/frame velocity. max_missed [10]:
     frames without an explained blob before the pair ends (both emitters are dark in about a
-    quarter of the frames). give_up_frames [110]: a pair still without an ID after this many
-    frames (1.5 packets of 2.4 s at 30 fps) is a wrong pairing and ends.
+    quarter of the frames). give_up_frames [200]: a pair still without an ID after this many
+    frames (2.8 packets of 2.4 s at 30 fps) is a wrong pairing and ends (110 ended a lane-
+    changing car's right pair with one weak symbol 6 frames before its third pass: hil --mode
+    s2psk seed 2 FV 107 -> 155 of 214).
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
     mean. A jump is taken less the measured image shift ("vertical", "2d", "yawpitch") added up
     since the track's previous blob (it may have been dark for frames in between).
-    Camera shake: shake ["pitch"]: how the frame's common image shift (the camera's pitch
+    Camera shake: shake ["vertical"]: how the frame's common image shift (the camera's pitch
     and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
     pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
     displacements from the last frames and from the pairs' predicted emitters, within
@@ -133,9 +135,10 @@ class PairSettings:
     horizontal part is ambiguous by the baseline, wrong by > 2 px in a third of the frames of
     vehicle-road); "pitch" (the default): only the pairs' median vertical offset (`pitch_shift`,
     needs shake_min_pairs [3] pairs explaining a blob), the tracks none. Without agreement in a
-    frame, "pitch" is used for it. "vertical" measured (README "S2-PSK pairs"): hil --mode
-    s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), FV unchanged, but
-    recordings/vehicle SL 362 (pitch: 391) of 658 resolvable light-frames: not the default.
+    frame, "pitch" is used for it. "vertical" is the default since it is measured together with
+    the faint detection and the far-head backlog (README "S2-PSK pairs"); earlier, alone, hil
+    --mode s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), recordings/vehicle SL
+    362 (pitch: 391) of 658 resolvable light-frames.
     "yawpitch" (experimental): dy as "vertical", then dx from only the displacements whose
     vertical part agrees with dy, each blob of this frame voting once per cell against the
     blobs of the last frames (receiver.vision.motion.yaw_pitch_shift); on vehicle-road (seed 1,
@@ -153,6 +156,33 @@ class PairSettings:
     kept so that a new pair's decoder starts from the tracks' first frames (`Pair.backlog`):
     a pair forms 4-40 frames after its light appears, and without them its ID would come that
     much after the light's first whole packet. 0 = off.
+    Far heads by their flux: flux_jumpers [True]: a pair from one jumping track (a far head)
+    is also read by its head's whole flux (`Pairer.head_flux`: gray above the background +
+    flux_floor [2] summed over a box one baseline plus flux_margin_px [10] either side of its
+    midpoint, flux_margin_y_px [2] above and below its envelopes) into a third decoder set
+    (receiver.decode.s2psk.flux_xor, both-lit level: twice the median of the last
+    flux_recent [12] fluxes over flux_min [4]); no side is needed, so the yaw shake does not
+    matter. Measured (README "S2-PSK pairs"): hil --mode s2psk seeds 1-4 SL +2/+10/+5/0, with
+    S2PSK_FAINT_DETECT and shake "vertical" vehicle-road seeds 1/2 SL 0/0 -> 91/17.
+    drop_twins [True]: an undecoded jumper pair whose midpoint lies within a decoded jumper
+    pair's baseline plus match_min_px (horizontally; match_min_px vertically) is the same
+    far head followed a baseline aside, and ends (`Pairer._drop_twins`).
+    head_backlog [True]: a new far-head (jumper) pair's backlog is read from every blob of the
+    last backlog_frames frames near the head, whichever track had it (`Pairer._head_backlog`:
+    the place moved back by the frames' image shifts, following the blobs by head_follow
+    [0.2] per frame, going back until head_gap_frames [4] frames in a row without a blob),
+    when that is longer than its own track's: far heads' blobs are spread over several short
+    tracks. Measured with S2PSK_FAINT_DETECT and shake "vertical": recordings/vehicle SL
+    595 -> 635 of 658, hil seeds 1-4 SL 829/824/827/736 -> 873/857/877/818; defaults: no
+    change but hil seed 3 SL +1 (the head is found too late by the default detection).
+    Reporting: emitter_gate_larger [True]: a decoded emitter without its own blob in this frame
+    is left out when another decoded pair's emitter is within match_size diameters of the
+    larger emitter of the two lights (else: of its own, perhaps stale, envelope; two cars'
+    taillights crossing, hil seed 4 frame 84, had two IDs swapped). jumper_unseen_frames [12]:
+    a decoded far-head (jumper) pair's emitter without a blob of its own for more than this
+    many frames is not reported (0 = off): such a pair may sit a baseline aside of its head
+    (which half a blob was cannot be told) with one emitter on nobody's light, between heads
+    (hil seed 1 frame 179: 14 frames; 8 cost 18-30 right light-frames per seed, 12 none).
         """
 
     row_band: float = 1.0
@@ -170,13 +200,25 @@ class PairSettings:
     miss_growth_px: float = 1.0
     velocity_gain: float = 0.3
     max_missed: int = 10
-    give_up_frames: int = 110
+    give_up_frames: int = 200
     jump_max_baseline: float = 4.0
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
     shake_min_pairs: int = 3
-    shake: str = "pitch"
+    shake: str = "vertical"
     shake_radius_px: float = 14.0
     shake_x_wide: bool = False
     report_coast_frames: int = 3
     backlog_frames: int = 90
+    flux_jumpers: bool = True
+    flux_margin_px: float = 10.0
+    flux_margin_y_px: float = 2.0
+    flux_floor: float = 2.0
+    flux_min: float = 4.0
+    flux_recent: int = 12
+    drop_twins: bool = True
+    head_backlog: bool = True
+    head_follow: float = 0.2
+    head_gap_frames: int = 4
+    emitter_gate_larger: bool = True
+    jumper_unseen_frames: int = 12
