@@ -394,16 +394,18 @@ def test_warm_batch_reaches_refine_poses_minimum():
     assert ok.all()
     for b, (Rr, Cr, covr, chi2r, dofr) in enumerate(refs):
         assert np.abs(C[b] - Cr).max() < 2e-6 and np.abs(R[b] - Rr).max() < 2e-6
-        assert np.allclose(cov[b], covr, rtol=1e-4, atol=1e-12)
-        assert chi2[b] == pytest.approx(chi2r, rel=1e-6) and dof[b] == dofr
+        assert np.abs(cov[b] - covr).max() <= 1e-4 * np.abs(covr).max()
+        # the same chi^2 to the solvers' stopping rules (each stops ~1e-6 of it from the minimum)
+        assert chi2[b] == pytest.approx(chi2r, rel=1e-5) and dof[b] == dofr
     R1, C1, *_ = refine_warm_batch(problems[4:5])
     assert np.abs(C1[0] - C[4]).max() < 1e-9
 
 
 def test_warm_started_filter_keeps_the_cold_fix_and_falls_back():
-    """PoseFilter(warm_start=True) after a first (cold) fix: the next frame's fix equals the cold
-    solve within 2 um; a frame its warm start cannot explain (the device jumped 2 m) is solved
-    from scratch, as without the warm start."""
+    """PoseFilter(warm_start=True) after a first (cold) fix: the next frames' fixes equal the cold
+    solve within 2 um, also after a 2 m jump with a 70 degree turn (the warm start converges);
+    with an orientation prior that sees every LED behind the camera the warm start cannot
+    explain the frame and the frame is solved from scratch, as without the warm start."""
     from receiver.locate.pose import solve_warm_batch
     from receiver.locate.posefilter import PoseFilter
     led_map = make_map()
@@ -414,15 +416,21 @@ def test_warm_started_filter_keeps_the_cold_fix_and_falls_back():
         X = (L - C) @ ypr_to_rotation(yaw, 88.0, 2.0).T
         return X[:, :2] / X[:, 2:], np.linalg.norm(L - C, axis=1), np.full(len(L), 0.005)
 
+    upside_down = np.diag([1.0, -1.0, -1.0])
     warm, cold = PoseFilter(sigma_uv=3e-4, warm_start=True), PoseFilter(sigma_uv=3e-4)
-    for t, C, yaw in [(0.0, np.array([1.2, 1.1, 1.0]), 10.0), (0.033, np.array([1.22, 1.1, 1.0]), 11.0),
-                      (0.066, np.array([3.2, 0.1, 1.0]), 80.0)]:
+    for t, C, yaw, flip in [(0.0, np.array([1.2, 1.1, 1.0]), 10.0, False),
+                            (0.033, np.array([1.22, 1.1, 1.0]), 11.0, False),
+                            (0.066, np.array([3.2, 0.1, 1.0]), 80.0, False),
+                            (0.1, np.array([3.2, 0.12, 1.0]), 81.0, True)]:
         uv, d, sd = frame(C, yaw)
-        q = warm.warm_problem(t, L, uv, d, sd, warm.R_prior(t))
+        R_prior = warm.R_prior(t)
+        if flip:
+            R_prior = upside_down @ R_prior
+        q = warm.warm_problem(t, L, uv, d, sd, R_prior)
         assert (q is None) is (t == 0.0)                       # no previous fix: no warm start
-        if q is not None:                                      # kept near the last pose, not after the jump
-            assert (solve_warm_batch([q])[0] is None) is (t > 0.05)
-        fw = warm.solve(t, L, uv, d, sd, warm.R_prior(t))
+        if q is not None:
+            assert (solve_warm_batch([q])[0] is None) is flip
+        fw = warm.solve(t, L, uv, d, sd, R_prior)
         fc = cold.solve(t, L, uv, d, sd, cold.R_prior(t))
         assert np.abs(fw.C - fc.C).max() < 2e-6 and np.abs(fw.C - C).max() < 1e-3
         warm.update(t, fw, len(L))

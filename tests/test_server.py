@@ -660,6 +660,26 @@ def test_handle_datagram_benchmark(walk_map, benchmark):
     assert np.linalg.norm(xyz(reply["position"]) - C) < 0.005
 
 
+def test_handle_batch_benchmark(walk_map, benchmark):
+    """16 queued 4-LED datagrams of 16 walking devices handled together, as `serve_socket` does
+    under load (`handle_datagrams`: one batched warm-started solve): divide by 16 for the cost
+    of one datagram. Every reply is a warm-started range+angle position."""
+    from receiver.serve.loadgen import four_led_datagrams
+    srv = LightingServer(walk_map, clock=FakeClock())
+    dg = [(data, ("127.0.0.1", 9)) for _, _, data in four_led_datagrams(walk_map, 16 * 240, 16)]
+    srv.handle_datagrams(dg[:16 * 20])                   # every device has a track
+    batches = iter(range(20, 240))
+
+    def next_batch():
+        k = next(batches)
+        return (dg[16 * k:16 * (k + 1)],), {}
+
+    out = benchmark.pedantic(srv.handle_datagrams, setup=next_batch, rounds=200)
+    replies = [json.loads(o) for o in out]
+    assert len(replies) == 16 and all(r["position"]["method"] == "range+angle" for r in replies)
+    assert srv.counters["internal_error"] == 0
+
+
 def test_server_load_benchmark(walk_map, benchmark, request):
     """Issue 14: 4-LED datagrams at 3,000/s over loopback to `occloc serve` in its own process
     (receiver.serve.loadgen); reports replies/s and the reply latency. Only with

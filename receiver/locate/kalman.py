@@ -149,6 +149,11 @@ class PositionKalman:
         I_KH[:, :3] -= K
         self._P = np.dot(np.dot(I_KH, self._P), I_KH.T) + np.dot(np.dot(K, R), K.T)
 
+    def _mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> float:
+        """`mahalanobis2` of the current state, with H P H' = P[:3, :3] and H x = x[:3] (exact)."""
+        r = z - self._x[:3, 0]
+        return float(r @ np.linalg.solve(self._P[:3, :3] + R, r))
+
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray] | None:
         if self._x is None:
@@ -190,8 +195,7 @@ class PositionKalman:
         if z is not None:
             z = np.asarray(z, float)
             R = np.asarray(R, float)
-            x, P = self.state
-            if self.gate_chi2 is not None and mahalanobis2(x, P, z, R) > self.gate_chi2:
+            if self.gate_chi2 is not None and self._mahalanobis2(z, R) > self.gate_chi2:
                 self.rejects += 1
                 if self.rejects >= self.max_rejects:
                     self._start(t_s, z, R)
