@@ -203,7 +203,8 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
             dp = np.linalg.solve(A, -g)[:, :, 0]
         except np.linalg.LinAlgError:
             return state, r, J, ~active
-        dp[~active] = 0.0
+        if not active.all():
+            dp[~active] = 0.0
         trial = step(state, dp)
         r_new, J_new = fun_jac(trial)
         c_new, z_new = cost_z(r_new)
@@ -213,8 +214,8 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
         state = select(accept, trial, state)
         r, J, c, z = select(accept, (r_new, J_new, c_new, z_new), (r, J, c, z))
         Jt = J.transpose(0, 2, 1)
-        lam = np.where(accept, np.maximum(lam / 10.0, 1e-12), lam * 10.0)
-        active &= ~stop & ~(lam > LM_LAMBDA_MAX)
+        lam = np.maximum(lam * np.where(accept, 0.1, 10.0), 1e-12)
+        active &= ~(stop | (lam > LM_LAMBDA_MAX))
         if not active.any():
             return state, r, J, np.ones(B, bool)
     return state, r, J, ~active

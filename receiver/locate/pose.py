@@ -270,16 +270,27 @@ class WarmProblem:
     R0: np.ndarray
     C0: np.ndarray
 
+    @property
+    def has_ranges(self) -> bool:
+        return bool(np.isfinite(self.d).any())
+
 
 # Cross-product matrices as a linear map: (w @ _CROSS).reshape(3, 3) = [w]x.
 _CROSS = np.zeros((3, 9))
 _CROSS[2, 1], _CROSS[1, 2], _CROSS[0, 5] = -1.0, 1.0, -1.0
 _CROSS[2, 3], _CROSS[1, 6], _CROSS[0, 7] = 1.0, -1.0, 1.0
+_NEG_CROSS = -_CROSS
+
+
+_RODRIGUES_LOOP_MAX = 8
 
 
 def _rotation_steps(w: np.ndarray) -> np.ndarray:
     """Rotation matrices (B, 3, 3) exp([w]x) of rotation vectors w (B, 3) (Rodrigues' formula:
-    cos t I + sin t / t [w]x + (1 - cos t) / t^2 w w^T)."""
+    cos t I + sin t / t [w]x + (1 - cos t) / t^2 w w^T); a few by cv2.Rodrigues, whose one call
+    costs less than the formula's numpy calls."""
+    if len(w) <= _RODRIGUES_LOOP_MAX:
+        return np.stack([cv2.Rodrigues(wi)[0] for wi in w])
     th2 = np.einsum("bi,bi->b", w, w)
     th = np.sqrt(th2)
     small = th < 1e-8
@@ -356,7 +367,7 @@ def warm_batch_functions(problems: list[WarmProblem]):
         r = np.concatenate([((proj - uv) * wa[:, :, None]).reshape(B, 2 * N), (rng - d) * wr,
                             (cz - up) * wt[:, None]], axis=1)
         # dX/d(w, C) = [-[X]x, -R]; d(u, v) = (dX_xy - (u, v) dX_z) / z
-        dX = np.concatenate([-(X @ _CROSS).reshape(B, N, 3, 3),
+        dX = np.concatenate([(X @ _NEG_CROSS).reshape(B, N, 3, 3),
                              np.broadcast_to(-R[:, None], (B, N, 3, 3))], axis=3)
         J_ang = (dX[:, :, :2] - proj[:, :, :, None] * dX[:, :, 2:]) * (iz[:, :, None, None] * wa2)
         J_rng = np.concatenate([zeros_rng, Y * (-wr / np.maximum(rng, 1e-12))[:, :, None]], axis=2)
@@ -410,14 +421,10 @@ def solve_warm_batch(problems: list[WarmProblem], *, loss: str = DEFAULT_LOSS,
     if not problems:
         return []
     R, C, cov, chi2, dof, ok = refine_warm_batch(problems, loss=loss, f_scale=f_scale)
-    out = []
-    for b, q in enumerate(problems):
-        good = (ok[b] and chi2[b] <= WARM_MAX_CHI2_DOF * max(int(dof[b]), 1)
-                and C[b, 2] <= float(q.L[:, 2].min()) - BELOW_CEILING_M)
-        method = "range+angle" if np.isfinite(q.d).any() else "pnp"
-        out.append(Fix(C[b].copy(), cov[b].copy(), R[b].copy(), method, len(q.L), float(chi2[b]), int(dof[b]))
-                   if good else None)
-    return out
+    z_ceiling = np.array([q.L[:, 2].min() for q in problems])
+    good = ok & (chi2 <= WARM_MAX_CHI2_DOF * np.maximum(dof, 1)) & (C[:, 2] <= z_ceiling - BELOW_CEILING_M)
+    return [Fix(Cb, covb, Rb, "range+angle" if q.has_ranges else "pnp", len(q.L), chi2b, dofb) if g else None
+            for q, g, Cb, covb, Rb, chi2b, dofb in zip(problems, good.tolist(), C, cov, R, chi2.tolist(), dof.tolist())]
 
 
 def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, *,
