@@ -220,4 +220,4 @@ def preload() -> None:
 
 def position_std(P: np.ndarray) -> list[float]:
     """1-sigma of x, y, z from a (>=3, >=3) covariance."""
-    return [math.sqrt(max(0.0, float(P[i, i]))) for i in range(3)]
+    return [math.sqrt(max(0.0, v)) for v in np.diagonal(P)[:3].tolist()]

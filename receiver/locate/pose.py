@@ -527,12 +527,12 @@ def rotation_to_ypr_deg(R_cw: np.ndarray) -> tuple[float, float, float]:
     tools/synth/camera.py: camera-to-world ``R_cw^T = Rz(yaw) Ry(-pitch) Rx(roll) B``, B the
     OpenCV-camera-to-body axes; pitch = +90 looks straight up. At pitch = +-90 (gimbal lock)
     only yaw -/+ roll is defined and roll is reported as 0."""
-    M = np.asarray(R_cw, float).T @ CAM_TO_BODY.T
-    theta = math.asin(max(-1.0, min(1.0, -M[2, 0])))
+    M = (np.asarray(R_cw, float).T @ CAM_TO_BODY.T).tolist()     # Python floats: scalar maths
+    theta = math.asin(max(-1.0, min(1.0, -M[2][0])))
     if abs(math.cos(theta)) < 1e-6:
-        yaw, roll = math.atan2(-M[0, 1], M[1, 1]), 0.0
+        yaw, roll = math.atan2(-M[0][1], M[1][1]), 0.0
     else:
-        yaw, roll = math.atan2(M[1, 0], M[0, 0]), math.atan2(M[2, 1], M[2, 2])
+        yaw, roll = math.atan2(M[1][0], M[0][0]), math.atan2(M[2][1], M[2][2])
     return math.degrees(yaw), -math.degrees(theta), math.degrees(roll)
 
 

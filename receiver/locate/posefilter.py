@@ -20,7 +20,8 @@ from receiver.locate.pose import (DEFAULT_TILT_SIGMA_DEG, SOLVERS, WarmProblem, 
 # ---------------------------------------------------------------- the streaming stage
 
 def _xyz(v) -> dict:
-    return {"x": round(float(v[0]), 5), "y": round(float(v[1]), 5), "z": round(float(v[2]), 5)}
+    x, y, z = np.asarray(v)[:3].tolist()
+    return {"x": round(x, 5), "y": round(y, 5), "z": round(z, 5)}
 
 
 # Mirror of the world's y axis and of the camera's x axis (image columns reversed): a map drawn in
@@ -194,8 +195,8 @@ class PoseFilter:
             pos = _xyz(to_map(x[:3]))
             pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
                        filtered=True, std_m=[round(s, 5) for s in position_std(P3)],
-                       cov=np.round(P3, 8).tolist(),
-                       velocity_mps=[round(float(v), 4) for v in to_map(x[3:])])
+                       cov=P3.round(8).tolist(),
+                       velocity_mps=[round(v, 4) for v in to_map(x[3:]).tolist()])
         else:
             pos = _xyz(to_map(fix.C))
             pos.update(method=fix.method, n_leds=n_leds, filtered=False)
@@ -204,7 +205,7 @@ class PoseFilter:
             pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
             if fix.R_cw is not None:
                 R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if mirrored else fix.R_cw
-                pos["R_wc"] = np.round(R.T, 6).tolist()   # camera-to-world, columns = camera axes
+                pos["R_wc"] = R.T.round(6).tolist()   # camera-to-world, columns = camera axes
                 yaw, pitch, roll = rotation_to_ypr_deg(R)
                 pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
         else:
