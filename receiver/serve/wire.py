@@ -119,11 +119,17 @@ def _range_or_none(v, where: str, lo: float, hi: float) -> float:
     return _in_range(v, where, lo, hi, " m")
 
 
+# One decoder / encoder for every datagram (json.loads / json.dumps with options build a new one
+# per call, scanner and all): the same parsing and output.
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
 def _decode(data: bytes) -> dict:
     if len(data) > MAX_DATAGRAM_BYTES:
         raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
     try:
-        obj = json.loads(data.decode("utf-8"), parse_constant=_reject_constant)
+        obj = _DECODER.decode(data.decode("utf-8"))
     except (ValueError, RecursionError) as e:
         raise ProtocolError("bad_json", str(e).splitlines()[0][:80] if str(e) else "") from None
     if not isinstance(obj, dict):
@@ -228,7 +234,7 @@ def make_request(device: str, seq: int, t_s: float, sigma_uv: float, ids, uv: np
 def encode(msg: dict) -> bytes:
     """A request or reply as a compact UTF-8 JSON datagram. Strict JSON: a NaN or infinity
     anywhere raises ValueError (never `NaN` / `Infinity` tokens on the wire)."""
-    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return _ENCODER.encode(msg).encode("utf-8")
 
 
 def all_finite(obj) -> bool:
