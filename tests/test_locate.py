@@ -395,8 +395,9 @@ def test_warm_batch_reaches_refine_poses_minimum():
     for b, (Rr, Cr, covr, chi2r, dofr) in enumerate(refs):
         assert np.abs(C[b] - Cr).max() < 2e-6 and np.abs(R[b] - Rr).max() < 2e-6
         assert np.abs(cov[b] - covr).max() <= 1e-4 * np.abs(covr).max()
-        # the same chi^2 to the solvers' stopping rules (each stops ~1e-6 of it from the minimum)
-        assert chi2[b] == pytest.approx(chi2r, rel=1e-5) and dof[b] == dofr
+        # the same chi^2 to the solvers' stopping rules (chi^2 is not the robust cost minimised:
+        # it moves to first order with the solution, 1.3e-5 of it for a frame 1 sigma off)
+        assert chi2[b] == pytest.approx(chi2r, rel=1e-4) and dof[b] == dofr
     R1, C1, *_ = refine_warm_batch(problems[4:5])
     assert np.abs(C1[0] - C[4]).max() < 1e-9
 

@@ -158,9 +158,10 @@ class Fix:
 def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
              xtol: float = LM_XTOL, ftol: float = LM_FTOL, lam0: float = LM_LAMBDA0, max_rounds: int = 100):
     """Levenberg-Marquardt on B independent problems at once, each with its own damping and
-    stopping (the `robust_lm` rule: a relative step below `xtol` -- kept or not: nothing is left
-    to gain -- or a kept step's relative cost decrease below `ftol`), so that numpy's per-call
-    overhead is paid once per round for all of them. `lam0`: the initial damping (relative to
+    stopping (the `robust_lm` rule: a relative step below `xtol` -- then the problem stops where
+    it is, without evaluating that step: nothing is left to gain -- or a kept step's relative
+    cost decrease below `ftol`), so that numpy's per-call overhead is paid once per round for all
+    of them. `lam0`: the initial damping (relative to
     the normal matrix' diagonal).
 
     The cost and the iteratively reweighted normal equations are `lm_iterate`'s (sum
@@ -203,14 +204,16 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
             dp = np.linalg.solve(A, -g)[:, :, 0]
         except np.linalg.LinAlgError:
             return state, r, J, ~active
+        small = np.sqrt(np.einsum("bp,bp->b", dp, dp)) <= xtol * (1.0 + p_norm(state))
+        if small.all() or not (active & ~small).any():   # nothing left to gain: done here
+            return state, r, J, np.ones(B, bool)
         if not active.all():
             dp[~active] = 0.0
         trial = step(state, dp)
         r_new, J_new = fun_jac(trial)
         c_new, z_new = cost_z(r_new)
-        accept = active & (c_new <= c)
-        stop = ((np.sqrt(np.einsum("bp,bp->b", dp, dp)) <= xtol * (1.0 + p_norm(state)))
-                | (accept & (c - c_new <= ftol * c)))
+        accept = active & (c_new <= c) & ~small
+        stop = small | (accept & (c - c_new <= ftol * c))
         state = select(accept, trial, state)
         r, J, c, z = select(accept, (r_new, J_new, c_new, z_new), (r, J, c, z))
         Jt = J.transpose(0, 2, 1)
