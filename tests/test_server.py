@@ -660,6 +660,40 @@ def test_handle_datagram_benchmark(walk_map, benchmark):
     assert np.linalg.norm(xyz(reply["position"]) - C) < 0.005
 
 
+def test_queued_datagrams_are_answered_in_batches(walk_map):
+    """serve_socket takes every datagram already queued: 120 datagrams of 12 devices (10 each,
+    a device's in seq order) waiting before it starts are handled in a few batches, each answered
+    once with the position a server handling them one by one gives (to WARM_TOL)."""
+    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.server import bind_udp, serve_socket
+    dg = four_led_datagrams(walk_map, 120, 12)
+    one_by_one = LightingServer(walk_map, clock=FakeClock())
+    expected = {(dev, seq): one_by_one.handle(data) for dev, seq, data in dg}
+    srv = LightingServer(walk_map, clock=FakeClock())
+    sock = bind_udp("127.0.0.1", 0)
+    stop = threading.Event()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.settimeout(REPLY_TIMEOUT_S)
+        for _, _, data in dg:
+            client.sendto(data, sock.getsockname())
+        worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
+        worker.start()
+        try:
+            replies = [json.loads(client.recv(65536)) for _ in dg]
+        finally:
+            stop.set()
+            worker.join(5.0)
+            sock.close()
+    assert sorted((r["device"], r["seq"]) for r in replies) == sorted(expected)
+    for r in replies:
+        _assert_same(expected[r["device"], r["seq"]]["position"], r["position"], ulp=True)
+    seqs = {}
+    for r in replies:                                 # a device's replies in its seq order
+        assert r["seq"] > seqs.get(r["device"], -1)
+        seqs[r["device"]] = r["seq"]
+    assert srv.counters["batches"] <= 20 and srv.counters["replies"] == 120
+
+
 def test_handle_batch_benchmark(walk_map, benchmark):
     """16 queued 4-LED datagrams of 16 walking devices handled together, as `serve_socket` does
     under load (`handle_datagrams`: one batched warm-started solve): divide by 16 for the cost

@@ -335,9 +335,8 @@ def warm_batch_functions(problems: list[WarmProblem]):
         """(B, N, ...) of per-problem (n, ...) arrays, padded past n with zeros (or the first row)."""
         if min(ns) == N:
             return np.stack(arrays)
-        return np.stack([a if len(a) == N else
-                         np.concatenate([a, np.repeat(a[:1] if pad_with_first else np.zeros_like(a[:1]), N - len(a), 0)])
-                         for a in arrays])
+        pads = [np.repeat(a[:1] if pad_with_first else np.zeros_like(a[:1]), N - len(a), 0) for a in arrays]
+        return np.stack([np.concatenate([a, pad]) for a, pad in zip(arrays, pads)])
 
     L = stacked([q.L for q in problems], pad_with_first=True)
     uv = stacked([q.uv for q in problems])

@@ -400,7 +400,7 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
     `max_batch`), handle them together (`LightingServer.handle_datagrams`: one batched solve),
     send the replies. A plain blocking loop: asyncio's per-datagram callbacks cost more than the
     datagram's JSON. Socket errors (e.g. ICMP port unreachable for a reply to a device that went
-    away) are counted as `socket_errors`."""
+    away) are counted as `socket_errors`, the batches as `batches`."""
     poller = select.poll()
     poller.register(sock, select.POLLIN)
     recvfrom, sendto = sock.recvfrom, sock.sendto
@@ -418,7 +418,13 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
                 counters["socket_errors"] += 1
         if not batch:
             continue
-        for (_, addr), out in zip(batch, server.handle_datagrams(batch)):
+        counters["batches"] += 1
+        try:
+            outs = server.handle_datagrams(batch)
+        except Exception:   # noqa: BLE001 -- handle_many answers every failure itself; never stop serving
+            counters["internal_error"] += len(batch)
+            continue
+        for (_, addr), out in zip(batch, outs):
             if out is not None:
                 try:
                     sendto(out, addr)
