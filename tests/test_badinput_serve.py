@@ -130,6 +130,32 @@ def test_non_finite_solver_result_is_an_internal_error(walk_map, monkeypatch):
     assert p is not None and p["velocity_mps"] == [0.0, 0.0, 0.0]
 
 
+def test_fast_led_check_accepts_only_what_the_full_check_accepts():
+    """wire._parse_led_fast (the common case by plain comparisons) returns exactly what _parse_led
+    returns, or None (then _parse_led runs and names the fault): on valid LEDs and on each field
+    set to values around and beyond its limits, of other types, missing, and with centroids."""
+    from receiver.serve.wire import ProtocolError, _parse_led, _parse_led_fast
+    base = {"id": 7, "u": 0.01, "v": -0.2, "distance_m": 2.5, "sigma_m": 0.004}
+    odd = [None, True, 0, 1, -1, 2 ** 31, 2 ** 31 - 1, 0.0, -0.0, 1e-3, 1e-6, 1e3, 1e4, 100.0, -100.0, 100.5,
+           1e4 + 1, 1e-7, math.inf, -math.inf, math.nan, "1", [], {}]
+    accepted = 0
+    for key in list(base) + ["cx"]:
+        for value in odd:
+            item = dict(base, **{key: value})
+            fast = _parse_led_fast(item)
+            try:
+                slow = _parse_led(item, 0)
+            except ProtocolError:
+                slow = None
+            if fast is not None:
+                accepted += 1
+                assert fast == slow and all(type(x) is float for x in fast[1:]), (item, fast, slow)
+        if key in base:
+            assert _parse_led_fast({k: v for k, v in base.items() if k != key}) is None
+    assert _parse_led_fast(base) == _parse_led(base, 0) and accepted > 10
+    assert _parse_led_fast([1, 2]) is None and _parse_led_fast(dict(base, cx=1.0)) is None
+
+
 def test_unencodable_reply_falls_back_to_an_error(walk_map, monkeypatch):
     srv = LightingServer(walk_map, clock=FakeClock())
     srv.handle(encode(request("a", 0, 0.0, *scene(walk_map, C0))))

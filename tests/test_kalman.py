@@ -52,6 +52,39 @@ def test_filterpy_stage_and_pure_twin_agree():
         assert np.allclose(out[0], x, atol=1e-10) and np.allclose(out[1], P, atol=1e-12)
 
 
+def test_stage_equals_filterpy_bit_for_bit():
+    """PositionKalman runs filterpy's KalmanFilter predict / update without filterpy: the same
+    state and covariance to the last bit, through starts, fixes of varying covariance and coasts."""
+    from filterpy.kalman import KalmanFilter
+
+    rng = np.random.default_rng(5)
+    _, fixes = simulate(rng, n=80)
+    kf = PositionKalman(accel_psd=0.5, gate_chi2=None)
+    ref = None
+    t = 0.0
+    for k, z in enumerate(fixes):
+        t += 0.02 + 0.05 * rng.random()              # irregular frame times
+        A = rng.normal(0, 0.02, (3, 3))
+        R = A @ A.T + 1e-4 * np.eye(3)               # a full fix covariance, as the solver gives
+        coast = k % 9 == 4
+        out = kf.step(t, None if coast else z, None if coast else R)
+        if ref is None:
+            ref = KalmanFilter(dim_x=6, dim_z=3)
+            ref.x = np.concatenate([z, np.zeros(3)]).reshape(6, 1)
+            ref.P = np.zeros((6, 6))
+            ref.P[:3, :3] = R
+            ref.P[3:, 3:] = kf.init_vel_sigma ** 2 * np.eye(3)
+            ref.H = np.hstack([np.eye(3), np.zeros((3, 3))])
+            t_ref = t
+        else:
+            ref.F, ref.Q = transition(t - t_ref), process_noise(t - t_ref, 0.5)
+            ref.predict()
+            t_ref = t
+            if not coast:
+                ref.update(z.reshape(3, 1), R=R)
+        assert np.array_equal(out[0], ref.x.reshape(6)) and np.array_equal(out[1], ref.P)
+
+
 def test_nees_consistency_on_constant_velocity_track():
     rng = np.random.default_rng(11)
     runs, nees = 20, []

@@ -10,12 +10,15 @@ The motion model is a continuous white-noise acceleration of spectral density ``
 ``z = H x + v`` with ``H = [I 0]`` and ``v ~ N(0, R)``, R the fix's own covariance from the least
 squares Jacobian, so nothing is tuned per scene except the documented acceleration density.
 
-`PositionKalman` (the streaming stage, on filterpy's KalmanFilter) and the pure functions
-`cv_predict` / `cv_update` (same maths on arrays) must agree; a test checks it.
+`PositionKalman` (the streaming stage) runs the predict / update steps of filterpy's
+`KalmanFilter` with the same operations in the same order on plain numpy arrays (`_predict`,
+`_update`), so its state equals filterpy's bit for bit (a test runs both side by side) without
+filterpy's per-call bookkeeping (deep copies, prior / posterior snapshots: most of a
+lighting-server datagram's filter time). The pure functions `cv_predict` / `cv_update` are the
+same maths written as the equations; a test checks that they agree.
 
-filterpy is imported when a track first needs a prediction or an update, not at the first fix:
-importing it runs its whole package, scipy.stats included (~1.5 s CPU here), and a single photo
-only ever starts a track, whose state is the fix itself.
+filterpy is the tests' reference only; `preload` still imports it (and scipy.stats with it) for
+the streaming receiver's start-up contract.
 """
 
 from __future__ import annotations
@@ -39,17 +42,25 @@ DEFAULT_MAX_COAST_S = 2.0
 H = np.hstack([np.eye(3), np.zeros((3, 3))])
 
 
+_EYE6 = np.eye(6)
+# (6, 6) index of each element's 3x3 block in a 2x2 matrix (row-major), and the identity pattern
+# inside the blocks: `process_noise` without np.block's Python-level assembly.
+_BLOCK_OF = (np.arange(6)[:, None] // 3) * 2 + np.arange(6)[None, :] // 3
+_IN_BLOCK_EYE = np.tile(np.eye(3), (2, 2))
+
+
 def transition(dt: float) -> np.ndarray:
     """(6, 6) constant-velocity transition over dt seconds."""
-    F = np.eye(6)
-    F[:3, 3:] = dt * np.eye(3)
+    F = _EYE6.copy()
+    F[0, 3] = F[1, 4] = F[2, 5] = dt
     return F
 
 
 def process_noise(dt: float, q: float) -> np.ndarray:
-    """(6, 6) process noise of white acceleration with spectral density q (m^2/s^3) over dt s."""
-    I3 = np.eye(3)
-    return q * np.block([[dt ** 3 / 3 * I3, dt ** 2 / 2 * I3], [dt ** 2 / 2 * I3, dt * I3]])
+    """(6, 6) process noise of white acceleration with spectral density q (m^2/s^3) over dt s:
+    q * [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]] (each element computed as that expression)."""
+    blocks = q * np.array([dt ** 3 / 3, dt ** 2 / 2, dt ** 2 / 2, dt])
+    return blocks[_BLOCK_OF] * _IN_BLOCK_EYE
 
 
 def cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
@@ -97,46 +108,57 @@ class PositionKalman:
         self.gate_chi2 = gate_chi2
         self.max_rejects = max_rejects
         self.max_coast_s = max_coast_s
-        self.kf = None  # filterpy KalmanFilter, made from `_init` when first needed
-        self._init: tuple[np.ndarray, np.ndarray] | None = None  # (x (6,), P (6, 6)) of a new track
+        self._x: np.ndarray | None = None   # (6, 1) state of the current track (filterpy's shape)
+        self._P: np.ndarray | None = None   # (6, 6) its covariance
         self.t_s: float | None = None
         self.t_fix_s: float | None = None
         self.rejects = 0
         self.last_accepted = False
 
     def reset(self) -> None:
-        self.kf, self._init, self.t_s, self.t_fix_s, self.rejects = None, None, None, None, 0
+        self._x, self._P, self.t_s, self.t_fix_s, self.rejects = None, None, None, None, 0
 
     @property
     def tracking(self) -> bool:
-        return self.kf is not None or self._init is not None
+        return self._x is not None
 
     def _start(self, t_s: float, z: np.ndarray, R: np.ndarray) -> None:
         P = np.zeros((6, 6))
         P[:3, :3] = R
         P[3:, 3:] = self.init_vel_sigma ** 2 * np.eye(3)
-        self.kf, self._init = None, (np.concatenate([z, np.zeros(3)]), P)
+        self._x, self._P = np.concatenate([z, np.zeros(3)]).reshape(6, 1), P
         self.t_s, self.t_fix_s, self.rejects = t_s, t_s, 0
 
-    def _filter(self):
-        """The filterpy filter of the current track, made from the track's start on first use."""
-        if self.kf is None:
-            from filterpy.kalman import KalmanFilter
-            x, P = self._init
-            kf = KalmanFilter(dim_x=6, dim_z=3)
-            kf.x = x.reshape(6, 1)
-            kf.P = P
-            kf.H = H.copy()
-            self.kf, self._init = kf, None
-        return self.kf
+    def _predict(self, dt: float) -> None:
+        """filterpy `KalmanFilter.predict` with F = transition(dt), Q = process_noise(dt, q)
+        (eqs. 35-36): x = F x, P = F P F' + Q."""
+        F = transition(dt)
+        self._x = np.dot(F, self._x)
+        self._P = np.dot(np.dot(F, self._P), F.T) + process_noise(dt, self.q)
+
+    def _update(self, z: np.ndarray, R: np.ndarray) -> None:
+        """filterpy `KalmanFilter.update` (eqs. 37-39, Joseph form) with H = [I 0]: P H' is
+        P[:, :3], H P H' is P[:3, :3], H x is x[:3] and K H is [K 0] exactly (products with
+        the 0/1 entries of H are exact), the rest the same numpy calls in the same order."""
+        y = z.reshape(3, 1) - self._x[:3]
+        PHT = self._P[:, :3]
+        S = PHT[:3] + R
+        K = np.dot(PHT, np.linalg.inv(S))
+        self._x = self._x + np.dot(K, y)
+        I_KH = _EYE6.copy()
+        I_KH[:, :3] -= K
+        self._P = np.dot(np.dot(I_KH, self._P), I_KH.T) + np.dot(np.dot(K, R), K.T)
+
+    def _mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> float:
+        """`mahalanobis2` of the current state, with H P H' = P[:3, :3] and H x = x[:3] (exact)."""
+        r = z - self._x[:3, 0]
+        return float(r @ np.linalg.solve(self._P[:3, :3] + R, r))
 
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if self.kf is not None:
-            return self.kf.x.reshape(6).copy(), self.kf.P.copy()
-        if self._init is not None:
-            return self._init[0].copy(), self._init[1].copy()
-        return None
+        if self._x is None:
+            return None
+        return self._x.reshape(6).copy(), self._P.copy()
 
     def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The prediction (x (6,), P (6, 6)) at t_s without changing the filter; None without a
@@ -145,6 +167,14 @@ class PositionKalman:
             return None
         x, P = self.state
         return cv_predict(x, P, t_s - self.t_s, self.q)
+
+    def predict_position(self, t_s: float) -> np.ndarray | None:
+        """The predicted position (3,) at t_s (x + v dt, no covariance: a solver's starting
+        point); None where `predict_at` is None."""
+        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+            return None
+        x = self._x.reshape(6)
+        return x[:3] + (t_s - self.t_s) * x[3:]
 
     def step(self, t_s: float, z: np.ndarray | None = None, R: np.ndarray | None = None):
         self.last_accepted = False
@@ -160,23 +190,19 @@ class PositionKalman:
             self.reset()
             return self.step(t_s, z, R)
         if dt > 0:
-            kf = self._filter()
-            kf.F = transition(dt)
-            kf.Q = process_noise(dt, self.q)
-            kf.predict()
+            self._predict(dt)
             self.t_s = t_s
         if z is not None:
             z = np.asarray(z, float)
             R = np.asarray(R, float)
-            x, P = self.state
-            if self.gate_chi2 is not None and mahalanobis2(x, P, z, R) > self.gate_chi2:
+            if self.gate_chi2 is not None and self._mahalanobis2(z, R) > self.gate_chi2:
                 self.rejects += 1
                 if self.rejects >= self.max_rejects:
                     self._start(t_s, z, R)
                     self.last_accepted = True
                     return self.state
             else:
-                self._filter().update(z.reshape(3, 1), R=R)
+                self._update(z, R)
                 self.t_fix_s, self.rejects = t_s, 0
                 self.last_accepted = True
         if self.t_fix_s is not None and t_s - self.t_fix_s > self.max_coast_s:
@@ -186,11 +212,12 @@ class PositionKalman:
 
 
 def preload() -> None:
-    """Import filterpy now (~1.5 s CPU: its package imports scipy.stats), so that a stream's
-    second frame does not pay for it; a single photo never needs it (see the module doc)."""
+    """Import filterpy now (~1.5 s CPU: its package imports scipy.stats): a stream's receiver
+    calls it before its first frame (scipy.stats then costs no frame's latency); a single photo
+    never does (see the module doc)."""
     import filterpy.kalman  # noqa: F401
 
 
 def position_std(P: np.ndarray) -> list[float]:
     """1-sigma of x, y, z from a (>=3, >=3) covariance."""
-    return [math.sqrt(max(0.0, float(P[i, i]))) for i in range(3)]
+    return [math.sqrt(max(0.0, v)) for v in np.diagonal(P)[:3].tolist()]

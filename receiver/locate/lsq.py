@@ -8,6 +8,7 @@ Fix covariance: ``cov = s^2 (J^T J)^-1`` at the solution, ``s^2 = max(1, chi^2/d
 from __future__ import annotations
 
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,6 +87,30 @@ def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_sca
     return p, False, r, J
 
 
+def _lm_done(dp, p, c, c_new) -> bool:
+    """`robust_lm`'s stopping rule: relative step below LM_XTOL or relative cost decrease below
+    LM_FTOL."""
+    return (math.sqrt(float(dp @ dp)) <= LM_XTOL * (1.0 + math.sqrt(float(p @ p)))
+            or c - c_new <= LM_FTOL * c)
+
+
+def robust_lm_rj(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+                 max_iter: int = 50) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`robust_lm`, returning (p, r, J): the solution with its (whitened, loss-free) residuals
+    and Jacobian, which the caller's covariance then needs not evaluate again."""
+    if loss not in _LOSSES:
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+        p = least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
+        return p, fun(p), jac(p)
+    # `fun.fun_jac` (e.g. receiver.locate.pose._joint_fun): both from one evaluation of the pose.
+    fun_jac = getattr(fun, "fun_jac", None) if jac is getattr(fun, "jac", None) else None
+    if fun_jac is None:
+        def fun_jac(q):
+            return fun(q), jac(q)
+    p, _, r, J = lm_iterate(fun_jac, p0, _lm_done, loss=loss, f_scale=f_scale, max_iter=max_iter)
+    return p, r, J
+
+
 def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
               max_iter: int = 50) -> np.ndarray:
     """`lm_iterate` on residuals `fun(p)` with Jacobian `jac(p)`, stopping on a relative step
@@ -93,19 +118,7 @@ def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: fl
     Why not least_squares itself: for these 3-6 parameter problems its per-iteration overhead
     (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
     Losses other than those in _LOSSES fall back to least_squares."""
-    if loss not in _LOSSES:
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
-        return least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
-
-    def done(dp, p, c, c_new):
-        return np.linalg.norm(dp) <= LM_XTOL * (1.0 + np.linalg.norm(p)) or c - c_new <= LM_FTOL * c
-
-    # `fun.fun_jac` (e.g. receiver.locate.pose._joint_fun): both from one evaluation of the pose.
-    fun_jac = getattr(fun, "fun_jac", None) if jac is getattr(fun, "jac", None) else None
-    if fun_jac is None:
-        def fun_jac(q):
-            return fun(q), jac(q)
-    return lm_iterate(fun_jac, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
+    return robust_lm_rj(fun, jac, p0, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
 
 
 def covariance_at(r: np.ndarray, J: np.ndarray, n_params: int) -> tuple[np.ndarray, float, int]:
@@ -138,3 +151,81 @@ class Fix:
     n_leds: int
     chi2: float = 0.0
     dof: int = 0
+
+
+# ---------------------------------------------------------------- many small problems at once
+
+def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+             xtol: float = LM_XTOL, ftol: float = LM_FTOL, lam0: float = LM_LAMBDA0, max_rounds: int = 100):
+    """Levenberg-Marquardt on B independent problems at once, each with its own damping and
+    stopping (the `robust_lm` rule: a relative step below `xtol` -- then the problem stops where
+    it is, without evaluating that step: nothing is left to gain -- or a kept step's relative
+    cost decrease below `ftol`), so that numpy's per-call overhead is paid once per round for all
+    of them. `lam0`: the initial damping (relative to
+    the normal matrix' diagonal).
+
+    The cost and the iteratively reweighted normal equations are `lm_iterate`'s (sum
+    rho((r/f_scale)^2), scipy's losses; weights rho'(z)). (scipy's curvature-corrected weights
+    rho' + 2 z rho'' took 7 rounds on average from the lighting server's warm starts, these 4.)
+    `state`: the B problems' parameters in the caller's form (e.g. a tuple of stacked arrays);
+    `fun_jac(state) -> (r (B, M), J (B, M, P))` whitened residuals and their Jacobian with
+    respect to a local step; `step(state, dp (B, P)) -> state` with dp applied (rows of dp are
+    zero where nothing is to change); `p_norm(state) -> (B,)` the parameter norm of the relative
+    step test. Residual rows that are all zero (padding) change nothing.
+    A round tries one damped step for every unfinished problem: kept where the cost does not grow
+    (damping / 10), else the damping * 10, as `lm_iterate` does. Returns (state, r, J, ok (B,)):
+    ok False where `max_rounds` ran out or the normal equations were singular."""
+    rho, wfun = _LOSSES[loss]
+
+    def cost_z(r):
+        z = (r / f_scale) ** 2
+        return 0.5 * f_scale ** 2 * rho(z).sum(axis=1), z
+
+    def select(keep, new, old):
+        if keep.all():
+            return new
+        if not keep.any():
+            return old
+        return tuple(np.where(keep.reshape((-1,) + (1,) * (a.ndim - 1)), a, b) for a, b in zip(new, old))
+
+    r, J = fun_jac(state)
+    c, z = cost_z(r)
+    B, _, P = J.shape
+    lam = np.full(B, lam0)
+    active = np.ones(B, bool)
+    diag = np.arange(P)
+    Jt = J.transpose(0, 2, 1)
+    for _ in range(max_rounds):
+        w = wfun(z)
+        A = np.matmul(Jt, J * w[:, :, None])
+        g = np.matmul(Jt, (w * r)[:, :, None])
+        A[:, diag, diag] += lam[:, None] * np.maximum(A[:, diag, diag], 1e-12)
+        try:
+            dp = np.linalg.solve(A, -g)[:, :, 0]
+        except np.linalg.LinAlgError:
+            return state, r, J, ~active
+        small = np.sqrt(np.einsum("bp,bp->b", dp, dp)) <= xtol * (1.0 + p_norm(state))
+        if small.all() or not (active & ~small).any():   # nothing left to gain: done here
+            return state, r, J, np.ones(B, bool)
+        if not active.all():
+            dp[~active] = 0.0
+        trial = step(state, dp)
+        r_new, J_new = fun_jac(trial)
+        c_new, z_new = cost_z(r_new)
+        accept = active & (c_new <= c) & ~small
+        stop = small | (accept & (c - c_new <= ftol * c))
+        state = select(accept, trial, state)
+        r, J, c, z = select(accept, (r_new, J_new, c_new, z_new), (r, J, c, z))
+        Jt = J.transpose(0, 2, 1)
+        lam = np.maximum(lam * np.where(accept, 0.1, 10.0), 1e-12)
+        active &= ~(stop | (lam > LM_LAMBDA_MAX))
+        if not active.any():
+            return state, r, J, np.ones(B, bool)
+    return state, r, J, ~active
+
+
+def covariance_batch(r: np.ndarray, J: np.ndarray, dof: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`covariance_at` of B problems: r (B, M), J (B, M, P), dof (B,) -> (cov (B, P, P), chi2 (B,))."""
+    chi2 = np.einsum("bm,bm->b", r, r)
+    s2 = np.where(dof > 0, np.maximum(1.0, chi2 / np.maximum(dof, 1)), 1.0)
+    return np.linalg.pinv(np.matmul(J.transpose(0, 2, 1), J)) * s2[:, None, None], chi2

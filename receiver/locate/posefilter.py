@@ -13,13 +13,15 @@ from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, Posit
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.lsq import Fix
-from receiver.locate.pose import DEFAULT_TILT_SIGMA_DEG, SOLVERS, is_collinear, rotation_to_ypr_deg, solve_fix
+from receiver.locate.pose import (DEFAULT_TILT_SIGMA_DEG, SOLVERS, WarmProblem, is_collinear, rotation_to_ypr_deg,
+                                  solve_fix, solve_warm_batch, warm_problem)
 
 
 # ---------------------------------------------------------------- the streaming stage
 
 def _xyz(v) -> dict:
-    return {"x": round(float(v[0]), 5), "y": round(float(v[1]), 5), "z": round(float(v[2]), 5)}
+    x, y, z = np.asarray(v)[:3].tolist()
+    return {"x": round(x, 5), "y": round(y, 5), "z": round(z, 5)}
 
 
 # Mirror of the world's y axis and of the camera's x axis (image columns reversed): a map drawn in
@@ -61,13 +63,20 @@ class PoseFilter:
     photo has no pose below the LEDs as surveyed), the map is left-handed for the rest of the run
     (`handedness`, "detected" in `handedness_source`), and the filter restarts in that frame.
     All state (filter, priors) lives in the solving frame.
+    `warm_start`: a frame with 3+ LEDs off one line starts its solve from the orientation prior
+    it is given (`R_prior`, the last fix's) and the filter's predicted position (else the last
+    fix's centre) when both are recent
+    (`receiver.locate.pose.solve_warm_batch`: a few solver iterations, no PnP); the lighting
+    server's per-device filters use it. The same minimum within the solver's tolerance (on the
+    bundled sparse walk's warm frames 0.1-0.15 um from the cold fix, with a lower chi^2).
     """
 
     def __init__(self, *, handedness: str | None = None, sigma_uv: float, solver: str = "auto",
                  kalman: bool = True, accel_psd: float = DEFAULT_ACCEL_PSD,
                  max_coast_s: float = DEFAULT_MAX_COAST_S, loss: str = DEFAULT_LOSS,
                  f_scale: float = DEFAULT_F_SCALE, tilt_prior: str = "up",
-                 tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG, track_prior: bool = False):
+                 tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG, track_prior: bool = False,
+                 warm_start: bool = False):
         if solver not in SOLVERS:
             raise ValueError(f"unknown solver {solver!r}")
         if handedness not in (None, "right", "left"):
@@ -78,6 +87,7 @@ class PoseFilter:
         self.loss, self.f_scale = loss, f_scale
         self.max_coast_s = max_coast_s
         self.tilt_prior, self.tilt_sigma_deg, self.track_prior = tilt_prior, tilt_sigma_deg, track_prior
+        self.warm_start = warm_start
         self._kalman_args = dict(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
         self.n_fixes = 0
         self._restart()
@@ -108,20 +118,42 @@ class PoseFilter:
         """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`."""
         self._R_cw, self._t_R = R_cw, t_s
 
+    def _kw(self) -> dict:
+        return dict(sigma_uv=self.sigma_uv, solver=self.solver, tilt_sigma_deg=self.tilt_sigma_deg,
+                    tilt_prior_R=R_LOOKING_UP if self.tilt_prior == "up" else None)
+
+    def warm_problem(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
+                     sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> WarmProblem | None:
+        """The warm-started refinement `solve` would run for this frame (`warm_start`: the
+        orientation prior and the filter's predicted position, else the last fix's centre), or
+        None where it solves the frame from scratch."""
+        if not self.warm_start or R_prior is None or self.handedness_source == "default":
+            return None
+        C0 = self.kf.predict_position(t_s) if self.kf is not None else None
+        if C0 is None and self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s:
+            C0 = self._C
+        if C0 is None:
+            return None
+        L = self.to_solving(L_map)
+        return warm_problem(L, uv, d, sigma_d, R_prior, C0, **self._kw())
+
     def solve(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
               sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> Fix | None:
         """One frame's fix in the solving frame (no state change except the handedness decision).
         L_map (N, 3) map m; uv (N, 2) undistorted normalized image points or None; d, sigma_d (N,)
         ranges and their 1-sigma, m (NaN where unknown). R_prior: solving-frame orientation guess."""
+        return solve_batch([(self, t_s, L_map, uv, d, sigma_d, R_prior)])[0]
+
+    def solve_cold(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
+                   sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> Fix | None:
+        """`solve` without the warm start (`solve_fix` from scratch)."""
         pred = None if self.kf is None or not self.track_prior else self.kf.predict_at(t_s)
         if pred is not None:
             C_prior, C_prior_cov = pred[0][:3], pred[1][:3, :3]
         else:
             recent = self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s
             C_prior, C_prior_cov = (self._C if recent else None), None
-        kw = dict(sigma_uv=self.sigma_uv, solver=self.solver, loss=self.loss, f_scale=self.f_scale,
-                  tilt_sigma_deg=self.tilt_sigma_deg,
-                  tilt_prior_R=R_LOOKING_UP if self.tilt_prior == "up" else None)
+        kw = dict(self._kw(), loss=self.loss, f_scale=self.f_scale)
         L_map = np.asarray(L_map, float).reshape(-1, 3)
         fix = solve_fix(self.to_solving(L_map), uv, d, sigma_d, R_prior=R_prior, C_prior=C_prior,
                         C_prior_cov=C_prior_cov, **kw)
@@ -152,24 +184,28 @@ class PoseFilter:
             state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
         if fix is None and state is None:
             return None
-        F = MIRROR_WORLD if self.mirrored else np.eye(3)
+        mirrored = self.mirrored
+
+        def to_map(v):                     # solving frame -> map frame (exact: F is a sign flip)
+            return MIRROR_WORLD @ v if mirrored else v
+
         if state is not None:
             x, P = state
-            P3 = F @ P[:3, :3] @ F
-            pos = _xyz(F @ x[:3])
+            P3 = MIRROR_WORLD @ P[:3, :3] @ MIRROR_WORLD if mirrored else P[:3, :3]
+            pos = _xyz(to_map(x[:3]))
             pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
                        filtered=True, std_m=[round(s, 5) for s in position_std(P3)],
-                       cov=np.round(P3, 8).tolist(),
-                       velocity_mps=[round(float(v), 4) for v in F @ x[3:]])
+                       cov=P3.round(8).tolist(),
+                       velocity_mps=[round(v, 4) for v in to_map(x[3:]).tolist()])
         else:
-            pos = _xyz(F @ fix.C)
+            pos = _xyz(to_map(fix.C))
             pos.update(method=fix.method, n_leds=n_leds, filtered=False)
         if fix is not None:
-            pos["raw"] = _xyz(F @ fix.C)
+            pos["raw"] = _xyz(to_map(fix.C))
             pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
             if fix.R_cw is not None:
-                R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if self.mirrored else fix.R_cw
-                pos["R_wc"] = np.round(R.T, 6).tolist()   # camera-to-world, columns = camera axes
+                R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if mirrored else fix.R_cw
+                pos["R_wc"] = R.T.round(6).tolist()   # camera-to-world, columns = camera axes
                 yaw, pitch, roll = rotation_to_ypr_deg(R)
                 pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
         else:
@@ -177,3 +213,29 @@ class PoseFilter:
         if self.handedness_source != "default":
             pos["handedness"] = self.handedness
         return pos
+
+
+def solve_batch(frames) -> list[Fix | None]:
+    """`PoseFilter.solve` of many frames, each (pose_filter, t_s, L_map, uv, d, sigma_d, R_prior),
+    at most one per filter: the warm-started ones (`PoseFilter.warm_problem`) in one batched
+    solve per loss setting (`receiver.locate.pose.solve_warm_batch`), the others -- and any warm
+    fix that does not explain its frame -- from scratch (`PoseFilter.solve_cold`)."""
+    fixes: list[Fix | None] = [None] * len(frames)
+    groups: dict[tuple, list[tuple[int, WarmProblem]]] = {}
+    cold = []
+    for i, (pf, *args) in enumerate(frames):
+        q = pf.warm_problem(*args)
+        if q is None:
+            cold.append(i)
+        else:
+            groups.setdefault((pf.loss, pf.f_scale), []).append((i, q))
+    for (loss, f_scale), items in groups.items():
+        for (i, _), fix in zip(items, solve_warm_batch([q for _, q in items], loss=loss, f_scale=f_scale)):
+            if fix is None:
+                cold.append(i)
+            else:
+                fixes[i] = fix
+    for i in sorted(cold):
+        pf, *args = frames[i]
+        fixes[i] = pf.solve_cold(*args)
+    return fixes

@@ -8,13 +8,16 @@ Requests: `devices` devices, each walking slowly under a 2 x 2 block of the map'
 `rate` datagrams/s (paced in bursts of at most 1 ms). Replies are matched to their requests by
 (device, seq); the latency is send -> reply on this machine's monotonic clock. Report: sent,
 replies, achieved replies/s, lost (no reply within `drain_s` after the last send), latency
-p50 / p99 / max in ms.
+p50 / p99 / max in ms; with the server started here on Linux also the server process's CPU
+time per reply (`server_cpu_ms_per_reply`, /proc: user + system while the load ran), which a
+machine shared with other work inflates far less than the rates and latencies.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -113,6 +116,16 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             "max_ms": round(float(ms.max()), 3) if len(ms) else None}
 
 
+def process_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of process `pid` so far (Linux /proc), or None."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def start_server(args=()) -> tuple[subprocess.Popen, tuple[str, int]]:
     """`occloc serve --port 0` as a subprocess, once ready: (process, (host, port))."""
     proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "serve", "--port", "0", *args], cwd=ROOT,
@@ -146,7 +159,12 @@ def main(argv=None) -> int:
     else:
         proc, address = start_server()
     try:
-        print(json.dumps(run_load(address, dg, a.rate)))
+        cpu0 = None if proc is None else process_cpu_s(proc.pid)
+        report = run_load(address, dg, a.rate)
+        cpu1 = None if proc is None else process_cpu_s(proc.pid)
+        if cpu0 is not None and cpu1 is not None and report["replies"]:
+            report["server_cpu_ms_per_reply"] = round((cpu1 - cpu0) * 1e3 / report["replies"], 3)
+        print(json.dumps(report))
     finally:
         if proc is not None:
             proc.terminate()

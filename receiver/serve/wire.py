@@ -119,11 +119,17 @@ def _range_or_none(v, where: str, lo: float, hi: float) -> float:
     return _in_range(v, where, lo, hi, " m")
 
 
+# One decoder / encoder for every datagram (json.loads / json.dumps with options build a new one
+# per call, scanner and all): the same parsing and output.
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
 def _decode(data: bytes) -> dict:
     if len(data) > MAX_DATAGRAM_BYTES:
         raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
     try:
-        obj = json.loads(data.decode("utf-8"), parse_constant=_reject_constant)
+        obj = _DECODER.decode(data.decode("utf-8"))
     except (ValueError, RecursionError) as e:
         raise ProtocolError("bad_json", str(e).splitlines()[0][:80] if str(e) else "") from None
     if not isinstance(obj, dict):
@@ -153,6 +159,23 @@ def _parse_led(item, i: int) -> tuple[int, float, float, float, float]:
     return led_id, u, v, d, sd
 
 
+def _parse_led_fast(item) -> tuple | None:
+    """`_parse_led` of the common case -- an object with an int id, float u / v and a float range
+    with its sigma, no centroid -- checked with plain comparisons (a chained range test is False
+    for NaN and infinities); None for anything else, which `_parse_led` then checks (and names
+    the fault of)."""
+    if type(item) is not dict or "cx" in item or "cy" in item:
+        return None
+    led_id, u, v = item.get("id"), item.get("u"), item.get("v")
+    d, sd = item.get("distance_m"), item.get("sigma_m")
+    if (type(led_id) is int and 0 <= led_id <= MAX_LED_ID and type(u) is float and type(v) is float
+            and -MAX_ABS_UV <= u <= MAX_ABS_UV and -MAX_ABS_UV <= v <= MAX_ABS_UV
+            and type(d) is float and DISTANCE_RANGE_M[0] <= d <= DISTANCE_RANGE_M[1]
+            and type(sd) is float and SIGMA_M_RANGE[0] <= sd <= SIGMA_M_RANGE[1]):
+        return led_id, u, v, d, sd
+    return None
+
+
 def _parse_body(obj: dict, device: str, seq: int) -> Request:
     t = _in_range(_get(obj, "t", ""), "t", -MAX_ABS_T_S, MAX_ABS_T_S, " s")
     sigma_uv = _in_range(_get(obj, "sigma_uv", ""), "sigma_uv", *SIGMA_UV_RANGE)
@@ -163,7 +186,7 @@ def _parse_body(obj: dict, device: str, seq: int) -> Request:
         raise ProtocolError("too_many_leds", f"{len(leds)} LEDs > {MAX_LEDS}")
     if "camera" in obj and not isinstance(obj["camera"], dict):
         raise ProtocolError("bad_type", "camera must be an object")
-    rows = [_parse_led(item, i) for i, item in enumerate(leds)]
+    rows = [_parse_led_fast(item) or _parse_led(item, i) for i, item in enumerate(leds)]
     ids = tuple(r[0] for r in rows)
     if len(set(ids)) != len(ids):
         raise ProtocolError("bad_value", "an LED id is listed twice")
@@ -211,7 +234,7 @@ def make_request(device: str, seq: int, t_s: float, sigma_uv: float, ids, uv: np
 def encode(msg: dict) -> bytes:
     """A request or reply as a compact UTF-8 JSON datagram. Strict JSON: a NaN or infinity
     anywhere raises ValueError (never `NaN` / `Infinity` tokens on the wire)."""
-    return json.dumps(msg, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    return _ENCODER.encode(msg).encode("utf-8")
 
 
 def all_finite(obj) -> bool:
