@@ -35,7 +35,6 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
                                       ToneSettings)
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
-from receiver.locate.kalman import preload as preload_filter
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import frame_shift, vertical_shift, yaw_pitch_shift
@@ -175,8 +174,6 @@ class Receiver:
         self.positioner = positioner
         if not still:             # before the first frame, not inside the second one's latency
             preload_assignment()
-            if positioner is not None:
-                preload_filter()
         self.speed = speed
         self.clock = clock
         self.plan = plan = ModePlan.from_map(led_map)

@@ -121,10 +121,11 @@ def test_run_threads_must_be_a_sensible_count(bad, capsys):
 
 
 @pytest.mark.parametrize("still", [False, True])
-def test_the_filter_and_scipy_are_imported_before_a_stream_and_never_for_a_photo(still):
-    """filterpy (whose package imports scipy.stats, ~1.5 s) is imported when a stream's receiver
-    is built, before its first frame: lazily inside the second frame it cost that frame ~0.7 s of
-    latency. A still photo's receiver never imports it (its single fix starts the filter only)."""
+def test_scipy_is_imported_before_a_stream_and_never_for_a_photo_and_filterpy_never(still):
+    """scipy.optimize (~0.8 s) is imported when a stream's receiver is built, before its first
+    frame: lazily inside the second frame it cost that frame ~0.7 s of latency. A still photo's
+    receiver never imports it. filterpy (whose package imports scipy.stats, ~1.5 s) is the Kalman
+    filter's test reference only: no receiver imports it."""
     mods = _modules_after(
         "from receiver.io.camera import load_camera\n"
         "from receiver.io.ledmap import load_map\n"
@@ -133,9 +134,9 @@ def test_the_filter_and_scipy_are_imported_before_a_stream_and_never_for_a_photo
         f"cam = load_camera({str(STATIC / 'camera.yaml')!r})\n"
         f"m = load_map({str(STATIC / 'map.json')!r})\n"
         f"Receiver(cam, m, positioner=Positioner(cam, m), still={still})\n")
-    assert bool(_loaded(mods, ("filterpy",))) is (not still)
-    # scipy too: the tracker's assignment and the solvers' fallbacks import it where they need
-    # it, which a photo never does (0.8 s of a 1.0 s photo command); a stream preloads it.
+    assert not _loaded(mods, ("filterpy",))
+    # the tracker's assignment and the solvers' fallbacks import scipy where they need it, which
+    # a photo never does (0.8 s of a 1.0 s photo command); a stream preloads it.
     assert bool(_loaded(mods, ("scipy.optimize",))) is (not still)
     assert still is not bool(_loaded(mods, ("scipy",)))
 

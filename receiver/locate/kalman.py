@@ -17,8 +17,8 @@ filterpy's per-call bookkeeping (deep copies, prior / posterior snapshots: most 
 lighting-server datagram's filter time). The pure functions `cv_predict` / `cv_update` are the
 same maths written as the equations; a test checks that they agree.
 
-filterpy is the tests' reference only; `preload` still imports it (and scipy.stats with it) for
-the streaming receiver's start-up contract.
+filterpy is the tests' reference only: the receiver never imports it (its package imports
+scipy.stats, ~1.5 s of CPU).
 """
 
 from __future__ import annotations
@@ -209,13 +209,6 @@ class PositionKalman:
             self.reset()
             return None
         return self.state
-
-
-def preload() -> None:
-    """Import filterpy now (~1.5 s CPU: its package imports scipy.stats): a stream's receiver
-    calls it before its first frame (scipy.stats then costs no frame's latency); a single photo
-    never does (see the module doc)."""
-    import filterpy.kalman  # noqa: F401
 
 
 def position_std(P: np.ndarray) -> list[float]:
