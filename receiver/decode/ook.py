@@ -85,9 +85,13 @@ def line_predict(obs, k: float, window: int) -> float:
         return pts[-1][1]
     ks = np.array([p[0] for p in pts], dtype=np.float64)
     vs = np.array([p[1] for p in pts], dtype=np.float64)
-    km = ks.mean()
-    slope = float(((ks - km) * (vs - vs.mean())).sum() / ((ks - km) ** 2).sum())
-    return float(vs.mean() + slope * (k - km))
+    # np.add.reduce / n is what ndarray.mean computes for these 1-D float64 arrays (same
+    # numbers), without its Python-level wrapper: this runs for every timed light every frame
+    km = np.add.reduce(ks) / ks.size
+    vm = np.add.reduce(vs) / vs.size
+    dk = ks - km
+    slope = float(np.add.reduce(dk * (vs - vm)) / np.add.reduce(dk ** 2))
+    return float(vm + slope * (k - km))
 
 
 def crc8_table() -> np.ndarray:
