@@ -119,7 +119,7 @@ def trim_rows(weights: np.ndarray | None, n: int, min_frac: float) -> tuple[int,
     if weights is None or n == 0:
         return 0, n
     w = np.asarray(weights)
-    ok = np.flatnonzero(w >= min_frac * w.max())
+    ok = (w >= min_frac * np.maximum.reduce(w)).nonzero()[0]  # w.max(), flatnonzero: fewer wrappers
     if ok.size == 0:
         return 0, 0
     return int(ok[0]), n - (w.size - 1 - int(ok[-1]))
@@ -723,7 +723,7 @@ class OokDecoder:
         ov = self.trust_w[pos] + self.timed_w[pos] > 0.5 * self.acc_w[pos]
         if ov.sum() >= self.timing_min_overlap:
             m = self.acc[pos[ov]] / self.acc_w[pos[ov]]
-            x = np.clip(soft[ov], -1.0, 1.0)
+            x = _clip1(soft[ov])
             den = float(np.abs(m) @ np.abs(x))
             if den > 0 and float(m @ x) / den < self.timing_min_corr:
                 self._disable_timing("overlap_conflict")
@@ -744,7 +744,7 @@ class OokDecoder:
             return None
         if self._tpl is None or self._tpl[0] != self.led_id:
             self._tpl = (self.led_id, packet_template(self.led_id))
-        x = np.clip(soft, -1.0, 1.0)
+        x = _clip1(soft)
         den = float(np.abs(x).sum())
         if den <= 0:
             return None
@@ -833,7 +833,7 @@ class OokDecoder:
             return True
         t = packet_template(led_id)
         for soft, shift in self.timed_frames:
-            x = np.clip(soft, -1.0, 1.0)
+            x = _clip1(soft)
             den = float(np.abs(x).sum())
             if den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min:
                 if self.timing_ok:

@@ -13,7 +13,7 @@ from receiver.core.records import Blob
 def envelope_mask(blob: Blob) -> np.ndarray:
     """(y1 - y0, x1 - x0) uint8 mask (0/1) of the blob's filled envelope inside its bbox."""
     mask = np.zeros((blob.y1 - blob.y0, blob.x1 - blob.x0), np.uint8)
-    poly = np.round(blob.hull - (blob.x0, blob.y0)).astype(np.int32)
+    poly = np.rint(blob.hull - (blob.x0, blob.y0)).astype(np.int32)  # np.round's numbers (half to even)
     cv2.fillConvexPoly(mask, poly, 1)
     return mask
 
