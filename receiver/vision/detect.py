@@ -436,7 +436,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
                            out=scratch.get("refine_lit", shape).view(bool))
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
+    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
     left = left_all[rows]
     flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
     right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
