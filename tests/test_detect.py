@@ -268,6 +268,29 @@ def test_merging_many_envelopes_equals_merging_one_by_one():
     assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
 
 
+def test_envelope_history_equals_merging_each_track_alone():
+    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in a few array
+    operations) gives each track the merge of its own hull with its hulls of the last frames,
+    each moved by the track's velocity times the frames since, as one merge per track does."""
+    from receiver.vision.envelope import EnvelopeHistory
+    from receiver.vision.track import Track
+    leds = bench_scene(n_leds=5, radius_px=30.0, seed=6)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(4)]
+    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
+    assert all(len(b) == 5 for b in per_frame)
+    hist = EnvelopeHistory(3)
+    vel = [(0.0, 0.0), (1.25, -0.5), (-2.0, 0.75), (0.3, 0.1), (0.0, 3.5)]
+    seen = {}
+    for k, blobs in enumerate(per_frame):
+        tracks = [Track(i, b, 0, k, vx=vx, vy=vy) for i, (b, (vx, vy)) in enumerate(zip(blobs, vel))]
+        got = hist.step(tracks[:4] if k == 2 else tracks, k, frames[0].shape)  # track 4 missed frame 2
+        for t in (tracks[:4] if k == 2 else tracks):
+            others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in seen.get(t.track_id, []) if 0 < k - kh < 3]
+            assert _same_blob(_merge_reference(t.blob, others, frames[0].shape), got[t.track_id])
+            seen.setdefault(t.track_id, []).append((k, t.blob.hull))
+    assert any(len(v) == 4 for v in seen.values())
+
+
 def test_row_pooled_search_finds_the_same_envelopes():
     """The component search on pooled rows (detect's row_pool) yields the full-resolution
     search's blobs exactly: isolated ones, ones whose boxes overlap (component masks) and
