@@ -30,7 +30,9 @@ def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, i
         z = np.zeros(mask.shape[0], np.float32)
         return z, z.copy(), int(blob.y0)
     weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
-    sums = cv2.reduce(cv2.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+    # roi * mask (0/1) never exceeds 255: numpy's uint8 product is cv2.multiply's, several
+    # times cheaper on a large envelope
+    sums = cv2.reduce(np.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
     # a row without envelope pixels sums to 0, so dividing it by 1 gives its 0 profile
     profile = sums / np.maximum(weights, 1.0)
     return profile, weights, int(blob.y0)
