@@ -70,8 +70,9 @@ def gated_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
     `scipy.optimize.linear_sum_assignment` on the costs with _FORBIDDEN outside `ok`."""
     if not ok.size:
         return {}
-    if np.count_nonzero(ok, axis=0).max() <= 1 and np.count_nonzero(ok, axis=1).max() <= 1:
-        return dict(zip(*(v.tolist() for v in np.nonzero(ok))))
+    if np.maximum.reduce(np.add.reduce(ok, axis=0)) <= 1 and np.maximum.reduce(np.add.reduce(ok, axis=1)) <= 1:
+        rows, cols = ok.nonzero()
+        return dict(zip(rows.tolist(), cols.tolist()))
     return _solver_assignment(d, ok)
 
 
