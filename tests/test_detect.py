@@ -252,8 +252,11 @@ def _merge_reference(blob, others, shape):
                 bool(border), blob.peak, blob.level, blob.background)
 
 
-def test_merging_many_envelopes_equals_merging_one_by_one():
+@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
+def test_merging_many_envelopes_equals_merging_one_by_one(batch_min, monkeypatch):
+    from receiver.vision import envelope
     from receiver.vision.envelope import merge_envelopes_many
+    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
     leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
@@ -266,6 +269,32 @@ def test_merging_many_envelopes_equals_merging_one_by_one():
     for (blob, others), g in zip(items, got):
         assert _same_blob(_merge_reference(blob, others, frames[0].shape), g)
     assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
+
+
+@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
+def test_envelope_history_equals_merging_each_track_alone(batch_min, monkeypatch):
+    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in a few array
+    operations) gives each track the merge of its own hull with its hulls of the last frames,
+    each moved by the track's velocity times the frames since, as one merge per track does."""
+    from receiver.vision import envelope
+    from receiver.vision.envelope import EnvelopeHistory
+    from receiver.vision.track import Track
+    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
+    leds = bench_scene(n_leds=5, radius_px=30.0, seed=6)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(4)]
+    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
+    assert all(len(b) == 5 for b in per_frame)
+    hist = EnvelopeHistory(3)
+    vel = [(0.0, 0.0), (1.25, -0.5), (-2.0, 0.75), (0.3, 0.1), (0.0, 3.5)]
+    seen = {}
+    for k, blobs in enumerate(per_frame):
+        tracks = [Track(i, b, 0, k, vx=vx, vy=vy) for i, (b, (vx, vy)) in enumerate(zip(blobs, vel))]
+        got = hist.step(tracks[:4] if k == 2 else tracks, k, frames[0].shape)  # track 4 missed frame 2
+        for t in (tracks[:4] if k == 2 else tracks):
+            others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in seen.get(t.track_id, []) if 0 < k - kh < 3]
+            assert _same_blob(_merge_reference(t.blob, others, frames[0].shape), got[t.track_id])
+            seen.setdefault(t.track_id, []).append((k, t.blob.hull))
+    assert any(len(v) == 4 for v in seen.values())
 
 
 def test_row_pooled_search_finds_the_same_envelopes():
@@ -361,3 +390,34 @@ def test_cropped_close_and_contours_equal_the_whole_frame_search(pool):
             assert len(got_c) == len(want_c)
             assert all(np.array_equal(a, b) for a, b in zip(got_c, want_c))
             assert np.array_equal(got_r, want_r)
+
+
+def test_mean_in_mask_is_the_mean_of_the_envelope_pixels():
+    """mean_in_mask (cv2 sums) equals the plain numpy mean over the filled envelope, float for
+    float, on blobs anywhere in the frame and of any size down to a point."""
+    from receiver.core.records import Blob
+    from receiver.vision.profile import mean_in_mask
+    rng = np.random.default_rng(11)
+    gray = rng.integers(0, 256, size=(60, 80), dtype=np.uint8)
+    checked = edge = 0
+    for _ in range(300):
+        cx, cy = rng.uniform(-2, 82), rng.uniform(-2, 62)
+        r = rng.uniform(0.0, 9.0)
+        ang = np.sort(rng.uniform(0, 2 * np.pi, rng.integers(3, 9)))
+        hull = np.stack((cx + r * np.cos(ang), cy + r * np.sin(ang)), axis=1)
+        x0, y0 = max(int(np.floor(hull[:, 0].min())), 0), max(int(np.floor(hull[:, 1].min())), 0)
+        # up to one past the frame (an envelope on its last row / column): roi and mask differ
+        x1, y1 = min(int(np.floor(hull[:, 0].max())) + 1, 81), min(int(np.floor(hull[:, 1].max())) + 1, 61)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        b = Blob(cx, cy, 1.0, hull, x0, y0, x1, y1, False, 200.0, 50.0, 10.0)
+        mask = envelope_mask(b)
+        n = int(mask.sum())
+        roi = gray[y0:y1, x0:x1]
+        if roi.shape != mask.shape:
+            edge += 1
+            continue  # numpy broadcasting decides, as before (unchanged path)
+        want = float((roi.astype(np.int64) * mask).sum()) / n if n else 0.0
+        assert mean_in_mask(gray, b) == want
+        checked += 1
+    assert checked > 150 and edge > 0

@@ -222,3 +222,17 @@ def test_jumping_track_pairs_when_the_measured_shake_spans_a_dark_frame():
             break
     assert len(pairs) == 1, "no pair from the jumping track"
     assert abs((pairs[0].b.blob.cx - pairs[0].a.blob.cx) - 7.0) <= 1.0
+
+
+def test_gated_assignment_shortcut_equals_the_solver():
+    from receiver.vision.track import _solver_assignment, gated_assignment
+    rng = np.random.default_rng(3)
+    shortcut = 0
+    for _ in range(400):
+        t, b = rng.integers(1, 7, size=2)
+        d = rng.uniform(0, 50, size=(t, b))
+        ok = d <= rng.uniform(5, 40)
+        if np.count_nonzero(ok, axis=0).max(initial=0) <= 1 and np.count_nonzero(ok, axis=1).max(initial=0) <= 1:
+            shortcut += 1
+        assert gated_assignment(d, ok) == _solver_assignment(d, ok)
+    assert 50 < shortcut < 390  # both paths were taken

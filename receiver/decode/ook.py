@@ -85,9 +85,13 @@ def line_predict(obs, k: float, window: int) -> float:
         return pts[-1][1]
     ks = np.array([p[0] for p in pts], dtype=np.float64)
     vs = np.array([p[1] for p in pts], dtype=np.float64)
-    km = ks.mean()
-    slope = float(((ks - km) * (vs - vs.mean())).sum() / ((ks - km) ** 2).sum())
-    return float(vs.mean() + slope * (k - km))
+    # np.add.reduce / n is what ndarray.mean computes for these 1-D float64 arrays (same
+    # numbers), without its Python-level wrapper: this runs for every timed light every frame
+    km = np.add.reduce(ks) / ks.size
+    vm = np.add.reduce(vs) / vs.size
+    dk = ks - km
+    slope = float(np.add.reduce(dk * (vs - vm)) / np.add.reduce(dk ** 2))
+    return float(vm + slope * (k - km))
 
 
 def crc8_table() -> np.ndarray:
@@ -115,7 +119,7 @@ def trim_rows(weights: np.ndarray | None, n: int, min_frac: float) -> tuple[int,
     if weights is None or n == 0:
         return 0, n
     w = np.asarray(weights)
-    ok = np.flatnonzero(w >= min_frac * w.max())
+    ok = (w >= min_frac * np.maximum.reduce(w)).nonzero()[0]  # w.max(), flatnonzero: fewer wrappers
     if ok.size == 0:
         return 0, 0
     return int(ok[0]), n - (w.size - 1 - int(ok[-1]))
@@ -719,7 +723,7 @@ class OokDecoder:
         ov = self.trust_w[pos] + self.timed_w[pos] > 0.5 * self.acc_w[pos]
         if ov.sum() >= self.timing_min_overlap:
             m = self.acc[pos[ov]] / self.acc_w[pos[ov]]
-            x = np.clip(soft[ov], -1.0, 1.0)
+            x = _clip1(soft[ov])
             den = float(np.abs(m) @ np.abs(x))
             if den > 0 and float(m @ x) / den < self.timing_min_corr:
                 self._disable_timing("overlap_conflict")
@@ -740,7 +744,7 @@ class OokDecoder:
             return None
         if self._tpl is None or self._tpl[0] != self.led_id:
             self._tpl = (self.led_id, packet_template(self.led_id))
-        x = np.clip(soft, -1.0, 1.0)
+        x = _clip1(soft)
         den = float(np.abs(x).sum())
         if den <= 0:
             return None
@@ -829,7 +833,7 @@ class OokDecoder:
             return True
         t = packet_template(led_id)
         for soft, shift in self.timed_frames:
-            x = np.clip(soft, -1.0, 1.0)
+            x = _clip1(soft)
             den = float(np.abs(x).sum())
             if den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min:
                 if self.timing_ok:

@@ -97,13 +97,13 @@ def tone_runs_match(profile: np.ndarray, weights: np.ndarray, freq_hz: float, ro
     `tol`. Guards a tone match against an OOK light whose stripe spectrum happens to peak near
     a listed tone: OOK runs are 1-4 chips, a tone's are all half a period."""
     good = weights >= min_weight_frac * weights.max() if weights.size else weights
-    idx = np.flatnonzero(good)
+    idx = good.nonzero()[0]
     if idx.size < 3:
         return False
     p = profile[idx[0]:idx[-1] + 1]
     lo, hi = np.percentile(p, [10, 90])
     on = p > 0.5 * (lo + hi)
-    edges = np.flatnonzero(np.diff(on.astype(np.int8))) + 1
+    edges = np.diff(on.astype(np.int8)).nonzero()[0] + 1
     runs = np.diff(edges)  # interior runs only: the first and last are cut by the envelope
     if runs.size == 0:
         return False

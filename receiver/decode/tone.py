@@ -55,7 +55,7 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     Returns (cycles_per_row or nan, quality = peak / median power above k_lo)."""
     n = x.size
     r, rr, win = _ramp_and_window(n)
-    x = x - x.mean()
+    x = x - np.add.reduce(x) / n  # x.mean(), without its Python-level wrapper
     x = x - r * ((r @ x) / rr)  # linear trend of the brightness envelope
     xw = x * win
     nfft = 1 << int(np.ceil(np.log2(n * pad_factor)))
@@ -65,7 +65,7 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     k1 = min(int(np.floor(k_hi * nfft)), spec.size - 1)
     if k1 - k0 < 3:
         return float("nan"), 0.0
-    kp = k0 + int(np.argmax(spec[k0:k1 + 1]))
+    kp = k0 + int(spec[k0:k1 + 1].argmax())
     if kp == k0 or kp == k1:
         # The maximum sits on the edge of the searched band: the line is outside it (e.g. below
         # the lowest frequency a record this short can hold), and the edge value would depend

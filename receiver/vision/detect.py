@@ -200,6 +200,12 @@ def _hull_stats_many(hulls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, n
     vertex is a pixel centre standing for a disc of radius 1/2: the Minkowski sum with it). A
     polygon of no area (a line, a point) has the mean of its vertices as centroid. All N at
     once: a few array operations instead of two OpenCV calls and a 24-entry dict per polygon."""
+    return _hull_stats_points(hulls)[:3]
+
+
+def _hull_stats_points(hulls: list[np.ndarray]):
+    """`_hull_stats_many`'s (cx, cy, area_px) and the polygons' vertices: all of them in one
+    (sum K_i, 2) float64 array `p` and each polygon's first row in it, `starts` (N,) int64."""
     n = len(hulls)
     k = np.fromiter((len(hh) for hh in hulls), np.int64, n)
     starts = np.zeros(n, np.int64)
@@ -221,7 +227,7 @@ def _hull_stats_many(hulls: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, n
     if flat.any():
         cx[flat] = np.add.reduceat(x, starts)[flat] / k[flat]
         cy[flat] = np.add.reduceat(y, starts)[flat] / k[flat]
-    return cx, cy, m00 + 0.5 * perim + math.pi / 4.0
+    return cx, cy, m00 + 0.5 * perim + math.pi / 4.0, p, starts
 
 
 def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch: Scratch | None = None,
@@ -358,7 +364,9 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     ends = []
     for rows in (np.minimum(y[:, None] + k, y[:, None] + hh[:, None] - 1),  # first rows, down
                  np.maximum(y[:, None] + hh[:, None] - 1 - k, y[:, None])):  # last rows, up
-        lit = ((gray[rows[:, :, None], cols[:, None, :]] >= on) & inside[:, None, :]).any(axis=2)
+        # np.take of flat indices: the same pixels as gray[rows, cols], a cheaper gather
+        px = gray.ravel().take(rows[:, :, None] * gray.shape[1] + cols[:, None, :])
+        lit = ((px >= on) & inside[:, None, :]).any(axis=2)
         ends.append((rows[np.arange(n), lit.argmax(axis=1)], lit.any(axis=1)))
     (top, ok_top), (bottom, ok_bottom) = ends
     for i in np.flatnonzero(~(ok_top & ok_bottom)).tolist():
@@ -429,11 +437,12 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         scratch = Scratch()
     shape = (int(starts[-1]), int(bw.max()))
     strip = scratch.get("refine_strip", shape)
+    strip.fill(0)  # 0 pads: never above a level
+    rect_l = rects.tolist()
     peak = np.empty(n)
-    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
+    for i, ((x, y, ww, hh), r0) in enumerate(zip(rect_l, starts[:-1].tolist())):
         roi = gray[y:y + hh, x:x + ww]
         strip[r0:r0 + hh, :ww] = roi
-        strip[r0:r0 + hh, ww:] = 0  # 0 pads: never above a level
         peak[i] = cv2.minMaxLoc(roi)[1]
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
@@ -447,7 +456,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
                            out=scratch.get("refine_lit", shape).view(bool))
     left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = np.flatnonzero(lit[np.arange(lit.shape[0]), left_all])
+    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
     left = left_all[rows]
     flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
     right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
@@ -457,7 +466,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     rpts = np.stack((right, local_y), axis=1).astype(np.int32)
     seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
     segl = seg.tolist()
-    peak_l, level_l, rect_l = peak.tolist(), blob_level.tolist(), rects.tolist()
+    peak_l, level_l = peak.tolist(), blob_level.tolist()
     bgf = float(bg)
     out: list[Blob | None] = [None] * n
     found = [i for i in range(n) if segl[i] < segl[i + 1]]
@@ -466,16 +475,20 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
                             .reshape(-1, 1, 2)) for i in found]
     if not found:
         return out
-    stats = zip(*(v.tolist() for v in _hull_stats_many(hulls)))
-    for i, hull, (cx, cy, area) in zip(found, hulls, stats):
-        x0c, y0c = rect_l[i][:2]
-        # integer vertices: boundingRect is the floor / +1 box of `_refine`
-        bx0, by0, bww, bhh = cv2.boundingRect(hull)
-        px0, py0, px1, py1 = bx0 + x0c, by0 + y0c, bx0 + bww + x0c, by0 + bhh + y0c
+    cx, cy, area, poly, pstart = _hull_stats_points(hulls)
+    # all hulls at once: moved to image coordinates (the same sums as one by one) and their
+    # boxes (integer vertices: the floor / +1 box of `_refine`)
+    origin = rects[found, :2]
+    poly += np.repeat(origin, np.diff(np.append(pstart, len(poly))), axis=0)
+    lo = np.minimum.reduceat(poly, pstart, axis=0).astype(np.int64)
+    hi = np.maximum.reduceat(poly, pstart, axis=0).astype(np.int64) + 1
+    cx += origin[:, 0]
+    cy += origin[:, 1]
+    ps = pstart.tolist() + [len(poly)]
+    for j, (i, cxj, cyj, aj, (px0, py0), (px1, py1)) in enumerate(zip(
+            found, cx.tolist(), cy.tolist(), area.tolist(), lo.tolist(), hi.tolist())):
         border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
-        poly = hull.reshape(-1, 2).astype(np.float64)
-        poly += (x0c, y0c)
-        out[i] = Blob(cx + x0c, cy + y0c, area, poly, px0, py0, px1, py1, border,
+        out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
                       peak_l[i], level_l[i], bgf)
     return out
 

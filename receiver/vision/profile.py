@@ -13,7 +13,7 @@ from receiver.core.records import Blob
 def envelope_mask(blob: Blob) -> np.ndarray:
     """(y1 - y0, x1 - x0) uint8 mask (0/1) of the blob's filled envelope inside its bbox."""
     mask = np.zeros((blob.y1 - blob.y0, blob.x1 - blob.x0), np.uint8)
-    poly = np.round(blob.hull - (blob.x0, blob.y0)).astype(np.int32)
+    poly = np.rint(blob.hull - (blob.x0, blob.y0)).astype(np.int32)  # np.round's numbers (half to even)
     cv2.fillConvexPoly(mask, poly, 1)
     return mask
 
@@ -30,7 +30,9 @@ def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, i
         z = np.zeros(mask.shape[0], np.float32)
         return z, z.copy(), int(blob.y0)
     weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
-    sums = cv2.reduce(cv2.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+    # roi * mask (0/1) never exceeds 255: numpy's uint8 product is cv2.multiply's, several
+    # times cheaper on a large envelope
+    sums = cv2.reduce(np.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
     # a row without envelope pixels sums to 0, so dividing it by 1 gives its 0 profile
     profile = sums / np.maximum(weights, 1.0)
     return profile, weights, int(blob.y0)
@@ -40,8 +42,13 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
     """Mean gray over the blob's envelope (S2-PSK intensity), also when the LED is dark."""
     mask = envelope_mask(blob)
     roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
-    n = int(mask.sum())
-    return float((roi * mask).sum()) / n if n else 0.0
+    if roi.shape != mask.shape or not roi.size:  # past the last row / column, or empty: as ever
+        n = int(mask.sum())
+        return float((roi * mask).sum()) / n if n else 0.0
+    # the same exact integer sums (cv2.sumElems adds uint8 values in double, exactly) divided
+    # once, without numpy's reduction wrappers (S2-PSK reads ~30 of these a frame)
+    n = cv2.countNonZero(mask)
+    return cv2.sumElems(np.multiply(roi, mask))[0] / n if n else 0.0
 
 
 def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float = 0.0,

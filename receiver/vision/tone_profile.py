@@ -59,9 +59,13 @@ def tone_profile(gray: np.ndarray, blob: Blob, *, extend_frac: float = 0.6, core
         z = np.zeros(0, np.float32)
         return z, z.copy(), int(y0)
     band = gray[y0:y1, x0:x1]
-    mean = band.mean(axis=1, dtype=np.float32) - np.float32(blob.background)
-    level = max(lit_gray, lit_frac * float(mean.max()))
-    lit = np.flatnonzero(mean > level)
+    # band.mean(axis=1, dtype=np.float32) as numpy computes it (float32 sums divided by the
+    # np.intp count), without its Python-level wrapper
+    mean = np.add.reduce(band, axis=1, dtype=np.float32)
+    np.true_divide(mean, np.intp(band.shape[1]), out=mean, casting="unsafe")
+    mean -= np.float32(blob.background)
+    level = max(lit_gray, lit_frac * float(np.maximum.reduce(mean)))
+    lit = (mean > level).nonzero()[0]
     if lit.size:
         a, b = int(lit[0]), int(lit[-1]) + 1
         mean, y0 = mean[a:b], y0 + a

@@ -6,7 +6,9 @@ pipeline attached and the decoded ID, which stays with the track.
 
 Assignment: cost = distance (px) between a track's predicted centroid and a blob centroid,
 solved by `scipy.optimize.linear_sum_assignment`; pairs beyond the gate or with an
-implausible area change are left unassigned (new track / missed track).
+implausible area change are left unassigned (new track / missed track). When no gate holds
+two candidates (no track sees two blobs, no blob is in two tracks' gates) the gated pairs
+are the assignment itself and the solver is skipped.
 """
 
 from __future__ import annotations
@@ -56,6 +58,30 @@ def preload() -> None:
     below and the locate stage's fallbacks import it where they need it, which a single photo
     never does (its frame has no tracks to assign)."""
     import scipy.optimize  # noqa: F401
+
+
+def gated_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
+    """{row: column} of the minimum-cost assignment of the (T, B) costs `d` (px) restricted to
+    the pairs `ok` (bool (T, B)); pairs outside `ok` are never assigned.
+
+    When no row and no column has two allowed pairs (no track sees two blobs in its gate, no
+    blob lies in two gates: the common case) the allowed pairs are the assignment itself (any
+    other leaves one of them out and pays _FORBIDDEN), so the solver is skipped; otherwise
+    `scipy.optimize.linear_sum_assignment` on the costs with _FORBIDDEN outside `ok`."""
+    if not ok.size:
+        return {}
+    if np.maximum.reduce(np.add.reduce(ok, axis=0)) <= 1 and np.maximum.reduce(np.add.reduce(ok, axis=1)) <= 1:
+        rows, cols = ok.nonzero()
+        return dict(zip(rows.tolist(), cols.tolist()))
+    return _solver_assignment(d, ok)
+
+
+def _solver_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
+    """`gated_assignment` by the solver alone (the reference its shortcut must equal)."""
+    cost = np.where(ok, d, _FORBIDDEN)
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+    rows, cols = linear_sum_assignment(cost)
+    return {r: c for r, c in zip(rows.tolist(), cols.tolist()) if cost[r, c] < _FORBIDDEN}
 
 
 class Tracker:
@@ -108,12 +134,7 @@ class Tracker:
             gate = self.gate_px + self.gate_size * np.sqrt(tarea)
             ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
             ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
-            cost = np.where(ok, d, _FORBIDDEN)
-            from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
-            rows, cols = linear_sum_assignment(cost)
-            for r, c in zip(rows, cols):
-                if cost[r, c] < _FORBIDDEN:
-                    assigned_blob[r] = c
+            assigned_blob = gated_assignment(d, ok)
         used = set(assigned_blob.values())
         alive, self.ended = [], []
         for i, t in enumerate(tracks):
