@@ -122,7 +122,9 @@ class Positioner:
         cand = self._solve_outline(targets, R_prior, pred[0][:3], C_prior, C_cov)
         if cand is None or cand.chi2 / cand.dof > GOOD_OUTLINE_CHI2_DOF:
             return None, (targets, where, cand)
-        d, _, names = self.ranger.ranges(items, cand.R_cw if self.ranging == "oblique" else R_prior)
+        # Only the LEDs without a fitted outline need an envelope range.
+        fitted = {i for i in where if i is not None}
+        d, _, names = self.ranger.ranges(items, cand.R_cw if self.ranging == "oblique" else R_prior, skip=fitted)
         d, names = self._with_outline_ranges(cand, targets, where, d, names)
         return (cand, d, names), None
 
