@@ -24,6 +24,11 @@ from receiver.locate.settings import PositionerSettings
 
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
 GOOD_OUTLINE_CHI2_DOF = 4.0
+# ... and this good when it started from the tracked pose (`Positioner._outline_warm`): a warm start
+# on the wrong branch or symmetry fits far worse (the solve rejects beyond MAX_CHI2_DOF, 50), while
+# indoor-sparse's tilted panels fit at 4-9 from every start (at 4.0 each such frame paid the centroid
+# solve and two more outline solves, ~3x a warm frame, to move the fix by 0-0.9 mm).
+WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
 
@@ -110,7 +115,7 @@ class Positioner:
     def _outline_warm(self, t_s, leds, items, R_prior):
         """Warm start: the outline solve from the tracked orientation and the filter's predicted
         position, before (and instead of) the centroid solve. Returns (fix, d, names) when that
-        fit passes `GOOD_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
+        fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
         targets, where = self._outline_targets(leds, items)
         if not targets:
@@ -120,7 +125,7 @@ class Positioner:
         if len(targets) == 1 and targets[0].shape == "circle":
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
         cand = self._solve_outline(targets, R_prior, pred[0][:3], C_prior, C_cov)
-        if cand is None or cand.chi2 / cand.dof > GOOD_OUTLINE_CHI2_DOF:
+        if cand is None or cand.chi2 / cand.dof > WARM_OUTLINE_CHI2_DOF:
             return None, (targets, where, cand)
         # Only the LEDs without a fitted outline need an envelope range.
         fitted = {i for i in where if i is not None}
