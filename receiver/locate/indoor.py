@@ -86,11 +86,13 @@ class Positioner:
         und = undistort_points(np.concatenate(pts + [cen]), cam)
         ends = np.cumsum([0] + [len(q) for q in pts])
         L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
+        # Every point's sigma (normalized units) at once.
+        sig = np.hypot(np.concatenate([np.asarray(o.edge_px[1], float).ravel() for o, _, _, _ in chosen]),
+                       self.settings.edge_model_sigma_px) / cam.focal_px
         targets, where = [], []
         for k, (obs, led, half, i) in enumerate(chosen):
-            sig = np.hypot(np.asarray(obs.edge_px[1], float), self.settings.edge_model_sigma_px) / cam.focal_px
             uv = und[ends[-1] + k] if i is not None else None
-            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig, uv))
+            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig[ends[k]:ends[k + 1]], uv))
             where.append(i)
         return targets, where
 
