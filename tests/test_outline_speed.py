@@ -178,3 +178,22 @@ def test_normal_equations_equal_the_stacked_jacobian():
     assert np.allclose(g, (J * wf[:, None]).T @ r, rtol=1e-10, atol=1e-9 * np.abs(g).max())
     Jn = J[:-3]                                                         # without the position prior
     assert np.allclose(prob.gram(prob.residuals(p)[1]), Jn.T @ Jn, rtol=1e-10, atol=1e-9 * np.abs(A).max())
+
+
+def test_point_beyond_a_corner_goes_to_the_first_edge_whatever_the_rounding():
+    """A point past a corner (its nearest point on both edges meeting there is that corner) is a
+    tie: it goes to the first of the two edges at every pose near it, not to whichever the
+    rounding of the two segments' arithmetic favours (which made runs flip labels, and move
+    fixes by millimetres, on float-order changes)."""
+    h = 0.1
+    beyond = np.array([[h / 3 + 0.01, h / 3 + 0.012],       # past corner 0 (+x, +y): edges 3 and 0
+                       [-h / 3 - 0.011, -h / 3 - 0.01]])    # past corner 2 (-x, -y): edges 1 and 2
+    on_edge = np.array([[0.0, h / 3], [h / 3, 0.0]])        # on edges 0 and 3
+    t = outline_pose.OutlineTarget(np.array([0.0, 0.0, 3.0]), "square", (h, h), np.vstack([beyond, on_edge]),
+                                   np.full(4, 1e-3))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        prob = outline_pose._Problem([t], 1000.0, 1.0, None, 0.1)
+        p = np.concatenate([rng.normal(0, 1e-12, 3), rng.normal(0, 1e-12, 3)])
+        prob.assign(p)
+        assert prob.labels.tolist() == [0, 1, 0, 3]

@@ -266,7 +266,8 @@ class _Problem:
                 return False
         changed = self.labels is None or not np.array_equal(lab, self.labels)
         self.labels = lab
-        self._group(lab)
+        if changed:
+            self._group(lab)
         return changed
 
     def _group(self, lab) -> None:
