@@ -114,15 +114,17 @@ class Positioner:
                 names[i] = "outline"
         return d, names
 
-    def _outline_warm(self, t_s, leds, items, R_prior):
+    def _outline_warm(self, t_s, leds, items, R_prior, pred=None):
         """Warm start: the outline solve from the tracked orientation and the filter's predicted
-        position, before (and instead of) the centroid solve. Returns (fix, d, names) when that
+        position (`pred`, the filter's prediction at t_s when given), before (and instead of) the
+        centroid solve. Returns (fix, d, names) when that
         fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
         targets, where = self._outline_targets(leds, items)
         if not targets:
             return None, (targets, where, None)
-        pred = self.pose.kf.predict_at(t_s)
+        if pred is None:
+            pred = self.pose.kf.predict_at(t_s)
         C_prior = C_cov = None
         if len(targets) == 1 and targets[0].shape == "circle":
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
@@ -193,11 +195,12 @@ class Positioner:
         items = self.ranger.usable(leds)
         R_prior = self.pose.R_prior(t_s)
         outline = self.settings.outline and not self.pose.mirrored
-        warm = None
-        if (outline and R_prior is not None and self.pose.kf is not None and self.pose.handedness_source != "default"
-                and self.pose.kf.predict_at(t_s) is not None):
+        warm = pred = None
+        if outline and R_prior is not None and self.pose.kf is not None and self.pose.handedness_source != "default":
+            pred = self.pose.kf.predict_at(t_s)
+        if pred is not None:
             # Tracking: the outlines from the last pose first; the centroid solve only when that fails.
-            done, warm = self._outline_warm(t_s, leds, items, R_prior)
+            done, warm = self._outline_warm(t_s, leds, items, R_prior, pred)
             if done is not None:
                 fix, d, names = done
                 return LocateResult(position=self.pose.update(t_s, fix, len(items)),
