@@ -124,32 +124,76 @@ def _circle_targets(rng, n=5):
 
 @pytest.mark.parametrize("seed", range(3))
 def test_batched_circles_equal_the_per_circle_residuals(seed):
-    """`_Problem._circles` (all circles and the six perturbed poses in one batch) equals the
-    per-circle `_circle_residuals` and its forward differences, and a circle seen edge-on falls
-    back to its own 1e3 residuals without spoiling the others."""
+    """`_Problem._circles` (all circles at once, through the conic R Q R^T) equals the per-circle
+    `_circle_residuals` (through H^-T diag(1, 1, -r^2) H^-1), its analytic Jacobian equals
+    central differences of those, and a circle seen edge-on gets residuals of 1e3 (and no
+    gradient) without spoiling the others."""
     rng = np.random.default_rng(seed)
     targets = _circle_targets(rng)
-    prob = outline_pose._Problem(targets, 1000.0, 1.0, np.array([0.0, 0.0, 1.0]), 0.1)
+    prob = outline_pose._Problem(targets, 1000.0, 1.0, None, 0.1)      # circle residuals only
     p = np.concatenate([rng.normal(0, 0.05, 3), [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), 1.0]])
-    r, J = prob._circles(p, True)
-    R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
-    r_ref = np.concatenate([outline_pose._circle_residuals(t, R, p[3:]) for t in targets])
-    J_ref = np.empty((len(r_ref), 6))
-    for i in range(6):
-        q = p.copy()
-        q[i] += 1e-7
+
+    def ref(q):
         Rq, _ = cv2.Rodrigues(q[:3].reshape(3, 1))
-        J_ref[:, i] = (np.concatenate([outline_pose._circle_residuals(t, Rq, q[3:]) for t in targets]) - r_ref) / 1e-7
-    assert np.allclose(r, r_ref, rtol=1e-9, atol=1e-12)
-    assert np.allclose(J, J_ref, rtol=1e-5, atol=1e-6)
-    assert np.array_equal(prob._circles(p, False)[0], r)
+        return np.concatenate([outline_pose._circle_residuals(t, Rq, q[3:]) for t in targets])
+
+    r, J = prob(p)
+    J_ref = np.empty((len(r), 6))
+    for i in range(6):
+        e = np.zeros(6)
+        e[i] = 1e-6
+        J_ref[:, i] = (ref(p + e) - ref(p - e)) / 2e-6
+    assert np.allclose(r, ref(p), rtol=1e-9, atol=1e-12)
+    assert np.abs(J - J_ref).max() <= 1e-5 * np.abs(J_ref).max()
+    assert np.array_equal(prob(p, False), r)
     # The first circle edge-on: its centre in the plane through the camera centre spanned by
     # R e_x and R e_y (here the camera sits at the circle's height).
     flat = [outline_pose.OutlineTarget(np.array([0.5, 0.0, 1.0]), "circle", (0.1, 0.1), targets[0].pts,
                                        targets[0].sigma)] + targets[1:]
-    prob = outline_pose._Problem(flat, 1000.0, 1.0, np.array([0.0, 0.0, 1.0]), 0.1)
+    prob = outline_pose._Problem(flat, 1000.0, 1.0, None, 0.1)
     p0 = np.zeros(6)
     p0[5] = 1.0
-    r0, _ = prob._circles(p0, False)
+    r0, J0 = prob(p0)
     n0 = len(targets[0].pts)
     assert np.all(r0[:n0] == 1e3) and np.all(np.abs(r0[n0:]) < 1e3)
+    assert np.all(J0[:n0] == 0.0) and np.all(np.isfinite(J0))
+
+
+def test_normal_equations_equal_the_stacked_jacobian():
+    """`_Problem.normal` (edge moments, never the per-point Jacobian) and `gram` equal J^T W J and
+    J^T W r of the stacked Jacobian, for squares / rects, circles, centroids and both priors."""
+    targets, R0, C0, kw = _warm_problem(STATIC, 10)
+    targets = [t for t in targets if len(t.pts) >= 3]
+    assert {t.shape for t in targets} >= {"circle", "square"}
+    prob = outline_pose._Problem(targets, kw["focal_px"], kw["centroid_sigma_px"] / kw["focal_px"],
+                                 kw["up_prior"], kw["tilt_sigma_rad"])
+    prob.C_prior, prob.W = C0 + 0.01, np.diag([30.0, 40.0, 50.0])
+    rvec, _ = cv2.Rodrigues(R0)
+    p = np.concatenate([rvec.ravel(), C0])
+    prob.assign(p)
+    r, J = prob(p)
+    wf = np.random.default_rng(1).uniform(0.2, 1.0, len(r))
+    A, g = prob.normal(prob.residuals(p)[1], r, wf)
+    assert np.allclose(A, J.T @ (J * wf[:, None]), rtol=1e-10, atol=1e-9 * np.abs(A).max())
+    assert np.allclose(g, (J * wf[:, None]).T @ r, rtol=1e-10, atol=1e-9 * np.abs(g).max())
+    Jn = J[:-3]                                                         # without the position prior
+    assert np.allclose(prob.gram(prob.residuals(p)[1]), Jn.T @ Jn, rtol=1e-10, atol=1e-9 * np.abs(A).max())
+
+
+def test_point_beyond_a_corner_goes_to_the_first_edge_whatever_the_rounding():
+    """A point past a corner (its nearest point on both edges meeting there is that corner) is a
+    tie: it goes to the first of the two edges at every pose near it, not to whichever the
+    rounding of the two segments' arithmetic favours (which made runs flip labels, and move
+    fixes by millimetres, on float-order changes)."""
+    h = 0.1
+    beyond = np.array([[h / 3 + 0.01, h / 3 + 0.012],       # past corner 0 (+x, +y): edges 3 and 0
+                       [-h / 3 - 0.011, -h / 3 - 0.01]])    # past corner 2 (-x, -y): edges 1 and 2
+    on_edge = np.array([[0.0, h / 3], [h / 3, 0.0]])        # on edges 0 and 3
+    t = outline_pose.OutlineTarget(np.array([0.0, 0.0, 3.0]), "square", (h, h), np.vstack([beyond, on_edge]),
+                                   np.full(4, 1e-3))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        prob = outline_pose._Problem([t], 1000.0, 1.0, None, 0.1)
+        p = np.concatenate([rng.normal(0, 1e-12, 3), rng.normal(0, 1e-12, 3)])
+        prob.assign(p)
+        assert prob.labels.tolist() == [0, 1, 0, 3]

@@ -24,6 +24,11 @@ from receiver.locate.settings import PositionerSettings
 
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
 GOOD_OUTLINE_CHI2_DOF = 4.0
+# ... and this good when it started from the tracked pose (`Positioner._outline_warm`): a warm start
+# on the wrong branch or symmetry fits far worse (the solve rejects beyond MAX_CHI2_DOF, 50), while
+# indoor-sparse's tilted panels fit at 4-9 from every start (at 4.0 each such frame paid the centroid
+# solve and two more outline solves, ~3x a warm frame, to move the fix by 0-0.9 mm).
+WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
 
@@ -81,11 +86,13 @@ class Positioner:
         und = undistort_points(np.concatenate(pts + [cen]), cam)
         ends = np.cumsum([0] + [len(q) for q in pts])
         L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
+        # Every point's sigma (normalized units) at once.
+        sig = np.hypot(np.concatenate([np.asarray(o.edge_px[1], float).ravel() for o, _, _, _ in chosen]),
+                       self.settings.edge_model_sigma_px) / cam.focal_px
         targets, where = [], []
         for k, (obs, led, half, i) in enumerate(chosen):
-            sig = np.hypot(np.asarray(obs.edge_px[1], float), self.settings.edge_model_sigma_px) / cam.focal_px
             uv = und[ends[-1] + k] if i is not None else None
-            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig, uv))
+            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig[ends[k]:ends[k + 1]], uv))
             where.append(i)
         return targets, where
 
@@ -107,22 +114,26 @@ class Positioner:
                 names[i] = "outline"
         return d, names
 
-    def _outline_warm(self, t_s, leds, items, R_prior):
+    def _outline_warm(self, t_s, leds, items, R_prior, pred=None):
         """Warm start: the outline solve from the tracked orientation and the filter's predicted
-        position, before (and instead of) the centroid solve. Returns (fix, d, names) when that
-        fit passes `GOOD_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
+        position (`pred`, the filter's prediction at t_s when given), before (and instead of) the
+        centroid solve. Returns (fix, d, names) when that
+        fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
         targets, where = self._outline_targets(leds, items)
         if not targets:
             return None, (targets, where, None)
-        pred = self.pose.kf.predict_at(t_s)
+        if pred is None:
+            pred = self.pose.kf.predict_at(t_s)
         C_prior = C_cov = None
         if len(targets) == 1 and targets[0].shape == "circle":
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
         cand = self._solve_outline(targets, R_prior, pred[0][:3], C_prior, C_cov)
-        if cand is None or cand.chi2 / cand.dof > GOOD_OUTLINE_CHI2_DOF:
+        if cand is None or cand.chi2 / cand.dof > WARM_OUTLINE_CHI2_DOF:
             return None, (targets, where, cand)
-        d, _, names = self.ranger.ranges(items, cand.R_cw if self.ranging == "oblique" else R_prior)
+        # Only the LEDs without a fitted outline need an envelope range.
+        fitted = {i for i in where if i is not None}
+        d, _, names = self.ranger.ranges(items, cand.R_cw if self.ranging == "oblique" else R_prior, skip=fitted)
         d, names = self._with_outline_ranges(cand, targets, where, d, names)
         return (cand, d, names), None
 
@@ -184,11 +195,12 @@ class Positioner:
         items = self.ranger.usable(leds)
         R_prior = self.pose.R_prior(t_s)
         outline = self.settings.outline and not self.pose.mirrored
-        warm = None
-        if (outline and R_prior is not None and self.pose.kf is not None and self.pose.handedness_source != "default"
-                and self.pose.kf.predict_at(t_s) is not None):
+        warm = pred = None
+        if outline and R_prior is not None and self.pose.kf is not None and self.pose.handedness_source != "default":
+            pred = self.pose.kf.predict_at(t_s)
+        if pred is not None:
             # Tracking: the outlines from the last pose first; the centroid solve only when that fails.
-            done, warm = self._outline_warm(t_s, leds, items, R_prior)
+            done, warm = self._outline_warm(t_s, leds, items, R_prior, pred)
             if done is not None:
                 fix, d, names = done
                 return LocateResult(position=self.pose.update(t_s, fix, len(items)),

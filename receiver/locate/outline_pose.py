@@ -40,8 +40,9 @@ import numpy as np
 
 from receiver.locate.lsq import (
     _LOSSES,
-    lm_iterate,
     BELOW_CEILING_M,
+    LM_LAMBDA0,
+    LM_LAMBDA_MAX,
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
     Fix,
@@ -143,33 +144,63 @@ _CROSS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
                    [[0, -1, 0], [1, 0, 0], [0, 0, 0]]], float)
 
 
-class _Problem:
-    """The whitened residuals of one frame's outline solve and their analytic Jacobian, over
-    p = (Rodrigues vector of R_cw, C), vectorised over all points of all LEDs.
+# The six distinct entries of a symmetric 3x3 matrix (a conic), in the order of `_Problem`'s
+# per-point monomials (u^2, 2uv, 2u, v^2, 2v, 1).
+_I6, _J6 = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])
 
-    Squares / rects: every point of every such target is stacked once (`P` (M, 2), its
+
+_SYM3 = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
+
+
+def _sym3(u6: np.ndarray) -> np.ndarray:
+    """(6, E) distinct entries (xx, xy, x1, yy, y1, 11) -> (E, 3, 3) symmetric matrices."""
+    return u6[_SYM3].T.reshape(-1, 3, 3)
+
+
+class _State:
+    """One evaluation of the pose p (`_Problem.residuals`): what its normal equations reuse."""
+
+    __slots__ = ("R", "dRk", "C", "m", "rho", "nh", "circ", "Y", "X", "z")
+
+
+class _Problem:
+    """The whitened residuals of one frame's outline solve and the Gauss-Newton normal equations
+    of their analytic Jacobian, over p = (Rodrigues vector of R_cw, C), vectorised over all
+    points of all LEDs.
+
+    Squares / rects: every point of every such target is stacked once (`P_all` (M, 2), its
     target `tix`); `assign` labels the points with their edges at a pose (no Python loop over
     LEDs) and the residual of a labelled point is its distance to the image line of its edge:
     the plane through the camera centre and the edge's corners A, B has the camera-frame
-    normal n = R m with m = (A - C) x (B - C) = A x B + C x (A - B), the line (n0, n1, n2) / |(n0, n1)|.
-    Circles (module doc): Sampson distances, their Jacobian by forward differences."""
+    normal n = R m with m = (A - C) x (B - C) = A x B + C x (A - B), the line
+    l = (n0, n1, n2) / |(n0, n1)|. The residual w (x, y, 1) . l is linear in its edge's line, so
+    J^T W J and J^T W r are summed per edge from the points' moments (`normal`): per point only
+    the residual and its weight, the 3 x 6 Jacobian of each line once per edge.
+    Circles (module doc): Sampson distances to the conic Ci = R Q(C) R^T (Q in `_circles`), the
+    Jacobian analytic through Ci's six distinct entries.
+    The envelope centroids, the tilt prior and the position prior form a small dense block."""
 
     def __init__(self, targets, focal_px, sigma_c, up, up_sigma):
         self.focal_px = focal_px
         self.sigma_c, self.up, self.up_sigma = sigma_c, up, up_sigma
         self.C_prior = self.W = None
         poly = [t for t in targets if t.shape != "circle"]
-        self.circles = [t for t in targets if t.shape == "circle"]
-        if self.circles:
-            # Every circle's points stacked (homogeneous, `cix` their circle), the circles' centres
-            # and radii: `_circles` evaluates all circles, and the six perturbed poses of their
-            # forward-difference Jacobian, in one batch.
-            pts = np.concatenate([t.pts for t in self.circles])
-            self.c_xyz = np.array([t.xyz for t in self.circles], float)           # (Tc, 3)
-            self.c_r2 = np.array([t.half[0] ** 2 for t in self.circles], float)   # (Tc,)
-            self.c_x = np.column_stack([pts, np.ones(len(pts))])                   # (Nc, 3)
-            self.c_sigma = np.concatenate([t.sigma for t in self.circles])
-            self.cix = np.repeat(np.arange(len(self.circles)), [len(t.pts) for t in self.circles])
+        circles = [t for t in targets if t.shape == "circle"]
+        self.n_circ = len(circles)
+        if circles:
+            # Every circle's points stacked (`cix` their circle) with their monomials: the
+            # algebraic distance x^T Ci x = phi . c6 and the conic's gradient rows.
+            pts = np.concatenate([t.pts for t in circles])
+            u, v = pts[:, 0], pts[:, 1]
+            one, zero = np.ones(len(u)), np.zeros(len(u))
+            self.c_xyz = np.array([t.xyz for t in circles], float)                # (Tc, 3)
+            self.c_r2 = np.array([t.half[0] ** 2 for t in circles], float)        # (Tc,)
+            self.c_x = np.column_stack([u, v, one])                                # (Nc, 3)
+            self.c_phi = np.column_stack([u * u, 2 * u * v, 2 * u, v * v, 2 * v, one])
+            self.c_b0 = np.column_stack([u, v, one, zero, zero, zero])             # d(Ci x)_0 / d c6
+            self.c_b1 = np.column_stack([zero, u, zero, v, one, zero])             # d(Ci x)_1 / d c6
+            self.c_isig = 1.0 / np.concatenate([t.sigma for t in circles])
+            self.cix = np.repeat(np.arange(len(circles)), [len(t.pts) for t in circles])
         self.n_poly = len(poly)
         if poly:
             # The corners of every target at once (`_corners`), and the next corner of each.
@@ -180,30 +211,32 @@ class _Problem:
             off[:, :, :2] = sgn[None] * half[:, None, :]
             corners = xyz[:, None, :] + off                                  # (T, 4, 3)
             self.corners = corners.reshape(-1, 3)
-            self.A = self.corners
-            self.B = corners[:, [1, 2, 3, 0]].reshape(-1, 3)
-            a, b = self.A, self.B
+            a = self.corners
+            b = corners[:, [1, 2, 3, 0]].reshape(-1, 3)
             self.AxB = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
                                         a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
-            self.D = self.A - self.B
             # dm/dC_j = e_j x (A - B): (E, 3, 3) [edge, component, j].
-            self.dm_dC = np.einsum("jab,eb->eaj", _CROSS, self.D)
-            counts = [len(t.pts) for t in poly]
+            self.dm_dC = np.einsum("jab,eb->eaj", _CROSS, a - b)
             self.P_all = np.concatenate([t.pts for t in poly])
             self.w_all = 1.0 / np.concatenate([t.sigma for t in poly])
-            self.tix = np.repeat(np.arange(len(poly)), counts)
+            self.counts = np.array([len(t.pts) for t in poly])
+            self.tix = np.repeat(np.arange(len(poly)), self.counts)
         cen = [t for t in targets if t.uv is not None]
         self.L = np.array([t.xyz for t in cen]).reshape(-1, 3)
         self.uv = np.array([t.uv for t in cen]).reshape(-1, 2)
         self.labels = None
-        self.S = None
+        self.n_use = 0
 
     def assign(self, p, keep_minor: bool = False) -> bool:
         """Label the square / rect points with their edges at pose p (`assign_edges`, all LEDs
         at once); True when the labels changed. `keep_minor`: keep the current labels (and
         return False) unless more than `MINOR_SWITCHES` or `MINOR_SWITCH_FRACTION` of the points
         moved from one edge to another (points that only crossed the corner guard do not count;
-        a few points next to a corner flip between its two edges, which lie close to them anyway)."""
+        a few points next to a corner flip between its two edges, which lie close to them anyway).
+
+        A point's distance to an edge whose nearest point is the edge's end is its distance to
+        that corner, the same number for both edges meeting there: such a tie (a point beyond a
+        corner) goes to the first edge, whatever the rounding of the two segments' arithmetic."""
         if not self.n_poly:
             first = self.labels is None
             self.labels = np.zeros(0, int)
@@ -212,24 +245,19 @@ class _Problem:
         q = _project(R, p[3:], self.corners).reshape(-1, 4, 2)             # (T, 4, 2)
         ab = np.roll(q, -1, axis=1) - q
         inv_L2 = 1.0 / np.maximum(np.sum(ab * ab, axis=2), 1e-18)            # (T, 4)
-        t = self.tix
-        px, py = self.P_all[:, 0], self.P_all[:, 1]
-        # The four edges one after the other over (M,) arrays (short-axis reductions are slow):
-        # the nearest edge (the first on ties, as argmin) and the nearest corner.
-        lab = np.zeros(len(t), np.int64)
-        for k in range(4):
-            relx, rely = px - q[t, k, 0], py - q[t, k, 1]
-            abx, aby = ab[t, k, 0], ab[t, k, 1]
-            s = np.clip((relx * abx + rely * aby) * inv_L2[t, k], 0.0, 1.0)
-            ex, ey = relx - s * abx, rely - s * aby
-            d2, c2 = ex * ex + ey * ey, relx * relx + rely * rely
-            if k == 0:
-                best, dc = d2, c2
-            else:
-                closer = d2 < best
-                lab[closer] = k
-                best = np.minimum(best, d2)
-                dc = np.minimum(dc, c2)
+        # Per target: corners x, y, edge vectors x, y, 1 / |edge|^2, one row of 4 each, repeated
+        # for its points: (5, 4, M) planes (long rows, no per-point gather).
+        tab = np.concatenate([q.transpose(2, 1, 0), ab.transpose(2, 1, 0), inv_L2.T[None]])   # (5, 4, T)
+        qx, qy, abx, aby, il = np.repeat(tab, self.counts, axis=2)
+        relx, rely = self.P_all[:, 0] - qx, self.P_all[:, 1] - qy
+        s = (relx * abx + rely * aby) * il
+        ex, ey = relx - s * abx, rely - s * aby
+        c2 = relx * relx + rely * rely                                       # to each edge's start corner
+        d2 = np.where(s <= 0.0, c2, np.where(s >= 1.0, c2[[1, 2, 3, 0]], ex * ex + ey * ey))
+        # The nearest edge (the first on ties, as argmin over the four) and the nearest corner.
+        m01, m23 = np.minimum(d2[0], d2[1]), np.minimum(d2[2], d2[3])
+        lab = np.where(m23 < m01, 2 + (d2[3] < d2[2]), (d2[1] < d2[0]).astype(np.int64))
+        dc = np.minimum(np.minimum(c2[0], c2[1]), np.minimum(c2[2], c2[3]))
         lab[dc < (CORNER_GUARD_PX / self.focal_px) ** 2] = -1
         if keep_minor and self.labels is not None:
             old = self.labels
@@ -238,115 +266,257 @@ class _Problem:
                 return False
         changed = self.labels is None or not np.array_equal(lab, self.labels)
         self.labels = lab
-        use = np.flatnonzero(lab >= 0)
-        # r = S @ (the edges' unit lines, flattened): row i holds w_i (x_i, y_i, 1) at its edge.
-        e3 = 3 * (self.tix[use] * 4 + lab[use])
-        w = self.w_all[use]
-        P = self.P_all[use]
-        vals = np.column_stack([P[:, 0] * w, P[:, 1] * w, w]).ravel()
-        cols = (e3[:, None] + np.arange(3)).ravel()
-        from scipy.sparse import csr_matrix  # lazy: not needed by a map of unknown sizes (a photo)
-        self.S = csr_matrix((vals, cols, np.arange(0, 3 * len(use) + 1, 3)), shape=(len(use), len(self.A) * 3))
+        if changed:
+            self._group(lab)
         return changed
 
-    def _circles(self, p, jac: bool):
-        """`_circle_residuals` of every circle at pose p and, with `jac`, their forward-difference
-        Jacobian (steps of 1e-7): the pose and its six perturbations evaluated together. A
-        singular circle homography (a circle seen edge-on) falls back to the per-circle loop,
-        which gives that circle alone its 1e3 residuals."""
-        ps = np.repeat(p[None], 7 if jac else 1, axis=0)
-        if jac:
-            ps[np.arange(1, 7), np.arange(6)] += 1e-7
-        Rs = np.array([cv2.Rodrigues(q[:3].reshape(3, 1))[0] for q in ps])        # (K, 3, 3)
-        # H = [R e_x, R e_y, R (L - C)] per pose and circle: (K, Tc, 3, 3).
-        H = np.empty((len(ps), len(self.circles), 3, 3))
-        H[:, :, :, 0] = Rs[:, None, :, 0]
-        H[:, :, :, 1] = Rs[:, None, :, 1]
-        H[:, :, :, 2] = np.einsum("kab,ktb->kta", Rs, self.c_xyz[None] - ps[:, None, 3:])
-        try:
-            Hi = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
-            r = np.array([np.concatenate([_circle_residuals(t, R, q[3:]) for t in self.circles])
-                          for R, q in zip(Rs, ps)])
-        else:
-            dg = np.ones((len(self.circles), 3))
-            dg[:, 2] = -self.c_r2
-            Ci = np.einsum("ktba,tb,ktbc->ktac", Hi, dg, Hi)                     # Hi^T diag Hi
-            Cx = np.einsum("knij,nj->kni", Ci[:, self.cix], self.c_x)             # (K, Nc, 3)
-            val = np.einsum("nj,knj->kn", self.c_x, Cx)
-            g = 2.0 * np.hypot(Cx[..., 0], Cx[..., 1])
-            r = val / np.maximum(g, 1e-12) / self.c_sigma
-        if not jac:
-            return r[0], None
-        return r[0], ((r[1:] - r[0]) / 1e-7).T
+    def _group(self, lab) -> None:
+        """The labelled points sorted by edge: their whitened rows w (x, y, 1) as (3, M') planes
+        (`SW`), the points per used edge (`cnt`) and where each edge's run starts (`starts`), the
+        six distinct products of each row's outer product (`OUT6`) and their per-edge sums
+        (`Q0`, for the covariance), the used edges' constants (`AxB_u`, `dm_dC_u`)."""
+        use = np.flatnonzero(lab >= 0)
+        self.n_use = len(use)
+        if not self.n_use:
+            return
+        eg = (self.tix[use] * 4 + lab[use]).astype(np.int16 if len(self.corners) < 2 ** 15 else np.int64)
+        order = np.argsort(eg, kind="stable")                  # a radix sort for int16
+        use, eg = use[order], eg[order]
+        new = np.empty(len(eg), bool)
+        new[0] = True
+        np.not_equal(eg[1:], eg[:-1], out=new[1:])
+        self.starts = np.flatnonzero(new)
+        self.cnt = np.diff(np.append(self.starts, len(eg)))
+        edges = eg[self.starts]
+        w = self.w_all[use]
+        P = self.P_all[use]
+        sx, sy = P[:, 0] * w, P[:, 1] * w
+        self.SW = np.stack([sx, sy, w])
+        self.OUT6 = np.stack([sx * sx, sx * sy, sx * w, sy * sy, sy * w, w * w])
+        self.Q0 = _sym3(np.add.reduceat(self.OUT6, self.starts, axis=1))
+        self.AxB_u, self.dm_dC_u = self.AxB[edges], self.dm_dC[edges]
 
-    def __call__(self, p, jac: bool = True):
+    def residuals(self, p):
+        """(r, state): the whitened residuals at p (edge points, circle points, centroids (u, v)
+        interleaved, tilt prior, position prior) and what `normal` needs of this evaluation."""
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
         C = p[3:]
-        dRk = dR.reshape(3, 3, 3)                      # dRk[k] = dR / d rvec_k
-        parts, jparts = [], []
-        if self.n_poly and self.S.shape[0]:
-            m = self.AxB + self.dm_dC @ C
+        st = _State()
+        st.R, st.dRk, st.C = R, dR.reshape(3, 3, 3), C      # dRk[k] = dR / d rvec_k
+        parts = []
+        if self.n_use:
+            m = self.AxB_u + self.dm_dC_u @ C
             n = m @ R.T
             rho = np.maximum(np.hypot(n[:, 0], n[:, 1]), 1e-15)
             nh = n / rho[:, None]
-            parts.append(self.S @ nh.ravel())
-            if jac:
-                dn = np.empty((len(n), 3, 6))
-                dn[:, :, :3] = (m @ dRk.transpose(0, 2, 1)).transpose(1, 2, 0)   # (dRk[k] @ m_e)[a]
-                dn[:, :, 3:] = R @ self.dm_dC                                       # R (e_j x D_e)
-                drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
-                dnh = dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
-                jparts.append(self.S @ dnh.reshape(-1, 6))
-        if self.circles:
-            r0, Jc = self._circles(p, jac)
-            parts.append(r0)
-            if jac:
-                jparts.append(Jc)
+            st.m, st.rho, st.nh = m, rho, nh
+            parts.append(np.einsum("ji,ij->i", self.SW, np.repeat(nh, self.cnt, axis=0)))
+        if self.n_circ:
+            rc, st.circ = self._circles(R, C)
+            parts.append(rc)
         if len(self.L):
             Y = self.L - C
             X = Y @ R.T
             z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)
+            st.Y, st.X, st.z = Y, X, z
             parts.append(((X[:, :2] / z[:, None] - self.uv) / self.sigma_c).ravel())
-            if jac:
-                dX = np.empty((len(Y), 3, 6))
-                dX[:, :, :3] = np.einsum("kab,nb->nak", dRk, Y)
-                dX[:, :, 3:] = -R[None]
-                du = (dX[:, 0] - (X[:, 0] / z)[:, None] * dX[:, 2]) / z[:, None]
-                dv = (dX[:, 1] - (X[:, 1] / z)[:, None] * dX[:, 2]) / z[:, None]
-                jparts.append(np.stack([du, dv], axis=1).reshape(-1, 6) / self.sigma_c)
         if self.up is not None:
             parts.append((R[:, 2] - self.up) / self.up_sigma)
-            if jac:
-                J_up = np.zeros((3, 6))
-                J_up[:, :3] = dRk[:, :, 2].T / self.up_sigma
-                jparts.append(J_up)
         if self.C_prior is not None:
             parts.append(self.W @ (C - self.C_prior))
-            if jac:
-                J_c = np.zeros((3, 6))
-                J_c[:, 3:] = self.W
-                jparts.append(J_c)
-        r = np.concatenate(parts)
-        return (r, np.concatenate(jparts)) if jac else r
+        return np.concatenate(parts), st
+
+    def _circles(self, R, C):
+        """Sampson distances of every circle's points at pose (R, C), and what their Jacobian
+        needs. The world circle |X - L| = r on the plane z = L_z, seen from C along the world
+        direction w = R^T x of an image point x, satisfies w^T Q w = 0 with (a, b, c) = L - C,
+        alpha = a / c, beta = b / c: Q = [[1, 0, -alpha], [0, 1, -beta], [-alpha, -beta,
+        alpha^2 + beta^2 - r^2 / c^2]], i.e. the image conic Ci = R Q R^T (= H^-T diag(1, 1, -r^2)
+        H^-1 of the module doc). A circle seen edge-on (c = 0) gets residuals of 1e3."""
+        d = self.c_xyz - C
+        cz = d[:, 2]
+        flat = cz == 0.0
+        cz = np.where(flat, 1.0, cz)
+        al, be = d[:, 0] / cz, d[:, 1] / cz
+        Q = np.zeros((len(cz), 3, 3))
+        Q[:, 0, 0] = Q[:, 1, 1] = 1.0
+        Q[:, 0, 2] = Q[:, 2, 0] = -al
+        Q[:, 1, 2] = Q[:, 2, 1] = -be
+        Q[:, 2, 2] = al * al + be * be - self.c_r2 / (cz * cz)
+        QRt = Q @ R.T
+        c6 = (R @ QRt)[:, _I6, _J6][self.cix]                                  # (Nc, 6)
+        val = np.einsum("ij,ij->i", self.c_phi, c6)
+        cx0 = np.einsum("ij,ij->i", self.c_x, c6[:, :3])
+        cx1 = np.einsum("ij,ij->i", self.c_x, c6[:, [1, 3, 4]])
+        h = np.hypot(cx0, cx1)
+        r = val / np.maximum(2.0 * h, 1e-12) * self.c_isig
+        if flat.any():
+            r[flat[self.cix]] = 1e3
+        return r, (d, cz, flat, QRt, val, cx0, cx1, h)
+
+    def _circle_jacobian(self, st) -> np.ndarray:
+        """(Nc, 6) Jacobian of `_circles`' residuals: d r / d c6 per point times d c6 / d p per
+        circle (dCi/drvec_k = dR_k Q R^T + its transpose, dCi/dC_j = R dQ/dC_j R^T)."""
+        d, cz, flat, QRt, val, cx0, cx1, h = st.circ
+        R, dRk = st.R, st.dRk
+        X = dRk[None] @ QRt[:, None]                                           # (Tc, 3, 3, 3)
+        dCi = np.empty((len(cz), 6, 3, 3))
+        dCi[:, :3] = X + X.swapaxes(-1, -2)
+        # dQ/dC_j: d alpha = (-1/c, 0, a/c^2), d beta = (0, -1/c, b/c^2),
+        # d (alpha^2 + beta^2 - r^2/c^2) = 2 alpha d alpha + 2 beta d beta - 2 r^2 / c^3 (0, 0, 1).
+        ic = 1.0 / cz
+        dal = np.zeros((len(cz), 3))
+        dbe = np.zeros((len(cz), 3))
+        dal[:, 0] = -ic
+        dal[:, 2] = d[:, 0] * ic * ic
+        dbe[:, 1] = -ic
+        dbe[:, 2] = d[:, 1] * ic * ic
+        ds = 2.0 * (d[:, 0, None] * ic[:, None]) * dal + 2.0 * (d[:, 1, None] * ic[:, None]) * dbe
+        ds[:, 2] -= 2.0 * self.c_r2 * ic ** 3
+        dQ = np.zeros((len(cz), 3, 3, 3))
+        dQ[:, :, 0, 2] = dQ[:, :, 2, 0] = -dal
+        dQ[:, :, 1, 2] = dQ[:, :, 2, 1] = -dbe
+        dQ[:, :, 2, 2] = ds
+        dCi[:, 3:] = R @ dQ @ R.T
+        dc6 = dCi[:, :, _I6, _J6]                                              # (Tc, 6 params, 6)
+        # r = val / (2 h sigma), h = |(Ci x)_0, (Ci x)_1|: dr/dc6 = (phi - val/h^2 h dh/dc6) / (2 h sigma).
+        hs = np.maximum(h, 5e-13)
+        k = val / (hs * hs)
+        drdc = (self.c_phi - (k * cx0)[:, None] * self.c_b0 - (k * cx1)[:, None] * self.c_b1) \
+            * (self.c_isig / (2.0 * hs))[:, None]
+        J = np.einsum("nc,npc->np", drdc, dc6[self.cix])
+        if flat.any():
+            J[flat[self.cix]] = 0.0
+        return J
+
+    def _line_jacobian(self, st) -> np.ndarray:
+        """(E', 3, 6) Jacobian of the used edges' image lines l = n / |(n0, n1)|."""
+        m, R, rho, nh = st.m, st.R, st.rho, st.nh
+        dn = np.empty((len(m), 3, 6))
+        dn[:, :, :3] = (m @ st.dRk.transpose(0, 2, 1)).transpose(1, 2, 0)   # (dRk[k] @ m_e)[a]
+        dn[:, :, 3:] = R @ self.dm_dC_u                                     # R (e_j x D_e)
+        drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
+        return dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
+
+    def _dense_jacobian(self, st, prior: bool = True) -> np.ndarray | None:
+        """Jacobian rows of the circles, centroids, tilt prior and (`prior`) position prior."""
+        parts = []
+        if self.n_circ:
+            parts.append(self._circle_jacobian(st))
+        if len(self.L):
+            Y, X, z, R = st.Y, st.X, st.z, st.R
+            dX = np.empty((len(Y), 3, 6))
+            dX[:, :, :3] = np.einsum("kab,nb->nak", st.dRk, Y)
+            dX[:, :, 3:] = -R[None]
+            du = (dX[:, 0] - (X[:, 0] / z)[:, None] * dX[:, 2]) / z[:, None]
+            dv = (dX[:, 1] - (X[:, 1] / z)[:, None] * dX[:, 2]) / z[:, None]
+            parts.append(np.stack([du, dv], axis=1).reshape(-1, 6) / self.sigma_c)
+        if self.up is not None:
+            J_up = np.zeros((3, 6))
+            J_up[:, :3] = st.dRk[:, :, 2].T / self.up_sigma
+            parts.append(J_up)
+        if prior and self.C_prior is not None:
+            J_c = np.zeros((3, 6))
+            J_c[:, 3:] = self.W
+            parts.append(J_c)
+        return np.concatenate(parts) if parts else None
+
+    def normal(self, st, r, wf):
+        """(J^T W J, J^T W r) at the evaluation `st` with residuals r and per-residual weights wf
+        (the robust loss's IRLS weights), J never formed for the edge points (class doc)."""
+        A = np.zeros((6, 6))
+        g = np.zeros(6)
+        k = self.n_use
+        if k:
+            dl = self._line_jacobian(st)
+            wp = wf[:k]
+            tmp = np.empty((9, k))
+            np.multiply(self.OUT6, wp, out=tmp[:6])
+            np.multiply(self.SW, wp * r[:k], out=tmp[6:])
+            sums = np.add.reduceat(tmp, self.starts, axis=1)                # (9, E')
+            D = dl.reshape(-1, 6)
+            A = D.T @ (_sym3(sums[:6]) @ dl).reshape(-1, 6)
+            g = D.T @ sums[6:].T.ravel()
+        Jd = self._dense_jacobian(st)
+        if Jd is not None:
+            Jw = Jd * wf[k:, None]
+            A = A + Jd.T @ Jw
+            g = g + Jw.T @ r[k:]
+        return A, g
+
+    def gram(self, st) -> np.ndarray:
+        """Unweighted J^T J at `st` without the position prior's rows (for the covariance)."""
+        A = np.zeros((6, 6))
+        if self.n_use:
+            dl = self._line_jacobian(st)
+            A = dl.reshape(-1, 6).T @ (self.Q0 @ dl).reshape(-1, 6)
+        Jd = self._dense_jacobian(st, prior=False)
+        if Jd is not None:
+            A = A + Jd.T @ Jd
+        return A
+
+    def __call__(self, p, jac: bool = True):
+        """Residuals at p and (`jac`) their full Jacobian (tests, and scipy's solver for losses
+        the small one does not have)."""
+        r, st = self.residuals(p)
+        if not jac:
+            return r
+        parts = []
+        if self.n_use:
+            parts.append(np.einsum("ji,ijk->ik", self.SW, np.repeat(self._line_jacobian(st), self.cnt, axis=0)))
+        Jd = self._dense_jacobian(st)
+        if Jd is not None:
+            parts.append(Jd)
+        return r, np.concatenate(parts)
 
 
 def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
-    """`receiver.locate.lsq.lm_iterate` on a problem that gives residuals and Jacobian in one
-    call, stopping once a step moves the pose by less than `STEP_TOL` (m, rad) or lowers the
-    cost by less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in
-    1-3 iterations). Returns (p, converged, r, J) with the residuals and Jacobian at p."""
+    """`receiver.locate.lsq.lm_iterate`'s Levenberg-Marquardt (the same damping, acceptance and
+    loss), on the problem's normal equations (`_Problem.normal`) rather than a stacked Jacobian,
+    stopping once a step moves the pose by less than `STEP_TOL` (m, rad) or lowers the cost by
+    less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in 1-3
+    iterations). Returns (p, converged, r, state) with the residuals and evaluation at p."""
     if loss not in _LOSSES:
         from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
         p = least_squares(lambda q: prob(q, False), np.asarray(p0, float), jac=lambda q: prob(q)[1], loss=loss,
                           f_scale=f_scale, method="trf").x
-        r, J = prob(p)
-        return p, True, r, J
+        r, st = prob.residuals(p)
+        return p, True, r, st
+    rho, wfun = _LOSSES[loss]
 
-    def done(dp, p, c, c_new):
-        return float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
+    def cost_z(r):
+        z = (r / f_scale) ** 2
+        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
 
-    return lm_iterate(prob, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
+    p = np.asarray(p0, float).copy()
+    r, st = prob.residuals(p)
+    c, z = cost_z(r)
+    lam = LM_LAMBDA0
+    diag = np.arange(6), np.arange(6)
+    for _ in range(max_iter):
+        A, g = prob.normal(st, r, wfun(z))
+        dA = np.maximum(A[diag], 1e-12)
+        while True:
+            Ad = A.copy()
+            Ad[diag] += lam * dA
+            try:
+                dp = np.linalg.solve(Ad, -g)
+            except np.linalg.LinAlgError:
+                dp = np.zeros(6)
+            p_new = p + dp
+            r_new, st_new = prob.residuals(p_new)
+            c_new, z_new = cost_z(r_new)
+            if c_new <= c:
+                break
+            lam *= 10.0
+            if lam > LM_LAMBDA_MAX:
+                return p, True, r, st
+        stop = float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
+        p, r, st, c, z = p_new, r_new, st_new, c_new, z_new
+        lam = max(lam / 10.0, 1e-12)
+        if stop:
+            return p, True, r, st
+    return p, False, r, st
 
 
 def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
@@ -377,24 +547,22 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
         changed = prob.assign(p, keep_minor=k > 0 and converged)
         if k > 0 and converged and not changed:
             break
-        p, converged, r, J = _lm(prob, p, loss, f_scale, max_iter)
-    R, _ = cv2.Rodrigues(p[:3].reshape(3, 1))
+        p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
+    R = st.R
     C = p[3:].copy()
     z_min = min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
         return None
-    # Covariance: without the tracked-position prior (the filter holds it), with a weak one that
-    # marks directions the outlines leave free (module doc).
-    # (The residuals at p with the prior swapped: the tracked one's rows out, the weak one's in.)
+    # Covariance: without the tracked-position prior (the filter holds it), with a weak one
+    # (`FREE_SIGMA_M`, zero residuals) that marks directions the outlines leave free (module doc).
     if prob.C_prior is not None:
-        r, J = r[:-3], J[:-3]
-    J_free = np.zeros((3, 6))
-    J_free[:, 3:] = np.eye(3) / FREE_SIGMA_M
-    r, J = np.concatenate([r, np.zeros(3)]), np.vstack([J, J_free])
-    dof = len(r) - len(p)
+        r = r[:-3]
+    dof = len(r) + 3 - len(p)
     chi2 = float(r @ r)
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
         return None
-    cov6 = np.linalg.pinv(J.T @ J) * max(1.0, chi2 / dof)
+    JtJ = prob.gram(st)
+    JtJ[3:, 3:] += np.eye(3) / FREE_SIGMA_M ** 2
+    cov6 = np.linalg.pinv(JtJ) * max(1.0, chi2 / dof)
     n = len(targets)
     return Fix(C, cov6[3:, 3:], R, "outline", n, chi2, dof)

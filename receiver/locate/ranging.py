@@ -183,6 +183,24 @@ def project_world(points_world: np.ndarray, camera: CameraModel, R_cw: np.ndarra
     return px.reshape(-1, 2)
 
 
+class Geometry:
+    """One envelope's `contour_geometry` (a dict or None), computed on first use (`value`): a
+    frame whose LEDs are all ranged from their outlines never needs it."""
+
+    __slots__ = ("_args", "_value")
+
+    def __init__(self, contour_px, camera: CameraModel, edge_offset_px: float):
+        self._args = (contour_px, camera, edge_offset_px)
+        self._value = self
+
+    @property
+    def value(self) -> dict | None:
+        if self._value is self:
+            self._value = contour_geometry(*self._args)
+            self._args = None
+        return self._value
+
+
 class Ranger:
     """The ranging stage: which of a frame's LED observations can be ranged, and their ranges.
 
@@ -203,26 +221,35 @@ class Ranger:
         self.border_margin_px = settings.border_margin_px
         self.unknown_ids: set[int] = set()
 
-    def _touches_edge(self, obs) -> bool:
-        if obs.contour is None or len(obs.contour) == 0:
-            return False
-        c = np.asarray(obs.contour, float).reshape(-1, 2)
+    def _touching_edge(self, obs_list) -> list[bool]:
+        """For each observation: does its envelope come within `border_margin_px` of the image
+        edge? (All envelopes' extremes in one pass; no contour: False.)"""
+        polys = [np.asarray(o.contour).reshape(-1, 2) if o.contour is not None else None for o in obs_list]
+        has = [p is not None and len(p) > 0 for p in polys]
+        out = [False] * len(obs_list)
+        if not any(has):
+            return out
+        use = [p for p, h in zip(polys, has) if h]
+        starts = np.cumsum([0] + [len(p) for p in use[:-1]])
+        pts = np.concatenate(use)
+        lo, hi = np.minimum.reduceat(pts, starts), np.maximum.reduceat(pts, starts)
         m = self.border_margin_px
-        lo = c.min(axis=0)
-        hi = c.max(axis=0)
-        return bool(lo[0] <= m or lo[1] <= m or hi[0] >= self.camera.width - 1 - m
-                    or hi[1] >= self.camera.height - 1 - m)
+        near = ((lo[:, 0] <= m) | (lo[:, 1] <= m) | (hi[:, 0] >= self.camera.width - 1 - m)
+                | (hi[:, 1] >= self.camera.height - 1 - m)).tolist()
+        it = iter(near)
+        return [bool(next(it)) if h else False for h in has]
 
     def usable(self, leds) -> list:
-        """The frame's rangeable LEDs: (observation, map LED, contour geometry or None) for every
-        decoded, uncut OOK or tone LED the map knows (unknown IDs are counted in `unknown_ids`).
-        Blobs within `border_margin_px` of the image edge are left out (their area is cut).
-        S2-PSK lights are left out: a street-light head or a taillight pair is seen as two
-        emitter blobs, not one fixture of the map's size, from a camera looking along the road;
-        they are ranged as pairs by the vehicle locator (receiver.locate.vehicle)."""
+        """The frame's rangeable LEDs: (observation, map LED, `Geometry` of its envelope or None)
+        for every decoded, uncut OOK or tone LED the map knows (unknown IDs are counted in
+        `unknown_ids`). Blobs within `border_margin_px` of the image edge are left out (their
+        area is cut). S2-PSK lights are left out: a street-light head or a taillight pair is seen
+        as two emitter blobs, not one fixture of the map's size, from a camera looking along the
+        road; they are ranged as pairs by the vehicle locator (receiver.locate.vehicle)."""
+        cand = [o for o in leds if o.id is not None and not o.border and o.mode != "s2psk"]
         items = []
-        for obs in leds:
-            if obs.id is None or obs.border or obs.mode == "s2psk" or self._touches_edge(obs):
+        for obs, cut in zip(cand, self._touching_edge(cand)):
+            if cut:
                 continue
             led = self.led_map.lookup(obs.id)
             if led is None:
@@ -232,21 +259,23 @@ class Ranger:
                 continue
             geo = None
             if obs.contour is not None and len(obs.contour) >= 3:
-                geo = contour_geometry(obs.contour, self.camera, self.edge_offset_px)
+                geo = Geometry(obs.contour, self.camera, self.edge_offset_px)
             items.append((obs, led, geo))
         return items
 
-    def ranges(self, items, R_cw: np.ndarray | None):
+    def ranges(self, items, R_cw: np.ndarray | None, skip=()):
         """(d (N,) m, sigma_d (N,) m, estimator names) of `usable`'s items, NaN where the LED's
         size is unknown. `R_cw`: the camera orientation for the oblique estimator's
-        foreshortening (None: looking straight up)."""
+        foreshortening (None: looking straight up). `skip`: indices of items not to range (NaN,
+        name ""), e.g. those ranged otherwise (their envelope geometry is then never computed)."""
         d = np.full(len(items), np.nan)
         sd = np.full(len(items), np.nan)
         names = [""] * len(items)
-        for i, (obs, led, geo) in enumerate(items):
+        for i, (obs, led, lazy) in enumerate(items):
             A = led.area_m2
-            if not A:
+            if not A or i in skip:
                 continue
+            geo = lazy.value if lazy is not None else None
             if self.estimator == "oblique" and geo is not None:
                 Rw = np.eye(3) if R_cw is None else R_cw
                 d[i] = distance_oblique(geo["area_norm"], A, ray_unit(geo["centroid_norm"]), Rw)

@@ -168,22 +168,26 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     # One gather of every pixel used, per point along its side's outward direction: the
     # plateau (SIDE_PX pixels from 2 px inside the coarse crossing), the outside (SIDE_PX pixels
     # from 3 px outside it) and the walk -1..3 (clamped into the box; clear of the ~0.6 px blur).
+    # Offsets along axis 0, points along axis 1 (long rows: no per-point inner loops).
     ar = np.arange(SIDE_PX)
     offs = np.concatenate([-(2 + ar), 3 + ar, np.arange(-1, 4)])
-    cols = np.minimum(np.maximum(start[:, None] + side[:, None] * offs, 0), W1[:, None])
-    vals = buf.ravel()[rows2[:, None] * Wmax + cols].astype(np.float32)
-    plateau = vals[:, :SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
-    outside = vals[:, SIDE_PX:2 * SIDE_PX].sum(axis=1) / np.float32(SIDE_PX)
+    cols = np.minimum(np.maximum(offs[:, None] * side + start, 0), W1)
+    vals = buf.ravel()[cols + rows2 * Wmax].astype(np.float32)
+    plateau = vals[:SIDE_PX].sum(axis=0) / np.float32(SIDE_PX)
+    outside = vals[SIDE_PX:2 * SIDE_PX].sum(axis=0) / np.float32(SIDE_PX)
     thr = 0.5 * (plateau + outside)
     # The straddling pair around `start`: the first of the walk's pixel pairs (nearer the inside,
     # one pixel further out) that crosses the half level, at most 3 px out.
-    a, v = cols[:, 2 * SIDE_PX:], vals[:, 2 * SIDE_PX:]
-    hit = (v[:, :-1] >= thr[:, None]) & (v[:, 1:] < thr[:, None]) & (a[:, :-1] != a[:, 1:])
-    k = np.argmax(hit, axis=1)
+    a, v = cols[2 * SIDE_PX:], vals[2 * SIDE_PX:]
+    hit = (v[:-1] >= thr) & (v[1:] < thr) & (a[:-1] != a[1:])
+    k = np.zeros(2 * n, np.int64)
+    for j in range(len(hit) - 1, 0, -1):          # the first pair that hits (0 when none)
+        k[hit[j]] = j
+    k[hit[0]] = 0
     ii = np.arange(2 * n)
-    va, vb = v[ii, k], v[ii, k + 1]
+    va, vb = v[k, ii], v[k + 1, ii]
     frac = (va - thr) / np.maximum(va - vb, 1e-6)
-    pos = np.where(hit[ii, k], a[ii, k] + side * frac, np.nan)
+    pos = np.where(hit[k, ii], a[k, ii] + side * frac, np.nan)
     contrast = plateau - outside
     good = np.isfinite(pos) & (contrast >= min_contrast)
     s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
