@@ -694,6 +694,39 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     assert srv.counters["batches"] <= 20 and srv.counters["replies"] == 120
 
 
+def test_serve_socket_ends_when_its_socket_is_closed(walk_map):
+    """A socket closed under the loop (a persistent error) ends it instead of spinning on the
+    error away from the stop check: the thread is gone without `stop` being set."""
+    from receiver.serve.server import bind_udp, serve_socket
+    srv = LightingServer(walk_map, clock=FakeClock())
+    sock = bind_udp("127.0.0.1", 0)
+    stop = threading.Event()
+    worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
+    worker.start()
+    sock.close()
+    worker.join(30.0)
+    alive = worker.is_alive()
+    stop.set()
+    assert not alive and srv.counters["socket_errors"] <= 2
+
+
+def test_a_failing_batch_is_answered_one_by_one(walk_map, monkeypatch):
+    """Should the batched path raise (a bug's guard), every datagram of the batch is still
+    answered, each handled alone."""
+    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.server import _handle_batch
+    dg = four_led_datagrams(walk_map, 8, 4)
+    srv = LightingServer(walk_map, clock=FakeClock())
+
+    def broken(_batch):
+        raise RuntimeError("batched path broken")
+    monkeypatch.setattr(srv, "handle_datagrams", broken)
+    outs = _handle_batch(srv, [(data, ("127.0.0.1", 9)) for _, _, data in dg])
+    replies = [json.loads(o) for o in outs]
+    assert len(replies) == 8 and all(r.get("position") is not None or "error" not in r for r in replies)
+    assert [(r["device"], r["seq"]) for r in replies] == [(dev, seq) for dev, seq, _ in dg]
+
+
 def test_handle_batch_benchmark(walk_map, benchmark):
     """16 queued 4-LED datagrams of 16 walking devices handled together, as `serve_socket` does
     under load (`handle_datagrams`: one batched warm-started solve): divide by 16 for the cost

@@ -406,8 +406,12 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
     recvfrom, sendto = sock.recvfrom, sock.sendto
     counters = server.counters
     while not stop.is_set():
-        if not poller.poll(POLL_S * 1000):
+        events = poller.poll(POLL_S * 1000)
+        if not events:
             continue
+        if events[0][1] & select.POLLNVAL:   # the socket was closed under us: nothing more to serve
+            counters["socket_errors"] += 1
+            return
         batch = []
         while len(batch) < max_batch:
             try:
@@ -415,21 +419,37 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
             except BlockingIOError:
                 break
             except OSError:
+                # Counted, then back to the poll: a persistent error (a closed socket) must not
+                # spin here, away from the `stop` check.
                 counters["socket_errors"] += 1
+                break
         if not batch:
             continue
         counters["batches"] += 1
-        try:
-            outs = server.handle_datagrams(batch)
-        except Exception:   # noqa: BLE001 -- handle_many answers every failure itself; never stop serving
-            counters["internal_error"] += len(batch)
-            continue
+        outs = _handle_batch(server, batch)
         for (_, addr), out in zip(batch, outs):
             if out is not None:
                 try:
                     sendto(out, addr)
                 except OSError:
                     counters["socket_errors"] += 1
+
+
+def _handle_batch(server: LightingServer, batch) -> list[bytes | None]:
+    """The encoded replies of a batch; should the batched path fail (`handle_many` answers every
+    request's failure itself, so this is a bug's guard), each datagram is handled alone, and a
+    datagram that fails alone too gets no reply and counts as `internal_error`."""
+    try:
+        return server.handle_datagrams(batch)
+    except Exception:   # noqa: BLE001 -- never stop serving
+        outs = []
+        for data, addr in batch:
+            try:
+                outs.append(server.handle_datagram(data, addr))
+            except Exception:   # noqa: BLE001
+                server.counters["internal_error"] += 1
+                outs.append(None)
+        return outs
 
 
 async def serve_until(server: LightingServer, host: str, port: int, stop: asyncio.Event,
