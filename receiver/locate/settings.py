@@ -92,6 +92,15 @@ class VehicleSettings:
     # Ranging ----------------------------------------------------------------------------------
     range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
     centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
+    sl_separation_sigma_px: float = 0.3  # street-light head: 1-sigma of the emitters' separation
+                                        # (the difference of the two centroids), px. One emitter of
+                                        # a head is lit at a time: the other's position is the
+                                        # pairing's model (whole px, a frame or more old), and far
+                                        # heads are sub-pixel tall bars: their separation is off
+                                        # by 0.5-1 px (bundled recording), not sqrt(2) x 0.2 px.
+                                        # Weighs the baseline range and, in the pose solve, the
+                                        # separation of the two centroids (their midpoint keeps
+                                        # `centroid_sigma_px`); a range from 6 px is then ~12 %.
     edge_offset_px: float = 0.0         # envelope vs true edge: with the lens blur (bundled vehicle
                                         # recording) the envelope of a small taillight is its true
                                         # area (eq. 18 median -0.2 %); 0.5 px read 20 % short at 40 m
@@ -125,6 +134,11 @@ class VehicleSettings:
                                         # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations)
     pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
     pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
+    fix_floor_m: float = 0.15           # added in quadrature to each pose fix's sigma (x and y) for
+                                        # the filter: the solve's covariance knows the centroid and
+                                        # range noise, not the heads' model errors (bundled vehicle:
+                                        # fixes claiming 0.01 m off by 0.1-0.3 m gated the next
+                                        # ones out and restarted the filter)
     heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
     accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
     yaw_accel_psd: float = 0.05         # rad^2/s^3
