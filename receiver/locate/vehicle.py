@@ -806,7 +806,8 @@ class VehicleLocator:
         else:
             aligned, res = [(None, None)] * len(pairs), None
             if not self.kf.started:
-                self.hv_reason = "no street light in view"
+                self.hv_reason = "no street light in view" if not any(self._role(p) == "SL" for p in pairs) \
+                    else "no decoded street light seen with both emitters apart"
 
         self._keep_seen(pairs)
         hv = self._update_hv(t_s, fix, speed_mps)
@@ -1016,7 +1017,7 @@ class VehicleLocator:
                 continue
             if tr is None:
                 tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd, s.fv_gate_chi2),
-                      "id": None, "bearing": meas[2], "lev": meas[3], "ykf": None, "yaw": 0.0}
+                      "id": None, "bearing": meas[2], "lev": meas[3], "ykf": None, "yaw": 0.0, "n_meas": 1}
                 self.fv_tracks[key] = tr
             else:
                 tr["kf"].predict(t_s)
@@ -1024,8 +1025,16 @@ class VehicleLocator:
                     if tr["kf"].rejects >= s.fv_max_rejects:
                         tr["kf"] = RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd,
                                                s.fv_gate_chi2)
+                        tr["n_meas"] = 1
                     else:
                         meas = None
+                elif meas is not None:
+                    tr["n_meas"] = tr.get("n_meas", 1) + 1
+            if meas is None and tr["id"] is None and not (p.led_id is not None and p.led_id > 0x7F) \
+                    and tr.get("n_meas", 1) < 2 and t_s - tr["kf"].t_meas > s.fv_confirm_s:
+                # Ranged once, never again: no car's taillights (s.fv_confirm_s); forget it.
+                del self.fv_tracks[key]
+                continue
             if meas is not None:
                 tr["bearing"], tr["lev"] = meas[2], meas[3]
                 tr["sep_px"], tr["sep_d"] = meas[4], meas[0]
