@@ -667,3 +667,30 @@ def test_far_heads_one_emitter_lit_use_measured_centroids():
     assert len(good) >= 2 and len(bad) >= 2
     assert max(good) < 1.0, good     # measured 0.6 m (the heads grow ~0.1 px a frame as they near)
     assert min(bad) > 5.0, bad      # measured 16 m: the model separation is wrong enough
+
+
+def test_fv_undecoded_pair_ranged_once_is_forgotten():
+    """An undecoded pair ranged once and never again (its two emitters not measured together:
+    e.g. two far street-light heads that passed once for a car) is dropped after
+    `fv_confirm_s`: its LEDs no longer carry the founding distance ("fv-track"; on the bundled
+    recording such a pair coasted 23 frames at 21 m, 170 m heads); one ranged twice is kept."""
+    lmap = make_map()
+    R, C, psi = camera_pose(0.0)
+    meas, _ = fv_pair((20.0, 0.0), R, C, psi, led_id=None)
+    # Later frames: B's blob not measured in the frame (no range), A seen now.
+    stale = PairObservation(**{**meas.__dict__, "b_seen": (meas.b_seen[0], meas.b_seen[1], 1)})
+    dt = 1 / 30
+    n_keep = int(SETTINGS.fv_confirm_s / dt)
+    for n_meas in (1, 2):
+        loc = VehicleLocator(CAM, lmap, SETTINGS)
+        for k in range(n_meas):
+            loc.step(k * dt, [meas])
+        est = []
+        for k in range(n_meas, n_meas + 15):
+            r = loc.step(k * dt, [stale]).ranges[0]
+            est.append(None if r is None else r[2])
+        if n_meas == 1:
+            assert est[:n_keep - 1] == ["fv-track"] * (n_keep - 1) and est[-1] is None, est
+            assert not loc.fv_tracks
+        else:
+            assert est == ["fv-track"] * 15, est
