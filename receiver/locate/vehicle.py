@@ -1062,9 +1062,10 @@ class VehicleLocator:
                     cpsi, spsi = math.cos(psi), math.sin(psi)
                 road_x = hv["x"] + cpsi * x - spsi * y       # eq. 53
                 road_y = hv["y"] + spsi * x + cpsi * y
-            if meas is None and i in dirs:
+            if meas is None and i in dirs and (tr["id"] is not None or tr.get("n_meas", 1) >= 2):
                 # A tracked pair without a range of its own this frame: its LED observations
-                # carry the track's filtered distance (estimator "fv-track").
+                # carry the track's filtered distance (estimator "fv-track"), once the track is
+                # decoded or ranged twice (a pair ranged once may be no car: `fv_confirm_s`).
                 tracked[i] = (float(d), float(std), "fv-track")
             out.append({"id": tr["id"], "distance_m": _r(d), "angle_deg": _r(math.degrees(tr["bearing"])),
                         "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
