@@ -92,6 +92,15 @@ class VehicleSettings:
     # Ranging ----------------------------------------------------------------------------------
     range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
     centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
+    sl_separation_sigma_px: float = 0.3  # street-light head: 1-sigma of the emitters' separation
+                                        # (the difference of the two centroids), px. One emitter of
+                                        # a head is lit at a time: the other's position is the
+                                        # pairing's model (whole px, a frame or more old), and far
+                                        # heads are sub-pixel tall bars: their separation is off
+                                        # by 0.5-1 px (bundled recording), not sqrt(2) x 0.2 px.
+                                        # Weighs the baseline range and, in the pose solve, the
+                                        # separation of the two centroids (their midpoint keeps
+                                        # `centroid_sigma_px`); a range from 6 px is then ~12 %.
     edge_offset_px: float = 0.0         # envelope vs true edge: with the lens blur (bundled vehicle
                                         # recording) the envelope of a small taillight is its true
                                         # area (eq. 18 median -0.2 %); 0.5 px read 20 % short at 40 m
@@ -125,6 +134,11 @@ class VehicleSettings:
                                         # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations)
     pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
     pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
+    fix_floor_m: float = 0.15           # added in quadrature to each pose fix's sigma (x and y) for
+                                        # the filter: the solve's covariance knows the centroid and
+                                        # range noise, not the heads' model errors (bundled vehicle:
+                                        # fixes claiming 0.01 m off by 0.1-0.3 m gated the next
+                                        # ones out and restarted the filter)
     heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
     accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
     yaw_accel_psd: float = 0.05         # rad^2/s^3
@@ -138,6 +152,13 @@ class VehicleSettings:
     fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3
     fv_rate_sigma_mps: float = 10.0     # initial range-rate uncertainty
     fv_drop_s: float = 1.0              # forget an FV track unseen this long
+    fv_confirm_s: float = 0.6           # an undecoded pair's track ranged once only is forgotten when
+                                        # no second range comes within this long, and its LEDs carry
+                                        # no "fv-track" distance until then: bundled vehicle, two
+                                        # 170-185 m heads paired across the road once passed for a
+                                        # car at 21 m and coasted 23 frames ("fv-track" p95 88 %);
+                                        # 0.3 s dropped 35 right FV entries on vehicle-road seed 1
+                                        # (taillights there are ranged seldom, occluded)
     fv_gate_chi2: float = 9.0           # range innovation gate (3 sigma) of an FV track
     fv_max_rejects: int = 4             # consecutive gated ranges that restart the track
     fv_dup_deg: float = 0.5             # FV entries closer in bearing are one vehicle (one kept)
