@@ -177,6 +177,9 @@ class VehicleSettings:
     fv_max_area_ratio: float = 2.0      # ... and its two emitters' areas within this ratio
     fv_sl_gate_deg: float = 0.5         # an undecoded pair with an emitter this close to a mapped street
                                         # light (projected from the placed HV) is no taillight pair
+    fv_occlusion_ratio: float = 1.1     # a new undecoded pair is no car when a lamp of a taillight-role
+                                        # pair with a separation this many times smaller (farther) is
+                                        # seen inside its body's image: its body would hide that lamp
     closing_min_mps: float = 0.2        # ttc only when closing faster than this
     headway_safe_s: float = 2.0         # Figure 27: "safe" at >= 2 s headway (two-second rule)
     headway_min_s: float = 1.0          # "min" between 1 and 2 s, "critical" below 1 s

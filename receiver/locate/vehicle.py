@@ -992,6 +992,9 @@ class VehicleLocator:
                         # test (tiny blobs read large), so the lamp stays with its car.
                         not_fv.add(i)
                         continue
+                    if role == "FV?" and tr is None and self._would_hide_lamps(p, pairs):
+                        not_fv.add(i)
+                        continue
                     if role == "FV?" and not self._taillight_like(p, r, k):
                         not_fv.add(i)
                         self.fv_tracks.pop(key, None)
@@ -1074,6 +1077,29 @@ class VehicleLocator:
         for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
             del self.fv_tracks[key]
         return self._dedupe_fv(out), not_fv, tracked
+
+    def _would_hide_lamps(self, p: PairObservation, pairs) -> bool:
+        """Would a car whose taillights are the undecoded pair `p` hide another taillight-role
+        pair's lamp seen in this frame? That lamp's own blob measured now (age 0), between p's
+        emitters in image x, from 0.3 separations above p's lamps to one below (a car's body: the
+        roof about 0.4 m above its lamps, bumper and body down to the road below them, in units
+        of the ~1.4 m lamp baseline), on a pair whose separation is `fv_occlusion_ratio` times
+        smaller (it is farther): p's body would stand in that lamp's sight line, so p is no car
+        (two lamps of different objects paired by chance: vehicle scene, FVs at 53-56 m, far heads
+        across the road read as a car at 21-39 m above the host lane's car)."""
+        (xa, ya), (xb, yb) = p.a_px, p.b_px
+        lo, hi, yc, sep = min(xa, xb), max(xa, xb), 0.5 * (ya + yb), p.separation_px
+        if not sep > 0:
+            return False
+        for q in pairs:
+            if q is p or q.key == p.key or self._role(q) not in ("FV", "FV?"):
+                continue
+            if not q.separation_px * self.s.fv_occlusion_ratio < sep:
+                continue
+            for seen in (q.a_seen, q.b_seen):
+                if seen is not None and seen[2] == 0 and lo < seen[0][0] < hi and -0.3 * sep < seen[0][1] - yc < sep:
+                    return True
+        return False
 
     def _taillight_like(self, p: PairObservation, res: dict, k: int) -> bool:
         """An undecoded pair's two measured emitters look like one car's taillights: level (their
