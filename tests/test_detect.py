@@ -392,6 +392,27 @@ def test_cropped_close_and_contours_equal_the_whole_frame_search(pool):
             assert np.array_equal(got_r, want_r)
 
 
+def test_mean_in_mask_of_a_box_past_the_frame_reads_only_the_pixels_inside():
+    """An emitter moved past the frame's edge (a pair's prediction): the mean over the part of
+    its envelope inside the frame, never pixels wrapped around from the other side, never an
+    error (the box past the right edge used to raise, a negative start to wrap)."""
+    from receiver.core.records import Blob
+    from receiver.vision.profile import envelope_mask, mean_in_mask
+    gray = np.zeros((40, 50), np.uint8)
+    gray[:, :25] = 100          # left half 100, right half 0
+    gray[:, 45:] = 200          # the right edge 200
+
+    def square(x0, y0, w=7):
+        hull = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + w - 1], [x0, y0 + w - 1]], float)
+        return Blob(x0 + w / 2, y0 + w / 2, float(w * w), hull, x0, y0, x0 + w, y0 + w, True, 200.0, 50.0, 10.0)
+
+    assert mean_in_mask(gray, square(46, 10)) == 200.0      # 5 px past the right edge
+    assert mean_in_mask(gray, square(-3, 10)) == 100.0      # 3 px past the left edge: no wrap to 200
+    assert mean_in_mask(gray, square(20, -4)) == float((envelope_mask(square(20, -4))[4:, :].astype(int)
+                                                         * gray[0:3, 20:27]).sum()) / envelope_mask(square(20, -4))[4:, :].sum()
+    assert mean_in_mask(gray, square(60, 10)) == 0.0        # wholly outside
+
+
 def test_mean_in_mask_is_the_mean_of_the_envelope_pixels():
     """mean_in_mask (cv2 sums) equals the plain numpy mean over the filled envelope, float for
     float, on blobs anywhere in the frame and of any size down to a point."""

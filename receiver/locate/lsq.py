@@ -99,7 +99,7 @@ def robust_lm_rj(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale:
     """`robust_lm`, returning (p, r, J): the solution with its (whitened, loss-free) residuals
     and Jacobian, which the caller's covariance then needs not evaluate again."""
     if loss not in _LOSSES:
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: receiver.vision.track.preload)
         p = least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
         return p, fun(p), jac(p)
     # `fun.fun_jac` (e.g. receiver.locate.pose._joint_fun): both from one evaluation of the pose.

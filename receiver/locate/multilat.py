@@ -74,7 +74,7 @@ def multilaterate(L: np.ndarray, d: np.ndarray, sigma_d: np.ndarray, *, loss: st
         if C[2] > z_ceiling - BELOW_CEILING_M:
             C = C.copy()
             C[2] = z_ceiling - float(np.median(d))
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: receiver.vision.track.preload)
         res = least_squares(fun, C, loss=loss, f_scale=f_scale, method="trf")
         Cr = res.x
         if Cr[2] > z_ceiling - BELOW_CEILING_M:     # mirror solution above the ceiling: rejected

@@ -477,7 +477,7 @@ def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
     less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in 1-3
     iterations). Returns (p, converged, r, state) with the residuals and evaluation at p."""
     if loss not in _LOSSES:
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: receiver.vision.track.preload)
         p = least_squares(lambda q: prob(q, False), np.asarray(p0, float), jac=lambda q: prob(q)[1], loss=loss,
                           f_scale=f_scale, method="trf").x
         r, st = prob.residuals(p)

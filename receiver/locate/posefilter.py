@@ -127,8 +127,8 @@ class PoseFilter:
         """The warm-started refinement `solve` would run for this frame (`warm_start`: the
         orientation prior and the filter's predicted position, else the last fix's centre), or
         None where it solves the frame from scratch."""
-        if not self.warm_start or R_prior is None or self.handedness_source == "default":
-            return None
+        if not self.warm_start or R_prior is None or self.handedness_source == "default" or self.track_prior:
+            return None     # the warm refinement has no rows for the tracked-position prior
         C0 = self.kf.predict_position(t_s) if self.kf is not None else None
         if C0 is None and self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s:
             C0 = self._C

@@ -149,7 +149,8 @@ class LightingServer:
     `too_many_devices_per_source` error. `counters`: datagrams, replies, positions,
     new_devices, forgotten and each reason of REASONS. `warm_start`: the devices' filters start
     each fix from their previous pose (`PoseFilter` warm_start: the same fixes within the solver's
-    tolerance, about 1e-7 m, at a fraction of the cost); False solves every frame from scratch,
+    tolerance, at a fraction of the cost; on 600 walk datagrams the replies differed from cold
+    solves by at most 1e-5 m, one unit of their 5-decimal rounding); False solves every frame from scratch,
     exactly as a local `receiver.locate.indoor.Positioner` does.
     """
 

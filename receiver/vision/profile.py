@@ -42,7 +42,16 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
     """Mean gray over the blob's envelope (S2-PSK intensity), also when the LED is dark."""
     mask = envelope_mask(blob)
     roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
-    if roi.shape != mask.shape or not roi.size:  # past the last row / column, or empty: as ever
+    if roi.shape != mask.shape or not roi.size or blob.x0 < 0 or blob.y0 < 0:
+        # A box past the frame's edges (a pair's emitter moved there): the part inside the
+        # frame, with the mask's matching part (negative starts would wrap around)
+        h, w = gray.shape[:2]
+        x0, y0 = max(int(blob.x0), 0), max(int(blob.y0), 0)
+        x1, y1 = min(int(blob.x1), w), min(int(blob.y1), h)
+        if x1 <= x0 or y1 <= y0:
+            return 0.0
+        roi = gray[y0:y1, x0:x1]
+        mask = mask[y0 - int(blob.y0):y1 - int(blob.y0), x0 - int(blob.x0):x1 - int(blob.x0)]
         n = int(mask.sum())
         return float((roi * mask).sum()) / n if n else 0.0
     # the same exact integer sums (cv2.sumElems adds uint8 values in double, exactly) divided

@@ -79,7 +79,7 @@ def gated_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
 def _solver_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
     """`gated_assignment` by the solver alone (the reference its shortcut must equal)."""
     cost = np.where(ok, d, _FORBIDDEN)
-    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (see kalman.preload)
+    from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: `preload` below)
     rows, cols = linear_sum_assignment(cost)
     return {r: c for r, c in zip(rows.tolist(), cols.tolist()) if cost[r, c] < _FORBIDDEN}
 
