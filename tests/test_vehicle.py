@@ -452,6 +452,20 @@ def test_fv_receding_has_no_ttc():
 
 # ------------------------------------------------------------------------------ robustness
 
+def test_the_run_reason_is_that_of_most_unplaced_frames_not_the_last():
+    """The summary's reason the HV was never placed: a drive of frames with one light each, then
+    a last frame with nothing in view, says 'fewer than ...', not 'no street light in view'."""
+    R, C, psi = camera_pose(10.0)
+    lmap = make_map()
+    pairs = sl_pairs(lmap, R, C)
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    for k in range(5):
+        assert loc.step(k / 30, [pairs[1]]).vehicle["hv"] is None
+    loc.step(5 / 30, [])
+    assert loc.hv_reason == "no street light in view"
+    assert loc.run_reason().startswith("fewer than")
+
+
 def test_missing_map_pieces_give_none_and_reasons():
     R, C, psi = camera_pose(10.0)
     # No emitter positions: ranging still works (baseline_m), the HV stays unplaced.

@@ -350,7 +350,7 @@ def _main(args, stop: "SignalStop") -> int:
                 out.commit() if ok else out.discard()
             else:
                 out.flush()
-        hv_reason = getattr(vehicle, "hv_reason", None) if vehicle is not None else None
+        hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
                                         hv_reason=hv_reason)

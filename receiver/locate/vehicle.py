@@ -436,6 +436,7 @@ class VehicleLocator:
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.hv_reason: str | None = "no street light seen yet"
+        self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
         self.last_fix: dict | None = None         # {"pose": (x, y) | None, "eq44-47": (x, y) | None}
         self.fv_tracks: dict = {}
@@ -832,7 +833,16 @@ class VehicleLocator:
             vehicle = {"hv": hv, "fv": fv,
                        "hv_eq44_47": None if e is None else {"x": _r(e[0]), "y": _r(e[1]), "method": "eq44-47"},
                        "unplaced_reason": None if hv is not None else self.hv_reason}
+        if hv is None and self.hv_reason:
+            self.unplaced[self.hv_reason] = self.unplaced.get(self.hv_reason, 0) + 1
         return VehicleResult(vehicle=vehicle, ranges=ranges)
+
+    def run_reason(self) -> str | None:
+        """Why the HV was left unplaced over the run so far: the reason of most unplaced frames
+        (the last frame's alone may be the road's end), or the current one before any frame."""
+        if not self.unplaced:
+            return self.hv_reason
+        return max(self.unplaced.items(), key=lambda kv: kv[1])[0]
 
     def _pose_ranges(self, pairs, ranges, fix):
         """SL pairs with mapped emitters: the distance from the frame's solved camera centre to
