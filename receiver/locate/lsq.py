@@ -44,13 +44,15 @@ LM_XTOL = 1e-8     # relative step
 LM_FTOL = 1e-8     # relative cost decrease (scipy's ftol)
 
 
-def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-               max_iter: int = 50):
+def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS,
+              f_scale: float = DEFAULT_F_SCALE, max_iter: int = 50):
     """Minimise sum rho((r/f_scale)^2) (the cost of scipy.optimize.least_squares with the same
-    loss, one of `_LOSSES`) by Levenberg-Marquardt on iteratively reweighted normal equations.
-    `fun_jac(p) -> (r, J)`: residuals and their Jacobian; `done(dp, p, c, c_new) -> bool`: the
-    stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r, J)
-    with the residuals and Jacobian at p; converged is False when `max_iter` ran out."""
+    loss, one of `_LOSSES`) by Levenberg-Marquardt on iteratively reweighted normal equations,
+    damped by lam * max(diag A, 1e-12). `evaluate(p) -> (r, state)`: residuals and whatever
+    `normal(state, r, w) -> (A, g)` needs to build the weighted normal equations A = J' W J,
+    g = J' W r (w: the loss weights per residual); `done(dp, p, c, c_new) -> bool`: the
+    stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r,
+    state) at p; converged is False when `max_iter` ran out."""
     rho, wfun = _LOSSES[loss]
 
     def cost_z(r):
@@ -58,33 +60,46 @@ def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_sca
         return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
 
     p = np.asarray(p0, float).copy()
-    r, J = fun_jac(p)
+    r, st = evaluate(p)
     c, z = cost_z(r)
     lam = LM_LAMBDA0
+    diag = np.arange(p.size), np.arange(p.size)
     for _ in range(max_iter):
-        Jw = J * wfun(z)[:, None]
-        A = J.T @ Jw
-        g = Jw.T @ r
-        D = np.diag(np.maximum(np.diag(A), 1e-12))
+        A, g = normal(st, r, wfun(z))
+        dA = np.maximum(A[diag], 1e-12)
         while True:
+            Ad = A.copy()
+            Ad[diag] += lam * dA
             try:
-                dp = np.linalg.solve(A + lam * D, -g)
+                dp = np.linalg.solve(Ad, -g)
             except np.linalg.LinAlgError:
                 dp = np.zeros_like(p)
             p_new = p + dp
-            r_new, J_new = fun_jac(p_new)
+            r_new, st_new = evaluate(p_new)
             c_new, z_new = cost_z(r_new)
             if c_new <= c:
                 break
             lam *= 10.0
             if lam > LM_LAMBDA_MAX:
-                return p, True, r, J
+                return p, True, r, st
         stop = done(dp, p, c, c_new)
-        p, r, J, c, z = p_new, r_new, J_new, c_new, z_new
+        p, r, st, c, z = p_new, r_new, st_new, c_new, z_new
         lam = max(lam / 10.0, 1e-12)
         if stop:
-            return p, True, r, J
-    return p, False, r, J
+            return p, True, r, st
+    return p, False, r, st
+
+
+def _jacobian_normal(J: np.ndarray, r: np.ndarray, w: np.ndarray):
+    Jw = J * w[:, None]
+    return J.T @ Jw, Jw.T @ r
+
+
+def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
+               max_iter: int = 50):
+    """`lm_normal` on a stacked Jacobian: `fun_jac(p) -> (r, J)`. Returns (p, converged, r, J)
+    with the residuals and Jacobian at p."""
+    return lm_normal(fun_jac, _jacobian_normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
 def _lm_done(dp, p, c, c_new) -> bool:

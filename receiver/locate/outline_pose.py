@@ -41,11 +41,10 @@ import numpy as np
 from receiver.locate.lsq import (
     _LOSSES,
     BELOW_CEILING_M,
-    LM_LAMBDA0,
-    LM_LAMBDA_MAX,
     DEFAULT_F_SCALE,
     DEFAULT_LOSS,
     Fix,
+    lm_normal,
 )
 
 CORNER_GUARD_PX = 2.0
@@ -471,8 +470,8 @@ class _Problem:
 
 
 def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
-    """`receiver.locate.lsq.lm_iterate`'s Levenberg-Marquardt (the same damping, acceptance and
-    loss), on the problem's normal equations (`_Problem.normal`) rather than a stacked Jacobian,
+    """`receiver.locate.lsq.lm_normal`'s Levenberg-Marquardt on the problem's normal equations
+    (`_Problem.normal`, built from per-edge sums rather than a stacked Jacobian),
     stopping once a step moves the pose by less than `STEP_TOL` (m, rad) or lowers the cost by
     less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in 1-3
     iterations). Returns (p, converged, r, state) with the residuals and evaluation at p."""
@@ -482,41 +481,11 @@ def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
                           f_scale=f_scale, method="trf").x
         r, st = prob.residuals(p)
         return p, True, r, st
-    rho, wfun = _LOSSES[loss]
 
-    def cost_z(r):
-        z = (r / f_scale) ** 2
-        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
+    def done(dp, p, c, c_new):
+        return float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
 
-    p = np.asarray(p0, float).copy()
-    r, st = prob.residuals(p)
-    c, z = cost_z(r)
-    lam = LM_LAMBDA0
-    diag = np.arange(6), np.arange(6)
-    for _ in range(max_iter):
-        A, g = prob.normal(st, r, wfun(z))
-        dA = np.maximum(A[diag], 1e-12)
-        while True:
-            Ad = A.copy()
-            Ad[diag] += lam * dA
-            try:
-                dp = np.linalg.solve(Ad, -g)
-            except np.linalg.LinAlgError:
-                dp = np.zeros(6)
-            p_new = p + dp
-            r_new, st_new = prob.residuals(p_new)
-            c_new, z_new = cost_z(r_new)
-            if c_new <= c:
-                break
-            lam *= 10.0
-            if lam > LM_LAMBDA_MAX:
-                return p, True, r, st
-        stop = float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
-        p, r, st, c, z = p_new, r_new, st_new, c_new, z_new
-        lam = max(lam / 10.0, 1e-12)
-        if stop:
-            return p, True, r, st
-    return p, False, r, st
+    return lm_normal(prob.residuals, prob.normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
 def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
