@@ -167,6 +167,11 @@ class PairSettings:
     drop_twins [True]: an undecoded jumper pair whose midpoint lies within a decoded jumper
     pair's baseline plus match_min_px (horizontally; match_min_px vertically) is the same
     far head followed a baseline aside, and ends (`Pairer._drop_twins`).
+    follow_size [True]: a decoded street light's pair takes one emitter's size from every blob
+    it explains (half a merged one), not only from its single-emitter blobs: a near head grows
+    by several % a frame and its merged blobs left the envelopes behind until its blobs no
+    longer fitted them (hil s2psk seed 4 light 110 lost 18 frames at ~20 m; SL light-frames
+    seeds 1-4 873/852/876/808 -> 879/868/882/838, recordings/vehicle 635 -> 641 of 658).
     head_backlog [True]: a new far-head (jumper) pair's backlog is read from every blob of the
     last backlog_frames frames near the head, whichever track had it (`Pairer._head_backlog`:
     the place moved back by the frames' image shifts, following the blobs by head_follow
@@ -217,6 +222,7 @@ class PairSettings:
     flux_min: float = 4.0
     flux_recent: int = 12
     drop_twins: bool = True
+    follow_size: bool = True
     head_backlog: bool = True
     head_follow: float = 0.2
     head_gap_frames: int = 4
