@@ -217,6 +217,34 @@ def test_a_decoded_street_lights_pair_follows_its_size_through_merged_blobs():
     assert run(False) == [0, 1]
 
 
+def test_a_near_jumper_pairs_first_sample_reads_against_its_tracks_levels():
+    """A near head whose halves merge (one track jumping between them, 28 px^2 blobs): its new
+    pair's emitters start with the track's learned on / off levels, so its first sample (A lit,
+    B dark) reads anti-phase. Without the seeding (`jumper_levels_min_area_px` inf, or a far
+    head under it) each emitter holds one value and the sample reads 0."""
+    from receiver.decode.s2psk import pair_xor
+
+    def first_xor(min_area):
+        pr = Pairer(jumper_levels_min_area_px=min_area)
+        xs = [100.0, 112.0, 100.0, 112.0, 100.0]
+        lum = [200.0, 10.0, 200.0, 10.0, 200.0]
+        pairs = []
+        for k, x in enumerate(xs):
+            t = Track(5, blob(x, 50.0, 3.0), 0, k)
+            pairs = pr.step(None, [t], lambda g, tr, k=k: lum[k])
+            if pairs:
+                break
+        assert len(pairs) == 1, "no pair from the jumping track"
+        p = pairs[0]
+        ia, ib = pr.sample(p, None, lambda g, tr: 200.0 if tr is p.a else 10.0)
+        la, lb = p.levels_a, p.levels_b
+        return pair_xor(ia, ib, la.on, lb.on, la.off, lb.off)
+
+    assert first_xor(16.0) > 0.9
+    assert first_xor(float("inf")) == 0.0
+    assert first_xor(30.0) == 0.0  # 28 px^2: a far head's, not seeded
+
+
 def test_emitter_levels_equal_numpy_percentiles():
     """The levels come from a sorted copy kept per value; they must be np.percentile's."""
     rng = np.random.default_rng(3)

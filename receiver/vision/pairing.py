@@ -218,6 +218,7 @@ class Pairer:
         self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
         self.drop_twins = s.drop_twins
         self.follow_size = s.follow_size
+        self.jumper_levels_min_area_px = s.jumper_levels_min_area_px
         self.jumper_unseen_frames = s.jumper_unseen_frames
         self.emitter_gate_larger = s.emitter_gate_larger
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
@@ -553,6 +554,17 @@ class Pairer:
             a.blob = moved(t.blob, ax, ay)
             b.blob = moved(t.blob, ax + jx, ay + jy)
             p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
+            lv = self.levels.get(t.track_id)
+            if lv is not None and t.blob.area_px >= self.jumper_levels_min_area_px:
+                # A near head (halves of >= jumper_levels_min_area_px): its track's learned
+                # on / off levels (lit when it had a half's blob, dark otherwise) seed both
+                # emitters', so its first samples are read against them, not against one or
+                # two values (a wrong sign each, folded into the packet's first estimate). A far
+                # head's per-emitter reads stay neutral until its own levels are learned: which
+                # half is lit cannot be told under the yaw shake (its flux is read instead).
+                for v in (lv.on, lv.off):
+                    p.levels_a.add(v)
+                    p.levels_b.add(v)
             p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
             if self.head_backlog:
                 head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx,
