@@ -192,6 +192,59 @@ def test_an_emitter_with_a_stale_small_envelope_still_explains_its_grown_blob():
     assert abs(p.a.blob.area_px - seen.blob.area_px) < 1e-9
 
 
+def test_a_decoded_street_lights_pair_follows_its_size_through_merged_blobs():
+    """An approaching street light (decoded) shows both halves lit as one merged blob for a
+    few frames; its envelopes stay the size they were. Its next merged blob, grown to 3.5x an
+    envelope (over `max_merged` 3x), is still its own: the merged blob before it (2.6x, half
+    of it one emitter) set the pair's size. Without `follow_size` the pair misses it."""
+    from receiver.vision.pairing import Pair, _emitter
+
+    def run(follow):
+        pr = Pairer(max_missed=100, follow_size=follow)
+        a, b = Track(1, blob(100.0, 50.0, 4.0), 0, 0), Track(2, blob(120.0, 50.0, 4.0), 0, 0)
+        p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], led_id=110, kind="SL")
+        assert pr._follow(p, [], np.zeros((0, 2)), None)  # forms the geometry
+        env = p.a.blob.area_px
+        misses = []
+        for k, grown in enumerate((2.6, 3.5)):
+            m = Track(7 + k, blob(p.mx, 50.0, 4.0 * np.sqrt(grown)), 1 + k, 1 + k)
+            assert pr._follow(p, [m], np.array([[m.cx, m.cy]]), None)
+            misses.append(p.misses)
+        assert abs(p.a.blob.area_px - env) < 1e-9  # a merged blob never becomes an envelope
+        return misses
+
+    assert run(True) == [0, 0]
+    assert run(False) == [0, 1]
+
+
+def test_a_near_jumper_pairs_first_sample_reads_against_its_tracks_levels():
+    """A near head whose halves merge (one track jumping between them, 28 px^2 blobs): its new
+    pair's emitters start with the track's learned on / off levels, so its first sample (A lit,
+    B dark) reads anti-phase. Without the seeding (`jumper_levels_min_area_px` inf, or a far
+    head under it) each emitter holds one value and the sample reads 0."""
+    from receiver.decode.s2psk import pair_xor
+
+    def first_xor(min_area):
+        pr = Pairer(jumper_levels_min_area_px=min_area)
+        xs = [100.0, 112.0, 100.0, 112.0, 100.0]
+        lum = [200.0, 10.0, 200.0, 10.0, 200.0]
+        pairs = []
+        for k, x in enumerate(xs):
+            t = Track(5, blob(x, 50.0, 3.0), 0, k)
+            pairs = pr.step(None, [t], lambda g, tr, k=k: lum[k])
+            if pairs:
+                break
+        assert len(pairs) == 1, "no pair from the jumping track"
+        p = pairs[0]
+        ia, ib = pr.sample(p, None, lambda g, tr: 200.0 if tr is p.a else 10.0)
+        la, lb = p.levels_a, p.levels_b
+        return pair_xor(ia, ib, la.on, lb.on, la.off, lb.off)
+
+    assert first_xor(16.0) > 0.9
+    assert first_xor(float("inf")) == 0.0
+    assert first_xor(30.0) == 0.0  # 28 px^2: a far head's, not seeded
+
+
 def test_emitter_levels_equal_numpy_percentiles():
     """The levels come from a sorted copy kept per value; they must be np.percentile's."""
     rng = np.random.default_rng(3)

@@ -126,6 +126,9 @@ class Pair:
     misses: int = 0  # consecutive frames without a blob it explains
     mx: float = 0.0  # midpoint, px
     my: float = 0.0
+    # a decoded street light's one-emitter area (px^2) from the latest blob it explained, half
+    # of a merged one (`PairSettings.follow_size`); 0 = none
+    size: float = 0.0
     # Both emitters' own blobs were seen apart, each within the last BOTH_SEEN_FRAMES frames
     # (S2-PSK lights one emitter at a time for half the symbols and far heads merge when both
     # are lit, so the two are rarely seen apart in one frame): the baseline is then measured.
@@ -214,6 +217,8 @@ class Pairer:
         self.flux_margin_y_px = s.flux_margin_y_px
         self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
         self.drop_twins = s.drop_twins
+        self.follow_size = s.follow_size
+        self.jumper_levels_min_area_px = s.jumper_levels_min_area_px
         self.jumper_unseen_frames = s.jumper_unseen_frames
         self.emitter_gate_larger = s.emitter_gate_larger
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
@@ -231,7 +236,7 @@ class Pairer:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
         one emitter's area (px^2). Rigid pair: the baseline only scales with the emitters' size
         (both ~ 1 / distance), so a blob can never pull one emitter onto the other."""
-        single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
+        single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), p.size, 1.0)
         scale = math.sqrt(single / p.area0)
         return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
 
@@ -272,7 +277,7 @@ class Pairer:
             # envelope from when the light was farther (an approaching head grows by several
             # times in a few seconds).
             e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
-            ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, 1.0)
+            ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
             if not (1.0 / self.max_cut <= ratio <= self.merged_ratio):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
@@ -374,6 +379,18 @@ class Pairer:
             p.obs_b = (obs_b, p.frames)
         p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
             p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
+        if self.follow_size and p.tracks and p.kind == "SL":
+            # A near street light grows by several % a frame, and while both its halves are lit
+            # they show as one merged blob that leaves the emitters' envelopes as they were: the
+            # next single or merged blob, grown past `merged_ratio` / `max_merged` of them, was
+            # then "another light's" and the pair lost its head within a few frames. Its size
+            # follows every blob it explains instead (`_predict`, `_explain`).
+            t = p.tracks[0]
+            if math.hypot(t.cx - mx, t.cy - my) < min(math.hypot(t.cx - mx + hx, t.cy - my + hy),
+                                                      math.hypot(t.cx - mx - hx, t.cy - my - hy)):
+                p.size = 0.5 * t.blob.area_px  # both lit, one blob
+            elif obs_a is not None or obs_b is not None:
+                p.size = t.blob.area_px
         if not shifts:
             p.misses += 1
             sx = sy = 0.0
@@ -537,6 +554,17 @@ class Pairer:
             a.blob = moved(t.blob, ax, ay)
             b.blob = moved(t.blob, ax + jx, ay + jy)
             p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
+            lv = self.levels.get(t.track_id)
+            if lv is not None and t.blob.area_px >= self.jumper_levels_min_area_px:
+                # A near head (halves of >= jumper_levels_min_area_px): its track's learned
+                # on / off levels (lit when it had a half's blob, dark otherwise) seed both
+                # emitters', so its first samples are read against them, not against one or
+                # two values (a wrong sign each, folded into the packet's first estimate). A far
+                # head's per-emitter reads stay neutral until its own levels are learned: which
+                # half is lit cannot be told under the yaw shake (its flux is read instead).
+                for v in (lv.on, lv.off):
+                    p.levels_a.add(v)
+                    p.levels_b.add(v)
             p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
             if self.head_backlog:
                 head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx,

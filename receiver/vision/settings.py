@@ -167,6 +167,17 @@ class PairSettings:
     drop_twins [True]: an undecoded jumper pair whose midpoint lies within a decoded jumper
     pair's baseline plus match_min_px (horizontally; match_min_px vertically) is the same
     far head followed a baseline aside, and ends (`Pairer._drop_twins`).
+    follow_size [True]: a decoded street light's pair takes one emitter's size from every blob
+    it explains (half a merged one), not only from its single-emitter blobs: a near head grows
+    by several % a frame and its merged blobs left the envelopes behind until its blobs no
+    longer fitted them (hil s2psk seed 4 light 110 lost 18 frames at ~20 m; SL light-frames
+    seeds 1-4 873/852/876/808 -> 879/868/882/838, recordings/vehicle 635 -> 641 of 658).
+    jumper_levels_min_area_px [16]: a new jumper pair whose blob is at least this large (a near
+    head) seeds both emitters' levels with its track's on / off levels (`Pairer._pair_jumpers`);
+    inf = never (was: its first samples read against one or two values, a wrong sign that
+    held hil seed 4 head 40's Manchester margin at 0.21 for its whole view; SL seeds 1-4
+    879/868/882/838 -> 884/868/882/854, recordings/vehicle 641 -> 646; all seeding, any
+    size: seed 4 879 but seeds 1 and vehicle 6 worse, far heads' first per-emitter reads).
     head_backlog [True]: a new far-head (jumper) pair's backlog is read from every blob of the
     last backlog_frames frames near the head, whichever track had it (`Pairer._head_backlog`:
     the place moved back by the frames' image shifts, following the blobs by head_follow
@@ -217,6 +228,8 @@ class PairSettings:
     flux_min: float = 4.0
     flux_recent: int = 12
     drop_twins: bool = True
+    follow_size: bool = True
+    jumper_levels_min_area_px: float = 16.0
     head_backlog: bool = True
     head_follow: float = 0.2
     head_gap_frames: int = 4
