@@ -111,7 +111,7 @@ def pair_owners(pairs) -> dict[int, object]:
 def pair_observation(p) -> PairObservation:
     """The record of one live pair in this frame (see `PairObservation`)."""
     a, b = p.a.blob, p.b.blob
-    return PairObservation(key=p.key, led_id=p.led_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
+    return PairObservation(key=p.key, founding=p.founding, led_id=p.led_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
                            area_a_px=a.area_px, area_b_px=b.area_px,
                            separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen,
                            a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames))

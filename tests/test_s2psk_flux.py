@@ -169,3 +169,15 @@ def test_a_weak_sync_symbol_decodes_but_a_wrong_one_never():
             bad = m.copy()
             bad[pos] = -bad[pos]
             assert decode_symbols(bad, sync_margin=s.sync_margin, min_margin=s.min_margin)[0] is None
+
+
+def test_a_given_up_aliased_pair_bans_its_founding_tracks():
+    """A pair re-formed from a live pair's founding tracks carries an alias key (its emitters'
+    LED ids); when it gives up undecoded, what is banned is its founding tracks, which new pairs
+    are checked by, not the alias (which never matches a candidate)."""
+    pr = Pairer()
+    p = _pair(pr)
+    p.alias = (901, 902)
+    p.frames = pr.give_up_frames
+    assert not pr._follow(p, [], np.zeros((0, 2)), (24, 80))
+    assert (7, 7) in pr.banned and (901, 902) not in pr.banned

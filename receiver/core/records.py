@@ -64,7 +64,8 @@ class PairObservation:
     `a_seen`, `b_seen`: emitter A's / B's own blob as measured when last seen, ((cx, cy) distorted
     px, area px^2, age in frames: 0 = this frame), or None when never seen alone. Unlike `a_px`,
     `b_px` (the pair's rigid model, to the nearest whole pixel) these are measurements: two of
-    age 0 give the pair's separation to a fraction of a pixel.
+    age 0 give the pair's separation to a fraction of a pixel. `founding`: the founding tracks'
+    ids (the key unless the pair is aliased: receiver.vision.pairing `Pair.alias`; None: the key).
     """
 
     key: tuple[int, int]
@@ -78,6 +79,7 @@ class PairObservation:
     both_visible: bool
     a_seen: tuple | None = None
     b_seen: tuple | None = None
+    founding: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)

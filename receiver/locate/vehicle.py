@@ -976,7 +976,8 @@ class VehicleLocator:
         R = self.R_last
         cpsi = spsi = None
         # Emitter tracks of the live pairs already tracked as FVs: one lamp is one car's.
-        owner = {t: p.key for p in pairs if p.key in self.fv_tracks for t in p.key}
+        # (by founding track ids: an aliased pair's key holds LED ids)
+        owner = {t: p.key for p in pairs if p.key in self.fv_tracks for t in (p.founding or p.key)}
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role not in ("FV", "FV?"):
@@ -996,7 +997,7 @@ class VehicleLocator:
                     not_fv.add(i)
                 elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
-                    if role == "FV?" and tr is None and any(owner.get(t, p.key) != p.key for t in p.key):
+                    if role == "FV?" and tr is None and any(owner.get(t, p.key) != p.key for t in (p.founding or p.key)):
                         # A new pairing of a lamp an FV track already owns with another lamp: at
                         # 50+ m one taillight of each of two cars side by side pass the area
                         # test (tiny blobs read large), so the lamp stays with its car.

@@ -147,15 +147,22 @@ class Pair:
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
     backlog: list = field(default_factory=list)
-    flux: deque = field(default_factory=lambda: deque(maxlen=48))  # its head's last fluxes (`Pairer.sample_flux`)
+    # its head's last fluxes (`Pairer.sample_flux`): 48 frames hold about 24 with a half lit, twice
+    # the default `flux_recent` that the flux decoder reads
+    flux: deque = field(default_factory=lambda: deque(maxlen=48))
 
     # the key when the founding tracks' ids are a live pair's key already: its emitters' LED ids
     alias: tuple[int, int] | None = None
 
     @property
+    def founding(self) -> tuple[int, int]:
+        """The founding tracks' ids (one track twice for a pair founded on a jumping track)."""
+        return self.a.track_id, self.b.track_id
+
+    @property
     def key(self) -> tuple[int, int]:
         """Unique among live pairs: the founding tracks' ids (or `alias`)."""
-        return self.alias if self.alias is not None else (self.a.track_id, self.b.track_id)
+        return self.alias if self.alias is not None else self.founding
 
 
 def _emitter(t: Track) -> Track:
@@ -360,7 +367,7 @@ class Pairer:
         (`pitch_shift`), px, added to the prediction."""
         p.frames += 1
         if p.led_id is None and p.frames > self.give_up_frames:
-            self.banned.add(p.key)
+            self.banned.add(p.founding)   # what new pairs are checked by (an alias never matches)
             return False
         if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
             p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
