@@ -44,6 +44,13 @@ LM_XTOL = 1e-8     # relative step
 LM_FTOL = 1e-8     # relative cost decrease (scipy's ftol)
 
 
+def _loss_cost(rho, r: np.ndarray, f_scale: float):
+    """(cost, z) of whitened residuals r (..., M): sum rho(z) * f_scale^2 / 2 over the last axis
+    with z = (r / f_scale)^2 (scipy.optimize.least_squares' robust cost)."""
+    z = (r / f_scale) ** 2
+    return 0.5 * f_scale ** 2 * rho(z).sum(axis=-1), z
+
+
 def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS,
               f_scale: float = DEFAULT_F_SCALE, max_iter: int = 50):
     """Minimise sum rho((r/f_scale)^2) (the cost of scipy.optimize.least_squares with the same
@@ -56,8 +63,8 @@ def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOS
     rho, wfun = _LOSSES[loss]
 
     def cost_z(r):
-        z = (r / f_scale) ** 2
-        return 0.5 * f_scale ** 2 * float(np.sum(rho(z))), z
+        c, z = _loss_cost(rho, r, f_scale)
+        return float(c), z
 
     p = np.asarray(p0, float).copy()
     r, st = evaluate(p)
@@ -193,8 +200,7 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
     rho, wfun = _LOSSES[loss]
 
     def cost_z(r):
-        z = (r / f_scale) ** 2
-        return 0.5 * f_scale ** 2 * rho(z).sum(axis=1), z
+        return _loss_cost(rho, r, f_scale)
 
     def select(keep, new, old):
         if keep.all():

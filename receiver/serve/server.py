@@ -231,12 +231,10 @@ class LightingServer:
                 leds = [self.led_map.lookup(led_id) for led_id in req.ids]
                 used = [k for k, led in enumerate(leds) if led is not None]
                 args = None
-                if len(used) == len(leds):
-                    L = np.array([led.xyz for led in leds])
-                    args = (pf, req.t, L, req.uv, req.d, req.sigma_d, pf.R_prior(req.t))
-                elif used:
+                if used:
+                    sel = slice(None) if len(used) == len(leds) else used   # all known: no copies
                     L = np.array([leds[k].xyz for k in used])
-                    args = (pf, req.t, L, req.uv[used], req.d[used], req.sigma_d[used], pf.R_prior(req.t))
+                    args = (pf, req.t, L, req.uv[sel], req.d[sel], req.sigma_d[sel], pf.R_prior(req.t))
                 jobs.append((i, req, pf, leds, used, args))
             except Exception as e:   # noqa: BLE001
                 replies[i] = self._failed(e, req)
