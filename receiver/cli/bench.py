@@ -241,9 +241,10 @@ def bench_case(spec: str, args) -> dict:
 
 
 def _print_tables(rows: list[dict], clock: str, out) -> None:
+    from receiver.core import native
     what = "main-thread CPU ms" if clock == "cpu" else "elapsed ms"
     print(f"whole pipeline (detect .. locate, vehicle, JSON line) on one core, {what}; frames decoded into "
-          f"memory before timing (video decoding not timed)", file=out)
+          f"memory before timing (video decoding not timed); kernels: {native.status()}", file=out)
     for row in rows:
         fps = f"{row['frames_per_s']:.1f} frames/s" if row["frames_per_s"] else "-"
         print(f"\n{row['case']}: {row['frames']} frames {row['size'][0]}x{row['size'][1]}, {fps} (one core)",
@@ -286,8 +287,9 @@ def main(args) -> int:
                 row["instr_note"] = c["note"]
         rows.append(row)
     if args.json:
-        print(json.dumps({"one_core": True, "frames_predecoded": True, "clock": args.clock, "cases": rows},
-                         indent=1))
+        from receiver.core import native
+        print(json.dumps({"one_core": True, "frames_predecoded": True, "clock": args.clock,
+                          "kernels": native.status(), "cases": rows}, indent=1))
     else:
         _print_tables(rows, args.clock, sys.stdout)
     return 0

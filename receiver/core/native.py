@@ -1,0 +1,58 @@
+"""Optional compiled kernels (Cython, built by `pip install -e .` from receiver/**/_*.pyx).
+
+A stage imports its kernel module with `load("receiver.vision._edges")` and calls it when the
+result is not None; otherwise it runs its pure numpy path, which stays the tested reference the
+kernel must equal. `OCCLOC_PURE=1` in the environment forces the pure path everywhere (for A/B
+measurements and the equality tests); `status()` says which kernels are in use.
+
+Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
+`tool.setuptools.ext-modules`): the remaining cost of a frame is interpreter and numpy dispatch
+on small per-LED arrays (thousands of calls per frame), which numpy and OpenCV cannot remove.
+numba would compile such loops too, but its import (~0.4 s) and first-call compilation would
+break the start-up budget (`occloc --help` <= 0.2 s, a photo command <= 0.6 s). Kernels take
+typed memoryviews (no numpy C headers needed at build time).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from pathlib import Path
+from types import ModuleType
+
+_LOADED: dict[str, ModuleType | None] = {}
+
+
+def pure_forced() -> bool:
+    """True when OCCLOC_PURE=1 asks for the pure numpy paths."""
+    return os.environ.get("OCCLOC_PURE", "") == "1"
+
+
+def load(name: str) -> ModuleType | None:
+    """The compiled module `name`, or None (not built, or OCCLOC_PURE=1)."""
+    if pure_forced():
+        return None
+    if name not in _LOADED:
+        try:
+            _LOADED[name] = importlib.import_module(name)
+        except ImportError:
+            _LOADED[name] = None
+    return _LOADED[name]
+
+
+def kernel_sources() -> list[str]:
+    """Module names of every kernel source (receiver/**/_*.pyx) in this checkout."""
+    root = Path(__file__).resolve().parents[2]
+    return [".".join(p.relative_to(root).with_suffix("").parts)
+            for p in sorted((root / "receiver").rglob("_*.pyx"))]
+
+
+def status() -> str:
+    """'native (k of n kernels)', 'pure (OCCLOC_PURE=1)' or 'pure (no kernels)'."""
+    names = kernel_sources()
+    if pure_forced():
+        return "pure (OCCLOC_PURE=1)"
+    if not names:
+        return "pure (no kernels)"
+    built = sum(load(n) is not None for n in names)
+    return f"native ({built} of {len(names)} kernels)"
