@@ -124,7 +124,21 @@ class VehicleSettings:
     tilt_sigma_deg: float = 10.0        # weak prior on the tilt (matters with one light only)
     # Host vehicle -----------------------------------------------------------------------------
     hv_method: str = "pose"             # the fix fed to the filter: "pose" or "eq44-47"
-    min_lights: int = 2                 # street lights (pairs) needed for a fix
+    min_lights: int = 2                 # street lights (pairs) needed for a full pose fix
+    single_light: bool = True           # with one light in view: a fix from its two emitters and a
+                                        # heading prior (vehicle.VehicleLocator._single_fix,
+                                        # method "pose-1sl", n_lights 1)
+    yaw_shake_sigma_deg: float = 0.3    # camera yaw about the HV heading (mount, shake): vehicle-road
+                                        # truth 0.12 deg std, 0.29 deg max
+    road_heading_sigma_deg: float = 3.0  # HV heading about the map's road direction near a light
+                                        # (before the filter runs): a lane change yaws the car by
+                                        # up to 6.4 deg (vehicle-road truth), most frames < 3 deg
+    hv_max_std_m: float = 1.0           # the HV is reported only while its filtered 2D std is at most
+                                        # this (a fix 3 std off is then within ~2-3 m)
+    roll_sigma_deg: float = 1.0         # single-light solve: camera roll about 0 (mount, body roll)
+    pitch_sigma_deg: float = 0.5        # ... and pitch about the last full pose's (shake: vehicle-road
+                                        # truth 0.19 deg std, bundled vehicle 0.14 deg)
+    road_heading_radius_m: float = 30.0  # mapped heads within this of a light give the road direction
     pose_loss: str = "soft_l1"
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20
@@ -147,6 +161,11 @@ class VehicleSettings:
     speed_sigma_mps: float = 0.3        # odometry 1-sigma
     gate_chi2: float = 13.8             # chi-square 2 dof, 99.9 %
     max_rejects: int = 3
+    sl1_range_floor_rel: float = 0.05   # added in quadrature to a single light's range sigma for the
+                                        # filter: one head's range errors persist over frames
+                                        # (bundled vehicle, one light kept per frame: 0.03 -> worst
+                                        # error 3.3 std, 0.05 -> 2.0 std)
+    obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
     max_coast_s: float = 2.0            # forget the HV track after this long without a fix
     # Forward vehicles -------------------------------------------------------------------------
     fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3

@@ -94,7 +94,7 @@ from receiver.io.ledmap import LedMap, shape_area_m2
 from receiver.locate.lsq import _LOSSES, LM_FTOL, covariance_at, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
-from receiver.locate.road_kalman import RangeKalman, RoadKalman
+from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
 
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")
@@ -339,6 +339,57 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
     return f
 
 
+def camera_yaw(R_cw: np.ndarray) -> float:
+    """Azimuth (rad, counter-clockwise from world +x) of the optical axis (R_cw's third row)."""
+    return math.atan2(float(R_cw[2, 1]), float(R_cw[2, 0]))
+
+
+def _with_attitude_prior(fun, yaw=None, pitch=None, roll=None):
+    """The residuals `fun` (pose p = Rodrigues vector, C) with a row per given prior, each
+    (value rad, sigma rad): the optical axis's azimuth (`camera_yaw`; wrapped), its elevation
+    asin(R[2, 2]) (pitch, up positive) and the roll atan2(-R[0, 2], -R[1, 2]) (the angles of
+    receiver.locate.pose.ypr_to_rotation). With a single street light the image fixes the camera
+    on a circle around the head: the heading prior picks the point (lateral sigma ~ range x
+    sigma), the roll and pitch priors keep the two emitters' slant from turning the camera.
+    Jacobians from cv2.Rodrigues' derivative of R (its 3x9, row-major elements of R)."""
+    rows = [(k, v) for k, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll)) if v is not None]
+
+    def extra(p):
+        R, dR = cv2.Rodrigues(np.asarray(p[:3], float).reshape(3, 1))
+        r = np.empty(len(rows))
+        J = np.zeros((len(rows), len(p)))
+        for i, (kind, (v0, sig)) in enumerate(rows):
+            if kind == "yaw":
+                a, b = float(R[2, 0]), float(R[2, 1])
+                n2 = max(a * a + b * b, 1e-12)
+                r[i] = wrap_pi(math.atan2(b, a) - v0) / sig
+                J[i, :3] = (a * dR[:, 7] - b * dR[:, 6]) / n2 / sig
+            elif kind == "pitch":
+                z = min(max(float(R[2, 2]), -1.0 + 1e-12), 1.0 - 1e-12)
+                r[i] = (math.asin(z) - v0) / sig
+                J[i, :3] = dR[:, 8] / math.sqrt(1.0 - z * z) / sig
+            else:
+                a, b = -float(R[0, 2]), -float(R[1, 2])
+                n2 = max(a * a + b * b, 1e-12)
+                r[i] = wrap_pi(math.atan2(a, b) - v0) / sig
+                J[i, :3] = (b * -dR[:, 2] - a * -dR[:, 5]) / n2 / sig
+        return r, J
+
+    def f(p):
+        return np.append(fun(p), extra(p)[0])
+
+    def jac(p):
+        return np.vstack([fun.jac(p), extra(p)[1]])
+
+    def fun_jac(p):
+        r, J = fun.fun_jac(p)
+        r1, j1 = extra(p)
+        return np.append(r, r1), np.vstack([J, j1])
+
+    f.jac, f.fun_jac = jac, fun_jac
+    return f
+
+
 def _pick(res: dict, i: int, estimator: str):
     """(distance, sigma, estimator) of pair i, falling back from "fused" to what exists."""
     order = [estimator] if estimator != "fused" else ["fused"]
@@ -435,6 +486,7 @@ class VehicleLocator:
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
+        self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -678,8 +730,10 @@ class VehicleLocator:
         return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
             np.array([C[0], C[1], self.s.camera_height_m])
 
-    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None):
-        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None."""
+    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None, attitude=None):
+        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
+        `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
+        (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
         for k in sl_k:
@@ -704,6 +758,8 @@ class VehicleLocator:
         up = self.R_nominal[:, 2]
         fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
                            len(sl_k), self._sep_gain)
+        if attitude:
+            fun = _with_attitude_prior(fun, **attitude)
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
         n_iter = self.s.pose_max_iter if max_iter is None else max_iter
@@ -737,6 +793,112 @@ class VehicleLocator:
             return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
         return R, C, cov
 
+    def _road_heading(self, head: np.ndarray) -> float | None:
+        """The map's road direction (rad, counter-clockwise from +x) near a street-light head:
+        the principal axis of the mapped heads within `road_heading_radius_m` of it (both sides
+        of the road, so a staggered layout's zig-zag averages out), pointing along +x (the map
+        frame's x runs along the road). None with fewer than 3 heads there."""
+        H = self._sl_heads[:, :2]
+        near = H[np.sum((H - head[:2]) ** 2, axis=1) <= self.s.road_heading_radius_m ** 2]
+        if len(near) < 3:
+            return None
+        c = near - near.mean(0)
+        w, v = np.linalg.eigh(c.T @ c)
+        ax = v[:, 1] if v[0, 1] >= 0 else -v[:, 1]
+        return math.atan2(float(ax[1]), float(ax[0]))
+
+    def _single_observation(self, t_s, pairs, res, k, R_prior):
+        """While the road filter runs, one decoded street light updates it directly: the
+        measurement is the head's undistorted midpoint (u, v, normalized) and its "fused" range
+        (m), predicted from the filter's (x, y, heading) with the camera at the last solved
+        height and pitch (`pitch_ref` when a full pose gave one), roll 0 and yaw = heading. What
+        those assumptions leave out is folded into the noise through the measurement's
+        Jacobian on each: the camera's yaw about the heading (`yaw_shake_sigma_deg`), pitch
+        (`pitch_sigma_deg`, else `orient_sigma_prior_deg`), roll (`roll_sigma_deg`) and height
+        (`camera_height_sigma_m`); the midpoint carries the centroids' sigma
+        (`centroid_sigma_px` / sqrt 2 per axis). A pose fix would need the heading prior from
+        this same filter, and its position fed back would count that prior twice. Returns the
+        fix record for `_update_hv` ("sl-1", n 1)."""
+        s = self.s
+        head = self._sl[pairs[res["idx"][k]].led_id]["head"]
+        z0 = self.z_last
+        pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
+        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else s.orient_sigma_prior_deg)
+
+        def g(x, y, psi, dyaw=0.0, dpitch=0.0, roll=0.0, dz=0.0):
+            R = ypr_to_rotation(math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            V = head - np.array([x, y, z0 + dz])
+            X = R @ V
+            if X[2] < 1e-3:
+                return np.array([np.nan, np.nan, np.nan])
+            return np.array([X[0] / X[2], X[1] / X[2], math.sqrt(float(V @ V))])
+
+        st = self.kf.predict_at(t_s)[0]
+        x, y, psi = float(st[0]), float(st[1]), float(st[2])
+        um = 0.5 * (np.asarray(res["ua"][k]) + np.asarray(res["ub"][k]))
+        z = np.array([um[0], um[1], res["fused"][k]])
+        sm = s.centroid_sigma_px / SQRT2 / self.focal
+        d = float(res["fused"][k])
+        Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (s.sl1_range_floor_rel * d) ** 2])
+        for j, (sig, e) in enumerate(((math.radians(s.yaw_shake_sigma_deg), 1e-5), (psig, 1e-5),
+                                      (math.radians(s.roll_sigma_deg), 1e-5), (s.camera_height_sigma_m, 1e-3))):
+            a = [0.0, 0.0, 0.0, 0.0]
+            a[j] = e
+            jp = g(x, y, psi, *a)
+            a[j] = -e
+            jn = g(x, y, psi, *a)
+            col = (jp - jn) / (2 * e)
+            Rm += np.outer(col, col) * sig * sig
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(Rm))):
+            self.hv_reason = "street-light pose solve failed"
+            return None
+        self.hv_reason = None
+        return dict(obs=(z, g, Rm), n=1, method="sl-1")
+
+    def _single_fix(self, t_s, pairs, aligned, res, k, R_prior):
+        """One decoded street light's two emitters (4 image coordinates, their ranges) with the
+        camera-height and tilt priors of `_solve_pose` and a heading prior: while the road
+        filter runs, its predicted heading (sigma: its own and the camera's yaw shake,
+        `yaw_shake_sigma_deg`), else the map's road direction near the light
+        (`road_heading_sigma_deg`). Returns (fix | None, aligned, res); the fix's covariance is
+        the solve's (lateral ~ range x heading sigma). Its yaw is the prior's echo, so the
+        filter takes the position only (`fix["yaw_free"]`)."""
+        s = self.s
+        head = self._sl[pairs[res["idx"][k]].led_id]["head"]
+        if R_prior is not None:
+            pred, P = self.kf.predict_at(t_s)
+            yaw0 = float(pred[2])
+            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(s.yaw_shake_sigma_deg) ** 2)
+            pitch = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
+            R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
+            C0 = np.array([pred[0], pred[1], self.z_last])
+        else:
+            yaw0 = self._road_heading(head)
+            if yaw0 is None:
+                self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+                return None, aligned, res
+            ysig = math.radians(s.road_heading_sigma_deg)
+            pitch = self.s.camera_pitch_deg if self.pitch_ref is None else math.degrees(self.pitch_ref)
+            R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
+            ray = _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
+            C0 = head - R0.T @ (res["fused"][k] * ray)
+            C0[2] = s.camera_height_m
+        # Ranges with this orientation (the baseline's direction, the panels' normals).
+        aligned, res = self._range_pairs(pairs, R0, True)      # same pairs ranged: k stands
+        if not math.isfinite(res["fused"][k]):
+            self.hv_reason = "street-light pose solve failed"
+            return None, aligned, res
+        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg))}
+        if self.pitch_ref is not None:
+            att["pitch"] = (self.pitch_ref, math.radians(s.pitch_sigma_deg))
+        solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att)
+        if solved is None:
+            self.hv_reason = "street-light pose solve failed"
+            return None, aligned, res
+        R, C, cov = solved
+        self.hv_reason = None
+        return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True), aligned, res
+
     @property
     def _sep_gain(self) -> float:
         """Weight of a head's centroid difference relative to the centroids' own sigma:
@@ -768,8 +930,12 @@ class VehicleLocator:
             n_sl_any = res["roles"].count("SL")
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
-            elif len(sl_k) < s.min_lights:
+            elif len(sl_k) < s.min_lights and not (s.single_light and len(sl_k) == 1):
                 self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            elif len(sl_k) < s.min_lights and R_prior is not None:
+                fix = self._single_observation(t_s, pairs, res, sl_k[0], R_prior)
+            elif len(sl_k) < s.min_lights:
+                fix, aligned, res = self._single_fix(t_s, pairs, aligned, res, sl_k[0], R_prior)
             else:
                 if R_prior is not None:
                     pred = self.kf.predict_at(t_s)[0]
@@ -803,7 +969,8 @@ class VehicleLocator:
                 e = self._eq44_47(pairs, res, sl_k, fix)
                 if fix is not None:
                     fix["eq44-47"] = e
-                self.last_fix = {"pose": None if fix is None else tuple(fix["pose"][0][:2]), "eq44-47": e}
+                self.last_fix = {"pose": None if fix is None or "pose" not in fix else tuple(fix["pose"][0][:2]),
+                                 "eq44-47": e}
         else:
             aligned, res = [(None, None)] * len(pairs), None
             if not self.kf.started:
@@ -818,7 +985,7 @@ class VehicleLocator:
         for i, rng in tracked.items():
             if ranges[i] is None:
                 ranges[i] = rng
-        if fix is not None:
+        if fix is not None and "pose" in fix:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
@@ -880,7 +1047,14 @@ class VehicleLocator:
         s = self.s
         kf = self.kf
         raw, xy, meth = None, None, "kalman-coast"
-        if fix is not None:
+        if fix is not None and "obs" in fix:
+            # One light's image angles and range straight into the running filter (no raw fix).
+            kf.predict(t_s)
+            z, g, Rm = fix["obs"]
+            if kf.update_observation(t_s, z, g, Rm, s.obs_gate_chi2):
+                meth = fix["method"]
+            fix = None if meth == "kalman-coast" else fix
+        elif fix is not None:
             C, cov, yaw, R = fix["pose"]
             if s.hv_method == "eq44-47":
                 e = fix.get("eq44-47")
@@ -888,17 +1062,21 @@ class VehicleLocator:
                     # eqs. 44-47 use two ranges only: inflate the pose covariance as its stand-in.
                     xy, cov, meth = np.array(e), cov * 4.0 + np.eye(2) * 0.25, "eq44-47"
             else:
-                xy, meth = C[:2], "pose"
+                xy, meth = C[:2], fix.get("method", "pose")
                 cov = cov + np.eye(2) * s.fix_floor_m ** 2
         if xy is not None:
             raw = {"x": _r(xy[0]), "y": _r(xy[1]), "method": meth}
             psig = math.radians(s.heading_sigma_deg)
+            if fix.get("yaw_free"):
+                # A single light's yaw is its heading prior's echo: the filter takes the position
+                # only; a filter started from it takes the prior's sigma.
+                psig = math.radians(s.road_heading_sigma_deg)
             if not kf.started:
                 kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
                 accepted = True
             else:
                 kf.predict(t_s)
-                accepted = kf.update_fix(t_s, xy, cov, yaw, psig)
+                accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig)
                 if not accepted and kf.rejects >= s.max_rejects:
                     kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
                     accepted = True
@@ -907,9 +1085,11 @@ class VehicleLocator:
                 self.z_last = float(fix["pose"][0][2])
                 _, pitch, roll = rotation_to_ypr_deg(R)
                 self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
+                if fix["n"] >= 2:
+                    self.pitch_ref = math.radians(pitch)
             else:
                 meth = "kalman-coast"
-        elif kf.started:
+        elif kf.started and meth == "kalman-coast":
             if kf.expired(t_s):
                 kf.reset()
                 self.R_last = None
@@ -929,6 +1109,11 @@ class VehicleLocator:
             kf.reset()
             self.R_last = None
             self.hv_reason = "HV filter diverged"
+            return None
+        if std > s.hv_max_std_m:
+            # The filter runs on (a single light's fix, coasting), but a position this unsure is
+            # no placement: never a confident wrong one.
+            self.hv_reason = f"host position std above {s.hv_max_std_m:g} m"
             return None
         return hv
 
