@@ -165,6 +165,12 @@ class VehicleSettings:
                                         # filter: one head's range errors persist over frames
                                         # (bundled vehicle, one light kept per frame: 0.03 -> worst
                                         # error 3.3 std, 0.05 -> 2.0 std)
+    sl1_max_std_m: float = 1.5          # a single light updates the filter only while its predicted 2D
+                                        # std is at most this (vehicle-road, tilted heads: updates of a
+                                        # filter tens of metres off left it 10 m off at 1 m std)
+    sl1_start_max_std_m: float = 0.7    # ... and starts it only from a single-light pose this sure
+                                        # (bundled vehicle, one light kept per frame: 1.0 -> 17 frames
+                                        # placed, one 2.1 m off; 0.7 -> 75, worst 1.5 m, 2.4 std)
     obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
     max_coast_s: float = 2.0            # forget the HV track after this long without a fix
     # Forward vehicles -------------------------------------------------------------------------
