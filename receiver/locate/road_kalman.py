@@ -133,13 +133,27 @@ class RoadKalman:
         y = xy - self.s[:2]
         return float(y @ np.linalg.solve(self.P[:2, :2] + cov_xy, y))
 
+    def set_speed(self, v: float, sigma: float) -> None:
+        """Speed set from outside (m/s, 1-sigma), its cross-covariances cleared."""
+        self.s[3] = v
+        self.P[3, :] = 0.0
+        self.P[:, 3] = 0.0
+        self.P[3, 3] = sigma * sigma
+
     def update_fix(self, t_s: float, xy: np.ndarray, cov_xy: np.ndarray, psi: float | None,
-                   psi_sigma: float) -> bool:
-        """Position (+ heading) fix; returns False when gated out (then nothing changes)."""
+                   psi_sigma: float, held_speed: bool = False) -> bool:
+        """Position (+ heading) fix; returns False when gated out (then nothing changes).
+        `held_speed`: the speed is not learned from this fix (its cross-covariances are
+        cleared first, so the gain on it is 0; the caller sets it later, `set_speed`)."""
         if self.gate(xy, cov_xy) > self.gate_chi2:
             self.rejects += 1
             return False
         self.rejects = 0
+        if held_speed:
+            p33 = self.P[3, 3]
+            self.P[3, :] = 0.0
+            self.P[:, 3] = 0.0
+            self.P[3, 3] = p33
         if psi is None:
             H = np.zeros((2, 5))
             H[0, 0] = H[1, 1] = 1.0

@@ -171,6 +171,14 @@ class VehicleSettings:
     sl1_start_max_std_m: float = 0.7    # ... and starts it only from a single-light pose this sure
                                         # (bundled vehicle, one light kept per frame: 1.0 -> 17 frames
                                         # placed, one 2.1 m off; 0.7 -> 75, worst 1.5 m, 2.4 std)
+    speed_init_min_dt_s: float = 0.12   # first two fixes this far apart give the initial speed (bundled
+                                        # vehicle: 1 frame apart read -52 m/s from fixes 0.7 and 1.1 m off)
+    map_assoc: bool = True              # undecoded pairs matched to mapped heads serve the host solve
+                                        # (vehicle.VehicleLocator._associate; never reported as IDs)
+    assoc_max_std_m: float = 1.0        # ... only while the filter's predicted 2D std is at most this
+    assoc_gate_chi2: float = 9.21       # ... Mahalanobis^2 gate of a pair's midpoint to a projected head
+                                        # (chi-square 2 dof, 99 %)
+    assoc_sep_tol: float = 0.3          # ... and its separation within this of the head's predicted one
     obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
     max_coast_s: float = 2.0            # forget the HV track after this long without a fix
     # Forward vehicles -------------------------------------------------------------------------

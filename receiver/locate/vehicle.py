@@ -82,6 +82,7 @@ x**3) stays in numpy calls, so the numbers are the former vectorised form's to t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -344,26 +345,37 @@ def camera_yaw(R_cw: np.ndarray) -> float:
     return math.atan2(float(R_cw[2, 1]), float(R_cw[2, 0]))
 
 
-def _with_attitude_prior(fun, yaw=None, pitch=None, roll=None):
+def _with_attitude_prior(fun, yaw=None, pitch=None, roll=None, mid_range=None):
     """The residuals `fun` (pose p = Rodrigues vector, C) with a row per given prior, each
     (value rad, sigma rad): the optical axis's azimuth (`camera_yaw`; wrapped), its elevation
     asin(R[2, 2]) (pitch, up positive) and the roll atan2(-R[0, 2], -R[1, 2]) (the angles of
     receiver.locate.pose.ypr_to_rotation). With a single street light the image fixes the camera
     on a circle around the head: the heading prior picks the point (lateral sigma ~ range x
     sigma), the roll and pitch priors keep the two emitters' slant from turning the camera.
-    Jacobians from cv2.Rodrigues' derivative of R (its 3x9, row-major elements of R)."""
-    rows = [(k, v) for k, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll)) if v is not None]
+    Jacobians from cv2.Rodrigues' derivative of R (its 3x9, row-major elements of R).
+    `mid_range`: (M (3,), D m, sigma m), one more row (|M - C| - D) / sigma: a single head's
+    range to its midpoint, in place of its two emitters' own (noisy) area ranges, whose
+    difference would turn the camera (the bundled recording: yaw 3-5 deg off)."""
+    rows = [(k, v) for k, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll), ("range", mid_range))
+            if v is not None]
 
     def extra(p):
         R, dR = cv2.Rodrigues(np.asarray(p[:3], float).reshape(3, 1))
         r = np.empty(len(rows))
         J = np.zeros((len(rows), len(p)))
-        for i, (kind, (v0, sig)) in enumerate(rows):
+        for i, (kind, (v0, *sig)) in enumerate(rows):
+            sig = sig[0] if len(sig) == 1 else sig
             if kind == "yaw":
                 a, b = float(R[2, 0]), float(R[2, 1])
                 n2 = max(a * a + b * b, 1e-12)
                 r[i] = wrap_pi(math.atan2(b, a) - v0) / sig
                 J[i, :3] = (a * dR[:, 7] - b * dR[:, 6]) / n2 / sig
+            elif kind == "range":
+                M, D, sig_d = v0, sig[0], sig[1]
+                Vm = np.asarray(M, float) - p[3:]
+                dm = math.sqrt(float(Vm @ Vm))
+                r[i] = (dm - D) / sig_d
+                J[i, 3:] = -Vm / max(dm, 1e-9) / sig_d
             elif kind == "pitch":
                 z = min(max(float(R[2, 2]), -1.0 + 1e-12), 1.0 - 1e-12)
                 r[i] = (math.asin(z) - v0) / sig
@@ -487,7 +499,7 @@ class VehicleLocator:
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
-        self._first_fix = None                    # (t_s, xy, cov) of a filter start without speed
+        self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -731,7 +743,7 @@ class VehicleLocator:
         return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
             np.array([C[0], C[1], self.s.camera_height_m])
 
-    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None, attitude=None):
+    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None, attitude=None, emitter_ranges=True):
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
         `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
         (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
@@ -749,7 +761,7 @@ class VehicleLocator:
         uv = np.array(uvs)
         d = np.array(ds)
         sd = np.array(sds)
-        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0))
+        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0)) | (not emitter_ranges)
         d[bad] = np.nan
         sd[bad] = 1.0
         sigma_uv = self.s.centroid_sigma_px / self.focal
@@ -807,6 +819,73 @@ class VehicleLocator:
         w, v = np.linalg.eigh(c.T @ c)
         ax = v[:, 1] if v[0, 1] >= 0 else -v[:, 1]
         return math.atan2(float(ax[1]), float(ax[0]))
+
+    def _associate(self, t_s: float, pairs, R_prior) -> dict:
+        """Map-aided association {pair index: mapped street-light ID} of UNDECODED pairs, while
+        the road filter is sure (predicted 2D std <= `assoc_max_std_m`): every mapped head not
+        decoded in this frame is projected from the predicted camera (the filter's x, y; the
+        last solved height and orientation turned to the predicted heading) with its 2x2
+        covariance in normalized image units (the position's through the projection's Jacobian,
+        plus the camera's yaw and pitch sigmas and the centroids'); a pair both of whose
+        emitters were measured apart (`both_visible`) is matched to the one head whose
+        Mahalanobis^2 to its midpoint is within `assoc_gate_chi2`, when no other head is in
+        that gate, no other pair is in the head's, and its separation is within
+        `assoc_sep_tol` of the head's predicted one (f B / distance). Ambiguity: no match."""
+        s = self.s
+        cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible]
+        if not cand or not len(self._sl_heads):
+            return {}
+        st, P = self.kf.predict_at(t_s)
+        Pxy = P[:2, :2]
+        if float(Pxy[0, 0] + Pxy[1, 1]) > s.assoc_max_std_m ** 2:
+            return {}
+        decoded = {p.led_id for p in pairs if p.led_id is not None}
+        ids = [i for i, c in self._sl.items() if c["em"] is not None and i not in decoded]
+        if not ids:
+            return {}
+        H = np.array([self._sl[i]["head"] for i in ids])
+        Bl = np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in ids])
+        dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
+        c, sn = math.cos(dpsi), math.sin(dpsi)
+        R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
+        C = np.array([float(st[0]), float(st[1]), self.z_last])
+        V = H - C
+        X = V @ R.T
+        ok = X[:, 2] > 1.0
+        if not np.any(ok):
+            return {}
+        X, V, Bl, ids = X[ok], V[ok], Bl[ok], [i for i, o in zip(ids, ok) if o]
+        z = X[:, 2]
+        u = X[:, :2] / z[:, None]
+        # d(u, v) / d(Cx, Cy): X = R (H - C) -> dX/dC = -R[:, :2].
+        dX = -R[:, :2]                                       # (3, 2)
+        J = (dX[None, :2, :] - u[:, :, None] * dX[None, 2:3, :]) / z[:, None, None]     # (n, 2, 2)
+        cov = J @ Pxy @ np.transpose(J, (0, 2, 1))
+        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
+        csig = (s.centroid_sigma_px / self.focal) ** 2
+        cov = cov + np.eye(2) * (ang + csig)
+        inv = np.linalg.inv(cov)
+        sep_pred = self.focal * Bl / np.sqrt(np.sum(V * V, axis=1))
+        mids = []
+        for i in cand:
+            p = pairs[i]
+            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
+                                  self.camera.dist).reshape(-1, 2)
+        D = und[:, None, :] - u[None, :, :]                  # (pairs, heads, 2)
+        m2 = np.einsum("phi,hij,phj->ph", D, inv, D)
+        inside = m2 <= s.assoc_gate_chi2
+        out = {}
+        for a, i in enumerate(cand):
+            hs = np.flatnonzero(inside[a])
+            if len(hs) != 1 or np.count_nonzero(inside[:, hs[0]]) != 1:
+                continue
+            h = hs[0]
+            sep = pairs[i].separation_px
+            if not (sep > 0 and abs(sep / sep_pred[h] - 1.0) <= s.assoc_sep_tol):
+                continue
+            out[i] = ids[h]
+        return out
 
     def _single_observation(self, t_s, pairs, res, k, R_prior):
         """While the road filter runs, one decoded street light updates it directly: the
@@ -895,10 +974,11 @@ class VehicleLocator:
         if not math.isfinite(res["fused"][k]):
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
-        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg))}
+        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg)),
+               "mid_range": (head, float(res["fused"][k]), float(res["fused_sigma"][k]))}
         if self.pitch_ref is not None:
             att["pitch"] = (self.pitch_ref, math.radians(s.pitch_sigma_deg))
-        solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att)
+        solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att, emitter_ranges=False)
         if solved is None:
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
@@ -930,6 +1010,11 @@ class VehicleLocator:
             self.kf.reset()
             self.R_last = None
         R_prior = self.R_last if tracked else None
+        given = pairs
+        assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None and s.map_assoc else {}
+        if assoc:
+            pairs = [dataclasses.replace(p, led_id=assoc[i], kind="SL") if i in assoc else p
+                     for i, p in enumerate(pairs)]
         out = self._range_pairs(pairs, R_prior, R_prior is not None)
         fix = None
         self.last_fix = None
@@ -990,8 +1075,16 @@ class VehicleLocator:
                     else "no decoded street light seen with both emitters apart"
 
         self._keep_seen(pairs)
+        if fix is not None:
+            fix["n_assoc"] = sum(1 for k in sl_k if res["idx"][k] in assoc)
         hv = self._update_hv(t_s, fix, speed_mps)
+        if assoc:
+            # The undecoded pairs matched to mapped heads served the host only: to the rest of
+            # the step (forward vehicles, LED ranges) they are what they were, and no car.
+            pairs = given
+            aligned = [(None, None) if i in assoc else a for i, a in enumerate(aligned)]
         fv, not_fv, tracked = self._update_fv(t_s, pairs, aligned, res, hv)
+        not_fv = set(not_fv) | set(assoc)
         ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
                   for i, (r, k) in enumerate(aligned)]
         for i, rng in tracked.items():
@@ -1084,17 +1177,15 @@ class VehicleLocator:
                 # only; a filter started from it takes the prior's sigma.
                 psig = math.radians(s.road_heading_sigma_deg)
             if not kf.started:
-                kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
-                self._first_fix = (t_s, np.array(xy, float), cov)
-                accepted = True
+                accepted = self._start(t_s, xy, cov, yaw, psig, speed)
             else:
                 kf.predict(t_s)
-                self._init_speed(t_s, xy, cov)
-                accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig)
+                held = self._speed_from_fixes(t_s, xy, cov) if speed is None else False
+                accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig,
+                                         held_speed=held)
                 if not accepted and kf.rejects >= s.max_rejects:
-                    kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
-                    self._first_fix = (t_s, np.array(xy, float), cov)
-                    accepted = True
+                    kf.reset()
+                    accepted = self._start(t_s, xy, cov, yaw, psig, speed)
             if accepted:
                 self.R_last = R
                 self.z_last = float(fix["pose"][0][2])
@@ -1132,26 +1223,36 @@ class VehicleLocator:
             return None
         return hv
 
-    def _init_speed(self, t_s: float, xy, cov) -> None:
-        """The HV speed from the first two position fixes of a filter started without one: their
-        displacement along the filter's heading over their time apart, fed as a speed measurement
-        of sigma sqrt(h' (C1 + C2) h) / dt (h: the heading's unit vector) before the second fix
-        itself. The filter's own cross-covariances learn it too, but slowly: on the bundled
-        recording the speed was still 9.3 of 13.6 m/s after 4 frames (p95 error 5 m/s)."""
-        first, self._first_fix = self._first_fix, None
-        if first is None or self.kf.P[3, 3] < (0.5 * self.s.init_speed_sigma_mps) ** 2:
-            return
-        t0, xy0, cov0 = first
+    def _start(self, t_s: float, xy, cov, yaw: float, psig: float, speed) -> bool:
+        """Start the road filter on a fix (speed from odometry, else unknown: 0 +- 15 m/s, and
+        the fix held as `_pending` for `_speed_from_fixes`). Returns True."""
+        self.kf.start(t_s, xy, cov, yaw, psig, speed, self.s.speed_sigma_mps)
+        self._pending = None if speed is not None else (t_s, np.array(xy, float), cov, yaw)
+        return True
+
+    def _speed_from_fixes(self, t_s: float, xy, cov) -> bool:
+        """While the speed is unknown (a start without odometry), the speed from the first fix and
+        the first one at least `speed_init_min_dt_s` after it: their displacement along the
+        heading over their time apart (sigma sqrt(h' (C1 + C2) h) / dt, h the heading's unit
+        vector), set as the filter's speed with its cross-covariances cleared. Fixes before
+        that update the position only (`held_speed`). A filter left to learn its speed from its
+        cross-covariances took it from the next fix a frame later: two fixes 0.7 m apart the
+        wrong way read -23 m/s (bundled vehicle recording). Returns whether the speed is still
+        held (unknown)."""
+        held = self._pending
+        if held is None:
+            return False
+        t0, xy0, cov0, yaw0 = held
         dt = t_s - t0
-        if not dt > 0:
-            self._first_fix = first
-            return
-        psi = float(self.kf.s[2])
-        h = np.array([math.cos(psi), math.sin(psi)])
+        if dt < self.s.speed_init_min_dt_s:
+            return True
+        self._pending = None
+        h = np.array([math.cos(yaw0), math.sin(yaw0)])
         v = float(h @ (np.asarray(xy, float) - xy0)) / dt
         sv = math.sqrt(max(float(h @ (cov0 + cov) @ h), 0.0)) / dt
-        if math.isfinite(v) and math.isfinite(sv) and sv > 0:
-            self.kf.update_speed(v, sv)
+        if math.isfinite(v) and math.isfinite(sv):
+            self.kf.set_speed(v, max(sv, self.s.speed_sigma_mps))
+        return False
 
     def _fv_directions(self, pairs, aligned) -> dict:
         """{pair index: (bearing rad, level-frame unit ray (3,))} of the tracked taillight pairs
