@@ -1157,7 +1157,7 @@ class VehicleLocator:
             kf.predict(t_s)
             z, g, Rm = fix["obs"]
             if kf.update_observation(t_s, z, g, Rm, s.obs_gate_chi2):
-                meth = fix["method"]
+                meth = fix["method"] + ("+map" if fix.get("n_assoc") else "")
             fix = None if meth == "kalman-coast" else fix
         elif fix is not None:
             C, cov, yaw, R = fix["pose"]
@@ -1167,7 +1167,7 @@ class VehicleLocator:
                     # eqs. 44-47 use two ranges only: inflate the pose covariance as its stand-in.
                     xy, cov, meth = np.array(e), cov * 4.0 + np.eye(2) * 0.25, "eq44-47"
             else:
-                xy, meth = C[:2], fix.get("method", "pose")
+                xy, meth = C[:2], fix.get("method", "pose") + ("+map" if fix.get("n_assoc") else "")
                 cov = cov + np.eye(2) * s.fix_floor_m ** 2
         if xy is not None:
             raw = {"x": _r(xy[0]), "y": _r(xy[1]), "method": meth}
@@ -1210,7 +1210,7 @@ class VehicleLocator:
         std = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
         hv = {"x": _r(st[0]), "y": _r(st[1]), "std_m": _r(std), "heading_deg": _r(math.degrees(st[2]), 3),
               "speed_mps": _r(st[3], 3), "method": meth, "n_lights": 0 if fix is None else fix["n"],
-              "raw": raw}
+              "n_assoc": 0 if fix is None else fix.get("n_assoc", 0), "raw": raw}
         if hv["x"] is None or hv["y"] is None or hv["std_m"] is None:
             kf.reset()
             self.R_last = None
