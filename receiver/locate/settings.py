@@ -178,6 +178,8 @@ class VehicleSettings:
     assoc_max_std_m: float = 1.0        # ... only while the filter's predicted 2D std is at most this
     assoc_gate_chi2: float = 9.21       # ... Mahalanobis^2 gate of a pair's midpoint to a projected head
                                         # (chi-square 2 dof, 99 %)
+    assoc_max_age: int = 1              # ... and both its emitters' own blobs seen within this many
+                                        # frames (else the pairing's whole-pixel model stands in)
     assoc_sep_tol: float = 0.3          # ... and its separation within this of the head's predicted one
     obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
     max_coast_s: float = 2.0            # forget the HV track after this long without a fix

@@ -832,7 +832,9 @@ class VehicleLocator:
         that gate, no other pair is in the head's, and its separation is within
         `assoc_sep_tol` of the head's predicted one (f B / distance). Ambiguity: no match."""
         s = self.s
-        cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible]
+        cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible
+                and p.a_seen is not None and p.b_seen is not None
+                and max(int(p.a_seen[2]), int(p.b_seen[2])) <= s.assoc_max_age]
         if not cand or not len(self._sl_heads):
             return {}
         st, P = self.kf.predict_at(t_s)
