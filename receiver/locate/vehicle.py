@@ -52,7 +52,22 @@ Host vehicle (`hv`):
   the map (any road shape).
 * then `RoadKalman` (receiver.locate.road_kalman; state x, y, heading, speed, turn rate) fed the
   fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
-  (method ``"kalman-coast"``). ``raw`` is the unfiltered fix.
+  (method ``"kalman-coast"``). ``raw`` is the unfiltered fix. Without odometry the speed comes
+  from the first two fixes `speed_init_min_dt_s` apart (`_speed_from_fixes`).
+* One decoded light (`single_light`): while the filter runs and is sure (`sl1_max_std_m`), the
+  head's undistorted midpoint and its range update it directly (``"sl-1"``,
+  `_single_observation`: an EKF measurement whose noise carries the camera's yaw shake, pitch,
+  roll and height through its Jacobian; a pose solve would need the filter's own heading as
+  prior). With no filter running, a pose solve of its two emitters with the map's road
+  direction near the light as heading prior, roll 0 and the last full pose's pitch as priors,
+  and the head's midpoint range (``"pose-1sl"``, `_single_fix`) starts it when its std is at
+  most `sl1_start_max_std_m`. `n_lights` 1.
+* Map-aided association (`map_assoc`, `_associate`): while the filter is sure, undecoded pairs
+  (both emitters' own blobs fresh) are matched to mapped heads projected from its prediction by
+  a unique Mahalanobis gate and a separation check, and join the solve (method suffix
+  ``"+map"``, `n_assoc`; `n_lights` counts them). They stay undecoded everywhere else: no ID,
+  no range, no forward vehicle.
+* The HV is reported only while the filter's 2D std is at most `hv_max_std_m`.
 
 Forward vehicles (`fv`): bearing from the horizontal displacement of the pair midpoint
 (thesis eq. 52), undistorted and turned into the level frame (pitch/roll from the HV pose when
