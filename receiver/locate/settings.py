@@ -173,6 +173,9 @@ class VehicleSettings:
                                         # placed, one 2.1 m off; 0.7 -> 75, worst 1.5 m, 2.4 std)
     speed_init_min_dt_s: float = 0.12   # first two fixes this far apart give the initial speed (bundled
                                         # vehicle: 1 frame apart read -52 m/s from fixes 0.7 and 1.1 m off)
+    speed_hist_s: float = 0.3           # the heads' image growth over this long gives the HV speed at a
+    speed_hist_min: int = 5             # filter start without odometry (at least this many samples)
+    speed_motion_floor_mps: float = 1.0  # ... with its sigma at least this
     map_assoc: bool = True              # undecoded pairs matched to mapped heads serve the host solve
                                         # (vehicle.VehicleLocator._associate; never reported as IDs)
     assoc_max_std_m: float = 1.0        # ... only while the filter's predicted 2D std is at most this

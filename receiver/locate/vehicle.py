@@ -515,6 +515,7 @@ class VehicleLocator:
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
+        self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -1006,7 +1007,8 @@ class VehicleLocator:
             self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
             return None, aligned, res
         self.hv_reason = None
-        return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True), aligned, res
+        return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True,
+                    heads=[(pairs[res["idx"][k]].key, head)]), aligned, res
 
     @property
     def _sep_gain(self) -> float:
@@ -1077,7 +1079,9 @@ class VehicleLocator:
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
                     yaw = math.radians(rotation_to_ypr_deg(R)[0])
-                    fix = dict(pose=(C, cov, yaw, R), n=len(sl_k))
+                    fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
+                               heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])
+                                      for k in sl_k])
                     self.hv_reason = None
             if fix is not None or len(sl_k) >= 2:
                 e = self._eq44_47(pairs, res, sl_k, fix)
@@ -1092,6 +1096,7 @@ class VehicleLocator:
                     else "no decoded street light seen with both emitters apart"
 
         self._keep_seen(pairs)
+        self._keep_separations(t_s, given)
         if fix is not None:
             fix["n_assoc"] = sum(1 for k in sl_k if res["idx"][k] in assoc)
         hv = self._update_hv(t_s, fix, speed_mps)
@@ -1194,7 +1199,7 @@ class VehicleLocator:
                 # only; a filter started from it takes the prior's sigma.
                 psig = math.radians(s.road_heading_sigma_deg)
             if not kf.started:
-                accepted = self._start(t_s, xy, cov, yaw, psig, speed)
+                accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             else:
                 kf.predict(t_s)
                 held = self._speed_from_fixes(t_s, xy, cov) if speed is None else False
@@ -1202,7 +1207,7 @@ class VehicleLocator:
                                          held_speed=held)
                 if not accepted and kf.rejects >= s.max_rejects:
                     kf.reset()
-                    accepted = self._start(t_s, xy, cov, yaw, psig, speed)
+                    accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             if accepted:
                 self.R_last = R
                 self.z_last = float(fix["pose"][0][2])
@@ -1240,12 +1245,75 @@ class VehicleLocator:
             return None
         return hv
 
-    def _start(self, t_s: float, xy, cov, yaw: float, psig: float, speed) -> bool:
-        """Start the road filter on a fix (speed from odometry, else unknown: 0 +- 15 m/s, and
-        the fix held as `_pending` for `_speed_from_fixes`). Returns True."""
-        self.kf.start(t_s, xy, cov, yaw, psig, speed, self.s.speed_sigma_mps)
+    def _start(self, t_s: float, xy, cov, yaw: float, psig: float, speed, fix=None) -> bool:
+        """Start the road filter on a fix: the speed from odometry, else from the fix's heads'
+        image motion (`_speed_from_motion`), else unknown (0 +- 15 m/s, the fix held as
+        `_pending` for `_speed_from_fixes`). Returns True."""
+        s = self.s
+        sv = s.speed_sigma_mps
+        if speed is None and fix is not None and fix.get("heads"):
+            got = self._speed_from_motion(t_s, fix["pose"][0], yaw, fix["heads"])
+            if got is not None:
+                speed, sv = got
+        self.kf.start(t_s, xy, cov, yaw, psig, speed, sv)
         self._pending = None if speed is not None else (t_s, np.array(xy, float), cov, yaw)
         return True
+
+    def _keep_separations(self, t_s: float, pairs) -> None:
+        """Each pair's separation (px, when both emitters were measured apart) over the last
+        `speed_hist_s`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
+        keep = t_s - self.s.speed_hist_s
+        hist = {}
+        for p in pairs:
+            h = [e for e in self._sep_hist.get(p.key, ()) if e[0] >= keep]
+            if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
+                h.append((t_s, float(p.separation_px)))
+            if h:
+                hist[p.key] = h
+        self._sep_hist = hist
+
+    def _speed_from_motion(self, t_s: float, C, yaw: float, heads):
+        """(speed m/s, sigma) of the HV from the image growth of the fix's heads, or None. A head's
+        separation scales as 1 / distance: the slope k of ln(separation) over the last
+        `speed_hist_s` (>= `speed_hist_min` samples) is -d'/d, and d d' = rho rho' with
+        rho' = -v cos(beta) (rho the horizontal distance, beta the head's bearing from the
+        heading, from the fix), so v = d^2 k / (rho cos beta); sigma from the fit's residuals.
+        Heads are combined by inverse variance; none when they disagree beyond 3 sigma. The
+        sigma is floored at `speed_motion_floor_mps` (the separations are the pairing's model:
+        whole pixels scaled by the envelopes)."""
+        s = self.s
+        h = np.array([math.cos(yaw), math.sin(yaw)])
+        vs, ws = [], []
+        for key, head in heads:
+            e = self._sep_hist.get(key, ())
+            if len(e) < s.speed_hist_min:
+                continue
+            t = np.array([x[0] for x in e])
+            y = np.log([x[1] for x in e])
+            tc = t - t.mean()
+            stt = float(tc @ tc)
+            if stt <= 0:
+                continue
+            k = float(tc @ (y - y.mean())) / stt
+            r = y - y.mean() - k * tc
+            sk = math.sqrt(max(float(r @ r) / (len(e) - 2), (0.3 / 20.0) ** 2) / stt)
+            V = np.asarray(head, float) - np.asarray(C, float)
+            d = math.sqrt(float(V @ V))
+            rho = math.hypot(float(V[0]), float(V[1]))
+            cb = float(h @ V[:2]) / max(rho, 1e-9)
+            if cb < 0.3:
+                continue
+            g = d * d / (rho * cb)
+            vs.append(g * k)
+            ws.append(1.0 / (g * sk) ** 2)
+        if not vs:
+            return None
+        vs, ws = np.array(vs), np.array(ws)
+        v = float(ws @ vs / ws.sum())
+        sv = 1.0 / math.sqrt(float(ws.sum()))
+        if np.any(np.abs(vs - v) > 3.0 * np.sqrt(1.0 / ws + sv * sv)) or not math.isfinite(v):
+            return None
+        return v, max(sv, s.speed_motion_floor_mps)
 
     def _speed_from_fixes(self, t_s: float, xy, cov) -> bool:
         """While the speed is unknown (a start without odometry), the speed from the first fix and
