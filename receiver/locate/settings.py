@@ -142,10 +142,16 @@ class VehicleSettings:
     pose_loss: str = "soft_l1"
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20
-    pose_track_iter: int = 4            # iterations warm-started from the road filter's prediction
+    pose_track_iter: int = 2            # iterations warm-started from the road filter's prediction
                                         # (x, y) and the last solved orientation and height; bundled
                                         # vehicle: 4 -> HV filtered 0.04 / 0.16 m, raw p95 1.51 m;
-                                        # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations)
+                                        # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations).
+                                        # Issue 11 (replay of the vehicle stage, 150 frames, callgrind,
+                                        # start-up subtracted): 4 -> 3.75 M instructions a frame,
+                                        # filtered 0.06 / 0.17 m, raw p95 1.33 m; 2 -> 3.21 M, 0.05 /
+                                        # 0.17 m, raw 0.69 m; 1 -> 2.90 M, 0.05 / 0.18 m, raw 0.24 m
+                                        # (a single step leans on the prediction it starts from, which
+                                        # the filter then counts again: not taken)
     pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
     pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
     fix_floor_m: float = 0.15           # added in quadrature to each pose fix's sigma (x and y) for
