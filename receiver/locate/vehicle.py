@@ -1004,7 +1004,7 @@ class VehicleLocator:
         if float(np.trace(cov)) > s.sl1_start_max_std_m ** 2:
             # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
             # the single-light observations that follow would be linearised metres off.
-            self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            self.hv_reason = f"one mapped street light in view, too unsure alone (std > {s.sl1_start_max_std_m:g} m)"
             return None, aligned, res
         self.hv_reason = None
         return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True,
