@@ -41,7 +41,8 @@ def test_host_vehicle_placed_from_street_lights(run_lines):
             tv = truth[rec["frame"]]["vehicle"]["hv"]
             err.append(math.hypot(v["hv"]["x"] - tv["x"], v["hv"]["y"] - tv["y"]))
             lat.append(abs(v["hv"]["y"] - tv["y"]))
-            assert v["hv"]["method"] in ("pose", "eq44-47", "kalman-coast")
+            assert v["hv"]["method"].removesuffix("+map") in ("pose", "eq44-47", "kalman-coast", "sl-1", "pose-1sl")
+            assert v["hv"]["n_assoc"] == 0 or v["hv"]["method"].endswith("+map")
     # measured: 74 frames placed, filtered median 0.07 m, p95 0.34 m, lateral median 0.02 m
     assert len(err) >= 60
     assert np.median(err) <= 0.3 and np.percentile(err, 95) <= 1.0

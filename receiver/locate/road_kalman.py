@@ -133,13 +133,27 @@ class RoadKalman:
         y = xy - self.s[:2]
         return float(y @ np.linalg.solve(self.P[:2, :2] + cov_xy, y))
 
+    def set_speed(self, v: float, sigma: float) -> None:
+        """Speed set from outside (m/s, 1-sigma), its cross-covariances cleared."""
+        self.s[3] = v
+        self.P[3, :] = 0.0
+        self.P[:, 3] = 0.0
+        self.P[3, 3] = sigma * sigma
+
     def update_fix(self, t_s: float, xy: np.ndarray, cov_xy: np.ndarray, psi: float | None,
-                   psi_sigma: float) -> bool:
-        """Position (+ heading) fix; returns False when gated out (then nothing changes)."""
+                   psi_sigma: float, held_speed: bool = False) -> bool:
+        """Position (+ heading) fix; returns False when gated out (then nothing changes).
+        `held_speed`: the speed is not learned from this fix (its cross-covariances are
+        cleared first, so the gain on it is 0; the caller sets it later, `set_speed`)."""
         if self.gate(xy, cov_xy) > self.gate_chi2:
             self.rejects += 1
             return False
         self.rejects = 0
+        if held_speed:
+            p33 = self.P[3, 3]
+            self.P[3, :] = 0.0
+            self.P[:, 3] = 0.0
+            self.P[3, 3] = p33
         if psi is None:
             H = np.zeros((2, 5))
             H[0, 0] = H[1, 1] = 1.0
@@ -151,6 +165,37 @@ class RoadKalman:
             R[:2, :2] = cov_xy
             R[2, 2] = psi_sigma ** 2
             self._update(np.array([xy[0], xy[1], psi]), H, R, angle_rows=(2,))
+        self.t_fix = t_s
+        return True
+
+    def update_observation(self, t_s: float, z: np.ndarray, h, R: np.ndarray, gate_chi2: float,
+                           eps=(1e-3, 1e-3, 1e-5)) -> bool:
+        """EKF update with any measurement z (m,) of the pose: `h(x, y, psi) -> (m,)` predicts it,
+        R (m, m) its noise covariance (nuisances folded in by the caller). The Jacobian on x, y,
+        psi by central differences (steps `eps`: m, m, rad). Gated at `gate_chi2` on the
+        innovation's Mahalanobis^2 (then nothing changes and `rejects` counts it, but a gated
+        observation never restarts the filter: that is the caller's). Returns whether taken."""
+        x, y, psi = (float(v) for v in self.s[:3])
+        z = np.asarray(z, float)
+        H = np.zeros((len(z), 5))
+        for j, e in enumerate(eps):
+            d = np.zeros(3)
+            d[j] = e
+            H[:, j] = (np.asarray(h(x + d[0], y + d[1], psi + d[2])) - np.asarray(h(x - d[0], y - d[1], psi - d[2]))) / (2 * e)
+        y_ = z - np.asarray(h(x, y, psi), float)
+        S = H @ self.P @ H.T + R
+        if not np.all(np.isfinite(S)) or not np.all(np.isfinite(y_)):
+            return False
+        m2 = float(y_ @ np.linalg.solve(S, y_))
+        if m2 > gate_chi2:
+            self.rejects += 1
+            return False
+        self.rejects = 0
+        K = np.linalg.solve(S, H @ self.P).T
+        self.s = self.s + K @ y_
+        self.s[2] = wrap_pi(self.s[2])
+        IKH = np.eye(5) - K @ H
+        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T
         self.t_fix = t_s
         return True
 

@@ -124,14 +124,34 @@ class VehicleSettings:
     tilt_sigma_deg: float = 10.0        # weak prior on the tilt (matters with one light only)
     # Host vehicle -----------------------------------------------------------------------------
     hv_method: str = "pose"             # the fix fed to the filter: "pose" or "eq44-47"
-    min_lights: int = 2                 # street lights (pairs) needed for a fix
+    min_lights: int = 2                 # street lights (pairs) needed for a full pose fix
+    single_light: bool = True           # with one light in view: a fix from its two emitters and a
+                                        # heading prior (vehicle.VehicleLocator._single_fix,
+                                        # method "pose-1sl", n_lights 1)
+    yaw_shake_sigma_deg: float = 0.3    # camera yaw about the HV heading (mount, shake): vehicle-road
+                                        # truth 0.12 deg std, 0.29 deg max
+    road_heading_sigma_deg: float = 3.0  # HV heading about the map's road direction near a light
+                                        # (before the filter runs): a lane change yaws the car by
+                                        # up to 6.4 deg (vehicle-road truth), most frames < 3 deg
+    hv_max_std_m: float = 1.0           # the HV is reported only while its filtered 2D std is at most
+                                        # this (a fix 3 std off is then within ~2-3 m)
+    roll_sigma_deg: float = 1.0         # single-light solve: camera roll about 0 (mount, body roll)
+    pitch_sigma_deg: float = 0.5        # ... and pitch about the last full pose's (shake: vehicle-road
+                                        # truth 0.19 deg std, bundled vehicle 0.14 deg)
+    road_heading_radius_m: float = 30.0  # mapped heads within this of a light give the road direction
     pose_loss: str = "soft_l1"
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20
-    pose_track_iter: int = 4            # iterations warm-started from the road filter's prediction
+    pose_track_iter: int = 2            # iterations warm-started from the road filter's prediction
                                         # (x, y) and the last solved orientation and height; bundled
                                         # vehicle: 4 -> HV filtered 0.04 / 0.16 m, raw p95 1.51 m;
-                                        # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations)
+                                        # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations).
+                                        # Issue 11 (replay of the vehicle stage, 150 frames, callgrind,
+                                        # start-up subtracted): 4 -> 3.75 M instructions a frame,
+                                        # filtered 0.06 / 0.17 m, raw p95 1.33 m; 2 -> 3.21 M, 0.05 /
+                                        # 0.17 m, raw 0.69 m; 1 -> 2.90 M, 0.05 / 0.18 m, raw 0.24 m
+                                        # (a single step leans on the prediction it starts from, which
+                                        # the filter then counts again: not taken)
     pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
     pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
     fix_floor_m: float = 0.15           # added in quadrature to each pose fix's sigma (x and y) for
@@ -147,6 +167,30 @@ class VehicleSettings:
     speed_sigma_mps: float = 0.3        # odometry 1-sigma
     gate_chi2: float = 13.8             # chi-square 2 dof, 99.9 %
     max_rejects: int = 3
+    sl1_range_floor_rel: float = 0.05   # added in quadrature to a single light's range sigma for the
+                                        # filter: one head's range errors persist over frames
+                                        # (bundled vehicle, one light kept per frame: 0.03 -> worst
+                                        # error 3.3 std, 0.05 -> 2.0 std)
+    sl1_max_std_m: float = 1.5          # a single light updates the filter only while its predicted 2D
+                                        # std is at most this (vehicle-road, tilted heads: updates of a
+                                        # filter tens of metres off left it 10 m off at 1 m std)
+    sl1_start_max_std_m: float = 0.7    # ... and starts it only from a single-light pose this sure
+                                        # (bundled vehicle, one light kept per frame: 1.0 -> 17 frames
+                                        # placed, one 2.1 m off; 0.7 -> 75, worst 1.5 m, 2.4 std)
+    speed_init_min_dt_s: float = 0.12   # first two fixes this far apart give the initial speed (bundled
+                                        # vehicle: 1 frame apart read -52 m/s from fixes 0.7 and 1.1 m off)
+    speed_hist_s: float = 0.3           # the heads' image growth over this long gives the HV speed at a
+    speed_hist_min: int = 5             # filter start without odometry (at least this many samples)
+    speed_motion_floor_mps: float = 1.0  # ... with its sigma at least this
+    map_assoc: bool = True              # undecoded pairs matched to mapped heads serve the host solve
+                                        # (vehicle.VehicleLocator._associate; never reported as IDs)
+    assoc_max_std_m: float = 1.0        # ... only while the filter's predicted 2D std is at most this
+    assoc_gate_chi2: float = 9.21       # ... Mahalanobis^2 gate of a pair's midpoint to a projected head
+                                        # (chi-square 2 dof, 99 %)
+    assoc_max_age: int = 1              # ... and both its emitters' own blobs seen within this many
+                                        # frames (else the pairing's whole-pixel model stands in)
+    assoc_sep_tol: float = 0.3          # ... and its separation within this of the head's predicted one
+    obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
     max_coast_s: float = 2.0            # forget the HV track after this long without a fix
     # Forward vehicles -------------------------------------------------------------------------
     fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3

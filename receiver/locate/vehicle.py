@@ -52,7 +52,22 @@ Host vehicle (`hv`):
   the map (any road shape).
 * then `RoadKalman` (receiver.locate.road_kalman; state x, y, heading, speed, turn rate) fed the
   fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
-  (method ``"kalman-coast"``). ``raw`` is the unfiltered fix.
+  (method ``"kalman-coast"``). ``raw`` is the unfiltered fix. Without odometry the speed comes
+  from the first two fixes `speed_init_min_dt_s` apart (`_speed_from_fixes`).
+* One decoded light (`single_light`): while the filter runs and is sure (`sl1_max_std_m`), the
+  head's undistorted midpoint and its range update it directly (``"sl-1"``,
+  `_single_observation`: an EKF measurement whose noise carries the camera's yaw shake, pitch,
+  roll and height through its Jacobian; a pose solve would need the filter's own heading as
+  prior). With no filter running, a pose solve of its two emitters with the map's road
+  direction near the light as heading prior, roll 0 and the last full pose's pitch as priors,
+  and the head's midpoint range (``"pose-1sl"``, `_single_fix`) starts it when its std is at
+  most `sl1_start_max_std_m`. `n_lights` 1.
+* Map-aided association (`map_assoc`, `_associate`): while the filter is sure, undecoded pairs
+  (both emitters' own blobs fresh) are matched to mapped heads projected from its prediction by
+  a unique Mahalanobis gate and a separation check, and join the solve (method suffix
+  ``"+map"``, `n_assoc`; `n_lights` counts them). They stay undecoded everywhere else: no ID,
+  no range, no forward vehicle.
+* The HV is reported only while the filter's 2D std is at most `hv_max_std_m`.
 
 Forward vehicles (`fv`): bearing from the horizontal displacement of the pair midpoint
 (thesis eq. 52), undistorted and turned into the level frame (pitch/roll from the HV pose when
@@ -82,6 +97,7 @@ x**3) stays in numpy calls, so the numbers are the former vectorised form's to t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -94,7 +110,7 @@ from receiver.io.ledmap import LedMap, shape_area_m2
 from receiver.locate.lsq import _LOSSES, LM_FTOL, covariance_at, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
-from receiver.locate.road_kalman import RangeKalman, RoadKalman
+from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
 
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")
@@ -339,6 +355,68 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
     return f
 
 
+def camera_yaw(R_cw: np.ndarray) -> float:
+    """Azimuth (rad, counter-clockwise from world +x) of the optical axis (R_cw's third row)."""
+    return math.atan2(float(R_cw[2, 1]), float(R_cw[2, 0]))
+
+
+def _with_attitude_prior(fun, yaw=None, pitch=None, roll=None, mid_range=None):
+    """The residuals `fun` (pose p = Rodrigues vector, C) with a row per given prior, each
+    (value rad, sigma rad): the optical axis's azimuth (`camera_yaw`; wrapped), its elevation
+    asin(R[2, 2]) (pitch, up positive) and the roll atan2(-R[0, 2], -R[1, 2]) (the angles of
+    receiver.locate.pose.ypr_to_rotation). With a single street light the image fixes the camera
+    on a circle around the head: the heading prior picks the point (lateral sigma ~ range x
+    sigma), the roll and pitch priors keep the two emitters' slant from turning the camera.
+    Jacobians from cv2.Rodrigues' derivative of R (its 3x9, row-major elements of R).
+    `mid_range`: (M (3,), D m, sigma m), one more row (|M - C| - D) / sigma: a single head's
+    range to its midpoint, in place of its two emitters' own (noisy) area ranges, whose
+    difference would turn the camera (the bundled recording: yaw 3-5 deg off)."""
+    rows = [(k, v) for k, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll), ("range", mid_range))
+            if v is not None]
+
+    def extra(p):
+        R, dR = cv2.Rodrigues(np.asarray(p[:3], float).reshape(3, 1))
+        r = np.empty(len(rows))
+        J = np.zeros((len(rows), len(p)))
+        for i, (kind, (v0, *sig)) in enumerate(rows):
+            sig = sig[0] if len(sig) == 1 else sig
+            if kind == "yaw":
+                a, b = float(R[2, 0]), float(R[2, 1])
+                n2 = max(a * a + b * b, 1e-12)
+                r[i] = wrap_pi(math.atan2(b, a) - v0) / sig
+                J[i, :3] = (a * dR[:, 7] - b * dR[:, 6]) / n2 / sig
+            elif kind == "range":
+                M, D, sig_d = v0, sig[0], sig[1]
+                Vm = np.asarray(M, float) - p[3:]
+                dm = math.sqrt(float(Vm @ Vm))
+                r[i] = (dm - D) / sig_d
+                J[i, 3:] = -Vm / max(dm, 1e-9) / sig_d
+            elif kind == "pitch":
+                z = min(max(float(R[2, 2]), -1.0 + 1e-12), 1.0 - 1e-12)
+                r[i] = (math.asin(z) - v0) / sig
+                J[i, :3] = dR[:, 8] / math.sqrt(1.0 - z * z) / sig
+            else:
+                a, b = -float(R[0, 2]), -float(R[1, 2])
+                n2 = max(a * a + b * b, 1e-12)
+                r[i] = wrap_pi(math.atan2(a, b) - v0) / sig
+                J[i, :3] = (b * -dR[:, 2] - a * -dR[:, 5]) / n2 / sig
+        return r, J
+
+    def f(p):
+        return np.append(fun(p), extra(p)[0])
+
+    def jac(p):
+        return np.vstack([fun.jac(p), extra(p)[1]])
+
+    def fun_jac(p):
+        r, J = fun.fun_jac(p)
+        r1, j1 = extra(p)
+        return np.append(r, r1), np.vstack([J, j1])
+
+    f.jac, f.fun_jac = jac, fun_jac
+    return f
+
+
 def _pick(res: dict, i: int, estimator: str):
     """(distance, sigma, estimator) of pair i, falling back from "fused" to what exists."""
     order = [estimator] if estimator != "fused" else ["fused"]
@@ -435,6 +513,9 @@ class VehicleLocator:
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
         self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
+        self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
+        self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
+        self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -678,8 +759,10 @@ class VehicleLocator:
         return ypr_to_rotation(math.degrees(yaw), self.s.camera_pitch_deg, 0.0), \
             np.array([C[0], C[1], self.s.camera_height_m])
 
-    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None):
-        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None."""
+    def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None, attitude=None, emitter_ranges=True):
+        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
+        `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
+        (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
         for k in sl_k:
@@ -694,7 +777,7 @@ class VehicleLocator:
         uv = np.array(uvs)
         d = np.array(ds)
         sd = np.array(sds)
-        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0))
+        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0)) | (not emitter_ranges)
         d[bad] = np.nan
         sd[bad] = 1.0
         sigma_uv = self.s.centroid_sigma_px / self.focal
@@ -704,6 +787,8 @@ class VehicleLocator:
         up = self.R_nominal[:, 2]
         fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
                            len(sl_k), self._sep_gain)
+        if attitude:
+            fun = _with_attitude_prior(fun, **attitude)
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
         n_iter = self.s.pose_max_iter if max_iter is None else max_iter
@@ -737,6 +822,194 @@ class VehicleLocator:
             return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
         return R, C, cov
 
+    def _road_heading(self, head: np.ndarray) -> float | None:
+        """The map's road direction (rad, counter-clockwise from +x) near a street-light head:
+        the principal axis of the mapped heads within `road_heading_radius_m` of it (both sides
+        of the road, so a staggered layout's zig-zag averages out), pointing along +x (the map
+        frame's x runs along the road). None with fewer than 3 heads there."""
+        H = self._sl_heads[:, :2]
+        near = H[np.sum((H - head[:2]) ** 2, axis=1) <= self.s.road_heading_radius_m ** 2]
+        if len(near) < 3:
+            return None
+        c = near - near.mean(0)
+        w, v = np.linalg.eigh(c.T @ c)
+        ax = v[:, 1] if v[0, 1] >= 0 else -v[:, 1]
+        return math.atan2(float(ax[1]), float(ax[0]))
+
+    def _associate(self, t_s: float, pairs, R_prior) -> dict:
+        """Map-aided association {pair index: mapped street-light ID} of UNDECODED pairs, while
+        the road filter is sure (predicted 2D std <= `assoc_max_std_m`): every mapped head not
+        decoded in this frame is projected from the predicted camera (the filter's x, y; the
+        last solved height and orientation turned to the predicted heading) with its 2x2
+        covariance in normalized image units (the position's through the projection's Jacobian,
+        plus the camera's yaw and pitch sigmas and the centroids'); a pair both of whose
+        emitters were measured apart (`both_visible`) is matched to the one head whose
+        Mahalanobis^2 to its midpoint is within `assoc_gate_chi2`, when no other head is in
+        that gate, no other pair is in the head's, and its separation is within
+        `assoc_sep_tol` of the head's predicted one (f B / distance). Ambiguity: no match."""
+        s = self.s
+        cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible
+                and p.a_seen is not None and p.b_seen is not None
+                and max(int(p.a_seen[2]), int(p.b_seen[2])) <= s.assoc_max_age]
+        if not cand or not len(self._sl_heads):
+            return {}
+        st, P = self.kf.predict_at(t_s)
+        Pxy = P[:2, :2]
+        if float(Pxy[0, 0] + Pxy[1, 1]) > s.assoc_max_std_m ** 2:
+            return {}
+        decoded = {p.led_id for p in pairs if p.led_id is not None}
+        ids = [i for i, c in self._sl.items() if c["em"] is not None and i not in decoded]
+        if not ids:
+            return {}
+        H = np.array([self._sl[i]["head"] for i in ids])
+        Bl = np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in ids])
+        dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
+        c, sn = math.cos(dpsi), math.sin(dpsi)
+        R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
+        C = np.array([float(st[0]), float(st[1]), self.z_last])
+        V = H - C
+        X = V @ R.T
+        ok = X[:, 2] > 1.0
+        if not np.any(ok):
+            return {}
+        X, V, Bl, ids = X[ok], V[ok], Bl[ok], [i for i, o in zip(ids, ok) if o]
+        z = X[:, 2]
+        u = X[:, :2] / z[:, None]
+        # d(u, v) / d(Cx, Cy): X = R (H - C) -> dX/dC = -R[:, :2].
+        dX = -R[:, :2]                                       # (3, 2)
+        J = (dX[None, :2, :] - u[:, :, None] * dX[None, 2:3, :]) / z[:, None, None]     # (n, 2, 2)
+        cov = J @ Pxy @ np.transpose(J, (0, 2, 1))
+        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
+        csig = (s.centroid_sigma_px / self.focal) ** 2
+        cov = cov + np.eye(2) * (ang + csig)
+        inv = np.linalg.inv(cov)
+        sep_pred = self.focal * Bl / np.sqrt(np.sum(V * V, axis=1))
+        mids = []
+        for i in cand:
+            p = pairs[i]
+            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
+                                  self.camera.dist).reshape(-1, 2)
+        D = und[:, None, :] - u[None, :, :]                  # (pairs, heads, 2)
+        m2 = np.einsum("phi,hij,phj->ph", D, inv, D)
+        inside = m2 <= s.assoc_gate_chi2
+        out = {}
+        for a, i in enumerate(cand):
+            hs = np.flatnonzero(inside[a])
+            if len(hs) != 1 or np.count_nonzero(inside[:, hs[0]]) != 1:
+                continue
+            h = hs[0]
+            sep = pairs[i].separation_px
+            if not (sep > 0 and abs(sep / sep_pred[h] - 1.0) <= s.assoc_sep_tol):
+                continue
+            out[i] = ids[h]
+        return out
+
+    def _single_observation(self, t_s, pairs, res, k, R_prior):
+        """While the road filter runs, one decoded street light updates it directly: the
+        measurement is the head's undistorted midpoint (u, v, normalized) and its "fused" range
+        (m), predicted from the filter's (x, y, heading) with the camera at the last solved
+        height and pitch (`pitch_ref` when a full pose gave one), roll 0 and yaw = heading. What
+        those assumptions leave out is folded into the noise through the measurement's
+        Jacobian on each: the camera's yaw about the heading (`yaw_shake_sigma_deg`), pitch
+        (`pitch_sigma_deg`, else `orient_sigma_prior_deg`), roll (`roll_sigma_deg`) and height
+        (`camera_height_sigma_m`); the midpoint carries the centroids' sigma
+        (`centroid_sigma_px` / sqrt 2 per axis). A pose fix would need the heading prior from
+        this same filter, and its position fed back would count that prior twice. Returns the
+        fix record for `_update_hv` ("sl-1", n 1)."""
+        s = self.s
+        head = self._sl[pairs[res["idx"][k]].led_id]["head"]
+        z0 = self.z_last
+        pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
+        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else s.orient_sigma_prior_deg)
+
+        def g(x, y, psi, dyaw=0.0, dpitch=0.0, roll=0.0, dz=0.0):
+            R = ypr_to_rotation(math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            V = head - np.array([x, y, z0 + dz])
+            X = R @ V
+            if X[2] < 1e-3:
+                return np.array([np.nan, np.nan, np.nan])
+            return np.array([X[0] / X[2], X[1] / X[2], math.sqrt(float(V @ V))])
+
+        st, P = self.kf.predict_at(t_s)
+        if float(P[0, 0] + P[1, 1]) > s.sl1_max_std_m ** 2:
+            # One light's angles and range, linearised about a prediction metres off, pull the
+            # filter along a wrong circle around the head (vehicle-road, tilted heads: 10 m off at
+            # 1 m std): a single light only keeps a filter that is already sure.
+            self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            return None
+        x, y, psi = float(st[0]), float(st[1]), float(st[2])
+        um = 0.5 * (np.asarray(res["ua"][k]) + np.asarray(res["ub"][k]))
+        z = np.array([um[0], um[1], res["fused"][k]])
+        sm = s.centroid_sigma_px / SQRT2 / self.focal
+        d = float(res["fused"][k])
+        Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (s.sl1_range_floor_rel * d) ** 2])
+        for j, (sig, e) in enumerate(((math.radians(s.yaw_shake_sigma_deg), 1e-5), (psig, 1e-5),
+                                      (math.radians(s.roll_sigma_deg), 1e-5), (s.camera_height_sigma_m, 1e-3))):
+            a = [0.0, 0.0, 0.0, 0.0]
+            a[j] = e
+            jp = g(x, y, psi, *a)
+            a[j] = -e
+            jn = g(x, y, psi, *a)
+            col = (jp - jn) / (2 * e)
+            Rm += np.outer(col, col) * sig * sig
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(Rm))):
+            self.hv_reason = "street-light pose solve failed"
+            return None
+        self.hv_reason = None
+        return dict(obs=(z, g, Rm), n=1, method="sl-1")
+
+    def _single_fix(self, t_s, pairs, aligned, res, k, R_prior):
+        """One decoded street light's two emitters (4 image coordinates, their ranges) with the
+        camera-height and tilt priors of `_solve_pose` and a heading prior: while the road
+        filter runs, its predicted heading (sigma: its own and the camera's yaw shake,
+        `yaw_shake_sigma_deg`), else the map's road direction near the light
+        (`road_heading_sigma_deg`). Returns (fix | None, aligned, res); the fix's covariance is
+        the solve's (lateral ~ range x heading sigma). Its yaw is the prior's echo, so the
+        filter takes the position only (`fix["yaw_free"]`)."""
+        s = self.s
+        head = self._sl[pairs[res["idx"][k]].led_id]["head"]
+        if R_prior is not None:
+            pred, P = self.kf.predict_at(t_s)
+            yaw0 = float(pred[2])
+            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(s.yaw_shake_sigma_deg) ** 2)
+            pitch = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
+            R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
+            C0 = np.array([pred[0], pred[1], self.z_last])
+        else:
+            yaw0 = self._road_heading(head)
+            if yaw0 is None:
+                self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+                return None, aligned, res
+            ysig = math.radians(s.road_heading_sigma_deg)
+            pitch = self.s.camera_pitch_deg if self.pitch_ref is None else math.degrees(self.pitch_ref)
+            R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
+            ray = _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
+            C0 = head - R0.T @ (res["fused"][k] * ray)
+            C0[2] = s.camera_height_m
+        # Ranges with this orientation (the baseline's direction, the panels' normals).
+        aligned, res = self._range_pairs(pairs, R0, True)      # same pairs ranged: k stands
+        if not math.isfinite(res["fused"][k]):
+            self.hv_reason = "street-light pose solve failed"
+            return None, aligned, res
+        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg)),
+               "mid_range": (head, float(res["fused"][k]), float(res["fused_sigma"][k]))}
+        if self.pitch_ref is not None:
+            att["pitch"] = (self.pitch_ref, math.radians(s.pitch_sigma_deg))
+        solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att, emitter_ranges=False)
+        if solved is None:
+            self.hv_reason = "street-light pose solve failed"
+            return None, aligned, res
+        R, C, cov = solved
+        if float(np.trace(cov)) > s.sl1_start_max_std_m ** 2:
+            # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
+            # the single-light observations that follow would be linearised metres off.
+            self.hv_reason = f"one mapped street light in view, too unsure alone (std > {s.sl1_start_max_std_m:g} m)"
+            return None, aligned, res
+        self.hv_reason = None
+        return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True,
+                    heads=[(pairs[res["idx"][k]].key, head)]), aligned, res
+
     @property
     def _sep_gain(self) -> float:
         """Weight of a head's centroid difference relative to the centroids' own sigma:
@@ -756,6 +1029,11 @@ class VehicleLocator:
             self.kf.reset()
             self.R_last = None
         R_prior = self.R_last if tracked else None
+        given = pairs
+        assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None and s.map_assoc else {}
+        if assoc:
+            pairs = [dataclasses.replace(p, led_id=assoc[i], kind="SL") if i in assoc else p
+                     for i, p in enumerate(pairs)]
         out = self._range_pairs(pairs, R_prior, R_prior is not None)
         fix = None
         self.last_fix = None
@@ -768,8 +1046,12 @@ class VehicleLocator:
             n_sl_any = res["roles"].count("SL")
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
-            elif len(sl_k) < s.min_lights:
+            elif len(sl_k) < s.min_lights and not (s.single_light and len(sl_k) == 1):
                 self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            elif len(sl_k) < s.min_lights and R_prior is not None:
+                fix = self._single_observation(t_s, pairs, res, sl_k[0], R_prior)
+            elif len(sl_k) < s.min_lights:
+                fix, aligned, res = self._single_fix(t_s, pairs, aligned, res, sl_k[0], R_prior)
             else:
                 if R_prior is not None:
                     pred = self.kf.predict_at(t_s)[0]
@@ -797,13 +1079,16 @@ class VehicleLocator:
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
                     yaw = math.radians(rotation_to_ypr_deg(R)[0])
-                    fix = dict(pose=(C, cov, yaw, R), n=len(sl_k))
+                    fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
+                               heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])
+                                      for k in sl_k])
                     self.hv_reason = None
             if fix is not None or len(sl_k) >= 2:
                 e = self._eq44_47(pairs, res, sl_k, fix)
                 if fix is not None:
                     fix["eq44-47"] = e
-                self.last_fix = {"pose": None if fix is None else tuple(fix["pose"][0][:2]), "eq44-47": e}
+                self.last_fix = {"pose": None if fix is None or "pose" not in fix else tuple(fix["pose"][0][:2]),
+                                 "eq44-47": e}
         else:
             aligned, res = [(None, None)] * len(pairs), None
             if not self.kf.started:
@@ -811,14 +1096,23 @@ class VehicleLocator:
                     else "no decoded street light seen with both emitters apart"
 
         self._keep_seen(pairs)
+        self._keep_separations(t_s, given)
+        if fix is not None:
+            fix["n_assoc"] = sum(1 for k in sl_k if res["idx"][k] in assoc)
         hv = self._update_hv(t_s, fix, speed_mps)
+        if assoc:
+            # The undecoded pairs matched to mapped heads served the host only: to the rest of
+            # the step (forward vehicles, LED ranges) they are what they were, and no car.
+            pairs = given
+            aligned = [(None, None) if i in assoc else a for i, a in enumerate(aligned)]
         fv, not_fv, tracked = self._update_fv(t_s, pairs, aligned, res, hv)
+        not_fv = set(not_fv) | set(assoc)
         ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
                   for i, (r, k) in enumerate(aligned)]
         for i, rng in tracked.items():
             if ranges[i] is None:
                 ranges[i] = rng
-        if fix is not None:
+        if fix is not None and "pose" in fix:
             self._pose_ranges(pairs, ranges, fix)
         ranges = tuple(ranges)
         any_pair = any(p.kind in ("SL", "FV") or self._role(p) is not None for p in pairs)
@@ -880,7 +1174,14 @@ class VehicleLocator:
         s = self.s
         kf = self.kf
         raw, xy, meth = None, None, "kalman-coast"
-        if fix is not None:
+        if fix is not None and "obs" in fix:
+            # One light's image angles and range straight into the running filter (no raw fix).
+            kf.predict(t_s)
+            z, g, Rm = fix["obs"]
+            if kf.update_observation(t_s, z, g, Rm, s.obs_gate_chi2):
+                meth = fix["method"] + ("+map" if fix.get("n_assoc") else "")
+            fix = None if meth == "kalman-coast" else fix
+        elif fix is not None:
             C, cov, yaw, R = fix["pose"]
             if s.hv_method == "eq44-47":
                 e = fix.get("eq44-47")
@@ -888,28 +1189,35 @@ class VehicleLocator:
                     # eqs. 44-47 use two ranges only: inflate the pose covariance as its stand-in.
                     xy, cov, meth = np.array(e), cov * 4.0 + np.eye(2) * 0.25, "eq44-47"
             else:
-                xy, meth = C[:2], "pose"
+                xy, meth = C[:2], fix.get("method", "pose") + ("+map" if fix.get("n_assoc") else "")
                 cov = cov + np.eye(2) * s.fix_floor_m ** 2
         if xy is not None:
             raw = {"x": _r(xy[0]), "y": _r(xy[1]), "method": meth}
             psig = math.radians(s.heading_sigma_deg)
+            if fix.get("yaw_free"):
+                # A single light's yaw is its heading prior's echo: the filter takes the position
+                # only; a filter started from it takes the prior's sigma.
+                psig = math.radians(s.road_heading_sigma_deg)
             if not kf.started:
-                kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
-                accepted = True
+                accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             else:
                 kf.predict(t_s)
-                accepted = kf.update_fix(t_s, xy, cov, yaw, psig)
+                held = self._speed_from_fixes(t_s, xy, cov) if speed is None else False
+                accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig,
+                                         held_speed=held)
                 if not accepted and kf.rejects >= s.max_rejects:
-                    kf.start(t_s, xy, cov, yaw, psig, speed, s.speed_sigma_mps)
-                    accepted = True
+                    kf.reset()
+                    accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             if accepted:
                 self.R_last = R
                 self.z_last = float(fix["pose"][0][2])
                 _, pitch, roll = rotation_to_ypr_deg(R)
                 self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
+                if fix["n"] >= 2:
+                    self.pitch_ref = math.radians(pitch)
             else:
                 meth = "kalman-coast"
-        elif kf.started:
+        elif kf.started and meth == "kalman-coast":
             if kf.expired(t_s):
                 kf.reset()
                 self.R_last = None
@@ -924,13 +1232,112 @@ class VehicleLocator:
         std = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
         hv = {"x": _r(st[0]), "y": _r(st[1]), "std_m": _r(std), "heading_deg": _r(math.degrees(st[2]), 3),
               "speed_mps": _r(st[3], 3), "method": meth, "n_lights": 0 if fix is None else fix["n"],
-              "raw": raw}
+              "n_assoc": 0 if fix is None else fix.get("n_assoc", 0), "raw": raw}
         if hv["x"] is None or hv["y"] is None or hv["std_m"] is None:
             kf.reset()
             self.R_last = None
             self.hv_reason = "HV filter diverged"
             return None
+        if std > s.hv_max_std_m:
+            # The filter runs on (a single light's fix, coasting), but a position this unsure is
+            # no placement: never a confident wrong one.
+            self.hv_reason = f"host position std above {s.hv_max_std_m:g} m"
+            return None
         return hv
+
+    def _start(self, t_s: float, xy, cov, yaw: float, psig: float, speed, fix=None) -> bool:
+        """Start the road filter on a fix: the speed from odometry, else from the fix's heads'
+        image motion (`_speed_from_motion`), else unknown (0 +- 15 m/s, the fix held as
+        `_pending` for `_speed_from_fixes`). Returns True."""
+        s = self.s
+        sv = s.speed_sigma_mps
+        if speed is None and fix is not None and fix.get("heads"):
+            got = self._speed_from_motion(t_s, fix["pose"][0], yaw, fix["heads"])
+            if got is not None:
+                speed, sv = got
+        self.kf.start(t_s, xy, cov, yaw, psig, speed, sv)
+        self._pending = None if speed is not None else (t_s, np.array(xy, float), cov, yaw)
+        return True
+
+    def _keep_separations(self, t_s: float, pairs) -> None:
+        """Each pair's separation (px, when both emitters were measured apart) over the last
+        `speed_hist_s`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
+        keep = t_s - self.s.speed_hist_s
+        hist = {}
+        for p in pairs:
+            h = [e for e in self._sep_hist.get(p.key, ()) if e[0] >= keep]
+            if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
+                h.append((t_s, float(p.separation_px)))
+            if h:
+                hist[p.key] = h
+        self._sep_hist = hist
+
+    def _speed_from_motion(self, t_s: float, C, yaw: float, heads):
+        """(speed m/s, sigma) of the HV from the image growth of the fix's heads, or None. A head's
+        separation scales as 1 / distance: the slope k of ln(separation) over the last
+        `speed_hist_s` (>= `speed_hist_min` samples) is -d'/d, and d d' = rho rho' with
+        rho' = -v cos(beta) (rho the horizontal distance, beta the head's bearing from the
+        heading, from the fix), so v = d^2 k / (rho cos beta); sigma from the fit's residuals.
+        Heads are combined by inverse variance; none when they disagree beyond 3 sigma. The
+        sigma is floored at `speed_motion_floor_mps` (the separations are the pairing's model:
+        whole pixels scaled by the envelopes)."""
+        s = self.s
+        h = np.array([math.cos(yaw), math.sin(yaw)])
+        vs, ws = [], []
+        for key, head in heads:
+            e = self._sep_hist.get(key, ())
+            if len(e) < s.speed_hist_min:
+                continue
+            t = np.array([x[0] for x in e])
+            y = np.log([x[1] for x in e])
+            tc = t - t.mean()
+            stt = float(tc @ tc)
+            if stt <= 0:
+                continue
+            k = float(tc @ (y - y.mean())) / stt
+            r = y - y.mean() - k * tc
+            sk = math.sqrt(max(float(r @ r) / (len(e) - 2), (0.3 / 20.0) ** 2) / stt)
+            V = np.asarray(head, float) - np.asarray(C, float)
+            d = math.sqrt(float(V @ V))
+            rho = math.hypot(float(V[0]), float(V[1]))
+            cb = float(h @ V[:2]) / max(rho, 1e-9)
+            if cb < 0.3:
+                continue
+            g = d * d / (rho * cb)
+            vs.append(g * k)
+            ws.append(1.0 / (g * sk) ** 2)
+        if not vs:
+            return None
+        vs, ws = np.array(vs), np.array(ws)
+        v = float(ws @ vs / ws.sum())
+        sv = 1.0 / math.sqrt(float(ws.sum()))
+        if np.any(np.abs(vs - v) > 3.0 * np.sqrt(1.0 / ws + sv * sv)) or not math.isfinite(v):
+            return None
+        return v, max(sv, s.speed_motion_floor_mps)
+
+    def _speed_from_fixes(self, t_s: float, xy, cov) -> bool:
+        """While the speed is unknown (a start without odometry), the speed from the first fix and
+        the first one at least `speed_init_min_dt_s` after it: their displacement along the
+        heading over their time apart (sigma sqrt(h' (C1 + C2) h) / dt, h the heading's unit
+        vector), set as the filter's speed with its cross-covariances cleared. Fixes before
+        that update the position only (`held_speed`). A filter left to learn its speed from its
+        cross-covariances took it from the next fix a frame later: two fixes 0.7 m apart the
+        wrong way read -23 m/s (bundled vehicle recording). Returns whether the speed is still
+        held (unknown)."""
+        held = self._pending
+        if held is None:
+            return False
+        t0, xy0, cov0, yaw0 = held
+        dt = t_s - t0
+        if dt < self.s.speed_init_min_dt_s:
+            return True
+        self._pending = None
+        h = np.array([math.cos(yaw0), math.sin(yaw0)])
+        v = float(h @ (np.asarray(xy, float) - xy0)) / dt
+        sv = math.sqrt(max(float(h @ (cov0 + cov) @ h), 0.0)) / dt
+        if math.isfinite(v) and math.isfinite(sv):
+            self.kf.set_speed(v, max(sv, self.s.speed_sigma_mps))
+        return False
 
     def _fv_directions(self, pairs, aligned) -> dict:
         """{pair index: (bearing rad, level-frame unit ray (3,))} of the tracked taillight pairs
