@@ -194,6 +194,27 @@ class PairSettings:
     many frames is not reported (0 = off): such a pair may sit a baseline aside of its head
     (which half a blob was cannot be told) with one emitter on nobody's light, between heads
     (hil seed 1 frame 179: 14 frames; 8 cost 18-30 right light-frames per seed, 12 none).
+    Far heads by width (experimental, off; issue 11): width_size [False]: a blob of at most
+    width_max_rows [3] rows is one emitter when its width is within width_tol [0.25] (+1 px) of
+    the emitters' envelope width, and both lit as one blob when it is one horizontal baseline
+    wider (at least width_min_px [2] px), whatever its area (`Pairer._width_class`): a far
+    head's half is one or two rows tall and its area doubles between frames (vehicle-road seed
+    1 head 97 at 47 m: 10 x 1 px then 10 x 2 px; merged 24 x 2 px), so the area tests threw its
+    blobs out as "another light's" and the pair lost it at 45-60 m. measure_baseline [False]: a
+    jumper pair re-measures its baseline in one frame, free of the shake, from a merged blob's
+    width less one emitter's (or both emitters' own blobs), blended by baseline_gain [0.5],
+    measurements off by more than baseline_max_ratio [1.5] ignored, grown between measurements
+    by the smoothed relative growth per frame (growth_gain [0.2], at most max_growth [0.08] per
+    frame over at most growth_span_frames [8]) (`Pairer._measure_baseline`; before, the baseline
+    was the founding jumps' scaled by the area, 20-40 % short on vehicle-road). Measured
+    (`occloc eval`, S2-PSK resolvable, vehicle-road seeds 1/2, default detection): with the
+    truth's frame shift (diagnosis only) SL 143/62 -> 509/552 of 644/638 (both on, measuring on
+    every pair) and 508/538 (this code: jumper pairs only), FV 196/157 and 45/165 of 287/284;
+    with shake "2d" (both on, every pair) SL 519/602, FV 144/157, but 3/6 wrong light-frames
+    (a far decoded head's emitter a baseline aside matched to the head behind it); this code
+    with "2d" SL 210/547, FV 12/166, 6/9 wrong; with "vertical" (the default) SL 97/0 (from
+    98/14). hil --mode s2psk seed 4 SL 854 -> 720 of 892 (measure_baseline alone): not the
+    default until the vehicle scene's loss is found.
         """
 
     row_band: float = 1.0
@@ -235,3 +256,13 @@ class PairSettings:
     head_gap_frames: int = 4
     emitter_gate_larger: bool = True
     jumper_unseen_frames: int = 12
+    width_size: bool = False
+    width_tol: float = 0.25
+    width_min_px: float = 2.0
+    width_max_rows: int = 3
+    measure_baseline: bool = False
+    baseline_gain: float = 0.5
+    baseline_max_ratio: float = 1.5
+    growth_gain: float = 0.2
+    growth_span_frames: int = 8
+    max_growth: float = 0.08
