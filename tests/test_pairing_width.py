@@ -64,3 +64,32 @@ def test_off_by_default_keeps_the_area_scaled_baseline():
     q = _jumper(hx=4.5, w=10)
     assert pr._predict(q)[2] == pytest.approx(4.5)
     assert not pr.measure_baseline and not pr.width_size
+
+
+def _explain(pr, p, blob):
+    t = Track(9, blob, 0, 0)
+    mx, my, hx, hy, single = pr._predict(p)
+    return pr._explain(p, [t], np.array([[t.cx, t.cy]]), mx, my, hx, hy, single)
+
+
+def test_width_takes_a_taller_half_but_not_a_cut_one():
+    pr = Pairer(width_size=True)
+    # one-row envelopes: the same half seen over two rows (twice the area) is its emitter A
+    p = _jumper(hx=6.0, w=10, h=1)
+    expl, _, shifts, obs_a, obs_b, merged = _explain(pr, p, _blob(94.0, 50.0, 10, 2))
+    assert len(expl) == 1 and obs_a is not None and obs_b is None and merged is None
+    assert Pairer()._explain(p, [Track(9, _blob(94.0, 50.0, 10, 2), 0, 0)], np.array([[94.0, 50.0]]),
+                             *Pairer()._predict(p))[0] == []  # by area: "another light's"
+    # a 3-row head: one row of A cut by a clock edge is as wide; it moves the pair (area 1/3,
+    # `max_cut`) but never becomes A's envelope; a fifth of it is not A's at all
+    q = _jumper(hx=6.0, w=10, h=3)
+    expl, _, _, obs_a, _, _ = _explain(pr, q, _blob(94.0, 50.0, 10, 1))
+    assert len(expl) == 1 and obs_a is None
+    q = _jumper(hx=6.0, w=10, h=5)
+    expl, _, _, obs_a, _, _ = _explain(pr, q, _blob(94.0, 50.0, 10, 1))
+    assert expl == [] and obs_a is None
+    # a merged blob one baseline wider, nearest emitter B (a short predicted baseline) is merged
+    r = _jumper(hx=3.0, w=10, h=1)
+    expl, _, shifts, obs_a, obs_b, merged = _explain(pr, r, _blob(102.5, 50.0, 16, 1))
+    assert merged is not None and obs_a is None and obs_b is None
+    assert shifts[0][0] == pytest.approx(2.5)  # moves the midpoint, not emitter B

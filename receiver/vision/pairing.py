@@ -313,11 +313,12 @@ class Pairer:
             # times in a few seconds).
             e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
             ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
-            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio) and wide != "single":
+            # (by width, also one that covers a row more than its envelope: twice its area)
+            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio or (wide == "single" and ratio >= 1.0)):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
             explaining.append(t)
-            if ratio >= 1.0 / self.merged_ratio or wide == "single":
+            if ratio >= 1.0 / self.merged_ratio:
                 if e is p.a:
                     obs_a = t.blob
                 else:
@@ -480,7 +481,7 @@ class Pairer:
         meas = None
         if obs_a is not None and obs_b is not None:
             meas = (obs_b.cx - obs_a.cx, obs_b.cy - obs_a.cy)
-        elif merged is not None and merged.y1 - merged.y0 <= self.width_max_rows:
+        elif merged is not None:
             w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
             d = (merged.x1 - merged.x0) - w1
             if d >= self.width_min_px:

@@ -200,21 +200,27 @@ class PairSettings:
     wider (at least width_min_px [2] px), whatever its area (`Pairer._width_class`): a far
     head's half is one or two rows tall and its area doubles between frames (vehicle-road seed
     1 head 97 at 47 m: 10 x 1 px then 10 x 2 px; merged 24 x 2 px), so the area tests threw its
-    blobs out as "another light's" and the pair lost it at 45-60 m. measure_baseline [False]: a
-    jumper pair re-measures its baseline in one frame, free of the shake, from a merged blob's
-    width less one emitter's (or both emitters' own blobs), blended by baseline_gain [0.5],
-    measurements off by more than baseline_max_ratio [1.5] ignored, grown between measurements
-    by the smoothed relative growth per frame (growth_gain [0.2], at most max_growth [0.08] per
-    frame over at most growth_span_frames [8]) (`Pairer._measure_baseline`; before, the baseline
-    was the founding jumps' scaled by the area, 20-40 % short on vehicle-road). Measured
-    (`occloc eval`, S2-PSK resolvable, vehicle-road seeds 1/2, default detection): with the
-    truth's frame shift (diagnosis only) SL 143/62 -> 509/552 of 644/638 (both on, measuring on
-    every pair) and 508/538 (this code: jumper pairs only), FV 196/157 and 45/165 of 287/284;
-    with shake "2d" (both on, every pair) SL 519/602, FV 144/157, but 3/6 wrong light-frames
-    (a far decoded head's emitter a baseline aside matched to the head behind it); this code
-    with "2d" SL 210/547, FV 12/166, 6/9 wrong; with "vertical" (the default) SL 97/0 (from
-    98/14). hil --mode s2psk seed 4 SL 854 -> 720 of 892 (measure_baseline alone): not the
-    default until the vehicle scene's loss is found.
+    blobs out as "another light's" and the pair lost it at 45-60 m. By width a blob may be
+    larger than the area test allows, never smaller (a blob cut by a clock edge, 1-2 rows of
+    a 5-row head, must not become the emitter's envelope: its area then shrank the baseline).
+    measure_baseline [False]: a jumper pair re-measures its baseline in one frame, free of the
+    shake: a merged blob's width less one emitter's (holds for 5-6-row heads of the `vehicle`
+    scene too), or both emitters' own blobs; blended by baseline_gain [0.5], measurements off
+    by more than baseline_max_ratio [1.5] ignored, grown between measurements by the smoothed
+    relative growth per frame (growth_gain [0.2], at most max_growth [0.08] per frame over at
+    most growth_span_frames [8]) (`Pairer._measure_baseline`; the founding jumps' baseline
+    scaled by the area was 20-40 % short on vehicle-road). Measured (`occloc eval`, S2-PSK
+    resolvable SL / FV light-frames, wrong; vehicle-road seeds 1 / 2 of 644 / 638 SL, 287 / 284
+    FV; `occloc synth vehicle --seed 4 --frames 180` = hil seed 4, 892 SL): defaults 98 / 14,
+    FV 136 / 166, seed-4 854. Both on, shake "2d": SL 501 / 480, FV 136 / 166, but 6 / 9
+    wrong (far decoded heads, ~150 m, 4 px baselines, whose pair sits 3 px aside: the eval's
+    one-to-one match gives the second emitter to the head 7 px below), seed-4 692 (the 2d
+    shift invents 2-5 px of yaw in 24 frames of a scene without yaw), recordings/vehicle
+    534 / 658. Both on, shake "vertical": 89 / 16, seed-4 798, recordings/vehicle 650 / 658
+    with 1 wrong. Both on with the truth's frame shift (a diagnosis only): 496 / 508, seed-4
+    839, 0 / 1 wrong (before them, with the truth's shift: 143 / 62, seed-4 884). So the
+    pairs now keep near heads when the horizontal shake is known; a horizontal shift
+    estimator that is right on both kinds of scene is what is missing.
         """
 
     row_band: float = 1.0
