@@ -1,5 +1,5 @@
 """Width-based size test and baseline re-measurement of S2-PSK pairs (PairSettings.width_size,
-measure_baseline; opt-in): a far street-light half is one or two rows tall, so its area doubles
+measure_baseline): a far street-light half is one or two rows tall, so its area doubles
 between frames while its width holds, and a merged both-lit blob is one baseline wider."""
 
 import math
@@ -36,7 +36,9 @@ def test_width_classes_single_and_merged_short_blobs_only():
     assert pr._width_class(p, _blob(100, 50, 22, 1), 6.0) == "merged"  # one baseline (12 px) wider
     assert pr._width_class(p, _blob(100, 50, 16, 1), 6.0) is None      # neither
     assert pr._width_class(p, _blob(100, 50, 22, 5), 6.0) is None      # tall: its area tells
-    assert Pairer()._width_class(p, _blob(100, 50, 10, 2), 6.0) is None  # off by default
+    assert Pairer(width_size=False)._width_class(p, _blob(100, 50, 10, 2), 6.0) is None  # off
+    # a short cut row of a tall (5-row) head is not judged by width
+    assert pr._width_class(_jumper(hx=6.0, w=10, h=5), _blob(100, 50, 22, 2), 6.0) is None
 
 
 def test_merged_width_remeasures_a_short_baseline():
@@ -57,13 +59,13 @@ def test_merged_width_remeasures_a_short_baseline():
     assert math.isfinite(p.growth) and 0.0 <= p.growth <= pr.max_growth
 
 
-def test_off_by_default_keeps_the_area_scaled_baseline():
-    pr = Pairer()
-    p = _jumper(hx=4.5, w=10)
-    pr._measure_baseline(p, 4.5, 0.0, None, None, _blob(100, 50, 22, 1))  # called directly: measures
+def test_without_measurement_the_baseline_scales_with_the_area():
+    pr = Pairer(measure_baseline=False)
     q = _jumper(hx=4.5, w=10)
     assert pr._predict(q)[2] == pytest.approx(4.5)
-    assert not pr.measure_baseline and not pr.width_size
+    q.a.blob = q.b.blob = _blob(100, 50, 10, 4)  # four times the area: twice the baseline
+    assert pr._predict(q)[2] == pytest.approx(9.0)
+    assert Pairer().measure_baseline and Pairer().width_size  # the defaults
 
 
 def _explain(pr, p, blob):
@@ -78,8 +80,9 @@ def test_width_takes_a_taller_half_but_not_a_cut_one():
     p = _jumper(hx=6.0, w=10, h=1)
     expl, _, shifts, obs_a, obs_b, merged = _explain(pr, p, _blob(94.0, 50.0, 10, 2))
     assert len(expl) == 1 and obs_a is not None and obs_b is None and merged is None
-    assert Pairer()._explain(p, [Track(9, _blob(94.0, 50.0, 10, 2), 0, 0)], np.array([[94.0, 50.0]]),
-                             *Pairer()._predict(p))[0] == []  # by area: "another light's"
+    off = Pairer(width_size=False)
+    assert off._explain(p, [Track(9, _blob(94.0, 50.0, 10, 2), 0, 0)], np.array([[94.0, 50.0]]),
+                        *off._predict(p))[0] == []  # by area: "another light's"
     # a 3-row head: one row of A cut by a clock edge is as wide; it moves the pair (area 1/3,
     # `max_cut`) but never becomes A's envelope; a fifth of it is not A's at all
     q = _jumper(hx=6.0, w=10, h=3)
@@ -93,3 +96,27 @@ def test_width_takes_a_taller_half_but_not_a_cut_one():
     expl, _, shifts, obs_a, obs_b, merged = _explain(pr, r, _blob(102.5, 50.0, 16, 1))
     assert merged is not None and obs_a is None and obs_b is None
     assert shifts[0][0] == pytest.approx(2.5)  # moves the midpoint, not emitter B
+
+
+def test_a_decoded_far_head_that_coasted_is_reported_again_once_a_merged_blob_places_it():
+    pr = Pairer()
+    p = _jumper(hx=3.0, w=6, h=1)
+    p.led_id, p.kind, p.seen_a, p.seen_b = 42, "SL", 0, 0
+    pr.pairs = [p]
+    assert len(pr.emitters()) == 2
+    empty = np.zeros((0, 2))
+    for _ in range(pr.anchor_coast_frames):
+        assert pr._follow(p, [], empty, None)  # no blob: it coasts
+    assert not p.anchored and pr.emitters() == []  # may sit a baseline aside now
+    one = Track(9, _blob(p.mx + p.vx + 3.0, 50.0, 6, 1), 0, 0)  # a single half: which one?
+    pr._follow(p, [one], np.array([[one.cx, one.cy]]), None)
+    assert not p.anchored and pr.emitters() == []
+    both = Track(9, _blob(p.mx + p.vx, 50.0, 12, 1), 0, 0)  # both lit, one blob: the midpoint
+    pr._follow(p, [both], np.array([[both.cx, both.cy]]), None)
+    assert p.anchored and len(pr.emitters()) == 2
+    # pairs of two tracks (taillights, near heads) are not held back
+    q = _jumper(hx=3.0, w=6, h=1)
+    q.b = Track(8, q.b.blob, 0, 0)
+    q.led_id, q.anchored, q.seen_a, q.seen_b = 43, False, 0, 0
+    pr.pairs = [q]
+    assert len(pr.emitters()) == 2

@@ -151,6 +151,10 @@ class Pair:
     base: tuple | None = None
     base_frames: int = 0
     growth: float = 0.0
+    # A jumper pair's place is sure (`PairSettings.anchor_coast_frames`): False after a coast of
+    # that many frames, True again once a blob both lit (at the midpoint) or both emitters' own
+    # blobs in one frame place it; a single half's blob cannot tell which half it is.
+    anchored: bool = True
     ids: tuple[int, int] = (-1, -1)  # the LED ids of emitters A and B in the output (`Pairer.emitters`)
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
@@ -239,6 +243,7 @@ class Pairer:
         self.width_size, self.width_tol, self.width_min_px = s.width_size, s.width_tol, s.width_min_px
         self.width_max_rows, self.baseline_max_ratio = s.width_max_rows, s.baseline_max_ratio
         self.measure_baseline, self.baseline_gain = s.measure_baseline, s.baseline_gain
+        self.anchor_coast_frames = s.anchor_coast_frames
         self.growth_gain, self.growth_span_frames, self.max_growth = s.growth_gain, s.growth_span_frames, s.max_growth
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
@@ -329,7 +334,10 @@ class Pairer:
         """"single" (as wide as one emitter's envelope), "merged" (one horizontal baseline wider:
         both emitters lit as one blob) or None (neither, or `width_size` off; px widths of the
         half-open boxes, within `width_tol` of the expected width plus one px)."""
-        if not self.width_size or blob.y1 - blob.y0 > self.width_max_rows:
+        # both this blob and the pair's envelopes short: a far horizontal head, not a row or two
+        # of a taller one cut by a clock edge during the rolling readout
+        if not self.width_size or max(blob.y1 - blob.y0, p.a.blob.y1 - p.a.blob.y0,
+                                      p.b.blob.y1 - p.b.blob.y0) > self.width_max_rows:
             return None
         w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
         wm = w1 + 2.0 * abs(hx)
@@ -358,6 +366,36 @@ class Pairer:
             if len(d):
                 out += [d, d + (hx, hy), d - (hx, hy)]
         return np.concatenate(out) if out else np.zeros((0, 2))
+
+    def dx_offsets(self, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
+        """Per blob near a formed pair's prediction (moved down by this frame's vertical shift
+        `dy` px; within `radius_px` horizontally of the pair's reach, `match_min_px` plus its
+        half baseline vertically): the horizontal shifts (px) that put it where it may be, by
+        its size (`_width_class`, else its area against one emitter's): a blob both lit at the
+        midpoint, one emitter's at A or B (receiver.vision.motion.pair_dx). `xy`: (N, 2)
+        centroids of `blobs`."""
+        out = []
+        if not len(xy):
+            return out
+        for p in self.pairs:
+            if p.base0 is None:
+                continue
+            mx, my, hx, hy, single = self._predict(p)
+            my += dy
+            sel = np.flatnonzero((np.abs(xy[:, 1] - my) <= self.match_min_px + abs(hy))
+                                 & (np.abs(xy[:, 0] - mx) <= radius_px + abs(hx)))
+            for j in sel:
+                b = blobs[j]
+                kind = self._width_class(p, b, hx)
+                if kind is None:
+                    r = b.area_px / single
+                    kind = ("merged" if self.merged_ratio < r <= self.max_merged else
+                            "single" if 1.0 / self.max_cut <= r <= self.merged_ratio else None)
+                if kind == "merged":
+                    out.append(np.array([xy[j, 0] - mx]))
+                elif kind == "single":
+                    out.append(np.array([xy[j, 0] - mx + hx, xy[j, 0] - mx - hx]))
+        return out
 
     def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
         """This frame's common vertical image shift (px, + down): the median over the pairs that
@@ -425,6 +463,10 @@ class Pairer:
         p.tracks, p.nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
         if self.measure_baseline and p.a.track_id == p.b.track_id:
             self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
+        if merged is not None or (obs_a is not None and obs_b is not None):
+            p.anchored = True
+        elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
+            p.anchored = False
         if obs_a is not None:
             p.seen_a = p.frames
             p.obs_a = (obs_a, p.frames)
@@ -496,7 +538,7 @@ class Pairer:
             n = p.frames - p.base_frames
             if 0 < n <= self.growth_span_frames:
                 r = (max(math.hypot(*meas), 1.0) / max(math.hypot(*pred), 1.0)) ** (1.0 / n) - 1.0
-                p.growth += self.growth_gain * (min(max(r, -self.max_growth), self.max_growth) - p.growth)
+                p.growth += self.growth_gain * (min(max(r, 0.0), self.max_growth) - p.growth)
             g = self.baseline_gain
             meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
         p.base, p.base_frames = meas, p.frames
@@ -732,10 +774,13 @@ class Pairer:
         # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
         # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
         # frames lies beside the head, on nobody's light, and is not reported (0 = off).
+        # One that coasted may now sit a baseline aside, one emitter on the head behind or
+        # beside it: not reported until a blob both lit places it again (`anchor_coast_frames`).
         dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
                for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
                if not (self.jumper_unseen_frames and p.a.track_id == p.b.track_id
-                       and p.frames - seen > self.jumper_unseen_frames)]
+                       and p.frames - seen > self.jumper_unseen_frames)
+               and (p.anchored or p.a.track_id != p.b.track_id)]
         xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
         owner = np.array([id(p) for _, _, p, _ in dec])
         size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
