@@ -37,7 +37,7 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
-from receiver.vision.motion import frame_shift, vertical_shift, yaw_pitch_shift
+from receiver.vision.motion import frame_shift, pair_dx, vertical_shift, yaw_pitch_shift
 from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
@@ -327,10 +327,10 @@ class Receiver:
 
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
         """The frame's common image shift (dx, dy) px from the camera's shake, or None (off, or
-        not measurable): `PairSettings.shake` "vertical", "2d" or "yawpitch"
+        not measurable): `PairSettings.shake` "vertical", "pairs", "2d" or "yawpitch"
         (receiver.vision.motion)."""
         shift = None
-        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d", "yawpitch"):
+        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d", "yawpitch", "pairs"):
             # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
             # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
             # track's and pair's prediction.
@@ -340,9 +340,15 @@ class Receiver:
             for old in self._prev_xy[1:]:  # older frames vote too (each head blinks)
                 votes.append((xy[None, :, :] - old[:, None, :]).reshape(-1, 2))
             prev = self._prev_xy[0] if self._prev_xy else np.zeros((0, 2))
-            if self.settings.pair.shake == "vertical":
+            if self.settings.pair.shake in ("vertical", "pairs"):
                 dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
                 shift = None if dy is None else (0.0, dy)
+                if shift is not None and self.settings.pair.shake == "pairs":
+                    # the horizontal shift (yaw) that puts the blobs where the pairs expect them
+                    ps = self.settings.pair
+                    dx = pair_dx(self.pairer.dx_offsets(blobs, xy, dy, r), radius_px=r, sigma_px=ps.shake_sigma_px,
+                                 step_px=ps.shake_step_px, zero_rel=ps.shake_zero_rel)
+                    shift = (dx or 0.0, dy)
             elif self.settings.pair.shake == "yawpitch":
                 # each blob of this frame against the last frames' blobs (one vote per cell)
                 refs = np.concatenate(self._prev_xy) if self._prev_xy else np.zeros((0, 2))

@@ -47,3 +47,35 @@ def test_yaw_pitch_shift_needs_agreeing_votes():
     one = np.array([[100.0, 100.0]])
     assert yaw_pitch_shift(one, one + (3.0, 2.0)) is None  # one blob: fewer than min_votes
     assert yaw_pitch_shift(np.zeros((0, 2)), one) is None
+
+
+# ---- pair_dx: the yaw shift from the pairs' expected places (PairSettings.shake "pairs")
+
+def _head_offsets(dx, heads, rng):
+    """Offsets (receiver.vision.motion.pair_dx) of one blob per head (half baseline h px), each
+    head showing A, B or both lit at random, all shifted by dx px (+ 0.2 px noise)."""
+    from numpy import array
+    out = []
+    for h in heads:
+        kind = rng.integers(3)
+        x = dx + rng.normal(0.0, 0.2) + (0.0 if kind == 2 else (-h if kind == 0 else h))
+        out.append(array([x]) if kind == 2 else array([x + h, x - h]))
+    return out
+
+
+@pytest.mark.parametrize("dx", [-7.3, -2.0, 3.6, 8.9])
+def test_pair_dx_settles_each_heads_side_by_the_others(dx):
+    from receiver.vision.motion import pair_dx
+    rng = np.random.default_rng(int(10 * dx) % 97)
+    heads = [2.0, 2.6, 3.1, 4.4, 5.0, 6.2, 9.5]  # far to near heads: different baselines
+    got = pair_dx(_head_offsets(dx, heads, rng))
+    assert got is not None and abs(got - dx) <= 0.5, (got, dx)
+
+
+def test_pair_dx_keeps_zero_without_yaw_and_none_without_blobs():
+    from receiver.vision.motion import pair_dx
+    rng = np.random.default_rng(3)
+    heads = [2.0, 2.6, 3.1, 4.4, 5.0]
+    assert pair_dx(_head_offsets(0.3, heads, rng)) == 0.0  # within zero_rel of the best: 0
+    assert pair_dx([]) is None
+    assert pair_dx([np.array([30.0])]) is None  # outside the radius: no score

@@ -111,3 +111,28 @@ def yaw_pitch_shift(ref_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14
     if len(np.unique(owner[sel])) < min_votes:
         return None
     return float(np.median(d[sel, 0])), dy
+
+
+def pair_dx(offsets: list, *, radius_px: float = 14.0, sigma_px: float = 1.5, step_px: float = 0.25,
+            zero_rel: float = 0.15, min_score: float = 1.0) -> float | None:
+    """dx px, the horizontal image shift (yaw) that best puts the frame's blobs where the S2-PSK
+    pairs expect them (`Pairer.dx_offsets`): `offsets` holds per blob near a pair the shifts
+    (1-D array, px) that would put it on a place it may be (the midpoint for a blob both lit,
+    A or B for one emitter's). Each blob adds exp(-(dx - offset)^2 / (2 sigma_px^2)) of its
+    best offset to the score of every dx on a `step_px` grid within +-`radius_px`: a blob
+    counts once whichever place it fits, so the baseline ambiguity of one head (which half is
+    lit) is settled by the other heads, whose baselines differ. 0 when its score is within
+    `zero_rel` of the best (a scene without yaw keeps dx 0, not a few px of noise); None
+    when the best score is under `min_score` (no pair saw a blob). Cost: blobs x grid."""
+    if not offsets:
+        return None
+    grid = np.arange(-radius_px, radius_px + 0.5 * step_px, step_px)
+    score = np.zeros(len(grid))
+    for c in offsets:
+        score += np.exp(-0.5 * ((grid[:, None] - np.asarray(c, float)[None, :]) / sigma_px) ** 2).max(axis=1)
+    i = int(np.argmax(score))
+    if score[i] < min_score:
+        return None
+    if float(np.interp(0.0, grid, score)) >= (1.0 - zero_rel) * score[i]:
+        return 0.0
+    return float(grid[i])

@@ -143,6 +143,18 @@ class Pair:
     uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
+    # The baseline b - a as last measured in one frame (px; `PairSettings.measure_baseline`):
+    # from A's and B's own blobs seen together, or from a merged blob's width less one
+    # emitter's; None until then (`base0` scaled by the emitters' size is used). `base_frames`:
+    # the `frames` count of that measurement; `growth`: the baseline's relative growth per frame
+    # (an approaching light's grows as 1 / distance), smoothed over the measurements.
+    base: tuple | None = None
+    base_frames: int = 0
+    growth: float = 0.0
+    # A jumper pair's place is sure (`PairSettings.anchor_coast_frames`): False after a coast of
+    # that many frames, True again once a blob both lit (at the midpoint) or both emitters' own
+    # blobs in one frame place it; a single half's blob cannot tell which half it is.
+    anchored: bool = True
     ids: tuple[int, int] = (-1, -1)  # the LED ids of emitters A and B in the output (`Pairer.emitters`)
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
@@ -228,6 +240,11 @@ class Pairer:
         self.jumper_levels_min_area_px = s.jumper_levels_min_area_px
         self.jumper_unseen_frames = s.jumper_unseen_frames
         self.emitter_gate_larger = s.emitter_gate_larger
+        self.width_size, self.width_tol, self.width_min_px = s.width_size, s.width_tol, s.width_min_px
+        self.width_max_rows, self.baseline_max_ratio = s.width_max_rows, s.baseline_max_ratio
+        self.measure_baseline, self.baseline_gain = s.measure_baseline, s.baseline_gain
+        self.anchor_coast_frames = s.anchor_coast_frames
+        self.growth_gain, self.growth_span_frames, self.max_growth = s.growth_gain, s.growth_span_frames, s.max_growth
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
         # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
@@ -244,6 +261,12 @@ class Pairer:
         one emitter's area (px^2). Rigid pair: the baseline only scales with the emitters' size
         (both ~ 1 / distance), so a blob can never pull one emitter onto the other."""
         single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), p.size, 1.0)
+        if p.base is not None:
+            # measured: grown since at the measured rate (a far head's blob area is no measure of
+            # its size: a sub-pixel-tall half covers one or two rows, its area doubling between
+            # frames, while its width holds)
+            scale = (1.0 + p.growth) ** min(p.frames - p.base_frames, self.growth_span_frames)
+            return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base[0], 0.5 * scale * p.base[1], single
         scale = math.sqrt(single / p.area0)
         return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
 
@@ -261,7 +284,7 @@ class Pairer:
         # prediction error does not grow while the pair coasts: only the horizontal gate widens
         # (else a coasting pair reaches the heads just above or below it, farther down the road).
         tol_y = tol0 + self.miss_growth_px if self.vertical_known else math.inf
-        explaining, nearby, shifts, obs_a, obs_b = [], [], [], None, None
+        explaining, nearby, shifts, obs_a, obs_b, merged = [], [], [], None, None, None
         # Candidates first, for all tracks at once: within tol of A, B or the midpoint.
         near = np.flatnonzero(np.hypot(xy[:, 0] - mx, xy[:, 1] - my) <= tol + math.hypot(hx, hy))
         for i in near:
@@ -272,10 +295,20 @@ class Pairer:
             nearby.append(t)  # not paired anew while this pair lives
             if not t.seen or t.track_id in exclude:
                 continue
+            # By width (`PairSettings.width_size`): one emitter's blob is as wide as its
+            # envelope, both lit as one blob is one baseline wider (horizontal heads: a far
+            # half covers one or two rows, so its area doubles between frames; its width holds).
+            wide = self._width_class(p, t.blob, hx)
+            if wide == "merged" and dm <= tol:
+                shifts.append((t.cx - mx, t.cy - my))  # both lit, one blob
+                explaining.append(t)
+                merged = t.blob
+                continue
             if dm < min(da, db):
                 if self.merged_ratio * single < t.blob.area_px <= self.max_merged * single:
                     shifts.append((t.cx - mx, t.cy - my))  # both lit, one blob
                     explaining.append(t)
+                    merged = t.blob
                 continue  # a small blob between the two: not telling
             # One emitter, perhaps cut by a clock edge during the rolling readout (smaller: it
             # moves the pair but does not replace the emitter's envelope). Its size is judged
@@ -285,7 +318,8 @@ class Pairer:
             # times in a few seconds).
             e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
             ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
-            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio):
+            # (by width, also one that covers a row more than its envelope: twice its area)
+            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio or (wide == "single" and ratio >= 1.0)):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
             explaining.append(t)
@@ -294,7 +328,26 @@ class Pairer:
                     obs_a = t.blob
                 else:
                     obs_b = t.blob
-        return explaining, nearby, shifts, obs_a, obs_b
+        return explaining, nearby, shifts, obs_a, obs_b, merged
+
+    def _width_class(self, p: Pair, blob: Blob, hx: float) -> str | None:
+        """"single" (as wide as one emitter's envelope), "merged" (one horizontal baseline wider:
+        both emitters lit as one blob) or None (neither, or `width_size` off; px widths of the
+        half-open boxes, within `width_tol` of the expected width plus one px)."""
+        # both this blob and the pair's envelopes short: a far horizontal head, not a row or two
+        # of a taller one cut by a clock edge during the rolling readout
+        if not self.width_size or max(blob.y1 - blob.y0, p.a.blob.y1 - p.a.blob.y0,
+                                      p.b.blob.y1 - p.b.blob.y0) > self.width_max_rows:
+            return None
+        w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
+        wm = w1 + 2.0 * abs(hx)
+        wt = blob.x1 - blob.x0
+        e1, em = abs(wt - w1), abs(wt - wm)
+        if e1 <= em and e1 <= self.width_tol * w1 + 1.0:
+            return "single"
+        if em < e1 and 2.0 * abs(hx) >= self.width_min_px and em <= self.width_tol * wm + 1.0:
+            return "merged"
+        return None
 
     def shift_votes(self, xy: np.ndarray, radius_px: float) -> np.ndarray:
         """(K, 2) displacement votes for the frame's common image shift (receiver.vision.motion):
@@ -313,6 +366,36 @@ class Pairer:
             if len(d):
                 out += [d, d + (hx, hy), d - (hx, hy)]
         return np.concatenate(out) if out else np.zeros((0, 2))
+
+    def dx_offsets(self, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
+        """Per blob near a formed pair's prediction (moved down by this frame's vertical shift
+        `dy` px; within `radius_px` horizontally of the pair's reach, `match_min_px` plus its
+        half baseline vertically): the horizontal shifts (px) that put it where it may be, by
+        its size (`_width_class`, else its area against one emitter's): a blob both lit at the
+        midpoint, one emitter's at A or B (receiver.vision.motion.pair_dx). `xy`: (N, 2)
+        centroids of `blobs`."""
+        out = []
+        if not len(xy):
+            return out
+        for p in self.pairs:
+            if p.base0 is None:
+                continue
+            mx, my, hx, hy, single = self._predict(p)
+            my += dy
+            sel = np.flatnonzero((np.abs(xy[:, 1] - my) <= self.match_min_px + abs(hy))
+                                 & (np.abs(xy[:, 0] - mx) <= radius_px + abs(hx)))
+            for j in sel:
+                b = blobs[j]
+                kind = self._width_class(p, b, hx)
+                if kind is None:
+                    r = b.area_px / single
+                    kind = ("merged" if self.merged_ratio < r <= self.max_merged else
+                            "single" if 1.0 / self.max_cut <= r <= self.merged_ratio else None)
+                if kind == "merged":
+                    out.append(np.array([xy[j, 0] - mx]))
+                elif kind == "single":
+                    out.append(np.array([xy[j, 0] - mx + hx, xy[j, 0] - mx - hx]))
+        return out
 
     def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
         """This frame's common vertical image shift (px, + down): the median over the pairs that
@@ -336,7 +419,7 @@ class Pairer:
             if p.base0 is None:
                 continue
             mx, my, hx, hy, single = pred = self._predict(p)
-            expl, _, shifts, _, _ = self._explain(p, tracks, xy, *pred)
+            expl, _, shifts, _, _, _ = self._explain(p, tracks, xy, *pred)
             if shifts:
                 dys.append(float(np.mean([d[1] for d in shifts])))
             mine = {t.track_id for t in expl}
@@ -377,7 +460,13 @@ class Pairer:
         if self.shake_x_wide or p.a.track_id == p.b.track_id:  # `PairSettings.shake_x_wide`
             mx += dx
         my += dy
-        p.tracks, p.nearby, shifts, obs_a, obs_b = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
+        p.tracks, p.nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
+        if self.measure_baseline and p.a.track_id == p.b.track_id:
+            self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
+        if merged is not None or (obs_a is not None and obs_b is not None):
+            p.anchored = True
+        elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
+            p.anchored = False
         if obs_a is not None:
             p.seen_a = p.frames
             p.obs_a = (obs_a, p.frames)
@@ -422,6 +511,37 @@ class Pairer:
                 if e.blob.x0 < 0 or e.blob.y0 < 0 or e.blob.x1 > w or e.blob.y1 > h:
                     return False
         return True
+
+    def _measure_baseline(self, p: Pair, hx: float, hy: float, obs_a, obs_b, merged) -> None:
+        """Re-measure pair `p`'s baseline from this frame's blobs (`PairSettings.measure_baseline`),
+        free of the camera's shake (both ends in one frame): A's and B's own blobs, or a merged
+        blob's width less one emitter's envelope width (horizontal part; the vertical one is kept).
+        `hx`, `hy`: the predicted half baseline, px. The baseline was otherwise only scaled by the
+        emitters' area from formation, and a far head's area is no measure of its size (one or
+        two rows): on vehicle-road it fell 20-40 % short, merged blobs then read as one emitter
+        of twice its size and the pair lost its head at 45-60 m."""
+        meas = None
+        if obs_a is not None and obs_b is not None:
+            meas = (obs_b.cx - obs_a.cx, obs_b.cy - obs_a.cy)
+        elif merged is not None:
+            w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
+            d = (merged.x1 - merged.x0) - w1
+            if d >= self.width_min_px:
+                meas = (math.copysign(d, hx if hx else 1.0), 2.0 * hy)
+        if meas is None:
+            return
+        pred = (2.0 * hx, 2.0 * hy)
+        r = max(math.hypot(*meas), 1e-6) / max(math.hypot(*pred), 1e-6)
+        if not (1.0 / self.baseline_max_ratio <= r <= self.baseline_max_ratio):
+            return  # another light's blob, or a merged blob of another shape
+        if p.base is not None:
+            n = p.frames - p.base_frames
+            if 0 < n <= self.growth_span_frames:
+                r = (max(math.hypot(*meas), 1.0) / max(math.hypot(*pred), 1.0)) ** (1.0 / n) - 1.0
+                p.growth += self.growth_gain * (min(max(r, 0.0), self.max_growth) - p.growth)
+            g = self.baseline_gain
+            meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
+        p.base, p.base_frames = meas, p.frames
 
     def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None) -> list[Pair]:
         """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
@@ -654,10 +774,13 @@ class Pairer:
         # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
         # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
         # frames lies beside the head, on nobody's light, and is not reported (0 = off).
+        # One that coasted may now sit a baseline aside, one emitter on the head behind or
+        # beside it: not reported until a blob both lit places it again (`anchor_coast_frames`).
         dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
                for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
                if not (self.jumper_unseen_frames and p.a.track_id == p.b.track_id
-                       and p.frames - seen > self.jumper_unseen_frames)]
+                       and p.frames - seen > self.jumper_unseen_frames)
+               and (p.anchored or p.a.track_id != p.b.track_id)]
         xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
         owner = np.array([id(p) for _, _, p, _ in dec])
         size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)

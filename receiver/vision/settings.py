@@ -126,16 +126,25 @@ class PairSettings:
     vertical difference (the camera's pitch vibration) is forgiven; the pair's baseline is their
     mean. A jump is taken less the measured image shift ("vertical", "2d", "yawpitch") added up
     since the track's previous blob (it may have been dark for frames in between).
-    Camera shake: shake ["vertical"]: how the frame's common image shift (the camera's pitch
+    Camera shake: shake ["pairs"]: how the frame's common image shift (the camera's pitch
     and yaw vibration, up to ~10 px per frame on the vehicle-road scene) enters every track's and
-    pair's prediction (S2-PSK maps). "vertical": the mode of the vertical parts of the blobs'
+    pair's prediction (S2-PSK maps). "pairs" (the default since issue 11): dy as "vertical", dx
+    the yaw that best puts this frame's blobs where the formed pairs expect them
+    (receiver.vision.motion.pair_dx over `Pairer.dx_offsets`: a blob both lit at its pair's
+    midpoint, one emitter's at A or B, by width or area; each blob adds a Gaussian of
+    shake_sigma_px [1.5] px around its best place to a shake_step_px [0.25] px grid within
+    shake_radius_px; the heads' different baselines settle each one's side; dx 0 when that
+    scores within shake_zero_rel [0.15] of the best, so a scene without yaw keeps 0). dx
+    error over 2 px in 16 / 4 of the 239 frames of vehicle-road seeds 1 / 2 ("2d": 53 / 59
+    with the same pairs, 81 before), 0 of 179 on `synth vehicle --seed 4` (no yaw; "2d": 24).
+    "vertical": the mode of the vertical parts of the blobs'
     displacements from the last frames and from the pairs' predicted emitters, within
     shake_radius_px [14] px (receiver.vision.motion.vertical_shift; heads are horizontal, so each
     votes right whichever half is lit); "2d": x and y by `frame_shift` (experimental: the
     horizontal part is ambiguous by the baseline, wrong by > 2 px in a third of the frames of
     vehicle-road); "pitch" (the default): only the pairs' median vertical offset (`pitch_shift`,
     needs shake_min_pairs [3] pairs explaining a blob), the tracks none. Without agreement in a
-    frame, "pitch" is used for it. "vertical" is the default since it is measured together with
+    frame, "pitch" is used for it. "vertical" was the default (before "pairs") since it is measured together with
     the faint detection and the far-head backlog (README "S2-PSK pairs"); earlier, alone, hil
     --mode s2psk seeds 1-4 SL 513/503/534/540 (pitch: 524/487/512/492), recordings/vehicle SL
     362 (pitch: 391) of 658 resolvable light-frames.
@@ -194,6 +203,39 @@ class PairSettings:
     many frames is not reported (0 = off): such a pair may sit a baseline aside of its head
     (which half a blob was cannot be told) with one emitter on nobody's light, between heads
     (hil seed 1 frame 179: 14 frames; 8 cost 18-30 right light-frames per seed, 12 none).
+    Far heads by width (issue 11): width_size [True]: a blob of at most
+    width_max_rows [3] rows is one emitter when its width is within width_tol [0.25] (+1 px) of
+    the emitters' envelope width, and both lit as one blob when it is one horizontal baseline
+    wider (at least width_min_px [2] px), whatever its area, when the pair's envelopes are that
+    short too (a row or two of a taller head cut by a clock edge, 17 x 2 px of a 17 x 5 px
+    head, read as "merged" and pulled its pair off; `Pairer._width_class`): a far
+    head's half is one or two rows tall and its area doubles between frames (vehicle-road seed
+    1 head 97 at 47 m: 10 x 1 px then 10 x 2 px; merged 24 x 2 px), so the area tests threw its
+    blobs out as "another light's" and the pair lost it at 45-60 m. By width a blob may be
+    larger than the area test allows, never smaller (a blob cut by a clock edge, 1-2 rows of
+    a 5-row head, must not become the emitter's envelope: its area then shrank the baseline).
+    measure_baseline [True]: a jumper pair re-measures its baseline in one frame, free of the
+    shake: a merged blob's width less one emitter's (holds for 5-6-row heads of the `vehicle`
+    scene too), or both emitters' own blobs; blended by baseline_gain [0.5], measurements off
+    by more than baseline_max_ratio [1.5] ignored, grown between measurements by the smoothed
+    relative growth per frame (growth_gain [0.2], 0 to max_growth [0.08] per frame, over at
+    most growth_span_frames [8]: heads approach; without growth recordings/vehicle SL 650 ->
+    599, with shrinking allowed `synth vehicle --seed 4` 843 -> 798) (`Pairer._measure_baseline`;
+    the founding jumps' baseline scaled by the area was 20-40 % short on vehicle-road).
+    anchor_coast_frames [5]: a decoded
+    jumper pair that coasted this many frames may sit a baseline aside (a single half's blob
+    cannot tell which half it is; vehicle-road seed 1 head 74 at 126 m, 0.5 px^2 halves, after
+    5 dark frames: its second emitter was matched to the head 10 px below): its emitters are
+    not reported until a blob both lit, or both halves in one frame, places it (`Pair.anchored`,
+    `Pairer.emitters`; 0 = off; vehicle-road 4 / 0 -> 0 / 0 wrong, `synth vehicle --seed 4` SL
+    859 -> 857, 3: 817).
+    Measured together (`occloc eval` S2-PSK resolvable SL / FV light-frames, 0 wrong everywhere;
+    before -> after): vehicle-road seeds 1 / 2 SL 98 / 14 -> 333 / 551 of 644 / 638, FV 136 /
+    166 -> 136 / 164 of 287 / 284; recordings/vehicle SL 646 -> 650 of 658, FV 156 / 156, HV
+    filtered 2D median 0.05 m; hil --mode s2psk seeds 1-4 SL 884 / 868 / 882 / 854 -> 892 / 876
+    / 889 / 857, FV 216 / 214 / 214 / 214 unchanged. Alone: shake "pairs" without the width and
+    baseline changes vehicle-road SL 0 / 5 (it needs pairs that keep their heads); width and
+    baseline with "vertical" 89 / 16; with the truth's frame shift (a diagnosis only) 496 / 508.
         """
 
     row_band: float = 1.0
@@ -216,9 +258,12 @@ class PairSettings:
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
     shake_min_pairs: int = 3
-    shake: str = "vertical"
+    shake: str = "pairs"
     shake_radius_px: float = 14.0
     shake_x_wide: bool = False
+    shake_sigma_px: float = 1.5
+    shake_step_px: float = 0.25
+    shake_zero_rel: float = 0.15
     report_coast_frames: int = 3
     backlog_frames: int = 90
     flux_jumpers: bool = True
@@ -235,3 +280,14 @@ class PairSettings:
     head_gap_frames: int = 4
     emitter_gate_larger: bool = True
     jumper_unseen_frames: int = 12
+    width_size: bool = True
+    width_tol: float = 0.25
+    width_min_px: float = 2.0
+    width_max_rows: int = 3
+    measure_baseline: bool = True
+    baseline_gain: float = 0.5
+    baseline_max_ratio: float = 1.5
+    growth_gain: float = 0.2
+    growth_span_frames: int = 8
+    max_growth: float = 0.08
+    anchor_coast_frames: int = 5

@@ -1,0 +1,122 @@
+"""Width-based size test and baseline re-measurement of S2-PSK pairs (PairSettings.width_size,
+measure_baseline): a far street-light half is one or two rows tall, so its area doubles
+between frames while its width holds, and a merged both-lit blob is one baseline wider."""
+
+import math
+
+import numpy as np
+import pytest
+
+from receiver.core.records import Blob
+from receiver.vision.pairing import Pair, Pairer
+from receiver.vision.track import Track
+
+
+def _blob(cx, cy, w, h):
+    """A w x h px bar centred on (cx, cy) (half-open box)."""
+    x0, y0 = int(round(cx - w / 2)), int(round(cy - h / 2))
+    hull = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + h - 1], [x0, y0 + h - 1]], float)
+    return Blob(cx=float(cx), cy=float(cy), area_px=float(w * h), hull=hull, x0=x0, y0=y0, x1=x0 + w, y1=y0 + h,
+                border=False, peak=60.0, level=10.0, background=2.0)
+
+
+def _jumper(hx=6.0, w=10, h=1):
+    """A pair founded on one jumping track (a far head) with halves of w x h px, 2 * hx apart."""
+    t = Track(7, _blob(100.0, 50.0, w, h), 0, 0)
+    a, b = Track(7, _blob(100.0 - hx, 50.0, w, h), 0, 0), Track(7, _blob(100.0 + hx, 50.0, w, h), 0, 0)
+    p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(1, 2))
+    p.base0, p.area0, p.mx, p.my = (2 * hx, 0.0), float(w * h), 100.0, 50.0
+    return p
+
+
+def test_width_classes_single_and_merged_short_blobs_only():
+    pr = Pairer(width_size=True)
+    p = _jumper(hx=6.0, w=10)
+    assert pr._width_class(p, _blob(100, 50, 10, 2), 6.0) == "single"  # twice the area, same width
+    assert pr._width_class(p, _blob(100, 50, 22, 1), 6.0) == "merged"  # one baseline (12 px) wider
+    assert pr._width_class(p, _blob(100, 50, 16, 1), 6.0) is None      # neither
+    assert pr._width_class(p, _blob(100, 50, 22, 5), 6.0) is None      # tall: its area tells
+    assert Pairer(width_size=False)._width_class(p, _blob(100, 50, 10, 2), 6.0) is None  # off
+    # a short cut row of a tall (5-row) head is not judged by width
+    assert pr._width_class(_jumper(hx=6.0, w=10, h=5), _blob(100, 50, 22, 2), 6.0) is None
+
+
+def test_merged_width_remeasures_a_short_baseline():
+    pr = Pairer(width_size=True, measure_baseline=True)
+    p = _jumper(hx=4.5, w=10)  # founded 9 px apart; the head's halves are 12 px apart
+    mx, my, hx, hy, single = pr._predict(p)
+    assert hx == pytest.approx(4.5)
+    pr._measure_baseline(p, hx, hy, None, None, _blob(100, 50, 22, 1))
+    assert p.base == pytest.approx((12.0, 0.0))
+    assert pr._predict(p)[2] == pytest.approx(6.0)
+    # a blob of another shape (here 2.5 x the predicted baseline wider) is not a measurement
+    p.frames += 1
+    pr._measure_baseline(p, 6.0, 0.0, None, None, _blob(100, 50, 40, 1))
+    assert p.base == pytest.approx((12.0, 0.0))
+    # later measurements are blended in (baseline_gain 0.5)
+    pr._measure_baseline(p, 6.0, 0.0, None, None, _blob(100, 50, 24, 1))
+    assert p.base[0] == pytest.approx(13.0)
+    assert math.isfinite(p.growth) and 0.0 <= p.growth <= pr.max_growth
+
+
+def test_without_measurement_the_baseline_scales_with_the_area():
+    pr = Pairer(measure_baseline=False)
+    q = _jumper(hx=4.5, w=10)
+    assert pr._predict(q)[2] == pytest.approx(4.5)
+    q.a.blob = q.b.blob = _blob(100, 50, 10, 4)  # four times the area: twice the baseline
+    assert pr._predict(q)[2] == pytest.approx(9.0)
+    assert Pairer().measure_baseline and Pairer().width_size  # the defaults
+
+
+def _explain(pr, p, blob):
+    t = Track(9, blob, 0, 0)
+    mx, my, hx, hy, single = pr._predict(p)
+    return pr._explain(p, [t], np.array([[t.cx, t.cy]]), mx, my, hx, hy, single)
+
+
+def test_width_takes_a_taller_half_but_not_a_cut_one():
+    pr = Pairer(width_size=True)
+    # one-row envelopes: the same half seen over two rows (twice the area) is its emitter A
+    p = _jumper(hx=6.0, w=10, h=1)
+    expl, _, shifts, obs_a, obs_b, merged = _explain(pr, p, _blob(94.0, 50.0, 10, 2))
+    assert len(expl) == 1 and obs_a is not None and obs_b is None and merged is None
+    off = Pairer(width_size=False)
+    assert off._explain(p, [Track(9, _blob(94.0, 50.0, 10, 2), 0, 0)], np.array([[94.0, 50.0]]),
+                        *off._predict(p))[0] == []  # by area: "another light's"
+    # a 3-row head: one row of A cut by a clock edge is as wide; it moves the pair (area 1/3,
+    # `max_cut`) but never becomes A's envelope; a fifth of it is not A's at all
+    q = _jumper(hx=6.0, w=10, h=3)
+    expl, _, _, obs_a, _, _ = _explain(pr, q, _blob(94.0, 50.0, 10, 1))
+    assert len(expl) == 1 and obs_a is None
+    q = _jumper(hx=6.0, w=10, h=5)
+    expl, _, _, obs_a, _, _ = _explain(pr, q, _blob(94.0, 50.0, 10, 1))
+    assert expl == [] and obs_a is None
+    # a merged blob one baseline wider, nearest emitter B (a short predicted baseline) is merged
+    r = _jumper(hx=3.0, w=10, h=1)
+    expl, _, shifts, obs_a, obs_b, merged = _explain(pr, r, _blob(102.5, 50.0, 16, 1))
+    assert merged is not None and obs_a is None and obs_b is None
+    assert shifts[0][0] == pytest.approx(2.5)  # moves the midpoint, not emitter B
+
+
+def test_a_decoded_far_head_that_coasted_is_reported_again_once_a_merged_blob_places_it():
+    pr = Pairer()
+    p = _jumper(hx=3.0, w=6, h=1)
+    p.led_id, p.kind, p.seen_a, p.seen_b = 42, "SL", 0, 0
+    pr.pairs = [p]
+    assert len(pr.emitters()) == 2
+    empty = np.zeros((0, 2))
+    for _ in range(pr.anchor_coast_frames):
+        assert pr._follow(p, [], empty, None)  # no blob: it coasts
+    assert not p.anchored and pr.emitters() == []  # may sit a baseline aside now
+    one = Track(9, _blob(p.mx + p.vx + 3.0, 50.0, 6, 1), 0, 0)  # a single half: which one?
+    pr._follow(p, [one], np.array([[one.cx, one.cy]]), None)
+    assert not p.anchored and pr.emitters() == []
+    both = Track(9, _blob(p.mx + p.vx, 50.0, 12, 1), 0, 0)  # both lit, one blob: the midpoint
+    pr._follow(p, [both], np.array([[both.cx, both.cy]]), None)
+    assert p.anchored and len(pr.emitters()) == 2
+    # pairs of two tracks (taillights, near heads) are not held back
+    q = _jumper(hx=3.0, w=6, h=1)
+    q.b = Track(8, q.b.blob, 0, 0)
+    q.led_id, q.anchored, q.seen_a, q.seen_b = 43, False, 0, 0
+    pr.pairs = [q]
+    assert len(pr.emitters()) == 2
