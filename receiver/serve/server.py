@@ -108,10 +108,11 @@ RECV_BYTES = 65536
 # ---------------------------------------------------------------- the server's state
 
 def _solve_batch():
-    """`receiver.locate.posefilter.solve_batch`, imported on first use (`_pose_filter_class`)."""
-    from receiver.locate.posefilter import solve_batch
+    """`receiver.serve.fixes.solve_frames` (`receiver.locate.posefilter.solve_batch` with the
+    compiled warm fix), imported on first use (`_pose_filter_class`)."""
+    from receiver.serve.fixes import solve_frames
 
-    return solve_batch
+    return solve_frames
 
 
 def _pose_filter_class():
@@ -251,11 +252,12 @@ class LightingServer:
     @staticmethod
     def _solve(frames) -> list:
         """Fixes of the frames (None for no LEDs); a frame whose solve raised gets the exception.
-        One frame: `PoseFilter.solve`; several: one batch, or one by one if the batch raised."""
+        One batch (`receiver.serve.fixes.solve_frames`, also for one frame), or one by one
+        (`PoseFilter.solve`) if the batch raised."""
         todo = [f for f in frames if f is not None]
         out: list = [None] * len(frames)
         fixes = None
-        if len(todo) > 1:
+        if todo:
             try:
                 fixes = iter(_solve_batch()(todo))
             except Exception:   # noqa: BLE001 -- find the frame that fails, below
