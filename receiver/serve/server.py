@@ -116,12 +116,13 @@ def _solve_batch():
 
 
 def _pose_filter_class():
-    """`receiver.locate.posefilter.PoseFilter`, imported on first use: it pulls in the solver and
+    """The devices' `receiver.locate.posefilter.PoseFilter` (`receiver.serve.devices`: with the
+    compiled Kalman steps when built), imported on first use: it pulls in the solver and
     the Kalman filter's SciPy (about 2 s), which `occloc serve` loads after it has announced
     itself (`LightingServer.warm_up`)."""
-    from receiver.locate.posefilter import PoseFilter
+    from receiver.serve.devices import pose_filter_class
 
-    return PoseFilter
+    return pose_filter_class()
 
 
 @dataclass

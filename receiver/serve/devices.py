@@ -1,0 +1,132 @@
+"""The lighting server's per-device state: `receiver.locate.posefilter.PoseFilter` with its
+Kalman steps compiled (`FastKalman`: `receiver.serve._kalman`) and the `position` object built
+from plain floats (`position_object`: the same numbers, rounded the same way, as
+`PoseFilter.update` writes, without its ~20 numpy calls per datagram). `pose_filter_class()` is
+`ServerPoseFilter` when the kernel is built, else `PoseFilter` itself (OCCLOC_PURE=1: the
+reference the tests compare with).
+
+Imported by the server once its socket is bound (it pulls in the solver: start-up latency).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from receiver.core import native
+from receiver.locate.kalman import PositionKalman
+from receiver.locate.pose import rotation_to_ypr_deg
+from receiver.locate.posefilter import PoseFilter
+
+KERNEL = "receiver.serve._kalman"
+
+
+class FastKalman(PositionKalman):
+    """`PositionKalman` whose predict / update / gate arithmetic is `receiver.serve._kalman`
+    (in place on the same (6, 1) state and (6, 6) covariance); the filter logic (gate, restarts,
+    coasting) is PositionKalman's."""
+
+    def __init__(self, kernel, **kwargs):
+        super().__init__(**kwargs)
+        self._k = kernel
+
+    def _predict(self, dt: float) -> None:
+        self._k.predict(self._x, self._P, dt, self.q)
+
+    def _update(self, z: np.ndarray, R: np.ndarray) -> None:
+        if not self._k.update(self._x, self._P, z, R):
+            raise np.linalg.LinAlgError("singular innovation covariance")
+
+    def _mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> float:
+        m2 = self._k.mahalanobis2(self._x, self._P, z, R)
+        if math.isnan(m2):
+            raise np.linalg.LinAlgError("singular innovation covariance")
+        return m2
+
+
+class ServerPoseFilter(PoseFilter):
+    """`PoseFilter` with a `FastKalman` and `update` building the position object from plain
+    floats (`position_object`; a left-handed map's mirrored numbers are left to PoseFilter)."""
+
+    def __init__(self, *, kernel, **kwargs):
+        self._kernel = kernel
+        super().__init__(**kwargs)
+
+    def _restart(self) -> None:
+        super()._restart()
+        if self.kf is not None:
+            self.kf = FastKalman(self._kernel, **self._kalman_args)
+
+    def update(self, t_s: float, fix, n_leds: int) -> dict | None:
+        if self.mirrored:
+            return super().update(t_s, fix, n_leds)
+        if fix is not None:
+            self.n_fixes += 1
+            self._C, self._t_C = fix.C, t_s
+            if fix.R_cw is not None:
+                self.keep_orientation(t_s, fix.R_cw)
+        state = None
+        if self.kf is not None:
+            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if fix is None and state is None:
+            return None
+        return position_object(state, fix, n_leds,
+                               None if self.handedness_source == "default" else self.handedness)
+
+
+def np_round(v: float, scale: float) -> float:
+    """numpy's `round` of a float to log10(scale) decimals: rint(v * scale) / scale (half to even,
+    the sign of a zero kept). Non-finite: FloatingPointError."""
+    y = v * scale
+    if not math.isfinite(y):
+        raise FloatingPointError("non-finite result")
+    return math.copysign(round(y) / scale, y)
+
+
+def _std(cov: list) -> list[float]:
+    """`receiver.locate.kalman.position_std` (rounded to 5 decimals) of a nested-list covariance."""
+    return [round(math.sqrt(max(0.0, cov[i][i])), 5) for i in range(3)]
+
+
+def _xyz(v: list) -> dict:
+    return {"x": round(v[0], 5), "y": round(v[1], 5), "z": round(v[2], 5)}
+
+
+def position_object(state, fix, n_leds: int, handedness: str | None) -> dict:
+    """`PoseFilter.update`'s INTERFACES.md position object of a right-handed solving frame (the
+    map's): the filter state (x (6,), P (6, 6)) or None, the frame's fix or None."""
+    if state is not None:
+        x = state[0].tolist()
+        P3 = state[1][:3, :3].tolist()
+        pos = _xyz(x)
+        pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds, filtered=True,
+                   std_m=_std(P3), cov=[[np_round(v, 1e8) for v in row] for row in P3],
+                   velocity_mps=[round(v, 4) for v in x[3:]])
+    else:
+        pos = _xyz(fix.C.tolist())
+        pos.update(method=fix.method, n_leds=n_leds, filtered=False)
+    if fix is not None:
+        pos["raw"] = _xyz(fix.C.tolist())
+        pos["raw_std_m"] = _std(fix.cov.tolist())
+        if fix.R_cw is not None:
+            R = fix.R_cw.tolist()
+            pos["R_wc"] = [[np_round(R[j][i], 1e6) for j in range(3)] for i in range(3)]
+            yaw, pitch, roll = rotation_to_ypr_deg(fix.R_cw)
+            pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
+    else:
+        pos["raw"] = None
+    if handedness is not None:
+        pos["handedness"] = handedness
+    return pos
+
+
+def pose_filter_class():
+    """`ServerPoseFilter` bound to the compiled kernel, or `PoseFilter` without it."""
+    kernel = native.load(KERNEL)
+    if kernel is None:
+        return PoseFilter
+
+    def make(**kwargs) -> PoseFilter:
+        return ServerPoseFilter(kernel=kernel, **kwargs)
+    return make
