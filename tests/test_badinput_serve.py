@@ -160,8 +160,8 @@ def test_fast_led_check_accepts_only_what_the_full_check_accepts():
 def test_unencodable_reply_falls_back_to_an_error(walk_map, monkeypatch):
     srv = LightingServer(walk_map, clock=FakeClock())
     srv.handle(encode(request("a", 0, 0.0, *scene(walk_map, C0))))
-    monkeypatch.setattr(srv, "handle", lambda data, source=None: {
-        "v": 1, "device": "a", "seq": 1, "position": {"x": math.inf}})
+    monkeypatch.setattr(srv, "_handle", lambda datagrams: ([{     # a reply not encoded by _reply
+        "v": 1, "device": "a", "seq": 1, "position": {"x": math.inf}}], {}))
     out = _finite_json(srv.handle_datagram(b"{}"))
     assert out["error"] == "internal_error" and (out["device"], out["seq"]) == ("a", 1)
     assert "a" not in srv.devices

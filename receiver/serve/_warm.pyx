@@ -330,7 +330,7 @@ def solve(const double[:, :] L, const double[:, :] uv, double sigma_uv, const do
           str loss, double f_scale, double xtol, double ftol, double lam0, double lam_max, int max_rounds,
           double[:, :] R_out, double[:] C_out, double[:, :] cov_out):
     """One frame's warm-started fix (module docstring). L (n, 3) m; uv (n, 2); d / sigma_d (n,)
-    m (d NaN: no range); up (3,) or None, of sigma up_sigma rad; start R0 (3, 3), C0 (3,).
+    m (no range where d is not finite or sigma_d is not finite and positive); up (3,) or None, of sigma up_sigma rad; start R0 (3, 3), C0 (3,).
     Fills R_out (3, 3), C_out (3,), cov_out (3, 3, the centre's covariance, m^2) and returns
     (status, chi2, dof, the lowest LED's z, ranged LEDs)."""
     cdef Frame f
@@ -360,7 +360,8 @@ def solve(const double[:, :] L, const double[:, :] uv, double sigma_uv, const do
             f.L[k][i] = L[k, i]
         f.uv[k][0] = uv[k, 0]
         f.uv[k][1] = uv[k, 1]
-        f.has_d[k] = isfinite(d[k])
+        # `receiver.locate.pose.warm_problem`'s rule: a range counts with a finite positive sigma
+        f.has_d[k] = isfinite(d[k]) and isfinite(sigma_d[k]) and sigma_d[k] > 0
         n_ranges += f.has_d[k]
         if L[k, 2] < z_min:
             z_min = L[k, 2]

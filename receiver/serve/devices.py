@@ -16,7 +16,8 @@ import numpy as np
 
 from receiver.core import native
 from receiver.locate.kalman import PositionKalman
-from receiver.locate.pose import rotation_to_ypr_deg
+from receiver.locate.pose import WarmProblem, _is_collinear_cached, rotation_to_ypr_deg
+from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.posefilter import PoseFilter
 
 KERNEL = "receiver.serve._kalman"
@@ -57,6 +58,25 @@ class ServerPoseFilter(PoseFilter):
         super()._restart()
         if self.kf is not None:
             self.kf = FastKalman(self._kernel, **self._kalman_args)
+
+    def warm_problem(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
+                     sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> WarmProblem | None:
+        """`PoseFilter.warm_problem` for the server's arrays (L_map (n, 3), uv (n, 2), d and
+        sigma_d (n,) float64) in a right-handed map with the default solver: the same problem,
+        its arrays passed as they are (d / sigma_d unfiltered: `fixes.warm_fix` applies
+        `receiver.locate.pose.warm_problem`'s range rule itself, also when it hands the frame to
+        numpy, `fixes.reference_problem`); anything else is PoseFilter's."""
+        if self.mirrored or self.solver != "auto" or uv is None:
+            return super().warm_problem(t_s, L_map, uv, d, sigma_d, R_prior)
+        if not self.warm_start or R_prior is None or self.handedness_source == "default" or self.track_prior:
+            return None
+        C0 = self.kf.predict_position(t_s) if self.kf is not None else None
+        if C0 is None and self._t_C is not None and 0 <= t_s - self._t_C <= self.max_coast_s:
+            C0 = self._C
+        if C0 is None or len(L_map) < 3 or _is_collinear_cached(L_map.tobytes()):
+            return None
+        up = None if self.tilt_prior != "up" else R_LOOKING_UP[:, 2]
+        return WarmProblem(L_map, uv, self.sigma_uv, d, sigma_d, up, math.radians(self.tilt_sigma_deg), R_prior, C0)
 
     def update(self, t_s: float, fix, n_leds: int) -> dict | None:
         if self.mirrored:

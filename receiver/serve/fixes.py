@@ -9,6 +9,8 @@ Imported by the server once its socket is bound (it pulls in the solver: start-u
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from receiver.core import native
@@ -19,6 +21,13 @@ from receiver.locate.posefilter import solve_batch
 KERNEL = "receiver.serve._warm"
 # Solver rounds at most per warm fix (`receiver.locate.lsq.lm_batch`'s default).
 MAX_ROUNDS = 100
+
+
+def reference_problem(q: WarmProblem) -> WarmProblem:
+    """q with `receiver.locate.pose.warm_problem`'s range rule applied (solver "auto"): a range
+    counts where d and sigma_d are finite and sigma_d positive; the others are NaN with sigma 1."""
+    has_d = np.isfinite(q.d) & np.isfinite(q.sigma_d) & (q.sigma_d > 0)
+    return replace(q, d=np.where(has_d, q.d, np.nan), sigma_d=np.where(has_d, q.sigma_d, 1.0))
 
 
 def warm_fix(kernel, q: WarmProblem, loss: str, f_scale: float) -> Fix | None:
@@ -32,7 +41,7 @@ def warm_fix(kernel, q: WarmProblem, loss: str, f_scale: float) -> Fix | None:
         q.L, q.uv, q.sigma_uv, q.d, q.sigma_d, q.up, q.up_sigma, q.R0, q.C0, loss, f_scale,
         WARM_XTOL, LM_FTOL, WARM_LAMBDA0, LM_LAMBDA_MAX, MAX_ROUNDS, R, C, cov)
     if status == kernel.REFERENCE:
-        return solve_warm_batch([q], loss=loss, f_scale=f_scale)[0]
+        return solve_warm_batch([reference_problem(q)], loss=loss, f_scale=f_scale)[0]
     if status != kernel.OK or chi2 > WARM_MAX_CHI2_DOF * max(dof, 1) or not C[2] <= z_min - BELOW_CEILING_M:
         return None
     return Fix(C, cov, R, "range+angle" if n_ranges else "pnp", len(q.L), chi2, dof)

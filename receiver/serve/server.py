@@ -235,7 +235,7 @@ class LightingServer:
                 args = None
                 if used:
                     sel = slice(None) if len(used) == len(leds) else used   # all known: no copies
-                    L = np.array([leds[k].xyz for k in used])
+                    L = np.array([(leds[k].x, leds[k].y, leds[k].z) for k in used], dtype=np.float64)
                     args = (pf, req.t, L, req.uv[sel], req.d[sel], req.sigma_d[sel], pf.R_prior(req.t))
                 jobs.append((i, req, pf, leds, used, args))
             except Exception as e:   # noqa: BLE001
@@ -299,12 +299,15 @@ class LightingServer:
     def handle_datagram(self, data: bytes, source=None) -> bytes | None:
         """`handle`, encoded as strict JSON (never NaN / Infinity): what the socket sends back.
         A reply that cannot be encoded becomes an `internal_error` reply."""
-        reply = self.handle(data, source)
-        return None if reply is None else self._encode(reply)
+        return self._handle_encoded([(data, source)])[0]
 
     def handle_datagrams(self, datagrams) -> list[bytes | None]:
         """`handle_datagram` of datagrams [(bytes, source), ...] received together
         (`handle_many`: one batched solve)."""
+        return self._handle_encoded(datagrams)
+
+    def _handle_encoded(self, datagrams) -> list[bytes | None]:
+        """The encoded replies (each position reply encoded once: `_reply`)."""
         replies, encoded = self._handle(datagrams)
         return [encoded[i] if i in encoded else None if reply is None else self._encode(reply)
                 for i, reply in enumerate(replies)]
