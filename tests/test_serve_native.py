@@ -100,7 +100,7 @@ def _near_edge(fix) -> bool:
 def test_kernel_leaves_unknown_losses_to_numpy(walk_map, kernel):
     q = _problems(walk_map, 1, seed=4)[0]
     status = kernel.solve(q.L, q.uv, q.sigma_uv, q.d, q.sigma_d, q.up, q.up_sigma, q.R0, q.C0, "arctan", 3.0,
-                          1e-6, 1e-8, 1e-9, 1e8, 100, np.empty((3, 3)), np.empty(3), np.empty((3, 3)))[0]
+                          1e-6, 1e-8, 1e-9, 1e8, 100, np.empty(21))[0]
     assert status == kernel.REFERENCE
 
 
@@ -176,3 +176,57 @@ def test_kernel_replies_equal_the_numpy_reference(walk_map, kernel, monkeypatch)
         assert (Ra is None) == (Rb is None)
         if Ra is not None:
             np.testing.assert_allclose(Rb, Ra, rtol=0, atol=1e-12)
+
+
+def test_fast_kalman_equals_position_kalman(monkeypatch):
+    """The compiled Kalman steps (FastKalman) follow PositionKalman step for step: fixes with
+    their covariances, coasting, a rejected outlier, a restart after max_rejects outliers and
+    a jump back in time; states equal to rounding (1e-12 m, m/s; the sums run in another order)."""
+    from receiver.locate.kalman import PositionKalman
+    from receiver.serve.devices import KERNEL as KALMAN_KERNEL, FastKalman
+    monkeypatch.delenv("OCCLOC_PURE", raising=False)
+    k = native.load(KALMAN_KERNEL)
+    assert k is not None
+    rng = np.random.default_rng(7)
+    ref, fast = PositionKalman(), FastKalman(k)
+    t, C = 0.0, np.array([1.0, 2.0, 1.2])
+    for i in range(200):
+        t += 1 / 30
+        C = C + np.array([0.01, -0.005, 0.0])
+        A = rng.normal(0, 0.01, (3, 3))
+        cov = A @ A.T + 1e-6 * np.eye(3)
+        z = C + rng.normal(0, 0.01, 3)
+        if i in (50, 51, 52, 53, 120):
+            z = z + 5.0                               # outliers; four in a row restart the track
+        if i % 17 == 5:
+            z = cov = None                            # coasting
+        if i == 150:
+            t -= 1.0                                  # time went backwards: start over
+        a, b = ref.step(t, z, cov), fast.step(t, z, cov)
+        assert (a is None) == (b is None) and ref.last_accepted == fast.last_accepted and ref.rejects == fast.rejects
+        if a is not None:
+            np.testing.assert_allclose(b[0], a[0], rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(b[1], a[1], rtol=1e-9, atol=1e-16)
+        p = ref.predict_position(t + 0.1)
+        if p is not None:
+            np.testing.assert_allclose(fast.predict_position(t + 0.1), p, rtol=1e-10, atol=1e-12)
+
+
+def test_kernels_refuse_wrong_arrays(kernel):
+    """Arrays of another dtype or shape are a TypeError / ValueError, never a read out of bounds."""
+    from receiver.serve.devices import KERNEL as KALMAN_KERNEL
+    k = native.load(KALMAN_KERNEL)
+    x, P = np.zeros((6, 1)), np.eye(6)
+    with pytest.raises(TypeError):
+        k.predict(x.astype(np.float32), P, 0.1, 0.5)
+    with pytest.raises(ValueError):
+        k.predict(np.zeros((7, 1)), P, 0.1, 0.5)
+    with pytest.raises(ValueError):
+        k.update(x, P, np.zeros(4), np.eye(3))
+    L = np.zeros((4, 3))
+    with pytest.raises(ValueError):
+        kernel.solve(L, np.zeros((3, 2)), 1e-3, np.zeros(4), np.ones(4), None, 0.1, np.eye(3), np.zeros(3),
+                     "soft_l1", 3.0, 1e-6, 1e-8, 1e-9, 1e8, 100, np.empty(21))
+    with pytest.raises(ValueError):
+        kernel.solve(np.zeros((4, 2)), np.zeros((4, 2)), 1e-3, np.zeros(4), np.ones(4), None, 0.1, np.eye(3),
+                     np.zeros(3), "soft_l1", 3.0, 1e-6, 1e-8, 1e-9, 1e8, 100, np.empty(21))

@@ -12,25 +12,33 @@ covariance [m^2]; dt [s]; q the acceleration spectral density [m^2/s^3].
 
 from libc.math cimport pow
 
+from receiver.serve._buf cimport load, store
 
-def predict(double[:, ::1] x, double[:, ::1] P, double dt, double q):
+
+def predict(x, P, double dt, double q):
     """x = F x, P = F P F' + Q (F = [[I, dt I], [0, I]], Q of white acceleration q over dt), in place."""
     cdef int i, j
+    cdef double xb[6]
+    cdef double Pb[36]
     cdef double FP[6][6]
     cdef double q3 = q * (pow(dt, 3) / 3), q2 = q * (pow(dt, 2) / 2), q1 = q * dt
+    load(x, xb, 6, 1)
+    load(P, Pb, 6, 6)
     for i in range(3):
-        x[i, 0] = x[i, 0] + dt * x[i + 3, 0]
+        xb[i] = xb[i] + dt * xb[i + 3]
     for i in range(6):
         for j in range(6):
-            FP[i][j] = P[i, j] + dt * P[i + 3, j] if i < 3 else P[i, j]
+            FP[i][j] = Pb[6 * i + j] + dt * Pb[6 * (i + 3) + j] if i < 3 else Pb[6 * i + j]
     for i in range(6):
         for j in range(6):
-            P[i, j] = FP[i][j] + dt * FP[i][j + 3] if j < 3 else FP[i][j]
+            Pb[6 * i + j] = FP[i][j] + dt * FP[i][j + 3] if j < 3 else FP[i][j]
     for i in range(3):
-        P[i, i] += q3
-        P[i, i + 3] += q2
-        P[i + 3, i] += q2
-        P[i + 3, i + 3] += q1
+        Pb[7 * i] += q3
+        Pb[6 * i + i + 3] += q2
+        Pb[6 * (i + 3) + i] += q2
+        Pb[7 * (i + 3)] += q1
+    store(x, xb, 6, 1)
+    store(P, Pb, 6, 6)
 
 
 cdef int _inverse3(double* S, double* Si) noexcept nogil:
@@ -54,9 +62,13 @@ cdef int _inverse3(double* S, double* Si) noexcept nogil:
     return 1
 
 
-def update(double[:, ::1] x, double[:, ::1] P, const double[:] z, const double[:, :] R):
+def update(x, P, z, R):
     """Measurement update with the fix z of covariance R (Joseph form), in place. Returns False
     (nothing changed) when P[:3, :3] + R is singular."""
+    cdef double xb[6]
+    cdef double Pb[36]
+    cdef double zb[3]
+    cdef double Rb[9]
     cdef double S[9]
     cdef double Si[9]
     cdef double K[6][3]
@@ -66,17 +78,21 @@ def update(double[:, ::1] x, double[:, ::1] P, const double[:] z, const double[:
     cdef double KR[6][3]
     cdef double t
     cdef int i, j, k
+    load(x, xb, 6, 1)
+    load(P, Pb, 6, 6)
+    load(z, zb, 3, 0)
+    load(R, Rb, 3, 3)
     for i in range(3):
-        y[i] = z[i] - x[i, 0]
+        y[i] = zb[i] - xb[i]
         for j in range(3):
-            S[3 * i + j] = P[i, j] + R[i, j]
+            S[3 * i + j] = Pb[6 * i + j] + Rb[3 * i + j]
     if not _inverse3(S, Si):
         return False
     for i in range(6):
         for j in range(3):
-            K[i][j] = P[i, 0] * Si[j] + P[i, 1] * Si[3 + j] + P[i, 2] * Si[6 + j]
+            K[i][j] = Pb[6 * i] * Si[j] + Pb[6 * i + 1] * Si[3 + j] + Pb[6 * i + 2] * Si[6 + j]
     for i in range(6):
-        x[i, 0] = x[i, 0] + (K[i][0] * y[0] + K[i][1] * y[1] + K[i][2] * y[2])
+        xb[i] = xb[i] + (K[i][0] * y[0] + K[i][1] * y[1] + K[i][2] * y[2])
     for i in range(6):
         for j in range(6):
             IKH[i][j] = (1.0 if i == j else 0.0) - (K[i][j] if j < 3 else 0.0)
@@ -84,31 +100,41 @@ def update(double[:, ::1] x, double[:, ::1] P, const double[:] z, const double[:
         for j in range(6):
             t = 0.0
             for k in range(6):
-                t += IKH[i][k] * P[k, j]
+                t += IKH[i][k] * Pb[6 * k + j]
             T[i][j] = t
     for i in range(6):                       # K R
         for j in range(3):
-            KR[i][j] = K[i][0] * R[0, j] + K[i][1] * R[1, j] + K[i][2] * R[2, j]
+            KR[i][j] = K[i][0] * Rb[j] + K[i][1] * Rb[3 + j] + K[i][2] * Rb[6 + j]
     for i in range(6):                       # P = T (I - K H)' + K R K'
         for j in range(6):
             t = 0.0
             for k in range(6):
                 t += T[i][k] * IKH[j][k]
-            P[i, j] = t + (KR[i][0] * K[j][0] + KR[i][1] * K[j][1] + KR[i][2] * K[j][2])
+            Pb[6 * i + j] = t + (KR[i][0] * K[j][0] + KR[i][1] * K[j][1] + KR[i][2] * K[j][2])
+    store(x, xb, 6, 1)
+    store(P, Pb, 6, 6)
     return True
 
 
-def mahalanobis2(double[:, ::1] x, double[:, ::1] P, const double[:] z, const double[:, :] R):
+def mahalanobis2(x, P, z, R):
     """(z - x[:3])' (P[:3, :3] + R)^-1 (z - x[:3]); NaN when that matrix is singular."""
+    cdef double xb[6]
+    cdef double Pb[36]
+    cdef double zb[3]
+    cdef double Rb[9]
     cdef double S[9]
     cdef double Si[9]
     cdef double r[3]
     cdef int i, j
     cdef double out = 0.0
+    load(x, xb, 6, 1)
+    load(P, Pb, 6, 6)
+    load(z, zb, 3, 0)
+    load(R, Rb, 3, 3)
     for i in range(3):
-        r[i] = z[i] - x[i, 0]
+        r[i] = zb[i] - xb[i]
         for j in range(3):
-            S[3 * i + j] = P[i, j] + R[i, j]
+            S[3 * i + j] = Pb[6 * i + j] + Rb[3 * i + j]
     if not _inverse3(S, Si):
         return float("nan")
     for i in range(3):

@@ -19,6 +19,8 @@ the caller runs the numpy path).
 
 from libc.math cimport sqrt, log1p, cos, sin, fabs, isfinite
 
+from receiver.serve._buf cimport load, store
+
 # Residual rows at most: 64 LEDs (wire.MAX_LEDS) x (2 angles + 1 range) + 3 tilt rows.
 cdef enum:
     MAX_LEDS = 64
@@ -325,27 +327,35 @@ cdef int _lm(Frame* f, double* R, double* C, double* r, double* J, int* m_out, d
     return 0
 
 
-def solve(const double[:, :] L, const double[:, :] uv, double sigma_uv, const double[:] d,
-          const double[:] sigma_d, up, double up_sigma, const double[:, :] R0, const double[:] C0,
-          str loss, double f_scale, double xtol, double ftol, double lam0, double lam_max, int max_rounds,
-          double[:, :] R_out, double[:] C_out, double[:, :] cov_out):
+def solve(L, uv, double sigma_uv, d, sigma_d, up, double up_sigma, R0, C0, str loss, double f_scale,
+          double xtol, double ftol, double lam0, double lam_max, int max_rounds, out):
     """One frame's warm-started fix (module docstring). L (n, 3) m; uv (n, 2); d / sigma_d (n,)
-    m (no range where d is not finite or sigma_d is not finite and positive); up (3,) or None, of sigma up_sigma rad; start R0 (3, 3), C0 (3,).
-    Fills R_out (3, 3), C_out (3,), cov_out (3, 3, the centre's covariance, m^2) and returns
+    m (no range where d is not finite or sigma_d is not finite and positive); up (3,) or None, of
+    sigma up_sigma rad; start R0 (3, 3), C0 (3,); all float64 arrays, any strides. Fills out (21,):
+    the centre C (3,), R (3, 3) and the centre's covariance (3, 3, m^2), and returns
     (status, chi2, dof, the lowest LED's z, ranged LEDs)."""
     cdef Frame f
-    cdef int n = L.shape[0], i, j, k, m = 0, status
+    cdef int i, j, k, m = 0, status, n
+    cdef double Lb[MAX_LEDS * 3]
+    cdef double uvb[MAX_LEDS * 2]
+    cdef double db[MAX_LEDS]
+    cdef double sdb[MAX_LEDS]
     cdef double R[9]
     cdef double C[3]
+    cdef double res[21]
     cdef double r[MAX_ROWS]
     cdef double J[MAX_ROWS * 6]
     cdef double JtJ[36]
     cdef double cov[36]
-    cdef double chi2 = 0.0, s2, t
+    cdef double chi2 = 0.0, s2, t, z_min = 0.0
     cdef int dof, n_ranges = 0
-    cdef double z_min = L[0, 2] if n > 0 else 0.0
-    if loss not in LOSS_CODES or n > MAX_LEDS or n < 1:
+    if loss not in LOSS_CODES or not 1 <= len(L) <= MAX_LEDS:
         return REFERENCE, 0.0, 0, z_min, 0
+    n = load(L, Lb, MAX_LEDS, 3)
+    if load(uv, uvb, MAX_LEDS, 2) != n or load(d, db, MAX_LEDS, 0) != n or load(sigma_d, sdb, MAX_LEDS, 0) != n:
+        raise ValueError("L, uv, d and sigma_d must have one row per LED")
+    load(R0, R, 3, 3)
+    load(C0, C, 3, 0)
     f.n = n
     f.loss = LOSS_CODES[loss]
     f.f_scale = f_scale
@@ -353,24 +363,20 @@ def solve(const double[:, :] L, const double[:, :] uv, double sigma_uv, const do
     f.has_up = up is not None
     f.wt = 1.0 / up_sigma if f.has_up else 0.0
     if f.has_up:
-        for i in range(3):
-            f.up[i] = up[i]
+        load(up, f.up, 3, 0)
+    z_min = Lb[2]
     for k in range(n):
         for i in range(3):
-            f.L[k][i] = L[k, i]
-        f.uv[k][0] = uv[k, 0]
-        f.uv[k][1] = uv[k, 1]
+            f.L[k][i] = Lb[3 * k + i]
+        f.uv[k][0] = uvb[2 * k]
+        f.uv[k][1] = uvb[2 * k + 1]
         # `receiver.locate.pose.warm_problem`'s rule: a range counts with a finite positive sigma
-        f.has_d[k] = isfinite(d[k]) and isfinite(sigma_d[k]) and sigma_d[k] > 0
+        f.has_d[k] = isfinite(db[k]) and isfinite(sdb[k]) and sdb[k] > 0
         n_ranges += f.has_d[k]
-        if L[k, 2] < z_min:
-            z_min = L[k, 2]
-        f.d[k] = d[k] if f.has_d[k] else 0.0
-        f.wr[k] = 1.0 / sigma_d[k] if f.has_d[k] else 0.0
-    for i in range(3):
-        C[i] = C0[i]
-        for j in range(3):
-            R[3 * i + j] = R0[i, j]
+        if Lb[3 * k + 2] < z_min:
+            z_min = Lb[3 * k + 2]
+        f.d[k] = db[k] if f.has_d[k] else 0.0
+        f.wr[k] = 1.0 / sdb[k] if f.has_d[k] else 0.0
     with nogil:
         status = _lm(&f, R, C, r, J, &m, xtol, ftol, lam0, lam_max, max_rounds)
     dof = m - 6
@@ -393,12 +399,13 @@ def solve(const double[:, :] L, const double[:, :] uv, double sigma_uv, const do
     if dof > 0 and chi2 / dof > 1.0:
         s2 = chi2 / dof
     for i in range(3):
-        C_out[i] = C[i]
+        res[i] = C[i]
         if not isfinite(C[i]):
             return FAIL, chi2, dof, z_min, n_ranges
         for j in range(3):
-            R_out[i, j] = R[3 * i + j]
-            cov_out[i, j] = cov[6 * (3 + i) + 3 + j] * s2
-            if not (isfinite(R[3 * i + j]) and isfinite(cov_out[i, j])):
+            res[3 + 3 * i + j] = R[3 * i + j]
+            res[12 + 3 * i + j] = cov[6 * (3 + i) + 3 + j] * s2
+            if not isfinite(R[3 * i + j]):
                 return FAIL, chi2, dof, z_min, n_ranges
+    store(out, res, 21, 0)
     return OK, chi2, dof, z_min, n_ranges

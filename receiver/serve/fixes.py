@@ -36,15 +36,15 @@ def warm_fix(kernel, q: WarmProblem, loss: str, f_scale: float) -> Fix | None:
     None (solve from scratch). A frame the kernel leaves to numpy (`REFERENCE`: a loss it does not
     know, J^T J nearly singular) is solved by `solve_warm_batch`."""
     out = np.empty(21)
-    C, R, cov = out[:3], out[3:12].reshape(3, 3), out[12:].reshape(3, 3)
     status, chi2, dof, z_min, n_ranges = kernel.solve(
         q.L, q.uv, q.sigma_uv, q.d, q.sigma_d, q.up, q.up_sigma, q.R0, q.C0, loss, f_scale,
-        WARM_XTOL, LM_FTOL, WARM_LAMBDA0, LM_LAMBDA_MAX, MAX_ROUNDS, R, C, cov)
+        WARM_XTOL, LM_FTOL, WARM_LAMBDA0, LM_LAMBDA_MAX, MAX_ROUNDS, out)
     if status == kernel.REFERENCE:
         return solve_warm_batch([reference_problem(q)], loss=loss, f_scale=f_scale)[0]
-    if status != kernel.OK or chi2 > WARM_MAX_CHI2_DOF * max(dof, 1) or not C[2] <= z_min - BELOW_CEILING_M:
+    if status != kernel.OK or chi2 > WARM_MAX_CHI2_DOF * max(dof, 1) or not out[2] <= z_min - BELOW_CEILING_M:
         return None
-    return Fix(C, cov, R, "range+angle" if n_ranges else "pnp", len(q.L), chi2, dof)
+    return Fix(out[:3], out[12:].reshape(3, 3), out[3:12].reshape(3, 3), "range+angle" if n_ranges else "pnp",
+               len(q.L), chi2, dof)
 
 
 def solve_frames(frames) -> list[Fix | None]:
