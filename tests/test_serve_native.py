@@ -6,7 +6,7 @@ batches gives byte-identical replies."""
 from __future__ import annotations
 
 import json
-import os
+import math
 
 import numpy as np
 import pytest
@@ -230,3 +230,53 @@ def test_kernels_refuse_wrong_arrays(kernel):
     with pytest.raises(ValueError):
         kernel.solve(np.zeros((4, 2)), np.zeros((4, 2)), 1e-3, np.zeros(4), np.ones(4), None, 0.1, np.eye(3),
                      np.zeros(3), "soft_l1", 3.0, 1e-6, 1e-8, 1e-9, 1e8, 100, np.empty(21))
+
+
+def test_extreme_valid_values_on_the_compiled_path(walk_map, kernel, monkeypatch):
+    """Warm devices sent valid but extreme frames -- image points at the |u|, |v| limit, the
+    tightest and loosest sigmas, 10 km ranges, every map LED at once, ranges mixed with nulls:
+    every reply is strict JSON, a finite position or an error reply, never an exception; the
+    numpy reference path answers each with the same kind (position / coast / error)."""
+    rng = np.random.default_rng(9)
+    leds = list(walk_map.leds.values())[:64]
+    base = [data for _, _, data in four_led_datagrams(walk_map, 40, 4)]
+    frames = []
+    for i in range(120):
+        req = json.loads(base[i % 4])
+        req.update(seq=10 + i, t=2.0 + i / 30)
+        kind = i % 6
+        if kind == 0:
+            for led in req["leds"]:
+                led["u"], led["v"] = (float(rng.choice([-100.0, 100.0])), float(rng.uniform(-100, 100)))
+        elif kind == 1:
+            req["sigma_uv"] = float(rng.choice([1e-9, 1.0]))
+            for led in req["leds"]:
+                led["sigma_m"] = float(rng.choice([1e-6, 1e3]))
+        elif kind == 2:
+            for led in req["leds"]:
+                led["distance_m"] = float(rng.choice([1e-3, 1e4]))
+        elif kind == 3:
+            req["leds"] = [{"id": led.id, "u": float(rng.normal(0, 0.5)), "v": float(rng.normal(0, 0.5)),
+                            "distance_m": float(rng.uniform(1, 5)), "sigma_m": 0.01} for led in leds]
+        elif kind == 4:
+            for led in req["leds"][::2]:
+                led["distance_m"] = led["sigma_m"] = None
+        frames.append(encode(req))
+    stream = base + frames
+
+    def kinds(replies):
+        out = []
+        for data in replies:
+            r = json.loads(data, parse_constant=lambda c: pytest.fail(f"{c} in a reply"))
+            if "error" in r:
+                out.append(r["error"])
+                continue
+            p = r["position"]
+            assert p is None or all(math.isfinite(p[k]) for k in "xyz")
+            out.append(None if p is None else p["method"])
+        return out
+
+    fast = kinds(_replay(walk_map, stream, 8))
+    monkeypatch.setenv("OCCLOC_PURE", "1")
+    assert kinds(_replay(walk_map, stream, 8)) == fast
+    assert len(fast) == len(stream) and "range+angle" in fast
