@@ -280,3 +280,16 @@ def test_extreme_valid_values_on_the_compiled_path(walk_map, kernel, monkeypatch
     monkeypatch.setenv("OCCLOC_PURE", "1")
     assert kinds(_replay(walk_map, stream, 8)) == fast
     assert len(fast) == len(stream) and "range+angle" in fast
+
+
+def test_ypr_of_lists_equals_rotation_to_ypr_deg():
+    """devices.ypr_deg (nested lists) gives rotation_to_ypr_deg's numbers exactly, also at the
+    gimbal lock (pitch +-90)."""
+    from receiver.locate.pose import rotation_to_ypr_deg
+    from receiver.serve.devices import ypr_deg
+    rng = np.random.default_rng(2)
+    angles = [tuple(rng.uniform([-180, -90, -180], [180, 90, 180])) for _ in range(300)]
+    angles += [(30.0, 90.0, 0.0), (-60.0, -90.0, 0.0), (10.0, 88.0, 2.0)]
+    for a in angles:
+        R = ypr_to_rotation(*a)
+        assert ypr_deg(R.tolist()) == rotation_to_ypr_deg(R)

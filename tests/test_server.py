@@ -286,7 +286,7 @@ def test_solver_failure_is_an_internal_error(walk_map, monkeypatch):
     def boom(*a, **k):
         raise np.linalg.LinAlgError("singular")
 
-    monkeypatch.setattr("receiver.serve.server._solve_batch", lambda: boom)    # the batch fails,
+    monkeypatch.setattr(srv, "_solvers", (boom, srv._solver()[1]))               # the batch fails,
     monkeypatch.setattr("receiver.locate.posefilter.PoseFilter.solve", boom)   # ... and the frame alone
     assert srv.handle(encode(request("a", 1, 0.1, *frame))) == {
         "v": 1, "error": "internal_error", "detail": "LinAlgError", "device": "a", "seq": 1}

@@ -16,7 +16,7 @@ import numpy as np
 
 from receiver.core import native
 from receiver.locate.kalman import PositionKalman
-from receiver.locate.pose import WarmProblem, _is_collinear_cached, rotation_to_ypr_deg
+from receiver.locate.pose import WarmProblem, _is_collinear_cached
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.posefilter import PoseFilter
 
@@ -113,6 +113,18 @@ def _xyz(v: list) -> dict:
     return {"x": round(v[0], 5), "y": round(v[1], 5), "z": round(v[2], 5)}
 
 
+def ypr_deg(R: list) -> tuple[float, float, float]:
+    """`receiver.locate.pose.rotation_to_ypr_deg` of a nested-list R_cw: the same arithmetic on
+    M = R^T CAM_TO_BODY^T, whose entries are entries of R or their negatives (M[i] = (R[2][i],
+    -R[0][i], -R[1][i]): CAM_TO_BODY holds only 0 and +-1, so numpy's product is exact)."""
+    theta = math.asin(max(-1.0, min(1.0, -R[2][2])))
+    if abs(math.cos(theta)) < 1e-6:
+        yaw, roll = math.atan2(R[0][0], -R[0][1]), 0.0
+    else:
+        yaw, roll = math.atan2(R[2][1], R[2][0]), math.atan2(-R[0][2], -R[1][2])
+    return math.degrees(yaw), -math.degrees(theta), math.degrees(roll)
+
+
 def position_object(state, fix, n_leds: int, handedness: str | None) -> dict:
     """`PoseFilter.update`'s INTERFACES.md position object of a right-handed solving frame (the
     map's): the filter state (x (6,), P (6, 6)) or None, the frame's fix or None."""
@@ -132,7 +144,7 @@ def position_object(state, fix, n_leds: int, handedness: str | None) -> dict:
         if fix.R_cw is not None:
             R = fix.R_cw.tolist()
             pos["R_wc"] = [[np_round(R[j][i], 1e6) for j in range(3)] for i in range(3)]
-            yaw, pitch, roll = rotation_to_ypr_deg(fix.R_cw)
+            yaw, pitch, roll = ypr_deg(R)
             pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
     else:
         pos["raw"] = None

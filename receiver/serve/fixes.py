@@ -1,5 +1,5 @@
-"""The lighting server's fixes: `receiver.locate.posefilter.solve_batch` with each warm-started
-frame solved by the compiled kernel `receiver.serve._warm` (one frame at a time, a few
+"""The lighting server's fixes (`frame_solver`): `receiver.locate.posefilter.solve_batch` with each
+warm-started frame solved by the compiled kernel `receiver.serve._warm` (one frame at a time, a few
 microseconds, so a datagram costs about the same alone as in a batch of 64, and its reply does not
 depend on what it was batched with). Without the kernel (not built, or OCCLOC_PURE=1) it is
 `solve_batch` itself, the numpy reference the kernel is tested against.
@@ -47,12 +47,18 @@ def warm_fix(kernel, q: WarmProblem, loss: str, f_scale: float) -> Fix | None:
                len(q.L), chi2, dof)
 
 
-def solve_frames(frames) -> list[Fix | None]:
-    """`solve_batch(frames)` (each (pose_filter, t_s, L_map, uv, d, sigma_d, R_prior), at most one
-    per filter), the warm-started frames by the kernel when it is built."""
+def frame_solver():
+    """`solve_frames` bound to the compiled kernel, or `receiver.locate.posefilter.solve_batch`
+    without it (not built, OCCLOC_PURE=1)."""
     kernel = native.load(KERNEL)
     if kernel is None:
-        return solve_batch(frames)
+        return solve_batch
+    return lambda frames: solve_frames(frames, kernel)
+
+
+def solve_frames(frames, kernel) -> list[Fix | None]:
+    """`solve_batch(frames)` (each (pose_filter, t_s, L_map, uv, d, sigma_d, R_prior), at most one
+    per filter), the warm-started frames by the kernel."""
     fixes: list[Fix | None] = [None] * len(frames)
     cold = []
     for i, (pf, *args) in enumerate(frames):

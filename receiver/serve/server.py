@@ -108,11 +108,11 @@ RECV_BYTES = 65536
 # ---------------------------------------------------------------- the server's state
 
 def _solve_batch():
-    """`receiver.serve.fixes.solve_frames` (`receiver.locate.posefilter.solve_batch` with the
-    compiled warm fix), imported on first use (`_pose_filter_class`)."""
-    from receiver.serve.fixes import solve_frames
+    """The batch solver (`receiver.serve.fixes.frame_solver`: `receiver.locate.posefilter.solve_batch`
+    with the compiled warm fix when built), imported on first use (`_pose_filter_class`)."""
+    from receiver.serve.fixes import frame_solver
 
-    return solve_frames
+    return frame_solver()
 
 
 def _pose_filter_class():
@@ -166,6 +166,7 @@ class LightingServer:
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
         self.per_source: Counter = Counter()                      # source host -> devices held
         self.counters: Counter = Counter()
+        self._solvers = None
 
     def handle(self, data: bytes, source=None) -> dict | None:
         """One datagram in; the reply (a position or an error) or None (dropped silently).
@@ -250,17 +251,23 @@ class LightingServer:
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
 
-    @staticmethod
-    def _solve(frames) -> list:
+    def _solver(self):
+        """(batch solver, devices' filter class), chosen once per server at first use (the
+        compiled kernels are looked up then: `receiver.core.native`)."""
+        if self._solvers is None:
+            self._solvers = (_solve_batch(), _pose_filter_class())
+        return self._solvers
+
+    def _solve(self, frames) -> list:
         """Fixes of the frames (None for no LEDs); a frame whose solve raised gets the exception.
-        One batch (`receiver.serve.fixes.solve_frames`, also for one frame), or one by one
-        (`PoseFilter.solve`) if the batch raised."""
+        One batch (`_solver`, also for one frame), or one by one (`PoseFilter.solve`) if the batch
+        raised."""
         todo = [f for f in frames if f is not None]
         out: list = [None] * len(frames)
         fixes = None
         if todo:
             try:
-                fixes = iter(_solve_batch()(todo))
+                fixes = iter(self._solver()[0](todo))
             except Exception:   # noqa: BLE001 -- find the frame that fails, below
                 fixes = None
         for k, f in enumerate(frames):
@@ -294,7 +301,7 @@ class LightingServer:
 
     def warm_up(self) -> None:
         """Import the solver and filter now rather than at the first device's datagram."""
-        _pose_filter_class()
+        self._solver()
 
     def handle_datagram(self, data: bytes, source=None) -> bytes | None:
         """`handle`, encoded as strict JSON (never NaN / Infinity): what the socket sends back.
@@ -349,7 +356,7 @@ class LightingServer:
                 raise ProtocolError("too_many_devices_per_source",
                                     f"this address holds {self.max_devices_per_source} devices",
                                     req.device, req.seq)
-            dev = _Device(_pose_filter_class()(handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
+            dev = _Device(self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
                                               warm_start=self.warm_start), -1, now,
                           source)
             self.devices[req.device] = dev
