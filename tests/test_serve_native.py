@@ -293,3 +293,45 @@ def test_ypr_of_lists_equals_rotation_to_ypr_deg():
     for a in angles:
         R = ypr_to_rotation(*a)
         assert ypr_deg(R.tolist()) == rotation_to_ypr_deg(R)
+
+
+def _bits(obj):
+    """A value with every float replaced by its repr (so -0.0, NaN and the last digit count)."""
+    if isinstance(obj, dict):
+        return {k: _bits(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_bits(v) for v in obj]
+    return repr(obj) if isinstance(obj, float) else obj
+
+
+def test_position_kernel_equals_the_python_builder(monkeypatch):
+    """receiver.serve._position builds devices.position_object's dict (key order, every float's
+    repr) for random states and fixes and for the rounding's hard cases: values on and next to
+    decimal ties, -0.0, huge, NaN and infinite numbers, no track, no fix, no orientation."""
+    from receiver.locate.lsq import Fix
+    from receiver.serve.devices import POSITION_KERNEL, position_object
+    monkeypatch.delenv("OCCLOC_PURE", raising=False)
+    k = native.load(POSITION_KERNEL)
+    assert k is not None
+    rng = np.random.default_rng(11)
+    hard = [0.5e-5, 1.5e-5, 2.675, 1.000005, -1.000005, 0.125, -0.0, 0.0, 1e-320, 1e12, -3e15, 1e300,
+            np.nextafter(1.000005, 2), np.nextafter(1.000005, 0), 12.34565, 0.00012345, math.nan, math.inf]
+
+    def sample(n):
+        v = rng.normal(0, 3, n) * 10.0 ** rng.integers(-6, 3, n)
+        pick = rng.random(n) < 0.3
+        v[pick] = rng.choice(hard, pick.sum())
+        return v
+    for trial in range(400):
+        x = sample(6)
+        P = sample(36).reshape(6, 6)
+        C, cov = sample(3), sample(9).reshape(3, 3)
+        R = ypr_to_rotation(*rng.uniform(-180, 180, 3)) if trial % 5 else sample(9).reshape(3, 3)
+        state = None if trial % 7 == 3 else (x, P)
+        fix = None if trial % 11 == 4 and state is not None else Fix(C, cov, None if trial % 13 == 6 else R,
+                                                                    "range+angle", 4)
+        handedness = None if trial % 3 else "right"
+        a = position_object(state, fix, 4, handedness)
+        b = k.position(*(state or (None, None)), *((None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)),
+                       "kalman-coast" if fix is None else fix.method, 4, handedness)
+        assert list(b) == list(a) and _bits(b) == _bits(a), trial

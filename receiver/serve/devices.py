@@ -1,7 +1,8 @@
 """The lighting server's per-device state: `receiver.locate.posefilter.PoseFilter` with its
 Kalman steps compiled (`FastKalman`: `receiver.serve._kalman`) and the `position` object built
 from plain floats (`position_object`: the same numbers, rounded the same way, as
-`PoseFilter.update` writes, without its ~20 numpy calls per datagram). `pose_filter_class()` is
+`PoseFilter.update` writes, without its ~20 numpy calls per datagram; compiled, with the rounding
+in C: `receiver.serve._position`, tested equal to it). `pose_filter_class()` is
 `ServerPoseFilter` when the kernel is built, else `PoseFilter` itself (OCCLOC_PURE=1: the
 reference the tests compare with).
 
@@ -21,6 +22,7 @@ from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.posefilter import PoseFilter
 
 KERNEL = "receiver.serve._kalman"
+POSITION_KERNEL = "receiver.serve._position"
 
 
 class FastKalman(PositionKalman):
@@ -50,8 +52,8 @@ class ServerPoseFilter(PoseFilter):
     """`PoseFilter` with a `FastKalman` and `update` building the position object from plain
     floats (`position_object`; a left-handed map's mirrored numbers are left to PoseFilter)."""
 
-    def __init__(self, *, kernel, **kwargs):
-        self._kernel = kernel
+    def __init__(self, *, kernel, position_kernel=None, **kwargs):
+        self._kernel, self._position = kernel, position_kernel
         super().__init__(**kwargs)
 
     def _restart(self) -> None:
@@ -91,16 +93,21 @@ class ServerPoseFilter(PoseFilter):
             state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
         if fix is None and state is None:
             return None
-        return position_object(state, fix, n_leds,
-                               None if self.handedness_source == "default" else self.handedness)
+        handedness = None if self.handedness_source == "default" else self.handedness
+        if self._position is None:
+            return position_object(state, fix, n_leds, handedness)
+        x, P = (None, None) if state is None else state
+        return self._position.position(x, P, *(None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw),
+                                       "kalman-coast" if fix is None else fix.method, n_leds, handedness)
 
 
 def np_round(v: float, scale: float) -> float:
     """numpy's `round` of a float to log10(scale) decimals: rint(v * scale) / scale (half to even,
-    the sign of a zero kept). Non-finite: FloatingPointError."""
+    the sign of a zero kept; NaN and infinities stay, as in numpy: the reply's encoding refuses
+    them)."""
     y = v * scale
     if not math.isfinite(y):
-        raise FloatingPointError("non-finite result")
+        return y / scale
     return math.copysign(round(y) / scale, y)
 
 
@@ -158,7 +165,8 @@ def pose_filter_class():
     kernel = native.load(KERNEL)
     if kernel is None:
         return PoseFilter
+    position_kernel = native.load(POSITION_KERNEL)
 
     def make(**kwargs) -> PoseFilter:
-        return ServerPoseFilter(kernel=kernel, **kwargs)
+        return ServerPoseFilter(kernel=kernel, position_kernel=position_kernel, **kwargs)
     return make
