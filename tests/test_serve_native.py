@@ -335,3 +335,35 @@ def test_position_kernel_equals_the_python_builder(monkeypatch):
         b = k.position(*(state or (None, None)), *((None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)),
                        "kalman-coast" if fix is None else fix.method, 4, handedness)
         assert list(b) == list(a) and _bits(b) == _bits(a), trial
+
+
+def _replay_dicts(walk_map, stream) -> list[bytes | None]:
+    """The stream through `handle` (reply dicts), each encoded by wire.encode."""
+    srv = LightingServer(walk_map, clock=FakeClock())
+    return [None if r is None else encode(r) for r in (srv.handle(data, ("127.0.0.1", 9)) for data in stream)]
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_reply_bytes_equal_the_encoded_reply_dicts(walk_map, kernel, mirror):
+    """The socket path writes position replies straight to JSON (`_reply_json`, the compiled
+    `position_json`): the same bytes as `wire.encode` of the reply dicts `handle` returns, on the
+    fixed stream, also in a left-handed map (the mirrored numbers are PoseFilter's)."""
+    from test_locate import mirrored_map
+    led_map = mirrored_map(walk_map) if mirror else walk_map
+    stream = _stream(walk_map)
+    if mirror:                                    # the same scenes seen in the mirrored map
+        stream = [_mirror_request(data) for data in stream]
+    fast = _replay(led_map, stream, 8)
+    assert fast == _replay_dicts(led_map, stream)
+    assert sum(b'"position":{' in r for r in fast if r) >= 590
+
+
+def _mirror_request(data: bytes) -> bytes:
+    """A request of the mirrored map's world: image columns reversed (u -> -u)."""
+    try:
+        req = json.loads(data)
+        for led in req["leds"]:
+            led["u"] = -led["u"]
+        return encode(req)
+    except (ValueError, KeyError, TypeError):
+        return data

@@ -19,6 +19,7 @@ from receiver.core import native
 from receiver.locate.kalman import PositionKalman
 from receiver.locate.pose import WarmProblem, _is_collinear_cached
 from receiver.locate.ranging import R_LOOKING_UP
+from receiver.serve.wire import encode
 from receiver.locate.posefilter import PoseFilter
 
 KERNEL = "receiver.serve._kalman"
@@ -80,25 +81,48 @@ class ServerPoseFilter(PoseFilter):
         up = None if self.tilt_prior != "up" else R_LOOKING_UP[:, 2]
         return WarmProblem(L_map, uv, self.sigma_uv, d, sigma_d, up, math.radians(self.tilt_sigma_deg), R_prior, C0)
 
-    def update(self, t_s: float, fix, n_leds: int) -> dict | None:
-        if self.mirrored:
-            return super().update(t_s, fix, n_leds)
+    def _step(self, t_s: float, fix):
+        """`PoseFilter.update`'s state change: the filter state (x, P) or None."""
         if fix is not None:
             self.n_fixes += 1
             self._C, self._t_C = fix.C, t_s
             if fix.R_cw is not None:
                 self.keep_orientation(t_s, fix.R_cw)
-        state = None
-        if self.kf is not None:
-            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if self.kf is None:
+            return None
+        return self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+
+    def _position_args(self, state, fix, n_leds: int) -> tuple:
+        x, P = (None, None) if state is None else state
+        return (x, P, *((None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)),
+                "kalman-coast" if fix is None else fix.method, n_leds,
+                None if self.handedness_source == "default" else self.handedness)
+
+    def update(self, t_s: float, fix, n_leds: int) -> dict | None:
+        if self.mirrored:
+            return super().update(t_s, fix, n_leds)
+        state = self._step(t_s, fix)
         if fix is None and state is None:
             return None
-        handedness = None if self.handedness_source == "default" else self.handedness
         if self._position is None:
+            handedness = None if self.handedness_source == "default" else self.handedness
             return position_object(state, fix, n_leds, handedness)
-        x, P = (None, None) if state is None else state
-        return self._position.position(x, P, *(None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw),
-                                       "kalman-coast" if fix is None else fix.method, n_leds, handedness)
+        return self._position.position(*self._position_args(state, fix, n_leds))
+
+    def rotation_json(self, R: np.ndarray) -> bytes:
+        """`wire.encode(R.tolist())`; a NaN or infinity: ValueError."""
+        return self._position.rotation_json(R) if self._position is not None else encode(R.tolist())
+
+    def update_json(self, t_s: float, fix, n_leds: int) -> bytes | None:
+        """`update`, its position object encoded (`wire.encode`'s bytes), or None; a NaN or
+        infinity in it: ValueError."""
+        if self.mirrored or self._position is None:
+            pos = self.update(t_s, fix, n_leds)
+            return None if pos is None else encode(pos)
+        state = self._step(t_s, fix)
+        if fix is None and state is None:
+            return None
+        return self._position.position_json(*self._position_args(state, fix, n_leds))
 
 
 def np_round(v: float, scale: float) -> float:

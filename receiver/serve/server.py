@@ -78,6 +78,7 @@ import threading
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass
+from json.encoder import encode_basestring_ascii
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -106,6 +107,8 @@ MAX_BATCH = 16
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
 RECV_BYTES = 65536
+# How every position reply's JSON starts (`LightingServer._reply_json`).
+_REPLY_HEAD = b'{"v":' + str(PROTOCOL_VERSION).encode() + b',"device":'
 
 
 # ---------------------------------------------------------------- the server's state
@@ -183,9 +186,10 @@ class LightingServer:
         waits for its earlier one's fix and filter update)."""
         return self._handle(datagrams)[0]
 
-    def _handle(self, datagrams) -> tuple[list[dict | None], dict[int, bytes]]:
+    def _handle(self, datagrams, as_bytes: bool = False) -> tuple[list[dict | None], dict[int, bytes]]:
         """`handle_many`'s replies, and the encoded position replies by index (encoding is how
-        `_reply` checks them)."""
+        `_reply` checks them). `as_bytes`: the position replies only encoded (no dict: None in
+        the first list; the compiled filter writes the JSON itself, `ServerPoseFilter.update_json`)."""
         replies: list[dict | None] = [None] * len(datagrams)
         encoded: dict[int, bytes] = {}
         pending = []
@@ -204,7 +208,7 @@ class LightingServer:
             for item in pending:
                 (later if item[1].device in seen else this).append(item)
                 seen.add(item[1].device)
-            self._locate_round(this, replies, encoded)
+            self._locate_round(this, replies, encoded, as_bytes)
             pending = later
         return replies, encoded
 
@@ -225,7 +229,7 @@ class LightingServer:
         self.counters["replies"] += 1
         return reply
 
-    def _locate_round(self, items, replies: list, encoded: dict) -> None:
+    def _locate_round(self, items, replies: list, encoded: dict, as_bytes: bool = False) -> None:
         """Map lookup, fix (`PoseFilter.solve`, batched over the round) and filter
         (`PoseFilter.update`) of requests of distinct devices, as
         `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
@@ -249,7 +253,7 @@ class LightingServer:
             try:
                 if isinstance(fix, Exception):
                     raise fix
-                replies[i], encoded[i] = self._reply(req, pf, fix, leds, used)
+                replies[i], encoded[i] = self._reply(req, pf, fix, leds, used, as_bytes)
                 self.counters["replies"] += 1
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
@@ -285,8 +289,11 @@ class LightingServer:
                 out[k] = e
         return out
 
-    def _reply(self, req: Request, pf, fix, leds, used) -> tuple[dict, bytes]:
-        """The position reply and its encoding."""
+    def _reply(self, req: Request, pf, fix, leds, used, as_bytes: bool = False) -> tuple[dict | None, bytes]:
+        """The position reply and its encoding (`as_bytes` and a filter that writes its own JSON:
+        only the encoding, the dict None)."""
+        if as_bytes and hasattr(pf, "update_json"):
+            return None, self._reply_json(req, pf, fix, leds, used)
         position = pf.update(req.t, fix, len(used))
         reply = {"v": PROTOCOL_VERSION, "device": req.device, "seq": req.seq, "position": position,
                  "unknown_ids": sorted({i for i, led in zip(req.ids, leds) if led is None}),
@@ -301,6 +308,23 @@ class LightingServer:
             raise FloatingPointError("non-finite result") from None
         self.counters["positions"] += position is not None
         return reply, data
+
+    def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
+        """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
+        compact, ASCII-escaped device, repr of every float; tested), the position object written
+        by the compiled filter (`ServerPoseFilter.update_json`)."""
+        try:
+            position = pf.update_json(req.t, fix, len(used))
+            rotation = b"null" if fix is None or fix.R_cw is None else pf.rotation_json(fix.R_cw)
+        except ValueError:
+            # The solver or filter overflowed: never reply with (or keep) a NaN state.
+            raise FloatingPointError("non-finite result") from None
+        unknown = sorted({i for i, led in zip(req.ids, leds) if led is None})
+        self.counters["positions"] += position is not None
+        return b"".join((_REPLY_HEAD, encode_basestring_ascii(req.device).encode(), b',"seq":',
+                         str(req.seq).encode(), b',"position":', b"null" if position is None else position,
+                         b',"unknown_ids":[', ",".join(map(str, unknown)).encode(), b'],"n_used":',
+                         str(len(used)).encode(), b',"solve_R_cw":', rotation, b"}"))
 
     def warm_up(self) -> None:
         """Import the solver and filter now rather than at the first device's datagram."""
@@ -318,7 +342,7 @@ class LightingServer:
 
     def _handle_encoded(self, datagrams) -> list[bytes | None]:
         """The encoded replies (each position reply encoded once: `_reply`)."""
-        replies, encoded = self._handle(datagrams)
+        replies, encoded = self._handle(datagrams, as_bytes=True)
         return [encoded[i] if i in encoded else None if reply is None else self._encode(reply)
                 for i, reply in enumerate(replies)]
 
