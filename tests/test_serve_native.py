@@ -306,15 +306,17 @@ def _bits(obj):
 
 def test_position_kernel_equals_the_python_builder(monkeypatch):
     """receiver.serve._position builds devices.position_object's dict (key order, every float's
-    repr) for random states and fixes and for the rounding's hard cases: values on and next to
-    decimal ties, -0.0, huge, NaN and infinite numbers, no track, no fix, no orientation."""
+    repr) and writes its JSON byte for byte as wire.encode does, for random states and fixes and
+    for the rounding's hard cases: values on and next to decimal ties, -0.0, huge, tiny, NaN and
+    infinite numbers, no track, no fix, no orientation."""
     from receiver.locate.lsq import Fix
     from receiver.serve.devices import POSITION_KERNEL, position_object
     monkeypatch.delenv("OCCLOC_PURE", raising=False)
     k = native.load(POSITION_KERNEL)
     assert k is not None
     rng = np.random.default_rng(11)
-    hard = [0.5e-5, 1.5e-5, 2.675, 1.000005, -1.000005, 0.125, -0.0, 0.0, 1e-320, 1e12, -3e15, 1e300,
+    hard = [0.5e-5, 1.5e-5, 2.675, 1.000005, -1.000005, 0.125, -0.0, 0.0, 1e-320, 1e12, -3e15, 1e300, 1e-4, 1e-5,
+            123456.78, 1e16, 9.99999999, -0.0000049, 0.0000051, 1200.0,
             np.nextafter(1.000005, 2), np.nextafter(1.000005, 0), 12.34565, 0.00012345, math.nan, math.inf]
 
     def sample(n):
@@ -322,7 +324,7 @@ def test_position_kernel_equals_the_python_builder(monkeypatch):
         pick = rng.random(n) < 0.3
         v[pick] = rng.choice(hard, pick.sum())
         return v
-    for trial in range(400):
+    for trial in range(2000):
         x = sample(6)
         P = sample(36).reshape(6, 6)
         C, cov = sample(3), sample(9).reshape(3, 3)
@@ -335,6 +337,18 @@ def test_position_kernel_equals_the_python_builder(monkeypatch):
         b = k.position(*(state or (None, None)), *((None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)),
                        "kalman-coast" if fix is None else fix.method, 4, handedness)
         assert list(b) == list(a) and _bits(b) == _bits(a), trial
+        args = (*(state or (None, None)), *((None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)),
+                "kalman-coast" if fix is None else fix.method, 4, handedness)
+        assert _json_or_error(lambda: k.position_json(*args)) == _json_or_error(lambda: encode(a)), trial
+        if fix is not None and fix.R_cw is not None:
+            assert _json_or_error(lambda: k.rotation_json(fix.R_cw)) == _json_or_error(lambda: encode(fix.R_cw.tolist()))
+
+
+def _json_or_error(make):
+    try:
+        return make()
+    except ValueError:                 # NaN / infinity: refused by both
+        return "ValueError"
 
 
 def _replay_dicts(walk_map, stream) -> list[bytes | None]:
