@@ -381,3 +381,39 @@ def _mirror_request(data: bytes) -> bytes:
         return encode(req)
     except (ValueError, KeyError, TypeError):
         return data
+
+
+def test_fast_request_check_accepts_what_the_parser_accepts(walk_map, monkeypatch):
+    """wire.parse_request with the compiled check (receiver.serve._wire) and without it: the same
+    Request (same values) or the same refusal (reason and detail), on valid requests and 3,000
+    seeded mutations of them (bytes flipped, cut, spliced; values replaced by odd ones: null,
+    booleans, huge, tiny, -0.0, strings, lists, objects, ints for floats, a camera that is null)."""
+    from receiver.serve.server import WIRE_KERNEL
+    from receiver.serve.wire import ProtocolError, parse_request
+    from test_badinput_serve import _mutations
+    monkeypatch.delenv("OCCLOC_PURE", raising=False)
+    fast = native.load(WIRE_KERNEL)
+    assert fast is not None
+    rng = np.random.default_rng(31)
+    bases = [data for _, _, data in four_led_datagrams(walk_map, 30, 6)]
+    cam = json.loads(bases[0])
+    cam["camera"] = None
+    bases.append(encode(cam))
+    cam["camera"] = {"fx": 1000.0}
+    bases.append(encode(cam))
+    accepted = 0
+    for n in range(3000):
+        base = bases[n % len(bases)]
+        data = base if n % 10 == 0 else _mutations(rng, base, json.loads(base))
+
+        def outcome(kernel):
+            try:
+                r = parse_request(data, kernel)
+            except ProtocolError as e:
+                return ("refused", e.reason, e.detail, e.device, e.seq)
+            return ("ok", r.device, r.seq, r.t, r.sigma_uv, r.ids, r.uv.tolist(), _bits(r.d.tolist()),
+                    _bits(r.sigma_d.tolist()))
+        a, b = outcome(None), outcome(fast)
+        assert a == b, data
+        accepted += a[0] == "ok"
+    assert accepted > 300

@@ -83,6 +83,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from receiver.core import native
 from receiver.core.errors import InputError
 from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
                                  parse_request)
@@ -107,6 +108,9 @@ MAX_BATCH = 16
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
 RECV_BYTES = 65536
+# The compiled check of requests in their common form (`wire.parse_request`'s `fast`).
+WIRE_KERNEL = "receiver.serve._wire"
+_UNSET = object()
 # How every position reply's JSON starts (`LightingServer._reply_json`).
 _REPLY_HEAD = b'{"v":' + str(PROTOCOL_VERSION).encode() + b',"device":'
 
@@ -173,6 +177,7 @@ class LightingServer:
         self.per_source: Counter = Counter()                      # source host -> devices held
         self.counters: Counter = Counter()
         self._solvers = None
+        self._fast_wire = _UNSET
 
     def handle(self, data: bytes, source=None) -> dict | None:
         """One datagram in; the reply (a position or an error) or None (dropped silently).
@@ -198,7 +203,7 @@ class LightingServer:
             now = self.clock()
             self._forget_silent(now)
             try:
-                req = parse_request(data)
+                req = parse_request(data, self._wire_kernel())
             except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
                 replies[i] = self._failed(e, None)
                 continue
@@ -257,6 +262,12 @@ class LightingServer:
                 self.counters["replies"] += 1
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
+
+    def _wire_kernel(self):
+        """The compiled request check (`receiver.serve._wire`) or None, looked up once per server."""
+        if self._fast_wire is _UNSET:
+            self._fast_wire = native.load(WIRE_KERNEL)
+        return self._fast_wire
 
     def _solver(self):
         """(batch solver, devices' filter class), chosen once per server at first use (the
