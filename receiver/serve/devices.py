@@ -18,9 +18,9 @@ import numpy as np
 from receiver.core import native
 from receiver.locate.kalman import PositionKalman
 from receiver.locate.pose import WarmProblem, _is_collinear_cached
+from receiver.locate.posefilter import PoseFilter
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.serve.wire import encode
-from receiver.locate.posefilter import PoseFilter
 
 KERNEL = "receiver.serve._kalman"
 POSITION_KERNEL = "receiver.serve._position"
