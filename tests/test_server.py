@@ -675,6 +675,9 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     stop = threading.Event()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
         client.settimeout(REPLY_TIMEOUT_S)
+        # Room for all 120 replies (~100 kB, more as the kernel counts it): the server thread may
+        # send them all before this thread gets the GIL back, and a full buffer drops datagrams.
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         for _, _, data in dg:
             client.sendto(data, sock.getsockname())
         worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
