@@ -112,14 +112,17 @@ def test_non_finite_solver_result_is_an_internal_error(walk_map, monkeypatch):
     srv = LightingServer(walk_map, clock=FakeClock())
     frame = scene(walk_map, C0)
     assert srv.handle(encode(request("a", 0, 0.0, *frame)))["position"] is not None
-    real_update = __import__("receiver.locate.posefilter", fromlist=["PoseFilter"]).PoseFilter.update
+    filter_class = type(srv.devices["a"].pose)        # PoseFilter, or the server's compiled one
+    real_update = filter_class.update
 
     def nan_update(self, *a, **k):
         pos = real_update(self, *a, **k)
         pos["x"] = math.nan
         return pos
 
-    monkeypatch.setattr("receiver.locate.posefilter.PoseFilter.update", nan_update)
+    monkeypatch.setattr(filter_class, "update", nan_update)
+    if hasattr(filter_class, "update_json"):        # the compiled filter's JSON path: NaN is ValueError
+        monkeypatch.setattr(filter_class, "update_json", lambda self, *a: encode(nan_update(self, *a)))
     out = srv.handle_datagram(encode(request("a", 1, 0.1, *frame)))
     assert _finite_json(out) == {"v": 1, "error": "internal_error", "detail": "FloatingPointError",
                                  "device": "a", "seq": 1}
@@ -159,8 +162,8 @@ def test_fast_led_check_accepts_only_what_the_full_check_accepts():
 def test_unencodable_reply_falls_back_to_an_error(walk_map, monkeypatch):
     srv = LightingServer(walk_map, clock=FakeClock())
     srv.handle(encode(request("a", 0, 0.0, *scene(walk_map, C0))))
-    monkeypatch.setattr(srv, "handle", lambda data, source=None: {
-        "v": 1, "device": "a", "seq": 1, "position": {"x": math.inf}})
+    monkeypatch.setattr(srv, "_handle", lambda datagrams, as_bytes=False: ([{     # not encoded by _reply
+        "v": 1, "device": "a", "seq": 1, "position": {"x": math.inf}}], {}))
     out = _finite_json(srv.handle_datagram(b"{}"))
     assert out["error"] == "internal_error" and (out["device"], out["seq"]) == ("a", 1)
     assert "a" not in srv.devices

@@ -286,7 +286,8 @@ def test_solver_failure_is_an_internal_error(walk_map, monkeypatch):
     def boom(*a, **k):
         raise np.linalg.LinAlgError("singular")
 
-    monkeypatch.setattr("receiver.locate.posefilter.PoseFilter.solve", boom)
+    monkeypatch.setattr(srv, "_solvers", (boom, srv._solver()[1]))               # the batch fails,
+    monkeypatch.setattr("receiver.locate.posefilter.PoseFilter.solve", boom)   # ... and the frame alone
     assert srv.handle(encode(request("a", 1, 0.1, *frame))) == {
         "v": 1, "error": "internal_error", "detail": "LinAlgError", "device": "a", "seq": 1}
     assert "a" not in srv.devices and srv.counters["internal_error"] == 1
@@ -674,6 +675,9 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     stop = threading.Event()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
         client.settimeout(REPLY_TIMEOUT_S)
+        # Room for all 120 replies (~100 kB, more as the kernel counts it): the server thread may
+        # send them all before this thread gets the GIL back, and a full buffer drops datagrams.
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         for _, _, data in dg:
             client.sendto(data, sock.getsockname())
         worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)

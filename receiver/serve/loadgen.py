@@ -10,7 +10,10 @@ Requests: `devices` devices, each walking slowly under a 2 x 2 block of the map'
 replies, achieved replies/s, lost (no reply within `drain_s` after the last send), latency
 p50 / p99 / max in ms; with the server started here on Linux also the server process's CPU
 time per reply (`server_cpu_ms_per_reply`, /proc: user + system while the load ran), which a
-machine shared with other work inflates far less than the rates and latencies.
+machine shared with other work inflates far less than the rates and latencies, and the 1-minute
+load average before and after: a load above the CPU count means other processes competed for
+the cores and the latencies say little. `--runs N`: N runs against fresh servers and a last
+line of their medians.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_MAP = ROOT / "recordings" / "indoor-walk" / "map.json"
 SIGMA_UV = 3e-4
 SIGMA_M = 0.002
+# Longest wait for a warm-up datagram's reply (s).
+WARMUP_WAIT_S = 5.0
 
 
 def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0) -> list[tuple[str, int, bytes]]:
@@ -116,6 +121,26 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             "max_ms": round(float(ms.max()), 3) if len(ms) else None}
 
 
+def warm_up(address: tuple[str, int], datagrams) -> int:
+    """Send `datagrams` ((device, seq, bytes)) one at a time, each after the previous one's reply
+    (at most WARMUP_WAIT_S each); the replies received. Before a timed load, the devices' first
+    datagrams: a device's first datagram is solved from scratch (PnP, and both handednesses of a
+    map that does not declare it: ~1.6 ms of CPU against ~0.1 ms warm), so 50 devices starting
+    together put ~80 ms of backlog in front of the first timed replies."""
+    got = 0
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.connect(address)
+        sock.settimeout(WARMUP_WAIT_S)
+        for _, _, data in datagrams:
+            sock.send(data)
+            try:
+                sock.recv(65536)
+                got += 1
+            except socket.timeout:
+                pass
+    return got
+
+
 def process_cpu_s(pid: int) -> float | None:
     """User + system CPU seconds of process `pid` so far (Linux /proc), or None."""
     try:
@@ -148,23 +173,48 @@ def main(argv=None) -> int:
     p.add_argument("--seconds", type=float, default=3.0, help="how long to send (3)")
     p.add_argument("--devices", type=int, default=50, help="devices the datagrams come from (50)")
     p.add_argument("--map", default=str(DEFAULT_MAP), help="LED map (the bundled walk's)")
+    p.add_argument("--runs", type=int, default=1,
+                   help="runs, each against a fresh server (1); with more, a last line of medians")
+    p.add_argument("--no-warmup", dest="warmup", action="store_false",
+                   help="time each device's first datagram too (default: sent before the timed load, "
+                        "one at a time, not counted: run_load)")
     a = p.parse_args(argv)
-    if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0:
-        print("loadgen: --rate, --seconds and --devices must be positive", file=sys.stderr)
+    if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0 or a.runs <= 0:
+        print("loadgen: --rate, --seconds, --devices and --runs must be positive", file=sys.stderr)
         return 2
-    dg = four_led_datagrams(load_map(a.map), int(a.rate * a.seconds), a.devices)
+    if a.url and a.runs > 1:
+        print("loadgen: --runs needs a server of its own (no URL): the devices' seqs restart", file=sys.stderr)
+        return 2
+    dg = four_led_datagrams(load_map(a.map), int(a.rate * a.seconds) + a.devices, a.devices)
+    warmup, timed = (dg[:a.devices], dg[a.devices:]) if a.warmup else ((), dg[:int(a.rate * a.seconds)])
+    reports = []
+    for _ in range(a.runs):
+        reports.append(one_run(a.url and parse_udp_url(a.url), timed, a.rate, warmup))
+        print(json.dumps(reports[-1]))
+    if a.runs > 1:
+        print(json.dumps(median_report(reports)))
+    return 0
+
+
+def one_run(address, datagrams, rate: float, warmup=()) -> dict:
+    """`run_load` against `address`, or a server started for this run (then with its CPU time
+    per reply); with the machine's 1-minute load average before and after (`os.getloadavg`) and
+    its CPU count, which say whether other work competed for the cores."""
     proc = None
-    if a.url:
-        address = parse_udp_url(a.url)
-    else:
+    if not address:
         proc, address = start_server()
     try:
+        warmed = warm_up(address, warmup)
+        load0 = os.getloadavg()[0]
         cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        report = run_load(address, dg, a.rate)
+        report = run_load(address, datagrams, rate)
+        report.update(warmup=len(warmup), warmup_replies=warmed)
         cpu1 = None if proc is None else process_cpu_s(proc.pid)
         if cpu0 is not None and cpu1 is not None and report["replies"]:
             report["server_cpu_ms_per_reply"] = round((cpu1 - cpu0) * 1e3 / report["replies"], 3)
-        print(json.dumps(report))
+        report.update(loadavg_before=round(load0, 2), loadavg_after=round(os.getloadavg()[0], 2),
+                      cpus=os.cpu_count())
+        return report
     finally:
         if proc is not None:
             proc.terminate()
@@ -173,7 +223,16 @@ def main(argv=None) -> int:
             except subprocess.TimeoutExpired:     # still working through a backlog
                 proc.kill()
                 proc.wait(10)
-    return 0
+
+
+def median_report(reports: list[dict]) -> dict:
+    """The median of each number over the runs (`"median_of": runs`)."""
+    out = {"median_of": len(reports)}
+    for key, value in reports[0].items():
+        values = [r.get(key) for r in reports]
+        if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+            out[key] = float(np.median(values))
+    return out
 
 
 if __name__ == "__main__":

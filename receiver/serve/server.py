@@ -78,10 +78,12 @@ import threading
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass
+from json.encoder import encode_basestring_ascii
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from receiver.core import native
 from receiver.core.errors import InputError
 from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
                                  parse_request)
@@ -96,31 +98,41 @@ DEFAULT_MAX_DEVICES = 10000
 # Devices one source address (IP, any port) may hold at once, so one client cannot fill the table.
 DEFAULT_MAX_DEVICES_PER_SOURCE = 64
 # Socket loop (`serve_socket`): datagrams handled together at most (the ones already queued when
-# the loop looks), the stop flag's polling interval (s), the receive buffer asked for (bytes: a
-# burst of ~10,000 four-LED datagrams) and the largest datagram read (bytes, > MAX_DATAGRAM_BYTES
-# so that an oversized one is seen as such).
-MAX_BATCH = 64
+# the loop looks: it never waits for a batch to fill), the stop flag's polling interval (s), the
+# receive buffer asked for (bytes: a burst of ~10,000 four-LED datagrams) and the largest datagram
+# read (bytes, > MAX_DATAGRAM_BYTES so that an oversized one is seen as such). A batch's replies
+# are sent when the whole batch is solved; with the compiled fix a datagram costs about the same
+# alone as in a batch (README "Measured"), so the bound only caps how long the first datagram of
+# a backlog waits for its reply: 16 x ~0.1 ms.
+MAX_BATCH = 16
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
 RECV_BYTES = 65536
+# The compiled check of requests in their common form (`wire.parse_request`'s `fast`).
+WIRE_KERNEL = "receiver.serve._wire"
+_UNSET = object()
+# How every position reply's JSON starts (`LightingServer._reply_json`).
+_REPLY_HEAD = b'{"v":' + str(PROTOCOL_VERSION).encode() + b',"device":'
 
 
 # ---------------------------------------------------------------- the server's state
 
 def _solve_batch():
-    """`receiver.locate.posefilter.solve_batch`, imported on first use (`_pose_filter_class`)."""
-    from receiver.locate.posefilter import solve_batch
+    """The batch solver (`receiver.serve.fixes.frame_solver`: `receiver.locate.posefilter.solve_batch`
+    with the compiled warm fix when built), imported on first use (`_pose_filter_class`)."""
+    from receiver.serve.fixes import frame_solver
 
-    return solve_batch
+    return frame_solver()
 
 
 def _pose_filter_class():
-    """`receiver.locate.posefilter.PoseFilter`, imported on first use: it pulls in the solver and
+    """The devices' `receiver.locate.posefilter.PoseFilter` (`receiver.serve.devices`: with the
+    compiled Kalman steps when built), imported on first use: it pulls in the solver and
     the Kalman filter's SciPy (about 2 s), which `occloc serve` loads after it has announced
     itself (`LightingServer.warm_up`)."""
-    from receiver.locate.posefilter import PoseFilter
+    from receiver.serve.devices import pose_filter_class
 
-    return PoseFilter
+    return pose_filter_class()
 
 
 @dataclass
@@ -164,6 +176,8 @@ class LightingServer:
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
         self.per_source: Counter = Counter()                      # source host -> devices held
         self.counters: Counter = Counter()
+        self._solvers = None
+        self._fast_wire = _UNSET
 
     def handle(self, data: bytes, source=None) -> dict | None:
         """One datagram in; the reply (a position or an error) or None (dropped silently).
@@ -177,9 +191,10 @@ class LightingServer:
         waits for its earlier one's fix and filter update)."""
         return self._handle(datagrams)[0]
 
-    def _handle(self, datagrams) -> tuple[list[dict | None], dict[int, bytes]]:
+    def _handle(self, datagrams, as_bytes: bool = False) -> tuple[list[dict | None], dict[int, bytes]]:
         """`handle_many`'s replies, and the encoded position replies by index (encoding is how
-        `_reply` checks them)."""
+        `_reply` checks them). `as_bytes`: the position replies only encoded (no dict: None in
+        the first list; the compiled filter writes the JSON itself, `ServerPoseFilter.update_json`)."""
         replies: list[dict | None] = [None] * len(datagrams)
         encoded: dict[int, bytes] = {}
         pending = []
@@ -188,7 +203,7 @@ class LightingServer:
             now = self.clock()
             self._forget_silent(now)
             try:
-                req = parse_request(data)
+                req = parse_request(data, self._wire_kernel())
             except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
                 replies[i] = self._failed(e, None)
                 continue
@@ -198,7 +213,7 @@ class LightingServer:
             for item in pending:
                 (later if item[1].device in seen else this).append(item)
                 seen.add(item[1].device)
-            self._locate_round(this, replies, encoded)
+            self._locate_round(this, replies, encoded, as_bytes)
             pending = later
         return replies, encoded
 
@@ -219,7 +234,7 @@ class LightingServer:
         self.counters["replies"] += 1
         return reply
 
-    def _locate_round(self, items, replies: list, encoded: dict) -> None:
+    def _locate_round(self, items, replies: list, encoded: dict, as_bytes: bool = False) -> None:
         """Map lookup, fix (`PoseFilter.solve`, batched over the round) and filter
         (`PoseFilter.update`) of requests of distinct devices, as
         `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
@@ -233,7 +248,7 @@ class LightingServer:
                 args = None
                 if used:
                     sel = slice(None) if len(used) == len(leds) else used   # all known: no copies
-                    L = np.array([leds[k].xyz for k in used])
+                    L = np.array([(leds[k].x, leds[k].y, leds[k].z) for k in used], dtype=np.float64)
                     args = (pf, req.t, L, req.uv[sel], req.d[sel], req.sigma_d[sel], pf.R_prior(req.t))
                 jobs.append((i, req, pf, leds, used, args))
             except Exception as e:   # noqa: BLE001
@@ -243,21 +258,34 @@ class LightingServer:
             try:
                 if isinstance(fix, Exception):
                     raise fix
-                replies[i], encoded[i] = self._reply(req, pf, fix, leds, used)
+                replies[i], encoded[i] = self._reply(req, pf, fix, leds, used, as_bytes)
                 self.counters["replies"] += 1
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
 
-    @staticmethod
-    def _solve(frames) -> list:
+    def _wire_kernel(self):
+        """The compiled request check (`receiver.serve._wire`) or None, looked up once per server."""
+        if self._fast_wire is _UNSET:
+            self._fast_wire = native.load(WIRE_KERNEL)
+        return self._fast_wire
+
+    def _solver(self):
+        """(batch solver, devices' filter class), chosen once per server at first use (the
+        compiled kernels are looked up then: `receiver.core.native`)."""
+        if self._solvers is None:
+            self._solvers = (_solve_batch(), _pose_filter_class())
+        return self._solvers
+
+    def _solve(self, frames) -> list:
         """Fixes of the frames (None for no LEDs); a frame whose solve raised gets the exception.
-        One frame: `PoseFilter.solve`; several: one batch, or one by one if the batch raised."""
+        One batch (`_solver`, also for one frame), or one by one (`PoseFilter.solve`) if the batch
+        raised."""
         todo = [f for f in frames if f is not None]
         out: list = [None] * len(frames)
         fixes = None
-        if len(todo) > 1:
+        if todo:
             try:
-                fixes = iter(_solve_batch()(todo))
+                fixes = iter(self._solver()[0](todo))
             except Exception:   # noqa: BLE001 -- find the frame that fails, below
                 fixes = None
         for k, f in enumerate(frames):
@@ -272,8 +300,11 @@ class LightingServer:
                 out[k] = e
         return out
 
-    def _reply(self, req: Request, pf, fix, leds, used) -> tuple[dict, bytes]:
-        """The position reply and its encoding."""
+    def _reply(self, req: Request, pf, fix, leds, used, as_bytes: bool = False) -> tuple[dict | None, bytes]:
+        """The position reply and its encoding (`as_bytes` and a filter that writes its own JSON:
+        only the encoding, the dict None)."""
+        if as_bytes and hasattr(pf, "update_json"):
+            return None, self._reply_json(req, pf, fix, leds, used)
         position = pf.update(req.t, fix, len(used))
         reply = {"v": PROTOCOL_VERSION, "device": req.device, "seq": req.seq, "position": position,
                  "unknown_ids": sorted({i for i, led in zip(req.ids, leds) if led is None}),
@@ -289,20 +320,40 @@ class LightingServer:
         self.counters["positions"] += position is not None
         return reply, data
 
+    def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
+        """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
+        compact, ASCII-escaped device, repr of every float; tested), the position object written
+        by the compiled filter (`ServerPoseFilter.update_json`)."""
+        try:
+            position = pf.update_json(req.t, fix, len(used))
+            rotation = b"null" if fix is None or fix.R_cw is None else pf.rotation_json(fix.R_cw)
+        except ValueError:
+            # The solver or filter overflowed: never reply with (or keep) a NaN state.
+            raise FloatingPointError("non-finite result") from None
+        unknown = sorted({i for i, led in zip(req.ids, leds) if led is None})
+        self.counters["positions"] += position is not None
+        return b"".join((_REPLY_HEAD, encode_basestring_ascii(req.device).encode(), b',"seq":',
+                         str(req.seq).encode(), b',"position":', b"null" if position is None else position,
+                         b',"unknown_ids":[', ",".join(map(str, unknown)).encode(), b'],"n_used":',
+                         str(len(used)).encode(), b',"solve_R_cw":', rotation, b"}"))
+
     def warm_up(self) -> None:
         """Import the solver and filter now rather than at the first device's datagram."""
-        _pose_filter_class()
+        self._solver()
 
     def handle_datagram(self, data: bytes, source=None) -> bytes | None:
         """`handle`, encoded as strict JSON (never NaN / Infinity): what the socket sends back.
         A reply that cannot be encoded becomes an `internal_error` reply."""
-        reply = self.handle(data, source)
-        return None if reply is None else self._encode(reply)
+        return self._handle_encoded([(data, source)])[0]
 
     def handle_datagrams(self, datagrams) -> list[bytes | None]:
         """`handle_datagram` of datagrams [(bytes, source), ...] received together
         (`handle_many`: one batched solve)."""
-        replies, encoded = self._handle(datagrams)
+        return self._handle_encoded(datagrams)
+
+    def _handle_encoded(self, datagrams) -> list[bytes | None]:
+        """The encoded replies (each position reply encoded once: `_reply`)."""
+        replies, encoded = self._handle(datagrams, as_bytes=True)
         return [encoded[i] if i in encoded else None if reply is None else self._encode(reply)
                 for i, reply in enumerate(replies)]
 
@@ -343,7 +394,7 @@ class LightingServer:
                 raise ProtocolError("too_many_devices_per_source",
                                     f"this address holds {self.max_devices_per_source} devices",
                                     req.device, req.seq)
-            dev = _Device(_pose_filter_class()(handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
+            dev = _Device(self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
                                               warm_start=self.warm_start), -1, now,
                           source)
             self.devices[req.device] = dev
@@ -395,22 +446,24 @@ def bind_udp(host: str, port: int) -> socket.socket:
 def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Event, *,
                  max_batch: int = MAX_BATCH) -> None:
     """Serve `server` on the bound non-blocking UDP socket until `stop` is set (checked every
-    `POLL_S`): wait for a datagram, take every datagram already queued behind it (at most
-    `max_batch`), handle them together (`LightingServer.handle_datagrams`: one batched solve),
-    send the replies. A plain blocking loop: asyncio's per-datagram callbacks cost more than the
+    `POLL_S`, and between batches): wait for a datagram, take every datagram already queued behind
+    it (at most `max_batch`; drain, then solve: never waiting for more), handle them together
+    (`LightingServer.handle_datagrams`), send the replies, and go on with what queued meanwhile. A plain blocking loop: asyncio's per-datagram callbacks cost more than the
     datagram's JSON. Socket errors (e.g. ICMP port unreachable for a reply to a device that went
     away) are counted as `socket_errors`, the batches as `batches`."""
     poller = select.poll()
     poller.register(sock, select.POLLIN)
     recvfrom, sendto = sock.recvfrom, sock.sendto
     counters = server.counters
+    backlog = False                 # the last batch was full: more is likely queued, no poll needed
     while not stop.is_set():
-        events = poller.poll(POLL_S * 1000)
-        if not events:
-            continue
-        if events[0][1] & select.POLLNVAL:   # the socket was closed under us: nothing more to serve
-            counters["socket_errors"] += 1
-            return
+        if not backlog:
+            events = poller.poll(POLL_S * 1000)
+            if not events:
+                continue
+            if events[0][1] & select.POLLNVAL:   # the socket was closed under us: nothing more to serve
+                counters["socket_errors"] += 1
+                return
         batch = []
         while len(batch) < max_batch:
             try:
@@ -422,6 +475,7 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
                 # spin here, away from the `stop` check.
                 counters["socket_errors"] += 1
                 break
+        backlog = len(batch) == max_batch
         if not batch:
             continue
         counters["batches"] += 1

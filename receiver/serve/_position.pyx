@@ -1,0 +1,364 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled `position` object of the lighting server's replies (`receiver.serve.devices`): the
+dict `receiver.serve.devices.position_object` builds (and `PoseFilter.update` before it), with its
+numbers rounded in C instead of ~40 Python-level `round` calls, each a decimal conversion there.
+
+Equal to the Python builder by construction (tests compare both):
+* Python's `round(v, n)` (the double nearest to v's correctly rounded n-decimal value) is
+  rint(v * 10^n) / 10^n wherever v * 10^n, as computed, is below 1e9 in magnitude and at least
+  1e-6 away from a half-integer: then the computed product is within 1.2e-7 of the exact one and
+  rounds to the same integer, and the division (both operands exact) is correctly rounded. Any
+  other value (near a tie, large, not finite) is handed to Python's `round`.
+* numpy's `round` (`ndarray.round`) is rint(v * 10^n) / 10^n by definition.
+* yaw / pitch / roll: `devices.ypr_deg` with the C library's asin / cos / atan2 (what Python's
+  math module calls) and math.degrees' factor 180 / pi.
+"""
+
+from libc.math cimport asin, atan2, cos, fabs, floor, isfinite, rint, sqrt
+
+from receiver.serve._buf cimport load
+
+cdef double RAD_TO_DEG = 180.0 / 3.14159265358979323846   # CPython's math.degrees factor
+cdef double POW10[9]
+for _n in range(9):
+    POW10[_n] = 10.0 ** _n                                  # exact
+
+
+cdef object _py_round(double v, int n):
+    """Python's round(v, n)."""
+    cdef double y = v * POW10[n]
+    cdef double f
+    if isfinite(y) and fabs(y) < 1e9:
+        f = y - floor(y)
+        if fabs(f - 0.5) > 1e-6:
+            return rint(y) / POW10[n]
+    return round(v, n)
+
+
+cdef inline double _np_round(double v, int n) noexcept:
+    """numpy's round(v, n)."""
+    return rint(v * POW10[n]) / POW10[n]
+
+
+cdef inline double _clip_max0(double v) noexcept:
+    """Python's max(0.0, v)."""
+    return v if v > 0.0 else 0.0
+
+
+cdef dict _xyz(double* v):
+    return {"x": _py_round(v[0], 5), "y": _py_round(v[1], 5), "z": _py_round(v[2], 5)}
+
+
+cdef list _std(double* cov, int stride):
+    return [_py_round(sqrt(_clip_max0(cov[i * stride + i])), 5) for i in range(3)]
+
+
+def position(x, P, C, cov, R, str method, int n_leds, handedness):
+    """`devices.position_object`: x (6,) and P (6, 6) the filter state (both None without a
+    track); C (3,), cov (3, 3) and R (3, 3) or None of the frame's fix (C None: no fix); method
+    its `method` (or "kalman-coast"); handedness the map's, or None while undecided."""
+    cdef double xb[6]
+    cdef double Pb[36]
+    cdef double Cb[3]
+    cdef double covb[9]
+    cdef double Rb[9]
+    cdef double theta, yaw, roll, s
+    cdef int i
+    cdef dict pos
+    if x is not None:
+        load(x, xb, 6, 0)
+        load(P, Pb, 6, 6)
+        pos = _xyz(xb)
+        pos["method"] = method
+        pos["n_leds"] = n_leds
+        pos["filtered"] = True
+        pos["std_m"] = _std(Pb, 6)
+        pos["cov"] = [[_np_round(Pb[6 * i + j], 8) for j in range(3)] for i in range(3)]
+        pos["velocity_mps"] = [_py_round(xb[3 + i], 4) for i in range(3)]
+    else:
+        load(C, Cb, 3, 0)
+        pos = _xyz(Cb)
+        pos["method"] = method
+        pos["n_leds"] = n_leds
+        pos["filtered"] = False
+    if C is not None:
+        load(C, Cb, 3, 0)
+        load(cov, covb, 3, 3)
+        pos["raw"] = _xyz(Cb)
+        pos["raw_std_m"] = _std(covb, 3)
+        if R is not None:
+            load(R, Rb, 3, 3)
+            pos["R_wc"] = [[_np_round(Rb[3 * j + i], 6) for j in range(3)] for i in range(3)]
+            s = -Rb[8]                                       # max(-1.0, min(1.0, -R[2][2]))
+            s = s if s < 1.0 else 1.0
+            s = s if s > -1.0 else -1.0
+            theta = asin(s)
+            if fabs(cos(theta)) < 1e-6:
+                yaw, roll = atan2(Rb[0], -Rb[1]), 0.0
+            else:
+                yaw, roll = atan2(Rb[7], Rb[6]), atan2(-Rb[2], -Rb[5])
+            pos["yaw_deg"] = _py_round(yaw * RAD_TO_DEG, 3)
+            pos["pitch_deg"] = _py_round(-(theta * RAD_TO_DEG), 3)
+            pos["roll_deg"] = _py_round(roll * RAD_TO_DEG, 3)
+    else:
+        pos["raw"] = None
+    if handedness is not None:
+        pos["handedness"] = handedness
+    return pos
+
+
+# ---------------------------------------------------------------- the position object as JSON
+
+from libc.string cimport memcpy
+from libc.math cimport signbit
+from json.encoder import encode_basestring_ascii as _json_str
+
+cdef enum:
+    BUF = 4096
+
+
+cdef struct Out:
+    char buf[BUF]
+    int n
+
+
+cdef int _put(Out* o, const char* s, int n) except -1:
+    if o.n + n > BUF:
+        raise OverflowError("position JSON too long")
+    memcpy(o.buf + o.n, s, n)
+    o.n += n
+    return 0
+
+
+cdef int _putb(Out* o, bytes b) except -1:
+    return _put(o, b, len(b))
+
+
+cdef int _put_str(Out* o, str s) except -1:
+    b = s.encode("ascii")
+    return _put(o, b, len(b))
+
+
+cdef int _put_repr(Out* o, double v) except -1:
+    """json's float: repr, NaN and infinities refused (allow_nan=False)."""
+    if not isfinite(v):
+        raise ValueError("Out of range float values are not JSON compliant")
+    return _put_str(o, repr(v))
+
+
+cdef int _put_decimal(Out* o, double r, int n) except -1:
+    """repr of the double nearest to r * 10^-n (r an integer-valued double, |r| < 1e9, n <= 8):
+    the decimal itself, trailing zeros dropped, in repr's notation (exponent when the decimal
+    point position is <= -4 or > 16)."""
+    cdef char digits[24]
+    cdef char tmp[48]
+    cdef long long a = <long long>fabs(r)
+    cdef int L = 0, k = 0, decpt, i, e
+    if a == 0:
+        if signbit(r):
+            return _putb(o, b"-0.0")
+        return _putb(o, b"0.0")
+    while n > 0 and a % 10 == 0:
+        a //= 10
+        n -= 1
+    while a > 0:
+        digits[L] = <char>(48 + a % 10)
+        a //= 10
+        L += 1
+    decpt = L - n                      # the number is 0.d1d2... x 10^decpt
+    while digits[k] == c'0':           # trailing zeros of an integer (n == 0): not digits
+        k += 1
+    # digits[k..L) hold the significant digits, least significant first
+    if signbit(r):
+        tmp[0] = c'-'
+        i = 1
+    else:
+        i = 0
+    if decpt <= -4 or decpt > 16:
+        tmp[i] = digits[L - 1]
+        i += 1
+        if L - 1 > k:
+            tmp[i] = c'.'
+            i += 1
+            for e in range(L - 2, k - 1, -1):
+                tmp[i] = digits[e]
+                i += 1
+        e = decpt - 1
+        tmp[i] = c'e'
+        tmp[i + 1] = c'-' if e < 0 else c'+'
+        i += 2
+        e = -e if e < 0 else e
+        if e >= 100:
+            tmp[i] = <char>(48 + e // 100)
+            i += 1
+        tmp[i] = <char>(48 + (e // 10) % 10)
+        tmp[i + 1] = <char>(48 + e % 10)
+        i += 2
+    elif decpt <= 0:
+        tmp[i] = c'0'
+        tmp[i + 1] = c'.'
+        i += 2
+        for e in range(-decpt):
+            tmp[i] = c'0'
+            i += 1
+        for e in range(L - 1, k - 1, -1):
+            tmp[i] = digits[e]
+            i += 1
+    elif decpt >= L - k:
+        for e in range(L - 1, k - 1, -1):
+            tmp[i] = digits[e]
+            i += 1
+        for e in range(decpt - (L - k)):
+            tmp[i] = c'0'
+            i += 1
+        tmp[i] = c'.'
+        tmp[i + 1] = c'0'
+        i += 2
+    else:
+        for e in range(L - 1, k - 1, -1):
+            if L - 1 - e == decpt:
+                tmp[i] = c'.'
+                i += 1
+            tmp[i] = digits[e]
+            i += 1
+    return _put(o, tmp, i)
+
+
+cdef int _put_py_round(Out* o, double v, int n) except -1:
+    """json of Python's round(v, n) (`_py_round`)."""
+    cdef double y = v * POW10[n]
+    if isfinite(y) and fabs(y) < 1e9 and fabs(y - floor(y) - 0.5) > 1e-6:
+        return _put_decimal(o, rint(y), n)
+    return _put_repr(o, round(v, n))
+
+
+cdef int _put_np_round(Out* o, double v, int n) except -1:
+    """json of numpy's round(v, n) (`_np_round`)."""
+    cdef double r = rint(v * POW10[n])
+    if isfinite(r) and fabs(r) < 1e9:
+        return _put_decimal(o, r, n)
+    return _put_repr(o, r / POW10[n])
+
+
+cdef int _put_xyz(Out* o, double* v) except -1:
+    _putb(o, b'{"x":')
+    _put_py_round(o, v[0], 5)
+    _putb(o, b',"y":')
+    _put_py_round(o, v[1], 5)
+    _putb(o, b',"z":')
+    _put_py_round(o, v[2], 5)
+    return _putb(o, b"}")
+
+
+cdef int _put_std(Out* o, double* cov, int stride) except -1:
+    cdef int i
+    for i in range(3):
+        _putb(o, b"[" if i == 0 else b",")
+        _put_py_round(o, sqrt(_clip_max0(cov[i * stride + i])), 5)
+    return _putb(o, b"]")
+
+
+cdef int _put_matrix(Out* o, double* M, bint transpose, int n) except -1:
+    cdef int i, j
+    for i in range(3):
+        _putb(o, b"[[" if i == 0 else b",[")
+        for j in range(3):
+            if j:
+                _putb(o, b",")
+            _put_np_round(o, M[3 * j + i] if transpose else M[3 * i + j], n)
+        _putb(o, b"]")
+    return _putb(o, b"]")
+
+
+def position_json(x, P, C, cov, R, str method, int n_leds, handedness):
+    """`position`'s dict as compact strict JSON (what `receiver.serve.wire.encode` writes for
+    it), without building the dict; NaN / infinities: ValueError."""
+    cdef Out o
+    cdef double xb[6]
+    cdef double Pb[36]
+    cdef double Cb[3]
+    cdef double covb[9]
+    cdef double Rb[9]
+    cdef double P3[9]
+    cdef double theta, yaw, roll, s
+    cdef int i, j
+    o.n = 0
+    if x is not None:
+        load(x, xb, 6, 0)
+        load(P, Pb, 6, 6)
+        for i in range(3):
+            for j in range(3):
+                P3[3 * i + j] = Pb[6 * i + j]
+        _put_xyz(&o, xb)
+        o.n -= 1                                             # reopen the object
+    else:
+        load(C, Cb, 3, 0)
+        _put_xyz(&o, Cb)
+        o.n -= 1
+    _putb(&o, b',"method":')
+    _put_str(&o, _json_str(method))
+    _putb(&o, b',"n_leds":')
+    _put_str(&o, str(n_leds))
+    if x is not None:
+        _putb(&o, b',"filtered":true,"std_m":')
+        _put_std(&o, Pb, 6)
+        _putb(&o, b',"cov":')
+        _put_matrix(&o, P3, False, 8)
+        _putb(&o, b',"velocity_mps":')
+        for i in range(3):
+            _putb(&o, b"[" if i == 0 else b",")
+            _put_py_round(&o, xb[3 + i], 4)
+        _putb(&o, b"]")
+    else:
+        _putb(&o, b',"filtered":false')
+    if C is not None:
+        load(C, Cb, 3, 0)
+        load(cov, covb, 3, 3)
+        _putb(&o, b',"raw":')
+        _put_xyz(&o, Cb)
+        _putb(&o, b',"raw_std_m":')
+        _put_std(&o, covb, 3)
+        if R is not None:
+            load(R, Rb, 3, 3)
+            _putb(&o, b',"R_wc":')
+            _put_matrix(&o, Rb, True, 6)
+            s = -Rb[8]
+            s = s if s < 1.0 else 1.0
+            s = s if s > -1.0 else -1.0
+            theta = asin(s)
+            if fabs(cos(theta)) < 1e-6:
+                yaw, roll = atan2(Rb[0], -Rb[1]), 0.0
+            else:
+                yaw, roll = atan2(Rb[7], Rb[6]), atan2(-Rb[2], -Rb[5])
+            _putb(&o, b',"yaw_deg":')
+            _put_py_round(&o, yaw * RAD_TO_DEG, 3)
+            _putb(&o, b',"pitch_deg":')
+            _put_py_round(&o, -(theta * RAD_TO_DEG), 3)
+            _putb(&o, b',"roll_deg":')
+            _put_py_round(&o, roll * RAD_TO_DEG, 3)
+    else:
+        _putb(&o, b',"raw":null')
+    if handedness is not None:
+        _putb(&o, b',"handedness":')
+        _put_str(&o, _json_str(handedness))
+    _putb(&o, b"}")
+    return o.buf[:o.n]
+
+
+def rotation_json(R):
+    """A (3, 3) float64 array as the JSON of its nested list at full precision (repr of each
+    number: what `wire.encode` writes for `R.tolist()`); NaN / infinities: ValueError."""
+    cdef Out o
+    cdef double Rb[9]
+    cdef int i, j
+    o.n = 0
+    load(R, Rb, 3, 3)
+    for i in range(3):
+        _putb(&o, b"[[" if i == 0 else b",[")
+        for j in range(3):
+            if j:
+                _putb(&o, b",")
+            _put_repr(&o, Rb[3 * i + j])
+        _putb(&o, b"]")
+    _putb(&o, b"]")
+    return o.buf[:o.n]
