@@ -18,7 +18,8 @@ PACKETS = np.array([list(s2psk_packet(i)) for i in range(256)], dtype=np.float64
 
 def soft(sums, counts, squares, settings=S):
     return decode_soft(sums, counts, squares, min_z=settings.soft_min_z, min_snr=settings.soft_min_snr,
-                       max_contradiction=settings.soft_max_contradiction, sigma_floor=settings.soft_sigma_floor)
+                       max_contradiction=settings.soft_max_contradiction, sigma_floor=settings.soft_sigma_floor,
+                       position_dof=settings.soft_position_dof)
 
 
 def hard(mean, settings=S):
@@ -73,23 +74,34 @@ def test_codebook_distances():
             assert np.array_equal(np.roll(CODEBOOK[PACKET_LEN * led_id + r], -r), PACKETS[led_id])
 
 
-def test_statistics_match_brute_force():
+@pytest.mark.parametrize("dof", [0.0, 2.0])
+def test_statistics_match_brute_force(dof):
     """z is the smallest margin over every different-ID hypothesis, also when only the packets
-    whose margin over the best-scoring other ID reaches `exact_from` are searched in full."""
+    whose margin over the best-scoring other ID reaches `exact_from` are searched in full;
+    `position_dof` > 0 weighs each position by its own samples' spread shrunk to the packet's."""
     rng = np.random.default_rng(3)
     ids = rng.integers(0, 256, 60)
     sums, counts, squares = random_packets(rng, 60, 0.5, ids, amp=0.6)
     counts[0, 5] = sums[0, 5] = squares[0, 5] = 0.0  # an unseen position
-    st = soft_stats(sums, counts, squares)
-    quick = soft_stats(sums, counts, squares, exact_from=2.0)
+    st = soft_stats(sums, counts, squares, position_dof=dof)
+    quick = soft_stats(sums, counts, squares, position_dof=dof, exact_from=2.0)
     for i in range(60):
         sc = CODEBOOK @ sums[i]
         h1 = int(np.argmax(sc))
         n = counts[i].sum()
         amp = sc[h1] / n
         sigma = max(np.sqrt((squares[i].sum() - sc[h1] * amp) / (n - 1)), S.soft_sigma_floor)
-        w = (counts[i] * (CODEBOOK != CODEBOOK[h1])).sum(axis=1)
-        z = (sc[h1] - sc) / (2 * sigma * np.sqrt(np.maximum(w, 0.5)))
+        v = np.full(PACKET_LEN, sigma ** 2)
+        if dof:
+            c = np.maximum(counts[i], 1)
+            ssw = squares[i] - sums[i] ** 2 / c
+            v = (ssw + dof * sigma ** 2) / (np.maximum(counts[i] - 1, 0) + dof)
+            sc = CODEBOOK @ (sums[i] / v)
+            h1 = int(np.argmax(sc))
+        else:
+            sc = sc / sigma ** 2
+        w = (counts[i] / v * (CODEBOOK != CODEBOOK[h1])).sum(axis=1)
+        z = (sc[h1] - sc) / (2 * np.sqrt(np.maximum(w, 1e-12)))
         z[CODE_ID == CODE_ID[h1]] = np.inf
         assert st.led_id[i] == CODE_ID[h1]
         assert st.z[i] == pytest.approx(z.min()) and st.sigma[i] == pytest.approx(sigma)
@@ -140,7 +152,7 @@ def test_strong_wrong_symbols_are_never_turned_into_a_wrong_id():
     for led_id in range(256):
         bad = np.tile(PACKETS[led_id] * 0.9, (PACKET_LEN, 1))
         bad[np.arange(PACKET_LEN), np.arange(PACKET_LEN)] *= -1  # row k: symbol k flipped
-        st = soft_stats(bad * c, c, c * bad ** 2, exact_from=S.soft_min_z)
+        st = soft_stats(bad * c, c, c * bad ** 2, position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
         assert not accepted(st).any(), led_id
     dist = (PACKET_LEN - CODEBOOK @ PACKETS.T) / 2  # every row vs shift 0 of every id
     rng = np.random.default_rng(2)
@@ -161,12 +173,12 @@ def test_monte_carlo_no_wrong_id():
     under the decoder's rule (hard or soft) than under the hard rule alone, never wrong."""
     rng = np.random.default_rng(2026)
     for sd in (0.3, 0.6, 1.0):
-        st = soft_stats(*random_packets(rng, 1500, sd), exact_from=S.soft_min_z)
+        st = soft_stats(*random_packets(rng, 1500, sd), position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
         assert not accepted(st).any(), sd
     for sd, amp, most_hard, least_soft in ((0.3, 0.5, 0.25, 0.6), (0.6, 1.0, 0.7, 0.85), (1.0, 1.0, 0.1, 0.07)):
         ids = rng.integers(0, 256, 600)
         sums, counts, squares = random_packets(rng, 600, sd, ids, amp)
-        st = soft_stats(sums, counts, squares, exact_from=S.soft_min_z)
+        st = soft_stats(sums, counts, squares, position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
         by_hard = np.array([-1 if (h := hard(s / c)[0]) is None else h for s, c in zip(sums, counts)])
         by_soft = np.where(by_hard >= 0, by_hard, np.where(accepted(st), st.led_id, -1))
         assert not ((by_soft >= 0) & (by_soft != ids)).any() and not ((by_hard >= 0) & (by_hard != ids)).any()

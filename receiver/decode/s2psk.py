@@ -143,28 +143,33 @@ class SoftStats:
 
 
 def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
-               sigma_floor: float = 0.05, exact_from: float = -np.inf) -> SoftStats:
+               sigma_floor: float = 0.05, position_dof: float = 0.0,
+               exact_from: float = -np.inf) -> SoftStats:
     """Maximum-likelihood scoring of every valid packet (256 IDs x 30 shifts) against folded
     packets; sums, counts, squares: (B, 30) or (30,) sum of the soft samples, their number and
     the sum of their squares per folded position (`S2pskDecoder.folded_sums`).
 
     Model: a sample at position p is x = a s_p + n, s_p = +-1 the hypothesis' symbol (the XOR of
-    thesis eq. 42 read as +-1), a > 0 one amplitude for the packet, n white noise of sd sigma.
-    The log-likelihood of a hypothesis is then const + (a / sigma^2) sum_p s_p S_p with
-    S_p = c_p m_p the sum of position p's samples: the ML hypothesis is the one with the largest
-    count-weighted correlation sum_p c_p m_p s_p (a mean of c_p samples has variance
-    sigma^2 / c_p), all 7,680 of them one matrix product. a and sigma are fitted under the best
-    hypothesis (a = score / N, sigma^2 = residual sum of squares / (N - 1), N = sum c_p, floored
-    by `sigma_floor`), so samples that disagree with each other or with the codeword (a mixed or
-    mis-timed history) raise sigma. Between the best hypothesis h1 and another h, the score
-    difference is 2 sum_{p: s1 != s} s1_p S_p, of mean 2 a W and sd 2 sigma sqrt(W) under h1, with
-    W = sum of c_p over the positions where they differ (unseen positions count 0, so an
-    alternative that differs only where nothing was seen has z = 0); its
-    z = (score1 - score_h) / (2 sigma sqrt(W)), and `z` is the smallest over every h of a
+    thesis eq. 42 read as +-1), a > 0 one amplitude for the packet, n white noise of variance
+    v_p. The log-likelihood of a hypothesis is then const + a sum_p s_p S_p / v_p with S_p the
+    sum of position p's samples: the ML hypothesis has the largest weighted correlation
+    sum_p s_p S_p / v_p (a mean of c_p samples has variance v_p / c_p), all 7,680 of them one
+    matrix product. The packet's noise sigma^2 is fitted under the best equal-weight hypothesis
+    (a = score / N, sigma^2 = residual sum of squares / (N - 1), N = sum c_p, floored by
+    `sigma_floor`), so samples that disagree with each other or with the codeword raise it.
+    `position_dof` 0: v_p = sigma^2 for every position; > 0: v_p = (SSW_p + d sigma^2) /
+    (c_p - 1 + d), d = position_dof, SSW_p = sum of squares of position p's samples about their
+    mean: a position whose samples disagree (one of two flipped reads 0) weighs less, one whose
+    samples agree more, shrunk towards sigma^2 with d prior degrees of freedom (a position of
+    one sample keeps sigma^2; SSW does not depend on the hypothesis). Between the best
+    hypothesis h1 and another h, the score difference is 2 sum_{p: s1 != s} s1_p S_p / v_p, of
+    sd 2 sqrt(W) under h1, W = sum of c_p / v_p over the positions where they differ (unseen
+    positions count 0, so an alternative that differs only where nothing was seen has z = 0);
+    its z = (score1 - score_h) / (2 sqrt(W)), and `z` is the smallest over every h of a
     different ID (the hardest alternative, not only the second-best score). `snr` = a / sigma.
 
     `exact_from`: z is first taken against the best-scoring hypothesis of another ID only; the
-    search over all 7,680 (a second matrix product) runs only for packets where that z is
+    search over all 7,680 (one more matrix product) runs only for packets where that z is
     >= exact_from (below, the returned z is an upper bound of the smallest: enough to reject).
     """
     s = np.atleast_2d(np.asarray(sums, dtype=np.float64))
@@ -174,41 +179,54 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     scores = s @ CODEBOOK.T  # (B, 7680)
     h1 = np.argmax(scores, axis=1)
     score1 = scores[rows, h1]
-    led_id = CODE_ID[h1]
     n = np.maximum(c.sum(axis=1), 1.0)
     amp = score1 / n
     rss = np.maximum(q.sum(axis=1) - score1 * amp, 0.0)
-    sigma = np.sqrt(np.maximum(rss / np.maximum(n - 1.0, 1.0), sigma_floor ** 2))
+    var = np.maximum(rss / np.maximum(n - 1.0, 1.0), sigma_floor ** 2)
+    if position_dof > 0:
+        ssw = np.maximum(q - s ** 2 / np.maximum(c, 1.0), 0.0)
+        v = (ssw + position_dof * var[:, None]) / (np.maximum(c - 1.0, 0.0) + position_dof)
+        scores = (s / v) @ CODEBOOK.T
+        h1 = np.argmax(scores, axis=1)
+        score1 = scores[rows, h1]
+    else:
+        v = np.repeat(var[:, None], s.shape[1], axis=1)
+        scores = scores / var[:, None]
+        score1 = score1 / var
+    led_id = CODE_ID[h1]
     s1 = CODEBOOK[h1]  # (B, 30)
-    # the best hypothesis of another ID: W = sum_p c_p [s_h,p != s1_p]
+    cu = c / v
+    # the best hypothesis of another ID: W = sum_p c_p / v_p [s_h,p != s1_p]
     per_id = scores.reshape(s.shape[0], -1, PACKET_LEN)
     best_of_id = per_id.max(axis=2)
     best_of_id[rows, led_id] = -np.inf
     id2 = np.argmax(best_of_id, axis=1)
     h2 = id2 * PACKET_LEN + np.argmax(per_id[rows, id2], axis=1)
-    w2 = (c * (CODEBOOK[h2] != s1)).sum(axis=1)
-    z = (score1 - scores[rows, h2]) / (2.0 * sigma * np.sqrt(np.maximum(w2, 0.5)))
+    w2 = (cu * (CODEBOOK[h2] != s1)).sum(axis=1)
+    z = (score1 - scores[rows, h2]) / (2.0 * np.sqrt(np.maximum(w2, 1e-12)))
     full = np.flatnonzero(z >= exact_from)
     if full.size:
-        # every hypothesis: W_h = (N' - sum_p c_p s1_p s_h,p) / 2, N' = sum c_p
-        w = 0.5 * (c[full].sum(axis=1)[:, None] - (c[full] * s1[full]) @ CODEBOOK.T)
-        zf = (score1[full, None] - scores[full]) / (2.0 * sigma[full, None] * np.sqrt(np.maximum(w, 0.5)))
+        # every hypothesis: W_h = (sum_p c_p / v_p - sum_p c_p / v_p s1_p s_h,p) / 2
+        w = 0.5 * (cu[full].sum(axis=1)[:, None] - (cu[full] * s1[full]) @ CODEBOOK.T)
+        zf = (score1[full, None] - scores[full]) / (2.0 * np.sqrt(np.maximum(w, 1e-12)))
         zf[CODE_ID[None, :] == led_id[full, None]] = np.inf
         z[full] = zf.min(axis=1)
-    contra = -(s * s1 / (sigma[:, None] * np.sqrt(np.maximum(c, 1.0)))).min(axis=1)
+    sigma = np.sqrt(var)
+    contra = -(s * s1 / np.sqrt(np.maximum(c, 1.0) * v)).min(axis=1)
     return SoftStats(led_id, z, amp / sigma, amp, sigma, contra)
 
 
 def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, min_z: float,
-                min_snr: float, max_contradiction: float, sigma_floor: float = 0.05
-                ) -> tuple[int | None, float]:
+                min_snr: float, max_contradiction: float, sigma_floor: float = 0.05,
+                position_dof: float = 0.0) -> tuple[int | None, float]:
     """ID of one folded packet by `soft_stats`, or None: accepted only when (a) its margin over
     every other ID is at least `min_z` noise sds, (b) its amplitude is at least `min_snr` noise
     sds (the absolute evidence floor: noise alone fits some codeword with a small amplitude) and
     (c) no position contradicts it by more than `max_contradiction` noise sds (the code corrects
     nothing: a few strongly wrong symbols, a mixed or slipped history, are rejected as the hard
     decoder rejects them). Returns (id or None, z)."""
-    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, exact_from=min_z)
+    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, position_dof=position_dof,
+                    exact_from=min_z)
     z = float(st.z[0])
     if z >= min_z and float(st.snr[0]) >= min_snr and float(st.contradiction[0]) <= max_contradiction:
         return int(st.led_id[0]), z
@@ -343,7 +361,7 @@ class S2pskDecoder:
             s = self.settings
             led_id, conf = decode_soft(sums, c, squares, min_z=s.soft_min_z, min_snr=s.soft_min_snr,
                                        max_contradiction=s.soft_max_contradiction,
-                                       sigma_floor=s.soft_sigma_floor)
+                                       sigma_floor=s.soft_sigma_floor, position_dof=s.soft_position_dof)
         self.confidence = conf
         if led_id is not None and led_id != self.led_id:
             if self.led_id is None:
