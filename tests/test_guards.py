@@ -28,15 +28,18 @@ STATIC_RIGHT_AFTER3, STATIC_TOTAL_AFTER3 = 103, 216
 STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 # vehicle: every live S2-PSK pair reports both emitters every frame (receiver.vision.pairing
 # `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs (was 552/1709).
-VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1749, 4412
+# 1719/4393 before soft S2-PSK decoding and the pairs' yaw shift / width size (1749/4412 with the
+# pairing changes alone, 1801/4387 with soft decoding alone).
+VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1791, 4410
 # `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames;
 # was SL 391, FV 114 before pair emitters were reported dark too and new pairs got their backlog;
 # SL 602 before far heads were decoded from their flux with noise-following detection, 635
 # before a decoded street light's pair followed its size, `PairSettings.follow_size`, 641 before
 # near jumper pairs' levels were seeded, `jumper_levels_min_area_px`, 646 before the pairs' yaw
 # shift, size by width and measured baselines, PairSettings shake "pairs", width_size,
-# measure_baseline).
-VEHICLE_RESOLVABLE = {"SL": (650, 658), "FV": (156, 156)}
+# measure_baseline, and soft S2-PSK decoding, S2pskSettings.decoder "soft": 650 with the pairing
+# changes alone, 648 with soft decoding alone).
+VEHICLE_RESOLVABLE = {"SL": (652, 658), "FV": (156, 156)}
 STATIC_DISTANCE_MEDIAN_MAX = 0.010     # README: 0.96 %; measured by occloc eval: 0.79 %
 
 

@@ -15,7 +15,12 @@ comes from the frame timestamps:
    the 12 data bits by soft decision on each symbol pair, and check CRC-4;
 4. accept only when every packet position has been seen, every pair and sync symbol is right
    by `min_margin`, and the CRC holds. CRC-4 alone passes 1 in 16 random packets, so the
-   margins carry most of the protection against wrong IDs.
+   margins carry most of the protection against wrong IDs;
+5. (decoder "soft", the default) a packet the margins reject is scored by maximum likelihood
+   against every valid packet at every shift (`soft_stats`: one matrix product over the
+   7,680 hypotheses, weighted by each position's sample count, noise fitted per packet) and
+   accepted when its margin over every other ID is large in units of that noise
+   (`decode_soft`; the thresholds and their false-accept rates are in S2pskSettings).
 
 IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
 """
@@ -27,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_tx.crc import crc4
-from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN, SYNC
+from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN, SYNC, s2psk_packet
 from receiver.decode.settings import S2pskSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
@@ -99,6 +104,135 @@ def decode_symbols(m: np.ndarray, *, sync_margin: float = 0.3, min_margin: float
     return led_id, conf
 
 
+def _codebook() -> tuple[np.ndarray, np.ndarray]:
+    """Every valid packet at every cyclic shift as +-1 rows: (7680, 30) float and the row's ID.
+    Row 30 * id + r is the packet of `id` read from folded position r on (np.roll by -r)."""
+    n_ids = 1 << S2PSK_ID_BITS
+    packets = np.array([list(s2psk_packet(i)) for i in range(n_ids)], dtype=np.float64) * 2.0 - 1.0
+    rot = (np.arange(PACKET_LEN)[None, :] - np.arange(PACKET_LEN)[:, None]) % PACKET_LEN  # [r, p]
+    return packets[:, rot].reshape(-1, PACKET_LEN), np.repeat(np.arange(n_ids), PACKET_LEN)
+
+
+# Minimum symbol distance between packets of two different IDs at any pair of cyclic shifts: 4
+# (6 when both are aligned on the sync: CRC-4 x^4+x+1 on 8 bits is a shortened Hamming code,
+# distance 3 bits = 6 Manchester symbols; shifted by 1-2 symbols, Manchester pairs straddle and
+# the sync 111000 overlaps data, e.g. 0x00 at shift 0 and 0x6F at shift 1 differ in 4). 6990 of
+# the 7680 hypotheses have a different-ID neighbour at distance 4, the other 690 at 6. Two
+# shifts of the same ID are at least 4 apart too (tests/test_s2psk_soft.py checks all three).
+CODEBOOK, CODE_ID = _codebook()
+
+
+@dataclass(frozen=True)
+class SoftStats:
+    """Per-packet statistics of the soft decoder, arrays of shape (B,) (`soft_stats`).
+
+    led_id: ID of the best hypothesis (the highest weighted correlation); z: its margin over
+    every hypothesis of a different ID in units of that margin's noise (the smallest, eq. in
+    `soft_stats`); snr: fitted amplitude over the noise estimate (per sample); amplitude: the
+    fitted symbol amplitude a (soft units, clean samples read 1); sigma: the noise estimate
+    (soft units, per sample, floored); contradiction: how far the position that most disagrees
+    with the best hypothesis is on the wrong side of 0, -min_p s1_p S_p / (sigma sqrt(c_p)), in
+    noise sds of its sum (negative when every position agrees)."""
+
+    led_id: np.ndarray
+    z: np.ndarray
+    snr: np.ndarray
+    amplitude: np.ndarray
+    sigma: np.ndarray
+    contradiction: np.ndarray
+
+
+def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
+               sigma_floor: float = 0.05, position_dof: float = 0.0,
+               exact_from: float = -np.inf) -> SoftStats:
+    """Maximum-likelihood scoring of every valid packet (256 IDs x 30 shifts) against folded
+    packets; sums, counts, squares: (B, 30) or (30,) sum of the soft samples, their number and
+    the sum of their squares per folded position (`S2pskDecoder.folded_sums`).
+
+    Model: a sample at position p is x = a s_p + n, s_p = +-1 the hypothesis' symbol (the XOR of
+    thesis eq. 42 read as +-1), a > 0 one amplitude for the packet, n white noise of variance
+    v_p. The log-likelihood of a hypothesis is then const + a sum_p s_p S_p / v_p with S_p the
+    sum of position p's samples: the ML hypothesis has the largest weighted correlation
+    sum_p s_p S_p / v_p (a mean of c_p samples has variance v_p / c_p), all 7,680 of them one
+    matrix product. The packet's noise sigma^2 is fitted under the best equal-weight hypothesis
+    (a = score / N, sigma^2 = residual sum of squares / (N - 1), N = sum c_p, floored by
+    `sigma_floor`), so samples that disagree with each other or with the codeword raise it.
+    `position_dof` 0: v_p = sigma^2 for every position; > 0: v_p = (SSW_p + d sigma^2) /
+    (c_p - 1 + d), d = position_dof, SSW_p = sum of squares of position p's samples about their
+    mean: a position whose samples disagree (one of two flipped reads 0) weighs less, one whose
+    samples agree more, shrunk towards sigma^2 with d prior degrees of freedom (a position of
+    one sample keeps sigma^2; SSW does not depend on the hypothesis). Between the best
+    hypothesis h1 and another h, the score difference is 2 sum_{p: s1 != s} s1_p S_p / v_p, of
+    sd 2 sqrt(W) under h1, W = sum of c_p / v_p over the positions where they differ (unseen
+    positions count 0, so an alternative that differs only where nothing was seen has z = 0);
+    its z = (score1 - score_h) / (2 sqrt(W)), and `z` is the smallest over every h of a
+    different ID (the hardest alternative, not only the second-best score). `snr` = a / sigma.
+
+    `exact_from`: z is first taken against the best-scoring hypothesis of another ID only; the
+    search over all 7,680 (one more matrix product) runs only for packets where that z is
+    >= exact_from (below, the returned z is an upper bound of the smallest: enough to reject).
+    """
+    s = np.atleast_2d(np.asarray(sums, dtype=np.float64))
+    c = np.atleast_2d(np.asarray(counts, dtype=np.float64))
+    q = np.atleast_2d(np.asarray(squares, dtype=np.float64))
+    rows = np.arange(s.shape[0])
+    scores = s @ CODEBOOK.T  # (B, 7680)
+    h1 = np.argmax(scores, axis=1)
+    score1 = scores[rows, h1]
+    n = np.maximum(c.sum(axis=1), 1.0)
+    amp = score1 / n
+    rss = np.maximum(q.sum(axis=1) - score1 * amp, 0.0)
+    var = np.maximum(rss / np.maximum(n - 1.0, 1.0), sigma_floor ** 2)
+    if position_dof > 0:
+        ssw = np.maximum(q - s ** 2 / np.maximum(c, 1.0), 0.0)
+        v = (ssw + position_dof * var[:, None]) / (np.maximum(c - 1.0, 0.0) + position_dof)
+        scores = (s / v) @ CODEBOOK.T
+        h1 = np.argmax(scores, axis=1)
+        score1 = scores[rows, h1]
+    else:
+        v = np.repeat(var[:, None], s.shape[1], axis=1)
+        scores = scores / var[:, None]
+        score1 = score1 / var
+    led_id = CODE_ID[h1]
+    s1 = CODEBOOK[h1]  # (B, 30)
+    cu = c / v
+    # the best hypothesis of another ID: W = sum_p c_p / v_p [s_h,p != s1_p]
+    per_id = scores.reshape(s.shape[0], -1, PACKET_LEN)
+    best_of_id = per_id.max(axis=2)
+    best_of_id[rows, led_id] = -np.inf
+    id2 = np.argmax(best_of_id, axis=1)
+    h2 = id2 * PACKET_LEN + np.argmax(per_id[rows, id2], axis=1)
+    w2 = (cu * (CODEBOOK[h2] != s1)).sum(axis=1)
+    z = (score1 - scores[rows, h2]) / (2.0 * np.sqrt(np.maximum(w2, 1e-12)))
+    full = np.flatnonzero(z >= exact_from)
+    if full.size:
+        # every hypothesis: W_h = (sum_p c_p / v_p - sum_p c_p / v_p s1_p s_h,p) / 2
+        w = 0.5 * (cu[full].sum(axis=1)[:, None] - (cu[full] * s1[full]) @ CODEBOOK.T)
+        zf = (score1[full, None] - scores[full]) / (2.0 * np.sqrt(np.maximum(w, 1e-12)))
+        zf[CODE_ID[None, :] == led_id[full, None]] = np.inf
+        z[full] = zf.min(axis=1)
+    sigma = np.sqrt(var)
+    contra = -(s * s1 / np.sqrt(np.maximum(c, 1.0) * v)).min(axis=1)
+    return SoftStats(led_id, z, amp / sigma, amp, sigma, contra)
+
+
+def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, min_z: float,
+                min_snr: float, max_contradiction: float, sigma_floor: float = 0.05,
+                position_dof: float = 0.0) -> tuple[int | None, float]:
+    """ID of one folded packet by `soft_stats`, or None: accepted only when (a) its margin over
+    every other ID is at least `min_z` noise sds, (b) its amplitude is at least `min_snr` noise
+    sds (the absolute evidence floor: noise alone fits some codeword with a small amplitude) and
+    (c) no position contradicts it by more than `max_contradiction` noise sds (the code corrects
+    nothing: a few strongly wrong symbols, a mixed or slipped history, are rejected as the hard
+    decoder rejects them). Returns (id or None, z)."""
+    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, position_dof=position_dof,
+                    exact_from=min_z)
+    z = float(st.z[0])
+    if z >= min_z and float(st.snr[0]) >= min_snr and float(st.contradiction[0]) <= max_contradiction:
+        return int(st.led_id[0]), z
+    return None, z
+
+
 def kind_of(led_id: int | None) -> str | None:
     """'SL' (street light, 0x00-0x7F) or 'FV' (vehicle, 0x80-0xFF)."""
     if led_id is None:
@@ -110,7 +244,9 @@ def kind_of(led_id: int | None) -> str | None:
 class S2pskState:
     """`led_id`: CRC-4-valid ID or None (stays until another valid ID persists for
     `switch_steps` steps); `kind`: 'SL' | 'FV' | None; `samples`: frames fed;
-    `confidence`: weakest Manchester pair reliability of the latest packet estimate."""
+    `confidence`: margin of the latest packet estimate under the rule that decided it: the
+    weakest Manchester pair reliability (`decode_symbols`) when the hard rule accepts or the
+    decoder is 'hard', else the soft margin z in noise sds (`decode_soft`)."""
 
     led_id: int | None
     kind: str | None
@@ -143,6 +279,8 @@ class S2pskDecoder:
         self.min_margin = s.min_margin
         self.min_samples = s.min_samples
         self.switch_steps = s.switch_steps
+        if s.decoder not in ("hard", "soft"):
+            raise ValueError(f"decoder must be 'hard' or 'soft', not {s.decoder!r}")
         self._t = np.zeros(0)
         self._x = np.zeros(0)
         self._t0: float | None = None
@@ -157,12 +295,18 @@ class S2pskDecoder:
 
     def folded_packet(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean soft symbol and sample count per stream position mod 30, (30,) each, at the
-        best symbol-grid phase (zeros when there are no samples). The phase is searched over
-        all `n_phases` every `phase_every` calls and reused in between (it only drifts with
-        the emitter's clock error)."""
+        best symbol-grid phase (zeros when there are no samples); see `folded_sums`."""
+        sums, cnt, _ = self.folded_sums()
+        return np.where(cnt > 0, sums / np.maximum(cnt, 1e-12), 0.0), cnt
+
+    def folded_sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sum of the soft samples, their count and the sum of their squares per stream
+        position mod 30, (30,) each, at the best symbol-grid phase (zeros when there are no
+        samples). The phase is searched over all `n_phases` every `phase_every` calls and
+        reused in between (it only drifts with the emitter's clock error)."""
         t, x = self._t, self._x
         if t.size == 0:
-            return np.zeros(PACKET_LEN), np.zeros(PACKET_LEN)
+            return np.zeros(PACKET_LEN), np.zeros(PACKET_LEN), np.zeros(PACKET_LEN)
         if self._phase is None or self._calls % self.phase_every == 0:
             phases = np.arange(self.n_phases) / self.n_phases  # in symbols
         else:
@@ -183,9 +327,10 @@ class S2pskDecoder:
         best = int(np.argmax(np.abs(sums).sum(axis=1)))
         self._phase = float(phases[best])
         pos = (np.arange(nsym) + smin) % PACKET_LEN
-        m = np.bincount(pos, sums[best], PACKET_LEN)
-        c = np.bincount(pos, cnt[best], PACKET_LEN)
-        return np.where(c > 0, m / np.maximum(c, 1e-12), 0.0), c
+        ub = use[best]
+        sq = np.bincount((sym[best] - smin)[ub], x[ub] ** 2, nsym)
+        return (np.bincount(pos, sums[best], PACKET_LEN), np.bincount(pos, cnt[best], PACKET_LEN),
+                np.bincount(pos, sq, PACKET_LEN))
 
     def step(self, t_s: float, soft_xor: float, decode: bool = True) -> S2pskState:
         """Feed one frame: its timestamp (s, source clock) and the pair's `pair_xor`.
@@ -206,11 +351,17 @@ class S2pskDecoder:
                 self._calls += 1
                 self._phase = None  # the first decode searches every phase
             return S2pskState(self.led_id, kind_of(self.led_id), self.samples, self.confidence)
-        m, c = self.folded_packet()
+        sums, c, squares = self.folded_sums()
         if c.min() < self.min_samples:
             self.confidence = 0.0
             return S2pskState(self.led_id, kind_of(self.led_id), self.samples, 0.0)
-        led_id, conf = decode_symbols(m, sync_margin=self.sync_margin, min_margin=self.min_margin)
+        led_id, conf = decode_symbols(sums / np.maximum(c, 1e-12), sync_margin=self.sync_margin,
+                                      min_margin=self.min_margin)
+        if led_id is None and self.settings.decoder == "soft":
+            s = self.settings
+            led_id, conf = decode_soft(sums, c, squares, min_z=s.soft_min_z, min_snr=s.soft_min_snr,
+                                       max_contradiction=s.soft_max_contradiction,
+                                       sigma_floor=s.soft_sigma_floor, position_dof=s.soft_position_dof)
         self.confidence = conf
         if led_id is not None and led_id != self.led_id:
             if self.led_id is None:
