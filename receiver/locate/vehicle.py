@@ -107,7 +107,8 @@ import numpy as np
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
-from receiver.locate.lsq import _LOSSES, LM_FTOL, covariance_at, lm_iterate, robust_lm
+from receiver.core.native import load
+from receiver.locate.lsq import _LOSSES, LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
@@ -116,6 +117,8 @@ ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")
 ZONES = ("safe", "min", "critical")
 DOWN = np.array([0.0, 0.0, -1.0])
+# Compiled host-pose solve (`_solve_native`); None: the numpy path (`_solve_pose`).
+_k = load("receiver.locate._vehicle_pose")
 
 
 
@@ -353,6 +356,38 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
 
     f.jac, f.fun_jac = jac, fun_jac
     return f
+
+
+def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, C_prior_cov, n_pairs, sep_gain, attitude, p0,
+                  max_iter, s: VehicleSettings):
+    """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
+    `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
+    `lm_iterate` with the solve's stopping rule. Returns (x, r, J) at the solution."""
+    W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    att = np.zeros((0, 8))
+    if attitude:
+        rows = []
+        for kind, name in enumerate(("yaw", "pitch", "roll", "mid_range")):
+            v = attitude.get(name)
+            if v is None:
+                continue
+            if name == "mid_range":
+                M, D, sig_d = v
+                rows.append([3.0, 0.0, 1.0, *np.asarray(M, float), D, sig_d])
+            else:
+                rows.append([float(kind), v[0], v[1], 0.0, 0.0, 0.0, 0.0, 1.0])
+        att = np.array(rows, float).reshape(-1, 8)
+    n_d = int(np.count_nonzero(np.isfinite(d)))
+    r = np.empty(_k.rows(len(L), n_d, len(att)))
+    J = np.empty((len(r), 6))
+    x = np.array(p0, float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        _k.solve(np.ascontiguousarray(L, float), np.ascontiguousarray(uv, float), float(sigma_uv),
+                 np.ascontiguousarray(d, float), np.ascontiguousarray(sd, float), np.ascontiguousarray(up, float),
+                 float(up_sigma), np.ascontiguousarray(C_prior, float), np.ascontiguousarray(W), int(n_pairs),
+                 float(sep_gain), att, float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad),
+                 float(s.pose_pos_tol_m), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J)
+    return x, r, J
 
 
 def camera_yaw(R_cw: np.ndarray) -> float:
@@ -785,13 +820,17 @@ class VehicleLocator:
         C_prior = np.array([C0[0], C0[1], self.s.camera_height_m])
         cov = np.diag([1e8, 1e8, hs * hs])
         up = self.R_nominal[:, 2]
+        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+        p0 = np.concatenate([rvec.ravel(), C0])
+        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
+        if _k is not None and self.s.pose_loss == "soft_l1":
+            x, r, J = _solve_native(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov,
+                                    len(sl_k), self._sep_gain, attitude, p0, n_iter, self.s)
+            return self._pose_result(x, r, J, L)
         fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
                            len(sl_k), self._sep_gain)
         if attitude:
             fun = _with_attitude_prior(fun, **attitude)
-        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-        p0 = np.concatenate([rvec.ravel(), C0])
-        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
         if self.s.pose_loss not in _LOSSES:
             x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale, max_iter=n_iter)
             r, J = fun(x), fun.jac(x)
@@ -808,6 +847,12 @@ class VehicleLocator:
             with np.errstate(over="ignore", invalid="ignore"):
                 x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
                                         f_scale=self.s.pose_f_scale, max_iter=n_iter)
+        return self._pose_result(x, r, J, L)
+
+    @staticmethod
+    def _pose_result(x, r, J, L):
+        """(R, C, cov3) of a solved pose x (Rodrigues vector, C) with its final residuals r and
+        Jacobian J, or None (not finite, the camera above a head, an unusable covariance)."""
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))

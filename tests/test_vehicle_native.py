@@ -1,0 +1,113 @@
+"""The vehicle stage's compiled kernels against their numpy references (receiver.core.native):
+every call the locator makes on the synthetic scenes of test_vehicle / test_vehicle_single is
+run both ways on the same inputs and compared."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import receiver.locate.vehicle as V
+from test_vehicle import CAM, SETTINGS, camera_pose, fv_pair, make_map, sl_pairs
+from test_vehicle_single import _drive
+
+needs_kernel = pytest.mark.skipif(V._k is None, reason="compiled kernel not built (tests/test_native.py fails then)")
+
+
+class _Both:
+    """Wraps VehicleLocator._solve_pose: each call runs the kernel and the numpy path and records
+    the largest differences; the kernel's result goes on."""
+
+    def __init__(self, monkeypatch):
+        self.orig = V.VehicleLocator._solve_pose
+        self.calls = []
+        this = self
+
+        def wrapped(loc, *a, **k):
+            out = this.orig(loc, *a, **k)
+            monkeypatch.setattr(V, "_k", None)
+            try:
+                ref = this.orig(loc, *a, **k)
+            finally:
+                monkeypatch.setattr(V, "_k", kernel)
+            this.calls.append((k, out, ref))
+            return out
+
+        kernel = V._k
+        monkeypatch.setattr(V.VehicleLocator, "_solve_pose", wrapped)
+
+    def check(self, tol_C=1e-9, tol_R=1e-11, tol_cov=1e-9):
+        assert self.calls
+        for kw, out, ref in self.calls:
+            assert (out is None) == (ref is None), kw
+            if out is None:
+                continue
+            (R, C, cov), (R0, C0, cov0) = out, ref
+            assert np.max(np.abs(R - R0)) <= tol_R
+            assert np.max(np.abs(C - C0)) <= tol_C
+            assert np.max(np.abs(cov - cov0)) <= tol_cov * max(1.0, float(np.max(np.abs(cov0))))
+
+
+@needs_kernel
+@pytest.mark.parametrize("radius", [None, 150.0])
+def test_pose_kernel_equals_numpy_cold_and_warm(monkeypatch, radius):
+    """Cold solves (2-D registration start, up to pose_max_iter steps) and warm ones (tracking,
+    pose_track_iter steps) with pixel noise, both emitter orders, forward vehicles in view."""
+    both = _Both(monkeypatch)
+    rng = np.random.default_rng(5)
+    lmap = make_map(radius)
+    loc = V.VehicleLocator(CAM, lmap, SETTINGS)
+    for i in range(25):
+        R, C, psi = camera_pose(2.0 + 0.5 * i, radius, lateral=-1.0, yaw_off=rng.normal(0, 0.3))
+        pairs = sl_pairs(lmap, R, C, rng=rng, px_sigma=0.3, area_rel=0.03, swap=True)
+        pairs.append(fv_pair((20.0, 0.5), R, C, psi, rng=rng, px_sigma=0.3)[0])
+        hv = loc.step(i / 30.0, pairs).vehicle["hv"]
+        assert hv is not None
+    assert any(kw.get("max_iter") == SETTINGS.pose_track_iter for kw, _, _ in both.calls)
+    assert any(kw.get("max_iter") is None for kw, _, _ in both.calls)
+    both.check()
+
+
+@needs_kernel
+def test_pose_kernel_equals_numpy_single_light_attitude_rows(monkeypatch):
+    """The single-light solve (`_single_fix`: yaw, roll and pitch priors, the midpoint range,
+    no emitter ranges) both ways."""
+    both = _Both(monkeypatch)
+    _drive(make_map(), 12)
+    att = [kw["attitude"] for kw, _, _ in both.calls if kw.get("attitude")]
+    assert att and {"yaw", "roll", "mid_range"} <= set(att[0])
+    both.check()
+
+
+@needs_kernel
+@pytest.mark.parametrize("value", [1e9, 1e300, float("inf"), float("nan")])
+def test_pose_kernel_absurd_ranges_agree(monkeypatch, value):
+    """Absurd emitter ranges (overflowing whitened residuals) give no fix, or the same fix, both
+    ways."""
+    both = _Both(monkeypatch)
+    lmap = make_map()
+    R, C, psi = camera_pose(3.0)
+    pairs = sl_pairs(lmap, R, C)
+    loc = V.VehicleLocator(CAM, lmap, SETTINGS)
+    out = loc._range_pairs(pairs, None, False)
+    aligned, res = out
+    res["d_a"][0] = value
+    sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL"]
+    init = loc._init_pose(np.array([[0.0, -5.0, 20.0], [0.0, -5.0, 30.0]]),
+                          np.array([lmap.leds[0].xyz, lmap.leds[1].xyz]))
+    R0, C0 = init if init is not None else (R, C)
+    loc._solve_pose(pairs, res, sl_k, R0, C0)
+    assert len(both.calls) == 1
+    both.check(tol_C=1e-6, tol_R=1e-8)
+    assert all(o is None or np.all(np.isfinite(o[1])) for _, o, _ in both.calls)
+
+
+def test_pure_path_without_kernel(monkeypatch):
+    """With the kernel unavailable (OCCLOC_PURE=1 or not built) the numpy path places the host."""
+    monkeypatch.setattr(V, "_k", None)
+    lmap = make_map()
+    R, C, psi = camera_pose(41.0)
+    hv = V.VehicleLocator(CAM, lmap, SETTINGS).step(0.0, sl_pairs(lmap, R, C)).vehicle["hv"]
+    assert math.hypot(hv["raw"]["x"] - C[0], hv["raw"]["y"] - C[1]) < 0.03
