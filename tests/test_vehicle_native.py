@@ -111,3 +111,24 @@ def test_pure_path_without_kernel(monkeypatch):
     R, C, psi = camera_pose(41.0)
     hv = V.VehicleLocator(CAM, lmap, SETTINGS).step(0.0, sl_pairs(lmap, R, C)).vehicle["hv"]
     assert math.hypot(hv["raw"]["x"] - C[0], hv["raw"]["y"] - C[1]) < 0.03
+
+
+@needs_kernel
+def test_covariance_kernel_equals_pinv():
+    """s^2 (J' J)^-1 by Cholesky equals lsq.covariance_at's pinv on determined problems (within
+    the conditioning's rounding), and declines rank-deficient ones (the pinv path decides)."""
+    from receiver.locate.lsq import covariance_at
+
+    rng = np.random.default_rng(2)
+    for n in (8, 12, 30):
+        J = rng.normal(size=(n, 6)) * np.array([5e3, 5e3, 5e3, 30.0, 30.0, 3.0])
+        r = rng.normal(size=n) * 2.0
+        out = np.empty((6, 6))
+        assert V._k.covariance(r, J, out) == 0
+        ref = covariance_at(r, J, 6)[0]
+        assert np.allclose(out, ref, rtol=1e-9, atol=0.0)
+        assert np.array_equal(out, out.T)
+    J[:, 5] = 0.0
+    assert V._k.covariance(r, J, np.empty((6, 6))) == 1
+    J[0, 0] = np.nan
+    assert V._k.covariance(r, J, np.empty((6, 6))) == 1

@@ -409,3 +409,58 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
 def rows(int M, int n_d, int n_att):
     """Residual rows of a problem: 2 per point, the ranges, 6 prior rows, the attitude rows."""
     return 2 * M + n_d + 6 + n_att
+
+
+def covariance(double[::1] r, double[:, ::1] J, double[:, ::1] out):
+    """receiver.locate.lsq.covariance_at of a full-rank solution: out (6, 6) = s^2 (J' J)^-1,
+    s^2 = max(1, chi^2 / dof), the inverse by Cholesky (J' J is symmetric positive definite
+    when the solve is determined; pinv then equals the inverse). Returns 0, or 1 when a
+    Cholesky pivot is not positive and finite (rank-deficient: the caller's pinv decides)."""
+    cdef int n = r.shape[0], i, j, k
+    cdef double A[36]
+    cdef double Li[36]
+    cdef double t, chi2 = 0.0, s2
+    for j in range(6):
+        for k in range(j, 6):
+            t = 0.0
+            for i in range(n):
+                t += J[i, j] * J[i, k]
+            A[6 * j + k] = t
+            A[6 * k + j] = t
+    # A = L L' (L in the lower triangle of A).
+    for j in range(6):
+        t = A[7 * j]
+        for k in range(j):
+            t -= A[6 * j + k] * A[6 * j + k]
+        if not (t > 0.0 and t < 1e308):
+            return 1
+        A[7 * j] = sqrt(t)
+        for i in range(j + 1, 6):
+            t = A[6 * i + j]
+            for k in range(j):
+                t -= A[6 * i + k] * A[6 * j + k]
+            A[6 * i + j] = t / A[7 * j]
+    # Li = L^-1 (lower triangular).
+    for i in range(36):
+        Li[i] = 0.0
+    for j in range(6):
+        Li[7 * j] = 1.0 / A[7 * j]
+        for i in range(j + 1, 6):
+            t = 0.0
+            for k in range(j, i):
+                t -= A[6 * i + k] * Li[6 * k + j]
+            Li[6 * i + j] = t / A[7 * i]
+    for i in range(n):
+        chi2 += r[i] * r[i]
+    s2 = 1.0
+    if n > 6 and chi2 / (n - 6) > 1.0:
+        s2 = chi2 / (n - 6)
+    # (L L')^-1 = Li' Li.
+    for j in range(6):
+        for k in range(j, 6):
+            t = 0.0
+            for i in range(k, 6):
+                t += Li[6 * i + j] * Li[6 * i + k]
+            out[j, k] = t * s2
+            out[k, j] = t * s2
+    return 0

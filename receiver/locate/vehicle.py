@@ -358,12 +358,35 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
     return f
 
 
+def _fix_covariance(r: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """(6, 6) covariance of a pose solution from its whitened residuals and Jacobian
+    (receiver.locate.lsq.covariance_at; compiled: by Cholesky when J' J is positive definite)."""
+    if _k is not None:
+        out = np.empty((6, 6))
+        if _k.covariance(r, J, out) == 0:
+            return out
+    with np.errstate(over="ignore", invalid="ignore"):
+        return covariance_at(r, J, J.shape[1])[0]
+
+
+_W_CACHE: dict = {}
+
+
+def _prior_whitening(cov: np.ndarray) -> np.ndarray:
+    """W with W^T W = cov^-1 (receiver.locate.pose._joint_fun's), kept per covariance."""
+    key = cov.tobytes()
+    W = _W_CACHE.get(key)
+    if W is None:
+        W = _W_CACHE[key] = np.ascontiguousarray(np.linalg.cholesky(np.linalg.inv(cov)).T)
+    return W
+
+
 def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, C_prior_cov, n_pairs, sep_gain, attitude, p0,
                   max_iter, s: VehicleSettings):
     """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
     `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
     `lm_iterate` with the solve's stopping rule. Returns (x, r, J) at the solution."""
-    W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    W = _prior_whitening(C_prior_cov)
     att = np.zeros((0, 8))
     if attitude:
         rows = []
@@ -381,7 +404,7 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, C_prior_cov, n_
     r = np.empty(_k.rows(len(L), n_d, len(att)))
     J = np.empty((len(r), 6))
     x = np.array(p0, float)
-    with np.errstate(over="ignore", invalid="ignore"):
+    if True:
         _k.solve(np.ascontiguousarray(L, float), np.ascontiguousarray(uv, float), float(sigma_uv),
                  np.ascontiguousarray(d, float), np.ascontiguousarray(sd, float), np.ascontiguousarray(up, float),
                  float(up_sigma), np.ascontiguousarray(C_prior, float), np.ascontiguousarray(W), int(n_pairs),
@@ -584,10 +607,15 @@ class VehicleLocator:
             self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
                                     circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz,
                                     head=None if em is None else em.mean(0))
+            self._sl[led.id]["head_t"] = None if em is None else tuple(self._sl[led.id]["head"].tolist())
         # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
+        # The heads of the lights with mapped emitters, their IDs and baselines (`_associate`).
+        em_ids = [i for i, c in self._sl.items() if c["em"] is not None]
+        self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
+                          np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in em_ids], float))
         self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
         tl = led_map.taillight
         self._tl = None
@@ -860,9 +888,7 @@ class VehicleLocator:
         if C[2] >= float(L[:, 2].min()):
             return None
         # Covariance from the final residuals and Jacobian (not evaluated again).
-        with np.errstate(over="ignore", invalid="ignore"):
-            cov6, _, _ = covariance_at(r, J, len(x))
-        cov = cov6[3:5, 3:5]
+        cov = _fix_covariance(r, J)[3:5, 3:5]
         if not np.all(np.isfinite(cov)):
             return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
         return R, C, cov
@@ -903,11 +929,12 @@ class VehicleLocator:
         if float(Pxy[0, 0] + Pxy[1, 1]) > s.assoc_max_std_m ** 2:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
-        ids = [i for i, c in self._sl.items() if c["em"] is not None and i not in decoded]
+        ids, H, Bl = self._em_heads
+        keep = [i not in decoded for i in ids]
+        if not all(keep):
+            ids, H, Bl = [i for i, k in zip(ids, keep) if k], H[keep], Bl[keep]
         if not ids:
             return {}
-        H = np.array([self._sl[i]["head"] for i in ids])
-        Bl = np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in ids])
         dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
         c, sn = math.cos(dpsi), math.sin(dpsi)
         R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
@@ -1187,15 +1214,18 @@ class VehicleLocator:
         """SL pairs with mapped emitters: the distance from the frame's solved camera centre to
         the head (estimator "pose"; its sigma from the pose covariance along the line of
         sight). Far more exact than either image measurement of a small, foreshortened head."""
-        C, cov = fix["pose"][0], fix["pose"][1]
+        (cx, cy, cz), ((c00, c01), (c10, c11)) = fix["pose"][0].tolist(), fix["pose"][1].tolist()
+        hs = self.s.camera_height_sigma_m
         for i, p in enumerate(pairs):
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
                 continue
-            v = c["head"] - C
-            d = math.sqrt(float(v @ v))
-            u = v[:2] / d
-            sd = math.sqrt(max(float(u @ cov @ u), 0.0) + (self.s.camera_height_sigma_m * v[2] / d) ** 2 * 0.01)
+            hx, hy, hz = c["head_t"]
+            vx, vy, vz = hx - cx, hy - cy, hz - cz
+            d = math.sqrt(vx * vx + vy * vy + vz * vz)
+            ux, uy = vx / d, vy / d
+            q = ux * (ux * c00 + uy * c10) + uy * (ux * c01 + uy * c11)
+            sd = math.sqrt(max(q, 0.0) + (hs * vz / d) ** 2 * 0.01)
             ranges[i] = (d, sd, "pose")
 
     def _eq44_47(self, pairs, res, sl_k, fix):
@@ -1203,7 +1233,8 @@ class VehicleLocator:
         if len(sl_k) < 2:
             return None
         # The image's own ranges (the baseline: geometry only), not the pose's (circular).
-        rng = np.where(np.isfinite(res["baseline"]), res["baseline"], res["fused"])
+        base, fused = res["baseline"], res["fused"]
+        rng = {k: base[k] if math.isfinite(base[k]) else fused[k] for k in sl_k}
         ks = sorted(sl_k, key=lambda k: rng[k])[:2]
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
