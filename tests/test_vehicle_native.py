@@ -132,3 +132,61 @@ def test_covariance_kernel_equals_pinv():
     assert V._k.covariance(r, J, np.empty((6, 6))) == 1
     J[0, 0] = np.nan
     assert V._k.covariance(r, J, np.empty((6, 6))) == 1
+
+
+def _same(a, b) -> bool:
+    """Equal to the last bit, NaN equal to NaN, bools as bools."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if isinstance(x, bool) or isinstance(y, bool):
+            if type(x) is not type(y) or x != y:
+                return False
+        elif x != x or y != y:
+            if not (x != x and y != y):
+                return False
+        elif x != y or math.copysign(1.0, x) != math.copysign(1.0, y):
+            return False
+    return True
+
+
+@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+def test_range_kernel_equals_python_loop_bit_for_bit(monkeypatch):
+    """range_core's compiled loop gives the Python loop's numbers exactly, on SL heads (with and
+    without a known pose), taillight pairs, half-seen pairs and absurd areas / centroids."""
+    orig = V.range_core
+    kernel = V._kr
+    n_pairs = [0]
+
+    def both(*a, **k):
+        out = orig(*a, **k)
+        monkeypatch.setattr(V, "_kr", None)
+        try:
+            ref = orig(*a, **k)
+        finally:
+            monkeypatch.setattr(V, "_kr", kernel)
+        assert set(out) == set(ref)
+        for key in ref:
+            if key in ("ra", "rb"):
+                assert np.array_equal(out[key], ref[key], equal_nan=True)
+            else:
+                assert _same(out[key], ref[key]), key
+        n_pairs[0] += len(ref["fused"])
+        return out
+
+    monkeypatch.setattr(V, "range_core", both)
+    rng = np.random.default_rng(9)
+    lmap = make_map(150.0)
+    loc = V.VehicleLocator(CAM, lmap, SETTINGS)
+    for i in range(8):
+        R, C, psi = camera_pose(3.0 + i, 150.0, yaw_off=rng.normal(0, 0.3))
+        pairs = sl_pairs(lmap, R, C, rng=rng, px_sigma=0.3, area_rel=0.03, swap=True)
+        pairs.append(fv_pair((18.0, 0.5), R, C, psi, rng=rng, px_sigma=0.3)[0])
+        pairs.append(fv_pair((35.0, -3.0), R, C, psi, key=(902, 903), led_id=None)[0])
+        if i >= 5:       # absurd values in one pair
+            q = pairs[0]
+            value = (0.0, -1.0, 1e300)[i - 5]
+            pairs[0] = V.PairObservation(**{**q.__dict__, "area_a_px": value,
+                                            "a_seen": ((value, q.a_px[1]), value, 0)})
+        loc.step(i / 30.0, pairs)
+    assert n_pairs[0] >= 40

@@ -119,6 +119,8 @@ ZONES = ("safe", "min", "critical")
 DOWN = np.array([0.0, 0.0, -1.0])
 # Compiled host-pose solve (`_solve_native`); None: the numpy path (`_solve_pose`).
 _k = load("receiver.locate._vehicle_pose")
+# Compiled per-pair ranging loop (`range_core`); None: its Python loop.
+_kr = load("receiver.locate._vehicle_range")
 
 
 
@@ -263,6 +265,10 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
+    if _kr is not None:
+        out = dict(zip(keys, _kr.range_rows(*cols, float(focal_px), float(off), float(esig), float(cons))))
+        out.update(ra=ra, rb=rb)
+        return out
     rows = []
     for (ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, (uax, uay), (ubx, uby), S1i, S2i, (bx, by, bz),
          (nx, ny, nz), circ, (rax, ray, raz), (rbx, rby, rbz), cos3_a, cos3_b) in zip(*cols):
