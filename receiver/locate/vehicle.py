@@ -576,7 +576,9 @@ class VehicleLocator:
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
-        self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
+        self._tilt: tuple | None = None            # ... its pitch and roll (deg; `R_tilt`): the mounting, kept
+        self._R_tilt: np.ndarray | None = None
+        self._ypr = (None, None)                  # (R, rotation_to_ypr_deg(R)) of the last R asked (`_ypr_of`)
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
         self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
@@ -631,6 +633,23 @@ class VehicleLocator:
             Lb = float(tl["baseline_m"])
             self._tl = dict(area=A, w=w, h=h, circle=tl["shape"] == "circle", baseline=Lb,
                             row=np.array([0.0, 0, 0, 0, 0, 0, A, w, h, float(tl["shape"] == "circle"), 0, 0, Lb]))
+
+    @property
+    def R_tilt(self) -> np.ndarray | None:
+        """The last solved camera's pitch and roll (yaw 0) as a rotation, or None before any fix
+        (made when first asked: most frames do not)."""
+        if self._tilt is None:
+            return None
+        if self._R_tilt is None:
+            self._R_tilt = ypr_to_rotation(0.0, *self._tilt)
+        return self._R_tilt
+
+    def _ypr_of(self, R: np.ndarray) -> tuple[float, float, float]:
+        """rotation_to_ypr_deg(R), kept for the last R (a frame asks for its pose's angles up to
+        three times)."""
+        if self._ypr[0] is not R:
+            self._ypr = (R, rotation_to_ypr_deg(R))
+        return self._ypr[1]
 
     # -------------------------------------------------------------------------- ranging
     def _role(self, p: PairObservation) -> str | None:
@@ -747,8 +766,13 @@ class VehicleLocator:
                 continue
             if p.led_id in live:
                 twice.add(p.led_id)
-            prev = self._seen_hist.get(p.led_id, ({}, {}))
-            h = tuple({k: v for k, v in prev[e].items() if k > old} for e in (0, 1))
+                continue            # dropped below
+            h = self._seen_hist.get(p.led_id)
+            if h is None:
+                h = ({}, {})
+            else:
+                # Steps are added in order: the first key is the oldest (nothing to age out, as a rule).
+                h = tuple({k: v for k, v in d.items() if k > old} if d and next(iter(d)) <= old else d for d in h)
             for e, sn in enumerate((p.a_seen, p.b_seen)):
                 if sn is not None and int(sn[2]) == 0:
                     h[e][self._nstep] = (float(sn[0][0]), float(sn[0][1]))
@@ -1156,7 +1180,7 @@ class VehicleLocator:
                         # Final ranges with the solved pose. While tracking, the ranges taken with
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
-                    yaw = math.radians(rotation_to_ypr_deg(R)[0])
+                    yaw = math.radians(self._ypr_of(R)[0])
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
                                heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])
                                       for k in sl_k])
@@ -1293,8 +1317,8 @@ class VehicleLocator:
             if accepted:
                 self.R_last = R
                 self.z_last = float(fix["pose"][0][2])
-                _, pitch, roll = rotation_to_ypr_deg(R)
-                self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
+                _, pitch, roll = self._ypr_of(R)
+                self._tilt, self._R_tilt = (pitch, roll), None
                 if fix["n"] >= 2:
                     self.pitch_ref = math.radians(pitch)
             else:
@@ -1507,7 +1531,7 @@ class VehicleLocator:
                         not_fv.add(i)
                         self.fv_tracks.pop(key, None)
                         continue
-                    if role == "FV?" and self.R_tilt is not None:
+                    if role == "FV?" and self._tilt is not None:
                         # Height window only once the camera's tilt is known (the nominal tilt
                         # may be off by degrees: metres of height at 30 m).
                         z = s.camera_height_m + d * lev[2]
@@ -1561,7 +1585,7 @@ class VehicleLocator:
             road_x = road_y = None
             if hv is not None:
                 if cpsi is None:        # the HV heading: once per frame
-                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
+                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(self._ypr_of(R)[0])
                     cpsi, spsi = math.cos(psi), math.sin(psi)
                 road_x = hv["x"] + cpsi * x - spsi * y       # eq. 53
                 road_y = hv["y"] + spsi * x + cpsi * y
