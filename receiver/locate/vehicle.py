@@ -387,12 +387,12 @@ def _prior_whitening(cov: np.ndarray) -> np.ndarray:
     return W
 
 
-def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, C_prior_cov, n_pairs, sep_gain, attitude, p0,
+def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, attitude, p0,
                   max_iter, s: VehicleSettings):
     """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
     `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
-    `lm_iterate` with the solve's stopping rule. Returns (x, r, J) at the solution."""
-    W = _prior_whitening(C_prior_cov)
+    `lm_iterate` with the solve's stopping rule (W: the position prior's whitening,
+    `_prior_whitening`). Returns (x, r, J) at the solution."""
     att = np.zeros((0, 8))
     if attitude:
         rows = []
@@ -406,16 +406,13 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, C_prior_cov, n_
             else:
                 rows.append([float(kind), v[0], v[1], 0.0, 0.0, 0.0, 0.0, 1.0])
         att = np.array(rows, float).reshape(-1, 8)
-    n_d = int(np.count_nonzero(np.isfinite(d)))
+    n_d = sum(1 for v in d.tolist() if math.isfinite(v))
     r = np.empty(_k.rows(len(L), n_d, len(att)))
     J = np.empty((len(r), 6))
     x = np.array(p0, float)
-    if True:
-        _k.solve(np.ascontiguousarray(L, float), np.ascontiguousarray(uv, float), float(sigma_uv),
-                 np.ascontiguousarray(d, float), np.ascontiguousarray(sd, float), np.ascontiguousarray(up, float),
-                 float(up_sigma), np.ascontiguousarray(C_prior, float), np.ascontiguousarray(W), int(n_pairs),
-                 float(sep_gain), att, float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad),
-                 float(s.pose_pos_tol_m), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J)
+    _k.solve(L, uv, float(sigma_uv), d, sd, up, float(up_sigma), C_prior, W, int(n_pairs), float(sep_gain), att,
+             float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad), float(s.pose_pos_tol_m), LM_FTOL,
+             LM_LAMBDA0, LM_LAMBDA_MAX, r, J)
     return x, r, J
 
 
@@ -500,23 +497,24 @@ def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: 
     """Thesis eqs. 44-47: HV (camera) road position (x, y) from the direct distances D1 (nearer)
     and D2 to street lights at sl1, sl2 (3,) and the camera height. `sl2_left_of_sl1`: SL2 is
     seen further left in the image than SL1 (tells the side of the SL1-SL2 line)."""
-    dz1, dz2 = sl1[2] - cam_height, sl2[2] - cam_height
+    (x1, y1, z1), (x2, y2, z2) = (float(v) for v in sl1[:3]), (float(v) for v in sl2[:3])
+    dz1, dz2 = z1 - cam_height, z2 - cam_height
     a1s, a2s = D1 * D1 - dz1 * dz1, D2 * D2 - dz2 * dz2          # flat distances squared
     if a1s <= 0 or a2s <= 0:
         return None
-    vec = sl2[:2] - sl1[:2]
-    dsl = float(np.linalg.norm(vec))
+    vx, vy = x2 - x1, y2 - y1
+    dsl = math.sqrt(vx * vx + vy * vy)
     if dsl < 1e-6:
         return None
-    u = vec / dsl
+    ux, uy = vx / dsl, vy / dsl
     c = ((a2s - a1s) - dsl * dsl) / (2.0 * dsl)                  # eq. 46
     h = math.sqrt(max(a1s - c * c, 0.0))                          # eq. 47
-    n = np.array([-u[1], u[0]])                                  # left normal of SL1 -> SL2
+    nx, ny = -uy, ux                                             # left normal of SL1 -> SL2
     # cross_z(SL1 - P, SL2 - P) = -s h dsl; seen counter-clockwise (SL2 left of SL1) -> > 0.
     s = -1.0 if sl2_left_of_sl1 else 1.0
     # a1^2 = c^2 + h^2 (eq. 44): the foot point F of the camera on the line lies c before SL1
     # (SL1 = F + c u, SL2 = F + (c + d) u, eq. 45) and P = F - s h n.
-    return sl1[:2] - c * u - s * h * n
+    return np.array([x1 - c * ux - s * h * nx, y1 - c * uy - s * h * ny])
 
 
 def fv_measured(p: PairObservation):
@@ -569,6 +567,8 @@ class VehicleLocator:
         # (`sl_separation_sigma_px` with the two centroids' own `centroid_sigma_px`).
         self._sl_csig = math.sqrt(settings.centroid_sigma_px ** 2 + 0.5 * settings.sl_separation_sigma_px ** 2)
         self.R_nominal = nominal_rotation(settings)
+        self._up = np.ascontiguousarray(self.R_nominal[:, 2])      # world up seen by the nominal camera
+        self._W: np.ndarray | None = None                          # the pose's position-prior whitening
         self.kf = RoadKalman(accel_psd=settings.accel_psd, yaw_accel_psd=settings.yaw_accel_psd,
                              init_speed_sigma=settings.init_speed_sigma_mps,
                              init_omega_sigma=settings.init_omega_sigma_rps,
@@ -616,6 +616,7 @@ class VehicleLocator:
                                     circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz,
                                     head=None if em is None else em.mean(0))
             self._sl[led.id]["head_t"] = None if em is None else tuple(self._sl[led.id]["head"].tolist())
+            self._sl[led.id]["em_t"] = None if em is None else (tuple(em[0].tolist()), tuple(em[1].tolist()))
         # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
@@ -856,6 +857,8 @@ class VehicleLocator:
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
         `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
         (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
+        if _k is not None and self.s.pose_loss == "soft_l1":
+            return self._solve_pose_native(pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges)
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
         for k in sl_k:
@@ -881,10 +884,6 @@ class VehicleLocator:
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
         n_iter = self.s.pose_max_iter if max_iter is None else max_iter
-        if _k is not None and self.s.pose_loss == "soft_l1":
-            x, r, J = _solve_native(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov,
-                                    len(sl_k), self._sep_gain, attitude, p0, n_iter, self.s)
-            return self._pose_result(x, r, J, L)
         fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
                            len(sl_k), self._sep_gain)
         if attitude:
@@ -905,6 +904,37 @@ class VehicleLocator:
             with np.errstate(over="ignore", invalid="ignore"):
                 x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
                                         f_scale=self.s.pose_f_scale, max_iter=n_iter)
+        return self._pose_result(x, r, J, L)
+
+    def _solve_pose_native(self, pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges):
+        """`_solve_pose` by the compiled solve (`_solve_native`): the same inputs, gathered as
+        plain floats."""
+        idx, flip, d_a, d_b, s_a, s_b = res["idx"], res["flip"], res["d_a"], res["d_b"], res["s_a"], res["s_b"]
+        Lf, ds, sds = [], [], []
+        fin = math.isfinite
+        for k in sl_k:
+            e0, e1 = self._sl[pairs[idx[k]].led_id]["em_t"]
+            Lf += (e1 + e0) if flip[k] else (e0 + e1)
+            for d, sd in ((d_a[k], s_a[k]), (d_b[k], s_b[k])):
+                ok = emitter_ranges and fin(d) and fin(sd) and sd > 0
+                ds.append(d if ok else NAN)
+                sds.append(sd if ok else 1.0)
+        L = np.array(Lf).reshape(-1, 3)
+        m = len(sl_k)
+        uv = np.empty((2 * m, 2))
+        uv[0::2] = res["ua"][sl_k]
+        uv[1::2] = res["ub"][sl_k]
+        s = self.s
+        C_prior = np.array([float(C0[0]), float(C0[1]), s.camera_height_m])
+        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+        p0 = np.concatenate([rvec.ravel(), C0])
+        n_iter = s.pose_max_iter if max_iter is None else max_iter
+        if self._W is None:
+            hs = s.camera_height_sigma_m
+            self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
+        x, r, J = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds), self._up,
+                                math.radians(s.tilt_sigma_deg), C_prior, self._W, m, self._sep_gain, attitude, p0,
+                                n_iter, s)
         return self._pose_result(x, r, J, L)
 
     @staticmethod
@@ -1370,8 +1400,13 @@ class VehicleLocator:
         `speed_hist_s`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
         keep = t_s - self.s.speed_hist_s
         hist = {}
+        old = self._sep_hist
         for p in pairs:
-            h = [e for e in self._sep_hist.get(p.key, ()) if e[0] >= keep]
+            h = old.get(p.key, ())
+            if h and h[0][0] < keep:
+                h = [e for e in h if e[0] >= keep]
+            else:
+                h = list(h)        # a key may repeat within a frame: each from the last frame's list
             if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
                 h.append((t_s, float(p.separation_px)))
             if h:
