@@ -416,7 +416,11 @@ def covariance(double[::1] r, double[:, ::1] J, double[:, ::1] out):
     s^2 = max(1, chi^2 / dof), the inverse by Cholesky (J' J is symmetric positive definite
     when the solve is determined; pinv then equals the inverse). Returns 0, or 1 when a
     Cholesky pivot is not positive and finite (rank-deficient: the caller's pinv decides)."""
-    cdef int n = r.shape[0], i, j, k
+    return cov_core(&r[0], &J[0, 0], r.shape[0], &out[0, 0])
+
+
+cdef int cov_core(const double* r, const double* J, int n, double* out) noexcept nogil:
+    cdef int i, j, k
     cdef double A[36]
     cdef double Li[36]
     cdef double t, chi2 = 0.0, s2
@@ -424,7 +428,7 @@ def covariance(double[::1] r, double[:, ::1] J, double[:, ::1] out):
         for k in range(j, 6):
             t = 0.0
             for i in range(n):
-                t += J[i, j] * J[i, k]
+                t += J[6 * i + j] * J[6 * i + k]
             A[6 * j + k] = t
             A[6 * k + j] = t
     # A = L L' (L in the lower triangle of A).
@@ -461,6 +465,39 @@ def covariance(double[::1] r, double[:, ::1] J, double[:, ::1] out):
             t = 0.0
             for i in range(k, 6):
                 t += Li[6 * i + j] * Li[6 * i + k]
-            out[j, k] = t * s2
-            out[k, j] = t * s2
+            out[6 * j + k] = t * s2
+            out[6 * k + j] = t * s2
+    return 0
+
+
+def solve_pose(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, double[::1] sd,
+               double[::1] up, double up_sigma, double[::1] C_prior, double[:, ::1] W, int n_pairs,
+               double sep_gain, double[:, ::1] att, double f_scale, double[::1] p, int max_iter,
+               double rot_tol, double pos_tol, double ftol, double lam0, double lam_max,
+               double[::1] r_out, double[:, ::1] J_out, double[:, ::1] R_out, double[:, ::1] cov_out):
+    """`solve`, then vehicle.VehicleLocator._pose_result's checks: returns 0 with R_out (the
+    solved R_cw, Rodrigues of p[:3]) and cov_out (6, 6, `covariance`); 1: p not finite; 2: the
+    camera at or above the lowest point of L; 3: J' J not positive definite (R_out set; the
+    caller's pinv decides from r_out, J_out); 4: the position covariance not finite."""
+    cdef int i, k
+    cdef double zmin
+    cdef double dR[27]
+    solve(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, att, f_scale, p, max_iter,
+          rot_tol, pos_tol, ftol, lam0, lam_max, r_out, J_out)
+    for k in range(6):
+        if not isfinite(p[k]):
+            return 1
+    rodrigues(&p[0], &R_out[0, 0], dR)
+    zmin = L[0, 2]
+    for i in range(1, L.shape[0]):
+        if L[i, 2] < zmin:
+            zmin = L[i, 2]
+    if p[5] >= zmin:
+        return 2
+    if cov_core(&r_out[0], &J_out[0, 0], r_out.shape[0], &cov_out[0, 0]):
+        return 3
+    for i in range(3, 5):
+        for k in range(3, 5):
+            if not isfinite(cov_out[i, k]):
+                return 4
     return 0

@@ -392,7 +392,8 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep
     """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
     `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
     `lm_iterate` with the solve's stopping rule (W: the position prior's whitening,
-    `_prior_whitening`). Returns (x, r, J) at the solution."""
+    `_prior_whitening`), and `_pose_result`'s checks. Returns (x, r, J, R, cov6, status) at the
+    solution (status: `receiver.locate._vehicle_pose.solve_pose`'s, 0 = a fix)."""
     att = np.zeros((0, 8))
     if attitude:
         rows = []
@@ -410,10 +411,11 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep
     r = np.empty(_k.rows(len(L), n_d, len(att)))
     J = np.empty((len(r), 6))
     x = np.array(p0, float)
-    _k.solve(L, uv, float(sigma_uv), d, sd, up, float(up_sigma), C_prior, W, int(n_pairs), float(sep_gain), att,
-             float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad), float(s.pose_pos_tol_m), LM_FTOL,
-             LM_LAMBDA0, LM_LAMBDA_MAX, r, J)
-    return x, r, J
+    R, cov6 = np.empty((3, 3)), np.empty((6, 6))
+    status = _k.solve_pose(L, uv, float(sigma_uv), d, sd, up, float(up_sigma), C_prior, W, int(n_pairs),
+                           float(sep_gain), att, float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad),
+                           float(s.pose_pos_tol_m), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J, R, cov6)
+    return x, r, J, R, cov6, status
 
 
 def camera_yaw(R_cw: np.ndarray) -> float:
@@ -569,6 +571,7 @@ class VehicleLocator:
         self.R_nominal = nominal_rotation(settings)
         self._up = np.ascontiguousarray(self.R_nominal[:, 2])      # world up seen by the nominal camera
         self._W: np.ndarray | None = None                          # the pose's position-prior whitening
+        self._rvec_of = (None, None)             # (R, its Rodrigues vector) of the last compiled solve
         self.kf = RoadKalman(accel_psd=settings.accel_psd, yaw_accel_psd=settings.yaw_accel_psd,
                              init_speed_sigma=settings.init_speed_sigma_mps,
                              init_omega_sigma=settings.init_omega_sigma_rps,
@@ -926,16 +929,24 @@ class VehicleLocator:
         uv[1::2] = res["ub"][sl_k]
         s = self.s
         C_prior = np.array([float(C0[0]), float(C0[1]), s.camera_height_m])
-        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-        p0 = np.concatenate([rvec.ravel(), C0])
+        if R0 is self._rvec_of[0]:
+            rvec = self._rvec_of[1]             # warm start from the last solved R: its own vector
+        else:
+            rvec = cv2.Rodrigues(np.asarray(R0, float))[0].ravel()
+        p0 = np.concatenate([rvec, np.asarray(C0, float)])
         n_iter = s.pose_max_iter if max_iter is None else max_iter
         if self._W is None:
             hs = s.camera_height_sigma_m
             self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
-        x, r, J = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds), self._up,
-                                math.radians(s.tilt_sigma_deg), C_prior, self._W, m, self._sep_gain, attitude, p0,
-                                n_iter, s)
-        return self._pose_result(x, r, J, L)
+        x, r, J, R, cov6, status = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds),
+                                                 self._up, math.radians(s.tilt_sigma_deg), C_prior, self._W, m,
+                                                 self._sep_gain, attitude, p0, n_iter, s)
+        if status == 3:
+            return self._pose_result(x, r, J, L)     # J' J not positive definite: the pinv decides
+        if status:
+            return None
+        self._rvec_of = (R, x[:3].copy())
+        return R, x[3:].copy(), cov6[3:5, 3:5]
 
     @staticmethod
     def _pose_result(x, r, J, L):
