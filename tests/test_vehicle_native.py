@@ -246,3 +246,14 @@ def test_road_kalman_singular_update_raises_like_numpy(monkeypatch):
         kf.start(0.0, np.array([0.0, 0.0]), np.zeros((2, 2)), 0.0, 0.0, 10.0, 0.0)
         with pytest.raises(np.linalg.LinAlgError):
             kf.update_fix(0.0, np.array([0.0, 0.0]), np.zeros((2, 2)), None, 0.0)
+
+
+@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+def test_rays_kernel_equals_numpy_bit_for_bit(monkeypatch):
+    rng = np.random.default_rng(3)
+    u = np.concatenate([rng.normal(size=(500, 2)) * 0.4, [[1e200, 0.0], [np.nan, 0.1], [np.inf, 0.0], [0.0, 0.0]]])
+    got = V._rays(u)
+    monkeypatch.setattr(V, "_kr", None)
+    with np.errstate(over="ignore", invalid="ignore"):
+        ref = V._rays(u)
+    assert np.array_equal(got, ref, equal_nan=True)

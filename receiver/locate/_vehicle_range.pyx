@@ -152,3 +152,17 @@ def range_rows(list ja, list jb, list eta_a, list eta_b, list area_m2, list osig
         cols[13].append(bool(fb and not fa))
         cols[14].append(bool(clash))
     return cols
+
+
+def rays(double[:, ::1] u, double[:, ::1] out):
+    """vehicle._rays: unit rays (x, y, 1) / |(x, y, 1)| of normalized points u (N, 2) into out
+    (N, 3); the squared norm summed as numpy's row reduction does, (x^2 + y^2) + 1."""
+    cdef Py_ssize_t i
+    cdef double x, y, n
+    for i in range(u.shape[0]):
+        x = u[i, 0]
+        y = u[i, 1]
+        n = sqrt((x * x + y * y) + 1.0 * 1.0)
+        out[i, 0] = x / n
+        out[i, 1] = y / n
+        out[i, 2] = 1.0 / n

@@ -181,6 +181,10 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
 
 
 def _rays(u: np.ndarray) -> np.ndarray:
+    if _kr is not None and u.ndim == 2 and u.shape[1] == 2:
+        out = np.empty((len(u), 3))
+        _kr.rays(np.ascontiguousarray(u, float), out)
+        return out
     v = np.empty((len(u), 3))
     v[:, :2] = u
     v[:, 2] = 1.0
