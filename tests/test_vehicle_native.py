@@ -257,3 +257,19 @@ def test_rays_kernel_equals_numpy_bit_for_bit(monkeypatch):
     with np.errstate(over="ignore", invalid="ignore"):
         ref = V._rays(u)
     assert np.array_equal(got, ref, equal_nan=True)
+
+
+@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+def test_record_rounding_kernel_equals_python_round():
+    """The records' rounding (`_r`) compiled gives round(v, nd) exactly: ties, signed zeros,
+    huge values, None / NaN / inf, numpy floats and ints."""
+    rng = np.random.default_rng(8)
+    vals = list(rng.normal(size=4000) * 10.0 ** rng.integers(-6, 9, 4000))
+    vals += [0.5e-4, 1.5e-4, 2.5e-4, -0.5e-4, 0.00015, 1.00005, 2.675, -2.675, 0.0, -0.0, -1e-7, 1e-7, 5e-5, -5e-5,
+             123456789.12345, 1e15 + 0.3, 4.9999999999e-5, np.float64(3.14159265), 7, -3]
+    for v in vals:
+        for nd in (3, 4):
+            a, b = V._kr.rnd(v, nd), V._r_py(v, nd)
+            assert a == b and math.copysign(1.0, a) == math.copysign(1.0, b) and type(a) is float, (v, nd, a, b)
+    for v in (None, float("nan"), float("inf"), -float("inf")):
+        assert V._kr.rnd(v) is None and V._r_py(v) is None

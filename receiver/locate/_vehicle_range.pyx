@@ -166,3 +166,32 @@ def rays(double[:, ::1] u, double[:, ::1] out):
         out[i, 0] = x / n
         out[i, 1] = y / n
         out[i, 2] = 1.0 / n
+
+
+from libc.math cimport floor
+
+cdef double[5] POW10 = [1.0, 10.0, 100.0, 1000.0, 10000.0]
+
+
+def rnd(v, int nd=4):
+    """vehicle._r: None for None or a non-finite v, else Python's round(float(v), nd) (0 <= nd <=
+    4), bit for bit: the nearest double to the decimal m 10^-nd, m = |v| 10^nd rounded, taken as
+    m / 10^nd (one correctly rounded division) with v's sign, when |v| 10^nd is clear of a
+    rounding tie by far more than its own rounding error; else round() itself (its digit
+    conversion is most of the vehicle record's cost)."""
+    if v is None:
+        return None
+    cdef double x = v, ax, y, f, m, p
+    if not isfinite(x):
+        return None
+    if nd < 0 or nd > 4:
+        return round(<object>x, nd)
+    p = POW10[nd]
+    ax = fabs(x)
+    y = ax * p
+    if y < 1e12:
+        f = y - floor(y)
+        if fabs(f - 0.5) > 1e-12 * y + 1e-12:
+            m = floor(y) + (1.0 if f > 0.5 else 0.0)
+            return copysign(m / p, x)
+    return round(<object>x, nd)

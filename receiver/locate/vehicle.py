@@ -150,8 +150,14 @@ def _finite(v) -> float | None:
 
 
 def _r(v, nd=4):
+    """round(v, nd) of a finite number, else None (the records' numbers)."""
     v = _finite(v)
     return None if v is None else round(v, nd)
+
+
+_r_py = _r
+if _kr is not None:
+    _r = _kr.rnd            # noqa: F811 -- the same numbers, compiled (tests/test_vehicle_native.py)
 
 
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:
