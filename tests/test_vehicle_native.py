@@ -273,3 +273,19 @@ def test_record_rounding_kernel_equals_python_round():
             assert a == b and math.copysign(1.0, a) == math.copysign(1.0, b) and type(a) is float, (v, nd, a, b)
     for v in (None, float("nan"), float("inf"), -float("inf")):
         assert V._kr.rnd(v) is None and V._r_py(v) is None
+
+
+@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+def test_pose_ranges_kernel_equals_python_loop(monkeypatch):
+    """The "pose" ranges of the street-light pairs, compiled and in Python, bit for bit."""
+    lmap = make_map()
+    R, C, psi = camera_pose(20.0)
+    pairs = sl_pairs(lmap, R, C) + [fv_pair((20.0, 0.0), R, C, psi)[0]]
+    pairs.append(V.PairObservation(**{**pairs[0].__dict__, "led_id": 99, "kind": "SL"}))    # unmapped
+    loc = V.VehicleLocator(CAM, lmap, SETTINGS)
+    fix = {"pose": (C + np.array([0.3, -0.2, 0.05]), np.array([[0.04, 0.01], [0.01, 0.09]]))}
+    got, ref = [None] * len(pairs), [None] * len(pairs)
+    loc._pose_ranges(pairs, got, fix)
+    monkeypatch.setattr(V, "_kr", None)
+    loc._pose_ranges(pairs, ref, fix)
+    assert got == ref and sum(r is not None for r in ref) == len(pairs) - 2

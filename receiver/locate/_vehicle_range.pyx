@@ -195,3 +195,27 @@ def rnd(v, int nd=4):
             m = floor(y) + (1.0 if f > 0.5 else 0.0)
             return copysign(m / p, x)
     return round(<object>x, nd)
+
+
+def pose_ranges(list pairs, dict heads, double cx, double cy, double cz, double c00, double c01, double c10,
+                double c11, double hs, list ranges):
+    """VehicleLocator._pose_ranges' loop: ranges[i] = (d, sigma, "pose") of each street-light
+    pair whose mapped head (`heads`: led_id -> (x, y, z) of the lights with emitters) is known,
+    from the camera centre C and its position covariance (2 x 2); the same scalar operations."""
+    cdef Py_ssize_t i
+    cdef double hx, hy, hz, vx, vy, vz, d, ux, uy, q, t
+    for i in range(len(pairs)):
+        p = pairs[i]
+        led = p.led_id
+        if not (p.kind == "SL" or (led is not None and led <= 0x7F)):
+            continue
+        h = heads.get(led)
+        if h is None:
+            continue
+        hx, hy, hz = h
+        vx, vy, vz = hx - cx, hy - cy, hz - cz
+        d = sqrt(vx * vx + vy * vy + vz * vz)
+        ux, uy = vx / d, vy / d
+        q = ux * (ux * c00 + uy * c10) + uy * (ux * c01 + uy * c11)
+        t = hs * vz / d
+        ranges[i] = (d, sqrt(pymax(q, 0.0) + t * t * 0.01), "pose")

@@ -634,6 +634,7 @@ class VehicleLocator:
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
+        self._heads_t = {i: c["head_t"] for i, c in self._sl.items() if c["em"] is not None}    # `_pose_ranges`
         # The heads of the lights with mapped emitters, their IDs and baselines (`_associate`).
         em_ids = [i for i, c in self._sl.items() if c["em"] is not None]
         self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
@@ -1297,6 +1298,9 @@ class VehicleLocator:
         sight). Far more exact than either image measurement of a small, foreshortened head."""
         (cx, cy, cz), ((c00, c01), (c10, c11)) = fix["pose"][0].tolist(), fix["pose"][1].tolist()
         hs = self.s.camera_height_sigma_m
+        if _kr is not None:
+            _kr.pose_ranges(pairs, self._heads_t, cx, cy, cz, c00, c01, c10, c11, hs, ranges)
+            return
         for i, p in enumerate(pairs):
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
