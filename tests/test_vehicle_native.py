@@ -289,3 +289,25 @@ def test_pose_ranges_kernel_equals_python_loop(monkeypatch):
     monkeypatch.setattr(V, "_kr", None)
     loc._pose_ranges(pairs, ref, fix)
     assert got == ref and sum(r is not None for r in ref) == len(pairs) - 2
+
+
+@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+def test_on_mapped_sl_kernel_equals_numpy(monkeypatch):
+    """Whether an emitter lies on a projected mapped head: compiled and numpy decide alike, also
+    at the gate's edge and with NaN points."""
+    lmap = make_map()
+    R, C, psi = camera_pose(20.0)
+    loc = V.VehicleLocator(CAM, lmap, SETTINGS)
+    hv = {"x": float(C[0]), "y": float(C[1])}
+    loc.z_last = float(C[2])
+    loc._on_mapped_sl(0.0, np.zeros(2), np.zeros(2), hv, R)
+    P = loc._sl_seen_at[2]
+    g = math.tan(math.radians(SETTINGS.fv_sl_gate_deg))
+    rng = np.random.default_rng(1)
+    cases = [(P[0] + [g * 0.999, 0.0], P[1] + [5.0, 5.0]), (P[0] + [g * 1.001, 0.0], P[1] + [0.0, g * 1.001]),
+             (np.array([np.nan, 0.0]), P[2]), (P[3], np.array([np.nan, np.nan]))]
+    cases += [(rng.normal(size=2) * 0.3, rng.normal(size=2) * 0.3) for _ in range(200)]
+    got = [loc._on_mapped_sl(0.0, a, b, hv, R) for a, b in cases]
+    monkeypatch.setattr(V, "_kr", None)
+    ref = [loc._on_mapped_sl(0.0, a, b, hv, R) for a, b in cases]
+    assert got == ref and any(ref) and not all(ref)

@@ -219,3 +219,24 @@ def pose_ranges(list pairs, dict heads, double cx, double cy, double cz, double 
         q = ux * (ux * c00 + uy * c10) + uy * (ux * c01 + uy * c11)
         t = hs * vz / d
         ranges[i] = (d, sqrt(pymax(q, 0.0) + t * t * 0.01), "pose")
+
+
+cdef inline double min_d2(double[:, ::1] P, double ux, double uy) noexcept nogil:
+    """np.min((P - u)[:, 0]^2 + (P - u)[:, 1]^2), NaN when any is NaN (numpy's min)."""
+    cdef Py_ssize_t i
+    cdef double dx, dy, v, m = INFINITY
+    for i in range(P.shape[0]):
+        dx = P[i, 0] - ux
+        dy = P[i, 1] - uy
+        v = dx * dx + dy * dy
+        if v != v:
+            return v
+        if v < m:
+            m = v
+    return m
+
+
+def near_any(double[:, ::1] P, double ax, double ay, double bx, double by, double g2):
+    """VehicleLocator._on_mapped_sl's test: whether point a or b (normalized) is within sqrt(g2)
+    of any row of P (m >= 1, 2), as its numpy form decides it."""
+    return min_d2(P, ax, ay) < g2 or min_d2(P, bx, by) < g2

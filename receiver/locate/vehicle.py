@@ -1715,6 +1715,9 @@ class VehicleLocator:
         if not len(P):
             return False
         g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
+        if _kr is not None and P.flags.c_contiguous:
+            (ax, ay), (bx, by) = ua.tolist(), ub.tolist()
+            return _kr.near_any(P, ax, ay, bx, by, g2)
         for u in (ua, ub):
             d = P - u
             if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:
