@@ -16,6 +16,7 @@ def _declared() -> dict[str, list[str]]:
     out = {}
     for block in text.split("[[tool.setuptools.ext-modules]]")[1:]:
         block = block.split("\n[", 1)[0]
+        assert len(re.findall(r"^name\s*=", block, re.M)) == 1, f"malformed ext-modules table: {block!r}"
         name = re.search(r'^name\s*=\s*"([^"]+)"', block, re.M)
         sources = re.search(r'^sources\s*=\s*\[([^\]]*)\]', block, re.M)
         assert name and sources, f"malformed ext-modules table: {block!r}"

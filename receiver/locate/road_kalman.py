@@ -27,6 +27,11 @@ import math
 
 import numpy as np
 
+from receiver.core.native import load
+
+# Compiled prediction and update (`_model`, `_update`); None: the numpy forms below.
+_k = load("receiver.locate._road_kalman")
+
 
 def wrap_pi(a: float) -> float:
     """Angle wrapped to (-pi, pi]."""
@@ -73,6 +78,10 @@ class RoadKalman:
 
     @staticmethod
     def _model(s: np.ndarray, P: np.ndarray, dt: float, qa: float, qw: float):
+        if _k is not None:
+            s2, P2 = np.empty(5), np.empty((5, 5))
+            _k.model(s, P, float(dt), float(qa), float(qw), s2, P2)
+            return s2, P2
         x, y, psi, v, w = s
         c, sn = math.cos(psi), math.sin(psi)
         s2 = np.array([x + v * c * dt, y + v * sn * dt, psi + w * dt, v, w])
@@ -115,6 +124,14 @@ class RoadKalman:
         return self.s is None or self.coast_s(t_s) > self.max_coast_s
 
     def _update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, angle_rows=()) -> float:
+        if _k is not None and len(angle_rows) <= 1:
+            s2, P2 = np.empty(5), np.empty((5, 5))
+            ok, m2 = _k.update(self.s, self.P, np.asarray(z, float), np.ascontiguousarray(H, float),
+                               np.ascontiguousarray(R, float), angle_rows[0] if angle_rows else -1, s2, P2)
+            if not ok:
+                raise np.linalg.LinAlgError("Singular matrix")
+            self.s, self.P = s2, P2
+            return m2
         y = z - H @ self.s
         for i in angle_rows:
             y[i] = wrap_pi(y[i])
@@ -130,8 +147,15 @@ class RoadKalman:
 
     def gate(self, xy: np.ndarray, cov_xy: np.ndarray) -> float:
         """Mahalanobis^2 of a position fix against the current (predicted) state."""
-        y = xy - self.s[:2]
-        return float(y @ np.linalg.solve(self.P[:2, :2] + cov_xy, y))
+        (c00, c01), (c10, c11) = np.asarray(cov_xy, float).tolist()
+        (p00, p01, *_), (p10, p11, *_) = self.P[:2].tolist()
+        a, b, c, d = p00 + c00, p01 + c01, p10 + c10, p11 + c11
+        y0, y1 = float(xy[0]) - float(self.s[0]), float(xy[1]) - float(self.s[1])
+        det = a * d - b * c
+        if det == 0.0:
+            raise np.linalg.LinAlgError("Singular matrix")
+        # S^-1 y by Cramer's rule (2 x 2): scalars, not a LAPACK call.
+        return y0 * ((d * y0 - b * y1) / det) + y1 * ((a * y1 - c * y0) / det)
 
     def set_speed(self, v: float, sigma: float) -> None:
         """Speed set from outside (m/s, 1-sigma), its cross-covariances cleared."""

@@ -107,7 +107,8 @@ import numpy as np
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
-from receiver.locate.lsq import _LOSSES, LM_FTOL, covariance_at, lm_iterate, robust_lm
+from receiver.core.native import load
+from receiver.locate.lsq import _LOSSES, LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at, lm_iterate, robust_lm
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
@@ -116,6 +117,10 @@ ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")
 ZONES = ("safe", "min", "critical")
 DOWN = np.array([0.0, 0.0, -1.0])
+# Compiled host-pose solve (`_solve_native`); None: the numpy path (`_solve_pose`).
+_k = load("receiver.locate._vehicle_pose")
+# Compiled per-pair ranging loop (`range_core`); None: its Python loop.
+_kr = load("receiver.locate._vehicle_range")
 
 
 
@@ -145,8 +150,14 @@ def _finite(v) -> float | None:
 
 
 def _r(v, nd=4):
+    """round(v, nd) of a finite number, else None (the records' numbers)."""
     v = _finite(v)
     return None if v is None else round(v, nd)
+
+
+_r_py = _r
+if _kr is not None:
+    _r = _kr.rnd            # noqa: F811 -- the same numbers, compiled (tests/test_vehicle_native.py)
 
 
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:
@@ -176,6 +187,10 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
 
 
 def _rays(u: np.ndarray) -> np.ndarray:
+    if _kr is not None and u.ndim == 2 and u.shape[1] == 2:
+        out = np.empty((len(u), 3))
+        _kr.rays(np.ascontiguousarray(u, float), out)
+        return out
     v = np.empty((len(u), 3))
     v[:, :2] = u
     v[:, 2] = 1.0
@@ -260,6 +275,10 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
+    if _kr is not None:
+        out = dict(zip(keys, _kr.range_rows(*cols, float(focal_px), float(off), float(esig), float(cons))))
+        out.update(ra=ra, rb=rb)
+        return out
     rows = []
     for (ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, (uax, uay), (ubx, uby), S1i, S2i, (bx, by, bz),
          (nx, ny, nz), circ, (rax, ray, raz), (rbx, rby, rbz), cos3_a, cos3_b) in zip(*cols):
@@ -355,6 +374,60 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
     return f
 
 
+def _fix_covariance(r: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """(6, 6) covariance of a pose solution from its whitened residuals and Jacobian
+    (receiver.locate.lsq.covariance_at; compiled: by Cholesky when J' J is positive definite)."""
+    if _k is not None:
+        out = np.empty((6, 6))
+        if _k.covariance(r, J, out) == 0:
+            return out
+    with np.errstate(over="ignore", invalid="ignore"):
+        return covariance_at(r, J, J.shape[1])[0]
+
+
+_W_CACHE: dict = {}
+
+
+def _prior_whitening(cov: np.ndarray) -> np.ndarray:
+    """W with W^T W = cov^-1 (receiver.locate.pose._joint_fun's), kept per covariance."""
+    key = cov.tobytes()
+    W = _W_CACHE.get(key)
+    if W is None:
+        W = _W_CACHE[key] = np.ascontiguousarray(np.linalg.cholesky(np.linalg.inv(cov)).T)
+    return W
+
+
+def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, attitude, p0,
+                  max_iter, s: VehicleSettings):
+    """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
+    `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
+    `lm_iterate` with the solve's stopping rule (W: the position prior's whitening,
+    `_prior_whitening`), and `_pose_result`'s checks. Returns (x, r, J, R, cov6, status) at the
+    solution (status: `receiver.locate._vehicle_pose.solve_pose`'s, 0 = a fix)."""
+    att = np.zeros((0, 8))
+    if attitude:
+        rows = []
+        for kind, name in enumerate(("yaw", "pitch", "roll", "mid_range")):
+            v = attitude.get(name)
+            if v is None:
+                continue
+            if name == "mid_range":
+                M, D, sig_d = v
+                rows.append([3.0, 0.0, 1.0, *np.asarray(M, float), D, sig_d])
+            else:
+                rows.append([float(kind), v[0], v[1], 0.0, 0.0, 0.0, 0.0, 1.0])
+        att = np.array(rows, float).reshape(-1, 8)
+    n_d = sum(1 for v in d.tolist() if math.isfinite(v))
+    r = np.empty(_k.rows(len(L), n_d, len(att)))
+    J = np.empty((len(r), 6))
+    x = np.array(p0, float)
+    R, cov6 = np.empty((3, 3)), np.empty((6, 6))
+    status = _k.solve_pose(L, uv, float(sigma_uv), d, sd, up, float(up_sigma), C_prior, W, int(n_pairs),
+                           float(sep_gain), att, float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad),
+                           float(s.pose_pos_tol_m), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J, R, cov6)
+    return x, r, J, R, cov6, status
+
+
 def camera_yaw(R_cw: np.ndarray) -> float:
     """Azimuth (rad, counter-clockwise from world +x) of the optical axis (R_cw's third row)."""
     return math.atan2(float(R_cw[2, 1]), float(R_cw[2, 0]))
@@ -436,23 +509,24 @@ def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: 
     """Thesis eqs. 44-47: HV (camera) road position (x, y) from the direct distances D1 (nearer)
     and D2 to street lights at sl1, sl2 (3,) and the camera height. `sl2_left_of_sl1`: SL2 is
     seen further left in the image than SL1 (tells the side of the SL1-SL2 line)."""
-    dz1, dz2 = sl1[2] - cam_height, sl2[2] - cam_height
+    (x1, y1, z1), (x2, y2, z2) = (float(v) for v in sl1[:3]), (float(v) for v in sl2[:3])
+    dz1, dz2 = z1 - cam_height, z2 - cam_height
     a1s, a2s = D1 * D1 - dz1 * dz1, D2 * D2 - dz2 * dz2          # flat distances squared
     if a1s <= 0 or a2s <= 0:
         return None
-    vec = sl2[:2] - sl1[:2]
-    dsl = float(np.linalg.norm(vec))
+    vx, vy = x2 - x1, y2 - y1
+    dsl = math.sqrt(vx * vx + vy * vy)
     if dsl < 1e-6:
         return None
-    u = vec / dsl
+    ux, uy = vx / dsl, vy / dsl
     c = ((a2s - a1s) - dsl * dsl) / (2.0 * dsl)                  # eq. 46
     h = math.sqrt(max(a1s - c * c, 0.0))                          # eq. 47
-    n = np.array([-u[1], u[0]])                                  # left normal of SL1 -> SL2
+    nx, ny = -uy, ux                                             # left normal of SL1 -> SL2
     # cross_z(SL1 - P, SL2 - P) = -s h dsl; seen counter-clockwise (SL2 left of SL1) -> > 0.
     s = -1.0 if sl2_left_of_sl1 else 1.0
     # a1^2 = c^2 + h^2 (eq. 44): the foot point F of the camera on the line lies c before SL1
     # (SL1 = F + c u, SL2 = F + (c + d) u, eq. 45) and P = F - s h n.
-    return sl1[:2] - c * u - s * h * n
+    return np.array([x1 - c * ux - s * h * nx, y1 - c * uy - s * h * ny])
 
 
 def fv_measured(p: PairObservation):
@@ -505,6 +579,9 @@ class VehicleLocator:
         # (`sl_separation_sigma_px` with the two centroids' own `centroid_sigma_px`).
         self._sl_csig = math.sqrt(settings.centroid_sigma_px ** 2 + 0.5 * settings.sl_separation_sigma_px ** 2)
         self.R_nominal = nominal_rotation(settings)
+        self._up = np.ascontiguousarray(self.R_nominal[:, 2])      # world up seen by the nominal camera
+        self._W: np.ndarray | None = None                          # the pose's position-prior whitening
+        self._rvec_of = (None, None)             # (R, its Rodrigues vector) of the last compiled solve
         self.kf = RoadKalman(accel_psd=settings.accel_psd, yaw_accel_psd=settings.yaw_accel_psd,
                              init_speed_sigma=settings.init_speed_sigma_mps,
                              init_omega_sigma=settings.init_omega_sigma_rps,
@@ -512,7 +589,9 @@ class VehicleLocator:
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
-        self.R_tilt: np.ndarray | None = None     # ... its pitch and roll (yaw 0): the mounting, kept
+        self._tilt: tuple | None = None            # ... its pitch and roll (deg; `R_tilt`): the mounting, kept
+        self._R_tilt: np.ndarray | None = None
+        self._ypr = (None, None)                  # (R, rotation_to_ypr_deg(R)) of the last R asked (`_ypr_of`)
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
         self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
@@ -549,10 +628,17 @@ class VehicleLocator:
             self._sl[led.id] = dict(area=np.nan if A is None else A, w=w, h=h, row=row,
                                     circle=led.shape == "circle", em=em, B=B, baseline=led.baseline_m, normal=nrm, xyz=led.xyz,
                                     head=None if em is None else em.mean(0))
+            self._sl[led.id]["head_t"] = None if em is None else tuple(self._sl[led.id]["head"].tolist())
+            self._sl[led.id]["em_t"] = None if em is None else (tuple(em[0].tolist()), tuple(em[1].tolist()))
         # Mapped street-light heads (m, road frame): an undecoded pair on one is not a taillight pair.
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
+        self._heads_t = {i: c["head_t"] for i, c in self._sl.items() if c["em"] is not None}    # `_pose_ranges`
+        # The heads of the lights with mapped emitters, their IDs and baselines (`_associate`).
+        em_ids = [i for i, c in self._sl.items() if c["em"] is not None]
+        self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
+                          np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in em_ids], float))
         self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
         tl = led_map.taillight
         self._tl = None
@@ -562,6 +648,23 @@ class VehicleLocator:
             Lb = float(tl["baseline_m"])
             self._tl = dict(area=A, w=w, h=h, circle=tl["shape"] == "circle", baseline=Lb,
                             row=np.array([0.0, 0, 0, 0, 0, 0, A, w, h, float(tl["shape"] == "circle"), 0, 0, Lb]))
+
+    @property
+    def R_tilt(self) -> np.ndarray | None:
+        """The last solved camera's pitch and roll (yaw 0) as a rotation, or None before any fix
+        (made when first asked: most frames do not)."""
+        if self._tilt is None:
+            return None
+        if self._R_tilt is None:
+            self._R_tilt = ypr_to_rotation(0.0, *self._tilt)
+        return self._R_tilt
+
+    def _ypr_of(self, R: np.ndarray) -> tuple[float, float, float]:
+        """rotation_to_ypr_deg(R), kept for the last R (a frame asks for its pose's angles up to
+        three times)."""
+        if self._ypr[0] is not R:
+            self._ypr = (R, rotation_to_ypr_deg(R))
+        return self._ypr[1]
 
     # -------------------------------------------------------------------------- ranging
     def _role(self, p: PairObservation) -> str | None:
@@ -678,8 +781,13 @@ class VehicleLocator:
                 continue
             if p.led_id in live:
                 twice.add(p.led_id)
-            prev = self._seen_hist.get(p.led_id, ({}, {}))
-            h = tuple({k: v for k, v in prev[e].items() if k > old} for e in (0, 1))
+                continue            # dropped below
+            h = self._seen_hist.get(p.led_id)
+            if h is None:
+                h = ({}, {})
+            else:
+                # Steps are added in order: the first key is the oldest (nothing to age out, as a rule).
+                h = tuple({k: v for k, v in d.items() if k > old} if d and next(iter(d)) <= old else d for d in h)
             for e, sn in enumerate((p.a_seen, p.b_seen)):
                 if sn is not None and int(sn[2]) == 0:
                     h[e][self._nstep] = (float(sn[0][0]), float(sn[0][1]))
@@ -763,6 +871,8 @@ class VehicleLocator:
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
         `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
         (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
+        if _k is not None and self.s.pose_loss == "soft_l1":
+            return self._solve_pose_native(pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges)
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
         for k in sl_k:
@@ -785,13 +895,13 @@ class VehicleLocator:
         C_prior = np.array([C0[0], C0[1], self.s.camera_height_m])
         cov = np.diag([1e8, 1e8, hs * hs])
         up = self.R_nominal[:, 2]
+        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
+        p0 = np.concatenate([rvec.ravel(), C0])
+        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
         fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
                            len(sl_k), self._sep_gain)
         if attitude:
             fun = _with_attitude_prior(fun, **attitude)
-        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-        p0 = np.concatenate([rvec.ravel(), C0])
-        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
         if self.s.pose_loss not in _LOSSES:
             x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale, max_iter=n_iter)
             r, J = fun(x), fun.jac(x)
@@ -808,6 +918,51 @@ class VehicleLocator:
             with np.errstate(over="ignore", invalid="ignore"):
                 x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
                                         f_scale=self.s.pose_f_scale, max_iter=n_iter)
+        return self._pose_result(x, r, J, L)
+
+    def _solve_pose_native(self, pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges):
+        """`_solve_pose` by the compiled solve (`_solve_native`): the same inputs, gathered as
+        plain floats."""
+        idx, flip, d_a, d_b, s_a, s_b = res["idx"], res["flip"], res["d_a"], res["d_b"], res["s_a"], res["s_b"]
+        Lf, ds, sds = [], [], []
+        fin = math.isfinite
+        for k in sl_k:
+            e0, e1 = self._sl[pairs[idx[k]].led_id]["em_t"]
+            Lf += (e1 + e0) if flip[k] else (e0 + e1)
+            for d, sd in ((d_a[k], s_a[k]), (d_b[k], s_b[k])):
+                ok = emitter_ranges and fin(d) and fin(sd) and sd > 0
+                ds.append(d if ok else NAN)
+                sds.append(sd if ok else 1.0)
+        L = np.array(Lf).reshape(-1, 3)
+        m = len(sl_k)
+        uv = np.empty((2 * m, 2))
+        uv[0::2] = res["ua"][sl_k]
+        uv[1::2] = res["ub"][sl_k]
+        s = self.s
+        C_prior = np.array([float(C0[0]), float(C0[1]), s.camera_height_m])
+        if R0 is self._rvec_of[0]:
+            rvec = self._rvec_of[1]             # warm start from the last solved R: its own vector
+        else:
+            rvec = cv2.Rodrigues(np.asarray(R0, float))[0].ravel()
+        p0 = np.concatenate([rvec, np.asarray(C0, float)])
+        n_iter = s.pose_max_iter if max_iter is None else max_iter
+        if self._W is None:
+            hs = s.camera_height_sigma_m
+            self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
+        x, r, J, R, cov6, status = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds),
+                                                 self._up, math.radians(s.tilt_sigma_deg), C_prior, self._W, m,
+                                                 self._sep_gain, attitude, p0, n_iter, s)
+        if status == 3:
+            return self._pose_result(x, r, J, L)     # J' J not positive definite: the pinv decides
+        if status:
+            return None
+        self._rvec_of = (R, x[:3].copy())
+        return R, x[3:].copy(), cov6[3:5, 3:5]
+
+    @staticmethod
+    def _pose_result(x, r, J, L):
+        """(R, C, cov3) of a solved pose x (Rodrigues vector, C) with its final residuals r and
+        Jacobian J, or None (not finite, the camera above a head, an unusable covariance)."""
         if not np.all(np.isfinite(x)):
             return None
         R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
@@ -815,9 +970,7 @@ class VehicleLocator:
         if C[2] >= float(L[:, 2].min()):
             return None
         # Covariance from the final residuals and Jacobian (not evaluated again).
-        with np.errstate(over="ignore", invalid="ignore"):
-            cov6, _, _ = covariance_at(r, J, len(x))
-        cov = cov6[3:5, 3:5]
+        cov = _fix_covariance(r, J)[3:5, 3:5]
         if not np.all(np.isfinite(cov)):
             return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
         return R, C, cov
@@ -858,11 +1011,12 @@ class VehicleLocator:
         if float(Pxy[0, 0] + Pxy[1, 1]) > s.assoc_max_std_m ** 2:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
-        ids = [i for i, c in self._sl.items() if c["em"] is not None and i not in decoded]
+        ids, H, Bl = self._em_heads
+        keep = [i not in decoded for i in ids]
+        if not all(keep):
+            ids, H, Bl = [i for i, k in zip(ids, keep) if k], H[keep], Bl[keep]
         if not ids:
             return {}
-        H = np.array([self._sl[i]["head"] for i in ids])
-        Bl = np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in ids])
         dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
         c, sn = math.cos(dpsi), math.sin(dpsi)
         R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
@@ -1078,7 +1232,7 @@ class VehicleLocator:
                         # Final ranges with the solved pose. While tracking, the ranges taken with
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
-                    yaw = math.radians(rotation_to_ypr_deg(R)[0])
+                    yaw = math.radians(self._ypr_of(R)[0])
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
                                heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])
                                       for k in sl_k])
@@ -1142,15 +1296,21 @@ class VehicleLocator:
         """SL pairs with mapped emitters: the distance from the frame's solved camera centre to
         the head (estimator "pose"; its sigma from the pose covariance along the line of
         sight). Far more exact than either image measurement of a small, foreshortened head."""
-        C, cov = fix["pose"][0], fix["pose"][1]
+        (cx, cy, cz), ((c00, c01), (c10, c11)) = fix["pose"][0].tolist(), fix["pose"][1].tolist()
+        hs = self.s.camera_height_sigma_m
+        if _kr is not None:
+            _kr.pose_ranges(pairs, self._heads_t, cx, cy, cz, c00, c01, c10, c11, hs, ranges)
+            return
         for i, p in enumerate(pairs):
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
                 continue
-            v = c["head"] - C
-            d = math.sqrt(float(v @ v))
-            u = v[:2] / d
-            sd = math.sqrt(max(float(u @ cov @ u), 0.0) + (self.s.camera_height_sigma_m * v[2] / d) ** 2 * 0.01)
+            hx, hy, hz = c["head_t"]
+            vx, vy, vz = hx - cx, hy - cy, hz - cz
+            d = math.sqrt(vx * vx + vy * vy + vz * vz)
+            ux, uy = vx / d, vy / d
+            q = ux * (ux * c00 + uy * c10) + uy * (ux * c01 + uy * c11)
+            sd = math.sqrt(max(q, 0.0) + (hs * vz / d) ** 2 * 0.01)
             ranges[i] = (d, sd, "pose")
 
     def _eq44_47(self, pairs, res, sl_k, fix):
@@ -1158,7 +1318,8 @@ class VehicleLocator:
         if len(sl_k) < 2:
             return None
         # The image's own ranges (the baseline: geometry only), not the pose's (circular).
-        rng = np.where(np.isfinite(res["baseline"]), res["baseline"], res["fused"])
+        base, fused = res["baseline"], res["fused"]
+        rng = {k: base[k] if math.isfinite(base[k]) else fused[k] for k in sl_k}
         ks = sorted(sl_k, key=lambda k: rng[k])[:2]
         k1, k2 = ks
         c1 = self._sl[pairs[res["idx"][k1]].led_id]
@@ -1211,8 +1372,8 @@ class VehicleLocator:
             if accepted:
                 self.R_last = R
                 self.z_last = float(fix["pose"][0][2])
-                _, pitch, roll = rotation_to_ypr_deg(R)
-                self.R_tilt = ypr_to_rotation(0.0, pitch, roll)
+                _, pitch, roll = self._ypr_of(R)
+                self._tilt, self._R_tilt = (pitch, roll), None
                 if fix["n"] >= 2:
                     self.pitch_ref = math.radians(pitch)
             else:
@@ -1264,8 +1425,13 @@ class VehicleLocator:
         `speed_hist_s`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
         keep = t_s - self.s.speed_hist_s
         hist = {}
+        old = self._sep_hist
         for p in pairs:
-            h = [e for e in self._sep_hist.get(p.key, ()) if e[0] >= keep]
+            h = old.get(p.key, ())
+            if h and h[0][0] < keep:
+                h = [e for e in h if e[0] >= keep]
+            else:
+                h = list(h)        # a key may repeat within a frame: each from the last frame's list
             if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
                 h.append((t_s, float(p.separation_px)))
             if h:
@@ -1425,7 +1591,7 @@ class VehicleLocator:
                         not_fv.add(i)
                         self.fv_tracks.pop(key, None)
                         continue
-                    if role == "FV?" and self.R_tilt is not None:
+                    if role == "FV?" and self._tilt is not None:
                         # Height window only once the camera's tilt is known (the nominal tilt
                         # may be off by degrees: metres of height at 30 m).
                         z = s.camera_height_m + d * lev[2]
@@ -1479,7 +1645,7 @@ class VehicleLocator:
             road_x = road_y = None
             if hv is not None:
                 if cpsi is None:        # the HV heading: once per frame
-                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(rotation_to_ypr_deg(R)[0])
+                    psi = math.radians(hv["heading_deg"]) if R is None else math.radians(self._ypr_of(R)[0])
                     cpsi, spsi = math.cos(psi), math.sin(psi)
                 road_x = hv["x"] + cpsi * x - spsi * y       # eq. 53
                 road_y = hv["y"] + spsi * x + cpsi * y
@@ -1549,6 +1715,9 @@ class VehicleLocator:
         if not len(P):
             return False
         g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
+        if _kr is not None and P.flags.c_contiguous:
+            (ax, ay), (bx, by) = ua.tolist(), ub.tolist()
+            return _kr.near_any(P, ax, ay, bx, by, g2)
         for u in (ua, ub):
             d = P - u
             if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:
