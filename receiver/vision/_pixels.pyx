@@ -1,0 +1,240 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled pixel loops of the image side (receiver.core.native): per-row scans of the blobs'
+boxes that the pure numpy paths do as strips of whole-array operations.
+
+Every function here has a pure numpy reference in receiver/vision (named in its doc) and must
+give the same numbers bit for bit: the float arithmetic is written in the same precision and
+order as numpy evaluates it there (float32 where the reference computes in float32).
+
+The byte scans (row maximum, first / last pixel at or above a level) use SSE2 where the compiler
+targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
+"""
+
+from libc.math cimport ceilf, sqrt, NAN
+from libc.stdlib cimport malloc, free
+from libc.stdint cimport int64_t, int32_t
+
+cdef extern from *:
+    """
+    #if defined(__SSE2__) && defined(__GNUC__)
+    #include <emmintrin.h>
+    #define OCC_SSE2 1
+    #endif
+
+    /* largest value of p[0..n) (0 for n <= 0) */
+    static inline unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) {
+        Py_ssize_t i = 0;
+        unsigned char m = 0;
+    #ifdef OCC_SSE2
+        if (n >= 16) {
+            __m128i acc = _mm_setzero_si128();
+            for (; i + 16 <= n; i += 16)
+                acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(p + i)));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 8));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 4));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 2));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 1));
+            m = (unsigned char)(_mm_cvtsi128_si32(acc) & 0xff);
+        }
+    #endif
+        for (; i < n; i++)
+            if (p[i] > m) m = p[i];
+        return m;
+    }
+
+    /* first i in [0, n) with p[i] >= t, or -1 */
+    static inline Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) {
+        Py_ssize_t i = 0;
+    #ifdef OCC_SSE2
+        const __m128i tv = _mm_set1_epi8((char)t);
+        for (; i + 16 <= n; i += 16) {
+            __m128i x = _mm_loadu_si128((const __m128i *)(p + i));
+            int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
+            if (m) return i + __builtin_ctz((unsigned)m);
+        }
+    #endif
+        for (; i < n; i++)
+            if (p[i] >= t) return i;
+        return -1;
+    }
+
+    /* last i in [0, n) with p[i] >= t, or -1 */
+    static inline Py_ssize_t occ_u8_last_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) {
+        Py_ssize_t i = n;
+    #ifdef OCC_SSE2
+        const __m128i tv = _mm_set1_epi8((char)t);
+        for (; i >= 16; i -= 16) {
+            __m128i x = _mm_loadu_si128((const __m128i *)(p + i - 16));
+            int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
+            if (m) return i - 16 + 31 - __builtin_clz((unsigned)m);
+        }
+    #endif
+        for (; i > 0; i--)
+            if (p[i - 1] >= t) return i - 1;
+        return -1;
+    }
+    """
+    unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) nogil
+    Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
+    Py_ssize_t occ_u8_last_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
+
+
+# ------------------------------------------------------------------ scans (tests, helpers)
+
+def u8_scan(const unsigned char[::1] row, int t):
+    """(max, first index >= t, last index >= t) of a uint8 row (-1 when none): the byte scans
+    the kernels below use, exposed for their tests."""
+    cdef const unsigned char *p = &row[0] if row.shape[0] else NULL
+    cdef Py_ssize_t n = row.shape[0]
+    if n == 0:
+        return 0, -1, -1
+    return (int(occ_u8_max(p, n)), int(occ_u8_first_ge(p, n, <unsigned char>t)),
+            int(occ_u8_last_ge(p, n, <unsigned char>t)))
+
+
+# ------------------------------------------------------------------ stripe edge points
+
+cdef enum:
+    MIN_RUN_PX = 9  # outline.MIN_RUN_PX (2 * SIDE_PX + 5, SIDE_PX = 2: the offsets of _edge_point)
+
+
+cdef inline Py_ssize_t _clampi(Py_ssize_t v, Py_ssize_t hi) noexcept nogil:
+    if v < 0:
+        return 0
+    if v > hi:
+        return hi
+    return v
+
+
+cdef inline bint _edge_point(const unsigned char *p, Py_ssize_t start, int side, Py_ssize_t w1,
+                             float min_contrast, double *pos, float *contrast) noexcept nogil:
+    """One end of a lit run (outline.stripe_edge_points_batch, per point): the sub-pixel
+    crossing (box column, pos) and the plateau - outside contrast; False when no pixel pair
+    straddles the half level."""
+    cdef float plateau = (<float>p[_clampi(start - 2 * side, w1)] + <float>p[_clampi(start - 3 * side, w1)]) / <float>2.0
+    cdef float outside = (<float>p[_clampi(start + 3 * side, w1)] + <float>p[_clampi(start + 4 * side, w1)]) / <float>2.0
+    cdef float thr = <float>0.5 * (plateau + outside)
+    cdef Py_ssize_t a[5]
+    cdef float v[5]
+    cdef int j, k = -1
+    for j in range(5):
+        a[j] = _clampi(start + (j - 1) * side, w1)
+        v[j] = <float>p[a[j]]
+    for j in range(4):
+        if v[j] >= thr and v[j + 1] < thr and a[j] != a[j + 1]:
+            k = j
+            break
+    contrast[0] = plateau - outside
+    if k < 0:
+        return False
+    cdef float d = v[k] - v[k + 1]
+    if d < <float>1e-6:
+        d = <float>1e-6
+    cdef float frac = (v[k] - thr) / d
+    pos[0] = <double>a[k] + <double>side * <double>frac
+    return True
+
+
+def edge_points(const unsigned char[:, ::1] gray, const int64_t[::1] bx0, const int64_t[::1] bx1,
+                const int64_t[::1] by0, const int64_t[::1] by1, const float[::1] bg,
+                int border_px, float min_contrast, int bin_rows, double min_sigma, double sigma_num,
+                double[:, ::1] pts, double[::1] sig, int64_t[::1] ends):
+    """`outline.stripe_edge_points_batch` after its boxes (`_boxes`): box k is columns
+    [bx0, bx1) and rows [by0, by1) of `gray` with background bg[k]. Writes each box's points
+    (left side, then right side; binned by `bin_rows` when > 1) into `pts` (x, y) and `sig`,
+    box k's being rows ends[k]:ends[k + 1]; `pts` / `sig` need 2 * (total box rows) rows.
+    `sigma_num`: NOISE_GRAY * sqrt(2); `min_sigma`: MIN_SIGMA_PX."""
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1]
+    cdef Py_ssize_t nb = bx0.shape[0]
+    cdef Py_ssize_t k, r, i, nrows, wb, w1, first, last, nbin, b, side_i, m = 0
+    cdef Py_ssize_t maxrows = 0
+    cdef int side
+    cdef unsigned char rmax, on
+    cdef float bgf, thr_lit, contrast
+    cdef double pos, x, y, s, half, lo_b = <double>border_px
+    cdef double hi_x = <double>(w - 1 - border_px), hi_y = <double>(h - 1 - border_px)
+    cdef const unsigned char *row
+    cdef Py_ssize_t *fl
+    cdef double *acc
+    for k in range(nb):
+        if by1[k] - by0[k] > maxrows:
+            maxrows = by1[k] - by0[k]
+    fl = <Py_ssize_t *>malloc(2 * (maxrows + 1) * sizeof(Py_ssize_t))
+    acc = <double *>malloc(4 * (maxrows + 1) * sizeof(double))
+    if fl == NULL or acc == NULL:
+        free(fl)
+        free(acc)
+        raise MemoryError()
+    try:
+        ends[0] = 0
+        for k in range(nb):
+            nrows = by1[k] - by0[k]
+            wb = bx1[k] - bx0[k]
+            w1 = wb - 1
+            bgf = bg[k]
+            # the run of every row: first and last lit pixel (-1: no run)
+            for r in range(nrows):
+                fl[2 * r] = -1
+                row = &gray[by0[k] + r, bx0[k]]
+                rmax = occ_u8_max(row, wb)
+                if not (<float>rmax - bgf >= min_contrast):
+                    continue
+                thr_lit = ceilf(bgf + <float>0.5 * (<float>rmax - bgf))
+                if thr_lit < 0:
+                    thr_lit = 0
+                elif thr_lit > 255:
+                    thr_lit = 255
+                on = <unsigned char>thr_lit
+                first = occ_u8_first_ge(row, wb, on)
+                last = occ_u8_last_ge(row, wb, on)
+                if first < 0 or last - first + 1 < MIN_RUN_PX:
+                    continue
+                fl[2 * r] = first
+                fl[2 * r + 1] = last
+            nbin = (nrows + bin_rows - 1) // bin_rows if bin_rows > 1 else 0
+            for side_i in range(2):
+                side = -1 if side_i == 0 else 1
+                if bin_rows > 1:
+                    for b in range(4 * nbin):
+                        acc[b] = 0.0
+                for r in range(nrows):
+                    if fl[2 * r] < 0:
+                        continue
+                    row = &gray[by0[k] + r, bx0[k]]
+                    if not _edge_point(row, fl[2 * r + side_i], side, w1, min_contrast, &pos, &contrast):
+                        continue
+                    if not (contrast >= min_contrast):
+                        continue
+                    x = pos + <double>bx0[k]
+                    y = <double>(r + by0[k])
+                    if not (x >= lo_b and x <= hi_x and y >= lo_b and y <= hi_y):
+                        continue
+                    if not (x > <double>(bx0[k] + 1) and x < <double>(bx1[k] - 2)):
+                        continue
+                    half = <double>(<float>0.5 * contrast if <float>0.5 * contrast > <float>1e-3 else <float>1e-3)
+                    s = sigma_num / half
+                    if s < min_sigma:
+                        s = min_sigma
+                    if bin_rows > 1:
+                        b = 4 * (r // bin_rows)
+                        acc[b] += 1.0
+                        acc[b + 1] += x
+                        acc[b + 2] += y
+                        acc[b + 3] += s * s
+                    else:
+                        pts[m, 0] = x
+                        pts[m, 1] = y
+                        sig[m] = s
+                        m += 1
+                if bin_rows > 1:
+                    for b in range(nbin):
+                        if acc[4 * b] > 0:
+                            pts[m, 0] = acc[4 * b + 1] / acc[4 * b]
+                            pts[m, 1] = acc[4 * b + 2] / acc[4 * b]
+                            sig[m] = sqrt(acc[4 * b + 3]) / acc[4 * b]
+                            m += 1
+            ends[k + 1] = m
+    finally:
+        free(fl)
+        free(acc)
+    return m
