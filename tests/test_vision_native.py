@@ -10,7 +10,11 @@ import numpy as np
 import pytest
 
 from receiver.core.native import load
+from receiver.io.camera import load_camera
+from receiver.io.ledmap import load_map
 from receiver.io.sources import open_source
+from receiver.pipeline import Receiver
+from receiver.vision import detect as detect_mod
 from receiver.vision import outline
 from receiver.vision.detect import detect
 
@@ -35,6 +39,21 @@ def _pure(module, monkeypatch, fn, *args, **kw):
     with monkeypatch.context() as m:
         m.setattr(module, "_k", None)
         return fn(*args, **kw)
+
+
+def _settings(name: str):
+    """The detection settings the pipeline uses on a bundled recording (its camera and map)."""
+    folder = ROOT / "recordings" / name
+    rx = Receiver(load_camera(str(folder / "camera.yaml")), load_map(str(folder / "map.json")))
+    return rx.settings.detect
+
+
+def _same_blobs(a, b):
+    assert len(a) == len(b)
+    for p, q in zip(a, b):
+        assert (p.cx, p.cy, p.area_px, p.x0, p.y0, p.x1, p.y1, p.border, p.peak, p.level, p.background) == \
+            (q.cx, q.cy, q.area_px, q.x0, q.y0, q.x1, q.y1, q.border, q.peak, q.level, q.background)
+        assert p.hull.dtype == q.hull.dtype and np.array_equal(p.hull, q.hull)
 
 
 def _same_points(a, b):
@@ -103,3 +122,35 @@ def test_edge_points_kernel_equals_numpy_on_random_scenes(monkeypatch):
                 _same_points(a, b)
                 total += sum(len(p) for p, _ in a)
     assert total > 100
+
+
+@needs_kernel
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_detect_kernels_equal_numpy_on_recordings(name, monkeypatch):
+    """`detect` with the compiled box scans (peaks, row ends, the pooled search's boxes) gives
+    the numpy path's blobs, on the pipeline's settings of each recording and at full resolution
+    (row_pool 1)."""
+    s = _settings(name)
+    n = 0
+    for gray in _frames(name):
+        for pool in (s.row_pool, 1):
+            a = detect(gray, settings=s, row_pool=pool)
+            b = _pure(detect_mod, monkeypatch, detect, gray, settings=s, row_pool=pool)
+            _same_blobs(a, b)
+            n += len(a)
+    assert n > 0
+
+
+@needs_kernel
+def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
+    rng = np.random.default_rng(11)
+    n = 0
+    for _ in range(40):
+        gray = _random_scene(rng, n=int(rng.integers(0, 9)))
+        kw = {"stripe_gap_px": int(rng.integers(0, 20)), "row_pool": int(rng.integers(1, 3)),
+              "fine_noise": bool(rng.integers(0, 2)), "min_contrast": float(rng.uniform(3, 30))}
+        a = detect(gray, **kw)
+        b = _pure(detect_mod, monkeypatch, detect, gray, **kw)
+        _same_blobs(a, b)
+        n += len(a)
+    assert n > 20

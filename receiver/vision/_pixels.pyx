@@ -30,6 +30,9 @@ cdef extern from *:
             __m128i acc = _mm_setzero_si128();
             for (; i + 16 <= n; i += 16)
                 acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(p + i)));
+            /* the last (overlapping) 16 bytes: no scalar tail */
+            acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(p + n - 16)));
+            i = n;
             acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 8));
             acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 4));
             acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 2));
@@ -52,6 +55,11 @@ cdef extern from *:
             int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
             if (m) return i + __builtin_ctz((unsigned)m);
         }
+        if (i < n && n >= 16) {  /* the last 16 bytes, overlapping the ones seen */
+            __m128i x = _mm_loadu_si128((const __m128i *)(p + n - 16));
+            int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
+            return m ? n - 16 + __builtin_ctz((unsigned)m) : -1;
+        }
     #endif
         for (; i < n; i++)
             if (p[i] >= t) return i;
@@ -67,6 +75,11 @@ cdef extern from *:
             __m128i x = _mm_loadu_si128((const __m128i *)(p + i - 16));
             int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
             if (m) return i - 16 + 31 - __builtin_clz((unsigned)m);
+        }
+        if (i > 0 && n >= 16) {  /* the first 16 bytes, overlapping the ones seen */
+            __m128i x = _mm_loadu_si128((const __m128i *)p);
+            int m = _mm_movemask_epi8(_mm_cmpeq_epi8(_mm_max_epu8(x, tv), x));
+            return m ? 31 - __builtin_clz((unsigned)m) : -1;
         }
     #endif
         for (; i > 0; i--)
@@ -238,3 +251,87 @@ def edge_points(const unsigned char[:, ::1] gray, const int64_t[::1] bx0, const 
         free(fl)
         free(acc)
     return m
+
+
+# ------------------------------------------------------------------ detection: blob envelopes
+
+def box_max(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double[::1] peak):
+    """peak[i] = the largest gray value in box i (x, y, w, h) of `gray` (cv2.minMaxLoc's maximum
+    over the ROI, `detect._refine_alone_batch`)."""
+    cdef Py_ssize_t i, r, x, y, w, h
+    cdef unsigned char m, v
+    for i in range(rects.shape[0]):
+        x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        m = 0
+        for r in range(h):
+            v = occ_u8_max(&gray[y + r, x], w)
+            if v > m:
+                m = v
+        peak[i] = m
+
+
+def row_extremes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, const int64_t[::1] first_on,
+                 int32_t[:, ::1] pts, int64_t[::1] seg):
+    """The leftmost and rightmost pixel >= first_on[i] of every row of box i (x, y, w, h) that
+    has one (`detect._refine_alone_batch`): box i's points, in box coordinates (column, row),
+    are pts[seg[i]:seg[i + 1]], its rows' left ends top to bottom, then their right ends.
+    first_on[i] > 255: nothing is lit. `pts` needs 2 * (sum of heights) rows."""
+    cdef Py_ssize_t i, r, x, y, w, h, first, m = 0, n0, nrow, j
+    cdef unsigned char on
+    seg[0] = 0
+    for i in range(rects.shape[0]):
+        x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        n0 = m
+        if first_on[i] <= 255:
+            on = <unsigned char>first_on[i]
+            for r in range(h):
+                first = occ_u8_first_ge(&gray[y + r, x], w, on)
+                if first >= 0:
+                    pts[m, 0] = <int32_t>first
+                    pts[m, 1] = <int32_t>r
+                    m += 1
+            nrow = m - n0
+            for j in range(nrow):
+                r = pts[n0 + j, 1]
+                pts[m, 0] = <int32_t>occ_u8_last_ge(&gray[y + r, x], w, on)
+                pts[m, 1] = <int32_t>r
+                m += 1
+        seg[i + 1] = m
+
+
+def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, int on, int pool,
+                 int reach, int64_t[:, ::1] out):
+    """`detect._pooled_boxes_exact` (boxes found on `pool`-row maxima -> the full-resolution
+    search's): out[i] = x, first row, w, rows of the box's first to last row with a pixel >= on,
+    a first row within `reach` of the top moved to 0, a last within `reach` of the bottom to the
+    last row. Returns False when a box holds no such pixel (the caller's reference path then
+    reports it)."""
+    cdef Py_ssize_t h = gray.shape[0], i, x, y, w, hh, y1, top, bottom, r
+    cdef unsigned char o = <unsigned char>on
+    for i in range(rects.shape[0]):
+        x, w = rects[i, 0], rects[i, 2]
+        y = rects[i, 1] * pool
+        y1 = (rects[i, 1] + rects[i, 3]) * pool
+        if y1 > h:
+            y1 = h
+        top = -1
+        for r in range(y, y1):
+            if occ_u8_first_ge(&gray[r, x], w, o) >= 0:
+                top = r
+                break
+        if top < 0:
+            return False
+        bottom = top
+        for r in range(y1 - 1, top, -1):
+            if occ_u8_first_ge(&gray[r, x], w, o) >= 0:
+                bottom = r
+                break
+        if top <= reach:
+            top = 0
+        if h - 1 - bottom <= reach:
+            bottom = h - 1
+        out[i, 0] = x
+        out[i, 1] = top
+        out[i, 2] = w
+        out[i, 3] = bottom - top + 1
+    return True

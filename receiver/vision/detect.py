@@ -36,10 +36,14 @@ import math
 
 import cv2
 import numpy as np
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
+
+# the compiled pixel scans (receiver/vision/_pixels.pyx), or None: the numpy paths below
+_k = load("receiver.vision._pixels")
 
 # 1.4826 * MAD estimates sigma for Gaussian noise.
 MAD_TO_SIGMA = 1.4826
@@ -352,6 +356,11 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
     first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
     the pooled close itself reached the image edge: such boxes are searched whole."""
+    if _k is not None and gray.dtype == np.uint8 and gray.flags.c_contiguous:
+        out = np.empty((len(rects), 4), np.int64)
+        on = min(math.floor(level) + 1, 255)
+        if _k.pooled_boxes(gray, np.ascontiguousarray(rects, np.int64), on, pool, reach, out):
+            return out
     h = gray.shape[0]
     x, w = rects[:, 0], rects[:, 2]
     y = rects[:, 1] * pool
@@ -430,20 +439,13 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     if n == 0:
         return []
     h, w = gray.shape[:2]
-    bw, bh = rects[:, 2], rects[:, 3]
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum(bh, out=starts[1:])
-    if scratch is None:
-        scratch = Scratch()
-    shape = (int(starts[-1]), int(bw.max()))
-    strip = scratch.get("refine_strip", shape)
-    strip.fill(0)  # 0 pads: never above a level
-    rect_l = rects.tolist()
-    peak = np.empty(n)
-    for i, ((x, y, ww, hh), r0) in enumerate(zip(rect_l, starts[:-1].tolist())):
-        roi = gray[y:y + hh, x:x + ww]
-        strip[r0:r0 + hh, :ww] = roi
-        peak[i] = cv2.minMaxLoc(roi)[1]
+    native = _k is not None and gray.dtype == np.uint8 and gray.flags.c_contiguous
+    if native:
+        rects = np.ascontiguousarray(rects, np.int64)
+        peak = np.empty(n)
+        _k.box_max(gray, rects, peak)
+    else:
+        strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
     if blob_level.min() < 0:  # the zero padding would count as lit: not batchable
@@ -451,28 +453,19 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
     # uint8 comparison is several times faster than against a float level
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
-        strip[np.repeat(first_on > 255, bh)] = 0
-    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
-                           out=scratch.get("refine_lit", shape).view(bool))
-    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
-    left = left_all[rows]
-    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
-    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
-    owner = np.searchsorted(starts, rows, side="right") - 1
-    local_y = rows - starts[owner]
-    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
-    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
-    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
-    segl = seg.tolist()
+    if native:
+        # each blob's lit rows' left ends, then their right ends: rows seg[i]:seg[i + 1]
+        pts = np.empty((2 * int(rects[:, 3].sum()), 2), np.int32)
+        seg = np.empty(n + 1, np.int64)
+        _k.row_extremes(gray, rects, first_on.astype(np.int64), pts, seg)
+        segl = seg.tolist()
+        found = [i for i in range(n) if segl[i] < segl[i + 1]]
+        hulls = [cv2.convexHull(pts[segl[i]:segl[i + 1]].reshape(-1, 1, 2)) for i in found]
+    else:
+        found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
     peak_l, level_l = peak.tolist(), blob_level.tolist()
     bgf = float(bg)
     out: list[Blob | None] = [None] * n
-    found = [i for i in range(n) if segl[i] < segl[i + 1]]
-    # the hulls in ROI coordinates as in `_refine` (same points, same order)
-    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
-                            .reshape(-1, 1, 2)) for i in found]
     if not found:
         return out
     cx, cy, area, poly, pstart = _hull_stats_points(hulls)
@@ -491,6 +484,55 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
                       peak_l[i], level_l[i], bgf)
     return out
+
+
+def _refine_strip(gray, rects, scratch: Scratch | None):
+    """The boxes' pixels stacked row by row into one zero-padded (sum h, max w) uint8 strip, the
+    first strip row of each box, starts (N + 1,) int64, and each box's peak gray (N,) float64
+    (the numpy path of `_refine_alone_batch`)."""
+    n = len(rects)
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum(rects[:, 3], out=starts[1:])
+    if scratch is None:
+        scratch = Scratch()
+    strip = scratch.get("refine_strip", (int(starts[-1]), int(rects[:, 2].max())))
+    strip.fill(0)  # 0 pads: never above a level
+    peak = np.empty(n)
+    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
+        roi = gray[y:y + hh, x:x + ww]
+        strip[r0:r0 + hh, :ww] = roi
+        peak[i] = cv2.minMaxLoc(roi)[1]
+    return strip, starts, peak
+
+
+def _strip_hulls(strip, starts, first_on, bh, scratch: Scratch | None):
+    """(found, hulls): the boxes of `_refine_strip`'s strip with a pixel >= first_on[i] (box
+    i's level) and the convex hulls of their rows' leftmost and rightmost such pixels, in box
+    coordinates (the numpy path of `_refine_alone_batch`)."""
+    n = len(first_on)
+    shape = strip.shape
+    if scratch is None:
+        scratch = Scratch()
+    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
+        strip[np.repeat(first_on > 255, bh)] = 0
+    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
+                           out=scratch.get("refine_lit", shape).view(bool))
+    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
+    left = left_all[rows]
+    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
+    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
+    owner = np.searchsorted(starts, rows, side="right") - 1
+    local_y = rows - starts[owner]
+    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
+    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
+    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
+    segl = seg.tolist()
+    found = [i for i in range(n) if segl[i] < segl[i + 1]]
+    # the hulls in ROI coordinates as in `_refine` (same points, same order)
+    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
+                            .reshape(-1, 1, 2)) for i in found]
+    return found, hulls
 
 
 def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,
