@@ -154,3 +154,35 @@ def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
         _same_blobs(a, b)
         n += len(a)
     assert n > 20
+
+
+@needs_kernel
+def test_search_mask_equals_threshold_of_the_row_maxima():
+    """`_pixels.search_mask` = cv2.threshold of `_row_max` (pool 1, 2; odd heights, narrow and
+    odd widths, levels below 0 and at 255) and cv2.boundingRect of that mask."""
+    import cv2
+    rng = np.random.default_rng(5)
+    for h, w in ((1, 1), (3, 5), (7, 16), (9, 17), (30, 33), (31, 64), (120, 200)):
+        gray = np.ascontiguousarray((rng.integers(0, 256, (h, w)) * (rng.random((h, w)) < 0.1)).astype(np.uint8))
+        for pool in (1, 2):
+            search = detect_mod._row_max(gray, pool) if pool > 1 else gray
+            for level in (-3.0, 0.0, 0.5, 24.0, 100.7, 254.2, 255.0, 300.0):
+                _, want = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
+                mask = np.empty_like(want)
+                on = min(max(int(np.floor(level)) + 1, 0), 256)
+                box = _px.search_mask(gray, pool, on, mask)
+                assert np.array_equal(mask, want), (h, w, pool, level)
+                assert tuple(box) == tuple(cv2.boundingRect(want))
+
+
+@needs_kernel
+def test_sample_histogram_equals_calchist():
+    import cv2
+    rng = np.random.default_rng(9)
+    for h, w in ((1, 1), (5, 7), (720, 1280), (33, 65)):
+        gray = np.ascontiguousarray(rng.integers(0, 256, (h, w)).astype(np.uint8))
+        for step in (1, 3, 4):
+            want = cv2.calcHist([np.ascontiguousarray(gray[::step, ::step])], [0], None, [256], [0, 256]).ravel()
+            got = np.empty(256, np.float32)
+            _px.sample_hist(gray, step, got)
+            assert got.dtype == want.dtype and np.array_equal(got, want)

@@ -12,6 +12,7 @@ targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 
 from libc.math cimport ceilf, sqrt, NAN
 from libc.stdlib cimport malloc, free
+from libc.string cimport memset
 from libc.stdint cimport int64_t, int32_t
 
 cdef extern from *:
@@ -335,3 +336,113 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
         out[i, 2] = w
         out[i, 3] = bottom - top + 1
     return True
+
+
+# ------------------------------------------------------------------ detection: the search
+
+def sample_hist(const unsigned char[:, ::1] gray, int step, float[::1] hist):
+    """hist (256,) = the histogram of gray[::step, ::step] (cv2.calcHist's counts, float32),
+    without the strided copy (`detect.auto_level`)."""
+    cdef Py_ssize_t r, c, h = gray.shape[0], w = gray.shape[1]
+    cdef int64_t counts[256]
+    cdef const unsigned char *row
+    if step < 1:
+        raise ValueError("step must be positive")
+    for r in range(256):
+        counts[r] = 0
+    r = 0
+    while r < h:  # (a range with a run-time step would be a Python loop)
+        row = &gray[r, 0]
+        c = 0
+        while c < w:
+            counts[row[c]] += 1
+            c += step
+        r += step
+    for r in range(256):
+        hist[r] = <float>counts[r]
+
+
+cdef extern from *:
+    """
+    /* mask[0..n) = 255 where max(a[i], b[i]) >= on (b may equal a), else 0; returns nonzero
+       when any pixel is lit. on in 0..255. */
+    static inline int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                                          unsigned char on, unsigned char *mask) {
+        Py_ssize_t i = 0;
+        unsigned char any = 0;
+    #ifdef OCC_SSE2
+        if (n >= 16) {
+            const __m128i tv = _mm_set1_epi8((char)on);
+            __m128i acc = _mm_setzero_si128();
+            for (; i + 32 <= n; i += 32) {
+                __m128i m0 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
+                                          _mm_loadu_si128((const __m128i *)(b + i)));
+                __m128i m1 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i + 16)),
+                                          _mm_loadu_si128((const __m128i *)(b + i + 16)));
+                __m128i l0 = _mm_cmpeq_epi8(_mm_max_epu8(m0, tv), m0);
+                __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
+                _mm_storeu_si128((__m128i *)(mask + i), l0);
+                _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
+                acc = _mm_or_si128(acc, _mm_or_si128(l0, l1));
+            }
+            while (i < n) {
+                if (i + 16 > n) i = n - 16;  /* the last 16 bytes, overlapping: the same values again */
+                __m128i m = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
+                                         _mm_loadu_si128((const __m128i *)(b + i)));
+                __m128i lit = _mm_cmpeq_epi8(_mm_max_epu8(m, tv), m);
+                _mm_storeu_si128((__m128i *)(mask + i), lit);
+                acc = _mm_or_si128(acc, lit);
+                i += 16;
+            }
+            return _mm_movemask_epi8(acc) != 0;
+        }
+    #endif
+        for (; i < n; i++) {
+            unsigned char v = a[i] > b[i] ? a[i] : b[i];
+            unsigned char l = v >= on ? 255 : 0;
+            mask[i] = l;
+            any |= l;
+        }
+        return any != 0;
+    }
+    """
+    int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                            unsigned char on, unsigned char *mask) nogil
+
+
+def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
+    """The thresholded search image and its lit pixels' bounding box in one pass
+    (`detect._components`): mask (ceil(H / pool), W) = 255 where the maximum over each run of
+    `pool` (1 or 2) rows of `gray` is >= on (cv2.threshold's `> level` for on = floor(level) + 1),
+    else 0. Returns cv2.boundingRect(mask): (x, y, w, h), zeros when nothing is lit."""
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c
+    cdef Py_ssize_t y0 = -1, y1 = -1, x0 = w, x1 = -1
+    cdef const unsigned char *a
+    cdef const unsigned char *b
+    cdef unsigned char *m
+    cdef unsigned char o
+    if on > 255:
+        for i in range(ho):
+            memset(&mask[i, 0], 0, w)
+        return 0, 0, 0, 0
+    o = <unsigned char>(on if on > 0 else 0)
+    for i in range(ho):
+        a = &gray[i * pool, 0]
+        b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
+        m = &mask[i, 0]
+        if occ_pool_thresh_row(a, b, w, o, m):
+            if y0 < 0:
+                y0 = i
+            y1 = i
+            # the columns' extent: only the part of the row outside the extent so far
+            if x0 > 0:
+                c = occ_u8_first_ge(m, x0, 255)
+                if c >= 0:
+                    x0 = c
+            if x1 < w - 1:
+                c = occ_u8_last_ge(m + x1 + 1, w - x1 - 1, 255)
+                if c >= 0:
+                    x1 = x1 + 1 + c
+    if y0 < 0:
+        return 0, 0, 0, 0
+    return x0, y0, x1 - x0 + 1, y1 - y0 + 1

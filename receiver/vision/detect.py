@@ -77,8 +77,12 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
     least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
     `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
-    sample = gray[::sample_step, ::sample_step]
-    hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
+    if _k is not None and _native_frame(gray) and sample_step >= 1:
+        hist = np.empty(256, np.float32)
+        _k.sample_hist(gray, sample_step, hist)  # the same counts, without the strided copy
+    else:
+        sample = gray[::sample_step, ::sample_step]
+        hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
     cdf = np.cumsum(hist)
     half = cdf[-1] / 2.0
     med = int(np.searchsorted(cdf, half))
@@ -88,6 +92,11 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
     return float(min(level, 254.0)), float(med)
+
+
+def _native_frame(gray: np.ndarray) -> bool:
+    """A frame the compiled scans take: (H, W) uint8, C-contiguous."""
+    return gray.ndim == 2 and gray.dtype == np.uint8 and gray.flags.c_contiguous
 
 
 def noise_sigma(hist: np.ndarray, med: int, mad: int) -> float:
@@ -309,23 +318,43 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
     full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
     of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows.
     `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
+    if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
+        # pooled maximum, threshold and the lit pixels' box in one pass over the frame
+        ho = -(-image.shape[0] // pool)
+        mask = (scratch.get("mask", (ho, image.shape[1])) if scratch is not None
+                else np.empty((ho, image.shape[1]), np.uint8))
+        on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
+        box = _k.search_mask(image, pool, on, mask)
+        return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch)
+    search = _row_max(image, pool, scratch) if pool > 1 else image
+    dst = scratch.get("mask", search.shape) if scratch is not None else None
+    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
+    return _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px, join_x_px, f,
+                               pool, scratch)
+
+
+def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple[int, int]:
+    """(rows, columns) of the gaps the close bridges in the search image (`_components`)."""
     if pool > 1:
-        search = _row_max(image, pool, scratch)
         # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
         # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
         # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
         # bridges every such gap (and, with the odd kernel, some up to 3 * pool - 2 longer).
         gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
     else:
-        search, gap_y = image, math.ceil(stripe_gap_px / f)
-    gap_x = math.ceil(join_x_px / f)
-    dst = scratch.get("mask", search.shape) if scratch is not None else None
-    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
+        gap_y = math.ceil(stripe_gap_px / f)
+    return gap_y, math.ceil(join_x_px / f)
+
+
+def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch):
+    """`_components` after the threshold: `mask` the thresholded search image (0 / 255), `box`
+    its lit pixels' bounding box (x, y, w, h)."""
+    gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     # The close and the contour search run on the box of the lit pixels grown by the kernel
     # size (clipped to the frame): outside it the closed mask is 0, and within it the close
     # is the whole frame's (a pixel within half a kernel of the box's inner edge is more than
     # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
-    bx, by, bw, bh = cv2.boundingRect(mask)
+    bx, by, bw, bh = box
     if bw == 0:
         return [], np.zeros((0, 4), np.int64)
     my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
