@@ -186,3 +186,30 @@ def test_sample_histogram_equals_calchist():
             got = np.empty(256, np.float32)
             _px.sample_hist(gray, step, got)
             assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+@needs_kernel
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_row_profile_and_mask_mean_kernels_equal_opencv(name, monkeypatch):
+    """`row_profile` and `mean_in_mask` by the compiled masked sums equal the OpenCV path (the
+    profile's dtype and every value), on each recording's blobs and on boxes moved past the
+    frame's edges (a pair's predicted emitter)."""
+    from dataclasses import replace
+    from receiver.vision import profile
+    s = _settings(name)
+    n = 0
+    for gray in _frames(name, limit=3):
+        h, w = gray.shape
+        for b in detect(gray, settings=s):
+            moved = [b, replace(b, hull=b.hull + (w - b.x1 + 2, 0), x0=w - (b.x1 - b.x0) + 2, x1=w + 2),
+                     replace(b, hull=b.hull - (0, b.y0 + 1), y0=-1, y1=b.y1 - b.y0 - 1)]
+            for blob in moved:
+                p, wt, y0 = profile.row_profile(gray, blob)
+                q, wq, z0 = _pure(profile, monkeypatch, profile.row_profile, gray, blob)
+                assert p.dtype == q.dtype and wt.dtype == wq.dtype and y0 == z0
+                assert np.array_equal(p, q) and np.array_equal(wt, wq)
+                a = profile.mean_in_mask(gray, blob)
+                assert a == _pure(profile, monkeypatch, profile.mean_in_mask, gray, blob)
+                assert type(a) is float
+                n += 1
+    assert n > 0

@@ -17,6 +17,7 @@ from libc.stdint cimport int64_t, int32_t
 
 cdef extern from *:
     """
+    #include <stdint.h>
     #if defined(__SSE2__) && defined(__GNUC__)
     #include <emmintrin.h>
     #define OCC_SSE2 1
@@ -446,3 +447,67 @@ def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned cha
     if y0 < 0:
         return 0, 0, 0, 0
     return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+
+
+# ------------------------------------------------------------------ row profiles
+
+cdef extern from *:
+    """
+    /* sum of p[i] where m[i] != 0 (m 0/1 or 0/255) and the count of such i, over [0, n) */
+    static inline void occ_masked_sum(const unsigned char *p, const unsigned char *m, Py_ssize_t n,
+                                      int64_t *sum, int64_t *cnt) {
+        Py_ssize_t i = 0;
+        int64_t s = 0, c = 0;
+    #ifdef OCC_SSE2
+        const __m128i z = _mm_setzero_si128();
+        __m128i vs = z, vc = z;
+        for (; i + 16 <= n; i += 16) {
+            __m128i on = _mm_xor_si128(_mm_cmpeq_epi8(_mm_loadu_si128((const __m128i *)(m + i)), z),
+                                       _mm_set1_epi8((char)0xff));
+            __m128i v = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + i)), on);
+            vs = _mm_add_epi64(vs, _mm_sad_epu8(v, z));
+            vc = _mm_add_epi64(vc, _mm_sad_epu8(_mm_and_si128(on, _mm_set1_epi8(1)), z));
+        }
+        s = _mm_cvtsi128_si64(vs) + _mm_cvtsi128_si64(_mm_unpackhi_epi64(vs, vs));
+        c = _mm_cvtsi128_si64(vc) + _mm_cvtsi128_si64(_mm_unpackhi_epi64(vc, vc));
+    #endif
+        for (; i < n; i++)
+            if (m[i]) { s += p[i]; c++; }
+        *sum = s;
+        *cnt = c;
+    }
+    """
+    void occ_masked_sum(const unsigned char *p, const unsigned char *m, Py_ssize_t n,
+                        int64_t *sum, int64_t *cnt) nogil
+
+
+def masked_row_sums(const unsigned char[:, :] roi, const unsigned char[:, ::1] mask,
+                    float[::1] sums, float[::1] weights):
+    """Per row of the (R, C) `roi`: the sum of its pixels where `mask` is nonzero, and their
+    count, as float32 (exact integers: `profile.row_profile`'s cv2.reduce sums)."""
+    if roi.shape[1] > 1 and roi.strides[1] != 1:
+        raise ValueError("roi rows must be contiguous")
+    if mask.shape[0] != roi.shape[0] or mask.shape[1] != roi.shape[1] or sums.shape[0] < roi.shape[0] \
+            or weights.shape[0] < roi.shape[0]:
+        raise ValueError("mask, sums and weights must match roi")
+    cdef Py_ssize_t r, n = roi.shape[1]
+    cdef int64_t s, c
+    for r in range(roi.shape[0]):
+        occ_masked_sum(&roi[r, 0], &mask[r, 0], n, &s, &c)
+        sums[r] = <float>s
+        weights[r] = <float>c
+
+
+def masked_sum(const unsigned char[:, :] roi, const unsigned char[:, ::1] mask):
+    """(sum of the `roi` pixels where `mask` is nonzero, their count) (`profile.mean_in_mask`)."""
+    if roi.shape[1] > 1 and roi.strides[1] != 1:
+        raise ValueError("roi rows must be contiguous")
+    if mask.shape[0] != roi.shape[0] or mask.shape[1] != roi.shape[1]:
+        raise ValueError("mask must match roi")
+    cdef Py_ssize_t r, n = roi.shape[1]
+    cdef int64_t s, c, ts = 0, tc = 0
+    for r in range(roi.shape[0]):
+        occ_masked_sum(&roi[r, 0], &mask[r, 0], n, &s, &c)
+        ts += s
+        tc += c
+    return ts, tc
