@@ -213,3 +213,16 @@ def test_row_profile_and_mask_mean_kernels_equal_opencv(name, monkeypatch):
                 assert type(a) is float
                 n += 1
     assert n > 0
+
+
+@needs_kernel
+def test_box_kernels_refuse_boxes_outside_the_frame():
+    """The box scans never read outside the frame: box_max and pooled_boxes say False (their
+    callers take the numpy path), row_extremes raises."""
+    gray = np.zeros((20, 30), np.uint8)
+    for box in ((-1, 0, 5, 5), (26, 0, 5, 5), (0, 16, 5, 5), (0, 0, 31, 1)):
+        rects = np.array([box], np.int64)
+        assert _px.box_max(gray, rects, np.empty(1)) is False
+        with pytest.raises(ValueError):
+            _px.row_extremes(gray, rects, np.ones(1, np.int64), np.empty((10, 2), np.int32), np.empty(2, np.int64))
+    assert _px.pooled_boxes(gray, np.array([(26, 0, 5, 5)], np.int64), 1, 2, 0, np.empty((1, 4), np.int64)) is False

@@ -259,9 +259,12 @@ def edge_points(const unsigned char[:, ::1] gray, const int64_t[::1] bx0, const 
 
 def box_max(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double[::1] peak):
     """peak[i] = the largest gray value in box i (x, y, w, h) of `gray` (cv2.minMaxLoc's maximum
-    over the ROI, `detect._refine_alone_batch`)."""
+    over the ROI, `detect._refine_alone_batch`); True, or False (nothing written) when a box
+    is not inside the frame."""
     cdef Py_ssize_t i, r, x, y, w, h
     cdef unsigned char m, v
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]):
+        return False
     for i in range(rects.shape[0]):
         x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
         m = 0
@@ -270,6 +273,24 @@ def box_max(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, doubl
             if v > m:
                 m = v
         peak[i] = m
+    return True
+
+
+cdef Py_ssize_t _total_rows(const int64_t[:, ::1] rects) noexcept:
+    cdef Py_ssize_t i, n = 0
+    for i in range(rects.shape[0]):
+        n += rects[i, 3]
+    return n
+
+
+cdef bint _boxes_inside(const int64_t[:, ::1] rects, Py_ssize_t h, Py_ssize_t w) noexcept:
+    """Every box (x, y, w, h) lies inside an (h, w) frame."""
+    cdef Py_ssize_t i
+    for i in range(rects.shape[0]):
+        if (rects[i, 0] < 0 or rects[i, 1] < 0 or rects[i, 2] < 0 or rects[i, 3] < 0
+                or rects[i, 0] + rects[i, 2] > w or rects[i, 1] + rects[i, 3] > h):
+            return False
+    return True
 
 
 def row_extremes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, const int64_t[::1] first_on,
@@ -280,6 +301,8 @@ def row_extremes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     first_on[i] > 255: nothing is lit. `pts` needs 2 * (sum of heights) rows."""
     cdef Py_ssize_t i, r, x, y, w, h, first, m = 0, n0, nrow, j
     cdef unsigned char on
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pts.shape[0] < 2 * _total_rows(rects):
+        raise ValueError("boxes outside the frame, or pts too short")
     seg[0] = 0
     for i in range(rects.shape[0]):
         x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
@@ -310,6 +333,9 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     reports it)."""
     cdef Py_ssize_t h = gray.shape[0], i, x, y, w, hh, y1, top, bottom, r
     cdef unsigned char o = <unsigned char>on
+    for i in range(rects.shape[0]):
+        if rects[i, 0] < 0 or rects[i, 2] < 0 or rects[i, 0] + rects[i, 2] > gray.shape[1] or rects[i, 1] < 0:
+            return False
     for i in range(rects.shape[0]):
         x, w = rects[i, 0], rects[i, 2]
         y = rects[i, 1] * pool

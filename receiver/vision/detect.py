@@ -385,7 +385,7 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
     first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
     the pooled close itself reached the image edge: such boxes are searched whole."""
-    if _k is not None and gray.dtype == np.uint8 and gray.flags.c_contiguous:
+    if _k is not None and _native_frame(gray):
         out = np.empty((len(rects), 4), np.int64)
         on = min(math.floor(level) + 1, 255)
         if _k.pooled_boxes(gray, np.ascontiguousarray(rects, np.int64), on, pool, reach, out):
@@ -468,12 +468,12 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     if n == 0:
         return []
     h, w = gray.shape[:2]
-    native = _k is not None and gray.dtype == np.uint8 and gray.flags.c_contiguous
+    native = _k is not None and _native_frame(gray)
     if native:
         rects = np.ascontiguousarray(rects, np.int64)
         peak = np.empty(n)
-        _k.box_max(gray, rects, peak)
-    else:
+        native = _k.box_max(gray, rects, peak)  # False: a box outside the frame (numpy path)
+    if not native:
         strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)

@@ -130,7 +130,8 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
-    if _k is not None and SIDE_PX == 2 and MIN_RUN_PX == 9 and np.float32(min_contrast) == min_contrast:
+    if (_k is not None and SIDE_PX == 2 and MIN_RUN_PX == 9 and gray.ndim == 2 and gray.dtype == np.uint8
+            and np.float32(min_contrast) == min_contrast):
         return _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows)
     if scratch is None:
         scratch = Scratch()
