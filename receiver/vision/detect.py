@@ -315,7 +315,8 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
                 pool: int = 1, scratch: Scratch | None = None) -> tuple[list, np.ndarray]:
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
-    full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
+    full-resolution frame, searched on its `pool`-row maxima (`_row_max`; with the compiled
+    kernel, maxima, threshold and the lit box are one pass, `_pixels.search_mask`); the boxes are those
     of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows.
     `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
     if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
@@ -459,11 +460,12 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
                         scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
-    The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
-    per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
-    array operations for all blobs instead of a dozen calls per blob; only the convex hull and
-    its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
-    a blob level is negative (odd tunables): the caller then refines one by one."""
+    The peaks and the leftmost / rightmost lit pixel of every row are scanned straight from the
+    frame by the compiled kernel (`_pixels.box_max`, `row_extremes`); without it the boxes'
+    pixels are stacked row by row into one (sum h, max w) strip and those are a handful of
+    array operations for all blobs (`_refine_strip`, `_strip_hulls`). Only the convex hull
+    stays per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
+    is negative (odd tunables): the caller then refines one by one."""
     n = len(rects)
     if n == 0:
         return []
