@@ -36,10 +36,14 @@ import math
 
 import cv2
 import numpy as np
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
+
+# the compiled pixel scans (receiver/vision/_pixels.pyx), or None: the numpy paths below
+_k = load("receiver.vision._pixels")
 
 # 1.4826 * MAD estimates sigma for Gaussian noise.
 MAD_TO_SIGMA = 1.4826
@@ -73,8 +77,12 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
     least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
     `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
-    sample = gray[::sample_step, ::sample_step]
-    hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
+    if _k is not None and _native_frame(gray) and sample_step >= 1:
+        hist = np.empty(256, np.float32)
+        _k.sample_hist(gray, sample_step, hist)  # the same counts, without the strided copy
+    else:
+        sample = gray[::sample_step, ::sample_step]
+        hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
     cdf = np.cumsum(hist)
     half = cdf[-1] / 2.0
     med = int(np.searchsorted(cdf, half))
@@ -84,6 +92,11 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
     return float(min(level, 254.0)), float(med)
+
+
+def _native_frame(gray: np.ndarray) -> bool:
+    """A frame the compiled scans take: (H, W) uint8, C-contiguous."""
+    return gray.ndim == 2 and gray.dtype == np.uint8 and gray.flags.c_contiguous
 
 
 def noise_sigma(hist: np.ndarray, med: int, mad: int) -> float:
@@ -302,26 +315,47 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
                 pool: int = 1, scratch: Scratch | None = None) -> tuple[list, np.ndarray]:
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
-    full-resolution frame, searched on its `pool`-row maxima (`_row_max`); the boxes are those
+    full-resolution frame, searched on its `pool`-row maxima (`_row_max`; with the compiled
+    kernel, maxima, threshold and the lit box are one pass, `_pixels.search_mask`); the boxes are those
     of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows.
     `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
+    if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
+        # pooled maximum, threshold and the lit pixels' box in one pass over the frame
+        ho = -(-image.shape[0] // pool)
+        mask = (scratch.get("mask", (ho, image.shape[1])) if scratch is not None
+                else np.empty((ho, image.shape[1]), np.uint8))
+        on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
+        box = _k.search_mask(image, pool, on, mask)
+        return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch)
+    search = _row_max(image, pool, scratch) if pool > 1 else image
+    dst = scratch.get("mask", search.shape) if scratch is not None else None
+    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
+    return _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px, join_x_px, f,
+                               pool, scratch)
+
+
+def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple[int, int]:
+    """(rows, columns) of the gaps the close bridges in the search image (`_components`)."""
     if pool > 1:
-        search = _row_max(image, pool, scratch)
         # The full-resolution close bridges gaps of up to 2 * reach rows (its odd kernel can
         # be one row taller than stripe_gap_px + 1). A gap of g rows leaves at most
         # floor(g / pool) empty pooled rows, so bridging ceil((g + 1) / pool) - 1 of them
         # bridges every such gap (and, with the odd kernel, some up to 3 * pool - 2 longer).
         gap_y = math.ceil((2 * _close_reach(stripe_gap_px) + 1) / pool) - 1
     else:
-        search, gap_y = image, math.ceil(stripe_gap_px / f)
-    gap_x = math.ceil(join_x_px / f)
-    dst = scratch.get("mask", search.shape) if scratch is not None else None
-    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
+        gap_y = math.ceil(stripe_gap_px / f)
+    return gap_y, math.ceil(join_x_px / f)
+
+
+def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch):
+    """`_components` after the threshold: `mask` the thresholded search image (0 / 255), `box`
+    its lit pixels' bounding box (x, y, w, h)."""
+    gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     # The close and the contour search run on the box of the lit pixels grown by the kernel
     # size (clipped to the frame): outside it the closed mask is 0, and within it the close
     # is the whole frame's (a pixel within half a kernel of the box's inner edge is more than
     # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
-    bx, by, bw, bh = cv2.boundingRect(mask)
+    bx, by, bw, bh = box
     if bw == 0:
         return [], np.zeros((0, 4), np.int64)
     my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
@@ -352,6 +386,11 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
     first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
     the pooled close itself reached the image edge: such boxes are searched whole."""
+    if _k is not None and _native_frame(gray):
+        out = np.empty((len(rects), 4), np.int64)
+        on = min(math.floor(level) + 1, 255)
+        if _k.pooled_boxes(gray, np.ascontiguousarray(rects, np.int64), on, pool, reach, out):
+            return out
     h = gray.shape[0]
     x, w = rects[:, 0], rects[:, 2]
     y = rects[:, 1] * pool
@@ -421,29 +460,23 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
                         scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
-    The boxes' pixels are stacked row by row into one (sum h, max w) strip, so the peak, the
-    per-blob threshold and the leftmost / rightmost lit pixel of every row are a handful of
-    array operations for all blobs instead of a dozen calls per blob; only the convex hull and
-    its moments stay per blob. Same points, same hull, same numbers as `_refine`. None when
-    a blob level is negative (odd tunables): the caller then refines one by one."""
+    The peaks and the leftmost / rightmost lit pixel of every row are scanned straight from the
+    frame by the compiled kernel (`_pixels.box_max`, `row_extremes`); without it the boxes'
+    pixels are stacked row by row into one (sum h, max w) strip and those are a handful of
+    array operations for all blobs (`_refine_strip`, `_strip_hulls`). Only the convex hull
+    stays per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
+    is negative (odd tunables): the caller then refines one by one."""
     n = len(rects)
     if n == 0:
         return []
     h, w = gray.shape[:2]
-    bw, bh = rects[:, 2], rects[:, 3]
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum(bh, out=starts[1:])
-    if scratch is None:
-        scratch = Scratch()
-    shape = (int(starts[-1]), int(bw.max()))
-    strip = scratch.get("refine_strip", shape)
-    strip.fill(0)  # 0 pads: never above a level
-    rect_l = rects.tolist()
-    peak = np.empty(n)
-    for i, ((x, y, ww, hh), r0) in enumerate(zip(rect_l, starts[:-1].tolist())):
-        roi = gray[y:y + hh, x:x + ww]
-        strip[r0:r0 + hh, :ww] = roi
-        peak[i] = cv2.minMaxLoc(roi)[1]
+    native = _k is not None and _native_frame(gray)
+    if native:
+        rects = np.ascontiguousarray(rects, np.int64)
+        peak = np.empty(n)
+        native = _k.box_max(gray, rects, peak)  # False: a box outside the frame (numpy path)
+    if not native:
+        strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
     if blob_level.min() < 0:  # the zero padding would count as lit: not batchable
@@ -451,28 +484,19 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
     # uint8 comparison is several times faster than against a float level
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
-        strip[np.repeat(first_on > 255, bh)] = 0
-    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
-                           out=scratch.get("refine_lit", shape).view(bool))
-    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
-    left = left_all[rows]
-    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
-    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
-    owner = np.searchsorted(starts, rows, side="right") - 1
-    local_y = rows - starts[owner]
-    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
-    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
-    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
-    segl = seg.tolist()
+    if native:
+        # each blob's lit rows' left ends, then their right ends: rows seg[i]:seg[i + 1]
+        pts = np.empty((2 * int(rects[:, 3].sum()), 2), np.int32)
+        seg = np.empty(n + 1, np.int64)
+        _k.row_extremes(gray, rects, first_on.astype(np.int64), pts, seg)
+        segl = seg.tolist()
+        found = [i for i in range(n) if segl[i] < segl[i + 1]]
+        hulls = [cv2.convexHull(pts[segl[i]:segl[i + 1]].reshape(-1, 1, 2)) for i in found]
+    else:
+        found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
     peak_l, level_l = peak.tolist(), blob_level.tolist()
     bgf = float(bg)
     out: list[Blob | None] = [None] * n
-    found = [i for i in range(n) if segl[i] < segl[i + 1]]
-    # the hulls in ROI coordinates as in `_refine` (same points, same order)
-    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
-                            .reshape(-1, 1, 2)) for i in found]
     if not found:
         return out
     cx, cy, area, poly, pstart = _hull_stats_points(hulls)
@@ -491,6 +515,55 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
                       peak_l[i], level_l[i], bgf)
     return out
+
+
+def _refine_strip(gray, rects, scratch: Scratch | None):
+    """The boxes' pixels stacked row by row into one zero-padded (sum h, max w) uint8 strip, the
+    first strip row of each box, starts (N + 1,) int64, and each box's peak gray (N,) float64
+    (the numpy path of `_refine_alone_batch`)."""
+    n = len(rects)
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum(rects[:, 3], out=starts[1:])
+    if scratch is None:
+        scratch = Scratch()
+    strip = scratch.get("refine_strip", (int(starts[-1]), int(rects[:, 2].max())))
+    strip.fill(0)  # 0 pads: never above a level
+    peak = np.empty(n)
+    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
+        roi = gray[y:y + hh, x:x + ww]
+        strip[r0:r0 + hh, :ww] = roi
+        peak[i] = cv2.minMaxLoc(roi)[1]
+    return strip, starts, peak
+
+
+def _strip_hulls(strip, starts, first_on, bh, scratch: Scratch | None):
+    """(found, hulls): the boxes of `_refine_strip`'s strip with a pixel >= first_on[i] (box
+    i's level) and the convex hulls of their rows' leftmost and rightmost such pixels, in box
+    coordinates (the numpy path of `_refine_alone_batch`)."""
+    n = len(first_on)
+    shape = strip.shape
+    if scratch is None:
+        scratch = Scratch()
+    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
+        strip[np.repeat(first_on > 255, bh)] = 0
+    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
+                           out=scratch.get("refine_lit", shape).view(bool))
+    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
+    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
+    left = left_all[rows]
+    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
+    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
+    owner = np.searchsorted(starts, rows, side="right") - 1
+    local_y = rows - starts[owner]
+    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
+    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
+    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
+    segl = seg.tolist()
+    found = [i for i in range(n) if segl[i] < segl[i + 1]]
+    # the hulls in ROI coordinates as in `_refine` (same points, same order)
+    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
+                            .reshape(-1, 1, 2)) for i in found]
+    return found, hulls
 
 
 def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,

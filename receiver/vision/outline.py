@@ -28,7 +28,11 @@ import math
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.vision.detect import Scratch
+
+# the compiled row scans (receiver/vision/_pixels.pyx), or None: the numpy path below
+_k = load("receiver.vision._pixels")
 
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
 MIN_CONTRAST = 20.0
@@ -126,6 +130,9 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
+    if (_k is not None and SIDE_PX == 2 and MIN_RUN_PX == 9 and gray.ndim == 2 and gray.dtype == np.uint8
+            and np.float32(min_contrast) == min_contrast):
+        return _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows)
     if scratch is None:
         scratch = Scratch()
     nb = len(boxes)
@@ -222,4 +229,22 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
         e0, e1 = ends[k], ends[k + 1]
         if e1 > e0:
             out[boxes[k][0]] = (pts[e0:e1], ps[e0:e1])
+    return out
+
+
+def _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows):
+    """`stripe_edge_points_batch` by the compiled kernel (`_pixels.edge_points`), row by row
+    straight from the frame: the same points and sigmas, bit for bit (tests/test_outline.py)."""
+    bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
+    x0, x1, y0, y1 = (np.ascontiguousarray(c) for c in bx.T)
+    bg = np.array([b[5] for b in boxes], dtype=np.float32)
+    n = 2 * int((y1 - y0).sum())
+    pts, sig = np.empty((n, 2)), np.empty(n)
+    ends = np.empty(len(boxes) + 1, np.int64)
+    _k.edge_points(np.ascontiguousarray(gray), x0, x1, y0, y1, bg, int(border_px), float(min_contrast),
+                   int(bin_rows), MIN_SIGMA_PX, NOISE_GRAY * math.sqrt(2.0), pts, sig, ends)
+    el = ends.tolist()
+    for k, b in enumerate(boxes):
+        if el[k + 1] > el[k]:
+            out[b[0]] = (pts[el[k]:el[k + 1]], sig[el[k]:el[k + 1]])
     return out
