@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.locate.lsq import (
     _LOSSES,
     BELOW_CEILING_M,
@@ -65,6 +66,12 @@ COST_RTOL = 1e-6
 # walk median 0.51 -> 0.62 cm).
 MINOR_SWITCHES = 0
 MINOR_SWITCH_FRACTION = 0.0
+
+# The compiled solve (receiver/locate/_outline.pyx: assignment, residuals, normal equations and
+# the LM rounds in one call), or None: the numpy `_Problem` path below, its tested reference.
+_k = load("receiver.locate._outline")
+# The robust losses the compiled solve implements (`receiver.locate.lsq._LOSSES`), by its codes.
+LOSS_CODES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
 
 
 @dataclass
@@ -505,33 +512,98 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
     only_circle = len(targets) == 1 and targets[0].shape == "circle"
     if only_circle and C_prior is None:
         return None
-    prob = _Problem(targets, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad)
-    if C_prior is not None:
-        prob.C_prior = np.asarray(C_prior, float)
-        prob.W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-    p = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    converged = False
-    for k in range(rounds):
-        changed = prob.assign(p, keep_minor=k > 0 and converged)
-        if k > 0 and converged and not changed:
-            break
-        p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
-    R = st.R
+    p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
+    args = (targets, p0, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
+            rounds, max_iter)
+    if _k is not None and loss in LOSS_CODES:
+        p, R, chi2, n_res, JtJ = _solve_native(*args)
+    else:
+        p, R, chi2, n_res, JtJ = _solve_numpy(*args)
     C = p[3:].copy()
     z_min = min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
         return None
     # Covariance: without the tracked-position prior (the filter holds it), with a weak one
     # (`FREE_SIGMA_M`, zero residuals) that marks directions the outlines leave free (module doc).
-    if prob.C_prior is not None:
-        r = r[:-3]
-    dof = len(r) + 3 - len(p)
-    chi2 = float(r @ r)
+    dof = n_res + 3 - len(p)
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
         return None
-    JtJ = prob.gram(st)
     JtJ[3:, 3:] += np.eye(3) / FREE_SIGMA_M ** 2
     cov6 = np.linalg.pinv(JtJ) * max(1.0, chi2 / dof)
     n = len(targets)
     return Fix(C, cov6[3:, 3:], R, "outline", n, chi2, dof)
+
+
+def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
+                 max_iter):
+    """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
+    count without the position prior's rows, unweighted J^T J without them)."""
+    prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
+    if C_prior is not None:
+        prob.C_prior, prob.W = np.asarray(C_prior, float), W
+    converged = False
+    for k in range(rounds):
+        changed = prob.assign(p, keep_minor=k > 0 and converged)
+        if k > 0 and converged and not changed:
+            break
+        p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
+    if prob.C_prior is not None:
+        r = r[:-3]
+    return p, st.R, float(r @ r), len(r), prob.gram(st)
+
+
+_EMPTY2 = np.zeros((0, 2))
+_EMPTY3 = np.zeros((0, 3))
+_EMPTY1 = np.zeros(0)
+_EMPTY_I = np.zeros(0, np.int32)
+_SIGNS = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+
+
+def _solve_native(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
+                  max_iter):
+    """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx): the same arithmetic
+    per point, summed in another order (results equal to rounding)."""
+    poly = [t for t in targets if t.shape != "circle"]
+    circles = [t for t in targets if t.shape == "circle"]
+    if poly:
+        xyz = np.array([t.xyz for t in poly], float)
+        off = np.zeros((len(poly), 4, 3))
+        off[:, :, :2] = _SIGNS[None] * np.array([t.half for t in poly], float)[:, None, :]
+        a = (xyz[:, None, :] + off)
+        b = a[:, [1, 2, 3, 0]].reshape(-1, 3)
+        a = a.reshape(-1, 3)
+        AxB = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                               a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+        P = np.concatenate([t.pts for t in poly]).astype(float, copy=False)
+        w = 1.0 / np.concatenate([t.sigma for t in poly])
+        tix = np.repeat(np.arange(len(poly), dtype=np.int32), [len(t.pts) for t in poly])
+        D = a - b
+    else:
+        a = AxB = D = _EMPTY3
+        P, w, tix = _EMPTY2, _EMPTY1, _EMPTY_I
+    if circles:
+        cp = np.concatenate([t.pts for t in circles]).astype(float, copy=False)
+        cisig = 1.0 / np.concatenate([t.sigma for t in circles])
+        cix = np.repeat(np.arange(len(circles), dtype=np.int32), [len(t.pts) for t in circles])
+        cxyz = np.array([t.xyz for t in circles], float)
+        cr2 = np.array([t.half[0] ** 2 for t in circles], float)
+    else:
+        cp, cisig, cix, cxyz, cr2 = _EMPTY2, _EMPTY1, _EMPTY_I, _EMPTY3, _EMPTY1
+    cen = [t for t in targets if t.uv is not None]
+    L = np.array([t.xyz for t in cen], float).reshape(-1, 3)
+    uv = np.array([t.uv for t in cen], float).reshape(-1, 2)
+    up = _EMPTY1 if up_prior is None else np.ascontiguousarray(up_prior, float)
+    Cp = _EMPTY1 if C_prior is None else np.ascontiguousarray(C_prior, float)
+    Wc = np.zeros((3, 3)) if W is None else np.ascontiguousarray(W, float)
+    p = np.array(p, float)
+    lab = np.empty(len(P), np.int32)
+    R = np.empty((3, 3))
+    JtJ = np.empty((6, 6))
+    _, chi2, n_res = _k.solve(p, lab, np.ascontiguousarray(P), np.ascontiguousarray(w), tix, a, AxB, D,
+                              np.ascontiguousarray(cp), np.ascontiguousarray(cisig), cix, cxyz, cr2, L, uv, sigma_c,
+                              up, tilt_sigma_rad, Cp, Wc, LOSS_CODES[loss], f_scale, rounds, max_iter,
+                              (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES, MINOR_SWITCH_FRACTION, STEP_TOL,
+                              COST_RTOL, R, JtJ)
+    return p, R, chi2, n_res, JtJ
