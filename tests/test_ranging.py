@@ -106,3 +106,24 @@ def test_contour_geometry_and_sigma():
     s_small = range_sigma_m(2.0, 100.0, 40.0, edge_sigma_px=0.1, model_rel_sigma=0.0)
     s_big = range_sigma_m(2.0, 10000.0, 400.0, edge_sigma_px=0.1, model_rel_sigma=0.0)
     assert s_small == pytest.approx(10 * s_big)
+
+
+def test_with_range_equals_dataclasses_replace():
+    """`ranging._with_range` (the annotation's fast copy) gives the record `dataclasses.replace`
+    gives: every field the same object, the two range fields changed, the original untouched."""
+    import dataclasses
+
+    from receiver.core.records import LedObservation
+    from receiver.locate.ranging import _with_range
+
+    obs = LedObservation(track=3, cx=10.5, cy=20.25, area_px=99.0, contour=np.zeros((4, 2)), id=7, mode="ook",
+                         peak=200.0, edge_px=(np.ones((6, 2)), np.ones(6)))
+    fast = _with_range(obs, 2.34567, "outline")
+    ref = dataclasses.replace(obs, distance_m=2.34567, distance_estimator="outline")
+    assert type(fast) is LedObservation and fast is not obs
+    for f in dataclasses.fields(LedObservation):
+        assert getattr(fast, f.name) is getattr(ref, f.name) or getattr(fast, f.name) == getattr(ref, f.name), f.name
+    assert (fast.distance_m, fast.distance_estimator) == (2.34567, "outline")
+    assert obs.distance_m is None and obs.distance_estimator is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.distance_m = 1.0

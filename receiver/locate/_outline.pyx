@@ -6,9 +6,11 @@ of one frame in one call, with the arithmetic of the pure numpy path (`_Problem`
 Only the summation order differs (sequential sums here, numpy's pairwise sums and BLAS there):
 the results agree to rounding, and positions to far below 0.1 mm (tests/test_outline_native.py).
 
-Parameters p = (Rodrigues vector of R_cw, C); normalized image coordinates; the residual layout
-is the pure path's: square / rect points, circle points, centroids (u, v), tilt prior (3),
-position prior (3)."""
+Parameters p = (Rodrigues vector of R_cw, C); normalized image coordinates. Input: every target's
+edge points in turn (`outline_pose.OutlineFrame`), each target a square / rect (4 straight edges)
+or a circle. Residuals: one per edge point (in the frame's order; a square / rect point near a
+corner unused, 0), the centroids (u, v) of the targets that have one, the tilt prior (3), the
+position prior (3): the pure path's, grouped squares / rects first, then circles."""
 
 from libc.math cimport sqrt, hypot, cos, sin, log1p, fabs
 from libc.stdlib cimport malloc, free
@@ -22,25 +24,22 @@ DEF LOSS_HUBER = 3
 
 
 cdef struct Prob:
-    int M          # square / rect points
-    int T          # square / rect targets (4 edges each)
-    int Nc         # circle points
-    int Tc         # circles
+    int N          # edge points
+    int M          # ... of squares / rects
+    int T          # targets
     int K          # centroids
-    const double* P        # (M, 2)
-    const double* w        # (M,) 1 / sigma
-    const int* tix         # (M,) target of each point
-    const double* AxB      # (4T, 3) A x B of each edge's corners A, B
-    const double* D        # (4T, 3) A - B
-    const double* corners  # (4T, 3)
-    int* lab               # (M,) edge 0..3 of each point, -1: unused
-    const double* cp       # (Nc, 2)
-    const double* cisig    # (Nc,)
-    const int* cix         # (Nc,)
-    const double* cxyz     # (Tc, 3)
-    const double* cr2      # (Tc,)
-    const double* L        # (K, 3)
-    const double* uv       # (K, 2)
+    const double* P        # (N, 2)
+    const double* w        # (N,) 1 / sigma
+    const int* tix         # (N,) target of each point
+    const int* circ        # (T,) 1: circle, 0: square / rect
+    const double* xyz      # (T, 3)
+    const double* half     # (T, 2)
+    double* corners        # (4T, 3) (squares / rects)
+    double* AxB            # (4T, 3) A x B of each edge's corners A, B
+    double* D              # (4T, 3) A - B
+    int* lab               # (N,) edge 0..3 of each square / rect point, -1: unused
+    double* L              # (K, 3) centres of the targets with a centroid
+    double* uv             # (K, 2) their centroids
     double sigc
     int has_up
     double up[3]
@@ -55,10 +54,10 @@ cdef struct Prob:
     double* rho            # (4T,)
     double* m              # (4T, 3)
     double* S              # (4T, 9) work: per-edge moment sums
-    double* c6             # (Tc, 6) work: image conics
-    double* QRt            # (Tc, 9)
-    double* dc6            # (Tc, 36) work: d c6 / d p of each circle
-    int* flat              # (Tc,)
+    double* c6             # (T, 6) work: circles' image conics
+    double* QRt            # (T, 9)
+    double* dc6            # (T, 36) work: d c6 / d p of each circle
+    int* flat              # (T,)
 
 
 cdef inline void rodrigues(const double* rv, double* R, double* dR) noexcept nogil:
@@ -169,7 +168,7 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
     if pr.M == 0:
         return first
     rodrigues(p, R, dR)
-    new = <int*> malloc(pr.M * sizeof(int))
+    new = <int*> malloc(pr.N * sizeof(int))
     tab = <double*> malloc(pr.T * 20 * sizeof(double))
     if new == NULL or tab == NULL:
         free(new)
@@ -177,6 +176,8 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
         return 0
     # Per target: projected corners q (4, 2), edge vectors ab (4, 2), 1 / |ab|^2 (4,).
     for t in range(pr.T):
+        if pr.circ[t]:
+            continue
         q = tab + 20 * t
         ab = q + 8
         il = q + 16
@@ -188,8 +189,12 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
             ab[2 * j + 1] = q[2 * n + 1] - q[2 * j + 1]
             s = ab[2 * j] * ab[2 * j] + ab[2 * j + 1] * ab[2 * j + 1]
             il[j] = 1.0 / (s if s > 1e-18 else 1e-18)
-    for i in range(pr.M):
-        q = tab + 20 * pr.tix[i]
+    for i in range(pr.N):
+        t = pr.tix[i]
+        if pr.circ[t]:
+            new[i] = -1
+            continue
+        q = tab + 20 * t
         ab = q + 8
         il = q + 16
         for j in range(4):
@@ -225,7 +230,7 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
         new[i] = lab
     free(tab)
     if keep_minor and not first:
-        for i in range(pr.M):
+        for i in range(pr.N):
             old = pr.lab[i]
             if new[i] != old and new[i] >= 0 and old >= 0:
                 switched += 1
@@ -233,7 +238,7 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
         if switched <= (minor_switches if minor_switches > thr else thr):
             free(new)
             return 0
-    for i in range(pr.M):
+    for i in range(pr.N):
         if first or new[i] != pr.lab[i]:
             changed = 1
         pr.lab[i] = new[i]
@@ -242,13 +247,15 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
 
 
 cdef void edge_lines(Prob* pr, const double* R, const double* C) noexcept nogil:
-    """Every edge's plane normal m = A x B + C x (A - B), camera-frame n = R m, and image line
-    nh = n / |(n0, n1)|."""
+    """Every square / rect edge's plane normal m = A x B + C x (A - B), camera-frame n = R m, and
+    image line nh = n / |(n0, n1)|."""
     cdef int e
     cdef double m0, m1, m2, n0, n1, n2, rho
     cdef const double* a
     cdef const double* d
     for e in range(4 * pr.T):
+        if pr.circ[e // 4]:
+            continue
         a = pr.AxB + 3 * e
         d = pr.D + 3 * e
         m0 = a[0] + (C[1] * d[2] - C[2] * d[1])
@@ -272,28 +279,30 @@ cdef void edge_lines(Prob* pr, const double* R, const double* C) noexcept nogil:
 cdef void circle_conics(Prob* pr, const double* R, const double* C) noexcept nogil:
     """Each circle's image conic Ci = R Q R^T (`_Problem._circles`): its six distinct entries,
     Q R^T and whether it is seen edge-on."""
-    cdef int t, a, b, k
-    cdef double d0, d1, cz, al, be, acc
+    cdef int t, a, b
+    cdef double d0, d1, cz, al, be, hr
     cdef double Q[9]
     cdef double* qr
     cdef double Ci[9]
-    for t in range(pr.Tc):
-        d0 = pr.cxyz[3 * t] - C[0]
-        d1 = pr.cxyz[3 * t + 1] - C[1]
-        cz = pr.cxyz[3 * t + 2] - C[2]
+    for t in range(pr.T):
+        if not pr.circ[t]:
+            continue
+        d0 = pr.xyz[3 * t] - C[0]
+        d1 = pr.xyz[3 * t + 1] - C[1]
+        cz = pr.xyz[3 * t + 2] - C[2]
         pr.flat[t] = 1 if cz == 0.0 else 0
         if cz == 0.0:
             cz = 1.0
         al = d0 / cz
         be = d1 / cz
+        hr = pr.half[2 * t]
         Q[0] = 1.0; Q[1] = 0.0; Q[2] = -al
         Q[3] = 0.0; Q[4] = 1.0; Q[5] = -be
-        Q[6] = -al; Q[7] = -be; Q[8] = al * al + be * be - pr.cr2[t] / (cz * cz)
+        Q[6] = -al; Q[7] = -be; Q[8] = al * al + be * be - (hr * hr) / (cz * cz)
         qr = pr.QRt + 9 * t
         for a in range(3):
             for b in range(3):
-                acc = Q[3 * a] * R[3 * b] + Q[3 * a + 1] * R[3 * b + 1] + Q[3 * a + 2] * R[3 * b + 2]
-                qr[3 * a + b] = acc
+                qr[3 * a + b] = Q[3 * a] * R[3 * b] + Q[3 * a + 1] * R[3 * b + 1] + Q[3 * a + 2] * R[3 * b + 2]
         for a in range(3):
             for b in range(3):
                 Ci[3 * a + b] = R[3 * a] * qr[b] + R[3 * a + 1] * qr[3 + b] + R[3 * a + 2] * qr[6 + b]
@@ -306,45 +315,43 @@ cdef void circle_conics(Prob* pr, const double* R, const double* C) noexcept nog
 
 
 cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
-    """Whitened residuals r at p (layout in the module doc; square / rect points by point index,
-    unused ones 0) and the robust cost; R, dR: Rodrigues at p."""
+    """Whitened residuals r at p (layout in the module doc) and the robust cost; R, dR: Rodrigues
+    at p."""
     cdef int i, e, t, k, base
-    cdef double cost = 0.0, ww, x, y, u, v, val, cx0, cx1, h, X0, X1, X2, Y0, Y1, Y2, z, rr
+    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, X0, X1, X2, Y0, Y1, Y2, z, rr
     cdef const double* nh
     cdef const double* c6
     cdef const double* C = p + 3
     cdef double fs2 = pr.fs * pr.fs
     rodrigues(p, R, dR)
-    edge_lines(pr, R, C)
-    for i in range(pr.M):
-        if pr.lab[i] < 0:
-            r[i] = 0.0
-            continue
-        e = 4 * pr.tix[i] + pr.lab[i]
-        nh = pr.nh + 3 * e
-        ww = pr.w[i]
-        rr = (pr.P[2 * i] * ww) * nh[0] + (pr.P[2 * i + 1] * ww) * nh[1] + ww * nh[2]
-        r[i] = rr
-        cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-    base = pr.M
-    if pr.Tc:
+    if pr.M:
+        edge_lines(pr, R, C)
+    if pr.N > pr.M:
         circle_conics(pr, R, C)
-        for i in range(pr.Nc):
-            t = pr.cix[i]
+    for i in range(pr.N):
+        t = pr.tix[i]
+        if pr.circ[t]:
             if pr.flat[t]:
                 rr = 1e3
             else:
                 c6 = pr.c6 + 6 * t
-                u = pr.cp[2 * i]
-                v = pr.cp[2 * i + 1]
+                u = pr.P[2 * i]
+                v = pr.P[2 * i + 1]
                 val = u * u * c6[0] + 2.0 * u * v * c6[1] + 2.0 * u * c6[2] + v * v * c6[3] + 2.0 * v * c6[4] + c6[5]
                 cx0 = u * c6[0] + v * c6[1] + c6[2]
                 cx1 = u * c6[1] + v * c6[3] + c6[4]
                 h = 2.0 * hypot(cx0, cx1)
-                rr = val / (h if h > 1e-12 else 1e-12) * pr.cisig[i]
-            r[base + i] = rr
-            cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-        base += pr.Nc
+                rr = val / (h if h > 1e-12 else 1e-12) * pr.w[i]
+        elif pr.lab[i] < 0:
+            r[i] = 0.0
+            continue
+        else:
+            nh = pr.nh + 3 * (4 * t + pr.lab[i])
+            ww = pr.w[i]
+            rr = (pr.P[2 * i] * ww) * nh[0] + (pr.P[2 * i + 1] * ww) * nh[1] + ww * nh[2]
+        r[i] = rr
+        cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+    base = pr.N
     for k in range(pr.K):
         Y0 = pr.L[3 * k] - C[0]
         Y1 = pr.L[3 * k + 1] - C[1]
@@ -382,160 +389,112 @@ cdef inline void add_row(double* A, double* g, const double* J, double wt, doubl
             A[6 * a + b] += wa * J[b]
 
 
-cdef void normal(Prob* pr, const double* p, const double* r, const double* R, const double* dR,
-                 double* A, double* g, int gram) noexcept nogil:
-    """`_Problem.normal` (gram=0: IRLS-weighted J^T W J, J^T W r) or `_Problem.gram` (gram=1:
-    unweighted J^T J without the position prior's rows) at p, whose residuals r, R and dR
-    `evaluate` computed."""
-    cdef int i, e, t, k, a, b, j, base
-    cdef double wp, ww, sx, sy, rr, zz, rho, u, v, val, cx0, cx1, h, hs, kk, sc, X0, X1, X2, Y0, Y1, Y2, z
-    cdef double* S
-    cdef const double* nh
-    cdef const double* m
-    cdef double dn[18]
-    cdef double dl[18]
-    cdef double drho[6]
-    cdef double SD[18]
-    cdef double J[6]
-    cdef double drdc[6]
+cdef void circle_param_jacobians(Prob* pr, const double* R, const double* dR, const double* C) noexcept nogil:
+    """d c6 / d p of every circle seen at an angle (`_Problem._circle_jacobian`): dCi/drvec_k =
+    dR_k Q R^T + its transpose, dCi/dC_j = R dQ/dC_j R^T."""
+    cdef int t, k, a, b, j
+    cdef const double* qr
+    cdef double* dc6t
     cdef double X[9]
-    cdef double dQ[27]
     cdef double M3[9]
     cdef double tmp[9]
     cdef double dal[3]
     cdef double dbe[3]
     cdef double ds[3]
+    cdef double d0, d1, cz, ic, hr
+    for t in range(pr.T):
+        if not pr.circ[t] or pr.flat[t]:
+            continue
+        qr = pr.QRt + 9 * t
+        dc6t = pr.dc6 + 36 * t
+        for k in range(3):
+            for a in range(3):
+                for b in range(3):
+                    X[3 * a + b] = dR[9 * k + 3 * a] * qr[b] + dR[9 * k + 3 * a + 1] * qr[3 + b] \
+                        + dR[9 * k + 3 * a + 2] * qr[6 + b]
+            dc6t[6 * k] = X[0] + X[0]
+            dc6t[6 * k + 1] = X[1] + X[3]
+            dc6t[6 * k + 2] = X[2] + X[6]
+            dc6t[6 * k + 3] = X[4] + X[4]
+            dc6t[6 * k + 4] = X[5] + X[7]
+            dc6t[6 * k + 5] = X[8] + X[8]
+        d0 = pr.xyz[3 * t] - C[0]
+        d1 = pr.xyz[3 * t + 1] - C[1]
+        cz = pr.xyz[3 * t + 2] - C[2]
+        hr = pr.half[2 * t]
+        ic = 1.0 / cz
+        dal[0] = -ic; dal[1] = 0.0; dal[2] = d0 * ic * ic
+        dbe[0] = 0.0; dbe[1] = -ic; dbe[2] = d1 * ic * ic
+        for j in range(3):
+            ds[j] = 2.0 * (d0 * ic) * dal[j] + 2.0 * (d1 * ic) * dbe[j]
+        ds[2] -= 2.0 * (hr * hr) * (ic * ic * ic)
+        for j in range(3):
+            for k in range(9):
+                M3[k] = 0.0
+            M3[2] = M3[6] = -dal[j]
+            M3[5] = M3[7] = -dbe[j]
+            M3[8] = ds[j]
+            for a in range(3):
+                for b in range(3):
+                    tmp[3 * a + b] = R[3 * a] * M3[b] + R[3 * a + 1] * M3[3 + b] + R[3 * a + 2] * M3[6 + b]
+            for a in range(3):
+                for b in range(3):
+                    X[3 * a + b] = tmp[3 * a] * R[3 * b] + tmp[3 * a + 1] * R[3 * b + 1] + tmp[3 * a + 2] * R[3 * b + 2]
+            dc6t[6 * (3 + j)] = X[0]
+            dc6t[6 * (3 + j) + 1] = X[1]
+            dc6t[6 * (3 + j) + 2] = X[2]
+            dc6t[6 * (3 + j) + 3] = X[4]
+            dc6t[6 * (3 + j) + 4] = X[5]
+            dc6t[6 * (3 + j) + 5] = X[8]
+
+
+cdef void normal(Prob* pr, const double* p, const double* r, const double* R, const double* dR,
+                 double* A, double* g, int gram) noexcept nogil:
+    """`_Problem.normal` (gram=0: IRLS-weighted J^T W J, J^T W r) or `_Problem.gram` (gram=1:
+    unweighted J^T J without the position prior's rows) at p, whose residuals r, R and dR
+    `evaluate` computed (with the edge / conic work buffers)."""
+    cdef int i, e, t, k, a, b, j, base
+    cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, X0, X1, X2, Y0, Y1, Y2, z
+    cdef double* S
+    cdef const double* nh
+    cdef const double* m
+    cdef const double* d
+    cdef const double* c6
+    cdef const double* dc6t
+    cdef const double* C = p + 3
+    cdef double dn[18]
+    cdef double dl[18]
+    cdef double drho[6]
+    cdef double SD[18]
+    cdef double M3[9]
+    cdef double J[6]
+    cdef double drdc[6]
     cdef double du[6]
     cdef double dv[6]
-    cdef const double* c6
-    cdef const double* qr
-    cdef const double* C = p + 3
-    cdef double d0, d1, cz, ic
     cdef double b0[6]
     cdef double b1[6]
     cdef double phi[6]
-    cdef const double* d
-    cdef double* dc6t
     for k in range(36):
         A[k] = 0.0
     for k in range(6):
         g[k] = 0.0
-    # Squares / rects: per-edge moments of the whitened rows (x, y, 1) w, then dl^T S dl.
     if pr.M:
         for k in range(36 * pr.T):
             pr.S[k] = 0.0
-        for i in range(pr.M):
-            if pr.lab[i] < 0:
-                continue
-            e = 4 * pr.tix[i] + pr.lab[i]
-            rr = r[i]
-            if gram:
-                wp = 1.0
-            else:
-                zz = (rr / pr.fs) * (rr / pr.fs)
-                wp = loss_w(pr.loss, zz)
-            ww = pr.w[i]
-            sx = pr.P[2 * i] * ww
-            sy = pr.P[2 * i + 1] * ww
-            S = pr.S + 9 * e
-            S[0] += sx * sx * wp
-            S[1] += sx * sy * wp
-            S[2] += sx * ww * wp
-            S[3] += sy * sy * wp
-            S[4] += sy * ww * wp
-            S[5] += ww * ww * wp
-            S[6] += sx * (wp * rr)
-            S[7] += sy * (wp * rr)
-            S[8] += ww * (wp * rr)
-        for e in range(4 * pr.T):
-            S = pr.S + 9 * e
-            if S[5] == 0.0 and S[0] == 0.0 and S[3] == 0.0:
-                continue          # no point on this edge
-            m = pr.m + 3 * e
-            nh = pr.nh + 3 * e
-            rho = pr.rho[e]
-            # dn[a*6 + k]: d n_a / d rvec_k = (dRk[k] m)_a ; d n_a / d C_j = (R (e_j x D))_a
-            for a in range(3):
-                for k in range(3):
-                    dn[6 * a + k] = dR[9 * k + 3 * a] * m[0] + dR[9 * k + 3 * a + 1] * m[1] + dR[9 * k + 3 * a + 2] * m[2]
-            d = pr.D + 3 * e
-            for a in range(3):
-                # e_0 x D = (0, -D2, D1), e_1 x D = (D2, 0, -D0), e_2 x D = (-D1, D0, 0)
-                dn[6 * a + 3] = R[3 * a + 1] * (-d[2]) + R[3 * a + 2] * d[1]
-                dn[6 * a + 4] = R[3 * a] * d[2] + R[3 * a + 2] * (-d[0])
-                dn[6 * a + 5] = R[3 * a] * (-d[1]) + R[3 * a + 1] * d[0]
-            for k in range(6):
-                drho[k] = (nh[0] * dn[k] + nh[1] * dn[6 + k]) / rho
-            for a in range(3):
-                for k in range(6):
-                    dl[6 * a + k] = dn[6 * a + k] / rho - nh[a] * drho[k]
-            # SD = S6 (3x3 symmetric) @ dl (3x6)
-            M3[0] = S[0]; M3[1] = S[1]; M3[2] = S[2]
-            M3[3] = S[1]; M3[4] = S[3]; M3[5] = S[4]
-            M3[6] = S[2]; M3[7] = S[4]; M3[8] = S[5]
-            for a in range(3):
-                for k in range(6):
-                    SD[6 * a + k] = M3[3 * a] * dl[k] + M3[3 * a + 1] * dl[6 + k] + M3[3 * a + 2] * dl[12 + k]
-            for a in range(6):
-                g[a] += dl[a] * S[6] + dl[6 + a] * S[7] + dl[12 + a] * S[8]
-                for b in range(a, 6):
-                    A[6 * a + b] += dl[a] * SD[b] + dl[6 + a] * SD[6 + b] + dl[12 + a] * SD[12 + b]
-    base = pr.M
-    # Circles: d r / d c6 per point times d c6 / d p per circle (`_Problem._circle_jacobian`).
-    if pr.Tc:
-        for t in range(pr.Tc):
-            if pr.flat[t]:
-                continue
-            qr = pr.QRt + 9 * t
-            dc6t = pr.dc6 + 36 * t
-            for k in range(3):
-                # X = dRk[k] @ QRt ; dCi = X + X^T
-                for a in range(3):
-                    for b in range(3):
-                        X[3 * a + b] = dR[9 * k + 3 * a] * qr[b] + dR[9 * k + 3 * a + 1] * qr[3 + b] \
-                            + dR[9 * k + 3 * a + 2] * qr[6 + b]
-                dc6t[6 * k] = X[0] + X[0]
-                dc6t[6 * k + 1] = X[1] + X[3]
-                dc6t[6 * k + 2] = X[2] + X[6]
-                dc6t[6 * k + 3] = X[4] + X[4]
-                dc6t[6 * k + 4] = X[5] + X[7]
-                dc6t[6 * k + 5] = X[8] + X[8]
-            d0 = pr.cxyz[3 * t] - C[0]
-            d1 = pr.cxyz[3 * t + 1] - C[1]
-            cz = pr.cxyz[3 * t + 2] - C[2]
-            ic = 1.0 / cz
-            dal[0] = -ic; dal[1] = 0.0; dal[2] = d0 * ic * ic
-            dbe[0] = 0.0; dbe[1] = -ic; dbe[2] = d1 * ic * ic
-            for j in range(3):
-                ds[j] = 2.0 * (d0 * ic) * dal[j] + 2.0 * (d1 * ic) * dbe[j]
-            ds[2] -= 2.0 * pr.cr2[t] * (ic * ic * ic)
-            for j in range(3):
-                # dQ / dC_j, then R dQ R^T
-                for k in range(9):
-                    M3[k] = 0.0
-                M3[2] = M3[6] = -dal[j]
-                M3[5] = M3[7] = -dbe[j]
-                M3[8] = ds[j]
-                for a in range(3):
-                    for b in range(3):
-                        tmp[3 * a + b] = R[3 * a] * M3[b] + R[3 * a + 1] * M3[3 + b] + R[3 * a + 2] * M3[6 + b]
-                for a in range(3):
-                    for b in range(3):
-                        X[3 * a + b] = tmp[3 * a] * R[3 * b] + tmp[3 * a + 1] * R[3 * b + 1] + tmp[3 * a + 2] * R[3 * b + 2]
-                dc6t[6 * (3 + j)] = X[0]
-                dc6t[6 * (3 + j) + 1] = X[1]
-                dc6t[6 * (3 + j) + 2] = X[2]
-                dc6t[6 * (3 + j) + 3] = X[4]
-                dc6t[6 * (3 + j) + 4] = X[5]
-                dc6t[6 * (3 + j) + 5] = X[8]
-        for i in range(pr.Nc):
-            t = pr.cix[i]
+    if pr.N > pr.M:
+        circle_param_jacobians(pr, R, dR, C)
+    # Square / rect points: per-edge moments of the whitened rows (x, y, 1) w (then dl^T S dl
+    # per edge); circle points: their Jacobian row, d r / d c6 times d c6 / d p.
+    for i in range(pr.N):
+        t = pr.tix[i]
+        rr = r[i]
+        if pr.circ[t]:
             if pr.flat[t]:
                 continue
             c6 = pr.c6 + 6 * t
             dc6t = pr.dc6 + 36 * t
-            u = pr.cp[2 * i]
-            v = pr.cp[2 * i + 1]
+            u = pr.P[2 * i]
+            v = pr.P[2 * i + 1]
             phi[0] = u * u; phi[1] = 2.0 * u * v; phi[2] = 2.0 * u; phi[3] = v * v; phi[4] = 2.0 * v; phi[5] = 1.0
             val = phi[0] * c6[0] + phi[1] * c6[1] + phi[2] * c6[2] + phi[3] * c6[3] + phi[4] * c6[4] + phi[5] * c6[5]
             cx0 = u * c6[0] + v * c6[1] + c6[2]
@@ -543,7 +502,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             h = hypot(cx0, cx1)
             hs = h if h > 5e-13 else 5e-13
             kk = val / (hs * hs)
-            sc = pr.cisig[i] / (2.0 * hs)
+            sc = pr.w[i] / (2.0 * hs)
             b0[0] = u; b0[1] = v; b0[2] = 1.0; b0[3] = 0.0; b0[4] = 0.0; b0[5] = 0.0
             b1[0] = 0.0; b1[1] = u; b1[2] = 0.0; b1[3] = v; b1[4] = 1.0; b1[5] = 0.0
             for k in range(6):
@@ -551,13 +510,60 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             for k in range(6):
                 J[k] = drdc[0] * dc6t[6 * k] + drdc[1] * dc6t[6 * k + 1] + drdc[2] * dc6t[6 * k + 2] \
                     + drdc[3] * dc6t[6 * k + 3] + drdc[4] * dc6t[6 * k + 4] + drdc[5] * dc6t[6 * k + 5]
-            rr = r[base + i]
-            if gram:
-                wp = 1.0
-            else:
-                wp = loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+            wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
             add_row(A, g, J, wp, rr)
-        base += pr.Nc
+            continue
+        if pr.lab[i] < 0:
+            continue
+        e = 4 * t + pr.lab[i]
+        wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+        ww = pr.w[i]
+        sx = pr.P[2 * i] * ww
+        sy = pr.P[2 * i + 1] * ww
+        S = pr.S + 9 * e
+        S[0] += sx * sx * wp
+        S[1] += sx * sy * wp
+        S[2] += sx * ww * wp
+        S[3] += sy * sy * wp
+        S[4] += sy * ww * wp
+        S[5] += ww * ww * wp
+        S[6] += sx * (wp * rr)
+        S[7] += sy * (wp * rr)
+        S[8] += ww * (wp * rr)
+    for e in range(4 * pr.T if pr.M else 0):
+        if pr.circ[e // 4]:
+            continue
+        S = pr.S + 9 * e
+        if S[5] == 0.0 and S[0] == 0.0 and S[3] == 0.0:
+            continue          # no point on this edge
+        m = pr.m + 3 * e
+        nh = pr.nh + 3 * e
+        d = pr.D + 3 * e
+        rho = pr.rho[e]
+        # dn[a*6 + k]: d n_a / d rvec_k = (dRk[k] m)_a ; d n_a / d C_j = (R (e_j x D))_a
+        for a in range(3):
+            for k in range(3):
+                dn[6 * a + k] = dR[9 * k + 3 * a] * m[0] + dR[9 * k + 3 * a + 1] * m[1] + dR[9 * k + 3 * a + 2] * m[2]
+            # e_0 x D = (0, -D2, D1), e_1 x D = (D2, 0, -D0), e_2 x D = (-D1, D0, 0)
+            dn[6 * a + 3] = R[3 * a + 1] * (-d[2]) + R[3 * a + 2] * d[1]
+            dn[6 * a + 4] = R[3 * a] * d[2] + R[3 * a + 2] * (-d[0])
+            dn[6 * a + 5] = R[3 * a] * (-d[1]) + R[3 * a + 1] * d[0]
+        for k in range(6):
+            drho[k] = (nh[0] * dn[k] + nh[1] * dn[6 + k]) / rho
+        for a in range(3):
+            for k in range(6):
+                dl[6 * a + k] = dn[6 * a + k] / rho - nh[a] * drho[k]
+        M3[0] = S[0]; M3[1] = S[1]; M3[2] = S[2]
+        M3[3] = S[1]; M3[4] = S[3]; M3[5] = S[4]
+        M3[6] = S[2]; M3[7] = S[4]; M3[8] = S[5]
+        for a in range(3):
+            for k in range(6):
+                SD[6 * a + k] = M3[3 * a] * dl[k] + M3[3 * a + 1] * dl[6 + k] + M3[3 * a + 2] * dl[12 + k]
+        for a in range(6):
+            g[a] += dl[a] * S[6] + dl[6 + a] * S[7] + dl[12 + a] * S[8]
+            for b in range(a, 6):
+                A[6 * a + b] += dl[a] * SD[b] + dl[6 + a] * SD[6 + b] + dl[12 + a] * SD[12 + b]
+    base = pr.N
     # Centroids.
     for k in range(pr.K):
         Y0 = pr.L[3 * k] - C[0]
@@ -568,7 +574,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
         X2 = Y0 * R[6] + Y1 * R[7] + Y2 * R[8]
         z = X2 if X2 > 1e-6 else 1e-6
         for j in range(3):
-            # dX_a / d rvec_j = (dRk[j] Y)_a
+            # dX_a / d rvec_j = (dRk[j] Y)_a ; dX_a / d C_j = -R_aj
             dn[j] = dR[9 * j] * Y0 + dR[9 * j + 1] * Y1 + dR[9 * j + 2] * Y2
             dn[6 + j] = dR[9 * j + 3] * Y0 + dR[9 * j + 4] * Y1 + dR[9 * j + 5] * Y2
             dn[12 + j] = dR[9 * j + 6] * Y0 + dR[9 * j + 7] * Y1 + dR[9 * j + 8] * Y2
@@ -578,16 +584,10 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
         for j in range(6):
             du[j] = (dn[j] - (X0 / z) * dn[12 + j]) / z / pr.sigc
             dv[j] = (dn[6 + j] - (X1 / z) * dn[12 + j]) / z / pr.sigc
-        for a in range(2):
-            rr = r[base + a]
-            if gram:
-                wp = 1.0
-            else:
-                wp = loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-            if a == 0:
-                add_row(A, g, du, wp, rr)
-            else:
-                add_row(A, g, dv, wp, rr)
+        rr = r[base]
+        add_row(A, g, du, 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs)), rr)
+        rr = r[base + 1]
+        add_row(A, g, dv, 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs)), rr)
         base += 2
     if pr.has_up:
         for a in range(3):
@@ -595,11 +595,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
                 J[k] = dR[9 * k + 3 * a + 2] / pr.up_sig
                 J[3 + k] = 0.0
             rr = r[base + a]
-            if gram:
-                wp = 1.0
-            else:
-                wp = loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-            add_row(A, g, J, wp, rr)
+            add_row(A, g, J, 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs)), rr)
         base += 3
     if pr.has_prior and not gram:
         for a in range(3):
@@ -608,8 +604,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             J[4] = pr.W[3 * a + 1]
             J[5] = pr.W[3 * a + 2]
             rr = r[base + a]
-            wp = loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-            add_row(A, g, J, wp, rr)
+            add_row(A, g, J, loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs)), rr)
     for a in range(6):
         for b in range(a):
             A[6 * a + b] = A[6 * b + a]
@@ -713,50 +708,55 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
     return 0
 
 
-def solve(double[::1] p, int[::1] lab,
-          const double[:, ::1] P, const double[::1] w, const int[::1] tix, const double[:, ::1] corners,
-          const double[:, ::1] AxB, const double[:, ::1] D,
-          const double[:, ::1] cp, const double[::1] cisig, const int[::1] cix,
-          const double[:, ::1] cxyz, const double[::1] cr2,
-          const double[:, ::1] L, const double[:, ::1] uv, double sigc,
-          const double[::1] up, double up_sig, const double[::1] Cp, const double[:, ::1] W,
-          int loss, double f_scale, int rounds, int max_iter, double guard2,
+def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1] w, const int[::1] tix,
+          const double[:, ::1] xyz, const double[:, ::1] half, const int[::1] circ, const double[:, ::1] uv,
+          const int[::1] has_uv, double sigc, const double[::1] up, double up_sig, const double[::1] Cp,
+          const double[:, ::1] W, int loss, double f_scale, int rounds, int max_iter, double guard2,
           int minor_switches, double minor_fraction, double step_tol, double cost_rtol,
           double[:, ::1] R_out, double[:, ::1] gram_out):
     """`solve_outline_pose`'s rounds (edge assignment, then at most `max_iter` LM iterations) from
-    p (6,), updated in place; `lab` (M,) receives the final edge labels, `R_out` (3, 3) R_cw at
-    p, `gram_out` (6, 6) the unweighted J^T J without the position prior. `up` / `Cp` empty:
-    no tilt / position prior. Returns (converged, chi^2 without the position prior's rows,
-    residual count without them)."""
+    p (6,), updated in place. Targets: `xyz` (T, 3) centres, `half` (T, 2) half extents along
+    world x, y, `circ` (T,) 1 for a circle, `uv` (T, 2) centroids where `has_uv`; points `P` (N, 2)
+    with `w` = 1 / sigma and their target `tix`. `lab` (N,) receives the final edge labels,
+    `R_out` (3, 3) R_cw at p, `gram_out` (6, 6) the unweighted J^T J without the position
+    prior. `up` / `Cp` empty: no tilt / position prior. Returns (converged, chi^2 without the
+    position prior's rows, residual count without them)."""
     cdef Prob pr
-    cdef int M = P.shape[0], T = corners.shape[0] // 4, Nc = cp.shape[0], Tc = cxyz.shape[0], K = L.shape[0]
-    cdef int i, k, n, converged = 0, changed, first = 1, n_use
-    cdef double chi2 = 0.0, rr
+    cdef int N = P.shape[0], T = xyz.shape[0]
+    cdef int i, j, k, t, n, nxt, converged = 0, changed, first = 1, n_use = 0, M = 0, K = 0
+    cdef double chi2 = 0.0
     cdef double R[9]
     cdef double dR[27]
     cdef double R_new[9]
     cdef double dR_new[27]
     cdef double A[36]
     cdef double g[6]
+    cdef double sgn[8]
     cdef double* r
     cdef double* r_new
     cdef double* work
+    cdef double* a
+    cdef double* b
     cdef int* iwork
-    pr.M, pr.T, pr.Nc, pr.Tc, pr.K = M, T, Nc, Tc, K
-    pr.P = &P[0, 0] if M else NULL
-    pr.w = &w[0] if M else NULL
-    pr.tix = &tix[0] if M else NULL
-    pr.corners = &corners[0, 0] if T else NULL
-    pr.AxB = &AxB[0, 0] if T else NULL
-    pr.D = &D[0, 0] if T else NULL
-    pr.lab = &lab[0] if M else NULL
-    pr.cp = &cp[0, 0] if Nc else NULL
-    pr.cisig = &cisig[0] if Nc else NULL
-    pr.cix = &cix[0] if Nc else NULL
-    pr.cxyz = &cxyz[0, 0] if Tc else NULL
-    pr.cr2 = &cr2[0] if Tc else NULL
-    pr.L = &L[0, 0] if K else NULL
-    pr.uv = &uv[0, 0] if K else NULL
+    if P.shape[1] != 2 or w.shape[0] != N or tix.shape[0] != N or lab.shape[0] != N or half.shape[0] != T \
+            or circ.shape[0] != T or uv.shape[0] != T or has_uv.shape[0] != T or p.shape[0] != 6:
+        raise ValueError("inconsistent outline arrays")
+    for i in range(N):
+        if tix[i] < 0 or tix[i] >= T:
+            raise ValueError("point target index out of range")
+        if not circ[tix[i]]:
+            M += 1
+    for t in range(T):
+        if has_uv[t]:
+            K += 1
+    pr.N, pr.M, pr.T, pr.K = N, M, T, K
+    pr.P = &P[0, 0] if N else NULL
+    pr.w = &w[0] if N else NULL
+    pr.tix = &tix[0] if N else NULL
+    pr.lab = &lab[0] if N else NULL
+    pr.circ = &circ[0] if T else NULL
+    pr.xyz = &xyz[0, 0] if T else NULL
+    pr.half = &half[0, 0] if T else NULL
     pr.sigc = sigc
     pr.has_up = 1 if up.shape[0] == 3 else 0
     for k in range(3):
@@ -769,25 +769,57 @@ def solve(double[::1] p, int[::1] lab,
         pr.W[k] = W[k // 3, k % 3] if pr.has_prior else 0.0
     pr.loss = loss
     pr.fs = f_scale
-    n = M + Nc + 2 * K + 3 * pr.has_up + 3 * pr.has_prior
+    n = N + 2 * K + 3 * pr.has_up + 3 * pr.has_prior
     pr.n_res = n
-    work = <double*> malloc((2 * n + 4 * T * (3 + 1 + 3 + 9) + Tc * (6 + 9 + 36) + 1) * sizeof(double))
-    iwork = <int*> malloc((Tc + 1) * sizeof(int))
+    work = <double*> malloc((2 * n + 4 * T * (3 + 3 + 3 + 3 + 1 + 3 + 9) + T * (6 + 9 + 36) + 5 * K + 1)
+                            * sizeof(double))
+    iwork = <int*> malloc((T + 1) * sizeof(int))
     if work == NULL or iwork == NULL:
         free(work)
         free(iwork)
         raise MemoryError()
     r = work
     r_new = work + n
-    pr.nh = work + 2 * n
+    pr.corners = r_new + n
+    pr.AxB = pr.corners + 12 * T
+    pr.D = pr.AxB + 12 * T
+    pr.nh = pr.D + 12 * T
     pr.rho = pr.nh + 12 * T
     pr.m = pr.rho + 4 * T
     pr.S = pr.m + 12 * T
     pr.c6 = pr.S + 36 * T
-    pr.QRt = pr.c6 + 6 * Tc
-    pr.dc6 = pr.QRt + 9 * Tc
+    pr.QRt = pr.c6 + 6 * T
+    pr.dc6 = pr.QRt + 9 * T
+    pr.L = pr.dc6 + 36 * T
+    pr.uv = pr.L + 3 * K
     pr.flat = iwork
     with nogil:
+        # Corners of the squares / rects (`_corners`: +x+y, -x+y, -x-y, +x-y), their edges A -> B.
+        sgn[0] = 1.0; sgn[1] = 1.0; sgn[2] = -1.0; sgn[3] = 1.0
+        sgn[4] = -1.0; sgn[5] = -1.0; sgn[6] = 1.0; sgn[7] = -1.0
+        k = 0
+        for t in range(T):
+            pr.flat[t] = 0
+            if has_uv[t]:
+                for j in range(3):
+                    pr.L[3 * k + j] = xyz[t, j]
+                pr.uv[2 * k] = uv[t, 0]
+                pr.uv[2 * k + 1] = uv[t, 1]
+                k += 1
+            for j in range(4):
+                a = pr.corners + 3 * (4 * t + j)
+                a[0] = xyz[t, 0] + sgn[2 * j] * half[t, 0]
+                a[1] = xyz[t, 1] + sgn[2 * j + 1] * half[t, 1]
+                a[2] = xyz[t, 2] + 0.0
+            for j in range(4):
+                nxt = 4 * t + (j + 1) % 4
+                a = pr.corners + 3 * (4 * t + j)
+                b = pr.corners + 3 * nxt
+                pr.AxB[3 * (4 * t + j)] = a[1] * b[2] - a[2] * b[1]
+                pr.AxB[3 * (4 * t + j) + 1] = a[2] * b[0] - a[0] * b[2]
+                pr.AxB[3 * (4 * t + j) + 2] = a[0] * b[1] - a[1] * b[0]
+                for i in range(3):
+                    pr.D[3 * (4 * t + j) + i] = a[i] - b[i]
         for k in range(rounds):
             changed = assign(&pr, &p[0], 1 if (k > 0 and converged) else 0, first, guard2,
                              minor_switches, minor_fraction)
@@ -795,12 +827,11 @@ def solve(double[::1] p, int[::1] lab,
             if k > 0 and converged and not changed:
                 break
             converged = lm(&pr, &p[0], r, R, dR, r_new, R_new, dR_new, max_iter, step_tol, cost_rtol)
-        n_use = 0
-        for i in range(M):
-            if pr.lab[i] >= 0:
+        for i in range(N):
+            if pr.circ[pr.tix[i]] or pr.lab[i] >= 0:
                 chi2 += r[i] * r[i]
                 n_use += 1
-        for i in range(M, n - 3 * pr.has_prior):
+        for i in range(N, n - 3 * pr.has_prior):
             chi2 += r[i] * r[i]
         normal(&pr, &p[0], r, R, dR, A, g, 1)
     for k in range(9):
@@ -809,4 +840,4 @@ def solve(double[::1] p, int[::1] lab,
         gram_out[k // 6, k % 6] = A[k]
     free(work)
     free(iwork)
-    return converged, chi2, n_use + Nc + 2 * K + 3 * pr.has_up
+    return converged, chi2, n_use + 2 * K + 3 * pr.has_up

@@ -90,6 +90,59 @@ class OutlineTarget:
     labels: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class OutlineFrame:
+    """A frame's outline targets packed (what the compiled solve takes, and what the positioner
+    builds with one undistortion for the whole frame): `pts` (N, 2) normalized undistorted edge
+    points of every target in turn, `sigma` (N,) their 1-sigma (normalized units), `ends` (T + 1,)
+    where each target's points start (`ends[k]`) and end (`ends[k + 1]`), `xyz` (T, 3) centres
+    (solving frame), `half` (T, 2) half extents along world x, y, `shapes` (T,) "square" / "rect"
+    / "circle", `uv` (T, 2) envelope centroids (normalized), NaN rows where a target has none."""
+
+    pts: np.ndarray
+    sigma: np.ndarray
+    ends: np.ndarray
+    xyz: np.ndarray
+    half: np.ndarray
+    shapes: tuple[str, ...]
+    uv: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.shapes)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.ends[-1])
+
+    def target(self, k: int) -> OutlineTarget:
+        a, b = int(self.ends[k]), int(self.ends[k + 1])
+        uv = None if np.isnan(self.uv[k, 0]) else self.uv[k]
+        return OutlineTarget(self.xyz[k], self.shapes[k], (float(self.half[k, 0]), float(self.half[k, 1])),
+                             self.pts[a:b], self.sigma[a:b], uv)
+
+    @property
+    def targets(self) -> list[OutlineTarget]:
+        """The same targets one by one (the numpy path's and the tests' form)."""
+        return [self.target(k) for k in range(len(self))]
+
+    @classmethod
+    def from_targets(cls, targets: list[OutlineTarget]) -> "OutlineFrame":
+        ends = np.zeros(len(targets) + 1, np.int64)
+        np.cumsum([len(t.pts) for t in targets], out=ends[1:])
+        uv = np.array([t.uv if t.uv is not None else (np.nan, np.nan) for t in targets], float).reshape(-1, 2)
+        return cls(np.concatenate([np.asarray(t.pts, float).reshape(-1, 2) for t in targets]),
+                   np.concatenate([np.asarray(t.sigma, float).ravel() for t in targets]), ends,
+                   np.array([t.xyz for t in targets], float).reshape(-1, 3),
+                   np.array([t.half for t in targets], float).reshape(-1, 2), tuple(t.shape for t in targets), uv)
+
+    def with_at_least(self, n: int) -> "OutlineFrame":
+        """The targets with at least n points."""
+        keep = np.flatnonzero(np.diff(self.ends) >= n)
+        if len(keep) == len(self):
+            return self
+        return OutlineFrame.from_targets([self.target(int(k)) for k in keep])
+
+
 def fixture_half_extents(shape: str | None, size) -> tuple[float, float] | None:
     """(hx, hy) half extents along world x and y of a map fixture, or None when unknown."""
     if not shape or not size:
@@ -495,7 +548,7 @@ def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
     return lm_normal(prob.residuals, prob.normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
-def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
+def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
                        centroid_sigma_px: float = DEFAULT_CENTROID_SIGMA_PX, up_prior: np.ndarray | None = None,
                        tilt_sigma_rad: float = math.radians(10.0), C_prior: np.ndarray | None = None,
                        C_prior_cov: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
@@ -503,26 +556,35 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
     """Pose (R_cw, C) from the outline targets of one frame, started at (R0, C0) (module doc).
     Returns a `Fix` (method "outline") or None when the outlines do not determine a trustworthy
     position (too few points, camera not below the LEDs, residuals far beyond their sigmas).
-    Each of the `rounds` assigns the points to edges at the current pose and runs at most
+    `targets`: a list of `OutlineTarget` or the packed `OutlineFrame` (targets with fewer than 3
+    points are left out). Each of the `rounds` assigns the points to edges at the current pose and runs at most
     `max_iter` Levenberg-Marquardt iterations; a round whose assignment did not change after a
     converged one is skipped."""
-    targets = [t for t in targets if len(t.pts) >= 3]
-    if not targets:
+    if isinstance(targets, OutlineFrame):
+        frame = targets.with_at_least(3)
+        targets = None
+        shapes = frame.shapes
+    else:
+        targets = [t for t in targets if len(t.pts) >= 3]
+        frame = None
+        shapes = tuple(t.shape for t in targets)
+    if not shapes:
         return None
-    only_circle = len(targets) == 1 and targets[0].shape == "circle"
+    only_circle = len(shapes) == 1 and shapes[0] == "circle"
     if only_circle and C_prior is None:
         return None
     W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    args = (targets, p0, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
+    args = (p0, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
             rounds, max_iter)
     if _k is not None and loss in LOSS_CODES:
-        p, R, chi2, n_res, JtJ = _solve_native(*args)
+        p, R, chi2, n_res, JtJ = _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets),
+                                               *args)
     else:
-        p, R, chi2, n_res, JtJ = _solve_numpy(*args)
+        p, R, chi2, n_res, JtJ = _solve_numpy(targets if targets is not None else frame.targets, *args)
     C = p[3:].copy()
-    z_min = min(float(t.xyz[2]) for t in targets)
+    z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
         return None
     # Covariance: without the tracked-position prior (the filter holds it), with a weak one
@@ -532,8 +594,7 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
         return None
     JtJ[3:, 3:] += np.eye(3) / FREE_SIGMA_M ** 2
     cov6 = np.linalg.pinv(JtJ) * max(1.0, chi2 / dof)
-    n = len(targets)
-    return Fix(C, cov6[3:, 3:], R, "outline", n, chi2, dof)
+    return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
 
 
 def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
@@ -554,56 +615,28 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
     return p, st.R, float(r @ r), len(r), prob.gram(st)
 
 
-_EMPTY2 = np.zeros((0, 2))
-_EMPTY3 = np.zeros((0, 3))
-_EMPTY1 = np.zeros(0)
-_EMPTY_I = np.zeros(0, np.int32)
-_SIGNS = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], float)
+_EMPTY = np.zeros(0)
+_NO_W = np.zeros((3, 3))
 
 
-def _solve_native(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
-                  max_iter):
-    """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx): the same arithmetic
-    per point, summed in another order (results equal to rounding)."""
-    poly = [t for t in targets if t.shape != "circle"]
-    circles = [t for t in targets if t.shape == "circle"]
-    if poly:
-        xyz = np.array([t.xyz for t in poly], float)
-        off = np.zeros((len(poly), 4, 3))
-        off[:, :, :2] = _SIGNS[None] * np.array([t.half for t in poly], float)[:, None, :]
-        a = (xyz[:, None, :] + off)
-        b = a[:, [1, 2, 3, 0]].reshape(-1, 3)
-        a = a.reshape(-1, 3)
-        AxB = np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                               a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
-        P = np.concatenate([t.pts for t in poly]).astype(float, copy=False)
-        w = 1.0 / np.concatenate([t.sigma for t in poly])
-        tix = np.repeat(np.arange(len(poly), dtype=np.int32), [len(t.pts) for t in poly])
-        D = a - b
-    else:
-        a = AxB = D = _EMPTY3
-        P, w, tix = _EMPTY2, _EMPTY1, _EMPTY_I
-    if circles:
-        cp = np.concatenate([t.pts for t in circles]).astype(float, copy=False)
-        cisig = 1.0 / np.concatenate([t.sigma for t in circles])
-        cix = np.repeat(np.arange(len(circles), dtype=np.int32), [len(t.pts) for t in circles])
-        cxyz = np.array([t.xyz for t in circles], float)
-        cr2 = np.array([t.half[0] ** 2 for t in circles], float)
-    else:
-        cp, cisig, cix, cxyz, cr2 = _EMPTY2, _EMPTY1, _EMPTY_I, _EMPTY3, _EMPTY1
-    cen = [t for t in targets if t.uv is not None]
-    L = np.array([t.xyz for t in cen], float).reshape(-1, 3)
-    uv = np.array([t.uv for t in cen], float).reshape(-1, 2)
-    up = _EMPTY1 if up_prior is None else np.ascontiguousarray(up_prior, float)
-    Cp = _EMPTY1 if C_prior is None else np.ascontiguousarray(C_prior, float)
-    Wc = np.zeros((3, 3)) if W is None else np.ascontiguousarray(W, float)
+def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
+                  rounds, max_iter):
+    """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
+    the same arithmetic per point, summed in another order (results equal to rounding)."""
+    counts = np.diff(frame.ends)
+    tix = np.repeat(np.arange(len(frame), dtype=np.int32), counts)
+    circ = np.array([s == "circle" for s in frame.shapes], np.int32)
+    has_uv = (~np.isnan(frame.uv[:, 0])).astype(np.int32)
+    up = _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float)
+    Cp = _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float)
     p = np.array(p, float)
-    lab = np.empty(len(P), np.int32)
+    lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
-    _, chi2, n_res = _k.solve(p, lab, np.ascontiguousarray(P), np.ascontiguousarray(w), tix, a, AxB, D,
-                              np.ascontiguousarray(cp), np.ascontiguousarray(cisig), cix, cxyz, cr2, L, uv, sigma_c,
-                              up, tilt_sigma_rad, Cp, Wc, LOSS_CODES[loss], f_scale, rounds, max_iter,
-                              (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES, MINOR_SWITCH_FRACTION, STEP_TOL,
-                              COST_RTOL, R, JtJ)
+    _, chi2, n_res = _k.solve(p, lab, np.ascontiguousarray(frame.pts, float), 1.0 / frame.sigma, tix,
+                              np.ascontiguousarray(frame.xyz, float), np.ascontiguousarray(frame.half, float), circ,
+                              np.ascontiguousarray(frame.uv, float), has_uv, sigma_c, up, tilt_sigma_rad, Cp,
+                              _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
+                              rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
+                              MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
     return p, R, chi2, n_res, JtJ
