@@ -841,3 +841,4 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     free(work)
     free(iwork)
     return converged, chi2, n_use + 2 * K + 3 * pr.has_up
+

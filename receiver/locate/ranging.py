@@ -40,7 +40,12 @@ import math
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.io.camera import CameraModel
+
+# The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
+# None: cv2.undistortPoints itself.
+_ku = load("receiver.locate._undistort")
 
 ESTIMATORS = ("eq18", "oblique")
 
@@ -60,11 +65,20 @@ def distance_eq18(area_px: float, area_m2: float, focal_px: float) -> float:
 
 
 def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
-    """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z)."""
-    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
+    """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z):
+    cv2.undistortPoints, or the compiled kernel with its exact result where the camera has up to
+    12 distortion coefficients (no tilted sensor) and an unskewed camera matrix."""
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
     if len(pts) == 0:
         return np.zeros((0, 2))
-    return cv2.undistortPoints(pts, camera.K, camera.dist).reshape(-1, 2)
+    if _ku is not None:
+        K = np.asarray(camera.K, dtype=np.float64)
+        dist = np.asarray(camera.dist, dtype=np.float64).ravel()
+        if len(dist) <= 12 and K.shape == (3, 3) and K[0, 1] == 0.0:
+            out = np.empty_like(pts)
+            _ku.undistort(np.ascontiguousarray(pts), np.ascontiguousarray(K), dist, out)
+            return out
+    return cv2.undistortPoints(pts.reshape(-1, 1, 2), camera.K, camera.dist).reshape(-1, 2)
 
 
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
