@@ -14,6 +14,7 @@ position prior (3): the pure path's, grouped squares / rects first, then circles
 
 from libc.math cimport sqrt, hypot, cos, sin, log1p, fabs
 from libc.stdlib cimport malloc, free
+from libc.string cimport memcpy, memset
 from libc.float cimport DBL_EPSILON
 
 # Loss codes (outline_pose.LOSS_CODES).
@@ -58,6 +59,9 @@ cdef struct Prob:
     double* QRt            # (T, 9)
     double* dc6            # (T, 36) work: d c6 / d p of each circle
     int* flat              # (T,)
+    int* order             # (N,) used square / rect points grouped by edge (stable), then circle points
+    int* estart            # (4T + 1,) where each edge's run starts in `order`
+    int n_edge_pts         # used square / rect points (the runs' total)
 
 
 cdef inline void rodrigues(const double* rv, double* R, double* dR) noexcept nogil:
@@ -163,7 +167,9 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
     cdef double* il
     cdef double d2[4]
     cdef double c2[4]
-    cdef double relx, rely, s, ex, ey, m01, m23, dc, thr
+    cdef double rx[4]
+    cdef double ry[4]
+    cdef double s, ex, ey, m01, m23, dc, thr
     cdef int* new
     if pr.M == 0:
         return first
@@ -198,23 +204,19 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
         ab = q + 8
         il = q + 16
         for j in range(4):
-            relx = pr.P[2 * i] - q[2 * j]
-            rely = pr.P[2 * i + 1] - q[2 * j + 1]
-            c2[j] = relx * relx + rely * rely
-            s = (relx * ab[2 * j] + rely * ab[2 * j + 1]) * il[j]
-            if s <= 0.0:
-                d2[j] = -1.0          # the start corner's c2 (filled below)
-            elif s >= 1.0:
-                d2[j] = -2.0          # the next corner's c2
-            else:
-                ex = relx - s * ab[2 * j]
-                ey = rely - s * ab[2 * j + 1]
-                d2[j] = ex * ex + ey * ey
+            rx[j] = pr.P[2 * i] - q[2 * j]
+            ry[j] = pr.P[2 * i + 1] - q[2 * j + 1]
+            c2[j] = rx[j] * rx[j] + ry[j] * ry[j]
         for j in range(4):
-            if d2[j] == -1.0:
-                d2[j] = c2[j]
-            elif d2[j] == -2.0:
-                d2[j] = c2[(j + 1) % 4]
+            s = (rx[j] * ab[2 * j] + ry[j] * ab[2 * j + 1]) * il[j]
+            if s <= 0.0:
+                d2[j] = c2[j]                 # nearest: the edge's start corner
+            elif s >= 1.0:
+                d2[j] = c2[(j + 1) & 3]       # ... its end corner
+            else:
+                ex = rx[j] - s * ab[2 * j]
+                ey = ry[j] - s * ab[2 * j + 1]
+                d2[j] = ex * ex + ey * ey
         m01 = d2[0] if d2[0] <= d2[1] else d2[1]
         m23 = d2[2] if d2[2] <= d2[3] else d2[3]
         if m23 < m01:
@@ -244,6 +246,33 @@ cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double gua
         pr.lab[i] = new[i]
     free(new)
     return changed
+
+
+cdef void group(Prob* pr) noexcept nogil:
+    """`order` / `estart`: the used square / rect points in runs per edge (each run in point
+    order, as `_Problem._group`'s stable sort), then every circle point."""
+    cdef int i, e, E = 4 * pr.T, pos
+    for e in range(E + 1):
+        pr.estart[e] = 0
+    for i in range(pr.N):
+        if not pr.circ[pr.tix[i]] and pr.lab[i] >= 0:
+            pr.estart[4 * pr.tix[i] + pr.lab[i] + 1] += 1
+    for e in range(E):
+        pr.estart[e + 1] += pr.estart[e]
+    pr.n_edge_pts = pr.estart[E]
+    pos = pr.n_edge_pts
+    for i in range(pr.N):
+        if pr.circ[pr.tix[i]]:
+            pr.order[pos] = i
+            pos += 1
+        elif pr.lab[i] >= 0:
+            e = 4 * pr.tix[i] + pr.lab[i]
+            pr.order[pr.estart[e]] = i
+            pr.estart[e] += 1
+    for e in range(E - 1, 0, -1):
+        pr.estart[e] = pr.estart[e - 1]
+    if E:
+        pr.estart[0] = 0
 
 
 cdef void edge_lines(Prob* pr, const double* R, const double* C) noexcept nogil:
@@ -317,9 +346,8 @@ cdef void circle_conics(Prob* pr, const double* R, const double* C) noexcept nog
 cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
     """Whitened residuals r at p (layout in the module doc) and the robust cost; R, dR: Rodrigues
     at p."""
-    cdef int i, e, t, k, base
-    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, X0, X1, X2, Y0, Y1, Y2, z, rr
-    cdef const double* nh
+    cdef int i, j, e, t, k, base
+    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, X0, X1, X2, Y0, Y1, Y2, z, rr, nh0, nh1, nh2
     cdef const double* c6
     cdef const double* C = p + 3
     cdef double fs2 = pr.fs * pr.fs
@@ -328,27 +356,32 @@ cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR
         edge_lines(pr, R, C)
     if pr.N > pr.M:
         circle_conics(pr, R, C)
-    for i in range(pr.N):
-        t = pr.tix[i]
-        if pr.circ[t]:
-            if pr.flat[t]:
-                rr = 1e3
-            else:
-                c6 = pr.c6 + 6 * t
-                u = pr.P[2 * i]
-                v = pr.P[2 * i + 1]
-                val = u * u * c6[0] + 2.0 * u * v * c6[1] + 2.0 * u * c6[2] + v * v * c6[3] + 2.0 * v * c6[4] + c6[5]
-                cx0 = u * c6[0] + v * c6[1] + c6[2]
-                cx1 = u * c6[1] + v * c6[3] + c6[4]
-                h = 2.0 * hypot(cx0, cx1)
-                rr = val / (h if h > 1e-12 else 1e-12) * pr.w[i]
-        elif pr.lab[i] < 0:
-            r[i] = 0.0
+    for e in range(4 * pr.T if pr.M else 0):
+        if pr.estart[e + 1] == pr.estart[e]:
             continue
-        else:
-            nh = pr.nh + 3 * (4 * t + pr.lab[i])
+        nh0 = pr.nh[3 * e]
+        nh1 = pr.nh[3 * e + 1]
+        nh2 = pr.nh[3 * e + 2]
+        for j in range(pr.estart[e], pr.estart[e + 1]):
+            i = pr.order[j]
             ww = pr.w[i]
-            rr = (pr.P[2 * i] * ww) * nh[0] + (pr.P[2 * i + 1] * ww) * nh[1] + ww * nh[2]
+            rr = (pr.P[2 * i] * ww) * nh0 + (pr.P[2 * i + 1] * ww) * nh1 + ww * nh2
+            r[i] = rr
+            cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+    for j in range(pr.n_edge_pts, pr.n_edge_pts + pr.N - pr.M):
+        i = pr.order[j]
+        t = pr.tix[i]
+        if pr.flat[t]:
+            rr = 1e3
+        else:
+            c6 = pr.c6 + 6 * t
+            u = pr.P[2 * i]
+            v = pr.P[2 * i + 1]
+            val = u * u * c6[0] + 2.0 * u * v * c6[1] + 2.0 * u * c6[2] + v * v * c6[3] + 2.0 * v * c6[4] + c6[5]
+            cx0 = u * c6[0] + v * c6[1] + c6[2]
+            cx1 = u * c6[1] + v * c6[3] + c6[4]
+            h = 2.0 * hypot(cx0, cx1)
+            rr = val / (h if h > 1e-12 else 1e-12) * pr.w[i]
         r[i] = rr
         cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
     base = pr.N
@@ -455,6 +488,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     `evaluate` computed (with the edge / conic work buffers)."""
     cdef int i, e, t, k, a, b, j, base
     cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, X0, X1, X2, Y0, Y1, Y2, z
+    cdef double s0, s1, s2, s3, s4, s5, s6, s7, s8
     cdef double* S
     cdef const double* nh
     cdef const double* m
@@ -478,64 +512,63 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
         A[k] = 0.0
     for k in range(6):
         g[k] = 0.0
-    if pr.M:
-        for k in range(36 * pr.T):
-            pr.S[k] = 0.0
     if pr.N > pr.M:
         circle_param_jacobians(pr, R, dR, C)
-    # Square / rect points: per-edge moments of the whitened rows (x, y, 1) w (then dl^T S dl
-    # per edge); circle points: their Jacobian row, d r / d c6 times d c6 / d p.
-    for i in range(pr.N):
+    # Circle points: their Jacobian row, d r / d c6 times d c6 / d p.
+    for j in range(pr.n_edge_pts, pr.n_edge_pts + pr.N - pr.M):
+        i = pr.order[j]
         t = pr.tix[i]
+        if pr.flat[t]:
+            continue
         rr = r[i]
-        if pr.circ[t]:
-            if pr.flat[t]:
-                continue
-            c6 = pr.c6 + 6 * t
-            dc6t = pr.dc6 + 36 * t
-            u = pr.P[2 * i]
-            v = pr.P[2 * i + 1]
-            phi[0] = u * u; phi[1] = 2.0 * u * v; phi[2] = 2.0 * u; phi[3] = v * v; phi[4] = 2.0 * v; phi[5] = 1.0
-            val = phi[0] * c6[0] + phi[1] * c6[1] + phi[2] * c6[2] + phi[3] * c6[3] + phi[4] * c6[4] + phi[5] * c6[5]
-            cx0 = u * c6[0] + v * c6[1] + c6[2]
-            cx1 = u * c6[1] + v * c6[3] + c6[4]
-            h = hypot(cx0, cx1)
-            hs = h if h > 5e-13 else 5e-13
-            kk = val / (hs * hs)
-            sc = pr.w[i] / (2.0 * hs)
-            b0[0] = u; b0[1] = v; b0[2] = 1.0; b0[3] = 0.0; b0[4] = 0.0; b0[5] = 0.0
-            b1[0] = 0.0; b1[1] = u; b1[2] = 0.0; b1[3] = v; b1[4] = 1.0; b1[5] = 0.0
-            for k in range(6):
-                drdc[k] = (phi[k] - (kk * cx0) * b0[k] - (kk * cx1) * b1[k]) * sc
-            for k in range(6):
-                J[k] = drdc[0] * dc6t[6 * k] + drdc[1] * dc6t[6 * k + 1] + drdc[2] * dc6t[6 * k + 2] \
-                    + drdc[3] * dc6t[6 * k + 3] + drdc[4] * dc6t[6 * k + 4] + drdc[5] * dc6t[6 * k + 5]
-            wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-            add_row(A, g, J, wp, rr)
-            continue
-        if pr.lab[i] < 0:
-            continue
-        e = 4 * t + pr.lab[i]
+        c6 = pr.c6 + 6 * t
+        dc6t = pr.dc6 + 36 * t
+        u = pr.P[2 * i]
+        v = pr.P[2 * i + 1]
+        phi[0] = u * u; phi[1] = 2.0 * u * v; phi[2] = 2.0 * u; phi[3] = v * v; phi[4] = 2.0 * v; phi[5] = 1.0
+        val = phi[0] * c6[0] + phi[1] * c6[1] + phi[2] * c6[2] + phi[3] * c6[3] + phi[4] * c6[4] + phi[5] * c6[5]
+        cx0 = u * c6[0] + v * c6[1] + c6[2]
+        cx1 = u * c6[1] + v * c6[3] + c6[4]
+        h = hypot(cx0, cx1)
+        hs = h if h > 5e-13 else 5e-13
+        kk = val / (hs * hs)
+        sc = pr.w[i] / (2.0 * hs)
+        b0[0] = u; b0[1] = v; b0[2] = 1.0; b0[3] = 0.0; b0[4] = 0.0; b0[5] = 0.0
+        b1[0] = 0.0; b1[1] = u; b1[2] = 0.0; b1[3] = v; b1[4] = 1.0; b1[5] = 0.0
+        for k in range(6):
+            drdc[k] = (phi[k] - (kk * cx0) * b0[k] - (kk * cx1) * b1[k]) * sc
+        for k in range(6):
+            J[k] = drdc[0] * dc6t[6 * k] + drdc[1] * dc6t[6 * k + 1] + drdc[2] * dc6t[6 * k + 2] \
+                + drdc[3] * dc6t[6 * k + 3] + drdc[4] * dc6t[6 * k + 4] + drdc[5] * dc6t[6 * k + 5]
         wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-        ww = pr.w[i]
-        sx = pr.P[2 * i] * ww
-        sy = pr.P[2 * i + 1] * ww
-        S = pr.S + 9 * e
-        S[0] += sx * sx * wp
-        S[1] += sx * sy * wp
-        S[2] += sx * ww * wp
-        S[3] += sy * sy * wp
-        S[4] += sy * ww * wp
-        S[5] += ww * ww * wp
-        S[6] += sx * (wp * rr)
-        S[7] += sy * (wp * rr)
-        S[8] += ww * (wp * rr)
+        add_row(A, g, J, wp, rr)
+    # Square / rect points: per-edge moments of the whitened rows (x, y, 1) w, then dl^T S dl.
     for e in range(4 * pr.T if pr.M else 0):
-        if pr.circ[e // 4]:
+        if pr.estart[e + 1] == pr.estart[e]:
             continue
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+        for j in range(pr.estart[e], pr.estart[e + 1]):
+            i = pr.order[j]
+            rr = r[i]
+            wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+            ww = pr.w[i]
+            sx = pr.P[2 * i] * ww
+            sy = pr.P[2 * i + 1] * ww
+            s0 += sx * sx * wp
+            s1 += sx * sy * wp
+            s2 += sx * ww * wp
+            s3 += sy * sy * wp
+            s4 += sy * ww * wp
+            s5 += ww * ww * wp
+            s6 += sx * (wp * rr)
+            s7 += sy * (wp * rr)
+            s8 += ww * (wp * rr)
         S = pr.S + 9 * e
-        if S[5] == 0.0 and S[0] == 0.0 and S[3] == 0.0:
+        S[0] = s0; S[1] = s1; S[2] = s2; S[3] = s3; S[4] = s4; S[5] = s5; S[6] = s6; S[7] = s7; S[8] = s8
+    for e in range(4 * pr.T if pr.M else 0):
+        if pr.estart[e + 1] == pr.estart[e]:
             continue          # no point on this edge
+        S = pr.S + 9 * e
         m = pr.m + 3 * e
         nh = pr.nh + 3 * e
         d = pr.D + 3 * e
@@ -693,8 +726,7 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
         stop = 1 if (mx <= step_tol or c - c_new <= cost_rtol * c) else 0
         for k in range(6):
             p[k] = p_new[k]
-        for k in range(n):
-            r[k] = r_new[k]
+        memcpy(r, r_new, n * sizeof(double))
         for k in range(9):
             R[k] = R_new[k]
         for k in range(27):
@@ -773,7 +805,7 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     pr.n_res = n
     work = <double*> malloc((2 * n + 4 * T * (3 + 3 + 3 + 3 + 1 + 3 + 9) + T * (6 + 9 + 36) + 5 * K + 1)
                             * sizeof(double))
-    iwork = <int*> malloc((T + 1) * sizeof(int))
+    iwork = <int*> malloc((T + 1 + N + 4 * T + 1) * sizeof(int))
     if work == NULL or iwork == NULL:
         free(work)
         free(iwork)
@@ -793,6 +825,10 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     pr.L = pr.dc6 + 36 * T
     pr.uv = pr.L + 3 * K
     pr.flat = iwork
+    pr.order = iwork + T + 1
+    pr.estart = pr.order + N
+    memset(r, 0, 2 * n * sizeof(double))
+    pr.n_edge_pts = 0
     with nogil:
         # Corners of the squares / rects (`_corners`: +x+y, -x+y, -x-y, +x-y), their edges A -> B.
         sgn[0] = 1.0; sgn[1] = 1.0; sgn[2] = -1.0; sgn[3] = 1.0
@@ -823,6 +859,12 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
         for k in range(rounds):
             changed = assign(&pr, &p[0], 1 if (k > 0 and converged) else 0, first, guard2,
                              minor_switches, minor_fraction)
+            if first or changed:
+                group(&pr)
+                for i in range(N):
+                    if not pr.circ[pr.tix[i]] and pr.lab[i] < 0:
+                        r[i] = 0.0
+                        r_new[i] = 0.0
             first = 0
             if k > 0 and converged and not changed:
                 break
