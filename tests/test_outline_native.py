@@ -93,3 +93,29 @@ def test_native_equals_numpy_with_a_circle_seen_edge_on():
     assert math.isclose(chi2_n, chi2_p, rel_tol=1e-9)
     assert np.abs(p_n - p_p).max() <= 1e-9 and np.abs(R_n - R_p).max() <= 1e-9
     assert np.allclose(JtJ_n, JtJ_p, rtol=1e-7, atol=1e-9 * np.abs(JtJ_p).max())
+
+
+def test_cholesky_covariance_equals_the_pseudo_inverse():
+    """`_covariance6` inverts a well-conditioned J^T J by Cholesky in the kernel (equal to
+    np.linalg.pinv to rounding) and hands a singular or ill-conditioned one (a lone circle's free
+    rotation) to np.linalg.pinv itself."""
+    rng = np.random.default_rng(5)
+    for scale in (1.0, 1e-4, 1e6):
+        J = rng.normal(size=(40, 6)) * np.array([1.0, 2.0, 0.5, 30.0, 10.0, 3.0]) * scale
+        A = J.T @ J
+        out = np.empty((6, 6))
+        assert outline_pose._k.spd_inverse(A, out, outline_pose.SPD_MIN_PIVOT_RATIO)
+        ref = np.linalg.pinv(A)
+        assert np.allclose(out, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+        assert np.array_equal(out, out.T)
+    J = rng.normal(size=(40, 6))
+    J[:, 2] = 0.0                                         # a direction the data leave free
+    A = J.T @ J
+    out = np.full((6, 6), 7.0)
+    assert not outline_pose._k.spd_inverse(A, out, outline_pose.SPD_MIN_PIVOT_RATIO)
+    assert np.all(out == 7.0)
+    assert np.array_equal(outline_pose._covariance6(A), np.linalg.pinv(A))
+    A[2, 2] = 1e-14 * A[0, 0]                             # nearly singular: also the pseudo-inverse
+    assert np.array_equal(outline_pose._covariance6(A), np.linalg.pinv(A))
+    bad = np.full((6, 6), np.nan)
+    assert not outline_pose._k.spd_inverse(bad, out, outline_pose.SPD_MIN_PIVOT_RATIO)

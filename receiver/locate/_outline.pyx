@@ -740,19 +740,19 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
     return 0
 
 
-def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1] w, const int[::1] tix,
+def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1] sigma, const long long[::1] ends,
           const double[:, ::1] xyz, const double[:, ::1] half, const int[::1] circ, const double[:, ::1] uv,
-          const int[::1] has_uv, double sigc, const double[::1] up, double up_sig, const double[::1] Cp,
+          double sigc, const double[::1] up, double up_sig, const double[::1] Cp,
           const double[:, ::1] W, int loss, double f_scale, int rounds, int max_iter, double guard2,
           int minor_switches, double minor_fraction, double step_tol, double cost_rtol,
           double[:, ::1] R_out, double[:, ::1] gram_out):
     """`solve_outline_pose`'s rounds (edge assignment, then at most `max_iter` LM iterations) from
-    p (6,), updated in place. Targets: `xyz` (T, 3) centres, `half` (T, 2) half extents along
-    world x, y, `circ` (T,) 1 for a circle, `uv` (T, 2) centroids where `has_uv`; points `P` (N, 2)
-    with `w` = 1 / sigma and their target `tix`. `lab` (N,) receives the final edge labels,
-    `R_out` (3, 3) R_cw at p, `gram_out` (6, 6) the unweighted J^T J without the position
-    prior. `up` / `Cp` empty: no tilt / position prior. Returns (converged, chi^2 without the
-    position prior's rows, residual count without them)."""
+    p (6,), updated in place, on an `OutlineFrame`'s arrays: targets `xyz` (T, 3) centres, `half`
+    (T, 2) half extents along world x, y, `circ` (T,) 1 for a circle, `uv` (T, 2) centroids (NaN:
+    none); points `P` (N, 2) of 1-sigma `sigma`, target k's from `ends[k]` to `ends[k + 1]`.
+    `lab` (N,) receives the final edge labels, `R_out` (3, 3) R_cw at p, `gram_out` (6, 6) the
+    unweighted J^T J without the position prior. `up` / `Cp` empty: no tilt / position prior.
+    Returns (converged, chi^2 without the position prior's rows, residual count without them)."""
     cdef Prob pr
     cdef int N = P.shape[0], T = xyz.shape[0]
     cdef int i, j, k, t, n, nxt, converged = 0, changed, first = 1, n_use = 0, M = 0, K = 0
@@ -767,24 +767,24 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     cdef double* r
     cdef double* r_new
     cdef double* work
+    cdef double* wbuf
     cdef double* a
     cdef double* b
     cdef int* iwork
-    if P.shape[1] != 2 or w.shape[0] != N or tix.shape[0] != N or lab.shape[0] != N or half.shape[0] != T \
-            or circ.shape[0] != T or uv.shape[0] != T or has_uv.shape[0] != T or p.shape[0] != 6:
+    cdef int* tix
+    if P.shape[1] != 2 or sigma.shape[0] != N or lab.shape[0] != N or half.shape[0] != T \
+            or circ.shape[0] != T or uv.shape[0] != T or ends.shape[0] != T + 1 or p.shape[0] != 6 \
+            or (T and (ends[0] != 0 or ends[T] != N)):
         raise ValueError("inconsistent outline arrays")
-    for i in range(N):
-        if tix[i] < 0 or tix[i] >= T:
-            raise ValueError("point target index out of range")
-        if not circ[tix[i]]:
-            M += 1
     for t in range(T):
-        if has_uv[t]:
+        if ends[t + 1] < ends[t]:
+            raise ValueError("outline target ends must not decrease")
+        if not circ[t]:
+            M += <int> (ends[t + 1] - ends[t])
+        if uv[t, 0] == uv[t, 0]:
             K += 1
     pr.N, pr.M, pr.T, pr.K = N, M, T, K
     pr.P = &P[0, 0] if N else NULL
-    pr.w = &w[0] if N else NULL
-    pr.tix = &tix[0] if N else NULL
     pr.lab = &lab[0] if N else NULL
     pr.circ = &circ[0] if T else NULL
     pr.xyz = &xyz[0, 0] if T else NULL
@@ -805,8 +805,10 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     pr.n_res = n
     work = <double*> malloc((2 * n + 4 * T * (3 + 3 + 3 + 3 + 1 + 3 + 9) + T * (6 + 9 + 36) + 5 * K + 1)
                             * sizeof(double))
-    iwork = <int*> malloc((T + 1 + N + 4 * T + 1) * sizeof(int))
-    if work == NULL or iwork == NULL:
+    iwork = <int*> malloc((T + 1 + N + 4 * T + 1 + N) * sizeof(int))
+    wbuf = <double*> malloc((N + 1) * sizeof(double))
+    if work == NULL or iwork == NULL or wbuf == NULL:
+        free(wbuf)
         free(work)
         free(iwork)
         raise MemoryError()
@@ -827,6 +829,14 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     pr.flat = iwork
     pr.order = iwork + T + 1
     pr.estart = pr.order + N
+    tix = pr.estart + 4 * T + 1
+    for t in range(T):
+        for i in range(<int> ends[t], <int> ends[t + 1]):
+            tix[i] = t
+    for i in range(N):
+        wbuf[i] = 1.0 / sigma[i]          # the numpy path's 1.0 / sigma
+    pr.tix = tix
+    pr.w = wbuf
     memset(r, 0, 2 * n * sizeof(double))
     pr.n_edge_pts = 0
     with nogil:
@@ -836,7 +846,7 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
         k = 0
         for t in range(T):
             pr.flat[t] = 0
-            if has_uv[t]:
+            if uv[t, 0] == uv[t, 0]:
                 for j in range(3):
                     pr.L[3 * k + j] = xyz[t, j]
                 pr.uv[2 * k] = uv[t, 0]
@@ -882,5 +892,55 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
         gram_out[k // 6, k % 6] = A[k]
     free(work)
     free(iwork)
+    free(wbuf)
     return converged, chi2, n_use + 2 * K + 3 * pr.has_up
 
+
+
+def spd_inverse(const double[:, ::1] A, double[:, ::1] out, double min_pivot_ratio):
+    """out = A^-1 of a symmetric positive definite 6 x 6 matrix by Cholesky (A = L L^T, then
+    L^-T L^-1); False (out untouched) where a pivot L_kk^2 is not above `min_pivot_ratio` times
+    the largest diagonal entry (singular or ill-conditioned: the caller's pseudo-inverse then)."""
+    cdef double L[36]
+    cdef double Li[36]
+    cdef double acc, dmax = 0.0
+    cdef int i, j, k
+    if A.shape[0] != 6 or A.shape[1] != 6 or out.shape[0] != 6 or out.shape[1] != 6:
+        raise ValueError("spd_inverse takes 6 x 6 matrices")
+    for i in range(6):
+        if A[i, i] > dmax:
+            dmax = A[i, i]
+    if not (dmax > 0.0) or dmax != dmax or dmax > 1.7e308:
+        return False
+    for i in range(36):
+        L[i] = 0.0
+        Li[i] = 0.0
+    for j in range(6):
+        acc = A[j, j]
+        for k in range(j):
+            acc -= L[6 * j + k] * L[6 * j + k]
+        if not (acc > min_pivot_ratio * dmax):
+            return False
+        L[6 * j + j] = sqrt(acc)
+        for i in range(j + 1, 6):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= L[6 * i + k] * L[6 * j + k]
+            L[6 * i + j] = acc / L[6 * j + j]
+    # Li = L^-1 (lower triangular)
+    for j in range(6):
+        Li[6 * j + j] = 1.0 / L[6 * j + j]
+        for i in range(j + 1, 6):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= L[6 * i + k] * Li[6 * k + j]
+            Li[6 * i + j] = acc / L[6 * i + i]
+    # out = Li^T Li
+    for i in range(6):
+        for j in range(i, 6):
+            acc = 0.0
+            for k in range(j, 6):
+                acc += Li[6 * k + i] * Li[6 * k + j]
+            out[i, j] = acc
+            out[j, i] = acc
+    return True

@@ -97,7 +97,8 @@ class OutlineFrame:
     points of every target in turn, `sigma` (N,) their 1-sigma (normalized units), `ends` (T + 1,)
     where each target's points start (`ends[k]`) and end (`ends[k + 1]`), `xyz` (T, 3) centres
     (solving frame), `half` (T, 2) half extents along world x, y, `shapes` (T,) "square" / "rect"
-    / "circle", `uv` (T, 2) envelope centroids (normalized), NaN rows where a target has none."""
+    / "circle", `uv` (T, 2) envelope centroids (normalized), NaN rows where a target has none.
+    Arrays C-contiguous, float64 (`ends` int64): `__post_init__` makes them so."""
 
     pts: np.ndarray
     sigma: np.ndarray
@@ -106,6 +107,14 @@ class OutlineFrame:
     half: np.ndarray
     shapes: tuple[str, ...]
     uv: np.ndarray
+
+    def __post_init__(self):
+        for name in ("pts", "sigma", "xyz", "half", "uv"):
+            a = getattr(self, name)
+            if not (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous):
+                object.__setattr__(self, name, np.ascontiguousarray(a, dtype=np.float64))
+        if not (isinstance(self.ends, np.ndarray) and self.ends.dtype == np.int64 and self.ends.flags.c_contiguous):
+            object.__setattr__(self, "ends", np.ascontiguousarray(self.ends, dtype=np.int64))
 
     def __len__(self) -> int:
         return len(self.shapes)
@@ -137,10 +146,11 @@ class OutlineFrame:
 
     def with_at_least(self, n: int) -> "OutlineFrame":
         """The targets with at least n points."""
-        keep = np.flatnonzero(np.diff(self.ends) >= n)
+        e = self.ends.tolist()
+        keep = [k for k in range(len(self)) if e[k + 1] - e[k] >= n]
         if len(keep) == len(self):
             return self
-        return OutlineFrame.from_targets([self.target(int(k)) for k in keep])
+        return OutlineFrame.from_targets([self.target(k) for k in keep])
 
 
 def fixture_half_extents(shape: str | None, size) -> tuple[float, float] | None:
@@ -592,8 +602,8 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     dof = n_res + 3 - len(p)
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
         return None
-    JtJ[3:, 3:] += np.eye(3) / FREE_SIGMA_M ** 2
-    cov6 = np.linalg.pinv(JtJ) * max(1.0, chi2 / dof)
+    JtJ[3:, 3:] += _FREE_PRIOR
+    cov6 = _covariance6(JtJ) * max(1.0, chi2 / dof)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
 
 
@@ -617,25 +627,34 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
 
 _EMPTY = np.zeros(0)
 _NO_W = np.zeros((3, 3))
+_FREE_PRIOR = np.eye(3) / FREE_SIGMA_M ** 2
+# The compiled path inverts J^T J by Cholesky where it is this well conditioned (smallest pivot^2
+# over the largest diagonal entry; the inverse then equals the pseudo-inverse to ~1e-8 relative
+# at worst, ~1e-13 on the recordings), else takes numpy's pseudo-inverse as the numpy path does.
+SPD_MIN_PIVOT_RATIO = 1e-8
+
+
+def _covariance6(JtJ: np.ndarray) -> np.ndarray:
+    """(J^T J)^+ of the fix: np.linalg.pinv, or the compiled Cholesky inverse where J^T J is
+    well conditioned (`SPD_MIN_PIVOT_RATIO`): the same matrix to rounding, at 1 % of the cost."""
+    if _k is not None:
+        out = np.empty((6, 6))
+        if _k.spd_inverse(JtJ, out, SPD_MIN_PIVOT_RATIO):
+            return out
+    return np.linalg.pinv(JtJ)
 
 
 def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
                   rounds, max_iter):
     """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
     the same arithmetic per point, summed in another order (results equal to rounding)."""
-    counts = np.diff(frame.ends)
-    tix = np.repeat(np.arange(len(frame), dtype=np.int32), counts)
-    circ = np.array([s == "circle" for s in frame.shapes], np.int32)
-    has_uv = (~np.isnan(frame.uv[:, 0])).astype(np.int32)
-    up = _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float)
-    Cp = _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float)
-    p = np.array(p, float)
     lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
-    _, chi2, n_res = _k.solve(p, lab, np.ascontiguousarray(frame.pts, float), 1.0 / frame.sigma, tix,
-                              np.ascontiguousarray(frame.xyz, float), np.ascontiguousarray(frame.half, float), circ,
-                              np.ascontiguousarray(frame.uv, float), has_uv, sigma_c, up, tilt_sigma_rad, Cp,
+    _, chi2, n_res = _k.solve(p, lab, frame.pts, frame.sigma, frame.ends, frame.xyz, frame.half,
+                              np.array([s == "circle" for s in frame.shapes], np.int32), frame.uv, sigma_c,
+                              _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float), tilt_sigma_rad,
+                              _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float),
                               _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
                               rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
                               MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
