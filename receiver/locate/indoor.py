@@ -19,7 +19,7 @@ from receiver.locate.outline_pose import (
 )
 from receiver.locate.pose import align_rays
 from receiver.locate.posefilter import PoseFilter
-from receiver.locate.ranging import ESTIMATORS, Ranger, ray_unit, undistort_points
+from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
@@ -56,6 +56,7 @@ class Positioner:
         self.ranging_iterations = s.ranging_iterations
         self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
+        self._undistort = Undistorter(camera)
         self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
                                accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
@@ -84,7 +85,7 @@ class Positioner:
         n = len(chosen)
         pts = [o.edge_px[0] for o, _, _, _ in chosen]
         cen = np.array([[o.cx, o.cy] for o, _, _, _ in chosen], float)
-        und = undistort_points(np.concatenate(pts + [cen]), cam)
+        und = self._undistort(np.concatenate(pts + [cen]))
         ends = np.zeros(n + 1, np.int64)
         np.cumsum([len(q) for q in pts], out=ends[1:])
         m = int(ends[-1])
@@ -111,11 +112,15 @@ class Positioner:
 
     @staticmethod
     def _with_outline_ranges(ofix, targets, where, d, names):
+        """The ranges of the fitted LEDs: their distances to the fitted camera centre (np.vecdot:
+        each the number np.linalg.norm gives, in one call for the frame)."""
         d = np.array(d, float)
         names = list(names)
+        D = targets.xyz - ofix.C
+        dist = np.sqrt(np.vecdot(D, D)).tolist()
         for k, i in enumerate(where):
             if i is not None:
-                d[i] = float(np.linalg.norm(targets.xyz[k] - ofix.C))
+                d[i] = dist[k]
                 names[i] = "outline"
         return d, names
 

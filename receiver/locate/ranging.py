@@ -64,21 +64,44 @@ def distance_eq18(area_px: float, area_m2: float, focal_px: float) -> float:
     return focal_px * math.sqrt(area_m2 / area_px)
 
 
+def _kernel_args(camera: CameraModel):
+    """(K, dist) as the compiled undistortion takes them, or None where it does not model the
+    camera (a skewed matrix, a tilted sensor's 14 coefficients) or is not built."""
+    if _ku is None:
+        return None
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)
+    dist = np.ascontiguousarray(np.asarray(camera.dist, dtype=np.float64).ravel())
+    if len(dist) <= 12 and K.shape == (3, 3) and K[0, 1] == 0.0:
+        return K, dist
+    return None
+
+
 def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
     """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z):
     cv2.undistortPoints, or the compiled kernel with its exact result where the camera has up to
     12 distortion coefficients (no tilted sensor) and an unskewed camera matrix."""
-    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
-    if len(pts) == 0:
-        return np.zeros((0, 2))
-    if _ku is not None:
-        K = np.asarray(camera.K, dtype=np.float64)
-        dist = np.asarray(camera.dist, dtype=np.float64).ravel()
-        if len(dist) <= 12 and K.shape == (3, 3) and K[0, 1] == 0.0:
+    return Undistorter(camera)(points_px)
+
+
+class Undistorter:
+    """`undistort_points` of one camera, its matrix and coefficients checked and converted once
+    (the positioner undistorts every frame's outline points)."""
+
+    __slots__ = ("camera", "_args")
+
+    def __init__(self, camera: CameraModel):
+        self.camera = camera
+        self._args = _kernel_args(camera)
+
+    def __call__(self, points_px: np.ndarray) -> np.ndarray:
+        pts = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if self._args is not None:
             out = np.empty_like(pts)
-            _ku.undistort(np.ascontiguousarray(pts), np.ascontiguousarray(K), dist, out)
+            _ku.undistort(pts, *self._args, out)
             return out
-    return cv2.undistortPoints(pts.reshape(-1, 1, 2), camera.K, camera.dist).reshape(-1, 2)
+        return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
 
 
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
@@ -329,8 +352,9 @@ class Ranger:
     def annotate(leds, items, d: np.ndarray, names: list[str]) -> list:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
-        ranged = {id(obs): (round(float(d[i]), 5), names[i])
-                  for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
+        dl = np.asarray(d, dtype=np.float64).tolist()
+        ranged = {id(obs): (round(dl[i], 5), names[i])
+                  for i, (obs, _, _) in enumerate(items) if math.isfinite(dl[i])}
         if not ranged:
             return list(leds)
         out = []
