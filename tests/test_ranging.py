@@ -130,6 +130,7 @@ def test_with_range_equals_dataclasses_replace():
 
 
 @pytest.mark.parametrize("dist", [[-0.04, 0.01, 0.0, 0.0, 0.0], [-0.3, 0.12, 0.001, -0.002, 0.05], [0.0] * 5,
+                                  [0.1, -0.05, 0.001, 0.0, 0.0], [-0.1, 0.02, 0.0, 0.0, 0.003, 0.01, 0.0, 0.0],
                                   [-0.2, 0.05, 0.0005, 0.001], [-1.5, 0.2, 0.0, 0.0, 0.0],
                                   [-0.1, 0.02, 0.001, 0.0, 0.0, 0.01, -0.002, 0.001]])
 def test_compiled_undistortion_equals_opencv(monkeypatch, dist):
@@ -143,10 +144,11 @@ def test_compiled_undistortion_equals_opencv(monkeypatch, dist):
     rng = np.random.default_rng(len(dist))
     K = np.array([[1200.0, 0.0, 700.0], [0.0, 1180.0, 400.0], [0.0, 0.0, 1.0]])
     cam = CameraModel(1400, 800, K, np.array(dist, float))
-    pts = rng.uniform([-300.0, -300.0], [1700.0, 1100.0], (5000, 2))
+    pts = np.concatenate([rng.uniform([-300.0, -300.0], [1700.0, 1100.0], (5000, 2)),
+                          [[700.0, 400.0], [700.0, 0.0], [0.0, 400.0]]])      # incl. the principal point
     ref = cv2.undistortPoints(pts.reshape(-1, 1, 2), K, cam.dist).reshape(-1, 2)
     got = ranging.undistort_points(pts, cam)
-    assert np.array_equal(got, ref)
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))           # bit for bit, signed zeros too
     with monkeypatch.context() as m:
         m.setattr(ranging, "_ku", None)
         assert np.array_equal(ranging.undistort_points(pts, cam), ref)
