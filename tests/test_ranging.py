@@ -106,3 +106,54 @@ def test_contour_geometry_and_sigma():
     s_small = range_sigma_m(2.0, 100.0, 40.0, edge_sigma_px=0.1, model_rel_sigma=0.0)
     s_big = range_sigma_m(2.0, 10000.0, 400.0, edge_sigma_px=0.1, model_rel_sigma=0.0)
     assert s_small == pytest.approx(10 * s_big)
+
+
+def test_with_range_equals_dataclasses_replace():
+    """`ranging._with_range` (the annotation's fast copy) gives the record `dataclasses.replace`
+    gives: every field the same object, the two range fields changed, the original untouched."""
+    import dataclasses
+
+    from receiver.core.records import LedObservation
+    from receiver.locate.ranging import _with_range
+
+    obs = LedObservation(track=3, cx=10.5, cy=20.25, area_px=99.0, contour=np.zeros((4, 2)), id=7, mode="ook",
+                         peak=200.0, edge_px=(np.ones((6, 2)), np.ones(6)))
+    fast = _with_range(obs, 2.34567, "outline")
+    ref = dataclasses.replace(obs, distance_m=2.34567, distance_estimator="outline")
+    assert type(fast) is LedObservation and fast is not obs
+    for f in dataclasses.fields(LedObservation):
+        assert getattr(fast, f.name) is getattr(ref, f.name) or getattr(fast, f.name) == getattr(ref, f.name), f.name
+    assert (fast.distance_m, fast.distance_estimator) == (2.34567, "outline")
+    assert obs.distance_m is None and obs.distance_estimator is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.distance_m = 1.0
+
+
+@pytest.mark.parametrize("dist", [[-0.04, 0.01, 0.0, 0.0, 0.0], [-0.3, 0.12, 0.001, -0.002, 0.05], [0.0] * 5,
+                                  [0.1, -0.05, 0.001, 0.0, 0.0], [-0.1, 0.02, 0.0, 0.0, 0.003, 0.01, 0.0, 0.0],
+                                  [-0.2, 0.05, 0.0005, 0.001], [-1.5, 0.2, 0.0, 0.0, 0.0],
+                                  [-0.1, 0.02, 0.001, 0.0, 0.0, 0.01, -0.002, 0.001]])
+def test_compiled_undistortion_equals_opencv(monkeypatch, dist):
+    """`undistort_points` through the compiled kernel gives cv2.undistortPoints' numbers bit for
+    bit (including points where the iteration gives up, k1 = -1.5 far out), and the cv2 path
+    (kernel off) is used for what the kernel does not model (a skewed camera matrix)."""
+    from receiver.locate import ranging
+
+    if ranging._ku is None:
+        pytest.skip("compiled kernel not built (or OCCLOC_PURE=1)")
+    rng = np.random.default_rng(len(dist))
+    K = np.array([[1200.0, 0.0, 700.0], [0.0, 1180.0, 400.0], [0.0, 0.0, 1.0]])
+    cam = CameraModel(1400, 800, K, np.array(dist, float))
+    pts = np.concatenate([rng.uniform([-300.0, -300.0], [1700.0, 1100.0], (5000, 2)),
+                          [[700.0, 400.0], [700.0, 0.0], [0.0, 400.0]]])      # incl. the principal point
+    ref = cv2.undistortPoints(pts.reshape(-1, 1, 2), K, cam.dist).reshape(-1, 2)
+    got = ranging.undistort_points(pts, cam)
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))           # bit for bit, signed zeros too
+    with monkeypatch.context() as m:
+        m.setattr(ranging, "_ku", None)
+        assert np.array_equal(ranging.undistort_points(pts, cam), ref)
+    skew = K.copy()
+    skew[0, 1] = 3.0
+    cam_s = CameraModel(1400, 800, skew, np.array(dist, float))
+    ref_s = cv2.undistortPoints(pts.reshape(-1, 1, 2), skew, cam_s.dist).reshape(-1, 2)
+    assert np.array_equal(ranging.undistort_points(pts, cam_s), ref_s)

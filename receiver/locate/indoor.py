@@ -13,13 +13,13 @@ from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.locate.outline_pose import (
-    OutlineTarget,
+    OutlineFrame,
     fixture_half_extents,
     solve_outline_pose,
 )
 from receiver.locate.pose import align_rays
 from receiver.locate.posefilter import PoseFilter
-from receiver.locate.ranging import ESTIMATORS, Ranger, ray_unit, undistort_points
+from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
@@ -56,15 +56,16 @@ class Positioner:
         self.ranging_iterations = s.ranging_iterations
         self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
+        self._undistort = Undistorter(camera)
         self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
                                accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
                                tilt_prior=s.tilt_prior, tilt_sigma_deg=s.tilt_sigma_deg, track_prior=s.track_prior)
 
     def _outline_targets(self, leds, items):
-        """(targets, item index or None) of the LEDs with measured edge points and a known
-        shape and size (receiver.locate.outline_pose); LEDs cut by the image border (not in
-        `items`) come with their edges only."""
+        """(`OutlineFrame` or None, item index or None per target) of the LEDs with measured edge
+        points and a known shape and size (receiver.locate.outline_pose); LEDs cut by the image
+        border (not in `items`) come with their edges only."""
         index = {id(o): i for i, (o, _, _) in enumerate(items)}
         cam = self.camera
         chosen = []
@@ -79,22 +80,27 @@ class Positioner:
                 continue
             chosen.append((obs, led, half, index.get(id(obs))))
         if not chosen:
-            return [], []
+            return None, []
         # One undistortion for every edge point and centroid of the frame.
-        pts = [np.asarray(o.edge_px[0], float).reshape(-1, 2) for o, _, _, _ in chosen]
+        n = len(chosen)
+        pts = [o.edge_px[0] for o, _, _, _ in chosen]
         cen = np.array([[o.cx, o.cy] for o, _, _, _ in chosen], float)
-        und = undistort_points(np.concatenate(pts + [cen]), cam)
-        ends = np.cumsum([0] + [len(q) for q in pts])
+        und = self._undistort(np.concatenate(pts + [cen]))
+        ends = np.zeros(n + 1, np.int64)
+        np.cumsum([len(q) for q in pts], out=ends[1:])
+        m = int(ends[-1])
         L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
         # Every point's sigma (normalized units) at once.
-        sig = np.hypot(np.concatenate([np.asarray(o.edge_px[1], float).ravel() for o, _, _, _ in chosen]),
+        sig = np.hypot(np.concatenate([o.edge_px[1] for o, _, _, _ in chosen]).ravel(),
                        self.settings.edge_model_sigma_px) / cam.focal_px
-        targets, where = [], []
-        for k, (obs, led, half, i) in enumerate(chosen):
-            uv = und[ends[-1] + k] if i is not None else None
-            targets.append(OutlineTarget(L[k], led.shape, half, und[ends[k]:ends[k + 1]], sig[ends[k]:ends[k + 1]], uv))
-            where.append(i)
-        return targets, where
+        where = [i for _, _, _, i in chosen]
+        uv = und[m:]
+        if None in where:
+            uv = uv.copy()
+            uv[[k for k, i in enumerate(where) if i is None]] = np.nan
+        frame = OutlineFrame(und[:m], sig, ends, L, np.array([h for _, _, h, _ in chosen], float),
+                             tuple(led.shape for _, led, _, _ in chosen), uv)
+        return frame, where
 
     def _solve_outline(self, targets, R0, C0, C_prior, C_cov):
         s = self.settings
@@ -106,11 +112,15 @@ class Positioner:
 
     @staticmethod
     def _with_outline_ranges(ofix, targets, where, d, names):
+        """The ranges of the fitted LEDs: their distances to the fitted camera centre (np.vecdot:
+        each the number np.linalg.norm gives, in one call for the frame)."""
         d = np.array(d, float)
         names = list(names)
-        for t, i in zip(targets, where):
+        D = targets.xyz - ofix.C
+        dist = np.sqrt(np.vecdot(D, D)).tolist()
+        for k, i in enumerate(where):
             if i is not None:
-                d[i] = float(np.linalg.norm(t.xyz - ofix.C))
+                d[i] = dist[k]
                 names[i] = "outline"
         return d, names
 
@@ -121,12 +131,12 @@ class Positioner:
         fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
         targets, where = self._outline_targets(leds, items)
-        if not targets:
+        if targets is None:
             return None, (targets, where, None)
         if pred is None:
             pred = self.pose.kf.predict_at(t_s)
         C_prior = C_cov = None
-        if len(targets) == 1 and targets[0].shape == "circle":
+        if targets.shapes == ("circle",):
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6
         cand = self._solve_outline(targets, R_prior, pred[0][:3], C_prior, C_cov)
         if cand is None or cand.chi2 / cand.dof > WARM_OUTLINE_CHI2_DOF:
@@ -142,7 +152,7 @@ class Positioner:
         or the given ones when no outline is usable. `warm`: (targets, where, candidate) of a
         failed warm start (`_outline_warm`), whose start is not tried again."""
         targets, where = self._outline_targets(leds, items) if warm is None else warm[:2]
-        if not targets:
+        if targets is None:
             return fix, d, names
         # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
         # 2 LEDs and a tilted phone the tilt prior can put it on the wrong branch) the tracked
@@ -153,8 +163,7 @@ class Positioner:
         if R_prior is not None:
             k = next((j for j, i in enumerate(where) if i is not None and math.isfinite(d[i])), None)
             if k is not None:
-                t = targets[k]
-                starts.append((R_prior, t.xyz - d[where[k]] * (R_prior.T @ ray_unit(t.uv))))
+                starts.append((R_prior, targets.xyz[k] - d[where[k]] * (R_prior.T @ ray_unit(targets.uv[k]))))
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
             if pred is not None and warm is None:
                 starts.append((R_prior, pred[0][:3]))
@@ -162,7 +171,7 @@ class Positioner:
         if not starts and ofix is None:
             return fix, d, names
         C_prior = C_cov = None
-        if len(targets) == 1 and targets[0].shape == "circle":
+        if targets.shapes == ("circle",):
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
             if pred is None:
                 return fix, d, names
@@ -173,7 +182,7 @@ class Positioner:
                 ofix = cand
             if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
                 break
-        if ofix is None and fix is not None and sum(len(t.pts) for t in targets) >= MIN_VETO_POINTS:
+        if ofix is None and fix is not None and targets.n_points >= MIN_VETO_POINTS:
             # The frame's own outlines contradict the centroid fix from every start: no fix
             # (the filter coasts) rather than a confident wrong one.
             return None, d, names

@@ -114,6 +114,8 @@ class PositionKalman:
         self.t_fix_s: float | None = None
         self.rejects = 0
         self.last_accepted = False
+        self._model_dt: float | None = None
+        self._model_FQ: tuple | None = None
 
     def reset(self) -> None:
         self._x, self._P, self.t_s, self.t_fix_s, self.rejects = None, None, None, None, 0
@@ -129,12 +131,20 @@ class PositionKalman:
         self._x, self._P = np.concatenate([z, np.zeros(3)]).reshape(6, 1), P
         self.t_s, self.t_fix_s, self.rejects = t_s, t_s, 0
 
+    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(F, F', Q) over dt, kept for the next call with the same dt (a video's frames are
+        evenly spaced): the same arrays `transition` and `process_noise` make, read only."""
+        if self._model_dt != dt:
+            F = transition(dt)
+            self._model_dt, self._model_FQ = dt, (F, F.T, process_noise(dt, self.q))
+        return self._model_FQ
+
     def _predict(self, dt: float) -> None:
         """filterpy `KalmanFilter.predict` with F = transition(dt), Q = process_noise(dt, q)
         (eqs. 35-36): x = F x, P = F P F' + Q."""
-        F = transition(dt)
+        F, Ft, Q = self._model(dt)
         self._x = np.dot(F, self._x)
-        self._P = np.dot(np.dot(F, self._P), F.T) + process_noise(dt, self.q)
+        self._P = np.dot(np.dot(F, self._P), Ft) + Q
 
     def _update(self, z: np.ndarray, R: np.ndarray) -> None:
         """filterpy `KalmanFilter.update` (eqs. 37-39, Joseph form) with H = [I 0]: P H' is

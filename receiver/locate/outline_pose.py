@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.locate.lsq import (
     _LOSSES,
     BELOW_CEILING_M,
@@ -66,6 +67,12 @@ COST_RTOL = 1e-6
 MINOR_SWITCHES = 0
 MINOR_SWITCH_FRACTION = 0.0
 
+# The compiled solve (receiver/locate/_outline.pyx: assignment, residuals, normal equations and
+# the LM rounds in one call), or None: the numpy `_Problem` path below, its tested reference.
+_k = load("receiver.locate._outline")
+# The robust losses the compiled solve implements (`receiver.locate.lsq._LOSSES`), by its codes.
+LOSS_CODES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
+
 
 @dataclass
 class OutlineTarget:
@@ -81,6 +88,69 @@ class OutlineTarget:
     sigma: np.ndarray
     uv: np.ndarray | None = None
     labels: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class OutlineFrame:
+    """A frame's outline targets packed (what the compiled solve takes, and what the positioner
+    builds with one undistortion for the whole frame): `pts` (N, 2) normalized undistorted edge
+    points of every target in turn, `sigma` (N,) their 1-sigma (normalized units), `ends` (T + 1,)
+    where each target's points start (`ends[k]`) and end (`ends[k + 1]`), `xyz` (T, 3) centres
+    (solving frame), `half` (T, 2) half extents along world x, y, `shapes` (T,) "square" / "rect"
+    / "circle", `uv` (T, 2) envelope centroids (normalized), NaN rows where a target has none.
+    Arrays C-contiguous, float64 (`ends` int64): `__post_init__` makes them so."""
+
+    pts: np.ndarray
+    sigma: np.ndarray
+    ends: np.ndarray
+    xyz: np.ndarray
+    half: np.ndarray
+    shapes: tuple[str, ...]
+    uv: np.ndarray
+
+    def __post_init__(self):
+        for name in ("pts", "sigma", "xyz", "half", "uv"):
+            a = getattr(self, name)
+            if not (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous):
+                object.__setattr__(self, name, np.ascontiguousarray(a, dtype=np.float64))
+        if not (isinstance(self.ends, np.ndarray) and self.ends.dtype == np.int64 and self.ends.flags.c_contiguous):
+            object.__setattr__(self, "ends", np.ascontiguousarray(self.ends, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return len(self.shapes)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.ends[-1])
+
+    def target(self, k: int) -> OutlineTarget:
+        a, b = int(self.ends[k]), int(self.ends[k + 1])
+        uv = None if np.isnan(self.uv[k, 0]) else self.uv[k]
+        return OutlineTarget(self.xyz[k], self.shapes[k], (float(self.half[k, 0]), float(self.half[k, 1])),
+                             self.pts[a:b], self.sigma[a:b], uv)
+
+    @property
+    def targets(self) -> list[OutlineTarget]:
+        """The same targets one by one (the numpy path's and the tests' form)."""
+        return [self.target(k) for k in range(len(self))]
+
+    @classmethod
+    def from_targets(cls, targets: list[OutlineTarget]) -> "OutlineFrame":
+        ends = np.zeros(len(targets) + 1, np.int64)
+        np.cumsum([len(t.pts) for t in targets], out=ends[1:])
+        uv = np.array([t.uv if t.uv is not None else (np.nan, np.nan) for t in targets], float).reshape(-1, 2)
+        return cls(np.concatenate([np.asarray(t.pts, float).reshape(-1, 2) for t in targets]),
+                   np.concatenate([np.asarray(t.sigma, float).ravel() for t in targets]), ends,
+                   np.array([t.xyz for t in targets], float).reshape(-1, 3),
+                   np.array([t.half for t in targets], float).reshape(-1, 2), tuple(t.shape for t in targets), uv)
+
+    def with_at_least(self, n: int) -> "OutlineFrame":
+        """The targets with at least n points."""
+        e = self.ends.tolist()
+        keep = [k for k in range(len(self)) if e[k + 1] - e[k] >= n]
+        if len(keep) == len(self):
+            return self
+        return OutlineFrame.from_targets([self.target(k) for k in keep])
 
 
 def fixture_half_extents(shape: str | None, size) -> tuple[float, float] | None:
@@ -488,7 +558,7 @@ def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
     return lm_normal(prob.residuals, prob.normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
-def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
+def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
                        centroid_sigma_px: float = DEFAULT_CENTROID_SIGMA_PX, up_prior: np.ndarray | None = None,
                        tilt_sigma_rad: float = math.radians(10.0), C_prior: np.ndarray | None = None,
                        C_prior_cov: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
@@ -496,42 +566,96 @@ def solve_outline_pose(targets: list[OutlineTarget], R0: np.ndarray, C0: np.ndar
     """Pose (R_cw, C) from the outline targets of one frame, started at (R0, C0) (module doc).
     Returns a `Fix` (method "outline") or None when the outlines do not determine a trustworthy
     position (too few points, camera not below the LEDs, residuals far beyond their sigmas).
-    Each of the `rounds` assigns the points to edges at the current pose and runs at most
+    `targets`: a list of `OutlineTarget` or the packed `OutlineFrame` (targets with fewer than 3
+    points are left out). Each of the `rounds` assigns the points to edges at the current pose and runs at most
     `max_iter` Levenberg-Marquardt iterations; a round whose assignment did not change after a
     converged one is skipped."""
-    targets = [t for t in targets if len(t.pts) >= 3]
-    if not targets:
+    if isinstance(targets, OutlineFrame):
+        frame = targets.with_at_least(3)
+        targets = None
+        shapes = frame.shapes
+    else:
+        targets = [t for t in targets if len(t.pts) >= 3]
+        frame = None
+        shapes = tuple(t.shape for t in targets)
+    if not shapes:
         return None
-    only_circle = len(targets) == 1 and targets[0].shape == "circle"
+    only_circle = len(shapes) == 1 and shapes[0] == "circle"
     if only_circle and C_prior is None:
         return None
-    prob = _Problem(targets, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad)
-    if C_prior is not None:
-        prob.C_prior = np.asarray(C_prior, float)
-        prob.W = np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-    p = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
+    p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
+    args = (p0, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
+            rounds, max_iter)
+    if _k is not None and loss in LOSS_CODES:
+        p, R, chi2, n_res, JtJ = _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets),
+                                               *args)
+    else:
+        p, R, chi2, n_res, JtJ = _solve_numpy(targets if targets is not None else frame.targets, *args)
+    C = p[3:].copy()
+    z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
+    if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
+        return None
+    # Covariance: without the tracked-position prior (the filter holds it), with a weak one
+    # (`FREE_SIGMA_M`, zero residuals) that marks directions the outlines leave free (module doc).
+    dof = n_res + 3 - len(p)
+    if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
+        return None
+    JtJ[3:, 3:] += _FREE_PRIOR
+    cov6 = _covariance6(JtJ) * max(1.0, chi2 / dof)
+    return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
+
+
+def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
+                 max_iter):
+    """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
+    count without the position prior's rows, unweighted J^T J without them)."""
+    prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
+    if C_prior is not None:
+        prob.C_prior, prob.W = np.asarray(C_prior, float), W
     converged = False
     for k in range(rounds):
         changed = prob.assign(p, keep_minor=k > 0 and converged)
         if k > 0 and converged and not changed:
             break
         p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
-    R = st.R
-    C = p[3:].copy()
-    z_min = min(float(t.xyz[2]) for t in targets)
-    if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
-        return None
-    # Covariance: without the tracked-position prior (the filter holds it), with a weak one
-    # (`FREE_SIGMA_M`, zero residuals) that marks directions the outlines leave free (module doc).
     if prob.C_prior is not None:
         r = r[:-3]
-    dof = len(r) + 3 - len(p)
-    chi2 = float(r @ r)
-    if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
-        return None
-    JtJ = prob.gram(st)
-    JtJ[3:, 3:] += np.eye(3) / FREE_SIGMA_M ** 2
-    cov6 = np.linalg.pinv(JtJ) * max(1.0, chi2 / dof)
-    n = len(targets)
-    return Fix(C, cov6[3:, 3:], R, "outline", n, chi2, dof)
+    return p, st.R, float(r @ r), len(r), prob.gram(st)
+
+
+_EMPTY = np.zeros(0)
+_NO_W = np.zeros((3, 3))
+_FREE_PRIOR = np.eye(3) / FREE_SIGMA_M ** 2
+# The compiled path inverts J^T J by Cholesky where it is this well conditioned (smallest pivot^2
+# over the largest diagonal entry; the inverse then equals the pseudo-inverse to ~1e-8 relative
+# at worst, ~1e-13 on the recordings), else takes numpy's pseudo-inverse as the numpy path does.
+SPD_MIN_PIVOT_RATIO = 1e-8
+
+
+def _covariance6(JtJ: np.ndarray) -> np.ndarray:
+    """(J^T J)^+ of the fix: np.linalg.pinv, or the compiled Cholesky inverse where J^T J is
+    well conditioned (`SPD_MIN_PIVOT_RATIO`): the same matrix to rounding, at 1 % of the cost."""
+    if _k is not None:
+        out = np.empty((6, 6))
+        if _k.spd_inverse(JtJ, out, SPD_MIN_PIVOT_RATIO):
+            return out
+    return np.linalg.pinv(JtJ)
+
+
+def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
+                  rounds, max_iter):
+    """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
+    the same arithmetic per point, summed in another order (results equal to rounding)."""
+    lab = np.empty(len(frame.pts), np.int32)
+    R = np.empty((3, 3))
+    JtJ = np.empty((6, 6))
+    _, chi2, n_res = _k.solve(p, lab, frame.pts, frame.sigma, frame.ends, frame.xyz, frame.half,
+                              np.array([s == "circle" for s in frame.shapes], np.int32), frame.uv, sigma_c,
+                              _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float), tilt_sigma_rad,
+                              _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float),
+                              _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
+                              rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
+                              MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
+    return p, R, chi2, n_res, JtJ

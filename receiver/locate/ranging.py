@@ -40,7 +40,12 @@ import math
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.io.camera import CameraModel
+
+# The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
+# None: cv2.undistortPoints itself.
+_ku = load("receiver.locate._undistort")
 
 ESTIMATORS = ("eq18", "oblique")
 
@@ -59,12 +64,44 @@ def distance_eq18(area_px: float, area_m2: float, focal_px: float) -> float:
     return focal_px * math.sqrt(area_m2 / area_px)
 
 
+def _kernel_args(camera: CameraModel):
+    """(K, dist) as the compiled undistortion takes them, or None where it does not model the
+    camera (a skewed matrix, a tilted sensor's 14 coefficients) or is not built."""
+    if _ku is None:
+        return None
+    K = np.ascontiguousarray(camera.K, dtype=np.float64)
+    dist = np.ascontiguousarray(np.asarray(camera.dist, dtype=np.float64).ravel())
+    if len(dist) <= 12 and K.shape == (3, 3) and K[0, 1] == 0.0:
+        return K, dist
+    return None
+
+
 def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
-    """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z)."""
-    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
-    if len(pts) == 0:
-        return np.zeros((0, 2))
-    return cv2.undistortPoints(pts, camera.K, camera.dist).reshape(-1, 2)
+    """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z):
+    cv2.undistortPoints, or the compiled kernel with its exact result where the camera has up to
+    12 distortion coefficients (no tilted sensor) and an unskewed camera matrix."""
+    return Undistorter(camera)(points_px)
+
+
+class Undistorter:
+    """`undistort_points` of one camera, its matrix and coefficients checked and converted once
+    (the positioner undistorts every frame's outline points)."""
+
+    __slots__ = ("camera", "_args")
+
+    def __init__(self, camera: CameraModel):
+        self.camera = camera
+        self._args = _kernel_args(camera)
+
+    def __call__(self, points_px: np.ndarray) -> np.ndarray:
+        pts = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        if self._args is not None:
+            out = np.empty_like(pts)
+            _ku.undistort(pts, *self._args, out)
+            return out
+        return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
 
 
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
@@ -201,6 +238,22 @@ class Geometry:
         return self._value
 
 
+def _with_range(obs, distance_m, estimator):
+    """`dataclasses.replace(obs, distance_m=..., distance_estimator=...)` for a plain frozen
+    dataclass record (no `__post_init__`, no slots): a copy of its field values with the two
+    changed, without a keyword call of the generated `__init__` (a tenth of the cost; a frame
+    annotates every ranged LED)."""
+    cls = type(obs)
+    if hasattr(cls, "__post_init__") or not hasattr(obs, "__dict__"):
+        return dataclasses.replace(obs, distance_m=distance_m, distance_estimator=estimator)
+    new = object.__new__(cls)
+    fields = new.__dict__
+    fields.update(obs.__dict__)
+    fields["distance_m"] = distance_m
+    fields["distance_estimator"] = estimator
+    return new
+
+
 class Ranger:
     """The ranging stage: which of a frame's LED observations can be ranged, and their ranges.
 
@@ -299,14 +352,15 @@ class Ranger:
     def annotate(leds, items, d: np.ndarray, names: list[str]) -> list:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
-        ranged = {id(obs): (round(float(d[i]), 5), names[i])
-                  for i, (obs, _, _) in enumerate(items) if math.isfinite(d[i])}
+        dl = np.asarray(d, dtype=np.float64).tolist()
+        ranged = {id(obs): (round(dl[i], 5), names[i])
+                  for i, (obs, _, _) in enumerate(items) if math.isfinite(dl[i])}
         if not ranged:
             return list(leds)
         out = []
         for o in leds:
             r = ranged.get(id(o))
-            out.append(o if r is None else dataclasses.replace(o, distance_m=r[0], distance_estimator=r[1]))
+            out.append(o if r is None else _with_range(o, r[0], r[1]))
         return out
 
     def range_leds(self, leds, R_cw: np.ndarray | None = None) -> list:
