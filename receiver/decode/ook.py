@@ -55,6 +55,9 @@ from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
+from receiver.core.native import load
+
+_k = load("receiver.decode._ook")  # compiled kernels (receiver/decode/_ook.pyx), or None
 
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
 SYNC_LEN = len(SYNC)  # 6 chips
@@ -176,6 +179,12 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     coherence = float(abs(zsum) / etot) if etot > 0 else 0.0
     phase = float((-np.arctan2(zsum.imag, zsum.real) * period / (2.0 * np.pi)) % period)
     return period, phase, coherence
+
+
+def _native_ok(a) -> bool:
+    """Does the compiled kernel take this array as it is (1-D contiguous float32/float64)?"""
+    return (type(a) is np.ndarray and a.ndim == 1 and a.dtype.char in "fd"
+            and a.flags.c_contiguous)
 
 
 @lru_cache(maxsize=512)
@@ -445,6 +454,10 @@ class OokDecoder:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
         self.last_start_row = None
+        if _k is not None and (self._period is not None or self._learner.period is not None):
+            fast = self._frame_chips_native(profile, weights)
+            if fast is not None:
+                return fast
         x = np.asarray(profile, dtype=np.float64)
         a, b = trim_rows(weights, x.size, self.min_row_frac)
         x = x[a:b]
@@ -475,6 +488,27 @@ class OokDecoder:
                 self._phasor = np.zeros(0, dtype=np.complex128)
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
+
+    def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
+        """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
+        None for inputs it does not take (not a contiguous float32/float64 array)."""
+        if not (_native_ok(profile) and (weights is None or (_native_ok(weights)
+                                                             and weights.size == profile.size))):
+            return None
+        a, b = (0, profile.size) if weights is None else _k.trim(weights, self.min_row_frac)
+        if b - a < 4 * self.period0_rows:
+            return np.zeros(0), np.zeros(0)
+        if self._period is None:
+            self._period = self._learner.period
+            self._phasor = np.zeros(0, dtype=np.complex128)
+        if self._phasor.size < b - a:
+            self._phasor = _grid_phasor(self._period, 2 * (b - a))
+        phase, _, soft, cw = _k.frame_chips(profile, weights, a, b, self._phasor, self._period,
+                                            self.exposure_rows, self.norm_chips, self.min_coherence)
+        if soft is None:
+            return np.zeros(0), np.zeros(0)
+        self.last_start_row = a + phase
+        return soft, cw
 
     def _align(self, soft: np.ndarray) -> int | None:
         """Cyclic shift placing frame chip k at packet position (k + shift) % 54, from the
