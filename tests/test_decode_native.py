@@ -84,3 +84,127 @@ def test_learned_decoding_identical(monkeypatch):
         states.append([(dec.step(p, w), dec.last_start_row, dec.acc.tobytes()) for p, w in frames])
     assert states[0] == states[1]
     assert states[0][-1][0].led_id == 0xBEEF
+
+
+def _softs(rng, n):
+    """Soft-chip arrays like frame_chips gives (+-2 clipped, some near 0), of many lengths."""
+    for _ in range(n):
+        size = int(rng.integers(0, 140))
+        yield np.clip(rng.choice([-1.0, 1.0], size) * rng.uniform(0.0, 2.5, size), -2.0, 2.0)
+
+
+def test_find_sync_and_line_predict_bit_identical(monkeypatch):
+    rng = np.random.default_rng(21)
+    tpl = ook.packet_template(0xBEEF)
+    cases = list(_softs(rng, 400))
+    for _ in range(200):  # with real syncs, once or a packet apart (or not)
+        x = np.tile(tpl, 3)[int(rng.integers(54)):][:int(rng.integers(6, 140))] * rng.uniform(0.2, 1.5)
+        cases.append(x + rng.normal(0, 0.3, x.size))
+    obs = [[(int(k), float(v)) for k, v in zip(np.cumsum(rng.integers(1, 3, n)), rng.normal(0, 30, n))]
+           for n in rng.integers(1, 20, 300)]
+    got = {}
+    for kernel in (K, None):
+        monkeypatch.setattr(ook, "_k", kernel)
+        got[kernel is None] = ([ook.find_sync(x, sync_margin=0.3) for x in cases],
+                               [ook.line_predict(o, o[-1][0] + 1.5, 12) for o in obs])
+    assert got[False] == got[True]
+    assert sum(s is not None for s, _ in got[True][0]) > 100
+
+
+def test_accumulator_kernels_equal_pure():
+    """add / decay / decode_acc exactly; the correlations (align, best_two, corr_at,
+    overlap_corr) to 1e-12 with the same decisions."""
+    rng = np.random.default_rng(22)
+    dec0, dec1 = ook.OokDecoder(), ook.OokDecoder()
+    table = ook.crc8_table()
+    for trial, soft in enumerate(_softs(rng, 400)):
+        cw = rng.uniform(0.2, 1.0, soft.size)
+        shift = int(rng.integers(-60, 120))
+        trusted, timed = bool(rng.integers(2)), bool(rng.integers(2))
+        # pure _add / decay on dec0, kernel on dec1 (the same starting state)
+        for d in (dec0, dec1):
+            d.anchored = bool(rng.integers(2)) if d is dec0 else dec0.anchored
+        pos = ook._cyclic_index(soft.size)[shift % 54]
+        dec0.acc += np.bincount(pos, cw * soft, 54)
+        w = np.bincount(pos, cw, 54)
+        dec0.acc_w += w
+        if trusted:
+            dec0.trust_w += w
+        elif timed:
+            dec0.timed_w += w
+        K.add(dec1.acc, dec1.acc_w, dec1.trust_w if trusted else dec1.timed_w if timed else None, soft, cw, shift)
+        for a in ("acc", "acc_w", "trust_w", "timed_w"):
+            assert getattr(dec0, a).tobytes() == getattr(dec1, a).tobytes()
+        known = dec0.acc_w > 0
+        ref = (ook.decode_packet(dec0._mean_packet(known), min_margin=0.25)
+               if known[6:].all() else None)
+        assert K.decode_acc(dec1.acc, dec1.acc_w, 0.25, table) == ref
+        if soft.size >= 6:
+            monkeypatch_k = ook._k
+            try:
+                ook._k = None
+                ref_shift = dec0._align(soft)
+                ref_complete = dec0._last_align_complete
+            finally:
+                ook._k = monkeypatch_k
+            assert K.align(dec1.acc, dec1.acc_w, soft, dec1.anchored, 8, 2.0, 0.7, 0.25) == (ref_shift, ref_complete)
+        tpl = ook.packet_template(int(rng.integers(1 << 16)))
+        x = np.clip(soft, -1, 1)
+        den = np.abs(x).sum()
+        r = K.best_two(tpl, soft)
+        if den > 0:
+            corr = (tpl[ook._cyclic_index(x.size)] @ x) / den
+            assert r[0] == int(corr.argmax()) or corr.max() - corr[r[0]] < 1e-12
+            assert abs(r[1] - corr.max()) < 1e-12 and abs(r[2] - np.sort(corr)[-2]) < 1e-12
+            c = K.corr_at(tpl, soft, shift)
+            assert abs(c - corr[shift % 54]) < 1e-12
+        else:
+            assert r is None and K.corr_at(tpl, soft, shift) is None
+        if trial % 50 == 49:
+            K.decay(dec1.acc, dec1.acc_w, dec1.trust_w, dec1.timed_w, 0.9)
+            for a in ("acc", "acc_w", "trust_w", "timed_w"):
+                setattr(dec0, a, getattr(dec0, a) * 0.9)
+                assert getattr(dec0, a).tobytes() == getattr(dec1, a).tobytes()
+
+
+def test_small_blob_decoders_identical(monkeypatch):
+    """Short profiles (a few chips a frame: cyclic alignment, pending frames, rotation)."""
+    rng = np.random.default_rng(12)
+    decoded = 0
+    for led_id, rows in ((0x002A, 70), (0x1234, 90), (0xFFFF, 80), (0xBEEF, 100)):
+        frames = ook_frames(led_id, RATE, T_ROW, T_EXP, rows, 120, rng, noise=3.0)
+        states = []
+        for kernel in (K, None):
+            monkeypatch.setattr(ook, "_k", kernel)
+            dec = ook.OokDecoder(RATE, T_ROW, T_EXP)
+            states.append([(dec.step(p, w), dec.acc.tobytes(), dec.anchored, len(dec.pending)) for p, w in frames])
+        assert states[0] == states[1]
+        assert {s[0].led_id for s in states[0]} <= {None, led_id}
+        decoded += states[0][-1][0].led_id == led_id
+    assert decoded >= 2
+
+
+def _run_lines(spec, n):
+    import json
+    from receiver.cli.bench import load_case, whole_receiver
+    from receiver.io.output import frame_line
+    cam, led_map, frames, still = load_case(spec, n)
+    rx = whole_receiver(cam, led_map, still=still)
+    out = []
+    for f in frames:
+        d = json.loads(frame_line(rx.process(f)))
+        d.pop("latency_ms")
+        out.append(d)
+    return out
+
+
+@pytest.mark.parametrize("name", ["indoor-static", "indoor-sparse"])
+def test_recording_output_identical(monkeypatch, name):
+    """The whole receiver (frame clock, decoders, positioning) writes the same lines on a
+    bundled recording with the kernels as with the pure paths."""
+    import pathlib
+    spec = str(pathlib.Path(__file__).resolve().parents[1] / "recordings" / name)
+    fast = _run_lines(spec, 40)
+    monkeypatch.setattr(ook, "_k", None)
+    assert _run_lines(spec, 40) == fast
+    assert sum(o["id"] is not None for d in fast for o in d["leds"]) > 20

@@ -285,3 +285,344 @@ def frame_chips(const real_x[::1] profile, const real_w[::1] weights, Py_ssize_t
         free(z)
         free(v)
         free(cs)
+
+
+# ---------------------------------------------------------------- packet accumulator
+
+cdef double[6] _SYNC_T = [1.0, 1.0, 1.0, -1.0, -1.0, -1.0]
+
+
+cdef inline double _clip1(double v) noexcept nogil:
+    """np.minimum(np.maximum(v, -1.0), 1.0) (NaN stays NaN)."""
+    if v < -1.0:
+        v = -1.0
+    if v > 1.0:
+        v = 1.0
+    return v
+
+
+def find_sync(const double[::1] soft, double margin):
+    """`ook.find_sync`: (index or None, margin of the weakest sync chip)."""
+    cdef Py_ssize_t n = soft.shape[0], k, j, first = -1, best = -1
+    cdef double sc, bsc = 0.0, v
+    cdef bint ok
+    if n < 6:
+        return None, 0.0
+    for k in range(n - 5):
+        ok = True
+        for j in range(6):
+            v = soft[k + j]
+            # the chip's sign code of the pure path: (v > margin) - (v < -margin)
+            if ((v > margin) - (v < -margin)) != (1 if j < 3 else -1):
+                ok = False
+                break
+        if not ok:
+            continue
+        if first < 0:
+            first = k
+        elif (k - first) % PACKET_LEN:
+            return None, 0.0  # inconsistent syncs
+        sc = soft[k] * _SYNC_T[0]
+        for j in range(1, 6):
+            v = soft[k + j] * _SYNC_T[j]
+            if v < sc:
+                sc = v
+        if best < 0 or sc > bsc:
+            best, bsc = k, sc
+    if best < 0:
+        return None, 0.0
+    return best, bsc
+
+
+def decay(double[::1] acc, double[::1] acc_w, double[::1] trust_w, double[::1] timed_w, double f):
+    """The four accumulators *= f."""
+    cdef Py_ssize_t i
+    for i in range(acc.shape[0]):
+        acc[i] = acc[i] * f
+        acc_w[i] = acc_w[i] * f
+        trust_w[i] = trust_w[i] * f
+        timed_w[i] = timed_w[i] * f
+
+
+def add(double[::1] acc, double[::1] acc_w, double[::1] extra_w, const double[::1] soft,
+        const double[::1] cw, Py_ssize_t shift):
+    """`OokDecoder._add`: frame chip k at packet position (k + shift) % 54, weighted sums
+    formed per position first (np.bincount's order), then added; `extra_w` (trust_w or
+    timed_w) gets the weights too, or None."""
+    cdef double tv[PACKET_LEN]
+    cdef double tw[PACKET_LEN]
+    cdef Py_ssize_t i, p
+    for i in range(PACKET_LEN):
+        tv[i] = 0.0
+        tw[i] = 0.0
+    shift = shift % PACKET_LEN
+    if shift < 0:
+        shift += PACKET_LEN
+    for i in range(soft.shape[0]):
+        p = (i + shift) % PACKET_LEN
+        tv[p] += cw[i] * soft[i]
+        tw[p] += cw[i]
+    for i in range(PACKET_LEN):
+        acc[i] = acc[i] + tv[i]
+        acc_w[i] = acc_w[i] + tw[i]
+    if extra_w is not None:
+        for i in range(PACKET_LEN):
+            extra_w[i] = extra_w[i] + tw[i]
+
+
+def known_count(const double[::1] acc_w):
+    """np.count_nonzero(acc_w > 0)."""
+    cdef Py_ssize_t i, n = 0
+    for i in range(acc_w.shape[0]):
+        if acc_w[i] > 0:
+            n += 1
+    return n
+
+
+def decode_acc(const double[::1] acc, const double[::1] acc_w, double min_margin,
+               const unsigned char[::1] crc_table):
+    """`OokDecoder._decode`'s packet: None when a data chip is unknown, else (id or None,
+    confidence) of `decode_packet` on the mean packet (0 where unknown)."""
+    cdef double m[PACKET_LEN]
+    cdef double r, conf = 0.0, sync = 0.0, v
+    cdef Py_ssize_t i
+    cdef long value = 0
+    for i in range(6, PACKET_LEN):
+        if not (acc_w[i] > 0):
+            return None
+    for i in range(PACKET_LEN):
+        m[i] = acc[i] / acc_w[i] if acc_w[i] > 0 else 0.0
+    for i in range(24):
+        r = 0.5 * (m[6 + 2 * i] - m[7 + 2 * i])
+        v = fabs(r)
+        if i == 0 or v < conf or v != v:
+            if not (conf != conf):
+                conf = v
+        value = (value << 1) | (1 if r > 0 else 0)
+    for i in range(6):
+        v = m[i] * _SYNC_T[i]
+        if i == 0 or v < sync or v != v:
+            if not (sync != sync):
+                sync = v
+    if conf < min_margin or not (sync >= min_margin):
+        return None, conf
+    if crc_table[value >> 8] != (value & 0xFF):
+        return None, conf
+    return <long>(value >> 8), conf
+
+
+cdef int _parity(const double *x, Py_ssize_t n, bint cyclic, double gap) noexcept nogil:
+    """`ook.pair_parity` of already clipped chips: 0, 1, or -1 (unclear)."""
+    cdef Py_ssize_t np_ = n if cyclic else n - 1, i, n0 = 0, n1 = 0
+    cdef double *p0
+    cdef double *p1
+    cdef double s0, s1
+    p0 = <double *>malloc((np_ + 2) * sizeof(double))
+    p1 = <double *>malloc((np_ + 2) * sizeof(double))
+    if p0 == NULL or p1 == NULL:
+        free(p0); free(p1)
+        return -2
+    for i in range(np_):
+        if i % 2 == 0:
+            p0[n0] = x[i] * x[(i + 1) % n]
+            n0 += 1
+        else:
+            p1[n1] = x[i] * x[(i + 1) % n]
+            n1 += 1
+    s0 = -(0.0 + _pw_sum(p0, n0))
+    s1 = -(0.0 + _pw_sum(p1, n1))
+    free(p0); free(p1)
+    if fabs(s0 - s1) < gap:
+        return -1
+    return 0 if s0 > s1 else 1
+
+
+def align(const double[::1] acc, const double[::1] acc_w, const double[::1] soft, bint anchored,
+          Py_ssize_t min_chips, double parity_gap, double align_min, double align_gap):
+    """`OokDecoder._align`: (shift or None, complete). The correlations are summed in chip
+    order (numpy's BLAS product may sum in another): equal to ~1e-15, decisions the same."""
+    cdef Py_ssize_t n = soft.shape[0], i, k, sh, p, nk = 0, ov, ovmin = PACKET_LEN + n, best = 0
+    cdef double m[PACKET_LEN]
+    cdef double am[PACKET_LEN]
+    cdef double corr[PACKET_LEN]
+    cdef double corr_m[PACKET_LEN]
+    cdef bint known[PACKET_LEN]
+    cdef double num, den, bv, second
+    cdef double *s = NULL
+    cdef int pf, pa
+    for i in range(PACKET_LEN):
+        known[i] = acc_w[i] > 0
+        nk += known[i]
+    if nk < min_chips:
+        return None, False
+    if n == 0:
+        return None, False
+    for i in range(PACKET_LEN):
+        m[i] = acc[i] / acc_w[i] if known[i] else 0.0
+        am[i] = fabs(m[i])
+    s = <double *>malloc(n * sizeof(double))
+    if s == NULL:
+        raise MemoryError()
+    try:
+        for k in range(n):
+            s[k] = _clip1(soft[k])
+        for sh in range(PACKET_LEN):
+            num = 0.0
+            den = 0.0
+            ov = 0
+            p = sh
+            for k in range(n):
+                num += m[p] * s[k]
+                den += am[p] * fabs(s[k])
+                ov += known[p]
+                p += 1
+                if p == PACKET_LEN:
+                    p = 0
+            if ov < ovmin:
+                ovmin = ov
+            corr[sh] = num / (den if den > 1e-12 else 1e-12) if (den > 0 and ov >= min_chips) else -1.0
+        pf = _parity(s, n, False, parity_gap)
+        if pf == -2:
+            raise MemoryError()
+        if pf >= 0:
+            if anchored:
+                pa = 0
+            else:
+                for i in range(PACKET_LEN):
+                    corr_m[i] = _clip1(m[i])
+                pa = _parity(corr_m, PACKET_LEN, True, parity_gap)
+            if pa == -2:
+                raise MemoryError()
+            if pa >= 0:
+                sh = (pa - pf + 1) % 2
+                while sh < PACKET_LEN:
+                    corr[sh] = -1.0
+                    sh += 2
+        best = 0
+        for sh in range(1, PACKET_LEN):
+            if corr[sh] > corr[best]:
+                best = sh
+        bv = corr[best]
+        second = -1e308
+        for sh in range(PACKET_LEN):
+            if sh != best and corr[sh] > second:
+                second = corr[sh]
+        complete = ovmin >= min_chips
+        if bv >= align_min and bv - second >= align_gap:
+            return best, complete
+        return None, complete
+    finally:
+        free(s)
+
+
+def best_two(const double[::1] tpl, const double[::1] soft):
+    """Normalised cyclic correlation sum(t[(s + k) % 54] * clip(soft[k])) / sum(|clip(soft)|) of
+    a +-1 packet template over the 54 shifts s: (best shift, best, runner-up), or None when the
+    chips are all 0. (`row0_coordinate`, `best_cyclic_match`; chip-order sums.)"""
+    cdef Py_ssize_t n = soft.shape[0], k, sh, p, best = 0
+    cdef double den = 0.0, num, bv, second, c
+    cdef double corr[PACKET_LEN]
+    cdef double *s = <double *>malloc((n + 1) * sizeof(double))
+    if s == NULL:
+        raise MemoryError()
+    try:
+        for k in range(n):
+            s[k] = _clip1(soft[k])
+            den += fabs(s[k])
+        if not (den > 0):
+            return None
+        for sh in range(PACKET_LEN):
+            num = 0.0
+            p = sh
+            for k in range(n):
+                num += tpl[p] * s[k]
+                p += 1
+                if p == PACKET_LEN:
+                    p = 0
+            corr[sh] = num / den
+        for sh in range(1, PACKET_LEN):
+            if corr[sh] > corr[best]:
+                best = sh
+        bv = corr[best]
+        second = -1e308
+        for sh in range(PACKET_LEN):
+            if sh != best and corr[sh] > second:
+                second = corr[sh]
+        return best, bv, second
+    finally:
+        free(s)
+
+
+def corr_at(const double[::1] tpl, const double[::1] soft, Py_ssize_t shift):
+    """sum(t[(k + shift) % 54] * clip(soft[k])) / sum(|clip(soft)|), or None when that is 0."""
+    cdef Py_ssize_t n = soft.shape[0], k, p
+    cdef double den = 0.0, num = 0.0, v
+    shift = shift % PACKET_LEN
+    if shift < 0:
+        shift += PACKET_LEN
+    p = shift
+    for k in range(n):
+        v = _clip1(soft[k])
+        den += fabs(v)
+        num += tpl[p] * v
+        p += 1
+        if p == PACKET_LEN:
+            p = 0
+    if not (den > 0):
+        return None
+    return num / den
+
+
+def overlap_corr(const double[::1] acc, const double[::1] acc_w, const double[::1] trust_w,
+                 const double[::1] timed_w, const double[::1] soft, Py_ssize_t shift):
+    """`_timed_shift`'s check: (overlapping surely placed chips, their normalised correlation
+    m.x / |m|.|x| or None when that denominator is 0)."""
+    cdef Py_ssize_t n = soft.shape[0], k, p, cnt = 0
+    cdef double num = 0.0, den = 0.0, m, x
+    shift = shift % PACKET_LEN
+    if shift < 0:
+        shift += PACKET_LEN
+    p = shift
+    for k in range(n):
+        if trust_w[p] + timed_w[p] > 0.5 * acc_w[p]:
+            cnt += 1
+            m = acc[p] / acc_w[p]
+            x = _clip1(soft[k])
+            num += m * x
+            den += fabs(m) * fabs(x)
+        p += 1
+        if p == PACKET_LEN:
+            p = 0
+    return cnt, (num / den if den > 0 else None)
+
+
+def line_predict(obs, double k, Py_ssize_t window):
+    """`ook.line_predict` (numpy's pairwise sums for the means and moments, so the same
+    numbers) of a sequence of (k_i, v_i)."""
+    cdef Py_ssize_t n_all = len(obs), n, i, j
+    cdef double ks[64]
+    cdef double vs[64]
+    cdef double t1[64]
+    cdef double t2[64]
+    cdef double km, vm, slope
+    n = window if window < n_all else n_all
+    if n <= 0:
+        raise IndexError("no observations")
+    if n > 64:
+        return None  # caller falls back to the pure function
+    j = 0
+    for i in range(n_all - n, n_all):
+        pt = obs[i]
+        ks[j] = <double>pt[0]
+        vs[j] = <double>pt[1]
+        j += 1
+    if n == 1 or ks[n - 1] - ks[0] < 2:
+        return obs[n_all - 1][1]
+    km = (0.0 + _pw_sum(ks, n)) / <double>n
+    vm = (0.0 + _pw_sum(vs, n)) / <double>n
+    for i in range(n):
+        t1[i] = ks[i] - km
+        t2[i] = t1[i] * (vs[i] - vm)
+        t1[i] = t1[i] * t1[i]
+    slope = (0.0 + _pw_sum(t2, n)) / (0.0 + _pw_sum(t1, n))
+    return vm + slope * (k - km)
