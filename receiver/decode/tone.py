@@ -28,6 +28,7 @@ extent move them by up to 2 %), envelope normalisation by a running max/min befo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -167,6 +168,10 @@ class ToneDecoder:
         self.frames = 0
         self._sum = 0.0
         self._w = 0.0
+        # the table's spacing and frequencies, once (match_tone derived them every frame)
+        self._spacing = default_spacing_hz(self.table) if self.spacing_hz is None else self.spacing_hz
+        self._ids = list(self.table)
+        self._freqs = [float(self.table[i]) for i in self._ids]
 
     def step(self, profile, weights=None, t_s=None) -> ToneState:
         """Feed one frame's row profile (see `stripe_frequency_hz`); `t_s` is unused."""
@@ -181,4 +186,13 @@ class ToneDecoder:
         if self._w <= 0:
             return ToneState(None, float("nan"), self.frames)
         fm = self._sum / self._w
-        return ToneState(match_tone(fm, self.table, spacing_hz=self.spacing_hz), fm, self.frames)
+        return ToneState(self._match(fm), fm, self.frames)
+
+    def _match(self, freq_hz: float) -> int | None:
+        """`match_tone(freq_hz, self.table, spacing_hz=self.spacing_hz)` in plain floats (the
+        same arithmetic: the first nearest frequency, within half the spacing)."""
+        if not self._ids or not math.isfinite(freq_hz):
+            return None
+        d = [abs(f - freq_hz) for f in self._freqs]
+        j = d.index(min(d))
+        return self._ids[j] if d[j] < 0.5 * self._spacing else None
