@@ -213,3 +213,9 @@ def test_decoder_match_is_match_tone():
         for f in list(rng.uniform(400, 5100, 20)) + list(table.values()) + [math.nan, math.inf]:
             assert dec._match(float(f)) == match_tone(float(f), table, spacing_hz=spacing)
     assert ToneDecoder({}, 15.0)._match(1000.0) is None
+
+
+def test_nfft_is_the_log2_formula():
+    from receiver.decode.tone import _nfft
+    m = np.arange(1, 1 << 18)
+    assert all(_nfft(int(v)) == 1 << int(np.ceil(np.log2(v))) for v in m)

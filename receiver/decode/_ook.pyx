@@ -215,7 +215,10 @@ def frame_chips(const real_x[::1] profile, const real_w[::1] weights, Py_ssize_t
         if coh < min_coherence:
             return phase, coh, None, None
         # soft_chips
-        n = <Py_ssize_t>_pyfloordiv(<double>(m - 1) - phase, period)
+        c = _pyfloordiv(<double>(m - 1) - phase, period)
+        if not (-1e15 < c < 1e15):  # NaN in the profile: the pure path's int() raises too
+            raise ValueError("cannot convert float NaN to integer")
+        n = <Py_ssize_t>c
         if n <= 0:
             return phase, coh, np.zeros(0), np.zeros(0)
         soft = np.empty(n)

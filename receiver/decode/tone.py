@@ -50,6 +50,11 @@ def _ramp_and_window(n: int) -> tuple[np.ndarray, np.ndarray, float]:
     return r, float(r @ r), 0.5 - 0.5 * np.cos(2.0 * np.pi * (np.arange(n) + 0.5) / n)
 
 
+def _nfft(m: int) -> int:
+    """Smallest power of two >= m (m >= 1): `1 << int(np.ceil(np.log2(m)))` in integers."""
+    return 1 << (m - 1).bit_length()
+
+
 def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: int
                          ) -> tuple[float, float]:
     """Refined spectral peak of a (detrended) profile within [k_lo, k_hi] cycles/row.
@@ -59,7 +64,7 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     x = x - np.add.reduce(x) / n  # x.mean(), without its Python-level wrapper
     x = x - r * ((r @ x) / rr)  # linear trend of the brightness envelope
     xw = x * win
-    nfft = 1 << int(np.ceil(np.log2(n * pad_factor)))
+    nfft = _nfft(n * pad_factor)
     z = np.fft.rfft(xw, nfft)
     spec = z.real * z.real + z.imag * z.imag
     k0 = int(np.ceil(k_lo * nfft))
