@@ -199,3 +199,23 @@ def test_record_too_short_for_the_tone_is_no_estimate():
     for _ in range(10):
         p, w = synth_profile(2000.0, 15.0, 20.0, 46, rng, noise=2.0)
         assert dec.step(p, w).led_id in (1, None)
+
+
+def test_decoder_match_is_match_tone():
+    """ToneDecoder._match (table derived once, plain floats) answers as match_tone does."""
+    import math
+    from receiver.decode.tone import ToneDecoder, match_tone
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        table = {int(i): float(f) for i, f in zip(rng.integers(0, 1000, 5), rng.uniform(500, 5000, 5))}
+        spacing = None if rng.random() < 0.7 else float(rng.uniform(20, 400))
+        dec = ToneDecoder(table, 15.0, spacing_hz=spacing)
+        for f in list(rng.uniform(400, 5100, 20)) + list(table.values()) + [math.nan, math.inf]:
+            assert dec._match(float(f)) == match_tone(float(f), table, spacing_hz=spacing)
+    assert ToneDecoder({}, 15.0)._match(1000.0) is None
+
+
+def test_nfft_is_the_log2_formula():
+    from receiver.decode.tone import _nfft
+    m = np.arange(1, 1 << 18)
+    assert all(_nfft(int(v)) == 1 << int(np.ceil(np.log2(v))) for v in m)

@@ -156,3 +156,14 @@ def test_a_misplaced_timed_frame_blocks_the_decode():
     dec.timed_frames.append((soft, (shift + 2) % 54))
     assert not dec._timed_frames_fit(target.led_id)
     assert not dec.timing_ok and not (dec.trust_w > 0).any()
+
+
+def test_consensus_mean_is_numpys():
+    """frameclock._mean (the references' mean without a numpy call) gives np.mean's number."""
+    from receiver.decode.frameclock import _mean
+    rng = np.random.default_rng(4)
+    for _ in range(20000):
+        n = int(rng.integers(1, 12))
+        v = (rng.normal(0, 1, n) * 10.0 ** rng.integers(-3, 3, n)).tolist()
+        assert repr(_mean(v)) == repr(float(np.mean(v)))
+    assert repr(_mean([-0.0, -0.0])) == repr(float(np.mean([-0.0, -0.0])))

@@ -55,6 +55,9 @@ from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
+from receiver.core.native import load
+
+_k = load("receiver.decode._ook")  # compiled kernels (receiver/decode/_ook.pyx), or None
 
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
 SYNC_LEN = len(SYNC)  # 6 chips
@@ -80,6 +83,8 @@ def wrap_chips(x: float) -> float:
 def line_predict(obs, k: float, window: int) -> float:
     """Value at k of a least-squares line through the last `window` (k_i, v_i) of `obs`
     (v continuous, already unwrapped); the last value when they span fewer than 2 frames."""
+    if _k is not None and 0 < window <= 64:
+        return _k.line_predict(obs, k, window)  # the same numbers (numpy's pairwise sums)
     pts = list(obs)[-window:]
     if len(pts) == 1 or pts[-1][0] - pts[0][0] < 2:
         return pts[-1][1]
@@ -178,6 +183,17 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     return period, phase, coherence
 
 
+def _native_ok(a) -> bool:
+    """Does the compiled kernel take this array as it is (1-D contiguous float32/float64)?"""
+    return (type(a) is np.ndarray and a.ndim == 1 and a.dtype.char in "fd"
+            and a.flags.c_contiguous)
+
+
+def _is_f64(a) -> bool:
+    """A 1-D contiguous float64 array (what the accumulator kernels take)?"""
+    return type(a) is np.ndarray and a.ndim == 1 and a.dtype.char == "d" and a.flags.c_contiguous
+
+
 @lru_cache(maxsize=512)
 def _arange(n: int) -> np.ndarray:
     return np.arange(n, dtype=np.float64)
@@ -258,6 +274,8 @@ def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None
     frame shows the sync more than once the occurrences must be a whole packet apart.
     Returns (index, margin of the weakest sync chip).
     """
+    if _k is not None and _is_f64(soft):
+        return _k.find_sync(soft, sync_margin)
     if soft.size < SYNC_LEN:
         return None, 0.0
     # chip signs (+1 / -1, 0 inside the margin) as bytes: the pattern is then a substring
@@ -326,6 +344,9 @@ def packet_template(led_id: int) -> np.ndarray:
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
+    if _k is not None and _is_f64(soft) and _is_f64(template):
+        r = _k.best_two(template, soft)
+        return r[1] if r is not None else 0.0
     s = _clip1(soft)
     idx = _cyclic_index(s.size)
     den = np.abs(s).sum()
@@ -445,6 +466,10 @@ class OokDecoder:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
         self.last_start_row = None
+        if _k is not None and (self._period is not None or self._learner.period is not None):
+            fast = self._frame_chips_native(profile, weights)
+            if fast is not None:
+                return fast
         x = np.asarray(profile, dtype=np.float64)
         a, b = trim_rows(weights, x.size, self.min_row_frac)
         x = x[a:b]
@@ -476,12 +501,38 @@ class OokDecoder:
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
 
+    def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
+        """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
+        None for inputs it does not take (not a contiguous float32/float64 array)."""
+        if not (_native_ok(profile) and (weights is None or (_native_ok(weights)
+                                                             and weights.size == profile.size))):
+            return None
+        a, b = (0, profile.size) if weights is None else _k.trim(weights, self.min_row_frac)
+        if b - a < 4 * self.period0_rows:
+            return np.zeros(0), np.zeros(0)
+        if self._period is None:
+            self._period = self._learner.period
+            self._phasor = np.zeros(0, dtype=np.complex128)
+        if self._phasor.size < b - a:
+            self._phasor = _grid_phasor(self._period, 2 * (b - a))
+        phase, _, soft, cw = _k.frame_chips(profile, weights, a, b, self._phasor, self._period,
+                                            self.exposure_rows, self.norm_chips, self.min_coherence)
+        if soft is None:
+            return np.zeros(0), np.zeros(0)
+        self.last_start_row = a + phase
+        return soft, cw
+
     def _align(self, soft: np.ndarray) -> int | None:
         """Cyclic shift placing frame chip k at packet position (k + shift) % 54, from the
         correlation with the accumulated packet; None when weak or ambiguous. Sets
         `_last_align_complete` when every shift overlapped >= align_min_chips known chips
         (then the true shift was among those compared, and the choice can be trusted)."""
         self._last_align_complete = False
+        if _k is not None:
+            shift, self._last_align_complete = _k.align(
+                self.acc, self.acc_w, soft, self.anchored, self.align_min_chips, self.parity_gap,
+                self.align_min, self.align_gap)
+            return shift
         known = self.acc_w > 0
         if np.count_nonzero(known) < self.align_min_chips:
             return None
@@ -516,6 +567,10 @@ class OokDecoder:
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
+        if _k is not None:
+            _k.add(self.acc, self.acc_w, self.trust_w if trusted else self.timed_w if timed else None,
+                   soft, cw, shift)
+            return
         pos = _cyclic_index(soft.size)[shift % PACKET_LEN]
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
         w = np.bincount(pos, cw, PACKET_LEN)
@@ -533,10 +588,13 @@ class OokDecoder:
         (image row of the profile's first row); with them, frames are also placed by timing
         (`_timed_shift`)."""
         self.frames += 1
-        self.acc *= self.decay
-        self.acc_w *= self.decay
-        self.trust_w *= self.decay
-        self.timed_w *= self.decay
+        if _k is not None:
+            _k.decay(self.acc, self.acc_w, self.trust_w, self.timed_w, self.decay)
+        else:
+            self.acc *= self.decay
+            self.acc_w *= self.decay
+            self.trust_w *= self.decay
+            self.timed_w *= self.decay
         soft, cw = self.frame_chips(profile, weights)
         self._tc = None
         if clock is not None and y0 is not None and self.last_start_row is not None and self.timing_ok:
@@ -557,7 +615,12 @@ class OokDecoder:
             self._decode()
         elif self._stale:  # nothing new to decode, but a failing packet keeps ageing
             self._age_stale()
-        known = int(np.count_nonzero(self.acc_w)) if self.anchored else 0
+        if not self.anchored:
+            known = 0
+        elif _k is not None:
+            known = _k.known_count(self.acc_w)
+        else:
+            known = int(np.count_nonzero(self.acc_w))
         return OokState(self.led_id, self.frames, known, self.confidence)
 
     def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
@@ -717,6 +780,12 @@ class OokDecoder:
             return None
         self.timing_frac_resid.append(abs(v - r))
         shift = int(r) % PACKET_LEN
+        if _k is not None:
+            n_ov, c = _k.overlap_corr(self.acc, self.acc_w, self.trust_w, self.timed_w, soft, shift)
+            if n_ov >= self.timing_min_overlap and c is not None and c < self.timing_min_corr:
+                self._disable_timing("overlap_conflict")
+                return None
+            return shift
         pos = (np.arange(soft.size) + shift) % PACKET_LEN
         # judged against the chips that were placed mostly where they surely belong (sync,
         # complete alignment, confirmed timing): a short-overlap alignment may be the wrong one
@@ -744,6 +813,11 @@ class OokDecoder:
             return None
         if self._tpl is None or self._tpl[0] != self.led_id:
             self._tpl = (self.led_id, packet_template(self.led_id))
+        if _k is not None:
+            r = _k.best_two(self._tpl[1], soft)
+            if r is None or r[1] < min_corr or r[1] - r[2] < min_gap:
+                return None
+            return float((r[0] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
         x = _clip1(soft)
         den = float(np.abs(x).sum())
         if den <= 0:
@@ -833,9 +907,14 @@ class OokDecoder:
             return True
         t = packet_template(led_id)
         for soft, shift in self.timed_frames:
-            x = _clip1(soft)
-            den = float(np.abs(x).sum())
-            if den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min:
+            if _k is not None:
+                c = _k.corr_at(t, soft, shift)
+                misfit = c is not None and c < self.verify_min
+            else:
+                x = _clip1(soft)
+                den = float(np.abs(x).sum())
+                misfit = den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min
+            if misfit:
                 if self.timing_ok:
                     self._disable_timing("verify_conflict")
                 self.timed_frames.clear()
@@ -844,12 +923,19 @@ class OokDecoder:
         return True
 
     def _decode(self) -> None:
-        known = self.acc_w > 0
-        if not (self.anchored and known[SYNC_LEN:].all()):
-            self.confidence = 0.0
-            return
-        m = self._mean_packet(known)
-        led_id, conf = decode_packet(m, min_margin=self.min_margin)
+        if _k is not None:
+            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, crc8_table()) if self.anchored else None
+            if r is None:
+                self.confidence = 0.0
+                return
+            led_id, conf = r
+        else:
+            known = self.acc_w > 0
+            if not (self.anchored and known[SYNC_LEN:].all()):
+                self.confidence = 0.0
+                return
+            m = self._mean_packet(known)
+            led_id, conf = decode_packet(m, min_margin=self.min_margin)
         self.confidence = conf
         if led_id is not None:
             self._stale = 0

@@ -28,17 +28,21 @@ extent move them by up to 2 %), envelope normalisation by a running max/min befo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
-from receiver.decode.ook import trim_rows
+from receiver.core.native import load
+from receiver.decode.ook import _native_ok, trim_rows
 from receiver.decode.settings import ToneSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
 
 MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
+_k = load("receiver.decode._tone")  # compiled kernels (receiver/decode/_tone.pyx), or None
+_ko = load("receiver.decode._ook")  # its row trim
 
 
 @lru_cache(maxsize=64)
@@ -47,6 +51,11 @@ def _ramp_and_window(n: int) -> tuple[np.ndarray, np.ndarray, float]:
     a tracked blob keep their length from frame to frame)."""
     r = np.arange(n) - 0.5 * (n - 1)
     return r, float(r @ r), 0.5 - 0.5 * np.cos(2.0 * np.pi * (np.arange(n) + 0.5) / n)
+
+
+def _nfft(m: int) -> int:
+    """Smallest power of two >= m (m >= 1): `1 << int(np.ceil(np.log2(m)))` in integers."""
+    return 1 << (m - 1).bit_length()
 
 
 def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: int
@@ -58,7 +67,7 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     x = x - np.add.reduce(x) / n  # x.mean(), without its Python-level wrapper
     x = x - r * ((r @ x) / rr)  # linear trend of the brightness envelope
     xw = x * win
-    nfft = 1 << int(np.ceil(np.log2(n * pad_factor)))
+    nfft = _nfft(n * pad_factor)
     z = np.fft.rfft(xw, nfft)
     spec = z.real * z.real + z.imag * z.imag
     k0 = int(np.ceil(k_lo * nfft))
@@ -99,16 +108,43 @@ def stripe_frequency_hz(profile, row_readout_us: float, weights=None, *, fmin_hz
     fmin_hz (a spectral SNR; pure noise gives ~5-25); freq_hz is nan when there is no usable peak.
     """
     t_row_s = row_readout_us * 1e-6
-    x = np.asarray(profile, dtype=np.float64)
-    a, b = trim_rows(weights, x.size, min_row_frac)
-    x = x[a:b]
-    n = x.size
+    native = (_k is not None and _ko is not None and _native_ok(profile)
+              and (weights is None or (_native_ok(weights) and weights.size == profile.size)))
+    if native:
+        a, b = (0, profile.size) if weights is None else _ko.trim(weights, min_row_frac)
+        n = b - a
+    else:
+        x = np.asarray(profile, dtype=np.float64)
+        a, b = trim_rows(weights, x.size, min_row_frac)
+        x = x[a:b]
+        n = x.size
     k_hi = (0.45 if fmax_hz is None else min(fmax_hz * t_row_s, 0.5))
     k_lo = max(fmin_hz * t_row_s, min_cycles / max(n, 1))
     if n < 8 or k_lo >= k_hi:
         return float("nan"), 0.0
-    k, quality = _peak_cycles_per_row(x, k_lo, k_hi, pad_factor)
+    if native:
+        k, quality = _peak_native(profile, a, b, k_lo, k_hi, pad_factor)
+    else:
+        k, quality = _peak_cycles_per_row(x, k_lo, k_hi, pad_factor)
     return float(k / t_row_s), quality
+
+
+def _peak_native(profile: np.ndarray, a: int, b: int, k_lo: float, k_hi: float, pad_factor: int
+                 ) -> tuple[float, float]:
+    """`_peak_cycles_per_row(profile[a:b], ...)` with the compiled kernels around numpy's FFT
+    and logarithm (the same numbers: tests/test_decode_native.py)."""
+    n = b - a
+    r, rr, win = _ramp_and_window(n)
+    nfft = _nfft(n * pad_factor)
+    z = np.fft.rfft(_k.windowed(profile, a, b, r, rr, win), nfft)
+    res = _k.band_peak(z, int(math.ceil(k_lo * nfft)), int(math.floor(k_hi * nfft)))
+    if res is None:
+        return float("nan"), 0.0
+    kp, quality, s0, s1, s2 = res
+    la, lb, lc = np.log(np.array((s0, s1, s2)) + 1e-30)
+    den = la - 2.0 * lb + lc
+    delta = 0.5 * (la - lc) / den if den < 0 else 0.0
+    return (kp + min(max(delta, -1.0), 1.0)) / nfft, quality
 
 
 def default_spacing_hz(table: dict[int, float]) -> float:
@@ -167,6 +203,10 @@ class ToneDecoder:
         self.frames = 0
         self._sum = 0.0
         self._w = 0.0
+        # the table's spacing and frequencies, once (match_tone derived them every frame)
+        self._spacing = default_spacing_hz(self.table) if self.spacing_hz is None else self.spacing_hz
+        self._ids = list(self.table)
+        self._freqs = [float(self.table[i]) for i in self._ids]
 
     def step(self, profile, weights=None, t_s=None) -> ToneState:
         """Feed one frame's row profile (see `stripe_frequency_hz`); `t_s` is unused."""
@@ -181,4 +221,13 @@ class ToneDecoder:
         if self._w <= 0:
             return ToneState(None, float("nan"), self.frames)
         fm = self._sum / self._w
-        return ToneState(match_tone(fm, self.table, spacing_hz=self.spacing_hz), fm, self.frames)
+        return ToneState(self._match(fm), fm, self.frames)
+
+    def _match(self, freq_hz: float) -> int | None:
+        """`match_tone(freq_hz, self.table, spacing_hz=self.spacing_hz)` in plain floats (the
+        same arithmetic: the first nearest frequency, within half the spacing)."""
+        if not self._ids or not math.isfinite(freq_hz):
+            return None
+        d = [abs(f - freq_hz) for f in self._freqs]
+        j = d.index(min(d))
+        return self._ids[j] if d[j] < 0.5 * self._spacing else None
