@@ -225,6 +225,7 @@ class Pairer:
         self.velocity_gain = s.velocity_gain
         self.max_missed = s.max_missed
         self.give_up_frames = s.give_up_frames
+        self.unseen_give_up_frames = s.unseen_give_up_frames
         self.pairs: list[Pair] = []
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
@@ -475,6 +476,12 @@ class Pairer:
             p.obs_b = (obs_b, p.frames)
         p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
             p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
+        if (self.unseen_give_up_frames and p.led_id is None and p.a.track_id != p.b.track_id
+                and min(p.frames - min(p.seen_a, p.seen_b), p.frames) > self.unseen_give_up_frames):
+            # one end of an undecoded two-track pair without a blob of its own for that long:
+            # a wrong pairing (`PairSettings.unseen_give_up_frames`), as after give_up_frames
+            self.banned.add(p.founding)
+            return False
         if self.follow_size and p.tracks and p.kind == "SL":
             # A near street light grows by several % a frame, and while both its halves are lit
             # they show as one merged blob that leaves the emitters' envelopes as they were: the

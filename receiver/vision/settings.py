@@ -119,7 +119,19 @@ class PairSettings:
     quarter of the frames). give_up_frames [200]: a pair still without an ID after this many
     frames (2.8 packets of 2.4 s at 30 fps) is a wrong pairing and ends (110 ended a lane-
     changing car's right pair with one weak symbol 6 frames before its third pass: hil --mode
-    s2psk seed 2 FV 107 -> 155 of 214).
+    s2psk seed 2 FV 107 -> 155 of 214). unseen_give_up_frames [30]: an undecoded pair of two
+    tracks one of whose emitters has had no blob of its own for more than this many frames
+    (since it formed) ends too, as a wrong pairing: each emitter of a light is lit alone in
+    about a quarter of the frames, so a pair that only ever sees one end is one light and a
+    place where none is (or another light's, whose decoded pair claims its blobs). hil --mode
+    s2psk seed 3: a 90-118 px pair from head 52 to head 92 formed at frame 16; once 92's own
+    pair decoded (frame 71) it lived on head 52's blobs alone, and its end on 52 kept 52's
+    tracks from pairing until the end of the run. Right pairs (every decoded two-track pair
+    of hil seeds 1-4, vehicle-road seeds 1-3, recordings/vehicle) had gaps of at most 11
+    frames before their ID. 30 (S2-PSK resolvable SL light-frames, 0 wrong): hil seed 3 844 ->
+    890 of 891, vehicle-road seed 1 353 -> 383 of 644, recordings/vehicle 652, hil seeds 1/2/4
+    and vehicle-road 2/3 unchanged; 60: hil seed 3 890, vehicle-road 1 353; 15: recordings/
+    vehicle 638, vehicle-road seed 3 FV 79 -> 0 of 284, hil seed 1 880. 0 = off.
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
@@ -254,6 +266,7 @@ class PairSettings:
     velocity_gain: float = 0.3
     max_missed: int = 10
     give_up_frames: int = 200
+    unseen_give_up_frames: int = 30
     jump_max_baseline: float = 4.0
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
