@@ -240,7 +240,18 @@ class PairSettings:
     5 dark frames: its second emitter was matched to the head 10 px below): its emitters are
     not reported until a blob both lit, or both halves in one frame, places it (`Pair.anchored`,
     `Pairer.emitters`; 0 = off; vehicle-road 4 / 0 -> 0 / 0 wrong, `synth vehicle --seed 4` SL
-    859 -> 857, 3: 817).
+    859 -> 857, 3: 817). beside_hold [True]: a decoded jumper pair
+    that explained no blob in this frame is not reported when a blob no pair explains (a third
+    of one emitter's size up to max_merged of it) lies outside its span, within its baseline
+    plus match_min_px of its end emitter, level with it: most likely its own head's half that
+    the gate missed, the pair sitting beside its head (`Pair.beside`, `Pairer._mark_beside`).
+    vehicle-road seed 3 frame 125: head 17's pair (3 px baseline, its head's 3.9) sat 2 px
+    right of it and missed the left half 2.5 px beyond emitter A; emitter B, reported, was
+    matched to head 62's emitter (62 coasting, unreported): 1 wrong -> 0. Cost (S2-PSK
+    resolvable SL light-frames, before -> after): vehicle-road seeds 1/2/3 383/560/541 ->
+    380/560/541, hil --mode s2psk seeds 1-4 894/878/890/883 -> 894/875/889/880,
+    recordings/vehicle 652 unchanged. Any unexplained blob beside either emitter (inside the
+    span too, any size): recordings/vehicle 642, hil seeds 1-4 883/865/878/869.
     Measured together (`occloc eval` S2-PSK resolvable SL / FV light-frames, 0 wrong everywhere;
     before -> after): vehicle-road seeds 1 / 2 SL 98 / 14 -> 333 / 551 of 644 / 638, FV 136 /
     166 -> 136 / 164 of 287 / 284; recordings/vehicle SL 646 -> 650 of 658, FV 156 / 156, HV
@@ -304,3 +315,4 @@ class PairSettings:
     growth_span_frames: int = 8
     max_growth: float = 0.08
     anchor_coast_frames: int = 5
+    beside_hold: bool = True
