@@ -30,8 +30,7 @@ STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 # `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs (was 552/1709).
 # 1719/4393 before soft S2-PSK decoding and the pairs' yaw shift / width size (1749/4412 with the
 # pairing changes alone, 1801/4387 with soft decoding alone).
-# 1791/4410 before undecoded two-track pairs seeing one end only ended (`unseen_give_up_frames`).
-VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1793, 4430
+VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1791, 4410
 # `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames;
 # was SL 391, FV 114 before pair emitters were reported dark too and new pairs got their backlog;
 # SL 602 before far heads were decoded from their flux with noise-following detection, 635
