@@ -120,3 +120,35 @@ def test_a_decoded_far_head_that_coasted_is_reported_again_once_a_merged_blob_pl
     q.led_id, q.anchored, q.seen_a, q.seen_b = 43, False, 0, 0
     pr.pairs = [q]
     assert len(pr.emitters()) == 2
+
+
+def test_a_decoded_far_head_beside_a_blob_it_did_not_take_is_not_reported():
+    """vehicle-road seed 3 frame 125: head 17's pair (3 px baseline, 2 px right of its head)
+    missed its own half's blob 2.5 px left of emitter A; its emitter B, reported, was matched to
+    the neighbouring head 62 (PairSettings.beside_hold)."""
+    def follow(pr, p, x, w=3):
+        t = Track(9, _blob(x, 50.0, w, 1), 0, 0)
+        pr.pairs = [p]
+        pr.step(np.zeros((100, 200), np.uint8), [t], lambda g, e: 0.0, shift=(0.0, 0.0))
+        return p
+
+    def decoded(w=3):
+        p = _jumper(hx=1.5, w=w, h=1)
+        p.led_id, p.kind, p.seen_a, p.seen_b = 17, "SL", 0, 0
+        return p
+
+    pr = Pairer()
+    p = follow(pr, decoded(), 95.5)  # outside the pair, 3 px left of A: not taken
+    assert p.misses == 1 and p.beside and pr.emitters() == []
+    p = follow(pr, p, 98.5)  # its own half at A: taken, reported again
+    assert p.misses == 0 and not p.beside and len(pr.emitters()) == 2
+    # not held: a blob between its emitters, a speck a third of an emitter's size, an undecoded
+    # pair, or with beside_hold off
+    assert not follow(Pairer(), decoded(), 100.0, w=9).beside
+    assert not follow(Pairer(), decoded(w=6), 95.5, w=1).beside
+    assert follow(Pairer(), decoded(w=6), 95.5, w=2).beside
+    q = decoded()
+    q.led_id = None
+    assert not follow(Pairer(), q, 95.5).beside
+    off = Pairer(beside_hold=False)
+    assert not follow(off, decoded(), 95.5).beside and len(off.emitters()) == 2

@@ -155,6 +155,9 @@ class Pair:
     # that many frames, True again once a blob both lit (at the midpoint) or both emitters' own
     # blobs in one frame place it; a single half's blob cannot tell which half it is.
     anchored: bool = True
+    # A decoded jumper pair that explained no blob in this frame while a blob no pair explains
+    # lies beside one of its emitters (`PairSettings.beside_hold`): its place is in doubt
+    beside: bool = False
     ids: tuple[int, int] = (-1, -1)  # the LED ids of emitters A and B in the output (`Pairer.emitters`)
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
     # the emitters' intensities and levels as receiver.decode.s2psk.pair_xor takes them
@@ -225,6 +228,7 @@ class Pairer:
         self.velocity_gain = s.velocity_gain
         self.max_missed = s.max_missed
         self.give_up_frames = s.give_up_frames
+        self.unseen_give_up_frames = s.unseen_give_up_frames
         self.pairs: list[Pair] = []
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
@@ -244,6 +248,7 @@ class Pairer:
         self.width_max_rows, self.baseline_max_ratio = s.width_max_rows, s.baseline_max_ratio
         self.measure_baseline, self.baseline_gain = s.measure_baseline, s.baseline_gain
         self.anchor_coast_frames = s.anchor_coast_frames
+        self.beside_hold = s.beside_hold
         self.growth_gain, self.growth_span_frames, self.max_growth = s.growth_gain, s.growth_span_frames, s.max_growth
         self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
@@ -475,6 +480,12 @@ class Pairer:
             p.obs_b = (obs_b, p.frames)
         p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
             p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
+        if (self.unseen_give_up_frames and p.led_id is None and p.a.track_id != p.b.track_id
+                and min(p.frames - min(p.seen_a, p.seen_b), p.frames) > self.unseen_give_up_frames):
+            # one end of an undecoded two-track pair without a blob of its own for that long:
+            # a wrong pairing (`PairSettings.unseen_give_up_frames`), as after give_up_frames
+            self.banned.add(p.founding)
+            return False
         if self.follow_size and p.tracks and p.kind == "SL":
             # A near street light grows by several % a frame, and while both its halves are lit
             # they show as one merged blob that leaves the emitters' envelopes as they were: the
@@ -565,6 +576,7 @@ class Pairer:
                                     np.array([t.blob.area_px for t in seen], float)))
         self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         self.pairs = self._drop_twins(self.pairs)
+        self._mark_beside(tracks)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
@@ -611,6 +623,31 @@ class Pairer:
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
         return self.pairs
+
+    def _mark_beside(self, tracks: list[Track]) -> None:
+        """`Pair.beside` of every pair in this frame (`PairSettings.beside_hold`): a decoded
+        jumper pair that explained no blob, with a blob of this frame that no pair explains within
+        its baseline plus `match_min_px` horizontally and `match_min_px` vertically of one of its
+        emitters. That blob is most likely its own head's half that the gate missed: the pair
+        then sits beside its head (the yaw shift is ambiguous by the baseline), and one of its
+        emitters may be nearer a neighbouring head than its own."""
+        cand = [p for p in self.pairs if p.led_id is not None and p.a.track_id == p.b.track_id]
+        for p in self.pairs:
+            p.beside = False
+        if not self.beside_hold or not cand:
+            return
+        taken = {t.track_id for p in self.pairs for t in p.tracks}
+        free = [t for t in tracks if t.seen and t.track_id not in taken]
+        for p in cand:
+            if p.misses == 0 or not free:
+                continue
+            reach = abs(p.b.cx - p.a.cx) + self.match_min_px
+            size = max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
+            lo, hi = min(p.a.cx, p.b.cx), max(p.a.cx, p.b.cx)
+            p.beside = any((lo - reach <= t.cx < lo or hi < t.cx <= hi + reach)
+                           and abs(t.cy - p.my) <= abs(p.b.cy - p.a.cy) / 2 + self.match_min_px
+                           and 1.0 / self.max_cut <= t.blob.area_px / size <= self.max_merged
+                           for t in free)
 
     def _drop_twins(self, pairs: list[Pair]) -> list[Pair]:
         """`pairs` without the undecoded jumper pairs whose midpoint lies on a decoded jumper
@@ -780,7 +817,7 @@ class Pairer:
                for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
                if not (self.jumper_unseen_frames and p.a.track_id == p.b.track_id
                        and p.frames - seen > self.jumper_unseen_frames)
-               and (p.anchored or p.a.track_id != p.b.track_id)]
+               and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
         xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
         owner = np.array([id(p) for _, _, p, _ in dec])
         size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)

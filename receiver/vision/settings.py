@@ -119,7 +119,22 @@ class PairSettings:
     quarter of the frames). give_up_frames [200]: a pair still without an ID after this many
     frames (2.8 packets of 2.4 s at 30 fps) is a wrong pairing and ends (110 ended a lane-
     changing car's right pair with one weak symbol 6 frames before its third pass: hil --mode
-    s2psk seed 2 FV 107 -> 155 of 214).
+    s2psk seed 2 FV 107 -> 155 of 214). unseen_give_up_frames [60]: an undecoded pair of two
+    tracks one of whose emitters has had no blob of its own for more than this many frames
+    (since it formed) ends too, as a wrong pairing: each emitter of a light is lit alone in
+    about a quarter of the frames, so a pair that only ever sees one end is one light and a
+    place where none is (or another light's, whose decoded pair claims its blobs). hil --mode
+    s2psk seed 3: a 90-118 px pair from head 52 to head 92 formed at frame 16; once 92's own
+    pair decoded (frame 71) it lived on head 52's blobs alone, and its end on 52 kept 52's
+    tracks from pairing until the end of the run. Right pairs (every decoded two-track pair
+    of hil seeds 1-4, vehicle-road seeds 1-3, recordings/vehicle) had gaps of at most 11
+    frames before their ID. S2-PSK resolvable SL light-frames / wrong (with beside_hold): 60:
+    hil seed 3 844 -> 889 of 891, vehicle-road seed 4 359 / 1 wrong (off: 359 / 1), seeds
+    1-3, hil seeds 1/2/4 and recordings/vehicle (output identical) as off. 30: vehicle-road
+    seed 1 353 -> 380 but seed 4 359 -> 213 with 11 wrong (a wrong 90 px pair across two cars'
+    taillights ended at frame 78: its blobs had held the yaw shift, `shake` "pairs"; head 87's
+    pair then slid onto heads 52 / 63 / 97); 45: seed 4 11 wrong; 15: recordings/vehicle SL
+    652 -> 638. 0 = off.
     Pairs from one jumping track (`_pair_jumpers`): a jump between single-emitter-sized blobs
     of min_baseline to jump_max_baseline [4] diameters, row_band as above; two consecutive such
     jumps within jump_agree [0.5] diameters of each other once jump_agree_y_px [4] px of their
@@ -228,7 +243,18 @@ class PairSettings:
     5 dark frames: its second emitter was matched to the head 10 px below): its emitters are
     not reported until a blob both lit, or both halves in one frame, places it (`Pair.anchored`,
     `Pairer.emitters`; 0 = off; vehicle-road 4 / 0 -> 0 / 0 wrong, `synth vehicle --seed 4` SL
-    859 -> 857, 3: 817).
+    859 -> 857, 3: 817). beside_hold [True]: a decoded jumper pair
+    that explained no blob in this frame is not reported when a blob no pair explains (a third
+    of one emitter's size up to max_merged of it) lies outside its span, within its baseline
+    plus match_min_px of its end emitter, level with it: most likely its own head's half that
+    the gate missed, the pair sitting beside its head (`Pair.beside`, `Pairer._mark_beside`).
+    vehicle-road seed 3 frame 125: head 17's pair (3 px baseline, its head's 3.9) sat 2 px
+    right of it and missed the left half 2.5 px beyond emitter A; emitter B, reported, was
+    matched to head 62's emitter (62 coasting, unreported): 1 wrong -> 0. Cost (S2-PSK
+    resolvable SL light-frames, before -> after, with unseen_give_up_frames 30): vehicle-road
+    seeds 1/2/3 383/560/541 -> 380/560/541, hil --mode s2psk seeds 1-4 894/878/890/883 ->
+    894/875/889/880, recordings/vehicle 652 unchanged; vehicle-road seed 4 wrong 2 -> 1. Any unexplained blob beside either emitter (inside the
+    span too, any size): recordings/vehicle 642, hil seeds 1-4 883/865/878/869.
     Measured together (`occloc eval` S2-PSK resolvable SL / FV light-frames, 0 wrong everywhere;
     before -> after): vehicle-road seeds 1 / 2 SL 98 / 14 -> 333 / 551 of 644 / 638, FV 136 /
     166 -> 136 / 164 of 287 / 284; recordings/vehicle SL 646 -> 650 of 658, FV 156 / 156, HV
@@ -254,6 +280,7 @@ class PairSettings:
     velocity_gain: float = 0.3
     max_missed: int = 10
     give_up_frames: int = 200
+    unseen_give_up_frames: int = 60
     jump_max_baseline: float = 4.0
     jump_agree: float = 0.5
     jump_agree_y_px: float = 4.0
@@ -291,3 +318,4 @@ class PairSettings:
     growth_span_frames: int = 8
     max_growth: float = 0.08
     anchor_coast_frames: int = 5
+    beside_hold: bool = True
