@@ -3,7 +3,7 @@
 
 `frame_chips`: trim rows + chip grid at a learned period + soft chips of one row profile, the
 numbers of `trim_rows`, `chip_grid(..., segment_chips=0)` and `soft_chips` bit for bit: sums
-follow numpy's pairwise summation (`_pw_sum`, `_pw_csum`: numpy's DOUBLE / CDOUBLE
+follow numpy's pairwise summation (`_pw_sum`, `_pw_csum` from receiver/decode/_npsum.pxd: numpy's DOUBLE / CDOUBLE
 pairwise_sum, 8 accumulators, blocks of 128 scalars) and running sums its sequential
 accumulate; `np.interp` on the integer row grid is slope * (x - j) + y[j]; the phase angle is numpy's own
 arctan2 (a SIMD routine on some CPUs, which can differ from libm's in the last bit). Built with
@@ -16,6 +16,7 @@ index of the best shift and threshold decisions are taken from them.
 
 from libc.math cimport hypot, fmod, floor, copysign, fabs
 from libc.stdlib cimport malloc, free
+from receiver.decode._npsum cimport pw_sum as _pw_sum, pw_csum as _pw_csum
 
 import numpy as np
 
@@ -31,70 +32,6 @@ ctypedef fused real_w:
 
 cdef enum:
     PACKET_LEN = 54
-    PW_BLOCKSIZE = 128
-
-
-cdef double _pw_sum(const double *a, Py_ssize_t n) noexcept nogil:
-    """numpy's DOUBLE_pairwise_sum (contiguous)."""
-    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
-    cdef Py_ssize_t i, n2
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    elif n <= PW_BLOCKSIZE:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pw_sum(a, n2) + _pw_sum(a + n2, n - n2)
-
-
-cdef void _pw_csum(const double *a, Py_ssize_t n, double *rr, double *ri) noexcept nogil:
-    """numpy's CDOUBLE_pairwise_sum over n scalars (n / 2 complex numbers, interleaved)."""
-    cdef double r0, r1, r2, r3, r4, r5, r6, r7, rr1, ri1, rr2, ri2
-    cdef Py_ssize_t i, n2
-    if n < 8:
-        rr[0] = -0.0
-        ri[0] = -0.0
-        i = 0
-        while i < n:
-            rr[0] += a[i]
-            ri[0] += a[i + 1]
-            i += 2
-        return
-    elif n <= PW_BLOCKSIZE:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        rr[0] = (r0 + r2) + (r4 + r6)
-        ri[0] = (r1 + r3) + (r5 + r7)
-        while i < n:
-            rr[0] += a[i]
-            ri[0] += a[i + 1]
-            i += 2
-        return
-    n2 = n // 2
-    n2 -= n2 % 8
-    _pw_csum(a, n2, &rr1, &ri1)
-    _pw_csum(a + n2, n - n2, &rr2, &ri2)
-    rr[0] = rr1 + rr2
-    ri[0] = ri1 + ri2
 
 
 cdef inline double _pymod(double a, double b) noexcept nogil:

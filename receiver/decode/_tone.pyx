@@ -6,43 +6,13 @@ the trend; the median is a selected element, whatever the selection order). The 
 three logarithms stay numpy's."""
 
 from libc.stdlib cimport malloc, free
+from receiver.decode._npsum cimport pw_sum as _pw_sum
 
 import numpy as np
 
 ctypedef fused real_x:
     float
     double
-
-cdef enum:
-    PW_BLOCKSIZE = 128
-
-
-cdef double _pw_sum(const double *a, Py_ssize_t n) noexcept nogil:
-    """numpy's DOUBLE_pairwise_sum (contiguous)."""
-    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
-    cdef Py_ssize_t i, n2
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    elif n <= PW_BLOCKSIZE:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pw_sum(a, n2) + _pw_sum(a + n2, n - n2)
-
 
 def windowed(const real_x[::1] profile, Py_ssize_t a, Py_ssize_t b, r, double rr, const double[::1] win):
     """profile[a:b] as float64, its mean and its linear trend along the centred ramp `r`
