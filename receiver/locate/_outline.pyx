@@ -13,6 +13,7 @@ corner unused, 0), the centroids (u, v) of the targets that have one, the tilt p
 position prior (3): the pure path's, grouped squares / rects first, then circles."""
 
 from libc.math cimport sqrt, hypot, cos, sin, log1p, fabs
+from receiver.locate._solve6 cimport solve6
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy, memset
 from libc.float cimport DBL_EPSILON
@@ -641,44 +642,6 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     for a in range(6):
         for b in range(a):
             A[6 * a + b] = A[6 * b + a]
-
-
-cdef int solve6(const double* A, const double* b, double* x) noexcept nogil:
-    """x = A^-1 b by Gaussian elimination with partial pivoting (LAPACK gesv's method); 1 when a
-    pivot is exactly zero (singular: numpy raises LinAlgError)."""
-    cdef double M[36]
-    cdef double y[6]
-    cdef int i, j, k, piv
-    cdef double mx, f, tmp
-    for i in range(36):
-        M[i] = A[i]
-    for i in range(6):
-        y[i] = b[i]
-    for k in range(6):
-        piv = k
-        mx = fabs(M[6 * k + k])
-        for i in range(k + 1, 6):
-            if fabs(M[6 * i + k]) > mx:
-                mx = fabs(M[6 * i + k])
-                piv = i
-        if M[6 * piv + k] == 0.0:
-            return 1
-        if piv != k:
-            for j in range(6):
-                tmp = M[6 * k + j]; M[6 * k + j] = M[6 * piv + j]; M[6 * piv + j] = tmp
-            tmp = y[k]; y[k] = y[piv]; y[piv] = tmp
-        for i in range(k + 1, 6):
-            f = M[6 * i + k] / M[6 * k + k]
-            if f != 0.0:
-                for j in range(k + 1, 6):
-                    M[6 * i + j] -= f * M[6 * k + j]
-                y[i] -= f * y[k]
-    for i in range(5, -1, -1):
-        tmp = y[i]
-        for j in range(i + 1, 6):
-            tmp -= M[6 * i + j] * x[j]
-        x[i] = tmp / M[6 * i + i]
-    return 0
 
 
 cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new, double* R_new, double* dR_new,

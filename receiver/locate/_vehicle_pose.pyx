@@ -21,6 +21,7 @@ a few ulps; tests/test_vehicle_native.py compares the two.
 """
 
 from libc.math cimport sqrt, sin, cos, atan2, asin, fabs, fmod, M_PI, isfinite
+from receiver.locate._solve6 cimport solve6
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 
@@ -251,42 +252,6 @@ cdef inline double absmax(const double* v, int i0) noexcept nogil:
         if fabs(v[k]) > m:
             m = fabs(v[k])
     return m
-
-
-cdef int solve6(double* A, double* b, double* x) noexcept nogil:
-    """x = A^-1 b (6 x 6, Gaussian elimination with partial pivoting; A, b overwritten).
-    Returns 0, or 1 on an exactly zero pivot (numpy's LinAlgError)."""
-    cdef int i, j, k, piv
-    cdef double m, t
-    for k in range(6):
-        piv = k
-        m = fabs(A[6 * k + k])
-        for i in range(k + 1, 6):
-            if fabs(A[6 * i + k]) > m:
-                m = fabs(A[6 * i + k])
-                piv = i
-        if A[6 * piv + k] == 0.0:
-            return 1
-        if piv != k:
-            for j in range(6):
-                t = A[6 * k + j]
-                A[6 * k + j] = A[6 * piv + j]
-                A[6 * piv + j] = t
-            t = b[k]
-            b[k] = b[piv]
-            b[piv] = t
-        for i in range(k + 1, 6):
-            m = A[6 * i + k] / A[6 * k + k]
-            if m != 0.0:
-                for j in range(k + 1, 6):
-                    A[6 * i + j] -= m * A[6 * k + j]
-                b[i] -= m * b[k]
-    for i in range(5, -1, -1):
-        t = b[i]
-        for j in range(i + 1, 6):
-            t -= A[6 * i + j] * x[j]
-        x[i] = t / A[6 * i + i]
-    return 0
 
 
 def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, double[::1] sd,

@@ -1,0 +1,43 @@
+# cython: language_level=3
+"""A 6 x 6 linear solve for the locate kernels' Levenberg-Marquardt steps (receiver.locate._outline,
+_vehicle_pose): Gaussian elimination with partial pivoting, LAPACK gesv's method."""
+
+from libc.math cimport fabs
+
+
+cdef inline int solve6(const double* A, const double* b, double* x) noexcept nogil:
+    """x = A^-1 b by Gaussian elimination with partial pivoting (LAPACK gesv's method); 1 when a
+    pivot is exactly zero (singular: numpy raises LinAlgError)."""
+    cdef double M[36]
+    cdef double y[6]
+    cdef int i, j, k, piv
+    cdef double mx, f, tmp
+    for i in range(36):
+        M[i] = A[i]
+    for i in range(6):
+        y[i] = b[i]
+    for k in range(6):
+        piv = k
+        mx = fabs(M[6 * k + k])
+        for i in range(k + 1, 6):
+            if fabs(M[6 * i + k]) > mx:
+                mx = fabs(M[6 * i + k])
+                piv = i
+        if M[6 * piv + k] == 0.0:
+            return 1
+        if piv != k:
+            for j in range(6):
+                tmp = M[6 * k + j]; M[6 * k + j] = M[6 * piv + j]; M[6 * piv + j] = tmp
+            tmp = y[k]; y[k] = y[piv]; y[piv] = tmp
+        for i in range(k + 1, 6):
+            f = M[6 * i + k] / M[6 * k + k]
+            if f != 0.0:
+                for j in range(k + 1, 6):
+                    M[6 * i + j] -= f * M[6 * k + j]
+                y[i] -= f * y[k]
+    for i in range(5, -1, -1):
+        tmp = y[i]
+        for j in range(i + 1, 6):
+            tmp -= M[6 * i + j] * x[j]
+        x[i] = tmp / M[6 * i + i]
+    return 0
