@@ -257,3 +257,17 @@ def test_tone_median_selection():
         floor = np.partition(tail, tail.size // 2)[tail.size // 2]
         assert res[0] == min(max(kp, 1), n - 2)
         assert res[1] == float(spec[kp] / max(floor, 1e-30))
+
+
+def test_best_cyclic_match_other_template_length_takes_the_reference_path():
+    """The kernel reads exactly 54 template chips; a template of another length must not let it
+    read past the array (it returned a number from beyond it): both paths now agree."""
+    import numpy as np
+    import pytest
+    from receiver.decode import ook
+    with pytest.raises(IndexError):
+        ook.best_cyclic_match(np.ones(40), np.ones(10))
+    soft = np.random.default_rng(3).uniform(-1, 1, 40)
+    tpl = ook.packet_template(0x2A)
+    assert ook.best_cyclic_match(soft, tpl) == pytest.approx(
+        float(max((np.roll(tpl, -k)[np.arange(40) % 54] @ soft) for k in range(54)) / np.abs(soft).sum()), abs=1e-12)

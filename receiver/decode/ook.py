@@ -344,7 +344,8 @@ def packet_template(led_id: int) -> np.ndarray:
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
-    if _k is not None and _is_f64(soft) and _is_f64(template):
+    # the kernel reads exactly PACKET_LEN template chips (a template of another length: numpy)
+    if _k is not None and _is_f64(soft) and _is_f64(template) and template.shape == (PACKET_LEN,):
         r = _k.best_two(template, soft)
         return r[1] if r is not None else 0.0
     s = _clip1(soft)

@@ -124,7 +124,9 @@ class RoadKalman:
         return self.s is None or self.coast_s(t_s) > self.max_coast_s
 
     def _update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, angle_rows=()) -> float:
-        if _k is not None and len(angle_rows) <= 1:
+        # the kernel's work arrays hold up to 3 measurement rows (H: m x 5, R: m x m)
+        if _k is not None and len(angle_rows) <= 1 and len(z) <= 3 and np.shape(H) == (len(z), 5) \
+                and np.shape(R) == (len(z), len(z)):
             s2, P2 = np.empty(5), np.empty((5, 5))
             ok, m2 = _k.update(self.s, self.P, np.asarray(z, float), np.ascontiguousarray(H, float),
                                np.ascontiguousarray(R, float), angle_rows[0] if angle_rows else -1, s2, P2)

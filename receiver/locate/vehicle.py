@@ -1462,7 +1462,7 @@ class VehicleLocator:
                 continue
             k = float(tc @ (y - y.mean())) / stt
             r = y - y.mean() - k * tc
-            sk = math.sqrt(max(float(r @ r) / (len(e) - 2), (0.3 / 20.0) ** 2) / stt)
+            sk = math.sqrt(max(float(r @ r) / max(len(e) - 2, 1), (0.3 / 20.0) ** 2) / stt)
             V = np.asarray(head, float) - np.asarray(C, float)
             d = math.sqrt(float(V @ V))
             rho = math.hypot(float(V[0]), float(V[1]))

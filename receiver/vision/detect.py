@@ -479,7 +479,9 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
-    if blob_level.min() < 0:  # the zero padding would count as lit: not batchable
+    # the zero padding would count as lit, and a NaN level (bad settings) would read as 0 in
+    # the kernel: not batchable
+    if blob_level.min() < 0 or not np.isfinite(blob_level).all():
         return None
     # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
     # uint8 comparison is several times faster than against a float level
