@@ -311,3 +311,14 @@ def test_on_mapped_sl_kernel_equals_numpy(monkeypatch):
     monkeypatch.setattr(V, "_kr", None)
     ref = [loc._on_mapped_sl(0.0, a, b, hv, R) for a, b in cases]
     assert got == ref and any(ref) and not all(ref)
+
+
+def test_pose_kernel_refuses_an_empty_problem():
+    """With bounds checks off, an empty emitter list would be read out of bounds: it must raise."""
+    import numpy as np
+    import pytest
+    from receiver.locate import _vehicle_pose as k
+    z = lambda *s: np.zeros(s)  # noqa: E731
+    with pytest.raises(ValueError):
+        k.solve(z(0, 3), z(0, 2), 1.0, z(0), z(0), z(3), 1.0, z(6), z(6, 6), 0, 1.0, z(0, 8), 1.0, z(6), 5,
+                1e-6, 1e-4, 1e-9, 1e-3, 1e6, z(0), z(0, 6))

@@ -285,6 +285,8 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
     cdef double* J1
     cdef double* w1
     cdef double* tmp
+    if L.shape[0] < 1 or L.shape[1] < 3 or J_out.shape[0] != n or J_out.shape[1] != 6 or p.shape[0] != 6:
+        raise ValueError("host pose kernel: needs >= 1 emitter row, p (6,), J_out (len(r_out), 6)")
     P.M = L.shape[0]
     P.n_pairs = n_pairs
     P.n_rows = n
