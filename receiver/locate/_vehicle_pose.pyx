@@ -21,63 +21,11 @@ a few ulps; tests/test_vehicle_native.py compares the two.
 """
 
 from libc.math cimport sqrt, sin, cos, atan2, asin, fabs, fmod, M_PI, isfinite
+from receiver.locate._rodrigues cimport rodrigues
 from receiver.locate._solve6 cimport solve6
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 
-cdef double DBL_EPS = 2.220446049250313e-16
-
-
-cdef void rodrigues(const double* rv, double* R, double* dR) noexcept nogil:
-    """R (9, row-major) and dR (3 x 9: d R_k / d rv_i at dR[9 i + k]) as cv::Rodrigues."""
-    cdef double rx = rv[0], ry = rv[1], rz = rv[2]
-    cdef double theta = sqrt(rx * rx + ry * ry + rz * rz)
-    cdef int i, k
-    cdef double c, s, c1, itheta, ri, a0, a1, a2, a3, a4
-    cdef double I[9]
-    cdef double rrt[9]
-    cdef double rx_[9]
-    cdef double drrt[27]
-    cdef double d_r_x_[27]
-    I[:] = [1, 0, 0, 0, 1, 0, 0, 0, 1]
-    if theta < DBL_EPS:
-        for k in range(9):
-            R[k] = I[k]
-        for k in range(27):
-            dR[k] = 0.0
-        dR[5] = -1.0
-        dR[15] = -1.0
-        dR[19] = -1.0
-        dR[7] = 1.0
-        dR[11] = 1.0
-        dR[21] = 1.0
-        return
-    c = cos(theta)
-    s = sin(theta)
-    c1 = 1.0 - c
-    itheta = 1.0 / theta if theta != 0.0 else 0.0
-    rx = rx * itheta
-    ry = ry * itheta
-    rz = rz * itheta
-    rrt[:] = [rx * rx, rx * ry, rx * rz, rx * ry, ry * ry, ry * rz, rx * rz, ry * rz, rz * rz]
-    rx_[:] = [0.0, -rz, ry, rz, 0.0, -rx, -ry, rx, 0.0]
-    for k in range(9):
-        R[k] = c * I[k] + c1 * rrt[k] + s * rx_[k]
-    drrt[:] = [rx + rx, ry, rz, ry, 0, 0, rz, 0, 0,
-               0, rx, 0, rx, ry + ry, rz, 0, rz, 0,
-               0, 0, rx, 0, 0, ry, rx, ry, rz + rz]
-    d_r_x_[:] = [0, 0, 0, 0, 0, -1, 0, 1, 0,
-                 0, 0, 1, 0, 0, 0, -1, 0, 0,
-                 0, -1, 0, 1, 0, 0, 0, 0, 0]
-    for i in range(3):
-        ri = rx if i == 0 else (ry if i == 1 else rz)
-        a0 = -s * ri
-        a1 = (s - 2 * c1 * itheta) * ri
-        a2 = c1 * itheta
-        a3 = (c - s * itheta) * ri
-        a4 = s * itheta
-        for k in range(9):
-            dR[i * 9 + k] = a0 * I[k] + a1 * rrt[k] + a2 * drrt[i * 9 + k] + a3 * rx_[k] + a4 * d_r_x_[i * 9 + k]
 
 
 cdef inline double wrap_pi(double a) noexcept nogil:
