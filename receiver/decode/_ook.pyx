@@ -232,6 +232,21 @@ def frame_chips(const real_x[::1] profile, const real_w[::1] weights, Py_ssize_t
 cdef double[6] _SYNC_T = [1.0, 1.0, 1.0, -1.0, -1.0, -1.0]
 
 
+cdef inline Py_ssize_t _best_shift(const double* corr, double* bv, double* second) noexcept nogil:
+    """The shift of the largest of corr[0:54] (the first on ties), that value in bv and the
+    largest of the other shifts in second (the alignment's and the template match's margin)."""
+    cdef Py_ssize_t sh, best = 0
+    for sh in range(1, PACKET_LEN):
+        if corr[sh] > corr[best]:
+            best = sh
+    bv[0] = corr[best]
+    second[0] = -1e308
+    for sh in range(PACKET_LEN):
+        if sh != best and corr[sh] > second[0]:
+            second[0] = corr[sh]
+    return best
+
+
 cdef inline double _clip1(double v) noexcept nogil:
     """np.minimum(np.maximum(v, -1.0), 1.0) (NaN stays NaN)."""
     if v < -1.0:
@@ -438,15 +453,7 @@ def align(const double[::1] acc, const double[::1] acc_w, const double[::1] soft
                 while sh < PACKET_LEN:
                     corr[sh] = -1.0
                     sh += 2
-        best = 0
-        for sh in range(1, PACKET_LEN):
-            if corr[sh] > corr[best]:
-                best = sh
-        bv = corr[best]
-        second = -1e308
-        for sh in range(PACKET_LEN):
-            if sh != best and corr[sh] > second:
-                second = corr[sh]
+        best = _best_shift(corr, &bv, &second)
         complete = ovmin >= min_chips
         if bv >= align_min and bv - second >= align_gap:
             return best, complete
@@ -480,14 +487,7 @@ def best_two(const double[::1] tpl, const double[::1] soft):
                 if p == PACKET_LEN:
                     p = 0
             corr[sh] = num / den
-        for sh in range(1, PACKET_LEN):
-            if corr[sh] > corr[best]:
-                best = sh
-        bv = corr[best]
-        second = -1e308
-        for sh in range(PACKET_LEN):
-            if sh != best and corr[sh] > second:
-                second = corr[sh]
+        best = _best_shift(corr, &bv, &second)
         return best, bv, second
     finally:
         free(s)

@@ -53,6 +53,19 @@ cdef list _std(double* cov, int stride):
     return [_py_round(sqrt(_clip_max0(cov[i * stride + i])), 5) for i in range(3)]
 
 
+cdef void _ypr(const double* Rb, double* yaw, double* theta, double* roll) noexcept:
+    """Yaw, theta (= -pitch) and roll, rad, of a row-major R_wc as the numpy server computes
+    them: theta = asin(clip(-R[2][2], -1, 1)); at |cos theta| < 1e-6 (gimbal lock) roll is 0."""
+    cdef double s = -Rb[8]                               # max(-1.0, min(1.0, -R[2][2]))
+    s = s if s < 1.0 else 1.0
+    s = s if s > -1.0 else -1.0
+    theta[0] = asin(s)
+    if fabs(cos(theta[0])) < 1e-6:
+        yaw[0], roll[0] = atan2(Rb[0], -Rb[1]), 0.0
+    else:
+        yaw[0], roll[0] = atan2(Rb[7], Rb[6]), atan2(-Rb[2], -Rb[5])
+
+
 def position(x, P, C, cov, R, str method, int n_leds, handedness):
     """`devices.position_object`: x (6,) and P (6, 6) the filter state (both None without a
     track); C (3,), cov (3, 3) and R (3, 3) or None of the frame's fix (C None: no fix); method
@@ -62,7 +75,7 @@ def position(x, P, C, cov, R, str method, int n_leds, handedness):
     cdef double Cb[3]
     cdef double covb[9]
     cdef double Rb[9]
-    cdef double theta, yaw, roll, s
+    cdef double theta, yaw, roll
     cdef int i
     cdef dict pos
     if x is not None:
@@ -89,14 +102,7 @@ def position(x, P, C, cov, R, str method, int n_leds, handedness):
         if R is not None:
             load(R, Rb, 3, 3)
             pos["R_wc"] = [[_np_round(Rb[3 * j + i], 6) for j in range(3)] for i in range(3)]
-            s = -Rb[8]                                       # max(-1.0, min(1.0, -R[2][2]))
-            s = s if s < 1.0 else 1.0
-            s = s if s > -1.0 else -1.0
-            theta = asin(s)
-            if fabs(cos(theta)) < 1e-6:
-                yaw, roll = atan2(Rb[0], -Rb[1]), 0.0
-            else:
-                yaw, roll = atan2(Rb[7], Rb[6]), atan2(-Rb[2], -Rb[5])
+            _ypr(Rb, &yaw, &theta, &roll)
             pos["yaw_deg"] = _py_round(yaw * RAD_TO_DEG, 3)
             pos["pitch_deg"] = _py_round(-(theta * RAD_TO_DEG), 3)
             pos["roll_deg"] = _py_round(roll * RAD_TO_DEG, 3)
@@ -280,7 +286,7 @@ def position_json(x, P, C, cov, R, str method, int n_leds, handedness):
     cdef double covb[9]
     cdef double Rb[9]
     cdef double P3[9]
-    cdef double theta, yaw, roll, s
+    cdef double theta, yaw, roll
     cdef int i, j
     o.n = 0
     if x is not None:
@@ -322,14 +328,7 @@ def position_json(x, P, C, cov, R, str method, int n_leds, handedness):
             load(R, Rb, 3, 3)
             _putb(&o, b',"R_wc":')
             _put_matrix(&o, Rb, True, 6)
-            s = -Rb[8]
-            s = s if s < 1.0 else 1.0
-            s = s if s > -1.0 else -1.0
-            theta = asin(s)
-            if fabs(cos(theta)) < 1e-6:
-                yaw, roll = atan2(Rb[0], -Rb[1]), 0.0
-            else:
-                yaw, roll = atan2(Rb[7], Rb[6]), atan2(-Rb[2], -Rb[5])
+            _ypr(Rb, &yaw, &theta, &roll)
             _putb(&o, b',"yaw_deg":')
             _put_py_round(&o, yaw * RAD_TO_DEG, 3)
             _putb(&o, b',"pitch_deg":')
