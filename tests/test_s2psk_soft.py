@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from firmware_tx.framing import s2psk_packet
-from receiver.decode.s2psk import (CODE_ID, CODEBOOK, PACKET_LEN, S2pskDecoder, decode_soft, decode_symbols,
-                                   soft_stats)
+from receiver.decode.s2psk import PACKET_LEN, S2pskDecoder, codebook, decode_soft, decode_symbols, soft_stats
 from receiver.decode.settings import S2pskSettings
 
 S = S2pskSettings()
+CODEBOOK, CODE_ID = codebook()
 PACKETS = np.array([list(s2psk_packet(i)) for i in range(256)], dtype=np.float64) * 2 - 1
 
 

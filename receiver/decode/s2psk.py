@@ -27,6 +27,7 @@ IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,9 +105,11 @@ def decode_symbols(m: np.ndarray, *, sync_margin: float = 0.3, min_margin: float
     return led_id, conf
 
 
-def _codebook() -> tuple[np.ndarray, np.ndarray]:
+@functools.cache
+def codebook() -> tuple[np.ndarray, np.ndarray]:
     """Every valid packet at every cyclic shift as +-1 rows: (7680, 30) float and the row's ID.
-    Row 30 * id + r is the packet of `id` read from folded position r on (np.roll by -r)."""
+    Row 30 * id + r is the packet of `id` read from folded position r on (np.roll by -r).
+    Built on the first soft decode (~3 ms), not at import: indoor runs and photos never need it."""
     n_ids = 1 << S2PSK_ID_BITS
     packets = np.array([list(s2psk_packet(i)) for i in range(n_ids)], dtype=np.float64) * 2.0 - 1.0
     rot = (np.arange(PACKET_LEN)[None, :] - np.arange(PACKET_LEN)[:, None]) % PACKET_LEN  # [r, p]
@@ -119,7 +122,6 @@ def _codebook() -> tuple[np.ndarray, np.ndarray]:
 # the sync 111000 overlaps data, e.g. 0x00 at shift 0 and 0x6F at shift 1 differ in 4). 6990 of
 # the 7680 hypotheses have a different-ID neighbour at distance 4, the other 690 at 6. Two
 # shifts of the same ID are at least 4 apart too (tests/test_s2psk_soft.py checks all three).
-CODEBOOK, CODE_ID = _codebook()
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,8 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     c = np.atleast_2d(np.asarray(counts, dtype=np.float64))
     q = np.atleast_2d(np.asarray(squares, dtype=np.float64))
     rows = np.arange(s.shape[0])
-    scores = s @ CODEBOOK.T  # (B, 7680)
+    book, book_id = codebook()
+    scores = s @ book.T  # (B, 7680)
     h1 = np.argmax(scores, axis=1)
     score1 = scores[rows, h1]
     n = np.maximum(c.sum(axis=1), 1.0)
@@ -186,15 +189,15 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     if position_dof > 0:
         ssw = np.maximum(q - s ** 2 / np.maximum(c, 1.0), 0.0)
         v = (ssw + position_dof * var[:, None]) / (np.maximum(c - 1.0, 0.0) + position_dof)
-        scores = (s / v) @ CODEBOOK.T
+        scores = (s / v) @ book.T
         h1 = np.argmax(scores, axis=1)
         score1 = scores[rows, h1]
     else:
         v = np.repeat(var[:, None], s.shape[1], axis=1)
         scores = scores / var[:, None]
         score1 = score1 / var
-    led_id = CODE_ID[h1]
-    s1 = CODEBOOK[h1]  # (B, 30)
+    led_id = book_id[h1]
+    s1 = book[h1]  # (B, 30)
     cu = c / v
     # the best hypothesis of another ID: W = sum_p c_p / v_p [s_h,p != s1_p]
     per_id = scores.reshape(s.shape[0], -1, PACKET_LEN)
@@ -202,14 +205,14 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     best_of_id[rows, led_id] = -np.inf
     id2 = np.argmax(best_of_id, axis=1)
     h2 = id2 * PACKET_LEN + np.argmax(per_id[rows, id2], axis=1)
-    w2 = (cu * (CODEBOOK[h2] != s1)).sum(axis=1)
+    w2 = (cu * (book[h2] != s1)).sum(axis=1)
     z = (score1 - scores[rows, h2]) / (2.0 * np.sqrt(np.maximum(w2, 1e-12)))
     full = np.flatnonzero(z >= exact_from)
     if full.size:
         # every hypothesis: W_h = (sum_p c_p / v_p - sum_p c_p / v_p s1_p s_h,p) / 2
-        w = 0.5 * (cu[full].sum(axis=1)[:, None] - (cu[full] * s1[full]) @ CODEBOOK.T)
+        w = 0.5 * (cu[full].sum(axis=1)[:, None] - (cu[full] * s1[full]) @ book.T)
         zf = (score1[full, None] - scores[full]) / (2.0 * np.sqrt(np.maximum(w, 1e-12)))
-        zf[CODE_ID[None, :] == led_id[full, None]] = np.inf
+        zf[book_id[None, :] == led_id[full, None]] = np.inf
         z[full] = zf.min(axis=1)
     sigma = np.sqrt(var)
     contra = -(s * s1 / np.sqrt(np.maximum(c, 1.0) * v)).min(axis=1)
