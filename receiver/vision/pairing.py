@@ -42,10 +42,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.track import Track
 from receiver.vision.settings import PairSettings
 from receiver.core.settings import resolve_settings
+
+# the compiled candidate search (receiver/vision/_pairing.pyx: `_explain` of every pair in one
+# call per pass), or None: the Python reference below
+_k = load("receiver.vision._pairing")
 
 
 class EmitterLevels:
@@ -420,7 +425,15 @@ class Pairer:
         neither: it would drag one's emitter onto the other light. A blob a decoded pair
         explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
         dys, claims = [], {}
-        for p in self.pairs:
+        if _k is not None:
+            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            for (p, _, _), (expl, _, n, _, _, dy, _, _, _, claimed) in zip(
+                    items, self._explain_batch(items, tracks, True)):
+                if n:
+                    dys.append(dy)
+                for tid in {t.track_id for t in expl + claimed}:
+                    claims.setdefault(tid, []).append(p)
+        for p in self.pairs if _k is None else ():
             if p.base0 is None:
                 continue
             mx, my, hx, hy, single = pred = self._predict(p)
@@ -431,7 +444,7 @@ class Pairer:
             if p.led_id is not None and len(xy):
                 # a decoded pair also claims the blobs on its own emitters that it did not take
                 # (another light's blob merged with one of them)
-                tol = max(self.match_min_px, self.match_size * math.sqrt(single))
+                tol = self._claim_tol(single)
                 d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
                                np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
                 mine.update(tracks[i].track_id for i in np.flatnonzero(d <= tol) if tracks[i].seen)
@@ -448,15 +461,81 @@ class Pairer:
         pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
         return pitch, exclude
 
+    def _claim_tol(self, single: float) -> float:
+        """How near (px) a blob must be to a decoded pair's emitter to be claimed by it
+        (`_first_pass`), for one emitter's area `single` px^2."""
+        return max(self.match_min_px, self.match_size * math.sqrt(single))
+
+    def _explain_batch(self, items: list, tracks: list[Track], claims: bool) -> list[tuple]:
+        """`_explain` of every (pair, its prediction (mx, my, hx, hy, single), exclude) of
+        `items` against `tracks` in one kernel call (receiver/vision/_pairing.pyx), with the
+        same decisions and sums. Per item: (explaining, nearby, number of shifts, their mean
+        (dx, dy) (np.mean of the (dx, dy) rows), the mean dy (np.mean of the dys), A's and B's
+        own blobs, the merged blob, and with `claims` the seen tracks on a decoded pair's
+        emitters (`_first_pass`), else [])."""
+        if not items:
+            return []
+        n = len(tracks)
+        tr = np.array([(t.blob.cx, t.blob.cy, t.blob.area_px, t.blob.x0, t.blob.x1, t.blob.y0, t.blob.y1,
+                        t.seen) for t in tracks], float).reshape(-1, 8)
+        rows = []
+        excl = np.zeros((len(items), n), np.uint8)
+        for k, (p, (mx, my, hx, hy, single), exclude) in enumerate(items):
+            a, b = p.a.blob, p.b.blob
+            ctol = self._claim_tol(single) if claims and p.led_id is not None and n else -1.0
+            rows.append((mx, my, hx, hy, single, p.misses, a.area_px, b.area_px, p.size, a.x1 - a.x0,
+                         b.x1 - b.x0, a.y1 - a.y0, b.y1 - b.y0, ctol))
+            if exclude:
+                for i, t in enumerate(tracks):
+                    if t.track_id in exclude:
+                        excl[k, i] = 1
+        cfg = np.array((self.match_frac, self.match_min_px, self.match_size, self.miss_growth_px,
+                        self.vertical_known, self.merged_ratio, self.max_merged, self.max_cut,
+                        self.width_size, self.width_tol, self.width_min_px, self.width_max_rows), float)
+        lists = np.empty((3, len(items), max(n, 1)), np.int32)
+        res = np.empty((len(items), 10))
+        _k.explain_pairs(tr, np.array(rows, float), excl, cfg, lists, res)
+        near_l, expl_l, claim_l = lists.tolist()
+        out = []
+        for k, r in enumerate(res.tolist()):
+            ns, nn, ne, nc = int(r[0]), int(r[7]), int(r[8]), int(r[9])
+            ia, ib, im = int(r[4]), int(r[5]), int(r[6])
+            out.append(([tracks[i] for i in expl_l[k][:ne]], [tracks[i] for i in near_l[k][:nn]], ns,
+                        r[1], r[2], r[3], tracks[ia].blob if ia >= 0 else None,
+                        tracks[ib].blob if ib >= 0 else None, tracks[im].blob if im >= 0 else None,
+                        [tracks[i] for i in claim_l[k][:nc]]))
+        return out
+
     def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0,
                 dx: float = 0.0, exclude=()) -> bool:
         """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
         `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
         (`pitch_shift`), px, added to the prediction."""
+        pred = self._follow_start(p, dx, dy)
+        if pred is None:
+            return False
+        expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, exclude)
+        mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
+        return self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged)
+
+    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict) -> list[Pair]:
+        """`_follow` of every pair (the live ones), their blobs found by one kernel call."""
+        items = []
+        for p in self.pairs:
+            pred = self._follow_start(p, dx, dy)
+            if pred is not None:
+                items.append((p, pred, exclude.get(p.uid, ())))
+        return [p for (p, pred, _), (expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _)
+                in zip(items, self._explain_batch(items, tracks, False))
+                if self._follow_end(p, shape, pred, expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)]
+
+    def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
+        """`_follow`'s first part: the frame counted, None when the pair gives up, else its
+        prediction (mx, my, hx, hy, single) moved by the frame's shift (dx, dy) px."""
         p.frames += 1
         if p.led_id is None and p.frames > self.give_up_frames:
             self.banned.add(p.founding)   # what new pairs are checked by (an alias never matches)
-            return False
+            return None
         if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
             p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
@@ -465,7 +544,14 @@ class Pairer:
         if self.shake_x_wide or p.a.track_id == p.b.track_id:  # `PairSettings.shake_x_wide`
             mx += dx
         my += dy
-        p.tracks, p.nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
+        return mx, my, hx, hy, single
+
+    def _follow_end(self, p: Pair, shape, pred: tuple, explaining: list, nearby: list, mean,
+                    obs_a, obs_b, merged) -> bool:
+        """`_follow`'s second part, from the blobs pair `p` explains at its prediction `pred`
+        (`_explain`; `mean`: the mean (dx, dy) of their shifts, None without any)."""
+        mx, my, hx, hy, single = pred
+        p.tracks, p.nearby = explaining, nearby
         if self.measure_baseline and p.a.track_id == p.b.track_id:
             self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
@@ -498,12 +584,12 @@ class Pairer:
                 p.size = 0.5 * t.blob.area_px  # both lit, one blob
             elif obs_a is not None or obs_b is not None:
                 p.size = t.blob.area_px
-        if not shifts:
+        if mean is None:
             p.misses += 1
             sx = sy = 0.0
         else:
             p.misses = 0
-            sx, sy = (float(v) for v in np.mean(shifts, axis=0))
+            sx, sy = mean
             p.vx += self.velocity_gain * sx
             p.vy += self.velocity_gain * sy
         p.mx, p.my = mx + sx, my + sy
@@ -574,7 +660,10 @@ class Pairer:
             self.scene_past.append((float(t_s), self.view_sum,
                                     np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
                                     np.array([t.blob.area_px for t in seen], float)))
-        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+        if _k is not None:
+            self.pairs = self._follow_all(tracks, shape, dy, dx, exclude)
+        else:
+            self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}

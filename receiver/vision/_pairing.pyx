@@ -1,0 +1,219 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled candidate search of the S2-PSK pairer (receiver.vision.pairing): every formed pair
+against every tracked blob of a frame in one call (`Pairer._explain` of all pairs, with the
+claims of `Pairer._first_pass`), with the same decisions and sums as the Python reference,
+bit for bit: math.hypot's own algorithm (CPython's vector_norm, not libm's hypot) where
+the reference calls math.hypot, libm's hypot where it calls np.hypot, numpy's summation
+orders for the shifts' means."""
+
+from libc.math cimport sqrt, fabs, hypot, frexp, ldexp, INFINITY
+from receiver.decode._npsum cimport pw_sum
+import numpy as np
+
+cdef double DBL_MIN_ = 2.2250738585072014e-308
+
+
+cdef inline double _norm2(double x0, double x1, double mx) noexcept nogil:
+    """CPython's vector_norm of (|x0|, |x1|) with max `mx` > 0 (Dekker's exact products:
+    the same error terms as fma)."""
+    cdef int max_e
+    cdef double scale, csum = 1.0, frac1 = 0.0, frac2 = 0.0, x, h, t, xh, xl, p, q, z, zz, s, lo
+    cdef double v[2]
+    cdef int i
+    frexp(mx, &max_e)
+    if max_e < -1023:
+        return DBL_MIN_ * _norm2(x0 / DBL_MIN_, x1 / DBL_MIN_, mx / DBL_MIN_)
+    scale = ldexp(1.0, -max_e)
+    v[0] = x0
+    v[1] = x1
+    for i in range(2):
+        x = v[i] * scale
+        # dl_mul(x, x) by Veltkamp-Dekker splitting
+        t = x * 134217729.0
+        xh = t - (t - x)
+        xl = x - xh
+        p = xh * xh
+        q = xh * xl + xl * xh
+        z = p + q
+        zz = p - z + q + xl * xl
+        # dl_fast_sum(csum, z)
+        s = csum + z
+        lo = (csum - s) + z
+        csum = s
+        frac1 += zz
+        frac2 += lo
+    h = sqrt(csum - 1.0 + (frac1 + frac2))
+    x = -h
+    t = x * 134217729.0
+    xh = t - (t - x)
+    xl = x - xh
+    t = h * 134217729.0
+    p = t - (t - h)  # h's high part
+    q = h - p
+    z = xh * p
+    zz = xh * q + xl * p
+    s = z + zz
+    zz = z - s + zz + xl * q
+    z = s
+    s = csum + z
+    lo = (csum - s) + z
+    csum = s
+    frac1 += zz
+    frac2 += lo
+    x = csum - 1.0 + (frac1 + frac2)
+    h += x / (2.0 * h)
+    return h / scale
+
+
+cdef inline double py_hypot(double a, double b) noexcept nogil:
+    """math.hypot(a, b) of CPython (3.10+) for finite a, b, to the last bit."""
+    cdef double x0 = fabs(a), x1 = fabs(b)
+    cdef double mx = x0 if x0 > x1 else x1
+    if mx == 0.0:
+        return mx
+    if mx == INFINITY:
+        return mx
+    return _norm2(x0, x1, mx)
+
+
+def hypot_py(double a, double b):
+    """math.hypot(a, b) as the kernel computes it (tests compare it with math.hypot)."""
+    return py_hypot(a, b)
+
+
+cdef inline int _width_class(double bw, double bh, double wa, double wb, double ha, double hb,
+                             double hx, const double[::1] cfg) noexcept nogil:
+    """Pairer._width_class: 1 "single", 2 "merged", 0 None."""
+    cdef double hmax = bh, w1, wm, e1, em
+    if ha > hmax:
+        hmax = ha
+    if hb > hmax:
+        hmax = hb
+    if cfg[8] == 0.0 or hmax > cfg[11]:
+        return 0
+    w1 = wb if wb > wa else wa
+    wm = w1 + 2.0 * fabs(hx)
+    e1 = fabs(bw - w1)
+    em = fabs(bw - wm)
+    if e1 <= em and e1 <= cfg[9] * w1 + 1.0:
+        return 1
+    if em < e1 and 2.0 * fabs(hx) >= cfg[10] and em <= cfg[9] * wm + 1.0:
+        return 2
+    return 0
+
+
+def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsigned char[:, ::1] excl,
+                  const double[::1] cfg, int[:, :, ::1] lists, double[:, ::1] res):
+    """Pairer._explain of every pair k (row of `pp`) against every track i (row of `tr`).
+
+    tr (N, 8): cx, cy, area_px, x0, x1, y0, y1, seen (1 / 0) of each track's blob.
+    pp (P, 14): the pair's predicted mx, my, hx, hy, single (px, px^2), misses, emitter A's and
+        B's areas, size, A's and B's widths (x1 - x0) and heights (y1 - y0), and the claim
+        tolerance (px; < 0: no claims, see below).
+    excl (P, N): 1 where track i is only nearby for pair k (the `exclude` ids).
+    cfg (12,): match_frac, match_min_px, match_size, miss_growth_px, vertical_known (1 / 0),
+        merged_ratio, max_merged, max_cut, width_size (1 / 0), width_tol, width_min_px,
+        width_max_rows (PairSettings; vertical_known: the Pairer's).
+    Out: lists (3, P, N) track indices in track order: [0] nearby, [1] explaining, [2] claimed
+    (seen tracks within the claim tolerance of A or B, as `_first_pass` with np.hypot);
+    res (P, 10): number of shifts, their mean dx and dy (np.mean(shifts, axis=0): one sum in
+    order), the mean dy as np.mean of the dys (numpy's pairwise sum), the indices of A's and
+    B's own blob and of the merged blob (-1: none), the lengths of the three lists."""
+    cdef Py_ssize_t n = tr.shape[0], npair = pp.shape[0], k, i, m
+    cdef double mx, my, hx, hy, single, ax, ay, bx, by, tol0, tol, tol_y, reach, da, db, dm, dmin
+    cdef double cx, cy, area, ratio, amax, sx, sy, ex, ey, ctol, dca, dcb
+    cdef int wide, nn, ne, nc, ns, obs_a, obs_b, merged
+    cdef double match_frac = cfg[0], match_min_px = cfg[1], match_size = cfg[2]
+    cdef double miss_growth = cfg[3], merged_ratio = cfg[5], max_merged = cfg[6], max_cut = cfg[7]
+    cdef bint vertical_known = cfg[4] != 0.0
+    cdef double[::1] dys
+    dys = np.empty(max(n, 1))
+    for k in range(npair):
+        mx = pp[k, 0]; my = pp[k, 1]; hx = pp[k, 2]; hy = pp[k, 3]; single = pp[k, 4]
+        ax = mx - hx; ay = my - hy; bx = mx + hx; by = my + hy
+        tol0 = match_size * sqrt(single)
+        if match_min_px > tol0:  # max(match_min_px, ...): the first on a tie
+            tol0 = match_min_px
+        da = match_frac * 2 * py_hypot(hx, hy)
+        if da < tol0:  # min(match_frac * 2 * hypot, ...)
+            tol0 = da
+        tol = tol0 + miss_growth * pp[k, 5]
+        tol_y = tol0 + miss_growth if vertical_known else INFINITY
+        reach = tol + py_hypot(hx, hy)
+        amax = pp[k, 6]
+        if pp[k, 7] > amax:
+            amax = pp[k, 7]
+        if pp[k, 8] > amax:
+            amax = pp[k, 8]
+        if 1.0 > amax:
+            amax = 1.0
+        ctol = pp[k, 13]
+        nn = ne = nc = ns = 0
+        obs_a = obs_b = merged = -1
+        sx = sy = 0.0
+        for i in range(n):
+            cx = tr[i, 0]; cy = tr[i, 1]
+            if ctol >= 0.0 and tr[i, 7] != 0.0:
+                dca = hypot(cx - ax, cy - ay)
+                dcb = hypot(cx - bx, cy - by)
+                if (dcb if dcb < dca else dca) <= ctol:
+                    lists[2, k, nc] = <int>i
+                    nc += 1
+            if not (hypot(cx - mx, cy - my) <= reach):
+                continue
+            da = py_hypot(cx - ax, cy - ay)
+            db = py_hypot(cx - bx, cy - by)
+            dm = py_hypot(cx - mx, cy - my)
+            dmin = da
+            if db < dmin:
+                dmin = db
+            if dm < dmin:
+                dmin = dm
+            if dmin > tol or fabs(cy - my) > tol_y + fabs(hy):
+                continue
+            lists[0, k, nn] = <int>i
+            nn += 1
+            if tr[i, 7] == 0.0 or excl[k, i]:
+                continue
+            area = tr[i, 2]
+            wide = _width_class(tr[i, 4] - tr[i, 3], tr[i, 6] - tr[i, 5], pp[k, 9], pp[k, 10],
+                                pp[k, 11], pp[k, 12], hx, cfg)
+            if wide == 2 and dm <= tol:
+                ex = mx; ey = my
+                merged = <int>i
+            elif dm < (db if db < da else da):
+                if not (merged_ratio * single < area and area <= max_merged * single):
+                    continue
+                ex = mx; ey = my
+                merged = <int>i
+            else:
+                ratio = (area if area > 1.0 else 1.0) / amax
+                if not ((1.0 / max_cut <= ratio and ratio <= merged_ratio) or (wide == 1 and ratio >= 1.0)):
+                    continue
+                if da <= db:
+                    ex = ax; ey = ay
+                    if ratio >= 1.0 / merged_ratio:
+                        obs_a = <int>i
+                else:
+                    ex = bx; ey = by
+                    if ratio >= 1.0 / merged_ratio:
+                        obs_b = <int>i
+            sx += cx - ex  # from numpy's reduction identity 0.0, in order
+            sy += cy - ey
+            dys[ns] = cy - ey
+            ns += 1
+            lists[1, k, ne] = <int>i
+            ne += 1
+        res[k, 0] = ns
+        if ns:
+            res[k, 1] = sx / ns
+            res[k, 2] = sy / ns
+            res[k, 3] = (0.0 + pw_sum(&dys[0], ns)) / ns
+        else:
+            res[k, 1] = res[k, 2] = res[k, 3] = 0.0
+        res[k, 4] = obs_a
+        res[k, 5] = obs_b
+        res[k, 6] = merged
+        res[k, 7] = nn
+        res[k, 8] = ne
+        res[k, 9] = nc

@@ -1,0 +1,175 @@
+"""The compiled kernels of the S2-PSK pair stage (receiver/vision/_pairing.pyx) against their
+Python references: the same decisions and the same numbers, bit for bit."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from receiver.core.records import Blob
+from receiver.vision import pairing
+from receiver.vision.pairing import Pair, Pairer
+from receiver.vision.track import Track
+
+_k = pairing._k
+needs_kernel = pytest.mark.skipif(_k is None, reason="compiled kernels not built (tests/test_native.py fails then)")
+
+
+def _blob(cx, cy, w, h, area=None):
+    x0, y0 = int(math.floor(cx - w / 2)), int(math.floor(cy - h / 2))
+    hull = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + h - 1], [x0, y0 + h - 1]], float)
+    return Blob(cx=float(cx), cy=float(cy), area_px=float(w * h if area is None else area), hull=hull,
+                x0=x0, y0=y0, x1=x0 + w, y1=y0 + h, border=False, peak=60.0, level=10.0, background=2.0)
+
+
+@needs_kernel
+def test_hypot_is_pythons_to_the_last_bit():
+    rng = np.random.default_rng(7)
+    x = rng.normal(size=20000) * 10.0 ** rng.uniform(-3, 3, 20000)
+    y = rng.normal(size=20000) * 10.0 ** rng.uniform(-3, 3, 20000)
+    special = [(0.0, 0.0), (-0.0, 3.0), (3.0, 4.0), (1e-310, 2e-310), (5e-324, 0.0), (1e300, 1e300),
+               (-2.5, 0.0), (0.1, 0.2)]
+    for a, b in list(zip(x.tolist(), y.tolist())) + special:
+        assert _k.hypot_py(a, b) == math.hypot(a, b), (a, b)
+    # libm's hypot (np.hypot) differs from math.hypot in the last bit for some of them: the
+    # kernel must take math.hypot's where the reference does
+    assert any(float(np.hypot(a, b)) != math.hypot(a, b) for a, b in zip(x.tolist(), y.tolist()))
+
+
+def _scene(rng, n_pairs, n_tracks):
+    """Random pairs and blobs scattered around them (most near a pair's A, B or midpoint, of
+    one emitter's size, a merged blob's or another light's), some dark, some excluded."""
+    pairs, items, tracks = [], [], []
+    for k in range(n_pairs):
+        w, h = int(rng.integers(2, 9)), int(rng.integers(1, 5))
+        mx, my, hx = rng.uniform(50, 600), rng.uniform(50, 400), rng.uniform(2, 20)
+        hy = rng.uniform(-1, 1) * (rng.random() < 0.5)
+        a = Track(k, _blob(mx - hx, my - hy, w, h), 0, 0)
+        b = Track(1000 + k, _blob(mx + hx, my + hy, w + int(rng.integers(0, 2)), h), 0, 0)
+        p = Pair(a, b, ids=(2 * k, 2 * k + 1))
+        p.misses = int(rng.integers(0, 4))
+        p.size = float(rng.choice([0.0, w * h * rng.uniform(0.5, 2)]))
+        p.led_id = None if rng.random() < 0.4 else int(rng.integers(0, 256))
+        single = max(0.5 * (a.blob.area_px + b.blob.area_px), p.size, 1.0)
+        pairs.append(p)
+        items.append([p, (mx + rng.normal(0, 1), my + rng.normal(0, 1), hx, hy, single), ()])
+        for _ in range(n_tracks):
+            where = rng.choice([-1.0, 0.0, 1.0])
+            kind = rng.choice(["single", "merged", "tiny", "big"])
+            cw = {"single": w, "merged": w + int(round(2 * hx)), "tiny": 1, "big": 3 * w}[kind]
+            ch = {"single": h, "merged": h, "tiny": 1, "big": 3 * h}[kind]
+            scale = 1.0 if kind in ("single", "merged") else 0.1
+            area = cw * ch * rng.uniform(0.5, 2.0) * scale if rng.random() < 0.5 else None
+            x = mx + where * hx + rng.normal(0, 3 + 3 * rng.random())
+            y = my + where * hy + rng.normal(0, 2)
+            t = Track(len(tracks) + 5000, _blob(x, y, cw, ch, area), 0, 0)
+            t.seen = bool(rng.random() < 0.85)
+            tracks.append(t)
+    order = rng.permutation(len(tracks))
+    tracks = [tracks[i] for i in order]
+    for it in items:
+        if rng.random() < 0.3:
+            it[2] = {t.track_id for t in tracks if rng.random() < 0.2}
+    return pairs, [tuple(it) for it in items], tracks
+
+
+def _reference(pr, items, tracks, claims):
+    """Pairer._explain per item, and `_first_pass`'s claims, as the Python reference does."""
+    xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
+    out = []
+    for p, (mx, my, hx, hy, single), exclude in items:
+        expl, near, shifts, oa, ob, mg = pr._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
+        mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else (0.0, 0.0)
+        dy = float(np.mean([d[1] for d in shifts])) if shifts else 0.0
+        claimed = []
+        if claims and p.led_id is not None and len(xy):
+            tol = max(pr.match_min_px, pr.match_size * math.sqrt(single))
+            d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
+                           np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
+            claimed = [tracks[i] for i in np.flatnonzero(d <= tol) if tracks[i].seen]
+        out.append((expl, near, len(shifts), mean[0], mean[1], dy, oa, ob, mg, claimed))
+    return out
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(12))
+def test_explain_batch_equals_explain(seed):
+    rng = np.random.default_rng(seed)
+    settings = dict(width_size=bool(seed % 3), measure_baseline=True)
+    pr = Pairer(**settings)
+    pr.vertical_known = bool(seed % 2)
+    pairs, items, tracks = _scene(rng, int(rng.integers(1, 8)), int(rng.integers(1, 9)))
+    got = pr._explain_batch(items, tracks, claims=seed % 4 != 0)
+    want = _reference(pr, items, tracks, claims=seed % 4 != 0)
+    assert len(got) == len(want)
+    n_expl = n_near = n_claim = 0
+    for g, w in zip(got, want):
+        assert [id(t) for t in g[0]] == [id(t) for t in w[0]]
+        assert [id(t) for t in g[1]] == [id(t) for t in w[1]]
+        assert g[2] == w[2]
+        if g[2]:
+            assert (g[3], g[4], g[5]) == (w[3], w[4], w[5])  # exact, numpy's summation orders
+        assert all(x is y for x, y in zip(g[6:9], w[6:9]))
+        assert [id(t) for t in g[9]] == [id(t) for t in w[9]]
+        n_expl, n_near, n_claim = n_expl + len(w[0]), n_near + len(w[1]), n_claim + len(w[9])
+    assert n_near > 0  # the scenes do reach the decisions
+
+
+@needs_kernel
+def test_explain_batch_covers_every_branch():
+    """Over many random scenes the reference takes every kind of decision the kernel must
+    repeat: merged and single blobs, A's and B's own blobs, claims, excluded tracks."""
+    seen = dict(merged=0, obs_a=0, obs_b=0, claims=0, many=0)
+    for seed in range(40):
+        rng = np.random.default_rng(100 + seed)
+        pr = Pairer(width_size=bool(seed % 2))
+        pr.vertical_known = bool(seed % 3)
+        _, items, tracks = _scene(rng, 6, 8)
+        got = pr._explain_batch(items, tracks, claims=True)
+        want = _reference(pr, items, tracks, claims=True)
+        for g, w in zip(got, want):
+            assert [id(t) for t in g[0]] == [id(t) for t in w[0]] and g[2:6] == w[2:6]
+            assert all(x is y for x, y in zip(g[6:9], w[6:9]))
+            seen["merged"] += w[8] is not None
+            seen["obs_a"] += w[6] is not None
+            seen["obs_b"] += w[7] is not None
+            seen["claims"] += len(w[9])
+            seen["many"] += w[2] >= 8  # numpy's pairwise sum of the dys
+    assert all(v > 0 for v in seen.values()), seen
+
+
+_RUN = """
+import json, sys
+from receiver.vision import pairing
+if sys.argv[2] == "pure":
+    pairing._k = None
+from receiver.cli.bench import load_case, whole_receiver
+from receiver.io.output import frame_line
+cam, m, frames, still = load_case(sys.argv[1], int(sys.argv[3]))
+rx = whole_receiver(cam, m, still=still)
+for f in frames:
+    d = json.loads(frame_line(rx.process(f)))
+    d.pop("latency_ms", None)
+    d.pop("stage_ms", None)
+    print(json.dumps(d, sort_keys=True))
+"""
+
+
+def _run(path, n, mode):
+    """The JSON Lines (latency removed) of the first `n` frames of a recording, in a fresh
+    process (the pairs' uids, which stagger their re-decodes, count from 0 as in `occloc run`)."""
+    import subprocess
+    import sys
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", _RUN, str(path), mode, str(n)], cwd=root, check=True,
+                         capture_output=True, text=True).stdout
+    return out.splitlines()
+
+
+@needs_kernel
+def test_vehicle_recording_same_with_and_without_kernel():
+    rec = Path(__file__).resolve().parents[1] / "recordings" / "vehicle"
+    a, b = _run(rec, 90, "kernel"), _run(rec, 90, "pure")
+    assert len(a) == 90 and a == b
+    assert sum('"s2psk"' in x for x in a) > 0  # pairs decoded within these frames
