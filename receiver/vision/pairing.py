@@ -34,7 +34,6 @@ XOR of one sample.
 from __future__ import annotations
 
 import bisect
-import dataclasses
 import itertools
 import math
 from collections import deque
@@ -62,6 +61,7 @@ class EmitterLevels:
         self.values: deque = deque(maxlen=history)
         self.q_on, self.q_off = q_on, q_off
         self._sorted: list[float] = []
+        self._levels: tuple[float, float] | None = None  # (on, off) until the next add
 
     def add(self, value: float) -> None:
         v = float(value)
@@ -69,6 +69,14 @@ class EmitterLevels:
             del self._sorted[bisect.bisect_left(self._sorted, self.values[0])]
         self.values.append(v)
         bisect.insort(self._sorted, v)
+        self._levels = None
+
+    def _on_off(self) -> tuple[float, float]:
+        """(on, off), computed once per added value."""
+        if self._levels is None:
+            self._levels = ((self._quantile(self.q_on), self._quantile(self.q_off)) if self.values
+                            else (0.0, 0.0))
+        return self._levels
 
     def _quantile(self, q: float) -> float:
         """np.percentile(values, q) (method "linear"), with numpy's own lerp arithmetic."""
@@ -83,11 +91,11 @@ class EmitterLevels:
 
     @property
     def on(self) -> float:
-        return self._quantile(self.q_on) if self.values else 0.0
+        return self._on_off()[0]
 
     @property
     def off(self) -> float:
-        return self._quantile(self.q_off) if self.values else 0.0
+        return self._on_off()[1]
 
     def blinks(self, min_swing: float) -> bool:
         """Both levels seen, apart by at least `min_swing` gray values."""
@@ -99,8 +107,9 @@ def moved(blob: Blob, cx: float, cy: float) -> Blob:
     dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
     if dx == 0 and dy == 0:
         return blob
-    return dataclasses.replace(blob, cx=blob.cx + dx, cy=blob.cy + dy, hull=blob.hull + (dx, dy),
-                               x0=blob.x0 + dx, x1=blob.x1 + dx, y0=blob.y0 + dy, y1=blob.y1 + dy)
+    # the record's own constructor (dataclasses.replace walks its fields: ~2x the cost)
+    return Blob(blob.cx + dx, blob.cy + dy, blob.area_px, blob.hull + (dx, dy), blob.x0 + dx, blob.y0 + dy,
+                blob.x1 + dx, blob.y1 + dy, blob.border, blob.peak, blob.level, blob.background)
 
 
 # A pair's baseline counts as measured while both emitters' own blobs were seen within this
@@ -959,8 +968,12 @@ class Pairer:
         `flux_recent` fluxes above `flux_min` (the frames with a half or both lit: one half, F,
         in two thirds of them). Recent ones only: an approaching head's flux grows as
         1 / distance^2, doubling within a packet at 60-80 m."""
-        lit = [v for v in p.flux if v > self.flux_min][-self.flux_recent:]
-        return 2.0 * float(np.median(lit)) if lit else 0.0
+        lit = sorted([v for v in p.flux if v > self.flux_min][-self.flux_recent:])
+        if not lit:
+            return 0.0
+        # np.median's value: the middle one, or the mean of the middle two ((a + b) / 2)
+        n = len(lit)
+        return 2.0 * (lit[n // 2] if n % 2 else (lit[n // 2 - 1] + lit[n // 2]) / 2.0)
 
     def head_flux(self, p: Pair, gray: np.ndarray) -> float:
         """The summed gray above the background (+ `flux_floor` gray, so sensor noise adds
