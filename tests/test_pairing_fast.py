@@ -55,3 +55,109 @@ def test_levels_cached_until_the_next_value():
         on, off = lv.on, lv.off
         assert (on, off) == tuple(float(x) for x in np.percentile(list(lv.values), (90.0, 10.0)))
         assert (lv.on, lv.off) == (on, off)
+
+
+# -- the per-frame loops over pairs, as one array computation -----------------------------------
+
+def _ref_shift_votes(pr, xy, radius_px):
+    """Pairer.shift_votes as a loop over the pairs (the reference)."""
+    out = []
+    if len(xy) == 0:
+        return np.zeros((0, 2))
+    for p in pr.pairs:
+        if p.base0 is None:
+            continue
+        mx, my, hx, hy, _ = pr._predict(p)
+        d = xy - (mx, my)
+        d = d[(np.abs(d[:, 0]) <= radius_px + abs(hx)) & (np.abs(d[:, 1]) <= radius_px + abs(hy))]
+        if len(d):
+            out += [d, d + (hx, hy), d - (hx, hy)]
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+def _ref_emitters(pr):
+    """Pairer.emitters with a loop per emitter (the reference)."""
+    live = [p for p in pr.pairs if p.misses <= pr.report_coast_frames]
+    dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
+           for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
+           if not (pr.jumper_unseen_frames and p.a.track_id == p.b.track_id
+                   and p.frames - seen > pr.jumper_unseen_frames)
+           and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
+    xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
+    owner = np.array([id(p) for _, _, p, _ in dec])
+    size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
+    out = []
+    for k, (i, b, p, own) in enumerate(dec):
+        other = owner != id(p)
+        d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
+        if pr.emitter_gate_larger:
+            area = np.maximum(size[k], size[other])
+        else:
+            area = np.full(d.shape, b.area_px)
+        if own or not d.size or (d > np.maximum(pr.match_min_px, pr.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
+            out.append((i, b, p))
+    for p in live:
+        if p.led_id is None:
+            for i, e in zip(p.ids, (p.a, p.b)):
+                if not len(xy) or np.hypot(*(xy - (e.blob.cx, e.blob.cy)).T).min() > pr.match_min_px:
+                    out.append((i, e.blob, p))
+    return out
+
+
+def _random_pairs(rng, pr, n):
+    pr.pairs = []
+    for k in range(n):
+        mx, my, hx = rng.uniform(20, 200), rng.uniform(20, 120), rng.uniform(2, 12)
+        a = Track(k, _blob(mx - hx, my), 0, 0)
+        b = Track(k if rng.random() < 0.4 else 100 + k, _blob(mx + hx, my + rng.normal(0, 1)), 0, 0)
+        p = Pair(a, b, ids=(2 * k, 2 * k + 1))
+        if rng.random() < 0.8:
+            p.base0, p.area0, p.mx, p.my = (2 * hx, 0.0), 15.0, mx, my
+            p.vx, p.vy = rng.normal(0, 1), rng.normal(0, 1)
+        p.led_id = int(rng.integers(0, 256)) if rng.random() < 0.6 else None
+        p.misses = int(rng.integers(0, 5))
+        p.frames = int(rng.integers(1, 30))
+        p.seen_a, p.seen_b = p.frames - int(rng.integers(0, 8)), p.frames - int(rng.integers(0, 8))
+        p.anchored, p.beside = bool(rng.random() < 0.8), bool(rng.random() < 0.1)
+        pr.pairs.append(p)
+
+
+def test_shift_votes_and_emitters_equal_their_loops():
+    rng = np.random.default_rng(8)
+    kept = 0
+    for trial in range(60):
+        pr = Pairer(emitter_gate_larger=bool(trial % 2))
+        _random_pairs(rng, pr, int(rng.integers(0, 12)))
+        xy = rng.uniform(0, 220, size=(int(rng.integers(0, 30)), 2))
+        got, want = pr.shift_votes(xy, 14.0), _ref_shift_votes(pr, xy, 14.0)
+        assert got.shape == want.shape and np.array_equal(got, want)
+        e1, e0 = pr.emitters(), _ref_emitters(pr)
+        assert [(i, b, id(p)) for i, b, p in e1] == [(i, b, id(p)) for i, b, p in e0]
+        kept += len(e0) < sum(2 for p in pr.pairs if p.misses <= pr.report_coast_frames)
+    assert kept > 0  # some emitters were left out by the gates
+
+
+def _ref_pair_dx(offsets, *, radius_px=14.0, sigma_px=1.5, step_px=0.25, zero_rel=0.15, min_score=1.0):
+    if not offsets:
+        return None
+    grid = np.arange(-radius_px, radius_px + 0.5 * step_px, step_px)
+    score = np.zeros(len(grid))
+    for c in offsets:
+        score += np.exp(-0.5 * ((grid[:, None] - np.asarray(c, float)[None, :]) / sigma_px) ** 2).max(axis=1)
+    i = int(np.argmax(score))
+    if score[i] < min_score:
+        return None
+    if float(np.interp(0.0, grid, score)) >= (1.0 - zero_rel) * score[i]:
+        return 0.0
+    return float(grid[i])
+
+
+def test_pair_dx_equals_its_loop():
+    from receiver.vision.motion import pair_dx
+    rng = np.random.default_rng(9)
+    for _ in range(300):
+        shift = rng.uniform(-8, 8)
+        offsets = [np.array([shift + rng.normal(0, 1)]) if rng.random() < 0.4 else
+                   np.array([shift + rng.normal(0, 1), shift + rng.uniform(4, 12) * rng.choice([-1, 1])])
+                   for _ in range(int(rng.integers(0, 25)))]
+        assert pair_dx(offsets) == _ref_pair_dx(offsets)

@@ -127,9 +127,13 @@ def pair_dx(offsets: list, *, radius_px: float = 14.0, sigma_px: float = 1.5, st
     if not offsets:
         return None
     grid = np.arange(-radius_px, radius_px + 0.5 * step_px, step_px)
-    score = np.zeros(len(grid))
-    for c in offsets:
-        score += np.exp(-0.5 * ((grid[:, None] - np.asarray(c, float)[None, :]) / sigma_px) ** 2).max(axis=1)
+    # every blob at once: its offsets padded with +inf (exp(-inf) = 0 never wins the max), the
+    # blobs' best values summed in order (numpy's reduction along the first axis)
+    width = max(len(c) for c in offsets)
+    off = np.full((len(offsets), width), np.inf)
+    for k, c in enumerate(offsets):
+        off[k, :len(c)] = c
+    score = np.exp(-0.5 * ((grid[None, :, None] - off[:, None, :]) / sigma_px) ** 2).max(axis=2).sum(axis=0)
     i = int(np.argmax(score))
     if score[i] < min_score:
         return None

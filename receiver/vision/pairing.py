@@ -373,18 +373,17 @@ class Pairer:
         for every formed pair and every blob centroid of `xy` (N, 2) within `radius_px` of its
         predicted midpoint, the blob's offset from the predicted A, B and midpoint (one of them
         is the shift when the blob is this pair's; the others scatter by the pair's baseline)."""
-        out = []
         if len(xy) == 0:
             return np.zeros((0, 2))
-        for p in self.pairs:
-            if p.base0 is None:
-                continue
-            mx, my, hx, hy, _ = self._predict(p)
-            d = xy - (mx, my)
-            d = d[(np.abs(d[:, 0]) <= radius_px + abs(hx)) & (np.abs(d[:, 1]) <= radius_px + abs(hy))]
-            if len(d):
-                out += [d, d + (hx, hy), d - (hx, hy)]
-        return np.concatenate(out) if out else np.zeros((0, 2))
+        pred = np.array([self._predict(p)[:4] for p in self.pairs if p.base0 is not None], float).reshape(-1, 4)
+        # all pairs at once, in the order of a loop over the pairs: per pair its blobs' offsets
+        # d, then d + (hx, hy), then d - (hx, hy), each in the blobs' order
+        d = xy[None, :, :] - pred[:, None, :2]  # (P, N, 2)
+        reach = radius_px + np.abs(pred[:, 2:])  # (P, 2)
+        keep = (np.abs(d[:, :, 0]) <= reach[:, None, 0]) & (np.abs(d[:, :, 1]) <= reach[:, None, 1])
+        h = pred[:, None, 2:]
+        votes = np.stack((d, d + h, d - h), axis=1)  # (P, 3, N, 2)
+        return votes[np.broadcast_to(keep[:, None, :], votes.shape[:3])]
 
     def dx_offsets(self, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
         """Per blob near a formed pair's prediction (moved down by this frame's vertical shift
@@ -906,6 +905,8 @@ class Pairer:
         both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
         left out (one head followed by two pairs: the LED is the decoded one's)."""
         live = [p for p in self.pairs if p.misses <= self.report_coast_frames]
+        if not live:
+            return []
         # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
         # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
         # frames lies beside the head, on nobody's light, and is not reported (0 = off).
@@ -920,25 +921,27 @@ class Pairer:
         owner = np.array([id(p) for _, _, p, _ in dec])
         size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
         out = []
-        for k, (i, b, p, own) in enumerate(dec):
-            # An emitter without its own blob in this frame sits where the pair predicts it: left
-            # out when that is as near another decoded pair's emitter (overlapping lights).
-            other = owner != id(p)
-            d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
+        if dec:
+            # every decoded emitter against every other pair's at once (row k: emitter k)
+            d = np.hypot(xy[None, :, 0] - xy[:, 0, None], xy[None, :, 1] - xy[:, 1, None])
+            other = owner[None, :] != owner[:, None]
             if self.emitter_gate_larger:
                 # both emitters of a pair are the same size: its larger envelope (the other
                 # may be stale), and the larger of the two lights'
-                area = np.maximum(size[k], size[other])
+                area = np.maximum(size[:, None], size[None, :])
             else:
-                area = np.full(d.shape, b.area_px)
-            if own or not d.size or (d > np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
-                out.append((i, b, p))
-        for p in live:
-            if p.led_id is None:
-                for i, e in zip(p.ids, (p.a, p.b)):
-                    if not len(xy) or np.hypot(*(xy - (e.blob.cx, e.blob.cy)).T).min() > self.match_min_px:
-                        out.append((i, e.blob, p))
-        return out
+                area = np.array([b.area_px for _, b, _, _ in dec], float)[:, None]
+            gate = np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))
+            clear = ((d > gate) | ~other).all(axis=1)
+            # An emitter without its own blob in this frame sits where the pair predicts it: left
+            # out when that is as near another decoded pair's emitter (overlapping lights).
+            out = [(i, b, p) for (i, b, p, own), ok in zip(dec, clear.tolist()) if own or ok]
+        und = [(i, e.blob, p) for p in live if p.led_id is None for i, e in zip(p.ids, (p.a, p.b))]
+        if und and len(xy):
+            u = np.array([(b.cx, b.cy) for _, b, _ in und], float)
+            near = np.hypot(xy[None, :, 0] - u[:, 0, None], xy[None, :, 1] - u[:, 1, None]).min(axis=1)
+            und = [e for e, ok in zip(und, (near > self.match_min_px).tolist()) if ok]
+        return out + und
 
     @staticmethod
     def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:
