@@ -269,8 +269,13 @@ class Receiver:
 
     def _pairs(self, gray: np.ndarray, frame: Frame, tracks: list[Track]) -> dict:
         """Follow and decode the S2-PSK pairs; {track id: owning pair} of this frame."""
-        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s)
-        for p in live:
+        from receiver.vision.profile import mean_in_masks  # every emitter of the frame in one call
+
+        def intensities(g, ts):
+            return mean_in_masks(g, [t.blob for t in ts])
+        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s, intensities=intensities)
+        samples = self.pairer.sample_all(live, gray, intensities)
+        for p, (a, b) in zip(live, samples):
             decs = self.pair_decoders.get(p.uid)
             if decs is None:
                 decs = self.pair_decoders[p.uid] = self.policy.new_pair_decoders()
@@ -282,7 +287,6 @@ class Receiver:
                     for t_s, *ab in p.backlog:
                         self.policy.step_pair(early, t_s, pair_xor(*ab))
                     p.backlog = []
-            a, b = self.pairer.sample(p, gray, _intensity)
             x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)

@@ -173,3 +173,55 @@ def test_vehicle_recording_same_with_and_without_kernel():
     a, b = _run(rec, 90, "kernel"), _run(rec, 90, "pure")
     assert len(a) == 90 and a == b
     assert sum('"s2psk"' in x for x in a) > 0  # pairs decoded within these frames
+
+
+def _envelope(rng, cx, cy):
+    """A convex envelope polygon through pixel centres around (cx, cy), with its box."""
+    r = rng.uniform(0.5, 6.0, 2)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, int(rng.integers(3, 9))))
+    pts = np.unique(np.rint(np.stack((cx + r[0] * np.cos(ang), cy + r[1] * np.sin(ang)), axis=1)), axis=0)
+    import cv2
+    hull = cv2.convexHull(pts.astype(np.float32)).reshape(-1, 2).astype(float)
+    x0, y0 = int(hull[:, 0].min()), int(hull[:, 1].min())
+    x1, y1 = int(hull[:, 0].max()) + 1, int(hull[:, 1].max()) + 1
+    return Blob(cx=float(cx), cy=float(cy), area_px=float((x1 - x0) * (y1 - y0)), hull=hull, x0=x0, y0=y0,
+                x1=x1, y1=y1, border=False, peak=200.0, level=20.0, background=3.0)
+
+
+@needs_kernel
+def test_mean_in_masks_equals_mean_in_mask():
+    from receiver.vision.pairing import moved
+    from receiver.vision.profile import mean_in_mask, mean_in_masks
+    rng = np.random.default_rng(11)
+    gray = rng.integers(0, 256, size=(90, 160), dtype=np.uint8)
+    blobs = [_envelope(rng, rng.uniform(-3, 163), rng.uniform(-3, 93)) for _ in range(300)]
+    blobs += [moved(b, b.cx + rng.normal(0, 20), b.cy + rng.normal(0, 20)) for b in blobs]  # past the edges too
+    want = [mean_in_mask(gray, b) for b in blobs]
+    assert mean_in_masks(gray, blobs) == want
+    assert any(w == 0.0 for w in want) and any(w > 0.0 for w in want)
+    assert mean_in_masks(gray, []) == []
+    view = np.ascontiguousarray(np.repeat(gray, 2, axis=1))[:, ::2]  # rows not contiguous
+    assert mean_in_masks(view, blobs[:50]) == [mean_in_mask(view, b) for b in blobs[:50]]
+
+
+def test_sample_all_equals_sample():
+    from receiver.vision.profile import mean_in_mask, mean_in_masks
+    rng = np.random.default_rng(12)
+    gray = rng.integers(0, 256, size=(90, 160), dtype=np.uint8)
+    made = []
+    for _ in range(2):
+        pairs = []
+        for k in range(12):
+            a = Track(k, _envelope(np.random.default_rng(k), 20 + 10 * k, 30), 0, 0)
+            b = Track(100 + k, _envelope(np.random.default_rng(50 + k), 25 + 10 * k, 40), 0, 0)
+            p = Pair(a, b, fresh=k % 3 == 0)
+            for v in (5.0, 200.0):
+                p.levels_a.add(v)
+                p.levels_b.add(v + 1)
+            pairs.append(p)
+        made.append(pairs)
+    one = [Pairer.sample(p, gray, lambda g, t: mean_in_mask(g, t.blob)) for p in made[0]]
+    many = Pairer.sample_all(made[1], gray, lambda g, ts: mean_in_masks(g, [t.blob for t in ts]))
+    assert one == many
+    assert [list(p.levels_a.values) for p in made[0]] == [list(p.levels_a.values) for p in made[1]]
+    assert not any(p.fresh for p in made[1])

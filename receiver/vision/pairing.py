@@ -648,9 +648,11 @@ class Pairer:
             meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
         p.base, p.base_frames = meas, p.frames
 
-    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None) -> list[Pair]:
+    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None,
+             intensities=None) -> list[Pair]:
         """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
-        mean gray in its envelope. `shift`: the frame's common image shift (dx, dy) px from the
+        mean gray in its envelope; `intensities(gray, tracks) -> list of float`, if given, the
+        same of many at once. `shift`: the frame's common image shift (dx, dy) px from the
         previous frame (receiver.vision.motion), or None: the vertical one from the pairs
         (`pitch_shift`). `t_s`: the frame's time (s), for the new pairs' `backlog` (None: no
         backlog). Returns the live pairs; their levels are updated."""
@@ -679,13 +681,13 @@ class Pairer:
             if tid not in live or tid in paired:
                 del self.levels[tid]
                 self.past.pop(tid, None)
-        for t in tracks:
-            if t.track_id not in paired:
-                v = intensity(gray, t)
-                self.levels.setdefault(t.track_id, EmitterLevels()).add(v)
-                if t_s is not None and self.backlog_frames > 0:
-                    self.past.setdefault(t.track_id, deque(maxlen=self.backlog_frames)).append(
-                        (float(t_s), t.seen, t.blob.area_px, v))
+        todo = [t for t in tracks if t.track_id not in paired]
+        vals = intensities(gray, todo) if intensities is not None else [intensity(gray, t) for t in todo]
+        for t, v in zip(todo, vals):
+            self.levels.setdefault(t.track_id, EmitterLevels()).add(v)
+            if t_s is not None and self.backlog_frames > 0:
+                self.past.setdefault(t.track_id, deque(maxlen=self.backlog_frames)).append(
+                    (float(t_s), t.seen, t.blob.area_px, v))
         free = [t for t in tracks if t.track_id not in paired and len(self.levels[t.track_id].values) >= self.min_frames
                 and self.levels[t.track_id].blinks(self.min_swing)]
         cands = []
@@ -953,6 +955,23 @@ class Pairer:
         p.levels_a.add(ia)
         p.levels_b.add(ib)
         return ia, ib
+
+    @staticmethod
+    def sample_all(pairs: list[Pair], gray: np.ndarray, intensities) -> list[tuple[float, float]]:
+        """`sample` of every pair of `pairs`, their emitters read by one
+        `intensities(gray, tracks) -> list of float` call."""
+        vals = iter(intensities(gray, [e for p in pairs if not p.fresh for e in (p.a, p.b)]))
+        out = []
+        for p in pairs:
+            if p.fresh:
+                p.fresh = False
+                out.append((p.levels_a.values[-1], p.levels_b.values[-1]))
+                continue
+            ia, ib = next(vals), next(vals)
+            p.levels_a.add(ia)
+            p.levels_b.add(ib)
+            out.append((ia, ib))
+        return out
 
     def sample_flux(self, p: Pair, gray: np.ndarray) -> float:
         """This frame's `head_flux` of pair `p` (gray x px), kept in `Pair.flux`."""
