@@ -225,3 +225,35 @@ def test_sample_all_equals_sample():
     assert one == many
     assert [list(p.levels_a.values) for p in made[0]] == [list(p.levels_a.values) for p in made[1]]
     assert not any(p.fresh for p in made[1])
+
+
+def _ref_dx_offsets(pr, blobs, xy, dy, radius_px):
+    """Pairer.dx_offsets as the Python loop computes it (the reference, with `_k` None)."""
+    saved, pairing._k = pairing._k, None
+    try:
+        return pr.dx_offsets(blobs, xy, dy, radius_px)
+    finally:
+        pairing._k = saved
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(8))
+def test_dx_offsets_kernel_equals_loop(seed):
+    from receiver.vision.motion import pair_dx
+    rng = np.random.default_rng(40 + seed)
+    pr = Pairer(width_size=bool(seed % 2))
+    pairs, items, tracks = _scene(rng, int(rng.integers(1, 7)), int(rng.integers(1, 8)))
+    for p, (mx, my, hx, hy, single), _ in items:
+        p.base0, p.area0, p.mx, p.my = (2 * hx, 2 * hy), single, mx, my
+    pr.pairs = pairs
+    blobs = [t.blob for t in tracks]
+    xy = np.array([(b.cx, b.cy) for b in blobs], float)
+    dy = float(rng.normal(0, 1))
+    want = _ref_dx_offsets(pr, blobs, xy, dy, 14.0)
+    got = pr.dx_offsets(blobs, xy, dy, 14.0)
+    pad = np.full((len(want), 2), np.inf)
+    for k, c in enumerate(want):
+        pad[k, :len(c)] = c
+    assert got.shape == pad.shape and np.array_equal(got, pad)
+    assert len(want) > 0
+    assert pair_dx(got) == pair_dx(want)

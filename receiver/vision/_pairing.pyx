@@ -244,3 +244,38 @@ def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,
                     tot += gray[y, x]
                     n += 1
         out[k] = (<double>tot) / n if n else 0.0
+
+
+def dx_offsets(const double[:, ::1] bl, const double[:, ::1] pp, const double[::1] cfg, double dy,
+               double radius_px, double[:, ::1] out):
+    """Pairer.dx_offsets of every pair (rows of `pp`, as in `explain_pairs`; misses, areas and
+    the claim tolerance unused) against every blob (rows of `bl`, as `tr` of `explain_pairs`;
+    seen unused), in the loop's order (pairs, then blobs): row j of `out` gets the one (merged:
+    x - mx) or two (single: x - mx + hx, x - mx - hx) shifts of the j-th kept blob, the unused
+    column left as it is (+inf). Returns the number of rows written."""
+    cdef Py_ssize_t n = bl.shape[0], k, i, j = 0
+    cdef double mx, my, hx, hy, single, r, x
+    cdef int kind
+    cdef double merged_ratio = cfg[5], max_merged = cfg[6], max_cut = cfg[7], match_min_px = cfg[1]
+    for k in range(pp.shape[0]):
+        mx = pp[k, 0]; my = pp[k, 1] + dy; hx = pp[k, 2]; hy = pp[k, 3]; single = pp[k, 4]
+        for i in range(n):
+            if not (fabs(bl[i, 1] - my) <= match_min_px + fabs(hy) and fabs(bl[i, 0] - mx) <= radius_px + fabs(hx)):
+                continue
+            kind = _width_class(bl[i, 4] - bl[i, 3], bl[i, 6] - bl[i, 5], pp[k, 9], pp[k, 10],
+                                pp[k, 11], pp[k, 12], hx, cfg)
+            if kind == 0:
+                r = bl[i, 2] / single
+                if merged_ratio < r and r <= max_merged:
+                    kind = 2
+                elif 1.0 / max_cut <= r and r <= merged_ratio:
+                    kind = 1
+            x = bl[i, 0]
+            if kind == 2:
+                out[j, 0] = x - mx
+                j += 1
+            elif kind == 1:
+                out[j, 0] = x - mx + hx
+                out[j, 1] = x - mx - hx
+                j += 1
+    return j

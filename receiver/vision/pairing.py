@@ -274,6 +274,8 @@ class Pairer:
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
         self.shift_sum = (0.0, 0.0)  # the measured shifts added up, px (jumps over dark frames)
         self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
+        self._cfg_arr: np.ndarray | None = None  # the kernel's settings (`_cfg`)
+        self._table: tuple | None = None  # (tracks list, its length, `_track_table`) of this frame
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
@@ -391,10 +393,19 @@ class Pairer:
         half baseline vertically): the horizontal shifts (px) that put it where it may be, by
         its size (`_width_class`, else its area against one emitter's): a blob both lit at the
         midpoint, one emitter's at A or B (receiver.vision.motion.pair_dx). `xy`: (N, 2)
-        centroids of `blobs`."""
+        centroids of `blobs`. With the kernel: one (K, 2) array of them, a blob's one shift
+        padded with +inf (as motion.pair_dx takes them)."""
         out = []
         if not len(xy):
             return out
+        if _k is not None:
+            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            if not items:
+                return out
+            bl = np.array([(b.cx, b.cy, b.area_px, b.x0, b.x1, b.y0, b.y1, 1) for b in blobs], float).reshape(-1, 8)
+            res = np.full((len(items) * len(bl), 2), np.inf)
+            n = _k.dx_offsets(bl, self._pair_rows(items, False), self._cfg(), float(dy), float(radius_px), res)
+            return res[:n]
         for p in self.pairs:
             if p.base0 is None:
                 continue
@@ -424,7 +435,9 @@ class Pairer:
         it: its emitters' intensities would be read beside them. Only the vertical part: a
         blob is matched to A, B or the midpoint of a blinking pair, so its horizontal offset
         mixes the shake with which of them lit it."""
-        return self._first_pass(tracks, xy)[0]
+        pitch = self._first_pass(tracks, xy)[0]
+        self._table = None
+        return pitch
 
     def _first_pass(self, tracks: list[Track], xy: np.ndarray) -> tuple[float, dict]:
         """(`pitch_shift`, {pair uid: ids of the tracks it must not take}) of this frame, from
@@ -474,6 +487,38 @@ class Pairer:
         (`_first_pass`), for one emitter's area `single` px^2."""
         return max(self.match_min_px, self.match_size * math.sqrt(single))
 
+    def _track_table(self, tracks: list[Track]) -> np.ndarray:
+        """(N, 8) cx, cy, area_px, x0, x1, y0, y1, seen of the tracks' blobs (the kernel's
+        `tr`), built once per frame (the tracks do not change within `step`)."""
+        memo = self._table
+        if memo is not None and memo[0] is tracks and len(tracks) == memo[1]:
+            return memo[2]
+        tr = np.array([(t.blob.cx, t.blob.cy, t.blob.area_px, t.blob.x0, t.blob.x1, t.blob.y0, t.blob.y1,
+                        t.seen) for t in tracks], float).reshape(-1, 8)
+        self._table = (tracks, len(tracks), tr)
+        return tr
+
+    def _pair_rows(self, items: list, claims: bool) -> np.ndarray:
+        """(P, 14) the kernel's `pp` rows of (pair, prediction, exclude) `items`; the claim
+        tolerance (`_claim_tol`) with `claims` for the decoded pairs, else -1."""
+        rows = []
+        for p, (mx, my, hx, hy, single), _ in items:
+            a, b = p.a.blob, p.b.blob
+            ctol = self._claim_tol(single) if claims and p.led_id is not None else -1.0
+            rows.append((mx, my, hx, hy, single, p.misses, a.area_px, b.area_px, p.size, a.x1 - a.x0,
+                         b.x1 - b.x0, a.y1 - a.y0, b.y1 - b.y0, ctol))
+        return np.array(rows, float).reshape(-1, 14)
+
+    def _cfg(self) -> np.ndarray:
+        """The kernel's `cfg`: PairSettings' gates and this frame's `vertical_known`."""
+        cfg = self._cfg_arr
+        if cfg is None:
+            cfg = self._cfg_arr = np.array((self.match_frac, self.match_min_px, self.match_size, self.miss_growth_px,
+                                            0.0, self.merged_ratio, self.max_merged, self.max_cut, self.width_size,
+                                            self.width_tol, self.width_min_px, self.width_max_rows), float)
+        cfg[4] = float(self.vertical_known)
+        return cfg
+
     def _explain_batch(self, items: list, tracks: list[Track], claims: bool) -> list[tuple]:
         """`_explain` of every (pair, its prediction (mx, my, hx, hy, single), exclude) of
         `items` against `tracks` in one kernel call (receiver/vision/_pairing.pyx), with the
@@ -484,25 +529,16 @@ class Pairer:
         if not items:
             return []
         n = len(tracks)
-        tr = np.array([(t.blob.cx, t.blob.cy, t.blob.area_px, t.blob.x0, t.blob.x1, t.blob.y0, t.blob.y1,
-                        t.seen) for t in tracks], float).reshape(-1, 8)
-        rows = []
+        tr = self._track_table(tracks)
         excl = np.zeros((len(items), n), np.uint8)
-        for k, (p, (mx, my, hx, hy, single), exclude) in enumerate(items):
-            a, b = p.a.blob, p.b.blob
-            ctol = self._claim_tol(single) if claims and p.led_id is not None and n else -1.0
-            rows.append((mx, my, hx, hy, single, p.misses, a.area_px, b.area_px, p.size, a.x1 - a.x0,
-                         b.x1 - b.x0, a.y1 - a.y0, b.y1 - b.y0, ctol))
+        for k, (_, _, exclude) in enumerate(items):
             if exclude:
                 for i, t in enumerate(tracks):
                     if t.track_id in exclude:
                         excl[k, i] = 1
-        cfg = np.array((self.match_frac, self.match_min_px, self.match_size, self.miss_growth_px,
-                        self.vertical_known, self.merged_ratio, self.max_merged, self.max_cut,
-                        self.width_size, self.width_tol, self.width_min_px, self.width_max_rows), float)
         lists = np.empty((3, len(items), max(n, 1)), np.int32)
         res = np.empty((len(items), 10))
-        _k.explain_pairs(tr, np.array(rows, float), excl, cfg, lists, res)
+        _k.explain_pairs(tr, self._pair_rows(items, claims and n > 0), excl, self._cfg(), lists, res)
         near_l, expl_l, claim_l = lists.tolist()
         out = []
         for k, r in enumerate(res.tolist()):
@@ -657,6 +693,7 @@ class Pairer:
         (`pitch_shift`). `t_s`: the frame's time (s), for the new pairs' `backlog` (None: no
         backlog). Returns the live pairs; their levels are updated."""
         live = {t.track_id: t for t in tracks}
+        self._table = None  # `_track_table` of these tracks, built on first use
         shape = None if gray is None else gray.shape
         xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
         pitch, exclude = self._first_pass(tracks, xy)
@@ -721,6 +758,7 @@ class Pairer:
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
+        self._table = None
         return self.pairs
 
     def _mark_beside(self, tracks: list[Track]) -> None:
