@@ -5,6 +5,7 @@ list's middle instead of np.median), the levels cached between adds."""
 import dataclasses
 
 import numpy as np
+import pytest
 
 from receiver.core.records import Blob
 from receiver.vision.pairing import EmitterLevels, Pair, Pairer, moved
@@ -122,7 +123,11 @@ def _random_pairs(rng, pr, n):
         pr.pairs.append(p)
 
 
-def test_shift_votes_and_emitters_equal_their_loops():
+@pytest.mark.parametrize("kernel", [True, False])
+def test_shift_votes_and_emitters_equal_their_loops(kernel, monkeypatch):
+    from receiver.vision import pairing
+    if not kernel:
+        monkeypatch.setattr(pairing, "_k", None)  # the numpy path
     rng = np.random.default_rng(8)
     kept = 0
     for trial in range(60):

@@ -103,7 +103,8 @@ cdef inline int _width_class(double bw, double bh, double wa, double wb, double 
 
 
 def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsigned char[:, ::1] excl,
-                  const double[::1] cfg, int[:, :, ::1] lists, double[:, ::1] res):
+                  const double[::1] cfg, int[:, :, ::1] lists, double[:, ::1] res, int[::1] flat,
+                  unsigned char[:, ::1] mine):
     """Pairer._explain of every pair k (row of `pp`) against every track i (row of `tr`).
 
     tr (N, 8): cx, cy, area_px, x0, x1, y0, y1, seen (1 / 0) of each track's blob.
@@ -118,7 +119,10 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
     (seen tracks within the claim tolerance of A or B, as `_first_pass` with np.hypot);
     res (P, 10): number of shifts, their mean dx and dy (np.mean(shifts, axis=0): one sum in
     order), the mean dy as np.mean of the dys (numpy's pairwise sum), the indices of A's and
-    B's own blob and of the merged blob (-1: none), the lengths of the three lists."""
+    B's own blob and of the merged blob (-1: none), the lengths of the three lists; flat: the
+    three lists of pair 0, then those of pair 1, ... one after the other (`lists` is scratch);
+    mine (P, N): 1 where track i is explained or claimed by pair k, else 0.
+    Returns the length of `flat` used."""
     cdef Py_ssize_t n = tr.shape[0], npair = pp.shape[0], k, i, m
     cdef double mx, my, hx, hy, single, ax, ay, bx, by, tol0, tol, tol_y, reach, da, db, dm, dmin
     cdef double cx, cy, area, ratio, amax, sx, sy, ex, ey, ctol, dca, dcb
@@ -127,6 +131,7 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
     cdef double miss_growth = cfg[3], merged_ratio = cfg[5], max_merged = cfg[6], max_cut = cfg[7]
     cdef bint vertical_known = cfg[4] != 0.0
     cdef double[::1] dys
+    cdef Py_ssize_t pos = 0, j
     dys = np.empty(max(n, 1))
     for k in range(npair):
         mx = pp[k, 0]; my = pp[k, 1]; hx = pp[k, 2]; hy = pp[k, 3]; single = pp[k, 4]
@@ -217,6 +222,44 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
         res[k, 7] = nn
         res[k, 8] = ne
         res[k, 9] = nc
+        for i in range(n):
+            mine[k, i] = 0
+        for m in range(3):
+            j = nn if m == 0 else (ne if m == 1 else nc)
+            for i in range(j):
+                flat[pos] = lists[m, k, i]
+                if m:
+                    mine[k, lists[m, k, i]] = 1
+                pos += 1
+    return pos
+
+
+def shift_votes(const double[:, ::1] xy, const double[:, ::1] pred, double radius_px, double[:, ::1] out):
+    """Pairer.shift_votes: for every pair k (pred rows: mx, my, hx, hy) the offsets d = xy - (mx, my)
+    of the blobs within radius_px + |hx| horizontally and radius_px + |hy| vertically, then d +
+    (hx, hy), then d - (hx, hy), each in the blobs' order, one pair after the other, into `out`
+    (at least 3 N P rows). Returns the number of rows."""
+    cdef Py_ssize_t n = xy.shape[0], k, i, j = 0, m, c
+    cdef double mx, my, hx, hy, dx, dy, rx, ry
+    for k in range(pred.shape[0]):
+        mx = pred[k, 0]; my = pred[k, 1]; hx = pred[k, 2]; hy = pred[k, 3]
+        rx = radius_px + fabs(hx)
+        ry = radius_px + fabs(hy)
+        c = 0
+        for i in range(n):
+            dx = xy[i, 0] - mx
+            dy = xy[i, 1] - my
+            if fabs(dx) <= rx and fabs(dy) <= ry:
+                out[j + c, 0] = dx
+                out[j + c, 1] = dy
+                c += 1
+        for m in range(c):
+            out[j + c + m, 0] = out[j + m, 0] + hx
+            out[j + c + m, 1] = out[j + m, 1] + hy
+            out[j + 2 * c + m, 0] = out[j + m, 0] - hx
+            out[j + 2 * c + m, 1] = out[j + m, 1] - hy
+        j += 3 * c
+    return j
 
 
 def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,

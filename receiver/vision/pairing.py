@@ -378,6 +378,9 @@ class Pairer:
         if len(xy) == 0:
             return np.zeros((0, 2))
         pred = np.array([self._predict(p)[:4] for p in self.pairs if p.base0 is not None], float).reshape(-1, 4)
+        if _k is not None:
+            out = np.empty((3 * len(pred) * len(xy), 2))
+            return out[:_k.shift_votes(np.ascontiguousarray(xy, float), pred, float(radius_px), out)]
         # all pairs at once, in the order of a loop over the pairs: per pair its blobs' offsets
         # d, then d + (hx, hy), then d - (hx, hy), each in the blobs' order
         d = xy[None, :, :] - pred[:, None, :2]  # (P, N, 2)
@@ -448,13 +451,22 @@ class Pairer:
         dys, claims = [], {}
         if _k is not None:
             items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
-            for (p, _, _), (expl, _, n, _, _, dy, _, _, _, claimed) in zip(
-                    items, self._explain_batch(items, tracks, True)):
-                if n:
-                    dys.append(dy)
-                for tid in {t.track_id for t in expl + claimed}:
-                    claims.setdefault(tid, []).append(p)
-        for p in self.pairs if _k is None else ():
+            if not items:
+                return 0.0 if self.shake_min_pairs > 0 else float(np.median(dys)), {}
+            res, mine = self._explain_kernel(items, tracks, True)
+            dys = res[res[:, 0] > 0, 3].tolist()
+            pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            # the tracks two or more pairs claim: not taken by an undecoded one when a decoded one
+            # claims it too, by none of them when two decoded ones do (the loop below)
+            c = mine.astype(bool)
+            dec = np.array([p.led_id is not None for p, _, _ in items])
+            both = c.sum(axis=0) >= 2
+            n_dec = c[dec].sum(axis=0)
+            ex = c & both & ((n_dec >= 2) | ((n_dec >= 1) & ~dec[:, None]))
+            exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
+                       for k in np.flatnonzero(ex.any(axis=1))}
+            return pitch, exclude
+        for p in self.pairs:
             if p.base0 is None:
                 continue
             mx, my, hx, hy, single = pred = self._predict(p)
@@ -519,6 +531,25 @@ class Pairer:
         cfg[4] = float(self.vertical_known)
         return cfg
 
+    def _explain_kernel(self, items: list, tracks: list[Track], claims: bool, lists: bool = False) -> tuple:
+        """The kernel's `explain_pairs` of `items` (non-empty) against `tracks`: (res (P, 10),
+        mine (P, N) uint8[, the used part of flat (per pair: nearby, explaining, claimed track
+        indices) with `lists`])."""
+        n = len(tracks)
+        excl = np.zeros((len(items), n), np.uint8)
+        for k, (_, _, exclude) in enumerate(items):
+            if exclude:
+                for i, t in enumerate(tracks):
+                    if t.track_id in exclude:
+                        excl[k, i] = 1
+        scratch = np.empty((3, len(items), max(n, 1)), np.int32)
+        flat = np.empty(3 * len(items) * max(n, 1), np.int32)
+        res = np.empty((len(items), 10))
+        mine = np.empty((len(items), n), np.uint8)
+        used = _k.explain_pairs(self._track_table(tracks), self._pair_rows(items, claims and n > 0), excl,
+                                self._cfg(), scratch, res, flat, mine)
+        return (res, mine, flat[:used]) if lists else (res, mine)
+
     def _explain_batch(self, items: list, tracks: list[Track], claims: bool) -> list[tuple]:
         """`_explain` of every (pair, its prediction (mx, my, hx, hy, single), exclude) of
         `items` against `tracks` in one kernel call (receiver/vision/_pairing.pyx), with the
@@ -528,26 +559,16 @@ class Pairer:
         emitters (`_first_pass`), else [])."""
         if not items:
             return []
-        n = len(tracks)
-        tr = self._track_table(tracks)
-        excl = np.zeros((len(items), n), np.uint8)
-        for k, (_, _, exclude) in enumerate(items):
-            if exclude:
-                for i, t in enumerate(tracks):
-                    if t.track_id in exclude:
-                        excl[k, i] = 1
-        lists = np.empty((3, len(items), max(n, 1)), np.int32)
-        res = np.empty((len(items), 10))
-        _k.explain_pairs(tr, self._pair_rows(items, claims and n > 0), excl, self._cfg(), lists, res)
-        near_l, expl_l, claim_l = lists.tolist()
-        out = []
-        for k, r in enumerate(res.tolist()):
+        res, _, flat = self._explain_kernel(items, tracks, claims, lists=True)
+        picked = [tracks[i] for i in flat.tolist()]  # per pair: nearby, explaining, claimed
+        out, pos = [], 0
+        for r in res.tolist():
             ns, nn, ne, nc = int(r[0]), int(r[7]), int(r[8]), int(r[9])
             ia, ib, im = int(r[4]), int(r[5]), int(r[6])
-            out.append(([tracks[i] for i in expl_l[k][:ne]], [tracks[i] for i in near_l[k][:nn]], ns,
-                        r[1], r[2], r[3], tracks[ia].blob if ia >= 0 else None,
-                        tracks[ib].blob if ib >= 0 else None, tracks[im].blob if im >= 0 else None,
-                        [tracks[i] for i in claim_l[k][:nc]]))
+            out.append((picked[pos + nn:pos + nn + ne], picked[pos:pos + nn], ns, r[1], r[2], r[3],
+                        tracks[ia].blob if ia >= 0 else None, tracks[ib].blob if ib >= 0 else None,
+                        tracks[im].blob if im >= 0 else None, picked[pos + nn + ne:pos + nn + ne + nc]))
+            pos += nn + ne + nc
         return out
 
     def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0,
