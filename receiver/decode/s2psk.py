@@ -258,6 +258,14 @@ class S2pskState:
     confidence: float
 
 
+def _state(led_id: int | None, samples: int, confidence: float) -> S2pskState:
+    """S2pskState(led_id, kind_of(led_id), samples, confidence), without the frozen record's
+    per-field object.__setattr__ (a state per decoder per frame: ~35 a frame on vehicle)."""
+    st = object.__new__(S2pskState)
+    st.__dict__.update(led_id=led_id, kind=kind_of(led_id), samples=samples, confidence=confidence)
+    return st
+
+
 class S2pskDecoder:
     """Per-pair S2-PSK decoder driven by frame timestamps.
 
@@ -394,8 +402,12 @@ class S2pskDecoder:
         t = float(t_s) - self._t0  # small numbers keep the symbol arithmetic exact
         if self._hi > self._lo and self._first < t - self.history_s:
             self._trim(t - self.history_s)
+            self._first = float(self._tb[self._lo]) if self._hi > self._lo else t
+        elif self._hi == self._lo:
+            self._first = t
         self._append(t, self.sign * float(soft_xor))
-        self._first = float(self._tb[self._lo])
+        if not decode:
+            return _state(self.led_id, self.samples, self.confidence)
         return self._decide(t, decode)
 
     def _decide(self, t: float, decode: bool) -> S2pskState:
@@ -404,11 +416,11 @@ class S2pskDecoder:
             if decode:
                 self._calls += 1
                 self._phase = None  # the first decode searches every phase
-            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, self.confidence)
+            return _state(self.led_id, self.samples, self.confidence)
         sums, c, squares = self.folded_sums()
         if c.min() < self.min_samples:
             self.confidence = 0.0
-            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, 0.0)
+            return _state(self.led_id, self.samples, 0.0)
         led_id, conf = decode_symbols(sums / np.maximum(c, 1e-12), sync_margin=self.sync_margin,
                                       min_margin=self.min_margin)
         if led_id is None and self.settings.decoder == "soft":
@@ -427,4 +439,4 @@ class S2pskDecoder:
                     self.led_id, self._cand, self._cand_n = led_id, None, 0
         elif led_id is not None:
             self._cand, self._cand_n = None, 0
-        return S2pskState(self.led_id, kind_of(self.led_id), self.samples, conf)
+        return _state(self.led_id, self.samples, conf)
