@@ -275,6 +275,9 @@ class Receiver:
             return mean_in_masks(g, [t.blob for t in ts])
         live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s, intensities=intensities)
         samples = self.pairer.sample_all(live, gray, intensities)
+        # the far heads also read by their whole flux (below), all in one call
+        by_flux = [p for p in live if p.led_id is None and self.pairer.reads_flux(p)]
+        fluxes = dict(zip([p.uid for p in by_flux], self.pairer.sample_fluxes(by_flux, gray)))
         for p, (a, b) in zip(live, samples):
             decs = self.pair_decoders.get(p.uid)
             if decs is None:
@@ -294,7 +297,7 @@ class Receiver:
                 # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
                 # no side needed, so the yaw shake does not matter): a third decoder set, fed
                 # until the pair has an ID; whichever set decodes first wins.
-                fx = flux_xor(self.pairer.sample_flux(p, gray), self.pairer.flux_on(p))
+                fx = flux_xor(fluxes[p.uid], self.pairer.flux_on(p))
                 fdecs = self.flux_decoders.get(p.uid)
                 if fdecs is None:
                     fdecs = self.flux_decoders[p.uid] = self.policy.new_pair_decoders()

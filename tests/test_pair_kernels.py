@@ -257,3 +257,36 @@ def test_dx_offsets_kernel_equals_loop(seed):
     assert got.shape == pad.shape and np.array_equal(got, pad)
     assert len(want) > 0
     assert pair_dx(got) == pair_dx(want)
+
+
+@needs_kernel
+def test_sample_fluxes_equal_head_flux():
+    """The kernel's float32 sums in numpy's pairwise order: the same values to the bit, for
+    boxes of a few to thousands of pixels, partly outside the frame."""
+    rng = np.random.default_rng(13)
+    gray = rng.integers(0, 256, size=(120, 200), dtype=np.uint8)
+    gray[rng.random(gray.shape) < 0.7] = 3  # mostly background, as around a far head
+    for margins in ((4.0, 3.0), (0.0, 0.0)):
+        _check_fluxes(rng, gray, Pairer(flux_floor=float(rng.uniform(0, 5)), flux_margin_px=margins[0],
+                                        flux_margin_y_px=margins[1]))
+
+
+def _check_fluxes(rng, gray, pr):
+    pairs = []
+    for k in range(200):
+        cx, cy, hx = rng.uniform(-10, 210), rng.uniform(-5, 125), rng.uniform(0.5, 40)
+        if k < 3:
+            cx, hx = -100.0, 1.0  # wholly left of the frame: an empty box
+        a = Track(k, _blob(cx - hx, cy, int(rng.integers(1, 6)), int(rng.integers(1, 30))), 0, 0)
+        b = Track(k, _blob(cx + hx, cy, 3, int(rng.integers(1, 4))), 0, 0)
+        a.blob = Blob(**{**a.blob.__dict__, "background": float(rng.uniform(0, 20))})
+        p = Pair(a, b)
+        p.mx, p.my = cx, cy
+        pairs.append(p)
+    want = [pr.head_flux(p, gray) for p in pairs]
+    got = pr.sample_fluxes(pairs, gray)
+    assert got == want
+    assert [p.flux[-1] for p in pairs] == want
+    sizes = [(x1 - x0) * (y1 - y0) for x0, x1, y0, y1, _ in (pr._flux_box(p, gray.shape) for p in pairs)]
+    assert any(s <= 0 or w == 0.0 for s, w in zip(sizes, want))
+    assert (min(sizes) < 8 if pr.flux_margin_px == 0 else max(sizes) > 1024)
