@@ -290,7 +290,8 @@ class Receiver:
                     for t_s, *ab in p.backlog:
                         self.policy.step_pair(early, t_s, pair_xor(*ab))
                     p.backlog = []
-            x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
+            (a_on, a_off), (b_on, b_off) = p.levels_a.on_off(), p.levels_b.on_off()
+            x = pair_xor(a, b, a_on, b_on, a_off, b_off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
             if p.led_id is None and self.pairer.reads_flux(p):

@@ -34,6 +34,7 @@ XOR of one sample.
 from __future__ import annotations
 
 import bisect
+import functools
 import itertools
 import math
 from collections import deque
@@ -50,6 +51,15 @@ from receiver.core.settings import resolve_settings
 # the compiled candidate search (receiver/vision/_pairing.pyx: `_explain` of every pair in one
 # call per pass), or None: the Python reference below
 _k = load("receiver.vision._pairing")
+
+
+@functools.cache
+def _quantile_index(n: int, q: float) -> tuple[int, int, float]:
+    """(lo, hi, t): np.percentile's (method "linear") neighbours in a sorted list of `n` values
+    and its weight of the upper one, for the `q` percentile (the same for every list of n)."""
+    pos = (n - 1) * (q / 100.0)  # numpy's virtual index
+    lo = min(max(int(math.floor(pos)), 0), n - 1)
+    return lo, min(lo + 1, n - 1), pos - lo
 
 
 class EmitterLevels:
@@ -71,7 +81,7 @@ class EmitterLevels:
         bisect.insort(self._sorted, v)
         self._levels = None
 
-    def _on_off(self) -> tuple[float, float]:
+    def on_off(self) -> tuple[float, float]:
         """(on, off), computed once per added value."""
         if self._levels is None:
             self._levels = ((self._quantile(self.q_on), self._quantile(self.q_off)) if self.values
@@ -81,21 +91,19 @@ class EmitterLevels:
     def _quantile(self, q: float) -> float:
         """np.percentile(values, q) (method "linear"), with numpy's own lerp arithmetic."""
         v = self._sorted
-        n, qq = len(v), q / 100.0
-        pos = (n - 1) * qq  # numpy's virtual index
-        lo = min(max(int(math.floor(pos)), 0), n - 1)
-        t = pos - lo
-        a, b = v[lo], v[min(lo + 1, n - 1)]
+        lo, hi, t = _quantile_index(len(v), q)
+        a, b = v[lo], v[hi]
         d = b - a
         return b - d * (1.0 - t) if t >= 0.5 else a + d * t
 
+
     @property
     def on(self) -> float:
-        return self._on_off()[0]
+        return self.on_off()[0]
 
     @property
     def off(self) -> float:
-        return self._on_off()[1]
+        return self.on_off()[1]
 
     def blinks(self, min_swing: float) -> bool:
         """Both levels seen, apart by at least `min_swing` gray values."""
