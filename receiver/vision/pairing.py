@@ -724,7 +724,11 @@ class Pairer:
         live = {t.track_id: t for t in tracks}
         self._table = None  # `_track_table` of these tracks, built on first use
         shape = None if gray is None else gray.shape
-        xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
+        if _k is not None:  # the kernel's table of the tracks holds their centroids
+            table = self._track_table(tracks)
+            xy = table[:, :2]
+        else:
+            table, xy = None, np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
         pitch, exclude = self._first_pass(tracks, xy)
         dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
@@ -732,10 +736,14 @@ class Pairer:
         self.vertical_known = shift is not None
         self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
         if t_s is not None and self.backlog_frames > 0 and self.head_backlog:
-            seen = [t for t in tracks if t.seen]
-            self.scene_past.append((float(t_s), self.view_sum,
-                                    np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
-                                    np.array([t.blob.area_px for t in seen], float)))
+            if table is not None:
+                lit = table[table[:, 7] != 0.0]
+                self.scene_past.append((float(t_s), self.view_sum, lit[:, :2], lit[:, 2]))
+            else:
+                seen = [t for t in tracks if t.seen]
+                self.scene_past.append((float(t_s), self.view_sum,
+                                        np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
+                                        np.array([t.blob.area_px for t in seen], float)))
         if _k is not None:
             self.pairs = self._follow_all(tracks, shape, dy, dx, exclude)
         else:
