@@ -290,3 +290,28 @@ def _check_fluxes(rng, gray, pr):
     sizes = [(x1 - x0) * (y1 - y0) for x0, x1, y0, y1, _ in (pr._flux_box(p, gray.shape) for p in pairs)]
     assert any(s <= 0 or w == 0.0 for s, w in zip(sizes, want))
     assert (min(sizes) < 8 if pr.flux_margin_px == 0 else max(sizes) > 1024)
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_empty_frames_and_pairs(kernel, monkeypatch):
+    """No tracks, no pairs, pairs without tracks: both paths give the same (empty) answers."""
+    if not kernel:
+        monkeypatch.setattr(pairing, "_k", None)
+    elif _k is None:
+        pytest.skip("compiled kernels not built (tests/test_native.py fails then)")
+    pr = Pairer()
+    gray = np.zeros((40, 60), np.uint8)
+    assert pr.step(gray, [], lambda g, t: 0.0, t_s=0.0) == []
+    assert pr.shift_votes(np.zeros((0, 2)), 14.0).shape == (0, 2)
+    assert len(pr.dx_offsets([], np.zeros((0, 2)), 0.0, 14.0)) == 0
+    assert pr.emitters() == []
+    rng = np.random.default_rng(3)
+    pairs, items, _ = _scene(rng, 3, 1)
+    for p, (mx, my, hx, hy, single), _ in items:
+        p.base0, p.area0, p.mx, p.my = (2 * hx, 2 * hy), single, mx, my
+    pr.pairs = pairs
+    assert pr._first_pass([], np.zeros((0, 2))) == (0.0, {})
+    assert pr.shift_votes(np.zeros((0, 2)), 14.0).shape == (0, 2)
+    before = {p.uid: p.misses for p in pairs}
+    live = pr.step(np.zeros((480, 700), np.uint8), [], lambda g, t: 0.0, t_s=0.1)
+    assert live and all(p.misses == before[p.uid] + 1 and p.tracks == [] for p in live)
