@@ -315,3 +315,38 @@ def test_empty_frames_and_pairs(kernel, monkeypatch):
     before = {p.uid: p.misses for p in pairs}
     live = pr.step(np.zeros((480, 700), np.uint8), [], lambda g, t: 0.0, t_s=0.1)
     assert live and all(p.misses == before[p.uid] + 1 and p.tracks == [] for p in live)
+
+
+@needs_kernel
+def test_kernels_refuse_arrays_of_the_wrong_size():
+    """The kernels read without bounds checks: every size they rely on is checked first."""
+    f8, u8, i32, i64 = np.float64, np.uint8, np.int32, np.int64
+    tr, pp, cfg = np.zeros((4, 8)), np.zeros((2, 14)), np.zeros(12)
+
+    def explain(tr=tr, pp=pp, excl=np.zeros((2, 4), u8), cfg=cfg, lists=np.zeros((3, 2, 4), i32),
+                res=np.zeros((2, 10)), flat=np.zeros(24, i32), mine=np.zeros((2, 4), u8)):
+        return _k.explain_pairs(tr, pp, excl, cfg, lists, res, flat, mine)
+
+    assert explain() == 8  # all four tracks lie near both pairs (everything at (0, 0)): nearby
+    for bad in (dict(tr=np.zeros((4, 7))), dict(pp=np.zeros((2, 13))), dict(excl=np.zeros((2, 3), u8)),
+                dict(cfg=np.zeros(11)), dict(lists=np.zeros((3, 2, 3), i32)), dict(res=np.zeros((2, 9))),
+                dict(flat=np.zeros(23, i32)), dict(mine=np.zeros((1, 4), u8))):
+        with pytest.raises(ValueError):
+            explain(**bad)
+    with pytest.raises(ValueError):
+        _k.shift_votes(np.zeros((4, 2)), np.zeros((2, 4)), 14.0, np.zeros((23, 2)))
+    assert _k.shift_votes(np.zeros((4, 2)), np.zeros((2, 4)), 14.0, np.zeros((24, 2))) == 24
+    with pytest.raises(ValueError):
+        _k.dx_offsets(np.zeros((4, 8)), pp, cfg, 0.0, 14.0, np.zeros((7, 2)))
+    gray = np.zeros((10, 10), u8)
+    with pytest.raises(ValueError):  # its mask would reach past the buffer
+        _k.masked_means(gray, np.zeros(8, u8), np.array([[0, 0, 3, 3, 0]], i64), np.zeros(1))
+    with pytest.raises(ValueError):  # inverted
+        _k.masked_means(gray, np.zeros(9, u8), np.array([[3, 0, 0, 3, 0]], i64), np.zeros(1))
+    with pytest.raises(ValueError):
+        _k.head_fluxes(gray, np.array([[0, 11, 0, 3]], i64), np.zeros(1), np.zeros(1))
+    out = np.ones(1)
+    _k.head_fluxes(gray, np.array([[5, 5, 0, 3]], i64), np.zeros(1), out)  # empty: 0.0
+    assert out[0] == 0.0
+    with pytest.raises(ValueError):
+        _k.head_fluxes(gray, np.array([[0, 3, 0, 3]], i64), np.zeros(0), np.zeros(1))

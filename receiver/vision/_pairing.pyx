@@ -127,11 +127,18 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
     cdef double mx, my, hx, hy, single, ax, ay, bx, by, tol0, tol, tol_y, reach, da, db, dm, dmin
     cdef double cx, cy, area, ratio, amax, sx, sy, ex, ey, ctol, dca, dcb
     cdef int wide, nn, ne, nc, ns, obs_a, obs_b, merged
-    cdef double match_frac = cfg[0], match_min_px = cfg[1], match_size = cfg[2]
-    cdef double miss_growth = cfg[3], merged_ratio = cfg[5], max_merged = cfg[6], max_cut = cfg[7]
-    cdef bint vertical_known = cfg[4] != 0.0
+    cdef double match_frac, match_min_px, match_size, miss_growth, merged_ratio, max_merged, max_cut
+    cdef bint vertical_known
     cdef double[::1] dys
     cdef Py_ssize_t pos = 0, j
+    if (tr.shape[1] < 8 or pp.shape[1] < 14 or cfg.shape[0] < 12 or excl.shape[0] != npair
+            or excl.shape[1] != n or lists.shape[0] < 3 or lists.shape[1] < npair or lists.shape[2] < n
+            or res.shape[0] < npair or res.shape[1] < 10 or flat.shape[0] < 3 * npair * n
+            or mine.shape[0] < npair or mine.shape[1] < n):
+        raise ValueError("explain_pairs: array shapes do not match (N, 8) tracks and (P, 14) pairs")
+    match_frac, match_min_px, match_size = cfg[0], cfg[1], cfg[2]
+    miss_growth, merged_ratio, max_merged, max_cut = cfg[3], cfg[5], cfg[6], cfg[7]
+    vertical_known = cfg[4] != 0.0
     dys = np.empty(max(n, 1))
     for k in range(npair):
         mx = pp[k, 0]; my = pp[k, 1]; hx = pp[k, 2]; hy = pp[k, 3]; single = pp[k, 4]
@@ -241,6 +248,8 @@ def shift_votes(const double[:, ::1] xy, const double[:, ::1] pred, double radiu
     (at least 3 N P rows). Returns the number of rows."""
     cdef Py_ssize_t n = xy.shape[0], k, i, j = 0, m, c
     cdef double mx, my, hx, hy, dx, dy, rx, ry
+    if xy.shape[1] < 2 or pred.shape[1] < 4 or out.shape[1] < 2 or out.shape[0] < 3 * n * pred.shape[0]:
+        raise ValueError("shift_votes: xy must be (N, 2), pred (P, 4), out (>= 3 N P, 2)")
     for k in range(pred.shape[0]):
         mx = pred[k, 0]; my = pred[k, 1]; hx = pred[k, 2]; hy = pred[k, 3]
         rx = radius_px + fabs(hx)
@@ -272,6 +281,12 @@ def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,
     cdef Py_ssize_t k, x, y, h = gray.shape[0], w = gray.shape[1]
     cdef long long x0, y0, x1, y1, off, bw, cx0, cy0, cx1, cy1, tot, n
     cdef const unsigned char *row
+    if boxes.shape[1] < 5 or out.shape[0] < boxes.shape[0]:
+        raise ValueError("masked_means: boxes must be (B, 5), out (B,)")
+    for k in range(boxes.shape[0]):
+        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
+        if x1 < x0 or y1 < y0 or off < 0 or off + (x1 - x0) * (y1 - y0) > masks.shape[0]:
+            raise ValueError("masked_means: a box is inverted or its mask lies outside `masks`")
     for k in range(boxes.shape[0]):
         x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
         bw = x1 - x0
@@ -299,7 +314,11 @@ def dx_offsets(const double[:, ::1] bl, const double[:, ::1] pp, const double[::
     cdef Py_ssize_t n = bl.shape[0], k, i, j = 0
     cdef double mx, my, hx, hy, single, r, x
     cdef int kind
-    cdef double merged_ratio = cfg[5], max_merged = cfg[6], max_cut = cfg[7], match_min_px = cfg[1]
+    cdef double merged_ratio, max_merged, max_cut, match_min_px
+    if (bl.shape[1] < 7 or pp.shape[1] < 13 or cfg.shape[0] < 12 or out.shape[1] < 2
+            or out.shape[0] < n * pp.shape[0]):
+        raise ValueError("dx_offsets: bl must be (N, 7+), pp (P, 13+), cfg (12,), out (>= N P, 2)")
+    merged_ratio, max_merged, max_cut, match_min_px = cfg[5], cfg[6], cfg[7], cfg[1]
     for k in range(pp.shape[0]):
         mx = pp[k, 0]; my = pp[k, 1] + dy; hx = pp[k, 2]; hy = pp[k, 3]; single = pp[k, 4]
         for i in range(n):
@@ -360,7 +379,13 @@ def head_fluxes(const unsigned char[:, :] gray, const long long[:, ::1] boxes, c
     cdef long long x0, x1, y0, y1
     cdef float bg, v
     cdef float[::1] buf
+    if boxes.shape[1] < 4 or bgs.shape[0] < boxes.shape[0] or out.shape[0] < boxes.shape[0]:
+        raise ValueError("head_fluxes: boxes must be (F, 4), bgs and out (F,)")
     for k in range(boxes.shape[0]):
+        if boxes[k, 1] <= boxes[k, 0] or boxes[k, 3] <= boxes[k, 2]:
+            continue  # empty: 0.0
+        if boxes[k, 0] < 0 or boxes[k, 2] < 0 or boxes[k, 1] > gray.shape[1] or boxes[k, 3] > gray.shape[0]:
+            raise ValueError("head_fluxes: a box reaches past the frame")
         m = (boxes[k, 1] - boxes[k, 0]) * (boxes[k, 3] - boxes[k, 2])
         if m > most:
             most = m
