@@ -29,6 +29,13 @@ Per frame, each emitter's intensity is the mean gray inside its envelope at its 
 position (also when dark, so no frame is lost); `EmitterLevels` learns its on/off levels from
 recent frames, and `pair_xor` (receiver.decode.s2psk) turns the two intensities into the soft
 XOR of one sample.
+
+Cost (issue 14): the loops over pairs x blobs run compiled (receiver/vision/_pairing.pyx), once per
+pass and frame, not per pair: `_explain` of every pair with `_first_pass`'s claims
+(`_explain_batch`), `shift_votes`, `dx_offsets` and the heads' fluxes (`sample_fluxes`); the
+intensities of a frame's emitters are read in one call (receiver.vision.profile.mean_in_masks).
+Their decisions and numbers equal the Python code here to the bit (math.hypot's algorithm,
+numpy's summation orders), which stays the reference (`OCCLOC_PURE=1`, tests/test_pair_kernels.py).
 """
 
 from __future__ import annotations
