@@ -269,8 +269,16 @@ class Receiver:
 
     def _pairs(self, gray: np.ndarray, frame: Frame, tracks: list[Track]) -> dict:
         """Follow and decode the S2-PSK pairs; {track id: owning pair} of this frame."""
-        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s)
-        for p in live:
+        from receiver.vision.profile import mean_in_masks  # every emitter of the frame in one call
+
+        def intensities(g, ts):
+            return mean_in_masks(g, [t.blob for t in ts])
+        live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s, intensities=intensities)
+        samples = self.pairer.sample_all(live, gray, intensities)
+        # the far heads also read by their whole flux (below), all in one call
+        by_flux = [p for p in live if p.led_id is None and self.pairer.reads_flux(p)]
+        fluxes = dict(zip([p.uid for p in by_flux], self.pairer.sample_fluxes(by_flux, gray)))
+        for p, (a, b) in zip(live, samples):
             decs = self.pair_decoders.get(p.uid)
             if decs is None:
                 decs = self.pair_decoders[p.uid] = self.policy.new_pair_decoders()
@@ -282,15 +290,15 @@ class Receiver:
                     for t_s, *ab in p.backlog:
                         self.policy.step_pair(early, t_s, pair_xor(*ab))
                     p.backlog = []
-            a, b = self.pairer.sample(p, gray, _intensity)
-            x = pair_xor(a, b, p.levels_a.on, p.levels_b.on, p.levels_a.off, p.levels_b.off)
+            (a_on, a_off), (b_on, b_off) = p.levels_a.on_off(), p.levels_b.on_off()
+            x = pair_xor(a, b, a_on, b_on, a_off, b_off)
             due = self.policy.pair_due(p.led_id, frame.index, p.uid)
             found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
             if p.led_id is None and self.pairer.reads_flux(p):
                 # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
                 # no side needed, so the yaw shake does not matter): a third decoder set, fed
                 # until the pair has an ID; whichever set decodes first wins.
-                fx = flux_xor(self.pairer.sample_flux(p, gray), self.pairer.flux_on(p))
+                fx = flux_xor(fluxes[p.uid], self.pairer.flux_on(p))
                 fdecs = self.flux_decoders.get(p.uid)
                 if fdecs is None:
                     fdecs = self.flux_decoders[p.uid] = self.policy.new_pair_decoders()

@@ -239,7 +239,8 @@ class DecodePolicy:
         found = state = None
         for (clk, _), dec in decoders.items():
             st = dec.step(t_s, xor, decode)
-            if found is None and accept(self.led_map, "s2psk", st.led_id, clk):
+            # (accept() is False for no ID: not asked then, ~35 steps a frame on vehicle)
+            if found is None and st.led_id is not None and accept(self.led_map, "s2psk", st.led_id, clk):
                 found = st
             state = found or st
         return found, state

@@ -44,6 +44,7 @@ N_BITS = S2PSK_ID_BITS + S2PSK_CRC_BITS  # 12
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)
 _SYNC_IDX = (np.arange(PACKET_LEN)[:, None] + np.arange(SYNC_LEN)[None, :]) % PACKET_LEN
+_RING0 = 256  # initial sample ring size (2.5 packets at 30 fps: ~180 samples)
 _CRC4 = np.array([crc4(i) for i in range(1 << S2PSK_ID_BITS)], dtype=np.int64)
 
 
@@ -257,6 +258,14 @@ class S2pskState:
     confidence: float
 
 
+def _state(led_id: int | None, samples: int, confidence: float) -> S2pskState:
+    """S2pskState(led_id, kind_of(led_id), samples, confidence), without the frozen record's
+    per-field object.__setattr__ (a state per decoder per frame: ~35 a frame on vehicle)."""
+    st = object.__new__(S2pskState)
+    st.__dict__.update(led_id=led_id, kind=kind_of(led_id), samples=samples, confidence=confidence)
+    return st
+
+
 class S2pskDecoder:
     """Per-pair S2-PSK decoder driven by frame timestamps.
 
@@ -284,8 +293,14 @@ class S2pskDecoder:
         self.switch_steps = s.switch_steps
         if s.decoder not in ("hard", "soft"):
             raise ValueError(f"decoder must be 'hard' or 'soft', not {s.decoder!r}")
-        self._t = np.zeros(0)
-        self._x = np.zeros(0)
+        # the samples' times (s, from the first) and signed soft XORs: a ring of two buffers
+        # whose live part is [_lo, _hi) (`_t`, `_x`), appended in place instead of np.append
+        self._tb = np.empty(_RING0)
+        self._xb = np.empty(_RING0)
+        self._lo = self._hi = 0
+        self._first = 0.0  # _tb[_lo] as a Python float (the trim test of every step)
+        self._last = -np.inf  # the latest time: while the times only grow, a trim is a slice
+        self._rising = True
         self._t0: float | None = None
         self.phase_every = s.phase_every
         self._phase: float | None = None  # symbol-grid phase in symbols, from the last search
@@ -295,6 +310,47 @@ class S2pskDecoder:
         self.confidence = 0.0
         self._cand: int | None = None
         self._cand_n = 0
+
+    @property
+    def _t(self) -> np.ndarray:
+        """The kept samples' times (s since the first sample), oldest first (a view)."""
+        return self._tb[self._lo:self._hi]
+
+    @property
+    def _x(self) -> np.ndarray:
+        """The kept samples' signed soft XORs, aligned with `_t` (a view)."""
+        return self._xb[self._lo:self._hi]
+
+    def _trim(self, since: float) -> None:
+        """Drop the samples older than `since` (s): those with t < since, as a boolean mask
+        would (a slice while the times only grew, else the mask's compaction)."""
+        lo, hi, tb = self._lo, self._hi, self._tb
+        if self._rising:
+            while lo < hi and tb[lo] < since:
+                lo += 1
+            self._lo = lo
+        else:
+            keep = tb[lo:hi] >= since
+            n = int(keep.sum())
+            tb[:n], self._xb[:n] = tb[lo:hi][keep], self._xb[lo:hi][keep]
+            self._lo, self._hi = 0, n
+
+    def _append(self, t: float, x: float) -> None:
+        """One sample at the end of the ring (moved to the front, or doubled, when full)."""
+        if self._hi == self._tb.size:
+            n = self._hi - self._lo
+            if 2 * n > self._tb.size:
+                tb, xb = np.empty(2 * self._tb.size), np.empty(2 * self._tb.size)
+            else:
+                tb, xb = self._tb, self._xb
+            tb[:n], xb[:n] = self._tb[self._lo:self._hi].copy(), self._xb[self._lo:self._hi].copy()
+            self._tb, self._xb, self._lo, self._hi = tb, xb, 0, n
+        self._tb[self._hi] = t
+        self._xb[self._hi] = x
+        self._hi += 1
+        if t < self._last:
+            self._rising = False
+        self._last = t
 
     def folded_packet(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean soft symbol and sample count per stream position mod 30, (30,) each, at the
@@ -344,20 +400,27 @@ class S2pskDecoder:
         if self._t0 is None:
             self._t0 = float(t_s)
         t = float(t_s) - self._t0  # small numbers keep the symbol arithmetic exact
-        if self._t.size and self._t[0] < t - self.history_s:
-            keep = self._t >= t - self.history_s
-            self._t, self._x = self._t[keep], self._x[keep]
-        self._t = np.append(self._t, t)
-        self._x = np.append(self._x, self.sign * float(soft_xor))
-        if not decode or t - self._t[0] < (PACKET_LEN - 2) * self.symbol_s:
+        if self._hi > self._lo and self._first < t - self.history_s:
+            self._trim(t - self.history_s)
+            self._first = float(self._tb[self._lo]) if self._hi > self._lo else t
+        elif self._hi == self._lo:
+            self._first = t
+        self._append(t, self.sign * float(soft_xor))
+        if not decode:
+            return _state(self.led_id, self.samples, self.confidence)
+        return self._decide(t, decode)
+
+    def _decide(self, t: float, decode: bool) -> S2pskState:
+        """`step`'s decode of the kept samples, the latest at `t` (s since the first)."""
+        if not decode or t - self._first < (PACKET_LEN - 2) * self.symbol_s:
             if decode:
                 self._calls += 1
                 self._phase = None  # the first decode searches every phase
-            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, self.confidence)
+            return _state(self.led_id, self.samples, self.confidence)
         sums, c, squares = self.folded_sums()
         if c.min() < self.min_samples:
             self.confidence = 0.0
-            return S2pskState(self.led_id, kind_of(self.led_id), self.samples, 0.0)
+            return _state(self.led_id, self.samples, 0.0)
         led_id, conf = decode_symbols(sums / np.maximum(c, 1e-12), sync_margin=self.sync_margin,
                                       min_margin=self.min_margin)
         if led_id is None and self.settings.decoder == "soft":
@@ -376,4 +439,4 @@ class S2pskDecoder:
                     self.led_id, self._cand, self._cand_n = led_id, None, 0
         elif led_id is not None:
             self._cand, self._cand_n = None, 0
-        return S2pskState(self.led_id, kind_of(self.led_id), self.samples, conf)
+        return _state(self.led_id, self.samples, conf)

@@ -123,13 +123,20 @@ def pair_dx(offsets: list, *, radius_px: float = 14.0, sigma_px: float = 1.5, st
     counts once whichever place it fits, so the baseline ambiguity of one head (which half is
     lit) is settled by the other heads, whose baselines differ. 0 when its score is within
     `zero_rel` of the best (a scene without yaw keeps dx 0, not a few px of noise); None
-    when the best score is under `min_score` (no pair saw a blob). Cost: blobs x grid."""
-    if not offsets:
+    when the best score is under `min_score` (no pair saw a blob). `offsets` may also be one
+    (K, M) array, a blob's unused places +inf. Cost: blobs x grid."""
+    if len(offsets) == 0:
         return None
     grid = np.arange(-radius_px, radius_px + 0.5 * step_px, step_px)
-    score = np.zeros(len(grid))
-    for c in offsets:
-        score += np.exp(-0.5 * ((grid[:, None] - np.asarray(c, float)[None, :]) / sigma_px) ** 2).max(axis=1)
+    # every blob at once: its offsets padded with +inf (exp(-inf) = 0 never wins the max), the
+    # blobs' best values summed in order (numpy's reduction along the first axis)
+    if isinstance(offsets, np.ndarray):
+        off = offsets.reshape(len(offsets), -1)
+    else:
+        off = np.full((len(offsets), max(len(c) for c in offsets)), np.inf)
+        for k, c in enumerate(offsets):
+            off[k, :len(c)] = c
+    score = np.exp(-0.5 * ((grid[None, :, None] - off[:, None, :]) / sigma_px) ** 2).max(axis=2).sum(axis=0)
     i = int(np.argmax(score))
     if score[i] < min_score:
         return None

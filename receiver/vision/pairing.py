@@ -29,12 +29,19 @@ Per frame, each emitter's intensity is the mean gray inside its envelope at its 
 position (also when dark, so no frame is lost); `EmitterLevels` learns its on/off levels from
 recent frames, and `pair_xor` (receiver.decode.s2psk) turns the two intensities into the soft
 XOR of one sample.
+
+Cost (issue 14): the loops over pairs x blobs run compiled (receiver/vision/_pairing.pyx), once per
+pass and frame, not per pair: `_explain` of every pair with `_first_pass`'s claims
+(`_explain_batch`), `shift_votes`, `dx_offsets` and the heads' fluxes (`sample_fluxes`); the
+intensities of a frame's emitters are read in one call (receiver.vision.profile.mean_in_masks).
+Their decisions and numbers equal the Python code here to the bit (math.hypot's algorithm,
+numpy's summation orders), which stays the reference (`OCCLOC_PURE=1`, tests/test_pair_kernels.py).
 """
 
 from __future__ import annotations
 
 import bisect
-import dataclasses
+import functools
 import itertools
 import math
 from collections import deque
@@ -42,10 +49,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.track import Track
 from receiver.vision.settings import PairSettings
 from receiver.core.settings import resolve_settings
+
+# the compiled candidate search (receiver/vision/_pairing.pyx: `_explain` of every pair in one
+# call per pass), or None: the Python reference below
+_k = load("receiver.vision._pairing")
+
+
+@functools.cache
+def _quantile_index(n: int, q: float) -> tuple[int, int, float]:
+    """(lo, hi, t): np.percentile's (method "linear") neighbours in a sorted list of `n` values
+    and its weight of the upper one, for the `q` percentile (the same for every list of n)."""
+    pos = (n - 1) * (q / 100.0)  # numpy's virtual index
+    lo = min(max(int(math.floor(pos)), 0), n - 1)
+    return lo, min(lo + 1, n - 1), pos - lo
 
 
 class EmitterLevels:
@@ -57,6 +78,7 @@ class EmitterLevels:
         self.values: deque = deque(maxlen=history)
         self.q_on, self.q_off = q_on, q_off
         self._sorted: list[float] = []
+        self._levels: tuple[float, float] | None = None  # (on, off) until the next add
 
     def add(self, value: float) -> None:
         v = float(value)
@@ -64,25 +86,31 @@ class EmitterLevels:
             del self._sorted[bisect.bisect_left(self._sorted, self.values[0])]
         self.values.append(v)
         bisect.insort(self._sorted, v)
+        self._levels = None
+
+    def on_off(self) -> tuple[float, float]:
+        """(on, off), computed once per added value."""
+        if self._levels is None:
+            self._levels = ((self._quantile(self.q_on), self._quantile(self.q_off)) if self.values
+                            else (0.0, 0.0))
+        return self._levels
 
     def _quantile(self, q: float) -> float:
         """np.percentile(values, q) (method "linear"), with numpy's own lerp arithmetic."""
         v = self._sorted
-        n, qq = len(v), q / 100.0
-        pos = (n - 1) * qq  # numpy's virtual index
-        lo = min(max(int(math.floor(pos)), 0), n - 1)
-        t = pos - lo
-        a, b = v[lo], v[min(lo + 1, n - 1)]
+        lo, hi, t = _quantile_index(len(v), q)
+        a, b = v[lo], v[hi]
         d = b - a
         return b - d * (1.0 - t) if t >= 0.5 else a + d * t
 
+
     @property
     def on(self) -> float:
-        return self._quantile(self.q_on) if self.values else 0.0
+        return self.on_off()[0]
 
     @property
     def off(self) -> float:
-        return self._quantile(self.q_off) if self.values else 0.0
+        return self.on_off()[1]
 
     def blinks(self, min_swing: float) -> bool:
         """Both levels seen, apart by at least `min_swing` gray values."""
@@ -94,8 +122,9 @@ def moved(blob: Blob, cx: float, cy: float) -> Blob:
     dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
     if dx == 0 and dy == 0:
         return blob
-    return dataclasses.replace(blob, cx=blob.cx + dx, cy=blob.cy + dy, hull=blob.hull + (dx, dy),
-                               x0=blob.x0 + dx, x1=blob.x1 + dx, y0=blob.y0 + dy, y1=blob.y1 + dy)
+    # the record's own constructor (dataclasses.replace walks its fields: ~2x the cost)
+    return Blob(blob.cx + dx, blob.cy + dy, blob.area_px, blob.hull + (dx, dy), blob.x0 + dx, blob.y0 + dy,
+                blob.x1 + dx, blob.y1 + dy, blob.border, blob.peak, blob.level, blob.background)
 
 
 # A pair's baseline counts as measured while both emitters' own blobs were seen within this
@@ -260,6 +289,8 @@ class Pairer:
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
         self.shift_sum = (0.0, 0.0)  # the measured shifts added up, px (jumps over dark frames)
         self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
+        self._cfg_arr: np.ndarray | None = None  # the kernel's settings (`_cfg`)
+        self._table: tuple | None = None  # (tracks list, its length, `_track_table`) of this frame
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
@@ -359,18 +390,20 @@ class Pairer:
         for every formed pair and every blob centroid of `xy` (N, 2) within `radius_px` of its
         predicted midpoint, the blob's offset from the predicted A, B and midpoint (one of them
         is the shift when the blob is this pair's; the others scatter by the pair's baseline)."""
-        out = []
         if len(xy) == 0:
             return np.zeros((0, 2))
-        for p in self.pairs:
-            if p.base0 is None:
-                continue
-            mx, my, hx, hy, _ = self._predict(p)
-            d = xy - (mx, my)
-            d = d[(np.abs(d[:, 0]) <= radius_px + abs(hx)) & (np.abs(d[:, 1]) <= radius_px + abs(hy))]
-            if len(d):
-                out += [d, d + (hx, hy), d - (hx, hy)]
-        return np.concatenate(out) if out else np.zeros((0, 2))
+        pred = np.array([self._predict(p)[:4] for p in self.pairs if p.base0 is not None], float).reshape(-1, 4)
+        if _k is not None:
+            out = np.empty((3 * len(pred) * len(xy), 2))
+            return out[:_k.shift_votes(np.ascontiguousarray(xy, float), pred, float(radius_px), out)]
+        # all pairs at once, in the order of a loop over the pairs: per pair its blobs' offsets
+        # d, then d + (hx, hy), then d - (hx, hy), each in the blobs' order
+        d = xy[None, :, :] - pred[:, None, :2]  # (P, N, 2)
+        reach = radius_px + np.abs(pred[:, 2:])  # (P, 2)
+        keep = (np.abs(d[:, :, 0]) <= reach[:, None, 0]) & (np.abs(d[:, :, 1]) <= reach[:, None, 1])
+        h = pred[:, None, 2:]
+        votes = np.stack((d, d + h, d - h), axis=1)  # (P, 3, N, 2)
+        return votes[np.broadcast_to(keep[:, None, :], votes.shape[:3])]
 
     def dx_offsets(self, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
         """Per blob near a formed pair's prediction (moved down by this frame's vertical shift
@@ -378,10 +411,19 @@ class Pairer:
         half baseline vertically): the horizontal shifts (px) that put it where it may be, by
         its size (`_width_class`, else its area against one emitter's): a blob both lit at the
         midpoint, one emitter's at A or B (receiver.vision.motion.pair_dx). `xy`: (N, 2)
-        centroids of `blobs`."""
+        centroids of `blobs`. With the kernel: one (K, 2) array of them, a blob's one shift
+        padded with +inf (as motion.pair_dx takes them)."""
         out = []
         if not len(xy):
             return out
+        if _k is not None:
+            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            if not items:
+                return out
+            bl = np.array([(b.cx, b.cy, b.area_px, b.x0, b.x1, b.y0, b.y1, 1) for b in blobs], float).reshape(-1, 8)
+            res = np.full((len(items) * len(bl), 2), np.inf)
+            n = _k.dx_offsets(bl, self._pair_rows(items, False), self._cfg(), float(dy), float(radius_px), res)
+            return res[:n]
         for p in self.pairs:
             if p.base0 is None:
                 continue
@@ -411,7 +453,9 @@ class Pairer:
         it: its emitters' intensities would be read beside them. Only the vertical part: a
         blob is matched to A, B or the midpoint of a blinking pair, so its horizontal offset
         mixes the shake with which of them lit it."""
-        return self._first_pass(tracks, xy)[0]
+        pitch = self._first_pass(tracks, xy)[0]
+        self._table = None
+        return pitch
 
     def _first_pass(self, tracks: list[Track], xy: np.ndarray) -> tuple[float, dict]:
         """(`pitch_shift`, {pair uid: ids of the tracks it must not take}) of this frame, from
@@ -420,6 +464,23 @@ class Pairer:
         neither: it would drag one's emitter onto the other light. A blob a decoded pair
         explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
         dys, claims = [], {}
+        if _k is not None:
+            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            if not items:
+                return 0.0 if self.shake_min_pairs > 0 else float(np.median(dys)), {}
+            res, mine = self._explain_kernel(items, tracks, True)
+            dys = res[res[:, 0] > 0, 3].tolist()
+            pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            # the tracks two or more pairs claim: not taken by an undecoded one when a decoded one
+            # claims it too, by none of them when two decoded ones do (the loop below)
+            c = mine.astype(bool)
+            dec = np.array([p.led_id is not None for p, _, _ in items])
+            both = c.sum(axis=0) >= 2
+            n_dec = c[dec].sum(axis=0)
+            ex = c & both & ((n_dec >= 2) | ((n_dec >= 1) & ~dec[:, None]))
+            exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
+                       for k in np.flatnonzero(ex.any(axis=1))}
+            return pitch, exclude
         for p in self.pairs:
             if p.base0 is None:
                 continue
@@ -431,7 +492,7 @@ class Pairer:
             if p.led_id is not None and len(xy):
                 # a decoded pair also claims the blobs on its own emitters that it did not take
                 # (another light's blob merged with one of them)
-                tol = max(self.match_min_px, self.match_size * math.sqrt(single))
+                tol = self._claim_tol(single)
                 d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
                                np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
                 mine.update(tracks[i].track_id for i in np.flatnonzero(d <= tol) if tracks[i].seen)
@@ -448,15 +509,113 @@ class Pairer:
         pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
         return pitch, exclude
 
+    def _claim_tol(self, single: float) -> float:
+        """How near (px) a blob must be to a decoded pair's emitter to be claimed by it
+        (`_first_pass`), for one emitter's area `single` px^2."""
+        return max(self.match_min_px, self.match_size * math.sqrt(single))
+
+    def _track_table(self, tracks: list[Track]) -> np.ndarray:
+        """(N, 8) cx, cy, area_px, x0, x1, y0, y1, seen of the tracks' blobs (the kernel's
+        `tr`), built once per frame (the tracks do not change within `step`)."""
+        memo = self._table
+        if memo is not None and memo[0] is tracks and len(tracks) == memo[1]:
+            return memo[2]
+        tr = np.array([(t.blob.cx, t.blob.cy, t.blob.area_px, t.blob.x0, t.blob.x1, t.blob.y0, t.blob.y1,
+                        t.seen) for t in tracks], float).reshape(-1, 8)
+        self._table = (tracks, len(tracks), tr)
+        return tr
+
+    def _pair_rows(self, items: list, claims: bool) -> np.ndarray:
+        """(P, 14) the kernel's `pp` rows of (pair, prediction, exclude) `items`; the claim
+        tolerance (`_claim_tol`) with `claims` for the decoded pairs, else -1."""
+        rows = []
+        for p, (mx, my, hx, hy, single), _ in items:
+            a, b = p.a.blob, p.b.blob
+            ctol = self._claim_tol(single) if claims and p.led_id is not None else -1.0
+            rows.append((mx, my, hx, hy, single, p.misses, a.area_px, b.area_px, p.size, a.x1 - a.x0,
+                         b.x1 - b.x0, a.y1 - a.y0, b.y1 - b.y0, ctol))
+        return np.array(rows, float).reshape(-1, 14)
+
+    def _cfg(self) -> np.ndarray:
+        """The kernel's `cfg`: PairSettings' gates and this frame's `vertical_known`."""
+        cfg = self._cfg_arr
+        if cfg is None:
+            cfg = self._cfg_arr = np.array((self.match_frac, self.match_min_px, self.match_size, self.miss_growth_px,
+                                            0.0, self.merged_ratio, self.max_merged, self.max_cut, self.width_size,
+                                            self.width_tol, self.width_min_px, self.width_max_rows), float)
+        cfg[4] = float(self.vertical_known)
+        return cfg
+
+    def _explain_kernel(self, items: list, tracks: list[Track], claims: bool, lists: bool = False) -> tuple:
+        """The kernel's `explain_pairs` of `items` (non-empty) against `tracks`: (res (P, 10),
+        mine (P, N) uint8[, the used part of flat (per pair: nearby, explaining, claimed track
+        indices) with `lists`])."""
+        n = len(tracks)
+        excl = np.zeros((len(items), n), np.uint8)
+        for k, (_, _, exclude) in enumerate(items):
+            if exclude:
+                for i, t in enumerate(tracks):
+                    if t.track_id in exclude:
+                        excl[k, i] = 1
+        scratch = np.empty((3, len(items), max(n, 1)), np.int32)
+        flat = np.empty(3 * len(items) * max(n, 1), np.int32)
+        res = np.empty((len(items), 10))
+        mine = np.empty((len(items), n), np.uint8)
+        used = _k.explain_pairs(self._track_table(tracks), self._pair_rows(items, claims and n > 0), excl,
+                                self._cfg(), scratch, res, flat, mine)
+        return (res, mine, flat[:used]) if lists else (res, mine)
+
+    def _explain_batch(self, items: list, tracks: list[Track], claims: bool) -> list[tuple]:
+        """`_explain` of every (pair, its prediction (mx, my, hx, hy, single), exclude) of
+        `items` against `tracks` in one kernel call (receiver/vision/_pairing.pyx), with the
+        same decisions and sums. Per item: (explaining, nearby, number of shifts, their mean
+        (dx, dy) (np.mean of the (dx, dy) rows), the mean dy (np.mean of the dys), A's and B's
+        own blobs, the merged blob, and with `claims` the seen tracks on a decoded pair's
+        emitters (`_first_pass`), else [])."""
+        if not items:
+            return []
+        res, _, flat = self._explain_kernel(items, tracks, claims, lists=True)
+        picked = [tracks[i] for i in flat.tolist()]  # per pair: nearby, explaining, claimed
+        out, pos = [], 0
+        for r in res.tolist():
+            ns, nn, ne, nc = int(r[0]), int(r[7]), int(r[8]), int(r[9])
+            ia, ib, im = int(r[4]), int(r[5]), int(r[6])
+            out.append((picked[pos + nn:pos + nn + ne], picked[pos:pos + nn], ns, r[1], r[2], r[3],
+                        tracks[ia].blob if ia >= 0 else None, tracks[ib].blob if ib >= 0 else None,
+                        tracks[im].blob if im >= 0 else None, picked[pos + nn + ne:pos + nn + ne + nc]))
+            pos += nn + ne + nc
+        return out
+
     def _follow(self, p: Pair, tracks: list[Track], xy: np.ndarray, shape, dy: float = 0.0,
                 dx: float = 0.0, exclude=()) -> bool:
         """Move pair `p` by this frame's blobs (see the module docstring); False when it ends.
         `xy`: (N, 2) centroids of `tracks`, px; `dy`: the frame's common vertical image shift
         (`pitch_shift`), px, added to the prediction."""
+        pred = self._follow_start(p, dx, dy)
+        if pred is None:
+            return False
+        expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, exclude)
+        mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
+        return self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged)
+
+    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict) -> list[Pair]:
+        """`_follow` of every pair (the live ones), their blobs found by one kernel call."""
+        items = []
+        for p in self.pairs:
+            pred = self._follow_start(p, dx, dy)
+            if pred is not None:
+                items.append((p, pred, exclude.get(p.uid, ())))
+        return [p for (p, pred, _), (expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _)
+                in zip(items, self._explain_batch(items, tracks, False))
+                if self._follow_end(p, shape, pred, expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)]
+
+    def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
+        """`_follow`'s first part: the frame counted, None when the pair gives up, else its
+        prediction (mx, my, hx, hy, single) moved by the frame's shift (dx, dy) px."""
         p.frames += 1
         if p.led_id is None and p.frames > self.give_up_frames:
             self.banned.add(p.founding)   # what new pairs are checked by (an alias never matches)
-            return False
+            return None
         if p.base0 is None:  # first follow: the founding blobs fix the baseline vector
             p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
@@ -465,7 +624,14 @@ class Pairer:
         if self.shake_x_wide or p.a.track_id == p.b.track_id:  # `PairSettings.shake_x_wide`
             mx += dx
         my += dy
-        p.tracks, p.nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, mx, my, hx, hy, single, exclude)
+        return mx, my, hx, hy, single
+
+    def _follow_end(self, p: Pair, shape, pred: tuple, explaining: list, nearby: list, mean,
+                    obs_a, obs_b, merged) -> bool:
+        """`_follow`'s second part, from the blobs pair `p` explains at its prediction `pred`
+        (`_explain`; `mean`: the mean (dx, dy) of their shifts, None without any)."""
+        mx, my, hx, hy, single = pred
+        p.tracks, p.nearby = explaining, nearby
         if self.measure_baseline and p.a.track_id == p.b.track_id:
             self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
@@ -498,12 +664,12 @@ class Pairer:
                 p.size = 0.5 * t.blob.area_px  # both lit, one blob
             elif obs_a is not None or obs_b is not None:
                 p.size = t.blob.area_px
-        if not shifts:
+        if mean is None:
             p.misses += 1
             sx = sy = 0.0
         else:
             p.misses = 0
-            sx, sy = (float(v) for v in np.mean(shifts, axis=0))
+            sx, sy = mean
             p.vx += self.velocity_gain * sx
             p.vy += self.velocity_gain * sy
         p.mx, p.my = mx + sx, my + sy
@@ -554,15 +720,22 @@ class Pairer:
             meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
         p.base, p.base_frames = meas, p.frames
 
-    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None) -> list[Pair]:
+    def step(self, gray: np.ndarray, tracks: list[Track], intensity, shift=None, t_s: float | None = None,
+             intensities=None) -> list[Pair]:
         """Update pairs with this frame. `intensity(gray, track) -> float` reads an emitter's
-        mean gray in its envelope. `shift`: the frame's common image shift (dx, dy) px from the
+        mean gray in its envelope; `intensities(gray, tracks) -> list of float`, if given, the
+        same of many at once. `shift`: the frame's common image shift (dx, dy) px from the
         previous frame (receiver.vision.motion), or None: the vertical one from the pairs
         (`pitch_shift`). `t_s`: the frame's time (s), for the new pairs' `backlog` (None: no
         backlog). Returns the live pairs; their levels are updated."""
         live = {t.track_id: t for t in tracks}
+        self._table = None  # `_track_table` of these tracks, built on first use
         shape = None if gray is None else gray.shape
-        xy = np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
+        if _k is not None:  # the kernel's table of the tracks holds their centroids
+            table = self._track_table(tracks)
+            xy = table[:, :2]
+        else:
+            table, xy = None, np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
         pitch, exclude = self._first_pass(tracks, xy)
         dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
@@ -570,11 +743,18 @@ class Pairer:
         self.vertical_known = shift is not None
         self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
         if t_s is not None and self.backlog_frames > 0 and self.head_backlog:
-            seen = [t for t in tracks if t.seen]
-            self.scene_past.append((float(t_s), self.view_sum,
-                                    np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
-                                    np.array([t.blob.area_px for t in seen], float)))
-        self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+            if table is not None:
+                lit = table[table[:, 7] != 0.0]
+                self.scene_past.append((float(t_s), self.view_sum, lit[:, :2], lit[:, 2]))
+            else:
+                seen = [t for t in tracks if t.seen]
+                self.scene_past.append((float(t_s), self.view_sum,
+                                        np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
+                                        np.array([t.blob.area_px for t in seen], float)))
+        if _k is not None:
+            self.pairs = self._follow_all(tracks, shape, dy, dx, exclude)
+        else:
+            self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
@@ -582,13 +762,13 @@ class Pairer:
             if tid not in live or tid in paired:
                 del self.levels[tid]
                 self.past.pop(tid, None)
-        for t in tracks:
-            if t.track_id not in paired:
-                v = intensity(gray, t)
-                self.levels.setdefault(t.track_id, EmitterLevels()).add(v)
-                if t_s is not None and self.backlog_frames > 0:
-                    self.past.setdefault(t.track_id, deque(maxlen=self.backlog_frames)).append(
-                        (float(t_s), t.seen, t.blob.area_px, v))
+        todo = [t for t in tracks if t.track_id not in paired]
+        vals = intensities(gray, todo) if intensities is not None else [intensity(gray, t) for t in todo]
+        for t, v in zip(todo, vals):
+            self.levels.setdefault(t.track_id, EmitterLevels()).add(v)
+            if t_s is not None and self.backlog_frames > 0:
+                self.past.setdefault(t.track_id, deque(maxlen=self.backlog_frames)).append(
+                    (float(t_s), t.seen, t.blob.area_px, v))
         free = [t for t in tracks if t.track_id not in paired and len(self.levels[t.track_id].values) >= self.min_frames
                 and self.levels[t.track_id].blinks(self.min_swing)]
         cands = []
@@ -622,6 +802,7 @@ class Pairer:
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
+        self._table = None
         return self.pairs
 
     def _mark_beside(self, tracks: list[Track]) -> None:
@@ -808,6 +989,8 @@ class Pairer:
         both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
         left out (one head followed by two pairs: the LED is the decoded one's)."""
         live = [p for p in self.pairs if p.misses <= self.report_coast_frames]
+        if not live:
+            return []
         # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
         # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
         # frames lies beside the head, on nobody's light, and is not reported (0 = off).
@@ -822,25 +1005,27 @@ class Pairer:
         owner = np.array([id(p) for _, _, p, _ in dec])
         size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
         out = []
-        for k, (i, b, p, own) in enumerate(dec):
-            # An emitter without its own blob in this frame sits where the pair predicts it: left
-            # out when that is as near another decoded pair's emitter (overlapping lights).
-            other = owner != id(p)
-            d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
+        if dec:
+            # every decoded emitter against every other pair's at once (row k: emitter k)
+            d = np.hypot(xy[None, :, 0] - xy[:, 0, None], xy[None, :, 1] - xy[:, 1, None])
+            other = owner[None, :] != owner[:, None]
             if self.emitter_gate_larger:
                 # both emitters of a pair are the same size: its larger envelope (the other
                 # may be stale), and the larger of the two lights'
-                area = np.maximum(size[k], size[other])
+                area = np.maximum(size[:, None], size[None, :])
             else:
-                area = np.full(d.shape, b.area_px)
-            if own or not d.size or (d > np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
-                out.append((i, b, p))
-        for p in live:
-            if p.led_id is None:
-                for i, e in zip(p.ids, (p.a, p.b)):
-                    if not len(xy) or np.hypot(*(xy - (e.blob.cx, e.blob.cy)).T).min() > self.match_min_px:
-                        out.append((i, e.blob, p))
-        return out
+                area = np.array([b.area_px for _, b, _, _ in dec], float)[:, None]
+            gate = np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))
+            clear = ((d > gate) | ~other).all(axis=1)
+            # An emitter without its own blob in this frame sits where the pair predicts it: left
+            # out when that is as near another decoded pair's emitter (overlapping lights).
+            out = [(i, b, p) for (i, b, p, own), ok in zip(dec, clear.tolist()) if own or ok]
+        und = [(i, e.blob, p) for p in live if p.led_id is None for i, e in zip(p.ids, (p.a, p.b))]
+        if und and len(xy):
+            u = np.array([(b.cx, b.cy) for _, b, _ in und], float)
+            near = np.hypot(xy[None, :, 0] - u[:, 0, None], xy[None, :, 1] - u[:, 1, None]).min(axis=1)
+            und = [e for e, ok in zip(und, (near > self.match_min_px).tolist()) if ok]
+        return out + und
 
     @staticmethod
     def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:
@@ -852,6 +1037,23 @@ class Pairer:
         p.levels_a.add(ia)
         p.levels_b.add(ib)
         return ia, ib
+
+    @staticmethod
+    def sample_all(pairs: list[Pair], gray: np.ndarray, intensities) -> list[tuple[float, float]]:
+        """`sample` of every pair of `pairs`, their emitters read by one
+        `intensities(gray, tracks) -> list of float` call."""
+        vals = iter(intensities(gray, [e for p in pairs if not p.fresh for e in (p.a, p.b)]))
+        out = []
+        for p in pairs:
+            if p.fresh:
+                p.fresh = False
+                out.append((p.levels_a.values[-1], p.levels_b.values[-1]))
+                continue
+            ia, ib = next(vals), next(vals)
+            p.levels_a.add(ia)
+            p.levels_b.add(ib)
+            out.append((ia, ib))
+        return out
 
     def sample_flux(self, p: Pair, gray: np.ndarray) -> float:
         """This frame's `head_flux` of pair `p` (gray x px), kept in `Pair.flux`."""
@@ -870,8 +1072,12 @@ class Pairer:
         `flux_recent` fluxes above `flux_min` (the frames with a half or both lit: one half, F,
         in two thirds of them). Recent ones only: an approaching head's flux grows as
         1 / distance^2, doubling within a packet at 60-80 m."""
-        lit = [v for v in p.flux if v > self.flux_min][-self.flux_recent:]
-        return 2.0 * float(np.median(lit)) if lit else 0.0
+        lit = sorted([v for v in p.flux if v > self.flux_min][-self.flux_recent:])
+        if not lit:
+            return 0.0
+        # np.median's value: the middle one, or the mean of the middle two ((a + b) / 2)
+        n = len(lit)
+        return 2.0 * (lit[n // 2] if n % 2 else (lit[n // 2 - 1] + lit[n // 2]) / 2.0)
 
     def head_flux(self, p: Pair, gray: np.ndarray) -> float:
         """The summed gray above the background (+ `flux_floor` gray, so sensor noise adds
@@ -882,15 +1088,33 @@ class Pairer:
         blob the pair explained in this frame (whichever half it is), else on the pair's
         midpoint, and reaches one baseline plus `flux_margin_px` either side, and
         `flux_margin_px` above and below the emitters' envelopes."""
+        x0, x1, y0, y1, bg = self._flux_box(p, gray.shape)
+        if x1 <= x0 or y1 <= y0:
+            return 0.0
+        roi = gray[y0:y1, x0:x1].astype(np.float32)
+        return float(np.maximum(roi - bg, 0.0).sum())
+
+    def _flux_box(self, p: Pair, shape) -> tuple[int, int, int, int, float]:
+        """`head_flux`'s box x0, x1, y0, y1 (px, half-open, clipped to the frame of `shape`) and
+        its background level (gray)."""
         cx, cy = p.mx, p.my
         base = math.hypot(p.b.cx - p.a.cx, p.b.cy - p.a.cy)
         half_h = 0.5 * max(p.a.blob.y1 - p.a.blob.y0, p.b.blob.y1 - p.b.blob.y0)
         mx, my = self.flux_margin_px, self.flux_margin_y_px
-        h, w = gray.shape[:2]
+        h, w = shape[:2]
         x0, x1 = max(int(math.floor(cx - base - mx)), 0), min(int(math.ceil(cx + base + mx)) + 1, w)
         y0, y1 = max(int(math.floor(cy - half_h - my)), 0), min(int(math.ceil(cy + half_h + my)) + 1, h)
-        if x1 <= x0 or y1 <= y0:
-            return 0.0
-        roi = gray[y0:y1, x0:x1].astype(np.float32)
-        bg = float(p.a.blob.background) + self.flux_floor
-        return float(np.maximum(roi - bg, 0.0).sum())
+        return x0, x1, y0, y1, float(p.a.blob.background) + self.flux_floor
+
+    def sample_fluxes(self, pairs: list[Pair], gray: np.ndarray) -> list[float]:
+        """`sample_flux` of every pair of `pairs` (one kernel call), in order."""
+        if _k is None or not pairs or gray.dtype != np.uint8 or gray.ndim != 2:
+            return [self.sample_flux(p, gray) for p in pairs]
+        boxes = [self._flux_box(p, gray.shape) for p in pairs]
+        out = np.empty(len(pairs))
+        _k.head_fluxes(gray, np.array([b[:4] for b in boxes], np.int64).reshape(-1, 4),
+                       np.array([b[4] for b in boxes], float), out)
+        vals = out.tolist()
+        for p, f in zip(pairs, vals):
+            p.flux.append(f)
+        return vals

@@ -12,6 +12,8 @@ from receiver.core.records import Blob
 
 # the compiled masked sums (receiver/vision/_pixels.pyx), or None: the OpenCV path below
 _k = load("receiver.vision._pixels")
+# the batched masked means of the S2-PSK pair stage (receiver/vision/_pairing.pyx), or None
+_kb = load("receiver.vision._pairing")
 
 
 def envelope_mask(blob: Blob) -> np.ndarray:
@@ -83,3 +85,32 @@ def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float 
         return 0.0
     lo, hi = float(p[int(0.1 * (p.size - 1))]), float(p[int(round(0.9 * (p.size - 1)))])
     return float((hi - lo) / (hi - background)) if hi > background else 0.0
+
+
+def mean_in_masks(gray: np.ndarray, blobs: list) -> list[float]:
+    """[mean_in_mask(gray, b) for b in blobs], equal to the last bit, in one kernel call: the
+    envelopes' polygons rounded at once and drawn by cv2.fillConvexPoly into one buffer (the
+    masks `envelope_mask` draws), their exact pixel sums in receiver/vision/_pairing.pyx."""
+    if not blobs:
+        return []
+    if _kb is None or gray.dtype != np.uint8 or gray.ndim != 2:
+        return [mean_in_mask(gray, b) for b in blobs]
+    boxes = np.array([(b.x0, b.y0, b.x1, b.y1) for b in blobs], np.int64)
+    h, w = boxes[:, 3] - boxes[:, 1], boxes[:, 2] - boxes[:, 0]
+    if (h < 0).any() or (w < 0).any():
+        return [mean_in_mask(gray, b) for b in blobs]  # (the reference's error)
+    size = h * w
+    ends = np.cumsum(size)
+    boxes = np.concatenate((boxes, (ends - size)[:, None]), axis=1)
+    masks = np.zeros(int(ends[-1]), np.uint8)
+    lens = [len(b.hull) for b in blobs]
+    polys = np.rint(np.concatenate([b.hull for b in blobs])
+                    - np.repeat(boxes[:, :2].astype(float), lens, axis=0)).astype(np.int32)
+    start = 0
+    for (o, hh, ww), n in zip(np.stack((boxes[:, 4], h, w), axis=1).tolist(), lens):
+        if hh and ww:
+            cv2.fillConvexPoly(masks[o:o + hh * ww].reshape(hh, ww), polys[start:start + n], 1)
+        start += n
+    out = np.empty(len(blobs))
+    _kb.masked_means(gray, masks, boxes, out)
+    return out.tolist()
