@@ -45,11 +45,21 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.locate.ranging import ray_unit
-from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, _covariance, covariance_at, covariance_batch, lm_batch,
-                                 robust_lm_rj)
+from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, LM_FTOL, LM_XTOL, _covariance, covariance_at,
+                                 covariance_batch, lm_batch, robust_lm_rj)
 from receiver.locate.multilat import multilaterate
 from receiver.locate.lsq import BELOW_CEILING_M, Fix
+
+# The compiled refinement (`refine_pose`, `solve_fix`'s candidate scores), or None: the numpy path.
+_k = load("receiver.locate._pnp")
+# Robust losses the kernel implements, by its codes (the others: scipy's least_squares).
+KERNEL_LOSSES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
+# `robust_lm_rj`'s iteration limit (its default), which the kernel keeps too.
+REFINE_MAX_ITER = 50
+_NO_PRIOR3 = np.empty(0)
+_NO_W = np.empty((0, 3))
 
 SOLVERS = ("auto", "multilateration", "pnp")
 # With 2 LEDs the tilt comes from the prior orientation (previous frame, else "looking up"):
@@ -164,8 +174,7 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `robust_lm` iterates on)."""
     has_d = np.isfinite(d)
     wd = 1.0 / sigma_d[has_d]
-    # Whitening of the position prior: r = W (C - C_prior) with W^T W = cov^-1.
-    W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    W = None if C_prior is None else _whitening(C_prior_cov)
 
     def _pose(p):
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
@@ -227,6 +236,45 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     return fun
 
 
+def _whitening(C_prior_cov) -> np.ndarray:
+    """Whitening of a position prior: r = W (C - C_prior) with W^T W = cov^-1."""
+    return np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+
+
+def _kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior=None, C_prior_cov=None) -> tuple:
+    """`_joint_fun`'s problem as the kernel's leading arguments (contiguous float64 arrays)."""
+    f = np.ascontiguousarray
+    if C_prior is None:
+        W, Cp = _NO_W, _NO_PRIOR3
+    else:
+        W, Cp = f(_whitening(C_prior_cov), dtype=float), f(C_prior, dtype=float).reshape(3)
+    up = _NO_PRIOR3 if up is None else f(up, dtype=float).reshape(3)
+    return (f(L, dtype=float).reshape(-1, 3), f(uv, dtype=float).reshape(-1, 2), float(sigma_uv),
+            f(d, dtype=float).reshape(-1), f(sigma_d, dtype=float).reshape(-1), up, float(up_sigma), W, Cp)
+
+
+def _refine_native(args: tuple, p0: np.ndarray, loss: str, f_scale: float):
+    """`robust_lm_rj` on `_joint_fun(*args)` by the kernel: (p, r, J) at the solution."""
+    L, d, up, Cp = args[0], args[3], args[5], args[8]
+    m = _k.n_residuals(L, d, len(up) == 3, len(Cp) == 3)
+    p = np.array(p0, float)
+    r, J = np.empty(m), np.empty((m, 6))
+    _k.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
+    return p, r, J
+
+
+def _evaluate_native(args: tuple, P: np.ndarray, jacobian: bool = False):
+    """`_joint_fun(*args)` at each pose P[k] (6,) by the kernel: r (K, m) and, with `jacobian`,
+    J (K, m, 6)."""
+    L, d, up, Cp = args[0], args[3], args[5], args[8]
+    m = _k.n_residuals(L, d, len(up) == 3, len(Cp) == 3)
+    P = np.ascontiguousarray(P, dtype=float).reshape(-1, 6)
+    r = np.empty((len(P), m))
+    J = np.empty((len(P), m, 6) if jacobian else (0, 0, 6))
+    _k.evaluate(*args, P, r, J)
+    return r, J
+
+
 def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS,
                 f_scale=DEFAULT_F_SCALE, R_prior=None, tilt_sigma_rad: float = 1.0,
                 C_prior=None, C_prior_cov=None
@@ -240,12 +288,20 @@ def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS
     fix is fed to: counting it twice would make the filter overconfident); the weak tilt prior
     stays in, so a direction the LEDs cannot see gets a large but finite variance."""
     up = None if R_prior is None else np.asarray(R_prior, float)[:, 2]
-    fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    x, r, J = robust_lm_rj(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
+    native = _k is not None and loss in KERNEL_LOSSES
+    if native:
+        x, r, J = _refine_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov),
+                                 p0, loss, f_scale)
+    else:
+        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
+        x, r, J = robust_lm_rj(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
     R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
-    if C_prior is not None:
+    if C_prior is not None and native:
+        r0, J0 = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x, jacobian=True)
+        cov6, chi2, dof = covariance_at(r0[0], J0[0], len(x))
+    elif C_prior is not None:
         cov6, chi2, dof = _covariance(_joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x)
     else:   # the solver's own residuals and Jacobian at x: what _covariance would evaluate again
         cov6, chi2, dof = covariance_at(r, J, len(x))
@@ -427,6 +483,24 @@ def solve_warm_batch(problems: list[WarmProblem], *, loss: str = DEFAULT_LOSS,
             for q, g, Cb, covb, Rb, chi2b, dofb in zip(problems, good.tolist(), C, cov, R, chi2.tolist(), dof.tolist())]
 
 
+def _best_candidate(cands, L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior):
+    """The PnP candidate (R, C) that explains angles (and ranges: `_joint_fun`'s residuals) best;
+    ties broken by the prior position C_prior (None: none)."""
+    P = [np.concatenate([cv2.Rodrigues(R)[0].ravel(), C]) for R, C in cands]
+    if _k is not None:
+        rows = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma), np.array(P))[0]
+    else:
+        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, up_sigma)
+        rows = [fun(p) for p in P]
+
+    def score(i):
+        r = rows[i]
+        C = cands[i][1]
+        prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((C - C_prior) ** 2))
+        return float(r @ r) + prior
+    return cands[min(range(len(cands)), key=score)]
+
+
 def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, *,
               sigma_uv: float, solver: str = "auto", R_prior: np.ndarray | None = None,
               C_prior: np.ndarray | None = None, loss: str = DEFAULT_LOSS,
@@ -495,13 +569,7 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
         cands = pnp_candidates(L, uv)
         if not cands:
             return None
-        fun = _joint_fun(L, uv, sigma_uv, dd, sigma_d, up_t, tilt_rad)
-        # The candidate that explains angles (and ranges) best; ties broken by the prior position.
-        def score(rc):
-            r = fun(np.concatenate([cv2.Rodrigues(rc[0])[0].ravel(), rc[1]]))
-            prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((rc[1] - C_prior) ** 2))
-            return float(r @ r) + prior
-        R0, C0 = min(cands, key=score)
+        R0, C0 = _best_candidate(cands, L, uv, sigma_uv, dd, sigma_d, up_t, tilt_rad, C_prior)
         if not use_ranges:
             rvec, _ = cv2.Rodrigues(R0)
             tvec = -R0 @ C0
