@@ -158,12 +158,18 @@ def test_bad_arrays_are_refused():
     L, uv, d, sd, R, C = _scene(1, 4)
     args = list(pose._kernel_args(L, uv, 3e-4, d, sd, None, 1.0))
     p = np.zeros(6)
-    m = pose._k.n_residuals(args[0], args[3], False, False)
+    m = 2 * 4 + 4                                  # 2 per LED, 4 ranges, no prior
+    r, J = np.empty(m), np.empty((m, 6))
+    assert pose._k.refine(*args, p.copy(), 1, 3.0, 50, 1e-8, 1e-8, r, J)[0] == m
     with pytest.raises(ValueError, match="inconsistent pose arrays"):
         bad = list(args)
         bad[1] = np.ascontiguousarray(uv[:3])
-        pose._k.refine(*bad, p, 1, 3.0, 50, 1e-8, 1e-8, np.empty(m), np.empty((m, 6)))
+        pose._k.refine(*bad, p, 1, 3.0, 50, 1e-8, 1e-8, r, J)
+    with pytest.raises(ValueError, match="inconsistent pose arrays"):
+        bad = list(args)
+        bad[5] = np.zeros(2)                       # a tilt prior must be 3 numbers (or none)
+        pose._k.refine(*bad, p, 1, 3.0, 50, 1e-8, 1e-8, r, J)
     with pytest.raises(ValueError, match="inconsistent pose output arrays"):
-        pose._k.refine(*args, p, 1, 3.0, 50, 1e-8, 1e-8, np.empty(m + 1), np.empty((m, 6)))
+        pose._k.refine(*args, p, 1, 3.0, 50, 1e-8, 1e-8, np.empty(m - 1), J)
     with pytest.raises(ValueError, match="inconsistent pose output arrays"):
         pose._k.evaluate(*args, np.zeros((2, 6)), np.empty((1, m)), np.empty((0, 0, 6)))

@@ -307,35 +307,27 @@ cdef int setup(Prob* pr, const double[:, ::1] L, const double[:, ::1] uv, double
     return 0
 
 
-def n_residuals(const double[:, ::1] L, const double[::1] d, int has_up, int has_prior):
-    """Residual count of the problem: 2 per LED, 1 per finite range, 3 per prior."""
-    cdef int i, nd = 0
-    for i in range(d.shape[0]):
-        if finite(d[i]):
-            nd += 1
-    return 2 * L.shape[0] + nd + 3 * (1 if has_up else 0) + 3 * (1 if has_prior else 0)
-
-
 def evaluate(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, const double[::1] d,
              const double[::1] sigma_d, const double[::1] up, double up_sigma, const double[:, ::1] W,
              const double[::1] Cp, const double[:, ::1] P, double[:, ::1] r_out, double[:, :, ::1] J_out):
     """`_joint_fun`'s residuals (and, when J_out has rows, Jacobians) at each pose P[k] (6,):
-    r_out (K, m), J_out (K, m, 6) or (0, 0, 6). `up` / `Cp` empty: no tilt / position prior
-    (W (3, 3): the prior's whitening, W^T W = cov^-1)."""
+    r_out (K, >= m), J_out (K, >= m, 6) or (0, 0, 6), their first m columns / rows filled.
+    `up` / `Cp` empty: no tilt / position prior (W (3, 3): the prior's whitening, W^T W = cov^-1).
+    Returns m: 2 per LED, 1 per finite range, 3 per prior (at most 3 n + 6)."""
     cdef Prob pr
     cdef double R[9]
     cdef double dR[27]
     cdef int k, K = P.shape[0]
     setup(&pr, L, uv, sigma_uv, d, sigma_d, up, up_sigma, W, Cp)
-    if P.shape[1] != 6 or r_out.shape[0] != K or r_out.shape[1] != pr.m \
-            or (J_out.shape[0] and (J_out.shape[0] != K or J_out.shape[1] != pr.m or J_out.shape[2] != 6)):
+    if P.shape[1] != 6 or r_out.shape[0] != K or r_out.shape[1] < pr.m \
+            or (J_out.shape[0] and (J_out.shape[0] != K or J_out.shape[1] < pr.m or J_out.shape[2] != 6)):
         raise ValueError("inconsistent pose output arrays")
     with nogil:
         for k in range(K):
             residuals(&pr, &P[k, 0], &r_out[k, 0], R, dR)
             if J_out.shape[0]:
                 jacobian(&pr, &P[k, 0], R, dR, &J_out[k, 0, 0])
-    return None
+    return pr.m
 
 
 def refine(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, const double[::1] d,
@@ -343,13 +335,14 @@ def refine(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, con
            const double[::1] Cp, double[::1] p, int loss, double f_scale, int max_iter, double xtol, double ftol,
            double[::1] r_out, double[:, ::1] J_out):
     """`lsq.robust_lm_rj` on `_joint_fun`'s problem from p (6,), updated in place to the solution;
-    r_out (m,), J_out (m, 6): the residuals and Jacobian there. Returns True when converged."""
+    the first m entries of r_out (>= m,) and rows of J_out (>= m, 6): the residuals and Jacobian
+    there (m as `evaluate` returns it). Returns (m, converged)."""
     cdef Prob pr
     cdef int m, ok
     cdef double* work
     setup(&pr, L, uv, sigma_uv, d, sigma_d, up, up_sigma, W, Cp)
     m = pr.m
-    if p.shape[0] != 6 or r_out.shape[0] != m or J_out.shape[0] != m or J_out.shape[1] != 6:
+    if p.shape[0] != 6 or r_out.shape[0] < m or J_out.shape[0] < m or J_out.shape[1] != 6:
         raise ValueError("inconsistent pose output arrays")
     work = <double*> malloc(5 * m * sizeof(double))
     if work == NULL:
@@ -358,4 +351,4 @@ def refine(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, con
         ok = lm(&pr, &p[0], &r_out[0], &J_out[0, 0], work, work + 2 * m, work + 3 * m, loss, f_scale, max_iter,
                 xtol, ftol)
     free(work)
-    return ok == 1
+    return m, ok == 1

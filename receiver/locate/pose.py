@@ -114,7 +114,7 @@ def pnp_candidates(L: np.ndarray, uv: np.ndarray) -> list[tuple[np.ndarray, np.n
     K = np.eye(3)
     sols = []
     flags = [cv2.SOLVEPNP_AP3P] if len(L) == 3 else [cv2.SOLVEPNP_SQPNP]
-    if len(L) >= 4 and _is_coplanar(L):
+    if len(L) >= 4 and _is_coplanar_cached(L.tobytes()):
         flags.append(cv2.SOLVEPNP_IPPE)
     for flag in flags:
         try:
@@ -255,24 +255,22 @@ def _kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior=None, C_prio
 
 def _refine_native(args: tuple, p0: np.ndarray, loss: str, f_scale: float):
     """`robust_lm_rj` on `_joint_fun(*args)` by the kernel: (p, r, J) at the solution."""
-    L, d, up, Cp = args[0], args[3], args[5], args[8]
-    m = _k.n_residuals(L, d, len(up) == 3, len(Cp) == 3)
+    m_max = 3 * len(args[0]) + 6                  # 2 per LED, 1 per range, 3 per prior
     p = np.array(p0, float)
-    r, J = np.empty(m), np.empty((m, 6))
-    _k.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
-    return p, r, J
+    r, J = np.empty(m_max), np.empty((m_max, 6))
+    m, _ = _k.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
+    return p, r[:m], J[:m]
 
 
 def _evaluate_native(args: tuple, P: np.ndarray, jacobian: bool = False):
     """`_joint_fun(*args)` at each pose P[k] (6,) by the kernel: r (K, m) and, with `jacobian`,
     J (K, m, 6)."""
-    L, d, up, Cp = args[0], args[3], args[5], args[8]
-    m = _k.n_residuals(L, d, len(up) == 3, len(Cp) == 3)
+    m_max = 3 * len(args[0]) + 6
     P = np.ascontiguousarray(P, dtype=float).reshape(-1, 6)
-    r = np.empty((len(P), m))
-    J = np.empty((len(P), m, 6) if jacobian else (0, 0, 6))
-    _k.evaluate(*args, P, r, J)
-    return r, J
+    r = np.empty((len(P), m_max))
+    J = np.empty((len(P), m_max, 6) if jacobian else (0, 0, 6))
+    m = _k.evaluate(*args, P, r, J)
+    return r[:, :m], J[:, :m]
 
 
 def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS,
@@ -447,6 +445,12 @@ def _is_collinear_cached(L_bytes: bytes) -> bool:
     return is_collinear(np.frombuffer(L_bytes).reshape(-1, 3))
 
 
+@functools.lru_cache(maxsize=4096)
+def _is_coplanar_cached(L_bytes: bytes) -> bool:
+    """`_is_coplanar` of the (N, 3) float64 points in L_bytes (as `_is_collinear_cached`)."""
+    return _is_coplanar(np.frombuffer(L_bytes).reshape(-1, 3))
+
+
 def warm_problem(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, R0: np.ndarray,
                  C0: np.ndarray, *, sigma_uv: float, solver: str = "auto",
                  tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG,
@@ -544,7 +548,7 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
     uv = np.asarray(uv, float).reshape(-1, 2)
     use_ranges = solver == "auto" and k > 0
     dd = d if use_ranges else np.full(n, np.nan)
-    if n >= 2 and is_collinear(L):
+    if n >= 2 and _is_collinear_cached(L.tobytes()):
         # Collinear LEDs: PnP is degenerate; 2+ ranges and the angles fix the camera on a circle
         # about the LED line, the prior tilt (and the predicted position) pick the point on it.
         if not use_ranges or k < 2:
@@ -582,6 +586,30 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
     if C[2] > float(L[:, 2].min()) - BELOW_CEILING_M or not np.all(np.isfinite(C)):
         return None
     return Fix(C, cov, R, method, n, chi2, dof)
+
+
+# ---------------------------------------------------------------- first-call costs
+
+_PRELOADED = False
+
+
+def preload() -> None:
+    """Solve a made-up frame by each `solve_fix` path once per process (4 coplanar LEDs: SQPNP and
+    IPPE; 3: P3P; 2 with ranges: `init_two`, the refinement, the covariance's SVD): OpenCV's PnP
+    solvers and numpy.linalg pay a one-time cost on their first call (~0.5 ms together), which a
+    stream's first cold-start frames would otherwise carry (`PoseFilter` calls this before its
+    first frame, as the receiver preloads scipy). Pure functions and caches only: no state."""
+    global _PRELOADED
+    if _PRELOADED:
+        return
+    _PRELOADED = True
+    L = np.array([[0.0, 0.0, 3.0], [1.0, 0.0, 3.0], [0.0, 1.0, 3.0], [1.0, 1.0, 3.0]])
+    C = np.array([0.4, 0.3, 1.5])
+    R = ypr_to_rotation(10.0, 85.0, 2.0)
+    X = (L - C) @ R.T
+    uv, d = X[:, :2] / X[:, 2:], np.linalg.norm(L - C, axis=1)
+    for n in (4, 3, 2):
+        solve_fix(L[:n], uv[:n], d[:n], np.full(n, 0.01), sigma_uv=1e-3, C_prior=C, tilt_prior_R=np.eye(3))
 
 
 # ---------------------------------------------------------------- orientation as angles
