@@ -154,6 +154,66 @@ def test_poor_starts_fail_the_same_way(monkeypatch):
     assert np.abs(native[1] - pure[1]).max() <= 1e-8 and native[4] == pure[4]
 
 
+def _recorded_solves(folder, n_frames):
+    """`solve_fix`'s calls (args, kwargs) in the first frames of a bundled recording: the cold
+    starts before the outline tracking takes over (2 and 4 collinear LEDs, 3 and 4 LEDs by PnP,
+    the handedness check's mirror solve)."""
+    from receiver.io.camera import load_camera
+    from receiver.io.ledmap import load_map
+    from receiver.io.sources import open_source
+    from receiver.locate import posefilter
+    from receiver.locate.indoor import Positioner
+    from receiver.pipeline import Receiver
+    cam, led_map = load_camera(str(folder / "camera.yaml")), load_map(str(folder / "map.json"))
+    rx = Receiver(cam, led_map, positioner=Positioner(cam, led_map))
+    calls = []
+    real = posefilter.solve_fix
+
+    def spy(*args, **kw):
+        calls.append((args, kw))
+        return real(*args, **kw)
+
+    posefilter.solve_fix = spy
+    try:
+        for i, f in enumerate(open_source(str(folder))):
+            rx.process(f)
+            if i + 1 == n_frames:
+                break
+    finally:
+        posefilter.solve_fix = real
+    return calls
+
+
+@pytest.mark.parametrize("name, n_frames", [("indoor-walk", 5), ("indoor-sparse", 7)])
+def test_recorded_cold_starts_equal_numpy(monkeypatch, name, n_frames):
+    from pathlib import Path
+    folder = Path(__file__).resolve().parents[1] / "recordings" / name
+    calls = _recorded_solves(folder, n_frames)
+    assert len(calls) >= 4
+    n_fixes = 0
+    for args, kw in calls:
+        native = solve_fix(*args, **kw)
+        pure = _pure(monkeypatch, solve_fix, *args, **kw)
+        assert (native is None) == (pure is None)
+        if pure is None:
+            continue
+        n_fixes += 1
+        assert native.method == pure.method and native.dof == pure.dof
+        assert np.abs(native.C - pure.C).max() <= 1e-9 and np.abs(native.R_cw - pure.R_cw).max() <= 1e-9
+        assert np.allclose(native.cov, pure.cov, rtol=1e-7, atol=1e-9 * np.abs(pure.cov).max())
+        assert math.isclose(native.chi2, pure.chi2, rel_tol=1e-8, abs_tol=1e-10)
+    assert n_fixes >= 4
+
+
+def test_other_losses_fall_back_to_scipy(monkeypatch):
+    """A loss the kernel does not implement (scipy's "arctan") takes least_squares on both paths."""
+    L, uv, d, sd, R, C = _scene(2, 5)
+    R0 = cv2.Rodrigues(np.array([0.02, -0.01, 0.03]))[0] @ R
+    native = refine_pose(L, uv, 3e-4, d, sd, R0, C + 0.05, loss="arctan")
+    pure = _pure(monkeypatch, refine_pose, L, uv, 3e-4, d, sd, R0, C + 0.05, loss="arctan")
+    assert np.array_equal(native[1], pure[1]) and np.abs(native[1] - C).max() < 0.05
+
+
 def test_bad_arrays_are_refused():
     L, uv, d, sd, R, C = _scene(1, 4)
     args = list(pose._kernel_args(L, uv, 3e-4, d, sd, None, 1.0))
