@@ -31,6 +31,13 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
 * one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
   filter coasting, method ``"kalman-coast"``, or is None).
 
+Compiled path (`_k`, receiver/locate/_pnp.pyx): `refine_pose`'s whole robust Levenberg-Marquardt
+(residuals, analytic Jacobian, loss weights, damping and stopping rule of `lsq.lm_normal`) and the
+scoring of `solve_fix`'s PnP candidates run in one kernel call each; `_joint_fun` + `robust_lm_rj`
+stay the reference (tests/test_pnp_kernel.py: fixes equal to 1e-9 m / rad). When the stream is
+tracked, the outline solve (receiver.locate.indoor) runs instead of these: on the bundled walks the
+centroid solves are the cold starts of the first frames (and the handedness check's mirror solve).
+
 Fix covariance: ``cov = s^2 (J^T J)^-1`` from the whitened residual Jacobian at the solution,
 ``s^2 = max(1, chi^2/dof)`` (the sigma model, inflated when the residuals say it is optimistic);
 the position block feeds the Kalman filter as its measurement noise.
