@@ -13,7 +13,7 @@ differently: fixes agree to ~1e-12 (tests/test_pnp_kernel.py).
 
 Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 
-from libc.math cimport sqrt, log1p, fabs
+from libc.math cimport sqrt, log1p
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from receiver.locate._rodrigues cimport rodrigues
@@ -36,8 +36,7 @@ cdef struct Prob:
     const double* uv       # (n, 2) normalized
     const double* d        # (n,) ranges m, NaN / inf: none
     const double* sd       # (n,) their 1-sigma m
-    double isig            # unused: the pure path divides by sigma_uv
-    double sig
+    double sig             # sigma_uv (divided by, as the pure path does)
     int has_up
     double up[3]
     double up_sig
