@@ -132,7 +132,10 @@ def test_predict_at_matches_pure_prediction_and_leaves_the_filter_alone():
     x, P = kf.state
     xp, Pp = kf.predict_at(0.25)
     xe, Pe = cv_predict(x, P, 0.15, 0.5)
-    assert np.allclose(xp, xe) and np.allclose(Pp, Pe)
+    assert np.array_equal(xp, xe) and np.array_equal(Pp, Pe)      # the same operations
+    xp[:] = 0.0                                                   # the caller's own arrays
+    Pp[:] = 0.0
+    assert np.array_equal(kf.predict_at(0.25)[0], xe) and np.array_equal(kf.predict_at(0.25)[1], Pe)
     x2, P2 = kf.state
     assert np.array_equal(x, x2) and np.array_equal(P, P2)
     assert kf.predict_at(0.05) is None                     # before the filter's time

@@ -175,8 +175,11 @@ class PositionKalman:
         track or when t_s is before the filter's time or beyond `max_coast_s` of coasting."""
         if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
             return None
-        x, P = self.state
-        return cv_predict(x, P, t_s - self.t_s, self.q)
+        # `cv_predict(x, P, dt, q)` with F, Q from the model cache (the same arrays transition(dt)
+        # and process_noise(dt, q) make; a video's frames are evenly spaced, so the next `step`
+        # finds them there too) and without copying the state it only reads.
+        F, Ft, Q = self._model(t_s - self.t_s)
+        return F @ self._x.reshape(6), F @ self._P @ Ft + Q
 
     def predict_position(self, t_s: float) -> np.ndarray | None:
         """The predicted position (3,) at t_s (x + v dt, no covariance: a solver's starting

@@ -59,7 +59,9 @@ def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOS
     `normal(state, r, w) -> (A, g)` needs to build the weighted normal equations A = J' W J,
     g = J' W r (w: the loss weights per residual); `done(dp, p, c, c_new) -> bool`: the
     stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r,
-    state) at p; converged is False when `max_iter` ran out."""
+    state) at p; converged is False when `max_iter` ran out.
+    Compiled twins of this loop (keep them in step; their tests run both): receiver/locate/_pnp.pyx
+    (`pose.refine_pose` with `_lm_done`), _outline.pyx (`outline_pose`)."""
     rho, wfun = _LOSSES[loss]
 
     def cost_z(r):

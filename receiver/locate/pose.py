@@ -31,6 +31,13 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
 * one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
   filter coasting, method ``"kalman-coast"``, or is None).
 
+Compiled path (`_k`, receiver/locate/_pnp.pyx): `refine_pose`'s whole robust Levenberg-Marquardt
+(residuals, analytic Jacobian, loss weights, damping and stopping rule of `lsq.lm_normal`) and the
+scoring of `solve_fix`'s PnP candidates run in one kernel call each; `_joint_fun` + `robust_lm_rj`
+stay the reference (tests/test_pnp_kernel.py: fixes equal to 1e-9 m / rad). When the stream is
+tracked, the outline solve (receiver.locate.indoor) runs instead of these: on the bundled walks the
+centroid solves are the cold starts of the first frames (and the handedness check's mirror solve).
+
 Fix covariance: ``cov = s^2 (J^T J)^-1`` from the whitened residual Jacobian at the solution,
 ``s^2 = max(1, chi^2/dof)`` (the sigma model, inflated when the residuals say it is optimistic);
 the position block feeds the Kalman filter as its measurement noise.
@@ -45,11 +52,21 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from receiver.core.native import load
 from receiver.locate.ranging import ray_unit
-from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, _covariance, covariance_at, covariance_batch, lm_batch,
-                                 robust_lm_rj)
+from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, LM_FTOL, LM_XTOL, _covariance, covariance_at,
+                                 covariance_batch, lm_batch, robust_lm_rj)
 from receiver.locate.multilat import multilaterate
 from receiver.locate.lsq import BELOW_CEILING_M, Fix
+
+# The compiled refinement (`refine_pose`, `solve_fix`'s candidate scores), or None: the numpy path.
+_k = load("receiver.locate._pnp")
+# Robust losses the kernel implements, by its codes (the others: scipy's least_squares).
+KERNEL_LOSSES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
+# `robust_lm_rj`'s iteration limit (its default), which the kernel keeps too.
+REFINE_MAX_ITER = 50
+_NO_PRIOR3 = np.empty(0)
+_NO_W = np.empty((0, 3))
 
 SOLVERS = ("auto", "multilateration", "pnp")
 # With 2 LEDs the tilt comes from the prior orientation (previous frame, else "looking up"):
@@ -104,7 +121,7 @@ def pnp_candidates(L: np.ndarray, uv: np.ndarray) -> list[tuple[np.ndarray, np.n
     K = np.eye(3)
     sols = []
     flags = [cv2.SOLVEPNP_AP3P] if len(L) == 3 else [cv2.SOLVEPNP_SQPNP]
-    if len(L) >= 4 and _is_coplanar(L):
+    if len(L) >= 4 and _is_coplanar_cached(L.tobytes()):
         flags.append(cv2.SOLVEPNP_IPPE)
     for flag in flags:
         try:
@@ -164,8 +181,7 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `robust_lm` iterates on)."""
     has_d = np.isfinite(d)
     wd = 1.0 / sigma_d[has_d]
-    # Whitening of the position prior: r = W (C - C_prior) with W^T W = cov^-1.
-    W = None if C_prior is None else np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+    W = None if C_prior is None else _whitening(C_prior_cov)
 
     def _pose(p):
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
@@ -227,6 +243,43 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     return fun
 
 
+def _whitening(C_prior_cov) -> np.ndarray:
+    """Whitening of a position prior: r = W (C - C_prior) with W^T W = cov^-1."""
+    return np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
+
+
+def _kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior=None, C_prior_cov=None) -> tuple:
+    """`_joint_fun`'s problem as the kernel's leading arguments (contiguous float64 arrays)."""
+    f = np.ascontiguousarray
+    if C_prior is None:
+        W, Cp = _NO_W, _NO_PRIOR3
+    else:
+        W, Cp = f(_whitening(C_prior_cov), dtype=float), f(C_prior, dtype=float).reshape(3)
+    up = _NO_PRIOR3 if up is None else f(up, dtype=float).reshape(3)
+    return (f(L, dtype=float).reshape(-1, 3), f(uv, dtype=float).reshape(-1, 2), float(sigma_uv),
+            f(d, dtype=float).reshape(-1), f(sigma_d, dtype=float).reshape(-1), up, float(up_sigma), W, Cp)
+
+
+def _refine_native(args: tuple, p0: np.ndarray, loss: str, f_scale: float):
+    """`robust_lm_rj` on `_joint_fun(*args)` by the kernel: (p, r, J) at the solution."""
+    m_max = 3 * len(args[0]) + 6                  # 2 per LED, 1 per range, 3 per prior
+    p = np.array(p0, float)
+    r, J = np.empty(m_max), np.empty((m_max, 6))
+    m, _ = _k.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
+    return p, r[:m], J[:m]
+
+
+def _evaluate_native(args: tuple, P: np.ndarray, jacobian: bool = False):
+    """`_joint_fun(*args)` at each pose P[k] (6,) by the kernel: r (K, m) and, with `jacobian`,
+    J (K, m, 6)."""
+    m_max = 3 * len(args[0]) + 6
+    P = np.ascontiguousarray(P, dtype=float).reshape(-1, 6)
+    r = np.empty((len(P), m_max))
+    J = np.empty((len(P), m_max, 6) if jacobian else (0, 0, 6))
+    m = _k.evaluate(*args, P, r, J)
+    return r[:, :m], J[:, :m]
+
+
 def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS,
                 f_scale=DEFAULT_F_SCALE, R_prior=None, tilt_sigma_rad: float = 1.0,
                 C_prior=None, C_prior_cov=None
@@ -240,12 +293,20 @@ def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS
     fix is fed to: counting it twice would make the filter overconfident); the weak tilt prior
     stays in, so a direction the LEDs cannot see gets a large but finite variance."""
     up = None if R_prior is None else np.asarray(R_prior, float)[:, 2]
-    fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    x, r, J = robust_lm_rj(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
+    native = _k is not None and loss in KERNEL_LOSSES
+    if native:
+        x, r, J = _refine_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov),
+                                 p0, loss, f_scale)
+    else:
+        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
+        x, r, J = robust_lm_rj(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
     R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
-    if C_prior is not None:
+    if C_prior is not None and native:
+        r0, J0 = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x, jacobian=True)
+        cov6, chi2, dof = covariance_at(r0[0], J0[0], len(x))
+    elif C_prior is not None:
         cov6, chi2, dof = _covariance(_joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x)
     else:   # the solver's own residuals and Jacobian at x: what _covariance would evaluate again
         cov6, chi2, dof = covariance_at(r, J, len(x))
@@ -391,6 +452,12 @@ def _is_collinear_cached(L_bytes: bytes) -> bool:
     return is_collinear(np.frombuffer(L_bytes).reshape(-1, 3))
 
 
+@functools.lru_cache(maxsize=4096)
+def _is_coplanar_cached(L_bytes: bytes) -> bool:
+    """`_is_coplanar` of the (N, 3) float64 points in L_bytes (as `_is_collinear_cached`)."""
+    return _is_coplanar(np.frombuffer(L_bytes).reshape(-1, 3))
+
+
 def warm_problem(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, R0: np.ndarray,
                  C0: np.ndarray, *, sigma_uv: float, solver: str = "auto",
                  tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG,
@@ -425,6 +492,24 @@ def solve_warm_batch(problems: list[WarmProblem], *, loss: str = DEFAULT_LOSS,
     good = ok & (chi2 <= WARM_MAX_CHI2_DOF * np.maximum(dof, 1)) & (C[:, 2] <= z_ceiling - BELOW_CEILING_M)
     return [Fix(Cb, covb, Rb, "range+angle" if q.has_ranges else "pnp", len(q.L), chi2b, dofb) if g else None
             for q, g, Cb, covb, Rb, chi2b, dofb in zip(problems, good.tolist(), C, cov, R, chi2.tolist(), dof.tolist())]
+
+
+def _best_candidate(cands, L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior):
+    """The PnP candidate (R, C) that explains angles (and ranges: `_joint_fun`'s residuals) best;
+    ties broken by the prior position C_prior (None: none)."""
+    P = [np.concatenate([cv2.Rodrigues(R)[0].ravel(), C]) for R, C in cands]
+    if _k is not None:
+        rows = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma), np.array(P))[0]
+    else:
+        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, up_sigma)
+        rows = [fun(p) for p in P]
+
+    def score(i):
+        r = rows[i]
+        C = cands[i][1]
+        prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((C - C_prior) ** 2))
+        return float(r @ r) + prior
+    return cands[min(range(len(cands)), key=score)]
 
 
 def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.ndarray, *,
@@ -470,7 +555,7 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
     uv = np.asarray(uv, float).reshape(-1, 2)
     use_ranges = solver == "auto" and k > 0
     dd = d if use_ranges else np.full(n, np.nan)
-    if n >= 2 and is_collinear(L):
+    if n >= 2 and _is_collinear_cached(L.tobytes()):
         # Collinear LEDs: PnP is degenerate; 2+ ranges and the angles fix the camera on a circle
         # about the LED line, the prior tilt (and the predicted position) pick the point on it.
         if not use_ranges or k < 2:
@@ -495,13 +580,7 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
         cands = pnp_candidates(L, uv)
         if not cands:
             return None
-        fun = _joint_fun(L, uv, sigma_uv, dd, sigma_d, up_t, tilt_rad)
-        # The candidate that explains angles (and ranges) best; ties broken by the prior position.
-        def score(rc):
-            r = fun(np.concatenate([cv2.Rodrigues(rc[0])[0].ravel(), rc[1]]))
-            prior = 0.0 if C_prior is None else 1e-6 * float(np.sum((rc[1] - C_prior) ** 2))
-            return float(r @ r) + prior
-        R0, C0 = min(cands, key=score)
+        R0, C0 = _best_candidate(cands, L, uv, sigma_uv, dd, sigma_d, up_t, tilt_rad, C_prior)
         if not use_ranges:
             rvec, _ = cv2.Rodrigues(R0)
             tvec = -R0 @ C0
@@ -514,6 +593,30 @@ def solve_fix(L: np.ndarray, uv: np.ndarray | None, d: np.ndarray, sigma_d: np.n
     if C[2] > float(L[:, 2].min()) - BELOW_CEILING_M or not np.all(np.isfinite(C)):
         return None
     return Fix(C, cov, R, method, n, chi2, dof)
+
+
+# ---------------------------------------------------------------- first-call costs
+
+_PRELOADED = False
+
+
+def preload() -> None:
+    """Solve a made-up frame by each `solve_fix` path once per process (4 coplanar LEDs: SQPNP and
+    IPPE; 3: P3P; 2 with ranges: `init_two`, the refinement, the covariance's SVD): OpenCV's PnP
+    solvers and numpy.linalg pay a one-time cost on their first call (~0.5 ms together), which a
+    stream's first cold-start frames would otherwise carry (`PoseFilter` calls this before its
+    first frame, as the receiver preloads scipy). Pure functions and caches only: no state."""
+    global _PRELOADED
+    if _PRELOADED:
+        return
+    _PRELOADED = True
+    L = np.array([[0.0, 0.0, 3.0], [1.0, 0.0, 3.0], [0.0, 1.0, 3.0], [1.0, 1.0, 3.0]])
+    C = np.array([0.4, 0.3, 1.5])
+    R = ypr_to_rotation(10.0, 85.0, 2.0)
+    X = (L - C) @ R.T
+    uv, d = X[:, :2] / X[:, 2:], np.linalg.norm(L - C, axis=1)
+    for n in (4, 3, 2):
+        solve_fix(L[:n], uv[:n], d[:n], np.full(n, 0.01), sigma_uv=1e-3, C_prior=C, tilt_prior_R=np.eye(3))
 
 
 # ---------------------------------------------------------------- orientation as angles

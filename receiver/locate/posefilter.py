@@ -13,8 +13,9 @@ from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, Posit
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.lsq import Fix
-from receiver.locate.pose import (DEFAULT_TILT_SIGMA_DEG, SOLVERS, WarmProblem, is_collinear, rotation_to_ypr_deg,
-                                  solve_fix, solve_warm_batch, warm_problem)
+from receiver.locate.pose import (DEFAULT_TILT_SIGMA_DEG, SOLVERS, WarmProblem, _is_collinear_cached,
+                                  rotation_to_ypr_deg, solve_fix, solve_warm_batch, warm_problem)
+from receiver.locate.pose import preload as preload_solvers
 
 
 # ---------------------------------------------------------------- the streaming stage
@@ -91,6 +92,7 @@ class PoseFilter:
         self._kalman_args = dict(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
         self.n_fixes = 0
         self._restart()
+        preload_solvers()      # before the first frame, not inside a cold-start frame's latency
 
     def _restart(self) -> None:
         self.kf = PositionKalman(**self._kalman_args) if self._kalman_args is not None else None
@@ -158,7 +160,7 @@ class PoseFilter:
         fix = solve_fix(self.to_solving(L_map), uv, d, sigma_d, R_prior=R_prior, C_prior=C_prior,
                         C_prior_cov=C_prior_cov, **kw)
         if (self.handedness_source == "default" and uv is not None and self.solver != "multilateration"
-                and len(L_map) >= HANDEDNESS_MIN_LEDS and not is_collinear(L_map)):
+                and len(L_map) >= HANDEDNESS_MIN_LEDS and not _is_collinear_cached(L_map.tobytes())):
             # Undecided map: this frame can tell the map from its mirror.
             other = "left" if self.handedness == "right" else "right"
             L_other = L_map @ MIRROR_WORLD if other == "left" else L_map
