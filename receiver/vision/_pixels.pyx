@@ -10,10 +10,10 @@ The byte scans (row maximum, first / last pixel at or above a level) use SSE2 wh
 targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 """
 
-from libc.math cimport ceilf, sqrt, NAN
+from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
 from libc.stdlib cimport malloc, free
 from libc.string cimport memset
-from libc.stdint cimport int64_t, int32_t
+from libc.stdint cimport int64_t, int32_t, uint64_t
 
 cdef extern from *:
     """
@@ -537,3 +537,395 @@ def masked_sum(const unsigned char[:, :] roi, const unsigned char[:, ::1] mask):
         ts += s
         tc += c
     return ts, tc
+
+
+# ------------------------------------------------------------------ detection: hulls of isolated blobs
+
+cdef extern from *:
+    """
+    #include <math.h>
+    #include <stdint.h>
+
+    /* numpy's pairwise summation (np.add.reduce of float64, PW_BLOCKSIZE 128), a[0..n) */
+    static double occ_pw_sum(const double *a, Py_ssize_t n) {
+        Py_ssize_t i;
+        if (n < 8) {
+            double res = -0.0;
+            for (i = 0; i < n; i++) res += a[i];
+            return res;
+        }
+        if (n <= 128) {
+            double r[8], res;
+            for (i = 0; i < 8; i++) r[i] = a[i];
+            for (i = 8; i < n - (n % 8); i += 8) {
+                r[0] += a[i + 0]; r[1] += a[i + 1]; r[2] += a[i + 2]; r[3] += a[i + 3];
+                r[4] += a[i + 4]; r[5] += a[i + 5]; r[6] += a[i + 6]; r[7] += a[i + 7];
+            }
+            res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+            for (; i < n; i++) res += a[i];
+            return res;
+        }
+        {
+            Py_ssize_t n2 = n / 2;
+            n2 -= n2 % 8;
+            return occ_pw_sum(a, n2) + occ_pw_sum(a + n2, n - n2);
+        }
+    }
+
+    /* one segment of np.add.reduceat (n >= 1): its first element plus the pairwise sum of the rest */
+    static inline double occ_seg_sum(const double *a, Py_ssize_t n) {
+        double s = a[0];
+        if (n > 1) s += occ_pw_sum(a + 1, n - 1);
+        return s;
+    }
+
+    /* ascending sort of distinct keys (quicksort, median of three; insertion sort below 17) */
+    static void occ_sort_u64(uint64_t *a, Py_ssize_t n) {
+        while (n > 16) {
+            uint64_t x = a[0], y = a[n / 2], z = a[n - 1], p, t;
+            Py_ssize_t i = -1, j = n;
+            p = x < y ? (y < z ? y : (x < z ? z : x)) : (x < z ? x : (y < z ? z : y));
+            for (;;) {
+                do i++; while (a[i] < p);
+                do j--; while (a[j] > p);
+                if (i >= j) break;
+                t = a[i]; a[i] = a[j]; a[j] = t;
+            }
+            /* [0, j] and [j + 1, n): recurse into the smaller */
+            if (j + 1 < n - j - 1) {
+                occ_sort_u64(a, j + 1);
+                a += j + 1;
+                n -= j + 1;
+            } else {
+                occ_sort_u64(a + j + 1, n - j - 1);
+                n = j + 1;
+            }
+        }
+        for (Py_ssize_t i = 1; i < n; i++) {
+            uint64_t v = a[i];
+            Py_ssize_t j = i;
+            while (j > 0 && a[j - 1] > v) { a[j] = a[j - 1]; j--; }
+            a[j] = v;
+        }
+    }
+
+    #define OCC_SIGN(v) (((v) > 0) - ((v) < 0))
+
+    /* OpenCV's Sklansky_ (imgproc/src/convhull.cpp) on the sorted points (px[k], py[k]) */
+    static int occ_sklansky(const int32_t *px, const int32_t *py, int start, int end, int *stack,
+                            int nsign, int sign2) {
+        int incr = end > start ? 1 : -1;
+        int pprev = start, pcur = pprev + incr, pnext = pcur + incr;
+        int stacksize = 3;
+        if (start == end || (px[start] == px[end] && py[start] == py[end])) {
+            stack[0] = start;
+            return 1;
+        }
+        stack[0] = pprev;
+        stack[1] = pcur;
+        stack[2] = pnext;
+        end += incr;
+        while (pnext != end) {
+            int cury = py[pcur], nexty = py[pnext], by = nexty - cury;
+            if (OCC_SIGN(by) != nsign) {
+                int ax = px[pcur] - px[pprev], ay = cury - py[pprev];
+                int bx = px[pnext] - px[pcur];
+                int64_t convexity = (int64_t)ay * bx - (int64_t)ax * by;
+                if (OCC_SIGN(convexity) == sign2 && (ax != 0 || ay != 0)) {
+                    pprev = pcur;
+                    pcur = pnext;
+                    pnext += incr;
+                    stack[stacksize] = pnext;
+                    stacksize++;
+                } else if (pprev == start) {
+                    pcur = pnext;
+                    stack[1] = pcur;
+                    pnext += incr;
+                    stack[2] = pnext;
+                } else {
+                    stack[stacksize - 2] = pnext;
+                    pcur = pprev;
+                    pprev = stack[stacksize - 4];
+                    stacksize--;
+                }
+            } else {
+                pnext += incr;
+                stack[stacksize - 1] = pnext;
+            }
+        }
+        return --stacksize;
+    }
+
+    /* cv2.convexHull(points, clockwise=False) of the integer points (x[i], y[i]), i < total
+       (0 <= x, y, total < 2^21): the indices of its vertices, in OpenCV's order, into hull;
+       returns their count. Work space: keys (total), ord, px, py (total), stack (2 total + 4).
+       A port of OpenCV 5.0's convexHull for integer points: points sorted by (x, y, index)
+       (its comparator's order, a total one: any sort gives its order), the upper and lower
+       chains by Sklansky's scan (equal points are not skipped), and the cyclic shift that makes
+       the indices ascending or descending where it can. tests/test_detect_kernels.py checks
+       it against cv2.convexHull on random point sets with many equal points. */
+    static int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys,
+                               int *ord, int32_t *px, int32_t *py, int *stack, int *hull) {
+        int i, nout = 0, miny_ind = 0, maxy_ind = 0;
+        for (i = 0; i < total; i++)
+            keys[i] = ((uint64_t)x[i] << 42) | ((uint64_t)y[i] << 21) | (uint64_t)i;
+        occ_sort_u64(keys, total);
+        for (i = 0; i < total; i++) {
+            ord[i] = (int)(keys[i] & 0x1FFFFF);
+            px[i] = x[ord[i]];
+            py[i] = y[ord[i]];
+        }
+        for (i = 1; i < total; i++) {
+            if (py[miny_ind] > py[i]) miny_ind = i;
+            if (py[maxy_ind] < py[i]) maxy_ind = i;
+        }
+        if (px[0] == px[total - 1] && py[0] == py[total - 1]) {
+            hull[nout++] = 0;
+            return nout;
+        }
+        {
+            /* upper half (clockwise = false: the two stacks swapped) */
+            int *tr_stack = stack;
+            int tr_count = occ_sklansky(px, py, 0, maxy_ind, tr_stack, -1, 1);
+            int *tl_stack = stack + tr_count;
+            int tl_count = occ_sklansky(px, py, total - 1, maxy_ind, tl_stack, -1, -1);
+            for (i = 0; i < tl_count - 1; i++) hull[nout++] = ord[tl_stack[i]];
+            for (i = tr_count - 1; i > 0; i--) hull[nout++] = ord[tr_stack[i]];
+            int stop_idx = tr_count > 2 ? tr_stack[1] : tl_count > 2 ? tl_stack[tl_count - 2] : -1;
+            /* lower half */
+            int *bl_stack = stack;
+            int bl_count = occ_sklansky(px, py, 0, miny_ind, bl_stack, 1, -1);
+            int *br_stack = stack + bl_count;
+            int br_count = occ_sklansky(px, py, total - 1, miny_ind, br_stack, 1, 1);
+            if (stop_idx >= 0) {
+                int check_idx = bl_count > 2 ? bl_stack[1] :
+                                bl_count + br_count > 2 ? br_stack[2 - bl_count] : -1;
+                if (check_idx == stop_idx || (check_idx >= 0 && px[check_idx] == px[stop_idx]
+                                              && py[check_idx] == py[stop_idx])) {
+                    if (bl_count > 2) bl_count = 2;
+                    if (br_count > 2) br_count = 2;
+                }
+            }
+            for (i = 0; i < bl_count - 1; i++) hull[nout++] = ord[bl_stack[i]];
+            for (i = br_count - 1; i > 0; i--) hull[nout++] = ord[br_stack[i]];
+        }
+        if (nout >= 3) {
+            int min_idx = 0, max_idx = 0, lt = 0;
+            for (i = 1; i < nout; i++) {
+                int idx = hull[i];
+                lt += hull[i - 1] < idx;
+                if (lt > 1 && lt <= i - 2) break;
+                if (idx < hull[min_idx]) min_idx = i;
+                if (idx > hull[max_idx]) max_idx = i;
+            }
+            int mmdist = abs(max_idx - min_idx);
+            if ((mmdist == 1 || mmdist == nout - 1) && (lt <= 1 || lt >= nout - 2)) {
+                int ascending = (max_idx + 1) % nout == min_idx;
+                int i0 = ascending ? min_idx : max_idx, j = i0;
+                if (i0 > 0) {
+                    for (i = 0; i < nout; i++) {
+                        int curr_idx = stack[i] = hull[j];
+                        int next_j = j + 1 < nout ? j + 1 : 0;
+                        int next_idx = hull[next_j];
+                        if (i < nout - 1 && (ascending != (curr_idx < next_idx))) break;
+                        j = next_j;
+                    }
+                    if (i == nout) memcpy(hull, stack, nout * sizeof(hull[0]));
+                }
+            }
+        }
+        return nout;
+    }
+
+    /* `detect._hull_stats_points` of one polygon (x[i], y[i]), i < k, k >= 1: centroid (cx, cy)
+       and area plus half-pixel rim, with numpy's operations in numpy's order (reduceat sums).
+       w: work space of 4 k doubles. */
+    static void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w,
+                               double *cx, double *cy, double *area) {
+        double *cr = w, *sxv = w + k, *syv = w + 2 * k, *pv = w + 3 * k;
+        Py_ssize_t i;
+        for (i = 0; i < k; i++) {
+            Py_ssize_t j = i + 1 < k ? i + 1 : 0;
+            double xn = x[j], yn = y[j];
+            double c = x[i] * yn - xn * y[i];
+            cr[i] = c;
+            sxv[i] = (x[i] + xn) * c;
+            syv[i] = (y[i] + yn) * c;
+            pv[i] = hypot(xn - x[i], yn - y[i]);
+        }
+        double a2 = occ_seg_sum(cr, k), sx = occ_seg_sum(sxv, k), sy = occ_seg_sum(syv, k);
+        double perim = occ_seg_sum(pv, k);
+        double m00 = 0.5 * fabs(a2);
+        if (m00 <= 1e-6) {
+            *cx = occ_seg_sum(x, k) / (double)k;
+            *cy = occ_seg_sum(y, k) / (double)k;
+        } else {
+            *cx = sx / (3.0 * a2);
+            *cy = sy / (3.0 * a2);
+        }
+        *area = (m00 + 0.5 * perim) + 0.78539816339744830962;
+    }
+    """
+    int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys, int *ord,
+                        int32_t *px, int32_t *py, int *stack, int *hull) nogil
+    void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w, double *cx,
+                        double *cy, double *area) nogil
+    double occ_seg_sum(const double *a, Py_ssize_t n) nogil
+
+
+
+def convex_hull(const int32_t[:, ::1] pts):
+    """cv2.convexHull of (N, 2) int32 points (0 <= x, y < 2^21, N < 2^21): (K, 2) int32
+    vertices in OpenCV's order (`occ_convex_hull`; for the kernel's tests)."""
+    cdef int n = pts.shape[0], i, k
+    if n == 0:
+        return []
+    if n >= (1 << 21):
+        raise ValueError("too many points")
+    for i in range(n):
+        if pts[i, 0] < 0 or pts[i, 1] < 0 or pts[i, 0] >= (1 << 21) or pts[i, 1] >= (1 << 21):
+            raise ValueError("points outside [0, 2^21)")
+    cdef int32_t *x = <int32_t *>malloc(4 * n * sizeof(int32_t))
+    cdef uint64_t *keys = <uint64_t *>malloc(n * sizeof(uint64_t))
+    cdef int *iw = <int *>malloc((4 * n + 8) * sizeof(int))
+    if x == NULL or keys == NULL or iw == NULL:
+        free(x); free(keys); free(iw)
+        raise MemoryError()
+    try:
+        for i in range(n):
+            x[i] = pts[i, 0]
+            x[n + i] = pts[i, 1]
+        k = occ_convex_hull(x, x + n, n, keys, iw, x + 2 * n, x + 3 * n, iw + n, iw + 3 * n + 4)
+        return [(int(x[iw[3 * n + 4 + i]]), int(x[n + iw[3 * n + 4 + i]])) for i in range(k)]
+    finally:
+        free(x); free(keys); free(iw)
+
+
+def hull_stats(const double[:, ::1] poly, const int64_t[::1] starts, double[:, ::1] out):
+    """out[i] = (cx, cy, area_px) of polygon i, rows starts[i]:starts[i + 1] of `poly` (x, y)
+    (`detect._hull_stats_points`, bit for bit)."""
+    cdef Py_ssize_t n = starts.shape[0] - 1, i, j, k, kmax = 0
+    for i in range(n):
+        if starts[i + 1] - starts[i] > kmax:
+            kmax = starts[i + 1] - starts[i]
+    cdef double *w = <double *>malloc((7 * kmax + 1) * sizeof(double))
+    if w == NULL:
+        raise MemoryError()
+    try:
+        for i in range(n):
+            k = starts[i + 1] - starts[i]
+            for j in range(k):
+                w[5 * kmax + j] = poly[starts[i] + j, 0]
+                w[6 * kmax + j] = poly[starts[i] + j, 1]
+            occ_hull_stats(w + 5 * kmax, w + 6 * kmax, k, w, &out[i, 0], &out[i, 1], &out[i, 2])
+    finally:
+        free(w)
+
+
+def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
+                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
+    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
+    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
+    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
+    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
+    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
+    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
+    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
+    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, nf = 0, pos = 0
+    cdef unsigned char mx, v, on
+    cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
+    cdef Py_ssize_t first
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pstart.shape[0] < n + 1 \
+            or poly.shape[0] < 2 * _total_rows(rects) or peak.shape[0] < n or blob_level.shape[0] < n \
+            or found.shape[0] < n or stats.shape[0] < n or bounds.shape[0] < n:
+        return -1
+    # the clipped level: bg + Python's max(saturated_frac * (255 - bg), min_refine_contrast)
+    clipped = bg + (min_refine_contrast if min_refine_contrast > sat else sat)
+    for i in range(n):
+        x0, y0, bw, bh = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        if bw >= (1 << 20) or bh >= (1 << 20):
+            return -1
+        if bh > hmax:
+            hmax = bh
+        mx = 0
+        for r in range(bh):
+            v = occ_u8_max(&gray[y0 + r, x0], bw)
+            if v > mx:
+                mx = v
+        pk = mx
+        # np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1)), NaN-propagating
+        u = bg + refine_frac * (pk - bg)
+        lv = level if (level <= pk - 1 or isnan(level)) else pk - 1
+        bl = clipped if pk >= saturated_gray else (u if (u >= lv or isnan(u)) else lv)
+        if not isfinite(bl) or bl < 0:
+            return -1
+        peak[i] = pk
+        blob_level[i] = bl
+    cdef int32_t *iw32 = <int32_t *>malloc((8 * hmax + 8) * sizeof(int32_t))
+    cdef uint64_t *keys = <uint64_t *>malloc((2 * hmax + 2) * sizeof(uint64_t))
+    cdef int *iw = <int *>malloc((8 * hmax + 16) * sizeof(int))
+    cdef double *dw = <double *>malloc((14 * hmax + 8) * sizeof(double))
+    cdef int32_t *px
+    cdef int32_t *py
+    cdef int *hull
+    cdef double *hx
+    cdef double *hy
+    if iw32 == NULL or keys == NULL or iw == NULL or dw == NULL:
+        free(iw32); free(keys); free(iw); free(dw)
+        raise MemoryError()
+    px, py = iw32, iw32 + 2 * hmax + 2
+    hull = iw + 6 * hmax + 8
+    hx, hy = dw + 10 * hmax + 4, dw + 12 * hmax + 6
+    try:
+        pstart[0] = 0
+        for i in range(n):
+            x0, y0, bw, bh = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+            # gray > level (cv2.threshold) is gray >= floor(level) + 1 for uint8
+            fo = floor(blob_level[i]) + 1
+            if fo > 255:
+                continue
+            on = <unsigned char>fo
+            m = 0
+            for r in range(bh):
+                first = occ_u8_first_ge(&gray[y0 + r, x0], bw, on)
+                if first >= 0:
+                    px[m] = <int32_t>first
+                    py[m] = <int32_t>r
+                    m += 1
+            if m == 0:
+                continue
+            for j in range(m):
+                r = py[j]
+                px[m + j] = <int32_t>occ_u8_last_ge(&gray[y0 + r, x0], bw, on)
+                py[m + j] = <int32_t>r
+            k = occ_convex_hull(px, py, <int>(2 * m), keys, iw, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6,
+                                iw + 2 * hmax + 2, hull)
+            for j in range(k):
+                hx[j] = px[hull[j]]
+                hy[j] = py[hull[j]]
+            occ_hull_stats(hx, hy, k, dw, &stats[nf, 0], &stats[nf, 1], &stats[nf, 2])
+            stats[nf, 0] += <double>x0
+            stats[nf, 1] += <double>y0
+            bounds[nf, 0] = bounds[nf, 1] = 1 << 62
+            bounds[nf, 2] = bounds[nf, 3] = -(1 << 62)
+            for j in range(k):
+                poly[pos + j, 0] = hx[j] + <double>x0
+                poly[pos + j, 1] = hy[j] + <double>y0
+                if <int64_t>poly[pos + j, 0] < bounds[nf, 0]:
+                    bounds[nf, 0] = <int64_t>poly[pos + j, 0]
+                if <int64_t>poly[pos + j, 1] < bounds[nf, 1]:
+                    bounds[nf, 1] = <int64_t>poly[pos + j, 1]
+                if <int64_t>poly[pos + j, 0] + 1 > bounds[nf, 2]:
+                    bounds[nf, 2] = <int64_t>poly[pos + j, 0] + 1
+                if <int64_t>poly[pos + j, 1] + 1 > bounds[nf, 3]:
+                    bounds[nf, 3] = <int64_t>poly[pos + j, 1] + 1
+            pos += k
+            found[nf] = i
+            nf += 1
+            pstart[nf] = pos
+    finally:
+        free(iw32); free(keys); free(iw); free(dw)
+    return nf

@@ -32,6 +32,7 @@ Image coordinates: px, x right, y down, origin at the centre of the top-left pix
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import cv2
@@ -460,23 +461,22 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
                         scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
-    The peaks and the leftmost / rightmost lit pixel of every row are scanned straight from the
-    frame by the compiled kernel (`_pixels.box_max`, `row_extremes`); without it the boxes'
-    pixels are stacked row by row into one (sum h, max w) strip and those are a handful of
-    array operations for all blobs (`_refine_strip`, `_strip_hulls`). Only the convex hull
-    stays per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
+    The compiled kernel does it all in one call (`_refine_alone_native`: peaks, levels, the
+    leftmost / rightmost lit pixel of every row, OpenCV's convex hull and its stats); without
+    it the boxes' pixels are stacked row by row into one (sum h, max w) strip and those are a
+    handful of array operations for all blobs (`_refine_strip`, `_strip_hulls`), the convex
+    hull per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
     is negative (odd tunables): the caller then refines one by one."""
     n = len(rects)
     if n == 0:
         return []
+    if _k is not None and _native_frame(gray):
+        out = _refine_alone_native(gray, rects, float(bg), float(level), float(refine_frac), float(saturated_gray),
+                                   float(saturated_frac), float(min_refine_contrast))
+        if out is not None:
+            return out
     h, w = gray.shape[:2]
-    native = _k is not None and _native_frame(gray)
-    if native:
-        rects = np.ascontiguousarray(rects, np.int64)
-        peak = np.empty(n)
-        native = _k.box_max(gray, rects, peak)  # False: a box outside the frame (numpy path)
-    if not native:
-        strip, starts, peak = _refine_strip(gray, rects, scratch)
+    strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
     # the zero padding would count as lit, and a NaN level (bad settings) would read as 0 in
@@ -486,16 +486,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
     # uint8 comparison is several times faster than against a float level
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    if native:
-        # each blob's lit rows' left ends, then their right ends: rows seg[i]:seg[i + 1]
-        pts = np.empty((2 * int(rects[:, 3].sum()), 2), np.int32)
-        seg = np.empty(n + 1, np.int64)
-        _k.row_extremes(gray, rects, first_on.astype(np.int64), pts, seg)
-        segl = seg.tolist()
-        found = [i for i in range(n) if segl[i] < segl[i + 1]]
-        hulls = [cv2.convexHull(pts[segl[i]:segl[i + 1]].reshape(-1, 1, 2)) for i in found]
-    else:
-        found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
+    found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
     peak_l, level_l = peak.tolist(), blob_level.tolist()
     bgf = float(bg)
     out: list[Blob | None] = [None] * n
@@ -516,6 +507,46 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
         out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
                       peak_l[i], level_l[i], bgf)
+    return out
+
+
+_BLOB_FIELDS = tuple(f.name for f in dataclasses.fields(Blob))
+
+
+def _new_blob(values) -> Blob:
+    """Blob(*values) without the frozen dataclass's __init__ (12 object.__setattr__ calls,
+    ~18 k instructions per blob, more than the blob's whole refinement in the kernel): the same
+    instance dict. Blob has no __post_init__ and no slots (tests/test_detect_kernels.py checks)."""
+    b = object.__new__(Blob)
+    b.__dict__.update(zip(_BLOB_FIELDS, values))
+    return b
+
+
+def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                         min_refine_contrast) -> list[Blob | None] | None:
+    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone`: peaks, levels, row
+    extremes, OpenCV's convex hull and its stats for every box), or None when the kernel
+    declines (a box outside the frame, a negative or NaN level: the numpy path decides)."""
+    n = len(rects)
+    h, w = gray.shape[:2]
+    rects = np.ascontiguousarray(rects, np.int64)
+    peak, blob_level = np.empty(n), np.empty(n)
+    found = np.empty(n, np.int64)
+    stats = np.empty((n, 3))
+    bounds = np.empty((n, 4), np.int64)
+    poly = np.empty((2 * int(rects[:, 3].sum()), 2))
+    pstart = np.empty(n + 1, np.int64)
+    nf = _k.refine_alone(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                         min_refine_contrast, peak, blob_level, found, stats, bounds, poly, pstart)
+    if nf < 0:
+        return None
+    out: list[Blob | None] = [None] * n
+    peak_l, level_l = peak.tolist(), blob_level.tolist()
+    ps = pstart[:nf + 1].tolist()
+    for j, (i, (cx, cy, area), (x0, y0, x1, y1)) in enumerate(zip(
+            found[:nf].tolist(), stats[:nf].tolist(), bounds[:nf].tolist())):
+        out[i] = _new_blob((cx, cy, area, poly[ps[j]:ps[j + 1]], x0, y0, x1, y1,
+                            x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, peak_l[i], level_l[i], bg))
     return out
 
 
