@@ -122,9 +122,54 @@ def test_refine_alone_kernel_declines_what_numpy_decides():
 def test_new_blob_is_the_dataclass_instance():
     assert not hasattr(Blob, "__post_init__") and not hasattr(Blob, "__slots__")
     values = (1.5, 2.5, 30.0, np.zeros((3, 2)), 1, 2, 3, 4, False, 200.0, 100.0, 5.0)
-    a, b = _new_blob(values), Blob(*values)
-    assert type(a) is Blob and a.__dict__.keys() == b.__dict__.keys()
+    a, b = _new_blob(*values), Blob(*values)
+    assert type(a) is Blob and list(a.__dict__) == list(b.__dict__) == [f.name for f in dataclasses.fields(Blob)]
     assert all(x is y for x, y in zip(a.__dict__.values(), b.__dict__.values()))
     assert dataclasses.replace(a, cx=9.0).cx == 9.0 and repr(a) == repr(b)
     with pytest.raises(dataclasses.FrozenInstanceError):
         a.cx = 0.0
+
+
+def _lit_scene(rng, h, w):
+    """A uint8 frame of dark noise with striped blobs of every size, many at the frame's edges
+    and corners, some close together (one group) and some overlapping."""
+    g = rng.normal(8, 2, (h, w))
+    for _ in range(int(rng.integers(0, 14))):
+        bh, bw = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        y0 = int(rng.choice([0, h - bh] + [int(rng.integers(-5, h))] * 3))
+        x0 = int(rng.choice([0, w - bw] + [int(rng.integers(-5, w))] * 6))
+        if y0 + bh <= 0 or x0 + bw <= 0:
+            continue
+        yy, xx = np.mgrid[max(y0, 0):min(y0 + bh, h), max(x0, 0):min(x0 + bw, w)]
+        period = int(rng.integers(2, 9))
+        lit = ((yy // max(period // 2, 1)) % 2 == 0) & (rng.random(yy.shape) > 0.05)
+        g[yy[lit], xx[lit]] += rng.uniform(30, 200)
+    return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8))
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(8))
+def test_mosaic_search_equals_the_lit_box_search(seed, monkeypatch):
+    """The close and contour search on a mosaic of the lit groups (`_search_mosaic`) gives the
+    contours (points and order), boxes and areas of the search over the whole lit box."""
+    rng = np.random.default_rng(seed)
+    used = 0
+    for _ in range(25):
+        h, w = int(rng.integers(20, 260)), int(rng.integers(20, 330))
+        gray = _lit_scene(rng, h, w)
+        gap, join, pool = int(rng.integers(0, 20)), int(rng.integers(0, 6)), int(rng.integers(1, 3))
+        calls = []
+        real = detect_mod._search_mosaic
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_search_mosaic", lambda *a: calls.append(real(*a)) or calls[-1])
+            got = detect_mod._search(gray, 40.0, gap, join, 1, pool, detect_mod.Scratch())
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_search_mosaic", lambda *a: None)
+            want = detect_mod._search(gray, 40.0, gap, join, 1, pool)
+        assert len(got[0]) == len(want[0])
+        assert all(np.array_equal(a, b) and a.shape == b.shape for a, b in zip(got[0], want[0]))
+        assert np.array_equal(got[1], want[1])
+        if got[2] is not None:
+            used += 1
+            assert got[2].tolist() == [cv2.contourArea(c) for c in want[0]]
+    assert used >= 1  # the mosaic was taken, not only the fallback (3000 scenes checked once: no difference)

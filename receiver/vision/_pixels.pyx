@@ -12,7 +12,7 @@ targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 
 from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
 from libc.stdlib cimport malloc, free
-from libc.string cimport memset
+from libc.string cimport memset, memcpy
 from libc.stdint cimport int64_t, int32_t, uint64_t
 
 cdef extern from *:
@@ -437,12 +437,45 @@ cdef extern from *:
                             unsigned char on, unsigned char *mask) nogil
 
 
-def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
-    """The thresholded search image and its lit pixels' bounding box in one pass
-    (`detect._components`): mask (ceil(H / pool), W) = 255 where the maximum over each run of
-    `pool` (1 or 2) rows of `gray` is >= on (cv2.threshold's `> level` for on = floor(level) + 1),
-    else 0. Returns cv2.boundingRect(mask): (x, y, w, h), zeros when nothing is lit."""
-    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c
+cdef extern from *:
+    """
+    /* cells[k] = 1 for each 32-column chunk k of the mask row m[0..n) (0 / 255) holding a lit
+       pixel, for the chunks of [c0, c1] (the row's first and last lit column) */
+    static inline void occ_mark_chunks(const unsigned char *m, Py_ssize_t n, Py_ssize_t c0, Py_ssize_t c1,
+                                       unsigned char *cells) {
+        Py_ssize_t k, k1 = c1 >> 5;
+        for (k = c0 >> 5; k <= k1; k++) {
+            Py_ssize_t s = k << 5, len = n - s < 32 ? n - s : 32;
+            int any = 0;
+    #ifdef OCC_SSE2
+            if (len == 32) {
+                __m128i v = _mm_or_si128(_mm_loadu_si128((const __m128i *)(m + s)),
+                                         _mm_loadu_si128((const __m128i *)(m + s + 16)));
+                any = _mm_movemask_epi8(_mm_cmpeq_epi8(v, _mm_setzero_si128())) != 0xFFFF;
+            } else
+    #endif
+            {
+                Py_ssize_t i;
+                for (i = 0; i < len; i++) if (m[s + i]) { any = 1; break; }
+            }
+            if (any) cells[k] = 1;
+        }
+    }
+
+    /* dst[i] |= src[i], i < n */
+    static inline void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) {
+        Py_ssize_t i;
+        for (i = 0; i < n; i++) dst[i] |= src[i];
+    }
+    """
+    void occ_mark_chunks(const unsigned char *m, Py_ssize_t n, Py_ssize_t c0, Py_ssize_t c1,
+                         unsigned char *cells) nogil
+    void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) nogil
+
+
+cdef tuple _search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
+                        unsigned char *cells, Py_ssize_t cells_stride):
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c, f, l
     cdef Py_ssize_t y0 = -1, y1 = -1, x0 = w, x1 = -1
     cdef const unsigned char *a
     cdef const unsigned char *b
@@ -461,6 +494,15 @@ def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned cha
             if y0 < 0:
                 y0 = i
             y1 = i
+            if cells != NULL:
+                f = occ_u8_first_ge(m, w, 255)
+                l = occ_u8_last_ge(m, w, 255)
+                occ_mark_chunks(m, w, f, l, cells + i * cells_stride)
+                if f < x0:
+                    x0 = f
+                if l > x1:
+                    x1 = l
+                continue
             # the columns' extent: only the part of the row outside the extent so far
             if x0 > 0:
                 c = occ_u8_first_ge(m, x0, 255)
@@ -473,6 +515,228 @@ def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned cha
     if y0 < 0:
         return 0, 0, 0, 0
     return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+
+
+def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
+    """The thresholded search image and its lit pixels' bounding box in one pass
+    (`detect._components`): mask (ceil(H / pool), W) = 255 where the maximum over each run of
+    `pool` (1 or 2) rows of `gray` is >= on (cv2.threshold's `> level` for on = floor(level) + 1),
+    else 0. Returns cv2.boundingRect(mask): (x, y, w, h), zeros when nothing is lit."""
+    return _search_mask(gray, pool, on, mask, NULL, 0)
+
+
+def search_mask_cells(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
+                      unsigned char[:, ::1] cells):
+    """`search_mask`, and cells[i, k] = 1 where mask row i has a lit pixel in columns
+    [32 k, 32 k + 32), else 0 (cells: (mask rows, >= ceil(W / 32)) uint8), for `mosaic`."""
+    if cells.shape[0] < mask.shape[0] or cells.shape[1] * 32 < mask.shape[1]:
+        raise ValueError("cells too small")
+    memset(&cells[0, 0], 0, cells.shape[0] * cells.shape[1])
+    return _search_mask(gray, pool, on, mask, &cells[0, 0], cells.shape[1])
+
+
+cdef int _uf_root(int *parent, int i) noexcept nogil:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, int bx, int by, int bw, int bh,
+           int ky, int kx, int64_t[:, ::1] crops, unsigned char[::1] out):
+    """The lit groups of `mask` (0 / 255, lit box bx, by, bw, bh; `cells` from `search_mask_cells`)
+    packed side by side into one small image for the close and the contour search
+    (`detect._search_mosaic`, which says why that is exact). Groups: the 8-connected sets of
+    (ky rows x 32 columns) cells holding lit pixels; two groups are at least ky rows or 32 >= kx
+    columns apart, farther than the (ky, kx) close reaches. Each group's crop is its lit pixels'
+    box grown by ky rows and kx columns (clipped to the mask), holding only that group's pixels.
+    Crops are laid out left to right, the one at the mask's left edge first and the one at its
+    right edge last, top-aligned (bottom-aligned when at the mask's bottom edge only), so each
+    crop keeps its mask-edge sides on the image's edges. crops[k] = x0, y0, x1, y1 (the crop in
+    the mask, half-open), x, y (its place in the mosaic), in layout order. Writes the (Hm, Wm)
+    mosaic into out[:Hm * Wm] and returns (groups, Hm, Wm); (-1, 0, 0) when the packing is not
+    worth it or not possible (kx > 32, more groups than crops has rows, two crops at the same
+    left or right edge, a mosaic no smaller than the grown box, or one larger than out)."""
+    cdef Py_ssize_t ho = mask.shape[0], w = mask.shape[1], nch = cells.shape[1]
+    cdef Py_ssize_t R0, R1, C0, C1, nR, nC, R, C, r, ra, rb, c0, ln, i, k, n = 0, f, l
+    cdef Py_ssize_t cap = crops.shape[0], hm = 0, wm = 0, gx0, gy0, gx1, gy1, nleft = 0, nright = 0
+    cdef int *parent
+    cdef int *gid
+    cdef unsigned char *occ
+    cdef int64_t *box
+    cdef int ra_, rb_
+    cdef Py_ssize_t x0, y0, x1, y1, px, py
+    if kx > 32 or ky < 1 or kx < 1 or bw <= 0 or bh <= 0 or cells.shape[0] < ho or nch * 32 < w:
+        return -1, 0, 0
+    R0, R1 = by // ky, (by + bh - 1) // ky + 1
+    C0, C1 = bx // 32, (bx + bw - 1) // 32 + 1
+    nR, nC = R1 - R0, C1 - C0
+    parent = <int *>malloc(nR * nC * sizeof(int))
+    gid = <int *>malloc(nR * nC * sizeof(int))
+    occ = <unsigned char *>malloc(nR * nC)
+    box = <int64_t *>malloc(4 * (cap + 1) * sizeof(int64_t))
+    if parent == NULL or gid == NULL or occ == NULL or box == NULL:
+        free(parent); free(gid); free(occ); free(box)
+        raise MemoryError()
+    try:
+        memset(occ, 0, nR * nC)
+        for R in range(nR):
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            for r in range(ra, rb):
+                occ_or_bytes(occ + R * nC, &cells[r, C0], nC)
+        # union-find over the 8-connected occupied cells
+        for i in range(nR * nC):
+            parent[i] = i
+        for R in range(nR):
+            for C in range(nC):
+                if not occ[R * nC + C]:
+                    continue
+                i = R * nC + C
+                if C > 0 and occ[i - 1]:
+                    ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
+                    parent[max(ra_, rb_)] = min(ra_, rb_)
+                if R > 0:
+                    for k in range(max(C - 1, 0), min(C + 2, nC)):
+                        if occ[i - nC - C + k]:
+                            ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
+                            parent[max(ra_, rb_)] = min(ra_, rb_)
+        # group ids in raster order of their first cell, and each group's lit box
+        for i in range(nR * nC):
+            gid[i] = -1
+            if not occ[i]:
+                continue
+            k = _uf_root(parent, <int>i)
+            if k == i:
+                if n >= cap:
+                    return -1, 0, 0
+                gid[i] = <int>n
+                box[4 * n], box[4 * n + 1], box[4 * n + 2], box[4 * n + 3] = w, ho, -1, -1
+                n += 1
+            else:
+                gid[i] = gid[k]
+            k = gid[i]
+            R, C = i // nC, i % nC
+            c0 = (C0 + C) * 32
+            ln = min(32, w - c0)
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            for r in range(ra, rb):
+                if not cells[r, C0 + C]:
+                    continue
+                f = occ_u8_first_ge(&mask[r, c0], ln, 255)
+                l = occ_u8_last_ge(&mask[r, c0], ln, 255)
+                if c0 + f < box[4 * k]:
+                    box[4 * k] = c0 + f
+                if c0 + l > box[4 * k + 2]:
+                    box[4 * k + 2] = c0 + l
+                if r < box[4 * k + 1]:
+                    box[4 * k + 1] = r
+                if r > box[4 * k + 3]:
+                    box[4 * k + 3] = r
+        # crops and their layout
+        for k in range(n):
+            gx0, gy0 = max(box[4 * k] - kx, 0), max(box[4 * k + 1] - ky, 0)
+            gx1, gy1 = min(box[4 * k + 2] + 1 + kx, w), min(box[4 * k + 3] + 1 + ky, ho)
+            box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = gx0, gy0, gx1, gy1
+            nleft += gx0 == 0
+            nright += gx1 == w
+            if gx0 == 0 and gx1 == w and n > 1:
+                return -1, 0, 0
+            hm = max(hm, gy1 - gy0)
+            wm += gx1 - gx0
+        if nleft > 1 or nright > 1:
+            return -1, 0, 0
+        gx0, gy0 = max(bx - kx, 0), max(by - ky, 0)
+        gx1, gy1 = min(bx + bw + kx, w), min(by + bh + ky, ho)
+        if hm * wm >= (gx1 - gx0) * (gy1 - gy0) or hm * wm > out.shape[0]:
+            return -1, 0, 0
+        # layout order: the left-edge crop, the inner ones by group id, the right-edge crop
+        i = 0
+        for f in range(3):
+            for k in range(n):
+                l = 0 if box[4 * k] == 0 else (2 if box[4 * k + 2] == w else 1)
+                if l != f:
+                    continue
+                crops[k, 6] = i  # group k's row in crops
+                crops[i, 0], crops[i, 1], crops[i, 2], crops[i, 3] = box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3]
+                i += 1
+        f = 0
+        for i in range(n):
+            crops[i, 4] = f
+            f += crops[i, 2] - crops[i, 0]
+            if crops[i, 1] == 0 or crops[i, 3] != ho:
+                crops[i, 5] = 0
+            else:
+                crops[i, 5] = hm - (crops[i, 3] - crops[i, 1])
+        # the mosaic: each crop's rows of the mask, the rest zeros, then the pixels of other
+        # groups' cells inside a crop cleared
+        for i in range(n):
+            x0, y0, x1, y1, px, py = crops[i, 0], crops[i, 1], crops[i, 2], crops[i, 3], crops[i, 4], crops[i, 5]
+            for r in range(hm):
+                if r < py or r >= py + y1 - y0:
+                    memset(&out[r * wm + px], 0, x1 - x0)
+                else:
+                    memcpy(&out[r * wm + px], &mask[y0 + r - py, x0], x1 - x0)
+        # crops overlapping another crop (box[4 k]: 1 for layout row k); only their groups'
+        # cells can put pixels into a foreign crop (a group's lit pixels lie inside its crop)
+        for k in range(n):
+            box[4 * k] = 0
+            for l in range(n):
+                if l != k and crops[k, 0] < crops[l, 2] and crops[l, 0] < crops[k, 2] \
+                        and crops[k, 1] < crops[l, 3] and crops[l, 1] < crops[k, 3]:
+                    box[4 * k] = 1
+                    break
+        for i in range(nR * nC):
+            if gid[i] < 0 or not box[4 * crops[gid[i], 6]]:
+                continue
+            R, C = i // nC, i % nC
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            c0, c1 = (C0 + C) * 32, min((C0 + C + 1) * 32, w)
+            for k in range(n):
+                if k == crops[gid[i], 6]:
+                    continue
+                x0, y0, x1, y1 = max(crops[k, 0], c0), max(crops[k, 1], ra), min(crops[k, 2], c1), min(crops[k, 3], rb)
+                if x0 >= x1 or y0 >= y1:
+                    continue
+                for r in range(y0, y1):
+                    memset(&out[(crops[k, 5] + r - crops[k, 1]) * wm + crops[k, 4] + x0 - crops[k, 0]], 0, x1 - x0)
+        return n, hm, wm
+    finally:
+        free(parent); free(gid); free(occ); free(box)
+
+
+def place_contours(int32_t[:, ::1] pts, const int64_t[::1] starts, const int64_t[:, ::1] crops, int n_crops,
+                   int64_t[:, ::1] rects, double[::1] areas, int64_t[::1] keys):
+    """The contours found in a `mosaic` (all their points `pts` (N, 2), contour i's rows
+    starts[i]:starts[i + 1]) moved back to the mask's coordinates in place; rects[i] = their
+    cv2.boundingRect, areas[i] = cv2.contourArea (exact: integer vertices), keys[i] = their first
+    point's y * 2^31 + x (findContours returns its contours by descending first point)."""
+    cdef Py_ssize_t nc = starts.shape[0] - 1, i, j, k, lo, hi, mid
+    cdef int64_t dx, dy, x0, y0, x1, y1, a, px, py
+    for i in range(nc):
+        if starts[i + 1] <= starts[i]:
+            raise ValueError("empty contour")
+        # the crop holding the first point: crops are laid out left to right
+        lo, hi = 0, n_crops - 1
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if crops[mid, 4] <= pts[starts[i], 0]:
+                lo = mid
+            else:
+                hi = mid - 1
+        dx, dy = crops[lo, 0] - crops[lo, 4], crops[lo, 1] - crops[lo, 5]
+        x0 = y0 = 1 << 62
+        x1 = y1 = -(1 << 62)
+        a = 0
+        px, py = pts[starts[i + 1] - 1, 0] + dx, pts[starts[i + 1] - 1, 1] + dy
+        for j in range(starts[i], starts[i + 1]):
+            pts[j, 0] += <int32_t>dx
+            pts[j, 1] += <int32_t>dy
+            a += px * pts[j, 1] - py * pts[j, 0]
+            px, py = pts[j, 0], pts[j, 1]
+            x0, y0, x1, y1 = min(x0, px), min(y0, py), max(x1, px), max(y1, py)
+        rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = x0, y0, x1 - x0 + 1, y1 - y0 + 1
+        areas[i] = abs(<double>a * 0.5)
+        keys[i] = pts[starts[i], 1] * (<int64_t>1 << 31) + pts[starts[i], 0]
 
 
 # ------------------------------------------------------------------ row profiles
