@@ -173,3 +173,24 @@ def test_mosaic_search_equals_the_lit_box_search(seed, monkeypatch):
             used += 1
             assert got[2].tolist() == [cv2.contourArea(c) for c in want[0]]
     assert used >= 1  # the mosaic was taken, not only the fallback (3000 scenes checked once: no difference)
+
+
+@needs_kernel
+def test_auto_level_kernel_equals_numpy(monkeypatch):
+    """`_pixels.sample_stats` (histogram, median and MAD in one pass) gives auto_level's
+    numbers, on noisy, flat, clipped and tiny frames, every sampling step."""
+    rng = np.random.default_rng(5)
+    frames = [np.zeros((1, 1), np.uint8), np.full((7, 9), 255, np.uint8)]
+    for _ in range(40):
+        h, w = int(rng.integers(1, 90)), int(rng.integers(1, 130))
+        g = rng.normal(rng.uniform(0, 60), rng.uniform(0, 12), (h, w))
+        g[rng.random((h, w)) < 0.03] = 255
+        frames.append(np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8)))
+    for gray in frames:
+        for step in (1, 2, 3, 4, 5):
+            for fine in (False, True):
+                got = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
+                with monkeypatch.context() as m:
+                    m.setattr(detect_mod, "_k", None)
+                    want = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
+                assert got == want

@@ -367,26 +367,84 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
 
 # ------------------------------------------------------------------ detection: the search
 
+cdef extern from *:
+    """
+    #include <string.h>
+    /* counts[v] += number of samples p[0], p[step], p[2 step], ... < p + n equal to v */
+    static inline void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) {
+        Py_ssize_t c = 0;
+        if (step == 4) {
+            /* two samples per 8-byte load */
+            for (; c + 8 <= n; c += 8) {
+                uint64_t v;
+                memcpy(&v, p + c, 8);
+                counts[v & 0xff]++;
+                counts[(v >> 32) & 0xff]++;
+            }
+        }
+        for (; c < n; c += step) counts[p[c]]++;
+    }
+    """
+    void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) nogil
+
+
+cdef void _sample_counts(const unsigned char[:, ::1] gray, int step, int64_t *counts) noexcept:
+    cdef Py_ssize_t r = 0, h = gray.shape[0], w = gray.shape[1]
+    memset(counts, 0, 256 * sizeof(int64_t))
+    if w == 0:
+        return
+    while r < h:  # (a range with a run-time step would be a Python loop)
+        occ_count_row(&gray[r, 0], w, step, counts)
+        r += step
+
+
 def sample_hist(const unsigned char[:, ::1] gray, int step, float[::1] hist):
     """hist (256,) = the histogram of gray[::step, ::step] (cv2.calcHist's counts, float32),
     without the strided copy (`detect.auto_level`)."""
-    cdef Py_ssize_t r, c, h = gray.shape[0], w = gray.shape[1]
     cdef int64_t counts[256]
-    cdef const unsigned char *row
+    cdef int i
     if step < 1:
         raise ValueError("step must be positive")
-    for r in range(256):
-        counts[r] = 0
-    r = 0
-    while r < h:  # (a range with a run-time step would be a Python loop)
-        row = &gray[r, 0]
-        c = 0
-        while c < w:
-            counts[row[c]] += 1
-            c += step
-        r += step
-    for r in range(256):
-        hist[r] = <float>counts[r]
+    _sample_counts(gray, step, counts)
+    for i in range(256):
+        hist[i] = <float>counts[i]
+
+
+def sample_stats(const unsigned char[:, ::1] gray, int step, float[::1] hist):
+    """`sample_hist`, and (median, MAD) of those samples as `detect.auto_level` takes them from
+    the histogram: the first gray value whose cumulative count reaches half the samples, and
+    the same of the counts folded around it (|x - median|); exact integer counts."""
+    cdef int64_t counts[256]
+    cdef int64_t dev[256]
+    cdef int64_t total = 0, acc = 0
+    cdef int i, med = 255, mad = 255
+    if step < 1:
+        raise ValueError("step must be positive")
+    _sample_counts(gray, step, counts)
+    for i in range(256):
+        hist[i] = <float>counts[i]
+        total += counts[i]
+        dev[i] = 0
+    # searchsorted(cumsum, total / 2): the first i with 2 * cumsum[i] >= total (256 when none:
+    # an empty sample, as numpy's searchsorted past the end)
+    med = 256
+    for i in range(256):
+        acc += counts[i]
+        if 2 * acc >= total:
+            med = i
+            break
+    if med == 256:
+        return 256, 256
+    for i in range(256):
+        dev[abs(i - med)] += counts[i]
+    acc = 0
+    mad = 256
+    for i in range(256):
+        acc += dev[i]
+        if 2 * acc >= total:
+            mad = i
+            break
+    return med, mad
 
 
 cdef extern from *:
@@ -464,8 +522,15 @@ cdef extern from *:
 
     /* dst[i] |= src[i], i < n */
     static inline void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) {
-        Py_ssize_t i;
-        for (i = 0; i < n; i++) dst[i] |= src[i];
+        Py_ssize_t i = 0;
+        for (; i + 8 <= n; i += 8) {
+            uint64_t a, b;
+            memcpy(&a, dst + i, 8);
+            memcpy(&b, src + i, 8);
+            a |= b;
+            memcpy(dst + i, &a, 8);
+        }
+        for (; i < n; i++) dst[i] |= src[i];
     }
     """
     void occ_mark_chunks(const unsigned char *m, Py_ssize_t n, Py_ssize_t c0, Py_ssize_t c1,
@@ -564,6 +629,7 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     cdef int *gid
     cdef unsigned char *occ
     cdef int64_t *box
+    cdef int64_t *cb
     cdef int ra_, rb_
     cdef Py_ssize_t x0, y0, x1, y1, px, py
     if kx > 32 or ky < 1 or kx < 1 or bw <= 0 or bh <= 0 or cells.shape[0] < ho or nch * 32 < w:
@@ -574,10 +640,11 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     parent = <int *>malloc(nR * nC * sizeof(int))
     gid = <int *>malloc(nR * nC * sizeof(int))
     occ = <unsigned char *>malloc(nR * nC)
-    box = <int64_t *>malloc(4 * (cap + 1) * sizeof(int64_t))
+    box = <int64_t *>malloc(8 * (cap + 1) * sizeof(int64_t))
     if parent == NULL or gid == NULL or occ == NULL or box == NULL:
         free(parent); free(gid); free(occ); free(box)
         raise MemoryError()
+    cb = box + 4 * (cap + 1)  # each group's box of cells: first and last cell column and row
     try:
         memset(occ, 0, nR * nC)
         for R in range(nR):
@@ -600,7 +667,7 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                         if occ[i - nC - C + k]:
                             ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
                             parent[max(ra_, rb_)] = min(ra_, rb_)
-        # group ids in raster order of their first cell, and each group's lit box
+        # group ids in raster order of their first cell, and each group's box of cells
         for i in range(nR * nC):
             gid[i] = -1
             if not occ[i]:
@@ -610,24 +677,40 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                 if n >= cap:
                     return -1, 0, 0
                 gid[i] = <int>n
-                box[4 * n], box[4 * n + 1], box[4 * n + 2], box[4 * n + 3] = w, ho, -1, -1
+                cb[4 * n], cb[4 * n + 1], cb[4 * n + 2], cb[4 * n + 3] = nC, nR, -1, -1
                 n += 1
             else:
                 gid[i] = gid[k]
             k = gid[i]
             R, C = i // nC, i % nC
+            cb[4 * k] = min(cb[4 * k], C)
+            cb[4 * k + 1] = min(cb[4 * k + 1], R)
+            cb[4 * k + 2] = max(cb[4 * k + 2], C)
+            cb[4 * k + 3] = max(cb[4 * k + 3], R)
+        # each group's lit box: the lit pixels at its box's edges are in its edge cells
+        for k in range(n):
+            box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = w, ho, -1, -1
+        for i in range(nR * nC):
+            k = gid[i]
+            if k < 0:
+                continue
+            R, C = i // nC, i % nC
+            if C != cb[4 * k] and C != cb[4 * k + 2] and R != cb[4 * k + 1] and R != cb[4 * k + 3]:
+                continue
             c0 = (C0 + C) * 32
             ln = min(32, w - c0)
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
             for r in range(ra, rb):
                 if not cells[r, C0 + C]:
                     continue
-                f = occ_u8_first_ge(&mask[r, c0], ln, 255)
-                l = occ_u8_last_ge(&mask[r, c0], ln, 255)
-                if c0 + f < box[4 * k]:
-                    box[4 * k] = c0 + f
-                if c0 + l > box[4 * k + 2]:
-                    box[4 * k + 2] = c0 + l
+                if C == cb[4 * k]:
+                    f = occ_u8_first_ge(&mask[r, c0], ln, 255)
+                    if c0 + f < box[4 * k]:
+                        box[4 * k] = c0 + f
+                if C == cb[4 * k + 2]:
+                    l = occ_u8_last_ge(&mask[r, c0], ln, 255)
+                    if c0 + l > box[4 * k + 2]:
+                        box[4 * k + 2] = c0 + l
                 if r < box[4 * k + 1]:
                     box[4 * k + 1] = r
                 if r > box[4 * k + 3]:

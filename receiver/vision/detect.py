@@ -77,18 +77,19 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
     least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
     `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
+    hist = np.empty(256, np.float32)
     if _k is not None and _native_frame(gray) and sample_step >= 1:
-        hist = np.empty(256, np.float32)
-        _k.sample_hist(gray, sample_step, hist)  # the same counts, without the strided copy
+        # the same counts, median and MAD in one pass, without the strided copy
+        med, mad = _k.sample_stats(gray, sample_step, hist)
     else:
         sample = gray[::sample_step, ::sample_step]
         hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
-    cdf = np.cumsum(hist)
-    half = cdf[-1] / 2.0
-    med = int(np.searchsorted(cdf, half))
-    # Histogram of |x - med| by folding the histogram around the median.
-    dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
-    mad = int(np.searchsorted(np.cumsum(dev), half))
+        cdf = np.cumsum(hist)
+        half = cdf[-1] / 2.0
+        med = int(np.searchsorted(cdf, half))
+        # Histogram of |x - med| by folding the histogram around the median.
+        dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
+        mad = int(np.searchsorted(np.cumsum(dev), half))
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
     return float(min(level, 254.0)), float(med)
