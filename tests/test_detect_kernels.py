@@ -194,3 +194,17 @@ def test_auto_level_kernel_equals_numpy(monkeypatch):
                     m.setattr(detect_mod, "_k", None)
                     want = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
                 assert got == want
+
+
+@needs_kernel
+def test_isolated_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(6)
+    for _ in range(300):
+        n = int(rng.integers(0, 30))
+        rects = np.stack([rng.integers(0, 100, n), rng.integers(0, 100, n),
+                          rng.integers(0, 25, n), rng.integers(0, 25, n)], axis=1).astype(np.int64).reshape(-1, 4)
+        got = detect_mod._isolated(rects)
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_k", None)
+            want = detect_mod._isolated(rects)
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)

@@ -1276,3 +1276,18 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     finally:
         free(iw32); free(keys); free(iw); free(dw)
     return nf
+
+
+def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):
+    """out[i] = 1 when box i (x, y, w, h) overlaps no other box (`detect._isolated`: half-open
+    boxes, a box always overlapping itself counted once), else 0."""
+    cdef Py_ssize_t n = rects.shape[0], i, j, c
+    if out.shape[0] < n:
+        raise ValueError("out too short")
+    for i in range(n):
+        c = 0
+        for j in range(n):
+            if (rects[i, 0] < rects[j, 0] + rects[j, 2] and rects[j, 0] < rects[i, 0] + rects[i, 2]
+                    and rects[i, 1] < rects[j, 1] + rects[j, 3] and rects[j, 1] < rects[i, 1] + rects[i, 3]):
+                c += 1
+        out[i] = c == 1

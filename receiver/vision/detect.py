@@ -286,10 +286,12 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
+    rect_l, alone_l = rects.tolist(), alone.tolist()
+    area_l = areas.tolist() if areas is not None else None
     for i in np.flatnonzero(keep).tolist():
-        c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
+        c, (bx, by, bw, bh) = contours[i], rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       s.refine_frac, bool(alone[i]), **sat_kw)
+                                                       s.refine_frac, alone_l[i], **sat_kw)
         if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
@@ -298,7 +300,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         # `shape_min_rows` rows are exempt (a sub-pixel-tall panel is one row several px wide,
         # and a one-row contour has no area to fill its box with).
         if not blob.border and s.max_aspect and bh >= s.shape_min_rows and (max(bw, bh) > s.max_aspect * min(bw, bh)
-                                               or pool * (cv2.contourArea(c) if areas is None else areas[i])
+                                               or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
                                                < s.min_fill * bw * bh):
             continue
         if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
@@ -507,6 +509,10 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
     if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
         return np.zeros(len(rects), bool)
+    if _k is not None:
+        out = np.empty(len(rects), bool)
+        _k.isolated(np.ascontiguousarray(rects, np.int64), out.view(np.uint8))
+        return out
     x0, y0 = rects[:, 0], rects[:, 1]
     x1, y1 = x0 + rects[:, 2], y0 + rects[:, 3]
     ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
