@@ -1006,6 +1006,7 @@ cdef extern from *:
     /* cv2.convexHull(points, clockwise=False) of the integer points (x[i], y[i]), i < total
        (0 <= x, y, total < 2^21): the indices of its vertices, in OpenCV's order, into hull;
        returns their count. Work space: keys (total), ord, px, py (total), stack (2 total + 4).
+       keys NULL: ord holds the indices already sorted by (x, y, index).
        A port of OpenCV 5.0's convexHull for integer points: points sorted by (x, y, index)
        (its comparator's order, a total one: any sort gives its order), the upper and lower
        chains by Sklansky's scan (equal points are not skipped), and the cyclic shift that makes
@@ -1014,11 +1015,13 @@ cdef extern from *:
     static int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys,
                                int *ord, int32_t *px, int32_t *py, int *stack, int *hull) {
         int i, nout = 0, miny_ind = 0, maxy_ind = 0;
-        for (i = 0; i < total; i++)
-            keys[i] = ((uint64_t)x[i] << 42) | ((uint64_t)y[i] << 21) | (uint64_t)i;
-        occ_sort_u64(keys, total);
+        if (keys != NULL) {
+            for (i = 0; i < total; i++)
+                keys[i] = ((uint64_t)x[i] << 42) | ((uint64_t)y[i] << 21) | (uint64_t)i;
+            occ_sort_u64(keys, total);
+            for (i = 0; i < total; i++) ord[i] = (int)(keys[i] & 0x1FFFFF);
+        }
         for (i = 0; i < total; i++) {
-            ord[i] = (int)(keys[i] & 0x1FFFFF);
             px[i] = x[ord[i]];
             py[i] = y[ord[i]];
         }
@@ -1181,7 +1184,7 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
     heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
     is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
-    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, nf = 0, pos = 0
+    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, wmax = 0, nf = 0, pos = 0
     cdef unsigned char mx, v, on
     cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
     cdef Py_ssize_t first
@@ -1197,6 +1200,8 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             return -1
         if bh > hmax:
             hmax = bh
+        if bw > wmax:
+            wmax = bw
         mx = 0
         for r in range(bh):
             v = occ_u8_max(&gray[y0 + r, x0], bw)
@@ -1215,13 +1220,14 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     cdef uint64_t *keys = <uint64_t *>malloc((2 * hmax + 2) * sizeof(uint64_t))
     cdef int *iw = <int *>malloc((8 * hmax + 16) * sizeof(int))
     cdef double *dw = <double *>malloc((14 * hmax + 8) * sizeof(double))
+    cdef int *cnt = <int *>malloc((wmax + 2) * sizeof(int))
     cdef int32_t *px
     cdef int32_t *py
     cdef int *hull
     cdef double *hx
     cdef double *hy
-    if iw32 == NULL or keys == NULL or iw == NULL or dw == NULL:
-        free(iw32); free(keys); free(iw); free(dw)
+    if iw32 == NULL or keys == NULL or iw == NULL or dw == NULL or cnt == NULL:
+        free(iw32); free(keys); free(iw); free(dw); free(cnt)
         raise MemoryError()
     px, py = iw32, iw32 + 2 * hmax + 2
     hull = iw + 6 * hmax + 8
@@ -1248,7 +1254,19 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
                 r = py[j]
                 px[m + j] = <int32_t>occ_u8_last_ge(&gray[y0 + r, x0], bw, on)
                 py[m + j] = <int32_t>r
-            k = occ_convex_hull(px, py, <int>(2 * m), keys, iw, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6,
+            # sorted by (x, y, index) in O(points + width): the rows interleaved (left end j,
+            # right end m + j: by row, then index), then a stable counting sort by column
+            memset(cnt, 0, (bw + 1) * sizeof(int))
+            for j in range(2 * m):
+                cnt[px[j] + 1] += 1
+            for j in range(bw):
+                cnt[j + 1] += cnt[j]
+            for j in range(m):
+                iw[cnt[px[j]]] = <int>j
+                cnt[px[j]] += 1
+                iw[cnt[px[m + j]]] = <int>(m + j)
+                cnt[px[m + j]] += 1
+            k = occ_convex_hull(px, py, <int>(2 * m), NULL, iw, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6,
                                 iw + 2 * hmax + 2, hull)
             for j in range(k):
                 hx[j] = px[hull[j]]
@@ -1274,7 +1292,7 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             nf += 1
             pstart[nf] = pos
     finally:
-        free(iw32); free(keys); free(iw); free(dw)
+        free(iw32); free(keys); free(iw); free(dw); free(cnt)
     return nf
 
 
