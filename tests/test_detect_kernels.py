@@ -208,3 +208,19 @@ def test_isolated_kernel_equals_numpy(monkeypatch):
             m.setattr(detect_mod, "_k", None)
             want = detect_mod._isolated(rects)
         assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+
+
+@needs_kernel
+def test_search_mask_cells_marks_the_lit_32_column_cells():
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 150))
+        gray = ((rng.random((h, w)) < rng.uniform(0, 0.05)) * 200).astype(np.uint8)
+        for pool in (1, 2):
+            ho = -(-h // pool)
+            mask, cells = np.empty((ho, w), np.uint8), np.full((ho, -(-w // 32)), 7, np.uint8)
+            box = _px.search_mask_cells(gray, pool, 100, mask, cells)
+            assert box == _px.search_mask(gray, pool, 100, np.empty_like(mask))
+            padded = np.zeros((ho, cells.shape[1] * 32), bool)
+            padded[:, :w] = mask > 0
+            assert np.array_equal(cells, padded.reshape(ho, -1, 32).any(axis=2).astype(np.uint8))

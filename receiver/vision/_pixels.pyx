@@ -450,9 +450,10 @@ def sample_stats(const unsigned char[:, ::1] gray, int step, float[::1] hist):
 cdef extern from *:
     """
     /* mask[0..n) = 255 where max(a[i], b[i]) >= on (b may equal a), else 0; returns nonzero
-       when any pixel is lit. on in 0..255. */
+       when any pixel is lit. on in 0..255. cells (or NULL): cells[k] = 1 where columns
+       [32 k, 32 k + 32) hold a lit pixel (cells[k] is left alone where they do not). */
     static inline int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                                          unsigned char on, unsigned char *mask) {
+                                          unsigned char on, unsigned char *mask, unsigned char *cells) {
         Py_ssize_t i = 0;
         unsigned char any = 0;
     #ifdef OCC_SSE2
@@ -468,7 +469,9 @@ cdef extern from *:
                 __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
                 _mm_storeu_si128((__m128i *)(mask + i), l0);
                 _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
-                acc = _mm_or_si128(acc, _mm_or_si128(l0, l1));
+                __m128i l01 = _mm_or_si128(l0, l1);
+                if (cells != NULL && _mm_movemask_epi8(l01)) cells[i >> 5] = 1;
+                acc = _mm_or_si128(acc, l01);
             }
             while (i < n) {
                 if (i + 16 > n) i = n - 16;  /* the last 16 bytes, overlapping: the same values again */
@@ -476,6 +479,13 @@ cdef extern from *:
                                          _mm_loadu_si128((const __m128i *)(b + i)));
                 __m128i lit = _mm_cmpeq_epi8(_mm_max_epu8(m, tv), m);
                 _mm_storeu_si128((__m128i *)(mask + i), lit);
+                if (cells != NULL) {
+                    int mm = _mm_movemask_epi8(lit);
+                    if (mm) {
+                        cells[(i + __builtin_ctz((unsigned)mm)) >> 5] = 1;
+                        cells[(i + 31 - __builtin_clz((unsigned)mm)) >> 5] = 1;
+                    }
+                }
                 acc = _mm_or_si128(acc, lit);
                 i += 16;
             }
@@ -487,39 +497,17 @@ cdef extern from *:
             unsigned char l = v >= on ? 255 : 0;
             mask[i] = l;
             any |= l;
+            if (l && cells != NULL) cells[i >> 5] = 1;
         }
         return any != 0;
     }
     """
     int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                            unsigned char on, unsigned char *mask) nogil
+                            unsigned char on, unsigned char *mask, unsigned char *cells) nogil
 
 
 cdef extern from *:
     """
-    /* cells[k] = 1 for each 32-column chunk k of the mask row m[0..n) (0 / 255) holding a lit
-       pixel, for the chunks of [c0, c1] (the row's first and last lit column) */
-    static inline void occ_mark_chunks(const unsigned char *m, Py_ssize_t n, Py_ssize_t c0, Py_ssize_t c1,
-                                       unsigned char *cells) {
-        Py_ssize_t k, k1 = c1 >> 5;
-        for (k = c0 >> 5; k <= k1; k++) {
-            Py_ssize_t s = k << 5, len = n - s < 32 ? n - s : 32;
-            int any = 0;
-    #ifdef OCC_SSE2
-            if (len == 32) {
-                __m128i v = _mm_or_si128(_mm_loadu_si128((const __m128i *)(m + s)),
-                                         _mm_loadu_si128((const __m128i *)(m + s + 16)));
-                any = _mm_movemask_epi8(_mm_cmpeq_epi8(v, _mm_setzero_si128())) != 0xFFFF;
-            } else
-    #endif
-            {
-                Py_ssize_t i;
-                for (i = 0; i < len; i++) if (m[s + i]) { any = 1; break; }
-            }
-            if (any) cells[k] = 1;
-        }
-    }
-
     /* dst[i] |= src[i], i < n */
     static inline void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) {
         Py_ssize_t i = 0;
@@ -533,8 +521,6 @@ cdef extern from *:
         for (; i < n; i++) dst[i] |= src[i];
     }
     """
-    void occ_mark_chunks(const unsigned char *m, Py_ssize_t n, Py_ssize_t c0, Py_ssize_t c1,
-                         unsigned char *cells) nogil
     void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) nogil
 
 
@@ -555,19 +541,10 @@ cdef tuple _search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsi
         a = &gray[i * pool, 0]
         b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
         m = &mask[i, 0]
-        if occ_pool_thresh_row(a, b, w, o, m):
+        if occ_pool_thresh_row(a, b, w, o, m, cells + i * cells_stride if cells != NULL else NULL):
             if y0 < 0:
                 y0 = i
             y1 = i
-            if cells != NULL:
-                f = occ_u8_first_ge(m, w, 255)
-                l = occ_u8_last_ge(m, w, 255)
-                occ_mark_chunks(m, w, f, l, cells + i * cells_stride)
-                if f < x0:
-                    x0 = f
-                if l > x1:
-                    x1 = l
-                continue
             # the columns' extent: only the part of the row outside the extent so far
             if x0 > 0:
                 c = occ_u8_first_ge(m, x0, 255)
