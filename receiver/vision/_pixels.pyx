@@ -10,10 +10,10 @@ The byte scans (row maximum, first / last pixel at or above a level) use SSE2 wh
 targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 """
 
-from libc.math cimport ceilf, sqrt, NAN
+from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
 from libc.stdlib cimport malloc, free
-from libc.string cimport memset
-from libc.stdint cimport int64_t, int32_t
+from libc.string cimport memset, memcpy
+from libc.stdint cimport int64_t, int32_t, uint64_t
 
 cdef extern from *:
     """
@@ -367,34 +367,93 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
 
 # ------------------------------------------------------------------ detection: the search
 
+cdef extern from *:
+    """
+    #include <string.h>
+    /* counts[v] += number of samples p[0], p[step], p[2 step], ... < p + n equal to v */
+    static inline void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) {
+        Py_ssize_t c = 0;
+        if (step == 4) {
+            /* two samples per 8-byte load */
+            for (; c + 8 <= n; c += 8) {
+                uint64_t v;
+                memcpy(&v, p + c, 8);
+                counts[v & 0xff]++;
+                counts[(v >> 32) & 0xff]++;
+            }
+        }
+        for (; c < n; c += step) counts[p[c]]++;
+    }
+    """
+    void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) nogil
+
+
+cdef void _sample_counts(const unsigned char[:, ::1] gray, int step, int64_t *counts) noexcept:
+    cdef Py_ssize_t r = 0, h = gray.shape[0], w = gray.shape[1]
+    memset(counts, 0, 256 * sizeof(int64_t))
+    if w == 0:
+        return
+    while r < h:  # (a range with a run-time step would be a Python loop)
+        occ_count_row(&gray[r, 0], w, step, counts)
+        r += step
+
+
 def sample_hist(const unsigned char[:, ::1] gray, int step, float[::1] hist):
     """hist (256,) = the histogram of gray[::step, ::step] (cv2.calcHist's counts, float32),
     without the strided copy (`detect.auto_level`)."""
-    cdef Py_ssize_t r, c, h = gray.shape[0], w = gray.shape[1]
     cdef int64_t counts[256]
-    cdef const unsigned char *row
+    cdef int i
     if step < 1:
         raise ValueError("step must be positive")
-    for r in range(256):
-        counts[r] = 0
-    r = 0
-    while r < h:  # (a range with a run-time step would be a Python loop)
-        row = &gray[r, 0]
-        c = 0
-        while c < w:
-            counts[row[c]] += 1
-            c += step
-        r += step
-    for r in range(256):
-        hist[r] = <float>counts[r]
+    _sample_counts(gray, step, counts)
+    for i in range(256):
+        hist[i] = <float>counts[i]
+
+
+def sample_stats(const unsigned char[:, ::1] gray, int step, float[::1] hist):
+    """`sample_hist`, and (median, MAD) of those samples as `detect.auto_level` takes them from
+    the histogram: the first gray value whose cumulative count reaches half the samples, and
+    the same of the counts folded around it (|x - median|); exact integer counts."""
+    cdef int64_t counts[256]
+    cdef int64_t dev[256]
+    cdef int64_t total = 0, acc = 0
+    cdef int i, med = 255, mad = 255
+    if step < 1:
+        raise ValueError("step must be positive")
+    _sample_counts(gray, step, counts)
+    for i in range(256):
+        hist[i] = <float>counts[i]
+        total += counts[i]
+        dev[i] = 0
+    # searchsorted(cumsum, total / 2): the first i with 2 * cumsum[i] >= total (256 when none:
+    # an empty sample, as numpy's searchsorted past the end)
+    med = 256
+    for i in range(256):
+        acc += counts[i]
+        if 2 * acc >= total:
+            med = i
+            break
+    if med == 256:
+        return 256, 256
+    for i in range(256):
+        dev[abs(i - med)] += counts[i]
+    acc = 0
+    mad = 256
+    for i in range(256):
+        acc += dev[i]
+        if 2 * acc >= total:
+            mad = i
+            break
+    return med, mad
 
 
 cdef extern from *:
     """
     /* mask[0..n) = 255 where max(a[i], b[i]) >= on (b may equal a), else 0; returns nonzero
-       when any pixel is lit. on in 0..255. */
+       when any pixel is lit. on in 0..255. cells (or NULL): cells[k] = 1 where columns
+       [32 k, 32 k + 32) hold a lit pixel (cells[k] is left alone where they do not). */
     static inline int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                                          unsigned char on, unsigned char *mask) {
+                                          unsigned char on, unsigned char *mask, unsigned char *cells) {
         Py_ssize_t i = 0;
         unsigned char any = 0;
     #ifdef OCC_SSE2
@@ -410,7 +469,9 @@ cdef extern from *:
                 __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
                 _mm_storeu_si128((__m128i *)(mask + i), l0);
                 _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
-                acc = _mm_or_si128(acc, _mm_or_si128(l0, l1));
+                __m128i l01 = _mm_or_si128(l0, l1);
+                if (cells != NULL && _mm_movemask_epi8(l01)) cells[i >> 5] = 1;
+                acc = _mm_or_si128(acc, l01);
             }
             while (i < n) {
                 if (i + 16 > n) i = n - 16;  /* the last 16 bytes, overlapping: the same values again */
@@ -418,6 +479,13 @@ cdef extern from *:
                                          _mm_loadu_si128((const __m128i *)(b + i)));
                 __m128i lit = _mm_cmpeq_epi8(_mm_max_epu8(m, tv), m);
                 _mm_storeu_si128((__m128i *)(mask + i), lit);
+                if (cells != NULL) {
+                    int mm = _mm_movemask_epi8(lit);
+                    if (mm) {
+                        cells[(i + __builtin_ctz((unsigned)mm)) >> 5] = 1;
+                        cells[(i + 31 - __builtin_clz((unsigned)mm)) >> 5] = 1;
+                    }
+                }
                 acc = _mm_or_si128(acc, lit);
                 i += 16;
             }
@@ -429,20 +497,36 @@ cdef extern from *:
             unsigned char l = v >= on ? 255 : 0;
             mask[i] = l;
             any |= l;
+            if (l && cells != NULL) cells[i >> 5] = 1;
         }
         return any != 0;
     }
     """
     int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                            unsigned char on, unsigned char *mask) nogil
+                            unsigned char on, unsigned char *mask, unsigned char *cells) nogil
 
 
-def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
-    """The thresholded search image and its lit pixels' bounding box in one pass
-    (`detect._components`): mask (ceil(H / pool), W) = 255 where the maximum over each run of
-    `pool` (1 or 2) rows of `gray` is >= on (cv2.threshold's `> level` for on = floor(level) + 1),
-    else 0. Returns cv2.boundingRect(mask): (x, y, w, h), zeros when nothing is lit."""
-    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c
+cdef extern from *:
+    """
+    /* dst[i] |= src[i], i < n */
+    static inline void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) {
+        Py_ssize_t i = 0;
+        for (; i + 8 <= n; i += 8) {
+            uint64_t a, b;
+            memcpy(&a, dst + i, 8);
+            memcpy(&b, src + i, 8);
+            a |= b;
+            memcpy(dst + i, &a, 8);
+        }
+        for (; i < n; i++) dst[i] |= src[i];
+    }
+    """
+    void occ_or_bytes(unsigned char *dst, const unsigned char *src, Py_ssize_t n) nogil
+
+
+cdef tuple _search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
+                        unsigned char *cells, Py_ssize_t cells_stride):
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c, f, l
     cdef Py_ssize_t y0 = -1, y1 = -1, x0 = w, x1 = -1
     cdef const unsigned char *a
     cdef const unsigned char *b
@@ -457,7 +541,7 @@ def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned cha
         a = &gray[i * pool, 0]
         b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
         m = &mask[i, 0]
-        if occ_pool_thresh_row(a, b, w, o, m):
+        if occ_pool_thresh_row(a, b, w, o, m, cells + i * cells_stride if cells != NULL else NULL):
             if y0 < 0:
                 y0 = i
             y1 = i
@@ -473,6 +557,246 @@ def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned cha
     if y0 < 0:
         return 0, 0, 0, 0
     return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+
+
+def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
+    """The thresholded search image and its lit pixels' bounding box in one pass
+    (`detect._components`): mask (ceil(H / pool), W) = 255 where the maximum over each run of
+    `pool` (1 or 2) rows of `gray` is >= on (cv2.threshold's `> level` for on = floor(level) + 1),
+    else 0. Returns cv2.boundingRect(mask): (x, y, w, h), zeros when nothing is lit."""
+    return _search_mask(gray, pool, on, mask, NULL, 0)
+
+
+def search_mask_cells(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
+                      unsigned char[:, ::1] cells):
+    """`search_mask`, and cells[i, k] = 1 where mask row i has a lit pixel in columns
+    [32 k, 32 k + 32), else 0 (cells: (mask rows, >= ceil(W / 32)) uint8), for `mosaic`."""
+    if cells.shape[0] < mask.shape[0] or cells.shape[1] * 32 < mask.shape[1]:
+        raise ValueError("cells too small")
+    memset(&cells[0, 0], 0, cells.shape[0] * cells.shape[1])
+    return _search_mask(gray, pool, on, mask, &cells[0, 0], cells.shape[1])
+
+
+cdef int _uf_root(int *parent, int i) noexcept nogil:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, int bx, int by, int bw, int bh,
+           int ky, int kx, int64_t[:, ::1] crops, unsigned char[::1] out):
+    """The lit groups of `mask` (0 / 255, lit box bx, by, bw, bh; `cells` from `search_mask_cells`)
+    packed side by side into one small image for the close and the contour search
+    (`detect._search_mosaic`, which says why that is exact). Groups: the 8-connected sets of
+    (ky rows x 32 columns) cells holding lit pixels; two groups are at least ky rows or 32 >= kx
+    columns apart, farther than the (ky, kx) close reaches. Each group's crop is its lit pixels'
+    box grown by ky rows and kx columns (clipped to the mask), holding only that group's pixels.
+    Crops are laid out left to right, the one at the mask's left edge first and the one at its
+    right edge last, top-aligned (bottom-aligned when at the mask's bottom edge only), so each
+    crop keeps its mask-edge sides on the image's edges. crops[k] = x0, y0, x1, y1 (the crop in
+    the mask, half-open), x, y (its place in the mosaic), in layout order. Writes the (Hm, Wm)
+    mosaic into out[:Hm * Wm] and returns (groups, Hm, Wm); (-1, 0, 0) when the packing is not
+    worth it or not possible (kx > 32, more groups than crops has rows, two crops at the same
+    left or right edge, a mosaic no smaller than the grown box, or one larger than out)."""
+    cdef Py_ssize_t ho = mask.shape[0], w = mask.shape[1], nch = cells.shape[1]
+    cdef Py_ssize_t R0, R1, C0, C1, nR, nC, R, C, r, ra, rb, c0, ln, i, k, n = 0, f, l
+    cdef Py_ssize_t cap = crops.shape[0], hm = 0, wm = 0, gx0, gy0, gx1, gy1, nleft = 0, nright = 0
+    cdef int *parent
+    cdef int *gid
+    cdef unsigned char *occ
+    cdef int64_t *box
+    cdef int64_t *cb
+    cdef int ra_, rb_
+    cdef Py_ssize_t x0, y0, x1, y1, px, py
+    if kx > 32 or ky < 1 or kx < 1 or bw <= 0 or bh <= 0 or cells.shape[0] < ho or nch * 32 < w:
+        return -1, 0, 0
+    R0, R1 = by // ky, (by + bh - 1) // ky + 1
+    C0, C1 = bx // 32, (bx + bw - 1) // 32 + 1
+    nR, nC = R1 - R0, C1 - C0
+    parent = <int *>malloc(nR * nC * sizeof(int))
+    gid = <int *>malloc(nR * nC * sizeof(int))
+    occ = <unsigned char *>malloc(nR * nC)
+    box = <int64_t *>malloc(8 * (cap + 1) * sizeof(int64_t))
+    if parent == NULL or gid == NULL or occ == NULL or box == NULL:
+        free(parent); free(gid); free(occ); free(box)
+        raise MemoryError()
+    cb = box + 4 * (cap + 1)  # each group's box of cells: first and last cell column and row
+    try:
+        memset(occ, 0, nR * nC)
+        for R in range(nR):
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            for r in range(ra, rb):
+                occ_or_bytes(occ + R * nC, &cells[r, C0], nC)
+        # union-find over the 8-connected occupied cells
+        for i in range(nR * nC):
+            parent[i] = i
+        for R in range(nR):
+            for C in range(nC):
+                if not occ[R * nC + C]:
+                    continue
+                i = R * nC + C
+                if C > 0 and occ[i - 1]:
+                    ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
+                    parent[max(ra_, rb_)] = min(ra_, rb_)
+                if R > 0:
+                    for k in range(max(C - 1, 0), min(C + 2, nC)):
+                        if occ[i - nC - C + k]:
+                            ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
+                            parent[max(ra_, rb_)] = min(ra_, rb_)
+        # group ids in raster order of their first cell, and each group's box of cells
+        for i in range(nR * nC):
+            gid[i] = -1
+            if not occ[i]:
+                continue
+            k = _uf_root(parent, <int>i)
+            if k == i:
+                if n >= cap:
+                    return -1, 0, 0
+                gid[i] = <int>n
+                cb[4 * n], cb[4 * n + 1], cb[4 * n + 2], cb[4 * n + 3] = nC, nR, -1, -1
+                n += 1
+            else:
+                gid[i] = gid[k]
+            k = gid[i]
+            R, C = i // nC, i % nC
+            cb[4 * k] = min(cb[4 * k], C)
+            cb[4 * k + 1] = min(cb[4 * k + 1], R)
+            cb[4 * k + 2] = max(cb[4 * k + 2], C)
+            cb[4 * k + 3] = max(cb[4 * k + 3], R)
+        # each group's lit box: the lit pixels at its box's edges are in its edge cells
+        for k in range(n):
+            box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = w, ho, -1, -1
+        for i in range(nR * nC):
+            k = gid[i]
+            if k < 0:
+                continue
+            R, C = i // nC, i % nC
+            if C != cb[4 * k] and C != cb[4 * k + 2] and R != cb[4 * k + 1] and R != cb[4 * k + 3]:
+                continue
+            c0 = (C0 + C) * 32
+            ln = min(32, w - c0)
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            for r in range(ra, rb):
+                if not cells[r, C0 + C]:
+                    continue
+                if C == cb[4 * k]:
+                    f = occ_u8_first_ge(&mask[r, c0], ln, 255)
+                    if c0 + f < box[4 * k]:
+                        box[4 * k] = c0 + f
+                if C == cb[4 * k + 2]:
+                    l = occ_u8_last_ge(&mask[r, c0], ln, 255)
+                    if c0 + l > box[4 * k + 2]:
+                        box[4 * k + 2] = c0 + l
+                if r < box[4 * k + 1]:
+                    box[4 * k + 1] = r
+                if r > box[4 * k + 3]:
+                    box[4 * k + 3] = r
+        # crops and their layout
+        for k in range(n):
+            gx0, gy0 = max(box[4 * k] - kx, 0), max(box[4 * k + 1] - ky, 0)
+            gx1, gy1 = min(box[4 * k + 2] + 1 + kx, w), min(box[4 * k + 3] + 1 + ky, ho)
+            box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = gx0, gy0, gx1, gy1
+            nleft += gx0 == 0
+            nright += gx1 == w
+            if gx0 == 0 and gx1 == w and n > 1:
+                return -1, 0, 0
+            hm = max(hm, gy1 - gy0)
+            wm += gx1 - gx0
+        if nleft > 1 or nright > 1:
+            return -1, 0, 0
+        gx0, gy0 = max(bx - kx, 0), max(by - ky, 0)
+        gx1, gy1 = min(bx + bw + kx, w), min(by + bh + ky, ho)
+        if hm * wm >= (gx1 - gx0) * (gy1 - gy0) or hm * wm > out.shape[0]:
+            return -1, 0, 0
+        # layout order: the left-edge crop, the inner ones by group id, the right-edge crop
+        i = 0
+        for f in range(3):
+            for k in range(n):
+                l = 0 if box[4 * k] == 0 else (2 if box[4 * k + 2] == w else 1)
+                if l != f:
+                    continue
+                crops[k, 6] = i  # group k's row in crops
+                crops[i, 0], crops[i, 1], crops[i, 2], crops[i, 3] = box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3]
+                i += 1
+        f = 0
+        for i in range(n):
+            crops[i, 4] = f
+            f += crops[i, 2] - crops[i, 0]
+            if crops[i, 1] == 0 or crops[i, 3] != ho:
+                crops[i, 5] = 0
+            else:
+                crops[i, 5] = hm - (crops[i, 3] - crops[i, 1])
+        # the mosaic: each crop's rows of the mask, the rest zeros, then the pixels of other
+        # groups' cells inside a crop cleared
+        for i in range(n):
+            x0, y0, x1, y1, px, py = crops[i, 0], crops[i, 1], crops[i, 2], crops[i, 3], crops[i, 4], crops[i, 5]
+            for r in range(hm):
+                if r < py or r >= py + y1 - y0:
+                    memset(&out[r * wm + px], 0, x1 - x0)
+                else:
+                    memcpy(&out[r * wm + px], &mask[y0 + r - py, x0], x1 - x0)
+        # crops overlapping another crop (box[4 k]: 1 for layout row k); only their groups'
+        # cells can put pixels into a foreign crop (a group's lit pixels lie inside its crop)
+        for k in range(n):
+            box[4 * k] = 0
+            for l in range(n):
+                if l != k and crops[k, 0] < crops[l, 2] and crops[l, 0] < crops[k, 2] \
+                        and crops[k, 1] < crops[l, 3] and crops[l, 1] < crops[k, 3]:
+                    box[4 * k] = 1
+                    break
+        for i in range(nR * nC):
+            if gid[i] < 0 or not box[4 * crops[gid[i], 6]]:
+                continue
+            R, C = i // nC, i % nC
+            ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
+            c0, c1 = (C0 + C) * 32, min((C0 + C + 1) * 32, w)
+            for k in range(n):
+                if k == crops[gid[i], 6]:
+                    continue
+                x0, y0, x1, y1 = max(crops[k, 0], c0), max(crops[k, 1], ra), min(crops[k, 2], c1), min(crops[k, 3], rb)
+                if x0 >= x1 or y0 >= y1:
+                    continue
+                for r in range(y0, y1):
+                    memset(&out[(crops[k, 5] + r - crops[k, 1]) * wm + crops[k, 4] + x0 - crops[k, 0]], 0, x1 - x0)
+        return n, hm, wm
+    finally:
+        free(parent); free(gid); free(occ); free(box)
+
+
+def place_contours(int32_t[:, ::1] pts, const int64_t[::1] starts, const int64_t[:, ::1] crops, int n_crops,
+                   int64_t[:, ::1] rects, double[::1] areas, int64_t[::1] keys):
+    """The contours found in a `mosaic` (all their points `pts` (N, 2), contour i's rows
+    starts[i]:starts[i + 1]) moved back to the mask's coordinates in place; rects[i] = their
+    cv2.boundingRect, areas[i] = cv2.contourArea (exact: integer vertices), keys[i] = their first
+    point's y * 2^31 + x (findContours returns its contours by descending first point)."""
+    cdef Py_ssize_t nc = starts.shape[0] - 1, i, j, k, lo, hi, mid
+    cdef int64_t dx, dy, x0, y0, x1, y1, a, px, py
+    for i in range(nc):
+        if starts[i + 1] <= starts[i]:
+            raise ValueError("empty contour")
+        # the crop holding the first point: crops are laid out left to right
+        lo, hi = 0, n_crops - 1
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if crops[mid, 4] <= pts[starts[i], 0]:
+                lo = mid
+            else:
+                hi = mid - 1
+        dx, dy = crops[lo, 0] - crops[lo, 4], crops[lo, 1] - crops[lo, 5]
+        x0 = y0 = 1 << 62
+        x1 = y1 = -(1 << 62)
+        a = 0
+        px, py = pts[starts[i + 1] - 1, 0] + dx, pts[starts[i + 1] - 1, 1] + dy
+        for j in range(starts[i], starts[i + 1]):
+            pts[j, 0] += <int32_t>dx
+            pts[j, 1] += <int32_t>dy
+            a += px * pts[j, 1] - py * pts[j, 0]
+            px, py = pts[j, 0], pts[j, 1]
+            x0, y0, x1, y1 = min(x0, px), min(y0, py), max(x1, px), max(y1, py)
+        rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = x0, y0, x1 - x0 + 1, y1 - y0 + 1
+        areas[i] = abs(<double>a * 0.5)
+        keys[i] = pts[starts[i], 1] * (<int64_t>1 << 31) + pts[starts[i], 0]
 
 
 # ------------------------------------------------------------------ row profiles
@@ -537,3 +861,428 @@ def masked_sum(const unsigned char[:, :] roi, const unsigned char[:, ::1] mask):
         ts += s
         tc += c
     return ts, tc
+
+
+# ------------------------------------------------------------------ detection: hulls of isolated blobs
+
+cdef extern from *:
+    """
+    #include <math.h>
+    #include <stdint.h>
+
+    /* numpy's pairwise summation (np.add.reduce of float64, PW_BLOCKSIZE 128), a[0..n) */
+    static double occ_pw_sum(const double *a, Py_ssize_t n) {
+        Py_ssize_t i;
+        if (n < 8) {
+            double res = -0.0;
+            for (i = 0; i < n; i++) res += a[i];
+            return res;
+        }
+        if (n <= 128) {
+            double r[8], res;
+            for (i = 0; i < 8; i++) r[i] = a[i];
+            for (i = 8; i < n - (n % 8); i += 8) {
+                r[0] += a[i + 0]; r[1] += a[i + 1]; r[2] += a[i + 2]; r[3] += a[i + 3];
+                r[4] += a[i + 4]; r[5] += a[i + 5]; r[6] += a[i + 6]; r[7] += a[i + 7];
+            }
+            res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+            for (; i < n; i++) res += a[i];
+            return res;
+        }
+        {
+            Py_ssize_t n2 = n / 2;
+            n2 -= n2 % 8;
+            return occ_pw_sum(a, n2) + occ_pw_sum(a + n2, n - n2);
+        }
+    }
+
+    /* one segment of np.add.reduceat (n >= 1): its first element plus the pairwise sum of the rest */
+    static inline double occ_seg_sum(const double *a, Py_ssize_t n) {
+        double s = a[0];
+        if (n > 1) s += occ_pw_sum(a + 1, n - 1);
+        return s;
+    }
+
+    /* ascending sort of distinct keys (quicksort, median of three; insertion sort below 17) */
+    static void occ_sort_u64(uint64_t *a, Py_ssize_t n) {
+        while (n > 16) {
+            uint64_t x = a[0], y = a[n / 2], z = a[n - 1], p, t;
+            Py_ssize_t i = -1, j = n;
+            p = x < y ? (y < z ? y : (x < z ? z : x)) : (x < z ? x : (y < z ? z : y));
+            for (;;) {
+                do i++; while (a[i] < p);
+                do j--; while (a[j] > p);
+                if (i >= j) break;
+                t = a[i]; a[i] = a[j]; a[j] = t;
+            }
+            /* [0, j] and [j + 1, n): recurse into the smaller */
+            if (j + 1 < n - j - 1) {
+                occ_sort_u64(a, j + 1);
+                a += j + 1;
+                n -= j + 1;
+            } else {
+                occ_sort_u64(a + j + 1, n - j - 1);
+                n = j + 1;
+            }
+        }
+        for (Py_ssize_t i = 1; i < n; i++) {
+            uint64_t v = a[i];
+            Py_ssize_t j = i;
+            while (j > 0 && a[j - 1] > v) { a[j] = a[j - 1]; j--; }
+            a[j] = v;
+        }
+    }
+
+    #define OCC_SIGN(v) (((v) > 0) - ((v) < 0))
+
+    /* OpenCV's Sklansky_ (imgproc/src/convhull.cpp) on the sorted points (px[k], py[k]) */
+    static int occ_sklansky(const int32_t *px, const int32_t *py, int start, int end, int *stack,
+                            int nsign, int sign2) {
+        int incr = end > start ? 1 : -1;
+        int pprev = start, pcur = pprev + incr, pnext = pcur + incr;
+        int stacksize = 3;
+        if (start == end || (px[start] == px[end] && py[start] == py[end])) {
+            stack[0] = start;
+            return 1;
+        }
+        stack[0] = pprev;
+        stack[1] = pcur;
+        stack[2] = pnext;
+        end += incr;
+        while (pnext != end) {
+            int cury = py[pcur], nexty = py[pnext], by = nexty - cury;
+            if (OCC_SIGN(by) != nsign) {
+                int ax = px[pcur] - px[pprev], ay = cury - py[pprev];
+                int bx = px[pnext] - px[pcur];
+                int64_t convexity = (int64_t)ay * bx - (int64_t)ax * by;
+                if (OCC_SIGN(convexity) == sign2 && (ax != 0 || ay != 0)) {
+                    pprev = pcur;
+                    pcur = pnext;
+                    pnext += incr;
+                    stack[stacksize] = pnext;
+                    stacksize++;
+                } else if (pprev == start) {
+                    pcur = pnext;
+                    stack[1] = pcur;
+                    pnext += incr;
+                    stack[2] = pnext;
+                } else {
+                    stack[stacksize - 2] = pnext;
+                    pcur = pprev;
+                    pprev = stack[stacksize - 4];
+                    stacksize--;
+                }
+            } else {
+                pnext += incr;
+                stack[stacksize - 1] = pnext;
+            }
+        }
+        return --stacksize;
+    }
+
+    /* cv2.convexHull(points, clockwise=False) of the integer points (x[i], y[i]), i < total
+       (0 <= x, y, total < 2^21): the indices of its vertices, in OpenCV's order, into hull;
+       returns their count. Work space: keys (total), ord, px, py (total), stack (2 total + 4).
+       keys NULL: ord holds the indices already sorted by (x, y, index).
+       A port of OpenCV 5.0's convexHull for integer points: points sorted by (x, y, index)
+       (its comparator's order, a total one: any sort gives its order), the upper and lower
+       chains by Sklansky's scan (equal points are not skipped), and the cyclic shift that makes
+       the indices ascending or descending where it can. tests/test_detect_kernels.py checks
+       it against cv2.convexHull on random point sets with many equal points. */
+    static int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys,
+                               int *ord, int32_t *px, int32_t *py, int *stack, int *hull) {
+        int i, nout = 0, miny_ind = 0, maxy_ind = 0;
+        if (keys != NULL) {
+            for (i = 0; i < total; i++)
+                keys[i] = ((uint64_t)x[i] << 42) | ((uint64_t)y[i] << 21) | (uint64_t)i;
+            occ_sort_u64(keys, total);
+            for (i = 0; i < total; i++) ord[i] = (int)(keys[i] & 0x1FFFFF);
+        }
+        for (i = 0; i < total; i++) {
+            px[i] = x[ord[i]];
+            py[i] = y[ord[i]];
+        }
+        for (i = 1; i < total; i++) {
+            if (py[miny_ind] > py[i]) miny_ind = i;
+            if (py[maxy_ind] < py[i]) maxy_ind = i;
+        }
+        if (px[0] == px[total - 1] && py[0] == py[total - 1]) {
+            hull[nout++] = 0;
+            return nout;
+        }
+        {
+            /* upper half (clockwise = false: the two stacks swapped) */
+            int *tr_stack = stack;
+            int tr_count = occ_sklansky(px, py, 0, maxy_ind, tr_stack, -1, 1);
+            int *tl_stack = stack + tr_count;
+            int tl_count = occ_sklansky(px, py, total - 1, maxy_ind, tl_stack, -1, -1);
+            for (i = 0; i < tl_count - 1; i++) hull[nout++] = ord[tl_stack[i]];
+            for (i = tr_count - 1; i > 0; i--) hull[nout++] = ord[tr_stack[i]];
+            int stop_idx = tr_count > 2 ? tr_stack[1] : tl_count > 2 ? tl_stack[tl_count - 2] : -1;
+            /* lower half */
+            int *bl_stack = stack;
+            int bl_count = occ_sklansky(px, py, 0, miny_ind, bl_stack, 1, -1);
+            int *br_stack = stack + bl_count;
+            int br_count = occ_sklansky(px, py, total - 1, miny_ind, br_stack, 1, 1);
+            if (stop_idx >= 0) {
+                int check_idx = bl_count > 2 ? bl_stack[1] :
+                                bl_count + br_count > 2 ? br_stack[2 - bl_count] : -1;
+                if (check_idx == stop_idx || (check_idx >= 0 && px[check_idx] == px[stop_idx]
+                                              && py[check_idx] == py[stop_idx])) {
+                    if (bl_count > 2) bl_count = 2;
+                    if (br_count > 2) br_count = 2;
+                }
+            }
+            for (i = 0; i < bl_count - 1; i++) hull[nout++] = ord[bl_stack[i]];
+            for (i = br_count - 1; i > 0; i--) hull[nout++] = ord[br_stack[i]];
+        }
+        if (nout >= 3) {
+            int min_idx = 0, max_idx = 0, lt = 0;
+            for (i = 1; i < nout; i++) {
+                int idx = hull[i];
+                lt += hull[i - 1] < idx;
+                if (lt > 1 && lt <= i - 2) break;
+                if (idx < hull[min_idx]) min_idx = i;
+                if (idx > hull[max_idx]) max_idx = i;
+            }
+            int mmdist = abs(max_idx - min_idx);
+            if ((mmdist == 1 || mmdist == nout - 1) && (lt <= 1 || lt >= nout - 2)) {
+                int ascending = (max_idx + 1) % nout == min_idx;
+                int i0 = ascending ? min_idx : max_idx, j = i0;
+                if (i0 > 0) {
+                    for (i = 0; i < nout; i++) {
+                        int curr_idx = stack[i] = hull[j];
+                        int next_j = j + 1 < nout ? j + 1 : 0;
+                        int next_idx = hull[next_j];
+                        if (i < nout - 1 && (ascending != (curr_idx < next_idx))) break;
+                        j = next_j;
+                    }
+                    if (i == nout) memcpy(hull, stack, nout * sizeof(hull[0]));
+                }
+            }
+        }
+        return nout;
+    }
+
+    /* `detect._hull_stats_points` of one polygon (x[i], y[i]), i < k, k >= 1: centroid (cx, cy)
+       and area plus half-pixel rim, with numpy's operations in numpy's order (reduceat sums).
+       w: work space of 4 k doubles. */
+    static void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w,
+                               double *cx, double *cy, double *area) {
+        double *cr = w, *sxv = w + k, *syv = w + 2 * k, *pv = w + 3 * k;
+        Py_ssize_t i;
+        for (i = 0; i < k; i++) {
+            Py_ssize_t j = i + 1 < k ? i + 1 : 0;
+            double xn = x[j], yn = y[j];
+            double c = x[i] * yn - xn * y[i];
+            cr[i] = c;
+            sxv[i] = (x[i] + xn) * c;
+            syv[i] = (y[i] + yn) * c;
+            pv[i] = hypot(xn - x[i], yn - y[i]);
+        }
+        double a2 = occ_seg_sum(cr, k), sx = occ_seg_sum(sxv, k), sy = occ_seg_sum(syv, k);
+        double perim = occ_seg_sum(pv, k);
+        double m00 = 0.5 * fabs(a2);
+        if (m00 <= 1e-6) {
+            *cx = occ_seg_sum(x, k) / (double)k;
+            *cy = occ_seg_sum(y, k) / (double)k;
+        } else {
+            *cx = sx / (3.0 * a2);
+            *cy = sy / (3.0 * a2);
+        }
+        *area = (m00 + 0.5 * perim) + 0.78539816339744830962;
+    }
+    """
+    int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys, int *ord,
+                        int32_t *px, int32_t *py, int *stack, int *hull) nogil
+    void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w, double *cx,
+                        double *cy, double *area) nogil
+    double occ_seg_sum(const double *a, Py_ssize_t n) nogil
+
+
+
+def convex_hull(const int32_t[:, ::1] pts):
+    """cv2.convexHull of (N, 2) int32 points (0 <= x, y < 2^21, N < 2^21): (K, 2) int32
+    vertices in OpenCV's order (`occ_convex_hull`; for the kernel's tests)."""
+    cdef int n = pts.shape[0], i, k
+    if n == 0:
+        return []
+    if n >= (1 << 21):
+        raise ValueError("too many points")
+    for i in range(n):
+        if pts[i, 0] < 0 or pts[i, 1] < 0 or pts[i, 0] >= (1 << 21) or pts[i, 1] >= (1 << 21):
+            raise ValueError("points outside [0, 2^21)")
+    cdef int32_t *x = <int32_t *>malloc(4 * n * sizeof(int32_t))
+    cdef uint64_t *keys = <uint64_t *>malloc(n * sizeof(uint64_t))
+    cdef int *iw = <int *>malloc((4 * n + 8) * sizeof(int))
+    if x == NULL or keys == NULL or iw == NULL:
+        free(x); free(keys); free(iw)
+        raise MemoryError()
+    try:
+        for i in range(n):
+            x[i] = pts[i, 0]
+            x[n + i] = pts[i, 1]
+        k = occ_convex_hull(x, x + n, n, keys, iw, x + 2 * n, x + 3 * n, iw + n, iw + 3 * n + 4)
+        return [(int(x[iw[3 * n + 4 + i]]), int(x[n + iw[3 * n + 4 + i]])) for i in range(k)]
+    finally:
+        free(x); free(keys); free(iw)
+
+
+def hull_stats(const double[:, ::1] poly, const int64_t[::1] starts, double[:, ::1] out):
+    """out[i] = (cx, cy, area_px) of polygon i, rows starts[i]:starts[i + 1] of `poly` (x, y)
+    (`detect._hull_stats_points`, bit for bit)."""
+    cdef Py_ssize_t n = starts.shape[0] - 1, i, j, k, kmax = 0
+    for i in range(n):
+        if starts[i + 1] - starts[i] > kmax:
+            kmax = starts[i + 1] - starts[i]
+    cdef double *w = <double *>malloc((7 * kmax + 1) * sizeof(double))
+    if w == NULL:
+        raise MemoryError()
+    try:
+        for i in range(n):
+            k = starts[i + 1] - starts[i]
+            for j in range(k):
+                w[5 * kmax + j] = poly[starts[i] + j, 0]
+                w[6 * kmax + j] = poly[starts[i] + j, 1]
+            occ_hull_stats(w + 5 * kmax, w + 6 * kmax, k, w, &out[i, 0], &out[i, 1], &out[i, 2])
+    finally:
+        free(w)
+
+
+def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
+                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
+    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
+    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
+    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
+    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
+    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
+    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
+    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
+    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, wmax = 0, nf = 0, pos = 0
+    cdef unsigned char mx, v, on
+    cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
+    cdef Py_ssize_t first
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pstart.shape[0] < n + 1 \
+            or poly.shape[0] < 2 * _total_rows(rects) or peak.shape[0] < n or blob_level.shape[0] < n \
+            or found.shape[0] < n or stats.shape[0] < n or bounds.shape[0] < n:
+        return -1
+    # the clipped level: bg + Python's max(saturated_frac * (255 - bg), min_refine_contrast)
+    clipped = bg + (min_refine_contrast if min_refine_contrast > sat else sat)
+    for i in range(n):
+        x0, y0, bw, bh = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        if bw >= (1 << 20) or bh >= (1 << 20):
+            return -1
+        if bh > hmax:
+            hmax = bh
+        if bw > wmax:
+            wmax = bw
+        mx = 0
+        for r in range(bh):
+            v = occ_u8_max(&gray[y0 + r, x0], bw)
+            if v > mx:
+                mx = v
+        pk = mx
+        # np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1)), NaN-propagating
+        u = bg + refine_frac * (pk - bg)
+        lv = level if (level <= pk - 1 or isnan(level)) else pk - 1
+        bl = clipped if pk >= saturated_gray else (u if (u >= lv or isnan(u)) else lv)
+        if not isfinite(bl) or bl < 0:
+            return -1
+        peak[i] = pk
+        blob_level[i] = bl
+    cdef int32_t *iw32 = <int32_t *>malloc((8 * hmax + 8) * sizeof(int32_t))
+    cdef uint64_t *keys = <uint64_t *>malloc((2 * hmax + 2) * sizeof(uint64_t))
+    cdef int *iw = <int *>malloc((8 * hmax + 16) * sizeof(int))
+    cdef double *dw = <double *>malloc((14 * hmax + 8) * sizeof(double))
+    cdef int *cnt = <int *>malloc((wmax + 2) * sizeof(int))
+    cdef int32_t *px
+    cdef int32_t *py
+    cdef int *hull
+    cdef double *hx
+    cdef double *hy
+    if iw32 == NULL or keys == NULL or iw == NULL or dw == NULL or cnt == NULL:
+        free(iw32); free(keys); free(iw); free(dw); free(cnt)
+        raise MemoryError()
+    px, py = iw32, iw32 + 2 * hmax + 2
+    hull = iw + 6 * hmax + 8
+    hx, hy = dw + 10 * hmax + 4, dw + 12 * hmax + 6
+    try:
+        pstart[0] = 0
+        for i in range(n):
+            x0, y0, bw, bh = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+            # gray > level (cv2.threshold) is gray >= floor(level) + 1 for uint8
+            fo = floor(blob_level[i]) + 1
+            if fo > 255:
+                continue
+            on = <unsigned char>fo
+            m = 0
+            for r in range(bh):
+                first = occ_u8_first_ge(&gray[y0 + r, x0], bw, on)
+                if first >= 0:
+                    px[m] = <int32_t>first
+                    py[m] = <int32_t>r
+                    m += 1
+            if m == 0:
+                continue
+            for j in range(m):
+                r = py[j]
+                px[m + j] = <int32_t>occ_u8_last_ge(&gray[y0 + r, x0], bw, on)
+                py[m + j] = <int32_t>r
+            # sorted by (x, y, index) in O(points + width): the rows interleaved (left end j,
+            # right end m + j: by row, then index), then a stable counting sort by column
+            memset(cnt, 0, (bw + 1) * sizeof(int))
+            for j in range(2 * m):
+                cnt[px[j] + 1] += 1
+            for j in range(bw):
+                cnt[j + 1] += cnt[j]
+            for j in range(m):
+                iw[cnt[px[j]]] = <int>j
+                cnt[px[j]] += 1
+                iw[cnt[px[m + j]]] = <int>(m + j)
+                cnt[px[m + j]] += 1
+            k = occ_convex_hull(px, py, <int>(2 * m), NULL, iw, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6,
+                                iw + 2 * hmax + 2, hull)
+            for j in range(k):
+                hx[j] = px[hull[j]]
+                hy[j] = py[hull[j]]
+            occ_hull_stats(hx, hy, k, dw, &stats[nf, 0], &stats[nf, 1], &stats[nf, 2])
+            stats[nf, 0] += <double>x0
+            stats[nf, 1] += <double>y0
+            bounds[nf, 0] = bounds[nf, 1] = 1 << 62
+            bounds[nf, 2] = bounds[nf, 3] = -(1 << 62)
+            for j in range(k):
+                poly[pos + j, 0] = hx[j] + <double>x0
+                poly[pos + j, 1] = hy[j] + <double>y0
+                if <int64_t>poly[pos + j, 0] < bounds[nf, 0]:
+                    bounds[nf, 0] = <int64_t>poly[pos + j, 0]
+                if <int64_t>poly[pos + j, 1] < bounds[nf, 1]:
+                    bounds[nf, 1] = <int64_t>poly[pos + j, 1]
+                if <int64_t>poly[pos + j, 0] + 1 > bounds[nf, 2]:
+                    bounds[nf, 2] = <int64_t>poly[pos + j, 0] + 1
+                if <int64_t>poly[pos + j, 1] + 1 > bounds[nf, 3]:
+                    bounds[nf, 3] = <int64_t>poly[pos + j, 1] + 1
+            pos += k
+            found[nf] = i
+            nf += 1
+            pstart[nf] = pos
+    finally:
+        free(iw32); free(keys); free(iw); free(dw); free(cnt)
+    return nf
+
+
+def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):
+    """out[i] = 1 when box i (x, y, w, h) overlaps no other box (`detect._isolated`: half-open
+    boxes, a box always overlapping itself counted once), else 0."""
+    cdef Py_ssize_t n = rects.shape[0], i, j, c
+    if out.shape[0] < n:
+        raise ValueError("out too short")
+    for i in range(n):
+        c = 0
+        for j in range(n):
+            if (rects[i, 0] < rects[j, 0] + rects[j, 2] and rects[j, 0] < rects[i, 0] + rects[i, 2]
+                    and rects[i, 1] < rects[j, 1] + rects[j, 3] and rects[j, 1] < rects[i, 1] + rects[i, 3]):
+                c += 1
+        out[i] = c == 1

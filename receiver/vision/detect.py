@@ -77,18 +77,19 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
     least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
     `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
+    hist = np.empty(256, np.float32)
     if _k is not None and _native_frame(gray) and sample_step >= 1:
-        hist = np.empty(256, np.float32)
-        _k.sample_hist(gray, sample_step, hist)  # the same counts, without the strided copy
+        # the same counts, median and MAD in one pass, without the strided copy
+        med, mad = _k.sample_stats(gray, sample_step, hist)
     else:
         sample = gray[::sample_step, ::sample_step]
         hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
-    cdf = np.cumsum(hist)
-    half = cdf[-1] / 2.0
-    med = int(np.searchsorted(cdf, half))
-    # Histogram of |x - med| by folding the histogram around the median.
-    dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
-    mad = int(np.searchsorted(np.cumsum(dev), half))
+        cdf = np.cumsum(hist)
+        half = cdf[-1] / 2.0
+        med = int(np.searchsorted(cdf, half))
+        # Histogram of |x - med| by folding the histogram around the median.
+        dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
+        mad = int(np.searchsorted(np.cumsum(dev), half))
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
     return float(min(level, 254.0)), float(med)
@@ -266,13 +267,13 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
     pool = s.row_pool if f == 1 and s.row_pool > 1 and s.stripe_gap_px >= 2 * s.row_pool else 1
-    contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
+    contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
     alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects = _components(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
+        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
@@ -285,10 +286,12 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
     refined = dict(zip(batch.tolist(), done)) if done is not None else {}
     blobs = []
+    rect_l, alone_l = rects.tolist(), alone.tolist()
+    area_l = areas.tolist() if areas is not None else None
     for i in np.flatnonzero(keep).tolist():
-        c, (bx, by, bw, bh) = contours[i], rects[i].tolist()
+        c, (bx, by, bw, bh) = contours[i], rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       s.refine_frac, bool(alone[i]), **sat_kw)
+                                                       s.refine_frac, alone_l[i], **sat_kw)
         if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
@@ -297,7 +300,8 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         # `shape_min_rows` rows are exempt (a sub-pixel-tall panel is one row several px wide,
         # and a one-row contour has no area to fill its box with).
         if not blob.border and s.max_aspect and bh >= s.shape_min_rows and (max(bw, bh) > s.max_aspect * min(bw, bh)
-                                               or pool * cv2.contourArea(c) < s.min_fill * bw * bh):
+                                               or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
+                                               < s.min_fill * bw * bh):
             continue
         if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
@@ -316,22 +320,86 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
     full-resolution frame, searched on its `pool`-row maxima (`_row_max`; with the compiled
-    kernel, maxima, threshold and the lit box are one pass, `_pixels.search_mask`); the boxes are those
-    of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are pooled rows.
-    `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
+    kernel, maxima, threshold and the lit box are one pass, `_pixels.search_mask_cells`, and the
+    close and contour search run on a mosaic of the lit groups, `_search_mosaic`); the boxes
+    are those of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are
+    pooled rows. `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
+    return _search(image, level, stripe_gap_px, join_x_px, f, pool, scratch)[:2]
+
+
+def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch | None = None):
+    """`_components` and the contours' areas (N,) float64 (cv2.contourArea's), or None for
+    the areas (then the caller asks cv2.contourArea)."""
     if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
-        # pooled maximum, threshold and the lit pixels' box in one pass over the frame
-        ho = -(-image.shape[0] // pool)
-        mask = (scratch.get("mask", (ho, image.shape[1])) if scratch is not None
-                else np.empty((ho, image.shape[1]), np.uint8))
+        # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
+        ho, w = -(-image.shape[0] // pool), image.shape[1]
+        mask = _buf(scratch, "mask", (ho, w))
+        cells = _buf(scratch, "cells", (ho, -(-w // 32)))
         on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
-        box = _k.search_mask(image, pool, on, mask)
-        return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch)
+        box = _k.search_mask_cells(image, pool, on, mask, cells)
+        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch)
+        if found is None:
+            contours, rects = _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f,
+                                                  pool, scratch)
+            return contours, rects, None
+        contours, rects, areas = found
+        if pool > 1 and len(rects):
+            rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
+        return contours, rects, areas
     search = _row_max(image, pool, scratch) if pool > 1 else image
     dst = scratch.get("mask", search.shape) if scratch is not None else None
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
-    return _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px, join_x_px, f,
-                               pool, scratch)
+    contours, rects = _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px,
+                                          join_x_px, f, pool, scratch)
+    return contours, rects, None
+
+
+def _buf(scratch: Scratch | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """An uninitialised uint8 work array: a `scratch` buffer when given, else a new one."""
+    return scratch.get(name, shape) if scratch is not None else np.empty(shape, np.uint8)
+
+
+# At most this many groups of lit pixels are packed into one mosaic (`_search_mosaic`); more
+# (a noise storm) are searched in the lit box as a whole.
+MOSAIC_MAX_GROUPS = 256
+
+
+def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch):
+    """(contours, boxes (N, 4), areas (N,)) of `_components_of_mask`, searched in a mosaic of the
+    lit groups instead of the whole lit box (`_pixels.mosaic`), or None where the kernel does not
+    pack (then `_components_of_mask` searches the box).
+
+    Why it is exact: the groups are sets of cells (kernel rows x 32 columns) holding lit pixels,
+    8-connected, so the lit pixels of two groups are at least a kernel height or width apart:
+    their dilations neither overlap nor touch, so each pixel's dilation and erosion (a window
+    inside the dilated pixels, a connected rectangle, lies inside one group's) and each
+    component's outer contour depend on one group's pixels only. Each crop keeps a kernel's
+    size of empty rows and columns around its group (as the box of `_components_of_mask` does),
+    and its sides at the mask's edges on the mosaic's edges (the erosion treats the outside of
+    the image as lit). Contours are traced from their first pixel in raster order, the same
+    pixel wherever the group lies; `_pixels.place_contours` moves them back and they are
+    ordered as findContours orders them (by descending first point)."""
+    gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
+    if box[2] == 0 or (gap_y < 1 and gap_x < 1):
+        return None
+    crops = np.empty((MOSAIC_MAX_GROUPS, 7), np.int64)
+    out = _buf(scratch, "mosaic", (mask.size,))
+    n, hm, wm = _k.mosaic(mask, cells, *box, _close_size(gap_y), _close_size(gap_x), crops, out)
+    if n < 0:
+        return None
+    closed = _close(out[:hm * wm].reshape(hm, wm), gap_y, gap_x, scratch)
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    nc = len(contours)
+    if nc == 0:
+        return [], np.zeros((0, 4), np.int64), np.zeros(0)
+    pts = np.concatenate(contours)
+    starts = np.zeros(nc + 1, np.int64)
+    np.cumsum(np.fromiter(map(len, contours), np.int64, nc), out=starts[1:])
+    rects, areas, keys = np.empty((nc, 4), np.int64), np.empty(nc), np.empty(nc, np.int64)
+    _k.place_contours(pts.reshape(-1, 2), starts, crops, n, rects, areas, keys)
+    order = np.argsort(keys)[::-1]
+    st = starts.tolist()
+    return [pts[st[i]:st[i + 1]] for i in order.tolist()], rects[order], areas[order]
 
 
 def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple[int, int]:
@@ -441,6 +509,10 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
     if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
         return np.zeros(len(rects), bool)
+    if _k is not None:
+        out = np.empty(len(rects), bool)
+        _k.isolated(np.ascontiguousarray(rects, np.int64), out.view(np.uint8))
+        return out
     x0, y0 = rects[:, 0], rects[:, 1]
     x1, y1 = x0 + rects[:, 2], y0 + rects[:, 3]
     ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
@@ -460,23 +532,22 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
                         scratch: Scratch | None = None) -> list[Blob | None] | None:
     """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
 
-    The peaks and the leftmost / rightmost lit pixel of every row are scanned straight from the
-    frame by the compiled kernel (`_pixels.box_max`, `row_extremes`); without it the boxes'
-    pixels are stacked row by row into one (sum h, max w) strip and those are a handful of
-    array operations for all blobs (`_refine_strip`, `_strip_hulls`). Only the convex hull
-    stays per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
+    The compiled kernel does it all in one call (`_refine_alone_native`: peaks, levels, the
+    leftmost / rightmost lit pixel of every row, OpenCV's convex hull and its stats); without
+    it the boxes' pixels are stacked row by row into one (sum h, max w) strip and those are a
+    handful of array operations for all blobs (`_refine_strip`, `_strip_hulls`), the convex
+    hull per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
     is negative (odd tunables): the caller then refines one by one."""
     n = len(rects)
     if n == 0:
         return []
+    if _k is not None and _native_frame(gray):
+        out = _refine_alone_native(gray, rects, float(bg), float(level), float(refine_frac), float(saturated_gray),
+                                   float(saturated_frac), float(min_refine_contrast))
+        if out is not None:
+            return out
     h, w = gray.shape[:2]
-    native = _k is not None and _native_frame(gray)
-    if native:
-        rects = np.ascontiguousarray(rects, np.int64)
-        peak = np.empty(n)
-        native = _k.box_max(gray, rects, peak)  # False: a box outside the frame (numpy path)
-    if not native:
-        strip, starts, peak = _refine_strip(gray, rects, scratch)
+    strip, starts, peak = _refine_strip(gray, rects, scratch)
     blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
                              min_refine_contrast)
     # the zero padding would count as lit, and a NaN level (bad settings) would read as 0 in
@@ -486,16 +557,7 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
     # uint8 comparison is several times faster than against a float level
     first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    if native:
-        # each blob's lit rows' left ends, then their right ends: rows seg[i]:seg[i + 1]
-        pts = np.empty((2 * int(rects[:, 3].sum()), 2), np.int32)
-        seg = np.empty(n + 1, np.int64)
-        _k.row_extremes(gray, rects, first_on.astype(np.int64), pts, seg)
-        segl = seg.tolist()
-        found = [i for i in range(n) if segl[i] < segl[i + 1]]
-        hulls = [cv2.convexHull(pts[segl[i]:segl[i + 1]].reshape(-1, 1, 2)) for i in found]
-    else:
-        found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
+    found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
     peak_l, level_l = peak.tolist(), blob_level.tolist()
     bgf = float(bg)
     out: list[Blob | None] = [None] * n
@@ -516,6 +578,46 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
         border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
         out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
                       peak_l[i], level_l[i], bgf)
+    return out
+
+
+def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, background) -> Blob:
+    """Blob(...) without the frozen dataclass's __init__ (12 object.__setattr__ calls, ~18 k
+    instructions per blob, more than the blob's whole refinement in the kernel): the same
+    instance dict, set at once. Blob has no __post_init__ and no slots, and these are its
+    fields in order (tests/test_detect_kernels.py checks)."""
+    b = object.__new__(Blob)
+    object.__setattr__(b, "__dict__", {
+        "cx": cx, "cy": cy, "area_px": area_px, "hull": hull, "x0": x0, "y0": y0, "x1": x1, "y1": y1,
+        "border": border, "peak": peak, "level": level, "background": background})
+    return b
+
+
+def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                         min_refine_contrast) -> list[Blob | None] | None:
+    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone`: peaks, levels, row
+    extremes, OpenCV's convex hull and its stats for every box), or None when the kernel
+    declines (a box outside the frame, a negative or NaN level: the numpy path decides)."""
+    n = len(rects)
+    h, w = gray.shape[:2]
+    rects = np.ascontiguousarray(rects, np.int64)
+    peak, blob_level = np.empty(n), np.empty(n)
+    found = np.empty(n, np.int64)
+    stats = np.empty((n, 3))
+    bounds = np.empty((n, 4), np.int64)
+    poly = np.empty((2 * int(rects[:, 3].sum()), 2))
+    pstart = np.empty(n + 1, np.int64)
+    nf = _k.refine_alone(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                         min_refine_contrast, peak, blob_level, found, stats, bounds, poly, pstart)
+    if nf < 0:
+        return None
+    out: list[Blob | None] = [None] * n
+    peak_l, level_l = peak.tolist(), blob_level.tolist()
+    ps = pstart[:nf + 1].tolist()
+    for j, (i, (cx, cy, area), (x0, y0, x1, y1)) in enumerate(zip(
+            found[:nf].tolist(), stats[:nf].tolist(), bounds[:nf].tolist())):
+        out[i] = _new_blob(cx, cy, area, poly[ps[j]:ps[j + 1]], x0, y0, x1, y1,
+                           x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, peak_l[i], level_l[i], bg)
     return out
 
 

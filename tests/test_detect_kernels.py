@@ -1,0 +1,226 @@
+"""Detection's whole-frame kernels (receiver/vision/_pixels.pyx) against what they replace:
+OpenCV's convex hull (vertices and their order), the numpy hull statistics, and the Blob
+records of the numpy path, bit for bit (the pure path runs with detect's `_k` set to None)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from receiver.core.native import load
+from receiver.core.records import Blob
+from receiver.vision import detect as detect_mod
+from receiver.vision.detect import _hull_stats_points, _new_blob, _refine_alone_batch
+
+_px = load("receiver.vision._pixels")
+needs_kernel = pytest.mark.skipif(_px is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+
+
+def _point_sets(rng, count):
+    """Random integer point sets: clouds with many equal points, collinear runs, tiny grids and
+    the row-extreme sets detection builds (left ends top to bottom, then right ends)."""
+    for t in range(count):
+        n = int(rng.integers(1, 12 if t % 5 == 0 else 160))
+        kind = t % 4
+        if kind == 0:
+            pts = rng.integers(0, int(rng.integers(1, 60)), size=(n, 2))
+        elif kind == 1:
+            h = max(1, n // 2)
+            rows = np.sort(rng.choice(np.arange(h + 5), size=h, replace=False))
+            half = rng.uniform(1, 30) * np.sqrt(np.clip(1 - ((rows - h / 2) / (h / 2 + 1)) ** 2, 0, 1))
+            left = np.maximum(np.rint(30 - half + rng.integers(-1, 2, h)), 0).astype(int)
+            right = np.maximum(left, np.rint(30 + half + rng.integers(-1, 2, h)).astype(int))
+            pts = np.concatenate([np.stack([left, rows], 1), np.stack([right, rows], 1)])
+        elif kind == 2:
+            d = rng.integers(-3, 4, size=2)
+            pts = np.clip(rng.integers(20, 40, size=2) + np.outer(rng.integers(0, 8, n), d), 0, None)
+        else:
+            pts = rng.integers(0, 3, size=(n, 2)) + int(rng.integers(0, 100))
+        yield np.ascontiguousarray(pts, np.int32)
+
+
+@needs_kernel
+def test_convex_hull_equals_opencv_vertices_and_order():
+    rng = np.random.default_rng(3)
+    n_rot = 0
+    for pts in _point_sets(rng, 6000):
+        want = cv2.convexHull(pts.reshape(-1, 1, 2)).reshape(-1, 2).tolist()
+        got = [list(p) for p in _px.convex_hull(pts)]
+        assert got == want, pts.tolist()
+        n_rot += len(want) >= 3 and want[0] != min(want)
+    assert n_rot > 100  # the cyclic shift was exercised
+
+
+@needs_kernel
+def test_convex_hull_refuses_points_it_cannot_key():
+    with pytest.raises(ValueError):
+        _px.convex_hull(np.array([[-1, 0], [2, 3]], np.int32))
+    assert _px.convex_hull(np.zeros((0, 2), np.int32)) == []
+
+
+@needs_kernel
+def test_hull_stats_equal_numpy_reduceat_sums():
+    rng = np.random.default_rng(4)
+    hulls = [cv2.convexHull(p.reshape(-1, 1, 2)) for p in _point_sets(rng, 3000)]
+    hulls += [np.array([[[5, 5]]], np.int32), np.array([[[1, 1]], [[4, 1]]], np.int32)]  # flat ones
+    cx, cy, area, poly, starts = _hull_stats_points(hulls)
+    out = np.empty((len(hulls), 3))
+    _px.hull_stats(np.ascontiguousarray(poly), np.append(starts, len(poly)), out)
+    assert np.array_equal(out[:, 0], cx) and np.array_equal(out[:, 1], cy) and np.array_equal(out[:, 2], area)
+
+
+def _scene(rng, h=200, w=300):
+    g = rng.normal(10, 2, (h, w))
+    rects = []
+    for k in range(8):
+        x0, y0 = 10 + 35 * k, int(rng.integers(0, h - 60))
+        bw, bh = int(rng.integers(4, 30)), int(rng.integers(1, 55))
+        yy, xx = np.mgrid[0:bh, 0:bw]
+        disc = ((yy - bh / 2) / (bh / 2 + 0.5)) ** 2 + ((xx - bw / 2) / (bw / 2 + 0.5)) ** 2 < 1
+        g[y0:y0 + bh, x0:x0 + bw] += disc * rng.uniform(5, 400) * ((yy // 3) % 2 == 0)
+        rects.append((x0, y0, bw, bh))
+    rects.append((0, 0, 4, 3))  # background only: no hull, or one from noise
+    return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8)), np.array(rects, np.int64)
+
+
+def _fields(b):
+    return None if b is None else (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level,
+                                   b.background, b.hull.dtype, b.hull.shape, b.hull.tobytes())
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(6))
+def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch):
+    rng = np.random.default_rng(seed)
+    gray, rects = _scene(rng)
+    for level, frac in ((30.0, 0.5), (15.0, 0.2), (60.0, 0.9)):
+        got = _refine_alone_batch(gray, rects, 10.0, level, frac)
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_k", None)
+            want = _refine_alone_batch(gray, rects, 10.0, level, frac)
+        assert [_fields(b) for b in got] == [_fields(b) for b in want]
+        assert sum(b is not None for b in got) >= 4
+
+
+@needs_kernel
+def test_refine_alone_kernel_declines_what_numpy_decides():
+    """A box past the frame or a negative level: the kernel returns -1 and the numpy path
+    answers (None for the negative level: the caller refines one by one)."""
+    gray = np.full((20, 20), 40, np.uint8)
+    assert _refine_alone_batch(gray, np.array([(0, 0, 5, 5)], np.int64), -100.0, 20.0, 0.5,
+                               min_refine_contrast=-500.0, saturated_gray=30.0) is None
+    args = [np.empty(1), np.empty(1), np.empty(1, np.int64), np.empty((1, 3)), np.empty((1, 4), np.int64),
+            np.empty((40, 2)), np.empty(2, np.int64)]
+    assert _px.refine_alone(gray, np.array([(18, 0, 5, 5)], np.int64), 0.0, 20.0, 0.5, 250.0, 0.03, 6.0, *args) == -1
+    assert _px.refine_alone(gray, np.array([(0, 0, 5, 5)], np.int64), 0.0, float("nan"), 0.5, 250.0, 0.03, 6.0,
+                            *args) == -1
+
+
+def test_new_blob_is_the_dataclass_instance():
+    assert not hasattr(Blob, "__post_init__") and not hasattr(Blob, "__slots__")
+    values = (1.5, 2.5, 30.0, np.zeros((3, 2)), 1, 2, 3, 4, False, 200.0, 100.0, 5.0)
+    a, b = _new_blob(*values), Blob(*values)
+    assert type(a) is Blob and list(a.__dict__) == list(b.__dict__) == [f.name for f in dataclasses.fields(Blob)]
+    assert all(x is y for x, y in zip(a.__dict__.values(), b.__dict__.values()))
+    assert dataclasses.replace(a, cx=9.0).cx == 9.0 and repr(a) == repr(b)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.cx = 0.0
+
+
+def _lit_scene(rng, h, w):
+    """A uint8 frame of dark noise with striped blobs of every size, many at the frame's edges
+    and corners, some close together (one group) and some overlapping."""
+    g = rng.normal(8, 2, (h, w))
+    for _ in range(int(rng.integers(0, 14))):
+        bh, bw = int(rng.integers(1, 50)), int(rng.integers(1, 50))
+        y0 = int(rng.choice([0, h - bh] + [int(rng.integers(-5, h))] * 3))
+        x0 = int(rng.choice([0, w - bw] + [int(rng.integers(-5, w))] * 6))
+        if y0 + bh <= 0 or x0 + bw <= 0:
+            continue
+        yy, xx = np.mgrid[max(y0, 0):min(y0 + bh, h), max(x0, 0):min(x0 + bw, w)]
+        period = int(rng.integers(2, 9))
+        lit = ((yy // max(period // 2, 1)) % 2 == 0) & (rng.random(yy.shape) > 0.05)
+        g[yy[lit], xx[lit]] += rng.uniform(30, 200)
+    return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8))
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(8))
+def test_mosaic_search_equals_the_lit_box_search(seed, monkeypatch):
+    """The close and contour search on a mosaic of the lit groups (`_search_mosaic`) gives the
+    contours (points and order), boxes and areas of the search over the whole lit box."""
+    rng = np.random.default_rng(seed)
+    used = 0
+    for _ in range(25):
+        h, w = int(rng.integers(20, 260)), int(rng.integers(20, 330))
+        gray = _lit_scene(rng, h, w)
+        gap, join, pool = int(rng.integers(0, 20)), int(rng.integers(0, 6)), int(rng.integers(1, 3))
+        calls = []
+        real = detect_mod._search_mosaic
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_search_mosaic", lambda *a: calls.append(real(*a)) or calls[-1])
+            got = detect_mod._search(gray, 40.0, gap, join, 1, pool, detect_mod.Scratch())
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_search_mosaic", lambda *a: None)
+            want = detect_mod._search(gray, 40.0, gap, join, 1, pool)
+        assert len(got[0]) == len(want[0])
+        assert all(np.array_equal(a, b) and a.shape == b.shape for a, b in zip(got[0], want[0]))
+        assert np.array_equal(got[1], want[1])
+        if got[2] is not None:
+            used += 1
+            assert got[2].tolist() == [cv2.contourArea(c) for c in want[0]]
+    assert used >= 1  # the mosaic was taken, not only the fallback (3000 scenes checked once: no difference)
+
+
+@needs_kernel
+def test_auto_level_kernel_equals_numpy(monkeypatch):
+    """`_pixels.sample_stats` (histogram, median and MAD in one pass) gives auto_level's
+    numbers, on noisy, flat, clipped and tiny frames, every sampling step."""
+    rng = np.random.default_rng(5)
+    frames = [np.zeros((1, 1), np.uint8), np.full((7, 9), 255, np.uint8)]
+    for _ in range(40):
+        h, w = int(rng.integers(1, 90)), int(rng.integers(1, 130))
+        g = rng.normal(rng.uniform(0, 60), rng.uniform(0, 12), (h, w))
+        g[rng.random((h, w)) < 0.03] = 255
+        frames.append(np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8)))
+    for gray in frames:
+        for step in (1, 2, 3, 4, 5):
+            for fine in (False, True):
+                got = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
+                with monkeypatch.context() as m:
+                    m.setattr(detect_mod, "_k", None)
+                    want = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
+                assert got == want
+
+
+@needs_kernel
+def test_isolated_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(6)
+    for _ in range(300):
+        n = int(rng.integers(0, 30))
+        rects = np.stack([rng.integers(0, 100, n), rng.integers(0, 100, n),
+                          rng.integers(0, 25, n), rng.integers(0, 25, n)], axis=1).astype(np.int64).reshape(-1, 4)
+        got = detect_mod._isolated(rects)
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_k", None)
+            want = detect_mod._isolated(rects)
+        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+
+
+@needs_kernel
+def test_search_mask_cells_marks_the_lit_32_column_cells():
+    rng = np.random.default_rng(8)
+    for _ in range(200):
+        h, w = int(rng.integers(1, 40)), int(rng.integers(1, 150))
+        gray = ((rng.random((h, w)) < rng.uniform(0, 0.05)) * 200).astype(np.uint8)
+        for pool in (1, 2):
+            ho = -(-h // pool)
+            mask, cells = np.empty((ho, w), np.uint8), np.full((ho, -(-w // 32)), 7, np.uint8)
+            box = _px.search_mask_cells(gray, pool, 100, mask, cells)
+            assert box == _px.search_mask(gray, pool, 100, np.empty_like(mask))
+            padded = np.zeros((ho, cells.shape[1] * 32), bool)
+            padded[:, :w] = mask > 0
+            assert np.array_equal(cells, padded.reshape(ho, -1, 32).any(axis=2).astype(np.uint8))
