@@ -1,15 +1,21 @@
 # cython: language_level=3
 """numpy's pairwise summation (DOUBLE_pairwise_sum / CDOUBLE_pairwise_sum of numpy's loops:
 8 accumulators, blocks of 128 scalars, halves above that), for kernels whose sums must equal
-numpy's bit for bit (receiver.decode._ook, _tone)."""
+numpy's bit for bit (receiver.decode._ook, _tone, receiver.locate._pnp, receiver.vision._pairing)."""
 
 cdef enum:
     PW_BLOCKSIZE = 128
 
 
-cdef inline double pw_sum(const double *a, Py_ssize_t n) noexcept nogil:
-    """numpy's DOUBLE_pairwise_sum (contiguous)."""
-    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
+ctypedef fused pw_real:
+    float
+    double
+
+
+cdef inline pw_real pw_sum(const pw_real *a, Py_ssize_t n) noexcept nogil:
+    """numpy's DOUBLE_pairwise_sum / FLOAT_pairwise_sum (contiguous; the accumulators in the
+    array's own type, as numpy's)."""
+    cdef pw_real res, r0, r1, r2, r3, r4, r5, r6, r7
     cdef Py_ssize_t i, n2
     if n < 8:
         res = -0.0

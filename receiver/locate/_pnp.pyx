@@ -18,6 +18,7 @@ from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from receiver.locate._rodrigues cimport rodrigues
 from receiver.locate._solve6 cimport solve6
+from receiver.decode._npsum cimport pw_sum
 
 # Loss codes (pose.KERNEL_LOSSES).
 DEF LOSS_LINEAR = 0
@@ -67,33 +68,6 @@ cdef inline double loss_w(int loss, double z) noexcept nogil:
 
 cdef inline bint finite(double x) noexcept nogil:
     return x - x == 0.0
-
-
-cdef double pairwise_sum(const double* a, int n) noexcept nogil:
-    """numpy's float64 add.reduce of a contiguous array (pairwise, 8 accumulators per block of <= 128)."""
-    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
-    cdef int i, n2
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    if n <= 128:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2)
 
 
 cdef void residuals(const Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
@@ -194,7 +168,7 @@ cdef double cost_of(const double* r, int m, int loss, double fs, double* z) noex
         q = r[i] / fs
         z[i] = q * q
         rho[i] = loss_rho(loss, z[i])
-    return 0.5 * fs * fs * pairwise_sum(rho, m)
+    return 0.5 * fs * fs * pw_sum(rho, m)
 
 
 cdef int lm(const Prob* pr, double* p, double* r, double* J, double* z, double* r_new, double* z_new,

@@ -343,33 +343,6 @@ def dx_offsets(const double[:, ::1] bl, const double[:, ::1] pp, const double[::
     return j
 
 
-cdef float _pw_sum_f(const float *a, Py_ssize_t n) noexcept nogil:
-    """numpy's FLOAT_pairwise_sum (float accumulators, 8 of them, blocks of 128)."""
-    cdef float res, r0, r1, r2, r3, r4, r5, r6, r7
-    cdef Py_ssize_t i, n2
-    if n < 8:
-        res = -0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    elif n <= 128:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]
-        r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pw_sum_f(a, n2) + _pw_sum_f(a + n2, n - n2)
-
-
 def head_fluxes(const unsigned char[:, :] gray, const long long[:, ::1] boxes, const double[::1] bgs,
                 double[::1] out):
     """Pairer.head_flux of many boxes: out[k] = the float32 sum (numpy's order) of
@@ -402,4 +375,4 @@ def head_fluxes(const unsigned char[:, :] gray, const long long[:, ::1] boxes, c
                 v = (<float>gray[y, x]) - bg
                 buf[m] = v if v > 0.0 else 0.0
                 m += 1
-        out[k] = <double>((<float>0.0) + _pw_sum_f(&buf[0], m))
+        out[k] = <double>((<float>0.0) + pw_sum(&buf[0], m))
