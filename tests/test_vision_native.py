@@ -217,12 +217,28 @@ def test_row_profile_and_mask_mean_kernels_equal_opencv(name, monkeypatch):
 
 @needs_kernel
 def test_box_kernels_refuse_boxes_outside_the_frame():
-    """The box scans never read outside the frame: box_max and pooled_boxes say False (their
-    callers take the numpy path), row_extremes raises."""
+    """The box scans never read outside the frame: pooled_boxes says False (its caller takes the
+    numpy path), refine_alone -1 (tests/test_detect_kernels.py)."""
     gray = np.zeros((20, 30), np.uint8)
     for box in ((-1, 0, 5, 5), (26, 0, 5, 5), (0, 16, 5, 5), (0, 0, 31, 1)):
         rects = np.array([box], np.int64)
-        assert _px.box_max(gray, rects, np.empty(1)) is False
+        assert _px.pooled_boxes(gray, rects, 1, 2, 0, np.empty((1, 4), np.int64)) is False
+
+
+@needs_kernel
+def test_edge_points_kernel_refuses_boxes_outside_the_frame_or_short_outputs():
+    """edge_points reads its boxes and writes pts / sig / ends unchecked: mis-sized input raises."""
+    gray = np.zeros((20, 30), np.uint8)
+    gray[5:10, 5:15] = 200
+
+    def call(x0=5, x1=15, y0=5, y1=10, rows=None, n_bg=1, n_ends=2):
+        n = 2 * (y1 - y0) if rows is None else rows
+        i64 = lambda v: np.array([v], np.int64)  # noqa: E731
+        return _px.edge_points(gray, i64(x0), i64(x1), i64(y0), i64(y1), np.zeros(n_bg, np.float32), 2, 20.0,
+                               1, 0.05, 4.0, np.empty((max(n, 0), 2)), np.empty(max(n, 0)), np.empty(n_ends, np.int64))
+
+    call()                                              # a well-formed call works
+    for bad in (dict(x0=-1), dict(x1=31), dict(y0=-2), dict(y1=21), dict(x0=16), dict(rows=9), dict(n_bg=0),
+                dict(n_ends=1)):
         with pytest.raises(ValueError):
-            _px.row_extremes(gray, rects, np.ones(1, np.int64), np.empty((10, 2), np.int32), np.empty(2, np.int64))
-    assert _px.pooled_boxes(gray, np.array([(26, 0, 5, 5)], np.int64), 1, 2, 0, np.empty((1, 4), np.int64)) is False
+            call(**bad)

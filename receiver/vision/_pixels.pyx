@@ -171,9 +171,17 @@ def edge_points(const unsigned char[:, ::1] gray, const int64_t[::1] bx0, const 
     cdef const unsigned char *row
     cdef Py_ssize_t *fl
     cdef double *acc
+    cdef Py_ssize_t total = 0
+    if bx1.shape[0] != nb or by0.shape[0] != nb or by1.shape[0] != nb or bg.shape[0] < nb or ends.shape[0] < nb + 1:
+        raise ValueError("edge_points: bx0, bx1, by0, by1 (n,), bg (n,), ends (n + 1,) needed")
     for k in range(nb):
+        if not (0 <= bx0[k] <= bx1[k] <= w and 0 <= by0[k] <= by1[k] <= h):
+            raise ValueError("edge_points: a box is not inside the frame")
+        total += by1[k] - by0[k]
         if by1[k] - by0[k] > maxrows:
             maxrows = by1[k] - by0[k]
+    if pts.shape[0] < 2 * total or pts.shape[1] != 2 or sig.shape[0] < 2 * total:
+        raise ValueError("edge_points: pts (2 * total box rows, 2) and sig (2 * total box rows,) needed")
     fl = <Py_ssize_t *>malloc(2 * (maxrows + 1) * sizeof(Py_ssize_t))
     acc = <double *>malloc(4 * (maxrows + 1) * sizeof(double))
     if fl == NULL or acc == NULL:
@@ -257,25 +265,6 @@ def edge_points(const unsigned char[:, ::1] gray, const int64_t[::1] bx0, const 
 
 # ------------------------------------------------------------------ detection: blob envelopes
 
-def box_max(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double[::1] peak):
-    """peak[i] = the largest gray value in box i (x, y, w, h) of `gray` (cv2.minMaxLoc's maximum
-    over the ROI, `detect._refine_alone_batch`); True, or False (nothing written) when a box
-    is not inside the frame."""
-    cdef Py_ssize_t i, r, x, y, w, h
-    cdef unsigned char m, v
-    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]):
-        return False
-    for i in range(rects.shape[0]):
-        x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
-        m = 0
-        for r in range(h):
-            v = occ_u8_max(&gray[y + r, x], w)
-            if v > m:
-                m = v
-        peak[i] = m
-    return True
-
-
 cdef Py_ssize_t _total_rows(const int64_t[:, ::1] rects) noexcept:
     cdef Py_ssize_t i, n = 0
     for i in range(rects.shape[0]):
@@ -291,37 +280,6 @@ cdef bint _boxes_inside(const int64_t[:, ::1] rects, Py_ssize_t h, Py_ssize_t w)
                 or rects[i, 0] + rects[i, 2] > w or rects[i, 1] + rects[i, 3] > h):
             return False
     return True
-
-
-def row_extremes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, const int64_t[::1] first_on,
-                 int32_t[:, ::1] pts, int64_t[::1] seg):
-    """The leftmost and rightmost pixel >= first_on[i] of every row of box i (x, y, w, h) that
-    has one (`detect._refine_alone_batch`): box i's points, in box coordinates (column, row),
-    are pts[seg[i]:seg[i + 1]], its rows' left ends top to bottom, then their right ends.
-    first_on[i] > 255: nothing is lit. `pts` needs 2 * (sum of heights) rows."""
-    cdef Py_ssize_t i, r, x, y, w, h, first, m = 0, n0, nrow, j
-    cdef unsigned char on
-    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pts.shape[0] < 2 * _total_rows(rects):
-        raise ValueError("boxes outside the frame, or pts too short")
-    seg[0] = 0
-    for i in range(rects.shape[0]):
-        x, y, w, h = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
-        n0 = m
-        if first_on[i] <= 255:
-            on = <unsigned char>first_on[i]
-            for r in range(h):
-                first = occ_u8_first_ge(&gray[y + r, x], w, on)
-                if first >= 0:
-                    pts[m, 0] = <int32_t>first
-                    pts[m, 1] = <int32_t>r
-                    m += 1
-            nrow = m - n0
-            for j in range(nrow):
-                r = pts[n0 + j, 1]
-                pts[m, 0] = <int32_t>occ_u8_last_ge(&gray[y + r, x], w, on)
-                pts[m, 1] = <int32_t>r
-                m += 1
-        seg[i + 1] = m
 
 
 def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, int on, int pool,
