@@ -53,3 +53,18 @@ def test_a_pair_seeing_both_ends_lives_and_a_decoded_one_is_not_judged():
     assert _run(pr, q, [80.0], 3 * pr.unseen_give_up_frames) is None
     off = Pairer(unseen_give_up_frames=0)
     assert _run(off, _pair(off), [80.0], 90) is None
+
+
+def test_bans_of_dropped_tracks_are_forgotten_and_live_ones_kept():
+    """Pairer.banned stays bounded on a long stream: above BANNED_PRUNE_AT entries a step keeps
+    only the bans whose two tracks are still live (track IDs are never reused)."""
+    from receiver.vision.pairing import BANNED_PRUNE_AT
+    pr = Pairer()
+    pr.banned = {(i, i + 1) for i in range(100, 100 + 2 * BANNED_PRUNE_AT, 2)} | {(3, 4)}
+    tracks = [Track(3, _blob(80.0, 50.0), 0, 0), Track(4, _blob(120.0, 50.0), 0, 0)]
+    pr.step(np.zeros((480, 640), np.uint8), tracks, lambda g, t: 10.0)
+    assert pr.banned == {(3, 4)}
+    small = Pairer()
+    small.banned = {(100, 101), (3, 4)}              # below the bound: nothing is pruned
+    small.step(np.zeros((480, 640), np.uint8), tracks, lambda g, t: 10.0)
+    assert small.banned == {(100, 101), (3, 4)}

@@ -69,6 +69,9 @@ def _quantile_index(n: int, q: float) -> tuple[int, int, float]:
     return lo, min(lo + 1, n - 1), pos - lo
 
 
+BANNED_PRUNE_AT = 64  # Pairer.banned entries above which bans of dropped tracks are forgotten
+
+
 class EmitterLevels:
     """Running on/off levels of one emitter from its last `history` intensities (gray):
     on = the `q_on` percentile, off = the `q_off` percentile (numpy's linear interpolation,
@@ -762,6 +765,9 @@ class Pairer:
             if tid not in live or tid in paired:
                 del self.levels[tid]
                 self.past.pop(tid, None)
+        if len(self.banned) > BANNED_PRUNE_AT:
+            # the tracker never reuses a track ID: a ban naming a track it dropped can never match
+            self.banned = {k for k in self.banned if k[0] in live and k[1] in live}
         todo = [t for t in tracks if t.track_id not in paired]
         vals = intensities(gray, todo) if intensities is not None else [intensity(gray, t) for t in todo]
         for t, v in zip(todo, vals):
