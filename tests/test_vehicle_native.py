@@ -322,3 +322,56 @@ def test_pose_kernel_refuses_an_empty_problem():
     with pytest.raises(ValueError):
         k.solve(z(0, 3), z(0, 2), 1.0, z(0), z(0), z(3), 1.0, z(6), z(6, 6), 0, 1.0, z(0, 8), 1.0, z(6), 5,
                 1e-6, 1e-4, 1e-9, 1e-3, 1e6, z(0), z(0, 6))
+
+
+def _pose_problem(M: int = 3, n_pairs: int = 1, n_att: int = 1):
+    """A well-sized host-pose problem for the kernel (M points 10 m ahead, one range, n_att rows)."""
+    import numpy as np
+    L = np.column_stack([np.arange(M, dtype=float), np.full(M, 10.0), np.full(M, 6.0)])
+    d = np.full(M, np.nan)
+    d[0] = 11.0
+    att = np.zeros((n_att, 8))
+    att[:, 2] = 1.0
+    n = 2 * M + 1 + 6 + n_att
+    return dict(L=L, uv=np.zeros((M, 2)), d=d, sd=np.ones(M), up=np.array([0.0, 0.0, 1.0]), C=np.zeros(3),
+                W=np.eye(3), n_pairs=n_pairs, att=att, p=np.array([0.1, 0.0, 0.0, 0.0, 0.0, 1.0]),
+                r=np.empty(n), J=np.empty((n, 6)))
+
+
+def _solve(k, q):
+    return k.solve(q["L"], q["uv"], 1.0, q["d"], q["sd"], q["up"], 1.0, q["C"], q["W"], q["n_pairs"], 1.0,
+                   q["att"], 1.0, q["p"], 3, 1e-6, 1e-4, 1e-9, 1e-3, 1e6, q["r"], q["J"])
+
+
+def test_pose_kernel_checks_every_size():
+    """The kernel reads its arrays unchecked: each mis-sized one raises, the well-sized problem solves."""
+    import numpy as np
+    import pytest
+    from receiver.locate import _vehicle_pose as k
+    assert _solve(k, _pose_problem()) >= 1
+    bad = {"uv": np.zeros((2, 2)), "d": np.full(2, np.nan), "sd": np.ones(4), "up": np.zeros(2),
+           "C": np.zeros(2), "W": np.eye(2), "n_pairs": 2, "att": np.zeros((1, 7)), "p": np.zeros(5),
+           "r": np.empty(9), "J": np.empty((14, 5))}
+    for key, value in bad.items():
+        q = _pose_problem()
+        q[key] = value
+        with pytest.raises(ValueError):
+            _solve(k, q)
+    q = _pose_problem()
+    q["d"][1] = 12.0                        # one more range row: r and J are now one row short
+    with pytest.raises(ValueError):
+        _solve(k, q)
+
+
+def test_range_kernels_check_their_lengths():
+    """range_rows' columns and pose_ranges' output list are indexed unchecked: short ones raise."""
+    import numpy as np
+    import pytest
+    from receiver.locate import _vehicle_range as k
+    with pytest.raises(ValueError):
+        k.range_rows([1.0, 2.0], [1.0], *([[]] * 18), 1000.0, 0.0, 0.5, 1.0)
+    with pytest.raises(ValueError):
+        k.pose_ranges([object(), object()], {}, 0, 0, 0, 1, 0, 0, 1, 0.1, [None])
+    with pytest.raises(ValueError):
+        k.near_any(np.zeros((2, 3)), 0, 0, 1, 1, 0.1)
+    assert k.near_any(np.zeros((1, 2)), 0.0, 0.0, 1.0, 1.0, 0.1)

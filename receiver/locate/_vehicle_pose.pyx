@@ -202,6 +202,28 @@ cdef inline double absmax(const double* v, int i0) noexcept nogil:
     return m
 
 
+cdef void _check_sizes(double[:, ::1] L, double[:, ::1] uv, double[::1] d, double[::1] sd,
+                       double[::1] up, double[::1] C_prior, double[:, ::1] W, int n_pairs,
+                       double[:, ::1] att, double[::1] p, double[::1] r_out, double[:, ::1] J_out) except *:
+    """ValueError unless every array has the shape the problem's M = len(L) points imply (the
+    kernel reads them unchecked): L (M, 3), uv (M, 2), d and sd (M,), up and C_prior (3,),
+    W (3, 3), 0 <= 2 n_pairs <= M, att (n_att, 8), p (6,), r_out (rows(M, n_d, n_att),),
+    J_out (len(r_out), 6), n_d the finite entries of d."""
+    cdef Py_ssize_t M = L.shape[0], i
+    cdef int n_d = 0
+    if (M < 1 or L.shape[1] != 3 or uv.shape[0] != M or uv.shape[1] != 2 or d.shape[0] != M
+            or sd.shape[0] != M or up.shape[0] != 3 or C_prior.shape[0] != 3 or W.shape[0] != 3
+            or W.shape[1] != 3 or n_pairs < 0 or 2 * n_pairs > M
+            or (att.shape[0] > 0 and att.shape[1] != 8) or p.shape[0] != 6):
+        raise ValueError("host pose kernel: needs L (M>=1, 3), uv (M, 2), d, sd (M,), up, C_prior (3,), "
+                         "W (3, 3), 2 n_pairs <= M, att (n, 8), p (6,)")
+    for i in range(M):
+        if isfinite(d[i]):
+            n_d += 1
+    if r_out.shape[0] != 2 * M + n_d + 6 + att.shape[0] or J_out.shape[0] != r_out.shape[0] or J_out.shape[1] != 6:
+        raise ValueError("host pose kernel: r_out needs rows(M, n_d, n_att) rows and J_out (len(r_out), 6)")
+
+
 def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, double[::1] sd,
           double[::1] up, double up_sigma, double[::1] C_prior, double[:, ::1] W, int n_pairs,
           double sep_gain, double[:, ::1] att, double f_scale, double[::1] p, int max_iter,
@@ -233,8 +255,7 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
     cdef double* J1
     cdef double* w1
     cdef double* tmp
-    if L.shape[0] < 1 or L.shape[1] < 3 or J_out.shape[0] != n or J_out.shape[1] != 6 or p.shape[0] != 6:
-        raise ValueError("host pose kernel: needs >= 1 emitter row, p (6,), J_out (len(r_out), 6)")
+    _check_sizes(L, uv, d, sd, up, C_prior, W, n_pairs, att, p, r_out, J_out)
     P.M = L.shape[0]
     P.n_pairs = n_pairs
     P.n_rows = n
@@ -331,6 +352,8 @@ def covariance(double[::1] r, double[:, ::1] J, double[:, ::1] out):
     s^2 = max(1, chi^2 / dof), the inverse by Cholesky (J' J is symmetric positive definite
     when the solve is determined; pinv then equals the inverse). Returns 0, or 1 when a
     Cholesky pivot is not positive and finite (rank-deficient: the caller's pinv decides)."""
+    if r.shape[0] < 1 or J.shape[0] != r.shape[0] or J.shape[1] != 6 or out.shape[0] != 6 or out.shape[1] != 6:
+        raise ValueError("covariance kernel: r (n>=1,), J (n, 6), out (6, 6) needed")
     return cov_core(&r[0], &J[0, 0], r.shape[0], &out[0, 0])
 
 
@@ -397,6 +420,8 @@ def solve_pose(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1]
     cdef int i, k
     cdef double zmin
     cdef double dR[27]
+    if R_out.shape[0] != 3 or R_out.shape[1] != 3 or cov_out.shape[0] != 6 or cov_out.shape[1] != 6:
+        raise ValueError("host pose kernel: R_out (3, 3) and cov_out (6, 6) needed")
     solve(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, att, f_scale, p, max_iter,
           rot_tol, pos_tol, ftol, lam0, lam_max, r_out, J_out)
     for k in range(6):

@@ -59,6 +59,10 @@ def range_rows(list ja, list jb, list eta_a, list eta_b, list area_m2, list osig
     """The loop of vehicle.range_core over its per-pair columns (Python lists: floats, or rows of
     2 / 3 floats): the 15 output columns as lists ("eq18" .. "area_clash", range_core's keys)."""
     cdef Py_ssize_t n = len(ja), i
+    cols_in = (jb, eta_a, eta_b, area_m2, osig_l, bm_l, amr_l, csig_l, ua, ub, S1, S2, B_cam, n_cam, circle,
+               ra, rb, cos3a, cos3b)
+    if any(len(c) != n for c in cols_in):     # the loop indexes the lists unchecked (boundscheck=False)
+        raise ValueError("range_rows: every column needs len(ja) entries")
     cdef double ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, uax, uay, ubx, uby
     cdef double s1x, s1y, s1z, s2x, s2y, s2z, bx, by, bz, nx, ny, nz, rax, ray, raz, rbx, rby, rbz, c3a, c3b
     cdef double umx, umy, dux, duy, rab, ba, bb, det, sa, sb, px, py, pz, d_base, sep_px, s_base
@@ -204,6 +208,8 @@ def pose_ranges(list pairs, dict heads, double cx, double cy, double cz, double 
     from the camera centre C and its position covariance (2 x 2); the same scalar operations."""
     cdef Py_ssize_t i
     cdef double hx, hy, hz, vx, vy, vz, d, ux, uy, q, t
+    if len(ranges) < len(pairs):              # written unchecked (boundscheck=False)
+        raise ValueError("pose_ranges: ranges needs one entry per pair")
     for i in range(len(pairs)):
         p = pairs[i]
         led = p.led_id
@@ -239,4 +245,6 @@ cdef inline double min_d2(double[:, ::1] P, double ux, double uy) noexcept nogil
 def near_any(double[:, ::1] P, double ax, double ay, double bx, double by, double g2):
     """VehicleLocator._on_mapped_sl's test: whether point a or b (normalized) is within sqrt(g2)
     of any row of P (m >= 1, 2), as its numpy form decides it."""
+    if P.shape[1] != 2:
+        raise ValueError("near_any: P needs 2 columns")
     return min_d2(P, ax, ay) < g2 or min_d2(P, bx, by) < g2
