@@ -121,6 +121,8 @@ DOWN = np.array([0.0, 0.0, -1.0])
 _k = load("receiver.locate._vehicle_pose")
 # Compiled per-pair ranging loop (`range_core`); None: its Python loop.
 _kr = load("receiver.locate._vehicle_range")
+# Compiled map-aided association (`VehicleLocator._associate`); None: its numpy form.
+_ka = load("receiver.locate._vehicle_step")
 
 
 
@@ -1012,6 +1014,8 @@ class VehicleLocator:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
         ids, H, Bl = self._em_heads
+        if _ka is not None:
+            return self._associate_native(pairs, cand, st, Pxy, decoded, R_prior)
         keep = [i not in decoded for i in ids]
         if not all(keep):
             ids, H, Bl = [i for i, k in zip(ids, keep) if k], H[keep], Bl[keep]
@@ -1058,6 +1062,39 @@ class VehicleLocator:
                 continue
             out[i] = ids[h]
         return out
+
+    def _prior_camera(self, st, R_prior):
+        """The predicted camera of `_associate`: R_prior turned about z by the heading change
+        since the filter's last update, at the filter's predicted x, y and the last height."""
+        dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
+        c, sn = math.cos(dpsi), math.sin(dpsi)
+        R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
+        return R, (float(st[0]), float(st[1]), self.z_last)
+
+    def _associate_native(self, pairs, cand, st, Pxy, decoded, R_prior) -> dict:
+        """`_associate` after its early checks, by the compiled kernel
+        (receiver.locate._vehicle_step.associate): one call for every head and candidate."""
+        s = self.s
+        ids, H, Bl = self._em_heads
+        use = bytes([i not in decoded for i in ids])
+        if not any(use):
+            return {}
+        R, (cx, cy, cz) = self._prior_camera(st, R_prior)
+        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
+        csig = (s.centroid_sigma_px / self.focal) ** 2
+        mids = []
+        for i in cand:
+            p = pairs[i]
+            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
+                                  self.camera.dist).reshape(-1, 2)
+        sep = np.array([float(pairs[i].separation_px) for i in cand])
+        hit = np.empty(len(cand), np.int_)
+        if not _ka.associate(H, Bl, use, np.ascontiguousarray(R), cx, cy, cz, np.ascontiguousarray(Pxy),
+                             ang + csig, float(self.focal), np.ascontiguousarray(und, float), sep,
+                             float(s.assoc_gate_chi2), float(s.assoc_sep_tol), hit):
+            return {}
+        return {i: ids[h] for i, h in zip(cand, hit.tolist()) if h >= 0}
 
     def _single_observation(self, t_s, pairs, res, k, R_prior):
         """While the road filter runs, one decoded street light updates it directly: the
