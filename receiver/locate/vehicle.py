@@ -1114,8 +1114,13 @@ class VehicleLocator:
         pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
         psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else s.orient_sigma_prior_deg)
 
+        rots = {}       # the rotations asked so far: 7 distinct ones among the ~16 calls of a frame
+
         def g(x, y, psi, dyaw=0.0, dpitch=0.0, roll=0.0, dz=0.0):
-            R = ypr_to_rotation(math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            ypr = (math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            R = rots.get(ypr)
+            if R is None:
+                R = rots[ypr] = ypr_to_rotation(*ypr)
             V = head - np.array([x, y, z0 + dz])
             X = R @ V
             if X[2] < 1e-3:
