@@ -642,6 +642,7 @@ class VehicleLocator:
         self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
                           np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in em_ids], float))
         self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
+        self._roles: dict = {}                   # led_id -> `_role_of` (the map is fixed)
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
@@ -670,9 +671,18 @@ class VehicleLocator:
 
     # -------------------------------------------------------------------------- ranging
     def _role(self, p: PairObservation) -> str | None:
-        if p.led_id is not None and 0 <= p.led_id <= 0x7F:
-            return "SL" if p.led_id in self._sl else None
-        if p.led_id is not None and p.led_id > 0x7F:
+        """"SL" (a mapped street light's ID), "FV" (a taillight ID), "FV?" (undecoded, may be
+        taillights) or None, by the pair's ID (`_role_of`, kept per ID: ~50 asks a frame)."""
+        try:
+            return self._roles[p.led_id]
+        except KeyError:
+            r = self._roles[p.led_id] = self._role_of(p.led_id)
+            return r
+
+    def _role_of(self, led_id) -> str | None:
+        if led_id is not None and 0 <= led_id <= 0x7F:
+            return "SL" if led_id in self._sl else None
+        if led_id is not None and led_id > 0x7F:
             return "FV" if self._tl is not None else None
         return "FV?" if self._tl is not None else None
 
@@ -789,7 +799,12 @@ class VehicleLocator:
                 h = ({}, {})
             else:
                 # Steps are added in order: the first key is the oldest (nothing to age out, as a rule).
-                h = tuple({k: v for k, v in d.items() if k > old} if d and next(iter(d)) <= old else d for d in h)
+                a, b = h
+                if a and next(iter(a)) <= old:
+                    a = {k: v for k, v in a.items() if k > old}
+                if b and next(iter(b)) <= old:
+                    b = {k: v for k, v in b.items() if k > old}
+                h = (a, b)
             for e, sn in enumerate((p.a_seen, p.b_seen)):
                 if sn is not None and int(sn[2]) == 0:
                     h[e][self._nstep] = (float(sn[0][0]), float(sn[0][1]))
