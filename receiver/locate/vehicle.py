@@ -597,6 +597,7 @@ class VehicleLocator:
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
         self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
+        self._sep_t, self._sep_sorted = -math.inf, True   # last step's time; whether times never went back
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -1483,10 +1484,20 @@ class VehicleLocator:
         keep = t_s - self.s.speed_hist_s
         hist = {}
         old = self._sep_hist
+        # Times added in step order: while they never went back, every list is sorted and its
+        # aged-out entries are a prefix (the first ones, as a rule one a frame).
+        self._sep_sorted = self._sep_sorted and t_s >= self._sep_t
+        self._sep_t = t_s
         for p in pairs:
             h = old.get(p.key, ())
             if h and h[0][0] < keep:
-                h = [e for e in h if e[0] >= keep]
+                if self._sep_sorted:
+                    j, n = 1, len(h)
+                    while j < n and h[j][0] < keep:
+                        j += 1
+                    h = h[j:]
+                else:
+                    h = [e for e in h if e[0] >= keep]
             else:
                 h = list(h)        # a key may repeat within a frame: each from the last frame's list
             if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
