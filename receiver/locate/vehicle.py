@@ -799,13 +799,14 @@ class VehicleLocator:
             if h is None:
                 h = ({}, {})
             else:
-                # Steps are added in order: the first key is the oldest (nothing to age out, as a rule).
-                a, b = h
-                if a and next(iter(a)) <= old:
-                    a = {k: v for k, v in a.items() if k > old}
-                if b and next(iter(b)) <= old:
-                    b = {k: v for k, v in b.items() if k > old}
-                h = (a, b)
+                # Steps are added in increasing order (`_nstep`): the aged-out keys are the first
+                # ones (as a rule one a frame), dropped in place (only this history holds them).
+                for d in h:
+                    while d:
+                        k0 = next(iter(d))
+                        if k0 > old:
+                            break
+                        del d[k0]
             for e, sn in enumerate((p.a_seen, p.b_seen)):
                 if sn is not None and int(sn[2]) == 0:
                     h[e][self._nstep] = (float(sn[0][0]), float(sn[0][1]))
