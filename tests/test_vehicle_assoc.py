@@ -74,3 +74,47 @@ def test_two_mapped_heads_in_the_gate_are_no_match():
         hv = loc.step(k / 30.0, pairs[:2] if k < 20 else pairs).vehicle["hv"]
         if k >= 20 and hv is not None:
             assert hv["n_assoc"] == 0
+
+
+def test_compiled_association_equals_the_numpy_form(monkeypatch):
+    """Every `_associate` call of both scenes above, run by the kernel and by the numpy form on
+    the same inputs: the same matches (the twin-head map: the same refusals)."""
+    import pytest
+
+    import receiver.locate.vehicle as V
+    kernel = V._ka
+    if kernel is None:
+        pytest.skip("compiled kernel not built (tests/test_native.py fails then)")
+    orig = VehicleLocator._associate
+    seen = []
+
+    def both(loc, t_s, pairs, R_prior):
+        got = orig(loc, t_s, pairs, R_prior)
+        monkeypatch.setattr(V, "_ka", None)
+        try:
+            ref = orig(loc, t_s, pairs, R_prior)
+        finally:
+            monkeypatch.setattr(V, "_ka", kernel)
+        seen.append((got, ref))
+        return got
+
+    monkeypatch.setattr(VehicleLocator, "_associate", both)
+    test_undecoded_pairs_on_mapped_heads_join_the_host_solve()
+    test_two_mapped_heads_in_the_gate_are_no_match()
+    assert sum(1 for got, _ in seen if got) >= 15       # matches were made and compared
+    assert all(got == ref for got, ref in seen)
+
+
+def test_compiled_association_rejects_mismatched_sizes():
+    import pytest
+
+    import receiver.locate.vehicle as V
+    if V._ka is None:
+        pytest.skip("compiled kernel not built (tests/test_native.py fails then)")
+    H, Bl, use, R, P = np.zeros((3, 3)), np.ones(3), bytes(3), np.eye(3), np.eye(2)
+    und, sep, out = np.zeros((2, 2)), np.ones(2), np.empty(2, np.int_)
+    assert V._ka.associate(H, Bl, use, R, 0.0, 0.0, 0.0, P, 1e-6, 1200.0, und, sep, 9.0, 0.3, out) == 0
+    with pytest.raises(ValueError):
+        V._ka.associate(H, np.ones(2), use, R, 0.0, 0.0, 0.0, P, 1e-6, 1200.0, und, sep, 9.0, 0.3, out)
+    with pytest.raises(ValueError):
+        V._ka.associate(H, Bl, use, R, 0.0, 0.0, 0.0, P, 1e-6, 1200.0, und, sep, 9.0, 0.3, np.empty(1, np.int_))

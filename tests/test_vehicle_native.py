@@ -375,3 +375,32 @@ def test_range_kernels_check_their_lengths():
     with pytest.raises(ValueError):
         k.near_any(np.zeros((2, 3)), 0, 0, 1, 1, 0.1)
     assert k.near_any(np.zeros((1, 2)), 0.0, 0.0, 1.0, 1.0, 0.1)
+
+
+def test_keep_separations_ages_out_like_a_filter_even_when_time_goes_back():
+    """`_keep_separations` trims the aged-out prefix while the step times never went back, and
+    filters every entry after they did: the kept histories are the former filter's either way."""
+    from types import SimpleNamespace
+
+    from test_vehicle import make_map
+
+    loc = V.VehicleLocator(CAM, make_map(), SETTINGS)
+    rng = np.random.default_rng(1)
+    ref: dict = {}
+    times = [i / 30.0 for i in range(90)] + [1.0 + i / 30.0 for i in range(80)]   # back by 2 s once
+    for t in times:
+        pairs = [SimpleNamespace(key=(k, k + 1), both_visible=rng.random() < 0.8,
+                                 separation_px=float(rng.uniform(-1, 40))) for k in range(int(rng.integers(1, 5)))]
+        loc._keep_separations(t, pairs)
+        keep = t - SETTINGS.speed_hist_s
+        new = {}
+        for p in pairs:
+            h = ref.get(p.key, ())          # the former code: a filter when the first entry aged out
+            h = [e for e in h if e[0] >= keep] if h and h[0][0] < keep else list(h)
+            if p.both_visible and p.separation_px > 0:
+                h.append((t, p.separation_px))
+            if h:
+                new[p.key] = h
+        ref = new
+        assert loc._sep_hist == ref
+    assert not loc._sep_sorted

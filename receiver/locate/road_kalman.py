@@ -33,6 +33,9 @@ from receiver.core.native import load
 _k = load("receiver.locate._road_kalman")
 
 
+_H_SPEED = np.array([[0.0, 0.0, 0.0, 1.0, 0.0]])      # the speed's measurement row (`update_speed`)
+
+
 def wrap_pi(a: float) -> float:
     """Angle wrapped to (-pi, pi]."""
     return -((-a + math.pi) % (2 * math.pi) - math.pi)
@@ -226,6 +229,15 @@ class RoadKalman:
         return True
 
     def update_speed(self, speed: float, sigma: float) -> None:
+        if _k is not None:
+            # `_update`'s compiled call with its one row made here (every frame with odometry)
+            s2, P2 = np.empty(5), np.empty((5, 5))
+            ok, _ = _k.update(self.s, self.P, np.array([float(speed)]), _H_SPEED, np.array([[sigma ** 2]]), -1,
+                              s2, P2)
+            if not ok:
+                raise np.linalg.LinAlgError("Singular matrix")
+            self.s, self.P = s2, P2
+            return
         H = np.zeros((1, 5))
         H[0, 3] = 1.0
         self._update(np.array([speed]), H, np.array([[sigma ** 2]]))

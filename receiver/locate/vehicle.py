@@ -121,6 +121,8 @@ DOWN = np.array([0.0, 0.0, -1.0])
 _k = load("receiver.locate._vehicle_pose")
 # Compiled per-pair ranging loop (`range_core`); None: its Python loop.
 _kr = load("receiver.locate._vehicle_range")
+# Compiled map-aided association (`VehicleLocator._associate`); None: its numpy form.
+_ka = load("receiver.locate._vehicle_step")
 
 
 
@@ -595,6 +597,7 @@ class VehicleLocator:
         self.pitch_ref: float | None = None       # camera pitch (rad) of the last full (2+ light) pose
         self._pending = None                      # (t_s, xy, cov, yaw, psi sigma): a start's first fix
         self._sep_hist: dict = {}                 # pair key -> [(t_s, separation px)] (`_keep_separations`)
+        self._sep_t, self._sep_sorted = -math.inf, True   # last step's time; whether times never went back
         self.hv_reason: str | None = "no street light seen yet"
         self.unplaced: dict[str, int] = {}     # hv_reason -> frames left unplaced for it
         self.fv_reason: str | None = None         # why taillight pairs go unranged (None: they don't)
@@ -640,6 +643,7 @@ class VehicleLocator:
         self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
                           np.array([float(np.linalg.norm(self._sl[i]["B"])) for i in em_ids], float))
         self._sl_seen_at = (None, None, None)     # ((t_s, camera x, y, z), R, normalized points) of the heads
+        self._roles: dict = {}                   # led_id -> `_role_of` (the map is fixed)
         tl = led_map.taillight
         self._tl = None
         if tl is not None and tl.get("baseline_m") and tl.get("shape") and tl.get("size"):
@@ -668,9 +672,18 @@ class VehicleLocator:
 
     # -------------------------------------------------------------------------- ranging
     def _role(self, p: PairObservation) -> str | None:
-        if p.led_id is not None and 0 <= p.led_id <= 0x7F:
-            return "SL" if p.led_id in self._sl else None
-        if p.led_id is not None and p.led_id > 0x7F:
+        """"SL" (a mapped street light's ID), "FV" (a taillight ID), "FV?" (undecoded, may be
+        taillights) or None, by the pair's ID (`_role_of`, kept per ID: ~50 asks a frame)."""
+        try:
+            return self._roles[p.led_id]
+        except KeyError:
+            r = self._roles[p.led_id] = self._role_of(p.led_id)
+            return r
+
+    def _role_of(self, led_id) -> str | None:
+        if led_id is not None and 0 <= led_id <= 0x7F:
+            return "SL" if led_id in self._sl else None
+        if led_id is not None and led_id > 0x7F:
             return "FV" if self._tl is not None else None
         return "FV?" if self._tl is not None else None
 
@@ -786,8 +799,14 @@ class VehicleLocator:
             if h is None:
                 h = ({}, {})
             else:
-                # Steps are added in order: the first key is the oldest (nothing to age out, as a rule).
-                h = tuple({k: v for k, v in d.items() if k > old} if d and next(iter(d)) <= old else d for d in h)
+                # Steps are added in increasing order (`_nstep`): the aged-out keys are the first
+                # ones (as a rule one a frame), dropped in place (only this history holds them).
+                for d in h:
+                    while d:
+                        k0 = next(iter(d))
+                        if k0 > old:
+                            break
+                        del d[k0]
             for e, sn in enumerate((p.a_seen, p.b_seen)):
                 if sn is not None and int(sn[2]) == 0:
                     h[e][self._nstep] = (float(sn[0][0]), float(sn[0][1]))
@@ -1012,6 +1031,8 @@ class VehicleLocator:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
         ids, H, Bl = self._em_heads
+        if _ka is not None:
+            return self._associate_native(pairs, cand, st, Pxy, decoded, R_prior)
         keep = [i not in decoded for i in ids]
         if not all(keep):
             ids, H, Bl = [i for i, k in zip(ids, keep) if k], H[keep], Bl[keep]
@@ -1059,6 +1080,39 @@ class VehicleLocator:
             out[i] = ids[h]
         return out
 
+    def _prior_camera(self, st, R_prior):
+        """The predicted camera of `_associate`: R_prior turned about z by the heading change
+        since the filter's last update, at the filter's predicted x, y and the last height."""
+        dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
+        c, sn = math.cos(dpsi), math.sin(dpsi)
+        R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
+        return R, (float(st[0]), float(st[1]), self.z_last)
+
+    def _associate_native(self, pairs, cand, st, Pxy, decoded, R_prior) -> dict:
+        """`_associate` after its early checks, by the compiled kernel
+        (receiver.locate._vehicle_step.associate): one call for every head and candidate."""
+        s = self.s
+        ids, H, Bl = self._em_heads
+        use = bytes([i not in decoded for i in ids])
+        if not any(use):
+            return {}
+        R, (cx, cy, cz) = self._prior_camera(st, R_prior)
+        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
+        csig = (s.centroid_sigma_px / self.focal) ** 2
+        mids = []
+        for i in cand:
+            p = pairs[i]
+            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
+        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
+                                  self.camera.dist).reshape(-1, 2)
+        sep = np.array([float(pairs[i].separation_px) for i in cand])
+        hit = np.empty(len(cand), np.int_)
+        if not _ka.associate(H, Bl, use, np.ascontiguousarray(R), cx, cy, cz, np.ascontiguousarray(Pxy),
+                             ang + csig, float(self.focal), np.ascontiguousarray(und, float), sep,
+                             float(s.assoc_gate_chi2), float(s.assoc_sep_tol), hit):
+            return {}
+        return {i: ids[h] for i, h in zip(cand, hit.tolist()) if h >= 0}
+
     def _single_observation(self, t_s, pairs, res, k, R_prior):
         """While the road filter runs, one decoded street light updates it directly: the
         measurement is the head's undistorted midpoint (u, v, normalized) and its "fused" range
@@ -1077,8 +1131,13 @@ class VehicleLocator:
         pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
         psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else s.orient_sigma_prior_deg)
 
+        rots = {}       # the rotations asked so far: 7 distinct ones among the ~16 calls of a frame
+
         def g(x, y, psi, dyaw=0.0, dpitch=0.0, roll=0.0, dz=0.0):
-            R = ypr_to_rotation(math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            ypr = (math.degrees(psi + dyaw), pitch0 + math.degrees(dpitch), math.degrees(roll))
+            R = rots.get(ypr)
+            if R is None:
+                R = rots[ypr] = ypr_to_rotation(*ypr)
             V = head - np.array([x, y, z0 + dz])
             X = R @ V
             if X[2] < 1e-3:
@@ -1426,10 +1485,20 @@ class VehicleLocator:
         keep = t_s - self.s.speed_hist_s
         hist = {}
         old = self._sep_hist
+        # Times added in step order: while they never went back, every list is sorted and its
+        # aged-out entries are a prefix (the first ones, as a rule one a frame).
+        self._sep_sorted = self._sep_sorted and t_s >= self._sep_t
+        self._sep_t = t_s
         for p in pairs:
             h = old.get(p.key, ())
             if h and h[0][0] < keep:
-                h = [e for e in h if e[0] >= keep]
+                if self._sep_sorted:
+                    j, n = 1, len(h)
+                    while j < n and h[j][0] < keep:
+                        j += 1
+                    h = h[j:]
+                else:
+                    h = [e for e in h if e[0] >= keep]
             else:
                 h = list(h)        # a key may repeat within a frame: each from the last frame's list
             if p.both_visible and p.separation_px > 0 and math.isfinite(p.separation_px):
