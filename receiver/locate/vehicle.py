@@ -1059,12 +1059,7 @@ class VehicleLocator:
         cov = cov + np.eye(2) * (ang + csig)
         inv = np.linalg.inv(cov)
         sep_pred = self.focal * Bl / np.sqrt(np.sum(V * V, axis=1))
-        mids = []
-        for i in cand:
-            p = pairs[i]
-            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
-        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
-                                  self.camera.dist).reshape(-1, 2)
+        und = self._undistorted_mids(pairs, cand)
         D = und[:, None, :] - u[None, :, :]                  # (pairs, heads, 2)
         m2 = np.einsum("phi,hij,phj->ph", D, inv, D)
         inside = m2 <= s.assoc_gate_chi2
@@ -1079,6 +1074,13 @@ class VehicleLocator:
                 continue
             out[i] = ids[h]
         return out
+
+    def _undistorted_mids(self, pairs, cand) -> np.ndarray:
+        """(len(cand), 2) normalized, undistorted image midpoints of the candidate pairs."""
+        mids = [(0.5 * (pairs[i].a_px[0] + pairs[i].b_px[0]), 0.5 * (pairs[i].a_px[1] + pairs[i].b_px[1]))
+                for i in cand]
+        return cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
+                                   self.camera.dist).reshape(-1, 2)
 
     def _prior_camera(self, st, R_prior):
         """The predicted camera of `_associate`: R_prior turned about z by the heading change
@@ -1099,12 +1101,7 @@ class VehicleLocator:
         R, (cx, cy, cz) = self._prior_camera(st, R_prior)
         ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
         csig = (s.centroid_sigma_px / self.focal) ** 2
-        mids = []
-        for i in cand:
-            p = pairs[i]
-            mids.append((0.5 * (p.a_px[0] + p.b_px[0]), 0.5 * (p.a_px[1] + p.b_px[1])))
-        und = cv2.undistortPoints(np.array(mids, float).reshape(-1, 1, 2), self.camera.K,
-                                  self.camera.dist).reshape(-1, 2)
+        und = self._undistorted_mids(pairs, cand)
         sep = np.array([float(pairs[i].separation_px) for i in cand])
         hit = np.empty(len(cand), np.int_)
         if not _ka.associate(H, Bl, use, np.ascontiguousarray(R), cx, cy, cz, np.ascontiguousarray(Pxy),
