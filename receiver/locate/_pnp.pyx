@@ -70,22 +70,29 @@ cdef inline bint finite(double x) noexcept nogil:
     return x - x == 0.0
 
 
+cdef inline void cam_point(const double* L, const double* C, const double* R, double* Y, double* X) noexcept nogil:
+    """Y = L - C (world, m) and X = R Y: the point in the camera frame (R = R_cw, row-major)."""
+    Y[0] = L[0] - C[0]
+    Y[1] = L[1] - C[1]
+    Y[2] = L[2] - C[2]
+    X[0] = Y[0] * R[0] + Y[1] * R[1] + Y[2] * R[2]
+    X[1] = Y[0] * R[3] + Y[1] * R[4] + Y[2] * R[5]
+    X[2] = Y[0] * R[6] + Y[1] * R[7] + Y[2] * R[8]
+
+
 cdef void residuals(const Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
     """`_joint_fun`'s whitened residuals r (m,) at p; R, dR: Rodrigues of p[:3] and its Jacobian."""
     cdef int i, k, j = 2 * pr.n
-    cdef double Y0, Y1, Y2, X0, X1, X2, z, nrm
+    cdef double Y0, Y1, Y2, z, nrm
+    cdef double Y[3]
+    cdef double X[3]
     cdef const double* C = p + 3
     rodrigues(p, R, dR)
     for i in range(pr.n):
-        Y0 = pr.L[3 * i] - C[0]
-        Y1 = pr.L[3 * i + 1] - C[1]
-        Y2 = pr.L[3 * i + 2] - C[2]
-        X0 = Y0 * R[0] + Y1 * R[1] + Y2 * R[2]
-        X1 = Y0 * R[3] + Y1 * R[4] + Y2 * R[5]
-        X2 = Y0 * R[6] + Y1 * R[7] + Y2 * R[8]
-        z = X2 if X2 > 1e-6 else 1e-6
-        r[2 * i] = (X0 / z - pr.uv[2 * i]) / pr.sig
-        r[2 * i + 1] = (X1 / z - pr.uv[2 * i + 1]) / pr.sig
+        cam_point(pr.L + 3 * i, C, R, Y, X)
+        z = X[2] if X[2] > 1e-6 else 1e-6
+        r[2 * i] = (X[0] / z - pr.uv[2 * i]) / pr.sig
+        r[2 * i + 1] = (X[1] / z - pr.uv[2 * i + 1]) / pr.sig
     for i in range(pr.n):
         if finite(pr.d[i]):
             Y0 = pr.L[3 * i] - C[0]
@@ -107,24 +114,21 @@ cdef void residuals(const Prob* pr, const double* p, double* r, double* R, doubl
 cdef void jacobian(const Prob* pr, const double* p, const double* R, const double* dR, double* J) noexcept nogil:
     """`_joint_fun`'s Jacobian J (m, 6) row-major at p (R, dR from `residuals` at p)."""
     cdef int i, k, a, j = 2 * pr.n
-    cdef double Y0, Y1, Y2, X0, X1, X2, z, xz, yz, nrm, wd
+    cdef double Y0, Y1, Y2, z, xz, yz, nrm, wd
+    cdef double Y[3]
+    cdef double X[3]
     cdef double dX[18]
     cdef double* row
     cdef const double* C = p + 3
     for i in range(pr.n):
-        Y0 = pr.L[3 * i] - C[0]
-        Y1 = pr.L[3 * i + 1] - C[1]
-        Y2 = pr.L[3 * i + 2] - C[2]
-        X0 = Y0 * R[0] + Y1 * R[1] + Y2 * R[2]
-        X1 = Y0 * R[3] + Y1 * R[4] + Y2 * R[5]
-        X2 = Y0 * R[6] + Y1 * R[7] + Y2 * R[8]
-        z = X2 if X2 > 1e-6 else 1e-6
+        cam_point(pr.L + 3 * i, C, R, Y, X)
+        z = X[2] if X[2] > 1e-6 else 1e-6
         for a in range(3):          # dX[a * 6 + k]: d X_a / d p_k
             for k in range(3):
-                dX[6 * a + k] = dR[9 * k + 3 * a] * Y0 + dR[9 * k + 3 * a + 1] * Y1 + dR[9 * k + 3 * a + 2] * Y2
+                dX[6 * a + k] = dR[9 * k + 3 * a] * Y[0] + dR[9 * k + 3 * a + 1] * Y[1] + dR[9 * k + 3 * a + 2] * Y[2]
                 dX[6 * a + 3 + k] = -R[3 * a + k]
-        xz = X0 / z
-        yz = X1 / z
+        xz = X[0] / z
+        yz = X[1] / z
         row = J + 12 * i
         for k in range(6):
             row[k] = (dX[k] - xz * dX[12 + k]) / z / pr.sig
