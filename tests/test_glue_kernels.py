@@ -163,3 +163,77 @@ def test_recorded_frames_are_written_by_the_kernel():
             for profile in (False, True):
                 line = output._k.frame_line(res, profile)
                 assert line is not None and line == _reference(res, profile)
+
+
+# -- the positioner's per-frame glue (receiver/locate/_ranging.pyx) ---------------------------
+
+from receiver.locate import indoor, ranging  # noqa: E402
+
+ranging_native = pytest.mark.skipif(ranging._kr is None, reason="compiled glue not built (or OCCLOC_PURE=1)")
+
+
+class _Cam:
+    width, height = 640, 480
+
+
+def _contours(rng, n):
+    out = []
+    for _ in range(n):
+        r = rng.random()
+        if r < 0.1:
+            out.append(None)
+        elif r < 0.15:
+            out.append(np.zeros((0, 2)))
+        else:
+            c = rng.uniform(-5, 650, size=(int(rng.integers(1, 12)), 2))
+            if rng.random() < 0.3:
+                c = np.round(c)  # on the margin exactly
+            if rng.random() < 0.05:
+                c[int(rng.integers(len(c))), int(rng.integers(2))] = np.nan
+            out.append(c)
+    return out
+
+
+@ranging_native
+def test_edge_touch_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(2)
+    for k in range(400):
+        margin = float(rng.choice([0.0, 1.0, 2.5, 3.0]))
+        ranger = ranging.Ranger.__new__(ranging.Ranger)
+        ranger.camera, ranger.border_margin_px = _Cam(), margin
+        obs = [LedObservation(i, 0.0, 0.0, 1.0, c) for i, c in enumerate(_contours(rng, int(rng.integers(0, 8))))]
+        native = ranger._touching_edge(obs)
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = ranger._touching_edge(obs)
+        assert native == pure and all(type(v) is bool for v in native)
+    # contours the kernel does not read (float32, (K, 1, 2), lists) take the numpy path
+    odd = [LedObservation(0, 0.0, 0.0, 1.0, np.zeros((3, 1, 2), np.float32)),
+           LedObservation(1, 0.0, 0.0, 1.0, [[5.0, 5.0], [700.0, 5.0]])]
+    ranger = ranging.Ranger.__new__(ranging.Ranger)
+    ranger.camera, ranger.border_margin_px = _Cam(), 2.0
+    assert ranger._touching_edge(odd) == [True, True]
+
+
+@ranging_native
+def test_outline_packing_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(4)
+    for k in range(200):
+        chosen = []
+        for i in range(int(rng.integers(1, 6))):
+            n = int(rng.integers(0, 30))
+            edges = (rng.uniform(0, 1000, size=(n, 2)), rng.uniform(0, 2, size=n))
+            obs = LedObservation(i, float(rng.uniform(0, 1000)), np.float64(rng.uniform(0, 1000)), 1.0, None)
+            fx = (None, (float(rng.uniform(0.01, 1)), float(rng.uniform(0.01, 1))), tuple(rng.normal(size=3).tolist()))
+            chosen.append((obs, edges, fx))
+        native = indoor._pack_outline(chosen, 0.3, 1234.5)
+        with monkeypatch.context() as m:
+            m.setattr(indoor, "_kr", None)
+            pure = indoor._pack_outline(chosen, 0.3, 1234.5)
+        for a, b in zip(native, pure):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+    # edge arrays the kernel does not read take the numpy path, with the same arrays
+    chosen = [(LedObservation(0, 1.0, 2.0, 1.0, None), (np.ones((3, 2), np.float32), np.ones((3, 1))),
+               (None, (0.5, 0.5), (1.0, 2.0, 3.0)))]
+    got = indoor._pack_outline(chosen, 0.3, 10.0)
+    assert got[0].shape == (4, 2) and got[1].shape == (3,) and got[2].tolist() == [0, 3]

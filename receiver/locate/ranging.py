@@ -46,6 +46,8 @@ from receiver.io.camera import CameraModel
 # The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
 # None: cv2.undistortPoints itself.
 _ku = load("receiver.locate._undistort")
+# The per-frame glue kernels (receiver/locate/_ranging.pyx: the edge-touch test), or None.
+_kr = load("receiver.locate._ranging")
 
 ESTIMATORS = ("eq18", "oblique")
 
@@ -244,7 +246,10 @@ def _with_range(obs, distance_m, estimator):
     changed, without a keyword call of the generated `__init__` (a tenth of the cost; a frame
     annotates every ranged LED)."""
     cls = type(obs)
-    if hasattr(cls, "__post_init__") or not hasattr(obs, "__dict__"):
+    plain = _PLAIN.get(cls)
+    if plain is None:
+        plain = _PLAIN[cls] = not hasattr(cls, "__post_init__") and hasattr(obs, "__dict__")
+    if not plain:
         return dataclasses.replace(obs, distance_m=distance_m, distance_estimator=estimator)
     new = object.__new__(cls)
     fields = new.__dict__
@@ -252,6 +257,10 @@ def _with_range(obs, distance_m, estimator):
     fields["distance_m"] = distance_m
     fields["distance_estimator"] = estimator
     return new
+
+
+# record class -> may `_with_range` copy its instances' __dict__ (no __post_init__, not slotted)
+_PLAIN: dict[type, bool] = {}
 
 
 class Ranger:
@@ -273,10 +282,19 @@ class Ranger:
         self.edge_offset_px = settings.edge_offset_px
         self.border_margin_px = settings.border_margin_px
         self.unknown_ids: set[int] = set()
+        self._known: dict = {}  # LED id -> the map's LED or None (`_lookup`)
 
     def _touching_edge(self, obs_list) -> list[bool]:
         """For each observation: does its envelope come within `border_margin_px` of the image
-        edge? (All envelopes' extremes in one pass; no contour: False.)"""
+        edge? (All envelopes' extremes in one pass; no contour: False.) The compiled pass
+        (receiver/locate/_ranging.pyx) where every contour is a float64 (K, 2) array, else numpy."""
+        m = self.border_margin_px
+        if _kr is not None:
+            try:
+                return _kr.cut_by_edge([o.contour for o in obs_list], m, self.camera.width - 1 - m,
+                                       self.camera.height - 1 - m)
+            except (ValueError, TypeError, BufferError):
+                pass
         polys = [np.asarray(o.contour).reshape(-1, 2) if o.contour is not None else None for o in obs_list]
         has = [p is not None and len(p) > 0 for p in polys]
         out = [False] * len(obs_list)
@@ -286,11 +304,19 @@ class Ranger:
         starts = np.cumsum([0] + [len(p) for p in use[:-1]])
         pts = np.concatenate(use)
         lo, hi = np.minimum.reduceat(pts, starts), np.maximum.reduceat(pts, starts)
-        m = self.border_margin_px
         near = ((lo[:, 0] <= m) | (lo[:, 1] <= m) | (hi[:, 0] >= self.camera.width - 1 - m)
                 | (hi[:, 1] >= self.camera.height - 1 - m)).tolist()
         it = iter(near)
         return [bool(next(it)) if h else False for h in has]
+
+    def _lookup(self, led_id: int):
+        """The map's LED of this ID or None, looked up once per ID (the map does not change
+        during a run)."""
+        try:
+            return self._known[led_id]
+        except KeyError:
+            led = self._known[led_id] = self.led_map.lookup(led_id)
+            return led
 
     def usable(self, leds) -> list:
         """The frame's rangeable LEDs: (observation, map LED, `Geometry` of its envelope or None)
@@ -301,19 +327,21 @@ class Ranger:
         road; they are ranged as pairs by the vehicle locator (receiver.locate.vehicle)."""
         cand = [o for o in leds if o.id is not None and not o.border and o.mode != "s2psk"]
         items = []
+        if not cand:
+            return items
+        lookup, camera, offset = self._lookup, self.camera, self.edge_offset_px
         for obs, cut in zip(cand, self._touching_edge(cand)):
             if cut:
                 continue
-            led = self.led_map.lookup(obs.id)
+            led = lookup(obs.id)
             if led is None:
                 self.unknown_ids.add(obs.id)
                 continue
             if led.mode == "s2psk":
                 continue
-            geo = None
-            if obs.contour is not None and len(obs.contour) >= 3:
-                geo = Geometry(obs.contour, self.camera, self.edge_offset_px)
-            items.append((obs, led, geo))
+            contour = obs.contour
+            items.append((obs, led, Geometry(contour, camera, offset)
+                          if contour is not None and len(contour) >= 3 else None))
         return items
 
     def ranges(self, items, R_cw: np.ndarray | None, skip=()):
@@ -353,13 +381,16 @@ class Ranger:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
         dl = np.asarray(d, dtype=np.float64).tolist()
-        ranged = {id(obs): (round(dl[i], 5), names[i])
-                  for i, (obs, _, _) in enumerate(items) if math.isfinite(dl[i])}
+        ranged = {}
+        for (obs, _, _), v, name in zip(items, dl, names):
+            if v - v == 0.0:  # finite
+                ranged[id(obs)] = (round(v, 5), name)
         if not ranged:
             return list(leds)
+        get = ranged.get
         out = []
         for o in leds:
-            r = ranged.get(id(o))
+            r = get(id(o))
             out.append(o if r is None else _with_range(o, r[0], r[1]))
         return out
 
