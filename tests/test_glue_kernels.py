@@ -237,3 +237,38 @@ def test_outline_packing_kernel_equals_numpy(monkeypatch):
                (None, (0.5, 0.5), (1.0, 2.0, 3.0)))]
     got = indoor._pack_outline(chosen, 0.3, 10.0)
     assert got[0].shape == (4, 2) and got[1].shape == (3,) and got[2].tolist() == [0, 3]
+
+
+@ranging_native
+def test_polygon_sums_kernel_equals_numpy(monkeypatch):
+    """Area, perimeter, centroid and a contour's whole geometry: the same numbers bit for bit
+    (the kernel sums in np.sum's pairwise order), for polygons of 3 to 400 points (numpy's
+    sequential, 8-accumulator and halving branches)."""
+    from receiver.io.camera import CameraModel
+
+    cam = CameraModel(K=np.array([[900.0, 0, 640], [0, 905.0, 360], [0, 0, 1]]),
+                      dist=np.array([-0.2, 0.05, 0.001, -0.001, 0.0]), width=1280, height=720)
+    rng = np.random.default_rng(9)
+    for k in range(1500):
+        n = int(rng.integers(3, 400))
+        a = np.sort(rng.uniform(0, 2 * np.pi, n))
+        r = rng.uniform(1, 200) * (1 + 0.1 * rng.random(n))
+        poly = np.column_stack([640 + r * np.cos(a), 360 + r * np.sin(a)]) * 10.0 ** rng.integers(-2, 2)
+        if k % 50 == 0:
+            poly[:, 1] = poly[0, 1]  # degenerate: no area, no centroid
+        native = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
+                  ranging.contour_geometry(poly, cam, 0.5))
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
+                    ranging.contour_geometry(poly, cam, 0.5))
+        assert native[0] == pure[0]
+        assert (native[1] is None) == (pure[1] is None) and (pure[1] is None or np.array_equal(native[1], pure[1]))
+        assert (native[2] is None) == (pure[2] is None)
+        if pure[2] is not None:
+            assert native[2].keys() == pure[2].keys()
+            assert all(np.array_equal(native[2][key], pure[2][key]) for key in pure[2])
+    # what the kernel does not read (float32, strided) is summed by numpy
+    tri = np.array([[0, 0], [4, 0], [0, 3]], np.float32)
+    assert ranging.polygon_area_perimeter(tri) == (6.0, 12.0)
+    assert ranging.polygon_area_perimeter(np.array([[0, 0, 4, 0, 0, 3.0]]).reshape(3, 2)[::-1]) == (6.0, 12.0)

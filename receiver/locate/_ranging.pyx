@@ -13,6 +13,7 @@ receiver/locate/ranging.py and indoor.py stays the reference (tests/test_glue_ke
 """
 
 from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_WRITABLE, PyBuffer_Release, PyObject_GetBuffer
+from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport hypot, isnan
 
 import numpy as np
@@ -123,3 +124,65 @@ def pack_outline(list chosen, double model_sigma, double focal):
     if a != m:
         raise ValueError("pack_outline: edge points and sigmas do not match")
     return pts, sigma, np.array(ends, np.int64), xyz, half
+
+
+cdef double pairwise_sum(const double* a, Py_ssize_t n) noexcept nogil:
+    """numpy's pairwise summation of a contiguous float64 run (`np.sum` / `np.add.reduce`), in
+    its order: sequential under 8, eight accumulators up to 128, halves (multiples of 8) above."""
+    cdef Py_ssize_t i, n2
+    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    if n <= 128:
+        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]; r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
+        i = 8
+        while i < n - (n % 8):
+            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
+            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2)
+
+
+def polygon_sums(poly, bint perimeter):
+    """(sum of cross products x_i y_j - x_j y_i, perimeter or 0.0, sum (x_i + x_j) cross_i,
+    sum (y_i + y_j) cross_i) of a closed (K >= 1, 2) float64 C-contiguous polygon (j = i + 1
+    mod K): `ranging.polygon_area_perimeter` / `polygon_centroid`'s sums, each np.sum's pairwise
+    order over the same elementwise products (libm hypot, as np.hypot)."""
+    cdef Py_buffer b
+    cdef const double* p = f64(poly, &b, 2, 2)
+    cdef Py_ssize_t i, j, k = b.shape[0]
+    cdef double small[4 * 64]
+    cdef double* w = small
+    cdef double s_cross, s_per = 0.0, s_x, s_y
+    try:
+        if k > 64:
+            w = <double*>PyMem_Malloc(4 * k * sizeof(double))
+            if w == NULL:
+                raise MemoryError()
+        for i in range(k):
+            j = i + 1 if i + 1 < k else 0
+            w[i] = p[2 * i] * p[2 * j + 1] - p[2 * j] * p[2 * i + 1]
+            w[k + i] = (p[2 * i] + p[2 * j]) * w[i]
+            w[2 * k + i] = (p[2 * i + 1] + p[2 * j + 1]) * w[i]
+            if perimeter:
+                w[3 * k + i] = hypot(p[2 * j] - p[2 * i], p[2 * j + 1] - p[2 * i + 1])
+        s_cross = 0.0 + pairwise_sum(w, k)
+        s_x = 0.0 + pairwise_sum(w + k, k)
+        s_y = 0.0 + pairwise_sum(w + 2 * k, k)
+        if perimeter:
+            s_per = 0.0 + pairwise_sum(w + 3 * k, k)
+    finally:
+        if w != small:
+            PyMem_Free(w)
+        PyBuffer_Release(&b)
+    return s_cross, s_per, s_x, s_y

@@ -106,11 +106,23 @@ class Undistorter:
         return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
 
 
+def _polygon_sums(p: np.ndarray, perimeter: bool):
+    """(sum of cross products, perimeter, sum (x_i + x_j) cross_i, sum (y_i + y_j) cross_i) of a
+    closed (K >= 3, 2) float64 polygon by the compiled kernel (receiver/locate/_ranging.pyx: the
+    same elementwise products and np.sum's pairwise order, so the same numbers), or None."""
+    if _kr is not None and p.dtype == np.float64 and p.flags.c_contiguous:
+        return _kr.polygon_sums(p, perimeter)
+    return None
+
+
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
     """Area (shoelace, absolute) and perimeter of a closed (K, 2) polygon, in its own units."""
     p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return 0.0, 0.0
+    sums = _polygon_sums(p, True)
+    if sums is not None:
+        return 0.5 * abs(sums[0]), sums[1]
     q = np.roll(p, -1, axis=0)
     area = 0.5 * abs(float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])))
     perim = float(np.sum(np.hypot(*(q - p).T)))
@@ -122,6 +134,12 @@ def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
     p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return None
+    sums = _polygon_sums(p, False)
+    if sums is not None:
+        a = 0.5 * sums[0]
+        if abs(a) < 1e-12:
+            return None
+        return np.array([sums[2], sums[3]]) / (6 * a)
     q = np.roll(p, -1, axis=0)
     cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
     a = 0.5 * float(np.sum(cross))
@@ -158,21 +176,28 @@ def distance_oblique(area_norm: float, area_m2: float, ray_cam: np.ndarray,
 
 
 def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
-                     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX) -> dict | None:
+                     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX, undistort=None) -> dict | None:
     """Undistorted geometry of one blob envelope.
 
     Returns {"area_norm": bias-corrected normalized area, "centroid_norm": (2,) normalized
     centroid of the undistorted polygon, "area_px", "perimeter_px": of the distorted polygon},
     or None when the contour has fewer than 3 points or no area.
     `edge_offset_px`: outward offset of the true edge from the contour (module doc, item 3).
+    `undistort`: the camera's `Undistorter` when the caller keeps one (else made here).
     """
     c = np.asarray(contour_px, dtype=np.float64).reshape(-1, 2)
     area_px, perim_px = polygon_area_perimeter(c)
     if area_px <= 0:
         return None
-    und = undistort_points(c, camera)
-    area_n, _ = polygon_area_perimeter(und)
-    cen = polygon_centroid(und)
+    und = (undistort or Undistorter(camera))(c)
+    sums = _polygon_sums(und, False)
+    if sums is not None:        # polygon_area_perimeter's area and polygon_centroid from one pass
+        area_n = 0.5 * abs(sums[0])
+        a = 0.5 * sums[0]
+        cen = None if abs(a) < 1e-12 else np.array([sums[2], sums[3]]) / (6 * a)
+    else:
+        area_n, _ = polygon_area_perimeter(und)
+        cen = polygon_centroid(und)
     if area_n <= 0 or cen is None:
         return None
     # The edge bias is a pixel-scale effect, so it is applied as a ratio measured in pixels.
@@ -224,12 +249,13 @@ def project_world(points_world: np.ndarray, camera: CameraModel, R_cw: np.ndarra
 
 class Geometry:
     """One envelope's `contour_geometry` (a dict or None), computed on first use (`value`): a
-    frame whose LEDs are all ranged from their outlines never needs it."""
+    frame whose LEDs are all ranged from their outlines never needs it. `undistort`: the
+    camera's `Undistorter` (None: made when needed)."""
 
     __slots__ = ("_args", "_value")
 
-    def __init__(self, contour_px, camera: CameraModel, edge_offset_px: float):
-        self._args = (contour_px, camera, edge_offset_px)
+    def __init__(self, contour_px, camera: CameraModel, edge_offset_px: float, undistort=None):
+        self._args = (contour_px, camera, edge_offset_px, undistort)
         self._value = self
 
     @property
@@ -283,6 +309,7 @@ class Ranger:
         self.border_margin_px = settings.border_margin_px
         self.unknown_ids: set[int] = set()
         self._known: dict = {}  # LED id -> the map's LED or None (`_lookup`)
+        self._undistort = Undistorter(camera)
 
     def _touching_edge(self, obs_list) -> list[bool]:
         """For each observation: does its envelope come within `border_margin_px` of the image
@@ -329,7 +356,7 @@ class Ranger:
         items = []
         if not cand:
             return items
-        lookup, camera, offset = self._lookup, self.camera, self.edge_offset_px
+        lookup, camera, offset, und = self._lookup, self.camera, self.edge_offset_px, self._undistort
         for obs, cut in zip(cand, self._touching_edge(cand)):
             if cut:
                 continue
@@ -340,7 +367,7 @@ class Ranger:
             if led.mode == "s2psk":
                 continue
             contour = obs.contour
-            items.append((obs, led, Geometry(contour, camera, offset)
+            items.append((obs, led, Geometry(contour, camera, offset, und)
                           if contour is not None and len(contour) >= 3 else None))
         return items
 
@@ -374,7 +401,7 @@ class Ranger:
         """(N, 2) undistorted normalized image points of `usable`'s items."""
         if not items:
             return np.zeros((0, 2))
-        return undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
+        return self._undistort(np.array([[o.cx, o.cy] for o, _, _ in items]))
 
     @staticmethod
     def annotate(leds, items, d: np.ndarray, names: list[str]) -> list:
