@@ -272,3 +272,33 @@ def test_polygon_sums_kernel_equals_numpy(monkeypatch):
     tri = np.array([[0, 0], [4, 0], [0, 3]], np.float32)
     assert ranging.polygon_area_perimeter(tri) == (6.0, 12.0)
     assert ranging.polygon_area_perimeter(np.array([[0, 0, 4, 0, 0, 3.0]]).reshape(3, 2)[::-1]) == (6.0, 12.0)
+
+
+@ranging_native
+def test_annotate_kernel_equals_python(monkeypatch):
+    """`Ranger.annotate`: the same records (fields, untouched ones the same objects) with the
+    compiled copies; another record type goes through `_with_range`."""
+    @dataclasses.dataclass(frozen=True)
+    class Other:
+        track: int
+        distance_m: float | None = None
+        distance_estimator: str | None = None
+
+    rng = np.random.default_rng(1)
+    for k in range(200):
+        leds = [LedObservation(i, float(i), 2.0, 3.0, None, id=i) if rng.random() < 0.9 else Other(i)
+                for i in range(int(rng.integers(0, 8)))]
+        items = [(o, None, None) for o in leds if rng.random() < 0.7]
+        d = np.array([rng.choice([np.nan, np.inf, float(rng.uniform(0, 9))]) for _ in items])
+        names = [str(rng.choice(["outline", "eq18"])) for _ in items]
+        native = ranging.Ranger.annotate(leds, items, d, names)
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = ranging.Ranger.annotate(leds, items, d, names)
+        assert len(native) == len(pure) == len(leds)
+        for a, b, o in zip(native, pure, leds):
+            assert type(a) is type(b) and a == b and a.__dict__ == b.__dict__
+            assert (a is o) == (b is o)
+        for a in native:
+            with pytest.raises(dataclasses.FrozenInstanceError):
+                a.distance_m = 1.0

@@ -186,3 +186,32 @@ def polygon_sums(poly, bint perimeter):
             PyMem_Free(w)
         PyBuffer_Release(&b)
     return s_cross, s_per, s_x, s_y
+
+
+cdef extern from "Python.h":
+    int PyObject_GenericSetAttr(object o, object name, object value) except -1
+    dict PyDict_Copy(object d)
+
+
+def with_ranges(list leds, dict ranged, object record, object slow):
+    """`Ranger.annotate`'s copies: each observation whose id(obs) is in `ranged` ({id: (distance_m,
+    estimator)}) copied with the two fields set -- for a `record` instance its field dict copied
+    and set as the new instance's dict (no generated __init__), anything else by `slow(obs, d,
+    name)` -- the others as they are."""
+    cdef Py_ssize_t i, n = len(leds)
+    out = [None] * n
+    for i in range(n):
+        o = leds[i]
+        r = ranged.get(id(o))
+        if r is None:
+            out[i] = o
+        elif type(o) is record:
+            d = PyDict_Copy(o.__dict__)
+            d["distance_m"] = (<tuple>r)[0]
+            d["distance_estimator"] = (<tuple>r)[1]
+            new = record.__new__(record)
+            PyObject_GenericSetAttr(new, "__dict__", d)
+            out[i] = new
+        else:
+            out[i] = slow(o, (<tuple>r)[0], (<tuple>r)[1])
+    return out

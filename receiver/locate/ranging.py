@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 
 from receiver.core.native import load
+from receiver.core.records import LedObservation
 from receiver.io.camera import CameraModel
 
 # The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
@@ -414,6 +415,8 @@ class Ranger:
                 ranged[id(obs)] = (round(v, 5), name)
         if not ranged:
             return list(leds)
+        if _kr is not None and type(leds) is list:
+            return _kr.with_ranges(leds, ranged, LedObservation, _with_range)
         get = ranged.get
         out = []
         for o in leds:
