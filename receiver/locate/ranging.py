@@ -381,8 +381,10 @@ class Ranger:
         sd = np.full(len(items), np.nan)
         names = [""] * len(items)
         for i, (obs, led, lazy) in enumerate(items):
+            if i in skip:
+                continue
             A = led.area_m2
-            if not A or i in skip:
+            if not A:
                 continue
             geo = lazy.value if lazy is not None else None
             if self.estimator == "oblique" and geo is not None:
