@@ -302,3 +302,31 @@ def test_annotate_kernel_equals_python(monkeypatch):
         for a in native:
             with pytest.raises(dataclasses.FrozenInstanceError):
                 a.distance_m = 1.0
+
+
+@native
+def test_fast_number_formatters_equal_cpythons():
+    """The writer's own fixed ("%.{nd}f", trailing zeros dropped) and shortest (repr) number
+    formatting, where it answers, equals CPython's formatter on random, rounded, near-halfway and
+    float32-derived values of every magnitude (it defers near halves and beyond 2^50)."""
+    rng = np.random.default_rng(7)
+    n = 20000
+    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-5, 16, size=n))
+    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-4, 10, size=n),
+                                                    rng.integers(0, 12, size=n))]
+    vals += [round(float(x), int(d)) + h for x, d, h in zip(rng.normal(size=n) * 1000, rng.integers(0, 7, size=n),
+                                                           rng.choice([5e-3, 5e-5, 5e-7, -5e-3], n))]
+    vals += [float(np.float32(x)) for x in rng.normal(size=n)]
+    vals += AWKWARD + [-v for v in AWKWARD] + [2.0 ** 50 - 1, 2.0 ** 50, 0.1, 0.2, 0.3, 1e-4 * (1 - 1e-16)]
+    fast_f = fast_r = 0
+    for v in map(float, vals):
+        for nd in (1, 2, 3, 4, 6):
+            f, _, cf, _ = output._k.number_tokens(v, nd)
+            if f is not None:
+                fast_f += 1
+                assert f == cf == output._num_tok(v, nd), (v, nd)
+        _, r, _, cr = output._k.number_tokens(v, 1)
+        if r is not None:
+            fast_r += 1
+            assert r == cr == repr(v), v
+    assert fast_f > 0.7 * 5 * len(vals) and fast_r > 0.4 * len(vals)

@@ -8,7 +8,7 @@ None, and the Python writer decides.
 """
 
 from cpython.mem cimport PyMem_Free, PyMem_Malloc, PyMem_Realloc
-from libc.math cimport fabs, isfinite
+from libc.math cimport fabs, isfinite, nearbyint, signbit
 from libc.stdio cimport snprintf
 from libc.string cimport memcpy, strlen
 
@@ -72,6 +72,84 @@ cdef inline int puts(Buf* b, const char* s) except -1:
     return put(b, s, strlen(s))
 
 
+cdef double POW10[18]
+POW10[0] = 1.0
+for _i in range(1, 18):
+    POW10[_i] = POW10[_i - 1] * 10.0   # exact: 10^k < 2^53 for k <= 15, 10^16, 10^17 are exact too
+cdef double SCALED_MAX = 1125899906842624.0   # 2^50: below it an ulp of a*10^k is <= 1/4
+
+
+cdef int put_fixed_int(Buf* b, bint neg, long long n, int k, bint strip) except -1:
+    """'-'? n / 10^k written with k decimals (`strip`: trailing zeros dropped, one kept)."""
+    cdef char tmp[48]
+    cdef int i = 47, d = 0
+    while strip and k > 1 and n % 10 == 0:
+        n //= 10
+        k -= 1
+    tmp[i] = 0
+    while d < k:
+        i -= 1
+        tmp[i] = <char>(48 + n % 10)
+        n //= 10
+        d += 1
+    if k == 0:
+        i -= 1
+        tmp[i] = b'0'
+    i -= 1
+    tmp[i] = b'.'
+    while True:
+        i -= 1
+        tmp[i] = <char>(48 + n % 10)
+        n //= 10
+        if n == 0:
+            break
+    if neg:
+        i -= 1
+        tmp[i] = b'-'
+    return put(b, tmp + i, 47 - i)
+
+
+cdef bint fast_fixed(Buf* b, double x, int nd) except -1:
+    """`"%.{nd}f" % x` with trailing zeros dropped (one kept), for 1e-4 <= |x| < 1e9 or 0 and
+    nd <= 6: the nearest integer to |x| 10^nd (exactly the nearest: not within 1e-4 of a
+    half, where False asks CPython's formatter)."""
+    cdef double a = fabs(x), p, n
+    if nd < 0 or nd > 6 or not (a < 1e9 and (a >= 1e-4 or a == 0.0)):
+        return False
+    p = a * POW10[nd]
+    n = nearbyint(p)
+    if fabs(p - n) > 0.4999:
+        return False
+    put_fixed_int(b, signbit(x), <long long>n, nd, True)
+    return True
+
+
+cdef bint fast_repr(Buf* b, double x) except -1:
+    """repr(x) for 1e-4 <= |x| < 2^50 (fixed notation): the fewest decimals k whose nearest
+    integer n to |x| 10^k reads back as x (n / 10^k == |x|, a correctly rounded division, as
+    strtod reads the digits); below 2^50 only that integer can, so these are repr's digits. False
+    (CPython's formatter decides) outside that range or beyond 17 decimals."""
+    cdef double a = fabs(x), p, n
+    cdef int k
+    if x == 0.0:
+        if signbit(x):
+            put(b, b"-0.0", 4)
+        else:
+            put(b, b"0.0", 3)
+        return True
+    if not (a >= 1e-4 and a < SCALED_MAX):
+        return False
+    for k in range(18):
+        p = a * POW10[k]
+        if p >= SCALED_MAX:
+            return False
+        n = nearbyint(p)
+        if n / POW10[k] == a:
+            put_fixed_int(b, signbit(x), <long long>n, k, False)
+            return True
+    return False
+
+
 cdef int put_dtoa(Buf* b, double x, char code, int prec, int flags, bint strip) except -1:
     """CPython's formatting of x ('f' with prec decimals, or 'r': repr); `strip`: trailing zeros
     dropped, one kept after the point (`output._num_tok`)."""
@@ -112,6 +190,8 @@ cdef int put_num(Buf* b, object v, int nd) except -1:
         return 1
     a = fabs(x)
     if nd > 0 and (FAST_MIN <= a < FAST_MAX or a == 0.0):
+        if fast_fixed(b, x, nd):
+            return 0
         return put_dtoa(b, x, b'f', nd, 0, True)
     if not isfinite(x):
         put(b, b"null", 4)
@@ -191,7 +271,8 @@ cdef int put_json(Buf* b, object v, int depth) except -1:
     elif PyFloat_Check(v):
         if not isfinite(PyFloat_AS_DOUBLE(v)):
             return 1
-        put_dtoa(b, PyFloat_AS_DOUBLE(v), b'r', 0, Py_DTSF_ADD_DOT_0, False)
+        if not fast_repr(b, PyFloat_AS_DOUBLE(v)):
+            put_dtoa(b, PyFloat_AS_DOUBLE(v), b'r', 0, Py_DTSF_ADD_DOT_0, False)
     elif PyList_Check(v) or PyTuple_Check(v):
         put(b, b"[", 1)
         for item in v:
@@ -269,7 +350,8 @@ cdef int put_led(Buf* b, object o) except -1:
         if type(freq) is not float or not isfinite(<double>freq):
             return 1
         put(b, b',"freq_hz":', 11)
-        put_dtoa(b, <double>freq, b'r', 0, Py_DTSF_ADD_DOT_0, False)
+        if not fast_repr(b, <double>freq):
+            put_dtoa(b, <double>freq, b'r', 0, Py_DTSF_ADD_DOT_0, False)
     if dist is not None:
         put(b, b',"distance_estimator":', 22)
         if put_word(b, d["distance_estimator"]):
@@ -332,5 +414,31 @@ def frame_line(res, bint profile):
         if put_frame(&b, res, profile):
             return None
         return PyUnicode_DecodeASCII(b.p, b.n, NULL)
+    finally:
+        PyMem_Free(b.p)
+
+
+def number_tokens(double x, int nd):
+    """(the fast fixed token or None, the fast repr or None, CPython's fixed token, CPython's
+    repr) of x: the tests compare the fast formatters with CPython's on many values."""
+    cdef Buf b
+    b.n = 0
+    b.cap = 256
+    b.p = <char*>PyMem_Malloc(b.cap)
+    if b.p == NULL:
+        raise MemoryError()
+    try:
+        fixed = fast_fixed(&b, x, nd)
+        t1 = PyUnicode_DecodeASCII(b.p, b.n, NULL) if fixed else None
+        b.n = 0
+        rep = fast_repr(&b, x)
+        t2 = PyUnicode_DecodeASCII(b.p, b.n, NULL) if rep else None
+        b.n = 0
+        put_dtoa(&b, x, b'f', nd, 0, True)
+        t3 = PyUnicode_DecodeASCII(b.p, b.n, NULL)
+        b.n = 0
+        put_dtoa(&b, x, b'r', 0, Py_DTSF_ADD_DOT_0, False)
+        t4 = PyUnicode_DecodeASCII(b.p, b.n, NULL)
+        return t1, t2, t3, t4
     finally:
         PyMem_Free(b.p)
