@@ -77,6 +77,7 @@ POW10[0] = 1.0
 for _i in range(1, 18):
     POW10[_i] = POW10[_i - 1] * 10.0   # exact: 10^k < 2^53 for k <= 15, 10^16, 10^17 are exact too
 cdef double SCALED_MAX = 1125899906842624.0   # 2^50: below it an ulp of a*10^k is <= 1/4
+cdef double FIXED_SCALED_MAX = 68719476736.0  # 2^36: below it a*10^nd is within 2^-17 of its double
 
 
 cdef int put_fixed_int(Buf* b, bint neg, long long n, int k, bint strip) except -1:
@@ -111,14 +112,16 @@ cdef int put_fixed_int(Buf* b, bint neg, long long n, int k, bint strip) except 
 
 cdef bint fast_fixed(Buf* b, double x, int nd) except -1:
     """`"%.{nd}f" % x` with trailing zeros dropped (one kept), for 1e-4 <= |x| < 1e9 or 0 and
-    nd <= 6: the nearest integer to |x| 10^nd (exactly the nearest: not within 1e-4 of a
-    half, where False asks CPython's formatter)."""
+    nd <= 6 and |x| 10^nd < 2^36: the nearest integer to |x| 10^nd (exactly the nearest: not
+    within 1e-4 of a half, where False asks CPython's formatter)."""
     cdef double a = fabs(x), p, n
     if nd < 0 or nd > 6 or not (a < 1e9 and (a >= 1e-4 or a == 0.0)):
         return False
     p = a * POW10[nd]
+    if p >= FIXED_SCALED_MAX:
+        return False
     n = nearbyint(p)
-    if fabs(p - n) > 0.4999:
+    if fabs(p - n) > 0.4999:   # |x| 10^nd is p within 2^-17 (half an ulp of p < 2^36)
         return False
     put_fixed_int(b, signbit(x), <long long>n, nd, True)
     return True
