@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 from receiver.core.budget import percentile
+from receiver.core.native import load
 from receiver.core.records import FrameResult
 
 # Decimal places in the output: sub-pixel centroids, 0.1 px^2 areas, mm distances, us times.
@@ -54,6 +55,10 @@ def frame_record(res: FrameResult, *, profile: bool = False) -> dict:
 
 def frame_line(res: FrameResult, *, profile: bool = False) -> str:
     """One JSON line (no newline). numpy scalars in a positioner's dict are converted."""
+    if _k is not None:
+        line = _k.frame_line(res, profile)
+        if line is not None:
+            return line
     line = _fast_line(res, profile)
     if line is not None:
         return line
@@ -121,6 +126,12 @@ class RunSummary:
 # nd-decimal string is the only shortest one that reads back as round(v, nd).
 _FAST_MIN, _FAST_MAX = 1e-4, 1e9
 _FMT = {nd: f"%.{nd}f" for nd in range(1, 10)}
+
+# The compiled writer (receiver/io/_jsonline.pyx: the line in one C buffer, the same characters
+# as `_fast_line`), or None: `_fast_line` below, its tested reference.
+_k = load("receiver.io._jsonline")
+if _k is not None:
+    _k.configure(PX_DECIMALS, AREA_DECIMALS, M_DECIMALS, MS_DECIMALS, T_DECIMALS, _FAST_MIN, _FAST_MAX)
 
 
 class _Slow(Exception):

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from receiver.core.native import load
 from receiver.core.records import LedObservation, LocateResult
 from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
@@ -22,6 +23,9 @@ from receiver.locate.posefilter import PoseFilter
 from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
+# The compiled packing of a frame's outline targets (receiver/locate/_ranging.pyx), or None.
+_kr = load("receiver.locate._ranging")
+
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
 GOOD_OUTLINE_CHI2_DOF = 4.0
 # ... and this good when it started from the tracked pose (`Positioner._outline_warm`): a warm start
@@ -31,6 +35,28 @@ GOOD_OUTLINE_CHI2_DOF = 4.0
 WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
+
+
+def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
+    """(points (M + T, 2) px: every target's edge points in turn, then the T centroids; sigma (M,)
+    normalized: hypot(point sigma, model sigma) / focal; ends (T + 1,) int64; centres (T, 3) map
+    m; half extents (T, 2)) of `Positioner._outline_targets`' (observation, edges, fixture)
+    list: the compiled packing (receiver/locate/_ranging.pyx) where the edge arrays are float64
+    and contiguous, else numpy (its reference)."""
+    if _kr is not None:
+        try:
+            return _kr.pack_outline(chosen, model_sigma_px, focal_px)
+        except (ValueError, TypeError):
+            pass
+    n = len(chosen)
+    pts = [e[0] for _, e, _ in chosen]
+    counts = [len(q) for q in pts]
+    pts.append(np.array([(o.cx, o.cy) for o, _, _ in chosen], float))
+    ends = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=ends[1:])
+    sig = np.hypot(np.concatenate([e[1] for _, e, _ in chosen]).ravel(), model_sigma_px) / focal_px
+    return (np.concatenate(pts), sig, ends, np.array([fx[2] for _, _, fx in chosen], float).reshape(-1, 3),
+            np.array([fx[1] for _, _, fx in chosen], float).reshape(-1, 2))
 
 
 class Positioner:
@@ -57,49 +83,57 @@ class Positioner:
         self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
         self._undistort = Undistorter(camera)
+        self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
                                accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
                                tilt_prior=s.tilt_prior, tilt_sigma_deg=s.tilt_sigma_deg, track_prior=s.track_prior)
 
+    def _outline_fixture(self, led_id: int):
+        """(map LED, (hx, hy) half extents, (x, y, z) map m) of an LED the outline solve can fit
+        (known shape and size, facing down, not S2-PSK), or None; looked up once per ID."""
+        try:
+            return self._fixtures[led_id]
+        except KeyError:
+            pass
+        led = self.led_map.lookup(led_id)
+        fx = None
+        if led is not None and led.mode != "s2psk" and (led.normal is None or led.normal[2] <= -0.999):
+            half = fixture_half_extents(led.shape, led.size)
+            if half is not None:
+                fx = (led, (float(half[0]), float(half[1])), (led.x, led.y, led.z))
+        self._fixtures[led_id] = fx
+        return fx
+
     def _outline_targets(self, leds, items):
         """(`OutlineFrame` or None, item index or None per target) of the LEDs with measured edge
         points and a known shape and size (receiver.locate.outline_pose); LEDs cut by the image
         border (not in `items`) come with their edges only."""
-        index = {id(o): i for i, (o, _, _) in enumerate(items)}
-        cam = self.camera
+        fixture = self._outline_fixture
         chosen = []
         for obs in leds:
-            if obs.edge_px is None or obs.id is None or obs.mode == "s2psk":
+            edges = obs.edge_px
+            if edges is None or obs.id is None or obs.mode == "s2psk":
                 continue
-            led = self.led_map.lookup(obs.id)
-            if led is None or led.mode == "s2psk" or (led.normal is not None and led.normal[2] > -0.999):
+            fx = fixture(obs.id)
+            if fx is None or len(edges[0]) < 6:
                 continue
-            half = fixture_half_extents(led.shape, led.size)
-            if half is None or len(obs.edge_px[0]) < 6:
-                continue
-            chosen.append((obs, led, half, index.get(id(obs))))
+            chosen.append((obs, edges, fx))
         if not chosen:
             return None, []
+        index = {id(o): i for i, (o, _, _) in enumerate(items)}
+        where = [index.get(id(o)) for o, _, _ in chosen]
+        packed = _pack_outline(chosen, self.settings.edge_model_sigma_px, self.camera.focal_px)
         # One undistortion for every edge point and centroid of the frame.
-        n = len(chosen)
-        pts = [o.edge_px[0] for o, _, _, _ in chosen]
-        cen = np.array([[o.cx, o.cy] for o, _, _, _ in chosen], float)
-        und = self._undistort(np.concatenate(pts + [cen]))
-        ends = np.zeros(n + 1, np.int64)
-        np.cumsum([len(q) for q in pts], out=ends[1:])
-        m = int(ends[-1])
-        L = self.pose.to_solving(np.array([led.xyz for _, led, _, _ in chosen]))
-        # Every point's sigma (normalized units) at once.
-        sig = np.hypot(np.concatenate([o.edge_px[1] for o, _, _, _ in chosen]).ravel(),
-                       self.settings.edge_model_sigma_px) / cam.focal_px
-        where = [i for _, _, _, i in chosen]
+        und = self._undistort(packed[0])
+        _, sig, ends, xyz, half = packed
+        m = len(sig)
+        L = self.pose.to_solving(xyz)
         uv = und[m:]
         if None in where:
             uv = uv.copy()
             uv[[k for k, i in enumerate(where) if i is None]] = np.nan
-        frame = OutlineFrame(und[:m], sig, ends, L, np.array([h for _, _, h, _ in chosen], float),
-                             tuple(led.shape for _, led, _, _ in chosen), uv)
+        frame = OutlineFrame(und[:m], sig, ends, L, half, tuple(fx[0].shape for _, _, fx in chosen), uv)
         return frame, where
 
     def _solve_outline(self, targets, R0, C0, C_prior, C_cov):

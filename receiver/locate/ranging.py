@@ -41,11 +41,14 @@ import cv2
 import numpy as np
 
 from receiver.core.native import load
+from receiver.core.records import LedObservation
 from receiver.io.camera import CameraModel
 
 # The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
 # None: cv2.undistortPoints itself.
 _ku = load("receiver.locate._undistort")
+# The per-frame glue kernels (receiver/locate/_ranging.pyx: the edge-touch test), or None.
+_kr = load("receiver.locate._ranging")
 
 ESTIMATORS = ("eq18", "oblique")
 
@@ -104,11 +107,23 @@ class Undistorter:
         return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
 
 
+def _polygon_sums(p: np.ndarray, perimeter: bool):
+    """(sum of cross products, perimeter, sum (x_i + x_j) cross_i, sum (y_i + y_j) cross_i) of a
+    closed (K >= 3, 2) float64 polygon by the compiled kernel (receiver/locate/_ranging.pyx: the
+    same elementwise products and np.sum's pairwise order, so the same numbers), or None."""
+    if _kr is not None and p.dtype == np.float64 and p.flags.c_contiguous:
+        return _kr.polygon_sums(p, perimeter)
+    return None
+
+
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
     """Area (shoelace, absolute) and perimeter of a closed (K, 2) polygon, in its own units."""
     p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return 0.0, 0.0
+    sums = _polygon_sums(p, True)
+    if sums is not None:
+        return 0.5 * abs(sums[0]), sums[1]
     q = np.roll(p, -1, axis=0)
     area = 0.5 * abs(float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])))
     perim = float(np.sum(np.hypot(*(q - p).T)))
@@ -120,6 +135,12 @@ def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
     p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return None
+    sums = _polygon_sums(p, False)
+    if sums is not None:
+        a = 0.5 * sums[0]
+        if abs(a) < 1e-12:
+            return None
+        return np.array([sums[2], sums[3]]) / (6 * a)
     q = np.roll(p, -1, axis=0)
     cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
     a = 0.5 * float(np.sum(cross))
@@ -156,21 +177,28 @@ def distance_oblique(area_norm: float, area_m2: float, ray_cam: np.ndarray,
 
 
 def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
-                     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX) -> dict | None:
+                     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX, undistort=None) -> dict | None:
     """Undistorted geometry of one blob envelope.
 
     Returns {"area_norm": bias-corrected normalized area, "centroid_norm": (2,) normalized
     centroid of the undistorted polygon, "area_px", "perimeter_px": of the distorted polygon},
     or None when the contour has fewer than 3 points or no area.
     `edge_offset_px`: outward offset of the true edge from the contour (module doc, item 3).
+    `undistort`: the camera's `Undistorter` when the caller keeps one (else made here).
     """
     c = np.asarray(contour_px, dtype=np.float64).reshape(-1, 2)
     area_px, perim_px = polygon_area_perimeter(c)
     if area_px <= 0:
         return None
-    und = undistort_points(c, camera)
-    area_n, _ = polygon_area_perimeter(und)
-    cen = polygon_centroid(und)
+    und = (undistort or Undistorter(camera))(c)
+    sums = _polygon_sums(und, False)
+    if sums is not None:        # polygon_area_perimeter's area and polygon_centroid from one pass
+        area_n = 0.5 * abs(sums[0])
+        a = 0.5 * sums[0]
+        cen = None if abs(a) < 1e-12 else np.array([sums[2], sums[3]]) / (6 * a)
+    else:
+        area_n, _ = polygon_area_perimeter(und)
+        cen = polygon_centroid(und)
     if area_n <= 0 or cen is None:
         return None
     # The edge bias is a pixel-scale effect, so it is applied as a ratio measured in pixels.
@@ -222,12 +250,13 @@ def project_world(points_world: np.ndarray, camera: CameraModel, R_cw: np.ndarra
 
 class Geometry:
     """One envelope's `contour_geometry` (a dict or None), computed on first use (`value`): a
-    frame whose LEDs are all ranged from their outlines never needs it."""
+    frame whose LEDs are all ranged from their outlines never needs it. `undistort`: the
+    camera's `Undistorter` (None: made when needed)."""
 
     __slots__ = ("_args", "_value")
 
-    def __init__(self, contour_px, camera: CameraModel, edge_offset_px: float):
-        self._args = (contour_px, camera, edge_offset_px)
+    def __init__(self, contour_px, camera: CameraModel, edge_offset_px: float, undistort=None):
+        self._args = (contour_px, camera, edge_offset_px, undistort)
         self._value = self
 
     @property
@@ -244,7 +273,10 @@ def _with_range(obs, distance_m, estimator):
     changed, without a keyword call of the generated `__init__` (a tenth of the cost; a frame
     annotates every ranged LED)."""
     cls = type(obs)
-    if hasattr(cls, "__post_init__") or not hasattr(obs, "__dict__"):
+    plain = _PLAIN.get(cls)
+    if plain is None:
+        plain = _PLAIN[cls] = not hasattr(cls, "__post_init__") and hasattr(obs, "__dict__")
+    if not plain:
         return dataclasses.replace(obs, distance_m=distance_m, distance_estimator=estimator)
     new = object.__new__(cls)
     fields = new.__dict__
@@ -252,6 +284,10 @@ def _with_range(obs, distance_m, estimator):
     fields["distance_m"] = distance_m
     fields["distance_estimator"] = estimator
     return new
+
+
+# record class -> may `_with_range` copy its instances' __dict__ (no __post_init__, not slotted)
+_PLAIN: dict[type, bool] = {}
 
 
 class Ranger:
@@ -273,10 +309,20 @@ class Ranger:
         self.edge_offset_px = settings.edge_offset_px
         self.border_margin_px = settings.border_margin_px
         self.unknown_ids: set[int] = set()
+        self._known: dict = {}  # LED id -> the map's LED or None (`_lookup`)
+        self._undistort = Undistorter(camera)
 
     def _touching_edge(self, obs_list) -> list[bool]:
         """For each observation: does its envelope come within `border_margin_px` of the image
-        edge? (All envelopes' extremes in one pass; no contour: False.)"""
+        edge? (All envelopes' extremes in one pass; no contour: False.) The compiled pass
+        (receiver/locate/_ranging.pyx) where every contour is a float64 (K, 2) array, else numpy."""
+        m = self.border_margin_px
+        if _kr is not None:
+            try:
+                return _kr.cut_by_edge([o.contour for o in obs_list], m, self.camera.width - 1 - m,
+                                       self.camera.height - 1 - m)
+            except (ValueError, TypeError, BufferError):
+                pass
         polys = [np.asarray(o.contour).reshape(-1, 2) if o.contour is not None else None for o in obs_list]
         has = [p is not None and len(p) > 0 for p in polys]
         out = [False] * len(obs_list)
@@ -286,11 +332,19 @@ class Ranger:
         starts = np.cumsum([0] + [len(p) for p in use[:-1]])
         pts = np.concatenate(use)
         lo, hi = np.minimum.reduceat(pts, starts), np.maximum.reduceat(pts, starts)
-        m = self.border_margin_px
         near = ((lo[:, 0] <= m) | (lo[:, 1] <= m) | (hi[:, 0] >= self.camera.width - 1 - m)
                 | (hi[:, 1] >= self.camera.height - 1 - m)).tolist()
         it = iter(near)
         return [bool(next(it)) if h else False for h in has]
+
+    def _lookup(self, led_id: int):
+        """The map's LED of this ID or None, looked up once per ID (the map does not change
+        during a run)."""
+        try:
+            return self._known[led_id]
+        except KeyError:
+            led = self._known[led_id] = self.led_map.lookup(led_id)
+            return led
 
     def usable(self, leds) -> list:
         """The frame's rangeable LEDs: (observation, map LED, `Geometry` of its envelope or None)
@@ -301,19 +355,21 @@ class Ranger:
         road; they are ranged as pairs by the vehicle locator (receiver.locate.vehicle)."""
         cand = [o for o in leds if o.id is not None and not o.border and o.mode != "s2psk"]
         items = []
+        if not cand:
+            return items
+        lookup, camera, offset, und = self._lookup, self.camera, self.edge_offset_px, self._undistort
         for obs, cut in zip(cand, self._touching_edge(cand)):
             if cut:
                 continue
-            led = self.led_map.lookup(obs.id)
+            led = lookup(obs.id)
             if led is None:
                 self.unknown_ids.add(obs.id)
                 continue
             if led.mode == "s2psk":
                 continue
-            geo = None
-            if obs.contour is not None and len(obs.contour) >= 3:
-                geo = Geometry(obs.contour, self.camera, self.edge_offset_px)
-            items.append((obs, led, geo))
+            contour = obs.contour
+            items.append((obs, led, Geometry(contour, camera, offset, und)
+                          if contour is not None and len(contour) >= 3 else None))
         return items
 
     def ranges(self, items, R_cw: np.ndarray | None, skip=()):
@@ -325,8 +381,10 @@ class Ranger:
         sd = np.full(len(items), np.nan)
         names = [""] * len(items)
         for i, (obs, led, lazy) in enumerate(items):
+            if i in skip:
+                continue
             A = led.area_m2
-            if not A or i in skip:
+            if not A:
                 continue
             geo = lazy.value if lazy is not None else None
             if self.estimator == "oblique" and geo is not None:
@@ -346,20 +404,25 @@ class Ranger:
         """(N, 2) undistorted normalized image points of `usable`'s items."""
         if not items:
             return np.zeros((0, 2))
-        return undistort_points(np.array([[o.cx, o.cy] for o, _, _ in items]), self.camera)
+        return self._undistort(np.array([[o.cx, o.cy] for o, _, _ in items]))
 
     @staticmethod
     def annotate(leds, items, d: np.ndarray, names: list[str]) -> list:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
         dl = np.asarray(d, dtype=np.float64).tolist()
-        ranged = {id(obs): (round(dl[i], 5), names[i])
-                  for i, (obs, _, _) in enumerate(items) if math.isfinite(dl[i])}
+        ranged = {}
+        for (obs, _, _), v, name in zip(items, dl, names):
+            if v - v == 0.0:  # finite
+                ranged[id(obs)] = (round(v, 5), name)
         if not ranged:
             return list(leds)
+        if _kr is not None and type(leds) is list:
+            return _kr.with_ranges(leds, ranged, LedObservation, _with_range)
+        get = ranged.get
         out = []
         for o in leds:
-            r = ranged.get(id(o))
+            r = get(id(o))
             out.append(o if r is None else _with_range(o, r[0], r[1]))
         return out
 

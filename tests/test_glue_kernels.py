@@ -1,0 +1,332 @@
+"""The per-frame glue around the kernels (issue 14): the compiled JSON line writer
+(receiver/io/_jsonline.pyx) against json.dumps of `frame_record` and against the Python writer
+(`output._k` set to None), and `records.led_observation` against the record's own constructor."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from receiver.core.records import FrameResult, LedObservation, led_observation
+from receiver.io import output
+from receiver.io.files import dumps
+
+native = pytest.mark.skipif(output._k is None, reason="compiled writer not built (or OCCLOC_PURE=1)")
+
+AWKWARD = [0.0, -0.0, 1e-4, -1e-4, 9.9999e-5, 1e9, 1e9 - 1e-3, 0.125, 2.675, 1e-7, 1e20, -1e20, 5e-5, 0.00015,
+           0.5, 1.5, 2.5, -2.5, 1e15, 2.0 ** 53, 123456789.125, 0.045, 1e-300, 5e-324]
+
+
+def _reference(res, profile=False):
+    return dumps(output.frame_record(res, profile=profile), separators=(",", ":"), default=output._jsonable)
+
+
+def _value(rng):
+    """Numbers of every magnitude and the awkward ones (halfway, zero, -0, tiny, huge, NaN)."""
+    r = rng.random()
+    if r < 0.05:
+        return float(rng.choice(AWKWARD + [math.nan, math.inf, -math.inf]))
+    mag = 10.0 ** rng.integers(-8, 11)
+    v = float(rng.normal() * mag)
+    if r < 0.2:
+        v = round(v, int(rng.integers(0, 7))) + float(rng.choice([0.0, 5e-3, 5e-5, 5e-7]))  # near halfway
+    elif r < 0.3:
+        v = round(v, int(rng.integers(0, 9)))  # what a positioner's dict holds
+    return v
+
+
+def _word(rng):
+    return rng.choice([None, "ook", "tone", "s2psk", "fv-track", "outline", "eq18", "a b", 'q"t', "back\\slash",
+                       "", "_", "é", "tab\t"])
+
+
+def _led(rng, i):
+    dist = None if rng.random() < 0.3 else _value(rng)
+    track = i if rng.random() < 0.97 else rng.choice([np.int64(i), True, 2 ** 70])
+    return LedObservation(track=track, cx=_value(rng), cy=np.float64(_value(rng)),
+                          area_px=_value(rng) if rng.random() < 0.95 else int(rng.integers(-5, 5000)),
+                          contour=np.zeros((0, 2)), border=bool(rng.integers(2)) if rng.random() < 0.9 else np.bool_(1),
+                          id=None if rng.random() < 0.3 else int(rng.integers(1 << 16)),
+                          mode=_word(rng), distance_m=dist, distance_estimator=None if dist is None else _word(rng),
+                          freq_hz=None if rng.random() < 0.7 else round(_value(rng), 1),
+                          kind=None if rng.random() < 0.8 else rng.choice(["SL", "FV", "x-y"]))
+
+
+def _extra(rng, depth=0):
+    """A position / vehicle object's values: nested dicts and lists of every JSON type, numpy
+    arrays and scalars, tuples, escaped strings, NaN now and then."""
+    r = rng.random()
+    if depth < 3 and r < 0.25:
+        return {str(_word(rng)) + str(k): _extra(rng, depth + 1) for k in range(int(rng.integers(0, 4)))}
+    if depth < 3 and r < 0.4:
+        seq = [_extra(rng, depth + 1) for _ in range(int(rng.integers(0, 4)))]
+        return seq if rng.random() < 0.7 else tuple(seq)
+    if r < 0.5:
+        return np.round(rng.normal(size=(2, 2)), int(rng.integers(0, 9)))
+    if r < 0.55:
+        return rng.choice([np.int64(3), np.float64(0.25), np.bool_(0), np.float32(0.5)])
+    if r < 0.65:
+        return rng.choice([None, True, False, 7, -2 ** 65])
+    if r < 0.7:
+        return _word(rng)
+    return round(_value(rng), int(rng.integers(0, 8)))
+
+
+def _frames(n, seed):
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        leds = [_led(rng, i) for i in range(int(rng.integers(0, 6)))]
+        pos = None if rng.random() < 0.3 else {"x": round(_value(rng), 5), "cov": np.eye(2) * 0.5, "method": "outline",
+                                               "n": np.int64(3), "more": _extra(rng)}
+        veh = None if rng.random() < 0.6 else {"hv": None, "v": [_value(rng)], "fv": [_extra(rng)]}
+        stages = {"detect": _value(rng), "locate": 0.25}
+        if rng.random() < 0.05:
+            stages["odd-stage"] = 1.0
+        yield FrameResult(k if rng.random() < 0.98 else np.int64(k), _value(rng), _value(rng), leds, pos, veh, stages)
+
+
+@native
+def test_compiled_line_equals_json_dumps_and_the_python_writer(monkeypatch):
+    taken = 0
+    for res in _frames(4000, 5):
+        for profile in (False, True):
+            ref = _reference(res, profile)
+            line = output._k.frame_line(res, profile)
+            if line is not None:
+                taken += 1
+                assert line == ref
+            assert output.frame_line(res, profile=profile) == ref
+            with monkeypatch.context() as m:
+                m.setattr(output, "_k", None)
+                assert output.frame_line(res, profile=profile) == ref
+            json.loads(ref)
+    assert taken > 1500  # a quarter of these deliberately awkward lines (every real one: test below)
+
+
+@native
+def test_compiled_number_tokens_equal_the_python_ones():
+    rng = np.random.default_rng(11)
+    vals = AWKWARD + [-v for v in AWKWARD]
+    vals += [float(x) for x in rng.normal(size=3000) * 10.0 ** rng.integers(-6, 10, size=3000)]
+    vals += [round(float(x), int(k)) + h for x, k, h in
+             zip(rng.normal(size=3000) * 1000, rng.integers(0, 7, size=3000), rng.choice([0, 5e-3, 5e-5], 3000))]
+    for v in vals:
+        for nd in (1, 2, 3, 4, 6):
+            res = FrameResult(0, v, 1.0, [LedObservation(0, v, v, v, np.zeros((0, 2)), distance_m=v, distance_estimator="x")])
+            line = output._k.frame_line(res, False)
+            if line is None:  # NaN and friends only
+                assert not math.isfinite(v)
+                continue
+            assert line == _reference(res), v
+
+
+@native
+def test_odd_values_fall_back_to_python():
+    led = LedObservation(track=np.int64(1), cx=1.0, cy=2.0, area_px=3.0, contour=np.zeros((0, 2)), mode="o\"k")
+    res = FrameResult(0, 0.0, 1.0, [led], {"x": float("nan")})
+    assert output._k.frame_line(res, False) is None
+    assert output.frame_line(res) == _reference(res)
+    res = FrameResult(0, 0.0, 1.0, [], {"x": math.nan})
+    assert output._k.frame_line(res, False) is None
+    assert output.frame_line(res) == _reference(res) == '{"frame":0,"t":0.0,"latency_ms":1.0,"leds":[],"position":{"x":null},"vehicle":null}'
+
+
+def test_led_observation_is_the_record():
+    names = [f.name for f in dataclasses.fields(LedObservation)]
+    args = dict(track=3, cx=1.5, cy=2.5, area_px=10.0, contour=np.zeros((3, 2)), border=True, id=7, mode="ook",
+                peak=200.0, distance_m=2.5, distance_estimator="outline", freq_hz=1000.0, kind="SL",
+                edge_px=(np.zeros((0, 2)), np.zeros(0)))
+    assert list(args) == names
+    fast, slow = led_observation(**args), LedObservation(**args)
+    assert type(fast) is LedObservation and fast.__dict__.keys() == slow.__dict__.keys()
+    assert all(getattr(fast, n) is getattr(slow, n) for n in names)
+    assert led_observation(1, 2.0, 3.0, 4.0, None) == LedObservation(1, 2.0, 3.0, 4.0, None)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.cx = 0.0
+
+
+@native
+def test_recorded_frames_are_written_by_the_kernel():
+    """Every line of an indoor and a vehicle recording (the "fv-track" estimator, nested vehicle
+    objects) is the kernel's, equal to json.dumps."""
+    from receiver.cli.bench import load_case, whole_receiver
+
+    for name, n in (("indoor-static", 12), ("vehicle", 25)):
+        cam, led_map, frames, still = load_case(f"recordings/{name}", n)
+        rx = whole_receiver(cam, led_map, still=still)
+        for f in frames:
+            res = rx.process(f)
+            for profile in (False, True):
+                line = output._k.frame_line(res, profile)
+                assert line is not None and line == _reference(res, profile)
+
+
+# -- the positioner's per-frame glue (receiver/locate/_ranging.pyx) ---------------------------
+
+from receiver.locate import indoor, ranging  # noqa: E402
+
+ranging_native = pytest.mark.skipif(ranging._kr is None, reason="compiled glue not built (or OCCLOC_PURE=1)")
+
+
+class _Cam:
+    width, height = 640, 480
+
+
+def _contours(rng, n):
+    out = []
+    for _ in range(n):
+        r = rng.random()
+        if r < 0.1:
+            out.append(None)
+        elif r < 0.15:
+            out.append(np.zeros((0, 2)))
+        else:
+            c = rng.uniform(-5, 650, size=(int(rng.integers(1, 12)), 2))
+            if rng.random() < 0.3:
+                c = np.round(c)  # on the margin exactly
+            if rng.random() < 0.05:
+                c[int(rng.integers(len(c))), int(rng.integers(2))] = np.nan
+            out.append(c)
+    return out
+
+
+@ranging_native
+def test_edge_touch_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(2)
+    for k in range(400):
+        margin = float(rng.choice([0.0, 1.0, 2.5, 3.0]))
+        ranger = ranging.Ranger.__new__(ranging.Ranger)
+        ranger.camera, ranger.border_margin_px = _Cam(), margin
+        obs = [LedObservation(i, 0.0, 0.0, 1.0, c) for i, c in enumerate(_contours(rng, int(rng.integers(0, 8))))]
+        native = ranger._touching_edge(obs)
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = ranger._touching_edge(obs)
+        assert native == pure and all(type(v) is bool for v in native)
+    # contours the kernel does not read (float32, (K, 1, 2), lists) take the numpy path
+    odd = [LedObservation(0, 0.0, 0.0, 1.0, np.zeros((3, 1, 2), np.float32)),
+           LedObservation(1, 0.0, 0.0, 1.0, [[5.0, 5.0], [700.0, 5.0]])]
+    ranger = ranging.Ranger.__new__(ranging.Ranger)
+    ranger.camera, ranger.border_margin_px = _Cam(), 2.0
+    assert ranger._touching_edge(odd) == [True, True]
+
+
+@ranging_native
+def test_outline_packing_kernel_equals_numpy(monkeypatch):
+    rng = np.random.default_rng(4)
+    for k in range(200):
+        chosen = []
+        for i in range(int(rng.integers(1, 6))):
+            n = int(rng.integers(0, 30))
+            edges = (rng.uniform(0, 1000, size=(n, 2)), rng.uniform(0, 2, size=n))
+            obs = LedObservation(i, float(rng.uniform(0, 1000)), np.float64(rng.uniform(0, 1000)), 1.0, None)
+            fx = (None, (float(rng.uniform(0.01, 1)), float(rng.uniform(0.01, 1))), tuple(rng.normal(size=3).tolist()))
+            chosen.append((obs, edges, fx))
+        native = indoor._pack_outline(chosen, 0.3, 1234.5)
+        with monkeypatch.context() as m:
+            m.setattr(indoor, "_kr", None)
+            pure = indoor._pack_outline(chosen, 0.3, 1234.5)
+        for a, b in zip(native, pure):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
+    # edge arrays the kernel does not read take the numpy path, with the same arrays
+    chosen = [(LedObservation(0, 1.0, 2.0, 1.0, None), (np.ones((3, 2), np.float32), np.ones((3, 1))),
+               (None, (0.5, 0.5), (1.0, 2.0, 3.0)))]
+    got = indoor._pack_outline(chosen, 0.3, 10.0)
+    assert got[0].shape == (4, 2) and got[1].shape == (3,) and got[2].tolist() == [0, 3]
+
+
+@ranging_native
+def test_polygon_sums_kernel_equals_numpy(monkeypatch):
+    """Area, perimeter, centroid and a contour's whole geometry: the same numbers bit for bit
+    (the kernel sums in np.sum's pairwise order), for polygons of 3 to 400 points (numpy's
+    sequential, 8-accumulator and halving branches)."""
+    from receiver.io.camera import CameraModel
+
+    cam = CameraModel(K=np.array([[900.0, 0, 640], [0, 905.0, 360], [0, 0, 1]]),
+                      dist=np.array([-0.2, 0.05, 0.001, -0.001, 0.0]), width=1280, height=720)
+    rng = np.random.default_rng(9)
+    for k in range(1500):
+        n = int(rng.integers(3, 400))
+        a = np.sort(rng.uniform(0, 2 * np.pi, n))
+        r = rng.uniform(1, 200) * (1 + 0.1 * rng.random(n))
+        poly = np.column_stack([640 + r * np.cos(a), 360 + r * np.sin(a)]) * 10.0 ** rng.integers(-2, 2)
+        if k % 50 == 0:
+            poly[:, 1] = poly[0, 1]  # degenerate: no area, no centroid
+        native = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
+                  ranging.contour_geometry(poly, cam, 0.5))
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
+                    ranging.contour_geometry(poly, cam, 0.5))
+        assert native[0] == pure[0]
+        assert (native[1] is None) == (pure[1] is None) and (pure[1] is None or np.array_equal(native[1], pure[1]))
+        assert (native[2] is None) == (pure[2] is None)
+        if pure[2] is not None:
+            assert native[2].keys() == pure[2].keys()
+            assert all(np.array_equal(native[2][key], pure[2][key]) for key in pure[2])
+    # what the kernel does not read (float32, strided) is summed by numpy
+    tri = np.array([[0, 0], [4, 0], [0, 3]], np.float32)
+    assert ranging.polygon_area_perimeter(tri) == (6.0, 12.0)
+    assert ranging.polygon_area_perimeter(np.array([[0, 0, 4, 0, 0, 3.0]]).reshape(3, 2)[::-1]) == (6.0, 12.0)
+
+
+@ranging_native
+def test_annotate_kernel_equals_python(monkeypatch):
+    """`Ranger.annotate`: the same records (fields, untouched ones the same objects) with the
+    compiled copies; another record type goes through `_with_range`."""
+    @dataclasses.dataclass(frozen=True)
+    class Other:
+        track: int
+        distance_m: float | None = None
+        distance_estimator: str | None = None
+
+    rng = np.random.default_rng(1)
+    for k in range(200):
+        leds = [LedObservation(i, float(i), 2.0, 3.0, None, id=i) if rng.random() < 0.9 else Other(i)
+                for i in range(int(rng.integers(0, 8)))]
+        items = [(o, None, None) for o in leds if rng.random() < 0.7]
+        d = np.array([rng.choice([np.nan, np.inf, float(rng.uniform(0, 9))]) for _ in items])
+        names = [str(rng.choice(["outline", "eq18"])) for _ in items]
+        native = ranging.Ranger.annotate(leds, items, d, names)
+        with monkeypatch.context() as m:
+            m.setattr(ranging, "_kr", None)
+            pure = ranging.Ranger.annotate(leds, items, d, names)
+        assert len(native) == len(pure) == len(leds)
+        for a, b, o in zip(native, pure, leds):
+            assert type(a) is type(b) and a == b and a.__dict__ == b.__dict__
+            assert (a is o) == (b is o)
+        for a in native:
+            with pytest.raises(dataclasses.FrozenInstanceError):
+                a.distance_m = 1.0
+
+
+@native
+def test_fast_number_formatters_equal_cpythons():
+    """The writer's own fixed ("%.{nd}f", trailing zeros dropped) and shortest (repr) number
+    formatting, where it answers, equals CPython's formatter on random, rounded, near-halfway and
+    float32-derived values of every magnitude (it defers near halves and beyond 2^50)."""
+    rng = np.random.default_rng(7)
+    n = 20000
+    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-5, 16, size=n))
+    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-4, 10, size=n),
+                                                    rng.integers(0, 12, size=n))]
+    vals += [round(float(x), int(d)) + h for x, d, h in zip(rng.normal(size=n) * 1000, rng.integers(0, 7, size=n),
+                                                           rng.choice([5e-3, 5e-5, 5e-7, -5e-3], n))]
+    vals += [float(np.float32(x)) for x in rng.normal(size=n)]
+    vals += AWKWARD + [-v for v in AWKWARD] + [2.0 ** 50 - 1, 2.0 ** 50, 0.1, 0.2, 0.3, 1e-4 * (1 - 1e-16)]
+    fast_f = fast_r = 0
+    for v in map(float, vals):
+        for nd in (1, 2, 3, 4, 6):
+            f, _, cf, _ = output._k.number_tokens(v, nd)
+            if f is not None:
+                fast_f += 1
+                assert f == cf == output._num_tok(v, nd), (v, nd)
+        _, r, _, cr = output._k.number_tokens(v, 1)
+        if r is not None:
+            fast_r += 1
+            assert r == cr == repr(v), v
+    assert fast_f > 0.7 * 5 * len(vals) and fast_r > 0.4 * len(vals)
