@@ -12,17 +12,13 @@ or a circle. Residuals: one per edge point (in the frame's order; a square / rec
 corner unused, 0), the centroids (u, v) of the targets that have one, the tilt prior (3), the
 position prior (3): the pure path's, grouped squares / rects first, then circles."""
 
-from libc.math cimport sqrt, cos, sin, log1p, fabs
+from libc.math cimport sqrt, cos, sin, fabs
 from receiver.locate._rodrigues cimport rodrigues
 from receiver.locate._solve6 cimport solve6
+from receiver.locate._loss cimport loss_rho, loss_w
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy, memset
 
-# Loss codes (outline_pose.LOSS_CODES).
-DEF LOSS_LINEAR = 0
-DEF LOSS_SOFT_L1 = 1
-DEF LOSS_CAUCHY = 2
-DEF LOSS_HUBER = 3
 
 
 cdef struct Prob:
@@ -70,26 +66,6 @@ cdef inline double hypot(double a, double b) noexcept nogil:
     overflow / underflow guards are not needed for normalized image coordinates, and the two
     differ by at most an ulp."""
     return sqrt(a * a + b * b)
-
-
-cdef inline double loss_rho(int loss, double z) noexcept nogil:
-    if loss == LOSS_SOFT_L1:
-        return 2.0 * (sqrt(1.0 + z) - 1.0)
-    if loss == LOSS_CAUCHY:
-        return log1p(z)
-    if loss == LOSS_HUBER:
-        return z if z <= 1.0 else 2.0 * sqrt(z) - 1.0
-    return z
-
-
-cdef inline double loss_w(int loss, double z) noexcept nogil:
-    if loss == LOSS_SOFT_L1:
-        return 1.0 / sqrt(1.0 + z)
-    if loss == LOSS_CAUCHY:
-        return 1.0 / (1.0 + z)
-    if loss == LOSS_HUBER:
-        return 1.0 if z <= 1.0 else 1.0 / sqrt(z if z > 1.0 else 1.0)
-    return 1.0
 
 
 cdef inline void project(const double* R, const double* C, const double* X, double* q) noexcept nogil:

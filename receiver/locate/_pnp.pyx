@@ -13,18 +13,14 @@ differently: fixes agree to ~1e-12 (tests/test_pnp_kernel.py).
 
 Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 
-from libc.math cimport sqrt, log1p
+from libc.math cimport sqrt
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from receiver.locate._rodrigues cimport rodrigues
 from receiver.locate._solve6 cimport solve6
+from receiver.locate._loss cimport loss_rho, loss_w
 from receiver.decode._npsum cimport pw_sum
 
-# Loss codes (pose.KERNEL_LOSSES).
-DEF LOSS_LINEAR = 0
-DEF LOSS_SOFT_L1 = 1
-DEF LOSS_CAUCHY = 2
-DEF LOSS_HUBER = 3
 # lsq.LM_LAMBDA0, LM_LAMBDA_MAX (the pure path's constants; tests compare both paths).
 DEF LAMBDA0 = 1e-3
 DEF LAMBDA_MAX = 1e8
@@ -44,26 +40,6 @@ cdef struct Prob:
     int has_prior
     double Cp[3]
     double W[9]
-
-
-cdef inline double loss_rho(int loss, double z) noexcept nogil:
-    if loss == LOSS_SOFT_L1:
-        return 2.0 * (sqrt(1.0 + z) - 1.0)
-    if loss == LOSS_CAUCHY:
-        return log1p(z)
-    if loss == LOSS_HUBER:
-        return z if z <= 1.0 else 2.0 * sqrt(z) - 1.0
-    return z
-
-
-cdef inline double loss_w(int loss, double z) noexcept nogil:
-    if loss == LOSS_SOFT_L1:
-        return 1.0 / sqrt(1.0 + z)
-    if loss == LOSS_CAUCHY:
-        return 1.0 / (1.0 + z)
-    if loss == LOSS_HUBER:
-        return 1.0 if z <= 1.0 else 1.0 / sqrt(z if z > 1.0 else 1.0)
-    return 1.0
 
 
 cdef inline bint finite(double x) noexcept nogil:
