@@ -14,7 +14,7 @@ position prior (3): the pure path's, grouped squares / rects first, then circles
 
 from libc.math cimport sqrt, cos, sin, fabs
 from receiver.locate._rodrigues cimport rodrigues
-from receiver.locate._solve6 cimport solve6
+from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy, memset
@@ -574,7 +574,6 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
     """`lsq.lm_normal` with the outline stopping rule (`outline_pose._lm`): p, r, R, dR end at the
     returned pose. Returns 1 when converged."""
     cdef double A[36]
-    cdef double Ad[36]
     cdef double g[6]
     cdef double mg[6]
     cdef double dA[6]
@@ -585,21 +584,11 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
     c = evaluate(pr, p, r, R, dR)
     for it in range(max_iter):
         normal(pr, p, r, R, dR, A, g, 0)
+        lm_damping(A, dA)
         for k in range(6):
-            dA[k] = A[7 * k] if A[7 * k] > 1e-12 else 1e-12
-            if A[7 * k] != A[7 * k]:
-                dA[k] = A[7 * k]
             mg[k] = -g[k]
         while True:
-            for k in range(36):
-                Ad[k] = A[k]
-            for k in range(6):
-                Ad[7 * k] += lam * dA[k]
-            if solve6(Ad, mg, dp):
-                for k in range(6):
-                    dp[k] = 0.0
-            for k in range(6):
-                p_new[k] = p[k] + dp[k]
+            lm_step(A, dA, mg, lam, p, dp, p_new)
             c_new = evaluate(pr, p_new, r_new, R_new, dR_new)
             if c_new <= c:
                 break

@@ -17,7 +17,7 @@ from libc.math cimport sqrt
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from receiver.locate._rodrigues cimport rodrigues
-from receiver.locate._solve6 cimport solve6
+from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from receiver.decode._npsum cimport pw_sum
 
@@ -156,7 +156,6 @@ cdef int lm(const Prob* pr, double* p, double* r, double* J, double* z, double* 
     """`lsq.lm_normal` with `lsq._lm_done`: p, r, J end at the returned pose (J at p). Returns 1
     when converged (also when the damping ran out), 0 when max_iter ran out."""
     cdef double A[36]
-    cdef double Ad[36]
     cdef double g[6]
     cdef double mg[6]
     cdef double dA[6]
@@ -187,21 +186,11 @@ cdef int lm(const Prob* pr, double* p, double* r, double* J, double* z, double* 
         for a in range(6):
             for b in range(a):
                 A[6 * a + b] = A[6 * b + a]
+        lm_damping(A, dA)
         for k in range(6):
-            dA[k] = A[7 * k] if A[7 * k] > 1e-12 else 1e-12
-            if A[7 * k] != A[7 * k]:
-                dA[k] = A[7 * k]
             mg[k] = -g[k]
         while True:
-            for k in range(36):
-                Ad[k] = A[k]
-            for k in range(6):
-                Ad[7 * k] += lam * dA[k]
-            if solve6(Ad, mg, dp):
-                for k in range(6):
-                    dp[k] = 0.0
-            for k in range(6):
-                p_new[k] = p[k] + dp[k]
+            lm_step(A, dA, mg, lam, p, dp, p_new)
             residuals(pr, p_new, r_new, R, dR)
             c_new = cost_of(r_new, m, loss, fs, z_new)
             if c_new <= c:

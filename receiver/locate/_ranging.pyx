@@ -15,6 +15,7 @@ receiver/locate/ranging.py and indoor.py stays the reference (tests/test_glue_ke
 from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_WRITABLE, PyBuffer_Release, PyObject_GetBuffer
 from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport hypot, isnan
+from receiver.decode._npsum cimport pw_sum
 
 import numpy as np
 
@@ -126,33 +127,6 @@ def pack_outline(list chosen, double model_sigma, double focal):
     return pts, sigma, np.array(ends, np.int64), xyz, half
 
 
-cdef double pairwise_sum(const double* a, Py_ssize_t n) noexcept nogil:
-    """numpy's pairwise summation of a contiguous float64 run (`np.sum` / `np.add.reduce`), in
-    its order: sequential under 8, eight accumulators up to 128, halves (multiples of 8) above."""
-    cdef Py_ssize_t i, n2
-    cdef double res, r0, r1, r2, r3, r4, r5, r6, r7
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[i]
-        return res
-    if n <= 128:
-        r0 = a[0]; r1 = a[1]; r2 = a[2]; r3 = a[3]; r4 = a[4]; r5 = a[5]; r6 = a[6]; r7 = a[7]
-        i = 8
-        while i < n - (n % 8):
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += a[i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return pairwise_sum(a, n2) + pairwise_sum(a + n2, n - n2)
-
-
 def polygon_sums(poly, bint perimeter):
     """(sum of cross products x_i y_j - x_j y_i, perimeter or 0.0, sum (x_i + x_j) cross_i,
     sum (y_i + y_j) cross_i) of a closed (K >= 1, 2) float64 C-contiguous polygon (j = i + 1
@@ -176,11 +150,11 @@ def polygon_sums(poly, bint perimeter):
             w[2 * k + i] = (p[2 * i + 1] + p[2 * j + 1]) * w[i]
             if perimeter:
                 w[3 * k + i] = hypot(p[2 * j] - p[2 * i], p[2 * j + 1] - p[2 * i + 1])
-        s_cross = 0.0 + pairwise_sum(w, k)
-        s_x = 0.0 + pairwise_sum(w + k, k)
-        s_y = 0.0 + pairwise_sum(w + 2 * k, k)
+        s_cross = 0.0 + pw_sum(w, k)
+        s_x = 0.0 + pw_sum(w + k, k)
+        s_y = 0.0 + pw_sum(w + 2 * k, k)
         if perimeter:
-            s_per = 0.0 + pairwise_sum(w + 3 * k, k)
+            s_per = 0.0 + pw_sum(w + 3 * k, k)
     finally:
         if w != small:
             PyMem_Free(w)

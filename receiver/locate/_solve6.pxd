@@ -1,6 +1,7 @@
 # cython: language_level=3
 """A 6 x 6 linear solve for the locate kernels' Levenberg-Marquardt steps (receiver.locate._outline,
-_vehicle_pose): Gaussian elimination with partial pivoting, LAPACK gesv's method."""
+_pnp, _vehicle_pose): Gaussian elimination with partial pivoting, LAPACK gesv's method; and the
+damped step of receiver.locate.lsq.lm_normal built on it."""
 
 from libc.math cimport fabs
 
@@ -41,3 +42,28 @@ cdef inline int solve6(const double* A, const double* b, double* x) noexcept nog
             tmp -= M[6 * i + j] * x[j]
         x[i] = tmp / M[6 * i + i]
     return 0
+
+
+cdef inline void lm_damping(const double* A, double* dA) noexcept nogil:
+    """dA = np.maximum(diag(A), 1e-12) of a 6 x 6 row-major A (a NaN diagonal stays NaN, as there)."""
+    cdef int k
+    for k in range(6):
+        dA[k] = A[7 * k] if A[7 * k] > 1e-12 else 1e-12
+        if A[7 * k] != A[7 * k]:
+            dA[k] = A[7 * k]
+
+
+cdef inline void lm_step(const double* A, const double* dA, const double* mg, double lam, const double* p,
+                         double* dp, double* p_new) noexcept nogil:
+    """p_new = p + dp, (A + lam diag(dA)) dp = mg (dp = 0 when the damped matrix is singular)."""
+    cdef double Ad[36]
+    cdef int k
+    for k in range(36):
+        Ad[k] = A[k]
+    for k in range(6):
+        Ad[7 * k] += lam * dA[k]
+    if solve6(Ad, mg, dp):
+        for k in range(6):
+            dp[k] = 0.0
+    for k in range(6):
+        p_new[k] = p[k] + dp[k]

@@ -22,7 +22,7 @@ a few ulps; tests/test_vehicle_native.py compares the two.
 
 from libc.math cimport sqrt, sin, cos, atan2, asin, fabs, fmod, M_PI, isfinite
 from receiver.locate._rodrigues cimport rodrigues
-from receiver.locate._solve6 cimport solve6
+from receiver.locate._solve6 cimport lm_damping, lm_step
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 
@@ -240,7 +240,6 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
     cdef int i, j, k, it, n_eval = 0
     cdef double c, c_new, lam, t, mr, mp
     cdef double A[36]
-    cdef double Ad[36]
     cdef double g[6]
     cdef double bb[6]
     cdef double dA[6]
@@ -296,18 +295,11 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
                 for i in range(n):
                     t += (J0[6 * i + j] * w0[i]) * r0[i]
                 g[j] = t
+            lm_damping(A, dA)
             for k in range(6):
-                dA[k] = A[7 * k] if A[7 * k] > 1e-12 else 1e-12
+                bb[k] = -g[k]
             while True:
-                memcpy(Ad, A, sizeof(double) * 36)
-                for k in range(6):
-                    Ad[7 * k] += lam * dA[k]
-                    bb[k] = -g[k]
-                if solve6(Ad, bb, dp):
-                    for k in range(6):
-                        dp[k] = 0.0
-                for k in range(6):
-                    pn[k] = pc[k] + dp[k]
+                lm_step(A, dA, bb, lam, pc, dp, pn)
                 evaluate(&P, pn, r1, J1)
                 n_eval += 1
                 c_new = soft_l1_cost(r1, n, f_scale, w1)
