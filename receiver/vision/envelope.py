@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.detect import _hull_stats_many
+
+# the compiled merge of all lights of a frame (receiver/vision/_envelope.pyx), or None: `_merge`
+_k = load("receiver.vision._envelope")
 
 # Merged lights in a frame from which their earlier hulls are moved, boxed and copied in a few
 # array operations rather than one by one (callgrind, EnvelopeHistory.step: 16 lights 2.51 ->
@@ -96,34 +100,88 @@ class EnvelopeHistory:
     this frame's blob merged with its hulls of the previous `frames - 1` frames, each moved by
     the track's px/frame velocity (its jitter from the hidden caps limits how much a static
     scene gains; a moving one needs the motion). `frames` 1 = this frame's blob alone.
-    `forget(track_ids)` drops the history of ended tracks."""
+
+    The history is one record per frame (the seen tracks' ids and hulls, all in one array),
+    kept while a later frame can still use it: frame indices must grow (gaps are fine); a frame
+    index at or below an earlier one starts the history afresh. All lights of a frame are merged
+    by one call of the compiled kernel (receiver/vision/_envelope.pyx) when it is built, else by
+    `_merge` (the reference it equals bit for bit). `forget(track_ids)`: nothing to do (a
+    record ages out by itself; track ids are never reused)."""
 
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))
-        self._hulls: dict[int, list] = {}  # track id -> [(frame index, hull (K, 2))]
+        # [(frame index, ids (m,) int64, starts (m + 1,) int64, hull points (., 2) float64,
+        #   {track id: hull})], oldest first
+        self._recent: list[tuple] = []
 
     def step(self, tracks, k: int, shape) -> dict:
         if self.frames <= 1:
             return {t.track_id: t.blob for t in tracks}
-        items, merged, pieces, counts, moves = [], [], [], [], []
-        frames, hist = self.frames, self._hulls
-        for i, t in enumerate(tracks):
-            own = t.blob.hull
-            keep = [(kh, hh) for kh, hh in hist.get(t.track_id, ()) if 0 < k - kh < frames]
-            if keep:
-                merged.append(i)
-                counts.append(1 + len(keep))
-                pieces.append(own)
-                moves.append((0.0, 0.0))
-                for kh, hh in keep:  # moved by the track's velocity into this frame
-                    pieces.append(hh)
-                    moves.append((t.vx * (k - kh), t.vy * (k - kh)))
-            items.append((t.blob, None))
-            keep.append((k, own))
-            hist[t.track_id] = keep
-        env = _merge(items, merged, pieces, counts, moves if moves else None, shape)
-        return {t.track_id: e for t, e in zip(tracks, env)}
+        frames = self.frames
+        recent = [r for r in self._recent if 0 < k - r[0] < frames]
+        n = len(tracks)
+        hulls = [t.blob.hull for t in tracks]
+        ids = [t.track_id for t in tracks]
+        starts = np.zeros(n + 1, np.int64)
+        if n:
+            np.cumsum([len(h) for h in hulls], out=starts[1:])
+            pts = np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)
+        else:
+            pts = np.zeros((0, 2))
+        if not recent or not n:
+            env = {i: t.blob for i, t in zip(ids, tracks)}
+        elif _k is not None:
+            env = _step_native(tracks, ids, pts, starts, recent, k, shape)
+        else:
+            env = _step_pure(tracks, ids, recent, k, shape)
+        self._recent = [r for r in recent if k - r[0] < frames - 1] + [
+            (k, np.array(ids, np.int64), starts, np.ascontiguousarray(pts), dict(zip(ids, hulls)))]
+        return env
 
     def forget(self, track_ids) -> None:
-        for i in track_ids:
-            self._hulls.pop(i, None)
+        """Kept for callers: an ended track's hulls age out of the per-frame records."""
+
+
+def _step_pure(tracks, ids, recent, k: int, shape) -> dict:
+    """`EnvelopeHistory.step` by `_merge`: each light's own hull, then its hulls of the earlier
+    frames (oldest first) moved by its velocity."""
+    items, merged, pieces, counts, moves = [], [], [], [], []
+    for i, t in enumerate(tracks):
+        keep = [(r[0], r[4][t.track_id]) for r in recent if t.track_id in r[4]]
+        if keep:
+            merged.append(i)
+            counts.append(1 + len(keep))
+            pieces.append(t.blob.hull)
+            moves.append((0.0, 0.0))
+            for kh, hh in keep:  # moved by the track's velocity into this frame
+                pieces.append(hh)
+                moves.append((t.vx * (k - kh), t.vy * (k - kh)))
+        items.append((t.blob, None))
+    env = _merge(items, merged, pieces, counts, moves if moves else None, shape)
+    return dict(zip(ids, env))
+
+
+def _step_native(tracks, ids, pts, starts, recent, k: int, shape) -> dict:
+    """`_step_pure` by the compiled kernel: every light of the frame in one call; the Blobs
+    built here from its flat outputs."""
+    n = len(tracks)
+    h, w = shape[:2]
+    vx = np.array([t.vx for t in tracks], np.float64)
+    vy = np.array([t.vy for t in tracks], np.float64)
+    rows = len(pts) + sum(len(r[3]) for r in recent)
+    out = np.empty((rows, 2))
+    out_start = np.empty(n + 1, np.int64)
+    stats = np.empty((n, 3))
+    box = np.empty((n, 6), np.int64)
+    _k.merge(pts, starts, np.array(ids, np.int64), vx, vy, int(k), [r[:4] for r in recent], int(w), int(h),
+             out, out_start, stats, box)
+    os_ = out_start.tolist()
+    env = {}
+    for i, t, st, (x0, y0, x1, y1, edge, merged) in zip(range(n), tracks, stats.tolist(), box.tolist()):
+        b = t.blob
+        if merged:
+            env[ids[i]] = Blob(st[0], st[1], st[2], out[os_[i]:os_[i + 1]], x0, y0, x1, y1, b.border or edge == 1,
+                               b.peak, b.level, b.background)
+        else:
+            env[ids[i]] = b
+    return env

@@ -1,0 +1,482 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled envelope merge (receiver.vision.envelope): every tracked light's merged envelope of
+one frame in one call.
+
+Per light: its own hull and its hulls of the previous frames (each moved by the light's velocity
+times the frame gap, in float64, then rounded to float32 as the reference does), the convex hull
+of all those points (`convex_hull_f32`: OpenCV's cv::convexHull for float points, same vertices
+in the same order, start vertex included), the hull's centroid and area
+(receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim, summed in
+numpy's reduceat order) and its box (floor of the float32 extremes, cv2.boundingRect of float
+points). The pure reference is `receiver.vision.envelope._merge`; tests/test_track_kernels.py
+asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
+"""
+
+from libc.math cimport floor, sqrt, hypot, fabs
+from libc.stdlib cimport malloc, free
+from libc.string cimport memcpy
+from receiver.decode._npsum cimport pw_sum
+
+cdef double QUARTER_PI = 0.7853981633974483  # math.pi / 4.0
+
+
+cdef inline int _sgn(double a) noexcept nogil:
+    return (a > 0) - (a < 0)
+
+
+cdef inline unsigned int _bits(float f) noexcept nogil:
+    cdef unsigned int u
+    memcpy(&u, &f, 4)
+    return u
+
+
+cdef inline unsigned long long _key(float x, float y) noexcept nogil:
+    """An integer whose order is the (x, y) order of finite floats (-0.0 as 0.0)."""
+    cdef unsigned int ux = _bits(x + <float>0.0), uy = _bits(y + <float>0.0)
+    ux = ~ux if ux & 0x80000000u else ux | 0x80000000u
+    uy = ~uy if uy & 0x80000000u else uy | 0x80000000u
+    return (<unsigned long long>ux << 32) | uy
+
+
+cdef inline bint _less(const unsigned long long *key, int i, int j) noexcept nogil:
+    """OpenCV's CHullCmpPoints: by x, then y, then position in the input."""
+    return key[i] < key[j] or (key[i] == key[j] and i < j)
+
+
+cdef void _sort(const unsigned long long *key, int *a, int *tmp, int *bounds, int n) noexcept nogil:
+    """Sort the positions a[0..n) by `_less` (a total order: any correct sort gives the same
+    order as OpenCV's std::sort): insertion sort for short runs, else a natural merge sort (the
+    input is a few convex polygons: a few monotone runs each). bounds: n + 1 ints of work."""
+    cdef int i, j, k, v, nr, r, lo, mid, hi, t
+    if n < 24:
+        for i in range(1, n):
+            v = a[i]
+            j = i - 1
+            while j >= 0 and _less(key, v, a[j]):
+                a[j + 1] = a[j]
+                j -= 1
+            a[j + 1] = v
+        return
+    nr = 0
+    i = 0
+    while i < n:
+        j = i + 1
+        if j < n and _less(key, a[j], a[j - 1]):
+            while j < n and _less(key, a[j], a[j - 1]):
+                j += 1
+            lo = i
+            hi = j - 1
+            while lo < hi:
+                t = a[lo]
+                a[lo] = a[hi]
+                a[hi] = t
+                lo += 1
+                hi -= 1
+        else:
+            while j < n and not _less(key, a[j], a[j - 1]):
+                j += 1
+        bounds[nr] = i
+        nr += 1
+        i = j
+    bounds[nr] = n
+    while nr > 1:
+        r = 0
+        while r + 1 < nr:
+            lo = bounds[r]
+            mid = bounds[r + 1]
+            hi = bounds[r + 2]
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if _less(key, a[j], a[i]):
+                    tmp[k] = a[j]
+                    j += 1
+                else:
+                    tmp[k] = a[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                tmp[k] = a[i]
+                i += 1
+                k += 1
+            while j < hi:
+                tmp[k] = a[j]
+                j += 1
+                k += 1
+            memcpy(a + lo, tmp + lo, (hi - lo) * sizeof(int))
+            r += 2
+        # runs 2q, 2q + 1 are now one
+        k = 0
+        r = 0
+        while r < nr:
+            bounds[k] = bounds[r]
+            k += 1
+            r += 2
+        bounds[k] = n
+        nr = k
+
+
+cdef inline void _normalize(float x, float y, float *ox, float *oy) noexcept nogil:
+    """cv::normalize of a Vec2f: the norm in double, each component scaled in double, stored
+    as float."""
+    cdef double s = 0.0
+    cdef double v = x
+    s += v * v
+    v = y
+    s += v * v
+    cdef double nv = sqrt(s)
+    cdef double k = 1.0 / nv if nv != 0 else 0.0
+    ox[0] = <float>(x * k)
+    oy[0] = <float>(y * k)
+
+
+cdef int _sklansky(const float *P, const int *srt, int start, int end, int *stack, int nsign,
+                   int sign2) noexcept nogil:
+    """OpenCV's Sklansky_<float, double> (as OpenCV 5.0 has it: the turn tested on the two
+    edge vectors normalised, repeated points not skipped) over the sorted points P[srt[.]]
+    (positions into srt)."""
+    cdef int incr = 1 if end > start else -1
+    cdef int pprev = start, pcur = start + incr, pnext = start + 2 * incr
+    cdef int stacksize = 3
+    cdef float cury, nexty, by, ax, ay, bx, a0, a1, b0, b1
+    cdef double convexity, cross, ab2
+    cdef int sgn_conv
+    cdef bint nonzero
+    if start == end or (P[2 * srt[start]] == P[2 * srt[end]] and P[2 * srt[start] + 1] == P[2 * srt[end] + 1]):
+        stack[0] = start
+        return 1
+    stack[0] = pprev
+    stack[1] = pcur
+    stack[2] = pnext
+    end += incr
+    while pnext != end:
+        cury = P[2 * srt[pcur] + 1]
+        nexty = P[2 * srt[pnext] + 1]
+        by = nexty - cury
+        if _sgn(by) != nsign:
+            ax = P[2 * srt[pcur]] - P[2 * srt[pprev]]
+            ay = cury - P[2 * srt[pprev] + 1]
+            bx = P[2 * srt[pnext]] - P[2 * srt[pcur]]
+            # The products of floats are exact in double, so `cross` has the exact turn's sign;
+            # the normalised vectors' (OpenCV's test) differs from it by less than 1e-6 of
+            # |a| |b|: outside that band the exact sign is theirs, inside it their arithmetic.
+            cross = <double>ay * bx - <double>ax * by
+            ab2 = (<double>ax * ax + <double>ay * ay) * (<double>bx * bx + <double>by * by)
+            if (ax == 0 and ay == 0) or (bx == 0 and by == 0):  # a zero vector stays zero
+                sgn_conv = 0
+                nonzero = ax != 0 or ay != 0
+            elif cross * cross > 1e-10 * ab2:
+                sgn_conv = _sgn(cross)
+                nonzero = True
+            else:
+                _normalize(ax, ay, &a0, &a1)
+                _normalize(bx, by, &b0, &b1)
+                convexity = <double>a1 * b0 - <double>a0 * b1
+                sgn_conv = _sgn(convexity)
+                nonzero = a0 != 0 or a1 != 0
+            if sgn_conv == sign2 and nonzero:
+                pprev = pcur
+                pcur = pnext
+                pnext += incr
+                stack[stacksize] = pnext
+                stacksize += 1
+            else:
+                if pprev == start:
+                    pcur = pnext
+                    stack[1] = pcur
+                    pnext += incr
+                    stack[2] = pnext
+                else:
+                    stack[stacksize - 2] = pnext
+                    pcur = pprev
+                    pprev = stack[stacksize - 4]
+                    stacksize -= 1
+        else:
+            pnext += incr
+            stack[stacksize - 1] = pnext
+    stacksize -= 1
+    return stacksize
+
+
+cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullbuf,
+               unsigned long long *key) noexcept nogil:
+    """cv::convexHull(points, clockwise=false, returnPoints=true) of the n float points P
+    (x, y interleaved): writes the hull's vertices as input positions to hullbuf, returns
+    their number. Work buffers: srt, tmp, key (n), stack (2 n + 4). Finite points only."""
+    cdef int i, j, nout = 0, miny = 0, maxy = 0
+    cdef int *tl
+    cdef int *tr
+    cdef int *bl
+    cdef int *br
+    cdef int tlc, trc, blc, brc, stop_idx, check_idx, t
+    cdef int min_idx, max_idx, lt, idx, mmdist, ascending, i0, curr_idx, next_j, next_idx
+    cdef float y
+    if n <= 0:
+        return 0
+    for i in range(n):
+        srt[i] = i
+        key[i] = _key(P[2 * i], P[2 * i + 1])
+    _sort(key, srt, tmp, stack, n)
+    for i in range(1, n):
+        y = P[2 * srt[i] + 1]
+        if P[2 * srt[miny] + 1] > y:
+            miny = i
+        if P[2 * srt[maxy] + 1] < y:
+            maxy = i
+    # (OpenCV compares these two through int pointers: the float bits)
+    if _bits(P[2 * srt[0]]) == _bits(P[2 * srt[n - 1]]) and _bits(P[2 * srt[0] + 1]) == _bits(P[2 * srt[n - 1] + 1]):
+        hullbuf[0] = 0
+        return 1
+    # upper half
+    tl = stack
+    tlc = _sklansky(P, srt, 0, maxy, tl, -1, 1)
+    tr = stack + tlc
+    trc = _sklansky(P, srt, n - 1, maxy, tr, -1, -1)
+    # counter-clockwise: swapped
+    tl, tr = tr, tl
+    t = tlc
+    tlc = trc
+    trc = t
+    for i in range(tlc - 1):
+        hullbuf[nout] = srt[tl[i]]
+        nout += 1
+    i = trc - 1
+    while i > 0:
+        hullbuf[nout] = srt[tr[i]]
+        nout += 1
+        i -= 1
+    stop_idx = tr[1] if trc > 2 else (tl[tlc - 2] if tlc > 2 else -1)
+    # lower half
+    bl = stack
+    blc = _sklansky(P, srt, 0, miny, bl, 1, -1)
+    br = stack + blc
+    brc = _sklansky(P, srt, n - 1, miny, br, 1, 1)
+    if stop_idx >= 0:
+        check_idx = bl[1] if blc > 2 else (br[2 - blc] if blc + brc > 2 else -1)
+        if check_idx == stop_idx or (check_idx >= 0 and
+                                     _bits(P[2 * srt[check_idx]]) == _bits(P[2 * srt[stop_idx]]) and
+                                     _bits(P[2 * srt[check_idx] + 1]) == _bits(P[2 * srt[stop_idx] + 1])):
+            if blc > 2:
+                blc = 2
+            if brc > 2:
+                brc = 2
+    for i in range(blc - 1):
+        hullbuf[nout] = srt[bl[i]]
+        nout += 1
+    i = brc - 1
+    while i > 0:
+        hullbuf[nout] = srt[br[i]]
+        nout += 1
+        i -= 1
+    # the cyclic shift that makes the input positions ascending or descending, if one does
+    if nout >= 3:
+        min_idx = 0
+        max_idx = 0
+        lt = 0
+        for i in range(1, nout):
+            idx = hullbuf[i]
+            lt += hullbuf[i - 1] < idx
+            if lt > 1 and lt <= i - 2:
+                break
+            if idx < hullbuf[min_idx]:
+                min_idx = i
+            if idx > hullbuf[max_idx]:
+                max_idx = i
+        mmdist = max_idx - min_idx
+        if mmdist < 0:
+            mmdist = -mmdist
+        if (mmdist == 1 or mmdist == nout - 1) and (lt <= 1 or lt >= nout - 2):
+            ascending = (max_idx + 1) % nout == min_idx
+            i0 = min_idx if ascending else max_idx
+            j = i0
+            if i0 > 0:
+                i = 0
+                while i < nout:
+                    curr_idx = hullbuf[j]
+                    stack[i] = curr_idx
+                    next_j = j + 1 if j + 1 < nout else 0
+                    next_idx = hullbuf[next_j]
+                    if i < nout - 1 and (ascending != (curr_idx < next_idx)):
+                        break
+                    j = next_j
+                    i += 1
+                if i == nout:
+                    memcpy(hullbuf, stack, nout * sizeof(int))
+    return nout
+
+
+def convex_hull_f32(const float[:, ::1] pts):
+    """cv2.convexHull(pts) of (N, 2) float32 points as (M, 2) float32 (the equality tests'
+    entry point)."""
+    cdef int n = pts.shape[0], m, i
+    cdef int *buf = <int *> malloc((5 * n + 8) * sizeof(int))
+    cdef unsigned long long *key = <unsigned long long *> malloc((n + 1) * sizeof(unsigned long long))
+    if buf == NULL or key == NULL:
+        free(buf)
+        free(key)
+        raise MemoryError()
+    try:
+        m = _hull(&pts[0, 0] if n else NULL, n, buf, buf + n, buf + 2 * n, buf + 4 * n + 4, key)
+        out = [(pts[buf[4 * n + 4 + i], 0], pts[buf[4 * n + 4 + i], 1]) for i in range(m)]
+    finally:
+        free(buf)
+        free(key)
+    return out
+
+
+cdef void _stats(const double *x, const double *y, int m, double *tmp, double *out) noexcept nogil:
+    """(cx, cy, area) of the closed polygon x, y (m vertices) as detect._hull_stats_many gives
+    them: each per-vertex term summed as np.add.reduceat does (first + pairwise sum of the rest)."""
+    cdef int i, j
+    cdef double a2, sx, sy, perim, m00, xn, yn, c
+    cdef double *cr = tmp
+    cdef double *tx = tmp + m
+    cdef double *ty = tmp + 2 * m
+    cdef double *hp = tmp + 3 * m
+    for i in range(m):
+        j = i + 1 if i + 1 < m else 0
+        xn = x[j]
+        yn = y[j]
+        c = x[i] * yn - xn * y[i]
+        cr[i] = c
+        tx[i] = (x[i] + xn) * c
+        ty[i] = (y[i] + yn) * c
+        hp[i] = hypot(xn - x[i], yn - y[i])
+    a2 = cr[0] + pw_sum(cr + 1, m - 1)
+    sx = tx[0] + pw_sum(tx + 1, m - 1)
+    sy = ty[0] + pw_sum(ty + 1, m - 1)
+    perim = hp[0] + pw_sum(hp + 1, m - 1)
+    m00 = 0.5 * fabs(a2)
+    if m00 <= 1e-6:
+        out[0] = (x[0] + pw_sum(x + 1, m - 1)) / m
+        out[1] = (y[0] + pw_sum(y + 1, m - 1)) / m
+    else:
+        out[0] = sx / (3.0 * a2)
+        out[1] = sy / (3.0 * a2)
+    out[2] = m00 + 0.5 * perim + QUARTER_PI
+
+
+def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long long[::1] ids,
+          const double[::1] vx, const double[::1] vy, long long k, list hist, long long width,
+          long long height, double[:, ::1] out_pts, long long[::1] out_start, double[:, ::1] stats,
+          long long[:, ::1] box):
+    """The merged envelopes of n lights (receiver.vision.envelope.EnvelopeHistory.step).
+
+    cur (sum K_i, 2) float64: the lights' own hulls of this frame, light i's rows
+    cur_start[i]:cur_start[i + 1]; ids (n,): their track ids; vx, vy (n,): px/frame; k: this
+    frame's index; hist: the earlier frames, oldest first, each (frame index, ids (m,) int64,
+    starts (m + 1,) int64, points (., 2) float64) in the same layout. A light's earlier hulls
+    (frames with 0 < k - frame < ...: the caller passes only those) are moved by
+    (vx, vy) * (k - frame). Outputs per light i: out_pts rows out_start[i]:out_start[i + 1]
+    the merged hull (float32 values), stats[i] = (cx, cy, area_px), box[i] = (x0, y0, x1, y1
+    clipped to the image, border 0/1 from the box alone, merged 0/1). A light with no earlier
+    hull is not merged (merged 0, nothing else written but an empty out_pts run).
+    out_pts needs as many rows as all points given."""
+    cdef int n = ids.shape[0], nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
+    cdef long long o = 0
+    cdef double dk, mx, my, x0f, y0f, x1f, y1f, vxx
+    cdef long long x0, y0, x1, y1
+    cdef float xv, yv
+    cdef const long long[::1] hid
+    cdef const long long[::1] hst
+    cdef const double[:, ::1] hpt
+    cdef long long *hk = <long long *> malloc((nh + 1) * sizeof(long long))
+    cdef int *where = <int *> malloc((n * (nh + 1) + 1) * sizeof(int))
+    cdef const double **hp = <const double **> malloc((nh + 1) * sizeof(double *))
+    cdef const long long **hs = <const long long **> malloc((nh + 1) * sizeof(long long *))
+    cdef float *P = NULL
+    cdef int *ibuf = NULL
+    cdef double *dbuf = NULL
+    cdef unsigned long long *key = NULL
+    if hk == NULL or where == NULL or hp == NULL or hs == NULL:
+        free(hk); free(where); free(hp); free(hs)
+        raise MemoryError()
+    try:
+        # each light's row in each earlier frame (or -1), and its number of points
+        for f in range(nh):
+            kh, hid, hst, hpt = hist[f]
+            hk[f] = kh
+            hp[f] = &hpt[0, 0] if hpt.shape[0] else NULL
+            hs[f] = &hst[0]
+            m = hid.shape[0]
+            q = 0
+            for i in range(n):
+                where[i * nh + f] = -1
+                # ids of both frames come in the tracker's order: scan on from the last match
+                for j in range(m):
+                    a = (q + j) % m
+                    if hid[a] == ids[i]:
+                        where[i * nh + f] = a
+                        q = a + 1
+                        break
+        for i in range(n):
+            npts = <int>(cur_start[i + 1] - cur_start[i])
+            for f in range(nh):
+                if where[i * nh + f] >= 0:
+                    a = where[i * nh + f]
+                    npts += <int>(hs[f][a + 1] - hs[f][a])
+            if npts > maxpts:
+                maxpts = npts
+        P = <float *> malloc((2 * maxpts + 2) * sizeof(float))
+        ibuf = <int *> malloc((5 * maxpts + 8) * sizeof(int))
+        dbuf = <double *> malloc((6 * maxpts + 8) * sizeof(double))
+        key = <unsigned long long *> malloc((maxpts + 1) * sizeof(unsigned long long))
+        if P == NULL or ibuf == NULL or dbuf == NULL or key == NULL:
+            raise MemoryError()
+        for i in range(n):
+            out_start[i] = o
+            box[i, 5] = 0
+            total = 0
+            a = <int>cur_start[i]
+            b = <int>cur_start[i + 1]
+            for j in range(a, b):
+                P[2 * total] = <float>cur[j, 0]
+                P[2 * total + 1] = <float>cur[j, 1]
+                total += 1
+            for f in range(nh):
+                q = where[i * nh + f]
+                if q < 0:
+                    continue
+                box[i, 5] = 1
+                dk = <double>(k - hk[f])
+                mx = vx[i] * dk
+                my = vy[i] * dk
+                for j in range(<int>hs[f][q], <int>hs[f][q + 1]):
+                    P[2 * total] = <float>(hp[f][2 * j] + mx)
+                    P[2 * total + 1] = <float>(hp[f][2 * j + 1] + my)
+                    total += 1
+            if not box[i, 5] or total == 0:
+                box[i, 5] = 0
+                continue
+            m = _hull(P, total, ibuf, ibuf + total, ibuf + 2 * total, ibuf + 4 * total + 4, key)
+            x0f = x1f = P[2 * ibuf[4 * total + 4]]
+            y0f = y1f = P[2 * ibuf[4 * total + 4] + 1]
+            for j in range(m):
+                q = ibuf[4 * total + 4 + j]
+                xv = P[2 * q]
+                yv = P[2 * q + 1]
+                out_pts[o + j, 0] = xv
+                out_pts[o + j, 1] = yv
+                dbuf[j] = xv
+                dbuf[maxpts + j] = yv
+                if xv < x0f:
+                    x0f = xv
+                if xv > x1f:
+                    x1f = xv
+                if yv < y0f:
+                    y0f = yv
+                if yv > y1f:
+                    y1f = yv
+            _stats(dbuf, dbuf + maxpts, m, dbuf + 2 * maxpts, &stats[i, 0])
+            o += m
+            x0 = <long long>floor(x0f)
+            y0 = <long long>floor(y0f)
+            x1 = <long long>floor(x1f) + 1
+            y1 = <long long>floor(y1f) + 1
+            box[i, 4] = x0 <= 0 or y0 <= 0 or x1 >= width or y1 >= height
+            box[i, 0] = x0 if x0 > 0 else 0
+            box[i, 1] = y0 if y0 > 0 else 0
+            box[i, 2] = x1 if x1 < width else width
+            box[i, 3] = y1 if y1 < height else height
+        out_start[n] = o
+    finally:
+        free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key)
