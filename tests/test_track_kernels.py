@@ -59,6 +59,7 @@ def test_convex_hull_equals_opencv():
 
 
 def _same(a, b) -> bool:
+    assert type(a) is type(b)
     return (a.cx, a.cy, a.area_px, a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background) == \
         (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background) and \
         a.hull.dtype == b.hull.dtype and np.array_equal(a.hull, b.hull)
@@ -112,3 +113,23 @@ def test_envelope_history_restarts_on_an_older_frame_index():
     assert all(e is t.blob for t, e in zip(tracks, hist.step(tracks, 4, g.shape).values()))
     merged = hist.step(tracks, 5, g.shape)
     assert all(e is not t.blob for t, e in zip(tracks, merged.values()))
+
+
+@needs_kernel
+def test_kernel_blobs_are_plain_frozen_blobs():
+    """The kernel builds merged Blobs from the blob's attribute dict: they must be equal to,
+    compare like and stay as frozen as Blobs made by the constructor."""
+    import dataclasses
+    leds = bench_scene(n_leds=4, radius_px=30.0, seed=6)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(2)]
+    hist = EnvelopeHistory(3)
+    for k, g in enumerate(frames):
+        tracks = [Track(i, b, 0, k, vx=0.5) for i, b in enumerate(detect(g, stripe_gap_px=12))]
+        env = hist.step(tracks, k, g.shape)
+    for t in tracks:
+        e = env[t.track_id]
+        assert e is not t.blob
+        rebuilt = dataclasses.replace(t.blob, **{f: getattr(e, f) for f in ("cx", "cy", "area_px", "hull", "x0", "y0", "x1", "y1", "border")})
+        assert _same(e, rebuilt) and repr(e) == repr(rebuilt)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            e.cx = 0.0

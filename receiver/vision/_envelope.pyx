@@ -129,19 +129,18 @@ cdef inline void _normalize(float x, float y, float *ox, float *oy) noexcept nog
     oy[0] = <float>(y * k)
 
 
-cdef int _sklansky(const float *P, const int *srt, int start, int end, int *stack, int nsign,
+cdef int _sklansky(const float *X, const float *Y, int start, int end, int *stack, int nsign,
                    int sign2) noexcept nogil:
     """OpenCV's Sklansky_<float, double> (as OpenCV 5.0 has it: the turn tested on the two
-    edge vectors normalised, repeated points not skipped) over the sorted points P[srt[.]]
-    (positions into srt)."""
+    edge vectors normalised, repeated points not skipped) over the sorted points X, Y."""
     cdef int incr = 1 if end > start else -1
     cdef int pprev = start, pcur = start + incr, pnext = start + 2 * incr
     cdef int stacksize = 3
-    cdef float cury, nexty, by, ax, ay, bx, a0, a1, b0, b1
+    cdef float by, ax, ay, bx, a0, a1, b0, b1
     cdef double convexity, cross, ab2
     cdef int sgn_conv
-    cdef bint nonzero
-    if start == end or (P[2 * srt[start]] == P[2 * srt[end]] and P[2 * srt[start] + 1] == P[2 * srt[end] + 1]):
+    cdef bint nonzero, skip
+    if start == end or (X[start] == X[end] and Y[start] == Y[end]):
         stack[0] = start
         return 1
     stack[0] = pprev
@@ -149,24 +148,24 @@ cdef int _sklansky(const float *P, const int *srt, int start, int end, int *stac
     stack[2] = pnext
     end += incr
     while pnext != end:
-        cury = P[2 * srt[pcur] + 1]
-        nexty = P[2 * srt[pnext] + 1]
-        by = nexty - cury
-        if _sgn(by) != nsign:
-            ax = P[2 * srt[pcur]] - P[2 * srt[pprev]]
-            ay = cury - P[2 * srt[pprev] + 1]
-            bx = P[2 * srt[pnext]] - P[2 * srt[pcur]]
+        by = Y[pnext] - Y[pcur]
+        # CV_SIGN(by) == nsign
+        skip = by < 0 if nsign < 0 else by > 0
+        if not skip:
+            ax = X[pcur] - X[pprev]
+            ay = Y[pcur] - Y[pprev]
+            bx = X[pnext] - X[pcur]
             # The products of floats are exact in double, so `cross` has the exact turn's sign;
             # the normalised vectors' (OpenCV's test) differs from it by less than 1e-6 of
             # |a| |b|: outside that band the exact sign is theirs, inside it their arithmetic.
             cross = <double>ay * bx - <double>ax * by
             ab2 = (<double>ax * ax + <double>ay * ay) * (<double>bx * bx + <double>by * by)
-            if (ax == 0 and ay == 0) or (bx == 0 and by == 0):  # a zero vector stays zero
+            if cross * cross > 1e-10 * ab2:
+                sgn_conv = (cross > 0) - (cross < 0)
+                nonzero = True
+            elif (ax == 0 and ay == 0) or (bx == 0 and by == 0):  # a zero vector stays zero
                 sgn_conv = 0
                 nonzero = ax != 0 or ay != 0
-            elif cross * cross > 1e-10 * ab2:
-                sgn_conv = _sgn(cross)
-                nonzero = True
             else:
                 _normalize(ax, ay, &a0, &a1)
                 _normalize(bx, by, &b0, &b1)
@@ -198,10 +197,11 @@ cdef int _sklansky(const float *P, const int *srt, int start, int end, int *stac
 
 
 cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullbuf,
-               unsigned long long *key) noexcept nogil:
+               unsigned long long *key, float *X) noexcept nogil:
     """cv::convexHull(points, clockwise=false, returnPoints=true) of the n float points P
     (x, y interleaved): writes the hull's vertices as input positions to hullbuf, returns
-    their number. Work buffers: srt, tmp, key (n), stack (2 n + 4). Finite points only."""
+    their number. Work buffers: srt, tmp, key (n), stack (2 n + 4), X (2 n). Finite points only."""
+    cdef float *Y = X + n
     cdef int i, j, nout = 0, miny = 0, maxy = 0
     cdef int *tl
     cdef int *tr
@@ -216,21 +216,24 @@ cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullb
         srt[i] = i
         key[i] = _key(P[2 * i], P[2 * i + 1])
     _sort(key, srt, tmp, stack, n)
+    for i in range(n):
+        X[i] = P[2 * srt[i]]
+        Y[i] = P[2 * srt[i] + 1]
     for i in range(1, n):
-        y = P[2 * srt[i] + 1]
-        if P[2 * srt[miny] + 1] > y:
+        y = Y[i]
+        if Y[miny] > y:
             miny = i
-        if P[2 * srt[maxy] + 1] < y:
+        if Y[maxy] < y:
             maxy = i
     # (OpenCV compares these two through int pointers: the float bits)
-    if _bits(P[2 * srt[0]]) == _bits(P[2 * srt[n - 1]]) and _bits(P[2 * srt[0] + 1]) == _bits(P[2 * srt[n - 1] + 1]):
+    if _bits(X[0]) == _bits(X[n - 1]) and _bits(Y[0]) == _bits(Y[n - 1]):
         hullbuf[0] = 0
         return 1
     # upper half
     tl = stack
-    tlc = _sklansky(P, srt, 0, maxy, tl, -1, 1)
+    tlc = _sklansky(X, Y, 0, maxy, tl, -1, 1)
     tr = stack + tlc
-    trc = _sklansky(P, srt, n - 1, maxy, tr, -1, -1)
+    trc = _sklansky(X, Y, n - 1, maxy, tr, -1, -1)
     # counter-clockwise: swapped
     tl, tr = tr, tl
     t = tlc
@@ -247,14 +250,14 @@ cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullb
     stop_idx = tr[1] if trc > 2 else (tl[tlc - 2] if tlc > 2 else -1)
     # lower half
     bl = stack
-    blc = _sklansky(P, srt, 0, miny, bl, 1, -1)
+    blc = _sklansky(X, Y, 0, miny, bl, 1, -1)
     br = stack + blc
-    brc = _sklansky(P, srt, n - 1, miny, br, 1, 1)
+    brc = _sklansky(X, Y, n - 1, miny, br, 1, 1)
     if stop_idx >= 0:
         check_idx = bl[1] if blc > 2 else (br[2 - blc] if blc + brc > 2 else -1)
         if check_idx == stop_idx or (check_idx >= 0 and
-                                     _bits(P[2 * srt[check_idx]]) == _bits(P[2 * srt[stop_idx]]) and
-                                     _bits(P[2 * srt[check_idx] + 1]) == _bits(P[2 * srt[stop_idx] + 1])):
+                                     _bits(X[check_idx]) == _bits(X[stop_idx]) and
+                                     _bits(Y[check_idx]) == _bits(Y[stop_idx])):
             if blc > 2:
                 blc = 2
             if brc > 2:
@@ -310,16 +313,19 @@ def convex_hull_f32(const float[:, ::1] pts):
     cdef int n = pts.shape[0], m, i
     cdef int *buf = <int *> malloc((5 * n + 8) * sizeof(int))
     cdef unsigned long long *key = <unsigned long long *> malloc((n + 1) * sizeof(unsigned long long))
-    if buf == NULL or key == NULL:
+    cdef float *xy = <float *> malloc((2 * n + 2) * sizeof(float))
+    if buf == NULL or key == NULL or xy == NULL:
         free(buf)
         free(key)
+        free(xy)
         raise MemoryError()
     try:
-        m = _hull(&pts[0, 0] if n else NULL, n, buf, buf + n, buf + 2 * n, buf + 4 * n + 4, key)
+        m = _hull(&pts[0, 0] if n else NULL, n, buf, buf + n, buf + 2 * n, buf + 4 * n + 4, key, xy)
         out = [(pts[buf[4 * n + 4 + i], 0], pts[buf[4 * n + 4 + i], 1]) for i in range(m)]
     finally:
         free(buf)
         free(key)
+        free(xy)
     return out
 
 
@@ -355,27 +361,53 @@ cdef void _stats(const double *x, const double *y, int m, double *tmp, double *o
     out[2] = m00 + 0.5 * perim + QUARTER_PI
 
 
+cdef extern from "Python.h":
+    int PyObject_GenericSetDict(object o, object value, void *context) except -1
+
+cdef object _new = object.__new__
+
+
+cdef object _blob_like(object src, double cx, double cy, double area, object hull, long long x0, long long y0,
+                       long long x1, long long y1, bint edge):
+    """A copy of the Blob `src` with its geometry replaced, built from `src`'s attribute dict
+    (what Blob(...) would hold, at a fraction of a frozen dataclass __init__'s cost):
+    border = src.border or `edge`."""
+    cdef dict d = (<dict> src.__dict__).copy()
+    d["cx"] = cx
+    d["cy"] = cy
+    d["area_px"] = area
+    d["hull"] = hull
+    d["x0"] = x0
+    d["y0"] = y0
+    d["x1"] = x1
+    d["y1"] = y1
+    d["border"] = d["border"] or edge
+    o = _new(type(src))
+    PyObject_GenericSetDict(o, d, NULL)
+    return o
+
+
 def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long long[::1] ids,
-          const double[::1] vx, const double[::1] vy, long long k, list hist, long long width,
-          long long height, double[:, ::1] out_pts, long long[::1] out_start, double[:, ::1] stats,
-          long long[:, ::1] box):
-    """The merged envelopes of n lights (receiver.vision.envelope.EnvelopeHistory.step).
+          const double[:, ::1] vel, long long k, list hist, long long width, long long height,
+          list blobs, object out):
+    """The merged envelopes of n lights (receiver.vision.envelope.EnvelopeHistory.step): a
+    list of n Blobs, light i's `blobs[i]` itself when it has no earlier hull.
 
     cur (sum K_i, 2) float64: the lights' own hulls of this frame, light i's rows
-    cur_start[i]:cur_start[i + 1]; ids (n,): their track ids; vx, vy (n,): px/frame; k: this
+    cur_start[i]:cur_start[i + 1]; ids (n,): their track ids; vel (n, 2): px/frame; k: this
     frame's index; hist: the earlier frames, oldest first, each (frame index, ids (m,) int64,
-    starts (m + 1,) int64, points (., 2) float64) in the same layout. A light's earlier hulls
-    (frames with 0 < k - frame < ...: the caller passes only those) are moved by
-    (vx, vy) * (k - frame). Outputs per light i: out_pts rows out_start[i]:out_start[i + 1]
-    the merged hull (float32 values), stats[i] = (cx, cy, area_px), box[i] = (x0, y0, x1, y1
-    clipped to the image, border 0/1 from the box alone, merged 0/1). A light with no earlier
-    hull is not merged (merged 0, nothing else written but an empty out_pts run).
-    out_pts needs as many rows as all points given."""
+    starts (m + 1,) int64, points (., 2) float64) in the same layout (the caller passes only
+    frames that count). A light's earlier hulls are moved by vel * (k - frame). A merged
+    light's Blob: `blobs[i]` with cx, cy, area_px, hull (rows of `out`, (rows, 2) float64 with
+    as many rows as all points given), box and border replaced."""
     cdef int n = ids.shape[0], nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
     cdef long long o = 0
-    cdef double dk, mx, my, x0f, y0f, x1f, y1f, vxx
+    cdef double dk, mx, my, x0f, y0f, x1f, y1f
     cdef long long x0, y0, x1, y1
     cdef float xv, yv
+    cdef double st[3]
+    cdef bint merged, edge
+    cdef double[:, ::1] out_pts = out
     cdef const long long[::1] hid
     cdef const long long[::1] hst
     cdef const double[:, ::1] hpt
@@ -390,6 +422,10 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
     if hk == NULL or where == NULL or hp == NULL or hs == NULL:
         free(hk); free(where); free(hp); free(hs)
         raise MemoryError()
+    if len(blobs) != n or cur_start.shape[0] != n + 1 or vel.shape[0] != n:
+        free(hk); free(where); free(hp); free(hs)
+        raise ValueError("merge: blobs, starts and velocities must match the ids")
+    env = list(blobs)
     try:
         # each light's row in each earlier frame (or -1), and its number of points
         for f in range(nh):
@@ -408,6 +444,7 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
                         where[i * nh + f] = a
                         q = a + 1
                         break
+        npts = 0
         for i in range(n):
             npts = <int>(cur_start[i + 1] - cur_start[i])
             for f in range(nh):
@@ -416,15 +453,14 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
                     npts += <int>(hs[f][a + 1] - hs[f][a])
             if npts > maxpts:
                 maxpts = npts
-        P = <float *> malloc((2 * maxpts + 2) * sizeof(float))
+        P = <float *> malloc((4 * maxpts + 4) * sizeof(float))
         ibuf = <int *> malloc((5 * maxpts + 8) * sizeof(int))
         dbuf = <double *> malloc((6 * maxpts + 8) * sizeof(double))
         key = <unsigned long long *> malloc((maxpts + 1) * sizeof(unsigned long long))
         if P == NULL or ibuf == NULL or dbuf == NULL or key == NULL:
             raise MemoryError()
         for i in range(n):
-            out_start[i] = o
-            box[i, 5] = 0
+            merged = False
             total = 0
             a = <int>cur_start[i]
             b = <int>cur_start[i + 1]
@@ -436,18 +472,19 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
                 q = where[i * nh + f]
                 if q < 0:
                     continue
-                box[i, 5] = 1
+                merged = True
                 dk = <double>(k - hk[f])
-                mx = vx[i] * dk
-                my = vy[i] * dk
+                mx = vel[i, 0] * dk
+                my = vel[i, 1] * dk
                 for j in range(<int>hs[f][q], <int>hs[f][q + 1]):
                     P[2 * total] = <float>(hp[f][2 * j] + mx)
                     P[2 * total + 1] = <float>(hp[f][2 * j + 1] + my)
                     total += 1
-            if not box[i, 5] or total == 0:
-                box[i, 5] = 0
+            if not merged or total == 0:
                 continue
-            m = _hull(P, total, ibuf, ibuf + total, ibuf + 2 * total, ibuf + 4 * total + 4, key)
+            if o + total > out_pts.shape[0]:
+                raise ValueError("merge: `out` has too few rows")
+            m = _hull(P, total, ibuf, ibuf + total, ibuf + 2 * total, ibuf + 4 * total + 4, key, P + 2 * maxpts + 2)
             x0f = x1f = P[2 * ibuf[4 * total + 4]]
             y0f = y1f = P[2 * ibuf[4 * total + 4] + 1]
             for j in range(m):
@@ -466,17 +503,15 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
                     y0f = yv
                 if yv > y1f:
                     y1f = yv
-            _stats(dbuf, dbuf + maxpts, m, dbuf + 2 * maxpts, &stats[i, 0])
-            o += m
+            _stats(dbuf, dbuf + maxpts, m, dbuf + 2 * maxpts, st)
             x0 = <long long>floor(x0f)
             y0 = <long long>floor(y0f)
             x1 = <long long>floor(x1f) + 1
             y1 = <long long>floor(y1f) + 1
-            box[i, 4] = x0 <= 0 or y0 <= 0 or x1 >= width or y1 >= height
-            box[i, 0] = x0 if x0 > 0 else 0
-            box[i, 1] = y0 if y0 > 0 else 0
-            box[i, 2] = x1 if x1 < width else width
-            box[i, 3] = y1 if y1 < height else height
-        out_start[n] = o
+            edge = x0 <= 0 or y0 <= 0 or x1 >= width or y1 >= height
+            env[i] = _blob_like(blobs[i], st[0], st[1], st[2], out[o:o + m], x0 if x0 > 0 else 0,
+                                y0 if y0 > 0 else 0, x1 if x1 < width else width, y1 if y1 < height else height, edge)
+            o += m
     finally:
         free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key)
+    return env

@@ -128,14 +128,15 @@ class EnvelopeHistory:
             pts = np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)
         else:
             pts = np.zeros((0, 2))
+        id_arr = np.array(ids, np.int64)
         if not recent or not n:
             env = {i: t.blob for i, t in zip(ids, tracks)}
         elif _k is not None:
-            env = _step_native(tracks, ids, pts, starts, recent, k, shape)
+            env = _step_native(tracks, ids, id_arr, pts, starts, recent, k, shape)
         else:
             env = _step_pure(tracks, ids, recent, k, shape)
         self._recent = [r for r in recent if k - r[0] < frames - 1] + [
-            (k, np.array(ids, np.int64), starts, np.ascontiguousarray(pts), dict(zip(ids, hulls)))]
+            (k, id_arr, starts, np.ascontiguousarray(pts), dict(zip(ids, hulls)))]
         return env
 
     def forget(self, track_ids) -> None:
@@ -161,27 +162,12 @@ def _step_pure(tracks, ids, recent, k: int, shape) -> dict:
     return dict(zip(ids, env))
 
 
-def _step_native(tracks, ids, pts, starts, recent, k: int, shape) -> dict:
-    """`_step_pure` by the compiled kernel: every light of the frame in one call; the Blobs
-    built here from its flat outputs."""
-    n = len(tracks)
+def _step_native(tracks, ids, id_arr, pts, starts, recent, k: int, shape) -> dict:
+    """`_step_pure` by the compiled kernel: every light of the frame in one call, which also
+    builds the merged lights' Blobs."""
     h, w = shape[:2]
-    vx = np.array([t.vx for t in tracks], np.float64)
-    vy = np.array([t.vy for t in tracks], np.float64)
-    rows = len(pts) + sum(len(r[3]) for r in recent)
-    out = np.empty((rows, 2))
-    out_start = np.empty(n + 1, np.int64)
-    stats = np.empty((n, 3))
-    box = np.empty((n, 6), np.int64)
-    _k.merge(pts, starts, np.array(ids, np.int64), vx, vy, int(k), [r[:4] for r in recent], int(w), int(h),
-             out, out_start, stats, box)
-    os_ = out_start.tolist()
-    env = {}
-    for i, t, st, (x0, y0, x1, y1, edge, merged) in zip(range(n), tracks, stats.tolist(), box.tolist()):
-        b = t.blob
-        if merged:
-            env[ids[i]] = Blob(st[0], st[1], st[2], out[os_[i]:os_[i + 1]], x0, y0, x1, y1, b.border or edge == 1,
-                               b.peak, b.level, b.background)
-        else:
-            env[ids[i]] = b
-    return env
+    vel = np.array([(t.vx, t.vy) for t in tracks], np.float64).reshape(-1, 2)
+    out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
+    env = _k.merge(pts, starts, id_arr, vel, int(k), [r[:4] for r in recent], int(w), int(h),
+                   [t.blob for t in tracks], out)
+    return dict(zip(ids, env))
