@@ -133,3 +133,63 @@ def test_kernel_blobs_are_plain_frozen_blobs():
         assert _same(e, rebuilt) and repr(e) == repr(rebuilt)
         with pytest.raises(dataclasses.FrozenInstanceError):
             e.cx = 0.0
+
+
+def _blob(cx, cy, r):
+    from receiver.core.records import Blob
+    a = np.pi * r * r
+    hull = np.array([[cx - r, cy - r], [cx + r, cy - r], [cx + r, cy + r], [cx - r, cy + r]])
+    return Blob(cx, cy, a, hull, int(cx - r), int(cy - r), int(cx + r) + 1, int(cy + r) + 1, False, 200.0, 50.0, 10.0)
+
+
+def _tracker_stream(seed):
+    """Frames of blobs: lights moving and blinking out, close pairs (two blobs in one gate: the
+    solver decides), area jumps past the ratio gate, lights appearing; a camera shake per
+    frame (None on some), frame index gaps."""
+    rng = np.random.default_rng(seed)
+    n = 14
+    pos = rng.uniform(50, 600, size=(n, 2))
+    vel = rng.normal(size=(n, 2)) * 3
+    pos[1] = pos[0] + (9.0, 2.0)  # a close pair
+    frames, k = [], 0
+    for step in range(40):
+        k += 1 + int(rng.random() < 0.15)
+        shift = None if rng.random() < 0.3 else tuple(rng.normal(size=2) * 2)
+        blobs = []
+        for i in range(n):
+            if rng.random() < 0.12:
+                continue  # dark or missed this frame
+            r = 6.0 * (3.0 if rng.random() < 0.05 else 1.0)
+            x, y = pos[i] + vel[i] * k + rng.normal(size=2) * 0.4
+            blobs.append(_blob(float(x), float(y), r))
+        if step % 9 == 5:
+            blobs.append(_blob(float(rng.uniform(0, 640)), float(rng.uniform(0, 480)), 4.0))
+        order = rng.permutation(len(blobs))
+        frames.append((k, [blobs[j] for j in order], shift))
+    return frames
+
+
+def _state(tracks):
+    return [(t.track_id, t.blob, t.first_frame, t.last_frame, t.vx, t.vy, t.hits, t.misses, t.seen, t.shift0)
+            for t in tracks]
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_tracker_kernel_equals_pure(seed, monkeypatch):
+    from receiver.vision import track
+    from receiver.vision.track import Tracker
+    stream = _tracker_stream(seed)
+    calls = []
+    real = track._solver_assignment
+    monkeypatch.setattr(track, "_solver_assignment", lambda d, ok: calls.append(1) or real(d, ok))
+    nat = Tracker(max_missed=2)
+    got = [(_state(nat.step(k, b, shift)), _state(nat.ended)) for k, b, shift in stream]
+    n_solver = len(calls)
+    with monkeypatch.context() as m:
+        m.setattr(track, "_k", None)
+        pure = Tracker(max_missed=2)
+        want = [(_state(pure.step(k, b, shift)), _state(pure.ended)) for k, b, shift in stream]
+    assert got == want
+    assert n_solver > 0 and len(calls) == 2 * n_solver  # the solver's path ran, as often in both
+    assert any(e for _, e in got) and nat._next_id > 14  # tracks ended, new ones started
