@@ -193,3 +193,28 @@ def test_tracker_kernel_equals_pure(seed, monkeypatch):
     assert got == want
     assert n_solver > 0 and len(calls) == 2 * n_solver  # the solver's path ran, as often in both
     assert any(e for _, e in got) and nat._next_id > 14  # tracks ended, new ones started
+
+
+@needs_kernel
+def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
+    """The Blobs' edge-point boxes by `_envelope.edge_boxes` (merged envelopes, some past the
+    image edge, one too narrow for a run) give `_boxes`' points bit for bit."""
+    import dataclasses
+    from receiver.vision import outline
+    leds = bench_scene(n_leds=8, radius_px=30.0, seed=3)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
+    hist = EnvelopeHistory(3)
+    for k, g in enumerate(frames):
+        tracks = [Track(i, b, 0, k, vx=(-700.0 if i == 2 else 0.4), vy=-0.2) for i, b in enumerate(detect(g, stripe_gap_px=12))]
+        env = list(hist.step(tracks, k, g.shape).values())
+    narrow = dataclasses.replace(env[0], hull=env[0].hull[:1])
+    items = env + [narrow]
+    for kw in ({}, {"bin_rows": 1}, {"pad": 1, "border_px": 0}):
+        a = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        with monkeypatch.context() as m:
+            m.setattr(outline, "_env", None)
+            b = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        assert len(a) == len(b) == len(items)
+        for (pa, sa), (pb, sb) in zip(a, b):
+            assert np.array_equal(pa, pb) and np.array_equal(sa, sb)
+        assert sum(len(p) for p, _ in a) > 50 and len(a[-1][0]) == 0
