@@ -111,7 +111,7 @@ class EnvelopeHistory:
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))
         # [(frame index, ids (m,) int64, starts (m + 1,) int64, hull points (., 2) float64,
-        #   {track id: hull})], oldest first
+        #   ids, hulls (lists))], oldest first
         self._recent: list[tuple] = []
 
     def step(self, tracks, k: int, shape) -> dict:
@@ -125,7 +125,7 @@ class EnvelopeHistory:
         starts = np.zeros(n + 1, np.int64)
         if n:
             np.cumsum([len(h) for h in hulls], out=starts[1:])
-            pts = np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)
+            pts = np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2))
         else:
             pts = np.zeros((0, 2))
         id_arr = np.array(ids, np.int64)
@@ -135,8 +135,7 @@ class EnvelopeHistory:
             env = _step_native(tracks, ids, id_arr, pts, starts, recent, k, shape)
         else:
             env = _step_pure(tracks, ids, recent, k, shape)
-        self._recent = [r for r in recent if k - r[0] < frames - 1] + [
-            (k, id_arr, starts, np.ascontiguousarray(pts), dict(zip(ids, hulls)))]
+        self._recent = [r for r in recent if k - r[0] < frames - 1] + [(k, id_arr, starts, pts, ids, hulls)]
         return env
 
     def forget(self, track_ids) -> None:
@@ -147,8 +146,9 @@ def _step_pure(tracks, ids, recent, k: int, shape) -> dict:
     """`EnvelopeHistory.step` by `_merge`: each light's own hull, then its hulls of the earlier
     frames (oldest first) moved by its velocity."""
     items, merged, pieces, counts, moves = [], [], [], [], []
+    hull_of = [dict(zip(r[4], r[5])) for r in recent]
     for i, t in enumerate(tracks):
-        keep = [(r[0], r[4][t.track_id]) for r in recent if t.track_id in r[4]]
+        keep = [(r[0], h[t.track_id]) for r, h in zip(recent, hull_of) if t.track_id in h]
         if keep:
             merged.append(i)
             counts.append(1 + len(keep))
@@ -166,7 +166,7 @@ def _step_native(tracks, ids, id_arr, pts, starts, recent, k: int, shape) -> dic
     """`_step_pure` by the compiled kernel: every light of the frame in one call, which also
     builds the merged lights' Blobs."""
     h, w = shape[:2]
-    vel = np.array([(t.vx, t.vy) for t in tracks], np.float64).reshape(-1, 2)
+    vel = np.array([(t.vx, t.vy) for t in tracks], np.float64)
     out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
     env = _k.merge(pts, starts, id_arr, vel, int(k), [r[:4] for r in recent], int(w), int(h),
                    [t.blob for t in tracks], out)
