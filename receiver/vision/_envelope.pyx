@@ -387,20 +387,19 @@ cdef object _blob_like(object src, double cx, double cy, double area, object hul
     return o
 
 
-def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long long[::1] ids,
-          const double[:, ::1] vel, long long k, list hist, long long width, long long height,
-          list blobs, object out):
-    """The merged envelopes of n lights (receiver.vision.envelope.EnvelopeHistory.step): a
-    list of n Blobs, light i's `blobs[i]` itself when it has no earlier hull.
+def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list hist, long long width,
+          long long height, object out, long long[::1] ids_out, long long[::1] starts_out):
+    """The merged envelopes of the n seen tracks (receiver.vision.envelope.EnvelopeHistory.step):
+    {track id: Blob}, a track's own blob when it has no earlier hull.
 
-    cur (sum K_i, 2) float64: the lights' own hulls of this frame, light i's rows
-    cur_start[i]:cur_start[i + 1]; ids (n,): their track ids; vel (n, 2): px/frame; k: this
+    hulls: the tracks' blob hulls, cur (sum K_i, 2) float64 all of them in order; k: this
     frame's index; hist: the earlier frames, oldest first, each (frame index, ids (m,) int64,
-    starts (m + 1,) int64, points (., 2) float64) in the same layout (the caller passes only
-    frames that count). A light's earlier hulls are moved by vel * (k - frame). A merged
-    light's Blob: `blobs[i]` with cx, cy, area_px, hull (rows of `out`, (rows, 2) float64 with
-    as many rows as all points given), box and border replaced."""
-    cdef int n = ids.shape[0], nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
+    starts (m + 1,) int64, points (., 2) float64) in this frame's layout (the caller passes
+    only frames that count); ids_out (n,), starts_out (n + 1,): this frame's, written here for
+    the next frames. A track's earlier hulls are moved by its velocity (vx, vy) px/frame times
+    (k - frame). A merged track's Blob: its blob with cx, cy, area_px, hull (rows of `out`,
+    (rows, 2) float64 with as many rows as all points given), box and border replaced."""
+    cdef int n = len(tracks), nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
     cdef long long o = 0
     cdef double dk, mx, my, x0f, y0f, x1f, y1f
     cdef long long x0, y0, x1, y1
@@ -415,18 +414,32 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
     cdef int *where = <int *> malloc((n * (nh + 1) + 1) * sizeof(int))
     cdef const double **hp = <const double **> malloc((nh + 1) * sizeof(double *))
     cdef const long long **hs = <const long long **> malloc((nh + 1) * sizeof(long long *))
+    cdef double *vel = <double *> malloc((2 * n + 2) * sizeof(double))
     cdef float *P = NULL
     cdef int *ibuf = NULL
     cdef double *dbuf = NULL
     cdef unsigned long long *key = NULL
-    if hk == NULL or where == NULL or hp == NULL or hs == NULL:
-        free(hk); free(where); free(hp); free(hs)
+    cdef long long[::1] ids = ids_out
+    cdef long long[::1] cur_start = starts_out
+    if hk == NULL or where == NULL or hp == NULL or hs == NULL or vel == NULL:
+        free(hk); free(where); free(hp); free(hs); free(vel)
         raise MemoryError()
-    if len(blobs) != n or cur_start.shape[0] != n + 1 or vel.shape[0] != n:
-        free(hk); free(where); free(hp); free(hs)
-        raise ValueError("merge: blobs, starts and velocities must match the ids")
-    env = list(blobs)
+    if len(hulls) != n or starts_out.shape[0] != n + 1 or ids_out.shape[0] != n:
+        free(hk); free(where); free(hp); free(hs); free(vel)
+        raise ValueError("merge: hulls, ids and starts must match the tracks")
+    blobs = [None] * n
+    env = {}
     try:
+        cur_start[0] = 0
+        for i in range(n):
+            t = tracks[i]
+            ids[i] = t.track_id
+            vel[2 * i] = t.vx
+            vel[2 * i + 1] = t.vy
+            blobs[i] = t.blob
+            cur_start[i + 1] = cur_start[i] + len(hulls[i])
+        if cur_start[n] != cur.shape[0]:
+            raise ValueError("merge: `cur` must hold the hulls' points")
         # each light's row in each earlier frame (or -1), and its number of points
         for f in range(nh):
             kh, hid, hst, hpt = hist[f]
@@ -474,8 +487,8 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
                     continue
                 merged = True
                 dk = <double>(k - hk[f])
-                mx = vel[i, 0] * dk
-                my = vel[i, 1] * dk
+                mx = vel[2 * i] * dk
+                my = vel[2 * i + 1] * dk
                 for j in range(<int>hs[f][q], <int>hs[f][q + 1]):
                     P[2 * total] = <float>(hp[f][2 * j] + mx)
                     P[2 * total + 1] = <float>(hp[f][2 * j + 1] + my)
@@ -509,12 +522,16 @@ def merge(const double[:, ::1] cur, const long long[::1] cur_start, const long l
             x1 = <long long>floor(x1f) + 1
             y1 = <long long>floor(y1f) + 1
             edge = x0 <= 0 or y0 <= 0 or x1 >= width or y1 >= height
-            env[i] = _blob_like(blobs[i], st[0], st[1], st[2], out[o:o + m], x0 if x0 > 0 else 0,
-                                y0 if y0 > 0 else 0, x1 if x1 < width else width, y1 if y1 < height else height, edge)
+            blobs[i] = _blob_like(blobs[i], st[0], st[1], st[2], out[o:o + m], x0 if x0 > 0 else 0,
+                                  y0 if y0 > 0 else 0, x1 if x1 < width else width, y1 if y1 < height else height, edge)
             o += m
+        for i in range(n):
+            env[ids[i]] = blobs[i]
     finally:
-        free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key)
+        free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key); free(vel)
     return env
+
+
 
 
 def edge_boxes(const double[:, ::1] pts, const long long[::1] starts, long long pad, long long width,

@@ -111,7 +111,7 @@ class EnvelopeHistory:
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))
         # [(frame index, ids (m,) int64, starts (m + 1,) int64, hull points (., 2) float64,
-        #   ids, hulls (lists))], oldest first
+        #   hulls (list))], oldest first
         self._recent: list[tuple] = []
 
     def step(self, tracks, k: int, shape) -> dict:
@@ -121,32 +121,30 @@ class EnvelopeHistory:
         recent = [r for r in self._recent if 0 < k - r[0] < frames]
         n = len(tracks)
         hulls = [t.blob.hull for t in tracks]
-        ids = [t.track_id for t in tracks]
-        starts = np.zeros(n + 1, np.int64)
-        if n:
-            np.cumsum([len(h) for h in hulls], out=starts[1:])
-            pts = np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2))
+        pts = (np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)) if n
+               else np.zeros((0, 2)))
+        if _k is not None:
+            ids, starts = np.empty(n, np.int64), np.empty(n + 1, np.int64)
+            h, w = shape[:2]
+            out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
+            env = _k.merge(tracks, hulls, pts, int(k), [r[:4] for r in recent], int(w), int(h), out, ids, starts)
         else:
-            pts = np.zeros((0, 2))
-        id_arr = np.array(ids, np.int64)
-        if not recent or not n:
-            env = {i: t.blob for i, t in zip(ids, tracks)}
-        elif _k is not None:
-            env = _step_native(tracks, ids, id_arr, pts, starts, recent, k, shape)
-        else:
-            env = _step_pure(tracks, ids, recent, k, shape)
-        self._recent = [r for r in recent if k - r[0] < frames - 1] + [(k, id_arr, starts, pts, ids, hulls)]
+            ids = np.array([t.track_id for t in tracks], np.int64)
+            starts = np.zeros(n + 1, np.int64)
+            np.cumsum([len(p) for p in hulls], out=starts[1:])
+            env = _step_pure(tracks, recent, k, shape) if recent and n else {t.track_id: t.blob for t in tracks}
+        self._recent = [r for r in recent if k - r[0] < frames - 1] + [(k, ids, starts, pts, hulls)]
         return env
 
     def forget(self, track_ids) -> None:
         """Kept for callers: an ended track's hulls age out of the per-frame records."""
 
 
-def _step_pure(tracks, ids, recent, k: int, shape) -> dict:
+def _step_pure(tracks, recent, k: int, shape) -> dict:
     """`EnvelopeHistory.step` by `_merge`: each light's own hull, then its hulls of the earlier
     frames (oldest first) moved by its velocity."""
     items, merged, pieces, counts, moves = [], [], [], [], []
-    hull_of = [dict(zip(r[4], r[5])) for r in recent]
+    hull_of = [dict(zip(r[1].tolist(), r[4])) for r in recent]
     for i, t in enumerate(tracks):
         keep = [(r[0], h[t.track_id]) for r, h in zip(recent, hull_of) if t.track_id in h]
         if keep:
@@ -159,15 +157,4 @@ def _step_pure(tracks, ids, recent, k: int, shape) -> dict:
                 moves.append((t.vx * (k - kh), t.vy * (k - kh)))
         items.append((t.blob, None))
     env = _merge(items, merged, pieces, counts, moves if moves else None, shape)
-    return dict(zip(ids, env))
-
-
-def _step_native(tracks, ids, id_arr, pts, starts, recent, k: int, shape) -> dict:
-    """`_step_pure` by the compiled kernel: every light of the frame in one call, which also
-    builds the merged lights' Blobs."""
-    h, w = shape[:2]
-    vel = np.array([(t.vx, t.vy) for t in tracks], np.float64)
-    out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
-    env = _k.merge(pts, starts, id_arr, vel, int(k), [r[:4] for r in recent], int(w), int(h),
-                   [t.blob for t in tracks], out)
-    return dict(zip(ids, env))
+    return {t.track_id: e for t, e in zip(tracks, env)}
