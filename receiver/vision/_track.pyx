@@ -37,6 +37,8 @@ def step(list tracks, list blobs, long long frame_index, double sx, double sy, o
     cdef int *ccount = NULL
     cdef double px, py, tarea, gate, ratio, inv = 1.0 / max_area_ratio, g, dt, ox, oy
     cdef bint unique = True
+    cdef double[:, ::1] dv
+    cdef unsigned char[:, ::1] ov
     cdef long long last, dti
     used = bytearray(B)
     alive = []
@@ -98,14 +100,16 @@ def step(list tracks, list blobs, long long frame_index, double sx, double sy, o
                     unique = False
             if not unique:
                 dn = np.empty((T, B))
-                okn = np.empty((T, B), bool)
+                okn = np.empty((T, B), np.uint8)
+                dv = dn
+                ov = okn
                 for i in range(T):
                     for j in range(B):
-                        dn[i, j] = d[i * B + j]
-                        okn[i, j] = ok[i * B + j] != 0
+                        dv[i, j] = d[i * B + j]
+                        ov[i, j] = ok[i * B + j] != 0
                 for i in range(T):
                     row_of[i] = -1
-                for r, c in solver(dn, okn).items():
+                for r, c in solver(dn, okn.view(bool)).items():
                     row_of[<Py_ssize_t>r] = <int>c
         for i in range(T):
             t = tracks[i]
