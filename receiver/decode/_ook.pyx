@@ -325,6 +325,42 @@ def add(double[::1] acc, double[::1] acc_w, double[::1] extra_w, const double[::
             extra_w[i] = extra_w[i] + tw[i]
 
 
+def decay4(double[:, ::1] acc4, double f):
+    """`decay` of the four accumulators held as the rows of one (4, 54) array (one buffer
+    to take instead of four)."""
+    cdef Py_ssize_t r, i
+    for r in range(acc4.shape[0]):
+        for i in range(acc4.shape[1]):
+            acc4[r, i] = acc4[r, i] * f
+
+
+def add4(double[:, ::1] acc4, Py_ssize_t extra, const double[::1] soft, const double[::1] cw,
+         Py_ssize_t shift):
+    """`add` on the accumulators held as the rows of acc4 (acc, acc_w, trust_w, timed_w):
+    `extra` 2 or 3 names the row that gets the weights too, -1 none."""
+    cdef double tv[PACKET_LEN]
+    cdef double tw[PACKET_LEN]
+    cdef Py_ssize_t i, p
+    if acc4.shape[0] != 4 or acc4.shape[1] != PACKET_LEN or cw.shape[0] < soft.shape[0]:
+        raise ValueError("add4: a (4, 54) accumulator and one weight per chip")
+    for i in range(PACKET_LEN):
+        tv[i] = 0.0
+        tw[i] = 0.0
+    shift = shift % PACKET_LEN
+    if shift < 0:
+        shift += PACKET_LEN
+    for i in range(soft.shape[0]):
+        p = (i + shift) % PACKET_LEN
+        tv[p] += cw[i] * soft[i]
+        tw[p] += cw[i]
+    for i in range(PACKET_LEN):
+        acc4[0, i] = acc4[0, i] + tv[i]
+        acc4[1, i] = acc4[1, i] + tw[i]
+    if extra == 2 or extra == 3:
+        for i in range(PACKET_LEN):
+            acc4[extra, i] = acc4[extra, i] + tw[i]
+
+
 def known_count(const double[::1] acc_w):
     """np.count_nonzero(acc_w > 0)."""
     cdef Py_ssize_t i, n = 0

@@ -422,11 +422,14 @@ class OokDecoder:
         self.stale_frames = s.stale_frames
         self.align_when_decoded = s.align_when_decoded
         self._stale = 0
-        self.acc = np.zeros(PACKET_LEN)  # sum of weighted soft chips per packet position
-        self.acc_w = np.zeros(PACKET_LEN)  # sum of weights
+        # the four accumulators are the rows of one array (one buffer for the kernels); every
+        # update of them is in place, so these views stay theirs
+        self._acc4 = np.zeros((4, PACKET_LEN))
+        self.acc = self._acc4[0]  # sum of weighted soft chips per packet position
+        self.acc_w = self._acc4[1]  # sum of weights
         # weight placed where it surely belongs: by the frame's own sync, or by an alignment
         # for which every cyclic shift overlapped enough known chips to be judged
-        self.trust_w = np.zeros(PACKET_LEN)
+        self.trust_w = self._acc4[2]
         self._last_align_complete = False
         self.pending: deque = deque(maxlen=s.pending_frames)
         self.recent: deque = deque(maxlen=s.verify_frames)  # soft chips of the latest frames
@@ -453,7 +456,7 @@ class OokDecoder:
         self._t_strong = False  # some offset came from a sync-placed frame
         self._tc: float | None = None  # this frame: clock coordinate of frame chip 0
         self._tk = 0
-        self.timed_w = np.zeros(PACKET_LEN)  # weight of timed placements not yet confirmed
+        self.timed_w = self._acc4[3]  # weight of timed placements not yet confirmed
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -569,8 +572,7 @@ class OokDecoder:
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
         if _k is not None:
-            _k.add(self.acc, self.acc_w, self.trust_w if trusted else self.timed_w if timed else None,
-                   soft, cw, shift)
+            _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
             return
         pos = _cyclic_index(soft.size)[shift % PACKET_LEN]
         self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
@@ -590,7 +592,7 @@ class OokDecoder:
         (`_timed_shift`)."""
         self.frames += 1
         if _k is not None:
-            _k.decay(self.acc, self.acc_w, self.trust_w, self.timed_w, self.decay)
+            _k.decay4(self._acc4, self.decay)
         else:
             self.acc *= self.decay
             self.acc_w *= self.decay
@@ -690,10 +692,7 @@ class OokDecoder:
 
     def _rotate(self, q: int) -> None:
         """Rotate the unanchored accumulator so that its sync (at q) lands on position 0."""
-        self.acc = np.roll(self.acc, -q)
-        self.acc_w = np.roll(self.acc_w, -q)
-        self.trust_w = np.roll(self.trust_w, -q)
-        self.timed_w = np.roll(self.timed_w, -q)
+        self._acc4[:] = np.roll(self._acc4, -q, axis=1)  # in place: acc .. timed_w stay its rows
         self._tobs = deque(((k, o - q) for k, o in self._tobs), maxlen=self._tobs.maxlen)
         self.timed_frames = deque(((x, (sh - q) % PACKET_LEN) for x, sh in self.timed_frames),
                                   maxlen=self.timed_frames.maxlen)

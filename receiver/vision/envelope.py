@@ -7,8 +7,12 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.detect import _hull_stats_many
+
+# the compiled merge of all lights of a frame (receiver/vision/_envelope.pyx), or None: `_merge`
+_k = load("receiver.vision._envelope")
 
 # Merged lights in a frame from which their earlier hulls are moved, boxed and copied in a few
 # array operations rather than one by one (callgrind, EnvelopeHistory.step: 16 lights 2.51 ->
@@ -96,34 +100,61 @@ class EnvelopeHistory:
     this frame's blob merged with its hulls of the previous `frames - 1` frames, each moved by
     the track's px/frame velocity (its jitter from the hidden caps limits how much a static
     scene gains; a moving one needs the motion). `frames` 1 = this frame's blob alone.
-    `forget(track_ids)` drops the history of ended tracks."""
+
+    The history is one record per frame (the seen tracks' ids and hulls, all in one array),
+    kept while a later frame can still use it: frame indices must grow (gaps are fine); a frame
+    index at or below an earlier one starts the history afresh. All lights of a frame are merged
+    by one call of the compiled kernel (receiver/vision/_envelope.pyx) when it is built, else by
+    `_merge` (the reference it equals bit for bit). `forget(track_ids)`: nothing to do (a
+    record ages out by itself; track ids are never reused)."""
 
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))
-        self._hulls: dict[int, list] = {}  # track id -> [(frame index, hull (K, 2))]
+        # [(frame index, ids (m,) int64, starts (m + 1,) int64, hull points (., 2) float64,
+        #   hulls (list))], oldest first
+        self._recent: list[tuple] = []
 
     def step(self, tracks, k: int, shape) -> dict:
         if self.frames <= 1:
             return {t.track_id: t.blob for t in tracks}
-        items, merged, pieces, counts, moves = [], [], [], [], []
-        frames, hist = self.frames, self._hulls
-        for i, t in enumerate(tracks):
-            own = t.blob.hull
-            keep = [(kh, hh) for kh, hh in hist.get(t.track_id, ()) if 0 < k - kh < frames]
-            if keep:
-                merged.append(i)
-                counts.append(1 + len(keep))
-                pieces.append(own)
-                moves.append((0.0, 0.0))
-                for kh, hh in keep:  # moved by the track's velocity into this frame
-                    pieces.append(hh)
-                    moves.append((t.vx * (k - kh), t.vy * (k - kh)))
-            items.append((t.blob, None))
-            keep.append((k, own))
-            hist[t.track_id] = keep
-        env = _merge(items, merged, pieces, counts, moves if moves else None, shape)
-        return {t.track_id: e for t, e in zip(tracks, env)}
+        frames = self.frames
+        recent = [r for r in self._recent if 0 < k - r[0] < frames]
+        n = len(tracks)
+        hulls = [t.blob.hull for t in tracks]
+        pts = (np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)) if n
+               else np.zeros((0, 2)))
+        if _k is not None:
+            ids, starts = np.empty(n, np.int64), np.empty(n + 1, np.int64)
+            h, w = shape[:2]
+            out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
+            env = _k.merge(tracks, hulls, pts, int(k), [r[:4] for r in recent], int(w), int(h), out, ids, starts)
+        else:
+            ids = np.array([t.track_id for t in tracks], np.int64)
+            starts = np.zeros(n + 1, np.int64)
+            np.cumsum([len(p) for p in hulls], out=starts[1:])
+            env = _step_pure(tracks, recent, k, shape) if recent and n else {t.track_id: t.blob for t in tracks}
+        self._recent = [r for r in recent if k - r[0] < frames - 1] + [(k, ids, starts, pts, hulls)]
+        return env
 
     def forget(self, track_ids) -> None:
-        for i in track_ids:
-            self._hulls.pop(i, None)
+        """Kept for callers: an ended track's hulls age out of the per-frame records."""
+
+
+def _step_pure(tracks, recent, k: int, shape) -> dict:
+    """`EnvelopeHistory.step` by `_merge`: each light's own hull, then its hulls of the earlier
+    frames (oldest first) moved by its velocity."""
+    items, merged, pieces, counts, moves = [], [], [], [], []
+    hull_of = [dict(zip(r[1].tolist(), r[4])) for r in recent]
+    for i, t in enumerate(tracks):
+        keep = [(r[0], h[t.track_id]) for r, h in zip(recent, hull_of) if t.track_id in h]
+        if keep:
+            merged.append(i)
+            counts.append(1 + len(keep))
+            pieces.append(t.blob.hull)
+            moves.append((0.0, 0.0))
+            for kh, hh in keep:  # moved by the track's velocity into this frame
+                pieces.append(hh)
+                moves.append((t.vx * (k - kh), t.vy * (k - kh)))
+        items.append((t.blob, None))
+    env = _merge(items, merged, pieces, counts, moves if moves else None, shape)
+    return {t.track_id: e for t, e in zip(tracks, env)}

@@ -33,6 +33,8 @@ from receiver.vision.detect import Scratch
 
 # the compiled row scans (receiver/vision/_pixels.pyx), or None: the numpy path below
 _k = load("receiver.vision._pixels")
+# the Blobs' boxes in one call (receiver/vision/_envelope.pyx, `edge_boxes`), or None: `_boxes`
+_env = load("receiver.vision._envelope")
 
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
 MIN_CONTRAST = 20.0
@@ -127,6 +129,10 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     empty = (np.zeros((0, 2)), np.zeros(0))
     out = [empty] * len(blobs)
     h, w = gray.shape[:2]
+    if (_k is not None and _env is not None and blobs and SIDE_PX == 2 and MIN_RUN_PX == 9 and gray.ndim == 2
+            and gray.dtype == np.uint8 and np.float32(min_contrast) == min_contrast
+            and all(hasattr(b, "hull") and len(b.hull) for b in blobs)):
+        return _edge_points_blobs_native(gray, blobs, out, pad, border_px, min_contrast, bin_rows)
     boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
@@ -247,4 +253,32 @@ def _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows):
     for k, b in enumerate(boxes):
         if el[k + 1] > el[k]:
             out[b[0]] = (pts[el[k]:el[k + 1]], sig[el[k]:el[k + 1]])
+    return out
+
+
+def _edge_points_blobs_native(gray, blobs, out, pad, border_px, min_contrast, bin_rows):
+    """`stripe_edge_points_batch` of Blobs by two compiled calls: their boxes (`_boxes`, by
+    `_envelope.edge_boxes`) and the points (`_pixels.edge_points`); the same points and
+    sigmas, bit for bit (tests/test_track_kernels.py)."""
+    n = len(blobs)
+    h, w = gray.shape[:2]
+    hulls = [b.hull for b in blobs]
+    starts = np.zeros(n + 1, np.int64)
+    np.cumsum([len(p) for p in hulls], out=starts[1:])
+    box = np.empty((4, n), np.int64)
+    bg = np.array([getattr(b, "background", 0.0) for b in blobs], np.float32)
+    index = np.empty(n, np.int64)
+    m, rows = _env.edge_boxes(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2), starts, int(pad), w, h,
+                              MIN_RUN_PX + 2, box, bg, index)
+    if not m:
+        return out
+    pts, sig = np.empty((rows, 2)), np.empty(rows)
+    ends = np.empty(m + 1, np.int64)
+    _k.edge_points(np.ascontiguousarray(gray), box[0, :m], box[1, :m], box[2, :m], box[3, :m], bg[:m],
+                   int(border_px), float(min_contrast), int(bin_rows), MIN_SIGMA_PX, NOISE_GRAY * math.sqrt(2.0),
+                   pts, sig, ends)
+    el = ends.tolist()
+    for k, i in enumerate(index[:m].tolist()):
+        if el[k + 1] > el[k]:
+            out[i] = (pts[el[k]:el[k + 1]], sig[el[k]:el[k + 1]])
     return out

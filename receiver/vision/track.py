@@ -17,12 +17,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision.settings import TrackSettings
 from receiver.core.settings import resolve_settings
 
 # Cost standing in for "not allowed" in the assignment matrix (finite: scipy needs a solution).
 _FORBIDDEN = 1e9
+
+# the compiled step (receiver/vision/_track.pyx), or None: `Tracker._assign_update`
+_k = load("receiver.vision._track")
 
 
 @dataclass
@@ -113,9 +117,29 @@ class Tracker:
         """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob).
         `shift`: this frame's common image shift (dx, dy) px from the previous frame (camera
         shake, receiver.vision.motion) or None: added to every prediction, and taken out of the
-        velocities (a track's velocity is its light's own motion)."""
+        velocities (a track's velocity is its light's own motion). All tracks x blobs at once:
+        by the compiled kernel (receiver/vision/_track.pyx) when built, else `_assign_update`
+        (the reference it equals)."""
         if shift is not None:
             self.shift_sum = (self.shift_sum[0] + shift[0], self.shift_sum[1] + shift[1])
+        sx, sy = self.shift_sum
+        shifted = shift is not None or bool(sx) or bool(sy)
+        if _k is not None:
+            alive, self.ended, used = _k.step(self.tracks, blobs, frame_index, sx, sy, self.shift_sum, shifted,
+                                              self.gate_px, self.gate_size, self.max_area_ratio,
+                                              self.velocity_gain, self.max_missed, _solver_assignment)
+        else:
+            alive, self.ended, used = self._assign_update(frame_index, blobs, shifted)
+        for j, b in enumerate(blobs):
+            if not used[j]:
+                alive.append(Track(self._next_id, b, frame_index, frame_index, shift0=self.shift_sum))
+                self._next_id += 1
+        self.tracks = alive
+        return alive
+
+    def _assign_update(self, frame_index: int, blobs: list[Blob], shifted: bool):
+        """The assignment of `step` and the tracks' updates: (alive, ended, used) with `used`
+        1 for each blob that went to a track (numpy over all pairs; the pure reference)."""
         sx, sy = self.shift_sum
         tracks = self.tracks
         assigned_blob: dict[int, int] = {}
@@ -126,7 +150,7 @@ class Tracker:
                             for t in tracks])
             px = tst[:, 0] + tst[:, 2] * tst[:, 4]
             py = tst[:, 1] + tst[:, 3] * tst[:, 4]
-            if shift is not None or sx or sy:
+            if shifted:
                 px = px + np.array([sx - t.shift0[0] for t in tracks])
                 py = py + np.array([sy - t.shift0[1] for t in tracks])
             d = np.hypot(bxy[None, :, 0] - px[:, None], bxy[None, :, 1] - py[:, None])
@@ -135,11 +159,12 @@ class Tracker:
             ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
             ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
             assigned_blob = gated_assignment(d, ok)
-        used = set(assigned_blob.values())
-        alive, self.ended = [], []
+        used = bytearray(len(blobs))
+        alive, ended = [], []
         for i, t in enumerate(tracks):
             if i in assigned_blob:
                 b = blobs[assigned_blob[i]]
+                used[assigned_blob[i]] = 1
                 dt = max(frame_index - t.last_frame, 1)
                 g = self.velocity_gain if t.hits > 1 else 1.0
                 ox, oy = sx - t.shift0[0], sy - t.shift0[1]
@@ -153,10 +178,5 @@ class Tracker:
             else:
                 t.seen = False
                 t.misses += 1
-                (alive if t.misses <= self.max_missed else self.ended).append(t)
-        for j, b in enumerate(blobs):
-            if j not in used:
-                alive.append(Track(self._next_id, b, frame_index, frame_index, shift0=self.shift_sum))
-                self._next_id += 1
-        self.tracks = alive
-        return alive
+                (alive if t.misses <= self.max_missed else ended).append(t)
+        return alive, ended, used

@@ -1,0 +1,584 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled envelope merge (receiver.vision.envelope): every tracked light's merged envelope of
+one frame in one call.
+
+Per light: its own hull and its hulls of the previous frames (each moved by the light's velocity
+times the frame gap, in float64, then rounded to float32 as the reference does), the convex hull
+of all those points (`convex_hull_f32`: OpenCV's cv::convexHull for float points, same vertices
+in the same order, start vertex included), the hull's centroid and area
+(receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim, summed in
+numpy's reduceat order) and its box (floor of the float32 extremes, cv2.boundingRect of float
+points). The pure reference is `receiver.vision.envelope._merge`; tests/test_track_kernels.py
+asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
+"""
+
+from libc.math cimport floor, ceil, sqrt, hypot, fabs
+from libc.stdlib cimport malloc, free
+from libc.string cimport memcpy
+from receiver.decode._npsum cimport pw_sum
+
+cdef double QUARTER_PI = 0.7853981633974483  # math.pi / 4.0
+
+
+cdef inline int _sgn(double a) noexcept nogil:
+    return (a > 0) - (a < 0)
+
+
+cdef inline unsigned int _bits(float f) noexcept nogil:
+    cdef unsigned int u
+    memcpy(&u, &f, 4)
+    return u
+
+
+cdef inline unsigned long long _key(float x, float y) noexcept nogil:
+    """An integer whose order is the (x, y) order of finite floats (-0.0 as 0.0)."""
+    cdef unsigned int ux = _bits(x + <float>0.0), uy = _bits(y + <float>0.0)
+    ux = ~ux if ux & 0x80000000u else ux | 0x80000000u
+    uy = ~uy if uy & 0x80000000u else uy | 0x80000000u
+    return (<unsigned long long>ux << 32) | uy
+
+
+cdef inline bint _less(const unsigned long long *key, int i, int j) noexcept nogil:
+    """OpenCV's CHullCmpPoints: by x, then y, then position in the input."""
+    return key[i] < key[j] or (key[i] == key[j] and i < j)
+
+
+cdef void _sort(const unsigned long long *key, int *a, int *tmp, int *bounds, int n) noexcept nogil:
+    """Sort the positions a[0..n) by `_less` (a total order: any correct sort gives the same
+    order as OpenCV's std::sort): insertion sort for short runs, else a natural merge sort (the
+    input is a few convex polygons: a few monotone runs each). bounds: n + 1 ints of work."""
+    cdef int i, j, k, v, nr, r, lo, mid, hi, t
+    if n < 24:
+        for i in range(1, n):
+            v = a[i]
+            j = i - 1
+            while j >= 0 and _less(key, v, a[j]):
+                a[j + 1] = a[j]
+                j -= 1
+            a[j + 1] = v
+        return
+    nr = 0
+    i = 0
+    while i < n:
+        j = i + 1
+        if j < n and _less(key, a[j], a[j - 1]):
+            while j < n and _less(key, a[j], a[j - 1]):
+                j += 1
+            lo = i
+            hi = j - 1
+            while lo < hi:
+                t = a[lo]
+                a[lo] = a[hi]
+                a[hi] = t
+                lo += 1
+                hi -= 1
+        else:
+            while j < n and not _less(key, a[j], a[j - 1]):
+                j += 1
+        bounds[nr] = i
+        nr += 1
+        i = j
+    bounds[nr] = n
+    while nr > 1:
+        r = 0
+        while r + 1 < nr:
+            lo = bounds[r]
+            mid = bounds[r + 1]
+            hi = bounds[r + 2]
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if _less(key, a[j], a[i]):
+                    tmp[k] = a[j]
+                    j += 1
+                else:
+                    tmp[k] = a[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                tmp[k] = a[i]
+                i += 1
+                k += 1
+            while j < hi:
+                tmp[k] = a[j]
+                j += 1
+                k += 1
+            memcpy(a + lo, tmp + lo, (hi - lo) * sizeof(int))
+            r += 2
+        # runs 2q, 2q + 1 are now one
+        k = 0
+        r = 0
+        while r < nr:
+            bounds[k] = bounds[r]
+            k += 1
+            r += 2
+        bounds[k] = n
+        nr = k
+
+
+cdef inline void _normalize(float x, float y, float *ox, float *oy) noexcept nogil:
+    """cv::normalize of a Vec2f: the norm in double, each component scaled in double, stored
+    as float."""
+    cdef double s = 0.0
+    cdef double v = x
+    s += v * v
+    v = y
+    s += v * v
+    cdef double nv = sqrt(s)
+    cdef double k = 1.0 / nv if nv != 0 else 0.0
+    ox[0] = <float>(x * k)
+    oy[0] = <float>(y * k)
+
+
+cdef int _sklansky(const float *X, const float *Y, int start, int end, int *stack, int nsign,
+                   int sign2) noexcept nogil:
+    """OpenCV's Sklansky_<float, double> (as OpenCV 5.0 has it: the turn tested on the two
+    edge vectors normalised, repeated points not skipped) over the sorted points X, Y."""
+    cdef int incr = 1 if end > start else -1
+    cdef int pprev = start, pcur = start + incr, pnext = start + 2 * incr
+    cdef int stacksize = 3
+    cdef float by, ax, ay, bx, a0, a1, b0, b1
+    cdef double convexity, cross, ab2
+    cdef int sgn_conv
+    cdef bint nonzero, skip
+    if start == end or (X[start] == X[end] and Y[start] == Y[end]):
+        stack[0] = start
+        return 1
+    stack[0] = pprev
+    stack[1] = pcur
+    stack[2] = pnext
+    end += incr
+    while pnext != end:
+        by = Y[pnext] - Y[pcur]
+        # CV_SIGN(by) == nsign
+        skip = by < 0 if nsign < 0 else by > 0
+        if not skip:
+            ax = X[pcur] - X[pprev]
+            ay = Y[pcur] - Y[pprev]
+            bx = X[pnext] - X[pcur]
+            # The products of floats are exact in double, so `cross` has the exact turn's sign;
+            # the normalised vectors' (OpenCV's test) differs from it by less than 1e-6 of
+            # |a| |b|: outside that band the exact sign is theirs, inside it their arithmetic.
+            cross = <double>ay * bx - <double>ax * by
+            ab2 = (<double>ax * ax + <double>ay * ay) * (<double>bx * bx + <double>by * by)
+            if cross * cross > 1e-10 * ab2:
+                sgn_conv = (cross > 0) - (cross < 0)
+                nonzero = True
+            elif (ax == 0 and ay == 0) or (bx == 0 and by == 0):  # a zero vector stays zero
+                sgn_conv = 0
+                nonzero = ax != 0 or ay != 0
+            else:
+                _normalize(ax, ay, &a0, &a1)
+                _normalize(bx, by, &b0, &b1)
+                convexity = <double>a1 * b0 - <double>a0 * b1
+                sgn_conv = _sgn(convexity)
+                nonzero = a0 != 0 or a1 != 0
+            if sgn_conv == sign2 and nonzero:
+                pprev = pcur
+                pcur = pnext
+                pnext += incr
+                stack[stacksize] = pnext
+                stacksize += 1
+            else:
+                if pprev == start:
+                    pcur = pnext
+                    stack[1] = pcur
+                    pnext += incr
+                    stack[2] = pnext
+                else:
+                    stack[stacksize - 2] = pnext
+                    pcur = pprev
+                    pprev = stack[stacksize - 4]
+                    stacksize -= 1
+        else:
+            pnext += incr
+            stack[stacksize - 1] = pnext
+    stacksize -= 1
+    return stacksize
+
+
+cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullbuf,
+               unsigned long long *key, float *X) noexcept nogil:
+    """cv::convexHull(points, clockwise=false, returnPoints=true) of the n float points P
+    (x, y interleaved): writes the hull's vertices as input positions to hullbuf, returns
+    their number. Work buffers: srt, tmp, key (n), stack (2 n + 4), X (2 n). Finite points only."""
+    cdef float *Y = X + n
+    cdef int i, j, nout = 0, miny = 0, maxy = 0
+    cdef int *tl
+    cdef int *tr
+    cdef int *bl
+    cdef int *br
+    cdef int tlc, trc, blc, brc, stop_idx, check_idx, t
+    cdef int min_idx, max_idx, lt, idx, mmdist, ascending, i0, curr_idx, next_j, next_idx
+    cdef float y
+    if n <= 0:
+        return 0
+    for i in range(n):
+        srt[i] = i
+        key[i] = _key(P[2 * i], P[2 * i + 1])
+    _sort(key, srt, tmp, stack, n)
+    for i in range(n):
+        X[i] = P[2 * srt[i]]
+        Y[i] = P[2 * srt[i] + 1]
+    for i in range(1, n):
+        y = Y[i]
+        if Y[miny] > y:
+            miny = i
+        if Y[maxy] < y:
+            maxy = i
+    # (OpenCV compares these two through int pointers: the float bits)
+    if _bits(X[0]) == _bits(X[n - 1]) and _bits(Y[0]) == _bits(Y[n - 1]):
+        hullbuf[0] = 0
+        return 1
+    # upper half
+    tl = stack
+    tlc = _sklansky(X, Y, 0, maxy, tl, -1, 1)
+    tr = stack + tlc
+    trc = _sklansky(X, Y, n - 1, maxy, tr, -1, -1)
+    # counter-clockwise: swapped
+    tl, tr = tr, tl
+    t = tlc
+    tlc = trc
+    trc = t
+    for i in range(tlc - 1):
+        hullbuf[nout] = srt[tl[i]]
+        nout += 1
+    i = trc - 1
+    while i > 0:
+        hullbuf[nout] = srt[tr[i]]
+        nout += 1
+        i -= 1
+    stop_idx = tr[1] if trc > 2 else (tl[tlc - 2] if tlc > 2 else -1)
+    # lower half
+    bl = stack
+    blc = _sklansky(X, Y, 0, miny, bl, 1, -1)
+    br = stack + blc
+    brc = _sklansky(X, Y, n - 1, miny, br, 1, 1)
+    if stop_idx >= 0:
+        check_idx = bl[1] if blc > 2 else (br[2 - blc] if blc + brc > 2 else -1)
+        if check_idx == stop_idx or (check_idx >= 0 and
+                                     _bits(X[check_idx]) == _bits(X[stop_idx]) and
+                                     _bits(Y[check_idx]) == _bits(Y[stop_idx])):
+            if blc > 2:
+                blc = 2
+            if brc > 2:
+                brc = 2
+    for i in range(blc - 1):
+        hullbuf[nout] = srt[bl[i]]
+        nout += 1
+    i = brc - 1
+    while i > 0:
+        hullbuf[nout] = srt[br[i]]
+        nout += 1
+        i -= 1
+    # the cyclic shift that makes the input positions ascending or descending, if one does
+    if nout >= 3:
+        min_idx = 0
+        max_idx = 0
+        lt = 0
+        for i in range(1, nout):
+            idx = hullbuf[i]
+            lt += hullbuf[i - 1] < idx
+            if lt > 1 and lt <= i - 2:
+                break
+            if idx < hullbuf[min_idx]:
+                min_idx = i
+            if idx > hullbuf[max_idx]:
+                max_idx = i
+        mmdist = max_idx - min_idx
+        if mmdist < 0:
+            mmdist = -mmdist
+        if (mmdist == 1 or mmdist == nout - 1) and (lt <= 1 or lt >= nout - 2):
+            ascending = (max_idx + 1) % nout == min_idx
+            i0 = min_idx if ascending else max_idx
+            j = i0
+            if i0 > 0:
+                i = 0
+                while i < nout:
+                    curr_idx = hullbuf[j]
+                    stack[i] = curr_idx
+                    next_j = j + 1 if j + 1 < nout else 0
+                    next_idx = hullbuf[next_j]
+                    if i < nout - 1 and (ascending != (curr_idx < next_idx)):
+                        break
+                    j = next_j
+                    i += 1
+                if i == nout:
+                    memcpy(hullbuf, stack, nout * sizeof(int))
+    return nout
+
+
+def convex_hull_f32(const float[:, ::1] pts):
+    """cv2.convexHull(pts) of (N, 2) float32 points as (M, 2) float32 (the equality tests'
+    entry point)."""
+    cdef int n = pts.shape[0], m, i
+    cdef int *buf = <int *> malloc((5 * n + 8) * sizeof(int))
+    cdef unsigned long long *key = <unsigned long long *> malloc((n + 1) * sizeof(unsigned long long))
+    cdef float *xy = <float *> malloc((2 * n + 2) * sizeof(float))
+    if buf == NULL or key == NULL or xy == NULL:
+        free(buf)
+        free(key)
+        free(xy)
+        raise MemoryError()
+    try:
+        m = _hull(&pts[0, 0] if n else NULL, n, buf, buf + n, buf + 2 * n, buf + 4 * n + 4, key, xy)
+        out = [(pts[buf[4 * n + 4 + i], 0], pts[buf[4 * n + 4 + i], 1]) for i in range(m)]
+    finally:
+        free(buf)
+        free(key)
+        free(xy)
+    return out
+
+
+cdef void _stats(const double *x, const double *y, int m, double *tmp, double *out) noexcept nogil:
+    """(cx, cy, area) of the closed polygon x, y (m vertices) as detect._hull_stats_many gives
+    them: each per-vertex term summed as np.add.reduceat does (first + pairwise sum of the rest)."""
+    cdef int i, j
+    cdef double a2, sx, sy, perim, m00, xn, yn, c
+    cdef double *cr = tmp
+    cdef double *tx = tmp + m
+    cdef double *ty = tmp + 2 * m
+    cdef double *hp = tmp + 3 * m
+    for i in range(m):
+        j = i + 1 if i + 1 < m else 0
+        xn = x[j]
+        yn = y[j]
+        c = x[i] * yn - xn * y[i]
+        cr[i] = c
+        tx[i] = (x[i] + xn) * c
+        ty[i] = (y[i] + yn) * c
+        hp[i] = hypot(xn - x[i], yn - y[i])
+    a2 = cr[0] + pw_sum(cr + 1, m - 1)
+    sx = tx[0] + pw_sum(tx + 1, m - 1)
+    sy = ty[0] + pw_sum(ty + 1, m - 1)
+    perim = hp[0] + pw_sum(hp + 1, m - 1)
+    m00 = 0.5 * fabs(a2)
+    if m00 <= 1e-6:
+        out[0] = (x[0] + pw_sum(x + 1, m - 1)) / m
+        out[1] = (y[0] + pw_sum(y + 1, m - 1)) / m
+    else:
+        out[0] = sx / (3.0 * a2)
+        out[1] = sy / (3.0 * a2)
+    out[2] = m00 + 0.5 * perim + QUARTER_PI
+
+
+cdef extern from "Python.h":
+    int PyObject_GenericSetDict(object o, object value, void *context) except -1
+
+cdef object _new = object.__new__
+
+
+cdef object _blob_like(object src, double cx, double cy, double area, object hull, long long x0, long long y0,
+                       long long x1, long long y1, bint edge):
+    """A copy of the Blob `src` with its geometry replaced, built from `src`'s attribute dict
+    (what Blob(...) would hold, at a fraction of a frozen dataclass __init__'s cost):
+    border = src.border or `edge`."""
+    cdef dict d = (<dict> src.__dict__).copy()
+    d["cx"] = cx
+    d["cy"] = cy
+    d["area_px"] = area
+    d["hull"] = hull
+    d["x0"] = x0
+    d["y0"] = y0
+    d["x1"] = x1
+    d["y1"] = y1
+    d["border"] = d["border"] or edge
+    o = _new(type(src))
+    PyObject_GenericSetDict(o, d, NULL)
+    return o
+
+
+def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list hist, long long width,
+          long long height, object out, long long[::1] ids_out, long long[::1] starts_out):
+    """The merged envelopes of the n seen tracks (receiver.vision.envelope.EnvelopeHistory.step):
+    {track id: Blob}, a track's own blob when it has no earlier hull.
+
+    hulls: the tracks' blob hulls, cur (sum K_i, 2) float64 all of them in order; k: this
+    frame's index; hist: the earlier frames, oldest first, each (frame index, ids (m,) int64,
+    starts (m + 1,) int64, points (., 2) float64) in this frame's layout (the caller passes
+    only frames that count); ids_out (n,), starts_out (n + 1,): this frame's, written here for
+    the next frames. A track's earlier hulls are moved by its velocity (vx, vy) px/frame times
+    (k - frame). A merged track's Blob: its blob with cx, cy, area_px, hull (rows of `out`,
+    (rows, 2) float64 with as many rows as all points given), box and border replaced."""
+    cdef int n = len(tracks), nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
+    cdef long long o = 0
+    cdef double dk, mx, my, x0f, y0f, x1f, y1f
+    cdef long long x0, y0, x1, y1
+    cdef float xv, yv
+    cdef double st[3]
+    cdef bint merged, edge
+    cdef double[:, ::1] out_pts = out
+    cdef const long long[::1] hid
+    cdef const long long[::1] hst
+    cdef const double[:, ::1] hpt
+    cdef long long *hk = <long long *> malloc((nh + 1) * sizeof(long long))
+    cdef int *where = <int *> malloc((n * (nh + 1) + 1) * sizeof(int))
+    cdef const double **hp = <const double **> malloc((nh + 1) * sizeof(double *))
+    cdef const long long **hs = <const long long **> malloc((nh + 1) * sizeof(long long *))
+    cdef double *vel = <double *> malloc((2 * n + 2) * sizeof(double))
+    cdef float *P = NULL
+    cdef int *ibuf = NULL
+    cdef double *dbuf = NULL
+    cdef unsigned long long *key = NULL
+    cdef long long[::1] ids = ids_out
+    cdef long long[::1] cur_start = starts_out
+    if hk == NULL or where == NULL or hp == NULL or hs == NULL or vel == NULL:
+        free(hk); free(where); free(hp); free(hs); free(vel)
+        raise MemoryError()
+    if len(hulls) != n or starts_out.shape[0] != n + 1 or ids_out.shape[0] != n:
+        free(hk); free(where); free(hp); free(hs); free(vel)
+        raise ValueError("merge: hulls, ids and starts must match the tracks")
+    blobs = [None] * n
+    env = {}
+    try:
+        cur_start[0] = 0
+        for i in range(n):
+            t = tracks[i]
+            ids[i] = t.track_id
+            vel[2 * i] = t.vx
+            vel[2 * i + 1] = t.vy
+            blobs[i] = t.blob
+            cur_start[i + 1] = cur_start[i] + len(hulls[i])
+        if cur_start[n] != cur.shape[0]:
+            raise ValueError("merge: `cur` must hold the hulls' points")
+        # each light's row in each earlier frame (or -1), and its number of points
+        for f in range(nh):
+            kh, hid, hst, hpt = hist[f]
+            hk[f] = kh
+            hp[f] = &hpt[0, 0] if hpt.shape[0] else NULL
+            hs[f] = &hst[0]
+            m = hid.shape[0]
+            q = 0
+            for i in range(n):
+                where[i * nh + f] = -1
+                # ids of both frames come in the tracker's order: scan on from the last match
+                for j in range(m):
+                    a = (q + j) % m
+                    if hid[a] == ids[i]:
+                        where[i * nh + f] = a
+                        q = a + 1
+                        break
+        npts = 0
+        for i in range(n):
+            npts = <int>(cur_start[i + 1] - cur_start[i])
+            for f in range(nh):
+                if where[i * nh + f] >= 0:
+                    a = where[i * nh + f]
+                    npts += <int>(hs[f][a + 1] - hs[f][a])
+            if npts > maxpts:
+                maxpts = npts
+        P = <float *> malloc((4 * maxpts + 4) * sizeof(float))
+        ibuf = <int *> malloc((5 * maxpts + 8) * sizeof(int))
+        dbuf = <double *> malloc((6 * maxpts + 8) * sizeof(double))
+        key = <unsigned long long *> malloc((maxpts + 1) * sizeof(unsigned long long))
+        if P == NULL or ibuf == NULL or dbuf == NULL or key == NULL:
+            raise MemoryError()
+        for i in range(n):
+            merged = False
+            total = 0
+            a = <int>cur_start[i]
+            b = <int>cur_start[i + 1]
+            for j in range(a, b):
+                P[2 * total] = <float>cur[j, 0]
+                P[2 * total + 1] = <float>cur[j, 1]
+                total += 1
+            for f in range(nh):
+                q = where[i * nh + f]
+                if q < 0:
+                    continue
+                merged = True
+                dk = <double>(k - hk[f])
+                mx = vel[2 * i] * dk
+                my = vel[2 * i + 1] * dk
+                for j in range(<int>hs[f][q], <int>hs[f][q + 1]):
+                    P[2 * total] = <float>(hp[f][2 * j] + mx)
+                    P[2 * total + 1] = <float>(hp[f][2 * j + 1] + my)
+                    total += 1
+            if not merged or total == 0:
+                continue
+            if o + total > out_pts.shape[0]:
+                raise ValueError("merge: `out` has too few rows")
+            m = _hull(P, total, ibuf, ibuf + total, ibuf + 2 * total, ibuf + 4 * total + 4, key, P + 2 * maxpts + 2)
+            x0f = x1f = P[2 * ibuf[4 * total + 4]]
+            y0f = y1f = P[2 * ibuf[4 * total + 4] + 1]
+            for j in range(m):
+                q = ibuf[4 * total + 4 + j]
+                xv = P[2 * q]
+                yv = P[2 * q + 1]
+                out_pts[o + j, 0] = xv
+                out_pts[o + j, 1] = yv
+                dbuf[j] = xv
+                dbuf[maxpts + j] = yv
+                if xv < x0f:
+                    x0f = xv
+                if xv > x1f:
+                    x1f = xv
+                if yv < y0f:
+                    y0f = yv
+                if yv > y1f:
+                    y1f = yv
+            _stats(dbuf, dbuf + maxpts, m, dbuf + 2 * maxpts, st)
+            x0 = <long long>floor(x0f)
+            y0 = <long long>floor(y0f)
+            x1 = <long long>floor(x1f) + 1
+            y1 = <long long>floor(y1f) + 1
+            edge = x0 <= 0 or y0 <= 0 or x1 >= width or y1 >= height
+            blobs[i] = _blob_like(blobs[i], st[0], st[1], st[2], out[o:o + m], x0 if x0 > 0 else 0,
+                                  y0 if y0 > 0 else 0, x1 if x1 < width else width, y1 if y1 < height else height, edge)
+            o += m
+        for i in range(n):
+            env[ids[i]] = blobs[i]
+    finally:
+        free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key); free(vel)
+    return env
+
+
+
+
+def edge_boxes(const double[:, ::1] pts, const long long[::1] starts, long long pad, long long width,
+               long long height, long long min_width, long long[:, ::1] box, float[::1] bg,
+               long long[::1] index):
+    """The boxes receiver.vision.outline._boxes gives n Blobs (their hulls: pts rows
+    starts[i]:starts[i + 1], none empty): columns [floor(min x) - pad, ceil(max x) + pad + 1),
+    rows [floor(min y) - 1, ceil(max y) + 2), clipped to the image; only boxes at least
+    `min_width` wide and one row tall are kept. Writes the kept ones, in order, to the columns
+    0..m of box (4, n) = (x0, x1, y0, y1), moves their backgrounds bg[i] to bg[0..m) and their
+    blob indices to index[0..m); returns (m, 2 * their total rows)."""
+    cdef Py_ssize_t n = starts.shape[0] - 1, i, j, m = 0
+    cdef long long rows = 0, x0, x1, y0, y1
+    cdef double lox, hix, loy, hiy
+    if box.shape[0] != 4 or box.shape[1] < n or bg.shape[0] < n or index.shape[0] < n:
+        raise ValueError("edge_boxes: outputs too small")
+    for i in range(n):
+        if starts[i + 1] <= starts[i]:
+            raise ValueError("edge_boxes: empty hull")
+        j = starts[i]
+        lox = hix = pts[j, 0]
+        loy = hiy = pts[j, 1]
+        for j in range(starts[i] + 1, starts[i + 1]):
+            # np.minimum / np.maximum: a NaN wins
+            if pts[j, 0] < lox or pts[j, 0] != pts[j, 0]:
+                lox = pts[j, 0]
+            if pts[j, 0] > hix or pts[j, 0] != pts[j, 0]:
+                hix = pts[j, 0]
+            if pts[j, 1] < loy or pts[j, 1] != pts[j, 1]:
+                loy = pts[j, 1]
+            if pts[j, 1] > hiy or pts[j, 1] != pts[j, 1]:
+                hiy = pts[j, 1]
+        x0 = <long long>floor(lox) - pad
+        x1 = <long long>ceil(hix) + pad + 1
+        y0 = <long long>floor(loy) - 1
+        y1 = <long long>ceil(hiy) + 2
+        x0 = x0 if x0 > 0 else 0
+        y0 = y0 if y0 > 0 else 0
+        x1 = x1 if x1 < width else width
+        y1 = y1 if y1 < height else height
+        if x1 - x0 >= min_width and y1 > y0:
+            box[0, m] = x0
+            box[1, m] = x1
+            box[2, m] = y0
+            box[3, m] = y1
+            bg[m] = bg[i]
+            index[m] = i
+            rows += 2 * (y1 - y0)
+            m += 1
+    return m, rows

@@ -1,0 +1,220 @@
+"""The track stage's compiled kernels (receiver/vision/_envelope.pyx) against their references:
+the convex hull against cv2.convexHull (same vertices, same order, same start, on random,
+repeated, collinear and nearly collinear points), the whole envelope history against its pure
+numpy path (`_k` set to None) bit for bit."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from receiver.cli.benchscene import bench_scene, render_bench_frame
+from receiver.core.native import load
+from receiver.vision import envelope
+from receiver.vision.detect import detect
+from receiver.vision.envelope import EnvelopeHistory
+from receiver.vision.track import Track
+
+_env = load("receiver.vision._envelope")
+needs_kernel = pytest.mark.skipif(_env is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+
+
+def _point_sets(rng, n_cases):
+    """Random point sets of the kinds that steer the hull's corner cases."""
+    for t in range(n_cases):
+        kind = t % 6
+        n = int(rng.integers(1, 150))
+        if kind == 0:
+            p = rng.normal(size=(n, 2)) * 50 + 300
+        elif kind == 1:  # a small grid: many repeated and collinear points
+            p = rng.integers(0, 6, size=(n, 2)).astype(float)
+        elif kind == 2:  # nearly on one line: the turn test's rounding decides
+            s = rng.normal(size=n)
+            p = np.column_stack([s * 10 + 5, s * 3 + 1e-4 * rng.normal(size=n)])
+        elif kind == 3:  # one convex polygon three times, moved a little and not at all (envelopes)
+            ang = np.sort(rng.uniform(0, 2 * np.pi, size=max(n // 3, 1)))
+            h = np.column_stack([np.cos(ang), np.sin(ang)]) * rng.uniform(2, 40) + rng.uniform(0, 1000, 2)
+            p = np.concatenate([h, h + rng.normal(size=2) * 0.01, h + [0.0, 0.0]])
+        elif kind == 4:  # all on one line
+            s = rng.integers(0, 10, size=n).astype(float)
+            p = np.column_stack([s, 2 * s + 1])
+        else:
+            p = np.round(rng.normal(size=(n, 2)) * 20, 1) + 100
+        yield kind, np.ascontiguousarray(p, np.float32)
+
+
+@needs_kernel
+def test_convex_hull_equals_opencv():
+    rng = np.random.default_rng(7)
+    kinds = set()
+    for kind, p in _point_sets(rng, 6000):
+        want = cv2.convexHull(p.reshape(-1, 1, 2)).reshape(-1, 2)
+        got = np.array(_env.convex_hull_f32(p), np.float32).reshape(-1, 2)
+        assert got.shape == want.shape, (kind, p.tolist())
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32)), (kind, p.tolist())
+        kinds.add(kind)
+    assert kinds == set(range(6))
+    assert _env.convex_hull_f32(np.zeros((0, 2), np.float32)) == []
+
+
+def _same(a, b) -> bool:
+    assert type(a) is type(b)
+    return (a.cx, a.cy, a.area_px, a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background) == \
+        (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background) and \
+        a.hull.dtype == b.hull.dtype and np.array_equal(a.hull, b.hull)
+
+
+def _run(frames_blobs, shape, vel, skip, frame_index):
+    hist = EnvelopeHistory(3)
+    out = []
+    for j, blobs in enumerate(frames_blobs):
+        k = frame_index[j]
+        tracks = [Track(i, b, 0, k, vx=vel[i % len(vel)][0], vy=vel[i % len(vel)][1])
+                  for i, b in enumerate(blobs) if (j, i) not in skip]
+        out.append(hist.step(tracks, k, shape))
+    return out
+
+
+@needs_kernel
+@pytest.mark.parametrize("n_leds,static", [(5, False), (12, True), (12, False)])
+def test_envelope_history_kernel_equals_pure(n_leds, static, monkeypatch):
+    """Static tracks (velocity 0: the earlier hulls repeat the own one point for point) and
+    moving ones, a track missing a frame, a dropped frame (index gap), a light past the edge."""
+    leds = bench_scene(n_leds=n_leds, radius_px=30.0, seed=6)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(6)]
+    blobs = [detect(g, stripe_gap_px=12) for g in frames]
+    vel = [(0.0, 0.0)] if static else [(0.0, 0.0), (-1000.0, -800.0), (1.25, -0.5), (-2.0, 0.75), (0.3, 0.1), (0.0, 3.5)]
+    skip = {(2, 1), (3, 1), (4, 0)}
+    index = [0, 1, 2, 3, 5, 6]
+    native = _run(blobs, frames[0].shape, vel, skip, index)
+    with monkeypatch.context() as m:
+        m.setattr(envelope, "_k", None)
+        pure = _run(blobs, frames[0].shape, vel, skip, index)
+    merged = 0
+    for a, b in zip(native, pure):
+        assert a.keys() == b.keys()
+        for tid in a:
+            assert _same(a[tid], b[tid]), tid
+            merged += a[tid] is not b[tid] and len(a[tid].hull) > 0
+    assert merged > n_leds  # most lights were merged with earlier hulls
+    if not static:
+        assert any(e.border for d in native for e in d.values())
+
+
+def test_envelope_history_restarts_on_an_older_frame_index():
+    """A frame index at or below an earlier one starts the history afresh (no merge)."""
+    leds = bench_scene(n_leds=3, radius_px=30.0, seed=6)
+    g = render_bench_frame(leds, 0, rng=np.random.default_rng(0))
+    blobs = detect(g, stripe_gap_px=12)
+    hist = EnvelopeHistory(3)
+    tracks = [Track(i, b, 0, 0) for i, b in enumerate(blobs)]
+    hist.step(tracks, 10, g.shape)
+    assert all(e is t.blob for t, e in zip(tracks, hist.step(tracks, 4, g.shape).values()))
+    merged = hist.step(tracks, 5, g.shape)
+    assert all(e is not t.blob for t, e in zip(tracks, merged.values()))
+
+
+@needs_kernel
+def test_kernel_blobs_are_plain_frozen_blobs():
+    """The kernel builds merged Blobs from the blob's attribute dict: they must be equal to,
+    compare like and stay as frozen as Blobs made by the constructor."""
+    import dataclasses
+    leds = bench_scene(n_leds=4, radius_px=30.0, seed=6)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(2)]
+    hist = EnvelopeHistory(3)
+    for k, g in enumerate(frames):
+        tracks = [Track(i, b, 0, k, vx=0.5) for i, b in enumerate(detect(g, stripe_gap_px=12))]
+        env = hist.step(tracks, k, g.shape)
+    for t in tracks:
+        e = env[t.track_id]
+        assert e is not t.blob
+        rebuilt = dataclasses.replace(t.blob, **{f: getattr(e, f) for f in ("cx", "cy", "area_px", "hull", "x0", "y0", "x1", "y1", "border")})
+        assert _same(e, rebuilt) and repr(e) == repr(rebuilt)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            e.cx = 0.0
+
+
+def _blob(cx, cy, r):
+    from receiver.core.records import Blob
+    a = np.pi * r * r
+    hull = np.array([[cx - r, cy - r], [cx + r, cy - r], [cx + r, cy + r], [cx - r, cy + r]])
+    return Blob(cx, cy, a, hull, int(cx - r), int(cy - r), int(cx + r) + 1, int(cy + r) + 1, False, 200.0, 50.0, 10.0)
+
+
+def _tracker_stream(seed):
+    """Frames of blobs: lights moving and blinking out, close pairs (two blobs in one gate: the
+    solver decides), area jumps past the ratio gate, lights appearing; a camera shake per
+    frame (None on some), frame index gaps."""
+    rng = np.random.default_rng(seed)
+    n = 14
+    pos = rng.uniform(50, 600, size=(n, 2))
+    vel = rng.normal(size=(n, 2)) * 3
+    pos[1] = pos[0] + (9.0, 2.0)  # a close pair
+    frames, k = [], 0
+    for step in range(40):
+        k += 1 + int(rng.random() < 0.15)
+        shift = None if rng.random() < 0.3 else tuple(rng.normal(size=2) * 2)
+        blobs = []
+        for i in range(n):
+            if rng.random() < 0.12:
+                continue  # dark or missed this frame
+            r = 6.0 * (3.0 if rng.random() < 0.05 else 1.0)
+            x, y = pos[i] + vel[i] * k + rng.normal(size=2) * 0.4
+            blobs.append(_blob(float(x), float(y), r))
+        if step % 9 == 5:
+            blobs.append(_blob(float(rng.uniform(0, 640)), float(rng.uniform(0, 480)), 4.0))
+        order = rng.permutation(len(blobs))
+        frames.append((k, [blobs[j] for j in order], shift))
+    return frames
+
+
+def _state(tracks):
+    return [(t.track_id, t.blob, t.first_frame, t.last_frame, t.vx, t.vy, t.hits, t.misses, t.seen, t.shift0)
+            for t in tracks]
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_tracker_kernel_equals_pure(seed, monkeypatch):
+    from receiver.vision import track
+    from receiver.vision.track import Tracker
+    stream = _tracker_stream(seed)
+    calls = []
+    real = track._solver_assignment
+    monkeypatch.setattr(track, "_solver_assignment", lambda d, ok: calls.append(1) or real(d, ok))
+    nat = Tracker(max_missed=2)
+    got = [(_state(nat.step(k, b, shift)), _state(nat.ended)) for k, b, shift in stream]
+    n_solver = len(calls)
+    with monkeypatch.context() as m:
+        m.setattr(track, "_k", None)
+        pure = Tracker(max_missed=2)
+        want = [(_state(pure.step(k, b, shift)), _state(pure.ended)) for k, b, shift in stream]
+    assert got == want
+    assert n_solver > 0 and len(calls) == 2 * n_solver  # the solver's path ran, as often in both
+    assert any(e for _, e in got) and nat._next_id > 14  # tracks ended, new ones started
+
+
+@needs_kernel
+def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
+    """The Blobs' edge-point boxes by `_envelope.edge_boxes` (merged envelopes, some past the
+    image edge, one too narrow for a run) give `_boxes`' points bit for bit."""
+    import dataclasses
+    from receiver.vision import outline
+    leds = bench_scene(n_leds=8, radius_px=30.0, seed=3)
+    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
+    hist = EnvelopeHistory(3)
+    for k, g in enumerate(frames):
+        tracks = [Track(i, b, 0, k, vx=(-700.0 if i == 2 else 0.4), vy=-0.2) for i, b in enumerate(detect(g, stripe_gap_px=12))]
+        env = list(hist.step(tracks, k, g.shape).values())
+    narrow = dataclasses.replace(env[0], hull=env[0].hull[:1])
+    items = env + [narrow]
+    for kw in ({}, {"bin_rows": 1}, {"pad": 1, "border_px": 0}):
+        a = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        with monkeypatch.context() as m:
+            m.setattr(outline, "_env", None)
+            b = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        assert len(a) == len(b) == len(items)
+        for (pa, sa), (pb, sb) in zip(a, b):
+            assert np.array_equal(pa, pb) and np.array_equal(sa, sb)
+        assert sum(len(p) for p, _ in a) > 50 and len(a[-1][0]) == 0
