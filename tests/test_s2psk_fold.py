@@ -76,3 +76,19 @@ def test_bad_sizes_raise():
         s2psk._k.folded_sums(np.zeros(3), np.zeros(3), np.zeros(1), 0.08, 0.1, PACKET_LEN, out, out, np.zeros(4))
     with pytest.raises(ValueError):
         s2psk._k.folded_sums(np.zeros(3), np.zeros(3), np.zeros(0), 0.08, 0.1, PACKET_LEN, out, out, out)
+
+
+def test_best_per_id_is_the_reshaped_max():
+    """soft_stats' per-ID best score equals reshape(B, 256, 30).max(axis=2), also with ties, signed
+    zeros and NaNs (the argmax over IDs that follows sees the same values)."""
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        b = int(rng.integers(1, 4))
+        sc = np.round(rng.normal(0, 3, (b, 30 * 256)), int(rng.integers(0, 3)))
+        if trial % 3 == 0:
+            sc[rng.random(sc.shape) < 0.01] = np.nan
+        if trial % 4 == 0:
+            sc[rng.random(sc.shape) < 0.3] = -0.0
+        got, want = s2psk.best_per_id(sc), sc.reshape(b, -1, PACKET_LEN).max(axis=2)
+        assert got.shape == want.shape and np.array_equal(got, want, equal_nan=True)
+        assert np.array_equal(np.argmax(got, axis=1), np.argmax(want, axis=1))
