@@ -166,3 +166,23 @@ def test_pair_dx_equals_its_loop():
                    np.array([shift + rng.normal(0, 1), shift + rng.uniform(4, 12) * rng.choice([-1, 1])])
                    for _ in range(int(rng.integers(0, 25)))]
         assert pair_dx(offsets) == _ref_pair_dx(offsets)
+
+
+def test_predictions_memo_until_a_pair_moves():
+    """`Pairer._predictions` (read by shift_votes, dx_offsets and _first_pass of one frame) equals
+    `_predict` of every formed pair, is computed once, and is recomputed after a pair follows,
+    after a step and for another pairs list."""
+    rng = np.random.default_rng(21)
+    pr = Pairer()
+    _random_pairs(rng, pr, 9)
+    first = pr._predictions()
+    assert [(id(p), q) for p, q in first] == [(id(p), pr._predict(p)) for p in pr.pairs if p.base0 is not None]
+    assert pr._predictions() is first  # reused within the frame
+    p = first[0][0]
+    pr._follow(p, [], np.zeros((0, 2)), None)  # the pair moves (coasts one frame)
+    again = pr._predictions()
+    assert again is not first and again[0][1] == pr._predict(p) != first[0][1]
+    pr.pairs = list(pr.pairs)  # another list
+    assert pr._predictions() is not again
+    pr.step(None, [], lambda g, t: 0.0)
+    assert pr._preds is None

@@ -37,6 +37,11 @@ from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN,
 from receiver.decode.settings import S2pskSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
+from receiver.core.native import load
+
+# the compiled phase search and fold of `S2pskDecoder.folded_sums` (receiver/decode/_s2psk.pyx),
+# or None: the numpy reference below
+_k = load("receiver.decode._s2psk")
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
@@ -46,6 +51,7 @@ _BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)
 _SYNC_IDX = (np.arange(PACKET_LEN)[:, None] + np.arange(SYNC_LEN)[None, :]) % PACKET_LEN
 _RING0 = 256  # initial sample ring size (2.5 packets at 30 fps: ~180 samples)
 _CRC4 = np.array([crc4(i) for i in range(1 << S2PSK_ID_BITS)], dtype=np.int64)
+_ID_STARTS = np.arange(0, PACKET_LEN << S2PSK_ID_BITS, PACKET_LEN)  # each ID's first codebook row
 
 
 def pair_xor(a: float, b: float, a_on: float, b_on: float, a_off: float = 0.0,
@@ -145,6 +151,13 @@ class SoftStats:
     contradiction: np.ndarray
 
 
+def best_per_id(scores: np.ndarray) -> np.ndarray:
+    """(B, 256) the best score of each ID's 30 hypotheses of `scores` (B, 7680):
+    scores.reshape(B, -1, 30).max(axis=2) (a maximum is exact, NaN propagates in both), by one
+    np.maximum.reduceat over the rows (~2x faster on the short axis)."""
+    return np.maximum.reduceat(scores, _ID_STARTS, axis=1)
+
+
 def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
                sigma_floor: float = 0.05, position_dof: float = 0.0,
                exact_from: float = -np.inf) -> SoftStats:
@@ -202,7 +215,7 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     cu = c / v
     # the best hypothesis of another ID: W = sum_p c_p / v_p [s_h,p != s1_p]
     per_id = scores.reshape(s.shape[0], -1, PACKET_LEN)
-    best_of_id = per_id.max(axis=2)
+    best_of_id = best_per_id(scores)
     best_of_id[rows, led_id] = -np.inf
     id2 = np.argmax(best_of_id, axis=1)
     h2 = id2 * PACKET_LEN + np.argmax(per_id[rows, id2], axis=1)
@@ -371,6 +384,12 @@ class S2pskDecoder:
         else:
             phases = np.array([self._phase])
         self._calls += 1
+        if _k is not None:  # the same sums in the same order, in one call
+            out = np.empty((3, PACKET_LEN))
+            best = _k.folded_sums(t, x, phases, float(self.symbol_s), float(self.guard), PACKET_LEN,
+                                  out[0], out[1], out[2])
+            self._phase = float(phases[best])
+            return out[0], out[1], out[2]
         u = t[None, :] / self.symbol_s - phases[:, None]  # (P, N) time in symbols
         sym = np.floor(u)
         frac = u - sym

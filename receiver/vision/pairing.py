@@ -294,6 +294,7 @@ class Pairer:
         self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
         self._cfg_arr: np.ndarray | None = None  # the kernel's settings (`_cfg`)
         self._table: tuple | None = None  # (tracks list, its length, `_track_table`) of this frame
+        self._preds: tuple | None = None  # (pairs list, its length, `_predictions`) until a pair moves
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
@@ -308,6 +309,17 @@ class Pairer:
             return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base[0], 0.5 * scale * p.base[1], single
         scale = math.sqrt(single / p.area0)
         return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
+
+    def _predictions(self) -> list[tuple[Pair, tuple]]:
+        """(pair, `_predict(pair)`) of every formed pair (`base0` set), in order. Computed once
+        for `shift_votes`, `dx_offsets` and `_first_pass` of a frame: only following a pair
+        (`_follow_start` / `_follow_end`, which drop the memo) or another pairs list moves them."""
+        memo = self._preds
+        if memo is not None and memo[0] is self.pairs and memo[1] == len(self.pairs):
+            return memo[2]
+        preds = [(p, self._predict(p)) for p in self.pairs if p.base0 is not None]
+        self._preds = (self.pairs, len(self.pairs), preds)
+        return preds
 
     def _explain(self, p: Pair, tracks: list[Track], xy: np.ndarray, mx: float, my: float,
                  hx: float, hy: float, single: float, exclude=()):
@@ -395,7 +407,7 @@ class Pairer:
         is the shift when the blob is this pair's; the others scatter by the pair's baseline)."""
         if len(xy) == 0:
             return np.zeros((0, 2))
-        pred = np.array([self._predict(p)[:4] for p in self.pairs if p.base0 is not None], float).reshape(-1, 4)
+        pred = np.array([q[:4] for _, q in self._predictions()], float).reshape(-1, 4)
         if _k is not None:
             out = np.empty((3 * len(pred) * len(xy), 2))
             return out[:_k.shift_votes(np.ascontiguousarray(xy, float), pred, float(radius_px), out)]
@@ -420,17 +432,14 @@ class Pairer:
         if not len(xy):
             return out
         if _k is not None:
-            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            items = [(p, q, ()) for p, q in self._predictions()]
             if not items:
                 return out
             bl = np.array([(b.cx, b.cy, b.area_px, b.x0, b.x1, b.y0, b.y1, 1) for b in blobs], float).reshape(-1, 8)
             res = np.full((len(items) * len(bl), 2), np.inf)
             n = _k.dx_offsets(bl, self._pair_rows(items, False), self._cfg(), float(dy), float(radius_px), res)
             return res[:n]
-        for p in self.pairs:
-            if p.base0 is None:
-                continue
-            mx, my, hx, hy, single = self._predict(p)
+        for p, (mx, my, hx, hy, single) in self._predictions():
             my += dy
             sel = np.flatnonzero((np.abs(xy[:, 1] - my) <= self.match_min_px + abs(hy))
                                  & (np.abs(xy[:, 0] - mx) <= radius_px + abs(hx)))
@@ -468,7 +477,7 @@ class Pairer:
         explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
         dys, claims = [], {}
         if _k is not None:
-            items = [(p, self._predict(p), ()) for p in self.pairs if p.base0 is not None]
+            items = [(p, q, ()) for p, q in self._predictions()]
             if not items:
                 return 0.0 if self.shake_min_pairs > 0 else float(np.median(dys)), {}
             res, mine = self._explain_kernel(items, tracks, True)
@@ -484,10 +493,8 @@ class Pairer:
             exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
                        for k in np.flatnonzero(ex.any(axis=1))}
             return pitch, exclude
-        for p in self.pairs:
-            if p.base0 is None:
-                continue
-            mx, my, hx, hy, single = pred = self._predict(p)
+        for p, pred in self._predictions():
+            mx, my, hx, hy, single = pred
             expl, _, shifts, _, _, _ = self._explain(p, tracks, xy, *pred)
             if shifts:
                 dys.append(float(np.mean([d[1] for d in shifts])))
@@ -615,6 +622,7 @@ class Pairer:
     def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
         """`_follow`'s first part: the frame counted, None when the pair gives up, else its
         prediction (mx, my, hx, hy, single) moved by the frame's shift (dx, dy) px."""
+        self._preds = None  # the pairs move
         p.frames += 1
         if p.led_id is None and p.frames > self.give_up_frames:
             self.banned.add(p.founding)   # what new pairs are checked by (an alias never matches)
@@ -634,6 +642,7 @@ class Pairer:
         """`_follow`'s second part, from the blobs pair `p` explains at its prediction `pred`
         (`_explain`; `mean`: the mean (dx, dy) of their shifts, None without any)."""
         mx, my, hx, hy, single = pred
+        self._preds = None  # the pairs move
         p.tracks, p.nearby = explaining, nearby
         if self.measure_baseline and p.a.track_id == p.b.track_id:
             self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
@@ -808,7 +817,7 @@ class Pairer:
             taken.update((a.track_id, b.track_id))
             self.pairs.append(p)
         self._pair_jumpers(tracks, paired | taken)
-        self._table = None
+        self._table = self._preds = None
         return self.pairs
 
     def _mark_beside(self, tracks: list[Track]) -> None:
