@@ -345,3 +345,19 @@ def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
         labelled += any(found[0] is None for _, found in calls)
         fell_back += calls[-1][0] is True
     assert labelled >= 20 and fell_back >= 1
+
+
+@needs_kernel
+def test_mosaic_declines_a_box_mostly_lit():
+    """`_pixels.mosaic` gives up early when more than max_fill of the lit box's cells are lit,
+    and packs the same groups when allowed."""
+    mask = np.zeros((60, 200), np.uint8)
+    mask[0:4, 0:4] = mask[50:54, 150:154] = 255  # two far groups: few cells lit
+    mask[20:24, 70:74] = 255
+    cells = np.empty((60, 7), np.uint8)
+    box = _px.search_mask_cells(mask, 1, 1, np.empty_like(mask), cells)
+    crops, out = np.empty((256, 7), np.int64), np.empty(mask.size, np.uint8)
+    packed = _px.mosaic(mask, cells, *box, 5, 3, crops, out, 1.0)
+    assert packed[0] == 3
+    assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.4) == packed  # 3 of 11 x 5 cells lit
+    assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.03) == (-1, 0, 0)

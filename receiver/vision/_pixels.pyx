@@ -543,7 +543,7 @@ cdef int _uf_root(int *parent, int i) noexcept nogil:
 
 
 def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, int bx, int by, int bw, int bh,
-           int ky, int kx, int64_t[:, ::1] crops, unsigned char[::1] out):
+           int ky, int kx, int64_t[:, ::1] crops, unsigned char[::1] out, double max_fill=1.0):
     """The lit groups of `mask` (0 / 255, lit box bx, by, bw, bh; `cells` from `search_mask_cells`)
     packed side by side into one small image for the close and the contour search
     (`detect._search_mosaic`, which says why that is exact). Groups: the 8-connected sets of
@@ -556,7 +556,9 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     the mask, half-open), x, y (its place in the mosaic), in layout order. Writes the (Hm, Wm)
     mosaic into out[:Hm * Wm] and returns (groups, Hm, Wm); (-1, 0, 0) when the packing is not
     worth it or not possible (kx > 32, more groups than crops has rows, two crops at the same
-    left or right edge, a mosaic no smaller than the grown box, or one larger than out)."""
+    left or right edge, a mosaic no smaller than the grown box, or one larger than out), and
+    early when more than `max_fill` of the lit box's (ky x 32) cells hold lit pixels (the
+    mosaic could then save little of the close and would cost more than that)."""
     cdef Py_ssize_t ho = mask.shape[0], w = mask.shape[1], nch = cells.shape[1]
     cdef Py_ssize_t R0, R1, C0, C1, nR, nC, R, C, r, ra, rb, c0, ln, i, k, n = 0, f, l
     cdef Py_ssize_t cap = crops.shape[0], hm = 0, wm = 0, gx0, gy0, gx1, gy1, nleft = 0, nright = 0
@@ -586,6 +588,11 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
             for r in range(ra, rb):
                 occ_or_bytes(occ + R * nC, &cells[r, C0], nC)
+        k = 0
+        for i in range(nR * nC):
+            k += occ[i] != 0
+        if k > max_fill * nR * nC:
+            return -1, 0, 0
         # union-find over the 8-connected occupied cells
         for i in range(nR * nC):
             parent[i] = i

@@ -370,6 +370,11 @@ def _buf(scratch: Scratch | None, name: str, shape: tuple[int, ...]) -> np.ndarr
 # At most this many groups of lit pixels are packed into one mosaic (`_search_mosaic`); more
 # (a noise storm) are searched in the lit box as a whole.
 MOSAIC_MAX_GROUPS = 256
+# Nor when more than this fraction of the lit box's cells hold lit pixels (large lights filling
+# the frame, recordings/indoor-walk: 0.55-0.67 of them, the other recordings 0.02-0.2): the
+# mosaic would save little of the close and cost more in packing (walk: 0.37 M instructions
+# per frame, failing on 39 of 54 frames).
+MOSAIC_MAX_FILL = 0.4
 
 
 def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
@@ -393,7 +398,7 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
         return None
     crops = np.empty((MOSAIC_MAX_GROUPS, 7), np.int64)
     out = _buf(scratch, "mosaic", (mask.size,))
-    n, hm, wm = _k.mosaic(mask, cells, *box, _close_size(gap_y), _close_size(gap_x), crops, out)
+    n, hm, wm = _k.mosaic(mask, cells, *box, _close_size(gap_y), _close_size(gap_x), crops, out, MOSAIC_MAX_FILL)
     if n < 0:
         return None
     closed = _close(out[:hm * wm].reshape(hm, wm), gap_y, gap_x, scratch)
