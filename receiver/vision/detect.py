@@ -11,7 +11,11 @@ Stages (each a plain function on numpy arrays):
    move the median.
 3. Threshold + morphological close with a vertical line of `stripe_gap_px + 1` rows: the
    dark stripes of one LED (an OFF run of chips, or the low half-period of a tone) are bridged,
-   two LEDs side by side are not (the kernel is one column wide).
+   two LEDs side by side are not (the kernel is one column wide). The closed mask's 8-connected
+   components (findContours' outer contours) are labelled from its pixel runs
+   (`_pixels.label_runs`: boxes, first points and the outer contours' exact areas without
+   tracing them); the outlines are traced only where they are needed (a downsampled search,
+   boxes that overlap, a component with a hole).
 4. Per blob, in a full-resolution ROI: a blob level `background + refine_frac * (peak -
    background)` (half-maximum edge for `refine_frac` = 0.5; clipped blobs use a level just
    above the background, see `detect`), the lit pixels of this blob only,
