@@ -224,3 +224,140 @@ def test_search_mask_cells_marks_the_lit_32_column_cells():
             padded = np.zeros((ho, cells.shape[1] * 32), bool)
             padded[:, :w] = mask > 0
             assert np.array_equal(cells, padded.reshape(ho, -1, 32).any(axis=2).astype(np.uint8))
+
+
+def _masks(rng, count):
+    """Random 0 / 255 masks: noise, closed noise (blobs with holes and concavities), ellipses
+    with dark specks; all sizes from one pixel, components touching every edge."""
+    for t in range(count):
+        h, w = int(rng.integers(1, 60)), int(rng.integers(1, 140))
+        kind = t % 3
+        if kind == 0:
+            m = (rng.random((h, w)) < rng.uniform(0, 0.7)).astype(np.uint8) * 255
+        elif kind == 1:
+            m = (rng.random((h, w)) < rng.uniform(0.2, 0.6)).astype(np.uint8) * 255
+            m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, np.ones((int(rng.integers(1, 6)), int(rng.integers(1, 4))), np.uint8))
+        else:
+            m = np.zeros((h, w), np.uint8)
+            for _ in range(int(rng.integers(1, 8))):
+                axes = (int(rng.integers(0, 20)), int(rng.integers(0, 20)))
+                cv2.ellipse(m, (int(rng.integers(0, w)), int(rng.integers(0, h))), axes, float(rng.uniform(0, 180)),
+                            0, 360, 255, -1)
+            m[rng.random((h, w)) < 0.1] = 0
+        yield np.ascontiguousarray(m)
+
+
+@needs_kernel
+def test_label_runs_equals_find_contours():
+    """`_pixels.label_runs` gives every 8-connected component's bounding box, first point and
+    hole count as findContours (RETR_CCOMP: outer contours and their holes) does, and for those
+    without holes the outer contour's cv2.contourArea (twice it, exactly)."""
+    rng = np.random.default_rng(11)
+    cap = 4096
+    no_crops = np.zeros((0, 7), np.int64)
+    checked = holed = 0
+    for m in _masks(rng, 1500):
+        ox, oy = int(rng.integers(0, 50)), int(rng.integers(0, 50))
+        rects, area2 = np.empty((cap, 4), np.int64), np.empty(cap, np.int64)
+        holes, keys = np.empty(cap, np.int64), np.empty(cap, np.int64)
+        n = _px.label_runs(m, no_crops, 0, ox, oy, rects, area2, holes, keys)
+        cont, hier = cv2.findContours(m, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE, offset=(ox, oy))
+        outer = [i for i in range(len(cont)) if hier[0][i][3] < 0]
+        inner = [hier[0][i][3] for i in range(len(cont)) if hier[0][i][3] >= 0]
+        want = sorted(((int(cont[i][0, 0, 1]), int(cont[i][0, 0, 0])), cv2.boundingRect(cont[i]),
+                       cv2.contourArea(cont[i]), inner.count(i)) for i in outer)
+        assert n == len(want)
+        got = sorted(((int(k >> 31), int(k & (2 ** 31 - 1))), tuple(r), a * 0.5, int(nh))
+                     for k, r, a, nh in zip(keys[:n], rects[:n].tolist(), area2[:n], holes[:n]))
+        for g, wt in zip(got, want):
+            assert g[:2] == wt[:2] and (g[3] > 0) == (wt[3] > 0)
+            if wt[3] == 0:
+                assert g[2] == wt[2]
+                checked += 1
+            else:
+                holed += 1
+        assert _px.label_runs(m, no_crops, 0, 0, 0, rects[:max(n - 1, 0)], area2, holes, keys) == (-1 if n else 0)
+    assert checked > 10000 and holed > 500
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(6))
+def test_search_without_outlines_equals_the_contour_search(seed):
+    """`_search(..., outlines=False)` (run labelling, on the mosaic or the lit box) gives the
+    boxes, in the same order, and the contour areas of the contour search; None for the
+    contours only when it took the labelling."""
+    rng = np.random.default_rng(100 + seed)
+    labelled = 0
+    for _ in range(25):
+        h, w = int(rng.integers(20, 260)), int(rng.integers(20, 330))
+        gray = _lit_scene(rng, h, w)
+        gap, join, pool = int(rng.integers(0, 20)), int(rng.integers(0, 6)), int(rng.integers(1, 3))
+        got = detect_mod._search(gray, 40.0, gap, join, 1, pool, detect_mod.Scratch(), False)
+        want = detect_mod._search(gray, 40.0, gap, join, 1, pool)
+        assert np.array_equal(got[1], want[1])
+        want_areas = [cv2.contourArea(c) for c in want[0]]
+        if want[2] is not None:
+            assert want[2].tolist() == want_areas
+        if got[0] is None:
+            labelled += 1
+            assert got[2].tolist() == want_areas
+    assert labelled >= 15
+
+
+@needs_kernel
+def test_label_runs_refuses_short_outputs():
+    m = np.full((3, 3), 255, np.uint8)
+    with pytest.raises(ValueError):
+        _px.label_runs(m, np.zeros((0, 7), np.int64), 0, 0, 0, np.empty((4, 4), np.int64),
+                       np.empty(3, np.int64), np.empty(4, np.int64), np.empty(4, np.int64))
+    with pytest.raises(ValueError):
+        _px.label_runs(m, np.zeros((1, 7), np.int64), 2, 0, 0, np.empty((4, 4), np.int64),
+                       np.empty(4, np.int64), np.empty(4, np.int64), np.empty(4, np.int64))
+
+
+def _blob_tuple(b):
+    return (b.cx, b.cy, b.area_px, b.hull.tobytes(), b.hull.shape, b.x0, b.y0, b.x1, b.y1, b.border,
+            b.peak, b.level, b.background)
+
+
+@needs_kernel
+@pytest.mark.parametrize("seed", range(4))
+def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
+    """detect() with the run labelling (`_label`) gives the blobs of the contour search, also
+    on frames where boxes overlap (the outlines are then searched after all) and with the
+    shape test deciding on the contour areas."""
+    rng = np.random.default_rng(200 + seed)
+    fell_back = labelled = 0
+    real_search = detect_mod._search
+    for _ in range(40):
+        gray = _lit_scene(rng, int(rng.integers(30, 160)), int(rng.integers(30, 200)))
+        kw = dict(stripe_gap_px=int(rng.integers(0, 14)), join_x_px=int(rng.integers(0, 4)),
+                  row_pool=int(rng.integers(1, 3)), min_fill=float(rng.uniform(0.2, 0.9)), min_area_px=4.0)
+        calls = []  # (outlines asked for, contours returned)
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_search",
+                      lambda *a: calls.append((a[-1], real_search(*a))) or calls[-1][1])
+            got = detect_mod.detect(gray, scratch=detect_mod.Scratch(), **kw)
+        with monkeypatch.context() as m:
+            m.setattr(detect_mod, "_label", lambda *a: None)
+            want = detect_mod.detect(gray, **kw)
+        assert [_blob_tuple(b) for b in got] == [_blob_tuple(b) for b in want]
+        labelled += any(found[0] is None for _, found in calls)
+        fell_back += calls[-1][0] is True
+    assert labelled >= 20 and fell_back >= 1
+
+
+@needs_kernel
+def test_mosaic_declines_a_box_mostly_lit():
+    """`_pixels.mosaic` gives up early when more than max_fill of the lit box's cells are lit,
+    and packs the same groups when allowed."""
+    mask = np.zeros((60, 200), np.uint8)
+    mask[0:4, 0:4] = mask[50:54, 150:154] = 255  # two far groups: few cells lit
+    mask[20:24, 70:74] = 255
+    cells = np.empty((60, 7), np.uint8)
+    box = _px.search_mask_cells(mask, 1, 1, np.empty_like(mask), cells)
+    crops, out = np.empty((256, 7), np.int64), np.empty(mask.size, np.uint8)
+    packed = _px.mosaic(mask, cells, *box, 5, 3, crops, out, 1.0)
+    assert packed[0] == 3
+    assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.4) == packed  # 3 of 11 x 5 cells lit
+    assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.03) == (-1, 0, 0)

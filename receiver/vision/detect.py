@@ -11,7 +11,11 @@ Stages (each a plain function on numpy arrays):
    move the median.
 3. Threshold + morphological close with a vertical line of `stripe_gap_px + 1` rows: the
    dark stripes of one LED (an OFF run of chips, or the low half-period of a tone) are bridged,
-   two LEDs side by side are not (the kernel is one column wide).
+   two LEDs side by side are not (the kernel is one column wide). The closed mask's 8-connected
+   components (findContours' outer contours) are labelled from its pixel runs
+   (`_pixels.label_runs`: boxes, first points and the outer contours' exact areas without
+   tracing them); the outlines are traced only where they are needed (a downsampled search,
+   boxes that overlap, a component with a hole).
 4. Per blob, in a full-resolution ROI: a blob level `background + refine_frac * (peak -
    background)` (half-maximum edge for `refine_frac` = 0.5; clipped blobs use a level just
    above the background, see `detect`), the lit pixels of this blob only,
@@ -267,13 +271,20 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
     pool = s.row_pool if f == 1 and s.row_pool > 1 and s.stripe_gap_px >= 2 * s.row_pool else 1
-    contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
+    # the components' outlines are needed to map a downsampled search back (f > 1) and to mask
+    # a component whose box it shares with another; isolated ones need only boxes and areas
+    outlines = f > 1
+    contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
     alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch)
+        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+        alone = _isolated(rects)
+    if contours is None and not alone.all():
+        # the same components (boxes, order), now with their outlines
+        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
@@ -289,7 +300,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     rect_l, alone_l = rects.tolist(), alone.tolist()
     area_l = areas.tolist() if areas is not None else None
     for i in np.flatnonzero(keep).tolist():
-        c, (bx, by, bw, bh) = contours[i], rect_l[i]
+        c, (bx, by, bw, bh) = contours[i] if contours is not None else None, rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
                                                        s.refine_frac, alone_l[i], **sat_kw)
         if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
@@ -327,9 +338,12 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
     return _search(image, level, stripe_gap_px, join_x_px, f, pool, scratch)[:2]
 
 
-def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch | None = None):
+def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch | None = None,
+            outlines: bool = True):
     """`_components` and the contours' areas (N,) float64 (cv2.contourArea's), or None for
-    the areas (then the caller asks cv2.contourArea)."""
+    the areas (then the caller asks cv2.contourArea). `outlines` False: the contours are not
+    needed, None may stand for them (the compiled run labelling, `_label`, then gives the boxes
+    and areas in findContours' order without tracing the outlines)."""
     if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
         # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
         ho, w = -(-image.shape[0] // pool), image.shape[1]
@@ -337,11 +351,10 @@ def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch 
         cells = _buf(scratch, "cells", (ho, -(-w // 32)))
         on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
         box = _k.search_mask_cells(image, pool, on, mask, cells)
-        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch)
+        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines)
         if found is None:
-            contours, rects = _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f,
-                                                  pool, scratch)
-            return contours, rects, None
+            return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch,
+                                       outlines)
         contours, rects, areas = found
         if pool > 1 and len(rects):
             rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
@@ -349,9 +362,8 @@ def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch 
     search = _row_max(image, pool, scratch) if pool > 1 else image
     dst = scratch.get("mask", search.shape) if scratch is not None else None
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
-    contours, rects = _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px,
-                                          join_x_px, f, pool, scratch)
-    return contours, rects, None
+    return _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px, join_x_px, f,
+                               pool, scratch)
 
 
 def _buf(scratch: Scratch | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -362,9 +374,14 @@ def _buf(scratch: Scratch | None, name: str, shape: tuple[int, ...]) -> np.ndarr
 # At most this many groups of lit pixels are packed into one mosaic (`_search_mosaic`); more
 # (a noise storm) are searched in the lit box as a whole.
 MOSAIC_MAX_GROUPS = 256
+# Nor when more than this fraction of the lit box's cells hold lit pixels (large lights filling
+# the frame, recordings/indoor-walk: 0.55-0.67 of them, the other recordings 0.02-0.2): the
+# mosaic would save little of the close and cost more in packing (walk: 0.37 M instructions
+# per frame, failing on 39 of 54 frames).
+MOSAIC_MAX_FILL = 0.4
 
 
-def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch):
+def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
     """(contours, boxes (N, 4), areas (N,)) of `_components_of_mask`, searched in a mosaic of the
     lit groups instead of the whole lit box (`_pixels.mosaic`), or None where the kernel does not
     pack (then `_components_of_mask` searches the box).
@@ -378,16 +395,21 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch)
     and its sides at the mask's edges on the mosaic's edges (the erosion treats the outside of
     the image as lit). Contours are traced from their first pixel in raster order, the same
     pixel wherever the group lies; `_pixels.place_contours` moves them back and they are
-    ordered as findContours orders them (by descending first point)."""
+    ordered as findContours orders them (by descending first point). `outlines` False: see
+    `_search`."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     if box[2] == 0 or (gap_y < 1 and gap_x < 1):
         return None
     crops = np.empty((MOSAIC_MAX_GROUPS, 7), np.int64)
     out = _buf(scratch, "mosaic", (mask.size,))
-    n, hm, wm = _k.mosaic(mask, cells, *box, _close_size(gap_y), _close_size(gap_x), crops, out)
+    n, hm, wm = _k.mosaic(mask, cells, *box, _close_size(gap_y), _close_size(gap_x), crops, out, MOSAIC_MAX_FILL)
     if n < 0:
         return None
     closed = _close(out[:hm * wm].reshape(hm, wm), gap_y, gap_x, scratch)
+    if not outlines:
+        found = _label(closed, crops, n, 0, 0)
+        if found is not None:
+            return (None,) + found
     contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     nc = len(contours)
     if nc == 0:
@@ -415,8 +437,8 @@ def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple
     return gap_y, math.ceil(join_x_px / f)
 
 
-def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch):
-    """`_components` after the threshold: `mask` the thresholded search image (0 / 255), `box`
+def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
+    """`_search` after the threshold: `mask` the thresholded search image (0 / 255), `box`
     its lit pixels' bounding box (x, y, w, h)."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     # The close and the contour search run on the box of the lit pixels grown by the kernel
@@ -425,18 +447,47 @@ def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, po
     # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
     bx, by, bw, bh = box
     if bw == 0:
-        return [], np.zeros((0, 4), np.int64)
+        return [], np.zeros((0, 4), np.int64), None
     my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
     y0, x0 = max(by - my, 0), max(bx - mx, 0)
     y1, x1 = min(by + bh + my, mask.shape[0]), min(bx + bw + mx, mask.shape[1])
     closed = _close(mask[y0:y1, x0:x1], gap_y, gap_x, scratch)
-    # findContours + one small fill per blob is several times faster here than
-    # connectedComponentsWithStats, which labels the whole frame.
-    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
-    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+    found = _label(closed, None, 0, x0, y0) if not outlines else None
+    if found is not None:
+        contours, (rects, areas) = None, found
+    else:
+        # findContours + one small fill per blob is several times faster here than
+        # connectedComponentsWithStats, which labels the whole frame.
+        contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
+        rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
+        areas = None
     if pool > 1 and len(rects):
         rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-    return contours, rects
+    return contours, rects, areas
+
+
+# At most this many components are labelled by runs (`_label`); more (a noise storm) are traced.
+LABEL_MAX_COMPONENTS = 2048
+
+
+def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, oy: int):
+    """(boxes (N, 4) x, y, w, h, areas (N,) float64) of the outer contours findContours(closed,
+    RETR_EXTERNAL) would find, in its order, from the compiled run labelling of the closed mask
+    (`_pixels.label_runs`, no outline traced); coordinates moved by (ox, oy), or by the `mosaic`
+    crops when n_crops > 0. None where it does not answer: no kernel, a component with a hole
+    (its outer contour's area covers the hole, and a component inside it would have no outer
+    contour of its own), more than LABEL_MAX_COMPONENTS components."""
+    if _k is None or not _native_frame(closed):
+        return None
+    cap = LABEL_MAX_COMPONENTS
+    rects, area2, holes, keys = np.empty((cap, 4), np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+    if crops is None:
+        crops = np.zeros((0, 7), np.int64)
+    n = _k.label_runs(closed, crops, n_crops, ox, oy, rects, area2, holes, keys)
+    if n < 0 or holes[:n].any():
+        return None
+    order = np.argsort(keys[:n])[::-1]  # findContours' order: by descending first point
+    return rects[order], area2[order] * 0.5
 
 
 def _close_reach(gap_y_px: int) -> int:
