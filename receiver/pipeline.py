@@ -425,7 +425,6 @@ class Receiver:
         tracks = self.tracker.step(frame.index, blobs, shift=shift)
         for t in self.tracker.ended:
             self.lights.pop(t.track_id, None)
-        self.envelopes.forget(t.track_id for t in self.tracker.ended)
         seen = [t for t in tracks if t.seen]
         env = self.envelopes.step(seen, frame.index, gray.shape)
         timer.stamp("track")

@@ -105,8 +105,8 @@ class EnvelopeHistory:
     kept while a later frame can still use it: frame indices must grow (gaps are fine); a frame
     index at or below an earlier one starts the history afresh. All lights of a frame are merged
     by one call of the compiled kernel (receiver/vision/_envelope.pyx) when it is built, else by
-    `_merge` (the reference it equals bit for bit). `forget(track_ids)`: nothing to do (a
-    record ages out by itself; track ids are never reused)."""
+    `_merge` (the reference it equals bit for bit). An ended track's hulls age out with
+    their frame's record (track ids are never reused)."""
 
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))
@@ -135,9 +135,6 @@ class EnvelopeHistory:
             env = _step_pure(tracks, recent, k, shape) if recent and n else {t.track_id: t.blob for t in tracks}
         self._recent = [r for r in recent if k - r[0] < frames - 1] + [(k, ids, starts, pts, hulls)]
         return env
-
-    def forget(self, track_ids) -> None:
-        """Kept for callers: an ended track's hulls age out of the per-frame records."""
 
 
 def _step_pure(tracks, recent, k: int, shape) -> dict:
