@@ -151,17 +151,23 @@ class FrameResult:
     pairs: tuple[PairObservation, ...] = ()
 
 
+def frozen_record(cls, fields: dict):
+    """`cls(**fields)` of a frozen dataclass without `__post_init__` or slots, built without its
+    generated `__init__` (one `object.__setattr__` per field: several times the cost; the
+    receiver builds a few records per LED and frame). `fields` must name every field, in order
+    (tests/test_pipeline.py and tests/test_detect_kernels.py compare with the constructor)."""
+    o = object.__new__(cls)
+    o.__dict__.update(fields)
+    return o
+
+
 def led_observation(track: int, cx: float, cy: float, area_px: float, contour: np.ndarray, border: bool = False,
                     id: int | None = None, mode: str | None = None, peak: float = 0.0,
                     distance_m: float | None = None, distance_estimator: str | None = None,
                     freq_hz: float | None = None, kind: str | None = None,
                     edge_px: tuple[np.ndarray, np.ndarray] | None = None,
-                    _new=object.__new__, _cls=LedObservation) -> LedObservation:
-    """`LedObservation(...)` with the same arguments, built without the frozen dataclass's
-    generated `__init__` (one `object.__setattr__` per field: ~3.5x the cost; the receiver
-    builds one per LED and frame). The record is the same (tests/test_pipeline.py compares)."""
-    o = _new(_cls)
-    o.__dict__.update(track=track, cx=cx, cy=cy, area_px=area_px, contour=contour, border=border, id=id, mode=mode,
-                      peak=peak, distance_m=distance_m, distance_estimator=distance_estimator, freq_hz=freq_hz,
-                      kind=kind, edge_px=edge_px)
-    return o
+                    ) -> LedObservation:
+    """`LedObservation(...)` with the same arguments, by `frozen_record`."""
+    return frozen_record(LedObservation, dict(
+        track=track, cx=cx, cy=cy, area_px=area_px, contour=contour, border=border, id=id, mode=mode, peak=peak,
+        distance_m=distance_m, distance_estimator=distance_estimator, freq_hz=freq_hz, kind=kind, edge_px=edge_px))

@@ -41,7 +41,7 @@ import math
 import cv2
 import numpy as np
 from receiver.core.native import load
-from receiver.core.records import Blob
+from receiver.core.records import Blob, frozen_record
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
@@ -633,15 +633,11 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
 
 
 def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, background) -> Blob:
-    """Blob(...) without the frozen dataclass's __init__ (12 object.__setattr__ calls, ~18 k
-    instructions per blob, more than the blob's whole refinement in the kernel): the same
-    instance dict, set at once. Blob has no __post_init__ and no slots, and these are its
-    fields in order (tests/test_detect_kernels.py checks)."""
-    b = object.__new__(Blob)
-    object.__setattr__(b, "__dict__", {
+    """Blob(...) by `records.frozen_record` (the frozen dataclass's __init__ costs more than the
+    blob's whole refinement in the kernel)."""
+    return frozen_record(Blob, {
         "cx": cx, "cy": cy, "area_px": area_px, "hull": hull, "x0": x0, "y0": y0, "x1": x1, "y1": y1,
         "border": border, "peak": peak, "level": level, "background": background})
-    return b
 
 
 def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
