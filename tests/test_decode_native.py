@@ -112,7 +112,7 @@ def test_find_sync_and_line_predict_bit_identical(monkeypatch):
 
 
 def test_accumulator_kernels_equal_pure():
-    """add / decay / decode_acc exactly; the correlations (align, best_two, corr_at,
+    """add4 / decode_acc exactly; the correlations (align, best_two, corr_at,
     overlap_corr) to 1e-12 with the same decisions."""
     rng = np.random.default_rng(22)
     dec0, dec1 = ook.OokDecoder(), ook.OokDecoder()
@@ -132,7 +132,7 @@ def test_accumulator_kernels_equal_pure():
             dec0.trust_w += w
         elif timed:
             dec0.timed_w += w
-        K.add(dec1.acc, dec1.acc_w, dec1.trust_w if trusted else dec1.timed_w if timed else None, soft, cw, shift)
+        K.add4(dec1._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
         for a in ("acc", "acc_w", "trust_w", "timed_w"):
             assert getattr(dec0, a).tobytes() == getattr(dec1, a).tobytes()
         known = dec0.acc_w > 0
@@ -161,7 +161,7 @@ def test_accumulator_kernels_equal_pure():
         else:
             assert r is None and K.corr_at(tpl, soft, shift) is None
         if trial % 50 == 49:
-            K.decay(dec1.acc, dec1.acc_w, dec1.trust_w, dec1.timed_w, 0.9)
+            K.decay4(dec1._acc4, 0.9)
             for a in ("acc", "acc_w", "trust_w", "timed_w"):
                 setattr(dec0, a, getattr(dec0, a) * 0.9)
                 assert getattr(dec0, a).tobytes() == getattr(dec1, a).tobytes()

@@ -289,45 +289,9 @@ def find_sync(const double[::1] soft, double margin):
     return best, bsc
 
 
-def decay(double[::1] acc, double[::1] acc_w, double[::1] trust_w, double[::1] timed_w, double f):
-    """The four accumulators *= f."""
-    cdef Py_ssize_t i
-    for i in range(acc.shape[0]):
-        acc[i] = acc[i] * f
-        acc_w[i] = acc_w[i] * f
-        trust_w[i] = trust_w[i] * f
-        timed_w[i] = timed_w[i] * f
-
-
-def add(double[::1] acc, double[::1] acc_w, double[::1] extra_w, const double[::1] soft,
-        const double[::1] cw, Py_ssize_t shift):
-    """`OokDecoder._add`: frame chip k at packet position (k + shift) % 54, weighted sums
-    formed per position first (np.bincount's order), then added; `extra_w` (trust_w or
-    timed_w) gets the weights too, or None."""
-    cdef double tv[PACKET_LEN]
-    cdef double tw[PACKET_LEN]
-    cdef Py_ssize_t i, p
-    for i in range(PACKET_LEN):
-        tv[i] = 0.0
-        tw[i] = 0.0
-    shift = shift % PACKET_LEN
-    if shift < 0:
-        shift += PACKET_LEN
-    for i in range(soft.shape[0]):
-        p = (i + shift) % PACKET_LEN
-        tv[p] += cw[i] * soft[i]
-        tw[p] += cw[i]
-    for i in range(PACKET_LEN):
-        acc[i] = acc[i] + tv[i]
-        acc_w[i] = acc_w[i] + tw[i]
-    if extra_w is not None:
-        for i in range(PACKET_LEN):
-            extra_w[i] = extra_w[i] + tw[i]
-
-
 def decay4(double[:, ::1] acc4, double f):
-    """`decay` of the four accumulators held as the rows of one (4, 54) array (one buffer
-    to take instead of four)."""
+    """`OokDecoder.step`'s decay: every accumulator (acc, acc_w, trust_w, timed_w, the rows of
+    one (4, 54) array) times f."""
     cdef Py_ssize_t r, i
     for r in range(acc4.shape[0]):
         for i in range(acc4.shape[1]):
@@ -336,8 +300,9 @@ def decay4(double[:, ::1] acc4, double f):
 
 def add4(double[:, ::1] acc4, Py_ssize_t extra, const double[::1] soft, const double[::1] cw,
          Py_ssize_t shift):
-    """`add` on the accumulators held as the rows of acc4 (acc, acc_w, trust_w, timed_w):
-    `extra` 2 or 3 names the row that gets the weights too, -1 none."""
+    """`OokDecoder._add`: frame chip k at packet position (k + shift) % 54, weighted sums formed
+    per position first (np.bincount's order), then added to the rows of acc4 (acc, acc_w,
+    trust_w, timed_w); `extra` 2 or 3 names the row that gets the weights too, -1 none."""
     cdef double tv[PACKET_LEN]
     cdef double tw[PACKET_LEN]
     cdef Py_ssize_t i, p
