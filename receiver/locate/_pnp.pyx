@@ -46,6 +46,14 @@ cdef inline bint finite(double x) noexcept nogil:
     return x - x == 0.0
 
 
+cdef inline double offset(const double* L, const double* C, double* Y) noexcept nogil:
+    """Y = L - C (world, m); returns |Y|."""
+    Y[0] = L[0] - C[0]
+    Y[1] = L[1] - C[1]
+    Y[2] = L[2] - C[2]
+    return sqrt(Y[0] * Y[0] + Y[1] * Y[1] + Y[2] * Y[2])
+
+
 cdef inline void cam_point(const double* L, const double* C, const double* R, double* Y, double* X) noexcept nogil:
     """Y = L - C (world, m) and X = R Y: the point in the camera frame (R = R_cw, row-major)."""
     Y[0] = L[0] - C[0]
@@ -59,7 +67,7 @@ cdef inline void cam_point(const double* L, const double* C, const double* R, do
 cdef void residuals(const Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
     """`_joint_fun`'s whitened residuals r (m,) at p; R, dR: Rodrigues of p[:3] and its Jacobian."""
     cdef int i, k, j = 2 * pr.n
-    cdef double Y0, Y1, Y2, z, nrm
+    cdef double z, nrm
     cdef double Y[3]
     cdef double X[3]
     cdef const double* C = p + 3
@@ -71,10 +79,7 @@ cdef void residuals(const Prob* pr, const double* p, double* r, double* R, doubl
         r[2 * i + 1] = (X[1] / z - pr.uv[2 * i + 1]) / pr.sig
     for i in range(pr.n):
         if finite(pr.d[i]):
-            Y0 = pr.L[3 * i] - C[0]
-            Y1 = pr.L[3 * i + 1] - C[1]
-            Y2 = pr.L[3 * i + 2] - C[2]
-            nrm = sqrt(Y0 * Y0 + Y1 * Y1 + Y2 * Y2)
+            nrm = offset(pr.L + 3 * i, C, Y)
             r[j] = (nrm - pr.d[i]) * (1.0 / pr.sd[i])
             j += 1
     if pr.has_up:
@@ -90,7 +95,7 @@ cdef void residuals(const Prob* pr, const double* p, double* r, double* R, doubl
 cdef void jacobian(const Prob* pr, const double* p, const double* R, const double* dR, double* J) noexcept nogil:
     """`_joint_fun`'s Jacobian J (m, 6) row-major at p (R, dR from `residuals` at p)."""
     cdef int i, k, a, j = 2 * pr.n
-    cdef double Y0, Y1, Y2, z, xz, yz, nrm, wd
+    cdef double z, xz, yz, nrm, wd
     cdef double Y[3]
     cdef double X[3]
     cdef double dX[18]
@@ -111,18 +116,15 @@ cdef void jacobian(const Prob* pr, const double* p, const double* R, const doubl
             row[6 + k] = (dX[6 + k] - yz * dX[12 + k]) / z / pr.sig
     for i in range(pr.n):
         if finite(pr.d[i]):
-            Y0 = pr.L[3 * i] - C[0]
-            Y1 = pr.L[3 * i + 1] - C[1]
-            Y2 = pr.L[3 * i + 2] - C[2]
-            nrm = sqrt(Y0 * Y0 + Y1 * Y1 + Y2 * Y2)
+            nrm = offset(pr.L + 3 * i, C, Y)
             wd = 1.0 / pr.sd[i]
             row = J + 6 * j
             row[0] = 0.0
             row[1] = 0.0
             row[2] = 0.0
-            row[3] = -(Y0 / nrm) * wd
-            row[4] = -(Y1 / nrm) * wd
-            row[5] = -(Y2 / nrm) * wd
+            row[3] = -(Y[0] / nrm) * wd
+            row[4] = -(Y[1] / nrm) * wd
+            row[5] = -(Y[2] / nrm) * wd
             j += 1
     if pr.has_up:
         for a in range(3):

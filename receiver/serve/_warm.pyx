@@ -17,7 +17,9 @@ number: the caller solves the frame from scratch), OK (the outputs are filled), 
 the caller runs the numpy path).
 """
 
-from libc.math cimport sqrt, log1p, cos, sin, fabs, isfinite
+from libc.math cimport sqrt, cos, sin, fabs, isfinite
+from receiver.locate._loss cimport loss_rho, loss_w
+from receiver.locate._solve6 cimport solve6
 
 from receiver.serve._buf cimport load, store
 
@@ -34,30 +36,6 @@ LOSS_CODES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
 # A pivot of J^T J below this times its largest diagonal element leaves the inverse to numpy's
 # pseudo-inverse (REFERENCE).
 cdef double PIVOT_REL = 1e-13
-
-
-cdef inline double _rho(int loss, double z) noexcept nogil:
-    if loss == 0:
-        return z
-    if loss == 1:
-        return 2.0 * (sqrt(1.0 + z) - 1.0)
-    if loss == 2:
-        return log1p(z)
-    if z <= 1.0:
-        return z
-    return 2.0 * sqrt(z) - 1.0
-
-
-cdef inline double _weight(int loss, double z) noexcept nogil:
-    if loss == 0:
-        return 1.0
-    if loss == 1:
-        return 1.0 / sqrt(1.0 + z)
-    if loss == 2:
-        return 1.0 / (1.0 + z)
-    if z <= 1.0:
-        return 1.0
-    return 1.0 / sqrt(z)
 
 
 cdef struct Frame:
@@ -136,7 +114,7 @@ cdef int _evaluate(Frame* f, double* R, double* C, double* r, double* J, double*
     c = 0.0
     for i in range(m):
         z = (r[i] / f.f_scale) * (r[i] / f.f_scale)
-        c += _rho(f.loss, z)
+        c += loss_rho(f.loss, z)
     cost[0] = 0.5 * f.f_scale * f.f_scale * c
     return m
 
@@ -157,41 +135,6 @@ cdef inline void _cross_rows(double a0, double a1, double a2, double s, double* 
         J[6 * i + 3] = 0.0
         J[6 * i + 4] = 0.0
         J[6 * i + 5] = 0.0
-
-
-cdef int _solve6(double* A, double* b) noexcept nogil:
-    """Solve A x = b (6 x 6, row-major; both overwritten, x in b) by Gaussian elimination with
-    partial pivoting; 0 when a pivot is exactly zero (singular, as LAPACK's gesv reports)."""
-    cdef int i, j, k, p
-    cdef double t, piv
-    for k in range(6):
-        p = k
-        for i in range(k + 1, 6):
-            if fabs(A[6 * i + k]) > fabs(A[6 * p + k]):
-                p = i
-        if A[6 * p + k] == 0.0:
-            return 0
-        if p != k:
-            for j in range(6):
-                t = A[6 * k + j]
-                A[6 * k + j] = A[6 * p + j]
-                A[6 * p + j] = t
-            t = b[k]
-            b[k] = b[p]
-            b[p] = t
-        piv = A[6 * k + k]
-        for i in range(k + 1, 6):
-            t = A[6 * i + k] / piv
-            if t != 0.0:
-                for j in range(k, 6):
-                    A[6 * i + j] -= t * A[6 * k + j]
-                b[i] -= t * b[k]
-    for k in range(5, -1, -1):
-        t = b[k]
-        for j in range(k + 1, 6):
-            t -= A[6 * k + j] * b[j]
-        b[k] = t / A[6 * k + k]
-    return 1
 
 
 cdef int _inverse6(double* A, double* Ainv) noexcept nogil:
@@ -268,6 +211,7 @@ cdef int _lm(Frame* f, double* R, double* C, double* r, double* J, int* m_out, d
     cdef double w[MAX_ROWS]
     cdef double A[36]
     cdef double g[6]
+    cdef double dx[6]
     cdef double R_new[9]
     cdef double C_new[3]
     cdef double c, c_new, lam = lam0, t, z, norm
@@ -276,7 +220,7 @@ cdef int _lm(Frame* f, double* R, double* C, double* r, double* J, int* m_out, d
     for rnd in range(max_rounds):
         for k in range(m):
             z = (r[k] / f.f_scale) * (r[k] / f.f_scale)
-            w[k] = _weight(f.loss, z)
+            w[k] = loss_w(f.loss, z)
         for i in range(6):
             for j in range(6):
                 t = 0.0
@@ -290,9 +234,11 @@ cdef int _lm(Frame* f, double* R, double* C, double* r, double* J, int* m_out, d
         for i in range(6):
             t = A[7 * i] if A[7 * i] > 1e-12 else 1e-12
             A[7 * i] += lam * t
-        if not _solve6(A, g):
+        if solve6(A, g, dx):                 # singular: as LAPACK's gesv reports
             m_out[0] = m
             return 0
+        for i in range(6):
+            g[i] = dx[i]
         norm = sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2] + g[3] * g[3] + g[4] * g[4] + g[5] * g[5])
         if norm <= xtol:                     # nothing left to gain: done here
             m_out[0] = m
