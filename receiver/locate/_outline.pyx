@@ -13,7 +13,7 @@ corner unused, 0), the centroids (u, v) of the targets that have one, the tilt p
 position prior (3): the pure path's, grouped squares / rects first, then circles."""
 
 from libc.math cimport sqrt, cos, sin, fabs
-from receiver.locate._rodrigues cimport rodrigues
+from receiver.locate._rodrigues cimport rodrigues, cam_point
 from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from libc.stdlib cimport malloc, free
@@ -70,13 +70,13 @@ cdef inline double hypot(double a, double b) noexcept nogil:
 
 cdef inline void project(const double* R, const double* C, const double* X, double* q) noexcept nogil:
     """Normalized image point of world point X (depth clamped at 1e-6, as `_project`)."""
-    cdef double y0 = X[0] - C[0], y1 = X[1] - C[1], y2 = X[2] - C[2]
-    cdef double x0 = y0 * R[0] + y1 * R[1] + y2 * R[2]
-    cdef double x1 = y0 * R[3] + y1 * R[4] + y2 * R[5]
-    cdef double x2 = y0 * R[6] + y1 * R[7] + y2 * R[8]
-    cdef double z = x2 if x2 > 1e-6 else 1e-6
-    q[0] = x0 / z
-    q[1] = x1 / z
+    cdef double y[3]
+    cdef double x[3]
+    cdef double z
+    cam_point(X, C, R, y, x)
+    z = x[2] if x[2] > 1e-6 else 1e-6
+    q[0] = x[0] / z
+    q[1] = x[1] / z
 
 
 cdef int assign(Prob* pr, const double* p, int keep_minor, int first, double guard2,
@@ -273,7 +273,9 @@ cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR
     """Whitened residuals r at p (layout in the module doc) and the robust cost; R, dR: Rodrigues
     at p."""
     cdef int i, j, e, t, k, base
-    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, X0, X1, X2, Y0, Y1, Y2, z, rr, nh0, nh1, nh2
+    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, z, rr, nh0, nh1, nh2
+    cdef double X[3]
+    cdef double Y[3]
     cdef const double* c6
     cdef const double* C = p + 3
     cdef double fs2 = pr.fs * pr.fs
@@ -312,15 +314,10 @@ cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR
         cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
     base = pr.N
     for k in range(pr.K):
-        Y0 = pr.L[3 * k] - C[0]
-        Y1 = pr.L[3 * k + 1] - C[1]
-        Y2 = pr.L[3 * k + 2] - C[2]
-        X0 = Y0 * R[0] + Y1 * R[1] + Y2 * R[2]
-        X1 = Y0 * R[3] + Y1 * R[4] + Y2 * R[5]
-        X2 = Y0 * R[6] + Y1 * R[7] + Y2 * R[8]
-        z = X2 if X2 > 1e-6 else 1e-6
-        r[base] = (X0 / z - pr.uv[2 * k]) / pr.sigc
-        r[base + 1] = (X1 / z - pr.uv[2 * k + 1]) / pr.sigc
+        cam_point(pr.L + 3 * k, C, R, Y, X)
+        z = X[2] if X[2] > 1e-6 else 1e-6
+        r[base] = (X[0] / z - pr.uv[2 * k]) / pr.sigc
+        r[base + 1] = (X[1] / z - pr.uv[2 * k + 1]) / pr.sigc
         cost += loss_rho(pr.loss, (r[base] / pr.fs) * (r[base] / pr.fs))
         cost += loss_rho(pr.loss, (r[base + 1] / pr.fs) * (r[base + 1] / pr.fs))
         base += 2
@@ -413,7 +410,9 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     unweighted J^T J without the position prior's rows) at p, whose residuals r, R and dR
     `evaluate` computed (with the edge / conic work buffers)."""
     cdef int i, e, t, k, a, b, j, base
-    cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, X0, X1, X2, Y0, Y1, Y2, z
+    cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, z
+    cdef double X[3]
+    cdef double Y[3]
     cdef double s0, s1, s2, s3, s4, s5, s6, s7, s8
     cdef double* S
     cdef const double* nh
@@ -525,24 +524,19 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     base = pr.N
     # Centroids.
     for k in range(pr.K):
-        Y0 = pr.L[3 * k] - C[0]
-        Y1 = pr.L[3 * k + 1] - C[1]
-        Y2 = pr.L[3 * k + 2] - C[2]
-        X0 = Y0 * R[0] + Y1 * R[1] + Y2 * R[2]
-        X1 = Y0 * R[3] + Y1 * R[4] + Y2 * R[5]
-        X2 = Y0 * R[6] + Y1 * R[7] + Y2 * R[8]
-        z = X2 if X2 > 1e-6 else 1e-6
+        cam_point(pr.L + 3 * k, C, R, Y, X)
+        z = X[2] if X[2] > 1e-6 else 1e-6
         for j in range(3):
             # dX_a / d rvec_j = (dRk[j] Y)_a ; dX_a / d C_j = -R_aj
-            dn[j] = dR[9 * j] * Y0 + dR[9 * j + 1] * Y1 + dR[9 * j + 2] * Y2
-            dn[6 + j] = dR[9 * j + 3] * Y0 + dR[9 * j + 4] * Y1 + dR[9 * j + 5] * Y2
-            dn[12 + j] = dR[9 * j + 6] * Y0 + dR[9 * j + 7] * Y1 + dR[9 * j + 8] * Y2
+            dn[j] = dR[9 * j] * Y[0] + dR[9 * j + 1] * Y[1] + dR[9 * j + 2] * Y[2]
+            dn[6 + j] = dR[9 * j + 3] * Y[0] + dR[9 * j + 4] * Y[1] + dR[9 * j + 5] * Y[2]
+            dn[12 + j] = dR[9 * j + 6] * Y[0] + dR[9 * j + 7] * Y[1] + dR[9 * j + 8] * Y[2]
             dn[3 + j] = -R[j]
             dn[9 + j] = -R[3 + j]
             dn[15 + j] = -R[6 + j]
         for j in range(6):
-            du[j] = (dn[j] - (X0 / z) * dn[12 + j]) / z / pr.sigc
-            dv[j] = (dn[6 + j] - (X1 / z) * dn[12 + j]) / z / pr.sigc
+            du[j] = (dn[j] - (X[0] / z) * dn[12 + j]) / z / pr.sigc
+            dv[j] = (dn[6 + j] - (X[1] / z) * dn[12 + j]) / z / pr.sigc
         rr = r[base]
         add_row(A, g, du, 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs)), rr)
         rr = r[base + 1]

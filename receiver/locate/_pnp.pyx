@@ -16,7 +16,7 @@ Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 from libc.math cimport sqrt
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
-from receiver.locate._rodrigues cimport rodrigues
+from receiver.locate._rodrigues cimport rodrigues, cam_point
 from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from receiver.decode._npsum cimport pw_sum
@@ -52,16 +52,6 @@ cdef inline double offset(const double* L, const double* C, double* Y) noexcept 
     Y[1] = L[1] - C[1]
     Y[2] = L[2] - C[2]
     return sqrt(Y[0] * Y[0] + Y[1] * Y[1] + Y[2] * Y[2])
-
-
-cdef inline void cam_point(const double* L, const double* C, const double* R, double* Y, double* X) noexcept nogil:
-    """Y = L - C (world, m) and X = R Y: the point in the camera frame (R = R_cw, row-major)."""
-    Y[0] = L[0] - C[0]
-    Y[1] = L[1] - C[1]
-    Y[2] = L[2] - C[2]
-    X[0] = Y[0] * R[0] + Y[1] * R[1] + Y[2] * R[2]
-    X[1] = Y[0] * R[3] + Y[1] * R[4] + Y[2] * R[5]
-    X[2] = Y[0] * R[6] + Y[1] * R[7] + Y[2] * R[8]
 
 
 cdef void residuals(const Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:

@@ -1,5 +1,6 @@
 # cython: language_level=3
-"""cv2.Rodrigues with its Jacobian for the locate kernels (receiver.locate._outline, _vehicle_pose)."""
+"""cv2.Rodrigues with its Jacobian for the locate kernels (receiver.locate._outline, _pnp,
+_vehicle_pose), and a world point moved into the camera frame (`cam_point`)."""
 
 from libc.math cimport sqrt, cos, sin
 from libc.float cimport DBL_EPSILON
@@ -61,3 +62,13 @@ cdef inline void rodrigues(const double* rv, double* R, double* dR) noexcept nog
         a4 = s * itheta
         for k in range(9):
             dR[i * 9 + k] = a0 * I[k] + a1 * rrt[k] + a2 * drrt[i * 9 + k] + a3 * r_x[k] + a4 * d_r_x_[i * 9 + k]
+
+
+cdef inline void cam_point(const double* L, const double* C, const double* R, double* Y, double* X) noexcept nogil:
+    """Y = L - C (world, m) and X = R Y: the point in the camera frame (R = R_cw, row-major)."""
+    Y[0] = L[0] - C[0]
+    Y[1] = L[1] - C[1]
+    Y[2] = L[2] - C[2]
+    X[0] = Y[0] * R[0] + Y[1] * R[1] + Y[2] * R[2]
+    X[1] = Y[0] * R[3] + Y[1] * R[4] + Y[2] * R[5]
+    X[2] = Y[0] * R[6] + Y[1] * R[7] + Y[2] * R[8]
