@@ -345,6 +345,44 @@ cdef inline void add_row(double* A, double* g, const double* J, double wt, doubl
             A[6 * a + b] += wa * J[b]
 
 
+cdef inline void add_moments(double* Mc, double* gc, const double* d, double wt, double rr) noexcept nogil:
+    """Mc (21: the upper triangle of a 6 x 6, row by row) += wt d d^T, gc (6,) += wt rr d, for one
+    point's d r / d c6 (6,), unrolled (the circle points' inner loop)."""
+    cdef double w0 = wt * d[0], w1 = wt * d[1], w2 = wt * d[2], w3 = wt * d[3], w4 = wt * d[4], w5 = wt * d[5]
+    Mc[0] += w0 * d[0]; Mc[1] += w0 * d[1]; Mc[2] += w0 * d[2]; Mc[3] += w0 * d[3]; Mc[4] += w0 * d[4]
+    Mc[5] += w0 * d[5]
+    Mc[6] += w1 * d[1]; Mc[7] += w1 * d[2]; Mc[8] += w1 * d[3]; Mc[9] += w1 * d[4]; Mc[10] += w1 * d[5]
+    Mc[11] += w2 * d[2]; Mc[12] += w2 * d[3]; Mc[13] += w2 * d[4]; Mc[14] += w2 * d[5]
+    Mc[15] += w3 * d[3]; Mc[16] += w3 * d[4]; Mc[17] += w3 * d[5]
+    Mc[18] += w4 * d[4]; Mc[19] += w4 * d[5]
+    Mc[20] += w5 * d[5]
+    gc[0] += w0 * rr; gc[1] += w1 * rr; gc[2] += w2 * rr; gc[3] += w3 * rr; gc[4] += w4 * rr; gc[5] += w5 * rr
+
+
+cdef void fold_moments(double* A, double* g, const double* Mc, const double* gc, const double* D) noexcept nogil:
+    """A (upper triangle) += D Mc D^T, g += D gc for one circle: D (6, 6) row k = d c6 / d p_k
+    (`circle_param_jacobians`), Mc (21,) / gc (6,) its points' moments (`add_moments`)."""
+    cdef double M[36]
+    cdef double T[36]
+    cdef int a, b, c, k = 0
+    for a in range(6):
+        for b in range(a, 6):
+            M[6 * a + b] = Mc[k]
+            M[6 * b + a] = Mc[k]
+            k += 1
+    # T = M D^T: T[c, b] = sum_d M[c, d] D[b, d]
+    for c in range(6):
+        for b in range(6):
+            T[6 * c + b] = M[6 * c] * D[6 * b] + M[6 * c + 1] * D[6 * b + 1] + M[6 * c + 2] * D[6 * b + 2] \
+                + M[6 * c + 3] * D[6 * b + 3] + M[6 * c + 4] * D[6 * b + 4] + M[6 * c + 5] * D[6 * b + 5]
+    for a in range(6):
+        g[a] += D[6 * a] * gc[0] + D[6 * a + 1] * gc[1] + D[6 * a + 2] * gc[2] + D[6 * a + 3] * gc[3] \
+            + D[6 * a + 4] * gc[4] + D[6 * a + 5] * gc[5]
+        for b in range(a, 6):
+            A[6 * a + b] += D[6 * a] * T[b] + D[6 * a + 1] * T[6 + b] + D[6 * a + 2] * T[12 + b] \
+                + D[6 * a + 3] * T[18 + b] + D[6 * a + 4] * T[24 + b] + D[6 * a + 5] * T[30 + b]
+
+
 cdef void circle_param_jacobians(Prob* pr, const double* R, const double* dR, const double* C) noexcept nogil:
     """d c6 / d p of every circle seen at an angle (`_Problem._circle_jacobian`): dCi/drvec_k =
     dR_k Q R^T + its transpose, dCi/dC_j = R dQ/dC_j R^T."""
@@ -430,43 +468,55 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     cdef double drdc[6]
     cdef double du[6]
     cdef double dv[6]
-    cdef double b0[6]
-    cdef double b1[6]
-    cdef double phi[6]
+    cdef double Mc[21]
+    cdef double gc[6]
+    cdef int nxt
     for k in range(36):
         A[k] = 0.0
     for k in range(6):
         g[k] = 0.0
     if pr.N > pr.M:
         circle_param_jacobians(pr, R, dR, C)
-    # Circle points: their Jacobian row, d r / d c6 times d c6 / d p.
-    for j in range(pr.n_edge_pts, pr.n_edge_pts + pr.N - pr.M):
-        i = pr.order[j]
-        t = pr.tix[i]
+    # Circle points: a point's Jacobian row is drdc^T dc6t (d r / d c6 times the circle's d c6 / d p),
+    # so each circle's rows add dc6t^T (sum wp drdc drdc^T) dc6t to A and dc6t^T (sum wp rr drdc)
+    # to g: per point a 6-vector and its moments, per circle one 6 x 6 fold (`fold_moments`).
+    j = pr.n_edge_pts
+    while j < pr.n_edge_pts + pr.N - pr.M:
+        t = pr.tix[pr.order[j]]
+        nxt = j
+        while nxt < pr.n_edge_pts + pr.N - pr.M and pr.tix[pr.order[nxt]] == t:
+            nxt += 1
         if pr.flat[t]:
+            j = nxt
             continue
-        rr = r[i]
+        for k in range(21):
+            Mc[k] = 0.0
+        for k in range(6):
+            gc[k] = 0.0
         c6 = pr.c6 + 6 * t
-        dc6t = pr.dc6 + 36 * t
-        u = pr.P[2 * i]
-        v = pr.P[2 * i + 1]
-        phi[0] = u * u; phi[1] = 2.0 * u * v; phi[2] = 2.0 * u; phi[3] = v * v; phi[4] = 2.0 * v; phi[5] = 1.0
-        val = phi[0] * c6[0] + phi[1] * c6[1] + phi[2] * c6[2] + phi[3] * c6[3] + phi[4] * c6[4] + phi[5] * c6[5]
-        cx0 = u * c6[0] + v * c6[1] + c6[2]
-        cx1 = u * c6[1] + v * c6[3] + c6[4]
-        h = hypot(cx0, cx1)
-        hs = h if h > 5e-13 else 5e-13
-        kk = val / (hs * hs)
-        sc = pr.w[i] / (2.0 * hs)
-        b0[0] = u; b0[1] = v; b0[2] = 1.0; b0[3] = 0.0; b0[4] = 0.0; b0[5] = 0.0
-        b1[0] = 0.0; b1[1] = u; b1[2] = 0.0; b1[3] = v; b1[4] = 1.0; b1[5] = 0.0
-        for k in range(6):
-            drdc[k] = (phi[k] - (kk * cx0) * b0[k] - (kk * cx1) * b1[k]) * sc
-        for k in range(6):
-            J[k] = drdc[0] * dc6t[6 * k] + drdc[1] * dc6t[6 * k + 1] + drdc[2] * dc6t[6 * k + 2] \
-                + drdc[3] * dc6t[6 * k + 3] + drdc[4] * dc6t[6 * k + 4] + drdc[5] * dc6t[6 * k + 5]
-        wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
-        add_row(A, g, J, wp, rr)
+        for j in range(j, nxt):
+            i = pr.order[j]
+            rr = r[i]
+            u = pr.P[2 * i]
+            v = pr.P[2 * i + 1]
+            val = (u * u) * c6[0] + (2.0 * u * v) * c6[1] + (2.0 * u) * c6[2] + (v * v) * c6[3] \
+                + (2.0 * v) * c6[4] + 1.0 * c6[5]
+            cx0 = u * c6[0] + v * c6[1] + c6[2]
+            cx1 = u * c6[1] + v * c6[3] + c6[4]
+            h = hypot(cx0, cx1)
+            hs = h if h > 5e-13 else 5e-13
+            kk = val / (hs * hs)
+            sc = pr.w[i] / (2.0 * hs)
+            drdc[0] = (u * u - (kk * cx0) * u) * sc
+            drdc[1] = ((2.0 * u * v - (kk * cx0) * v) - (kk * cx1) * u) * sc
+            drdc[2] = (2.0 * u - (kk * cx0)) * sc
+            drdc[3] = (v * v - (kk * cx1) * v) * sc
+            drdc[4] = (2.0 * v - (kk * cx1)) * sc
+            drdc[5] = sc
+            wp = 1.0 if gram else loss_w(pr.loss, (rr / pr.fs) * (rr / pr.fs))
+            add_moments(Mc, gc, drdc, wp, rr)
+        fold_moments(A, g, Mc, gc, pr.dc6 + 36 * t)
+        j = nxt
     # Square / rect points: per-edge moments of the whitened rows (x, y, 1) w, then dl^T S dl.
     for e in range(4 * pr.T if pr.M else 0):
         if pr.estart[e + 1] == pr.estart[e]:
