@@ -183,7 +183,7 @@ def test_fast_kalman_equals_position_kalman(monkeypatch):
     their covariances, coasting, a rejected outlier, a restart after max_rejects outliers and
     a jump back in time; states equal to rounding (1e-12 m, m/s; the sums run in another order)."""
     from receiver.locate.kalman import PositionKalman
-    from receiver.serve.devices import KERNEL as KALMAN_KERNEL, FastKalman
+    from receiver.locate.fastfilter import KERNEL as KALMAN_KERNEL, FastKalman
     monkeypatch.delenv("OCCLOC_PURE", raising=False)
     k = native.load(KALMAN_KERNEL)
     assert k is not None
@@ -214,7 +214,7 @@ def test_fast_kalman_equals_position_kalman(monkeypatch):
 
 def test_kernels_refuse_wrong_arrays(kernel):
     """Arrays of another dtype or shape are a TypeError / ValueError, never a read out of bounds."""
-    from receiver.serve.devices import KERNEL as KALMAN_KERNEL
+    from receiver.locate.fastfilter import KERNEL as KALMAN_KERNEL
     k = native.load(KALMAN_KERNEL)
     x, P = np.zeros((6, 1)), np.eye(6)
     with pytest.raises(TypeError):
@@ -283,10 +283,10 @@ def test_extreme_valid_values_on_the_compiled_path(walk_map, kernel, monkeypatch
 
 
 def test_ypr_of_lists_equals_rotation_to_ypr_deg():
-    """devices.ypr_deg (nested lists) gives rotation_to_ypr_deg's numbers exactly, also at the
+    """fastfilter.ypr_deg (nested lists) gives rotation_to_ypr_deg's numbers exactly, also at the
     gimbal lock (pitch +-90)."""
     from receiver.locate.pose import rotation_to_ypr_deg
-    from receiver.serve.devices import ypr_deg
+    from receiver.locate.fastfilter import ypr_deg
     rng = np.random.default_rng(2)
     angles = [tuple(rng.uniform([-180, -90, -180], [180, 90, 180])) for _ in range(300)]
     angles += [(30.0, 90.0, 0.0), (-60.0, -90.0, 0.0), (10.0, 88.0, 2.0)]
@@ -305,12 +305,12 @@ def _bits(obj):
 
 
 def test_position_kernel_equals_the_python_builder(monkeypatch):
-    """receiver.serve._position builds devices.position_object's dict (key order, every float's
+    """receiver.locate._position builds fastfilter.position_object's dict (key order, every float's
     repr) and writes its JSON byte for byte as wire.encode does, for random states and fixes and
     for the rounding's hard cases: values on and next to decimal ties, -0.0, huge, tiny, NaN and
     infinite numbers, no track, no fix, no orientation."""
     from receiver.locate.lsq import Fix
-    from receiver.serve.devices import POSITION_KERNEL, position_object
+    from receiver.locate.fastfilter import POSITION_KERNEL, position_object
     monkeypatch.delenv("OCCLOC_PURE", raising=False)
     k = native.load(POSITION_KERNEL)
     assert k is not None

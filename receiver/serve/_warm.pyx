@@ -21,7 +21,7 @@ from libc.math cimport sqrt, cos, sin, fabs, isfinite
 from receiver.locate._loss cimport loss_rho, loss_w
 from receiver.locate._solve6 cimport solve6
 
-from receiver.serve._buf cimport load, store
+from receiver.core._buf cimport load, store
 
 # Residual rows at most: 64 LEDs (wire.MAX_LEDS) x (2 angles + 1 range) + 3 tilt rows.
 cdef enum:

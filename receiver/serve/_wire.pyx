@@ -8,7 +8,7 @@ decides, with its reason and detail (tests: both accept the same requests with t
 
 import numpy as np
 
-from receiver.serve._buf cimport store
+from receiver.core._buf cimport store
 from receiver.serve.wire import (DISTANCE_RANGE_M, MAX_ABS_T_S, MAX_ABS_UV, MAX_DEVICE_CHARS, MAX_LED_ID, MAX_LEDS,
                                  MAX_SEQ, SIGMA_M_RANGE, SIGMA_UV_RANGE)
 

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled `position` object of the lighting server's replies (`receiver.serve.devices`): the
-dict `receiver.serve.devices.position_object` builds (and `PoseFilter.update` before it), with its
+"""Compiled `position` object of the receiver's frames and the lighting server's replies
+(`receiver.locate.fastfilter`, `receiver.serve.devices`): the dict
+`receiver.locate.fastfilter.position_object` builds (and `PoseFilter.update` before it), with its
 numbers rounded in C instead of ~40 Python-level `round` calls, each a decimal conversion there.
 
 Equal to the Python builder by construction (tests compare both):
@@ -10,13 +11,13 @@ Equal to the Python builder by construction (tests compare both):
   rounds to the same integer, and the division (both operands exact) is correctly rounded. Any
   other value (near a tie, large, not finite) is handed to Python's `round`.
 * numpy's `round` (`ndarray.round`) is rint(v * 10^n) / 10^n by definition.
-* yaw / pitch / roll: `devices.ypr_deg` with the C library's asin / cos / atan2 (what Python's
+* yaw / pitch / roll: `fastfilter.ypr_deg` with the C library's asin / cos / atan2 (what Python's
   math module calls) and math.degrees' factor 180 / pi.
 """
 
 from libc.math cimport asin, atan2, cos, fabs, floor, isfinite, rint, sqrt
 
-from receiver.serve._buf cimport load
+from receiver.core._buf cimport load
 
 cdef double RAD_TO_DEG = 180.0 / 3.14159265358979323846   # CPython's math.degrees factor
 cdef double POW10[9]
@@ -67,7 +68,7 @@ cdef void _ypr(const double* Rb, double* yaw, double* theta, double* roll) noexc
 
 
 def position(x, P, C, cov, R, str method, int n_leds, handedness):
-    """`devices.position_object`: x (6,) and P (6, 6) the filter state (both None without a
+    """`fastfilter.position_object`: x (6,) and P (6, 6) the filter state (both None without a
     track); C (3,), cov (3, 3) and R (3, 3) or None of the frame's fix (C None: no fix); method
     its `method` (or "kalman-coast"); handedness the map's, or None while undecided."""
     cdef double xb[6]

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled steps of the constant-velocity Kalman filter for the lighting server's devices
-(`receiver.serve.devices.FastKalman`): the same equations as `receiver.locate.kalman`
+"""Compiled steps of the constant-velocity Kalman filter of the receiver's positioner and the
+lighting server's devices
+(`receiver.locate.fastfilter.FastKalman`): the same equations as `receiver.locate.kalman`
 (`PositionKalman._predict`, `_update`, `_mahalanobis2`: eqs. 35-39, Joseph form, H = [I 0]) on
 one device's state in place, as plain loops over the 6 x 6 covariance instead of a dozen numpy
 calls. Sums are taken in another order than BLAS takes them: the numbers agree to rounding (the
@@ -12,7 +13,7 @@ covariance [m^2]; dt [s]; q the acceleration spectral density [m^2/s^3].
 
 from libc.math cimport pow
 
-from receiver.serve._buf cimport load, store
+from receiver.core._buf cimport load, store
 
 
 def predict(x, P, double dt, double q):

@@ -1,5 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Float64 arrays in and out of the server's kernels through the buffer protocol: a copy to or
+"""Float64 arrays in and out of the small-matrix kernels (the compiled pose filter's
+receiver/locate/_kalman.pyx and _position.pyx, the server's _warm.pyx and _wire.pyx) through the buffer protocol: a copy to or
 from a C array, any strides. A kernel call takes a few small arrays; typed memoryviews cost more
 to set up per argument than the kernel's arithmetic on them."""
 
