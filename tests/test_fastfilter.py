@@ -72,3 +72,29 @@ def test_positioner_takes_the_compiled_filter_when_built(monkeypatch, pure):
     p = Positioner(load_camera(str(WALK / "camera.yaml")), load_map(str(WALK / "map.json")))
     assert isinstance(p.pose, CompiledPoseFilter) is (not pure)
     assert isinstance(p.pose, PoseFilter)
+
+
+def test_fast_kalman_predict_at_equals_position_kalman(monkeypatch):
+    """FastKalman.predict_at (the compiled predict step on copies) is PositionKalman's to rounding,
+    None where it is None, and leaves the filter's state as it was."""
+    from receiver.locate.fastfilter import FastKalman
+    from receiver.locate.kalman import PositionKalman
+    monkeypatch.delenv("OCCLOC_PURE", raising=False)
+    ref, fast = PositionKalman(), FastKalman(native.load(KERNEL))
+    rng = np.random.default_rng(5)
+    assert fast.predict_at(0.0) is None
+    for i in range(60):
+        t = i / 30
+        z = np.array([1.0 + 0.02 * i, 2.0, 0.5]) + rng.normal(0, 0.01, 3)
+        ref.step(t, z, 1e-4 * np.eye(3))
+        fast.step(t, z, 1e-4 * np.eye(3))
+        before = fast.state
+        for ahead in (0.0, 1 / 60, 0.5, 2.5):
+            a, b = ref.predict_at(t + ahead), fast.predict_at(t + ahead)
+            assert (a is None) == (b is None), (i, ahead)
+            if a is not None:
+                np.testing.assert_allclose(b[0], a[0], rtol=1e-10, atol=1e-12)
+                np.testing.assert_allclose(b[1], a[1], rtol=1e-9, atol=1e-16)
+        assert fast.predict_at(t - 0.1) is None
+        np.testing.assert_array_equal(fast.state[0], before[0])
+        np.testing.assert_array_equal(fast.state[1], before[1])

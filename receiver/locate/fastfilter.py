@@ -45,6 +45,14 @@ class FastKalman(PositionKalman):
             raise np.linalg.LinAlgError("singular innovation covariance")
         return m2
 
+    def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """`PositionKalman.predict_at` by the compiled predict step on copies of the state."""
+        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+            return None
+        x, P = self._x.copy(), self._P.copy()
+        self._k.predict(x, P, t_s - self.t_s, self.q)
+        return x.reshape(6), P
+
 
 class CompiledPoseFilter(PoseFilter):
     """`PoseFilter` with a `FastKalman` and `update` building the position object from plain
