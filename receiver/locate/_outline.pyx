@@ -17,7 +17,7 @@ from receiver.locate._rodrigues cimport rodrigues, cam_point
 from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from libc.stdlib cimport malloc, free
-from libc.string cimport memcpy, memset
+from libc.string cimport memset
 
 
 
@@ -48,6 +48,8 @@ cdef struct Prob:
     int loss
     double fs
     int n_res              # residuals (incl. the position prior's)
+    int n_buf              # doubles of a residual buffer: n_res residuals, then 4 per point of the
+                           # circles' per-point terms at the same pose (`evaluate` -> `normal`)
     double* nh             # (4T, 3) work: the edges' image lines
     double* rho            # (4T,)
     double* m              # (4T, 3)
@@ -273,7 +275,8 @@ cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR
     """Whitened residuals r at p (layout in the module doc) and the robust cost; R, dR: Rodrigues
     at p."""
     cdef int i, j, e, t, k, base
-    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, z, rr, nh0, nh1, nh2
+    cdef double cost = 0.0, ww, u, v, val, cx0, cx1, h, hh, z, rr, nh0, nh1, nh2
+    cdef double* aux
     cdef double X[3]
     cdef double Y[3]
     cdef const double* c6
@@ -308,8 +311,14 @@ cdef double evaluate(Prob* pr, const double* p, double* r, double* R, double* dR
             val = u * u * c6[0] + 2.0 * u * v * c6[1] + 2.0 * u * c6[2] + v * v * c6[3] + 2.0 * v * c6[4] + c6[5]
             cx0 = u * c6[0] + v * c6[1] + c6[2]
             cx1 = u * c6[1] + v * c6[3] + c6[4]
-            h = 2.0 * hypot(cx0, cx1)
+            hh = hypot(cx0, cx1)
+            h = 2.0 * hh
             rr = val / (h if h > 1e-12 else 1e-12) * pr.w[i]
+            aux = r + pr.n_res + 4 * i       # kept for `normal` at this pose
+            aux[0] = val
+            aux[1] = cx0
+            aux[2] = cx1
+            aux[3] = hh
         r[i] = rr
         cost += loss_rho(pr.loss, (rr / pr.fs) * (rr / pr.fs))
     base = pr.N
@@ -449,6 +458,7 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     `evaluate` computed (with the edge / conic work buffers)."""
     cdef int i, e, t, k, a, b, j, base
     cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, z
+    cdef const double* aux
     cdef double X[3]
     cdef double Y[3]
     cdef double s0, s1, s2, s3, s4, s5, s6, s7, s8
@@ -493,17 +503,16 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             Mc[k] = 0.0
         for k in range(6):
             gc[k] = 0.0
-        c6 = pr.c6 + 6 * t
         for j in range(j, nxt):
             i = pr.order[j]
             rr = r[i]
             u = pr.P[2 * i]
             v = pr.P[2 * i + 1]
-            val = (u * u) * c6[0] + (2.0 * u * v) * c6[1] + (2.0 * u) * c6[2] + (v * v) * c6[3] \
-                + (2.0 * v) * c6[4] + 1.0 * c6[5]
-            cx0 = u * c6[0] + v * c6[1] + c6[2]
-            cx1 = u * c6[1] + v * c6[3] + c6[4]
-            h = hypot(cx0, cx1)
+            aux = r + pr.n_res + 4 * i        # val, the conic's gradient / 2 and its norm at p (`evaluate`)
+            val = aux[0]
+            cx0 = aux[1]
+            cx1 = aux[2]
+            h = aux[3]
             hs = h if h > 5e-13 else 5e-13
             kk = val / (hs * hs)
             sc = pr.w[i] / (2.0 * hs)
@@ -613,10 +622,11 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             A[6 * a + b] = A[6 * b + a]
 
 
-cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new, double* R_new, double* dR_new,
-            int max_iter, double step_tol, double cost_rtol) noexcept nogil:
-    """`lsq.lm_normal` with the outline stopping rule (`outline_pose._lm`): p, r, R, dR end at the
-    returned pose. Returns 1 when converged."""
+cdef int lm(Prob* pr, double* p, double** rp, double* R, double* dR, double** rp_new, double* R_new,
+            double* dR_new, int max_iter, double step_tol, double cost_rtol) noexcept nogil:
+    """`lsq.lm_normal` with the outline stopping rule (`outline_pose._lm`): p, R, dR and the
+    residual buffer *rp end at the returned pose (an accepted step swaps *rp and *rp_new instead
+    of copying the buffers). Returns 1 when converged."""
     cdef double A[36]
     cdef double g[6]
     cdef double mg[6]
@@ -624,7 +634,9 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
     cdef double dp[6]
     cdef double p_new[6]
     cdef double lam = 1e-3, c, c_new, mx
-    cdef int it, k, stop, n = pr.n_res
+    cdef int it, k, stop
+    cdef double* r = rp[0]
+    cdef double* r_new = rp_new[0]
     c = evaluate(pr, p, r, R, dR)
     for it in range(max_iter):
         normal(pr, p, r, R, dR, A, g, 0)
@@ -639,6 +651,7 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
             lam *= 10.0
             if lam > 1e8:
                 evaluate(pr, p, r, R, dR)     # (restore the edge / conic work buffers at p)
+                rp[0], rp_new[0] = r, r_new
                 return 1
         mx = 0.0
         for k in range(6):
@@ -647,7 +660,7 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
         stop = 1 if (mx <= step_tol or c - c_new <= cost_rtol * c) else 0
         for k in range(6):
             p[k] = p_new[k]
-        memcpy(r, r_new, n * sizeof(double))
+        r, r_new = r_new, r
         for k in range(9):
             R[k] = R_new[k]
         for k in range(27):
@@ -657,7 +670,9 @@ cdef int lm(Prob* pr, double* p, double* r, double* R, double* dR, double* r_new
         if lam < 1e-12:
             lam = 1e-12
         if stop:
+            rp[0], rp_new[0] = r, r_new
             return 1
+    rp[0], rp_new[0] = r, r_new
     return 0
 
 
@@ -724,7 +739,8 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     pr.fs = f_scale
     n = N + 2 * K + 3 * pr.has_up + 3 * pr.has_prior
     pr.n_res = n
-    work = <double*> malloc((2 * n + 4 * T * (3 + 3 + 3 + 3 + 1 + 3 + 9) + T * (6 + 9 + 36) + 5 * K + 1)
+    pr.n_buf = n + 4 * N
+    work = <double*> malloc((2 * pr.n_buf + 4 * T * (3 + 3 + 3 + 3 + 1 + 3 + 9) + T * (6 + 9 + 36) + 5 * K + 1)
                             * sizeof(double))
     iwork = <int*> malloc((T + 1 + N + 4 * T + 1 + N) * sizeof(int))
     wbuf = <double*> malloc((N + 1) * sizeof(double))
@@ -734,8 +750,8 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
         free(iwork)
         raise MemoryError()
     r = work
-    r_new = work + n
-    pr.corners = r_new + n
+    r_new = work + pr.n_buf
+    pr.corners = r_new + pr.n_buf
     pr.AxB = pr.corners + 12 * T
     pr.D = pr.AxB + 12 * T
     pr.nh = pr.D + 12 * T
@@ -758,7 +774,8 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
         wbuf[i] = 1.0 / sigma[i]          # the numpy path's 1.0 / sigma
     pr.tix = tix
     pr.w = wbuf
-    memset(r, 0, 2 * n * sizeof(double))
+    memset(r, 0, n * sizeof(double))               # (the circles' terms are written before they are read)
+    memset(r_new, 0, n * sizeof(double))
     pr.n_edge_pts = 0
     with nogil:
         # Corners of the squares / rects (`_corners`: +x+y, -x+y, -x-y, +x-y), their edges A -> B.
@@ -799,7 +816,7 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
             first = 0
             if k > 0 and converged and not changed:
                 break
-            converged = lm(&pr, &p[0], r, R, dR, r_new, R_new, dR_new, max_iter, step_tol, cost_rtol)
+            converged = lm(&pr, &p[0], &r, R, dR, &r_new, R_new, dR_new, max_iter, step_tol, cost_rtol)
         for i in range(N):
             if pr.circ[pr.tix[i]] or pr.lab[i] >= 0:
                 chi2 += r[i] * r[i]
