@@ -63,22 +63,12 @@ cdef int _inverse3(double* S, double* Si) noexcept nogil:
     return 1
 
 
-def update(x, P, z, R):
-    """Measurement update with the fix z of covariance R (Joseph form), in place. Returns False
-    (nothing changed) when P[:3, :3] + R is singular."""
-    cdef double xb[6]
-    cdef double Pb[36]
+cdef int _innovation(x, P, z, R, double* xb, double* Pb, double* Rb, double* y, double* Si) except -1:
+    """Load x (6,), P (6, 6), R (3, 3) into xb, Pb, Rb; y = z - x[:3] and Si = (P[:3, :3] + R)^-1.
+    Returns 0 (Si not set) when that matrix is singular, else 1."""
     cdef double zb[3]
-    cdef double Rb[9]
     cdef double S[9]
-    cdef double Si[9]
-    cdef double K[6][3]
-    cdef double y[3]
-    cdef double IKH[6][6]
-    cdef double T[6][6]
-    cdef double KR[6][3]
-    cdef double t
-    cdef int i, j, k
+    cdef int i, j
     load(x, xb, 6, 1)
     load(P, Pb, 6, 6)
     load(z, zb, 3, 0)
@@ -87,7 +77,24 @@ def update(x, P, z, R):
         y[i] = zb[i] - xb[i]
         for j in range(3):
             S[3 * i + j] = Pb[6 * i + j] + Rb[3 * i + j]
-    if not _inverse3(S, Si):
+    return _inverse3(S, Si)
+
+
+def update(x, P, z, R):
+    """Measurement update with the fix z of covariance R (Joseph form), in place. Returns False
+    (nothing changed) when P[:3, :3] + R is singular."""
+    cdef double xb[6]
+    cdef double Pb[36]
+    cdef double Rb[9]
+    cdef double Si[9]
+    cdef double K[6][3]
+    cdef double y[3]
+    cdef double IKH[6][6]
+    cdef double T[6][6]
+    cdef double KR[6][3]
+    cdef double t
+    cdef int i, j, k
+    if not _innovation(x, P, z, R, xb, Pb, Rb, y, Si):
         return False
     for i in range(6):
         for j in range(3):
@@ -121,22 +128,12 @@ def mahalanobis2(x, P, z, R):
     """(z - x[:3])' (P[:3, :3] + R)^-1 (z - x[:3]); NaN when that matrix is singular."""
     cdef double xb[6]
     cdef double Pb[36]
-    cdef double zb[3]
     cdef double Rb[9]
-    cdef double S[9]
     cdef double Si[9]
     cdef double r[3]
     cdef int i, j
     cdef double out = 0.0
-    load(x, xb, 6, 1)
-    load(P, Pb, 6, 6)
-    load(z, zb, 3, 0)
-    load(R, Rb, 3, 3)
-    for i in range(3):
-        r[i] = zb[i] - xb[i]
-        for j in range(3):
-            S[3 * i + j] = Pb[6 * i + j] + Rb[3 * i + j]
-    if not _inverse3(S, Si):
+    if not _innovation(x, P, z, R, xb, Pb, Rb, r, Si):
         return float("nan")
     for i in range(3):
         for j in range(3):
