@@ -218,11 +218,16 @@ def test_edge_touch_kernel_equals_numpy(monkeypatch):
 @ranging_native
 def test_outline_packing_kernel_equals_numpy(monkeypatch):
     rng = np.random.default_rng(4)
+    # a frame's sigmas repeat (the kernel keeps the last 8 distinct ones and their hypot): pools of
+    # 2 to 12 values, -0.0 and 0.0 among them, as well as all-different ones
+    pool = np.concatenate([rng.uniform(0, 2, 10), [0.0, -0.0]])
     for k in range(200):
         chosen = []
         for i in range(int(rng.integers(1, 6))):
             n = int(rng.integers(0, 30))
-            edges = (rng.uniform(0, 1000, size=(n, 2)), rng.uniform(0, 2, size=n))
+            sig = (rng.uniform(0, 2, size=n) if k % 2 else
+                   rng.choice(pool[:int(rng.integers(2, len(pool) + 1))], size=n))
+            edges = (rng.uniform(0, 1000, size=(n, 2)), sig)
             obs = LedObservation(i, float(rng.uniform(0, 1000)), np.float64(rng.uniform(0, 1000)), 1.0, None)
             fx = (None, (float(rng.uniform(0.01, 1)), float(rng.uniform(0.01, 1))), tuple(rng.normal(size=3).tolist()))
             chosen.append((obs, edges, fx))

@@ -77,6 +77,29 @@ cdef double* out_f64(object o, Py_buffer* b) except NULL:
     return <double*>b.buf
 
 
+# A frame's edge-point sigmas take a few values (most are clamped at the floor of
+# receiver.vision.outline): the last distinct ones and their hypot are kept (libm's hypot, ~100
+# instructions, is most of the packing; a pure function, so a kept value is the same bits).
+cdef enum:
+    SIGMA_MEMO = 8
+
+
+cdef inline double _sigma_of(double s, double model_sigma, double focal, double* memo, int* n_memo) noexcept nogil:
+    """hypot(s, model_sigma) / focal, looked up in `memo` ((s, result) pairs, n_memo[0] of them,
+    the newest overwriting the oldest) before it is computed."""
+    cdef int i
+    cdef double out
+    for i in range(n_memo[0] if n_memo[0] < SIGMA_MEMO else SIGMA_MEMO):
+        if memo[2 * i] == s:
+            return memo[2 * i + 1]
+    out = hypot(s, model_sigma) / focal
+    i = n_memo[0] % SIGMA_MEMO
+    memo[2 * i] = s
+    memo[2 * i + 1] = out
+    n_memo[0] += 1
+    return out
+
+
 def pack_outline(list chosen, double model_sigma, double focal):
     """(pts (M + T, 2), sigma (M,), ends (T + 1,) int64, xyz (T, 3), half (T, 2)) of the frame's
     targets `chosen`: T (observation, (points (N_k, 2), sigma (N_k,)) float64 C-contiguous,
@@ -90,6 +113,8 @@ def pack_outline(list chosen, double model_sigma, double focal):
     cdef double* xv
     cdef double* hv
     cdef Py_ssize_t t, j, k, a = 0, n = len(chosen), m = 0
+    cdef double memo[2 * SIGMA_MEMO]
+    cdef int n_memo = 0
     for t in range(n):
         m += len(chosen[t][1][0])
     pts = np.empty((m + n, 2))
@@ -110,7 +135,7 @@ def pack_outline(list chosen, double model_sigma, double focal):
                 for j in range(k):
                     pv[2 * (a + j)] = P[2 * j]
                     pv[2 * (a + j) + 1] = P[2 * j + 1]
-                    sv[a + j] = hypot(S[j], model_sigma) / focal
+                    sv[a + j] = _sigma_of(S[j], model_sigma, focal, memo, &n_memo)
             finally:
                 PyBuffer_Release(&bs)
         finally:
