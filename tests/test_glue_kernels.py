@@ -294,7 +294,9 @@ def test_annotate_kernel_equals_python(monkeypatch):
         leds = [LedObservation(i, float(i), 2.0, 3.0, None, id=i) if rng.random() < 0.9 else Other(i)
                 for i in range(int(rng.integers(0, 8)))]
         items = [(o, None, None) for o in leds if rng.random() < 0.7]
-        d = np.array([rng.choice([np.nan, np.inf, float(rng.uniform(0, 9))]) for _ in items])
+        hard = [1.000005, np.nextafter(1.000005, 2), np.nextafter(1.000005, 0), 12.34565, 2.675, 1e12, 0.0, -0.0,
+                -3.0000049, 1e-320]      # near round(v, 5)'s ties, huge, signed zeros, subnormal
+        d = np.array([rng.choice([np.nan, np.inf, float(rng.uniform(0, 9)), float(rng.choice(hard))]) for _ in items])
         names = [str(rng.choice(["outline", "eq18"])) for _ in items]
         native = ranging.Ranger.annotate(leds, items, d, names)
         with monkeypatch.context() as m:
@@ -303,6 +305,7 @@ def test_annotate_kernel_equals_python(monkeypatch):
         assert len(native) == len(pure) == len(leds)
         for a, b, o in zip(native, pure, leds):
             assert type(a) is type(b) and a == b and a.__dict__ == b.__dict__
+            assert repr(a.distance_m) == repr(b.distance_m)      # the same rounding, to the sign of a zero
             assert (a is o) == (b is o)
         for a in native:
             with pytest.raises(dataclasses.FrozenInstanceError):

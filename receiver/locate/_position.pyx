@@ -5,12 +5,8 @@
 numbers rounded in C instead of ~40 Python-level `round` calls, each a decimal conversion there.
 
 Equal to the Python builder by construction (tests compare both):
-* Python's `round(v, n)` (the double nearest to v's correctly rounded n-decimal value) is
-  rint(v * 10^n) / 10^n wherever v * 10^n, as computed, is below 1e9 in magnitude and at least
-  1e-6 away from a half-integer: then the computed product is within 1.2e-7 of the exact one and
-  rounds to the same integer, and the division (both operands exact) is correctly rounded. Any
-  other value (near a tie, large, not finite) is handed to Python's `round`.
-* numpy's `round` (`ndarray.round`) is rint(v * 10^n) / 10^n by definition.
+* Python's and numpy's rounding: receiver/core/_pyround.pxd (why rint(v * 10^n) / 10^n is
+  Python's round(v, n) where it is used);
 * yaw / pitch / roll: `fastfilter.ypr_deg` with the C library's asin / cos / atan2 (what Python's
   math module calls) and math.degrees' factor 180 / pi.
 """
@@ -18,27 +14,9 @@ Equal to the Python builder by construction (tests compare both):
 from libc.math cimport asin, atan2, cos, fabs, floor, isfinite, rint, sqrt
 
 from receiver.core._buf cimport load
+from receiver.core._pyround cimport np_round, pow10, py_round
 
 cdef double RAD_TO_DEG = 180.0 / 3.14159265358979323846   # CPython's math.degrees factor
-cdef double POW10[9]
-for _n in range(9):
-    POW10[_n] = 10.0 ** _n                                  # exact
-
-
-cdef object _py_round(double v, int n):
-    """Python's round(v, n)."""
-    cdef double y = v * POW10[n]
-    cdef double f
-    if isfinite(y) and fabs(y) < 1e9:
-        f = y - floor(y)
-        if fabs(f - 0.5) > 1e-6:
-            return rint(y) / POW10[n]
-    return round(v, n)
-
-
-cdef inline double _np_round(double v, int n) noexcept:
-    """numpy's round(v, n)."""
-    return rint(v * POW10[n]) / POW10[n]
 
 
 cdef inline double _clip_max0(double v) noexcept:
@@ -47,11 +25,11 @@ cdef inline double _clip_max0(double v) noexcept:
 
 
 cdef dict _xyz(double* v):
-    return {"x": _py_round(v[0], 5), "y": _py_round(v[1], 5), "z": _py_round(v[2], 5)}
+    return {"x": py_round(v[0], 5), "y": py_round(v[1], 5), "z": py_round(v[2], 5)}
 
 
 cdef list _std(double* cov, int stride):
-    return [_py_round(sqrt(_clip_max0(cov[i * stride + i])), 5) for i in range(3)]
+    return [py_round(sqrt(_clip_max0(cov[i * stride + i])), 5) for i in range(3)]
 
 
 cdef void _ypr(const double* Rb, double* yaw, double* theta, double* roll) noexcept:
@@ -87,8 +65,8 @@ def position(x, P, C, cov, R, str method, int n_leds, handedness):
         pos["n_leds"] = n_leds
         pos["filtered"] = True
         pos["std_m"] = _std(Pb, 6)
-        pos["cov"] = [[_np_round(Pb[6 * i + j], 8) for j in range(3)] for i in range(3)]
-        pos["velocity_mps"] = [_py_round(xb[3 + i], 4) for i in range(3)]
+        pos["cov"] = [[np_round(Pb[6 * i + j], 8) for j in range(3)] for i in range(3)]
+        pos["velocity_mps"] = [py_round(xb[3 + i], 4) for i in range(3)]
     else:
         load(C, Cb, 3, 0)
         pos = _xyz(Cb)
@@ -102,11 +80,11 @@ def position(x, P, C, cov, R, str method, int n_leds, handedness):
         pos["raw_std_m"] = _std(covb, 3)
         if R is not None:
             load(R, Rb, 3, 3)
-            pos["R_wc"] = [[_np_round(Rb[3 * j + i], 6) for j in range(3)] for i in range(3)]
+            pos["R_wc"] = [[np_round(Rb[3 * j + i], 6) for j in range(3)] for i in range(3)]
             _ypr(Rb, &yaw, &theta, &roll)
-            pos["yaw_deg"] = _py_round(yaw * RAD_TO_DEG, 3)
-            pos["pitch_deg"] = _py_round(-(theta * RAD_TO_DEG), 3)
-            pos["roll_deg"] = _py_round(roll * RAD_TO_DEG, 3)
+            pos["yaw_deg"] = py_round(yaw * RAD_TO_DEG, 3)
+            pos["pitch_deg"] = py_round(-(theta * RAD_TO_DEG), 3)
+            pos["roll_deg"] = py_round(roll * RAD_TO_DEG, 3)
     else:
         pos["raw"] = None
     if handedness is not None:
@@ -232,19 +210,19 @@ cdef int _put_decimal(Out* o, double r, int n) except -1:
 
 
 cdef int _put_py_round(Out* o, double v, int n) except -1:
-    """json of Python's round(v, n) (`_py_round`)."""
-    cdef double y = v * POW10[n]
+    """json of Python's round(v, n) (`py_round`)."""
+    cdef double y = v * pow10(n)
     if isfinite(y) and fabs(y) < 1e9 and fabs(y - floor(y) - 0.5) > 1e-6:
         return _put_decimal(o, rint(y), n)
     return _put_repr(o, round(v, n))
 
 
 cdef int _put_np_round(Out* o, double v, int n) except -1:
-    """json of numpy's round(v, n) (`_np_round`)."""
-    cdef double r = rint(v * POW10[n])
+    """json of numpy's round(v, n) (`np_round`)."""
+    cdef double r = rint(v * pow10(n))
     if isfinite(r) and fabs(r) < 1e9:
         return _put_decimal(o, r, n)
-    return _put_repr(o, r / POW10[n])
+    return _put_repr(o, r / pow10(n))
 
 
 cdef int _put_xyz(Out* o, double* v) except -1:

@@ -15,6 +15,7 @@ receiver/locate/ranging.py and indoor.py stays the reference (tests/test_glue_ke
 from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_WRITABLE, PyBuffer_Release, PyObject_GetBuffer
 from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport hypot, isnan
+from receiver.core._pyround cimport py_round
 from receiver.decode._npsum cimport pw_sum
 
 import numpy as np
@@ -190,6 +191,22 @@ def polygon_sums(poly, bint perimeter):
 cdef extern from "Python.h":
     int PyObject_GenericSetAttr(object o, object name, object value) except -1
     dict PyDict_Copy(object d)
+
+
+def annotate(list leds, list items, list d, list names, object record, object slow):
+    """`Ranger.annotate`: `leds` with the finite ranges of `items` ((observation, ...) each; d:
+    their ranges, m, as Python floats; names: their estimators; taken pairwise as zip does) rounded as round(v, 5) (receiver/core/_pyround.pxd) and set
+    by `with_ranges`; a list copy of `leds` when none is finite."""
+    cdef Py_ssize_t i, n = min(len(items), len(d), len(names))   # (as zip)
+    cdef double v
+    ranged = {}
+    for i in range(n):
+        v = d[i]
+        if v - v == 0.0:  # finite
+            ranged[id(items[i][0])] = (py_round(v, 5), names[i])
+    if not ranged:
+        return list(leds)
+    return with_ranges(leds, ranged, record, slow)
 
 
 def with_ranges(list leds, dict ranged, object record, object slow):

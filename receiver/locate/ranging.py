@@ -411,14 +411,14 @@ class Ranger:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
         dl = np.asarray(d, dtype=np.float64).tolist()
+        if _kr is not None and type(leds) is list and type(items) is list and type(names) is list:
+            return _kr.annotate(leds, items, dl, names, LedObservation, _with_range)
         ranged = {}
         for (obs, _, _), v, name in zip(items, dl, names):
             if v - v == 0.0:  # finite
                 ranged[id(obs)] = (round(v, 5), name)
         if not ranged:
             return list(leds)
-        if _kr is not None and type(leds) is list:
-            return _kr.with_ranges(leds, ranged, LedObservation, _with_range)
         get = ranged.get
         out = []
         for o in leds:
