@@ -12,7 +12,7 @@ points). The pure reference is `receiver.vision.envelope._merge`; tests/test_tra
 asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
 """
 
-from libc.math cimport floor, ceil, sqrt, hypot, fabs
+from libc.math cimport floor, sqrt, hypot, fabs
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from receiver.decode._npsum cimport pw_sum
@@ -530,55 +530,3 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
     finally:
         free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key); free(vel)
     return env
-
-
-
-
-def edge_boxes(const double[:, ::1] pts, const long long[::1] starts, long long pad, long long width,
-               long long height, long long min_width, long long[:, ::1] box, float[::1] bg,
-               long long[::1] index):
-    """The boxes receiver.vision.outline._boxes gives n Blobs (their hulls: pts rows
-    starts[i]:starts[i + 1], none empty): columns [floor(min x) - pad, ceil(max x) + pad + 1),
-    rows [floor(min y) - 1, ceil(max y) + 2), clipped to the image; only boxes at least
-    `min_width` wide and one row tall are kept. Writes the kept ones, in order, to the columns
-    0..m of box (4, n) = (x0, x1, y0, y1), moves their backgrounds bg[i] to bg[0..m) and their
-    blob indices to index[0..m); returns (m, 2 * their total rows)."""
-    cdef Py_ssize_t n = starts.shape[0] - 1, i, j, m = 0
-    cdef long long rows = 0, x0, x1, y0, y1
-    cdef double lox, hix, loy, hiy
-    if box.shape[0] != 4 or box.shape[1] < n or bg.shape[0] < n or index.shape[0] < n:
-        raise ValueError("edge_boxes: outputs too small")
-    for i in range(n):
-        if starts[i + 1] <= starts[i]:
-            raise ValueError("edge_boxes: empty hull")
-        j = starts[i]
-        lox = hix = pts[j, 0]
-        loy = hiy = pts[j, 1]
-        for j in range(starts[i] + 1, starts[i + 1]):
-            # np.minimum / np.maximum: a NaN wins
-            if pts[j, 0] < lox or pts[j, 0] != pts[j, 0]:
-                lox = pts[j, 0]
-            if pts[j, 0] > hix or pts[j, 0] != pts[j, 0]:
-                hix = pts[j, 0]
-            if pts[j, 1] < loy or pts[j, 1] != pts[j, 1]:
-                loy = pts[j, 1]
-            if pts[j, 1] > hiy or pts[j, 1] != pts[j, 1]:
-                hiy = pts[j, 1]
-        x0 = <long long>floor(lox) - pad
-        x1 = <long long>ceil(hix) + pad + 1
-        y0 = <long long>floor(loy) - 1
-        y1 = <long long>ceil(hiy) + 2
-        x0 = x0 if x0 > 0 else 0
-        y0 = y0 if y0 > 0 else 0
-        x1 = x1 if x1 < width else width
-        y1 = y1 if y1 < height else height
-        if x1 - x0 >= min_width and y1 > y0:
-            box[0, m] = x0
-            box[1, m] = x1
-            box[2, m] = y0
-            box[3, m] = y1
-            bg[m] = bg[i]
-            index[m] = i
-            rows += 2 * (y1 - y0)
-            m += 1
-    return m, rows
