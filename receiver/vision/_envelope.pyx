@@ -39,14 +39,18 @@ cdef inline unsigned long long _key(float x, float y) noexcept nogil:
 
 
 cdef inline bint _less(const unsigned long long *key, int i, int j) noexcept nogil:
-    """OpenCV's CHullCmpPoints: by x, then y, then position in the input."""
-    return key[i] < key[j] or (key[i] == key[j] and i < j)
+    """OpenCV's CHullCmpPoints but its last key: by x, then y (the input position, its last
+    key, is kept by `_sort`'s stability)."""
+    return key[i] < key[j]
 
 
 cdef void _sort(const unsigned long long *key, int *a, int *tmp, int *bounds, int n) noexcept nogil:
-    """Sort the positions a[0..n) by `_less` (a total order: any correct sort gives the same
-    order as OpenCV's std::sort): insertion sort for short runs, else a natural merge sort (the
-    input is a few convex polygons: a few monotone runs each). bounds: n + 1 ints of work."""
+    """Sort the positions a[0..n), given ascending, stably by `_less`: OpenCV's CHullCmpPoints
+    order (x, y, then the input position: a total order, so any correct sort gives the order
+    of OpenCV's std::sort). Insertion sort for short inputs, else a natural merge sort (the
+    input is a few convex polygons: a few monotone runs each; only strictly descending runs
+    are reversed and a merge takes the left run's point on a tie, so equal points stay in input
+    order). bounds: n + 1 ints of work."""
     cdef int i, j, k, v, nr, r, lo, mid, hi, t
     if n < 24:
         for i in range(1, n):
