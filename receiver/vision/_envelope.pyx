@@ -37,8 +37,9 @@ cdef inline unsigned int _bits(float f) noexcept nogil:
 cdef inline unsigned long long _key(float x, float y) noexcept nogil:
     """An integer whose order is the (x, y) order of finite floats (-0.0 as 0.0)."""
     cdef unsigned int ux = _bits(x + <float>0.0), uy = _bits(y + <float>0.0)
-    ux = ~ux if ux & 0x80000000u else ux | 0x80000000u
-    uy = ~uy if uy & 0x80000000u else uy | 0x80000000u
+    # negative: all bits flipped, else the sign bit set (branch-free)
+    ux ^= <unsigned int>(<int>ux >> 31) | 0x80000000u
+    uy ^= <unsigned int>(<int>uy >> 31) | 0x80000000u
     return (<unsigned long long>ux << 32) | uy
 
 
@@ -418,6 +419,28 @@ cdef bint _f64_pairs(Py_buffer *b) noexcept:
             and b.shape[1] == 2)
 
 
+cdef const void *_c_data(object o, int ndim, char kind, Py_ssize_t *n) except? NULL:
+    """The data of a record's C-contiguous array (the record keeps it alive): int64 (kind 'q')
+    of 1 dim or float64 ('d') pairs (n, 2); its length to n. ValueError for anything else."""
+    cdef Py_buffer b
+    cdef const char *fmt
+    cdef bint ok
+    PyObject_GetBuffer(o, &b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT)
+    fmt = b.format
+    if fmt == NULL:
+        fmt = b"B"
+    if fmt[0] == b'@' or fmt[0] == b'=' or fmt[0] == b'<':
+        fmt += 1
+    ok = (b.ndim == ndim and b.itemsize == 8 and fmt[0] != 0 and fmt[1] == 0 and
+          (fmt[0] == b'd' if kind == b'd' else (fmt[0] == b'q' or fmt[0] == b'l')) and
+          (ndim == 1 or b.shape[1] == 2))
+    n[0] = b.shape[0] if b.ndim >= 1 else 0
+    PyBuffer_Release(&b)
+    if not ok:
+        raise ValueError("merge: a record's ids / starts must be int64, its points (n, 2) float64")
+    return b.buf
+
+
 def merge(list tracks, long long k, list hist, long long width, long long height):
     """The merged envelopes of the n seen tracks (receiver.vision.envelope.EnvelopeHistory.step)
     and this frame's record for the next frames: (env {track id: Blob}, ids (n,) int64,
@@ -442,9 +465,8 @@ def merge(list tracks, long long k, list hist, long long width, long long height
     cdef double *outp = NULL
     cdef long long *ids
     cdef long long *cur_start
-    cdef const long long[::1] hid
-    cdef const long long[::1] hst
-    cdef const double[:, ::1] hpt
+    cdef const long long *hid
+    cdef Py_ssize_t nid, nst, npt
     cdef Py_buffer *bufs = <Py_buffer *> malloc((n + 1) * sizeof(Py_buffer))
     cdef long long *hk = <long long *> malloc((nh + 1) * sizeof(long long))
     cdef int *where = <int *> malloc((n * (nh + 1) + 1) * sizeof(int))
@@ -497,14 +519,14 @@ def merge(list tracks, long long k, list hist, long long width, long long height
         for f in range(nh):
             rec = hist[f]
             kh = rec[0]
-            hid = rec[1]
-            hst = rec[2]
-            hpt = rec[3]
             hk[f] = kh
-            hp[f] = &hpt[0, 0] if hpt.shape[0] else NULL
-            hs[f] = &hst[0]
-            nout += hpt.shape[0]
-            m = hid.shape[0]
+            hid = <const long long *> _c_data(rec[1], 1, b'q', &nid)
+            hs[f] = <const long long *> _c_data(rec[2], 1, b'q', &nst)
+            hp[f] = <const double *> _c_data(rec[3], 2, b'd', &npt)
+            m = <int>nid
+            if nst != nid + 1:
+                raise ValueError("merge: a record's starts must have len(ids) + 1 entries")
+            nout += npt
             q = 0
             for i in range(n):
                 where[i * nh + f] = -1
