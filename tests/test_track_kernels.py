@@ -197,8 +197,10 @@ def test_tracker_kernel_equals_pure(seed, monkeypatch):
 
 @needs_kernel
 def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
-    """The Blobs' edge-point boxes by `_envelope.edge_boxes` (merged envelopes, some past the
-    image edge, one too narrow for a run) give `_boxes`' points bit for bit."""
+    """The Blobs' edge points in one compiled call (`_pixels.edge_points_blobs`: the boxes of
+    merged envelopes, some past the image edge, one too narrow for a run, and their points)
+    equal the numpy path's (`_boxes`, then the row gathers) bit for bit; hulls the call does not
+    take (int32) go the general way, to the same points."""
     import dataclasses
     from receiver.vision import outline
     leds = bench_scene(n_leds=8, radius_px=30.0, seed=3)
@@ -212,8 +214,17 @@ def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
     for kw in ({}, {"bin_rows": 1}, {"pad": 1, "border_px": 0}):
         a = outline.stripe_edge_points_batch(frames[-1], items, **kw)
         with monkeypatch.context() as m:
-            m.setattr(outline, "_env", None)
+            m.setattr(outline, "_k", None)
             b = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        ints = [dataclasses.replace(e, hull=np.round(e.hull).astype(np.int32)) for e in items]
+        assert outline._k.edge_points_blobs(frames[-1], ints, 4, 2, 20.0, 4, 0.05, 2.0, 11) is None
+        c = outline.stripe_edge_points_batch(frames[-1], ints, **kw)
+        with monkeypatch.context() as m:
+            m.setattr(outline, "_k", None)
+            d = outline.stripe_edge_points_batch(frames[-1], ints, **kw)
+        for (pa, sa), (pb, sb) in zip(c, d):
+            assert np.array_equal(pa, pb) and np.array_equal(sa, sb)
+        assert sum(len(p) for p, _ in c) > 50
         assert len(a) == len(b) == len(items)
         for (pa, sa), (pb, sb) in zip(a, b):
             assert np.array_equal(pa, pb) and np.array_equal(sa, sb)

@@ -12,10 +12,14 @@ points). The pure reference is `receiver.vision.envelope._merge`; tests/test_tra
 asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
 """
 
-from libc.math cimport floor, ceil, sqrt, hypot, fabs
+from libc.math cimport floor, sqrt, hypot, fabs
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
+from cpython.buffer cimport (PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_STRIDES, PyBUF_WRITABLE, PyBuffer_Release,
+                             PyObject_CheckBuffer, PyObject_GetBuffer)
 from receiver.decode._npsum cimport pw_sum
+
+import numpy as np
 
 cdef double QUARTER_PI = 0.7853981633974483  # math.pi / 4.0
 
@@ -33,20 +37,25 @@ cdef inline unsigned int _bits(float f) noexcept nogil:
 cdef inline unsigned long long _key(float x, float y) noexcept nogil:
     """An integer whose order is the (x, y) order of finite floats (-0.0 as 0.0)."""
     cdef unsigned int ux = _bits(x + <float>0.0), uy = _bits(y + <float>0.0)
-    ux = ~ux if ux & 0x80000000u else ux | 0x80000000u
-    uy = ~uy if uy & 0x80000000u else uy | 0x80000000u
+    # negative: all bits flipped, else the sign bit set (branch-free)
+    ux ^= <unsigned int>(<int>ux >> 31) | 0x80000000u
+    uy ^= <unsigned int>(<int>uy >> 31) | 0x80000000u
     return (<unsigned long long>ux << 32) | uy
 
 
 cdef inline bint _less(const unsigned long long *key, int i, int j) noexcept nogil:
-    """OpenCV's CHullCmpPoints: by x, then y, then position in the input."""
-    return key[i] < key[j] or (key[i] == key[j] and i < j)
+    """OpenCV's CHullCmpPoints but its last key: by x, then y (the input position, its last
+    key, is kept by `_sort`'s stability)."""
+    return key[i] < key[j]
 
 
 cdef void _sort(const unsigned long long *key, int *a, int *tmp, int *bounds, int n) noexcept nogil:
-    """Sort the positions a[0..n) by `_less` (a total order: any correct sort gives the same
-    order as OpenCV's std::sort): insertion sort for short runs, else a natural merge sort (the
-    input is a few convex polygons: a few monotone runs each). bounds: n + 1 ints of work."""
+    """Sort the positions a[0..n), given ascending, stably by `_less`: OpenCV's CHullCmpPoints
+    order (x, y, then the input position: a total order, so any correct sort gives the order
+    of OpenCV's std::sort). Insertion sort for short inputs, else a natural merge sort (the
+    input is a few convex polygons: a few monotone runs each; only strictly descending runs
+    are reversed and a merge takes the left run's point on a tie, so equal points stay in input
+    order). bounds: n + 1 ints of work."""
     cdef int i, j, k, v, nr, r, lo, mid, hi, t
     if n < 24:
         for i in range(1, n):
@@ -364,8 +373,16 @@ cdef void _stats(const double *x, const double *y, int m, double *tmp, double *o
 cdef extern from "Python.h":
     int PyObject_GenericSetDict(object o, object value, void *context) except -1
 
-cdef object _new = object.__new__
-
+cdef extern from *:
+    """
+    /* object.__new__(type(src)) for a plain class (no __new__ of its own, not abstract): its
+       tp_alloc, what object_new calls */
+    static PyObject *occ_alloc_like(PyObject *src) {
+        PyTypeObject *t = Py_TYPE(src);
+        return t->tp_alloc(t, 0);
+    }
+    """
+    object occ_alloc_like(object src)
 
 cdef object _blob_like(object src, double cx, double cy, double area, object hull, long long x0, long long y0,
                        long long x1, long long y1, bint edge):
@@ -382,34 +399,75 @@ cdef object _blob_like(object src, double cx, double cy, double area, object hul
     d["x1"] = x1
     d["y1"] = y1
     d["border"] = d["border"] or edge
-    o = _new(type(src))
+    o = occ_alloc_like(src)
     PyObject_GenericSetDict(o, d, NULL)
     return o
 
 
-def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list hist, long long width,
-          long long height, object out, long long[::1] ids_out, long long[::1] starts_out):
-    """The merged envelopes of the n seen tracks (receiver.vision.envelope.EnvelopeHistory.step):
-    {track id: Blob}, a track's own blob when it has no earlier hull.
+cdef double *_out_f64(object o) except NULL:
+    """The data of a C-contiguous array this module just made with np.empty (it stays alive
+    while the caller holds it)."""
+    cdef Py_buffer b
+    PyObject_GetBuffer(o, &b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE)
+    PyBuffer_Release(&b)
+    return <double *>b.buf
 
-    hulls: the tracks' blob hulls, cur (sum K_i, 2) float64 all of them in order; k: this
-    frame's index; hist: the earlier frames, oldest first, each (frame index, ids (m,) int64,
-    starts (m + 1,) int64, points (., 2) float64) in this frame's layout (the caller passes
-    only frames that count); ids_out (n,), starts_out (n + 1,): this frame's, written here for
-    the next frames. A track's earlier hulls are moved by its velocity (vx, vy) px/frame times
-    (k - frame). A merged track's Blob: its blob with cx, cy, area_px, hull (rows of `out`,
-    (rows, 2) float64 with as many rows as all points given), box and border replaced."""
-    cdef int n = len(tracks), nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total
-    cdef long long o = 0
+
+cdef bint _f64_pairs(Py_buffer *b) noexcept:
+    """`b` holds a (K, 2) float64 array (any strides)."""
+    return (b.ndim == 2 and b.itemsize == 8 and b.format != NULL and b.format[0] == b'd' and b.format[1] == 0
+            and b.shape[1] == 2)
+
+
+cdef const void *_c_data(object o, int ndim, char kind, Py_ssize_t *n) except? NULL:
+    """The data of a record's C-contiguous array (the record keeps it alive): int64 (kind 'q')
+    of 1 dim or float64 ('d') pairs (n, 2); its length to n. ValueError for anything else."""
+    cdef Py_buffer b
+    cdef const char *fmt
+    cdef bint ok
+    PyObject_GetBuffer(o, &b, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT)
+    fmt = b.format
+    if fmt == NULL:
+        fmt = b"B"
+    if fmt[0] == b'@' or fmt[0] == b'=' or fmt[0] == b'<':
+        fmt += 1
+    ok = (b.ndim == ndim and b.itemsize == 8 and fmt[0] != 0 and fmt[1] == 0 and
+          (fmt[0] == b'd' if kind == b'd' else (fmt[0] == b'q' or fmt[0] == b'l')) and
+          (ndim == 1 or b.shape[1] == 2))
+    n[0] = b.shape[0] if b.ndim >= 1 else 0
+    PyBuffer_Release(&b)
+    if not ok:
+        raise ValueError("merge: a record's ids / starts must be int64, its points (n, 2) float64")
+    return b.buf
+
+
+def merge(list tracks, long long k, list hist, long long width, long long height):
+    """The merged envelopes of the n seen tracks (receiver.vision.envelope.EnvelopeHistory.step)
+    and this frame's record for the next frames: (env {track id: Blob}, ids (n,) int64,
+    starts (n + 1,) int64, points (sum K_i, 2) float64: the tracks' blob hulls in order, hulls
+    [the blobs' hull arrays]); None when a blob's hull is not a (K, 2) float64 array (the
+    caller's pure path then merges). A track's Blob is its own blob when it has no earlier hull.
+
+    k: this frame's index; hist: the earlier frames' records, oldest first, each (frame index,
+    ids (m,) int64, starts (m + 1,) int64, points (., 2) float64, ...) as returned here (the
+    caller passes only frames that count). A track's earlier hulls are moved by its velocity
+    (vx, vy) px/frame times (k - frame). A merged track's Blob: its blob with cx, cy, area_px,
+    hull (rows of one (rows, 2) float64 array), box and border replaced."""
+    cdef int n = len(tracks), nh = len(hist), f, i, j, q, m, npts, maxpts = 0, a, b, total, nbuf = 0
+    cdef long long o = 0, nout = 0
     cdef double dk, mx, my, x0f, y0f, x1f, y1f
     cdef long long x0, y0, x1, y1
     cdef float xv, yv
     cdef double st[3]
     cdef bint merged, edge
-    cdef double[:, ::1] out_pts = out
-    cdef const long long[::1] hid
-    cdef const long long[::1] hst
-    cdef const double[:, ::1] hpt
+    cdef const char *hb
+    cdef double *curp
+    cdef double *outp = NULL
+    cdef long long *ids
+    cdef long long *cur_start
+    cdef const long long *hid
+    cdef Py_ssize_t nid, nst, npt
+    cdef Py_buffer *bufs = <Py_buffer *> malloc((n + 1) * sizeof(Py_buffer))
     cdef long long *hk = <long long *> malloc((nh + 1) * sizeof(long long))
     cdef int *where = <int *> malloc((n * (nh + 1) + 1) * sizeof(int))
     cdef const double **hp = <const double **> malloc((nh + 1) * sizeof(double *))
@@ -419,34 +477,56 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
     cdef int *ibuf = NULL
     cdef double *dbuf = NULL
     cdef unsigned long long *key = NULL
-    cdef long long[::1] ids = ids_out
-    cdef long long[::1] cur_start = starts_out
-    if hk == NULL or where == NULL or hp == NULL or hs == NULL or vel == NULL:
-        free(hk); free(where); free(hp); free(hs); free(vel)
+    if bufs == NULL or hk == NULL or where == NULL or hp == NULL or hs == NULL or vel == NULL:
+        free(bufs); free(hk); free(where); free(hp); free(hs); free(vel)
         raise MemoryError()
-    if len(hulls) != n or starts_out.shape[0] != n + 1 or ids_out.shape[0] != n:
-        free(hk); free(where); free(hp); free(hs); free(vel)
-        raise ValueError("merge: hulls, ids and starts must match the tracks")
     blobs = [None] * n
+    hulls = [None] * n
     env = {}
     try:
+        ids_arr = np.empty(n, np.int64)
+        starts_arr = np.empty(n + 1, np.int64)
+        ids = <long long *> _out_f64(ids_arr)
+        cur_start = <long long *> _out_f64(starts_arr)
         cur_start[0] = 0
         for i in range(n):
             t = tracks[i]
             ids[i] = t.track_id
             vel[2 * i] = t.vx
             vel[2 * i + 1] = t.vy
-            blobs[i] = t.blob
-            cur_start[i + 1] = cur_start[i] + len(hulls[i])
-        if cur_start[n] != cur.shape[0]:
-            raise ValueError("merge: `cur` must hold the hulls' points")
+            blob = t.blob
+            blobs[i] = blob
+            hull = blob.hull
+            hulls[i] = hull
+            if not PyObject_CheckBuffer(hull):
+                return None
+            PyObject_GetBuffer(hull, &bufs[i], PyBUF_STRIDES | PyBUF_FORMAT)
+            nbuf += 1
+            if not _f64_pairs(&bufs[i]):
+                return None
+            cur_start[i + 1] = cur_start[i] + bufs[i].shape[0]
+        # this frame's points, in order (the record's)
+        cur_arr = np.empty((cur_start[n], 2))
+        curp = _out_f64(cur_arr)
+        for i in range(n):
+            hb = <const char *> bufs[i].buf
+            a = <int>cur_start[i]
+            for j in range(<int>bufs[i].shape[0]):
+                curp[2 * (a + j)] = (<const double *>(hb + j * bufs[i].strides[0]))[0]
+                curp[2 * (a + j) + 1] = (<const double *>(hb + j * bufs[i].strides[0] + bufs[i].strides[1]))[0]
+        nout = cur_start[n]
         # each light's row in each earlier frame (or -1), and its number of points
         for f in range(nh):
-            kh, hid, hst, hpt = hist[f]
+            rec = hist[f]
+            kh = rec[0]
             hk[f] = kh
-            hp[f] = &hpt[0, 0] if hpt.shape[0] else NULL
-            hs[f] = &hst[0]
-            m = hid.shape[0]
+            hid = <const long long *> _c_data(rec[1], 1, b'q', &nid)
+            hs[f] = <const long long *> _c_data(rec[2], 1, b'q', &nst)
+            hp[f] = <const double *> _c_data(rec[3], 2, b'd', &npt)
+            m = <int>nid
+            if nst != nid + 1:
+                raise ValueError("merge: a record's starts must have len(ids) + 1 entries")
+            nout += npt
             q = 0
             for i in range(n):
                 where[i * nh + f] = -1
@@ -457,6 +537,8 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
                         where[i * nh + f] = a
                         q = a + 1
                         break
+        out = np.empty((nout, 2))
+        outp = _out_f64(out)
         npts = 0
         for i in range(n):
             npts = <int>(cur_start[i + 1] - cur_start[i])
@@ -478,8 +560,8 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
             a = <int>cur_start[i]
             b = <int>cur_start[i + 1]
             for j in range(a, b):
-                P[2 * total] = <float>cur[j, 0]
-                P[2 * total + 1] = <float>cur[j, 1]
+                P[2 * total] = <float>curp[2 * j]
+                P[2 * total + 1] = <float>curp[2 * j + 1]
                 total += 1
             for f in range(nh):
                 q = where[i * nh + f]
@@ -495,7 +577,7 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
                     total += 1
             if not merged or total == 0:
                 continue
-            if o + total > out_pts.shape[0]:
+            if o + total > nout:
                 raise ValueError("merge: `out` has too few rows")
             m = _hull(P, total, ibuf, ibuf + total, ibuf + 2 * total, ibuf + 4 * total + 4, key, P + 2 * maxpts + 2)
             x0f = x1f = P[2 * ibuf[4 * total + 4]]
@@ -504,8 +586,8 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
                 q = ibuf[4 * total + 4 + j]
                 xv = P[2 * q]
                 yv = P[2 * q + 1]
-                out_pts[o + j, 0] = xv
-                out_pts[o + j, 1] = yv
+                outp[2 * (o + j)] = xv
+                outp[2 * (o + j) + 1] = yv
                 dbuf[j] = xv
                 dbuf[maxpts + j] = yv
                 if xv < x0f:
@@ -528,57 +610,7 @@ def merge(list tracks, list hulls, const double[:, ::1] cur, long long k, list h
         for i in range(n):
             env[ids[i]] = blobs[i]
     finally:
-        free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key); free(vel)
-    return env
-
-
-
-
-def edge_boxes(const double[:, ::1] pts, const long long[::1] starts, long long pad, long long width,
-               long long height, long long min_width, long long[:, ::1] box, float[::1] bg,
-               long long[::1] index):
-    """The boxes receiver.vision.outline._boxes gives n Blobs (their hulls: pts rows
-    starts[i]:starts[i + 1], none empty): columns [floor(min x) - pad, ceil(max x) + pad + 1),
-    rows [floor(min y) - 1, ceil(max y) + 2), clipped to the image; only boxes at least
-    `min_width` wide and one row tall are kept. Writes the kept ones, in order, to the columns
-    0..m of box (4, n) = (x0, x1, y0, y1), moves their backgrounds bg[i] to bg[0..m) and their
-    blob indices to index[0..m); returns (m, 2 * their total rows)."""
-    cdef Py_ssize_t n = starts.shape[0] - 1, i, j, m = 0
-    cdef long long rows = 0, x0, x1, y0, y1
-    cdef double lox, hix, loy, hiy
-    if box.shape[0] != 4 or box.shape[1] < n or bg.shape[0] < n or index.shape[0] < n:
-        raise ValueError("edge_boxes: outputs too small")
-    for i in range(n):
-        if starts[i + 1] <= starts[i]:
-            raise ValueError("edge_boxes: empty hull")
-        j = starts[i]
-        lox = hix = pts[j, 0]
-        loy = hiy = pts[j, 1]
-        for j in range(starts[i] + 1, starts[i + 1]):
-            # np.minimum / np.maximum: a NaN wins
-            if pts[j, 0] < lox or pts[j, 0] != pts[j, 0]:
-                lox = pts[j, 0]
-            if pts[j, 0] > hix or pts[j, 0] != pts[j, 0]:
-                hix = pts[j, 0]
-            if pts[j, 1] < loy or pts[j, 1] != pts[j, 1]:
-                loy = pts[j, 1]
-            if pts[j, 1] > hiy or pts[j, 1] != pts[j, 1]:
-                hiy = pts[j, 1]
-        x0 = <long long>floor(lox) - pad
-        x1 = <long long>ceil(hix) + pad + 1
-        y0 = <long long>floor(loy) - 1
-        y1 = <long long>ceil(hiy) + 2
-        x0 = x0 if x0 > 0 else 0
-        y0 = y0 if y0 > 0 else 0
-        x1 = x1 if x1 < width else width
-        y1 = y1 if y1 < height else height
-        if x1 - x0 >= min_width and y1 > y0:
-            box[0, m] = x0
-            box[1, m] = x1
-            box[2, m] = y0
-            box[3, m] = y1
-            bg[m] = bg[i]
-            index[m] = i
-            rows += 2 * (y1 - y0)
-            m += 1
-    return m, rows
+        for i in range(nbuf):
+            PyBuffer_Release(&bufs[i])
+        free(bufs); free(hk); free(where); free(hp); free(hs); free(P); free(ibuf); free(dbuf); free(key); free(vel)
+    return env, ids_arr, starts_arr, cur_arr, hulls

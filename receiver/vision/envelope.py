@@ -119,16 +119,15 @@ class EnvelopeHistory:
             return {t.track_id: t.blob for t in tracks}
         frames = self.frames
         recent = [r for r in self._recent if 0 < k - r[0] < frames]
-        n = len(tracks)
-        hulls = [t.blob.hull for t in tracks]
-        pts = (np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)) if n
-               else np.zeros((0, 2)))
-        if _k is not None:
-            ids, starts = np.empty(n, np.int64), np.empty(n + 1, np.int64)
-            h, w = shape[:2]
-            out = np.empty((len(pts) + sum(len(r[3]) for r in recent), 2))
-            env = _k.merge(tracks, hulls, pts, int(k), [r[:4] for r in recent], int(w), int(h), out, ids, starts)
+        # the compiled merge returns this frame's record too (None: a hull it does not take)
+        got = _k.merge(tracks, int(k), recent, int(shape[1]), int(shape[0])) if _k is not None else None
+        if got is not None:
+            env, ids, starts, pts, hulls = got
         else:
+            n = len(tracks)
+            hulls = [t.blob.hull for t in tracks]
+            pts = (np.ascontiguousarray(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2)) if n
+                   else np.zeros((0, 2)))
             ids = np.array([t.track_id for t in tracks], np.int64)
             starts = np.zeros(n + 1, np.int64)
             np.cumsum([len(p) for p in hulls], out=starts[1:])

@@ -33,8 +33,6 @@ from receiver.vision.detect import Scratch
 
 # the compiled row scans (receiver/vision/_pixels.pyx), or None: the numpy path below
 _k = load("receiver.vision._pixels")
-# the Blobs' boxes in one call (receiver/vision/_envelope.pyx, `edge_boxes`), or None: `_boxes`
-_env = load("receiver.vision._envelope")
 
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
 MIN_CONTRAST = 20.0
@@ -48,6 +46,8 @@ MIN_SIGMA_PX = 0.05
 DEFAULT_BIN_ROWS = 4
 # Noise of one pixel's gray value assumed for the sigma (gray levels, incl. quantisation).
 NOISE_GRAY = 2.0
+# A point's sigma times its edge's slope (`sigma = _SIGMA_NUM / slope`), the kernels' form.
+_SIGMA_NUM = NOISE_GRAY * math.sqrt(2.0)
 
 
 def _bbox(blob_or_contour, shape, pad: int):
@@ -125,14 +125,18 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
     bounding-box rows of all blobs are gathered into one (rows, widest box) uint8 array (zero
     padded: never lit) and every step after that is one numpy operation over all rows of all
     blobs. `scratch`: work buffers kept across frames (receiver.vision.detect.Scratch), or None.
-    Returns one (points, sigma) pair per blob, in order."""
+    Returns one (points, sigma) pair per blob, in order. With the compiled kernels, Blobs with
+    float64 hulls take one call (`_pixels.edge_points_blobs`: boxes and points), other items
+    `_boxes` and the box kernel (`_edge_points_native`); this numpy path is their reference."""
+    if _k is not None and blobs and SIDE_PX == 2 and MIN_RUN_PX == 9:
+        # Blobs (float64 hulls) of a uint8 frame: boxes and points in one compiled call
+        got = _k.edge_points_blobs(gray, blobs, int(pad), int(border_px), float(min_contrast), int(bin_rows),
+                                   MIN_SIGMA_PX, _SIGMA_NUM, MIN_RUN_PX + 2)
+        if got is not None:
+            return got
     empty = (np.zeros((0, 2)), np.zeros(0))
     out = [empty] * len(blobs)
     h, w = gray.shape[:2]
-    if (_k is not None and _env is not None and blobs and SIDE_PX == 2 and MIN_RUN_PX == 9 and gray.ndim == 2
-            and gray.dtype == np.uint8 and np.float32(min_contrast) == min_contrast
-            and all(hasattr(b, "hull") and len(b.hull) for b in blobs)):
-        return _edge_points_blobs_native(gray, blobs, out, pad, border_px, min_contrast, bin_rows)
     boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
@@ -248,37 +252,9 @@ def _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows):
     pts, sig = np.empty((n, 2)), np.empty(n)
     ends = np.empty(len(boxes) + 1, np.int64)
     _k.edge_points(np.ascontiguousarray(gray), x0, x1, y0, y1, bg, int(border_px), float(min_contrast),
-                   int(bin_rows), MIN_SIGMA_PX, NOISE_GRAY * math.sqrt(2.0), pts, sig, ends)
+                   int(bin_rows), MIN_SIGMA_PX, _SIGMA_NUM, pts, sig, ends)
     el = ends.tolist()
     for k, b in enumerate(boxes):
         if el[k + 1] > el[k]:
             out[b[0]] = (pts[el[k]:el[k + 1]], sig[el[k]:el[k + 1]])
-    return out
-
-
-def _edge_points_blobs_native(gray, blobs, out, pad, border_px, min_contrast, bin_rows):
-    """`stripe_edge_points_batch` of Blobs by two compiled calls: their boxes (`_boxes`, by
-    `_envelope.edge_boxes`) and the points (`_pixels.edge_points`); the same points and
-    sigmas, bit for bit (tests/test_track_kernels.py)."""
-    n = len(blobs)
-    h, w = gray.shape[:2]
-    hulls = [b.hull for b in blobs]
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum([len(p) for p in hulls], out=starts[1:])
-    box = np.empty((4, n), np.int64)
-    bg = np.array([getattr(b, "background", 0.0) for b in blobs], np.float32)
-    index = np.empty(n, np.int64)
-    m, rows = _env.edge_boxes(np.concatenate(hulls, dtype=np.float64).reshape(-1, 2), starts, int(pad), w, h,
-                              MIN_RUN_PX + 2, box, bg, index)
-    if not m:
-        return out
-    pts, sig = np.empty((rows, 2)), np.empty(rows)
-    ends = np.empty(m + 1, np.int64)
-    _k.edge_points(np.ascontiguousarray(gray), box[0, :m], box[1, :m], box[2, :m], box[3, :m], bg[:m],
-                   int(border_px), float(min_contrast), int(bin_rows), MIN_SIGMA_PX, NOISE_GRAY * math.sqrt(2.0),
-                   pts, sig, ends)
-    el = ends.tolist()
-    for k, i in enumerate(index[:m].tolist()):
-        if el[k + 1] > el[k]:
-            out[i] = (pts[el[k]:el[k + 1]], sig[el[k]:el[k + 1]])
     return out
