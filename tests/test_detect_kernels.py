@@ -361,3 +361,43 @@ def test_mosaic_declines_a_box_mostly_lit():
     assert packed[0] == 3
     assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.4) == packed  # 3 of 11 x 5 cells lit
     assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.03) == (-1, 0, 0)
+
+
+@pytest.fixture(params=[True, False], ids=["avx2", "sse2"])
+def simd(request):
+    """The byte loops' AVX2 versions (where the CPU has them) and the SSE2 / plain ones."""
+    if request.param and not _px.avx2():
+        pytest.skip("no AVX2 on this CPU / build")
+    _px.avx2(request.param)
+    yield request.param
+    _px.avx2(True)
+
+
+@needs_kernel
+def test_search_mask_and_histogram_same_with_and_without_avx2(simd):
+    """The threshold (mask, lit box, 32-column cells) and the sampled histogram of random frames
+    of every width from 1 to 200 (all the vector loops' tails) and a 1280 x 720 frame, by the
+    loops in force, against numpy."""
+    rng = np.random.default_rng(21)
+    sizes = [(int(rng.integers(1, 9)), w) for w in range(1, 201)] + [(720, 1280), (37, 333)]
+    for h, w in sizes:
+        gray = (rng.integers(0, 256, (h, w)) * (rng.random((h, w)) < rng.uniform(0.001, 0.3))).astype(np.uint8)
+        for pool in (1, 2):
+            ho = -(-h // pool)
+            rows = gray[0::pool].copy()
+            if pool == 2:
+                rows[:gray[1::2].shape[0]] = np.maximum(rows[:gray[1::2].shape[0]], gray[1::2])
+            for on in (0, 1, 100, 255, 256):
+                want = np.where(rows >= on, 255, 0).astype(np.uint8)
+                mask, cells = np.empty((ho, w), np.uint8), np.full((ho, -(-w // 32)), 7, np.uint8)
+                box = _px.search_mask_cells(gray, pool, on, mask, cells)
+                assert np.array_equal(mask, want), (h, w, pool, on)
+                assert tuple(box) == tuple(cv2.boundingRect(want)), (h, w, pool, on)
+                padded = np.zeros((ho, cells.shape[1] * 32), bool)
+                padded[:, :w] = want > 0
+                assert np.array_equal(cells, padded.reshape(ho, -1, 32).any(axis=2).astype(np.uint8))
+        for step in (1, 3, 4):
+            got = np.empty(256, np.float32)
+            _px.sample_hist(gray, step, got)
+            want = np.bincount(gray[::step, ::step].ravel(), minlength=256).astype(np.float32)
+            assert np.array_equal(got, want), (h, w, step)

@@ -13,7 +13,7 @@ targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
 from libc.stdlib cimport malloc, free, realloc
 from libc.string cimport memset, memcpy
-from libc.stdint cimport int64_t, int32_t, uint64_t
+from libc.stdint cimport int64_t, int32_t, uint32_t, uint64_t
 
 cdef extern from *:
     """
@@ -22,6 +22,49 @@ cdef extern from *:
     #include <emmintrin.h>
     #define OCC_SSE2 1
     #endif
+    /* AVX2 versions of the frame-sized byte loops, compiled for that target only and chosen at
+       run time (occ_use_avx2) on x86-64 with GCC or clang; integer-exact: the same bytes. */
+    #if defined(__x86_64__) && defined(__GNUC__)
+    #include <immintrin.h>
+    #define OCC_AVX2 1
+    static int occ_avx2_state = -1;  /* -1: not asked yet, 0: off (absent or turned off), 1: on */
+    static inline int occ_use_avx2(void) {
+        if (occ_avx2_state < 0) {
+            __builtin_cpu_init();
+            occ_avx2_state = __builtin_cpu_supports("avx2") ? 1 : 0;
+        }
+        return occ_avx2_state;
+    }
+    static int occ_set_avx2(int on) {
+        occ_avx2_state = -1;
+        if (on) return occ_use_avx2();
+        occ_avx2_state = 0;
+        return 0;
+    }
+    #else
+    static inline int occ_use_avx2(void) { return 0; }
+    static int occ_set_avx2(int on) { (void)on; return 0; }
+    #endif
+
+    /* the lowest and the highest set bit of x != 0 */
+    static inline int occ_low_bit(uint32_t x) {
+    #ifdef __GNUC__
+        return __builtin_ctz(x);
+    #else
+        int j = 0;
+        while (!((x >> j) & 1u)) j++;
+        return j;
+    #endif
+    }
+    static inline int occ_high_bit(uint32_t x) {
+    #ifdef __GNUC__
+        return 31 - __builtin_clz(x);
+    #else
+        int j = 31;
+        while (!((x >> j) & 1u)) j--;
+        return j;
+    #endif
+    }
 
     /* largest value of p[0..n) (0 for n <= 0) */
     static inline unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) {
@@ -92,6 +135,19 @@ cdef extern from *:
     unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) nogil
     Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
     Py_ssize_t occ_u8_last_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
+    int occ_use_avx2() nogil
+    int occ_low_bit(uint32_t x) nogil
+    int occ_high_bit(uint32_t x) nogil
+    int occ_set_avx2(int on) nogil
+
+
+def avx2(on=None):
+    """Whether the AVX2 versions of the byte loops run (this CPU has AVX2; x86-64 builds
+    only). `on` False turns them off (the SSE2 / plain loops then run), True back on where the
+    CPU has them: for the tests, which compare both."""
+    if on is not None:
+        occ_set_avx2(1 if on else 0)
+    return bool(occ_use_avx2())
 
 
 # ------------------------------------------------------------------ scans (tests, helpers)
@@ -328,10 +384,57 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
 cdef extern from *:
     """
     #include <string.h>
+    #define OCC_COUNT4(b, j) counts[b[j]]++; counts[b[j + 1]]++; counts[b[j + 2]]++; counts[b[j + 3]]++;
+    #ifdef OCC_SSE2
+    /* counts[v] += the samples p[0], p[4], ..., p[4 (16 k - 1)] equal to v, n = 64 k: each 64
+       bytes' 16 samples packed into one register (the low byte of each 32-bit word), stored, and
+       counted from the store */
+    static inline void occ_count4_sse2(const unsigned char *p, Py_ssize_t n, int64_t *counts) {
+        unsigned char b[16] __attribute__((aligned(16)));
+        const __m128i lo = _mm_set1_epi32(0xff);
+        for (Py_ssize_t c = 0; c < n; c += 64) {
+            __m128i v0 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c)), lo);
+            __m128i v1 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 16)), lo);
+            __m128i v2 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 32)), lo);
+            __m128i v3 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 48)), lo);
+            _mm_store_si128((__m128i *)b, _mm_packus_epi16(_mm_packs_epi32(v0, v1), _mm_packs_epi32(v2, v3)));
+            OCC_COUNT4(b, 0) OCC_COUNT4(b, 4) OCC_COUNT4(b, 8) OCC_COUNT4(b, 12)
+        }
+    }
+    #endif
+    #ifdef OCC_AVX2
+    /* occ_count4_sse2 with n = 128 k: 32 samples per register (in another order: they are only
+       counted) */
+    __attribute__((target("avx2")))
+    static void occ_count4_avx2(const unsigned char *p, Py_ssize_t n, int64_t *counts) {
+        unsigned char b[32] __attribute__((aligned(32)));
+        const __m256i lo = _mm256_set1_epi32(0xff);
+        for (Py_ssize_t c = 0; c < n; c += 128) {
+            __m256i v0 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c)), lo);
+            __m256i v1 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 32)), lo);
+            __m256i v2 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 64)), lo);
+            __m256i v3 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 96)), lo);
+            _mm256_store_si256((__m256i *)b, _mm256_packus_epi16(_mm256_packs_epi32(v0, v1),
+                                                                 _mm256_packs_epi32(v2, v3)));
+            OCC_COUNT4(b, 0) OCC_COUNT4(b, 4) OCC_COUNT4(b, 8) OCC_COUNT4(b, 12)
+            OCC_COUNT4(b, 16) OCC_COUNT4(b, 20) OCC_COUNT4(b, 24) OCC_COUNT4(b, 28)
+        }
+    }
+    #endif
     /* counts[v] += number of samples p[0], p[step], p[2 step], ... < p + n equal to v */
     static inline void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) {
         Py_ssize_t c = 0;
         if (step == 4) {
+    #ifdef OCC_AVX2
+            if (occ_use_avx2()) {
+                c = n & ~(Py_ssize_t)127;
+                occ_count4_avx2(p, c, counts);
+            }
+    #endif
+    #ifdef OCC_SSE2
+            occ_count4_sse2(p + c, (n - c) & ~(Py_ssize_t)63, counts);
+            c += (n - c) & ~(Py_ssize_t)63;
+    #endif
             /* two samples per 8-byte load */
             for (; c + 8 <= n; c += 8) {
                 uint64_t v;
@@ -408,60 +511,81 @@ def sample_stats(const unsigned char[:, ::1] gray, int step, float[::1] hist):
 cdef extern from *:
     """
     /* mask[0..n) = 255 where max(a[i], b[i]) >= on (b may equal a), else 0; returns nonzero
-       when any pixel is lit. on in 0..255. cells (or NULL): cells[k] = 1 where columns
-       [32 k, 32 k + 32) hold a lit pixel (cells[k] is left alone where they do not). */
+       when any pixel is lit. on in 0..255. cells[k] = 1 where columns [32 k, 32 k + 32) hold a
+       lit pixel (left alone where they do not), and bit j of cols[k] set where column 32 k + j
+       is lit (the others left alone). */
+    #define OCC_MARK(i, mm) if (mm) { cells[(i) >> 5] = 1; cols[(i) >> 5] |= (mm); any = 1; }
     static inline int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                                          unsigned char on, unsigned char *mask, unsigned char *cells) {
+                                          unsigned char on, unsigned char *mask, unsigned char *cells,
+                                          uint32_t *cols) {
         Py_ssize_t i = 0;
-        unsigned char any = 0;
+        int any = 0;
     #ifdef OCC_SSE2
-        if (n >= 16) {
-            const __m128i tv = _mm_set1_epi8((char)on);
-            __m128i acc = _mm_setzero_si128();
-            for (; i + 32 <= n; i += 32) {
-                __m128i m0 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
-                                          _mm_loadu_si128((const __m128i *)(b + i)));
-                __m128i m1 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i + 16)),
-                                          _mm_loadu_si128((const __m128i *)(b + i + 16)));
-                __m128i l0 = _mm_cmpeq_epi8(_mm_max_epu8(m0, tv), m0);
-                __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
-                _mm_storeu_si128((__m128i *)(mask + i), l0);
-                _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
-                __m128i l01 = _mm_or_si128(l0, l1);
-                if (cells != NULL && _mm_movemask_epi8(l01)) cells[i >> 5] = 1;
-                acc = _mm_or_si128(acc, l01);
-            }
-            while (i < n) {
-                if (i + 16 > n) i = n - 16;  /* the last 16 bytes, overlapping: the same values again */
-                __m128i m = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
-                                         _mm_loadu_si128((const __m128i *)(b + i)));
-                __m128i lit = _mm_cmpeq_epi8(_mm_max_epu8(m, tv), m);
-                _mm_storeu_si128((__m128i *)(mask + i), lit);
-                if (cells != NULL) {
-                    int mm = _mm_movemask_epi8(lit);
-                    if (mm) {
-                        cells[(i + __builtin_ctz((unsigned)mm)) >> 5] = 1;
-                        cells[(i + 31 - __builtin_clz((unsigned)mm)) >> 5] = 1;
-                    }
-                }
-                acc = _mm_or_si128(acc, lit);
-                i += 16;
-            }
-            return _mm_movemask_epi8(acc) != 0;
+        const __m128i tv = _mm_set1_epi8((char)on);
+        for (; i + 32 <= n; i += 32) {
+            __m128i m0 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
+                                      _mm_loadu_si128((const __m128i *)(b + i)));
+            __m128i m1 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i + 16)),
+                                      _mm_loadu_si128((const __m128i *)(b + i + 16)));
+            __m128i l0 = _mm_cmpeq_epi8(_mm_max_epu8(m0, tv), m0);
+            __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
+            _mm_storeu_si128((__m128i *)(mask + i), l0);
+            _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
+            uint32_t mm = (uint32_t)_mm_movemask_epi8(l0) | ((uint32_t)_mm_movemask_epi8(l1) << 16);
+            OCC_MARK(i, mm)
         }
     #endif
         for (; i < n; i++) {
             unsigned char v = a[i] > b[i] ? a[i] : b[i];
             unsigned char l = v >= on ? 255 : 0;
             mask[i] = l;
-            any |= l;
-            if (l && cells != NULL) cells[i >> 5] = 1;
+            uint32_t mm = (uint32_t)(l & 1) << (i & 31);
+            OCC_MARK(i, mm)
         }
-        return any != 0;
+        return any;
     }
+    #ifdef OCC_AVX2
+    /* occ_pool_thresh_row, 64 pixels a step */
+    __attribute__((target("avx2")))
+    static int occ_pool_thresh_row_avx2(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                                        unsigned char on, unsigned char *mask, unsigned char *cells,
+                                        uint32_t *cols) {
+        Py_ssize_t i = 0;
+        int any = 0;
+        const __m256i tv = _mm256_set1_epi8((char)on);
+        for (; i + 64 <= n; i += 64) {
+            __m256i m0 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i)));
+            __m256i m1 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i + 32)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i + 32)));
+            __m256i l0 = _mm256_cmpeq_epi8(_mm256_max_epu8(m0, tv), m0);
+            __m256i l1 = _mm256_cmpeq_epi8(_mm256_max_epu8(m1, tv), m1);
+            _mm256_storeu_si256((__m256i *)(mask + i), l0);
+            _mm256_storeu_si256((__m256i *)(mask + i + 32), l1);
+            uint32_t mm0 = (uint32_t)_mm256_movemask_epi8(l0), mm1 = (uint32_t)_mm256_movemask_epi8(l1);
+            if (mm0 | mm1) {
+                OCC_MARK(i, mm0)
+                OCC_MARK(i + 32, mm1)
+            }
+        }
+        for (; i + 32 <= n; i += 32) {
+            __m256i m0 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i)));
+            __m256i l0 = _mm256_cmpeq_epi8(_mm256_max_epu8(m0, tv), m0);
+            _mm256_storeu_si256((__m256i *)(mask + i), l0);
+            uint32_t mm = (uint32_t)_mm256_movemask_epi8(l0);
+            OCC_MARK(i, mm)
+        }
+        return any | occ_pool_thresh_row(a + i, b + i, n - i, on, mask + i, cells + (i >> 5), cols + (i >> 5));
+    }
+    #else
+    #define occ_pool_thresh_row_avx2 occ_pool_thresh_row
+    #endif
     """
     int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                            unsigned char on, unsigned char *mask, unsigned char *cells) nogil
+                            unsigned char on, unsigned char *mask, unsigned char *cells, uint32_t *cols) nogil
+    int occ_pool_thresh_row_avx2(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                                 unsigned char on, unsigned char *mask, unsigned char *cells, uint32_t *cols) nogil
 
 
 cdef extern from *:
@@ -484,37 +608,55 @@ cdef extern from *:
 
 cdef tuple _search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
                         unsigned char *cells, Py_ssize_t cells_stride):
-    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c, f, l
-    cdef Py_ssize_t y0 = -1, y1 = -1, x0 = w, x1 = -1
+    """`search_mask_cells` (cells NULL: `search_mask`): the rows' thresholds, and the lit box from
+    the rows with a lit pixel and the lit columns' bits (cols: one bit a column, OR-ed over the
+    rows)."""
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, k
+    cdef Py_ssize_t nch = (w + 31) // 32, y0 = -1, y1 = -1, x0 = -1, x1 = -1
     cdef const unsigned char *a
     cdef const unsigned char *b
-    cdef unsigned char *m
     cdef unsigned char o
+    cdef int avx = occ_use_avx2(), lit
+    cdef uint32_t *cols
+    cdef unsigned char *own = NULL
     if on > 255:
         for i in range(ho):
             memset(&mask[i, 0], 0, w)
         return 0, 0, 0, 0
     o = <unsigned char>(on if on > 0 else 0)
-    for i in range(ho):
-        a = &gray[i * pool, 0]
-        b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
-        m = &mask[i, 0]
-        if occ_pool_thresh_row(a, b, w, o, m, cells + i * cells_stride if cells != NULL else NULL):
-            if y0 < 0:
-                y0 = i
-            y1 = i
-            # the columns' extent: only the part of the row outside the extent so far
-            if x0 > 0:
-                c = occ_u8_first_ge(m, x0, 255)
-                if c >= 0:
-                    x0 = c
-            if x1 < w - 1:
-                c = occ_u8_last_ge(m + x1 + 1, w - x1 - 1, 255)
-                if c >= 0:
-                    x1 = x1 + 1 + c
-    if y0 < 0:
-        return 0, 0, 0, 0
-    return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+    cols = <uint32_t *>malloc(nch * sizeof(uint32_t) + (nch if cells == NULL else 0) + 1)
+    if cols == NULL:
+        raise MemoryError()
+    memset(cols, 0, nch * sizeof(uint32_t))
+    if cells == NULL:  # the cells go to a dummy row
+        own = <unsigned char *>(cols + nch)
+        cells_stride = 0
+        cells = own
+    try:
+        for i in range(ho):
+            a = &gray[i * pool, 0]
+            b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
+            if avx:
+                lit = occ_pool_thresh_row_avx2(a, b, w, o, &mask[i, 0], cells + i * cells_stride, cols)
+            else:
+                lit = occ_pool_thresh_row(a, b, w, o, &mask[i, 0], cells + i * cells_stride, cols)
+            if lit:
+                if y0 < 0:
+                    y0 = i
+                y1 = i
+        if y0 < 0:
+            return 0, 0, 0, 0
+        for k in range(nch):
+            if cols[k]:
+                x0 = 32 * k + occ_low_bit(cols[k])
+                break
+        for k in range(nch - 1, -1, -1):
+            if cols[k]:
+                x1 = 32 * k + occ_high_bit(cols[k])
+                break
+        return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+    finally:
+        free(cols)
 
 
 def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
