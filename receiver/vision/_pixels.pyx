@@ -1380,6 +1380,212 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     return nf
 
 
+# ------------------------------------------------------------------ the search's close
+
+cdef extern from *:
+    """
+    /* d[i] = the maximum (mn 0) or minimum (mn 1) of s[0][i], ..., s[k - 1][i], i < n, k >= 1;
+       V: the vector type, W its width in bytes (the tail is left to the caller: i ends at the
+       last whole vector). Up to 9 rows the row pointers are locals (the stores to d could alias
+       an array of them), 3, 5, 7 or 9 of them: s must hold 9 pointers, those from k on repeating
+       s[0] (which changes no maximum or minimum; occ_pad_rows). */
+    #define OCC_Q(j) const unsigned char *q##j = s[j];
+    #define OCC_L(j) OCC_VLOAD(q##j + i)
+    #define OCC_OP(x, y) (mn ? OCC_VMIN(x, y) : OCC_VMAX(x, y))
+    #define OCC_OP_ROWS_BODY(V, W)                                                           \
+        Py_ssize_t i = 0;                                                                   \
+        if (k <= 3) {                                                                       \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2)                                                      \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)), OCC_L(2)));                 \
+        } else if (k <= 5) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4)                                    \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),                      \
+                                           OCC_OP(OCC_L(2), OCC_L(3))), OCC_L(4)));         \
+        } else if (k <= 7) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4) OCC_Q(5) OCC_Q(6)                  \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),                      \
+                                           OCC_OP(OCC_L(2), OCC_L(3))),                     \
+                                    OCC_OP(OCC_OP(OCC_L(4), OCC_L(5)), OCC_L(6))));         \
+        } else if (k <= 9) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4) OCC_Q(5) OCC_Q(6) OCC_Q(7) OCC_Q(8) \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),               \
+                                                  OCC_OP(OCC_L(2), OCC_L(3))),              \
+                                           OCC_OP(OCC_OP(OCC_L(4), OCC_L(5)),               \
+                                                  OCC_OP(OCC_L(6), OCC_L(7)))), OCC_L(8))); \
+        } else {                                                                            \
+            for (; i + W <= n; i += W) {                                                    \
+                V a = OCC_VLOAD(s[0] + i);                                                       \
+                for (int j = 1; j < k; j++)                                                 \
+                    a = OCC_OP(a, OCC_VLOAD(s[j] + i));                                          \
+                OCC_VSTORE(d + i, a);                                                            \
+            }                                                                               \
+        }
+
+    static inline void occ_pad_rows(const unsigned char **t, int k) {
+        for (int j = k; j < 9; j++) t[j] = t[0];
+    }
+
+    static inline __attribute__((always_inline)) void occ_op_rows_plain(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            unsigned char a = s[0][i];
+            for (int j = 1; j < k; j++) {
+                unsigned char b = s[j][i];
+                a = mn ? (b < a ? b : a) : (b > a ? b : a);
+            }
+            d[i] = a;
+        }
+    }
+
+    #ifdef OCC_SSE2
+    static inline __attribute__((always_inline)) void occ_op_rows_sse2(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+    #define OCC_VLOAD(p) _mm_loadu_si128((const __m128i *)(p))
+    #define OCC_VSTORE(p, v) _mm_storeu_si128((__m128i *)(p), v)
+    #define OCC_VMAX _mm_max_epu8
+    #define OCC_VMIN _mm_min_epu8
+        if (n >= 16) {
+            OCC_OP_ROWS_BODY(__m128i, 16)
+            if (i < n) {  /* the last 16 columns, overlapping the ones done: the same values */
+                const unsigned char *t[64];
+                int j;
+                for (j = 0; j < k && j < 64; j++) t[j] = s[j] + (n - 16);
+                occ_pad_rows(t, k);
+                s = t;
+                d += n - 16;
+                n = 16;
+                OCC_OP_ROWS_BODY(__m128i, 16)
+            }
+        } else {
+            occ_op_rows_plain(s, k, n, d, mn);
+        }
+    #undef OCC_VLOAD
+    #undef OCC_VSTORE
+    #undef OCC_VMAX
+    #undef OCC_VMIN
+    }
+    #else
+    #define occ_op_rows_sse2 occ_op_rows_plain
+    #endif
+
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2"))) static inline __attribute__((always_inline)) void occ_op_rows_avx2(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+    #define OCC_VLOAD(p) _mm256_loadu_si256((const __m256i *)(p))
+    #define OCC_VSTORE(p, v) _mm256_storeu_si256((__m256i *)(p), v)
+    #define OCC_VMAX _mm256_max_epu8
+    #define OCC_VMIN _mm256_min_epu8
+        if (n >= 32) {
+            OCC_OP_ROWS_BODY(__m256i, 32)
+            if (i < n) {  /* the last 32 columns, overlapping the ones done: the same values */
+                const unsigned char *t[64];
+                int j;
+                for (j = 0; j < k && j < 64; j++) t[j] = s[j] + (n - 32);
+                occ_pad_rows(t, k);
+                s = t;
+                d += n - 32;
+                n = 32;
+                OCC_OP_ROWS_BODY(__m256i, 32)
+            }
+        } else {
+            occ_op_rows_sse2(s, k, n, d, mn);
+        }
+    #undef OCC_VLOAD
+    #undef OCC_VSTORE
+    #undef OCC_VMAX
+    #undef OCC_VMIN
+    }
+    #endif
+
+    /* One pass of a dilation (mn 0) or erosion (mn 1) of the (h, w) image src (rows `ss` bytes
+       apart) by a line of 2 r + 1 pixels, horizontal (vert 0) or vertical, into dst (rows w
+       bytes apart): each pixel the maximum / minimum over the line's pixels inside the image
+       (OpenCV's default border for both: the outside changes nothing). r <= 31. */
+    #define OCC_MORPH_PASS(SUF)                                                               \
+    static void occ_morph_pass_##SUF(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h,  \
+                                     Py_ssize_t w, int r, int vert, int mn, unsigned char *dst) { \
+        const unsigned char *t[64];                                                         \
+        Py_ssize_t y, x;                                                                    \
+        int j, k;                                                                           \
+        for (y = 0; y < h; y++) {                                                           \
+            const unsigned char *p = src + y * ss;                                          \
+            unsigned char *d = dst + y * w;                                                 \
+            if (vert) {                                                                     \
+                Py_ssize_t lo = y - r < 0 ? 0 : y - r, hi = y + r > h - 1 ? h - 1 : y + r; \
+                k = (int)(hi - lo + 1);                                                     \
+                for (j = 0; j < k; j++) t[j] = src + (lo + j) * ss;                         \
+                occ_pad_rows(t, k);                                                         \
+                if (mn) occ_op_rows_##SUF(t, k, w, d, 1);                                   \
+                else occ_op_rows_##SUF(t, k, w, d, 0);                                      \
+                continue;                                                                   \
+            }                                                                               \
+            /* the columns whose line lies inside the row, then the ones near its ends */   \
+            if (w > 2 * r) {                                                                \
+                for (j = 0; j < 2 * r + 1; j++) t[j] = p + j;                               \
+                occ_pad_rows(t, 2 * r + 1);                                                 \
+                if (mn) occ_op_rows_##SUF(t, 2 * r + 1, w - 2 * r, d + r, 1);               \
+                else occ_op_rows_##SUF(t, 2 * r + 1, w - 2 * r, d + r, 0);                  \
+            }                                                                               \
+            for (x = 0; x < w; x++) {                                                       \
+                if (x == r && w > 2 * r) x = w - r;                                         \
+                if (x >= w) break;                                                          \
+                Py_ssize_t a = x - r < 0 ? 0 : x - r, b = x + r > w - 1 ? w - 1 : x + r;    \
+                unsigned char v = p[a];                                                     \
+                for (Py_ssize_t c = a + 1; c <= b; c++)                                     \
+                    v = mn ? (p[c] < v ? p[c] : v) : (p[c] > v ? p[c] : v);                 \
+                d[x] = v;                                                                   \
+            }                                                                               \
+        }                                                                                   \
+    }
+    OCC_MORPH_PASS(sse2)
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2"))) OCC_MORPH_PASS(avx2)
+    #endif
+
+    static void occ_morph_pass(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h, Py_ssize_t w, int r,
+                               int vert, int mn, unsigned char *dst) {
+    #ifdef OCC_AVX2
+        if (occ_use_avx2()) {
+            occ_morph_pass_avx2(src, ss, h, w, r, vert, mn, dst);
+            return;
+        }
+    #endif
+        occ_morph_pass_sse2(src, ss, h, w, r, vert, mn, dst);
+    }
+    """
+    void occ_morph_pass(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h, Py_ssize_t w, int r,
+                        int vert, int mn, unsigned char *dst) nogil
+
+
+def close(const unsigned char[:, :] src, int ky, int kx, unsigned char[:, ::1] tmp, unsigned char[:, ::1] dst):
+    """cv2.morphologyEx(src, MORPH_CLOSE, ones((ky, kx))) of a uint8 image (`detect._close`: a
+    dilation, then an erosion, by a ky x kx rectangle, odd sizes up to 63, OpenCV's default
+    borders: the outside of the image changes neither) into dst; tmp: work space of the same
+    shape. src's rows may be strided (a view), its pixels must be contiguous; dst may not
+    overlap src."""
+    cdef Py_ssize_t h = src.shape[0], w = src.shape[1]
+    if ky < 1 or kx < 1 or ky % 2 == 0 or kx % 2 == 0 or ky > 63 or kx > 63:
+        raise ValueError("close: odd kernel sizes 1..63")
+    if tmp.shape[0] != h or tmp.shape[1] != w or dst.shape[0] != h or dst.shape[1] != w:
+        raise ValueError("close: tmp and dst must have src's shape")
+    if h == 0 or w == 0:
+        return
+    if w > 1 and src.strides[1] != 1:
+        raise ValueError("close: src's pixels must be contiguous")
+    cdef const unsigned char *s = &src[0, 0]
+    cdef Py_ssize_t ss = src.strides[0]
+    cdef unsigned char *t = &tmp[0, 0]
+    cdef unsigned char *d = &dst[0, 0]
+    occ_morph_pass(s, ss, h, w, kx // 2, 0, 0, t)
+    occ_morph_pass(t, w, h, w, ky // 2, 1, 0, d)
+    occ_morph_pass(d, w, h, w, kx // 2, 0, 1, t)
+    occ_morph_pass(t, w, h, w, ky // 2, 1, 1, d)
+
+
 def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):
     """out[i] = 1 when box i (x, y, w, h) overlaps no other box (`detect._isolated`: half-open
     boxes, a box always overlapping itself counted once), else 0."""
