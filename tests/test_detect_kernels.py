@@ -103,6 +103,14 @@ def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch):
             want = _refine_alone_batch(gray, rects, 10.0, level, frac)
         assert [_fields(b) for b in got] == [_fields(b) for b in want]
         assert sum(b is not None for b in got) >= 4
+        # the kernel's records are the dataclass's instances (the field dict in field order,
+        # each value of the numpy path's type: Python float / int / bool, a float64 hull)
+        names = [f.name for f in dataclasses.fields(Blob)]
+        for a, b in zip(got, want):
+            if a is not None:
+                assert type(a) is Blob and list(a.__dict__) == names and a == a
+                assert [type(v) for v in a.__dict__.values()] == [type(v) for v in b.__dict__.values()]
+                assert dataclasses.replace(a, cx=1.0).cx == 1.0 and repr(a) == repr(dataclasses.replace(a))
 
 
 @needs_kernel

@@ -1256,25 +1256,16 @@ def hull_stats(const double[:, ::1] poly, const int64_t[::1] starts, double[:, :
         free(w)
 
 
-def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
-                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
-                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
-                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
-    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
-    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
-    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
-    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
-    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
-    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
-    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
-    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg,
+                                double level, double refine_frac, double saturated_gray, double saturated_frac,
+                                double min_refine_contrast, double *peak, double *blob_level, int64_t *found,
+                                double *stats, int64_t *bounds, double[:, ::1] poly, int64_t *pstart) except -2:
+    """`refine_alone` into n peaks, levels, found, (n, 3) stats, (n, 4) bounds and n + 1 pstart."""
     cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, wmax = 0, nf = 0, pos = 0
     cdef unsigned char mx, v, on
     cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
     cdef Py_ssize_t first
-    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pstart.shape[0] < n + 1 \
-            or poly.shape[0] < 2 * _total_rows(rects) or peak.shape[0] < n or blob_level.shape[0] < n \
-            or found.shape[0] < n or stats.shape[0] < n or bounds.shape[0] < n:
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or poly.shape[0] < 2 * _total_rows(rects):
         return -1
     # the clipped level: bg + Python's max(saturated_frac * (255 - bg), min_refine_contrast)
     clipped = bg + (min_refine_contrast if min_refine_contrast > sat else sat)
@@ -1355,22 +1346,22 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             for j in range(k):
                 hx[j] = px[hull[j]]
                 hy[j] = py[hull[j]]
-            occ_hull_stats(hx, hy, k, dw, &stats[nf, 0], &stats[nf, 1], &stats[nf, 2])
-            stats[nf, 0] += <double>x0
-            stats[nf, 1] += <double>y0
-            bounds[nf, 0] = bounds[nf, 1] = 1 << 62
-            bounds[nf, 2] = bounds[nf, 3] = -(1 << 62)
+            occ_hull_stats(hx, hy, k, dw, &stats[3 * nf], &stats[3 * nf + 1], &stats[3 * nf + 2])
+            stats[3 * nf + 0] += <double>x0
+            stats[3 * nf + 1] += <double>y0
+            bounds[4 * nf + 0] = bounds[4 * nf + 1] = 1 << 62
+            bounds[4 * nf + 2] = bounds[4 * nf + 3] = -(1 << 62)
             for j in range(k):
                 poly[pos + j, 0] = hx[j] + <double>x0
                 poly[pos + j, 1] = hy[j] + <double>y0
-                if <int64_t>poly[pos + j, 0] < bounds[nf, 0]:
-                    bounds[nf, 0] = <int64_t>poly[pos + j, 0]
-                if <int64_t>poly[pos + j, 1] < bounds[nf, 1]:
-                    bounds[nf, 1] = <int64_t>poly[pos + j, 1]
-                if <int64_t>poly[pos + j, 0] + 1 > bounds[nf, 2]:
-                    bounds[nf, 2] = <int64_t>poly[pos + j, 0] + 1
-                if <int64_t>poly[pos + j, 1] + 1 > bounds[nf, 3]:
-                    bounds[nf, 3] = <int64_t>poly[pos + j, 1] + 1
+                if <int64_t>poly[pos + j, 0] < bounds[4 * nf + 0]:
+                    bounds[4 * nf + 0] = <int64_t>poly[pos + j, 0]
+                if <int64_t>poly[pos + j, 1] < bounds[4 * nf + 1]:
+                    bounds[4 * nf + 1] = <int64_t>poly[pos + j, 1]
+                if <int64_t>poly[pos + j, 0] + 1 > bounds[4 * nf + 2]:
+                    bounds[4 * nf + 2] = <int64_t>poly[pos + j, 0] + 1
+                if <int64_t>poly[pos + j, 1] + 1 > bounds[4 * nf + 3]:
+                    bounds[4 * nf + 3] = <int64_t>poly[pos + j, 1] + 1
             pos += k
             found[nf] = i
             nf += 1
@@ -1584,6 +1575,83 @@ def close(const unsigned char[:, :] src, int ky, int kx, unsigned char[:, ::1] t
     occ_morph_pass(t, w, h, w, ky // 2, 1, 0, d)
     occ_morph_pass(d, w, h, w, kx // 2, 0, 1, t)
     occ_morph_pass(t, w, h, w, ky // 2, 1, 1, d)
+
+
+
+
+def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
+                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
+    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
+    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
+    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
+    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
+    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
+    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
+    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
+    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+    cdef Py_ssize_t n = rects.shape[0]
+    if pstart.shape[0] < n + 1 or peak.shape[0] < n or blob_level.shape[0] < n or found.shape[0] < n \
+            or stats.shape[0] < n or stats.shape[1] != 3 or bounds.shape[0] < n or bounds.shape[1] != 4:
+        return -1
+    if n == 0:
+        pstart[0] = 0
+        return 0
+    return _refine_alone_c(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast,
+                           &peak[0], &blob_level[0], &found[0], &stats[0, 0], &bounds[0, 0], poly, &pstart[0])
+
+
+_object_new = object.__new__
+
+
+cdef extern from "Python.h":
+    int PyObject_GenericSetDict(object o, object value, void *context) except -1
+
+
+def refine_alone_blobs(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                       double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                       object blob_type, object empty):
+    """`refine_alone`, and the result as `detect._refine_alone_batch` gives it: a list of N
+    `blob_type` records (receiver.core.records.Blob; None where a box has no hull), each built
+    as `records.frozen_record` builds one (a new object of the class and its field dict), the
+    hulls (K, 2) float64 views of one array from `empty` (numpy.empty); None where
+    `refine_alone` declines (-1)."""
+    cdef Py_ssize_t n = rects.shape[0], nf, j, i, h = gray.shape[0], w = gray.shape[1]
+    cdef int64_t x0, y0, x1, y1
+    cdef double *work
+    cdef int64_t *iwork
+    cdef list out
+    if not _boxes_inside(rects, h, w):
+        return None
+    poly_obj = empty((2 * _total_rows(rects), 2))
+    cdef double[:, ::1] poly = poly_obj
+    work = <double *>malloc((5 * n + 1) * sizeof(double))
+    iwork = <int64_t *>malloc((6 * n + 2) * sizeof(int64_t))
+    try:
+        if work == NULL or iwork == NULL:
+            raise MemoryError()
+        # peak, blob level, stats (3 n); found, bounds (4 n), pstart (n + 1)
+        nf = _refine_alone_c(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                             min_refine_contrast, work, work + n, iwork, work + 2 * n, iwork + n, poly,
+                             iwork + 5 * n)
+        if nf < 0:
+            return None
+        out = [None] * n
+        for j in range(nf):
+            i = iwork[j]
+            x0, y0, x1, y1 = iwork[n + 4 * j], iwork[n + 4 * j + 1], iwork[n + 4 * j + 2], iwork[n + 4 * j + 3]
+            o = _object_new(blob_type)
+            PyObject_GenericSetDict(o, {
+                "cx": work[2 * n + 3 * j], "cy": work[2 * n + 3 * j + 1], "area_px": work[2 * n + 3 * j + 2],
+                "hull": poly_obj[iwork[5 * n + j]:iwork[5 * n + j + 1]], "x0": x0, "y0": y0, "x1": x1, "y1": y1,
+                "border": x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, "peak": work[i], "level": work[n + i],
+                "background": bg}, NULL)
+            out[i] = o
+        return out
+    finally:
+        free(work)
+        free(iwork)
 
 
 def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):

@@ -649,30 +649,12 @@ def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, backgr
 
 def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
                          min_refine_contrast) -> list[Blob | None] | None:
-    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone`: peaks, levels, row
-    extremes, OpenCV's convex hull and its stats for every box), or None when the kernel
-    declines (a box outside the frame, a negative or NaN level: the numpy path decides)."""
-    n = len(rects)
-    h, w = gray.shape[:2]
-    rects = np.ascontiguousarray(rects, np.int64)
-    peak, blob_level = np.empty(n), np.empty(n)
-    found = np.empty(n, np.int64)
-    stats = np.empty((n, 3))
-    bounds = np.empty((n, 4), np.int64)
-    poly = np.empty((2 * int(rects[:, 3].sum()), 2))
-    pstart = np.empty(n + 1, np.int64)
-    nf = _k.refine_alone(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
-                         min_refine_contrast, peak, blob_level, found, stats, bounds, poly, pstart)
-    if nf < 0:
-        return None
-    out: list[Blob | None] = [None] * n
-    peak_l, level_l = peak.tolist(), blob_level.tolist()
-    ps = pstart[:nf + 1].tolist()
-    for j, (i, (cx, cy, area), (x0, y0, x1, y1)) in enumerate(zip(
-            found[:nf].tolist(), stats[:nf].tolist(), bounds[:nf].tolist())):
-        out[i] = _new_blob(cx, cy, area, poly[ps[j]:ps[j + 1]], x0, y0, x1, y1,
-                           x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, peak_l[i], level_l[i], bg)
-    return out
+    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone_blobs`: peaks, levels, row
+    extremes, OpenCV's convex hull and its stats for every box, and the Blob records as
+    `_new_blob` builds them), or None when the kernel declines (a box outside the frame, a
+    negative or NaN level: the numpy path decides)."""
+    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), bg, level, refine_frac, saturated_gray,
+                                 saturated_frac, min_refine_contrast, Blob, np.empty)
 
 
 def _refine_strip(gray, rects, scratch: Scratch | None):
