@@ -290,12 +290,13 @@ def test_label_runs_equals_find_contours():
 
 @needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_search_without_outlines_equals_the_contour_search(seed):
+def test_search_without_outlines_equals_the_contour_search(seed, monkeypatch):
     """`_search(..., outlines=False)` (run labelling, on the mosaic or the lit box) gives the
     boxes, in the same order, and the contour areas of the contour search; None for the
-    contours only when it took the labelling."""
+    contours only when it took the labelling, and then which boxes are isolated (the numpy
+    `_isolated` of the contour search's boxes)."""
     rng = np.random.default_rng(100 + seed)
-    labelled = 0
+    labelled = isolated = 0
     for _ in range(25):
         h, w = int(rng.integers(20, 260)), int(rng.integers(20, 330))
         gray = _lit_scene(rng, h, w)
@@ -309,7 +310,25 @@ def test_search_without_outlines_equals_the_contour_search(seed):
         if got[0] is None:
             labelled += 1
             assert got[2].tolist() == want_areas
-    assert labelled >= 15
+            with monkeypatch.context() as m:
+                m.setattr(detect_mod, "_k", None)
+                want_alone = detect_mod._isolated(want[1])
+            assert got[3].dtype == bool and np.array_equal(got[3], want_alone)
+            isolated += int(got[3].sum())
+    assert labelled >= 15 and isolated > 50
+
+
+@needs_kernel
+def test_label_says_which_boxes_overlap():
+    """`_label`'s isolation flags: an L and a dot inside its box overlap, a far square does not;
+    boxes in findContours' order (by descending first point)."""
+    m = np.zeros((40, 60), np.uint8)
+    m[2:20, 2:4] = m[18:20, 2:20] = 255  # an L
+    m[5:7, 12:14] = 255  # a dot in the L's box
+    m[30:35, 40:45] = 255  # far away
+    rects, areas, alone = detect_mod._label(m, None, 0, 3, 4)
+    assert rects.tolist() == [[43, 34, 5, 5], [15, 9, 2, 2], [5, 6, 18, 18]]
+    assert alone.tolist() == [True, False, False] and areas.tolist()[:2] == [16.0, 1.0]
 
 
 @needs_kernel

@@ -345,15 +345,40 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     a first row within `reach` of the top moved to 0, a last within `reach` of the bottom to the
     last row. Returns False when a box holds no such pixel (the caller's reference path then
     reports it)."""
-    cdef Py_ssize_t h = gray.shape[0], i, x, y, w, hh, y1, top, bottom, r
-    cdef unsigned char o = <unsigned char>on
-    for i in range(rects.shape[0]):
-        if rects[i, 0] < 0 or rects[i, 2] < 0 or rects[i, 0] + rects[i, 2] > gray.shape[1] or rects[i, 1] < 0:
+    cdef Py_ssize_t i, n = rects.shape[0]
+    if rects.shape[1] < 4 or out.shape[0] < n or out.shape[1] < 4:
+        raise ValueError("pooled_boxes: rects and out (n, 4) needed")
+    cdef int64_t *o = <int64_t *>malloc(max(n, 1) * 4 * sizeof(int64_t))
+    if o == NULL:
+        raise MemoryError()
+    try:
+        for i in range(n):
+            o[4 * i], o[4 * i + 1], o[4 * i + 2], o[4 * i + 3] = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        if not _pooled_core(gray, o, n, 4, on, pool, reach):
             return False
-    for i in range(rects.shape[0]):
-        x, w = rects[i, 0], rects[i, 2]
-        y = rects[i, 1] * pool
-        y1 = (rects[i, 1] + rects[i, 3]) * pool
+        for i in range(n):
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = o[4 * i], o[4 * i + 1], o[4 * i + 2], o[4 * i + 3]
+        return True
+    finally:
+        free(o)
+
+
+cdef bint _pooled_core(const unsigned char[:, ::1] gray, int64_t *rects, Py_ssize_t n, Py_ssize_t stride, int on,
+                       int pool, int reach) noexcept:
+    """`pooled_boxes` in place on the boxes x, y, w, h at rects[stride * i]; False (the boxes
+    then partly changed) when a box holds no pixel >= on or is not inside the frame."""
+    cdef Py_ssize_t h = gray.shape[0], i, x, y, w, y1, top, bottom, r
+    cdef unsigned char o = <unsigned char>on
+    cdef int64_t *b
+    for i in range(n):
+        b = rects + stride * i
+        if b[0] < 0 or b[2] < 0 or b[0] + b[2] > gray.shape[1] or b[1] < 0:
+            return False
+    for i in range(n):
+        b = rects + stride * i
+        x, w = b[0], b[2]
+        y = b[1] * pool
+        y1 = (b[1] + b[3]) * pool
         if y1 > h:
             y1 = h
         top = -1
@@ -372,10 +397,8 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             top = 0
         if h - 1 - bottom <= reach:
             bottom = h - 1
-        out[i, 0] = x
-        out[i, 1] = top
-        out[i, 2] = w
-        out[i, 3] = bottom - top + 1
+        b[1] = top
+        b[3] = bottom - top + 1
     return True
 
 
@@ -1205,6 +1228,7 @@ cdef extern from *:
     void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w, double *cx,
                         double *cy, double *area) nogil
     double occ_seg_sum(const double *a, Py_ssize_t n) nogil
+    void occ_sort_u64(uint64_t *a, Py_ssize_t n) nogil
 
 
 
@@ -1657,16 +1681,33 @@ def refine_alone_blobs(const unsigned char[:, ::1] gray, const int64_t[:, ::1] r
 def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):
     """out[i] = 1 when box i (x, y, w, h) overlaps no other box (`detect._isolated`: half-open
     boxes, a box always overlapping itself counted once), else 0."""
-    cdef Py_ssize_t n = rects.shape[0], i, j, c
+    cdef Py_ssize_t n = rects.shape[0], i
     if out.shape[0] < n:
         raise ValueError("out too short")
+    if n == 0:
+        return
+    if rects.shape[1] < 4:
+        raise ValueError("rects (n, 4) needed")
+    _isolated_core(&rects[0, 0], n, rects.shape[1], &out[0], 0)
+
+
+cdef void _isolated_core(const int64_t *rects, Py_ssize_t n, Py_ssize_t stride, void *out, int wide) noexcept:
+    """`isolated` of the boxes x, y, w, h at rects[stride * i]: into bytes (wide 0) or int64s at
+    the same stride, column 0 (wide 1: out is the box row's column `out - rects` away)."""
+    cdef Py_ssize_t i, j, c
+    cdef const int64_t *a
+    cdef const int64_t *b
     for i in range(n):
         c = 0
+        a = rects + stride * i
         for j in range(n):
-            if (rects[i, 0] < rects[j, 0] + rects[j, 2] and rects[j, 0] < rects[i, 0] + rects[i, 2]
-                    and rects[i, 1] < rects[j, 1] + rects[j, 3] and rects[j, 1] < rects[i, 1] + rects[i, 3]):
+            b = rects + stride * j
+            if a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]:
                 c += 1
-        out[i] = c == 1
+        if wide:
+            (<int64_t *>out)[stride * i] = c == 1
+        else:
+            (<unsigned char *>out)[i] = c == 1
 
 
 # ------------------------------------------------------------------ components by runs
@@ -1756,23 +1797,11 @@ cdef inline int32_t _run_root(_Run *r, int32_t i) noexcept nogil:
     return i
 
 
-def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
-               int64_t oy, int64_t[:, ::1] rects, int64_t[::1] area2, int64_t[::1] holes, int64_t[::1] keys):
-    """The 8-connected components of the nonzero pixels of `img` (`detect._label`: what detect
-    takes from findContours(RETR_EXTERNAL)'s outer contours, without tracing them), from the
-    runs of each row joined to the 8-adjacent runs of the row above. For component i:
-    rects[i] = its bounding box x, y, w, h; area2[i] = twice the area of its outer contour's
-    polygon through the border pixels' centres when it has no hole (cv2.contourArea * 2: the sum
-    over the links between 8-adjacent runs (a, b) above (c, d) of the trapezoid between the
-    crossing edges max(a, c - 1) .. min(b, d + 1) on top and max(c, a - 1) .. min(d, b + 1)
-    below); holes[i] = its holes (links - runs + 1, the run graph's independent cycles; with
-    holes the outer contour's area also covers them, and area2 is not that area); keys[i] = its
-    first pixel in raster order (the contour's first point), y * 2^31 + x. Coordinates are
-    moved to the mask's: by (ox, oy) when n_crops is 0, else by the `mosaic` crop (crops[k] =
-    x0, y0, x1, y1, x, y, laid out left to right) holding the first pixel. Components come in
-    raster order of their first pixel in `img`. Returns their count, or -1 when more than
-    rects has rows."""
-    cdef Py_ssize_t h = img.shape[0], w = img.shape[1], cap = rects.shape[0]
+cdef Py_ssize_t _label_core(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
+                            int64_t oy, int64_t *out, Py_ssize_t stride, Py_ssize_t cap) except -2:
+    """`label_runs` into rows of `out` (`stride` int64 apart, at most `cap`): x, y, w, h, twice
+    the area, holes, first-pixel key."""
+    cdef Py_ssize_t h = img.shape[0], w = img.shape[1]
     cdef Py_ssize_t y, k = 0, room = 4096, p0 = 0, p1 = 0, i, j, lo, hi, mid, nc = 0, c
     cdef _Run *r = NULL
     cdef _Run *rn
@@ -1781,8 +1810,7 @@ def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int
     cdef int64_t *sc
     cdef int32_t ri, rj, lt, lb, rt, rb
     cdef int64_t dx, dy
-    if area2.shape[0] < cap or holes.shape[0] < cap or keys.shape[0] < cap or rects.shape[1] < 4:
-        raise ValueError("outputs too short")
+    cdef int64_t *o
     if n_crops < 0 or n_crops > crops.shape[0] or (n_crops > 0 and crops.shape[1] < 6):
         raise ValueError("bad crops")
     r = <_Run *>malloc(room * sizeof(_Run))
@@ -1865,11 +1893,97 @@ def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int
                     else:
                         hi = mid - 1
                 dx, dy = crops[lo, 0] - crops[lo, 4], crops[lo, 1] - crops[lo, 5]
-            rects[c, 0], rects[c, 1] = sc[0] + dx, r[j].row + dy
-            rects[c, 2], rects[c, 3] = sc[1] - sc[0] + 1, sc[2] - r[j].row + 1
-            area2[c] = sc[3]
-            holes[c] = sc[4] + 1
-            keys[c] = (r[j].row + dy) * (<int64_t>1 << 31) + r[j].a + dx
+            o = out + c * stride
+            o[0], o[1] = sc[0] + dx, r[j].row + dy
+            o[2], o[3] = sc[1] - sc[0] + 1, sc[2] - r[j].row + 1
+            o[4] = sc[3]
+            o[5] = sc[4] + 1
+            o[6] = (r[j].row + dy) * (<int64_t>1 << 31) + r[j].a + dx
         return nc
     finally:
         free(r); free(xa); free(st)
+
+
+def label_boxes(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox, int64_t oy,
+                const unsigned char[:, ::1] gray, int on, int pool, int reach, int64_t[:, ::1] out):
+    """What `detect._label` and `detect._search` take from the closed mask `img` in one call:
+    `label_runs`' components in findContours' order (by descending first point), their boxes
+    moved to the full-resolution search's by `pooled_boxes` (gray, on, reach) when pool > 1, and
+    whether each box overlaps no other (`isolated`): out[i] = x, y, w, h, twice the outer
+    contour's area, 1 if isolated else 0, and the first-point key (out: (cap, 7) int64).
+    Returns the count; -1 where `label_runs` does not answer (more components than out has rows,
+    a component with a hole: the caller traces the outlines), -2 where `pooled_boxes` does not
+    (the caller's numpy path decides)."""
+    cdef Py_ssize_t cap = out.shape[0], n, i, j, hole = 0
+    cdef uint64_t *keys
+    cdef int64_t *o
+    cdef int64_t *tmp
+    if out.shape[1] != 7:
+        raise ValueError("label_boxes: out (cap, 7) needed")
+    if pool > 1 and gray is None:
+        raise ValueError("label_boxes: pool > 1 needs the frame")
+    if cap == 0:
+        return -1
+    o = &out[0, 0]
+    n = _label_core(img, crops, n_crops, ox, oy, o, 7, cap)
+    if n <= 0:
+        return n
+    for i in range(n):
+        if o[7 * i + 5]:
+            return -1
+    # findContours' order: descending keys (distinct first points), sorted as key * 2^11 + index
+    if n > 2048:
+        return -1
+    keys = <uint64_t *>malloc(n * sizeof(uint64_t))
+    tmp = <int64_t *>malloc(n * 7 * sizeof(int64_t))
+    try:
+        if keys == NULL or tmp == NULL:
+            raise MemoryError()
+        for i in range(n):
+            if o[7 * i + 6] < 0 or o[7 * i + 6] >= (<int64_t>1 << 52):
+                return -1
+            keys[i] = ((<uint64_t>o[7 * i + 6]) << 11) | <uint64_t>i
+        occ_sort_u64(keys, n)
+        memcpy(tmp, o, n * 7 * sizeof(int64_t))
+        for i in range(n):
+            j = <Py_ssize_t>(keys[n - 1 - i] & 0x7FF)
+            memcpy(o + 7 * i, tmp + 7 * j, 7 * sizeof(int64_t))
+    finally:
+        free(keys)
+        free(tmp)
+    if pool > 1 and not _pooled_core(gray, o, n, 7, on, pool, reach):
+        return -2
+    _isolated_core(o, n, 7, o + 5, 1)
+    return n
+
+
+def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
+               int64_t oy, int64_t[:, ::1] rects, int64_t[::1] area2, int64_t[::1] holes, int64_t[::1] keys):
+    """The 8-connected components of the nonzero pixels of `img` (`detect._label`: what detect
+    takes from findContours(RETR_EXTERNAL)'s outer contours, without tracing them), from the
+    runs of each row joined to the 8-adjacent runs of the row above. For component i:
+    rects[i] = its bounding box x, y, w, h; area2[i] = twice the area of its outer contour's
+    polygon through the border pixels' centres when it has no hole (cv2.contourArea * 2: the sum
+    over the links between 8-adjacent runs (a, b) above (c, d) of the trapezoid between the
+    crossing edges max(a, c - 1) .. min(b, d + 1) on top and max(c, a - 1) .. min(d, b + 1)
+    below); holes[i] = its holes (links - runs + 1, the run graph's independent cycles; with
+    holes the outer contour's area also covers them, and area2 is not that area); keys[i] = its
+    first pixel in raster order (the contour's first point), y * 2^31 + x. Coordinates are
+    moved to the mask's: by (ox, oy) when n_crops is 0, else by the `mosaic` crop (crops[k] =
+    x0, y0, x1, y1, x, y, laid out left to right) holding the first pixel. Components come in
+    raster order of their first pixel in `img`. Returns their count, or -1 when more than
+    rects has rows."""
+    cdef Py_ssize_t cap = rects.shape[0], n, i
+    if area2.shape[0] < cap or holes.shape[0] < cap or keys.shape[0] < cap or rects.shape[1] < 4:
+        raise ValueError("outputs too short")
+    cdef int64_t *o = <int64_t *>malloc(max(cap, 1) * 7 * sizeof(int64_t))
+    if o == NULL:
+        raise MemoryError()
+    try:
+        n = _label_core(img, crops, n_crops, ox, oy, o, 7, cap)
+        for i in range(max(n, 0)):
+            rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = o[7 * i], o[7 * i + 1], o[7 * i + 2], o[7 * i + 3]
+            area2[i], holes[i], keys[i] = o[7 * i + 4], o[7 * i + 5], o[7 * i + 6]
+        return n
+    finally:
+        free(o)

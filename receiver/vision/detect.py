@@ -281,17 +281,18 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     # the components' outlines are needed to map a downsampled search back (f > 1) and to mask
     # a component whose box it shares with another; isolated ones need only boxes and areas
     outlines = f > 1
-    contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
-    alone = _isolated(rects)
+    contours, rects, areas, alone = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+    if alone is None:
+        alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
         alone = _isolated(rects)
     if contours is None and not alone.all():
         # the same components (boxes, order), now with their outlines
-        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
     box_px = rects[:, 2] * rects[:, 3] * (f * f)
@@ -347,10 +348,11 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
 
 def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch | None = None,
             outlines: bool = True):
-    """`_components` and the contours' areas (N,) float64 (cv2.contourArea's), or None for
-    the areas (then the caller asks cv2.contourArea). `outlines` False: the contours are not
-    needed, None may stand for them (the compiled run labelling, `_label`, then gives the boxes
-    and areas in findContours' order without tracing the outlines)."""
+    """`_components`, the contours' areas (N,) float64 (cv2.contourArea's), or None for
+    the areas (then the caller asks cv2.contourArea), and `_isolated` of the boxes, or None (the
+    caller's to ask). `outlines` False: the contours are not needed, None may stand for them
+    (the compiled run labelling, `_label`, then gives the boxes, areas and isolation in
+    findContours' order without tracing the outlines)."""
     if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
         # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
         ho, w = -(-image.shape[0] // pool), image.shape[1]
@@ -358,14 +360,14 @@ def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch 
         cells = _buf(scratch, "cells", (ho, -(-w // 32)))
         on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
         box = _k.search_mask_cells(image, pool, on, mask, cells)
-        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines)
+        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines, image, level)
         if found is None:
             return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch,
                                        outlines)
-        contours, rects, areas = found
-        if pool > 1 and len(rects):
+        contours, rects, areas, alone = found
+        if pool > 1 and len(rects) and alone is None:
             rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-        return contours, rects, areas
+        return contours, rects, areas, alone
     search = _row_max(image, pool, scratch) if pool > 1 else image
     dst = scratch.get("mask", search.shape) if scratch is not None else None
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
@@ -388,8 +390,9 @@ MOSAIC_MAX_GROUPS = 256
 MOSAIC_MAX_FILL = 0.4
 
 
-def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
-    """(contours, boxes (N, 4), areas (N,)) of `_components_of_mask`, searched in a mosaic of the
+def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True, image=None,
+                   level=0.0):
+    """(contours, boxes (N, 4), areas (N,), alone) of `_components_of_mask`, searched in a mosaic of the
     lit groups instead of the whole lit box (`_pixels.mosaic`), or None where the kernel does not
     pack (then `_components_of_mask` searches the box).
 
@@ -403,7 +406,8 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
     the image as lit). Contours are traced from their first pixel in raster order, the same
     pixel wherever the group lies; `_pixels.place_contours` moves them back and they are
     ordered as findContours orders them (by descending first point). `outlines` False: see
-    `_search`."""
+    `_search` (`image`, `level`: the frame and threshold, for `_label`'s full-resolution boxes
+    when pool > 1)."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     if box[2] == 0 or (gap_y < 1 and gap_x < 1):
         return None
@@ -414,13 +418,13 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
         return None
     closed = _close(out[:hm * wm].reshape(hm, wm), gap_y, gap_x, scratch)
     if not outlines:
-        found = _label(closed, crops, n, 0, 0)
+        found = _label(closed, crops, n, 0, 0, image, level, pool, _close_reach(stripe_gap_px))
         if found is not None:
             return (None,) + found
     contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     nc = len(contours)
     if nc == 0:
-        return [], np.zeros((0, 4), np.int64), np.zeros(0)
+        return [], np.zeros((0, 4), np.int64), np.zeros(0), None
     pts = np.concatenate(contours)
     starts = np.zeros(nc + 1, np.int64)
     np.cumsum(np.fromiter(map(len, contours), np.int64, nc), out=starts[1:])
@@ -428,7 +432,7 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
     _k.place_contours(pts.reshape(-1, 2), starts, crops, n, rects, areas, keys)
     order = np.argsort(keys)[::-1]
     st = starts.tolist()
-    return [pts[st[i]:st[i + 1]] for i in order.tolist()], rects[order], areas[order]
+    return [pts[st[i]:st[i + 1]] for i in order.tolist()], rects[order], areas[order], None
 
 
 def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple[int, int]:
@@ -446,7 +450,7 @@ def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple
 
 def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
     """`_search` after the threshold: `mask` the thresholded search image (0 / 255), `box`
-    its lit pixels' bounding box (x, y, w, h)."""
+    its lit pixels' bounding box (x, y, w, h); the same four results."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     # The close and the contour search run on the box of the lit pixels grown by the kernel
     # size (clipped to the frame): outside it the closed mask is 0, and within it the close
@@ -454,47 +458,52 @@ def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, po
     # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
     bx, by, bw, bh = box
     if bw == 0:
-        return [], np.zeros((0, 4), np.int64), None
+        return [], np.zeros((0, 4), np.int64), None, None
     my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
     y0, x0 = max(by - my, 0), max(bx - mx, 0)
     y1, x1 = min(by + bh + my, mask.shape[0]), min(bx + bw + mx, mask.shape[1])
     closed = _close(mask[y0:y1, x0:x1], gap_y, gap_x, scratch)
-    found = _label(closed, None, 0, x0, y0) if not outlines else None
+    found = _label(closed, None, 0, x0, y0, image, level, pool, _close_reach(stripe_gap_px)) if not outlines else None
     if found is not None:
-        contours, (rects, areas) = None, found
-    else:
-        # findContours + one small fill per blob is several times faster here than
-        # connectedComponentsWithStats, which labels the whole frame.
-        contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
-        rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
-        areas = None
+        return (None,) + found
+    # findContours + one small fill per blob is several times faster here than
+    # connectedComponentsWithStats, which labels the whole frame.
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
     if pool > 1 and len(rects):
         rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-    return contours, rects, areas
+    return contours, rects, None, None
 
 
 # At most this many components are labelled by runs (`_label`); more (a noise storm) are traced.
 LABEL_MAX_COMPONENTS = 2048
 
 
-def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, oy: int):
-    """(boxes (N, 4) x, y, w, h, areas (N,) float64) of the outer contours findContours(closed,
-    RETR_EXTERNAL) would find, in its order, from the compiled run labelling of the closed mask
-    (`_pixels.label_runs`, no outline traced); coordinates moved by (ox, oy), or by the `mosaic`
-    crops when n_crops > 0. None where it does not answer: no kernel, a component with a hole
-    (its outer contour's area covers the hole, and a component inside it would have no outer
-    contour of its own), more than LABEL_MAX_COMPONENTS components."""
-    if _k is None or not _native_frame(closed):
+def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, oy: int, image=None,
+           level: float = 0.0, pool: int = 1, reach: int = 0):
+    """(boxes (N, 4) x, y, w, h, areas (N,) float64, alone (N,) bool) of the outer
+    contours findContours(closed, RETR_EXTERNAL) would find, in its order, from the compiled run
+    labelling of the closed mask (`_pixels.label_boxes`, no outline traced); coordinates moved
+    by (ox, oy), or by the `mosaic` crops when n_crops > 0; with pool > 1 the boxes are the
+    full-resolution search's (`_pooled_boxes_exact` of the frame `image` at `level`, `reach`),
+    and alone is `_isolated` of the boxes. None where it does not answer: no kernel, a component with a hole (its outer
+    contour's area covers the hole, and a component inside it would have no outer contour of
+    its own), more than LABEL_MAX_COMPONENTS components."""
+    if _k is None or not _native_frame(closed) or (pool > 1 and (image is None or not _native_frame(image))):
         return None
-    cap = LABEL_MAX_COMPONENTS
-    rects, area2, holes, keys = np.empty((cap, 4), np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
-    if crops is None:
-        crops = np.zeros((0, 7), np.int64)
-    n = _k.label_runs(closed, crops, n_crops, ox, oy, rects, area2, holes, keys)
-    if n < 0 or holes[:n].any():
+    out = np.empty((LABEL_MAX_COMPONENTS, 7), np.int64)
+    on = min(math.floor(level) + 1, 255) if pool > 1 else 0
+    n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, image, on, pool, reach, out)
+    if n == -2:  # a box without a lit pixel: the numpy path of the full-resolution boxes decides
+        n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, None, 0, 1, 0, out)
+        rects = _pooled_boxes_exact(image, out[:n, :4], level, pool, reach)
+        return rects, out[:n, 4] * 0.5, _isolated(rects)
+    if n < 0:
         return None
-    order = np.argsort(keys[:n])[::-1]  # findContours' order: by descending first point
-    return rects[order], area2[order] * 0.5
+    return out[:n, :4], out[:n, 4] * 0.5, out[:n, 5].astype(bool)
+
+
+_NO_CROPS = np.zeros((0, 7), np.int64)
 
 
 def _close_reach(gap_y_px: int) -> int:
