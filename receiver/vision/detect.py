@@ -37,6 +37,7 @@ Image coordinates: px, x right, y down, origin at the centre of the top-left pix
 from __future__ import annotations
 
 import math
+import operator
 
 import cv2
 import numpy as np
@@ -295,32 +296,35 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
-    box_px = rects[:, 2] * rects[:, 3] * (f * f)
-    keep = (box_px >= s.min_area_px * 0.5) & (box_px <= 4 * max_area)
+    rect_l, alone_l = rects.tolist(), alone.tolist()
+    area_l = areas.tolist() if areas is not None else None
+    # boxes (full-resolution px) that can hold an envelope of min_area_px .. max_area
+    lo_px, hi_px, ff = s.min_area_px * 0.5, 4 * max_area, f * f
+    keep = [i for i, r in enumerate(rect_l) if lo_px <= r[2] * r[3] * ff <= hi_px]
     sat_kw = dict(saturated_gray=s.saturated_gray, saturated_frac=s.saturated_frac,
                   min_refine_contrast=s.min_refine_contrast)
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
-    batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
-    refined = dict(zip(batch.tolist(), done)) if done is not None else {}
+    batch = [i for i in keep if alone_l[i]] if f == 1 else []
+    done = _refine_alone_batch(gray, rects if len(batch) == len(rect_l) else rects[batch], bg, level,
+                               s.refine_frac, scratch=scratch, **sat_kw)
+    refined = dict(zip(batch, done)) if done is not None else {}
     blobs = []
-    rect_l, alone_l = rects.tolist(), alone.tolist()
-    area_l = areas.tolist() if areas is not None else None
-    for i in np.flatnonzero(keep).tolist():
+    min_area_px, max_aspect, shape_min_rows, min_fill = s.min_area_px, s.max_aspect, s.shape_min_rows, s.min_fill
+    for i in keep:
         c, (bx, by, bw, bh) = contours[i] if contours is not None else None, rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
                                                        s.refine_frac, alone_l[i], **sat_kw)
-        if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
+        if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
         # a long box, or a thin diagonal bar filling little of its square box (boxes in search
         # pixels: the full-resolution box over the pooling factor). Components under
         # `shape_min_rows` rows are exempt (a sub-pixel-tall panel is one row several px wide,
         # and a one-row contour has no area to fill its box with).
-        if not blob.border and s.max_aspect and bh >= s.shape_min_rows and (max(bw, bh) > s.max_aspect * min(bw, bh)
-                                               or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
-                                               < s.min_fill * bw * bh):
+        if not blob.border and max_aspect and bh >= shape_min_rows and (max(bw, bh) > max_aspect * min(bw, bh)
+                                             or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
+                                             < min_fill * bw * bh):
             continue
         if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
@@ -330,8 +334,12 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     if s.min_rel_area > 0 and blobs:
         biggest = max(b.area_px for b in blobs)
         blobs = [b for b in blobs if b.area_px >= s.min_rel_area * biggest]
-    blobs.sort(key=lambda b: (b.cy, b.cx))
+    blobs.sort(key=_TOP_TO_BOTTOM)
     return blobs
+
+
+# the blobs' order: by centre row, then column
+_TOP_TO_BOTTOM = operator.attrgetter("cy", "cx")
 
 
 def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
