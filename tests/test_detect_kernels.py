@@ -93,7 +93,7 @@ def _fields(b):
 
 @needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch):
+def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch, simd):
     rng = np.random.default_rng(seed)
     gray, rects = _scene(rng)
     for level, frac in ((30.0, 0.5), (15.0, 0.2), (60.0, 0.9)):
@@ -450,3 +450,10 @@ def test_close_equals_opencv_close(simd):
                 assert np.array_equal(dst, want), (h, w, ky, kx)
     with pytest.raises(ValueError):
         _px.close(np.zeros((4, 4), np.uint8), 4, 3, np.empty((4, 4), np.uint8), np.empty((4, 4), np.uint8))
+
+
+@needs_kernel
+def test_hull_perimeter_table_gives_hypots_bits():
+    """The hull perimeter's hypot table (integer differences under 64) and its fall-back to
+    hypot (fractional, negative, larger differences) give libm hypot's own results."""
+    assert _px.hypot_table_equals_hypot()

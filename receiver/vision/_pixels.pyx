@@ -10,7 +10,7 @@ The byte scans (row maximum, first / last pixel at or above a level) use SSE2 wh
 targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 """
 
-from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
+from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN, hypot
 from libc.stdlib cimport malloc, free, realloc
 from libc.string cimport memset, memcpy
 from libc.stdint cimport int64_t, int32_t, uint32_t, uint64_t
@@ -90,6 +90,64 @@ cdef extern from *:
         return m;
     }
 
+    /* largest value of the (rows, n) box p (rows `stride` bytes apart; 0 when empty): one vector
+       maximum over all its rows, reduced once */
+    static inline unsigned char occ_u8_max_box(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                               Py_ssize_t n) {
+        unsigned char m = 0;
+        Py_ssize_t r, i;
+    #ifdef OCC_SSE2
+        if (n >= 16) {
+            __m128i acc = _mm_setzero_si128();
+            for (r = 0; r < rows; r++) {
+                const unsigned char *q = p + r * stride;
+                for (i = 0; i + 16 <= n; i += 16)
+                    acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(q + i)));
+                acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(q + n - 16)));
+            }
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 8));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 4));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 2));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 1));
+            return (unsigned char)(_mm_cvtsi128_si32(acc) & 0xff);
+        }
+    #endif
+        for (r = 0; r < rows; r++) {
+            unsigned char v = occ_u8_max(p + r * stride, n);
+            if (v > m) m = v;
+        }
+        return m;
+    }
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2")))
+    static unsigned char occ_u8_max_box_avx2(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                             Py_ssize_t n) {
+        if (n < 32)
+            return occ_u8_max_box(p, stride, rows, n);
+        __m256i acc = _mm256_setzero_si256();
+        for (Py_ssize_t r = 0; r < rows; r++) {
+            const unsigned char *q = p + r * stride;
+            Py_ssize_t i;
+            for (i = 0; i + 32 <= n; i += 32)
+                acc = _mm256_max_epu8(acc, _mm256_loadu_si256((const __m256i *)(q + i)));
+            acc = _mm256_max_epu8(acc, _mm256_loadu_si256((const __m256i *)(q + n - 32)));
+        }
+        __m128i a = _mm_max_epu8(_mm256_castsi256_si128(acc), _mm256_extracti128_si256(acc, 1));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 8));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 4));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 2));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 1));
+        return (unsigned char)(_mm_cvtsi128_si32(a) & 0xff);
+    }
+    #endif
+    static inline unsigned char occ_u8_max_box_any(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                                   Py_ssize_t n) {
+    #ifdef OCC_AVX2
+        if (occ_use_avx2()) return occ_u8_max_box_avx2(p, stride, rows, n);
+    #endif
+        return occ_u8_max_box(p, stride, rows, n);
+    }
+
     /* first i in [0, n) with p[i] >= t, or -1 */
     static inline Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) {
         Py_ssize_t i = 0;
@@ -135,6 +193,7 @@ cdef extern from *:
     unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) nogil
     Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
     Py_ssize_t occ_u8_last_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
+    unsigned char occ_u8_max_box_any(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows, Py_ssize_t n) nogil
     int occ_use_avx2() nogil
     int occ_low_bit(uint32_t x) nogil
     int occ_high_bit(uint32_t x) nogil
@@ -1194,6 +1253,28 @@ cdef extern from *:
         return nout;
     }
 
+    /* hypot of small integer differences from a table of hypot's own results (the same bits:
+       glibc's hypot takes |x| and |y| first), hypot itself for the rest; the hull's vertices are
+       integer pixel centres. occ_hypot_init fills the table once, at the module's import. */
+    #define OCC_HYP_N 64
+    static double occ_hyp_tab[OCC_HYP_N * OCC_HYP_N];
+    static int occ_hyp_ready = 0;
+    static void occ_hypot_init(void) {
+        for (int a = 0; a < OCC_HYP_N; a++)
+            for (int b = 0; b < OCC_HYP_N; b++)
+                occ_hyp_tab[a * OCC_HYP_N + b] = hypot((double)a, (double)b);
+        occ_hyp_ready = 1;
+    }
+    static inline double occ_hypot(double dx, double dy) {
+        double ax = fabs(dx), ay = fabs(dy);
+        if (occ_hyp_ready && ax < (double)OCC_HYP_N && ay < (double)OCC_HYP_N) {
+            int ix = (int)ax, iy = (int)ay;
+            if ((double)ix == ax && (double)iy == ay)
+                return occ_hyp_tab[ix * OCC_HYP_N + iy];
+        }
+        return hypot(dx, dy);
+    }
+
     /* `detect._hull_stats_points` of one polygon (x[i], y[i]), i < k, k >= 1: centroid (cx, cy)
        and area plus half-pixel rim, with numpy's operations in numpy's order (reduceat sums).
        w: work space of 4 k doubles. */
@@ -1208,7 +1289,7 @@ cdef extern from *:
             cr[i] = c;
             sxv[i] = (x[i] + xn) * c;
             syv[i] = (y[i] + yn) * c;
-            pv[i] = hypot(xn - x[i], yn - y[i]);
+            pv[i] = occ_hypot(xn - x[i], yn - y[i]);
         }
         double a2 = occ_seg_sum(cr, k), sx = occ_seg_sum(sxv, k), sy = occ_seg_sum(syv, k);
         double perim = occ_seg_sum(pv, k);
@@ -1229,6 +1310,25 @@ cdef extern from *:
                         double *cy, double *area) nogil
     double occ_seg_sum(const double *a, Py_ssize_t n) nogil
     void occ_sort_u64(uint64_t *a, Py_ssize_t n) nogil
+    void occ_hypot_init() nogil
+    double occ_hypot(double dx, double dy) nogil
+
+
+occ_hypot_init()
+
+
+def hypot_table_equals_hypot():
+    """Whether the hull perimeter's table of hypot(a, b), 0 <= a, b < 64, and its look-up
+    (negative, fractional and large differences included) give hypot's own bits (for the
+    tests)."""
+    cdef int a, b
+    cdef double x, y
+    for a in range(-70, 71):
+        for b in range(-70, 71):
+            for x, y in ((a, b), (a + 0.5, b), (a, b - 0.25), (-0.0 * a, b)):
+                if occ_hypot(x, y) != hypot(x, y):
+                    return False
+    return True
 
 
 
@@ -1301,12 +1401,7 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
             hmax = bh
         if bw > wmax:
             wmax = bw
-        mx = 0
-        for r in range(bh):
-            v = occ_u8_max(&gray[y0 + r, x0], bw)
-            if v > mx:
-                mx = v
-        pk = mx
+        pk = occ_u8_max_box_any(&gray[y0, x0], gray.shape[1], bh, bw) if bh > 0 else 0
         # np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1)), NaN-propagating
         u = bg + refine_frac * (pk - bg)
         lv = level if (level <= pk - 1 or isnan(level)) else pk - 1
