@@ -788,6 +788,8 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     cdef Py_ssize_t cap = crops.shape[0], hm = 0, wm = 0, gx0, gy0, gx1, gy1, nleft = 0, nright = 0
     cdef int *parent
     cdef int *gid
+    cdef int *oi
+    cdef Py_ssize_t no = 0, jo
     cdef unsigned char *occ
     cdef int64_t *box
     cdef int64_t *cb
@@ -800,10 +802,11 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     nR, nC = R1 - R0, C1 - C0
     parent = <int *>malloc(nR * nC * sizeof(int))
     gid = <int *>malloc(nR * nC * sizeof(int))
+    oi = <int *>malloc(nR * nC * sizeof(int))
     occ = <unsigned char *>malloc(nR * nC)
     box = <int64_t *>malloc(8 * (cap + 1) * sizeof(int64_t))
-    if parent == NULL or gid == NULL or occ == NULL or box == NULL:
-        free(parent); free(gid); free(occ); free(box)
+    if parent == NULL or gid == NULL or oi == NULL or occ == NULL or box == NULL:
+        free(parent); free(gid); free(oi); free(occ); free(box)
         raise MemoryError()
     cb = box + 4 * (cap + 1)  # each group's box of cells: first and last cell column and row
     try:
@@ -812,32 +815,31 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
             for r in range(ra, rb):
                 occ_or_bytes(occ + R * nC, &cells[r, C0], nC)
-        k = 0
+        # the occupied cells in raster order (oi[:no]): the loops below visit only these
         for i in range(nR * nC):
-            k += occ[i] != 0
-        if k > max_fill * nR * nC:
+            if occ[i]:
+                oi[no] = <int>i
+                no += 1
+        if no > max_fill * nR * nC:
             return -1, 0, 0
         # union-find over the 8-connected occupied cells
-        for i in range(nR * nC):
-            parent[i] = i
-        for R in range(nR):
-            for C in range(nC):
-                if not occ[R * nC + C]:
-                    continue
-                i = R * nC + C
-                if C > 0 and occ[i - 1]:
-                    ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
-                    parent[max(ra_, rb_)] = min(ra_, rb_)
-                if R > 0:
-                    for k in range(max(C - 1, 0), min(C + 2, nC)):
-                        if occ[i - nC - C + k]:
-                            ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
-                            parent[max(ra_, rb_)] = min(ra_, rb_)
+        for jo in range(no):
+            parent[oi[jo]] = oi[jo]
+        for jo in range(no):
+            i = oi[jo]
+            R, C = i // nC, i % nC
+            if C > 0 and occ[i - 1]:
+                ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
+                parent[max(ra_, rb_)] = min(ra_, rb_)
+            if R > 0:
+                for k in range(max(C - 1, 0), min(C + 2, nC)):
+                    if occ[i - nC - C + k]:
+                        ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
+                        parent[max(ra_, rb_)] = min(ra_, rb_)
         # group ids in raster order of their first cell, and each group's box of cells
-        for i in range(nR * nC):
+        for jo in range(no):
+            i = oi[jo]
             gid[i] = -1
-            if not occ[i]:
-                continue
             k = _uf_root(parent, <int>i)
             if k == i:
                 if n >= cap:
@@ -856,10 +858,9 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
         # each group's lit box: the lit pixels at its box's edges are in its edge cells
         for k in range(n):
             box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = w, ho, -1, -1
-        for i in range(nR * nC):
+        for jo in range(no):
+            i = oi[jo]
             k = gid[i]
-            if k < 0:
-                continue
             R, C = i // nC, i % nC
             if C != cb[4 * k] and C != cb[4 * k + 2] and R != cb[4 * k + 1] and R != cb[4 * k + 3]:
                 continue
@@ -934,8 +935,9 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                         and crops[k, 1] < crops[l, 3] and crops[l, 1] < crops[k, 3]:
                     box[4 * k] = 1
                     break
-        for i in range(nR * nC):
-            if gid[i] < 0 or not box[4 * crops[gid[i], 6]]:
+        for jo in range(no):
+            i = oi[jo]
+            if not box[4 * crops[gid[i], 6]]:
                 continue
             R, C = i // nC, i % nC
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
@@ -950,7 +952,7 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                     memset(&out[(crops[k, 5] + r - crops[k, 1]) * wm + crops[k, 4] + x0 - crops[k, 0]], 0, x1 - x0)
         return n, hm, wm
     finally:
-        free(parent); free(gid); free(occ); free(box)
+        free(parent); free(gid); free(oi); free(occ); free(box)
 
 
 def place_contours(int32_t[:, ::1] pts, const int64_t[::1] starts, const int64_t[:, ::1] crops, int n_crops,
