@@ -178,15 +178,20 @@ class Scratch:
 
     def __init__(self):
         self._bufs: dict[str, np.ndarray] = {}
+        self._views: dict[str, np.ndarray] = {}  # the last view of each buffer (frames keep their shape)
 
     def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        view = self._views.get(name)
+        if view is not None and view.shape == shape:
+            return view
         n = 1
         for d in shape:
             n *= int(d)
         buf = self._bufs.get(name)
         if buf is None or buf.size < n:
             buf = self._bufs[name] = np.empty(max(n, 1), np.uint8)
-        return buf[:n].reshape(shape)
+        view = self._views[name] = buf[:n].reshape(shape)
+        return view
 
 
 def _close_size(gap_px: int) -> int:
