@@ -93,7 +93,7 @@ def _fields(b):
 
 @needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch):
+def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch, simd):
     rng = np.random.default_rng(seed)
     gray, rects = _scene(rng)
     for level, frac in ((30.0, 0.5), (15.0, 0.2), (60.0, 0.9)):
@@ -103,6 +103,14 @@ def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch):
             want = _refine_alone_batch(gray, rects, 10.0, level, frac)
         assert [_fields(b) for b in got] == [_fields(b) for b in want]
         assert sum(b is not None for b in got) >= 4
+        # the kernel's records are the dataclass's instances (the field dict in field order,
+        # each value of the numpy path's type: Python float / int / bool, a float64 hull)
+        names = [f.name for f in dataclasses.fields(Blob)]
+        for a, b in zip(got, want):
+            if a is not None:
+                assert type(a) is Blob and list(a.__dict__) == names and a == a
+                assert [type(v) for v in a.__dict__.values()] == [type(v) for v in b.__dict__.values()]
+                assert dataclasses.replace(a, cx=1.0).cx == 1.0 and repr(a) == repr(dataclasses.replace(a))
 
 
 @needs_kernel
@@ -282,12 +290,13 @@ def test_label_runs_equals_find_contours():
 
 @needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_search_without_outlines_equals_the_contour_search(seed):
+def test_search_without_outlines_equals_the_contour_search(seed, monkeypatch):
     """`_search(..., outlines=False)` (run labelling, on the mosaic or the lit box) gives the
     boxes, in the same order, and the contour areas of the contour search; None for the
-    contours only when it took the labelling."""
+    contours only when it took the labelling, and then which boxes are isolated (the numpy
+    `_isolated` of the contour search's boxes)."""
     rng = np.random.default_rng(100 + seed)
-    labelled = 0
+    labelled = isolated = 0
     for _ in range(25):
         h, w = int(rng.integers(20, 260)), int(rng.integers(20, 330))
         gray = _lit_scene(rng, h, w)
@@ -301,7 +310,25 @@ def test_search_without_outlines_equals_the_contour_search(seed):
         if got[0] is None:
             labelled += 1
             assert got[2].tolist() == want_areas
-    assert labelled >= 15
+            with monkeypatch.context() as m:
+                m.setattr(detect_mod, "_k", None)
+                want_alone = detect_mod._isolated(want[1])
+            assert got[3].dtype == bool and np.array_equal(got[3], want_alone)
+            isolated += int(got[3].sum())
+    assert labelled >= 15 and isolated > 50
+
+
+@needs_kernel
+def test_label_says_which_boxes_overlap():
+    """`_label`'s isolation flags: an L and a dot inside its box overlap, a far square does not;
+    boxes in findContours' order (by descending first point)."""
+    m = np.zeros((40, 60), np.uint8)
+    m[2:20, 2:4] = m[18:20, 2:20] = 255  # an L
+    m[5:7, 12:14] = 255  # a dot in the L's box
+    m[30:35, 40:45] = 255  # far away
+    rects, areas, alone = detect_mod._label(m, None, 0, 3, 4)
+    assert rects.tolist() == [[43, 34, 5, 5], [15, 9, 2, 2], [5, 6, 18, 18]]
+    assert alone.tolist() == [True, False, False] and areas.tolist()[:2] == [16.0, 1.0]
 
 
 @needs_kernel
@@ -361,3 +388,72 @@ def test_mosaic_declines_a_box_mostly_lit():
     assert packed[0] == 3
     assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.4) == packed  # 3 of 11 x 5 cells lit
     assert _px.mosaic(mask, cells, *box, 5, 3, crops, out, 0.03) == (-1, 0, 0)
+
+
+@pytest.fixture(params=[True, False], ids=["avx2", "sse2"])
+def simd(request):
+    """The byte loops' AVX2 versions (where the CPU has them) and the SSE2 / plain ones."""
+    if request.param and not _px.avx2():
+        pytest.skip("no AVX2 on this CPU / build")
+    _px.avx2(request.param)
+    yield request.param
+    _px.avx2(True)
+
+
+@needs_kernel
+def test_search_mask_and_histogram_same_with_and_without_avx2(simd):
+    """The threshold (mask, lit box, 32-column cells) and the sampled histogram of random frames
+    of every width from 1 to 200 (all the vector loops' tails) and a 1280 x 720 frame, by the
+    loops in force, against numpy."""
+    rng = np.random.default_rng(21)
+    sizes = [(int(rng.integers(1, 9)), w) for w in range(1, 201)] + [(720, 1280), (37, 333)]
+    for h, w in sizes:
+        gray = (rng.integers(0, 256, (h, w)) * (rng.random((h, w)) < rng.uniform(0.001, 0.3))).astype(np.uint8)
+        for pool in (1, 2):
+            ho = -(-h // pool)
+            rows = gray[0::pool].copy()
+            if pool == 2:
+                rows[:gray[1::2].shape[0]] = np.maximum(rows[:gray[1::2].shape[0]], gray[1::2])
+            for on in (0, 1, 100, 255, 256):
+                want = np.where(rows >= on, 255, 0).astype(np.uint8)
+                mask, cells = np.empty((ho, w), np.uint8), np.full((ho, -(-w // 32)), 7, np.uint8)
+                box = _px.search_mask_cells(gray, pool, on, mask, cells)
+                assert np.array_equal(mask, want), (h, w, pool, on)
+                assert tuple(box) == tuple(cv2.boundingRect(want)), (h, w, pool, on)
+                padded = np.zeros((ho, cells.shape[1] * 32), bool)
+                padded[:, :w] = want > 0
+                assert np.array_equal(cells, padded.reshape(ho, -1, 32).any(axis=2).astype(np.uint8))
+        for step in (1, 3, 4):
+            got = np.empty(256, np.float32)
+            _px.sample_hist(gray, step, got)
+            want = np.bincount(gray[::step, ::step].ravel(), minlength=256).astype(np.float32)
+            assert np.array_equal(got, want), (h, w, step)
+
+
+@needs_kernel
+def test_close_equals_opencv_close(simd):
+    """`_pixels.close` = cv2.morphologyEx(MORPH_CLOSE) with a ones kernel (OpenCV's default
+    borders) on random masks and gray images of every width from 1 to 100 and strided views,
+    kernel sizes 1 to 11, by the loops in force."""
+    rng = np.random.default_rng(22)
+    shapes = [(int(rng.integers(1, 14)), w) for w in range(1, 101)] + [(51, 1376), (3, 700)]
+    for t, (h, w) in enumerate(shapes):
+        big = rng.integers(0, 256, (h + 3, w + 7)).astype(np.uint8)
+        if t % 2:
+            big = ((rng.random((h + 3, w + 7)) < rng.uniform(0.01, 0.5)) * 255).astype(np.uint8)
+        views = [np.ascontiguousarray(big[:h, :w]), big[2:2 + h, 3:3 + w]]
+        for src in views:
+            for ky, kx in ((1, 1), (1, 3), (3, 1), (5, 3), (3, 3), (9, 3), (5, 5), (11, 7), (7, 1)):
+                want = cv2.morphologyEx(src, cv2.MORPH_CLOSE, np.ones((ky, kx), np.uint8))
+                tmp, dst = np.empty((h, w), np.uint8), np.empty((h, w), np.uint8)
+                _px.close(src, ky, kx, tmp, dst)
+                assert np.array_equal(dst, want), (h, w, ky, kx)
+    with pytest.raises(ValueError):
+        _px.close(np.zeros((4, 4), np.uint8), 4, 3, np.empty((4, 4), np.uint8), np.empty((4, 4), np.uint8))
+
+
+@needs_kernel
+def test_hull_perimeter_table_gives_hypots_bits():
+    """The hull perimeter's hypot table (integer differences under 64) and its fall-back to
+    hypot (fractional, negative, larger differences) give libm hypot's own results."""
+    assert _px.hypot_table_equals_hypot()

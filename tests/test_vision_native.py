@@ -242,3 +242,23 @@ def test_edge_points_kernel_refuses_boxes_outside_the_frame_or_short_outputs():
                 dict(n_ends=1)):
         with pytest.raises(ValueError):
             call(**bad)
+
+
+@needs_kernel
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_detect_same_with_and_without_avx2(name):
+    """detect() on each recording gives the same blobs with the byte loops' AVX2 versions
+    (where the CPU has them) and with the SSE2 / plain ones."""
+    if not _px.avx2():
+        pytest.skip("no AVX2 on this CPU / build")
+    s = _settings(name)
+    try:
+        for gray in _frames(name):
+            a = detect(gray, settings=s)
+            _px.avx2(False)
+            b = detect(gray, settings=s)
+            _px.avx2(True)
+            _same_blobs(a, b)
+            assert a
+    finally:
+        _px.avx2(True)

@@ -10,10 +10,10 @@ The byte scans (row maximum, first / last pixel at or above a level) use SSE2 wh
 targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 """
 
-from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN
+from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN, hypot
 from libc.stdlib cimport malloc, free, realloc
 from libc.string cimport memset, memcpy
-from libc.stdint cimport int64_t, int32_t, uint64_t
+from libc.stdint cimport int64_t, int32_t, uint32_t, uint64_t
 
 cdef extern from *:
     """
@@ -22,6 +22,49 @@ cdef extern from *:
     #include <emmintrin.h>
     #define OCC_SSE2 1
     #endif
+    /* AVX2 versions of the frame-sized byte loops, compiled for that target only and chosen at
+       run time (occ_use_avx2) on x86-64 with GCC or clang; integer-exact: the same bytes. */
+    #if defined(__x86_64__) && defined(__GNUC__)
+    #include <immintrin.h>
+    #define OCC_AVX2 1
+    static int occ_avx2_state = -1;  /* -1: not asked yet, 0: off (absent or turned off), 1: on */
+    static inline int occ_use_avx2(void) {
+        if (occ_avx2_state < 0) {
+            __builtin_cpu_init();
+            occ_avx2_state = __builtin_cpu_supports("avx2") ? 1 : 0;
+        }
+        return occ_avx2_state;
+    }
+    static int occ_set_avx2(int on) {
+        occ_avx2_state = -1;
+        if (on) return occ_use_avx2();
+        occ_avx2_state = 0;
+        return 0;
+    }
+    #else
+    static inline int occ_use_avx2(void) { return 0; }
+    static int occ_set_avx2(int on) { (void)on; return 0; }
+    #endif
+
+    /* the lowest and the highest set bit of x != 0 */
+    static inline int occ_low_bit(uint32_t x) {
+    #ifdef __GNUC__
+        return __builtin_ctz(x);
+    #else
+        int j = 0;
+        while (!((x >> j) & 1u)) j++;
+        return j;
+    #endif
+    }
+    static inline int occ_high_bit(uint32_t x) {
+    #ifdef __GNUC__
+        return 31 - __builtin_clz(x);
+    #else
+        int j = 31;
+        while (!((x >> j) & 1u)) j--;
+        return j;
+    #endif
+    }
 
     /* largest value of p[0..n) (0 for n <= 0) */
     static inline unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) {
@@ -45,6 +88,64 @@ cdef extern from *:
         for (; i < n; i++)
             if (p[i] > m) m = p[i];
         return m;
+    }
+
+    /* largest value of the (rows, n) box p (rows `stride` bytes apart; 0 when empty): one vector
+       maximum over all its rows, reduced once */
+    static inline unsigned char occ_u8_max_box(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                               Py_ssize_t n) {
+        unsigned char m = 0;
+        Py_ssize_t r, i;
+    #ifdef OCC_SSE2
+        if (n >= 16) {
+            __m128i acc = _mm_setzero_si128();
+            for (r = 0; r < rows; r++) {
+                const unsigned char *q = p + r * stride;
+                for (i = 0; i + 16 <= n; i += 16)
+                    acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(q + i)));
+                acc = _mm_max_epu8(acc, _mm_loadu_si128((const __m128i *)(q + n - 16)));
+            }
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 8));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 4));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 2));
+            acc = _mm_max_epu8(acc, _mm_srli_si128(acc, 1));
+            return (unsigned char)(_mm_cvtsi128_si32(acc) & 0xff);
+        }
+    #endif
+        for (r = 0; r < rows; r++) {
+            unsigned char v = occ_u8_max(p + r * stride, n);
+            if (v > m) m = v;
+        }
+        return m;
+    }
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2")))
+    static unsigned char occ_u8_max_box_avx2(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                             Py_ssize_t n) {
+        if (n < 32)
+            return occ_u8_max_box(p, stride, rows, n);
+        __m256i acc = _mm256_setzero_si256();
+        for (Py_ssize_t r = 0; r < rows; r++) {
+            const unsigned char *q = p + r * stride;
+            Py_ssize_t i;
+            for (i = 0; i + 32 <= n; i += 32)
+                acc = _mm256_max_epu8(acc, _mm256_loadu_si256((const __m256i *)(q + i)));
+            acc = _mm256_max_epu8(acc, _mm256_loadu_si256((const __m256i *)(q + n - 32)));
+        }
+        __m128i a = _mm_max_epu8(_mm256_castsi256_si128(acc), _mm256_extracti128_si256(acc, 1));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 8));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 4));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 2));
+        a = _mm_max_epu8(a, _mm_srli_si128(a, 1));
+        return (unsigned char)(_mm_cvtsi128_si32(a) & 0xff);
+    }
+    #endif
+    static inline unsigned char occ_u8_max_box_any(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows,
+                                                   Py_ssize_t n) {
+    #ifdef OCC_AVX2
+        if (occ_use_avx2()) return occ_u8_max_box_avx2(p, stride, rows, n);
+    #endif
+        return occ_u8_max_box(p, stride, rows, n);
     }
 
     /* first i in [0, n) with p[i] >= t, or -1 */
@@ -92,6 +193,20 @@ cdef extern from *:
     unsigned char occ_u8_max(const unsigned char *p, Py_ssize_t n) nogil
     Py_ssize_t occ_u8_first_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
     Py_ssize_t occ_u8_last_ge(const unsigned char *p, Py_ssize_t n, unsigned char t) nogil
+    unsigned char occ_u8_max_box_any(const unsigned char *p, Py_ssize_t stride, Py_ssize_t rows, Py_ssize_t n) nogil
+    int occ_use_avx2() nogil
+    int occ_low_bit(uint32_t x) nogil
+    int occ_high_bit(uint32_t x) nogil
+    int occ_set_avx2(int on) nogil
+
+
+def avx2(on=None):
+    """Whether the AVX2 versions of the byte loops run (this CPU has AVX2; x86-64 builds
+    only). `on` False turns them off (the SSE2 / plain loops then run), True back on where the
+    CPU has them: for the tests, which compare both."""
+    if on is not None:
+        occ_set_avx2(1 if on else 0)
+    return bool(occ_use_avx2())
 
 
 # ------------------------------------------------------------------ scans (tests, helpers)
@@ -493,15 +608,40 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     a first row within `reach` of the top moved to 0, a last within `reach` of the bottom to the
     last row. Returns False when a box holds no such pixel (the caller's reference path then
     reports it)."""
-    cdef Py_ssize_t h = gray.shape[0], i, x, y, w, hh, y1, top, bottom, r
-    cdef unsigned char o = <unsigned char>on
-    for i in range(rects.shape[0]):
-        if rects[i, 0] < 0 or rects[i, 2] < 0 or rects[i, 0] + rects[i, 2] > gray.shape[1] or rects[i, 1] < 0:
+    cdef Py_ssize_t i, n = rects.shape[0]
+    if rects.shape[1] < 4 or out.shape[0] < n or out.shape[1] < 4:
+        raise ValueError("pooled_boxes: rects and out (n, 4) needed")
+    cdef int64_t *o = <int64_t *>malloc(max(n, 1) * 4 * sizeof(int64_t))
+    if o == NULL:
+        raise MemoryError()
+    try:
+        for i in range(n):
+            o[4 * i], o[4 * i + 1], o[4 * i + 2], o[4 * i + 3] = rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3]
+        if not _pooled_core(gray, o, n, 4, on, pool, reach):
             return False
-    for i in range(rects.shape[0]):
-        x, w = rects[i, 0], rects[i, 2]
-        y = rects[i, 1] * pool
-        y1 = (rects[i, 1] + rects[i, 3]) * pool
+        for i in range(n):
+            out[i, 0], out[i, 1], out[i, 2], out[i, 3] = o[4 * i], o[4 * i + 1], o[4 * i + 2], o[4 * i + 3]
+        return True
+    finally:
+        free(o)
+
+
+cdef bint _pooled_core(const unsigned char[:, ::1] gray, int64_t *rects, Py_ssize_t n, Py_ssize_t stride, int on,
+                       int pool, int reach) noexcept:
+    """`pooled_boxes` in place on the boxes x, y, w, h at rects[stride * i]; False (the boxes
+    then partly changed) when a box holds no pixel >= on or is not inside the frame."""
+    cdef Py_ssize_t h = gray.shape[0], i, x, y, w, y1, top, bottom, r
+    cdef unsigned char o = <unsigned char>on
+    cdef int64_t *b
+    for i in range(n):
+        b = rects + stride * i
+        if b[0] < 0 or b[2] < 0 or b[0] + b[2] > gray.shape[1] or b[1] < 0:
+            return False
+    for i in range(n):
+        b = rects + stride * i
+        x, w = b[0], b[2]
+        y = b[1] * pool
+        y1 = (b[1] + b[3]) * pool
         if y1 > h:
             y1 = h
         top = -1
@@ -520,10 +660,8 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             top = 0
         if h - 1 - bottom <= reach:
             bottom = h - 1
-        out[i, 0] = x
-        out[i, 1] = top
-        out[i, 2] = w
-        out[i, 3] = bottom - top + 1
+        b[1] = top
+        b[3] = bottom - top + 1
     return True
 
 
@@ -532,10 +670,57 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
 cdef extern from *:
     """
     #include <string.h>
+    #define OCC_COUNT4(b, j) counts[b[j]]++; counts[b[j + 1]]++; counts[b[j + 2]]++; counts[b[j + 3]]++;
+    #ifdef OCC_SSE2
+    /* counts[v] += the samples p[0], p[4], ..., p[4 (16 k - 1)] equal to v, n = 64 k: each 64
+       bytes' 16 samples packed into one register (the low byte of each 32-bit word), stored, and
+       counted from the store */
+    static inline void occ_count4_sse2(const unsigned char *p, Py_ssize_t n, int64_t *counts) {
+        unsigned char b[16] __attribute__((aligned(16)));
+        const __m128i lo = _mm_set1_epi32(0xff);
+        for (Py_ssize_t c = 0; c < n; c += 64) {
+            __m128i v0 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c)), lo);
+            __m128i v1 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 16)), lo);
+            __m128i v2 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 32)), lo);
+            __m128i v3 = _mm_and_si128(_mm_loadu_si128((const __m128i *)(p + c + 48)), lo);
+            _mm_store_si128((__m128i *)b, _mm_packus_epi16(_mm_packs_epi32(v0, v1), _mm_packs_epi32(v2, v3)));
+            OCC_COUNT4(b, 0) OCC_COUNT4(b, 4) OCC_COUNT4(b, 8) OCC_COUNT4(b, 12)
+        }
+    }
+    #endif
+    #ifdef OCC_AVX2
+    /* occ_count4_sse2 with n = 128 k: 32 samples per register (in another order: they are only
+       counted) */
+    __attribute__((target("avx2")))
+    static void occ_count4_avx2(const unsigned char *p, Py_ssize_t n, int64_t *counts) {
+        unsigned char b[32] __attribute__((aligned(32)));
+        const __m256i lo = _mm256_set1_epi32(0xff);
+        for (Py_ssize_t c = 0; c < n; c += 128) {
+            __m256i v0 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c)), lo);
+            __m256i v1 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 32)), lo);
+            __m256i v2 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 64)), lo);
+            __m256i v3 = _mm256_and_si256(_mm256_loadu_si256((const __m256i *)(p + c + 96)), lo);
+            _mm256_store_si256((__m256i *)b, _mm256_packus_epi16(_mm256_packs_epi32(v0, v1),
+                                                                 _mm256_packs_epi32(v2, v3)));
+            OCC_COUNT4(b, 0) OCC_COUNT4(b, 4) OCC_COUNT4(b, 8) OCC_COUNT4(b, 12)
+            OCC_COUNT4(b, 16) OCC_COUNT4(b, 20) OCC_COUNT4(b, 24) OCC_COUNT4(b, 28)
+        }
+    }
+    #endif
     /* counts[v] += number of samples p[0], p[step], p[2 step], ... < p + n equal to v */
     static inline void occ_count_row(const unsigned char *p, Py_ssize_t n, Py_ssize_t step, int64_t *counts) {
         Py_ssize_t c = 0;
         if (step == 4) {
+    #ifdef OCC_AVX2
+            if (occ_use_avx2()) {
+                c = n & ~(Py_ssize_t)127;
+                occ_count4_avx2(p, c, counts);
+            }
+    #endif
+    #ifdef OCC_SSE2
+            occ_count4_sse2(p + c, (n - c) & ~(Py_ssize_t)63, counts);
+            c += (n - c) & ~(Py_ssize_t)63;
+    #endif
             /* two samples per 8-byte load */
             for (; c + 8 <= n; c += 8) {
                 uint64_t v;
@@ -612,60 +797,81 @@ def sample_stats(const unsigned char[:, ::1] gray, int step, float[::1] hist):
 cdef extern from *:
     """
     /* mask[0..n) = 255 where max(a[i], b[i]) >= on (b may equal a), else 0; returns nonzero
-       when any pixel is lit. on in 0..255. cells (or NULL): cells[k] = 1 where columns
-       [32 k, 32 k + 32) hold a lit pixel (cells[k] is left alone where they do not). */
+       when any pixel is lit. on in 0..255. cells[k] = 1 where columns [32 k, 32 k + 32) hold a
+       lit pixel (left alone where they do not), and bit j of cols[k] set where column 32 k + j
+       is lit (the others left alone). */
+    #define OCC_MARK(i, mm) if (mm) { cells[(i) >> 5] = 1; cols[(i) >> 5] |= (mm); any = 1; }
     static inline int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                                          unsigned char on, unsigned char *mask, unsigned char *cells) {
+                                          unsigned char on, unsigned char *mask, unsigned char *cells,
+                                          uint32_t *cols) {
         Py_ssize_t i = 0;
-        unsigned char any = 0;
+        int any = 0;
     #ifdef OCC_SSE2
-        if (n >= 16) {
-            const __m128i tv = _mm_set1_epi8((char)on);
-            __m128i acc = _mm_setzero_si128();
-            for (; i + 32 <= n; i += 32) {
-                __m128i m0 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
-                                          _mm_loadu_si128((const __m128i *)(b + i)));
-                __m128i m1 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i + 16)),
-                                          _mm_loadu_si128((const __m128i *)(b + i + 16)));
-                __m128i l0 = _mm_cmpeq_epi8(_mm_max_epu8(m0, tv), m0);
-                __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
-                _mm_storeu_si128((__m128i *)(mask + i), l0);
-                _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
-                __m128i l01 = _mm_or_si128(l0, l1);
-                if (cells != NULL && _mm_movemask_epi8(l01)) cells[i >> 5] = 1;
-                acc = _mm_or_si128(acc, l01);
-            }
-            while (i < n) {
-                if (i + 16 > n) i = n - 16;  /* the last 16 bytes, overlapping: the same values again */
-                __m128i m = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
-                                         _mm_loadu_si128((const __m128i *)(b + i)));
-                __m128i lit = _mm_cmpeq_epi8(_mm_max_epu8(m, tv), m);
-                _mm_storeu_si128((__m128i *)(mask + i), lit);
-                if (cells != NULL) {
-                    int mm = _mm_movemask_epi8(lit);
-                    if (mm) {
-                        cells[(i + __builtin_ctz((unsigned)mm)) >> 5] = 1;
-                        cells[(i + 31 - __builtin_clz((unsigned)mm)) >> 5] = 1;
-                    }
-                }
-                acc = _mm_or_si128(acc, lit);
-                i += 16;
-            }
-            return _mm_movemask_epi8(acc) != 0;
+        const __m128i tv = _mm_set1_epi8((char)on);
+        for (; i + 32 <= n; i += 32) {
+            __m128i m0 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
+                                      _mm_loadu_si128((const __m128i *)(b + i)));
+            __m128i m1 = _mm_max_epu8(_mm_loadu_si128((const __m128i *)(a + i + 16)),
+                                      _mm_loadu_si128((const __m128i *)(b + i + 16)));
+            __m128i l0 = _mm_cmpeq_epi8(_mm_max_epu8(m0, tv), m0);
+            __m128i l1 = _mm_cmpeq_epi8(_mm_max_epu8(m1, tv), m1);
+            _mm_storeu_si128((__m128i *)(mask + i), l0);
+            _mm_storeu_si128((__m128i *)(mask + i + 16), l1);
+            uint32_t mm = (uint32_t)_mm_movemask_epi8(l0) | ((uint32_t)_mm_movemask_epi8(l1) << 16);
+            OCC_MARK(i, mm)
         }
     #endif
         for (; i < n; i++) {
             unsigned char v = a[i] > b[i] ? a[i] : b[i];
             unsigned char l = v >= on ? 255 : 0;
             mask[i] = l;
-            any |= l;
-            if (l && cells != NULL) cells[i >> 5] = 1;
+            uint32_t mm = (uint32_t)(l & 1) << (i & 31);
+            OCC_MARK(i, mm)
         }
-        return any != 0;
+        return any;
     }
+    #ifdef OCC_AVX2
+    /* occ_pool_thresh_row, 64 pixels a step */
+    __attribute__((target("avx2")))
+    static int occ_pool_thresh_row_avx2(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                                        unsigned char on, unsigned char *mask, unsigned char *cells,
+                                        uint32_t *cols) {
+        Py_ssize_t i = 0;
+        int any = 0;
+        const __m256i tv = _mm256_set1_epi8((char)on);
+        for (; i + 64 <= n; i += 64) {
+            __m256i m0 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i)));
+            __m256i m1 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i + 32)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i + 32)));
+            __m256i l0 = _mm256_cmpeq_epi8(_mm256_max_epu8(m0, tv), m0);
+            __m256i l1 = _mm256_cmpeq_epi8(_mm256_max_epu8(m1, tv), m1);
+            _mm256_storeu_si256((__m256i *)(mask + i), l0);
+            _mm256_storeu_si256((__m256i *)(mask + i + 32), l1);
+            uint32_t mm0 = (uint32_t)_mm256_movemask_epi8(l0), mm1 = (uint32_t)_mm256_movemask_epi8(l1);
+            if (mm0 | mm1) {
+                OCC_MARK(i, mm0)
+                OCC_MARK(i + 32, mm1)
+            }
+        }
+        for (; i + 32 <= n; i += 32) {
+            __m256i m0 = _mm256_max_epu8(_mm256_loadu_si256((const __m256i *)(a + i)),
+                                         _mm256_loadu_si256((const __m256i *)(b + i)));
+            __m256i l0 = _mm256_cmpeq_epi8(_mm256_max_epu8(m0, tv), m0);
+            _mm256_storeu_si256((__m256i *)(mask + i), l0);
+            uint32_t mm = (uint32_t)_mm256_movemask_epi8(l0);
+            OCC_MARK(i, mm)
+        }
+        return any | occ_pool_thresh_row(a + i, b + i, n - i, on, mask + i, cells + (i >> 5), cols + (i >> 5));
+    }
+    #else
+    #define occ_pool_thresh_row_avx2 occ_pool_thresh_row
+    #endif
     """
     int occ_pool_thresh_row(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
-                            unsigned char on, unsigned char *mask, unsigned char *cells) nogil
+                            unsigned char on, unsigned char *mask, unsigned char *cells, uint32_t *cols) nogil
+    int occ_pool_thresh_row_avx2(const unsigned char *a, const unsigned char *b, Py_ssize_t n,
+                                 unsigned char on, unsigned char *mask, unsigned char *cells, uint32_t *cols) nogil
 
 
 cdef extern from *:
@@ -688,37 +894,55 @@ cdef extern from *:
 
 cdef tuple _search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask,
                         unsigned char *cells, Py_ssize_t cells_stride):
-    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, c, f, l
-    cdef Py_ssize_t y0 = -1, y1 = -1, x0 = w, x1 = -1
+    """`search_mask_cells` (cells NULL: `search_mask`): the rows' thresholds, and the lit box from
+    the rows with a lit pixel and the lit columns' bits (cols: one bit a column, OR-ed over the
+    rows)."""
+    cdef Py_ssize_t h = gray.shape[0], w = gray.shape[1], ho = mask.shape[0], i, k
+    cdef Py_ssize_t nch = (w + 31) // 32, y0 = -1, y1 = -1, x0 = -1, x1 = -1
     cdef const unsigned char *a
     cdef const unsigned char *b
-    cdef unsigned char *m
     cdef unsigned char o
+    cdef int avx = occ_use_avx2(), lit
+    cdef uint32_t *cols
+    cdef unsigned char *own = NULL
     if on > 255:
         for i in range(ho):
             memset(&mask[i, 0], 0, w)
         return 0, 0, 0, 0
     o = <unsigned char>(on if on > 0 else 0)
-    for i in range(ho):
-        a = &gray[i * pool, 0]
-        b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
-        m = &mask[i, 0]
-        if occ_pool_thresh_row(a, b, w, o, m, cells + i * cells_stride if cells != NULL else NULL):
-            if y0 < 0:
-                y0 = i
-            y1 = i
-            # the columns' extent: only the part of the row outside the extent so far
-            if x0 > 0:
-                c = occ_u8_first_ge(m, x0, 255)
-                if c >= 0:
-                    x0 = c
-            if x1 < w - 1:
-                c = occ_u8_last_ge(m + x1 + 1, w - x1 - 1, 255)
-                if c >= 0:
-                    x1 = x1 + 1 + c
-    if y0 < 0:
-        return 0, 0, 0, 0
-    return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+    cols = <uint32_t *>malloc(nch * sizeof(uint32_t) + (nch if cells == NULL else 0) + 1)
+    if cols == NULL:
+        raise MemoryError()
+    memset(cols, 0, nch * sizeof(uint32_t))
+    if cells == NULL:  # the cells go to a dummy row
+        own = <unsigned char *>(cols + nch)
+        cells_stride = 0
+        cells = own
+    try:
+        for i in range(ho):
+            a = &gray[i * pool, 0]
+            b = &gray[i * pool + 1, 0] if pool == 2 and i * pool + 1 < h else a
+            if avx:
+                lit = occ_pool_thresh_row_avx2(a, b, w, o, &mask[i, 0], cells + i * cells_stride, cols)
+            else:
+                lit = occ_pool_thresh_row(a, b, w, o, &mask[i, 0], cells + i * cells_stride, cols)
+            if lit:
+                if y0 < 0:
+                    y0 = i
+                y1 = i
+        if y0 < 0:
+            return 0, 0, 0, 0
+        for k in range(nch):
+            if cols[k]:
+                x0 = 32 * k + occ_low_bit(cols[k])
+                break
+        for k in range(nch - 1, -1, -1):
+            if cols[k]:
+                x1 = 32 * k + occ_high_bit(cols[k])
+                break
+        return x0, y0, x1 - x0 + 1, y1 - y0 + 1
+    finally:
+        free(cols)
 
 
 def search_mask(const unsigned char[:, ::1] gray, int pool, int on, unsigned char[:, ::1] mask):
@@ -768,6 +992,8 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     cdef Py_ssize_t cap = crops.shape[0], hm = 0, wm = 0, gx0, gy0, gx1, gy1, nleft = 0, nright = 0
     cdef int *parent
     cdef int *gid
+    cdef int *oi
+    cdef Py_ssize_t no = 0, jo
     cdef unsigned char *occ
     cdef int64_t *box
     cdef int64_t *cb
@@ -780,10 +1006,11 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
     nR, nC = R1 - R0, C1 - C0
     parent = <int *>malloc(nR * nC * sizeof(int))
     gid = <int *>malloc(nR * nC * sizeof(int))
+    oi = <int *>malloc(nR * nC * sizeof(int))
     occ = <unsigned char *>malloc(nR * nC)
     box = <int64_t *>malloc(8 * (cap + 1) * sizeof(int64_t))
-    if parent == NULL or gid == NULL or occ == NULL or box == NULL:
-        free(parent); free(gid); free(occ); free(box)
+    if parent == NULL or gid == NULL or oi == NULL or occ == NULL or box == NULL:
+        free(parent); free(gid); free(oi); free(occ); free(box)
         raise MemoryError()
     cb = box + 4 * (cap + 1)  # each group's box of cells: first and last cell column and row
     try:
@@ -792,32 +1019,31 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
             for r in range(ra, rb):
                 occ_or_bytes(occ + R * nC, &cells[r, C0], nC)
-        k = 0
+        # the occupied cells in raster order (oi[:no]): the loops below visit only these
         for i in range(nR * nC):
-            k += occ[i] != 0
-        if k > max_fill * nR * nC:
+            if occ[i]:
+                oi[no] = <int>i
+                no += 1
+        if no > max_fill * nR * nC:
             return -1, 0, 0
         # union-find over the 8-connected occupied cells
-        for i in range(nR * nC):
-            parent[i] = i
-        for R in range(nR):
-            for C in range(nC):
-                if not occ[R * nC + C]:
-                    continue
-                i = R * nC + C
-                if C > 0 and occ[i - 1]:
-                    ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
-                    parent[max(ra_, rb_)] = min(ra_, rb_)
-                if R > 0:
-                    for k in range(max(C - 1, 0), min(C + 2, nC)):
-                        if occ[i - nC - C + k]:
-                            ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
-                            parent[max(ra_, rb_)] = min(ra_, rb_)
+        for jo in range(no):
+            parent[oi[jo]] = oi[jo]
+        for jo in range(no):
+            i = oi[jo]
+            R, C = i // nC, i % nC
+            if C > 0 and occ[i - 1]:
+                ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - 1))
+                parent[max(ra_, rb_)] = min(ra_, rb_)
+            if R > 0:
+                for k in range(max(C - 1, 0), min(C + 2, nC)):
+                    if occ[i - nC - C + k]:
+                        ra_, rb_ = _uf_root(parent, <int>i), _uf_root(parent, <int>(i - nC - C + k))
+                        parent[max(ra_, rb_)] = min(ra_, rb_)
         # group ids in raster order of their first cell, and each group's box of cells
-        for i in range(nR * nC):
+        for jo in range(no):
+            i = oi[jo]
             gid[i] = -1
-            if not occ[i]:
-                continue
             k = _uf_root(parent, <int>i)
             if k == i:
                 if n >= cap:
@@ -836,10 +1062,9 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
         # each group's lit box: the lit pixels at its box's edges are in its edge cells
         for k in range(n):
             box[4 * k], box[4 * k + 1], box[4 * k + 2], box[4 * k + 3] = w, ho, -1, -1
-        for i in range(nR * nC):
+        for jo in range(no):
+            i = oi[jo]
             k = gid[i]
-            if k < 0:
-                continue
             R, C = i // nC, i % nC
             if C != cb[4 * k] and C != cb[4 * k + 2] and R != cb[4 * k + 1] and R != cb[4 * k + 3]:
                 continue
@@ -914,8 +1139,9 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                         and crops[k, 1] < crops[l, 3] and crops[l, 1] < crops[k, 3]:
                     box[4 * k] = 1
                     break
-        for i in range(nR * nC):
-            if gid[i] < 0 or not box[4 * crops[gid[i], 6]]:
+        for jo in range(no):
+            i = oi[jo]
+            if not box[4 * crops[gid[i], 6]]:
                 continue
             R, C = i // nC, i % nC
             ra, rb = max((R0 + R) * ky, by), min((R0 + R + 1) * ky, by + bh)
@@ -930,7 +1156,7 @@ def mosaic(const unsigned char[:, ::1] mask, const unsigned char[:, ::1] cells, 
                     memset(&out[(crops[k, 5] + r - crops[k, 1]) * wm + crops[k, 4] + x0 - crops[k, 0]], 0, x1 - x0)
         return n, hm, wm
     finally:
-        free(parent); free(gid); free(occ); free(box)
+        free(parent); free(gid); free(oi); free(occ); free(box)
 
 
 def place_contours(int32_t[:, ::1] pts, const int64_t[::1] starts, const int64_t[:, ::1] crops, int n_crops,
@@ -1233,6 +1459,28 @@ cdef extern from *:
         return nout;
     }
 
+    /* hypot of small integer differences from a table of hypot's own results (the same bits:
+       glibc's hypot takes |x| and |y| first), hypot itself for the rest; the hull's vertices are
+       integer pixel centres. occ_hypot_init fills the table once, at the module's import. */
+    #define OCC_HYP_N 64
+    static double occ_hyp_tab[OCC_HYP_N * OCC_HYP_N];
+    static int occ_hyp_ready = 0;
+    static void occ_hypot_init(void) {
+        for (int a = 0; a < OCC_HYP_N; a++)
+            for (int b = 0; b < OCC_HYP_N; b++)
+                occ_hyp_tab[a * OCC_HYP_N + b] = hypot((double)a, (double)b);
+        occ_hyp_ready = 1;
+    }
+    static inline double occ_hypot(double dx, double dy) {
+        double ax = fabs(dx), ay = fabs(dy);
+        if (occ_hyp_ready && ax < (double)OCC_HYP_N && ay < (double)OCC_HYP_N) {
+            int ix = (int)ax, iy = (int)ay;
+            if ((double)ix == ax && (double)iy == ay)
+                return occ_hyp_tab[ix * OCC_HYP_N + iy];
+        }
+        return hypot(dx, dy);
+    }
+
     /* `detect._hull_stats_points` of one polygon (x[i], y[i]), i < k, k >= 1: centroid (cx, cy)
        and area plus half-pixel rim, with numpy's operations in numpy's order (reduceat sums).
        w: work space of 4 k doubles. */
@@ -1247,7 +1495,7 @@ cdef extern from *:
             cr[i] = c;
             sxv[i] = (x[i] + xn) * c;
             syv[i] = (y[i] + yn) * c;
-            pv[i] = hypot(xn - x[i], yn - y[i]);
+            pv[i] = occ_hypot(xn - x[i], yn - y[i]);
         }
         double a2 = occ_seg_sum(cr, k), sx = occ_seg_sum(sxv, k), sy = occ_seg_sum(syv, k);
         double perim = occ_seg_sum(pv, k);
@@ -1267,6 +1515,26 @@ cdef extern from *:
     void occ_hull_stats(const double *x, const double *y, Py_ssize_t k, double *w, double *cx,
                         double *cy, double *area) nogil
     double occ_seg_sum(const double *a, Py_ssize_t n) nogil
+    void occ_sort_u64(uint64_t *a, Py_ssize_t n) nogil
+    void occ_hypot_init() nogil
+    double occ_hypot(double dx, double dy) nogil
+
+
+occ_hypot_init()
+
+
+def hypot_table_equals_hypot():
+    """Whether the hull perimeter's table of hypot(a, b), 0 <= a, b < 64, and its look-up
+    (negative, fractional and large differences included) give hypot's own bits (for the
+    tests)."""
+    cdef int a, b
+    cdef double x, y
+    for a in range(-70, 71):
+        for b in range(-70, 71):
+            for x, y in ((a, b), (a + 0.5, b), (a, b - 0.25), (-0.0 * a, b)):
+                if occ_hypot(x, y) != hypot(x, y):
+                    return False
+    return True
 
 
 
@@ -1318,25 +1586,16 @@ def hull_stats(const double[:, ::1] poly, const int64_t[::1] starts, double[:, :
         free(w)
 
 
-def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
-                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
-                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
-                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
-    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
-    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
-    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
-    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
-    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
-    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
-    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
-    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg,
+                                double level, double refine_frac, double saturated_gray, double saturated_frac,
+                                double min_refine_contrast, double *peak, double *blob_level, int64_t *found,
+                                double *stats, int64_t *bounds, double[:, ::1] poly, int64_t *pstart) except -2:
+    """`refine_alone` into n peaks, levels, found, (n, 3) stats, (n, 4) bounds and n + 1 pstart."""
     cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, wmax = 0, nf = 0, pos = 0
     cdef unsigned char mx, v, on
     cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
     cdef Py_ssize_t first
-    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or pstart.shape[0] < n + 1 \
-            or poly.shape[0] < 2 * _total_rows(rects) or peak.shape[0] < n or blob_level.shape[0] < n \
-            or found.shape[0] < n or stats.shape[0] < n or bounds.shape[0] < n:
+    if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or poly.shape[0] < 2 * _total_rows(rects):
         return -1
     # the clipped level: bg + Python's max(saturated_frac * (255 - bg), min_refine_contrast)
     clipped = bg + (min_refine_contrast if min_refine_contrast > sat else sat)
@@ -1348,12 +1607,7 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             hmax = bh
         if bw > wmax:
             wmax = bw
-        mx = 0
-        for r in range(bh):
-            v = occ_u8_max(&gray[y0 + r, x0], bw)
-            if v > mx:
-                mx = v
-        pk = mx
+        pk = occ_u8_max_box_any(&gray[y0, x0], gray.shape[1], bh, bw) if bh > 0 else 0
         # np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1)), NaN-propagating
         u = bg + refine_frac * (pk - bg)
         lv = level if (level <= pk - 1 or isnan(level)) else pk - 1
@@ -1417,22 +1671,22 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
             for j in range(k):
                 hx[j] = px[hull[j]]
                 hy[j] = py[hull[j]]
-            occ_hull_stats(hx, hy, k, dw, &stats[nf, 0], &stats[nf, 1], &stats[nf, 2])
-            stats[nf, 0] += <double>x0
-            stats[nf, 1] += <double>y0
-            bounds[nf, 0] = bounds[nf, 1] = 1 << 62
-            bounds[nf, 2] = bounds[nf, 3] = -(1 << 62)
+            occ_hull_stats(hx, hy, k, dw, &stats[3 * nf], &stats[3 * nf + 1], &stats[3 * nf + 2])
+            stats[3 * nf + 0] += <double>x0
+            stats[3 * nf + 1] += <double>y0
+            bounds[4 * nf + 0] = bounds[4 * nf + 1] = 1 << 62
+            bounds[4 * nf + 2] = bounds[4 * nf + 3] = -(1 << 62)
             for j in range(k):
                 poly[pos + j, 0] = hx[j] + <double>x0
                 poly[pos + j, 1] = hy[j] + <double>y0
-                if <int64_t>poly[pos + j, 0] < bounds[nf, 0]:
-                    bounds[nf, 0] = <int64_t>poly[pos + j, 0]
-                if <int64_t>poly[pos + j, 1] < bounds[nf, 1]:
-                    bounds[nf, 1] = <int64_t>poly[pos + j, 1]
-                if <int64_t>poly[pos + j, 0] + 1 > bounds[nf, 2]:
-                    bounds[nf, 2] = <int64_t>poly[pos + j, 0] + 1
-                if <int64_t>poly[pos + j, 1] + 1 > bounds[nf, 3]:
-                    bounds[nf, 3] = <int64_t>poly[pos + j, 1] + 1
+                if <int64_t>poly[pos + j, 0] < bounds[4 * nf + 0]:
+                    bounds[4 * nf + 0] = <int64_t>poly[pos + j, 0]
+                if <int64_t>poly[pos + j, 1] < bounds[4 * nf + 1]:
+                    bounds[4 * nf + 1] = <int64_t>poly[pos + j, 1]
+                if <int64_t>poly[pos + j, 0] + 1 > bounds[4 * nf + 2]:
+                    bounds[4 * nf + 2] = <int64_t>poly[pos + j, 0] + 1
+                if <int64_t>poly[pos + j, 1] + 1 > bounds[4 * nf + 3]:
+                    bounds[4 * nf + 3] = <int64_t>poly[pos + j, 1] + 1
             pos += k
             found[nf] = i
             nf += 1
@@ -1442,19 +1696,319 @@ def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     return nf
 
 
+# ------------------------------------------------------------------ the search's close
+
+cdef extern from *:
+    """
+    /* d[i] = the maximum (mn 0) or minimum (mn 1) of s[0][i], ..., s[k - 1][i], i < n, k >= 1;
+       V: the vector type, W its width in bytes (the tail is left to the caller: i ends at the
+       last whole vector). Up to 9 rows the row pointers are locals (the stores to d could alias
+       an array of them), 3, 5, 7 or 9 of them: s must hold 9 pointers, those from k on repeating
+       s[0] (which changes no maximum or minimum; occ_pad_rows). */
+    #define OCC_Q(j) const unsigned char *q##j = s[j];
+    #define OCC_L(j) OCC_VLOAD(q##j + i)
+    #define OCC_OP(x, y) (mn ? OCC_VMIN(x, y) : OCC_VMAX(x, y))
+    #define OCC_OP_ROWS_BODY(V, W)                                                           \
+        Py_ssize_t i = 0;                                                                   \
+        if (k <= 3) {                                                                       \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2)                                                      \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)), OCC_L(2)));                 \
+        } else if (k <= 5) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4)                                    \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),                      \
+                                           OCC_OP(OCC_L(2), OCC_L(3))), OCC_L(4)));         \
+        } else if (k <= 7) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4) OCC_Q(5) OCC_Q(6)                  \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),                      \
+                                           OCC_OP(OCC_L(2), OCC_L(3))),                     \
+                                    OCC_OP(OCC_OP(OCC_L(4), OCC_L(5)), OCC_L(6))));         \
+        } else if (k <= 9) {                                                                \
+            OCC_Q(0) OCC_Q(1) OCC_Q(2) OCC_Q(3) OCC_Q(4) OCC_Q(5) OCC_Q(6) OCC_Q(7) OCC_Q(8) \
+            for (; i + W <= n; i += W)                                                      \
+                OCC_VSTORE(d + i, OCC_OP(OCC_OP(OCC_OP(OCC_OP(OCC_L(0), OCC_L(1)),               \
+                                                  OCC_OP(OCC_L(2), OCC_L(3))),              \
+                                           OCC_OP(OCC_OP(OCC_L(4), OCC_L(5)),               \
+                                                  OCC_OP(OCC_L(6), OCC_L(7)))), OCC_L(8))); \
+        } else {                                                                            \
+            for (; i + W <= n; i += W) {                                                    \
+                V a = OCC_VLOAD(s[0] + i);                                                       \
+                for (int j = 1; j < k; j++)                                                 \
+                    a = OCC_OP(a, OCC_VLOAD(s[j] + i));                                          \
+                OCC_VSTORE(d + i, a);                                                            \
+            }                                                                               \
+        }
+
+    static inline void occ_pad_rows(const unsigned char **t, int k) {
+        for (int j = k; j < 9; j++) t[j] = t[0];
+    }
+
+    static inline __attribute__((always_inline)) void occ_op_rows_plain(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+        for (Py_ssize_t i = 0; i < n; i++) {
+            unsigned char a = s[0][i];
+            for (int j = 1; j < k; j++) {
+                unsigned char b = s[j][i];
+                a = mn ? (b < a ? b : a) : (b > a ? b : a);
+            }
+            d[i] = a;
+        }
+    }
+
+    #ifdef OCC_SSE2
+    static inline __attribute__((always_inline)) void occ_op_rows_sse2(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+    #define OCC_VLOAD(p) _mm_loadu_si128((const __m128i *)(p))
+    #define OCC_VSTORE(p, v) _mm_storeu_si128((__m128i *)(p), v)
+    #define OCC_VMAX _mm_max_epu8
+    #define OCC_VMIN _mm_min_epu8
+        if (n >= 16) {
+            OCC_OP_ROWS_BODY(__m128i, 16)
+            if (i < n) {  /* the last 16 columns, overlapping the ones done: the same values */
+                const unsigned char *t[64];
+                int j;
+                for (j = 0; j < k && j < 64; j++) t[j] = s[j] + (n - 16);
+                occ_pad_rows(t, k);
+                s = t;
+                d += n - 16;
+                n = 16;
+                OCC_OP_ROWS_BODY(__m128i, 16)
+            }
+        } else {
+            occ_op_rows_plain(s, k, n, d, mn);
+        }
+    #undef OCC_VLOAD
+    #undef OCC_VSTORE
+    #undef OCC_VMAX
+    #undef OCC_VMIN
+    }
+    #else
+    #define occ_op_rows_sse2 occ_op_rows_plain
+    #endif
+
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2"))) static inline __attribute__((always_inline)) void occ_op_rows_avx2(
+            const unsigned char *const *s, int k, Py_ssize_t n, unsigned char *d, const int mn) {
+    #define OCC_VLOAD(p) _mm256_loadu_si256((const __m256i *)(p))
+    #define OCC_VSTORE(p, v) _mm256_storeu_si256((__m256i *)(p), v)
+    #define OCC_VMAX _mm256_max_epu8
+    #define OCC_VMIN _mm256_min_epu8
+        if (n >= 32) {
+            OCC_OP_ROWS_BODY(__m256i, 32)
+            if (i < n) {  /* the last 32 columns, overlapping the ones done: the same values */
+                const unsigned char *t[64];
+                int j;
+                for (j = 0; j < k && j < 64; j++) t[j] = s[j] + (n - 32);
+                occ_pad_rows(t, k);
+                s = t;
+                d += n - 32;
+                n = 32;
+                OCC_OP_ROWS_BODY(__m256i, 32)
+            }
+        } else {
+            occ_op_rows_sse2(s, k, n, d, mn);
+        }
+    #undef OCC_VLOAD
+    #undef OCC_VSTORE
+    #undef OCC_VMAX
+    #undef OCC_VMIN
+    }
+    #endif
+
+    /* One pass of a dilation (mn 0) or erosion (mn 1) of the (h, w) image src (rows `ss` bytes
+       apart) by a line of 2 r + 1 pixels, horizontal (vert 0) or vertical, into dst (rows w
+       bytes apart): each pixel the maximum / minimum over the line's pixels inside the image
+       (OpenCV's default border for both: the outside changes nothing). r <= 31. */
+    #define OCC_MORPH_PASS(SUF)                                                               \
+    static void occ_morph_pass_##SUF(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h,  \
+                                     Py_ssize_t w, int r, int vert, int mn, unsigned char *dst) { \
+        const unsigned char *t[64];                                                         \
+        Py_ssize_t y, x;                                                                    \
+        int j, k;                                                                           \
+        for (y = 0; y < h; y++) {                                                           \
+            const unsigned char *p = src + y * ss;                                          \
+            unsigned char *d = dst + y * w;                                                 \
+            if (vert) {                                                                     \
+                Py_ssize_t lo = y - r < 0 ? 0 : y - r, hi = y + r > h - 1 ? h - 1 : y + r; \
+                k = (int)(hi - lo + 1);                                                     \
+                for (j = 0; j < k; j++) t[j] = src + (lo + j) * ss;                         \
+                occ_pad_rows(t, k);                                                         \
+                if (mn) occ_op_rows_##SUF(t, k, w, d, 1);                                   \
+                else occ_op_rows_##SUF(t, k, w, d, 0);                                      \
+                continue;                                                                   \
+            }                                                                               \
+            /* the columns whose line lies inside the row, then the ones near its ends */   \
+            if (w > 2 * r) {                                                                \
+                for (j = 0; j < 2 * r + 1; j++) t[j] = p + j;                               \
+                occ_pad_rows(t, 2 * r + 1);                                                 \
+                if (mn) occ_op_rows_##SUF(t, 2 * r + 1, w - 2 * r, d + r, 1);               \
+                else occ_op_rows_##SUF(t, 2 * r + 1, w - 2 * r, d + r, 0);                  \
+            }                                                                               \
+            for (x = 0; x < w; x++) {                                                       \
+                if (x == r && w > 2 * r) x = w - r;                                         \
+                if (x >= w) break;                                                          \
+                Py_ssize_t a = x - r < 0 ? 0 : x - r, b = x + r > w - 1 ? w - 1 : x + r;    \
+                unsigned char v = p[a];                                                     \
+                for (Py_ssize_t c = a + 1; c <= b; c++)                                     \
+                    v = mn ? (p[c] < v ? p[c] : v) : (p[c] > v ? p[c] : v);                 \
+                d[x] = v;                                                                   \
+            }                                                                               \
+        }                                                                                   \
+    }
+    OCC_MORPH_PASS(sse2)
+    #ifdef OCC_AVX2
+    __attribute__((target("avx2"))) OCC_MORPH_PASS(avx2)
+    #endif
+
+    static void occ_morph_pass(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h, Py_ssize_t w, int r,
+                               int vert, int mn, unsigned char *dst) {
+    #ifdef OCC_AVX2
+        if (occ_use_avx2()) {
+            occ_morph_pass_avx2(src, ss, h, w, r, vert, mn, dst);
+            return;
+        }
+    #endif
+        occ_morph_pass_sse2(src, ss, h, w, r, vert, mn, dst);
+    }
+    """
+    void occ_morph_pass(const unsigned char *src, Py_ssize_t ss, Py_ssize_t h, Py_ssize_t w, int r,
+                        int vert, int mn, unsigned char *dst) nogil
+
+
+def close(const unsigned char[:, :] src, int ky, int kx, unsigned char[:, ::1] tmp, unsigned char[:, ::1] dst):
+    """cv2.morphologyEx(src, MORPH_CLOSE, ones((ky, kx))) of a uint8 image (`detect._close`: a
+    dilation, then an erosion, by a ky x kx rectangle, odd sizes up to 63, OpenCV's default
+    borders: the outside of the image changes neither) into dst; tmp: work space of the same
+    shape. src's rows may be strided (a view), its pixels must be contiguous; dst may not
+    overlap src."""
+    cdef Py_ssize_t h = src.shape[0], w = src.shape[1]
+    if ky < 1 or kx < 1 or ky % 2 == 0 or kx % 2 == 0 or ky > 63 or kx > 63:
+        raise ValueError("close: odd kernel sizes 1..63")
+    if tmp.shape[0] != h or tmp.shape[1] != w or dst.shape[0] != h or dst.shape[1] != w:
+        raise ValueError("close: tmp and dst must have src's shape")
+    if h == 0 or w == 0:
+        return
+    if w > 1 and src.strides[1] != 1:
+        raise ValueError("close: src's pixels must be contiguous")
+    cdef const unsigned char *s = &src[0, 0]
+    cdef Py_ssize_t ss = src.strides[0]
+    cdef unsigned char *t = &tmp[0, 0]
+    cdef unsigned char *d = &dst[0, 0]
+    occ_morph_pass(s, ss, h, w, kx // 2, 0, 0, t)
+    occ_morph_pass(t, w, h, w, ky // 2, 1, 0, d)
+    occ_morph_pass(d, w, h, w, kx // 2, 0, 1, t)
+    occ_morph_pass(t, w, h, w, ky // 2, 1, 1, d)
+
+
+
+
+def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
+                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
+    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
+    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
+    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
+    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
+    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
+    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
+    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
+    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
+    cdef Py_ssize_t n = rects.shape[0]
+    if pstart.shape[0] < n + 1 or peak.shape[0] < n or blob_level.shape[0] < n or found.shape[0] < n \
+            or stats.shape[0] < n or stats.shape[1] != 3 or bounds.shape[0] < n or bounds.shape[1] != 4:
+        return -1
+    if n == 0:
+        pstart[0] = 0
+        return 0
+    return _refine_alone_c(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast,
+                           &peak[0], &blob_level[0], &found[0], &stats[0, 0], &bounds[0, 0], poly, &pstart[0])
+
+
+_object_new = object.__new__
+
+
+cdef extern from "Python.h":
+    int PyObject_GenericSetDict(object o, object value, void *context) except -1
+
+
+def refine_alone_blobs(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
+                       double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
+                       object blob_type, object empty):
+    """`refine_alone`, and the result as `detect._refine_alone_batch` gives it: a list of N
+    `blob_type` records (receiver.core.records.Blob; None where a box has no hull), each built
+    as `records.frozen_record` builds one (a new object of the class and its field dict), the
+    hulls (K, 2) float64 views of one array from `empty` (numpy.empty); None where
+    `refine_alone` declines (-1)."""
+    cdef Py_ssize_t n = rects.shape[0], nf, j, i, h = gray.shape[0], w = gray.shape[1]
+    cdef int64_t x0, y0, x1, y1
+    cdef double *work
+    cdef int64_t *iwork
+    cdef list out
+    if not _boxes_inside(rects, h, w):
+        return None
+    poly_obj = empty((2 * _total_rows(rects), 2))
+    cdef double[:, ::1] poly = poly_obj
+    work = <double *>malloc((5 * n + 1) * sizeof(double))
+    iwork = <int64_t *>malloc((6 * n + 2) * sizeof(int64_t))
+    try:
+        if work == NULL or iwork == NULL:
+            raise MemoryError()
+        # peak, blob level, stats (3 n); found, bounds (4 n), pstart (n + 1)
+        nf = _refine_alone_c(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
+                             min_refine_contrast, work, work + n, iwork, work + 2 * n, iwork + n, poly,
+                             iwork + 5 * n)
+        if nf < 0:
+            return None
+        out = [None] * n
+        for j in range(nf):
+            i = iwork[j]
+            x0, y0, x1, y1 = iwork[n + 4 * j], iwork[n + 4 * j + 1], iwork[n + 4 * j + 2], iwork[n + 4 * j + 3]
+            o = _object_new(blob_type)
+            PyObject_GenericSetDict(o, {
+                "cx": work[2 * n + 3 * j], "cy": work[2 * n + 3 * j + 1], "area_px": work[2 * n + 3 * j + 2],
+                "hull": poly_obj[iwork[5 * n + j]:iwork[5 * n + j + 1]], "x0": x0, "y0": y0, "x1": x1, "y1": y1,
+                "border": x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, "peak": work[i], "level": work[n + i],
+                "background": bg}, NULL)
+            out[i] = o
+        return out
+    finally:
+        free(work)
+        free(iwork)
+
+
 def isolated(const int64_t[:, ::1] rects, unsigned char[::1] out):
     """out[i] = 1 when box i (x, y, w, h) overlaps no other box (`detect._isolated`: half-open
     boxes, a box always overlapping itself counted once), else 0."""
-    cdef Py_ssize_t n = rects.shape[0], i, j, c
+    cdef Py_ssize_t n = rects.shape[0], i
     if out.shape[0] < n:
         raise ValueError("out too short")
+    if n == 0:
+        return
+    if rects.shape[1] < 4:
+        raise ValueError("rects (n, 4) needed")
+    _isolated_core(&rects[0, 0], n, rects.shape[1], &out[0], 0)
+
+
+cdef void _isolated_core(const int64_t *rects, Py_ssize_t n, Py_ssize_t stride, void *out, int wide) noexcept:
+    """`isolated` of the boxes x, y, w, h at rects[stride * i]: into bytes (wide 0) or int64s at
+    the same stride, column 0 (wide 1: out is the box row's column `out - rects` away)."""
+    cdef Py_ssize_t i, j, c
+    cdef const int64_t *a
+    cdef const int64_t *b
     for i in range(n):
         c = 0
+        a = rects + stride * i
         for j in range(n):
-            if (rects[i, 0] < rects[j, 0] + rects[j, 2] and rects[j, 0] < rects[i, 0] + rects[i, 2]
-                    and rects[i, 1] < rects[j, 1] + rects[j, 3] and rects[j, 1] < rects[i, 1] + rects[i, 3]):
+            b = rects + stride * j
+            if a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]:
                 c += 1
-        out[i] = c == 1
+        if wide:
+            (<int64_t *>out)[stride * i] = c == 1
+        else:
+            (<unsigned char *>out)[i] = c == 1
 
 
 # ------------------------------------------------------------------ components by runs
@@ -1544,23 +2098,11 @@ cdef inline int32_t _run_root(_Run *r, int32_t i) noexcept nogil:
     return i
 
 
-def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
-               int64_t oy, int64_t[:, ::1] rects, int64_t[::1] area2, int64_t[::1] holes, int64_t[::1] keys):
-    """The 8-connected components of the nonzero pixels of `img` (`detect._label`: what detect
-    takes from findContours(RETR_EXTERNAL)'s outer contours, without tracing them), from the
-    runs of each row joined to the 8-adjacent runs of the row above. For component i:
-    rects[i] = its bounding box x, y, w, h; area2[i] = twice the area of its outer contour's
-    polygon through the border pixels' centres when it has no hole (cv2.contourArea * 2: the sum
-    over the links between 8-adjacent runs (a, b) above (c, d) of the trapezoid between the
-    crossing edges max(a, c - 1) .. min(b, d + 1) on top and max(c, a - 1) .. min(d, b + 1)
-    below); holes[i] = its holes (links - runs + 1, the run graph's independent cycles; with
-    holes the outer contour's area also covers them, and area2 is not that area); keys[i] = its
-    first pixel in raster order (the contour's first point), y * 2^31 + x. Coordinates are
-    moved to the mask's: by (ox, oy) when n_crops is 0, else by the `mosaic` crop (crops[k] =
-    x0, y0, x1, y1, x, y, laid out left to right) holding the first pixel. Components come in
-    raster order of their first pixel in `img`. Returns their count, or -1 when more than
-    rects has rows."""
-    cdef Py_ssize_t h = img.shape[0], w = img.shape[1], cap = rects.shape[0]
+cdef Py_ssize_t _label_core(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
+                            int64_t oy, int64_t *out, Py_ssize_t stride, Py_ssize_t cap) except -2:
+    """`label_runs` into rows of `out` (`stride` int64 apart, at most `cap`): x, y, w, h, twice
+    the area, holes, first-pixel key."""
+    cdef Py_ssize_t h = img.shape[0], w = img.shape[1]
     cdef Py_ssize_t y, k = 0, room = 4096, p0 = 0, p1 = 0, i, j, lo, hi, mid, nc = 0, c
     cdef _Run *r = NULL
     cdef _Run *rn
@@ -1569,8 +2111,7 @@ def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int
     cdef int64_t *sc
     cdef int32_t ri, rj, lt, lb, rt, rb
     cdef int64_t dx, dy
-    if area2.shape[0] < cap or holes.shape[0] < cap or keys.shape[0] < cap or rects.shape[1] < 4:
-        raise ValueError("outputs too short")
+    cdef int64_t *o
     if n_crops < 0 or n_crops > crops.shape[0] or (n_crops > 0 and crops.shape[1] < 6):
         raise ValueError("bad crops")
     r = <_Run *>malloc(room * sizeof(_Run))
@@ -1653,11 +2194,97 @@ def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int
                     else:
                         hi = mid - 1
                 dx, dy = crops[lo, 0] - crops[lo, 4], crops[lo, 1] - crops[lo, 5]
-            rects[c, 0], rects[c, 1] = sc[0] + dx, r[j].row + dy
-            rects[c, 2], rects[c, 3] = sc[1] - sc[0] + 1, sc[2] - r[j].row + 1
-            area2[c] = sc[3]
-            holes[c] = sc[4] + 1
-            keys[c] = (r[j].row + dy) * (<int64_t>1 << 31) + r[j].a + dx
+            o = out + c * stride
+            o[0], o[1] = sc[0] + dx, r[j].row + dy
+            o[2], o[3] = sc[1] - sc[0] + 1, sc[2] - r[j].row + 1
+            o[4] = sc[3]
+            o[5] = sc[4] + 1
+            o[6] = (r[j].row + dy) * (<int64_t>1 << 31) + r[j].a + dx
         return nc
     finally:
         free(r); free(xa); free(st)
+
+
+def label_boxes(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox, int64_t oy,
+                const unsigned char[:, ::1] gray, int on, int pool, int reach, int64_t[:, ::1] out):
+    """What `detect._label` and `detect._search` take from the closed mask `img` in one call:
+    `label_runs`' components in findContours' order (by descending first point), their boxes
+    moved to the full-resolution search's by `pooled_boxes` (gray, on, reach) when pool > 1, and
+    whether each box overlaps no other (`isolated`): out[i] = x, y, w, h, twice the outer
+    contour's area, 1 if isolated else 0, and the first-point key (out: (cap, 7) int64).
+    Returns the count; -1 where `label_runs` does not answer (more components than out has rows,
+    a component with a hole: the caller traces the outlines), -2 where `pooled_boxes` does not
+    (the caller's numpy path decides)."""
+    cdef Py_ssize_t cap = out.shape[0], n, i, j, hole = 0
+    cdef uint64_t *keys
+    cdef int64_t *o
+    cdef int64_t *tmp
+    if out.shape[1] != 7:
+        raise ValueError("label_boxes: out (cap, 7) needed")
+    if pool > 1 and gray is None:
+        raise ValueError("label_boxes: pool > 1 needs the frame")
+    if cap == 0:
+        return -1
+    o = &out[0, 0]
+    n = _label_core(img, crops, n_crops, ox, oy, o, 7, cap)
+    if n <= 0:
+        return n
+    for i in range(n):
+        if o[7 * i + 5]:
+            return -1
+    # findContours' order: descending keys (distinct first points), sorted as key * 2^11 + index
+    if n > 2048:
+        return -1
+    keys = <uint64_t *>malloc(n * sizeof(uint64_t))
+    tmp = <int64_t *>malloc(n * 7 * sizeof(int64_t))
+    try:
+        if keys == NULL or tmp == NULL:
+            raise MemoryError()
+        for i in range(n):
+            if o[7 * i + 6] < 0 or o[7 * i + 6] >= (<int64_t>1 << 52):
+                return -1
+            keys[i] = ((<uint64_t>o[7 * i + 6]) << 11) | <uint64_t>i
+        occ_sort_u64(keys, n)
+        memcpy(tmp, o, n * 7 * sizeof(int64_t))
+        for i in range(n):
+            j = <Py_ssize_t>(keys[n - 1 - i] & 0x7FF)
+            memcpy(o + 7 * i, tmp + 7 * j, 7 * sizeof(int64_t))
+    finally:
+        free(keys)
+        free(tmp)
+    if pool > 1 and not _pooled_core(gray, o, n, 7, on, pool, reach):
+        return -2
+    _isolated_core(o, n, 7, o + 5, 1)
+    return n
+
+
+def label_runs(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, int n_crops, int64_t ox,
+               int64_t oy, int64_t[:, ::1] rects, int64_t[::1] area2, int64_t[::1] holes, int64_t[::1] keys):
+    """The 8-connected components of the nonzero pixels of `img` (`detect._label`: what detect
+    takes from findContours(RETR_EXTERNAL)'s outer contours, without tracing them), from the
+    runs of each row joined to the 8-adjacent runs of the row above. For component i:
+    rects[i] = its bounding box x, y, w, h; area2[i] = twice the area of its outer contour's
+    polygon through the border pixels' centres when it has no hole (cv2.contourArea * 2: the sum
+    over the links between 8-adjacent runs (a, b) above (c, d) of the trapezoid between the
+    crossing edges max(a, c - 1) .. min(b, d + 1) on top and max(c, a - 1) .. min(d, b + 1)
+    below); holes[i] = its holes (links - runs + 1, the run graph's independent cycles; with
+    holes the outer contour's area also covers them, and area2 is not that area); keys[i] = its
+    first pixel in raster order (the contour's first point), y * 2^31 + x. Coordinates are
+    moved to the mask's: by (ox, oy) when n_crops is 0, else by the `mosaic` crop (crops[k] =
+    x0, y0, x1, y1, x, y, laid out left to right) holding the first pixel. Components come in
+    raster order of their first pixel in `img`. Returns their count, or -1 when more than
+    rects has rows."""
+    cdef Py_ssize_t cap = rects.shape[0], n, i
+    if area2.shape[0] < cap or holes.shape[0] < cap or keys.shape[0] < cap or rects.shape[1] < 4:
+        raise ValueError("outputs too short")
+    cdef int64_t *o = <int64_t *>malloc(max(cap, 1) * 7 * sizeof(int64_t))
+    if o == NULL:
+        raise MemoryError()
+    try:
+        n = _label_core(img, crops, n_crops, ox, oy, o, 7, cap)
+        for i in range(max(n, 0)):
+            rects[i, 0], rects[i, 1], rects[i, 2], rects[i, 3] = o[7 * i], o[7 * i + 1], o[7 * i + 2], o[7 * i + 3]
+            area2[i], holes[i], keys[i] = o[7 * i + 4], o[7 * i + 5], o[7 * i + 6]
+        return n
+    finally:
+        free(o)

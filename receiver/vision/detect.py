@@ -37,6 +37,7 @@ Image coordinates: px, x right, y down, origin at the centre of the top-left pix
 from __future__ import annotations
 
 import math
+import operator
 
 import cv2
 import numpy as np
@@ -144,7 +145,14 @@ def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int, scratch: "Scratch | N
     (a morphological close: dilate, then erode, into `scratch` buffers when given)."""
     if gap_y_px < 1 and gap_x_px < 1:
         return mask
-    kernel = _ones_kernel(_close_size(gap_y_px), _close_size(gap_x_px))
+    ky, kx = _close_size(gap_y_px), _close_size(gap_x_px)
+    if _k is not None and mask.dtype == np.uint8 and mask.ndim == 2 and mask.strides[1] == 1 and max(ky, kx) <= 63:
+        # the compiled close (`_pixels.close`: the same max / min, SIMD, no OpenCV call overhead)
+        shape = mask.shape
+        tmp, out = _buf(scratch, "dilate", shape), _buf(scratch, "close", shape)
+        _k.close(mask, ky, kx, tmp, out)
+        return out
+    kernel = _ones_kernel(ky, kx)
     if scratch is None:
         return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     # the same as MORPH_CLOSE (the same default borders), without frame-sized temporaries
@@ -170,15 +178,20 @@ class Scratch:
 
     def __init__(self):
         self._bufs: dict[str, np.ndarray] = {}
+        self._views: dict[str, np.ndarray] = {}  # the last view of each buffer (frames keep their shape)
 
     def get(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        view = self._views.get(name)
+        if view is not None and view.shape == shape:
+            return view
         n = 1
         for d in shape:
             n *= int(d)
         buf = self._bufs.get(name)
         if buf is None or buf.size < n:
             buf = self._bufs[name] = np.empty(max(n, 1), np.uint8)
-        return buf[:n].reshape(shape)
+        view = self._views[name] = buf[:n].reshape(shape)
+        return view
 
 
 def _close_size(gap_px: int) -> int:
@@ -274,45 +287,49 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     # the components' outlines are needed to map a downsampled search back (f > 1) and to mask
     # a component whose box it shares with another; isolated ones need only boxes and areas
     outlines = f > 1
-    contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
-    alone = _isolated(rects)
+    contours, rects, areas, alone = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+    if alone is None:
+        alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
         alone = _isolated(rects)
     if contours is None and not alone.all():
         # the same components (boxes, order), now with their outlines
-        contours, rects, areas = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
         alone = _isolated(rects)
     max_area = s.max_area_frac * h * w
-    box_px = rects[:, 2] * rects[:, 3] * (f * f)
-    keep = (box_px >= s.min_area_px * 0.5) & (box_px <= 4 * max_area)
+    rect_l, alone_l = rects.tolist(), alone.tolist()
+    area_l = areas.tolist() if areas is not None else None
+    # boxes (full-resolution px) that can hold an envelope of min_area_px .. max_area
+    lo_px, hi_px, ff = s.min_area_px * 0.5, 4 * max_area, f * f
+    keep = [i for i, r in enumerate(rect_l) if lo_px <= r[2] * r[3] * ff <= hi_px]
     sat_kw = dict(saturated_gray=s.saturated_gray, saturated_frac=s.saturated_frac,
                   min_refine_contrast=s.min_refine_contrast)
     # Full-resolution isolated components (the common case) are refined together in one
     # vectorised pass (`_refine_alone_batch`); the rest one by one.
-    batch = np.flatnonzero(keep & alone) if f == 1 else np.zeros(0, np.int64)
-    done = _refine_alone_batch(gray, rects[batch], bg, level, s.refine_frac, scratch=scratch, **sat_kw)
-    refined = dict(zip(batch.tolist(), done)) if done is not None else {}
+    batch = [i for i in keep if alone_l[i]] if f == 1 else []
+    done = _refine_alone_batch(gray, rects if len(batch) == len(rect_l) else rects[batch], bg, level,
+                               s.refine_frac, scratch=scratch, **sat_kw)
+    refined = dict(zip(batch, done)) if done is not None else {}
     blobs = []
-    rect_l, alone_l = rects.tolist(), alone.tolist()
-    area_l = areas.tolist() if areas is not None else None
-    for i in np.flatnonzero(keep).tolist():
+    min_area_px, max_aspect, shape_min_rows, min_fill = s.min_area_px, s.max_aspect, s.shape_min_rows, s.min_fill
+    for i in keep:
         c, (bx, by, bw, bh) = contours[i] if contours is not None else None, rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
                                                        s.refine_frac, alone_l[i], **sat_kw)
-        if blob is None or blob.area_px < s.min_area_px or blob.area_px > max_area:
+        if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
         # a long box, or a thin diagonal bar filling little of its square box (boxes in search
         # pixels: the full-resolution box over the pooling factor). Components under
         # `shape_min_rows` rows are exempt (a sub-pixel-tall panel is one row several px wide,
         # and a one-row contour has no area to fill its box with).
-        if not blob.border and s.max_aspect and bh >= s.shape_min_rows and (max(bw, bh) > s.max_aspect * min(bw, bh)
-                                               or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
-                                               < s.min_fill * bw * bh):
+        if not blob.border and max_aspect and bh >= shape_min_rows and (max(bw, bh) > max_aspect * min(bw, bh)
+                                             or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
+                                             < min_fill * bw * bh):
             continue
         if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
@@ -322,8 +339,12 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     if s.min_rel_area > 0 and blobs:
         biggest = max(b.area_px for b in blobs)
         blobs = [b for b in blobs if b.area_px >= s.min_rel_area * biggest]
-    blobs.sort(key=lambda b: (b.cy, b.cx))
+    blobs.sort(key=_TOP_TO_BOTTOM)
     return blobs
+
+
+# the blobs' order: by centre row, then column
+_TOP_TO_BOTTOM = operator.attrgetter("cy", "cx")
 
 
 def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: int, f: int,
@@ -340,10 +361,11 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
 
 def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch | None = None,
             outlines: bool = True):
-    """`_components` and the contours' areas (N,) float64 (cv2.contourArea's), or None for
-    the areas (then the caller asks cv2.contourArea). `outlines` False: the contours are not
-    needed, None may stand for them (the compiled run labelling, `_label`, then gives the boxes
-    and areas in findContours' order without tracing the outlines)."""
+    """`_components`, the contours' areas (N,) float64 (cv2.contourArea's), or None for
+    the areas (then the caller asks cv2.contourArea), and `_isolated` of the boxes, or None (the
+    caller's to ask). `outlines` False: the contours are not needed, None may stand for them
+    (the compiled run labelling, `_label`, then gives the boxes, areas and isolation in
+    findContours' order without tracing the outlines)."""
     if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
         # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
         ho, w = -(-image.shape[0] // pool), image.shape[1]
@@ -351,14 +373,14 @@ def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch 
         cells = _buf(scratch, "cells", (ho, -(-w // 32)))
         on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
         box = _k.search_mask_cells(image, pool, on, mask, cells)
-        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines)
+        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines, image, level)
         if found is None:
             return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch,
                                        outlines)
-        contours, rects, areas = found
-        if pool > 1 and len(rects):
+        contours, rects, areas, alone = found
+        if pool > 1 and len(rects) and alone is None:
             rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-        return contours, rects, areas
+        return contours, rects, areas, alone
     search = _row_max(image, pool, scratch) if pool > 1 else image
     dst = scratch.get("mask", search.shape) if scratch is not None else None
     _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
@@ -381,8 +403,9 @@ MOSAIC_MAX_GROUPS = 256
 MOSAIC_MAX_FILL = 0.4
 
 
-def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
-    """(contours, boxes (N, 4), areas (N,)) of `_components_of_mask`, searched in a mosaic of the
+def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True, image=None,
+                   level=0.0):
+    """(contours, boxes (N, 4), areas (N,), alone) of `_components_of_mask`, searched in a mosaic of the
     lit groups instead of the whole lit box (`_pixels.mosaic`), or None where the kernel does not
     pack (then `_components_of_mask` searches the box).
 
@@ -396,7 +419,8 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
     the image as lit). Contours are traced from their first pixel in raster order, the same
     pixel wherever the group lies; `_pixels.place_contours` moves them back and they are
     ordered as findContours orders them (by descending first point). `outlines` False: see
-    `_search`."""
+    `_search` (`image`, `level`: the frame and threshold, for `_label`'s full-resolution boxes
+    when pool > 1)."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     if box[2] == 0 or (gap_y < 1 and gap_x < 1):
         return None
@@ -407,13 +431,13 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
         return None
     closed = _close(out[:hm * wm].reshape(hm, wm), gap_y, gap_x, scratch)
     if not outlines:
-        found = _label(closed, crops, n, 0, 0)
+        found = _label(closed, crops, n, 0, 0, image, level, pool, _close_reach(stripe_gap_px))
         if found is not None:
             return (None,) + found
     contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     nc = len(contours)
     if nc == 0:
-        return [], np.zeros((0, 4), np.int64), np.zeros(0)
+        return [], np.zeros((0, 4), np.int64), np.zeros(0), None
     pts = np.concatenate(contours)
     starts = np.zeros(nc + 1, np.int64)
     np.cumsum(np.fromiter(map(len, contours), np.int64, nc), out=starts[1:])
@@ -421,7 +445,7 @@ def _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch,
     _k.place_contours(pts.reshape(-1, 2), starts, crops, n, rects, areas, keys)
     order = np.argsort(keys)[::-1]
     st = starts.tolist()
-    return [pts[st[i]:st[i + 1]] for i in order.tolist()], rects[order], areas[order]
+    return [pts[st[i]:st[i + 1]] for i in order.tolist()], rects[order], areas[order], None
 
 
 def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple[int, int]:
@@ -439,7 +463,7 @@ def _search_gaps(stripe_gap_px: int, join_x_px: int, f: int, pool: int) -> tuple
 
 def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch, outlines=True):
     """`_search` after the threshold: `mask` the thresholded search image (0 / 255), `box`
-    its lit pixels' bounding box (x, y, w, h)."""
+    its lit pixels' bounding box (x, y, w, h); the same four results."""
     gap_y, gap_x = _search_gaps(stripe_gap_px, join_x_px, f, pool)
     # The close and the contour search run on the box of the lit pixels grown by the kernel
     # size (clipped to the frame): outside it the closed mask is 0, and within it the close
@@ -447,47 +471,52 @@ def _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, po
     # half a kernel from any lit pixel, so its dilation and its erosion are 0 either way).
     bx, by, bw, bh = box
     if bw == 0:
-        return [], np.zeros((0, 4), np.int64), None
+        return [], np.zeros((0, 4), np.int64), None, None
     my, mx = (_close_size(gap_y), _close_size(gap_x)) if gap_y >= 1 or gap_x >= 1 else (1, 1)
     y0, x0 = max(by - my, 0), max(bx - mx, 0)
     y1, x1 = min(by + bh + my, mask.shape[0]), min(bx + bw + mx, mask.shape[1])
     closed = _close(mask[y0:y1, x0:x1], gap_y, gap_x, scratch)
-    found = _label(closed, None, 0, x0, y0) if not outlines else None
+    found = _label(closed, None, 0, x0, y0, image, level, pool, _close_reach(stripe_gap_px)) if not outlines else None
     if found is not None:
-        contours, (rects, areas) = None, found
-    else:
-        # findContours + one small fill per blob is several times faster here than
-        # connectedComponentsWithStats, which labels the whole frame.
-        contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
-        rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
-        areas = None
+        return (None,) + found
+    # findContours + one small fill per blob is several times faster here than
+    # connectedComponentsWithStats, which labels the whole frame.
+    contours, _ = cv2.findContours(closed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE, offset=(x0, y0))
+    rects = np.array([cv2.boundingRect(c) for c in contours], np.int64).reshape(-1, 4)
     if pool > 1 and len(rects):
         rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-    return contours, rects, areas
+    return contours, rects, None, None
 
 
 # At most this many components are labelled by runs (`_label`); more (a noise storm) are traced.
 LABEL_MAX_COMPONENTS = 2048
 
 
-def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, oy: int):
-    """(boxes (N, 4) x, y, w, h, areas (N,) float64) of the outer contours findContours(closed,
-    RETR_EXTERNAL) would find, in its order, from the compiled run labelling of the closed mask
-    (`_pixels.label_runs`, no outline traced); coordinates moved by (ox, oy), or by the `mosaic`
-    crops when n_crops > 0. None where it does not answer: no kernel, a component with a hole
-    (its outer contour's area covers the hole, and a component inside it would have no outer
-    contour of its own), more than LABEL_MAX_COMPONENTS components."""
-    if _k is None or not _native_frame(closed):
+def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, oy: int, image=None,
+           level: float = 0.0, pool: int = 1, reach: int = 0):
+    """(boxes (N, 4) x, y, w, h, areas (N,) float64, alone (N,) bool) of the outer
+    contours findContours(closed, RETR_EXTERNAL) would find, in its order, from the compiled run
+    labelling of the closed mask (`_pixels.label_boxes`, no outline traced); coordinates moved
+    by (ox, oy), or by the `mosaic` crops when n_crops > 0; with pool > 1 the boxes are the
+    full-resolution search's (`_pooled_boxes_exact` of the frame `image` at `level`, `reach`),
+    and alone is `_isolated` of the boxes. None where it does not answer: no kernel, a component with a hole (its outer
+    contour's area covers the hole, and a component inside it would have no outer contour of
+    its own), more than LABEL_MAX_COMPONENTS components."""
+    if _k is None or not _native_frame(closed) or (pool > 1 and (image is None or not _native_frame(image))):
         return None
-    cap = LABEL_MAX_COMPONENTS
-    rects, area2, holes, keys = np.empty((cap, 4), np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
-    if crops is None:
-        crops = np.zeros((0, 7), np.int64)
-    n = _k.label_runs(closed, crops, n_crops, ox, oy, rects, area2, holes, keys)
-    if n < 0 or holes[:n].any():
+    out = np.empty((LABEL_MAX_COMPONENTS, 7), np.int64)
+    on = min(math.floor(level) + 1, 255) if pool > 1 else 0
+    n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, image, on, pool, reach, out)
+    if n == -2:  # a box without a lit pixel: the numpy path of the full-resolution boxes decides
+        n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, None, 0, 1, 0, out)
+        rects = _pooled_boxes_exact(image, out[:n, :4], level, pool, reach)
+        return rects, out[:n, 4] * 0.5, _isolated(rects)
+    if n < 0:
         return None
-    order = np.argsort(keys[:n])[::-1]  # findContours' order: by descending first point
-    return rects[order], area2[order] * 0.5
+    return out[:n, :4], out[:n, 4] * 0.5, out[:n, 5].astype(bool)
+
+
+_NO_CROPS = np.zeros((0, 7), np.int64)
 
 
 def _close_reach(gap_y_px: int) -> int:
@@ -642,30 +671,12 @@ def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, backgr
 
 def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
                          min_refine_contrast) -> list[Blob | None] | None:
-    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone`: peaks, levels, row
-    extremes, OpenCV's convex hull and its stats for every box), or None when the kernel
-    declines (a box outside the frame, a negative or NaN level: the numpy path decides)."""
-    n = len(rects)
-    h, w = gray.shape[:2]
-    rects = np.ascontiguousarray(rects, np.int64)
-    peak, blob_level = np.empty(n), np.empty(n)
-    found = np.empty(n, np.int64)
-    stats = np.empty((n, 3))
-    bounds = np.empty((n, 4), np.int64)
-    poly = np.empty((2 * int(rects[:, 3].sum()), 2))
-    pstart = np.empty(n + 1, np.int64)
-    nf = _k.refine_alone(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
-                         min_refine_contrast, peak, blob_level, found, stats, bounds, poly, pstart)
-    if nf < 0:
-        return None
-    out: list[Blob | None] = [None] * n
-    peak_l, level_l = peak.tolist(), blob_level.tolist()
-    ps = pstart[:nf + 1].tolist()
-    for j, (i, (cx, cy, area), (x0, y0, x1, y1)) in enumerate(zip(
-            found[:nf].tolist(), stats[:nf].tolist(), bounds[:nf].tolist())):
-        out[i] = _new_blob(cx, cy, area, poly[ps[j]:ps[j + 1]], x0, y0, x1, y1,
-                           x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h, peak_l[i], level_l[i], bg)
-    return out
+    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone_blobs`: peaks, levels, row
+    extremes, OpenCV's convex hull and its stats for every box, and the Blob records as
+    `_new_blob` builds them), or None when the kernel declines (a box outside the frame, a
+    negative or NaN level: the numpy path decides)."""
+    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), bg, level, refine_frac, saturated_gray,
+                                 saturated_frac, min_refine_contrast, Blob, np.empty)
 
 
 def _refine_strip(gray, rects, scratch: Scratch | None):
