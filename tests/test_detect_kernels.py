@@ -430,27 +430,6 @@ def test_search_mask_and_histogram_same_with_and_without_avx2(simd):
             assert np.array_equal(got, want), (h, w, step)
 
 
-@needs_kernel
-def test_close_equals_opencv_close(simd):
-    """`_pixels.close` = cv2.morphologyEx(MORPH_CLOSE) with a ones kernel (OpenCV's default
-    borders) on random masks and gray images of every width from 1 to 100 and strided views,
-    kernel sizes 1 to 11, by the loops in force."""
-    rng = np.random.default_rng(22)
-    shapes = [(int(rng.integers(1, 14)), w) for w in range(1, 101)] + [(51, 1376), (3, 700)]
-    for t, (h, w) in enumerate(shapes):
-        big = rng.integers(0, 256, (h + 3, w + 7)).astype(np.uint8)
-        if t % 2:
-            big = ((rng.random((h + 3, w + 7)) < rng.uniform(0.01, 0.5)) * 255).astype(np.uint8)
-        views = [np.ascontiguousarray(big[:h, :w]), big[2:2 + h, 3:3 + w]]
-        for src in views:
-            for ky, kx in ((1, 1), (1, 3), (3, 1), (5, 3), (3, 3), (9, 3), (5, 5), (11, 7), (7, 1)):
-                want = cv2.morphologyEx(src, cv2.MORPH_CLOSE, np.ones((ky, kx), np.uint8))
-                tmp, dst = np.empty((h, w), np.uint8), np.empty((h, w), np.uint8)
-                _px.close(src, ky, kx, tmp, dst)
-                assert np.array_equal(dst, want), (h, w, ky, kx)
-    with pytest.raises(ValueError):
-        _px.close(np.zeros((4, 4), np.uint8), 4, 3, np.empty((4, 4), np.uint8), np.empty((4, 4), np.uint8))
-
 
 @needs_kernel
 def test_hull_perimeter_table_gives_hypots_bits():

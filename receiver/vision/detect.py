@@ -145,14 +145,7 @@ def _close(mask: np.ndarray, gap_y_px: int, gap_x_px: int, scratch: "Scratch | N
     (a morphological close: dilate, then erode, into `scratch` buffers when given)."""
     if gap_y_px < 1 and gap_x_px < 1:
         return mask
-    ky, kx = _close_size(gap_y_px), _close_size(gap_x_px)
-    if _k is not None and mask.dtype == np.uint8 and mask.ndim == 2 and mask.strides[1] == 1 and max(ky, kx) <= 63:
-        # the compiled close (`_pixels.close`: the same max / min, SIMD, no OpenCV call overhead)
-        shape = mask.shape
-        tmp, out = _buf(scratch, "dilate", shape), _buf(scratch, "close", shape)
-        _k.close(mask, ky, kx, tmp, out)
-        return out
-    kernel = _ones_kernel(ky, kx)
+    kernel = _ones_kernel(_close_size(gap_y_px), _close_size(gap_x_px))
     if scratch is None:
         return cv2.morphologyEx(mask, cv2.MORPH_CLOSE, kernel)
     # the same as MORPH_CLOSE (the same default borders), without frame-sized temporaries
