@@ -330,3 +330,30 @@ def test_fast_number_formatters_equal_cpythons():
             fast_r += 1
             assert r == cr == repr(v), v
     assert fast_f > 0.7 * 5 * len(vals) and fast_r > 0.4 * len(vals)
+
+
+@native
+def test_fast_repr_of_tiny_values_is_cpythons():
+    """Below 1e-4 repr writes exponent notation ('7e-05', '-1.3e-07'): the writer's own shortest
+    digits there equal repr on random, rounded and extreme values (a position's covariances and
+    rotation entries are such numbers), and it answers for the short ones."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-24, -3, size=n))
+    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-12, -3, size=n),
+                                                    rng.integers(4, 20, size=n))]
+    vals += [9.9999e-5, 1e-4 * (1 - 1e-16), 5e-324, 1e-300, 1e-22, 1e-23, 7e-05, 1.3e-07, 2.2250738585072014e-308]
+    fast = 0
+    for v in map(float, vals):
+        for x in (v, -v):
+            _, r, _, cr = output._k.number_tokens(x, 1)
+            assert cr == repr(x)
+            if r is not None:
+                fast += 1
+                assert r == repr(x), x
+    assert fast > 0.3 * 2 * len(vals)
+    assert output._k.number_tokens(7e-05, 1)[1] == "7e-05"
+    assert output._k.number_tokens(-1.3e-07, 1)[1] == "-1.3e-07"
+    res = FrameResult(-12, 0.0, 1.0, [], {"cov": [[1.3e-07, -4e-08], [0.0, 2e-22]]})
+    assert output._k.frame_line(res, False) == _reference(res)
+    assert '"frame":-12,' in _reference(res)
