@@ -59,6 +59,21 @@ from receiver.core.native import load
 
 _k = load("receiver.decode._ook")  # compiled kernels (receiver/decode/_ook.pyx), or None
 
+
+def _specialised(fn, names: dict) -> dict:
+    """{dtype chars: the compiled fused-type function's specialisation} ("f" float32, "d"
+    float64): called directly they skip the fused dispatch (its signature matching costs
+    about what the kernel's own work does on a small blob); {} when not available."""
+    sigs = getattr(fn, "__signatures__", None) or {}
+    return {key: sigs[sig] for key, sig in names.items() if sig in sigs}
+
+
+_CT = {"f": "float", "d": "double"}
+# frame_chips by (profile, weights) dtype chars, trim by the weights' dtype char
+_FRAME_CHIPS = _specialised(_k.frame_chips, {(x, w): f"{_CT[x]}|{_CT[w]}" for x in "fd" for w in "fd"}) if _k else {}
+_TRIM = _specialised(_k.trim, {c: _CT[c] for c in "fd"}) if _k else {}
+
+_new = object.__new__
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
 SYNC_LEN = len(SYNC)  # 6 chips
 DATA_START = SYNC_LEN  # first Manchester chip = sync edge (chip 3) + SYNC_EDGE_TO_DATA
@@ -511,7 +526,13 @@ class OokDecoder:
         if not (_native_ok(profile) and (weights is None or (_native_ok(weights)
                                                              and weights.size == profile.size))):
             return None
-        a, b = (0, profile.size) if weights is None else _k.trim(weights, self.min_row_frac)
+        if weights is None:
+            a, b = 0, profile.size
+            frame_chips = _k.frame_chips
+        else:
+            wc = weights.dtype.char
+            a, b = _TRIM.get(wc, _k.trim)(weights, self.min_row_frac)
+            frame_chips = _FRAME_CHIPS.get((profile.dtype.char, wc), _k.frame_chips)
         if b - a < 4 * self.period0_rows:
             return np.zeros(0), np.zeros(0)
         if self._period is None:
@@ -519,8 +540,8 @@ class OokDecoder:
             self._phasor = np.zeros(0, dtype=np.complex128)
         if self._phasor.size < b - a:
             self._phasor = _grid_phasor(self._period, 2 * (b - a))
-        phase, _, soft, cw = _k.frame_chips(profile, weights, a, b, self._phasor, self._period,
-                                            self.exposure_rows, self.norm_chips, self.min_coherence)
+        phase, _, soft, cw = frame_chips(profile, weights, a, b, self._phasor, self._period,
+                                         self.exposure_rows, self.norm_chips, self.min_coherence)
         if soft is None:
             return np.zeros(0), np.zeros(0)
         self.last_start_row = a + phase
@@ -624,7 +645,10 @@ class OokDecoder:
             known = _k.known_count(self.acc_w)
         else:
             known = int(np.count_nonzero(self.acc_w))
-        return OokState(self.led_id, self.frames, known, self.confidence)
+        # OokState(...) by records.frozen_record's construction (every field, in order)
+        st = _new(OokState)
+        st.__dict__.update(led_id=self.led_id, frames=self.frames, chips_known=known, confidence=self.confidence)
+        return st
 
     def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
         """Add one frame's chips to the accumulator: True when added, None when it cannot be
@@ -636,7 +660,7 @@ class OokDecoder:
         each show only part of the sync can still be combined.
         """
         s, _ = find_sync(soft, sync_margin=self.sync_margin)
-        if not self.acc_w.any():  # (weights are never negative)
+        if not (_k.any_nonzero(self.acc_w) if _k is not None else self.acc_w.any()):  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
                 self.anchored = False
