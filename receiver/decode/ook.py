@@ -523,8 +523,13 @@ class OokDecoder:
     def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
         None for inputs it does not take (not a contiguous float32/float64 array)."""
-        if not (_native_ok(profile) and (weights is None or (_native_ok(weights)
-                                                             and weights.size == profile.size))):
+        # _native_ok(profile) and _native_ok(weights), written out (once per decoded light a frame)
+        if not (type(profile) is np.ndarray and profile.ndim == 1 and profile.dtype.char in "fd"
+                and profile.flags.c_contiguous):
+            return None
+        if weights is not None and not (type(weights) is np.ndarray and weights.ndim == 1
+                                        and weights.dtype.char in "fd" and weights.flags.c_contiguous
+                                        and weights.size == profile.size):
             return None
         if weights is None:
             a, b = 0, profile.size
@@ -633,7 +638,7 @@ class OokDecoder:
             added = self._place(soft, cw)
             if added is None:
                 self.pending.append((soft, cw, self._tc, self._tk))
-            elif added:
+            elif added and self.pending:  # (nothing to retry in an empty queue)
                 self._retry_pending()
         if added:
             self._decode()
@@ -659,7 +664,8 @@ class OokDecoder:
         rotated to packet coordinates as soon as the sync shows in it. So two frames that
         each show only part of the sync can still be combined.
         """
-        s, _ = find_sync(soft, sync_margin=self.sync_margin)
+        s, _ = (_k.find_sync(soft, self.sync_margin) if _k is not None and _is_f64(soft)
+                else find_sync(soft, sync_margin=self.sync_margin))
         if not (_k.any_nonzero(self.acc_w) if _k is not None else self.acc_w.any()):  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
@@ -671,7 +677,8 @@ class OokDecoder:
             return True
         if s is not None and self.anchored:
             self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
-            self._t_observe((-s) % PACKET_LEN, sync=True)
+            if self._tc is not None:  # (_t_observe does nothing without this frame's clock)
+                self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
         if s is None and self.led_id is not None and not self.align_when_decoded:
             self.pending.clear()  # decoded: frames without sync add little, cost alignments
@@ -948,7 +955,8 @@ class OokDecoder:
 
     def _decode(self) -> None:
         if _k is not None:
-            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, crc8_table()) if self.anchored else None
+            table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
+            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
             if r is None:
                 self.confidence = 0.0
                 return
