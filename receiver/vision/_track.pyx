@@ -10,7 +10,7 @@ caller passes (scipy's, `receiver.vision.track._solver_assignment`) on the same 
 tests/test_track_kernels.py runs both on the same streams and asserts equal tracks.
 """
 
-from libc.math cimport sqrt, hypot, fabs
+from libc.math cimport sqrt, hypot, fabs, isfinite
 from libc.stdlib cimport malloc, free
 
 import numpy as np
@@ -158,3 +158,55 @@ def step(list tracks, list blobs, long long frame_index, double sx, double sy, o
     finally:
         free(bx); free(tx); free(lastf); free(ok); free(row_of); free(rcount); free(ccount)
     return alive, ended, used
+
+
+def led_records(list seen, list lights, dict env, object pair_of, object covered, set decoded, bint locate,
+                bint tones, type cls):
+    """`receiver.pipeline._led_records` (its tested reference; the same records, lists and
+    `decoded` set): the seen tracks' LED observations of one frame, built in one call instead of
+    a Python loop over the tracks (receiver.pipeline.Receiver._report)."""
+    cdef Py_ssize_t i, n = len(seen)
+    cdef list leds = [], want = [], want_fields = []
+    cdef dict fields
+    cdef double f
+    if len(lights) != n:
+        raise ValueError("one light per seen track")
+    for i in range(n):
+        t = seen[i]
+        light = lights[i]
+        tid = t.track_id
+        if tid in pair_of or not light.striped:
+            continue
+        led_id = light.led_id
+        fields = None
+        if tid not in covered:
+            b = env[tid]
+            freq = None
+            if tones and light.states:
+                fo = light.freq_hz
+                f = fo
+                if isfinite(f):
+                    freq = round(fo, 1)
+            o = cls.__new__(cls)
+            fields = o.__dict__
+            fields["track"] = tid
+            fields["cx"] = b.cx
+            fields["cy"] = b.cy
+            fields["area_px"] = b.area_px
+            fields["contour"] = b.hull
+            fields["border"] = b.border
+            fields["id"] = led_id
+            fields["mode"] = light.mode
+            fields["peak"] = b.peak
+            fields["distance_m"] = None
+            fields["distance_estimator"] = None
+            fields["freq_hz"] = freq
+            fields["kind"] = None
+            fields["edge_px"] = None
+            leds.append(o)
+            if led_id is not None:
+                decoded.add(led_id)
+        if locate and led_id is not None and light.mode != "s2psk":
+            want.append(tid)
+            want_fields.append(fields)
+    return leds, want, want_fields
