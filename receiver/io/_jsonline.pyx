@@ -51,17 +51,22 @@ cdef struct Buf:
     Py_ssize_t cap
 
 
-cdef int put(Buf* b, const char* s, Py_ssize_t k) except -1:
-    cdef Py_ssize_t cap
+cdef int grow(Buf* b, Py_ssize_t k) except -1:
+    """Room for k more bytes (the buffer doubled until they fit)."""
+    cdef Py_ssize_t cap = 2 * b.cap
     cdef char* q
+    while cap < b.n + k:
+        cap *= 2
+    q = <char*>PyMem_Realloc(b.p, cap)
+    if q == NULL:
+        raise MemoryError()
+    b.p, b.cap = q, cap
+    return 0
+
+
+cdef inline int put(Buf* b, const char* s, Py_ssize_t k) except -1:
     if b.n + k > b.cap:
-        cap = 2 * b.cap
-        while cap < b.n + k:
-            cap *= 2
-        q = <char*>PyMem_Realloc(b.p, cap)
-        if q == NULL:
-            raise MemoryError()
-        b.p, b.cap = q, cap
+        grow(b, k)
     memcpy(b.p + b.n, s, k)
     b.n += k
     return 0
