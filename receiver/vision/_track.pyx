@@ -15,6 +15,8 @@ from libc.stdlib cimport malloc, free
 
 import numpy as np
 
+from receiver.core.records import Blob
+
 
 cdef inline double _max1(double a) noexcept nogil:
     """np.maximum(a, 1.0) (NaN stays NaN)."""
@@ -167,7 +169,7 @@ def led_records(list seen, list lights, dict env, object pair_of, object covered
     a Python loop over the tracks (receiver.pipeline.Receiver._report)."""
     cdef Py_ssize_t i, n = len(seen)
     cdef list leds = [], want = [], want_fields = []
-    cdef dict fields
+    cdef dict fields, bd
     cdef double f
     if len(lights) != n:
         raise ValueError("one light per seen track")
@@ -181,6 +183,11 @@ def led_records(list seen, list lights, dict env, object pair_of, object covered
         fields = None
         if tid not in covered:
             b = env[tid]
+            if type(b) is Blob:  # a record's fields are its __dict__: read there, not by getattr
+                bd = b.__dict__
+                cx, cy, area, hull, border, peak = bd["cx"], bd["cy"], bd["area_px"], bd["hull"], bd["border"], bd["peak"]
+            else:
+                cx, cy, area, hull, border, peak = b.cx, b.cy, b.area_px, b.hull, b.border, b.peak
             freq = None
             if tones and light.states:
                 fo = light.freq_hz
@@ -190,14 +197,14 @@ def led_records(list seen, list lights, dict env, object pair_of, object covered
             o = cls.__new__(cls)
             fields = o.__dict__
             fields["track"] = tid
-            fields["cx"] = b.cx
-            fields["cy"] = b.cy
-            fields["area_px"] = b.area_px
-            fields["contour"] = b.hull
-            fields["border"] = b.border
+            fields["cx"] = cx
+            fields["cy"] = cy
+            fields["area_px"] = area
+            fields["contour"] = hull
+            fields["border"] = border
             fields["id"] = led_id
             fields["mode"] = light.mode
-            fields["peak"] = b.peak
+            fields["peak"] = peak
             fields["distance_m"] = None
             fields["distance_estimator"] = None
             fields["freq_hz"] = freq
