@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from receiver.core.budget import StageTimer
+from receiver.core.native import load
 from receiver.core.records import Frame, FrameResult, LedObservation, PairObservation, led_observation
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
@@ -140,8 +142,52 @@ def _with_pair_ranges(leds: list[LedObservation], pair_of: dict, pairs: list, ra
     return out
 
 
-def _track_key(o: LedObservation) -> int:
-    return o.track
+# the compiled LED records of `_report` (receiver/vision/_track.pyx `led_records`), or None:
+# `_led_records` below, its tested reference
+_kt = load("receiver.vision._track")
+
+
+def _led_records(seen: list[Track], lights: list[LightDecoder], env: dict, pair_of, covered, decoded: set,
+                 locate: bool, tones: bool, cls=LedObservation) -> tuple[list, list, list]:
+    """The seen tracks' LED observations of a frame (`Receiver._report`): (records in track
+    order, `want`: the track ids whose outline points the positioner gets, `want_fields`: the
+    `__dict__` of each one's record, None when it is not reported). Tracks of an S2-PSK pair
+    (`pair_of`), near a reported pair (`covered`) or not striped give no record; each record's ID
+    goes into `decoded`. `tones`: the map has tone lights (else no light has a tone state, and
+    freq_hz is None). Records are built by `frozen_record`'s construction, each `__dict__`
+    filled in place (edge_px, None here, is set once measured)."""
+    new = object.__new__
+    leds, want, want_fields = [], [], []
+    for t, light in zip(seen, lights):
+        tid = t.track_id
+        if tid in pair_of or not light.striped:
+            continue
+        led_id = light.led_id
+        fields = None
+        if tid not in covered:
+            b = env[tid]
+            freq = None
+            if tones and light.states:
+                f = light.freq_hz
+                if math.isfinite(f):
+                    freq = round(f, 1)
+            o = new(cls)
+            fields = o.__dict__
+            fields.update(track=tid, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull, border=b.border,
+                          id=led_id, mode=light.mode, peak=b.peak, distance_m=None, distance_estimator=None,
+                          freq_hz=freq, kind=None, edge_px=None)
+            leds.append(o)
+            if led_id is not None:
+                decoded.add(led_id)
+        if locate and led_id is not None and light.mode != "s2psk":
+            want.append(tid)
+            want_fields.append(fields)
+    return leds, want, want_fields
+
+
+# an observation's sort key (its track id), read in C
+_TRACK = operator.attrgetter("track")
+_ID = operator.attrgetter("id")
 
 
 def _intensity(gray: np.ndarray, track: Track) -> float:
@@ -238,12 +284,19 @@ class Receiver:
         return light
 
     def _clock_frame(self, gray: np.ndarray, seen: list[Track], env: dict, k: int, skip,
-                     profiles: dict) -> dict:
+                     profiles: dict, lights: list[LightDecoder] | None = None) -> dict:
         """{rate: ClockTick or None} of this frame, measured on decoded OOK tracks; empty
         when every seen track has its ID (nobody needs a clock). `profiles`: this frame's row
-        profiles by track id, filled here and reused by the decoders."""
-        if not self.clocks or not any(self._light(t.track_id).led_id is None and t.track_id not in skip
-                                      for t in seen):
+        profiles by track id, filled here and reused by the decoders. `lights`: each seen
+        track's `LightDecoder` (looked up here when None)."""
+        if not self.clocks:
+            return {}
+        if lights is None:
+            lights = [self._light(t.track_id) for t in seen]
+        for t, light in zip(seen, lights):
+            if light.led_id is None and t.track_id not in skip:
+                break
+        else:
             return {}
         ticks = {}
         for rate, clock in self.clocks.items():
@@ -375,41 +428,31 @@ class Receiver:
                 pair_of: dict) -> tuple[list[LedObservation], dict, tuple]:
         """The frame's observations: (LEDs sorted by track, {LED id: its S2-PSK pair}, the pairs'
         records). `lights`: each seen track's `LightDecoder`."""
-        # Outline points of decoded OOK / tone LEDs for the positioner (receiver.vision.outline).
-        want = []
-        if self.positioner is not None:
-            for t, light in zip(seen, lights):
-                if t.track_id not in pair_of and light.striped and light.led_id is not None and light.mode != "s2psk":
-                    want.append(t.track_id)
-        edge_of = (dict(zip(want, stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)))
-                   if want else {})
-        leds = []
         # A reported pair's blobs, and the blobs by its emitters it did not take (not paired anew
         # while it lives), are reported as the pair's emitters below; a pair coasting longer than
         # `report_coast_frames` reports nothing, so the blobs near it stay in the output.
         covered = {t.track_id for p in self.pairer.pairs if p.misses <= self.pairer.report_coast_frames
                    for t in p.nearby} if self.pairer is not None else ()
         decoded = self.decoded_ids
-        for t, light in zip(seen, lights):
-            tid = t.track_id
-            if tid in pair_of or tid in covered or not light.striped:
-                continue
-            b = env[tid]
-            freq = light.freq_hz if light.states else math.nan
-            led_id = light.led_id
-            leds.append(led_observation(tid, b.cx, b.cy, b.area_px, b.hull, b.border, led_id, light.mode, b.peak,
-                                        freq_hz=round(freq, 1) if math.isfinite(freq) else None,
-                                        edge_px=edge_of.get(tid)))
-            if led_id is not None:
-                decoded.add(led_id)
+        # The LED records, and the outline points of decoded OOK / tone LEDs for the positioner
+        # (receiver.vision.outline: `want`, measured in one batch, then set in their records).
+        records = _kt.led_records if _kt is not None else _led_records
+        leds, want, want_fields = records(seen, lights, env, pair_of, covered, decoded, self.positioner is not None,
+                                          bool(self.plan.tone_table), LedObservation)
+        if want:
+            edges = stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)
+            for fields, e in zip(want_fields, edges):
+                if fields is not None:
+                    fields["edge_px"] = e
         emitter_of = {}  # LED id -> its S2-PSK pair
-        for oid, b, p in (self.pairer.emitters() if self.pairer is not None else ()):
-            emitter_of[oid] = p
-            leds.append(led_observation(oid, b.cx, b.cy, b.area_px, b.hull, b.border, p.led_id,
-                                        "s2psk" if p.led_id is not None else None, b.peak, kind=p.kind))
-            if p.led_id is not None:
-                decoded.add(p.led_id)
-        leds.sort(key=_track_key)
+        if self.pairer is not None:
+            for oid, b, p in self.pairer.emitters():
+                emitter_of[oid] = p
+                leds.append(led_observation(oid, b.cx, b.cy, b.area_px, b.hull, b.border, p.led_id,
+                                            "s2psk" if p.led_id is not None else None, b.peak, kind=p.kind))
+                if p.led_id is not None:
+                    decoded.add(p.led_id)
+        leds.sort(key=_TRACK)
         pairs = tuple(pair_observation(p) for p in self.pairer.pairs) if self.pairer is not None else ()
         return leds, emitter_of, pairs
 
@@ -418,15 +461,17 @@ class Receiver:
     def process(self, frame: Frame) -> FrameResult:
         timer = StageTimer(self.clock)
         gray = frame.gray
+        k = frame.index
         blobs = detect(gray, settings=self.settings.detect, scratch=self.scratch)
         timer.stamp("detect")
-        shift = self._frame_shift(blobs)
+        shift = self._frame_shift(blobs) if self.pairer is not None else None
         self.shift = shift
-        tracks = self.tracker.step(frame.index, blobs, shift=shift)
+        tracks = self.tracker.step(k, blobs, shift=shift)
+        lights_of = self.lights
         for t in self.tracker.ended:
-            self.lights.pop(t.track_id, None)
+            lights_of.pop(t.track_id, None)
         seen = [t for t in tracks if t.seen]
-        env = self.envelopes.step(seen, frame.index, gray.shape)
+        env = self.envelopes.step(seen, k, gray.shape)
         timer.stamp("track")
 
         pair_of: dict[int, object] = {}
@@ -434,41 +479,49 @@ class Receiver:
             pair_of = self._pairs(gray, frame, tracks)
             timer.stamp("pair")
 
-        profiles: dict[int, tuple] = {}  # track id -> its row profile in this frame
-        ticks = self._clock_frame(gray, seen, env, frame.index, pair_of, profiles)
-        # Each seen track's decoding state, looked up once for the decode and report loops.
-        get = self.lights.get
+        # Each seen track's decoding state, looked up once for the clock, decode and report loops.
+        get = lights_of.get
         lights = [get(t.track_id) or self._light(t.track_id) for t in seen]
+        profiles: dict[int, tuple] = {}  # track id -> its row profile in this frame
+        ticks = self._clock_frame(gray, seen, env, k, pair_of, profiles, lights) if self.clocks else {}
         policy = self.policy
         stripe_check = self.stripe_check
+        every = policy.settings.redecode_every
+        t_s = frame.t_s
         for t, light in zip(seen, lights):
-            if t.track_id in pair_of:
+            tid = t.track_id
+            if tid in pair_of:
                 continue
             if not stripe_check:
                 light.striped = True
-            if not light.decoders or not policy.due(light, frame.index, t.track_id):
+            # `DecodePolicy.due` written out (a light with an ID is fed every `redecode_every`
+            # frames, staggered by track): most lights of a frame are skipped here
+            if (light.led_id is not None and (k + tid) % every) or not light.decoders:
                 continue
-            blob = env[t.track_id]
-            prof = profiles.get(t.track_id)
-            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob),
-                              frame.t_s, ticks)
+            blob = env[tid]
+            prof = profiles.get(tid)
+            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob), t_s, ticks)
         timer.stamp("decode")
 
         leds, emitter_of, pairs = self._report(gray, seen, lights, env, pair_of)
         timer.stamp("report")  # the frame's observations (the latency counts every stage)
         position = vehicle = None
         if self.positioner is not None:
-            res = self.positioner.step(frame.t_s, leds)
+            res = self.positioner.step(t_s, leds)
             position, leds = res.position, res.leds
             timer.stamp("locate")
         if self.vehicle is not None:
-            speed = self.speed(frame.t_s) if self.speed is not None else None
-            vres = self.vehicle.step(frame.t_s, pairs, speed)
+            speed = self.speed(t_s) if self.speed is not None else None
+            vres = self.vehicle.step(t_s, pairs, speed)
             vehicle = vres.vehicle
             leds = _with_pair_ranges(leds, emitter_of, self.pairer.pairs, vres.ranges)
             timer.stamp("vehicle")
         self.frames += 1
         self.last_counts = {"blobs": len(blobs), "tracks": len(tracks),
-                            "decoded": sum(o.id is not None for o in leds), "pairs": len(pairs)}
-        return FrameResult(frame.index, frame.t_s, timer.total_ms, leds, position, vehicle,
-                           dict(timer.stage_ms), pairs)
+                            "decoded": len(leds) - list(map(_ID, leds)).count(None), "pairs": len(pairs)}
+        # FrameResult(...) by `frozen_record`'s construction (every field, in order); the timer
+        # is this frame's own, so its dict is the record's
+        res = object.__new__(FrameResult)
+        res.__dict__.update(frame=k, t_s=t_s, latency_ms=timer.total_ms, leds=leds, position=position,
+                            vehicle=vehicle, stage_ms=timer.stage_ms, pairs=pairs)
+        return res

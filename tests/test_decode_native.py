@@ -271,3 +271,26 @@ def test_best_cyclic_match_other_template_length_takes_the_reference_path():
     tpl = ook.packet_template(0x2A)
     assert ook.best_cyclic_match(soft, tpl) == pytest.approx(
         float(max((np.roll(tpl, -k)[np.arange(40) % 54] @ soft) for k in range(54)) / np.abs(soft).sum()), abs=1e-12)
+
+
+def test_fused_kernels_are_called_by_their_specialisations_and_any_nonzero_is_numpys():
+    """The decoder calls frame_chips / trim by their dtype specialisation (no fused dispatch per
+    call): every float32 / float64 combination is there and gives the dispatcher's numbers; the
+    accumulator's emptiness test is numpy's any() (NaN counts as set)."""
+    assert set(ook._FRAME_CHIPS) == {(x, w) for x in "fd" for w in "fd"} and set(ook._TRIM) == {"f", "d"}
+    rng = np.random.default_rng(8)
+    for prof, w, p0, err, exp in _profiles(rng, 200):
+        if w is None:
+            continue
+        wc = w.dtype.char
+        assert ook._TRIM[wc](w, 0.3) == K.trim(w, 0.3)
+        a, b = K.trim(w, 0.3)
+        if b - a < 4:
+            continue
+        phasor = ook._grid_phasor(p0, 2 * (b - a))
+        r1 = ook._FRAME_CHIPS[prof.dtype.char, wc](prof, w, a, b, phasor, p0, exp, 8, 0.0)
+        r0 = K.frame_chips(prof, w, a, b, phasor, p0, exp, 8, 0.0)
+        assert r1[:2] == r0[:2] and np.array_equal(r1[2], r0[2]) and np.array_equal(r1[3], r0[3])
+    for acc_w in (np.zeros(54), np.eye(1, 54, 53).ravel(), np.full(54, np.nan), np.full(54, -0.0),
+                  rng.uniform(0, 1, 54) * (rng.random(54) < 0.1)):
+        assert K.any_nonzero(acc_w) is bool(acc_w.any())

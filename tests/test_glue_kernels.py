@@ -338,3 +338,78 @@ def test_fast_number_formatters_equal_cpythons():
             fast_r += 1
             assert r == cr == repr(v), v
     assert fast_f > 0.7 * 5 * len(vals) and fast_r > 0.4 * len(vals)
+
+
+@native
+def test_fast_repr_of_tiny_values_is_cpythons():
+    """Below 1e-4 repr writes exponent notation ('7e-05', '-1.3e-07'): the writer's own shortest
+    digits there equal repr on random, rounded and extreme values (a position's covariances and
+    rotation entries are such numbers), and it answers for the short ones."""
+    rng = np.random.default_rng(5)
+    n = 20000
+    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-24, -3, size=n))
+    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-12, -3, size=n),
+                                                    rng.integers(4, 20, size=n))]
+    vals += [9.9999e-5, 1e-4 * (1 - 1e-16), 5e-324, 1e-300, 1e-22, 1e-23, 7e-05, 1.3e-07, 2.2250738585072014e-308]
+    fast = 0
+    for v in map(float, vals):
+        for x in (v, -v):
+            _, r, _, cr = output._k.number_tokens(x, 1)
+            assert cr == repr(x)
+            if r is not None:
+                fast += 1
+                assert r == repr(x), x
+    assert fast > 0.3 * 2 * len(vals)
+    assert output._k.number_tokens(7e-05, 1)[1] == "7e-05"
+    assert output._k.number_tokens(-1.3e-07, 1)[1] == "-1.3e-07"
+    res = FrameResult(-12, 0.0, 1.0, [], {"cov": [[1.3e-07, -4e-08], [0.0, 2e-22]]})
+    assert output._k.frame_line(res, False) == _reference(res)
+    assert '"frame":-12,' in _reference(res)
+
+
+def test_led_records_kernel_equals_the_python_loop():
+    """The report's LED records (receiver/vision/_track.pyx `led_records`) equal `pipeline._led_records`
+    (its reference): the same records, want lists and decoded IDs, on random frames of tracks in
+    pairs, near pairs, unstriped, undecoded, tone lights with and without a measured frequency."""
+    from types import SimpleNamespace
+
+    from receiver import pipeline
+    from receiver.decode.policy import LightDecoder
+    from receiver.core.records import Blob
+
+    if pipeline._kt is None:
+        pytest.skip("compiled records not built (or OCCLOC_PURE=1)")
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        n = int(rng.integers(0, 20))
+        ids = sorted(rng.choice(1000, n, replace=False).tolist())
+        seen = [SimpleNamespace(track_id=i) for i in ids]
+        lights, env = [], {}
+        for i in ids:
+            light = LightDecoder({})
+            light.striped = bool(rng.random() < 0.85)
+            light.led_id = int(rng.integers(0, 5)) if rng.random() < 0.6 else None
+            light.mode = str(rng.choice(["ook", "tone", "s2psk"])) if light.led_id is not None else None
+            if rng.random() < 0.5:
+                light.states = {("tone", 0.0): SimpleNamespace(freq_hz=float(rng.choice([np.nan, rng.uniform(100, 900)])))}
+            elif rng.random() < 0.3:
+                light.states = {("tone", 0.0): SimpleNamespace()}
+            lights.append(light)
+            env[i] = Blob(float(rng.uniform(0, 99)), float(rng.uniform(0, 99)), float(rng.uniform(1, 9)),
+                          np.zeros((3, 2)), 0, 0, 1, 1, bool(rng.random() < 0.2), 200.0, 50.0, 3.0)
+            if rng.random() < 0.1:  # any envelope with these attributes (the kernel reads a Blob's __dict__)
+                env[i] = SimpleNamespace(**env[i].__dict__)
+        pair_of = {i: None for i in ids if rng.random() < 0.1}
+        covered = {i for i in ids if rng.random() < 0.1} if rng.random() < 0.5 else ()
+        locate, tones = bool(rng.random() < 0.7), bool(rng.random() < 0.5)
+        out = []
+        for fn in (pipeline._kt.led_records, pipeline._led_records):
+            decoded = {99}
+            leds, want, fields = fn(seen, lights, env, pair_of, covered, decoded, locate, tones, LedObservation)
+            out.append((leds, want, fields, decoded))
+            assert all(type(o) is LedObservation for o in leds)
+            assert [f is None or any(f is o.__dict__ for o in leds) for f in fields] == [True] * len(fields)
+        (l1, w1, f1, d1), (l0, w0, f0, d0) = out
+        assert [o.__dict__ for o in l1] == [o.__dict__ for o in l0] and l1 == l0
+        assert w1 == w0 and f1 == f0 and d1 == d0
+        assert [list(o.__dict__) for o in l1] == [list(o.__dict__) for o in l0]

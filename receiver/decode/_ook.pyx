@@ -326,6 +326,15 @@ def add4(double[:, ::1] acc4, Py_ssize_t extra, const double[::1] soft, const do
             acc4[extra, i] = acc4[extra, i] + tw[i]
 
 
+def any_nonzero(const double[::1] acc_w):
+    """bool(acc_w.any()) (NaN counts, as numpy's)."""
+    cdef Py_ssize_t i
+    for i in range(acc_w.shape[0]):
+        if acc_w[i] != 0.0:
+            return True
+    return False
+
+
 def known_count(const double[::1] acc_w):
     """np.count_nonzero(acc_w > 0)."""
     cdef Py_ssize_t i, n = 0

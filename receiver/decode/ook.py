@@ -59,6 +59,21 @@ from receiver.core.native import load
 
 _k = load("receiver.decode._ook")  # compiled kernels (receiver/decode/_ook.pyx), or None
 
+
+def _specialised(fn, names: dict) -> dict:
+    """{dtype chars: the compiled fused-type function's specialisation} ("f" float32, "d"
+    float64): called directly they skip the fused dispatch (its signature matching costs
+    about what the kernel's own work does on a small blob); {} when not available."""
+    sigs = getattr(fn, "__signatures__", None) or {}
+    return {key: sigs[sig] for key, sig in names.items() if sig in sigs}
+
+
+_CT = {"f": "float", "d": "double"}
+# frame_chips by (profile, weights) dtype chars, trim by the weights' dtype char
+_FRAME_CHIPS = _specialised(_k.frame_chips, {(x, w): f"{_CT[x]}|{_CT[w]}" for x in "fd" for w in "fd"}) if _k else {}
+_TRIM = _specialised(_k.trim, {c: _CT[c] for c in "fd"}) if _k else {}
+
+_new = object.__new__
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
 SYNC_LEN = len(SYNC)  # 6 chips
 DATA_START = SYNC_LEN  # first Manchester chip = sync edge (chip 3) + SYNC_EDGE_TO_DATA
@@ -508,10 +523,21 @@ class OokDecoder:
     def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
         None for inputs it does not take (not a contiguous float32/float64 array)."""
-        if not (_native_ok(profile) and (weights is None or (_native_ok(weights)
-                                                             and weights.size == profile.size))):
+        # _native_ok(profile) and _native_ok(weights), written out (once per decoded light a frame)
+        if not (type(profile) is np.ndarray and profile.ndim == 1 and profile.dtype.char in "fd"
+                and profile.flags.c_contiguous):
             return None
-        a, b = (0, profile.size) if weights is None else _k.trim(weights, self.min_row_frac)
+        if weights is not None and not (type(weights) is np.ndarray and weights.ndim == 1
+                                        and weights.dtype.char in "fd" and weights.flags.c_contiguous
+                                        and weights.size == profile.size):
+            return None
+        if weights is None:
+            a, b = 0, profile.size
+            frame_chips = _k.frame_chips
+        else:
+            wc = weights.dtype.char
+            a, b = _TRIM.get(wc, _k.trim)(weights, self.min_row_frac)
+            frame_chips = _FRAME_CHIPS.get((profile.dtype.char, wc), _k.frame_chips)
         if b - a < 4 * self.period0_rows:
             return np.zeros(0), np.zeros(0)
         if self._period is None:
@@ -519,8 +545,8 @@ class OokDecoder:
             self._phasor = np.zeros(0, dtype=np.complex128)
         if self._phasor.size < b - a:
             self._phasor = _grid_phasor(self._period, 2 * (b - a))
-        phase, _, soft, cw = _k.frame_chips(profile, weights, a, b, self._phasor, self._period,
-                                            self.exposure_rows, self.norm_chips, self.min_coherence)
+        phase, _, soft, cw = frame_chips(profile, weights, a, b, self._phasor, self._period,
+                                         self.exposure_rows, self.norm_chips, self.min_coherence)
         if soft is None:
             return np.zeros(0), np.zeros(0)
         self.last_start_row = a + phase
@@ -612,7 +638,7 @@ class OokDecoder:
             added = self._place(soft, cw)
             if added is None:
                 self.pending.append((soft, cw, self._tc, self._tk))
-            elif added:
+            elif added and self.pending:  # (nothing to retry in an empty queue)
                 self._retry_pending()
         if added:
             self._decode()
@@ -624,7 +650,10 @@ class OokDecoder:
             known = _k.known_count(self.acc_w)
         else:
             known = int(np.count_nonzero(self.acc_w))
-        return OokState(self.led_id, self.frames, known, self.confidence)
+        # OokState(...) by records.frozen_record's construction (every field, in order)
+        st = _new(OokState)
+        st.__dict__.update(led_id=self.led_id, frames=self.frames, chips_known=known, confidence=self.confidence)
+        return st
 
     def _place(self, soft: np.ndarray, cw: np.ndarray) -> bool | None:
         """Add one frame's chips to the accumulator: True when added, None when it cannot be
@@ -635,8 +664,9 @@ class OokDecoder:
         rotated to packet coordinates as soon as the sync shows in it. So two frames that
         each show only part of the sync can still be combined.
         """
-        s, _ = find_sync(soft, sync_margin=self.sync_margin)
-        if not self.acc_w.any():  # (weights are never negative)
+        s, _ = (_k.find_sync(soft, self.sync_margin) if _k is not None and _is_f64(soft)
+                else find_sync(soft, sync_margin=self.sync_margin))
+        if not (_k.any_nonzero(self.acc_w) if _k is not None else self.acc_w.any()):  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
                 self.anchored = False
@@ -647,7 +677,8 @@ class OokDecoder:
             return True
         if s is not None and self.anchored:
             self._add(soft, cw, (-s) % PACKET_LEN, trusted=True)
-            self._t_observe((-s) % PACKET_LEN, sync=True)
+            if self._tc is not None:  # (_t_observe does nothing without this frame's clock)
+                self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
         if s is None and self.led_id is not None and not self.align_when_decoded:
             self.pending.clear()  # decoded: frames without sync add little, cost alignments
@@ -924,7 +955,8 @@ class OokDecoder:
 
     def _decode(self) -> None:
         if _k is not None:
-            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, crc8_table()) if self.anchored else None
+            table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
+            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
             if r is None:
                 self.confidence = 0.0
                 return

@@ -9,7 +9,6 @@ None, and the Python writer decides.
 
 from cpython.mem cimport PyMem_Free, PyMem_Malloc, PyMem_Realloc
 from libc.math cimport fabs, isfinite, nearbyint, signbit
-from libc.stdio cimport snprintf
 from libc.string cimport memcpy, strlen
 
 from receiver.core.records import LedObservation
@@ -52,17 +51,22 @@ cdef struct Buf:
     Py_ssize_t cap
 
 
-cdef int put(Buf* b, const char* s, Py_ssize_t k) except -1:
-    cdef Py_ssize_t cap
+cdef int grow(Buf* b, Py_ssize_t k) except -1:
+    """Room for k more bytes (the buffer doubled until they fit)."""
+    cdef Py_ssize_t cap = 2 * b.cap
     cdef char* q
+    while cap < b.n + k:
+        cap *= 2
+    q = <char*>PyMem_Realloc(b.p, cap)
+    if q == NULL:
+        raise MemoryError()
+    b.p, b.cap = q, cap
+    return 0
+
+
+cdef inline int put(Buf* b, const char* s, Py_ssize_t k) except -1:
     if b.n + k > b.cap:
-        cap = 2 * b.cap
-        while cap < b.n + k:
-            cap *= 2
-        q = <char*>PyMem_Realloc(b.p, cap)
-        if q == NULL:
-            raise MemoryError()
-        b.p, b.cap = q, cap
+        grow(b, k)
     memcpy(b.p + b.n, s, k)
     b.n += k
     return 0
@@ -72,10 +76,10 @@ cdef inline int puts(Buf* b, const char* s) except -1:
     return put(b, s, strlen(s))
 
 
-cdef double POW10[18]
+cdef double POW10[23]
 POW10[0] = 1.0
-for _i in range(1, 18):
-    POW10[_i] = POW10[_i - 1] * 10.0   # exact: 10^k < 2^53 for k <= 15, 10^16, 10^17 are exact too
+for _i in range(1, 23):
+    POW10[_i] = POW10[_i - 1] * 10.0   # exact: 10^k for k <= 22 is a double (5^22 < 2^53)
 cdef double SCALED_MAX = 1125899906842624.0   # 2^50: below it an ulp of a*10^k is <= 1/4
 cdef double FIXED_SCALED_MAX = 68719476736.0  # 2^36: below it a*10^nd is within 2^-17 of its double
 
@@ -127,11 +131,83 @@ cdef bint fast_fixed(Buf* b, double x, int nd) except -1:
     return True
 
 
+cdef int put_ll(Buf* b, long long v) except -1:
+    """The decimal digits of v ('%lld')."""
+    cdef char tmp[24]
+    cdef int i = 24
+    cdef unsigned long long u = <unsigned long long>v
+    if v < 0:
+        u = 0 - u
+    while True:
+        i -= 1
+        tmp[i] = <char>(48 + u % 10)
+        u //= 10
+        if u == 0:
+            break
+    if v < 0:
+        i -= 1
+        tmp[i] = b'-'
+    return put(b, tmp + i, 24 - i)
+
+
+cdef int put_exp(Buf* b, bint neg, long long n, int k) except -1:
+    """repr's exponent notation of n / 10^k (n > 0 without trailing zeros, value below 1e-4):
+    'd.ddde-XX' (one digit: 'de-XX'), the exponent at least two digits."""
+    cdef char tmp[48]
+    cdef int nd = 0, i, e
+    cdef char dig[24]
+    while n > 0:
+        dig[nd] = <char>(48 + n % 10)
+        n //= 10
+        nd += 1
+    i = 0
+    if neg:
+        tmp[i] = b'-'
+        i += 1
+    tmp[i] = dig[nd - 1]
+    i += 1
+    if nd > 1:
+        tmp[i] = b'.'
+        i += 1
+        for e in range(nd - 2, -1, -1):
+            tmp[i] = dig[e]
+            i += 1
+    e = k - nd + 1  # the value is d.ddd 10^-e
+    tmp[i] = b'e'
+    tmp[i + 1] = b'-'
+    i += 2
+    if e >= 100:
+        tmp[i] = <char>(48 + e // 100)
+        i += 1
+        e = e % 100
+    tmp[i] = <char>(48 + e // 10)
+    tmp[i + 1] = <char>(48 + e % 10)
+    return put(b, tmp, i + 2)
+
+
+cdef bint fast_repr_small(Buf* b, double x) except -1:
+    """repr(x) for 0 < |x| < 1e-4 (exponent notation), by `fast_repr`'s argument: the fewest
+    decimals k <= 22 (10^k exact) whose nearest integer n to |x| 10^k < 2^50 reads back as x.
+    False (CPython's formatter decides) when none does."""
+    cdef double a = fabs(x), p, n
+    cdef int k
+    for k in range(5, 23):
+        p = a * POW10[k]
+        if p >= SCALED_MAX:
+            return False
+        n = nearbyint(p)
+        if n != 0.0 and n / POW10[k] == a:
+            put_exp(b, signbit(x), <long long>n, k)
+            return True
+    return False
+
+
 cdef bint fast_repr(Buf* b, double x) except -1:
     """repr(x) for 1e-4 <= |x| < 2^50 (fixed notation): the fewest decimals k whose nearest
     integer n to |x| 10^k reads back as x (n / 10^k == |x|, a correctly rounded division, as
     strtod reads the digits); below 2^50 only that integer can, so these are repr's digits. False
-    (CPython's formatter decides) outside that range or beyond 17 decimals."""
+    (CPython's formatter decides) outside that range or beyond 17 decimals. Below 1e-4:
+    `fast_repr_small`."""
     cdef double a = fabs(x), p, n
     cdef int k
     if x == 0.0:
@@ -140,7 +216,9 @@ cdef bint fast_repr(Buf* b, double x) except -1:
         else:
             put(b, b"0.0", 3)
         return True
-    if not (a >= 1e-4 and a < SCALED_MAX):
+    if a < 1e-4:
+        return fast_repr_small(b, x)
+    if not (a < SCALED_MAX):
         return False
     for k in range(18):
         p = a * POW10[k]
@@ -205,7 +283,6 @@ cdef int put_num(Buf* b, object v, int nd) except -1:
 
 cdef int put_int(Buf* b, object v) except -1:
     """`output._int_tok(v)`; 1 for anything but None or an int."""
-    cdef char tmp[32]
     cdef int overflow = 0
     cdef long long n
     if v is None:
@@ -217,7 +294,7 @@ cdef int put_int(Buf* b, object v) except -1:
     if overflow:
         put_pystr(b, repr(v))
         return 0
-    put(b, tmp, snprintf(tmp, 32, b"%lld", n))
+    put_ll(b, n)
     return 0
 
 

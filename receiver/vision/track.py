@@ -130,10 +130,11 @@ class Tracker:
                                               self.velocity_gain, self.max_missed, _solver_assignment)
         else:
             alive, self.ended, used = self._assign_update(frame_index, blobs, shifted)
-        for j, b in enumerate(blobs):
-            if not used[j]:
-                alive.append(Track(self._next_id, b, frame_index, frame_index, shift0=self.shift_sum))
-                self._next_id += 1
+        if 0 in used:  # a blob no track took (most frames: none) starts a new track
+            for j, b in enumerate(blobs):
+                if not used[j]:
+                    alive.append(Track(self._next_id, b, frame_index, frame_index, shift0=self.shift_sum))
+                    self._next_id += 1
         self.tracks = alive
         return alive
 
