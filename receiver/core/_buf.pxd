@@ -1,10 +1,13 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Float64 arrays in and out of the small-matrix kernels (the compiled pose filter's
-receiver/locate/_kalman.pyx and _position.pyx, the server's _warm.pyx and _wire.pyx) through the buffer protocol: a copy to or
-from a C array, any strides. A kernel call takes a few small arrays; typed memoryviews cost more
-to set up per argument than the kernel's arithmetic on them."""
+"""Arrays in and out of kernels through the buffer protocol, where typed memoryviews would cost
+more to set up per argument than the kernel's arithmetic on them: `load` / `store` copy a small
+float64 array (any strides) to or from a C array (the compiled pose filter's
+receiver/locate/_kalman.pyx and _position.pyx, the server's _warm.pyx and _wire.pyx);
+`fresh_data` is the data pointer of an output array a kernel has just allocated
+(receiver/vision/_envelope.pyx, _pixels.pyx)."""
 
-from cpython.buffer cimport PyBUF_RECORDS, PyBUF_RECORDS_RO, PyBuffer_Release, PyObject_GetBuffer
+from cpython.buffer cimport (PyBUF_C_CONTIGUOUS, PyBUF_RECORDS, PyBUF_RECORDS_RO, PyBUF_WRITABLE, PyBuffer_Release,
+                             PyObject_GetBuffer)
 
 
 cdef inline bint _is_double(Py_buffer* v) noexcept:
@@ -53,3 +56,12 @@ cdef inline Py_ssize_t load(object obj, double* out, Py_ssize_t max_rows, Py_ssi
 cdef inline Py_ssize_t store(object obj, double* src, Py_ssize_t max_rows, Py_ssize_t cols) except -1:
     """Write src (row-major) into the writable float64 array obj (shape as `load`). Returns n."""
     return _copy(obj, src, max_rows, cols, True)
+
+
+cdef inline double* fresh_data(object arr) except NULL:
+    """The data pointer of a C-contiguous writable array the caller just made (np.empty) and
+    holds while it writes there: the buffer is released at once, the array does not move."""
+    cdef Py_buffer b
+    PyObject_GetBuffer(arr, &b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE)
+    PyBuffer_Release(&b)
+    return <double*> b.buf

@@ -12,6 +12,7 @@ points). The pure reference is `receiver.vision.envelope._merge`; tests/test_tra
 asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
 """
 
+from receiver.core._buf cimport fresh_data
 from libc.math cimport floor, sqrt, hypot, fabs
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
@@ -404,14 +405,6 @@ cdef object _blob_like(object src, double cx, double cy, double area, object hul
     return o
 
 
-cdef double *_out_f64(object o) except NULL:
-    """The data of a C-contiguous array this module just made with np.empty (it stays alive
-    while the caller holds it)."""
-    cdef Py_buffer b
-    PyObject_GetBuffer(o, &b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE)
-    PyBuffer_Release(&b)
-    return <double *>b.buf
-
 
 cdef bint _f64_pairs(Py_buffer *b) noexcept:
     """`b` holds a (K, 2) float64 array (any strides)."""
@@ -486,8 +479,8 @@ def merge(list tracks, long long k, list hist, long long width, long long height
     try:
         ids_arr = np.empty(n, np.int64)
         starts_arr = np.empty(n + 1, np.int64)
-        ids = <long long *> _out_f64(ids_arr)
-        cur_start = <long long *> _out_f64(starts_arr)
+        ids = <long long *> fresh_data(ids_arr)
+        cur_start = <long long *> fresh_data(starts_arr)
         cur_start[0] = 0
         for i in range(n):
             t = tracks[i]
@@ -507,7 +500,7 @@ def merge(list tracks, long long k, list hist, long long width, long long height
             cur_start[i + 1] = cur_start[i] + bufs[i].shape[0]
         # this frame's points, in order (the record's)
         cur_arr = np.empty((cur_start[n], 2))
-        curp = _out_f64(cur_arr)
+        curp = fresh_data(cur_arr)
         for i in range(n):
             hb = <const char *> bufs[i].buf
             a = <int>cur_start[i]
@@ -538,7 +531,7 @@ def merge(list tracks, long long k, list hist, long long width, long long height
                         q = a + 1
                         break
         out = np.empty((nout, 2))
-        outp = _out_f64(out)
+        outp = fresh_data(out)
         npts = 0
         for i in range(n):
             npts = <int>(cur_start[i + 1] - cur_start[i])

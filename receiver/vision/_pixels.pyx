@@ -10,6 +10,7 @@ The byte scans (row maximum, first / last pixel at or above a level) use SSE2 wh
 targets it (every x86-64), 16 pixels per step, and plain loops elsewhere.
 """
 
+from receiver.core._buf cimport fresh_data
 from libc.math cimport ceilf, sqrt, floor, isfinite, isnan, NAN, hypot
 from libc.stdlib cimport malloc, free, realloc
 from libc.string cimport memset, memcpy
@@ -492,14 +493,6 @@ cdef int _hull_box(object hull, long long pad, long long w, long long h, long lo
     return True
 
 
-cdef double *_out_f64(object o) except NULL:
-    """The data of a C-contiguous float64 array just made here with np.empty (it stays alive
-    while the caller holds it)."""
-    cdef Py_buffer b
-    PyObject_GetBuffer(o, &b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE)
-    PyBuffer_Release(&b)
-    return <double *>b.buf
-
 
 def edge_points_blobs(object gray, list blobs, long long pad, int border_px, double min_contrast, int bin_rows,
                       double min_sigma, double sigma_num, long long min_width):
@@ -556,8 +549,8 @@ def edge_points_blobs(object gray, list blobs, long long pad, int border_px, dou
         if nk:
             pts = np.empty((2 * total, 2))
             sig = np.empty(2 * total)
-            pp = _out_f64(pts)
-            sp = _out_f64(sig)
+            pp = fresh_data(pts)
+            sp = fresh_data(sig)
             acc = <double *>malloc(8 * (maxrows + 1) * sizeof(double))
             if acc == NULL:
                 raise MemoryError()
