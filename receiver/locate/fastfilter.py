@@ -45,12 +45,10 @@ class FastKalman(PositionKalman):
             raise np.linalg.LinAlgError("singular innovation covariance")
         return m2
 
-    def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
-        """`PositionKalman.predict_at` by the compiled predict step on copies of the state."""
-        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
-            return None
+    def _predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """`PositionKalman._predicted` by the compiled predict step on copies of the state."""
         x, P = self._x.copy(), self._P.copy()
-        self._k.predict(x, P, t_s - self.t_s, self.q)
+        self._k.predict(x, P, dt, self.q)
         return x.reshape(6), P
 
 

@@ -173,18 +173,27 @@ class PositionKalman:
     def predict_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray] | None:
         """The prediction (x (6,), P (6, 6)) at t_s without changing the filter; None without a
         track or when t_s is before the filter's time or beyond `max_coast_s` of coasting."""
-        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+        if self._no_prediction(t_s):
             return None
-        # `cv_predict(x, P, dt, q)` with F, Q from the model cache (the same arrays transition(dt)
-        # and process_noise(dt, q) make; a video's frames are evenly spaced, so the next `step`
-        # finds them there too) and without copying the state it only reads.
-        F, Ft, Q = self._model(t_s - self.t_s)
+        return self._predicted(t_s - self.t_s)
+
+    def _no_prediction(self, t_s: float) -> bool:
+        """No prediction at t_s: no track, t_s before the filter's time, or coasting beyond
+        `max_coast_s`."""
+        return not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s
+
+    def _predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(x (6,), P (6, 6)) predicted dt s ahead, the filter unchanged: `cv_predict(x, P, dt,
+        q)` with F, Q from the model cache (the same arrays transition(dt) and process_noise(dt,
+        q) make; a video's frames are evenly spaced, so the next `step` finds them there too) and
+        without copying the state it only reads."""
+        F, Ft, Q = self._model(dt)
         return F @ self._x.reshape(6), F @ self._P @ Ft + Q
 
     def predict_position(self, t_s: float) -> np.ndarray | None:
         """The predicted position (3,) at t_s (x + v dt, no covariance: a solver's starting
         point); None where `predict_at` is None."""
-        if not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s:
+        if self._no_prediction(t_s):
             return None
         x = self._x.reshape(6)
         return x[:3] + (t_s - self.t_s) * x[3:]
