@@ -22,11 +22,16 @@ cdef inline double pow10(int n) noexcept nogil:
     return p
 
 
+cdef inline bint rint_is_round(double y) noexcept nogil:
+    """Is rint(y) / 10^n Python's round(v, n) for y = v * 10^n as computed (module doc)?"""
+    return isfinite(y) and fabs(y) < 1e9 and fabs((y - floor(y)) - 0.5) > 1e-6
+
+
 cdef inline object py_round(double v, int n):
     """Python's round(v, n)."""
     cdef double s = pow10(n)
     cdef double y = v * s
-    if isfinite(y) and fabs(y) < 1e9 and fabs((y - floor(y)) - 0.5) > 1e-6:
+    if rint_is_round(y):
         return rint(y) / s
     return round(v, n)
 

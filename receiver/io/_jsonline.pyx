@@ -51,6 +51,16 @@ cdef struct Buf:
     Py_ssize_t cap
 
 
+cdef int open_buf(Buf* b, Py_ssize_t cap) except -1:
+    """An empty buffer of `cap` bytes (the caller frees b.p with PyMem_Free)."""
+    b.n = 0
+    b.cap = cap
+    b.p = <char*>PyMem_Malloc(cap)
+    if b.p == NULL:
+        raise MemoryError()
+    return 0
+
+
 cdef int grow(Buf* b, Py_ssize_t k) except -1:
     """Room for k more bytes (the buffer doubled until they fit)."""
     cdef Py_ssize_t cap = 2 * b.cap
@@ -485,11 +495,7 @@ def frame_line(res, bint profile):
     """`output.frame_line(res, profile=profile)`'s text, or None where the Python writer must
     decide (module doc)."""
     cdef Buf b
-    b.n = 0
-    b.cap = 4096
-    b.p = <char*>PyMem_Malloc(b.cap)
-    if b.p == NULL:
-        raise MemoryError()
+    open_buf(&b, 4096)
     try:
         if put_frame(&b, res, profile):
             return None
@@ -502,11 +508,7 @@ def number_tokens(double x, int nd):
     """(the fast fixed token or None, the fast repr or None, CPython's fixed token, CPython's
     repr) of x: the tests compare the fast formatters with CPython's on many values."""
     cdef Buf b
-    b.n = 0
-    b.cap = 256
-    b.p = <char*>PyMem_Malloc(b.cap)
-    if b.p == NULL:
-        raise MemoryError()
+    open_buf(&b, 256)
     try:
         fixed = fast_fixed(&b, x, nd)
         t1 = PyUnicode_DecodeASCII(b.p, b.n, NULL) if fixed else None

@@ -11,10 +11,10 @@ Equal to the Python builder by construction (tests compare both):
   math module calls) and math.degrees' factor 180 / pi.
 """
 
-from libc.math cimport asin, atan2, cos, fabs, floor, isfinite, rint, sqrt
+from libc.math cimport asin, atan2, cos, fabs, isfinite, rint, sqrt
 
 from receiver.core._buf cimport load
-from receiver.core._pyround cimport np_round, pow10, py_round
+from receiver.core._pyround cimport np_round, pow10, py_round, rint_is_round
 
 cdef double RAD_TO_DEG = 180.0 / 3.14159265358979323846   # CPython's math.degrees factor
 
@@ -212,7 +212,7 @@ cdef int _put_decimal(Out* o, double r, int n) except -1:
 cdef int _put_py_round(Out* o, double v, int n) except -1:
     """json of Python's round(v, n) (`py_round`)."""
     cdef double y = v * pow10(n)
-    if isfinite(y) and fabs(y) < 1e9 and fabs(y - floor(y) - 0.5) > 1e-6:
+    if rint_is_round(y):
         return _put_decimal(o, rint(y), n)
     return _put_repr(o, round(v, n))
 

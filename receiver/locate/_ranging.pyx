@@ -12,9 +12,10 @@ costs ~2.5 k instructions, a frame has 16-32 of them). The numpy code in
 receiver/locate/ranging.py and indoor.py stays the reference (tests/test_glue_kernels.py).
 """
 
-from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_WRITABLE, PyBuffer_Release, PyObject_GetBuffer
+from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBuffer_Release, PyObject_GetBuffer
 from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport hypot, isnan
+from receiver.core._buf cimport fresh_data
 from receiver.core._pyround cimport py_round
 from receiver.decode._npsum cimport pw_sum
 
@@ -70,14 +71,6 @@ def cut_by_edge(list contours, double margin, double x_max, double y_max):
     return out
 
 
-cdef double* out_f64(object o, Py_buffer* b) except NULL:
-    """The data of an array this module just made with np.empty (float64); released at once
-    (the caller keeps the array)."""
-    PyObject_GetBuffer(o, b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE)
-    PyBuffer_Release(b)
-    return <double*>b.buf
-
-
 # A frame's edge-point sigmas take a few values (most are clamped at the floor of
 # receiver.vision.outline): the last distinct ones and their hypot are kept (libm's hypot, ~100
 # instructions, is most of the packing; a pure function, so a kept value is the same bits).
@@ -106,7 +99,7 @@ def pack_outline(list chosen, double model_sigma, double focal):
     targets `chosen`: T (observation, (points (N_k, 2), sigma (N_k,)) float64 C-contiguous,
     (led, (hx, hy), (x, y, z))). `pts`: every target's points in turn, then the T centroids
     (cx, cy); `sigma`: hypot(sigma_px, model_sigma) / focal; `ends[k]`: where target k starts."""
-    cdef Py_buffer bp, bs, bo
+    cdef Py_buffer bp, bs
     cdef const double* P
     cdef const double* S
     cdef double* pv
@@ -122,7 +115,7 @@ def pack_outline(list chosen, double model_sigma, double focal):
     sigma = np.empty(m)
     xyz = np.empty((n, 3))
     half = np.empty((n, 2))
-    pv, sv, xv, hv = out_f64(pts, &bo), out_f64(sigma, &bo), out_f64(xyz, &bo), out_f64(half, &bo)
+    pv, sv, xv, hv = fresh_data(pts), fresh_data(sigma), fresh_data(xyz), fresh_data(half)
     ends = [0] * (n + 1)
     for t in range(n):
         o, e, fx = chosen[t]
