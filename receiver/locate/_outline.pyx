@@ -466,8 +466,6 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     cdef const double* nh
     cdef const double* m
     cdef const double* d
-    cdef const double* c6
-    cdef const double* dc6t
     cdef const double* C = p + 3
     cdef double dn[18]
     cdef double dl[18]
