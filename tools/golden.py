@@ -1,6 +1,6 @@
 """Golden per-stage data of the bundled recordings: `python -m tools.golden` rewrites
 tests/golden/NAME.json for each of recordings/indoor-walk, indoor-static and vehicle;
-tests/test_golden.py recomputes them and compares.
+tests/pipeline/test_golden.py recomputes them and compares.
 
 Each recording is run once through `occloc run RECORDING --out FILE` (its own camera.yaml and
 map.json, default settings) and scored by `occloc eval FILE --truth truth.jsonl --json`. Stored:

@@ -155,7 +155,7 @@ def frozen_record(cls, fields: dict):
     """`cls(**fields)` of a frozen dataclass without `__post_init__` or slots, built without its
     generated `__init__` (one `object.__setattr__` per field: several times the cost; the
     receiver builds a few records per LED and frame). `fields` must name every field, in order
-    (tests/test_pipeline.py and tests/test_detect_kernels.py compare with the constructor)."""
+    (tests/pipeline/test_pipeline.py and tests/engine/test_detect_kernels.py compare with the constructor)."""
     o = object.__new__(cls)
     o.__dict__.update(fields)
     return o

@@ -3,7 +3,7 @@
 phase search and the fold modulo the packet in one call instead of ~15 numpy calls per
 decoder step. Every sum is taken in numpy's order (np.bincount: sequential in input order
 from 0.0; the phase score np.abs(sums).sum(axis=1): 0.0 plus numpy's pairwise sum of a row),
-so the results equal the numpy path to the bit (tests/test_s2psk_fold.py)."""
+so the results equal the numpy path to the bit (tests/decode/test_s2psk_fold.py)."""
 
 from libc.math cimport floor, fabs
 from libc.stdlib cimport malloc, free

@@ -128,7 +128,7 @@ def codebook() -> tuple[np.ndarray, np.ndarray]:
 # distance 3 bits = 6 Manchester symbols; shifted by 1-2 symbols, Manchester pairs straddle and
 # the sync 111000 overlaps data, e.g. 0x00 at shift 0 and 0x6F at shift 1 differ in 4). 6990 of
 # the 7680 hypotheses have a different-ID neighbour at distance 4, the other 690 at 6. Two
-# shifts of the same ID are at least 4 apart too (tests/test_s2psk_soft.py checks all three).
+# shifts of the same ID are at least 4 apart too (tests/decode/test_s2psk_soft.py checks all three).
 
 
 @dataclass(frozen=True)

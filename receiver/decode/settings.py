@@ -138,7 +138,7 @@ class S2pskSettings:
         1 wrong, at soft_min_z 3.0: far heads decoded earlier whose pairs then missed a 10 px
         yaw jump and sat on the next head, pairing.py; off until pairs follow yaw).
         Measured (Monte Carlo, folded packets of 1-3 samples per position, N(0, sd) clipped to
-        [-1, 1]; seeded small version in tests/test_s2psk_soft.py): pure noise, 10^6 packets
+        [-1, 1]; seeded small version in tests/decode/test_s2psk_soft.py): pure noise, 10^6 packets
         per sd 0.3 / 0.6 / 1.0: hard rule 0 / 0 / 1 accepted, soft rule 0 / 0 / 0 (largest z
         2.03 / 1.96 / 2.26; snr 99.99th percentile 0.86-0.93). A true ID plus noise, 2 x 10^5
         packets each at (sd, amplitude) (0.3, 0.3), (0.3, 0.5), (0.6, 0.3), (0.6, 0.5),

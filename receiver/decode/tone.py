@@ -132,7 +132,7 @@ def stripe_frequency_hz(profile, row_readout_us: float, weights=None, *, fmin_hz
 def _peak_native(profile: np.ndarray, a: int, b: int, k_lo: float, k_hi: float, pad_factor: int
                  ) -> tuple[float, float]:
     """`_peak_cycles_per_row(profile[a:b], ...)` with the compiled kernels around numpy's FFT
-    and logarithm (the same numbers: tests/test_decode_native.py)."""
+    and logarithm (the same numbers: tests/engine/test_decode_native.py)."""
     n = b - a
     r, rr, win = _ramp_and_window(n)
     nfft = _nfft(n * pad_factor)

@@ -2,7 +2,7 @@
 """Compiled `receiver.io.output.frame_line`: a frame's JSON line written into one C buffer, every
 number formatted by CPython's own float formatter (`PyOS_double_to_string`, what `"%.2f" % v` and
 `repr(v)` call), so the characters are those of `output._fast_line` / json.dumps (tests:
-tests/test_output_line.py, tests/test_glue_kernels.py). Anything it does not format exactly the
+tests/io/test_output_line.py, tests/engine/test_glue_kernels.py). Anything it does not format exactly the
 same way (NaN, a numpy int as an LED field, a string needing escapes, an int subclass...) gives
 None, and the Python writer decides.
 """

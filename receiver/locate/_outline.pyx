@@ -4,7 +4,7 @@ assignment, the whitened residuals, the IRLS normal equations (per-edge moments 
 rects, analytic Jacobians for circles, centroids and priors) and the Levenberg-Marquardt rounds
 of one frame in one call, with the arithmetic of the pure numpy path (`_Problem`, `lm_normal`).
 Only the summation order differs (sequential sums here, numpy's pairwise sums and BLAS there):
-the results agree to rounding, and positions to far below 0.1 mm (tests/test_outline_native.py).
+the results agree to rounding, and positions to far below 0.1 mm (tests/engine/test_outline_native.py).
 
 Parameters p = (Rodrigues vector of R_cw, C); normalized image coordinates. Input: every target's
 edge points in turn (`outline_pose.OutlineFrame`), each target a square / rect (4 straight edges)

@@ -9,7 +9,7 @@ lam * max(diag A, 1e-12) from 1e-3, x10 on a rejected step up to 1e8, / 10 on a 
 The arithmetic is the pure path's, term by term; the robust cost is summed as numpy sums (pairwise,
 8 accumulators); only the normal equations' sums (BLAS there, sequential here), the 6 x 6 solve
 (LAPACK there, `_solve6` here) and the Rodrigues formulas (cv2 there, `_rodrigues` here) may round
-differently: fixes agree to ~1e-12 (tests/test_pnp_kernel.py).
+differently: fixes agree to ~1e-12 (tests/engine/test_pnp_kernel.py).
 
 Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 

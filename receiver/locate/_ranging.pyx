@@ -9,7 +9,7 @@ dozen numpy calls on 16 small arrays.
   focal length: libm's hypot, as np.hypot), the point ranges, centres and half extents.
 The small arrays are read through the buffer protocol directly (a typed memoryview per array
 costs ~2.5 k instructions, a frame has 16-32 of them). The numpy code in
-receiver/locate/ranging.py and indoor.py stays the reference (tests/test_glue_kernels.py).
+receiver/locate/ranging.py and indoor.py stays the reference (tests/engine/test_glue_kernels.py).
 """
 
 from cpython.buffer cimport PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBuffer_Release, PyObject_GetBuffer

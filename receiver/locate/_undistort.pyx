@@ -1,6 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """Compiled undistortion of image points (`receiver.locate.ranging.undistort_points`): OpenCV's
-`undistortPoints` algorithm written out, bit for bit its result (tests/test_ranging.py), without
+`undistortPoints` algorithm written out, bit for bit its result (tests/locate/test_ranging.py), without
 its per-call set-up (a frame undistorts ~1000 outline edge points)."""
 
 

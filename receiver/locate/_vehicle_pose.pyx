@@ -17,7 +17,7 @@ Pose p = (Rodrigues vector of R_cw (3), camera centre C (3), m). Residual rows, 
   Mx, My, Mz, D, sigma_D), `_with_attitude_prior`'s.
 Rodrigues' rotation and derivative are OpenCV's formulas (cv::Rodrigues, 3x9 row-major dR/drvec).
 Differences to the numpy path: summation order (BLAS products, pairwise sums, LU pivoting), i.e.
-a few ulps; tests/test_vehicle_native.py compares the two.
+a few ulps; tests/engine/test_vehicle_native.py compares the two.
 """
 
 from libc.math cimport sqrt, sin, cos, atan2, asin, fabs, fmod, M_PI, isfinite

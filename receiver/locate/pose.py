@@ -34,7 +34,7 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
 Compiled path (`_k`, receiver/locate/_pnp.pyx): `refine_pose`'s whole robust Levenberg-Marquardt
 (residuals, analytic Jacobian, loss weights, damping and stopping rule of `lsq.lm_normal`) and the
 scoring of `solve_fix`'s PnP candidates run in one kernel call each; `_joint_fun` + `robust_lm_rj`
-stay the reference (tests/test_pnp_kernel.py: fixes equal to 1e-9 m / rad). When the stream is
+stay the reference (tests/engine/test_pnp_kernel.py: fixes equal to 1e-9 m / rad). When the stream is
 tracked, the outline solve (receiver.locate.indoor) runs instead of these: on the bundled walks the
 centroid solves are the cold starts of the first frames (and the handedness check's mirror solve).
 

@@ -159,7 +159,7 @@ def _r(v, nd=4):
 
 _r_py = _r
 if _kr is not None:
-    _r = _kr.rnd            # noqa: F811 -- the same numbers, compiled (tests/test_vehicle_native.py)
+    _r = _kr.rnd            # noqa: F811 -- the same numbers, compiled (tests/engine/test_vehicle_native.py)
 
 
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ of all those points (`convex_hull_f32`: OpenCV's cv::convexHull for float points
 in the same order, start vertex included), the hull's centroid and area
 (receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim, summed in
 numpy's reduceat order) and its box (floor of the float32 extremes, cv2.boundingRect of float
-points). The pure reference is `receiver.vision.envelope._merge`; tests/test_track_kernels.py
+points). The pure reference is `receiver.vision.envelope._merge`; tests/engine/test_track_kernels.py
 asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
 """
 

@@ -1375,7 +1375,7 @@ cdef extern from *:
        A port of OpenCV 5.0's convexHull for integer points: points sorted by (x, y, index)
        (its comparator's order, a total one: any sort gives its order), the upper and lower
        chains by Sklansky's scan (equal points are not skipped), and the cyclic shift that makes
-       the indices ascending or descending where it can. tests/test_detect_kernels.py checks
+       the indices ascending or descending where it can. tests/engine/test_detect_kernels.py checks
        it against cv2.convexHull on random point sets with many equal points. */
     static int occ_convex_hull(const int32_t *x, const int32_t *y, int total, uint64_t *keys,
                                int *ord, int32_t *px, int32_t *py, int *stack, int *hull) {

@@ -7,7 +7,7 @@ The pure reference is `Tracker._step_pure`; this does the same arithmetic in the
 hypot, gate gate_px + gate_size sqrt(area), area ratio bounds; the velocity blend), and the same
 assignment: the gated pairs themselves when no track and no blob has two, else the solver the
 caller passes (scipy's, `receiver.vision.track._solver_assignment`) on the same costs.
-tests/test_track_kernels.py runs both on the same streams and asserts equal tracks.
+tests/engine/test_track_kernels.py runs both on the same streams and asserts equal tracks.
 """
 
 from libc.math cimport sqrt, hypot, fabs, isfinite

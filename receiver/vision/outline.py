@@ -244,7 +244,7 @@ def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px
 
 def _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows):
     """`stripe_edge_points_batch` by the compiled kernel (`_pixels.edge_points`), row by row
-    straight from the frame: the same points and sigmas, bit for bit (tests/test_outline.py)."""
+    straight from the frame: the same points and sigmas, bit for bit (tests/vision/test_outline.py)."""
     bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
     x0, x1, y0, y1 = (np.ascontiguousarray(c) for c in bx.T)
     bg = np.array([b[5] for b in boxes], dtype=np.float32)

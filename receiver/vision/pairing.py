@@ -35,7 +35,7 @@ pass and frame, not per pair: `_explain` of every pair with `_first_pass`'s clai
 (`_explain_batch`), `shift_votes`, `dx_offsets` and the heads' fluxes (`sample_fluxes`); the
 intensities of a frame's emitters are read in one call (receiver.vision.profile.mean_in_masks).
 Their decisions and numbers equal the Python code here to the bit (math.hypot's algorithm,
-numpy's summation orders), which stays the reference (`OCCLOC_PURE=1`, tests/test_pair_kernels.py).
+numpy's summation orders), which stays the reference (`OCCLOC_PURE=1`, tests/engine/test_pair_kernels.py).
 """
 
 from __future__ import annotations

@@ -1,0 +1,151 @@
+"""Intrinsics from rendered chessboard views (receiver.calibrate.intrinsics, `occloc calibrate intrinsics`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from receiver.calibrate.intrinsics import ViewCollector, calibrate_views, parse_board
+from receiver.cli import main as occloc
+from receiver.core.errors import InputError
+from receiver.io.camera import load_camera
+
+ROOT = Path(__file__).resolve().parents[2]
+W, H = 800, 600
+K_TRUE = np.array([[820.0, 0.0, 405.0], [0.0, 815.0, 296.0], [0.0, 0.0, 1.0]])
+DIST_TRUE = np.array([-0.12, 0.05, 0.001, -0.0005, 0.0])
+COLS, ROWS, SQ = 9, 6, 0.03  # inner corners, 30 mm squares
+SS = 4  # supersampling
+
+
+def render_view(rvec, tvec, rng, *, blur=0.0) -> np.ndarray:
+    """A chessboard of (COLS+1) x (ROWS+1) squares seen by K_TRUE/DIST_TRUE, each square's
+    edges densely projected (distortion bends them), filled at SS x resolution and area-averaged."""
+    big = np.full((H * SS, W * SS), 200, np.uint8)
+    t = np.linspace(0, 1, 9)[:-1]
+    polys = []
+    for i in range(-1, COLS):
+        for j in range(-1, ROWS):
+            if (i + j) % 2:
+                continue
+            x0, y0 = i * SQ, j * SQ
+            c = [(x0, y0), (x0 + SQ, y0), (x0 + SQ, y0 + SQ), (x0, y0 + SQ)]
+            pts = []
+            for k in range(4):
+                a, b = np.array(c[k]), np.array(c[(k + 1) % 4])
+                pts += [a + (b - a) * s for s in t]
+            obj = np.hstack((np.array(pts), np.zeros((len(pts), 1))))
+            img, _ = cv2.projectPoints(obj, rvec, tvec, K_TRUE, DIST_TRUE)
+            polys.append(np.round((img.reshape(-1, 2) + 0.5) * SS * 16 - 0.5 * 16).astype(np.int32))
+    cv2.fillPoly(big, polys, 30, lineType=cv2.LINE_8, shift=4)
+    img = cv2.resize(big, (W, H), interpolation=cv2.INTER_AREA).astype(np.float32)
+    if blur > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur)
+    img += rng.normal(0, 1.5, img.shape).astype(np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def random_poses(n, rng):
+    out = []
+    centre = np.array([(COLS - 1) * SQ / 2, (ROWS - 1) * SQ / 2, 0.0])
+    for _ in range(n):
+        ang = np.radians(rng.uniform(-40, 40, 3)) * np.array([1, 1, 0.5])
+        R, _ = cv2.Rodrigues(ang)
+        z = rng.uniform(0.45, 0.7)
+        off = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.06, 0.06), z])
+        t = off - R @ centre
+        out.append((ang.reshape(3, 1), t.reshape(3, 1)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def board_folder(tmp_path_factory):
+    rng = np.random.default_rng(11)
+    folder = tmp_path_factory.mktemp("board")
+    for k, (r, t) in enumerate(random_poses(20, rng)):
+        cv2.imwrite(str(folder / f"v{k:02d}.png"), render_view(r, t, rng))
+    r, t = random_poses(1, rng)[0]
+    cv2.imwrite(str(folder / "v20_dup.png"), cv2.imread(str(folder / "v00.png"), cv2.IMREAD_GRAYSCALE))
+    cv2.imwrite(str(folder / "v21_blur.png"), render_view(r, t, rng, blur=4.0))
+    return folder
+
+
+def test_recovers_intrinsics(board_folder):
+    col = ViewCollector(parse_board(f"chess:{COLS}x{ROWS}", SQ * 1000))
+    for k, p in enumerate(sorted(board_folder.glob("*.png"))):
+        col.add(k, cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    assert col.stats.duplicate >= 1 and col.stats.blurred >= 1
+    res = calibrate_views(col)
+    K = res.K
+    for got, want in ((K[0, 0], 820.0), (K[1, 1], 815.0), (K[0, 2], 405.0), (K[1, 2], 296.0)):
+        assert abs(got / want - 1) < 0.003, (got, want)
+    assert 0 < res.rms_px < 0.3
+    assert len(res.per_view_px) == len(res.frames) >= 12
+
+
+def test_cli_writes_camera_keeping_existing_keys(board_folder, tmp_path, capsys):
+    existing = tmp_path / "old.yaml"
+    existing.write_text((ROOT / "recordings" / "indoor-static" / "camera.yaml").read_text())
+    out = tmp_path / "new.yaml"
+    assert occloc(["calibrate", "intrinsics", str(board_folder), "--board", f"chess:{COLS}x{ROWS}",
+                   "--square-mm", "30", "--out", str(out), "--camera", str(existing)]) == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["rms_px"] > 0 and len(line["per_view_px"]) == line["views"]
+    cam = load_camera(str(out))
+    assert (cam.width, cam.height) == (W, H)
+    assert abs(cam.fx / 820 - 1) < 0.003 and abs(cam.cy / 296 - 1) < 0.003
+    old = load_camera(str(existing))
+    # kept from EXISTING (scaled to the frames' size): row time per row, exposure, fps
+    assert cam.exposure_us == old.exposure_us and cam.fps == old.fps and cam.row_readout_us > 0
+    # never overwrite an input
+    assert occloc(["calibrate", "intrinsics", str(board_folder), "--board", f"chess:{COLS}x{ROWS}",
+                   "--square-mm", "30", "--out", str(existing), "--camera", str(existing)]) == 2
+
+
+def test_no_board_is_one_line_error(tmp_path, capsys):
+    folder = tmp_path / "empty"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), rng.integers(0, 255, (240, 320), np.uint8))
+    col = ViewCollector(parse_board("chess:9x6", 30))
+    for i, p in enumerate(sorted(folder.glob("*.png"))):
+        col.add(i, cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    with pytest.raises(InputError):
+        calibrate_views(col)
+    rc = occloc(["calibrate", "intrinsics", str(folder), "--board", "chess:9x6", "--square-mm", "30",
+                 "--out", str(tmp_path / "c.yaml")])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) >= 1 and err[-1].startswith("occloc: no usable board view")
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_board_specs():
+    b = parse_board("charuco:7x5:DICT_4X4_50", 30, 22)
+    assert b.kind == "charuco" and b.charuco() is not None
+    for bad in ("chess:9", "charuco:7x5:NOPE", "hex:3x3"):
+        with pytest.raises(InputError):
+            parse_board(bad, 30, 22)
+    with pytest.raises(InputError):
+        parse_board("charuco:7x5:DICT_4X4_50", 30, None)
+
+
+def test_charuco_views():
+    b = parse_board("charuco:7x5:DICT_4X4_50", 30, 22)
+    board = b.charuco()
+    flat = board.generateImage((700, 500), marginSize=20)
+    col = ViewCollector(b, min_move_frac=0.0)
+    rng = np.random.default_rng(3)
+    src = np.float32([[0, 0], [700, 0], [700, 500], [0, 500]])
+    for k in range(6):
+        dst = src * 0.8 + np.float32(rng.uniform(0, 80, (4, 2))) + 40
+        Hm = cv2.getPerspectiveTransform(src, dst)
+        img = cv2.warpPerspective(flat, Hm, (800, 600), borderValue=255)
+        assert col.add(k, img) == "accepted"
+    res = calibrate_views(col)
+    assert np.isfinite(res.rms_px) and len(res.frames) == 6  # arbitrary homographies: no exact pinhole fit

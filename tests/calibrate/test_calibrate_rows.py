@@ -1,0 +1,102 @@
+"""Row readout time from tone and OOK stripes (receiver.calibrate.rows, `occloc calibrate rows`)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from receiver.calibrate.rows import crossings, exposure_warning, measure_row_time
+from receiver.cli import main as occloc
+from receiver.core.errors import InputError
+from receiver.core.records import Frame
+from receiver.io.camera import load_camera
+from receiver.io.sources import open_source
+
+ROOT = Path(__file__).resolve().parents[2]
+REC = ROOT / "recordings"
+TOL = 0.003  # 0.3 %
+WRONG_PRIOR_US = 20.0  # the camera file's guess: the measurement must not lean on it
+
+
+def _synth_frames(row_us: float, mode: str, rate: float, n: int = 10):
+    from tools.synth import make_scene, render_frames
+    kw = {"rate_hz": rate} if mode == "ook" else {"tone_hz": rate}
+    scene = make_scene("indoor-static", seed=3, n_frames=n, row_readout_us=row_us, **kw)
+    return [Frame(t["frame"], t["t"], img) for img, t in render_frames(scene, seed=5)]
+
+
+@pytest.mark.parametrize("row_us", [12.0, 25.0, 38.0])
+@pytest.mark.parametrize("mode,rate", [("tone", 2000.0), ("ook", 5000.0)])
+def test_synthetic_row_time(row_us, mode, rate):
+    res = measure_row_time(_synth_frames(row_us, mode, rate), mode=mode, rate_hz=rate,
+                           prior_row_us=WRONG_PRIOR_US)
+    assert abs(res.t_row_us / row_us - 1) < TOL, res.to_json()
+    assert 0 < res.stderr_us < 0.01 * row_us
+    assert res.exposure_us is not None and 8.0 < res.exposure_us < 35.0  # true 20 us
+
+
+def test_without_prior():
+    res = measure_row_time(_synth_frames(25.0, "ook", 5000.0, n=6), mode="ook", rate_hz=5000.0)
+    assert abs(res.t_row_us / 25.0 - 1) < TOL
+
+
+def test_recording_static_tone_and_ook():
+    frames = list(open_source(str(REC / "indoor-static")))
+    tone = measure_row_time(frames, mode="tone", rate_hz=2000.0, prior_row_us=WRONG_PRIOR_US)
+    ook = measure_row_time(frames, mode="ook", rate_hz=20000.0, prior_row_us=WRONG_PRIOR_US)
+    assert abs(tone.t_row_us / 15.0 - 1) < TOL, tone.to_json()
+    assert abs(ook.t_row_us / 15.0 - 1) < TOL, ook.to_json()
+
+
+def test_cli_walk_writes_out(tmp_path, capsys):
+    cam = tmp_path / "camera.yaml"
+    text = (REC / "indoor-walk" / "camera.yaml").read_text().replace("row_readout_us: 15.", "row_readout_us: 20.")
+    cam.write_text(text)
+    out = tmp_path / "out.yaml"
+    rc = occloc(["calibrate", "rows", str(REC / "indoor-walk"), "--camera", str(cam), "--ook-rate", "20000",
+                 "--out", str(out), "--max-frames", "20", "--map", str(REC / "indoor-walk" / "map.json")])
+    assert rc == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert abs(line["row_readout_us"] / 15.0 - 1) < TOL
+    assert abs(load_camera(str(out)).row_readout_us / 15.0 - 1) < TOL
+    assert load_camera(str(cam)).row_readout_us == 20.0  # the input is untouched
+    assert load_camera(str(out)).fx == load_camera(str(cam)).fx
+
+
+def test_cli_updates_camera_in_place(tmp_path, capsys):
+    rec = tmp_path / "rec"
+    shutil.copytree(REC / "indoor-static", rec)
+    cam = rec / "camera.yaml"
+    cam.write_text(cam.read_text().replace("row_readout_us: 15.", "row_readout_us: 18."))
+    assert occloc(["calibrate", "rows", str(rec), "--camera", str(cam), "--freq-hz", "2000",
+                   "--max-frames", "30"]) == 0
+    assert abs(load_camera(str(cam)).row_readout_us / 15.0 - 1) < TOL
+    assert not [p for p in rec.iterdir() if p.name.startswith(".camera-")]  # no temp file left
+
+
+def test_no_stripes_is_one_line_error(tmp_path, capsys):
+    import cv2
+    import numpy as np
+    folder = tmp_path / "dark"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), np.zeros((120, 160), np.uint8))
+    with pytest.raises(InputError):
+        measure_row_time(open_source(str(folder)), mode="ook", rate_hz=20000.0)
+    cam = tmp_path / "c.yaml"
+    cam.write_text((REC / "indoor-static" / "camera.yaml").read_text())
+    assert occloc(["calibrate", "rows", str(folder), "--camera", str(cam), "--ook-rate", "20000"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("occloc: ") and len(err[-1]) < 300
+
+
+def test_crossings_and_warning():
+    import numpy as np
+    x = np.tile(np.r_[np.zeros(5), np.full(5, 100.0)], 4)
+    pos, d = crossings(x)
+    assert np.allclose(np.diff(pos), 5.0) and set(d.tolist()) == {-1, 1}
+    assert exposure_warning(40.0, [20000.0]) is not None
+    assert exposure_warning(10.0, [20000.0]) is None
