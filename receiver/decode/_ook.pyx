@@ -16,7 +16,7 @@ index of the best shift and threshold decisions are taken from them.
 
 from libc.math cimport hypot, fmod, floor, copysign, fabs
 from libc.stdlib cimport malloc, free
-from receiver.decode._npsum cimport pw_sum as _pw_sum, pw_csum as _pw_csum
+from receiver.core._npsum cimport pw_sum as _pw_sum, pw_csum as _pw_csum
 
 import numpy as np
 

@@ -7,7 +7,7 @@ so the results equal the numpy path to the bit (tests/decode/test_s2psk_fold.py)
 
 from libc.math cimport floor, fabs
 from libc.stdlib cimport malloc, free
-from receiver.decode._npsum cimport pw_sum
+from receiver.core._npsum cimport pw_sum
 
 
 def folded_sums(const double[::1] t, const double[::1] x, const double[::1] phases, double symbol_s,

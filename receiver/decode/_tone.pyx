@@ -6,7 +6,7 @@ the trend; the median is a selected element, whatever the selection order). The 
 three logarithms stay numpy's."""
 
 from libc.stdlib cimport malloc, free
-from receiver.decode._npsum cimport pw_sum as _pw_sum
+from receiver.core._npsum cimport pw_sum as _pw_sum
 
 import numpy as np
 

@@ -19,7 +19,7 @@ from libc.string cimport memcpy
 from receiver.locate._rodrigues cimport rodrigues, cam_point
 from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
-from receiver.decode._npsum cimport pw_sum
+from receiver.core._npsum cimport pw_sum
 
 # lsq.LM_LAMBDA0, LM_LAMBDA_MAX (the pure path's constants; tests compare both paths).
 DEF LAMBDA0 = 1e-3

@@ -17,7 +17,7 @@ from cpython.mem cimport PyMem_Free, PyMem_Malloc
 from libc.math cimport hypot, isnan
 from receiver.core._buf cimport fresh_data
 from receiver.core._pyround cimport py_round
-from receiver.decode._npsum cimport pw_sum
+from receiver.core._npsum cimport pw_sum
 
 import numpy as np
 

@@ -18,7 +18,7 @@ from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy
 from cpython.buffer cimport (PyBUF_C_CONTIGUOUS, PyBUF_FORMAT, PyBUF_STRIDES, PyBUF_WRITABLE, PyBuffer_Release,
                              PyObject_CheckBuffer, PyObject_GetBuffer)
-from receiver.decode._npsum cimport pw_sum
+from receiver.core._npsum cimport pw_sum
 
 import numpy as np
 

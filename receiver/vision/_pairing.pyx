@@ -7,7 +7,7 @@ the reference calls math.hypot, libm's hypot where it calls np.hypot, numpy's su
 orders for the shifts' means."""
 
 from libc.math cimport sqrt, fabs, hypot, frexp, ldexp, INFINITY
-from receiver.decode._npsum cimport pw_sum
+from receiver.core._npsum cimport pw_sum
 import numpy as np
 
 cdef double DBL_MIN_ = 2.2250738585072014e-308

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import pathlib
+import re
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 # Stage order of the data flow: a module may import only from its own stage or stages before it.
@@ -24,7 +25,24 @@ def _modules() -> dict[str, set[str]]:
             elif isinstance(node, ast.Import):
                 deps.update(a.name for a in node.names if a.name.startswith("receiver"))
         out[mod] = deps
+    for path in [*(ROOT / "receiver").rglob("*.pyx"), *(ROOT / "receiver").rglob("*.pxd")]:
+        mod = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        out.setdefault(mod, set()).update(_cython_imports(path.read_text()))
     return out
+
+
+# Cython's import lines: `from X cimport ...`, `from X import ...`, `cimport X`, `import X`
+_CYTHON_IMPORT = re.compile(r"^\s*(?:from\s+(receiver[\w.]*)\s+c?import\b|c?import\s+(receiver[\w.]*))", re.M)
+
+
+def _cython_imports(text: str) -> set[str]:
+    """The receiver modules a .pyx / .pxd file imports or cimports."""
+    return {m.group(1) or m.group(2) for m in _CYTHON_IMPORT.finditer(text)}
+
+
+def test_cython_imports_are_read():
+    text = "from receiver.core._buf cimport load\ncimport receiver.locate._loss\nfrom libc.math cimport sqrt\n"
+    assert _cython_imports(text) == {"receiver.core._buf", "receiver.locate._loss"}
 
 
 def _stage(mod: str) -> str:
