@@ -1,6 +1,6 @@
 """The built-in synthetic scene of `occloc bench` (`receiver.cli.bench`): 1280x720, 16 OOK LEDs
-(PROTOCOL.md packets at 20 kHz on a rolling shutter, drifting across the image), the budget case
-of issue 4, with a map of real LED positions (`bench_map`) so that the whole pipeline, positioning
+(PROTOCOL.md packets at 20 kHz on a rolling shutter, drifting across the image), the frame-budget
+case, with a map of real LED positions (`bench_map`) so that the whole pipeline, positioning
 included, runs on it. Units: pixels, seconds, metres.
 """
 

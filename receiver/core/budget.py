@@ -31,7 +31,7 @@ from typing import Callable, Iterator
 # numpy and OpenCV are imported where they are used: this module is loaded before either
 # (limit_blas_threads must run before numpy's first import to take effect).
 
-# Threads the frame budget (issue 14) is stated for: one core.
+# Threads the frame budget is stated for: one core.
 DEFAULT_THREADS = 1
 # Environment variables that size the BLAS / OpenMP pools of numpy's (and SciPy's) BLAS when
 # it loads: OpenBLAS, an OpenMP build, MKL.

@@ -118,7 +118,7 @@ class RunSummary:
         return line
 
 
-# -- the same line, built directly (issue 14: json.dumps of `frame_record` costs ~2 decimal
+# -- the same line, built directly (json.dumps of `frame_record` costs ~2 decimal
 # conversions per number, round() then repr(); this formats each rounded number once)
 
 # |v| range where "%.{nd}f" % v with its trailing zeros dropped is exactly repr(round(v, nd)):

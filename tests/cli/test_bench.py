@@ -46,7 +46,7 @@ def test_bench_scene_is_what_it_claims():
 
 
 def test_bench_whole_frame_budget(benchmark):
-    """Issue 4 budget case: 1280x720, 16 LEDs, steady state (IDs decoded), one frame, one core."""
+    """Budget case: 1280x720, 16 LEDs, steady state (IDs decoded), one frame, one core."""
     cam, led_map, frames = bench_frames(12)
     rx = Receiver(cam, led_map)
     for f in frames[:-1]:
@@ -56,7 +56,7 @@ def test_bench_whole_frame_budget(benchmark):
     assert len(res.leds) == 16 and sum(o.id is not None for o in res.leds) >= 14
 
 
-# ---------------------------------------------------------------- the whole pipeline (issue 14)
+# ---------------------------------------------------------------- the whole pipeline
 
 def _whole_cases():
     from receiver.cli.bench import SCENE, bundled_recordings

@@ -10,7 +10,7 @@ from signals import ook_frames
 
 VECTOR_IDS = [0x0000, 0x002A, 0xBEEF]
 PROPERTY_IDS = [0x0000, 0x002A, 0xBEEF, 0xFFFF, 0x1234, 0x8001]
-# default-like settings (issue 4): 20 kHz chips, 15 us rows, 20 us exposure
+# default-like settings: 20 kHz chips, 15 us rows, 20 us exposure
 RATE, T_ROW, T_EXP = 20000.0, 15.0, 20.0
 
 
@@ -43,7 +43,7 @@ def test_chip_grid_recovers_period(err):
 
 @pytest.mark.parametrize("led_id", PROPERTY_IDS)
 def test_every_single_chip_error_corrected_or_rejected(led_id):
-    """Issue 4 property: a packet with any one chip wrong never yields a wrong ID; with more
+    """Property: a packet with any one chip wrong never yields a wrong ID; with more
     (clean) frames the accumulation corrects it. All 54 positions, several IDs."""
     rng = np.random.default_rng(1000 + led_id)
     for pos in range(OOK_PACKET_LEN):

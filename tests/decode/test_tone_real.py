@@ -1,4 +1,4 @@
-"""Tone decoding on the real Luxapose photos through `occloc run` (issue 4: every LED found,
+"""Tone decoding on the real Luxapose photos through `occloc run` (every LED found,
 its frequency within 1 % of nominal; the peer reads x_0_y_1.27 as 2069/2507/3029/3514/4019 Hz).
 
 The pipeline feeds the tone decoder `receiver.vision.tone_profile.tone_profile` (the LED's whole

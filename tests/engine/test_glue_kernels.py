@@ -1,4 +1,4 @@
-"""The per-frame glue around the kernels (issue 14): the compiled JSON line writer
+"""The per-frame glue around the kernels: the compiled JSON line writer
 (receiver/io/_jsonline.pyx) against json.dumps of `frame_record` and against the Python writer
 (`output._k` set to None), and `records.led_observation` against the record's own constructor."""
 

@@ -8,7 +8,7 @@ The photo is the *mirror image* of the rig as map_test_rig.json describes it (th
 project reflects its image points before solving). As surveyed, the only pose that fits lies above
 the LED plane, the mirror solution the solver rejects; the map does not declare its handedness,
 so positioning tells it from this frame (receiver.locate.posefilter.PoseFilter) and solves in the mirror.
-Acceptance (issue 5): within 3 cm of the surveyed truth with a valid rotation matrix; measured
+Acceptance: within 3 cm of the surveyed truth with a valid rotation matrix; measured
 2.02 cm (the peer system: 3.7 cm, with a matrix that is not a rotation).
 """
 
@@ -26,7 +26,7 @@ from receiver.locate.ranging import undistort_points
 from receiver.io.sources import open_source
 
 TRUTH = np.array([0.0, 0.0127, 0.0])
-ACCEPT_M = 0.03  # issue 5; measured 2.02 cm through the product, 2.00 cm with the image flipped
+ACCEPT_M = 0.03  # acceptance; measured 2.02 cm through the product, 2.00 cm with the image flipped
 REGRESSION_BOUND_M = 0.04
 
 

@@ -1,4 +1,4 @@
-"""Issue 5 acceptance on the bundled indoor walk: the receiver reads the encoded video exactly as
+"""Acceptance on the bundled indoor walk: the receiver reads the encoded video exactly as
 `occloc run` does (Receiver + Positioner); truth.jsonl is read only here, by the test, to score
 the camera positions that came out. Also the distance error on indoor-static, and a benchmark of
 one positioning step (the frame budget is 33 ms at 30 fps)."""
@@ -18,7 +18,7 @@ from receiver.pipeline import Receiver
 from receiver.io.sources import open_source
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
-# Issue 5 acceptance: median / p95 3D error of the filtered position, metres.
+# Acceptance: median / p95 3D error of the filtered position, metres.
 FILTERED_MEDIAN_M = 0.01
 FILTERED_P95_M = 0.15
 # Raw (unfiltered) fixes: the outline solve (receiver.locate.outline_pose) measures the tilt about

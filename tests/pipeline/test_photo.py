@@ -1,4 +1,4 @@
-"""Photos (issue 14): the search image of a big frame, and the run summary's percentile
+"""Photos: the search image of a big frame, and the run summary's percentile
 (numpy's numbers without numpy.ma).
 
 Speed is not tested here (benchmarks, never timed unit tests); what the fast path must keep is:

@@ -42,7 +42,7 @@ def test_ook_ids_are_right_never_wrong_and_come_within_a_few_frames():
             if o.id is not None:
                 first_id.setdefault(truth.led_id, f.index)
     # All decoded within 10 frames (32 of 54 chips per frame). How fast is the OOK decoder's
-    # business; issue 4's "within 3 frames" is measured on the bundled recordings.
+    # business; the "within 3 frames" is measured on the bundled recordings.
     assert len(first_id) == 8
 
 

@@ -52,7 +52,7 @@ def test_envelopes_over_frames_recover_the_hidden_caps(static_scene):
 
 
 def test_walk_acceptance_no_wrong_id_and_ids_after_three_frames():
-    """Issue 4 acceptance on the synthetic indoor walk (the bundled recording's scene):
+    """Acceptance on the synthetic indoor walk (the bundled recording's scene):
     no wrong ID ever; >= 95 % of LED-frames after a track's first 3 frames carry the right ID."""
     scene = make_scene("indoor-walk", seed=1, n_frames=40)
     rx = Receiver(scene.camera, scene.led_map)

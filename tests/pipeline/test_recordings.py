@@ -1,4 +1,4 @@
-"""Issue 4 acceptance on the bundled recordings: the receiver reads the encoded video exactly as
+"""Acceptance on the bundled recordings: the receiver reads the encoded video exactly as
 `occloc run` does; truth.jsonl is read only here, by the test, to score what came out."""
 
 from __future__ import annotations

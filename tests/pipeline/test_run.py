@@ -171,7 +171,7 @@ def test_real_photos_every_led_found_and_no_wrong_id(luxapose, photo, capsys):
         assert d["id"] in (None, nominal)  # a tone decode is never another LED's frequency
         if d["id"] is not None:
             assert d["mode"] == "tone"
-            # Issue 4 asks for 1 %; the tone decoder meets it on most LEDs (README numbers).
+            # The target is 1 %; the tone decoder meets it on most LEDs (README numbers).
             assert d["freq_hz"] == pytest.approx(nominal, rel=0.05)
     ids = [d["id"] for d in rec["leds"] if d["id"] is not None]
     assert len(ids) >= len(leds) - 1 and len(set(ids)) == len(ids)

@@ -1,4 +1,4 @@
-"""Start-up (issue 14): what the command line imports before it does its work, and `--threads`.
+"""Start-up: what the command line imports before it does its work, and `--threads`.
 
 The import graph is checked, not timed: a fresh interpreter in a subprocess builds the parser
 (or runs a command) and reports `sys.modules`.

@@ -1,4 +1,4 @@
-"""Synthetic camera geometry (issue 3): rendered blob centroid == truth centroid, and truth ==
+"""Synthetic camera geometry: rendered blob centroid == truth centroid, and truth ==
 an independent cv2.projectPoints of the LED outline.
 
 The scenes here are built by hand: one steady circular LED (a firmware tone schedule with
@@ -21,7 +21,7 @@ from tools.synth.model import Emitter, Light, RenderParams, Scene
 from tools.synth.render import FrameRenderer
 from tools.synth.waveform import LedDrive
 
-CENTROID_TOL_PX = 0.1  # issue 3: sub-pixel; the brief asks for < 0.1 px
+CENTROID_TOL_PX = 0.1  # sub-pixel
 # Truth is rounded to 4 decimals, and the renderer's circle is a 96-gon while the test's
 # reference outline is a 2048-gon: the two polygons' centroids differ by far less than 1e-3 px.
 PROJECT_TOL_PX = 2e-3

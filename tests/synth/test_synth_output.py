@@ -1,4 +1,4 @@
-"""Synthetic camera output (issue 3): determinism, recording files round-trip through
+"""Synthetic camera output: determinism, recording files round-trip through
 receiver.io, `occloc synth` command line, and the render-speed benchmark."""
 
 from __future__ import annotations
@@ -144,7 +144,7 @@ def test_cli_bad_input_one_line_exit_2(tmp_path, args, needle):
 
 
 def test_benchmark_render_indoor_walk_frame(benchmark):
-    """One 1280x720 indoor-walk frame (issue 3 target: >= 30 frames/s on one core)."""
+    """One 1280x720 indoor-walk frame (target: >= 30 frames/s on one core)."""
     scene = make_scene("indoor-walk", seed=1)
     renderer = FrameRenderer(scene, seed=1)
     img, truth = benchmark(renderer.render, 17)

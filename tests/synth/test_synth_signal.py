@@ -1,4 +1,4 @@
-"""Synthetic camera signal (issue 3): rolling-shutter stripe period and S2-PSK pair XOR.
+"""Synthetic camera signal: rolling-shutter stripe period and S2-PSK pair XOR.
 
 Hand-built scenes: a large LED seen head-on (stripes), and a close S2-PSK pair seen by a
 global-shutter camera (XOR of the two emitters = the packet's symbol at that LED time).
