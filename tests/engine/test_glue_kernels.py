@@ -1,138 +1,14 @@
-"""The per-frame glue around the kernels: the compiled JSON line writer
-(receiver/io/_jsonline.pyx) against json.dumps of `frame_record` and against the Python writer
-(`output._k` set to None), and `records.led_observation` against the record's own constructor."""
+"""The per-frame glue around the kernels: `records.led_observation` against the record's own
+constructor, and the positioner's compiled glue (receiver/locate/_ranging.pyx) against numpy."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 
 import numpy as np
 import pytest
 
-from receiver.core.records import FrameResult, LedObservation, led_observation
-from receiver.io import output
-from receiver.io.files import dumps
-
-native = pytest.mark.skipif(output._k is None, reason="compiled writer not built (or OCCLOC_PURE=1)")
-
-AWKWARD = [0.0, -0.0, 1e-4, -1e-4, 9.9999e-5, 1e9, 1e9 - 1e-3, 0.125, 2.675, 1e-7, 1e20, -1e20, 5e-5, 0.00015,
-           0.5, 1.5, 2.5, -2.5, 1e15, 2.0 ** 53, 123456789.125, 0.045, 1e-300, 5e-324]
-
-
-def _reference(res, profile=False):
-    return dumps(output.frame_record(res, profile=profile), separators=(",", ":"), default=output._jsonable)
-
-
-def _value(rng):
-    """Numbers of every magnitude and the awkward ones (halfway, zero, -0, tiny, huge, NaN)."""
-    r = rng.random()
-    if r < 0.05:
-        return float(rng.choice(AWKWARD + [math.nan, math.inf, -math.inf]))
-    mag = 10.0 ** rng.integers(-8, 11)
-    v = float(rng.normal() * mag)
-    if r < 0.2:
-        v = round(v, int(rng.integers(0, 7))) + float(rng.choice([0.0, 5e-3, 5e-5, 5e-7]))  # near halfway
-    elif r < 0.3:
-        v = round(v, int(rng.integers(0, 9)))  # what a positioner's dict holds
-    return v
-
-
-def _word(rng):
-    return rng.choice([None, "ook", "tone", "s2psk", "fv-track", "outline", "eq18", "a b", 'q"t', "back\\slash",
-                       "", "_", "é", "tab\t"])
-
-
-def _led(rng, i):
-    dist = None if rng.random() < 0.3 else _value(rng)
-    track = i if rng.random() < 0.97 else rng.choice([np.int64(i), True, 2 ** 70])
-    return LedObservation(track=track, cx=_value(rng), cy=np.float64(_value(rng)),
-                          area_px=_value(rng) if rng.random() < 0.95 else int(rng.integers(-5, 5000)),
-                          contour=np.zeros((0, 2)), border=bool(rng.integers(2)) if rng.random() < 0.9 else np.bool_(1),
-                          id=None if rng.random() < 0.3 else int(rng.integers(1 << 16)),
-                          mode=_word(rng), distance_m=dist, distance_estimator=None if dist is None else _word(rng),
-                          freq_hz=None if rng.random() < 0.7 else round(_value(rng), 1),
-                          kind=None if rng.random() < 0.8 else rng.choice(["SL", "FV", "x-y"]))
-
-
-def _extra(rng, depth=0):
-    """A position / vehicle object's values: nested dicts and lists of every JSON type, numpy
-    arrays and scalars, tuples, escaped strings, NaN now and then."""
-    r = rng.random()
-    if depth < 3 and r < 0.25:
-        return {str(_word(rng)) + str(k): _extra(rng, depth + 1) for k in range(int(rng.integers(0, 4)))}
-    if depth < 3 and r < 0.4:
-        seq = [_extra(rng, depth + 1) for _ in range(int(rng.integers(0, 4)))]
-        return seq if rng.random() < 0.7 else tuple(seq)
-    if r < 0.5:
-        return np.round(rng.normal(size=(2, 2)), int(rng.integers(0, 9)))
-    if r < 0.55:
-        return rng.choice([np.int64(3), np.float64(0.25), np.bool_(0), np.float32(0.5)])
-    if r < 0.65:
-        return rng.choice([None, True, False, 7, -2 ** 65])
-    if r < 0.7:
-        return _word(rng)
-    return round(_value(rng), int(rng.integers(0, 8)))
-
-
-def _frames(n, seed):
-    rng = np.random.default_rng(seed)
-    for k in range(n):
-        leds = [_led(rng, i) for i in range(int(rng.integers(0, 6)))]
-        pos = None if rng.random() < 0.3 else {"x": round(_value(rng), 5), "cov": np.eye(2) * 0.5, "method": "outline",
-                                               "n": np.int64(3), "more": _extra(rng)}
-        veh = None if rng.random() < 0.6 else {"hv": None, "v": [_value(rng)], "fv": [_extra(rng)]}
-        stages = {"detect": _value(rng), "locate": 0.25}
-        if rng.random() < 0.05:
-            stages["odd-stage"] = 1.0
-        yield FrameResult(k if rng.random() < 0.98 else np.int64(k), _value(rng), _value(rng), leds, pos, veh, stages)
-
-
-@native
-def test_compiled_line_equals_json_dumps_and_the_python_writer(monkeypatch):
-    taken = 0
-    for res in _frames(4000, 5):
-        for profile in (False, True):
-            ref = _reference(res, profile)
-            line = output._k.frame_line(res, profile)
-            if line is not None:
-                taken += 1
-                assert line == ref
-            assert output.frame_line(res, profile=profile) == ref
-            with monkeypatch.context() as m:
-                m.setattr(output, "_k", None)
-                assert output.frame_line(res, profile=profile) == ref
-            json.loads(ref)
-    assert taken > 1500  # a quarter of these deliberately awkward lines (every real one: test below)
-
-
-@native
-def test_compiled_number_tokens_equal_the_python_ones():
-    rng = np.random.default_rng(11)
-    vals = AWKWARD + [-v for v in AWKWARD]
-    vals += [float(x) for x in rng.normal(size=3000) * 10.0 ** rng.integers(-6, 10, size=3000)]
-    vals += [round(float(x), int(k)) + h for x, k, h in
-             zip(rng.normal(size=3000) * 1000, rng.integers(0, 7, size=3000), rng.choice([0, 5e-3, 5e-5], 3000))]
-    for v in vals:
-        for nd in (1, 2, 3, 4, 6):
-            res = FrameResult(0, v, 1.0, [LedObservation(0, v, v, v, np.zeros((0, 2)), distance_m=v, distance_estimator="x")])
-            line = output._k.frame_line(res, False)
-            if line is None:  # NaN and friends only
-                assert not math.isfinite(v)
-                continue
-            assert line == _reference(res), v
-
-
-@native
-def test_odd_values_fall_back_to_python():
-    led = LedObservation(track=np.int64(1), cx=1.0, cy=2.0, area_px=3.0, contour=np.zeros((0, 2)), mode="o\"k")
-    res = FrameResult(0, 0.0, 1.0, [led], {"x": float("nan")})
-    assert output._k.frame_line(res, False) is None
-    assert output.frame_line(res) == _reference(res)
-    res = FrameResult(0, 0.0, 1.0, [], {"x": math.nan})
-    assert output._k.frame_line(res, False) is None
-    assert output.frame_line(res) == _reference(res) == '{"frame":0,"t":0.0,"latency_ms":1.0,"leds":[],"position":{"x":null},"vehicle":null}'
+from receiver.core.records import LedObservation, led_observation
 
 
 def test_led_observation_is_the_record():
@@ -147,22 +23,6 @@ def test_led_observation_is_the_record():
     assert led_observation(1, 2.0, 3.0, 4.0, None) == LedObservation(1, 2.0, 3.0, 4.0, None)
     with pytest.raises(dataclasses.FrozenInstanceError):
         fast.cx = 0.0
-
-
-@native
-def test_recorded_frames_are_written_by_the_kernel():
-    """Every line of an indoor and a vehicle recording (the "fv-track" estimator, nested vehicle
-    objects) is the kernel's, equal to json.dumps."""
-    from receiver.cli.bench import load_case, whole_receiver
-
-    for name, n in (("indoor-static", 12), ("vehicle", 25)):
-        cam, led_map, frames, still = load_case(f"recordings/{name}", n)
-        rx = whole_receiver(cam, led_map, still=still)
-        for f in frames:
-            res = rx.process(f)
-            for profile in (False, True):
-                line = output._k.frame_line(res, profile)
-                assert line is not None and line == _reference(res, profile)
 
 
 # -- the positioner's per-frame glue (receiver/locate/_ranging.pyx) ---------------------------
@@ -310,61 +170,6 @@ def test_annotate_kernel_equals_python(monkeypatch):
         for a in native:
             with pytest.raises(dataclasses.FrozenInstanceError):
                 a.distance_m = 1.0
-
-
-@native
-def test_fast_number_formatters_equal_cpythons():
-    """The writer's own fixed ("%.{nd}f", trailing zeros dropped) and shortest (repr) number
-    formatting, where it answers, equals CPython's formatter on random, rounded, near-halfway and
-    float32-derived values of every magnitude (it defers near halves and beyond 2^50)."""
-    rng = np.random.default_rng(7)
-    n = 20000
-    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-5, 16, size=n))
-    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-4, 10, size=n),
-                                                    rng.integers(0, 12, size=n))]
-    vals += [round(float(x), int(d)) + h for x, d, h in zip(rng.normal(size=n) * 1000, rng.integers(0, 7, size=n),
-                                                           rng.choice([5e-3, 5e-5, 5e-7, -5e-3], n))]
-    vals += [float(np.float32(x)) for x in rng.normal(size=n)]
-    vals += AWKWARD + [-v for v in AWKWARD] + [2.0 ** 50 - 1, 2.0 ** 50, 0.1, 0.2, 0.3, 1e-4 * (1 - 1e-16)]
-    fast_f = fast_r = 0
-    for v in map(float, vals):
-        for nd in (1, 2, 3, 4, 6):
-            f, _, cf, _ = output._k.number_tokens(v, nd)
-            if f is not None:
-                fast_f += 1
-                assert f == cf == output._num_tok(v, nd), (v, nd)
-        _, r, _, cr = output._k.number_tokens(v, 1)
-        if r is not None:
-            fast_r += 1
-            assert r == cr == repr(v), v
-    assert fast_f > 0.7 * 5 * len(vals) and fast_r > 0.4 * len(vals)
-
-
-@native
-def test_fast_repr_of_tiny_values_is_cpythons():
-    """Below 1e-4 repr writes exponent notation ('7e-05', '-1.3e-07'): the writer's own shortest
-    digits there equal repr on random, rounded and extreme values (a position's covariances and
-    rotation entries are such numbers), and it answers for the short ones."""
-    rng = np.random.default_rng(5)
-    n = 20000
-    vals = list(rng.normal(size=n) * 10.0 ** rng.integers(-24, -3, size=n))
-    vals += [round(float(x), int(d)) for x, d in zip(rng.normal(size=n) * 10.0 ** rng.integers(-12, -3, size=n),
-                                                    rng.integers(4, 20, size=n))]
-    vals += [9.9999e-5, 1e-4 * (1 - 1e-16), 5e-324, 1e-300, 1e-22, 1e-23, 7e-05, 1.3e-07, 2.2250738585072014e-308]
-    fast = 0
-    for v in map(float, vals):
-        for x in (v, -v):
-            _, r, _, cr = output._k.number_tokens(x, 1)
-            assert cr == repr(x)
-            if r is not None:
-                fast += 1
-                assert r == repr(x), x
-    assert fast > 0.3 * 2 * len(vals)
-    assert output._k.number_tokens(7e-05, 1)[1] == "7e-05"
-    assert output._k.number_tokens(-1.3e-07, 1)[1] == "-1.3e-07"
-    res = FrameResult(-12, 0.0, 1.0, [], {"cov": [[1.3e-07, -4e-08], [0.0, 2e-22]]})
-    assert output._k.frame_line(res, False) == _reference(res)
-    assert '"frame":-12,' in _reference(res)
 
 
 def test_led_records_kernel_equals_the_python_loop():
