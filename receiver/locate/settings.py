@@ -138,7 +138,6 @@ class VehicleSettings:
     roll_sigma_deg: float = 1.0         # single-light solve: camera roll about 0 (mount, body roll)
     pitch_sigma_deg: float = 0.5        # ... and pitch about the last full pose's (shake: vehicle-road
                                         # truth 0.19 deg std, bundled vehicle 0.14 deg)
-    road_heading_radius_m: float = 30.0  # mapped heads within this of a light give the road direction
     pose_loss: str = "soft_l1"
     pose_f_scale: float = 3.0           # sigmas
     pose_max_iter: int = 20

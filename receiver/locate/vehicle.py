@@ -116,6 +116,18 @@ from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 HV_METHODS = ("pose", "eq44-47")
 ZONES = ("safe", "min", "critical")
+# Mapped heads that give the road direction near a light (`_road_heading`): two or three a side
+# of the road, whatever their spacing (a staggered layout's 12.5 m, an alternating one's 30 m).
+ROAD_HEADS = 6
+# The range a saturated pair's bloomed areas may read, relative to its baseline range: bloom only
+# grows a blob (at most the true range, 1.25: the envelope's edge noise) and by 2-3x, up to 4x
+# on a small far one (at least half the true range). A street-light head's halves taken for
+# taillights read 0.2-0.4 of their baseline range.
+SATURATED_AREA_SPAN = (0.5, 1.25)
+# Why the host is unplaced, by what the frame holds (`VehicleLocator.hv_reason`).
+NO_LIGHT = "no light in view"
+NOT_DECODED = "lights in view, not decoded yet"
+ONE_LIGHT = "one street light decoded, waiting for a second"
 DOWN = np.array([0.0, 0.0, -1.0])
 # Compiled host-pose solve (`_solve_native`); None: the numpy path (`_solve_pose`).
 _k = load("receiver.locate._vehicle_pose")
@@ -499,7 +511,8 @@ def _pick(res: dict, i: int, estimator: str):
         d, s = res[name][i], res[name + "_sigma"][i]
         if math.isfinite(d) and math.isfinite(s) and d > 0:
             if name == "fused":
-                fa = math.isfinite(res["oblique"][i]) and math.isfinite(res["oblique_sigma"][i])
+                fa = math.isfinite(res["oblique"][i]) and math.isfinite(res["oblique_sigma"][i]) \
+                    and not res["area_clash"][i]
                 fb = math.isfinite(res["baseline"][i]) and math.isfinite(res["baseline_sigma"][i])
                 name = "fused" if fa and fb else ("baseline" if fb else "oblique")
             return float(d), float(s), name
@@ -543,6 +556,33 @@ def fv_measured(p: PairObservation):
     if a is None or b is None or a[2] != 0 or b[2] != 0:
         return None
     return (a[0][0], a[0][1], b[0][0], b[0][1]), (a[1], b[1])
+
+
+def _drop_clipped_areas(res: dict, clipped: list) -> None:
+    """`range_core`'s results (in place) without the area ranges of saturated emitters
+    (`clipped`: per row (A saturated, B saturated)): a clipped blob's area is blur and bloom,
+    2-3x the emitter's true image area, so the pair is ranged by its baseline alone and no
+    emitter range from such a blob enters the host's pose. What the bloomed areas read stays as
+    `area_bound` (NaN on rows without saturation): bloom only grows a blob, so it is a range at
+    most the true one and, within `SATURATED_AREA_SPAN`, not far below it."""
+    n = len(clipped)
+    bound = [NAN] * n
+    for k, (ca, cb) in enumerate(clipped):
+        if not (ca or cb):
+            continue
+        bound[k] = res["oblique"][k]
+        for name in ("oblique", "oblique_sigma", "eq18", "eq18_sigma"):
+            res[name][k] = NAN
+        if ca:
+            res["d_a"][k] = res["s_a"][k] = NAN
+        if cb:
+            res["d_b"][k] = res["s_b"][k] = NAN
+        ok = math.isfinite(res["baseline"][k]) and math.isfinite(res["baseline_sigma"][k])
+        res["fused"][k] = res["baseline"][k] if ok else NAN
+        res["fused_sigma"][k] = res["baseline_sigma"][k] if ok else NAN
+        res["area_clash"][k] = False
+        res["base_fused_only"][k] = ok
+    res["area_bound"] = bound
 
 
 def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
@@ -692,7 +732,7 @@ class VehicleLocator:
         (None, None), res dict) or None when no pair is usable."""
         R = (self.R_nominal if self.R_tilt is None else self.R_tilt) if R_cw is None else R_cw
         Lv = self.Lv = level_rotation(R)           # rows: ahead, left, up in camera frame
-        idx, roles, consts, ab, eta, yaw = [], [], [], [], [], []
+        idx, roles, consts, ab, eta, yaw, clipped = [], [], [], [], [], [], []
         for i, p in enumerate(pairs):
             role = self._role(p)
             if role is None:
@@ -714,6 +754,7 @@ class VehicleLocator:
                 yaw.append(0.0 if tr is None else tr["yaw"])
             if role == "SL":
                 yaw.append(0.0)
+            clipped.append((p.a_saturated, p.b_saturated))
             idx.append(i)
             roles.append(role)
         if not idx:
@@ -734,6 +775,7 @@ class VehicleLocator:
                          [osig] * n, bm, self.focal, s,
                          [self._sl_csig if r == "SL" else s.fv_centroid_sigma_px for r in roles],
                          [s.area_model_rel if r == "SL" else s.fv_area_model_rel for r in roles])
+        _drop_clipped_areas(res, clipped)
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
         for k, i in enumerate(idx):
@@ -995,17 +1037,31 @@ class VehicleLocator:
         return R, C, cov
 
     def _road_heading(self, head: np.ndarray) -> float | None:
-        """The map's road direction (rad, counter-clockwise from +x) near a street-light head:
-        the principal axis of the mapped heads within `road_heading_radius_m` of it (both sides
-        of the road, so a staggered layout's zig-zag averages out), pointing along +x (the map
-        frame's x runs along the road). None with fewer than 3 heads there."""
+        """The map's road direction (rad, counter-clockwise from +x) near a street-light head,
+        whatever the heads' spacing: the `ROAD_HEADS` mapped heads nearest to it, split by the
+        side of their first principal axis they stand on, and the common direction of the
+        sides' lines (the principal axis of the scatter pooled within each side: a staggered
+        or alternating layout's zig-zag, which tilts a plain fit by atan(road width / extent),
+        drops out), pointing along +x (the map frame's x runs along the road). None with
+        fewer than 2 heads in the map."""
         H = self._sl_heads[:, :2]
-        near = H[np.sum((H - head[:2]) ** 2, axis=1) <= self.s.road_heading_radius_m ** 2]
-        if len(near) < 3:
+        if len(H) < 2:
             return None
+        d2 = np.sum((H - head[:2]) ** 2, axis=1)
+        near = H[np.argsort(d2, kind="stable")[:ROAD_HEADS]]
         c = near - near.mean(0)
-        w, v = np.linalg.eigh(c.T @ c)
-        ax = v[:, 1] if v[0, 1] >= 0 else -v[:, 1]
+        ax = np.linalg.eigh(c.T @ c)[1][:, 1]
+        for _ in range(2):
+            side = c @ np.array([-ax[1], ax[0]]) > 0
+            S = np.zeros((2, 2))
+            for g in (near[side], near[~side]):
+                if len(g) >= 2:
+                    gc = g - g.mean(0)
+                    S += gc.T @ gc
+            if np.trace(S) <= 0:
+                break           # one head a side: the plain axis stands
+            ax = np.linalg.eigh(S)[1][:, 1]
+        ax = ax if ax[0] >= 0 else -ax
         return math.atan2(float(ax[1]), float(ax[0]))
 
     def _associate(self, t_s: float, pairs, R_prior) -> dict:
@@ -1146,7 +1202,7 @@ class VehicleLocator:
             # One light's angles and range, linearised about a prediction metres off, pull the
             # filter along a wrong circle around the head (vehicle-road, tilted heads: 10 m off at
             # 1 m std): a single light only keeps a filter that is already sure.
-            self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+            self.hv_reason = ONE_LIGHT
             return None
         x, y, psi = float(st[0]), float(st[1]), float(st[2])
         um = 0.5 * (np.asarray(res["ua"][k]) + np.asarray(res["ub"][k]))
@@ -1189,7 +1245,7 @@ class VehicleLocator:
         else:
             yaw0 = self._road_heading(head)
             if yaw0 is None:
-                self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+                self.hv_reason = f"{ONE_LIGHT} (the map gives no road direction near it)"
                 return None, aligned, res
             ysig = math.radians(s.road_heading_sigma_deg)
             pitch = self.s.camera_pitch_deg if self.pitch_ref is None else math.degrees(self.pitch_ref)
@@ -1214,7 +1270,7 @@ class VehicleLocator:
         if float(np.trace(cov)) > s.sl1_start_max_std_m ** 2:
             # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
             # the single-light observations that follow would be linearised metres off.
-            self.hv_reason = f"one mapped street light in view, too unsure alone (std > {s.sl1_start_max_std_m:g} m)"
+            self.hv_reason = f"{ONE_LIGHT} (alone too unsure: std > {s.sl1_start_max_std_m:g} m)"
             return None, aligned, res
         self.hv_reason = None
         return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True,
@@ -1257,7 +1313,7 @@ class VehicleLocator:
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
             elif len(sl_k) < s.min_lights and not (s.single_light and len(sl_k) == 1):
-                self.hv_reason = f"fewer than {s.min_lights} mapped street lights in view"
+                self.hv_reason = ONE_LIGHT if sl_k else self._unplaced_reason(pairs)
             elif len(sl_k) < s.min_lights and R_prior is not None:
                 fix = self._single_observation(t_s, pairs, res, sl_k[0], R_prior)
             elif len(sl_k) < s.min_lights:
@@ -1302,8 +1358,7 @@ class VehicleLocator:
         else:
             aligned, res = [(None, None)] * len(pairs), None
             if not self.kf.started:
-                self.hv_reason = "no street light in view" if not any(self._role(p) == "SL" for p in pairs) \
-                    else "no decoded street light seen with both emitters apart"
+                self.hv_reason = self._unplaced_reason(pairs)
 
         self._keep_seen(pairs)
         self._keep_separations(t_s, given)
@@ -1340,6 +1395,16 @@ class VehicleLocator:
         if hv is None and self.hv_reason:
             self.unplaced[self.hv_reason] = self.unplaced.get(self.hv_reason, 0) + 1
         return VehicleResult(vehicle=vehicle, ranges=ranges)
+
+    def _unplaced_reason(self, pairs) -> str:
+        """Why no street light places the host in a frame whose pairs give no usable one:
+        nothing in view, pairs none of which is decoded as a mapped street light, or a decoded
+        one not yet seen with both emitters apart."""
+        if not pairs:
+            return NO_LIGHT
+        if not any(self._role(p) == "SL" for p in pairs):
+            return NOT_DECODED
+        return "no decoded street light seen with both emitters apart"
 
     def run_reason(self) -> str | None:
         """Why the HV was left unplaced over the run so far: the reason of most unplaced frames
@@ -1627,14 +1692,17 @@ class VehicleLocator:
             meas = None
             if r is not None:
                 d, sd = r["fused"][k], r["fused_sigma"][k]
-                if r["area_clash"][k]:
-                    # Area and baseline ranges of a taillight pair disagree: not a taillight pair
-                    # (an undecoded street light, 7x apart) or a wrong pairing this frame.
-                    if role == "FV?" and tr is None:
-                        not_fv.add(i)
-                        continue
+                lo, hi = SATURATED_AREA_SPAN
+                if role == "FV?" and tr is None and (r["area_clash"][k] or not lo * d <= r["area_bound"][k] <= hi * d
+                                                     if math.isfinite(r["area_bound"][k]) else r["area_clash"][k]):
+                    # Area and baseline ranges of a new undecoded pair disagree (saturated: the
+                    # bloomed areas' range is not within the span bloom allows): no taillight
+                    # pair (a street light's halves are far larger for their spacing: 3-4x).
+                    # A decoded or tracked pair keeps its baseline range (`range_core` dropped
+                    # the area one): an unflagged saturated lamp reads its area range short.
                     not_fv.add(i)
-                elif np.isfinite(d) and np.isfinite(sd) and sd > 0:
+                    continue
+                if np.isfinite(d) and np.isfinite(sd) and sd > 0:
                     lev = r["lev"][k]
                     if role == "FV?" and tr is None and any(owner.get(t, p.key) != p.key for t in (p.founding or p.key)):
                         # A new pairing of a lamp an FV track already owns with another lamp: at
@@ -1759,8 +1827,9 @@ class VehicleLocator:
         53-56 m: heads 3 px apart vertically over 42 px, areas 24 and 11 px^2, read as a car at 40 m)."""
         s = self.s
         a_area, b_area = fv_measured(p)[1]
-        if max(a_area, b_area) > s.fv_max_area_ratio * max(min(a_area, b_area), 1e-9):
-            return False
+        if not (p.a_saturated or p.b_saturated) and \
+                max(a_area, b_area) > s.fv_max_area_ratio * max(min(a_area, b_area), 1e-9):
+            return False        # (saturated blobs' areas are bloom: no size test)
         la, lb = self.Lv @ res["ra"][k], self.Lv @ res["rb"][k]
         rise = abs(float(lb[2] - la[2]))
         run = math.hypot(float(lb[0] - la[0]), float(lb[1] - la[1]))
