@@ -124,6 +124,10 @@ ROAD_HEADS = 6
 # on a small far one (at least half the true range). A street-light head's halves taken for
 # taillights read 0.2-0.4 of their baseline range.
 SATURATED_AREA_SPAN = (0.5, 1.25)
+# An undecoded pair ranged as taillights beyond this (m) is taken for no car: thesis Table 2's
+# detection range ends at 150 m, and a far street-light head's halves (0.6 m apart) taken for
+# taillights (1.4 m) read 2.3x their range, 200-250 m, with areas too small to tell them apart.
+UNDECODED_FV_MAX_RANGE_M = 150.0
 # Why the host is unplaced, by what the frame holds (`VehicleLocator.hv_reason`).
 NO_LIGHT = "no light in view"
 NOT_DECODED = "lights in view, not decoded yet"
@@ -1724,6 +1728,9 @@ class VehicleLocator:
                         # settles it.
                         not_fv.add(i)
                         self.fv_tracks.pop(key, None)
+                        continue
+                    if role == "FV?" and tr is None and d > UNDECODED_FV_MAX_RANGE_M:
+                        not_fv.add(i)
                         continue
                     if role == "FV?" and self._tilt is not None:
                         # Height window only once the camera's tilt is known (the nominal tilt
