@@ -31,7 +31,14 @@ midpoint, metres):
   the map's emitter positions, turned by the camera orientation; taillights: B horizontal and
   perpendicular to the FV heading, taken as the HV's (perpendicular to the camera axis in the
   level frame). sigma/d = sqrt(2) sigma_px / separation_px (+ a model term).
-* ``"fused"``: inverse-variance mean of "oblique" and "baseline".
+* ``"fused"``: inverse-variance mean of "oblique" and "baseline" (what is reported). When the
+  two disagree beyond `CONSISTENCY_SIGMAS` only the area one is dropped: the baseline rests on
+  geometry alone.
+Saturation (`PairObservation.a_saturated`, `b_saturated`: the blob's peak at the sensor's white
+level): a clipped blob is blur and bloom, 2-3x its emitter's true image area, so a saturated
+emitter gives no area range (nor a size test, nor an emitter range to the host pose); its pair
+is ranged by its baseline (`_drop_clipped_areas`). What its areas read only bounds the range
+(`SATURATED_AREA_SPAN`), which tells an undecoded head's halves from taillights.
 No range from half a pair: a street light needs `both_visible`; a taillight pair is ranged only
 in frames where both emitters' own blobs are measured (`fv_measured`: `a_seen`, `b_seen` of age
 0, the measured centroids, not the pairing's rigid-model positions `a_px`, `b_px`, whose
@@ -40,7 +47,7 @@ separation is the founding one scaled by the envelope areas: on the bundled reco
 has a distance from the frame it is formed.
 
 Host vehicle (`hv`):
-* ``"eq44-47"``: thesis eqs. 44-47. Flat distances a_j = sqrt(D_j^2 - (z_SL - h_cam)^2) to two
+* ``"eq44-47"`` (reported beside the fix as ``hv_eq44_47``, not fed to the filter): thesis eqs. 44-47. Flat distances a_j = sqrt(D_j^2 - (z_SL - h_cam)^2) to two
   street lights SL1 (nearer), SL2 at spacing d_SL-SL give c (eq. 46, along the SL1->SL2 line)
   and h (eq. 47, across it); the side of the line comes from the image (which light is further
   left). Works for any two mapped lights.
@@ -53,16 +60,16 @@ Host vehicle (`hv`):
 * then `RoadKalman` (receiver.locate.road_kalman; state x, y, heading, speed, turn rate) fed the
   fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
   (method ``"kalman-coast"``). ``raw`` is the unfiltered fix. Without odometry the speed comes
-  from the first two fixes `speed_init_min_dt_s` apart (`_speed_from_fixes`).
-* One decoded light (`single_light`): while the filter runs and is sure (`sl1_max_std_m`), the
+  from the first two fixes `SPEED_INIT_MIN_DT_S` apart (`_speed_from_fixes`).
+* One decoded light: while the filter runs and is sure (`SL1_MAX_STD_M`), the
   head's undistorted midpoint and its range update it directly (``"sl-1"``,
   `_single_observation`: an EKF measurement whose noise carries the camera's yaw shake, pitch,
   roll and height through its Jacobian; a pose solve would need the filter's own heading as
   prior). With no filter running, a pose solve of its two emitters with the map's road
   direction near the light as heading prior, roll 0 and the last full pose's pitch as priors,
   and the head's midpoint range (``"pose-1sl"``, `_single_fix`) starts it when its std is at
-  most `sl1_start_max_std_m`. `n_lights` 1.
-* Map-aided association (`map_assoc`, `_associate`): while the filter is sure, undecoded pairs
+  most `SL1_START_MAX_STD_M`. `n_lights` 1.
+* Map-aided association (`_associate`): while the filter is sure, undecoded pairs
   (both emitters' own blobs fresh) are matched to mapped heads projected from its prediction by
   a unique Mahalanobis gate and a separation check, and join the solve (method suffix
   ``"+map"``, `n_assoc`; `n_lights` counts them). They stay undecoded everywhere else: no ID,
@@ -83,8 +90,8 @@ midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max
 above the road (once the camera's tilt is known) and its area and baseline ranges agree (a street
 light's emitters are ~7x larger for their spacing than taillights; two far heads paired across
 the road clash likewise: scale-free, so it holds before the tilt is known), its two emitters are
-level (`fv_max_tilt_deg`) and of like area (`fv_max_area_ratio`), and, once the HV is placed,
-neither emitter lies on a mapped street light projected from the HV pose (`fv_sl_gate_deg`):
+level (`FV_MAX_TILT_DEG`) and of like area (`FV_MAX_AREA_RATIO`), and, once the HV is placed,
+neither emitter lies on a mapped street light projected from the HV pose (`FV_SL_GATE_DEG`):
 two far heads 200 m away, one each side of the road, can pass the area/baseline test by chance
 (read as a car at 30-40 m). A new undecoded pair that shares a lamp (founding track) with a live
 pair already tracked as an FV is not one either: at 50+ m one taillight of each of two cars side
@@ -108,13 +115,12 @@ from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap, shape_area_m2
 from receiver.core.native import load
-from receiver.locate.lsq import _LOSSES, LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at, lm_iterate, robust_lm
+from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at, lm_iterate
 from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.settings import VehicleSettings
 from receiver.locate.road_kalman import RangeKalman, RoadKalman, wrap_pi
 
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
-HV_METHODS = ("pose", "eq44-47")
 ZONES = ("safe", "min", "critical")
 # Mapped heads that give the road direction near a light (`_road_heading`): two or three a side
 # of the road, whatever their spacing (a staggered layout's 12.5 m, an alternating one's 30 m).
@@ -139,6 +145,71 @@ _k = load("receiver.locate._vehicle_pose")
 _kr = load("receiver.locate._vehicle_range")
 # Compiled map-aided association (`VehicleLocator._associate`); None: its numpy form.
 _ka = load("receiver.locate._vehicle_step")
+
+# ------------------------------------------------------------------------------ model constants
+# What the locator's model assumes, not what a user sets (VehicleSettings holds those); each
+# with its unit and why its value.
+# Ranging.
+SL_SEPARATION_SIGMA_PX = 0.3    # px, a head's centroid difference: one half lit at a time, the other's centroid a frame or more old
+FV_CENTROID_SIGMA_PX = 0.2      # px, a taillight centroid measured this frame (`fv_measured`; separation error ~0.4 % of 44-125 px)
+FV_AREA_MODEL_REL = 0.05        # eq. 18 model error of a taillight's striped 10-50 px envelope cut by clock edges, relative
+EDGE_SIGMA_PX = 0.1             # px, an envelope edge's 1-sigma all around
+AREA_MODEL_REL = 0.01           # eq. 18 model error of a street-light half (calibration, shape), relative
+BASELINE_MODEL_REL = 0.002      # baseline-range model error with a mapped baseline, relative
+TAILLIGHT_YAW_SIGMA_DEG = 5.0   # deg, a car's heading about the host's (its taillight baseline's direction)
+CONSISTENCY_SIGMAS = 4.0        # area and baseline ranges further apart than this many sigmas: the area one is dropped
+ORIENT_SIGMA_POSE_DEG = 0.3     # deg, camera orientation 1-sigma once a pose is solved
+ORIENT_SIGMA_PRIOR_DEG = 5.0    # deg, ... with the nominal tilt only (a mount's pitch is known to a few degrees)
+# Host pose.
+CAMERA_HEIGHT_SIGMA_M = 0.3     # m, the camera height prior's 1-sigma (load, suspension, mount)
+TILT_SIGMA_DEG = 10.0           # deg, weak tilt prior of the pose solve (matters with one light only)
+MIN_LIGHTS = 2                  # decoded heads a full pose solve needs (one: `_single_fix`, `_single_observation`)
+POSE_F_SCALE = 3.0              # sigmas, the soft-L1 loss's knee
+POSE_MAX_ITER = 20              # Levenberg-Marquardt iterations of a cold pose solve
+POSE_TRACK_ITER = 2             # ... warm-started from the road filter's prediction (more lean on that prediction twice)
+POSE_ROT_TOL_RAD = 1e-5         # rad, the solve stops once a step turns the camera by less
+POSE_POS_TOL_M = 1e-3           # m, ... and moves it by less (the output's resolution ~1e-4 m)
+FIX_FLOOR_M = 0.15              # m, added in quadrature to a pose fix's x, y sigma: the heads' model errors the solve does not know
+HEADING_SIGMA_DEG = 1.0         # deg, camera yaw as the host heading's measurement (mounting)
+ACCEL_PSD = 2.0                 # m^2/s^3, a car's accelerations (~2 m/s^2 for ~1 s)
+YAW_ACCEL_PSD = 0.05            # rad^2/s^3, its turn-rate changes
+INIT_SPEED_SIGMA_MPS = 15.0     # m/s, speed 1-sigma of a filter started without odometry
+INIT_OMEGA_SIGMA_RPS = 0.2      # rad/s, turn-rate 1-sigma at a start
+GATE_CHI2 = 13.8                # a fix's innovation gate (chi-square 2 dof, 99.9 %)
+MAX_REJECTS = 3                 # consecutive gated fixes that restart the filter
+SL1_RANGE_FLOOR_REL = 0.05      # added in quadrature to a single light's range sigma: one head's range error persists over frames
+SL1_MAX_STD_M = 1.5             # m, a single light updates the filter only while its predicted 2D std is at most this
+SL1_START_MAX_STD_M = 0.7       # m, ... and starts it only from a single-light pose this sure
+SPEED_INIT_MIN_DT_S = 0.12      # s, the first two fixes this far apart give the speed (one frame apart, fix noise dominates)
+SPEED_HIST_S = 0.3              # s, the heads' image growth over this long gives the speed at a start without odometry
+SPEED_HIST_MIN = 5              # ... from at least this many separations
+SPEED_MOTION_FLOOR_MPS = 1.0    # m/s, ... its sigma at least this
+ASSOC_MAX_STD_M = 1.0           # m, undecoded pairs are matched to mapped heads only while the filter's 2D std is at most this
+ASSOC_GATE_CHI2 = 9.21          # ... Mahalanobis^2 gate of a pair's midpoint to a projected head (chi-square 2 dof, 99 %)
+ASSOC_MAX_AGE = 1               # frames, ... both emitters' own blobs seen within this
+ASSOC_SEP_TOL = 0.3             # ... and the separation within this fraction of the head's predicted one
+OBS_GATE_CHI2 = 16.3            # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
+# Cars ahead.
+FV_ACCEL_PSD = 4.0              # m^2/s^3, relative acceleration of a car ahead
+FV_RATE_SIGMA_MPS = 10.0        # m/s, initial range-rate 1-sigma
+FV_CONFIRM_S = 0.6              # s, an undecoded pair ranged once and not again within this is forgotten (no car's taillights)
+FV_GATE_CHI2 = 9.0              # range innovation gate of a car's track (3 sigma)
+FV_MAX_REJECTS = 4              # consecutive gated ranges that restart the track
+FV_DUP_DEG = 0.5                # deg, car entries closer in bearing are one car (one kept)
+FV_COAST_MAX_REL = 0.05         # a coasting car entry is reported while its std is at most this x its distance
+FV_LATERAL_SIGMA_M = 0.05       # m, a car's lateral position 1-sigma floor
+FV_BEARING_SIGMA_DEG = 0.05     # deg, ... and its bearing's
+FV_LATERAL_RATE_SIGMA_MPS = 2.0  # m/s, initial lateral-rate 1-sigma
+FV_LATERAL_ACCEL_PSD = 0.5      # m^2/s^3, lateral relative acceleration (a lane change)
+FV_YAW_MIN_FRAMES = 10          # lateral positions before a car's yaw is estimated
+FV_YAW_MIN_SPEED_MPS = 3.0      # m/s, ... and the car's ground speed needed (yaw = atan2(vy, vx))
+FV_YAW_MAX_RAD = 0.5            # rad, |yaw| clipped here (~29 deg)
+FV_MAX_TILT_DEG = 3.0           # deg, an undecoded pair is taillights only if this level (road cross-slope, body roll)
+FV_MAX_AREA_RATIO = 2.0         # ... and (unsaturated) its two areas within this ratio
+FV_SL_GATE_DEG = 0.5            # deg, ... and no emitter this close to a mapped head projected from the placed host
+FV_OCCLUSION_RATIO = 1.1        # ... and no farther lamp (separation this many times smaller) inside its body's image
+CLOSING_MIN_MPS = 0.2           # m/s, ttc only when closing faster than this
+
 
 
 
@@ -285,12 +356,12 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     ra, rb = r2[:n], r2[n:]
     cos3 = (r2[:, 2] ** 3).tolist()
     R2 = r2.tolist()
-    amr = s.area_model_rel if area_model_rel is None else area_model_rel
+    amr = AREA_MODEL_REL if area_model_rel is None else area_model_rel
     csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
     cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel, amr, csig,
                                     ua, ub, S1, S2, B_cam, n_cam)]
     cols += [circle.tolist() if isinstance(circle, np.ndarray) else list(circle), R2[:n], R2[n:], cos3[:n], cos3[n:]]
-    off, esig, cons = s.edge_offset_px, s.edge_sigma_px, s.consistency_sigmas
+    off, esig, cons = s.edge_offset_px, EDGE_SIGMA_PX, CONSISTENCY_SIGMAS
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
     if _kr is not None:
@@ -341,7 +412,7 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
         fb = math.isfinite(d_base) and math.isfinite(wb)
         # The area range rests on the emitter's normal and size (a map entry without the normal
         # of a tilted head reads it several times too short); the baseline only on geometry.
-        # When the two disagree beyond `consistency_sigmas`, the area range is dropped.
+        # When the two disagree beyond `CONSISTENCY_SIGMAS`, the area range is dropped.
         clash = fa and fb and abs(d_ob - d_base) > cons * _sqrt(s_ob * s_ob + s_base * s_base)
         fa = fa and not clash
         wa = wa if fa else 0.0
@@ -366,7 +437,7 @@ def _split_pairs(fun, n_pairs: int, sep_gain: float):
     point x, y; points a, b of each pair in turn) with each pair's four angle rows turned into
     its midpoint (x, y; weight unchanged: an orthonormal turn) and its centroid difference
     (x, y) scaled by `sep_gain` (< 1: the separation of a head's centroids is far less sure
-    than their midpoint, VehicleSettings.sl_separation_sigma_px). Same interface: fun(p),
+    than their midpoint, SL_SEPARATION_SIGMA_PX). Same interface: fun(p),
     fun.jac(p), fun.fun_jac(p)."""
     m = 4 * n_pairs
     h = 1.0 / SQRT2
@@ -441,8 +512,8 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep
     x = np.array(p0, float)
     R, cov6 = np.empty((3, 3)), np.empty((6, 6))
     status = _k.solve_pose(L, uv, float(sigma_uv), d, sd, up, float(up_sigma), C_prior, W, int(n_pairs),
-                           float(sep_gain), att, float(s.pose_f_scale), x, int(max_iter), float(s.pose_rot_tol_rad),
-                           float(s.pose_pos_tol_m), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J, R, cov6)
+                           float(sep_gain), att, float(POSE_F_SCALE), x, int(max_iter), float(POSE_ROT_TOL_RAD),
+                           float(POSE_POS_TOL_M), LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, r, J, R, cov6)
     return x, r, J, R, cov6, status
 
 
@@ -595,7 +666,7 @@ def range_pair(pair: PairObservation, camera: CameraModel, led_map: LedMap,
     """Distance (m), its 1-sigma (m) and the estimator name of one pair, or None (half a pair,
     unknown SL, missing sizes). `R_cw`: camera orientation (else the nominal tilt, yaw 0)."""
     loc = VehicleLocator(camera, led_map, settings)
-    est = estimator or settings.range_estimator
+    est = estimator or "fused"
     if est not in ESTIMATORS:
         raise ValueError(f"unknown estimator {est!r}")
     out = loc._range_pairs([pair], R_cw, R_cw is not None)
@@ -613,25 +684,21 @@ class VehicleLocator:
     no pair other than a decoded street light was seen)."""
 
     def __init__(self, camera: CameraModel, led_map: LedMap, settings: VehicleSettings = VehicleSettings()):
-        if settings.range_estimator not in ESTIMATORS:
-            raise ValueError(f"unknown estimator {settings.range_estimator!r}")
-        if settings.hv_method not in HV_METHODS:
-            raise ValueError(f"unknown hv_method {settings.hv_method!r}")
         self.camera = camera
         self.map = led_map
         self.s = settings
         self.focal = camera.focal_px
         # Per-emitter centroid sigma whose sqrt(2) multiple is a head's separation sigma
-        # (`sl_separation_sigma_px` with the two centroids' own `centroid_sigma_px`).
-        self._sl_csig = math.sqrt(settings.centroid_sigma_px ** 2 + 0.5 * settings.sl_separation_sigma_px ** 2)
+        # (`SL_SEPARATION_SIGMA_PX` with the two centroids' own `centroid_sigma_px`).
+        self._sl_csig = math.sqrt(settings.centroid_sigma_px ** 2 + 0.5 * SL_SEPARATION_SIGMA_PX ** 2)
         self.R_nominal = nominal_rotation(settings)
         self._up = np.ascontiguousarray(self.R_nominal[:, 2])      # world up seen by the nominal camera
         self._W: np.ndarray | None = None                          # the pose's position-prior whitening
         self._rvec_of = (None, None)             # (R, its Rodrigues vector) of the last compiled solve
-        self.kf = RoadKalman(accel_psd=settings.accel_psd, yaw_accel_psd=settings.yaw_accel_psd,
-                             init_speed_sigma=settings.init_speed_sigma_mps,
-                             init_omega_sigma=settings.init_omega_sigma_rps,
-                             gate_chi2=settings.gate_chi2, max_rejects=settings.max_rejects,
+        self.kf = RoadKalman(accel_psd=ACCEL_PSD, yaw_accel_psd=YAW_ACCEL_PSD,
+                             init_speed_sigma=INIT_SPEED_SIGMA_MPS,
+                             init_omega_sigma=INIT_OMEGA_SIGMA_RPS,
+                             gate_chi2=GATE_CHI2, max_rejects=MAX_REJECTS,
                              max_coast_s=settings.max_coast_s)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
@@ -769,7 +836,7 @@ class VehicleLocator:
         yaw = np.array(yaw, float)
         cst = np.array(consts)          # rows: B(3) normal(3) area w h circle has_B is_SL baseline (0-12)
         ua, ub, ja, jb = _undistort(self.camera, ab[:, :2], ab[:, 2:])
-        osig = math.radians(self.s.orient_sigma_pose_deg if pose_known else self.s.orient_sigma_prior_deg)
+        osig = math.radians(ORIENT_SIGMA_POSE_DEG if pose_known else ORIENT_SIGMA_PRIOR_DEG)
         rays_m = _rays(0.5 * (ua + ub))
         lev = rays_m @ Lv.T                        # level-frame directions (ahead, left, up)
         bearing = np.arctan2(lev[:, 1], lev[:, 0])
@@ -777,8 +844,8 @@ class VehicleLocator:
         s = self.s
         res = range_core(ua, ub, ja, jb, eta[:, 0], eta[:, 1], cst[:, 6], S1, S2, cst[:, 9] > 0, Bc, nc,
                          [osig] * n, bm, self.focal, s,
-                         [self._sl_csig if r == "SL" else s.fv_centroid_sigma_px for r in roles],
-                         [s.area_model_rel if r == "SL" else s.fv_area_model_rel for r in roles])
+                         [self._sl_csig if r == "SL" else FV_CENTROID_SIGMA_PX for r in roles],
+                         [AREA_MODEL_REL if r == "SL" else FV_AREA_MODEL_REL for r in roles])
         _drop_clipped_areas(res, clipped)
         res.update(ua=ua, ub=ub, lev=lev, bearing=bearing, idx=np.array(idx), roles=roles)
         aligned = [(None, None)] * len(pairs)
@@ -879,7 +946,7 @@ class VehicleLocator:
             tan_b = np.abs(np.tan(bearing)).tolist()
         C = cst.tolist()
         (l0x, l0y, l0z), (l1x, l1y, l1z), (l2x, l2y, l2z) = Lv.tolist()
-        sy = math.radians(s.taillight_yaw_sigma_deg)
+        sy = math.radians(TAILLIGHT_YAW_SIGMA_DEG)
         Bs, ns, S1s, S2s, bms = [], [], [], [], []
         for k, role in enumerate(roles):
             c = C[k]
@@ -893,12 +960,12 @@ class VehicleLocator:
                     px, py, pz = l2y * rz - l2z * ry, l2z * rx - l2x * rz, l2x * ry - l2y * rx
                     m = max(math.sqrt(px * px + py * py + pz * pz), 1e-12)
                     B = [L * (px / m), L * (py / m), L * (pz / m)]
-                bm = s.baseline_model_rel if known_b else 0.05
+                bm = BASELINE_MODEL_REL if known_b else 0.05
             else:
                 ck, sk = cy[k], sy_[k]
                 B = [L * (ck * l1x - sk * l0x), L * (ck * l1y - sk * l0y), L * (ck * l1z - sk * l0z)]
                 nrm = [-(ck * l0x + sk * l1x), -(ck * l0y + sk * l1y), -(ck * l0z + sk * l1z)]
-                bm = tan_b[k] * sy + 0.5 * sy * sy + s.baseline_model_rel
+                bm = tan_b[k] * sy + 0.5 * sy * sy + BASELINE_MODEL_REL
             bx, by, bz = B
             nb = math.sqrt(bx * bx + by * by + bz * bz)
             ax, ay, az = _div(bx, nb), _div(by, nb), _div(bz, nb)
@@ -936,7 +1003,7 @@ class VehicleLocator:
         """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
         `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
         (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
-        if _k is not None and self.s.pose_loss == "soft_l1":
+        if _k is not None:
             return self._solve_pose_native(pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges)
         Ls, uvs, ds, sds = [], [], [], []
         flip = res["flip"]
@@ -956,33 +1023,28 @@ class VehicleLocator:
         d[bad] = np.nan
         sd[bad] = 1.0
         sigma_uv = self.s.centroid_sigma_px / self.focal
-        hs = self.s.camera_height_sigma_m
+        hs = CAMERA_HEIGHT_SIGMA_M
         C_prior = np.array([C0[0], C0[1], self.s.camera_height_m])
         cov = np.diag([1e8, 1e8, hs * hs])
         up = self.R_nominal[:, 2]
         rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
         p0 = np.concatenate([rvec.ravel(), C0])
-        n_iter = self.s.pose_max_iter if max_iter is None else max_iter
-        fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(self.s.tilt_sigma_deg), C_prior, cov),
+        n_iter = POSE_MAX_ITER if max_iter is None else max_iter
+        fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(TILT_SIGMA_DEG), C_prior, cov),
                            len(sl_k), self._sep_gain)
         if attitude:
             fun = _with_attitude_prior(fun, **attitude)
-        if self.s.pose_loss not in _LOSSES:
-            x = robust_lm(fun, fun.jac, p0, loss=self.s.pose_loss, f_scale=self.s.pose_f_scale, max_iter=n_iter)
-            r, J = fun(x), fun.jac(x)
-        else:
-            rot_tol, pos_tol = self.s.pose_rot_tol_rad, self.s.pose_pos_tol_m
+        rot_tol, pos_tol = POSE_ROT_TOL_RAD, POSE_POS_TOL_M
 
-            def done(dp, q, c, c_new):
-                # Converged once a step moves the camera by less than the output's resolution
-                # (a warm start from the road filter's prediction: 1-3 steps).
-                return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
-                    or c - c_new <= LM_FTOL * c
+        def done(dp, q, c, c_new):
+            # Converged once a step moves the camera by less than the output's resolution
+            # (a warm start from the road filter's prediction: 1-3 steps).
+            return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
+                or c - c_new <= LM_FTOL * c
 
-            # Absurd ranges may overflow the whitened residuals: no fix then (below), no warning.
-            with np.errstate(over="ignore", invalid="ignore"):
-                x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss=self.s.pose_loss,
-                                        f_scale=self.s.pose_f_scale, max_iter=n_iter)
+        # Absurd ranges may overflow the whitened residuals: no fix then (below), no warning.
+        with np.errstate(over="ignore", invalid="ignore"):
+            x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss="soft_l1", f_scale=POSE_F_SCALE, max_iter=n_iter)
         return self._pose_result(x, r, J, L)
 
     def _solve_pose_native(self, pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges):
@@ -1010,12 +1072,12 @@ class VehicleLocator:
         else:
             rvec = cv2.Rodrigues(np.asarray(R0, float))[0].ravel()
         p0 = np.concatenate([rvec, np.asarray(C0, float)])
-        n_iter = s.pose_max_iter if max_iter is None else max_iter
+        n_iter = POSE_MAX_ITER if max_iter is None else max_iter
         if self._W is None:
-            hs = s.camera_height_sigma_m
+            hs = CAMERA_HEIGHT_SIGMA_M
             self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
         x, r, J, R, cov6, status = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds),
-                                                 self._up, math.radians(s.tilt_sigma_deg), C_prior, self._W, m,
+                                                 self._up, math.radians(TILT_SIGMA_DEG), C_prior, self._W, m,
                                                  self._sep_gain, attitude, p0, n_iter, s)
         if status == 3:
             return self._pose_result(x, r, J, L)     # J' J not positive definite: the pinv decides
@@ -1070,24 +1132,24 @@ class VehicleLocator:
 
     def _associate(self, t_s: float, pairs, R_prior) -> dict:
         """Map-aided association {pair index: mapped street-light ID} of UNDECODED pairs, while
-        the road filter is sure (predicted 2D std <= `assoc_max_std_m`): every mapped head not
+        the road filter is sure (predicted 2D std <= `ASSOC_MAX_STD_M`): every mapped head not
         decoded in this frame is projected from the predicted camera (the filter's x, y; the
         last solved height and orientation turned to the predicted heading) with its 2x2
         covariance in normalized image units (the position's through the projection's Jacobian,
         plus the camera's yaw and pitch sigmas and the centroids'); a pair both of whose
         emitters were measured apart (`both_visible`) is matched to the one head whose
-        Mahalanobis^2 to its midpoint is within `assoc_gate_chi2`, when no other head is in
+        Mahalanobis^2 to its midpoint is within `ASSOC_GATE_CHI2`, when no other head is in
         that gate, no other pair is in the head's, and its separation is within
-        `assoc_sep_tol` of the head's predicted one (f B / distance). Ambiguity: no match."""
+        `ASSOC_SEP_TOL` of the head's predicted one (f B / distance). Ambiguity: no match."""
         s = self.s
         cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible
                 and p.a_seen is not None and p.b_seen is not None
-                and max(int(p.a_seen[2]), int(p.b_seen[2])) <= s.assoc_max_age]
+                and max(int(p.a_seen[2]), int(p.b_seen[2])) <= ASSOC_MAX_AGE]
         if not cand or not len(self._sl_heads):
             return {}
         st, P = self.kf.predict_at(t_s)
         Pxy = P[:2, :2]
-        if float(Pxy[0, 0] + Pxy[1, 1]) > s.assoc_max_std_m ** 2:
+        if float(Pxy[0, 0] + Pxy[1, 1]) > ASSOC_MAX_STD_M ** 2:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
         ids, H, Bl = self._em_heads
@@ -1122,7 +1184,7 @@ class VehicleLocator:
         und = self._undistorted_mids(pairs, cand)
         D = und[:, None, :] - u[None, :, :]                  # (pairs, heads, 2)
         m2 = np.einsum("phi,hij,phj->ph", D, inv, D)
-        inside = m2 <= s.assoc_gate_chi2
+        inside = m2 <= ASSOC_GATE_CHI2
         out = {}
         for a, i in enumerate(cand):
             hs = np.flatnonzero(inside[a])
@@ -1130,7 +1192,7 @@ class VehicleLocator:
                 continue
             h = hs[0]
             sep = pairs[i].separation_px
-            if not (sep > 0 and abs(sep / sep_pred[h] - 1.0) <= s.assoc_sep_tol):
+            if not (sep > 0 and abs(sep / sep_pred[h] - 1.0) <= ASSOC_SEP_TOL):
                 continue
             out[i] = ids[h]
         return out
@@ -1166,7 +1228,7 @@ class VehicleLocator:
         hit = np.empty(len(cand), np.int_)
         if not _ka.associate(H, Bl, use, np.ascontiguousarray(R), cx, cy, cz, np.ascontiguousarray(Pxy),
                              ang + csig, float(self.focal), np.ascontiguousarray(und, float), sep,
-                             float(s.assoc_gate_chi2), float(s.assoc_sep_tol), hit):
+                             float(ASSOC_GATE_CHI2), float(ASSOC_SEP_TOL), hit):
             return {}
         return {i: ids[h] for i, h in zip(cand, hit.tolist()) if h >= 0}
 
@@ -1177,8 +1239,8 @@ class VehicleLocator:
         height and pitch (`pitch_ref` when a full pose gave one), roll 0 and yaw = heading. What
         those assumptions leave out is folded into the noise through the measurement's
         Jacobian on each: the camera's yaw about the heading (`yaw_shake_sigma_deg`), pitch
-        (`pitch_sigma_deg`, else `orient_sigma_prior_deg`), roll (`roll_sigma_deg`) and height
-        (`camera_height_sigma_m`); the midpoint carries the centroids' sigma
+        (`pitch_sigma_deg`, else `ORIENT_SIGMA_PRIOR_DEG`), roll (`roll_sigma_deg`) and height
+        (`CAMERA_HEIGHT_SIGMA_M`); the midpoint carries the centroids' sigma
         (`centroid_sigma_px` / sqrt 2 per axis). A pose fix would need the heading prior from
         this same filter, and its position fed back would count that prior twice. Returns the
         fix record for `_update_hv` ("sl-1", n 1)."""
@@ -1186,7 +1248,7 @@ class VehicleLocator:
         head = self._sl[pairs[res["idx"][k]].led_id]["head"]
         z0 = self.z_last
         pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
-        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else s.orient_sigma_prior_deg)
+        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else ORIENT_SIGMA_PRIOR_DEG)
 
         rots = {}       # the rotations asked so far: 7 distinct ones among the ~16 calls of a frame
 
@@ -1202,7 +1264,7 @@ class VehicleLocator:
             return np.array([X[0] / X[2], X[1] / X[2], math.sqrt(float(V @ V))])
 
         st, P = self.kf.predict_at(t_s)
-        if float(P[0, 0] + P[1, 1]) > s.sl1_max_std_m ** 2:
+        if float(P[0, 0] + P[1, 1]) > SL1_MAX_STD_M ** 2:
             # One light's angles and range, linearised about a prediction metres off, pull the
             # filter along a wrong circle around the head (vehicle-road, tilted heads: 10 m off at
             # 1 m std): a single light only keeps a filter that is already sure.
@@ -1213,9 +1275,9 @@ class VehicleLocator:
         z = np.array([um[0], um[1], res["fused"][k]])
         sm = s.centroid_sigma_px / SQRT2 / self.focal
         d = float(res["fused"][k])
-        Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (s.sl1_range_floor_rel * d) ** 2])
+        Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (SL1_RANGE_FLOOR_REL * d) ** 2])
         for j, (sig, e) in enumerate(((math.radians(s.yaw_shake_sigma_deg), 1e-5), (psig, 1e-5),
-                                      (math.radians(s.roll_sigma_deg), 1e-5), (s.camera_height_sigma_m, 1e-3))):
+                                      (math.radians(s.roll_sigma_deg), 1e-5), (CAMERA_HEIGHT_SIGMA_M, 1e-3))):
             a = [0.0, 0.0, 0.0, 0.0]
             a[j] = e
             jp = g(x, y, psi, *a)
@@ -1271,10 +1333,10 @@ class VehicleLocator:
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
         R, C, cov = solved
-        if float(np.trace(cov)) > s.sl1_start_max_std_m ** 2:
+        if float(np.trace(cov)) > SL1_START_MAX_STD_M ** 2:
             # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
             # the single-light observations that follow would be linearised metres off.
-            self.hv_reason = f"{ONE_LIGHT} (alone too unsure: std > {s.sl1_start_max_std_m:g} m)"
+            self.hv_reason = f"{ONE_LIGHT} (alone too unsure: std > {SL1_START_MAX_STD_M:g} m)"
             return None, aligned, res
         self.hv_reason = None
         return dict(pose=(C, cov, camera_yaw(R), R), n=1, method="pose-1sl", yaw_free=True,
@@ -1283,9 +1345,9 @@ class VehicleLocator:
     @property
     def _sep_gain(self) -> float:
         """Weight of a head's centroid difference relative to the centroids' own sigma:
-        sqrt(2) sigma_c / sqrt(2 sigma_c^2 + sigma_sep^2) (`sl_separation_sigma_px`)."""
+        sqrt(2) sigma_c / sqrt(2 sigma_c^2 + sigma_sep^2) (`SL_SEPARATION_SIGMA_PX`)."""
         c = self.s.centroid_sigma_px
-        return SQRT2 * c / math.sqrt(2 * c * c + self.s.sl_separation_sigma_px ** 2)
+        return SQRT2 * c / math.sqrt(2 * c * c + SL_SEPARATION_SIGMA_PX ** 2)
 
     # -------------------------------------------------------------------------- step
     def step(self, t_s: float, pairs: list[PairObservation], speed_mps: float | None = None) -> VehicleResult:
@@ -1300,7 +1362,7 @@ class VehicleLocator:
             self.R_last = None
         R_prior = self.R_last if tracked else None
         given = pairs
-        assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None and s.map_assoc else {}
+        assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None else {}
         if assoc:
             pairs = [dataclasses.replace(p, led_id=assoc[i], kind="SL") if i in assoc else p
                      for i, p in enumerate(pairs)]
@@ -1316,11 +1378,11 @@ class VehicleLocator:
             n_sl_any = res["roles"].count("SL")
             if n_sl_any and not sl_k:
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
-            elif len(sl_k) < s.min_lights and not (s.single_light and len(sl_k) == 1):
-                self.hv_reason = ONE_LIGHT if sl_k else self._unplaced_reason(pairs)
-            elif len(sl_k) < s.min_lights and R_prior is not None:
+            elif not sl_k:
+                self.hv_reason = self._unplaced_reason(pairs)
+            elif len(sl_k) < MIN_LIGHTS and R_prior is not None:
                 fix = self._single_observation(t_s, pairs, res, sl_k[0], R_prior)
-            elif len(sl_k) < s.min_lights:
+            elif len(sl_k) < MIN_LIGHTS:
                 fix, aligned, res = self._single_fix(t_s, pairs, aligned, res, sl_k[0], R_prior)
             else:
                 if R_prior is not None:
@@ -1339,7 +1401,7 @@ class VehicleLocator:
                         aligned, res = out
                 # Warm start from the filter's prediction while tracking: a few iterations do.
                 solved = None if init is None else self._solve_pose(
-                    pairs, res, sl_k, *init, max_iter=s.pose_track_iter if R_prior is not None else None)
+                    pairs, res, sl_k, *init, max_iter=POSE_TRACK_ITER if R_prior is not None else None)
                 if solved is None:
                     self.hv_reason = "street-light pose solve failed"
                 else:
@@ -1376,7 +1438,7 @@ class VehicleLocator:
             aligned = [(None, None) if i in assoc else a for i, a in enumerate(aligned)]
         fv, not_fv, tracked = self._update_fv(t_s, pairs, aligned, res, hv)
         not_fv = set(not_fv) | set(assoc)
-        ranges = [None if r is None or i in not_fv else _pick(r, k, s.range_estimator)
+        ranges = [None if r is None or i in not_fv else _pick(r, k, "fused")
                   for i, (r, k) in enumerate(aligned)]
         for i, rng in tracked.items():
             if ranges[i] is None:
@@ -1422,7 +1484,7 @@ class VehicleLocator:
         the head (estimator "pose"; its sigma from the pose covariance along the line of
         sight). Far more exact than either image measurement of a small, foreshortened head."""
         (cx, cy, cz), ((c00, c01), (c10, c11)) = fix["pose"][0].tolist(), fix["pose"][1].tolist()
-        hs = self.s.camera_height_sigma_m
+        hs = CAMERA_HEIGHT_SIGMA_M
         if _kr is not None:
             _kr.pose_ranges(pairs, self._heads_t, cx, cy, cz, c00, c01, c10, c11, hs, ranges)
             return
@@ -1464,22 +1526,16 @@ class VehicleLocator:
             # One light's image angles and range straight into the running filter (no raw fix).
             kf.predict(t_s)
             z, g, Rm = fix["obs"]
-            if kf.update_observation(t_s, z, g, Rm, s.obs_gate_chi2):
+            if kf.update_observation(t_s, z, g, Rm, OBS_GATE_CHI2):
                 meth = fix["method"] + ("+map" if fix.get("n_assoc") else "")
             fix = None if meth == "kalman-coast" else fix
         elif fix is not None:
             C, cov, yaw, R = fix["pose"]
-            if s.hv_method == "eq44-47":
-                e = fix.get("eq44-47")
-                if e is not None:
-                    # eqs. 44-47 use two ranges only: inflate the pose covariance as its stand-in.
-                    xy, cov, meth = np.array(e), cov * 4.0 + np.eye(2) * 0.25, "eq44-47"
-            else:
-                xy, meth = C[:2], fix.get("method", "pose") + ("+map" if fix.get("n_assoc") else "")
-                cov = cov + np.eye(2) * s.fix_floor_m ** 2
+            xy, meth = C[:2], fix.get("method", "pose") + ("+map" if fix.get("n_assoc") else "")
+            cov = cov + np.eye(2) * FIX_FLOOR_M ** 2
         if xy is not None:
             raw = {"x": _r(xy[0]), "y": _r(xy[1]), "method": meth}
-            psig = math.radians(s.heading_sigma_deg)
+            psig = math.radians(HEADING_SIGMA_DEG)
             if fix.get("yaw_free"):
                 # A single light's yaw is its heading prior's echo: the filter takes the position
                 # only; a filter started from it takes the prior's sigma.
@@ -1491,7 +1547,7 @@ class VehicleLocator:
                 held = self._speed_from_fixes(t_s, xy, cov) if speed is None else False
                 accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig,
                                          held_speed=held)
-                if not accepted and kf.rejects >= s.max_rejects:
+                if not accepted and kf.rejects >= MAX_REJECTS:
                     kf.reset()
                     accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             if accepted:
@@ -1547,8 +1603,8 @@ class VehicleLocator:
 
     def _keep_separations(self, t_s: float, pairs) -> None:
         """Each pair's separation (px, when both emitters were measured apart) over the last
-        `speed_hist_s`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
-        keep = t_s - self.s.speed_hist_s
+        `SPEED_HIST_S`, by pair key (`_speed_from_motion`; kept from before the pair decodes)."""
+        keep = t_s - SPEED_HIST_S
         hist = {}
         old = self._sep_hist
         # Times added in step order: while they never went back, every list is sorted and its
@@ -1576,18 +1632,18 @@ class VehicleLocator:
     def _speed_from_motion(self, t_s: float, C, yaw: float, heads):
         """(speed m/s, sigma) of the HV from the image growth of the fix's heads, or None. A head's
         separation scales as 1 / distance: the slope k of ln(separation) over the last
-        `speed_hist_s` (>= `speed_hist_min` samples) is -d'/d, and d d' = rho rho' with
+        `SPEED_HIST_S` (>= `SPEED_HIST_MIN` samples) is -d'/d, and d d' = rho rho' with
         rho' = -v cos(beta) (rho the horizontal distance, beta the head's bearing from the
         heading, from the fix), so v = d^2 k / (rho cos beta); sigma from the fit's residuals.
         Heads are combined by inverse variance; none when they disagree beyond 3 sigma. The
-        sigma is floored at `speed_motion_floor_mps` (the separations are the pairing's model:
+        sigma is floored at `SPEED_MOTION_FLOOR_MPS` (the separations are the pairing's model:
         whole pixels scaled by the envelopes)."""
         s = self.s
         h = np.array([math.cos(yaw), math.sin(yaw)])
         vs, ws = [], []
         for key, head in heads:
             e = self._sep_hist.get(key, ())
-            if len(e) < s.speed_hist_min:
+            if len(e) < SPEED_HIST_MIN:
                 continue
             t = np.array([x[0] for x in e])
             y = np.log([x[1] for x in e])
@@ -1614,11 +1670,11 @@ class VehicleLocator:
         sv = 1.0 / math.sqrt(float(ws.sum()))
         if np.any(np.abs(vs - v) > 3.0 * np.sqrt(1.0 / ws + sv * sv)) or not math.isfinite(v):
             return None
-        return v, max(sv, s.speed_motion_floor_mps)
+        return v, max(sv, SPEED_MOTION_FLOOR_MPS)
 
     def _speed_from_fixes(self, t_s: float, xy, cov) -> bool:
         """While the speed is unknown (a start without odometry), the speed from the first fix and
-        the first one at least `speed_init_min_dt_s` after it: their displacement along the
+        the first one at least `SPEED_INIT_MIN_DT_S` after it: their displacement along the
         heading over their time apart (sigma sqrt(h' (C1 + C2) h) / dt, h the heading's unit
         vector), set as the filter's speed with its cross-covariances cleared. Fixes before
         that update the position only (`held_speed`). A filter left to learn its speed from its
@@ -1630,7 +1686,7 @@ class VehicleLocator:
             return False
         t0, xy0, cov0, yaw0 = held
         dt = t_s - t0
-        if dt < self.s.speed_init_min_dt_s:
+        if dt < SPEED_INIT_MIN_DT_S:
             return True
         self._pending = None
         h = np.array([math.cos(yaw0), math.sin(yaw0)])
@@ -1744,23 +1800,23 @@ class VehicleLocator:
             if meas is None and tr is None:
                 continue
             if tr is None:
-                tr = {"kf": RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd, s.fv_gate_chi2),
+                tr = {"kf": RangeKalman(t_s, meas[0], meas[1], FV_RATE_SIGMA_MPS, FV_ACCEL_PSD, FV_GATE_CHI2),
                       "id": None, "bearing": meas[2], "lev": meas[3], "ykf": None, "yaw": 0.0, "n_meas": 1}
                 self.fv_tracks[key] = tr
             else:
                 tr["kf"].predict(t_s)
                 if meas is not None and not tr["kf"].update(t_s, meas[0], meas[1]):
-                    if tr["kf"].rejects >= s.fv_max_rejects:
-                        tr["kf"] = RangeKalman(t_s, meas[0], meas[1], s.fv_rate_sigma_mps, s.fv_accel_psd,
-                                               s.fv_gate_chi2)
+                    if tr["kf"].rejects >= FV_MAX_REJECTS:
+                        tr["kf"] = RangeKalman(t_s, meas[0], meas[1], FV_RATE_SIGMA_MPS, FV_ACCEL_PSD,
+                                               FV_GATE_CHI2)
                         tr["n_meas"] = 1
                     else:
                         meas = None
                 elif meas is not None:
                     tr["n_meas"] = tr.get("n_meas", 1) + 1
             if meas is None and tr["id"] is None and not (p.led_id is not None and p.led_id > 0x7F) \
-                    and tr.get("n_meas", 1) < 2 and t_s - tr["kf"].t_meas > s.fv_confirm_s:
-                # Ranged once, never again: no car's taillights (s.fv_confirm_s); forget it.
+                    and tr.get("n_meas", 1) < 2 and t_s - tr["kf"].t_meas > FV_CONFIRM_S:
+                # Ranged once, never again: no car's taillights (FV_CONFIRM_S); forget it.
                 del self.fv_tracks[key]
                 continue
             if meas is not None:
@@ -1781,7 +1837,7 @@ class VehicleLocator:
             y = flat * math.sin(tr["bearing"])
             if meas is not None or i in dirs:
                 self._fv_yaw(tr, t_s, x, y, flat, rate, v_hv)
-            ttc = d / -rate if rate < -s.closing_min_mps else None
+            ttc = d / -rate if rate < -CLOSING_MIN_MPS else None
             zone = self._zone(d, v_hv, ttc)
             road_x = road_y = None
             if hv is not None:
@@ -1793,7 +1849,7 @@ class VehicleLocator:
             if meas is None and i in dirs and (tr["id"] is not None or tr.get("n_meas", 1) >= 2):
                 # A tracked pair without a range of its own this frame: its LED observations
                 # carry the track's filtered distance (estimator "fv-track"), once the track is
-                # decoded or ranged twice (a pair ranged once may be no car: `fv_confirm_s`).
+                # decoded or ranged twice (a pair ranged once may be no car: `FV_CONFIRM_S`).
                 tracked[i] = (float(d), float(std), "fv-track")
             out.append({"id": tr["id"], "distance_m": _r(d), "angle_deg": _r(math.degrees(tr["bearing"])),
                         "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
@@ -1808,7 +1864,7 @@ class VehicleLocator:
         pair's lamp seen in this frame? That lamp's own blob measured now (age 0), between p's
         emitters in image x, from 0.3 separations above p's lamps to one below (a car's body: the
         roof about 0.4 m above its lamps, bumper and body down to the road below them, in units
-        of the ~1.4 m lamp baseline), on a pair whose separation is `fv_occlusion_ratio` times
+        of the ~1.4 m lamp baseline), on a pair whose separation is `FV_OCCLUSION_RATIO` times
         smaller (it is farther): p's body would stand in that lamp's sight line, so p is no car
         (two lamps of different objects paired by chance: vehicle scene, FVs at 53-56 m, far heads
         across the road read as a car at 21-39 m above the host lane's car)."""
@@ -1819,7 +1875,7 @@ class VehicleLocator:
         for q in pairs:
             if q is p or q.key == p.key or self._role(q) not in ("FV", "FV?"):
                 continue
-            if not q.separation_px * self.s.fv_occlusion_ratio < sep:
+            if not q.separation_px * FV_OCCLUSION_RATIO < sep:
                 continue
             for seen in (q.a_seen, q.b_seen):
                 if seen is not None and seen[2] == 0 and lo < seen[0][0] < hi and -0.3 * sep < seen[0][1] - yc < sep:
@@ -1828,23 +1884,23 @@ class VehicleLocator:
 
     def _taillight_like(self, p: PairObservation, res: dict, k: int) -> bool:
         """An undecoded pair's two measured emitters look like one car's taillights: level (their
-        baseline within `fv_max_tilt_deg` of horizontal in the camera's level frame; a car's
-        lamps are mounted level) and of like area (within `fv_max_area_ratio`). Two far
+        baseline within `FV_MAX_TILT_DEG` of horizontal in the camera's level frame; a car's
+        lamps are mounted level) and of like area (within `FV_MAX_AREA_RATIO`). Two far
         street-light heads paired across the road are neither, as a rule (vehicle scene, FVs at
         53-56 m: heads 3 px apart vertically over 42 px, areas 24 and 11 px^2, read as a car at 40 m)."""
         s = self.s
         a_area, b_area = fv_measured(p)[1]
         if not (p.a_saturated or p.b_saturated) and \
-                max(a_area, b_area) > s.fv_max_area_ratio * max(min(a_area, b_area), 1e-9):
+                max(a_area, b_area) > FV_MAX_AREA_RATIO * max(min(a_area, b_area), 1e-9):
             return False        # (saturated blobs' areas are bloom: no size test)
         la, lb = self.Lv @ res["ra"][k], self.Lv @ res["rb"][k]
         rise = abs(float(lb[2] - la[2]))
         run = math.hypot(float(lb[0] - la[0]), float(lb[1] - la[1]))
-        return rise <= math.tan(math.radians(s.fv_max_tilt_deg)) * run
+        return rise <= math.tan(math.radians(FV_MAX_TILT_DEG)) * run
 
     def _on_mapped_sl(self, t_s: float, ua, ub, hv: dict | None, R) -> bool:
         """Whether either emitter (normalized image points ua, ub) lies within
-        `fv_sl_gate_deg` of a mapped street-light head projected from the placed HV (camera at
+        `FV_SL_GATE_DEG` of a mapped street-light head projected from the placed HV (camera at
         hv x, y and the last solved height, orientation R); False while the HV is unplaced."""
         if hv is None or R is None or not len(self._sl_heads):
             return False
@@ -1856,7 +1912,7 @@ class VehicleLocator:
         P = self._sl_seen_at[2]
         if not len(P):
             return False
-        g2 = math.tan(math.radians(self.s.fv_sl_gate_deg)) ** 2
+        g2 = math.tan(math.radians(FV_SL_GATE_DEG)) ** 2
         if _kr is not None and P.flags.c_contiguous:
             (ax, ay), (bx, by) = ua.tolist(), ub.tolist()
             return _kr.near_any(P, ax, ay, bx, by, g2)
@@ -1872,45 +1928,45 @@ class VehicleLocator:
         velocity in the HV frame is (V_HV + dx/dt - omega y, dy/dt + omega x) (omega: the HV's
         turn rate). A lane change yaws a car by 10-15 deg, which shortens its taillight baseline
         as seen by cos(yaw) (thesis eqs. 52-53 take it across the line of sight): ~3 % of range.
-        0 until V_HV is known and the filter has `fv_yaw_min_frames` positions."""
+        0 until V_HV is known and the filter has `FV_YAW_MIN_FRAMES` positions."""
         s = self.s
-        sig = max(s.fv_lateral_sigma_m, flat * math.radians(s.fv_bearing_sigma_deg))
+        sig = max(FV_LATERAL_SIGMA_M, flat * math.radians(FV_BEARING_SIGMA_DEG))
         yk = tr["ykf"]
         if yk is None:
-            tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
-                                         s.fv_gate_chi2)
+            tr["ykf"] = yk = RangeKalman(t_s, y, sig, FV_LATERAL_RATE_SIGMA_MPS, FV_LATERAL_ACCEL_PSD,
+                                         FV_GATE_CHI2)
             tr["n_y"] = 1
         else:
             yk.predict(t_s)
             if yk.update(t_s, y, sig):
                 tr["n_y"] += 1
-            elif yk.rejects >= s.fv_max_rejects:
-                tr["ykf"] = yk = RangeKalman(t_s, y, sig, s.fv_lateral_rate_sigma_mps, s.fv_lateral_accel_psd,
-                                             s.fv_gate_chi2)
+            elif yk.rejects >= FV_MAX_REJECTS:
+                tr["ykf"] = yk = RangeKalman(t_s, y, sig, FV_LATERAL_RATE_SIGMA_MPS, FV_LATERAL_ACCEL_PSD,
+                                             FV_GATE_CHI2)
                 tr["n_y"] = 1
         tr["yaw"] = 0.0
-        if v_hv is None or tr["n_y"] < s.fv_yaw_min_frames:
+        if v_hv is None or tr["n_y"] < FV_YAW_MIN_FRAMES:
             return
         omega = float(self.kf.s[4]) if self.kf.started else 0.0
         xdot = rate * (x / max(math.hypot(x, y), 1e-6))       # d-dot along the line of sight
         vx, vy = v_hv + xdot - omega * y, yk.v + omega * x
-        if vx > s.fv_yaw_min_speed_mps:
-            tr["yaw"] = max(-s.fv_yaw_max_rad, min(s.fv_yaw_max_rad, math.atan2(vy, vx)))
+        if vx > FV_YAW_MIN_SPEED_MPS:
+            tr["yaw"] = max(-FV_YAW_MAX_RAD, min(FV_YAW_MAX_RAD, math.atan2(vy, vx)))
 
     def _dedupe_fv(self, out: list[dict]) -> list[dict]:
         """One entry per forward vehicle: a pair re-formed under a new key, or a stale coasting
         track, shows up at the bearing of the live one. Entries are kept decoded first, then
-        measured this frame, then the surest; one within `fv_dup_deg` of a kept entry's bearing is
-        dropped, as is a coasting one whose std exceeds `fv_coast_max_rel` of its distance."""
+        measured this frame, then the surest; one within `FV_DUP_DEG` of a kept entry's bearing is
+        dropped, as is a coasting one whose std exceeds `FV_COAST_MAX_REL` of its distance."""
         s = self.s
-        out = [e for e in out if not e["coasting"] or (e["std_m"] or 0.0) <= s.fv_coast_max_rel * (e["distance_m"] or 0.0)]
+        out = [e for e in out if not e["coasting"] or (e["std_m"] or 0.0) <= FV_COAST_MAX_REL * (e["distance_m"] or 0.0)]
         if len(out) < 2:
             return out
         order = sorted(out, key=lambda e: (e["id"] is None, e["coasting"], e["std_m"] if e["std_m"] is not None else 1e9))
         kept = []
         for e in order:
             a = e["angle_deg"]
-            if a is not None and any(k["angle_deg"] is not None and abs(k["angle_deg"] - a) < s.fv_dup_deg for k in kept):
+            if a is not None and any(k["angle_deg"] is not None and abs(k["angle_deg"] - a) < FV_DUP_DEG for k in kept):
                 continue
             kept.append(e)
         return [e for e in out if any(e is k for k in kept)]

@@ -65,7 +65,7 @@ def test_pose_kernel_equals_numpy_cold_and_warm(monkeypatch, radius):
         pairs.append(fv_pair((20.0, 0.5), R, C, psi, rng=rng, px_sigma=0.3)[0])
         hv = loc.step(i / 30.0, pairs).vehicle["hv"]
         assert hv is not None
-    assert any(kw.get("max_iter") == SETTINGS.pose_track_iter for kw, _, _ in both.calls)
+    assert any(kw.get("max_iter") == V.POSE_TRACK_ITER for kw, _, _ in both.calls)
     assert any(kw.get("max_iter") is None for kw, _, _ in both.calls)
     both.check()
 
@@ -302,7 +302,7 @@ def test_on_mapped_sl_kernel_equals_numpy(monkeypatch):
     loc.z_last = float(C[2])
     loc._on_mapped_sl(0.0, np.zeros(2), np.zeros(2), hv, R)
     P = loc._sl_seen_at[2]
-    g = math.tan(math.radians(SETTINGS.fv_sl_gate_deg))
+    g = math.tan(math.radians(V.FV_SL_GATE_DEG))
     rng = np.random.default_rng(1)
     cases = [(P[0] + [g * 0.999, 0.0], P[1] + [5.0, 5.0]), (P[0] + [g * 1.001, 0.0], P[1] + [0.0, g * 1.001]),
              (np.array([np.nan, 0.0]), P[2]), (P[3], np.array([np.nan, np.nan]))]
@@ -392,7 +392,7 @@ def test_keep_separations_ages_out_like_a_filter_even_when_time_goes_back():
         pairs = [SimpleNamespace(key=(k, k + 1), both_visible=rng.random() < 0.8,
                                  separation_px=float(rng.uniform(-1, 40))) for k in range(int(rng.integers(1, 5)))]
         loc._keep_separations(t, pairs)
-        keep = t - SETTINGS.speed_hist_s
+        keep = t - V.SPEED_HIST_S
         new = {}
         for p in pairs:
             h = ref.get(p.key, ())          # the former code: a filter when the first entry aged out
