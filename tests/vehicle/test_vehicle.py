@@ -539,7 +539,7 @@ def test_absurd_centroids_and_areas_never_raise_nor_give_infinite_numbers(value)
 def test_a_pose_solve_with_an_infinite_covariance_is_no_fix(monkeypatch):
     """Residuals that overflow (absurd ranges) give an infinite fix covariance: the frame then
     has no fix (and no "pose" ranges with an infinite sigma), rather than one no gate can judge."""
-    import receiver.locate.vehicle as vehicle_mod
+    import receiver.locate.vehicle_host as vehicle_mod
 
     lmap = make_map()
     R, C, psi = camera_pose(3.0)

@@ -84,7 +84,7 @@ def test_compiled_association_equals_the_numpy_form(monkeypatch):
     the same inputs: the same matches (the twin-head map: the same refusals)."""
     import pytest
 
-    import receiver.locate.vehicle as V
+    import receiver.locate.vehicle_assoc as V
     kernel = V._ka
     if kernel is None:
         pytest.skip("compiled kernel not built (tests/engine/test_native.py fails then)")
@@ -111,7 +111,7 @@ def test_compiled_association_equals_the_numpy_form(monkeypatch):
 def test_compiled_association_rejects_mismatched_sizes():
     import pytest
 
-    import receiver.locate.vehicle as V
+    import receiver.locate.vehicle_assoc as V
     if V._ka is None:
         pytest.skip("compiled kernel not built (tests/engine/test_native.py fails then)")
     H, Bl, use, R, P = np.zeros((3, 3)), np.ones(3), bytes(3), np.eye(3), np.eye(2)
