@@ -38,13 +38,14 @@ def truth_pairs(leds: list, t_s: float, first_seen: dict, rng, args) -> list[Pai
             first_seen.pop(led["id"], None)
             continue
         first_seen.setdefault(led["id"], t_s)
-        within = args.sl_saturated_within_m if led.get("kind") == "SL" else args.fv_saturated_within_m
+        kind = led.get("kind") or ("SL" if led["id"] <= 0x7F else "FV")       # PROTOCOL.md ID ranges
+        within = args.sl_saturated_within_m if kind == "SL" else args.fv_saturated_within_m
         sat = led["distance_m"] < within
         a, b = ((e["cx"] + rng.normal(0, args.centroid_px), e["cy"] + rng.normal(0, args.centroid_px)) for e in em)
         area = [e["area_px"] * (args.bloom if sat else 1.0) for e in em]
         decoded = t_s - first_seen[led["id"]] >= args.packet_s
         out.append(PairObservation(key=(2 * led["id"], 2 * led["id"] + 1), led_id=led["id"] if decoded else None,
-                                   kind=led.get("kind") if decoded else None, a_px=a, b_px=b, area_a_px=area[0],
+                                   kind=kind if decoded else None, a_px=a, b_px=b, area_a_px=area[0],
                                    area_b_px=area[1], separation_px=math.dist(a, b), both_visible=True,
                                    a_seen=(a, area[0], 0), b_seen=(b, area[1], 0), a_saturated=sat, b_saturated=sat))
     return out
