@@ -1,6 +1,12 @@
 """Vehicle positioning from S2-PSK pairs (thesis chapter 5.3): the host vehicle (HV) placed from
 street lights (SL), forward vehicles (FV) located from their taillights.
 
+`VehicleLocator` (here: its state, each pair's role, the frame's step) composes one part per
+concern: pair ranging (`vehicle_ranging.PairRanging`), host placement
+(`vehicle_host.HostPlacement`), map-aided association (`vehicle_assoc.MapAssociation`) and the
+cars ahead (`vehicle_cars.CarsAhead`); each file holds its model constants. What a user sets is
+`VehicleSettings` (receiver.locate.settings); user documentation: docs/vehicle-locator.md.
+
 Frames and units
 * Road / map frame: metres, x along the road, y to the left, z up (the map's frame; curved roads
   are fine, nothing assumes the lights lie on a line).
