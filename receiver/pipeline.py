@@ -110,13 +110,21 @@ def pair_owners(pairs) -> dict[int, object]:
     return owner
 
 
-def pair_observation(p) -> PairObservation:
-    """The record of one live pair in this frame (see `PairObservation`)."""
+def pair_observation(p, white_gray: float = math.inf) -> PairObservation:
+    """The record of one live pair in this frame (see `PairObservation`); `white_gray`: the gray
+    level at which a blob's peak is clipped (DetectSettings.saturated_gray)."""
     a, b = p.a.blob, p.b.blob
     return PairObservation(key=p.key, founding=p.founding, led_id=p.led_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
                            area_a_px=a.area_px, area_b_px=b.area_px,
                            separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen,
-                           a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames))
+                           a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames),
+                           a_saturated=_clipped(p.obs_a, a, white_gray), b_saturated=_clipped(p.obs_b, b, white_gray))
+
+
+def _clipped(obs, blob, white_gray: float) -> bool:
+    """Whether an emitter's own blob (else the pair's current one) peaked at `white_gray`."""
+    src = blob if obs is None else obs[0]
+    return bool(src.peak >= white_gray)
 
 
 def _seen(obs, frames: int):
@@ -453,7 +461,8 @@ class Receiver:
                 if p.led_id is not None:
                     decoded.add(p.led_id)
         leds.sort(key=_TRACK)
-        pairs = tuple(pair_observation(p) for p in self.pairer.pairs) if self.pairer is not None else ()
+        white = self.settings.detect.saturated_gray
+        pairs = tuple(pair_observation(p, white) for p in self.pairer.pairs) if self.pairer is not None else ()
         return leds, emitter_of, pairs
 
     # -- the frame ----------------------------------------------------------------------

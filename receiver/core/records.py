@@ -66,6 +66,9 @@ class PairObservation:
     `b_px` (the pair's rigid model, to the nearest whole pixel) these are measurements: two of
     age 0 give the pair's separation to a fraction of a pixel. `founding`: the founding tracks'
     ids (the key unless the pair is aliased: receiver.vision.pairing `Pair.alias`; None: the key).
+    `a_saturated`, `b_saturated`: emitter A's / B's own blob, when last seen, peaked at the
+    sensor's white level (DetectSettings.saturated_gray): its area is then blur and bloom (2-3x
+    the emitter's true image area), no measure of range or size (False: unknown or unclipped).
     """
 
     key: tuple[int, int]
@@ -80,6 +83,8 @@ class PairObservation:
     a_seen: tuple | None = None
     b_seen: tuple | None = None
     founding: tuple[int, int] | None = None
+    a_saturated: bool = False
+    b_saturated: bool = False
 
 
 @dataclass(frozen=True)

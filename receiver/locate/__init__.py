@@ -1,4 +1,6 @@
 """Locating stage: ranges (`ranging`), least squares (`lsq`), multilateration (`multilat`),
 camera pose (`pose`), pose + Kalman per device (`posefilter`, `kalman`), the indoor positioner
-(`indoor`).
+(`indoor`), the vehicle locator (`vehicle`: host placement `vehicle_host`, cars ahead
+`vehicle_cars`, map-aided association `vehicle_assoc`, pair ranging `vehicle_ranging`; its road
+filter `road_kalman`).
 """

@@ -87,147 +87,28 @@ class PositionerSettings:
 
 @dataclass(frozen=True)
 class VehicleSettings:
-    """All settings of vehicle positioning (module doc), with their defaults' reasons."""
+    """What a user sets for vehicle positioning (receiver.locate.vehicle): the camera's mounting
+    and shake, the detector's centroid noise, odometry, when to report, and the warning zones
+    of thesis Figure 27. Emitter geometry (head emitters, sizes, normals, the taillight block)
+    comes from the map; the locator's model constants are in receiver.locate.vehicle."""
 
-    # Ranging ----------------------------------------------------------------------------------
-    range_estimator: str = "fused"      # reported in VehicleResult.ranges (one of ESTIMATORS)
-    centroid_sigma_px: float = 0.2      # 1-sigma of one emitter centroid, px
-    sl_separation_sigma_px: float = 0.3  # street-light head: 1-sigma of the emitters' separation
-                                        # (the difference of the two centroids), px. One emitter of
-                                        # a head is lit at a time: the other's position is the
-                                        # pairing's model (whole px, a frame or more old), and far
-                                        # heads are sub-pixel tall bars: their separation is off
-                                        # by 0.5-1 px (bundled recording), not sqrt(2) x 0.2 px.
-                                        # Weighs the baseline range and, in the pose solve, the
-                                        # separation of the two centroids (their midpoint keeps
-                                        # `centroid_sigma_px`); a range from 6 px is then ~12 %.
-    edge_offset_px: float = 0.0         # envelope vs true edge: with the lens blur (bundled vehicle
-                                        # recording) the envelope of a small taillight is its true
-                                        # area (eq. 18 median -0.2 %); 0.5 px read 20 % short at 40 m
-    fv_centroid_sigma_px: float = 0.2   # taillight centroids, both measured in the same frame
-                                        # (vehicle.fv_measured): bundled recording, separation
-                                        # error |median| 0.39 % of 44-125 px (~0.2 px each)
-    fv_area_model_rel: float = 0.05     # taillight eq. 18 model error: striped 10-50 px envelopes,
-                                        # cut by clock edges (bundled recording: "oblique" +3.1 %
-                                        # signed, 4.0 % |median|), relative
-    edge_sigma_px: float = 0.1          # edge location 1-sigma all around, px (range_sigma_m)
-    area_model_rel: float = 0.01        # eq. 18 model error (small patch, calibration), relative
-    baseline_model_rel: float = 0.002   # baseline ranging model error with a known baseline
-    taillight_yaw_sigma_deg: float = 5.0  # FV heading vs HV heading (taillight baseline direction)
-    consistency_sigmas: float = 4.0     # area vs baseline range disagreement that drops the area one
-    orient_sigma_pose_deg: float = 0.3  # camera orientation 1-sigma when the pose is solved
-    orient_sigma_prior_deg: float = 5.0  # ... when only the nominal tilt is known
-    # Camera mounting (weak priors) -----------------------------------------------------------
-    camera_height_m: float = 1.2        # above the road; thesis Table 2 car camera ~1.2 m
-    camera_height_sigma_m: float = 0.3
-    camera_pitch_deg: float = 0.0       # nominal pitch (up positive), roll assumed 0
-    tilt_sigma_deg: float = 10.0        # weak prior on the tilt (matters with one light only)
-    # Host vehicle -----------------------------------------------------------------------------
-    hv_method: str = "pose"             # the fix fed to the filter: "pose" or "eq44-47"
-    min_lights: int = 2                 # street lights (pairs) needed for a full pose fix
-    single_light: bool = True           # with one light in view: a fix from its two emitters and a
-                                        # heading prior (vehicle.VehicleLocator._single_fix,
-                                        # method "pose-1sl", n_lights 1)
-    yaw_shake_sigma_deg: float = 0.3    # camera yaw about the HV heading (mount, shake): vehicle-road
-                                        # truth 0.12 deg std, 0.29 deg max
-    road_heading_sigma_deg: float = 3.0  # HV heading about the map's road direction near a light
-                                        # (before the filter runs): a lane change yaws the car by
-                                        # up to 6.4 deg (vehicle-road truth), most frames < 3 deg
-    hv_max_std_m: float = 1.0           # the HV is reported only while its filtered 2D std is at most
-                                        # this (a fix 3 std off is then within ~2-3 m)
-    roll_sigma_deg: float = 1.0         # single-light solve: camera roll about 0 (mount, body roll)
-    pitch_sigma_deg: float = 0.5        # ... and pitch about the last full pose's (shake: vehicle-road
-                                        # truth 0.19 deg std, bundled vehicle 0.14 deg)
-    road_heading_radius_m: float = 30.0  # mapped heads within this of a light give the road direction
-    pose_loss: str = "soft_l1"
-    pose_f_scale: float = 3.0           # sigmas
-    pose_max_iter: int = 20
-    pose_track_iter: int = 2            # iterations warm-started from the road filter's prediction
-                                        # (x, y) and the last solved orientation and height; bundled
-                                        # vehicle: 4 -> HV filtered 0.04 / 0.16 m, raw p95 1.51 m;
-                                        # 8 -> 0.04 / 0.16 m, raw p95 2.65 m (5.3 vs 8.6 evaluations).
-                                        # Issue 11 (replay of the vehicle stage, 150 frames, callgrind,
-                                        # start-up subtracted): 4 -> 3.75 M instructions a frame,
-                                        # filtered 0.06 / 0.17 m, raw p95 1.33 m; 2 -> 3.21 M, 0.05 /
-                                        # 0.17 m, raw 0.69 m; 1 -> 2.90 M, 0.05 / 0.18 m, raw 0.24 m
-                                        # (a single step leans on the prediction it starts from, which
-                                        # the filter then counts again: not taken)
-    pose_rot_tol_rad: float = 1e-5      # the solve stops once a step turns the camera by less
-    pose_pos_tol_m: float = 1e-3        # ... and moves it by less (the output's resolution ~1e-4 m)
-    fix_floor_m: float = 0.15           # added in quadrature to each pose fix's sigma (x and y) for
-                                        # the filter: the solve's covariance knows the centroid and
-                                        # range noise, not the heads' model errors (bundled vehicle:
-                                        # fixes claiming 0.01 m off by 0.1-0.3 m gated the next
-                                        # ones out and restarted the filter)
-    heading_sigma_deg: float = 1.0      # camera yaw as HV heading measurement (mounting, pitch)
-    accel_psd: float = 2.0              # car: accelerations ~2 m/s^2 persisting ~1 s, m^2/s^3
-    yaw_accel_psd: float = 0.05         # rad^2/s^3
-    init_speed_sigma_mps: float = 15.0
-    init_omega_sigma_rps: float = 0.2
-    speed_sigma_mps: float = 0.3        # odometry 1-sigma
-    gate_chi2: float = 13.8             # chi-square 2 dof, 99.9 %
-    max_rejects: int = 3
-    sl1_range_floor_rel: float = 0.05   # added in quadrature to a single light's range sigma for the
-                                        # filter: one head's range errors persist over frames
-                                        # (bundled vehicle, one light kept per frame: 0.03 -> worst
-                                        # error 3.3 std, 0.05 -> 2.0 std)
-    sl1_max_std_m: float = 1.5          # a single light updates the filter only while its predicted 2D
-                                        # std is at most this (vehicle-road, tilted heads: updates of a
-                                        # filter tens of metres off left it 10 m off at 1 m std)
-    sl1_start_max_std_m: float = 0.7    # ... and starts it only from a single-light pose this sure
-                                        # (bundled vehicle, one light kept per frame: 1.0 -> 17 frames
-                                        # placed, one 2.1 m off; 0.7 -> 75, worst 1.5 m, 2.4 std)
-    speed_init_min_dt_s: float = 0.12   # first two fixes this far apart give the initial speed (bundled
-                                        # vehicle: 1 frame apart read -52 m/s from fixes 0.7 and 1.1 m off)
-    speed_hist_s: float = 0.3           # the heads' image growth over this long gives the HV speed at a
-    speed_hist_min: int = 5             # filter start without odometry (at least this many samples)
-    speed_motion_floor_mps: float = 1.0  # ... with its sigma at least this
-    map_assoc: bool = True              # undecoded pairs matched to mapped heads serve the host solve
-                                        # (vehicle.VehicleLocator._associate; never reported as IDs)
-    assoc_max_std_m: float = 1.0        # ... only while the filter's predicted 2D std is at most this
-    assoc_gate_chi2: float = 9.21       # ... Mahalanobis^2 gate of a pair's midpoint to a projected head
-                                        # (chi-square 2 dof, 99 %)
-    assoc_max_age: int = 1              # ... and both its emitters' own blobs seen within this many
-                                        # frames (else the pairing's whole-pixel model stands in)
-    assoc_sep_tol: float = 0.3          # ... and its separation within this of the head's predicted one
-    obs_gate_chi2: float = 16.3         # one light's (u, v, range) into the filter: chi-square 3 dof, 99.9 %
-    max_coast_s: float = 2.0            # forget the HV track after this long without a fix
-    # Forward vehicles -------------------------------------------------------------------------
-    fv_accel_psd: float = 4.0           # relative acceleration density, m^2/s^3
-    fv_rate_sigma_mps: float = 10.0     # initial range-rate uncertainty
-    fv_drop_s: float = 1.0              # forget an FV track unseen this long
-    fv_confirm_s: float = 0.6           # an undecoded pair's track ranged once only is forgotten when
-                                        # no second range comes within this long, and its LEDs carry
-                                        # no "fv-track" distance until then: bundled vehicle, two
-                                        # 170-185 m heads paired across the road once passed for a
-                                        # car at 21 m and coasted 23 frames ("fv-track" p95 88 %);
-                                        # 0.3 s dropped 35 right FV entries on vehicle-road seed 1
-                                        # (taillights there are ranged seldom, occluded)
-    fv_gate_chi2: float = 9.0           # range innovation gate (3 sigma) of an FV track
-    fv_max_rejects: int = 4             # consecutive gated ranges that restart the track
-    fv_dup_deg: float = 0.5             # FV entries closer in bearing are one vehicle (one kept)
-    fv_coast_max_rel: float = 0.05      # a coasting FV entry is reported while its std <= this x d
-    fv_lateral_sigma_m: float = 0.05    # FV lateral position (level frame) 1-sigma floor, m
-    fv_bearing_sigma_deg: float = 0.05  # ... and its bearing's 1-sigma (bundled recording 0.04 deg)
-    fv_lateral_rate_sigma_mps: float = 2.0  # initial lateral-rate uncertainty
-    fv_lateral_accel_psd: float = 0.5   # lateral relative acceleration density (lane change), m^2/s^3
-    fv_yaw_min_frames: int = 10         # lateral positions before the FV's yaw is estimated
-    fv_yaw_min_speed_mps: float = 3.0   # ... and FV ground speed needed (yaw = atan2(vy, vx))
-    fv_yaw_max_rad: float = 0.5         # |yaw| clipped here (~29 deg)
-    fv_min_height_m: float = 0.0        # undecoded pairs within these heights are taillights
-    fv_max_height_m: float = 2.5
-    fv_max_tilt_deg: float = 3.0        # an undecoded pair is a taillight pair only if its baseline is
-                                        # this level (camera's level frame; road cross-slope, body roll)
-    fv_max_area_ratio: float = 2.0      # ... and its two emitters' areas within this ratio
-    fv_sl_gate_deg: float = 0.5         # an undecoded pair with an emitter this close to a mapped street
-                                        # light (projected from the placed HV) is no taillight pair
-    fv_occlusion_ratio: float = 1.1     # a new undecoded pair is no car when a lamp of a taillight-role
-                                        # pair with a separation this many times smaller (farther) is
-                                        # seen inside its body's image: its body would hide that lamp
-    closing_min_mps: float = 0.2        # ttc only when closing faster than this
-    headway_safe_s: float = 2.0         # Figure 27: "safe" at >= 2 s headway (two-second rule)
-    headway_min_s: float = 1.0          # "min" between 1 and 2 s, "critical" below 1 s
-    ttc_critical_s: float = 2.0         # ttc below this is "critical" whatever the headway
-    ttc_min_s: float = 4.0              # ttc below this is at least "min"
-    safe_distance_m: float = 30.0       # without V_HV: distance thresholds instead of headway
-    min_distance_m: float = 15.0
+    camera_height_m: float = 1.2        # m above the road; thesis Table 2's car camera
+    camera_pitch_deg: float = 0.0       # deg, nominal pitch (up positive; roll taken as 0) until a pose is solved
+    centroid_sigma_px: float = 0.2      # px, 1-sigma of a street-light emitter's centroid (sub-pixel envelope)
+    edge_offset_px: float = 0.0         # px, blob envelope beyond the emitter's true edge (0: lens blur offsets it)
+    yaw_shake_sigma_deg: float = 0.3    # deg, camera yaw about the host heading (mount, shake ~0.3 deg rms)
+    pitch_sigma_deg: float = 0.5        # deg, camera pitch about the last solved one (shake, braking)
+    roll_sigma_deg: float = 1.0         # deg, camera roll about 0 (mount, body roll)
+    road_heading_sigma_deg: float = 3.0  # deg, host heading about the map's road direction (lane changes)
+    speed_sigma_mps: float = 0.3        # m/s, odometry speed 1-sigma (when a speed source is given)
+    hv_max_std_m: float = 1.0           # m, the host is reported only while its filtered 2D std is at most this
+    max_coast_s: float = 2.0            # s, the host track is forgotten after this long without a fix
+    fv_min_height_m: float = 0.0        # m, an undecoded pair is taken for taillights only between these
+    fv_max_height_m: float = 2.5        # m, ... heights above the road (cars' lamps; trucks' up to 2.5 m)
+    fv_drop_s: float = 1.0              # s, a car unseen this long is forgotten
+    headway_safe_s: float = 2.0         # s, Figure 27 "safe" at this headway or more (the two-second rule)
+    headway_min_s: float = 1.0          # s, "min" down to this, "critical" below
+    ttc_critical_s: float = 2.0         # s, time to collision below this is "critical" whatever the headway
+    ttc_min_s: float = 4.0              # s, ... below this at least "min"
+    safe_distance_m: float = 30.0       # m, without the host speed: "safe" at this distance or more
+    min_distance_m: float = 15.0        # m, ... "min" down to this, "critical" below

@@ -10,10 +10,17 @@ import numpy as np
 import pytest
 
 import receiver.locate.vehicle as V
+from receiver.locate import vehicle_cars as VC, vehicle_host as VH, vehicle_ranging as VR
+
+
+def set_kr(monkeypatch, kernel):
+    """The per-pair kernel (receiver.locate._vehicle_range) in every module that calls it."""
+    for m in (VR, VH, VC):
+        monkeypatch.setattr(m, "_kr", kernel)
 from tests.vehicle.test_vehicle import CAM, SETTINGS, camera_pose, fv_pair, make_map, sl_pairs
 from tests.vehicle.test_vehicle_single import _drive
 
-needs_kernel = pytest.mark.skipif(V._k is None, reason="compiled kernel not built (tests/engine/test_native.py fails then)")
+needs_kernel = pytest.mark.skipif(VH._k is None, reason="compiled kernel not built (tests/engine/test_native.py fails then)")
 
 
 class _Both:
@@ -27,15 +34,15 @@ class _Both:
 
         def wrapped(loc, *a, **k):
             out = this.orig(loc, *a, **k)
-            monkeypatch.setattr(V, "_k", None)
+            monkeypatch.setattr(VH, "_k", None)
             try:
                 ref = this.orig(loc, *a, **k)
             finally:
-                monkeypatch.setattr(V, "_k", kernel)
+                monkeypatch.setattr(VH, "_k", kernel)
             this.calls.append((k, out, ref))
             return out
 
-        kernel = V._k
+        kernel = VH._k
         monkeypatch.setattr(V.VehicleLocator, "_solve_pose", wrapped)
 
     def check(self, tol_C=1e-9, tol_R=1e-11, tol_cov=1e-9):
@@ -65,7 +72,7 @@ def test_pose_kernel_equals_numpy_cold_and_warm(monkeypatch, radius):
         pairs.append(fv_pair((20.0, 0.5), R, C, psi, rng=rng, px_sigma=0.3)[0])
         hv = loc.step(i / 30.0, pairs).vehicle["hv"]
         assert hv is not None
-    assert any(kw.get("max_iter") == SETTINGS.pose_track_iter for kw, _, _ in both.calls)
+    assert any(kw.get("max_iter") == V.POSE_TRACK_ITER for kw, _, _ in both.calls)
     assert any(kw.get("max_iter") is None for kw, _, _ in both.calls)
     both.check()
 
@@ -106,7 +113,7 @@ def test_pose_kernel_absurd_ranges_agree(monkeypatch, value):
 
 def test_pure_path_without_kernel(monkeypatch):
     """With the kernel unavailable (OCCLOC_PURE=1 or not built) the numpy path places the host."""
-    monkeypatch.setattr(V, "_k", None)
+    monkeypatch.setattr(VH, "_k", None)
     lmap = make_map()
     R, C, psi = camera_pose(41.0)
     hv = V.VehicleLocator(CAM, lmap, SETTINGS).step(0.0, sl_pairs(lmap, R, C)).vehicle["hv"]
@@ -124,14 +131,14 @@ def test_covariance_kernel_equals_pinv():
         J = rng.normal(size=(n, 6)) * np.array([5e3, 5e3, 5e3, 30.0, 30.0, 3.0])
         r = rng.normal(size=n) * 2.0
         out = np.empty((6, 6))
-        assert V._k.covariance(r, J, out) == 0
+        assert VH._k.covariance(r, J, out) == 0
         ref = covariance_at(r, J, 6)[0]
         assert np.allclose(out, ref, rtol=1e-9, atol=0.0)
         assert np.array_equal(out, out.T)
     J[:, 5] = 0.0
-    assert V._k.covariance(r, J, np.empty((6, 6))) == 1
+    assert VH._k.covariance(r, J, np.empty((6, 6))) == 1
     J[0, 0] = np.nan
-    assert V._k.covariance(r, J, np.empty((6, 6))) == 1
+    assert VH._k.covariance(r, J, np.empty((6, 6))) == 1
 
 
 def _same(a, b) -> bool:
@@ -150,21 +157,21 @@ def _same(a, b) -> bool:
     return True
 
 
-@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+@pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_range_kernel_equals_python_loop_bit_for_bit(monkeypatch):
     """range_core's compiled loop gives the Python loop's numbers exactly, on SL heads (with and
     without a known pose), taillight pairs, half-seen pairs and absurd areas / centroids."""
-    orig = V.range_core
-    kernel = V._kr
+    orig = VR.range_core
+    kernel = VR._kr
     n_pairs = [0]
 
     def both(*a, **k):
         out = orig(*a, **k)
-        monkeypatch.setattr(V, "_kr", None)
+        set_kr(monkeypatch, None)
         try:
             ref = orig(*a, **k)
         finally:
-            monkeypatch.setattr(V, "_kr", kernel)
+            set_kr(monkeypatch, kernel)
         assert set(out) == set(ref)
         for key in ref:
             if key in ("ra", "rb"):
@@ -174,7 +181,7 @@ def test_range_kernel_equals_python_loop_bit_for_bit(monkeypatch):
         n_pairs[0] += len(ref["fused"])
         return out
 
-    monkeypatch.setattr(V, "range_core", both)
+    monkeypatch.setattr(VR, "range_core", both)
     rng = np.random.default_rng(9)
     lmap = make_map(150.0)
     loc = V.VehicleLocator(CAM, lmap, SETTINGS)
@@ -248,18 +255,18 @@ def test_road_kalman_singular_update_raises_like_numpy(monkeypatch):
             kf.update_fix(0.0, np.array([0.0, 0.0]), np.zeros((2, 2)), None, 0.0)
 
 
-@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+@pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_rays_kernel_equals_numpy_bit_for_bit(monkeypatch):
     rng = np.random.default_rng(3)
     u = np.concatenate([rng.normal(size=(500, 2)) * 0.4, [[1e200, 0.0], [np.nan, 0.1], [np.inf, 0.0], [0.0, 0.0]]])
-    got = V._rays(u)
-    monkeypatch.setattr(V, "_kr", None)
+    got = VR._rays(u)
+    set_kr(monkeypatch, None)
     with np.errstate(over="ignore", invalid="ignore"):
-        ref = V._rays(u)
+        ref = VR._rays(u)
     assert np.array_equal(got, ref, equal_nan=True)
 
 
-@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+@pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_record_rounding_kernel_equals_python_round():
     """The records' rounding (`_r`) compiled gives round(v, nd) exactly: ties, signed zeros,
     huge values, None / NaN / inf, numpy floats and ints."""
@@ -269,13 +276,13 @@ def test_record_rounding_kernel_equals_python_round():
              123456789.12345, 1e15 + 0.3, 4.9999999999e-5, np.float64(3.14159265), 7, -3]
     for v in vals:
         for nd in (3, 4):
-            a, b = V._kr.rnd(v, nd), V._r_py(v, nd)
+            a, b = VR._kr.rnd(v, nd), VR._r_py(v, nd)
             assert a == b and math.copysign(1.0, a) == math.copysign(1.0, b) and type(a) is float, (v, nd, a, b)
     for v in (None, float("nan"), float("inf"), -float("inf")):
-        assert V._kr.rnd(v) is None and V._r_py(v) is None
+        assert VR._kr.rnd(v) is None and VR._r_py(v) is None
 
 
-@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+@pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_pose_ranges_kernel_equals_python_loop(monkeypatch):
     """The "pose" ranges of the street-light pairs, compiled and in Python, bit for bit."""
     lmap = make_map()
@@ -286,12 +293,12 @@ def test_pose_ranges_kernel_equals_python_loop(monkeypatch):
     fix = {"pose": (C + np.array([0.3, -0.2, 0.05]), np.array([[0.04, 0.01], [0.01, 0.09]]))}
     got, ref = [None] * len(pairs), [None] * len(pairs)
     loc._pose_ranges(pairs, got, fix)
-    monkeypatch.setattr(V, "_kr", None)
+    set_kr(monkeypatch, None)
     loc._pose_ranges(pairs, ref, fix)
     assert got == ref and sum(r is not None for r in ref) == len(pairs) - 2
 
 
-@pytest.mark.skipif(V._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
+@pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_on_mapped_sl_kernel_equals_numpy(monkeypatch):
     """Whether an emitter lies on a projected mapped head: compiled and numpy decide alike, also
     at the gate's edge and with NaN points."""
@@ -302,13 +309,13 @@ def test_on_mapped_sl_kernel_equals_numpy(monkeypatch):
     loc.z_last = float(C[2])
     loc._on_mapped_sl(0.0, np.zeros(2), np.zeros(2), hv, R)
     P = loc._sl_seen_at[2]
-    g = math.tan(math.radians(SETTINGS.fv_sl_gate_deg))
+    g = math.tan(math.radians(V.FV_SL_GATE_DEG))
     rng = np.random.default_rng(1)
     cases = [(P[0] + [g * 0.999, 0.0], P[1] + [5.0, 5.0]), (P[0] + [g * 1.001, 0.0], P[1] + [0.0, g * 1.001]),
              (np.array([np.nan, 0.0]), P[2]), (P[3], np.array([np.nan, np.nan]))]
     cases += [(rng.normal(size=2) * 0.3, rng.normal(size=2) * 0.3) for _ in range(200)]
     got = [loc._on_mapped_sl(0.0, a, b, hv, R) for a, b in cases]
-    monkeypatch.setattr(V, "_kr", None)
+    set_kr(monkeypatch, None)
     ref = [loc._on_mapped_sl(0.0, a, b, hv, R) for a, b in cases]
     assert got == ref and any(ref) and not all(ref)
 
@@ -392,7 +399,7 @@ def test_keep_separations_ages_out_like_a_filter_even_when_time_goes_back():
         pairs = [SimpleNamespace(key=(k, k + 1), both_visible=rng.random() < 0.8,
                                  separation_px=float(rng.uniform(-1, 40))) for k in range(int(rng.integers(1, 5)))]
         loc._keep_separations(t, pairs)
-        keep = t - SETTINGS.speed_hist_s
+        keep = t - V.SPEED_HIST_S
         new = {}
         for p in pairs:
             h = ref.get(p.key, ())          # the former code: a filter when the first entry aged out

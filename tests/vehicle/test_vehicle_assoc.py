@@ -8,6 +8,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from tests.vehicle.test_vehicle import CAM, SETTINGS, camera_pose, make_map, sl_pairs
 from receiver.io.ledmap import LedMap
@@ -49,7 +50,9 @@ def test_undecoded_pairs_on_mapped_heads_join_the_host_solve():
         assert all(r is None for r in ranges)        # no range, so no ID claimed, for them
         assert fv == []                              # nor a forward vehicle
     # Without the association, the same frames are single-light updates.
-    rows_off = _run(lmap, dataclasses.replace(SETTINGS, map_assoc=False))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(VehicleLocator, "_associate", lambda self, *args: {})
+        rows_off = _run(lmap, SETTINGS)
     assert all(r[0] is None or r[0]["n_assoc"] == 0 for r in rows_off)
     assert sum(r[0] is not None and r[0]["method"] == "sl-1" for r in rows_off) >= 0.8 * len(rows_off)
 
@@ -81,7 +84,7 @@ def test_compiled_association_equals_the_numpy_form(monkeypatch):
     the same inputs: the same matches (the twin-head map: the same refusals)."""
     import pytest
 
-    import receiver.locate.vehicle as V
+    import receiver.locate.vehicle_assoc as V
     kernel = V._ka
     if kernel is None:
         pytest.skip("compiled kernel not built (tests/engine/test_native.py fails then)")
@@ -108,7 +111,7 @@ def test_compiled_association_equals_the_numpy_form(monkeypatch):
 def test_compiled_association_rejects_mismatched_sizes():
     import pytest
 
-    import receiver.locate.vehicle as V
+    import receiver.locate.vehicle_assoc as V
     if V._ka is None:
         pytest.skip("compiled kernel not built (tests/engine/test_native.py fails then)")
     H, Bl, use, R, P = np.zeros((3, 3)), np.ones(3), bytes(3), np.eye(3), np.eye(2)

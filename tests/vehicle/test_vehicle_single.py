@@ -62,12 +62,6 @@ def test_one_light_per_frame_places_the_host_honestly(radius):
     assert np.median(errs) <= 0.5
 
 
-def test_without_single_light_fixes_one_light_never_places_the_host():
-    lmap = make_map()
-    runs = _drive(lmap, 30, settings=dataclasses.replace(SETTINGS, single_light=False))
-    assert all(hv is None for _, hv, _ in runs)
-
-
 def test_a_wrong_range_is_gated_not_followed():
     """A running filter (two lights) then one light whose range reads 30 % long for a frame:
     the observation is gated out (the frame coasts) and the host stays within 0.5 m."""

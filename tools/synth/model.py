@@ -118,6 +118,9 @@ class RenderParams:
       loses or doubles the flux of shapes about a pixel tall or less. Above it the sampled
       coverage is kept (bit-exact with the recordings made before the exact path existed).
     frame_jitter_us: standard deviation of each frame's start time around k / fps.
+    bloom_frac, bloom_sigma_px: veiling glare and bloom: this fraction of every light's flux
+      is spread by a wide Gaussian (sigma px) instead of the lens PSF, so a saturating light's
+      blob grows well past its image (2-3x its area within saturation; 0 = none).
     """
 
     led_peak_dn: float = 180.0
@@ -130,6 +133,8 @@ class RenderParams:
     motion_blur_samples: int = 1
     frame_jitter_us: float = 100.0
     exact_coverage_rows: float = 8.0
+    bloom_frac: float = 0.0
+    bloom_sigma_px: float = 3.0
 
 
 @dataclass

@@ -18,7 +18,8 @@ Per frame k (start time ``t_k = k / fps + jitter``):
    which grows as ``cos(phi) / (d^2 cos^3(psi))``, this is a per-pixel level
    ``led_peak_dn * brightness * cos^(m-1)(phi) * cos^4(psi)``, independent of distance
    (phi: emission angle from the LED normal, psi: angle off the optical axis).
-3. Lens blur (Gaussian PSF), then for every pixel of each LED patch a fresh noisy value
+3. Lens blur (Gaussian PSF; with `bloom_frac` a share of the flux through a wide Gaussian:
+   veiling glare, which grows a saturating light's blob), then for every pixel of each LED patch a fresh noisy value
    ``black + S + N(0, alpha*S + beta)`` (eq. 4, S = ambient + LED signal), saturation at 255,
    rounding to 8 bits.
 
@@ -169,7 +170,8 @@ class FrameRenderer:
         self.bg_pmf = background_pmf(p.black_level_dn + p.ambient_dn,
                                      math.sqrt(p.shot_noise_alpha * p.ambient_dn + p.read_noise_dn ** 2))
         self.canvas = np.zeros((cam.height, cam.width), dtype=np.float32)
-        self.margin = int(math.ceil(3 * p.psf_sigma_px)) + 1 if p.psf_sigma_px > 0 else 0
+        spread = max(p.psf_sigma_px, p.bloom_sigma_px if p.bloom_frac > 0 else 0.0)
+        self.margin = int(math.ceil(3 * spread)) + 1 if spread > 0 else 0
         self.outlines = [[e.outline_local() for e in light.emitters] for light in scene.lights]
         self.radius_m = np.array([max(np.linalg.norm(o - light.offset, axis=1).max() for o in outl)
                                   for light, outl in zip(scene.lights, self.outlines)])
@@ -359,8 +361,13 @@ class FrameRenderer:
         radiance = (p.led_peak_dn * light.brightness * g["cos_phi"] ** (light.lambertian_m - 1.0)
                     * g["cos_psi"] ** 4)
         sig = cov * (level[:, None] * np.float32(radiance))
+        halo = None
+        if p.bloom_frac > 0 and p.bloom_sigma_px > 0:
+            halo = cv2.GaussianBlur(sig, (0, 0), p.bloom_sigma_px, borderType=cv2.BORDER_CONSTANT)
         if p.psf_sigma_px > 0:
             sig = cv2.GaussianBlur(sig, (0, 0), p.psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
+        if halo is not None:
+            sig = np.float32(1.0 - p.bloom_frac) * sig + np.float32(p.bloom_frac) * halo
         self.canvas[r0:r1, c0:c1] += sig
         return (r0, r1, c0, c1)
 

@@ -24,7 +24,7 @@ from tools.synth.camera import Pose, make_camera
 from tools.synth.model import Body, Emitter, Light, RenderParams, Scene
 from tools.synth.waveform import led_drive
 
-SCENES = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle", "vehicle-road")
+SCENES = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle", "vehicle-road", "vehicle-random")
 CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
 PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -215,6 +215,22 @@ def _shake(rng, amplitude_deg: float, n: int = 3, f_lo_hz: float = 2.0, f_hi_hz:
     return shake
 
 
+def _sway(rng, rms_deg: float, n: int = 3, f_lo_hz: float = 0.5, f_hi_hz: float = 2.5):
+    """A dash camera's slow sway about one axis: `n` sinusoids of random frequency (0.5-2.5 Hz),
+    phase and weight, scaled so that their sum's rms is `rms_deg`. The shake is correlated from
+    frame to frame: over three frames a light may move several px, as on real roads."""
+    freqs = rng.uniform(f_lo_hz, f_hi_hz, n)
+    phases = rng.uniform(0.0, 2 * math.pi, n)
+    w = rng.uniform(0.5, 1.0, n)
+    amps = rms_deg * w / math.sqrt(float(np.sum(w * w)) / 2.0)
+    comps = [(float(a), 2 * math.pi * float(f), float(p)) for a, f, p in zip(amps, freqs, phases)]
+
+    def sway(t):
+        return sum(a * math.sin(om * t + p) for a, om, p in comps)
+
+    return sway
+
+
 # Forward vehicles, in road coordinates relative to the HV (gap = FV's s minus the HV's s):
 # (name, gap at t=0 m, gap rate m/s, lateral at t=0 m, lateral after the change m,
 #  lane change start s, lane change duration s). Why this script: FV2's cut-in puts its body
@@ -324,7 +340,9 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
             symclk=S2PSK_SYMCLK, speed0_kmh=50.0, accel_mps2=0.5, cam_height_m=1.2, cam_pitch_deg=8.0,
             shake_deg=0.3, lane_change_start_s=4.0, lane_change_s=3.5, lane_change_m=3.5,
             taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0,
-            body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0):
+            body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0,
+            light_layout="staggered", light_brightness=1.0, slow_shake_rms_deg=0.0, roll_rms_deg=0.0,
+            jitter_deg=0.0):
     """Night road: host vehicle (HV) with a forward camera, S2-PSK street lights (SL), three
     forward vehicles (FV) with opaque bodies that hide each other's taillights.
 
@@ -350,7 +368,12 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     follows it. Camera: `cam_height_m` high at the HV's reference point, pitched up
     `cam_pitch_deg`; on top, a 3.1 Hz 5 mm bounce with a 1.3 Hz 0.2 deg pitch nod, and road
     vibration in pitch and yaw: per axis three sinusoids (2-17 Hz, seeded) summing to at most
-    `shake_deg`.
+    `shake_deg`; a dash camera's slow sway (`slow_shake_rms_deg` in yaw and pitch,
+    `roll_rms_deg` in roll: per axis three sinusoids of 0.5-2.5 Hz, seeded, scaled to that rms)
+    and a frame-to-frame jitter (`jitter_deg` rms per axis, held over each frame period).
+    `light_layout`: "staggered" (the default above), "one-side" (the left row only) or
+    "opposite" (both rows at the same s); `light_brightness`: the heads' radiance relative to
+    `led_peak_dn` (above ~1.5 they saturate; with `bloom_frac` their blobs then bloom).
 
     FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
     `FV_SCRIPT` (gaps 46, 24, 34 m; FV2 cuts in from the left lane at 2-4.5 s, FV3 from the
@@ -376,10 +399,15 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     """
     R_curve = None if curve_radius_m is None else float(curve_radius_m)
     tilt = math.radians(head_tilt_deg)
+    if light_layout not in ("staggered", "one-side", "opposite"):
+        from receiver.core.errors import InputError
+        raise InputError(f"light_layout must be staggered, one-side or opposite, not {light_layout!r}")
     positions = []
     for s in np.arange(0.0, road_m, light_spacing_m):
         positions.append((float(s), light_offset_y_m))
-        positions.append((float(s) + light_spacing_m / 2, -light_offset_y_m))
+        if light_layout != "one-side":
+            positions.append((float(s) + (light_spacing_m / 2 if light_layout == "staggered" else 0.0),
+                              -light_offset_y_m))
     sl_ids = rng.choice(0x80, size=len(positions), replace=False)
     lights, entries = [], {}
     for (s, lat), sid in zip(positions, sl_ids):
@@ -388,7 +416,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
         across = np.array([-math.sin(a), math.cos(a), 0.0])  # the pair's halves straddle the road's width
         normal = DOWN if tilt == 0.0 else -math.sin(tilt) * fwd - math.cos(tilt) * np.array([0.0, 0.0, 1.0])
         lt = s2psk_pair(rng, int(sid), (x, y, light_height_m), normal, across, head_half_m, head_gap_m,
-                        clk_hz, symclk)
+                        clk_hz, symclk, brightness=light_brightness)
         lights.append(lt)
         entries[lt.id] = map_entry(lt, rate_hz=clk_hz, symbol_clocks=symclk)
     fv_ids = rng.choice(np.arange(0x80, 0x100), size=len(FV_SCRIPT), replace=False)
@@ -442,12 +470,28 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     led_map = LedMap(addressing="map", leds=entries, taillight=taillight)
     shake_pitch = _shake(rng, shake_deg)
     shake_yaw = _shake(rng, shake_deg)
+    sway = None
+    if slow_shake_rms_deg > 0 or roll_rms_deg > 0 or jitter_deg > 0:
+        # Drawn only when asked, so the default scene's random stream (IDs, phases) is unchanged.
+        sway = [_sway(rng, rms) for rms in (slow_shake_rms_deg, slow_shake_rms_deg, roll_rms_deg)]
+        n_jit = int(round(seconds * cam.fps)) + 2
+        jit = rng.normal(0.0, jitter_deg, (3, n_jit)) if jitter_deg > 0 else np.zeros((3, n_jit))
+        fps = cam.fps or 30.0
+
+    def camera_sway(t):
+        """(yaw, pitch, roll) deg of the slow sway plus the jitter held over the frame period."""
+        if sway is None:
+            return 0.0, 0.0, 0.0
+        k = min(max(int(math.floor(t * fps)), 0), jit.shape[1] - 1)
+        return tuple(f(t) + float(jit[i, k]) for i, f in enumerate(sway))
 
     def trajectory(t):
         x, y = hv_xy(t)
+        dyaw, dpitch, droll = camera_sway(t)
         return Pose(float(x), float(y), cam_height_m + 0.005 * math.sin(2 * math.pi * 3.1 * t),
-                    yaw=heading_deg(hv_xy, t) + shake_yaw(t),
-                    pitch=cam_pitch_deg + 0.2 * math.sin(2 * math.pi * 1.3 * t) + shake_pitch(t), roll=0.0)
+                    yaw=heading_deg(hv_xy, t) + shake_yaw(t) + dyaw,
+                    pitch=cam_pitch_deg + 0.2 * math.sin(2 * math.pi * 1.3 * t) + shake_pitch(t) + dpitch,
+                    roll=droll)
 
     def fv_rel(name, t):
         """Taillight-pair midpoint relative to the camera at t: (x ahead, y left) in the camera's
@@ -491,9 +535,62 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
                             "that occlude each other")
 
 
+# What `vehicle-random` draws per seed, each uniform within its range (module constants so a
+# test can check them): the roads the independent recordings showed our own scenes lacked.
+RANDOM_ROAD = dict(head_spacing_m=(12.5, 40.0), light_height_m=(6.0, 10.0), light_offset_y_m=(5.0, 8.0),
+                   light_brightness=(1.5, 3.0), slow_shake_rms_deg=(0.2, 0.35), cam_pitch_deg=(2.0, 4.0),
+                   speed0_kmh=(40.0, 70.0), bloom_frac=(0.05, 0.15), bloom_sigma_px=(2.0, 4.0))
+RANDOM_LAYOUTS = ("staggered", "one-side", "opposite")
+
+
+def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_height_m=None, light_offset_y_m=None,
+                   light_brightness=None, slow_shake_rms_deg=None, cam_pitch_deg=None, speed0_kmh=None,
+                   bloom_frac=None, bloom_sigma_px=None, jitter_deg=0.05, head_half_m=(0.25, 0.5),
+                   head_gap_m=0.6, cam_height_m=1.3, seconds=8.0):
+    """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`; a keyword given
+    is taken instead of drawn): heads `head_spacing_m` apart along the road (12.5-40 m) in a
+    staggered, one-side or opposite layout, 6-10 m high, 5-8 m off the host lane; each head two
+    separate face-down halves of 0.25 x 0.5 m whose centres are 0.6 m apart across the road
+    (a 0.35 m gap: two blobs at every range), bright enough to saturate (1.5-3x `led_peak_dn`)
+    with bloom (`bloom_frac` 0.05-0.15 of the flux through a 2-4 px Gaussian: saturated blobs
+    2-3x their image area); the camera 1.3 m high, pitched up 2-4 deg, swaying slowly
+    (0.5-2.5 Hz sinusoids, yaw and pitch 0.2-0.35 deg rms, roll half that) with 0.05 deg of
+    frame-to-frame jitter and no fast road vibration; the host at 40-70 km/h. The forward
+    vehicles are `vehicle_road`'s. Returns `vehicle_road`'s dict plus `render` (the drawn
+    bloom, for `make_scene`) and `road` (every drawn value)."""
+    def draw(name, given):
+        lo, hi = RANDOM_ROAD[name]
+        return float(rng.uniform(lo, hi)) if given is None else float(given)
+
+    road = dict(head_spacing_m=draw("head_spacing_m", head_spacing_m),
+                light_layout=str(rng.choice(RANDOM_LAYOUTS)) if light_layout is None else light_layout,
+                light_height_m=draw("light_height_m", light_height_m),
+                light_offset_y_m=draw("light_offset_y_m", light_offset_y_m),
+                light_brightness=draw("light_brightness", light_brightness),
+                slow_shake_rms_deg=draw("slow_shake_rms_deg", slow_shake_rms_deg),
+                cam_pitch_deg=draw("cam_pitch_deg", cam_pitch_deg), speed0_kmh=draw("speed0_kmh", speed0_kmh),
+                bloom_frac=draw("bloom_frac", bloom_frac), bloom_sigma_px=draw("bloom_sigma_px", bloom_sigma_px))
+    # vehicle_road's light_spacing_m is a row's spacing; a staggered layout puts the other row
+    # half-way, so its heads follow each other at half of it.
+    row = road["head_spacing_m"] * (2.0 if road["light_layout"] == "staggered" else 1.0)
+    built = vehicle_road(rng, cam, light_spacing_m=row, light_layout=road["light_layout"],
+                         light_height_m=road["light_height_m"], light_offset_y_m=road["light_offset_y_m"],
+                         light_brightness=road["light_brightness"], head_half_m=tuple(head_half_m),
+                         head_gap_m=head_gap_m, shake_deg=0.0, slow_shake_rms_deg=road["slow_shake_rms_deg"],
+                         roll_rms_deg=road["slow_shake_rms_deg"] / 2.0, jitter_deg=jitter_deg,
+                         cam_height_m=cam_height_m, cam_pitch_deg=road["cam_pitch_deg"],
+                         speed0_kmh=road["speed0_kmh"], seconds=seconds)
+    built["render"] = dict(bloom_frac=road["bloom_frac"], bloom_sigma_px=road["bloom_sigma_px"])
+    built["road"] = road
+    built["description"] = "night road drawn per seed: " + ", ".join(
+        f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in road.items())
+    return built
+
+
 BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "indoor-sparse": indoor_sparse,
             "vehicle": vehicle,
-            "vehicle-road": vehicle_road}
+            "vehicle-road": vehicle_road,
+            "vehicle-random": vehicle_random}
 
 CAMERA_DEFAULTS = {
     # Smartphone main camera at 1280x720: 1000 px focal (65 x 40 deg field of view), mild barrel
@@ -509,11 +606,15 @@ CAMERA_DEFAULTS = {
                     row_readout_us=15.0, exposure_us=100.0, fps=30.0),
 }
 CAMERA_DEFAULTS["vehicle-road"] = CAMERA_DEFAULTS["vehicle"]
+# A dash camera as the independent recordings' (1300-1500 px focal, 15 us rows, 100 us exposure).
+CAMERA_DEFAULTS["vehicle-random"] = dict(CAMERA_DEFAULTS["vehicle"], focal_px=1400.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0))
 # The bundled `vehicle` recording was rendered with the sampled coverage throughout
 # (exact_coverage_rows 0 keeps it bit-exact); `vehicle-road` has sub-pixel-tall far heads,
 # which only the exact coverage renders with their true flux.
 PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "indoor-sparse": {}, "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
-                  "vehicle-road": dict(psf_sigma_px=0.7)}
+                  "vehicle-road": dict(psf_sigma_px=0.7),
+                  # Lens blur 0.5 px, read noise 1.5 DN over an 8 DN black level (bloom: drawn).
+                  "vehicle-random": dict(psf_sigma_px=0.5, read_noise_dn=1.5, black_level_dn=8.0)}
 
 
 def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **overrides) -> Scene:
@@ -542,6 +643,11 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
         _check_override_value(key, value)
     rng = np.random.default_rng(seed)
     built = builder(rng, cam, **scene_kw)
+    # A builder may draw sensor values (`render`); an explicit override still wins.
+    drawn = {k: v for k, v in built.pop("render", {}).items() if k not in overrides}
+    built.pop("road", None)
+    if drawn:
+        params = _checked_params({**par_kw, **drawn})
     if n_frames is not None:
         built["n_frames"] = int(n_frames)
     return Scene(name=name, camera=cam, params=params, **built)
@@ -550,7 +656,7 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
 # Bounds of the sensor parameters (RenderParams): all finite and non-negative; at most these.
 PARAM_MAX = {"led_peak_dn": 1e4, "ambient_dn": 1e4, "black_level_dn": 255.0, "shot_noise_alpha": 100.0,
              "read_noise_dn": 1e3, "psf_sigma_px": 100.0, "subrows": 64, "motion_blur_samples": 64,
-             "frame_jitter_us": 1e6, "exact_coverage_rows": 1e4}
+             "frame_jitter_us": 1e6, "exact_coverage_rows": 1e4, "bloom_frac": 1.0, "bloom_sigma_px": 100.0}
 INT_PARAMS = ("subrows", "motion_blur_samples")
 
 
