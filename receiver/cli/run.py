@@ -85,7 +85,8 @@ def make_positioner(camera, led_map, server: str | None = None, server_timeout_s
     if server is not None:
         from receiver.serve.client import RemotePositioner
         kw = {} if server_timeout_s is None else {"timeout_s": server_timeout_s}
-        return RemotePositioner(camera, led_map, server, **kw)
+        return RemotePositioner(camera, led_map, server, report=lambda line: print(line, file=sys.stderr, flush=True),
+                                **kw)
     try:
         from receiver.locate.indoor import Positioner
     except ImportError:

@@ -9,6 +9,10 @@ multilateration / range + angle) and runs the Kalman filter (4.3.2), and replies
 position. A device silent for `forget_s` seconds is forgotten (4.4, "suspended signal
 propagation": the server stops serving a device it no longer hears).
 
+Datagram format v2 (`receiver.serve.wire_v2`, what `occloc run --server` sends): the frame's
+observations with their outlines; the server steps a `receiver.locate.indoor.Positioner` per
+device, so the positions are the local run's. v1 stays accepted:
+
 Datagram format v1 (one UTF-8 JSON object per UDP datagram, at most `MAX_DATAGRAM_BYTES`):
 
 Request (device -> server), one per frame, also for frames without LEDs (the filter coasts):
@@ -87,6 +91,7 @@ from receiver.core import native
 from receiver.core.errors import InputError
 from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
                                  parse_request)
+from receiver.serve.wire_v2 import VERSION as V2, RequestV2, ranges_of
 
 if TYPE_CHECKING:  # the solver is imported once the socket is bound (start-up latency)
     from receiver.locate.posefilter import PoseFilter
@@ -137,10 +142,12 @@ def _pose_filter_class():
 
 @dataclass
 class _Device:
-    pose: PoseFilter
+    pose: PoseFilter | None  # the v1 datagrams' filter (made at the device's first v1 datagram)
     seq: int
     seen: float           # server monotonic time of the last accepted datagram, s
     source: object = None  # the source address (host) that created it, None without a socket
+    loc: object = None    # the v2 datagrams' receiver.locate.indoor.Positioner, or None
+    camera_key: tuple | None = None  # the camera `loc` was made for
 
 
 def _str_or_none(v):
@@ -240,8 +247,11 @@ class LightingServer:
         `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
         jobs = []                                    # (i, req, pose filter, leds, used, solve args)
         for i, req, now, host in items:
+            if isinstance(req, RequestV2):
+                self._locate_v2(i, req, now, host, replies, encoded)
+                continue
             try:
-                pf = self._device(req, now, host).pose
+                pf = self._v1_filter(self._device(req, now, host), req)
                 pf.sigma_uv = req.sigma_uv
                 leds = [self.led_map.lookup(led_id) for led_id in req.ids]
                 used = [k for k, led in enumerate(leds) if led is not None]
@@ -262,6 +272,38 @@ class LightingServer:
                 self.counters["replies"] += 1
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
+
+    def _v1_filter(self, dev: _Device, req: Request):
+        if dev.pose is None:
+            dev.pose = self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
+                                         warm_start=self.warm_start)
+        return dev.pose
+
+    def _locate_v2(self, i: int, req: RequestV2, now: float, host, replies: list, encoded: dict) -> None:
+        """A v2 request: the device's own `receiver.locate.indoor.Positioner` (made for its
+        camera, with its default settings, as `occloc run` makes it) steps on the frame's
+        observations, exactly as on the device."""
+        try:
+            dev = self._device(req, now, host)
+            if dev.loc is None or dev.camera_key != req.camera_key:
+                from receiver.locate.indoor import Positioner
+
+                dev.loc, dev.camera_key = Positioner(req.camera, self.led_map), req.camera_key
+            res = dev.loc.step(req.t, req.leds)
+            known = [o for o in req.leds if self.led_map.lookup(o.id) is not None]
+            reply = {"v": V2, "device": req.device, "seq": req.seq, "position": res.position,
+                     "unknown_ids": sorted({o.id for o in req.leds} - {o.id for o in known}),
+                     "n_used": sum(1 for o in known if not o.border),
+                     "ranges": ranges_of(res.leds, req.leds)}
+            try:
+                data = encode(reply)
+            except ValueError:
+                raise FloatingPointError("non-finite result") from None
+            self.counters["positions"] += res.position is not None
+            self.counters["replies"] += 1
+            replies[i], encoded[i] = reply, data
+        except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
+            replies[i] = self._failed(e, req)
 
     def _wire_kernel(self):
         """The compiled request check (`receiver.serve._wire`) or None, looked up once per server."""
@@ -394,9 +436,7 @@ class LightingServer:
                 raise ProtocolError("too_many_devices_per_source",
                                     f"this address holds {self.max_devices_per_source} devices",
                                     req.device, req.seq)
-            dev = _Device(self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
-                                              warm_start=self.warm_start), -1, now,
-                          source)
+            dev = _Device(None, -1, now, source)
             self.devices[req.device] = dev
             if source is not None:
                 self.per_source[source] += 1

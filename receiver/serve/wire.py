@@ -126,8 +126,12 @@ _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
 
 def _decode(data: bytes) -> dict:
-    if len(data) > MAX_DATAGRAM_BYTES:
-        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
+    """The request object of a datagram of version 1 or 2 (`receiver.serve.wire_v2`), each
+    version within its size limit."""
+    from receiver.serve.wire_v2 import MAX_DATAGRAM_BYTES_V2, VERSION as V2
+
+    if len(data) > MAX_DATAGRAM_BYTES_V2:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES_V2}")
     try:
         obj = _DECODER.decode(data.decode("utf-8"))
     except (ValueError, RecursionError) as e:
@@ -135,8 +139,10 @@ def _decode(data: bytes) -> dict:
     if not isinstance(obj, dict):
         raise ProtocolError("not_object", "the datagram must be a JSON object")
     v = obj.get("v")
-    if type(v) is not int or v != PROTOCOL_VERSION:
-        raise ProtocolError("bad_version", f"v must be {PROTOCOL_VERSION}")
+    if type(v) is not int or v not in (PROTOCOL_VERSION, V2):
+        raise ProtocolError("bad_version", f"v must be {PROTOCOL_VERSION} or {V2}")
+    if v == PROTOCOL_VERSION and len(data) > MAX_DATAGRAM_BYTES:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
     return obj
 
 
@@ -194,11 +200,14 @@ def _parse_body(obj: dict, device: str, seq: int) -> Request:
     return Request(device, seq, t, sigma_uv, ids, arr[:, :2], arr[:, 2].copy(), arr[:, 3].copy())
 
 
-def parse_request(data: bytes, fast=None) -> Request:
-    """Validate one datagram (format v1, module docstring); raises ProtocolError. `fast`: the
-    compiled check of the common form (`receiver.serve._wire`), tried first; what it does not
-    take is checked here."""
+def parse_request(data: bytes, fast=None):
+    """Validate one datagram: a v1 `Request`, or a v2 `receiver.serve.wire_v2.RequestV2`;
+    raises ProtocolError. `fast`: the compiled check of v1's common form
+    (`receiver.serve._wire`), tried first; what it does not take is checked here."""
     obj = _decode(data)
+    if obj["v"] != PROTOCOL_VERSION:
+        from receiver.serve.wire_v2 import parse_v2
+        return parse_v2(obj)
     if fast is not None:
         got = fast.parse(obj)
         if got is not None:

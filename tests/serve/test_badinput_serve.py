@@ -220,7 +220,7 @@ def test_remote_positioner_refuses_malformed_replies(walk_map):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as fake:
         fake.bind(("127.0.0.1", 0))
         host, port = fake.getsockname()
-        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=2.0) as rp:
+        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=2.0, protocol=1) as rp:
             client = rp.sock.getsockname()
             for k, (name, change) in enumerate(BAD_REPLIES):
                 fake.sendto(_reply_bytes(k, change), client)   # queued before the request
