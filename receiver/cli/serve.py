@@ -16,8 +16,8 @@ import sys
 
 from receiver.core.errors import InputError
 from receiver.serve.server import (DEFAULT_FORGET_S, DEFAULT_HOST, DEFAULT_MAX_DEVICES,
-                                   DEFAULT_MAX_DEVICES_PER_SOURCE, DEFAULT_PORT, LightingServer,
-                                   format_url, serve_until)
+                                   DEFAULT_MAX_DEVICES_PER_SOURCE, DEFAULT_PORT, DEFAULT_SOURCE_RATE,
+                                   LightingServer, format_url, serve_until)
 
 HELP = "lighting server: devices upload LED IDs, image points and ranges over UDP, get positions back"
 
@@ -78,6 +78,12 @@ def add_arguments(p) -> None:
     p.add_argument("--max-devices-per-source", type=int, default=DEFAULT_MAX_DEVICES_PER_SOURCE, metavar="N",
                    help="devices one source address (IP) may hold at once "
                         f"(default {DEFAULT_MAX_DEVICES_PER_SOURCE})")
+    p.add_argument("--source-rate", type=float, default=DEFAULT_SOURCE_RATE, metavar="N",
+                   help=f"datagrams per second served to one source address (default {DEFAULT_SOURCE_RATE:g}; "
+                        "more are dropped unread; 0: no limit)")
+    p.add_argument("--keys", metavar="FILE",
+                   help="device keys, one 'DEVICE HEXKEY' line each: those devices' datagrams must carry "
+                        "a valid MAC (occloc run --key-file)")
 
 
 def _default_map() -> str:
@@ -104,9 +110,16 @@ def main(args) -> int:
             raise InputError("--max-devices must be at least 1")
         if args.max_devices_per_source < 1:
             raise InputError("--max-devices-per-source must be at least 1")
+        if not 0 <= args.source_rate <= 1e7:
+            raise InputError("--source-rate must be in 0..1e7")
+        keys = None
+        if args.keys is not None:
+            from receiver.serve.auth import load_keys
+            keys = load_keys(args.keys)
         led_map = load_map(args.map or _default_map())
         server = LightingServer(led_map, forget_s=args.forget_s, max_devices=args.max_devices,
-                                max_devices_per_source=args.max_devices_per_source)
+                                max_devices_per_source=args.max_devices_per_source, keys=keys,
+                                source_rate=args.source_rate)
         asyncio.run(_serve_cli(server, args.host, args.port, early))
     finally:
         early.restore()

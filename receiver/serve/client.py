@@ -203,7 +203,9 @@ class RemotePositioner:
         self.local = Positioner(camera, led_map, **ranging_kw)
         self.url, self.timeout_s = url, timeout_s
         self.sock = _connect(url)
-        self.seq = 0                    # of the next request
+        # of the next request; a keyed device (whose last seq the server keeps for good) starts
+        # at the wall clock's milliseconds, above every seq of its earlier runs
+        self.seq = 0 if key is None else time.time_ns() // 1_000_000
         self.timeouts = 0
         self.errors = 0
         self.last_error: str | None = None

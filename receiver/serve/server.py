@@ -65,7 +65,7 @@ any datagram arrives (a device is forgotten when silent for more than `forget_s`
 datagram does not count as hearing from it, so a device that restarts its seq at 0 under the same
 name is heard again after `forget_s`).
 
-Layers: `parse_request` (bytes -> `Request`, raising `ProtocolError`) and `LightingServer.handle`
+Layers: `wire_v2.parse_any` (bytes -> `Request` or `RequestV2`, raising `ProtocolError`) and `LightingServer.handle`
 (bytes -> reply dict or None; `handle_many` for datagrams received together, whose fixes are
 solved in one batch) are plain code, tested without sockets; `serve_socket` serves them on a UDP
 socket in a plain loop (every datagram already queued is handled in the same batch), and
@@ -89,9 +89,10 @@ import numpy as np
 
 from receiver.core import native
 from receiver.core.errors import InputError
-from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
-                                 parse_request)
-from receiver.serve.wire_v2 import VERSION as V2, RequestV2, ranges_of
+from receiver.serve.wire import PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode
+from receiver.serve.auth import PREFIX as MAC_PREFIX, verify
+from receiver.serve.limits import SourceBuckets
+from receiver.serve.wire_v2 import VERSION as V2, RequestV2, parse_any, ranges_of
 
 if TYPE_CHECKING:  # the solver is imported once the socket is bound (start-up latency)
     from receiver.locate.posefilter import PoseFilter
@@ -102,6 +103,15 @@ DEFAULT_FORGET_S = 5.0
 DEFAULT_MAX_DEVICES = 10000
 # Devices one source address (IP, any port) may hold at once, so one client cannot fill the table.
 DEFAULT_MAX_DEVICES_PER_SOURCE = 64
+# Datagrams served per second per source host (a token bucket of twice that many): ten phones at
+# 30 frames/s behind one address; a flood beyond it is dropped before parsing ("rate_limited").
+DEFAULT_SOURCE_RATE = 300.0
+# Error replies per second (burst: twice) sent to one host for datagrams not proven by a MAC:
+# a forged source address gets at most this many replies, each no larger than its request.
+ERROR_REPLY_RATE = 5.0
+# How far ahead of a live device's last accepted seq a datagram may jump (a missing stretch of
+# 2^20 frames is 9.7 hours at 30 frames/s); beyond it the datagram is refused ("seq_jump").
+SEQ_WINDOW = 1 << 20
 # Socket loop (`serve_socket`): datagrams handled together at most (the ones already queued when
 # the loop looks: it never waits for a batch to fill), the stop flag's polling interval (s), the
 # receive buffer asked for (bytes: a burst of ~10,000 four-LED datagrams) and the largest datagram
@@ -147,6 +157,7 @@ class _Device:
     seen: float           # server monotonic time of the last accepted datagram, s
     source: object = None  # the source address (host) that created it, None without a socket
     loc: object = None    # the v2 datagrams' receiver.locate.indoor.Positioner, or None
+    bound: object = None  # the (host, port) an unkeyed device's name is bound to until forgotten
     camera_key: tuple | None = None  # the camera `loc` was made for
 
 
@@ -176,9 +187,15 @@ class LightingServer:
     def __init__(self, led_map, *, forget_s: float = DEFAULT_FORGET_S,
                  max_devices: int = DEFAULT_MAX_DEVICES,
                  max_devices_per_source: int = DEFAULT_MAX_DEVICES_PER_SOURCE, clock=time.monotonic,
-                 warm_start: bool = True):
+                 warm_start: bool = True, keys: dict | None = None, source_rate: float = DEFAULT_SOURCE_RATE,
+                 error_rate: float = ERROR_REPLY_RATE):
         self.led_map, self.forget_s, self.max_devices, self.clock = led_map, forget_s, max_devices, clock
         self.warm_start = warm_start
+        self.keys = dict(keys or {})
+        # keyed device -> its last accepted seq, kept after it is forgotten (no replay, ever)
+        self.key_seq: dict[str, int] = {}
+        self.source_limit = SourceBuckets(source_rate, 2 * source_rate)
+        self.error_limit = SourceBuckets(error_rate, 2 * error_rate)
         self.max_devices_per_source = max_devices_per_source
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
         self.per_source: Counter = Counter()                      # source host -> devices held
@@ -208,13 +225,28 @@ class LightingServer:
         for i, (data, source) in enumerate(datagrams):
             self.counters["datagrams"] += 1
             now = self.clock()
-            self._forget_silent(now)
-            try:
-                req = parse_request(data, self._wire_kernel())
-            except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
-                replies[i] = self._failed(e, None)
+            host = None if source is None else source[0]
+            if not self.source_limit.take(host, now):
+                self.counters["rate_limited"] += 1
                 continue
-            pending.append((i, req, now, None if source is None else source[0]))
+            self._forget_silent(now)
+            signed = None
+            try:
+                if data[:len(MAC_PREFIX)] == MAC_PREFIX:
+                    signed = verify(data, self.keys)
+                    data = signed[2]
+                req = parse_any(data, self._wire_kernel())
+                if signed is not None and (req.device, req.seq) != signed[:2]:
+                    raise ProtocolError("bad_mac", "the header's device or seq is not the request's",
+                                        req.device, req.seq)
+                if signed is None and req.device in self.keys:
+                    raise ProtocolError("bad_mac", "this device's datagrams need its MAC", req.device, req.seq)
+            except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
+                replies[i] = self._unproven(self._failed(e, None), len(data), source, now)
+                continue
+            # nbytes: the request's size for an unproven one's error reply (`_unproven`), 0 when
+            # its MAC proved it (then error replies are not limited)
+            pending.append((i, req, now, source, 0 if signed is not None else len(datagrams[i][0])))
         while pending:                               # rounds with one datagram per device
             seen, this, later = set(), [], []
             for item in pending:
@@ -223,6 +255,28 @@ class LightingServer:
             self._locate_round(this, replies, encoded, as_bytes)
             pending = later
         return replies, encoded
+
+    def _refused(self, e: Exception, req, nbytes: int, source, now: float) -> dict | None:
+        """`_failed`'s reply, limited (`_unproven`) unless a MAC proved the request (nbytes 0)."""
+        reply = self._failed(e, req)
+        return reply if nbytes == 0 else self._unproven(reply, nbytes, source, now)
+
+    def _unproven(self, reply: dict | None, request_bytes: int, source, now: float) -> dict | None:
+        """An error reply to a datagram no MAC proves, as the socket may send it: at most
+        `error_rate` a second to one host, and never larger than the request (without its detail,
+        device and seq if need be; else none). Without a source (in-process use) unchanged."""
+        if reply is None or source is None:
+            return reply
+        if not self.error_limit.take(source[0], now):
+            self.counters["error_replies_limited"] += 1
+            return None
+        if len(encode(reply)) <= request_bytes:
+            return reply
+        short = {"v": reply["v"], "error": reply["error"]}
+        if len(encode(short)) <= request_bytes:
+            return short
+        self.counters["error_replies_limited"] += 1
+        return None
 
     def _failed(self, e: Exception, req: Request | None) -> dict | None:
         """The reply to a request that raised e (None for `old_seq`), counted; a failure other
@@ -246,12 +300,12 @@ class LightingServer:
         (`PoseFilter.update`) of requests of distinct devices, as
         `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
         jobs = []                                    # (i, req, pose filter, leds, used, solve args)
-        for i, req, now, host in items:
+        for i, req, now, source, nbytes in items:
             if isinstance(req, RequestV2):
-                self._locate_v2(i, req, now, host, replies, encoded)
+                self._locate_v2(i, req, now, source, nbytes, replies, encoded)
                 continue
             try:
-                pf = self._v1_filter(self._device(req, now, host), req)
+                pf = self._v1_filter(self._device(req, now, source, nbytes == 0), req)
                 pf.sigma_uv = req.sigma_uv
                 leds = [self.led_map.lookup(led_id) for led_id in req.ids]
                 used = [k for k, led in enumerate(leds) if led is not None]
@@ -262,7 +316,7 @@ class LightingServer:
                     args = (pf, req.t, L, req.uv[sel], req.d[sel], req.sigma_d[sel], pf.R_prior(req.t))
                 jobs.append((i, req, pf, leds, used, args))
             except Exception as e:   # noqa: BLE001
-                replies[i] = self._failed(e, req)
+                replies[i] = self._refused(e, req, nbytes, source, now)
         fixes = self._solve([job[5] for job in jobs])
         for (i, req, pf, leds, used, _), fix in zip(jobs, fixes):
             try:
@@ -279,12 +333,13 @@ class LightingServer:
                                          warm_start=self.warm_start)
         return dev.pose
 
-    def _locate_v2(self, i: int, req: RequestV2, now: float, host, replies: list, encoded: dict) -> None:
+    def _locate_v2(self, i: int, req: RequestV2, now: float, source, nbytes: int, replies: list,
+                   encoded: dict) -> None:
         """A v2 request: the device's own `receiver.locate.indoor.Positioner` (made for its
         camera, with its default settings, as `occloc run` makes it) steps on the frame's
         observations, exactly as on the device."""
         try:
-            dev = self._device(req, now, host)
+            dev = self._device(req, now, source, nbytes == 0)
             if dev.loc is None or dev.camera_key != req.camera_key:
                 from receiver.locate.indoor import Positioner
 
@@ -303,7 +358,7 @@ class LightingServer:
             self.counters["replies"] += 1
             replies[i], encoded[i] = reply, data
         except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
-            replies[i] = self._failed(e, req)
+            replies[i] = self._refused(e, req, nbytes, source, now)
 
     def _wire_kernel(self):
         """The compiled request check (`receiver.serve._wire`) or None, looked up once per server."""
@@ -425,25 +480,42 @@ class LightingServer:
             if self.per_source[dev.source] <= 0:
                 del self.per_source[dev.source]
 
-    def _device(self, req: Request, now: float, source) -> _Device:
-        """The request's device (new ones are created), after the seq check; marks it heard."""
+    def _device(self, req: Request, now: float, source, proven: bool = False) -> _Device:
+        """The request's device (new ones are created), after the checks that keep others from
+        steering it; marks it heard. `source`: the sender's (host, port) or None; `proven`: a
+        MAC proved the request. A keyed device's seq must pass the last one it ever had accepted
+        (kept after forgetting: no replay); an unkeyed device's name is bound to the source
+        that created it until it is forgotten; a live device's seq moves at most SEQ_WINDOW
+        ahead. Nothing of a refused request touches the device."""
         dev = self.devices.get(req.device)
+        host = None if source is None else source[0]
+        keyed = req.device in self.keys
+        if keyed and req.seq <= self.key_seq.get(req.device, -1):
+            raise ProtocolError("old_seq", device=req.device, seq=req.seq)
         if dev is None:
             if len(self.devices) >= self.max_devices:
                 raise ProtocolError("too_many_devices", f"the server holds {self.max_devices} devices",
                                     req.device, req.seq)
-            if source is not None and self.per_source[source] >= self.max_devices_per_source:
+            if host is not None and self.per_source[host] >= self.max_devices_per_source:
                 raise ProtocolError("too_many_devices_per_source",
                                     f"this address holds {self.max_devices_per_source} devices",
                                     req.device, req.seq)
-            dev = _Device(None, -1, now, source)
+            dev = _Device(None, -1, now, host, bound=None if keyed or source is None else tuple(source[:2]))
             self.devices[req.device] = dev
-            if source is not None:
-                self.per_source[source] += 1
+            if host is not None:
+                self.per_source[host] += 1
             self.counters["new_devices"] += 1
-        elif req.seq <= dev.seq:
-            raise ProtocolError("old_seq", device=req.device, seq=req.seq)
+        else:
+            if dev.bound is not None and (source is None or tuple(source[:2]) != dev.bound):
+                raise ProtocolError("wrong_source", "this device is bound to another address", req.device,
+                                    req.seq)
+            if req.seq <= dev.seq:
+                raise ProtocolError("old_seq", device=req.device, seq=req.seq)
+            if req.seq > dev.seq + SEQ_WINDOW:
+                raise ProtocolError("seq_jump", f"seq may move at most {SEQ_WINDOW} ahead", req.device, req.seq)
         dev.seq, dev.seen = req.seq, now
+        if keyed:
+            self.key_seq[req.device] = req.seq
         self.devices.move_to_end(req.device)
         return dev
 

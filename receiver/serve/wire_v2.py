@@ -36,13 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver.serve.wire import (MAX_ABS_T_S, MAX_DEVICE_CHARS, MAX_LED_ID, MAX_LEDS, MAX_SEQ,
-                                 ProtocolError, _get, _in_range, _int, _number)
+from receiver.serve.wire import (MAX_ABS_T_S, MAX_DATAGRAM_BYTES_V2, MAX_DEVICE_CHARS, MAX_LED_ID,  # noqa: F401
+                                 MAX_LEDS, MAX_SEQ, PROTOCOL_VERSION, ProtocolError, _get, _in_range, _int,
+                                 _number, decode_request, parse_object)
 
 VERSION = 2
-# A v2 request carries outlines: up to the largest UDP payload (IPv4) instead of v1's 16 kB.
-# The walk recording's busiest frame (17 LEDs, 1,487 edge points) takes about 45 kB.
-MAX_DATAGRAM_BYTES_V2 = 65507
 # Pixel coordinates beyond this are no image point of any real sensor.
 MAX_ABS_PX = 1e5
 # Points of one observation's contour or edges at most (bounds the work of one LED).
@@ -165,6 +163,13 @@ def _parse_obs(item, i: int):
         edge = (np.ascontiguousarray(e[:, :2]), np.ascontiguousarray(e[:, 2]))
     return LedObservation(track=i, cx=cx, cy=cy, area_px=area, contour=np.ascontiguousarray(contour),
                           border=border, id=led_id, mode=mode, edge_px=edge)
+
+
+def parse_any(data: bytes, fast=None):
+    """A v1 `receiver.serve.wire.Request` or a v2 `RequestV2` of one datagram; ProtocolError
+    otherwise. `fast`: v1's compiled check (`receiver.serve.wire.parse_request`)."""
+    obj = decode_request(data, (PROTOCOL_VERSION, VERSION))
+    return parse_object(obj, fast) if obj["v"] == PROTOCOL_VERSION else parse_v2(obj)
 
 
 def parse_v2(obj: dict) -> RequestV2:

@@ -334,7 +334,9 @@ def _run_device(address, walk_map, k: int, out: list) -> None:
             out.append((i, _exchange(sock, encode(req), None)))
 
 
-GARBAGE = [(data, reason) for _, data, reason in MALFORMED[::4]]
+# (an error reply is never larger than its request: the garbage is padded with spaces, which
+# JSON allows around a value, so that every one gets its reply)
+GARBAGE = [(data + b" " * 160 if reason != "oversized" else data, reason) for _, data, reason in MALFORMED[::4]]
 
 
 def _run_garbage(address, walk_map, out: list) -> None:
@@ -353,7 +355,8 @@ def test_fifty_devices_at_once_over_udp(walk_map):
     # The server's clock is frozen: no device may be forgotten however slowly the machine runs
     # (with the real clock and forget_s = 5, the garbage thread's device "dup" expired on a
     # slow machine before the last device had sent: 50 devices held instead of 51).
-    srv = LightingServer(walk_map, clock=FakeClock())
+    # 51 devices on one host; error replies not rate-limited (the garbage's are all expected)
+    srv = LightingServer(walk_map, clock=FakeClock(), source_rate=0, error_rate=1e6)
     results = {k: [] for k in range(N_DEVICES)}
     garbage: list = []
     failures: list = []
@@ -603,7 +606,8 @@ def test_serve_and_run_with_server_equal_a_local_run(tmp_path, capsys):
 def test_serve_stops_on_sigterm_with_a_summary():
     with serve_process("--forget-s", "1") as (proc, url):
         with _udp_client(parse_udp_url(url)) as sock:
-            assert _exchange(sock, b"{oops", None)["error"] == "bad_json"
+            # (an error reply is never larger than its request: a 5-byte one gets none)
+            assert _exchange(sock, b"{oops" + b" " * 100, None)["error"] == "bad_json"
         summary = _stop(proc, signal.SIGTERM)
     assert summary == ("occloc serve: 1 datagrams, 1 replies, 0 positions; devices: 0 new, "
                        "0 forgotten, 0 held; dropped/refused: bad_json 1")

@@ -51,8 +51,8 @@ def test_server_run_equals_the_local_run(name, tmp_path, monkeypatch, capsys):
     tees = []
     make = run_cli.make_positioner
 
-    def tee(camera, led_map, server=None, server_timeout_s=None):
-        t = _Tee(make(camera, led_map, server=server, server_timeout_s=server_timeout_s), make(camera, led_map))
+    def tee(camera, led_map, server=None, **kw):
+        t = _Tee(make(camera, led_map, server=server, **kw), make(camera, led_map))
         tees.append(t)
         return t
 
