@@ -76,6 +76,7 @@ socket in a plain loop (every datagram already queued is handled in the same bat
 from __future__ import annotations
 
 import asyncio
+import json
 import select
 import socket
 import threading
@@ -195,6 +196,10 @@ class LightingServer:
         # keyed device -> its last accepted seq, kept after it is forgotten (no replay, ever)
         self.key_seq: dict[str, int] = {}
         self.source_limit = SourceBuckets(source_rate, 2 * source_rate)
+        # Observers (the HTTP API's live view, storage, Redis): on_fix(device, t_device, position
+        # dict or None, LED ids, seq, keyed) for every accepted datagram's reply, on_forget(device).
+        self.on_fix = None
+        self.on_forget = None
         self.error_limit = SourceBuckets(error_rate, 2 * error_rate)
         self.max_devices_per_source = max_devices_per_source
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
@@ -356,6 +361,7 @@ class LightingServer:
                 raise FloatingPointError("non-finite result") from None
             self.counters["positions"] += res.position is not None
             self.counters["replies"] += 1
+            self._tell(req, res.position)
             replies[i], encoded[i] = reply, data
         except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
             replies[i] = self._refused(e, req, nbytes, source, now)
@@ -415,7 +421,16 @@ class LightingServer:
             # The solver or filter overflowed: never reply with (or keep) a NaN state.
             raise FloatingPointError("non-finite result") from None
         self.counters["positions"] += position is not None
+        self._tell(req, position)
         return reply, data
+
+    def _tell(self, req, position) -> None:
+        """Hand an accepted datagram's position (dict, JSON bytes or None) to `on_fix`."""
+        if self.on_fix is not None:
+            if isinstance(position, bytes):
+                position = json.loads(position)
+            ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
+            self.on_fix(req.device, req.t, position, ids, req.seq, req.device in self.keys)
 
     def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
         """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
@@ -429,6 +444,7 @@ class LightingServer:
             raise FloatingPointError("non-finite result") from None
         unknown = sorted({i for i, led in zip(req.ids, leds) if led is None})
         self.counters["positions"] += position is not None
+        self._tell(req, position)
         return b"".join((_REPLY_HEAD, encode_basestring_ascii(req.device).encode(), b',"seq":',
                          str(req.seq).encode(), b',"position":', b"null" if position is None else position,
                          b',"unknown_ids":[', ",".join(map(str, unknown)).encode(), b'],"n_used":',
@@ -475,6 +491,8 @@ class LightingServer:
 
     def _drop(self, name) -> None:
         dev = self.devices.pop(name, None)
+        if dev is not None and self.on_forget is not None:
+            self.on_forget(name)
         if dev is not None and dev.source is not None:
             self.per_source[dev.source] -= 1
             if self.per_source[dev.source] <= 0:
