@@ -94,6 +94,9 @@ def add_arguments(p) -> None:
                         "reads it)")
     p.add_argument("--retention-days", type=float, default=DEFAULT_RETENTION_S / 86400, metavar="D",
                    help=f"delete stored fixes older than this (default {DEFAULT_RETENTION_S / 86400:g} days)")
+    p.add_argument("--state", metavar="redis://HOST:PORT/DB",
+                   help="keep device state in this Redis, shared with every occloc serve using it "
+                        "(any of them serves any device; its HTTP stream relays all positions)")
     p.add_argument("--keys", metavar="FILE",
                    help="device keys, one 'DEVICE HEXKEY' line each: those devices' datagrams must carry "
                         "a valid MAC (occloc run --key-file)")
@@ -138,8 +141,12 @@ class _Service:
             server.key_seq.update({d: s for d, s in self.store.seqs().items() if d in server.keys})
         if args.http is not None or self.store is not None:
             from receiver.serve.live import LiveView
-            self.live = LiveView()
+            self.live = LiveView(forget_s=args.forget_s)
             server.on_fix, server.on_forget = self._on_fix, self.live.forget
+            if server.shared is not None:
+                live = self.live
+                server.shared.relay(lambda e: live.fix(str(e.get("device")), e.get("t_device"), e.get("position"),
+                                                       e.get("ids") or []))
 
     def _on_fix(self, device, t_device, position, ids, seq, keyed) -> None:
         self.live.fix(device, t_device, position, ids)
@@ -163,6 +170,8 @@ class _Service:
             self.http.stop()
         if self.store is not None:
             self.store.close()        # every queued fix is written
+        if self.server.shared is not None:
+            self.server.shared.close()
 
 
 def main(args) -> int:
@@ -192,11 +201,18 @@ def main(args) -> int:
         if args.keys is not None:
             from receiver.serve.auth import load_keys
             keys = load_keys(args.keys)
+        if args.state is not None:
+            from receiver.serve.shared import check_url
+            check_url(args.state)
         map_path = args.map or _default_map()
         led_map = load_map(map_path)
+        shared = None
+        if args.state is not None:
+            from receiver.serve.shared import SharedState
+            shared = SharedState(args.state, led_map, args.forget_s)
         server = LightingServer(led_map, forget_s=args.forget_s, max_devices=args.max_devices,
                                 max_devices_per_source=args.max_devices_per_source, keys=keys,
-                                source_rate=args.source_rate)
+                                source_rate=args.source_rate, shared=shared)
         service = _Service(server, args, map_path)
         asyncio.run(_serve_cli(server, args.host, args.port, early,
                                service.start_http if args.http is not None else None))

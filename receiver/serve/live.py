@@ -23,8 +23,8 @@ class LiveView:
     """Latest fix per device and the subscribers of new ones. `clock`: monotonic seconds (for
     `age_s`); `wall`: Unix seconds (each fix's `t`)."""
 
-    def __init__(self, clock=time.monotonic, wall=time.time):
-        self.clock, self.wall = clock, wall
+    def __init__(self, clock=time.monotonic, wall=time.time, forget_s: float | None = None):
+        self.clock, self.wall, self.forget_s = clock, wall, forget_s
         self._lock = threading.Lock()
         self._devices: dict[str, dict] = {}
         self._subscribers: list[tuple[asyncio.AbstractEventLoop, asyncio.Queue]] = []
@@ -62,6 +62,9 @@ class LiveView:
         (accepted), `positions` (of them with a position)."""
         now = self.clock()
         with self._lock:
+            if self.forget_s is not None:
+                for name in [n for n, d in self._devices.items() if now - d["seen"] > self.forget_s]:
+                    del self._devices[name]
             rows = [dict(d) for d in self._devices.values()]
         for r in rows:
             r["age_s"] = round(max(0.0, now - r.pop("seen")), 3)

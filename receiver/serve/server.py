@@ -189,7 +189,7 @@ class LightingServer:
                  max_devices: int = DEFAULT_MAX_DEVICES,
                  max_devices_per_source: int = DEFAULT_MAX_DEVICES_PER_SOURCE, clock=time.monotonic,
                  warm_start: bool = True, keys: dict | None = None, source_rate: float = DEFAULT_SOURCE_RATE,
-                 error_rate: float = ERROR_REPLY_RATE):
+                 error_rate: float = ERROR_REPLY_RATE, shared=None):
         self.led_map, self.forget_s, self.max_devices, self.clock = led_map, forget_s, max_devices, clock
         self.warm_start = warm_start
         self.keys = dict(keys or {})
@@ -200,6 +200,8 @@ class LightingServer:
         # dict or None, LED ids, seq, keyed) for every accepted datagram's reply, on_forget(device).
         self.on_fix = None
         self.on_forget = None
+        # receiver.serve.shared.SharedState: device state in Redis, shared with other servers
+        self.shared = shared
         self.error_limit = SourceBuckets(error_rate, 2 * error_rate)
         self.max_devices_per_source = max_devices_per_source
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
@@ -252,6 +254,7 @@ class LightingServer:
             # nbytes: the request's size for an unproven one's error reply (`_unproven`), 0 when
             # its MAC proved it (then error replies are not limited)
             pending.append((i, req, now, source, 0 if signed is not None else len(datagrams[i][0])))
+        names = self._shared_in(pending) if self.shared is not None and pending else None
         while pending:                               # rounds with one datagram per device
             seen, this, later = set(), [], []
             for item in pending:
@@ -259,7 +262,43 @@ class LightingServer:
                 seen.add(item[1].device)
             self._locate_round(this, replies, encoded, as_bytes)
             pending = later
+        if names:
+            self._shared_out(names)
         return replies, encoded
+
+    def _shared_in(self, pending) -> list[str]:
+        """The batch's devices as the shared state has them (`receiver.serve.shared`): a device
+        another server served meanwhile is taken over, one expired there is forgotten here."""
+        names = list(dict.fromkeys(item[1].device for item in pending))
+        try:
+            devs, seqs = self.shared.load(names)
+        except Exception:   # noqa: BLE001 -- Redis away: serve from the local state, counted
+            self.counters["state_errors"] += 1
+            return names
+        now = self.clock()
+        for name in names:
+            dev, seq = devs[name], seqs[name]
+            if seq is not None and seq > self.key_seq.get(name, -1):
+                self.key_seq[name] = seq
+            if dev is None:
+                if name in self.devices:
+                    self._drop(name, shared=False)
+                    self.counters["forgotten"] += 1
+                continue
+            if name in self.devices:
+                self._drop(name, shared=False, tell=False)
+            dev.seen = now
+            self.devices[name] = dev
+            if dev.source is not None:
+                self.per_source[dev.source] += 1
+        return names
+
+    def _shared_out(self, names) -> None:
+        try:
+            self.shared.save({n: self.devices[n] for n in names if n in self.devices},
+                             {n: self.key_seq[n] for n in names if n in self.key_seq})
+        except Exception:   # noqa: BLE001 -- counted; the next batch tries again
+            self.counters["state_errors"] += 1
 
     def _refused(self, e: Exception, req, nbytes: int, source, now: float) -> dict | None:
         """`_failed`'s reply, limited (`_unproven`) unless a MAC proved the request (nbytes 0)."""
@@ -431,6 +470,12 @@ class LightingServer:
                 position = json.loads(position)
             ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
             self.on_fix(req.device, req.t, position, ids, req.seq, req.device in self.keys)
+        if self.shared is not None:
+            if isinstance(position, bytes):
+                position = json.loads(position)
+            ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
+            self.shared.publish(req.device, {"device": req.device, "t": time.time(), "t_device": req.t,
+                                             "position": position, "ids": list(ids)})
 
     def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
         """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
@@ -486,13 +531,19 @@ class LightingServer:
             name, dev = next(iter(self.devices.items()))
             if now - dev.seen <= self.forget_s:
                 break
-            self._drop(name)
+            self._drop(name, shared=False)   # shared state: Redis's expiry forgets it for all servers
             self.counters["forgotten"] += 1
 
-    def _drop(self, name) -> None:
+    def _drop(self, name, shared: bool = True, tell: bool = True) -> None:
+        """Forget a device here (`tell`: its observers too) and, with `shared`, in the shared state."""
         dev = self.devices.pop(name, None)
-        if dev is not None and self.on_forget is not None:
+        if dev is not None and tell and self.on_forget is not None:
             self.on_forget(name)
+        if dev is not None and shared and self.shared is not None:
+            try:
+                self.shared.drop(name)
+            except Exception:   # noqa: BLE001 -- its expiry forgets it anyway
+                self.counters["state_errors"] += 1
         if dev is not None and dev.source is not None:
             self.per_source[dev.source] -= 1
             if self.per_source[dev.source] <= 0:
