@@ -173,3 +173,16 @@ def test_serve_keys_and_run_key_file(tmp_path, capsys):
     assert summary.startswith("occloc serve: 6 datagrams, 6 replies, 3 positions") and "bad_mac 3" in summary
     assert cli(["run", str(WALK), "--key-file", str(keys)]) == 2
     assert "--key-file needs --server" in capsys.readouterr().err
+
+
+def test_loadgen_counts_only_position_replies_as_served(walk_map):
+    """Refusals are errors, not service: 10 devices against a server holding 4."""
+    from receiver.serve.loadgen import four_led_datagrams, run_load
+    from receiver.serve.server import BackgroundServer
+
+    dg = four_led_datagrams(walk_map, 40, 10)
+    srv = LightingServer(walk_map, max_devices=4, source_rate=0, error_rate=1e6)
+    with BackgroundServer(srv) as bg:
+        report = run_load(bg.address, dg, rate=2000.0, drain_s=30.0)
+    assert report["replies"] == 16 and report["lost"] == 24
+    assert report["errors"] == {"too_many_devices": 24} and report["no_position"] == 0
