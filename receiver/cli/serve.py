@@ -45,7 +45,8 @@ class _EarlyStop:
             signal.signal(sig, old)
 
 
-async def _serve_cli(server: LightingServer, host: str, port: int, early: _EarlyStop, http_start=None) -> None:
+async def _serve_cli(server: LightingServer, host: str, port: int, early: _EarlyStop, http_start=None,
+                     reuse_port: bool = False) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in STOP_SIGNALS:
@@ -61,7 +62,7 @@ async def _serve_cli(server: LightingServer, host: str, port: int, early: _Early
             server.warm_up()           # signals meanwhile are queued for the loop
             print("occloc serve: ready", file=sys.stderr, flush=True)
 
-        await serve_until(server, host, port, stop, ready)
+        await serve_until(server, host, port, stop, ready, reuse_port)
     finally:
         for sig in STOP_SIGNALS:
             loop.remove_signal_handler(sig)
@@ -97,6 +98,8 @@ def add_arguments(p) -> None:
     p.add_argument("--state", metavar="redis://HOST:PORT/DB",
                    help="keep device state in this Redis, shared with every occloc serve using it "
                         "(any of them serves any device; its HTTP stream relays all positions)")
+    p.add_argument("--reuse-port", action="store_true",
+                   help="bind with SO_REUSEPORT: several occloc serve --state ... on one port of one host")
     p.add_argument("--keys", metavar="FILE",
                    help="device keys, one 'DEVICE HEXKEY' line each: those devices' datagrams must carry "
                         "a valid MAC (occloc run --key-file)")
@@ -214,8 +217,10 @@ def main(args) -> int:
                                 max_devices_per_source=args.max_devices_per_source, keys=keys,
                                 source_rate=args.source_rate, shared=shared)
         service = _Service(server, args, map_path)
+        if args.reuse_port and args.state is None:
+            raise InputError("--reuse-port needs --state redis://...: the servers must share their devices")
         asyncio.run(_serve_cli(server, args.host, args.port, early,
-                               service.start_http if args.http is not None else None))
+                               service.start_http if args.http is not None else None, args.reuse_port))
     finally:
         early.restore()
         if service is not None:

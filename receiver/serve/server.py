@@ -604,9 +604,11 @@ def format_url(address) -> str:
     return f"udp://[{host}]:{port}" if ":" in host else f"udp://{host}:{port}"
 
 
-def bind_udp(host: str, port: int) -> socket.socket:
+def bind_udp(host: str, port: int, reuse_port: bool = False) -> socket.socket:
     """A non-blocking UDP socket bound to host:port (receive buffer `RCVBUF_BYTES`, as far as
-    the system allows). A port in use or a host not on this machine: InputError."""
+    the system allows). `reuse_port`: SO_REUSEPORT, so several server processes (sharing their
+    devices with `--state`) bind the same port and the kernel spreads the sources over them.
+    A port in use or a host not on this machine: InputError."""
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, not {port}")
     try:
@@ -616,6 +618,8 @@ def bind_udp(host: str, port: int) -> socket.socket:
         raise InputError(f"cannot listen on {format_url((host, port))}: {e.strerror or e}") from None
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+        if reuse_port:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
         sock.bind(address)
     except OSError as e:
         sock.close()
@@ -687,12 +691,12 @@ def _handle_batch(server: LightingServer, batch) -> list[bytes | None]:
 
 
 async def serve_until(server: LightingServer, host: str, port: int, stop: asyncio.Event,
-                      on_ready=None) -> None:
+                      on_ready=None, reuse_port: bool = False) -> None:
     """Serve `server` on UDP host:port until `stop` is set. `on_ready(address)` is called with the
     bound (host, port) once listening (datagrams arriving meanwhile wait in the socket's buffer).
     A port in use or a host not on this machine: InputError. The datagrams are served by
     `serve_socket` on a thread of its own; this coroutine only waits for `stop`."""
-    sock = bind_udp(host, port)
+    sock = bind_udp(host, port, reuse_port)
     done = threading.Event()
     worker = None
     try:

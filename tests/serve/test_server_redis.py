@@ -139,3 +139,29 @@ def test_bad_state_urls(capsys):
     assert cli(["serve", "--port", "0", "--state", f"redis://127.0.0.1:{_free_port()}/0"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("occloc: --state redis://") and "\n" not in err
+
+
+def test_two_servers_on_one_port_with_reuse_port(redis_url):
+    """SO_REUSEPORT: the kernel spreads the sources over both processes; every datagram gets
+    its position, and the two summaries add up to what was sent."""
+    walk_map = load_map(str(WALK / "map.json"))
+    port = _free_port()
+    rng = np.random.default_rng(9)
+    args = ("--state", redis_url, "--reuse-port", "--port", str(port))
+    with serve(*args) as (a, udp_a, _), serve(*args) as (b, udp_b, _):
+        assert udp_a == udp_b == f"udp://127.0.0.1:{port}"
+        socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(8)]
+        try:
+            for k, sock in enumerate(socks):
+                sock.bind(("127.0.0.1", 0))
+                sock.settimeout(30)
+                for i in range(3):
+                    frame = scene(walk_map, np.array([3.0 + 0.1 * k, 4.0, 1.0]), rng=rng)
+                    sock.sendto(encode(request(f"dev-{k}", i, i / 30.0, *frame)), ("127.0.0.1", port))
+                    reply = json.loads(sock.recv(65535))
+                    assert reply["device"] == f"dev-{k}" and reply["position"] is not None
+        finally:
+            for sock in socks:
+                sock.close()
+        counts = [int(stop(p).split()[2]) for p in (a, b)]
+    assert sum(counts) == 24
