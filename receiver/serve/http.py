@@ -61,6 +61,8 @@ def metrics_text(server, live=None, store=None) -> str:
            [(f'{{reason="{r}"}}', c[r]) for r in REASONS])
     metric("error_replies_limited_total", "counter", "error replies not sent (rate or size limit)",
            [("", c["error_replies_limited"])])
+    metric("state_errors_total", "counter", "failed round trips to the shared state (--state)",
+           [("", c["state_errors"])])
     metric("devices_new_total", "counter", "devices created", [("", c["new_devices"])])
     metric("devices_forgotten_total", "counter", "devices forgotten", [("", c["forgotten"])])
     metric("devices", "gauge", "devices held by this process", [("", len(server.devices))])

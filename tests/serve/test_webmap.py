@@ -61,7 +61,9 @@ def test_web_map_draws_the_device_at_its_position(tmp_path, capsys):
             assert page.locator("ellipse.ellipse").count() == 1 and page.locator("line.heading").count() == 1
             assert page.locator("line.trail").count() >= 10
             row = page.locator("#list tr")
-            assert row.count() == 1 and f"{last['x']:.2f}" in row.inner_text()
+            page.wait_for_function(f"document.querySelector('#list tr').innerText.includes('{last['x']:.2f}, "
+                                   f"{last['y']:.2f}')", timeout=30_000)
+            assert row.count() == 1
             SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
             page.screenshot(path=str(SCREENSHOT))
         finally:
