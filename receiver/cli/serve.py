@@ -16,7 +16,8 @@ import sys
 
 from receiver.core.errors import InputError
 from receiver.serve.server import (DEFAULT_FORGET_S, DEFAULT_HOST, DEFAULT_MAX_DEVICES,
-                                   DEFAULT_MAX_DEVICES_PER_SOURCE, DEFAULT_PORT, DEFAULT_SOURCE_RATE,
+                                   DEFAULT_MAX_DEVICES_PER_SOURCE, DEFAULT_PORT, DEFAULT_SOURCE_CPU_SHARE,
+                                   DEFAULT_SOURCE_RATE,
                                    LightingServer, format_url, serve_until)
 
 DEFAULT_RETENTION_S = 7 * 24 * 3600.0   # receiver.serve.store's (not imported before the port is bound)
@@ -84,7 +85,10 @@ def add_arguments(p) -> None:
                         f"(default {DEFAULT_MAX_DEVICES_PER_SOURCE})")
     p.add_argument("--source-rate", type=float, default=DEFAULT_SOURCE_RATE, metavar="N",
                    help=f"datagrams per second served to one source address (default {DEFAULT_SOURCE_RATE:g}; "
-                        "more are dropped unread; 0: no limit)")
+                        "more are dropped unread; 0: no per-source limits at all)")
+    p.add_argument("--source-cpu-share", type=float, default=DEFAULT_SOURCE_CPU_SHARE, metavar="F",
+                   help=f"CPU seconds per second one source address's datagrams may take (default "
+                        f"{DEFAULT_SOURCE_CPU_SHARE:g}); beyond it they are dropped unread")
     p.add_argument("--http", metavar="HOST:PORT",
                    help="also serve the HTTP API and live web map there (e.g. 127.0.0.1:8080; port 0 "
                         "picks a free one; docs/server.md)")
@@ -191,6 +195,8 @@ def main(args) -> int:
             raise InputError("--max-devices-per-source must be at least 1")
         if not 0 <= args.source_rate <= 1e7:
             raise InputError("--source-rate must be in 0..1e7")
+        if not 0 < args.source_cpu_share <= 64:
+            raise InputError("--source-cpu-share must be in 0..64 (exclusive of 0)")
         if not 0 < args.retention_days <= 1e5:
             raise InputError("--retention-days must be in 0..1e5 (exclusive of 0)")
         if args.http is not None:
@@ -215,7 +221,8 @@ def main(args) -> int:
             shared = SharedState(args.state, led_map, args.forget_s)
         server = LightingServer(led_map, forget_s=args.forget_s, max_devices=args.max_devices,
                                 max_devices_per_source=args.max_devices_per_source, keys=keys,
-                                source_rate=args.source_rate, shared=shared)
+                                source_rate=args.source_rate, shared=shared,
+                                source_cpu_share=args.source_cpu_share)
         service = _Service(server, args, map_path)
         if args.reuse_port and args.state is None:
             raise InputError("--reuse-port needs --state redis://...: the servers must share their devices")

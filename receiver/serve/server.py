@@ -107,6 +107,11 @@ DEFAULT_MAX_DEVICES_PER_SOURCE = 64
 # Datagrams served per second per source host (a token bucket of twice that many): ten phones at
 # 30 frames/s behind one address; a flood beyond it is dropped before parsing ("rate_limited").
 DEFAULT_SOURCE_RATE = 300.0
+# CPU seconds per second the datagrams of one source host may take (a bucket of a tenth of a
+# second): a flood of expensive datagrams (64 LEDs: ~0.33 ms each; v2 frames with outlines:
+# ~1.6 ms) from a few addresses cannot take the core from the others. 0.15 serves three v2
+# phones or thirty 4-LED v1 ones at 30 frames/s behind one address.
+DEFAULT_SOURCE_CPU_SHARE = 0.15
 # Error replies per second (burst: twice) sent to one host for datagrams not proven by a MAC:
 # a forged source address gets at most this many replies, each no larger than its request.
 ERROR_REPLY_RATE = 5.0
@@ -189,13 +194,16 @@ class LightingServer:
                  max_devices: int = DEFAULT_MAX_DEVICES,
                  max_devices_per_source: int = DEFAULT_MAX_DEVICES_PER_SOURCE, clock=time.monotonic,
                  warm_start: bool = True, keys: dict | None = None, source_rate: float = DEFAULT_SOURCE_RATE,
-                 error_rate: float = ERROR_REPLY_RATE, shared=None):
+                 error_rate: float = ERROR_REPLY_RATE, shared=None,
+                 source_cpu_share: float = DEFAULT_SOURCE_CPU_SHARE):
         self.led_map, self.forget_s, self.max_devices, self.clock = led_map, forget_s, max_devices, clock
         self.warm_start = warm_start
         self.keys = dict(keys or {})
         # keyed device -> its last accepted seq, kept after it is forgotten (no replay, ever)
         self.key_seq: dict[str, int] = {}
+        # source_rate 0: no per-source limits at all (one trusted source, e.g. a load test)
         self.source_limit = SourceBuckets(source_rate, 2 * source_rate)
+        self.cpu_limit = SourceBuckets(source_cpu_share if source_rate else 0.0, 0.1)
         # Observers (the HTTP API's live view, storage, Redis): on_fix(device, t_device, position
         # dict or None, LED ids, seq, keyed) for every accepted datagram's reply, on_forget(device).
         self.on_fix = None
@@ -229,13 +237,16 @@ class LightingServer:
         replies: list[dict | None] = [None] * len(datagrams)
         encoded: dict[int, bytes] = {}
         pending = []
+        cpu0 = time.thread_time()
+        charged = []                                 # (host, bytes) of the datagrams served
         for i, (data, source) in enumerate(datagrams):
             self.counters["datagrams"] += 1
             now = self.clock()
             host = None if source is None else source[0]
-            if not self.source_limit.take(host, now):
+            if not (self.source_limit.take(host, now) and self.cpu_limit.allowed(host, now)):
                 self.counters["rate_limited"] += 1
                 continue
+            charged.append((host, len(data)))
             self._forget_silent(now)
             signed = None
             try:
@@ -264,6 +275,11 @@ class LightingServer:
             pending = later
         if names:
             self._shared_out(names)
+        if self.cpu_limit.rate and charged:
+            # The batch's CPU time, shared out by size (a datagram's work grows with its LEDs).
+            per_byte = (time.thread_time() - cpu0) / max(1, sum(n for _, n in charged))
+            for host, n in charged:
+                self.cpu_limit.charge(host, n * per_byte)
         return replies, encoded
 
     def _shared_in(self, pending) -> list[str]:

@@ -186,3 +186,19 @@ def test_loadgen_counts_only_position_replies_as_served(walk_map):
         report = run_load(bg.address, dg, rate=2000.0, drain_s=30.0)
     assert report["replies"] == 16 and report["lost"] == 24
     assert report["errors"] == {"too_many_devices": 24} and report["no_position"] == 0
+
+
+def test_a_sources_cpu_share_is_bounded(walk_map):
+    """Expensive datagrams (64 LEDs) from one host: once they have taken its CPU budget (a
+    tenth of a second, refilled at --source-cpu-share per second of the server's clock, frozen
+    here) the rest is dropped unread; another host is still served."""
+    from receiver.serve.loadgen import four_led_datagrams
+
+    srv = LightingServer(walk_map, clock=FakeClock(), source_rate=1e6)
+    served = 0
+    for k, (_, _, data) in enumerate(four_led_datagrams(walk_map, 3000, 64, n_leds=64)):
+        served += srv.handle(data, ATTACKER) is not None
+        if srv.counters["rate_limited"] >= 100:
+            break
+    assert srv.counters["rate_limited"] == 100 and 10 <= served < k
+    assert srv.handle(_frame(walk_map, 0), HONEST)["position"] is not None
