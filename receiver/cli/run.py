@@ -51,10 +51,14 @@ def add_arguments(p) -> None:
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--server", metavar="udp://HOST:PORT",
-                   help="solve positions on a lighting server (occloc serve); ranging stays here")
+                   help="solve positions on a lighting server (occloc serve), which gets the frame's "
+                        "decoded LEDs and outlines and gives the local run's positions")
     p.add_argument("--server-timeout", type=seconds_up_to(60.0), default=None, metavar="S",
                    help="longest wait for a server's reply to a frame (default 0.2 s); a frame "
                         "without one has no position and is counted in the summary")
+    p.add_argument("--key-file", metavar="FILE",
+                   help="this device's name and key (one 'DEVICE HEXKEY' line) for a server with "
+                        "device keys: every datagram is signed")
     p.add_argument("--threads", type=_threads, default=DEFAULT_THREADS, metavar="N",
                    help=f"threads for OpenCV, video decoding and numpy's BLAS (default {DEFAULT_THREADS}: "
                         f"the frame budget is stated for one core)")
@@ -78,14 +82,19 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
-def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None):
+def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None,
+                    key_file: str | None = None):
     """receiver.locate.indoor.Positioner when that module is available, else None; with `server`
     (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server
     (waiting `server_timeout_s` for a reply, default the client's)."""
     if server is not None:
         from receiver.serve.client import RemotePositioner
         kw = {} if server_timeout_s is None else {"timeout_s": server_timeout_s}
-        return RemotePositioner(camera, led_map, server, **kw)
+        if key_file is not None:
+            from receiver.serve.auth import load_device_key
+            kw["device"], kw["key"] = load_device_key(key_file)
+        return RemotePositioner(camera, led_map, server, report=lambda line: print(line, file=sys.stderr, flush=True),
+                                **kw)
     try:
         from receiver.locate.indoor import Positioner
     except ImportError:
@@ -269,9 +278,14 @@ def _main(args, stop: "SignalStop") -> int:
     server = getattr(args, "server", None)
     if server is None and getattr(args, "server_timeout", None) is not None:
         raise InputError("--server-timeout needs --server udp://HOST:PORT")
+    if server is None and getattr(args, "key_file", None) is not None:
+        raise InputError("--key-file needs --server udp://HOST:PORT")
     if server is not None:
         from receiver.serve.client import parse_udp_url
         parse_udp_url(server)          # a bad URL is an error before any work
+        if getattr(args, "key_file", None) is not None:
+            from receiver.serve.auth import load_device_key
+            load_device_key(args.key_file)
     if spec != "-" and not spec.startswith("/dev/video") and not os.path.exists(spec):
         raise InputError(f"no such file or folder: {spec}")
     rec = find_recording_files(spec) if spec != "-" and os.path.isdir(spec) else {}
@@ -306,7 +320,8 @@ def _main(args, stop: "SignalStop") -> int:
                   f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
         # Without --server the two-argument call of older make_positioner replacements (tests).
         positioner = (make_positioner(cam, led_map, server=server,
-                                      server_timeout_s=getattr(args, "server_timeout", None)) if server
+                                      server_timeout_s=getattr(args, "server_timeout", None),
+                                      key_file=getattr(args, "key_file", None)) if server
                       else make_positioner(cam, led_map))
         vehicle = make_vehicle_locator(cam, led_map)
         speed = None

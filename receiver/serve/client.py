@@ -19,7 +19,10 @@ At most `receiver.serve.wire.MAX_LEDS` LEDs (the first, in track order) are sent
 
 Every wait is bounded: a frame whose reply does not come within `timeout_s` (or whose port is
 closed) has no position and is counted in `timeouts`; error replies are counted in `errors`
-(`last_error` keeps the reason); replies to older frames are discarded.
+(`last_error` keeps the reason); replies to older frames are discarded. With `report` (a
+function of one line) a silent or refusing server and LED IDs the server's map lacks are told
+while the run goes on: the first time of each kind, then at most every REPORT_EVERY_S seconds.
+With `key` (bytes) every datagram carries a MAC (`receiver.serve.auth`).
 
 A reply is checked as strictly as the server checks a request (`check_reply`): wrong types,
 NaN / infinite or out-of-range numbers in `position`, or a `solve_R_cw` / `R_wc` that is not a
@@ -42,7 +45,9 @@ import numpy as np
 from receiver.core.errors import InputError
 from receiver.locate.indoor import Positioner
 from receiver.core.records import LocateResult
+from receiver.locate.ranging import _with_range
 from receiver.serve.wire import MAX_DEVICE_CHARS, MAX_LEDS, PROTOCOL_VERSION, encode, make_request
+from receiver.serve.wire_v2 import MAX_DATAGRAM_BYTES_V2, VERSION as V2, camera_fields, make_request_v2, sendable
 
 DEFAULT_TIMEOUT_S = 0.2
 MAX_REPLY_BYTES = 65535
@@ -53,6 +58,9 @@ ROTATION_TOL = 1e-5
 # The local Positioner's options the client may set: ranging and image points only.
 CLIENT_OPTIONS = frozenset({"ranging", "pixel_sigma_px", "edge_sigma_px", "model_rel_sigma",
                             "edge_offset_px", "border_margin_px"})
+# A server that keeps failing is reported on stderr at most this often (s, wall clock) while the
+# run goes on; the first failure of each kind is reported at once.
+REPORT_EVERY_S = 5.0
 
 
 def parse_udp_url(url: str) -> tuple[str, int]:
@@ -96,7 +104,7 @@ def _reply_object(data: bytes) -> dict | None:
         obj = json.loads(data)
     except (ValueError, RecursionError):
         return None
-    return obj if isinstance(obj, dict) and obj.get("v") == PROTOCOL_VERSION else None
+    return obj if isinstance(obj, dict) and obj.get("v") in (PROTOCOL_VERSION, V2) else None
 
 
 class BadReply(ValueError):
@@ -174,10 +182,19 @@ class RemotePositioner:
     the local `Positioner` from `CLIENT_OPTIONS`. Close with `close()` or a `with` block."""
 
     def __init__(self, camera, led_map, url: str, *, device: str | None = None,
-                 timeout_s: float = DEFAULT_TIMEOUT_S, **ranging_kw):
+                 timeout_s: float = DEFAULT_TIMEOUT_S, protocol: int = V2, key: bytes | None = None,
+                 report=None, **ranging_kw):
         extra = set(ranging_kw) - CLIENT_OPTIONS
         if extra:
             raise TypeError(f"options not supported with a lighting server: {sorted(extra)}")
+        if protocol not in (PROTOCOL_VERSION, V2):
+            raise ValueError(f"protocol must be {PROTOCOL_VERSION} or {V2}")
+        if protocol == V2 and ranging_kw:
+            raise TypeError("with protocol 2 the server ranges with its default settings: no ranging options")
+        self.protocol, self.key, self.report = protocol, key, report
+        self._camera = camera_fields(camera)
+        self._reported: dict = {}     # kind -> wall time of its last report
+        self.edges_trimmed = 0        # frames sent with some LEDs' edge points left out (size)
         self.device = device if device is not None else default_device()
         if not 1 <= len(self.device) <= MAX_DEVICE_CHARS:
             raise ValueError(f"device names have 1..{MAX_DEVICE_CHARS} characters")
@@ -186,7 +203,9 @@ class RemotePositioner:
         self.local = Positioner(camera, led_map, **ranging_kw)
         self.url, self.timeout_s = url, timeout_s
         self.sock = _connect(url)
-        self.seq = 0                    # of the next request
+        # of the next request; a keyed device (whose last seq the server keeps for good) starts
+        # at the wall clock's milliseconds, above every seq of its earlier runs
+        self.seq = 0 if key is None else time.time_ns() // 1_000_000
         self.timeouts = 0
         self.errors = 0
         self.last_error: str | None = None
@@ -203,6 +222,8 @@ class RemotePositioner:
         return self._n_fixes
 
     def step(self, t_s: float, leds) -> LocateResult:
+        if self.protocol == V2:
+            return self._step_v2(t_s, leds)
         ranger = self.local.ranger
         items = ranger.usable(leds)[:MAX_LEDS]
         # the server's replied orientations, kept by the rule of a local receiver (R_prior)
@@ -218,6 +239,61 @@ class RemotePositioner:
                 d, sd, names = ranger.ranges(items, R)    # this frame's own orientation
         return LocateResult(position=position, leds=ranger.annotate(leds, items, d, names))
 
+    def _request_v2(self, t_s: float, sent) -> bytes:
+        """The frame's v2 datagram; when it would not fit in one UDP datagram, the edge points
+        of the LEDs with the most of them are left out (those LEDs are then solved on their
+        centroids only) and the frame is counted in `edges_trimmed`."""
+        with_edges = [o.edge_px is not None for o in sent]
+        order = sorted(range(len(sent)), key=lambda k: -len(sent[k].edge_px[0]) if with_edges[k] else 0)
+        for drop in range(len(order) + 1):
+            for k in order[:drop]:
+                with_edges[k] = False
+            data = self._sign(encode(make_request_v2(self.device, self.seq, t_s, self._camera, sent, with_edges)))
+            if len(data) <= MAX_DATAGRAM_BYTES_V2:
+                self.edges_trimmed += drop > 0
+                return data
+        raise ValueError("a frame's observations do not fit in one datagram")
+
+    def _sign(self, body: bytes) -> bytes:
+        if self.key is None:
+            return body
+        from receiver.serve.auth import sign
+        return sign(self.key, self.device, self.seq, body)
+
+    def _step_v2(self, t_s: float, leds) -> LocateResult:
+        sent = sendable(leds)
+        data = self._request_v2(t_s, sent)
+        seq = self.seq
+        self.seq += 1
+        reply = self._exchange_bytes(data, seq)
+        if reply is None:
+            return LocateResult(position=None, leds=list(leds))
+        position, _ = self._accept(reply, t_s)
+        ranges = reply.get("ranges")
+        ranged = {}
+        if isinstance(ranges, list) and len(ranges) == len(sent):
+            for o, r in zip(sent, ranges):
+                if (isinstance(r, list) and len(r) == 2 and _is_number(r[0]) and r[0] > 0
+                        and isinstance(r[1], str)):
+                    ranged[id(o)] = (r[0], r[1])
+        elif position is not None:
+            self.errors += 1
+            self.last_error = "bad_reply: ranges must hold one entry per LED sent"
+        out = [o if id(o) not in ranged else _with_range(o, *ranged[id(o)]) for o in leds]
+        return LocateResult(position=position, leds=out)
+
+    def _note(self, kind: str, text: str) -> None:
+        """Tell the user about a failing server while the run goes on: the first time of each
+        kind, then at most every REPORT_EVERY_S seconds."""
+        if self.report is None:
+            return
+        now = time.monotonic()
+        last = self._reported.get(kind)
+        if last is not None and now - last < REPORT_EVERY_S:
+            return
+        self._reported[kind] = now
+        self.report(f"occloc: server {self.url}: {text}")
+
     def _accept(self, reply: dict, t_s: float) -> tuple[dict | None, np.ndarray | None]:
         """(position, solving-frame R_cw or None) of a matching reply, checked (`check_reply`);
         keeps its orientation. A malformed reply counts as a server error and gives nothing."""
@@ -227,7 +303,10 @@ class RemotePositioner:
             self.errors += 1
             self.last_error = f"bad_reply: {e}"
             return None, None
-        self.local.unknown_ids.update(reply.get("unknown_ids", []))
+        new = set(reply.get("unknown_ids", [])) - self.local.unknown_ids
+        if new:
+            self.local.unknown_ids.update(new)
+            self._note("unknown_ids", f"LED IDs not in the server's map: {', '.join(map(str, sorted(new)))}")
         if position is not None and position.get("raw") is not None:
             self._n_fixes += 1
         if R is not None:
@@ -236,12 +315,20 @@ class RemotePositioner:
 
     def _exchange(self, request: dict) -> dict | None:
         """Send one request; its reply, or None after `timeout_s` or an error reply."""
-        seq = request["seq"]
+        return self._exchange_bytes(self._sign(encode(request)), request["seq"])
+
+    def _timed_out(self) -> None:
+        self.timeouts += 1
+        self._note("timeout", f"no reply within {self.timeout_s:g} s ({self.timeouts} frames so far); "
+                              "going on without positions for them")
+
+    def _exchange_bytes(self, data: bytes, seq: int) -> dict | None:
+        """Send one datagram; the reply to `seq`, or None after `timeout_s` or an error reply."""
         deadline = time.monotonic() + self.timeout_s
         try:
-            self.sock.send(encode(request))
+            self.sock.send(data)
         except OSError:
-            self.timeouts += 1          # e.g. the refusal of an earlier datagram, reported late
+            self._timed_out()           # e.g. the refusal of an earlier datagram, reported late
             return None
         while (remaining := deadline - time.monotonic()) > 0:
             self.sock.settimeout(remaining)
@@ -254,9 +341,11 @@ class RemotePositioner:
             if "error" in reply:
                 self.errors += 1
                 self.last_error = str(reply["error"])
+                self._note("error:" + self.last_error, f"refused a frame: {self.last_error} "
+                                                       f"({self.errors} so far)")
                 return None
             return reply
-        self.timeouts += 1
+        self._timed_out()
         return None
 
     def close(self) -> None:

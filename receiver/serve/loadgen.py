@@ -40,8 +40,10 @@ SIGMA_M = 0.002
 WARMUP_WAIT_S = 5.0
 
 
-def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0) -> list[tuple[str, int, bytes]]:
-    """n encoded 4-LED requests, round robin over `devices` devices: (device, seq, datagram)."""
+def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0, n_leds: int = 4,
+                       prefix: str = "load-") -> list[tuple[str, int, bytes]]:
+    """n encoded requests of `n_leds` LEDs each (4: a 2 x 2 block of panels; more: the nearest
+    ones), round robin over `devices` devices named `prefix` + index: (device, seq, datagram)."""
     from receiver.locate.pose import ypr_to_rotation
     rng = np.random.default_rng(seed)
     leds = list(led_map.leds.values())
@@ -52,28 +54,47 @@ def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0) -> list[tup
         dev, seq = k % devices, k // devices
         C = np.array([xyz[:, 0].mean() + 0.3 * np.sin(0.01 * seq + dev),
                       xyz[:, 1].mean() + 0.3 * np.cos(0.01 * seq + dev), 1.0])
-        cols = [sorted(set(xyz[:, a]), key=lambda c: abs(c - C[a]))[:2] for a in (0, 1)]
-        near = np.flatnonzero(np.isin(xyz[:, 0], cols[0]) & np.isin(xyz[:, 1], cols[1]))[:4]
+        if n_leds == 4:
+            cols = [sorted(set(xyz[:, a]), key=lambda c: abs(c - C[a]))[:2] for a in (0, 1)]
+            near = np.flatnonzero(np.isin(xyz[:, 0], cols[0]) & np.isin(xyz[:, 1], cols[1]))[:4]
+        else:
+            near = np.argsort(np.linalg.norm(xyz[:, :2] - C[:2], axis=1))[:n_leds]
         L = xyz[near]
         Xc = (L - C) @ R.T
         uv = Xc[:, :2] / Xc[:, 2:] + rng.normal(0, 1e-4, (len(L), 2))
         d = np.linalg.norm(L - C, axis=1) + rng.normal(0, 1e-3, len(L))
-        name = f"load-{dev}"
+        name = f"{prefix}{dev}"
         req = make_request(name, seq, seq / 30.0, SIGMA_UV, [leds[i].id for i in near], uv, d,
                            np.full(len(L), SIGMA_M))
         out.append((name, seq, encode(req)))
     return out
 
 
-def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 1.0) -> dict:
-    """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second, then wait up to
-    `drain_s` for the replies still missing; the report."""
+def open_socket(address: tuple[str, int], source: str | None = None) -> socket.socket:
+    """A UDP socket connected to `address` (bound to `source` when given). One socket per
+    generator: the server binds an unkeyed device's name to its first (host, port)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    if source is not None:
+        sock.bind((source, 0))
     sock.connect(address)
+    return sock
+
+
+def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 1.0,
+             source: str | None = None, sock: socket.socket | None = None) -> dict:
+    """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second (from the
+    address `source`, default any), then wait up to `drain_s` for the replies still missing; the
+    report. Only replies with a position count as served (`replies`, the latencies); error
+    replies are counted by reason (`errors`), replies without a position in `no_position`, and
+    `lost` is every datagram without a position reply. `sock`: the socket to use (`open_socket`;
+    closed at the end), else one of its own."""
+    sock = open_socket(address, source) if sock is None else sock
     sock.settimeout(0.05)
     sent_at: dict[tuple[str, int], float] = {}
     lat: list[float] = []
+    errors: dict[str, int] = {}
+    no_position = [0]
     done = threading.Event()
     last_reply = [0.0]
 
@@ -88,7 +109,17 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             except OSError:
                 return
             now = time.monotonic()
-            rep = json.loads(data)
+            try:
+                rep = json.loads(data)
+            except ValueError:
+                errors["unreadable"] = errors.get("unreadable", 0) + 1
+                continue
+            if "error" in rep:
+                errors[str(rep["error"])] = errors.get(str(rep["error"]), 0) + 1
+                continue
+            if rep.get("position") is None:
+                no_position[0] += 1
+                continue
             t0 = sent_at.get((rep.get("device"), rep.get("seq")))
             if t0 is not None:
                 lat.append(now - t0)
@@ -107,7 +138,7 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
         time.sleep(0.0005)
     send_s = time.monotonic() - start
     drain_end = time.monotonic() + drain_s      # wait for the last replies, at most drain_s
-    while len(lat) < len(datagrams) and time.monotonic() < drain_end:
+    while len(lat) + no_position[0] + sum(errors.values()) < len(datagrams) and time.monotonic() < drain_end:
         time.sleep(0.01)
     done.set()
     rx.join(5.0)
@@ -118,18 +149,20 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             "lost": len(datagrams) - len(lat), "replies_per_s": round(len(lat) / span, 1) if len(lat) else 0.0,
             "p50_ms": round(float(np.percentile(ms, 50)), 3) if len(ms) else None,
             "p99_ms": round(float(np.percentile(ms, 99)), 3) if len(ms) else None,
-            "max_ms": round(float(ms.max()), 3) if len(ms) else None}
+            "max_ms": round(float(ms.max()), 3) if len(ms) else None,
+            "errors": errors, "no_position": no_position[0]}
 
 
-def warm_up(address: tuple[str, int], datagrams) -> int:
+def warm_up(address: tuple[str, int], datagrams, sock: socket.socket | None = None) -> int:
     """Send `datagrams` ((device, seq, bytes)) one at a time, each after the previous one's reply
     (at most WARMUP_WAIT_S each); the replies received. Before a timed load, the devices' first
     datagrams: a device's first datagram is solved from scratch (PnP, and both handednesses of a
     map that does not declare it: ~1.6 ms of CPU against ~0.1 ms warm), so 50 devices starting
     together put ~80 ms of backlog in front of the first timed replies."""
     got = 0
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.connect(address)
+    own = sock is None
+    sock = open_socket(address) if own else sock
+    try:
         sock.settimeout(WARMUP_WAIT_S)
         for _, _, data in datagrams:
             sock.send(data)
@@ -138,6 +171,9 @@ def warm_up(address: tuple[str, int], datagrams) -> int:
                 got += 1
             except socket.timeout:
                 pass
+    finally:
+        if own:
+            sock.close()
     return got
 
 
@@ -151,8 +187,13 @@ def process_cpu_s(pid: int) -> float | None:
         return None
 
 
-def start_server(args=()) -> tuple[subprocess.Popen, tuple[str, int]]:
-    """`occloc serve --port 0` as a subprocess, once ready: (process, (host, port))."""
+# The server started here serves one source address at any rate (the load comes from one
+# socket; the per-source limit is for the flood figure: `--flood-rate`).
+SERVER_ARGS = ("--source-rate", "0")
+
+
+def start_server(args=SERVER_ARGS) -> tuple[subprocess.Popen, tuple[str, int]]:
+    """`occloc serve --port 0 ARGS` as a subprocess, once ready: (process, (host, port))."""
     proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "serve", "--port", "0", *args], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
@@ -178,7 +219,16 @@ def main(argv=None) -> int:
     p.add_argument("--no-warmup", dest="warmup", action="store_false",
                    help="time each device's first datagram too (default: sent before the timed load, "
                         "one at a time, not counted: run_load)")
+    p.add_argument("--flood-rate", type=float, default=0.0,
+                   help="the honest-device figure: valid datagrams per second from --flood-sources other "
+                        "addresses (127.0.0.2 ...) while --rate / --devices measure the honest ones; the "
+                        "server started here then keeps its default per-source rate limit")
+    p.add_argument("--flood-total", type=int, default=50000, help="flood datagrams in all (50000)")
+    p.add_argument("--flood-sources", type=int, default=4, help="flood source addresses (4)")
+    p.add_argument("--flood-leds", type=int, default=64, help="LEDs per flood datagram (64)")
     a = p.parse_args(argv)
+    if a.flood_rate:
+        return flood_main(a)
     if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0 or a.runs <= 0:
         print("loadgen: --rate, --seconds, --devices and --runs must be positive", file=sys.stderr)
         return 2
@@ -204,10 +254,11 @@ def one_run(address, datagrams, rate: float, warmup=()) -> dict:
     if not address:
         proc, address = start_server()
     try:
-        warmed = warm_up(address, warmup)
+        sock = open_socket(address)
+        warmed = warm_up(address, warmup, sock)
         load0 = os.getloadavg()[0]
         cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        report = run_load(address, datagrams, rate)
+        report = run_load(address, datagrams, rate, sock=sock)
         report.update(warmup=len(warmup), warmup_replies=warmed)
         cpu1 = None if proc is None else process_cpu_s(proc.pid)
         if cpu0 is not None and cpu1 is not None and report["replies"]:
@@ -221,6 +272,55 @@ def one_run(address, datagrams, rate: float, warmup=()) -> dict:
             try:
                 proc.wait(10)
             except subprocess.TimeoutExpired:     # still working through a backlog
+                proc.kill()
+                proc.wait(10)
+
+
+def flood_main(a) -> int:
+    """An honest device's reply latency while other sources flood the server with valid
+    datagrams: the flood's own report and the honest device's, as one JSON line."""
+    from receiver.io.ledmap import load_map
+    from receiver.serve.client import parse_udp_url
+
+    led_map = load_map(a.map)
+    if a.url:
+        proc, address = None, parse_udp_url(a.url)
+    else:
+        proc, address = start_server(())        # the default per-source limits
+    try:
+        per_source = a.flood_total // a.flood_sources
+        floods = [four_led_datagrams(led_map, per_source, 64, seed=1 + k, n_leds=a.flood_leds,
+                                     prefix=f"flood{k}-") for k in range(a.flood_sources)]
+        n_honest = max(1, int(a.rate * a.flood_total / a.flood_rate))
+        honest = four_led_datagrams(led_map, n_honest + a.devices, a.devices, prefix="honest-")
+        honest_sock = open_socket(address)
+        warm_up(address, honest[:a.devices], honest_sock)
+        results: dict = {}
+        cpu0 = None if proc is None else process_cpu_s(proc.pid)
+        threads = [threading.Thread(target=lambda k=k: results.__setitem__(
+            k, run_load(address, floods[k], a.flood_rate / a.flood_sources, source=f"127.0.0.{2 + k}")))
+            for k in range(a.flood_sources)]
+        for t in threads:
+            t.start()
+        results["honest"] = run_load(address, honest[a.devices:], a.rate, sock=honest_sock)
+        for t in threads:
+            t.join()
+        cpu1 = None if proc is None else process_cpu_s(proc.pid)
+        flood = [results[k] for k in range(a.flood_sources)]
+        report = {"honest": results["honest"],
+                  "flood": {"sent": sum(r["sent"] for r in flood), "position_replies": sum(r["replies"] for r in flood),
+                            "error_replies": sum(sum(r["errors"].values()) for r in flood),
+                            "send_s": max(r["send_s"] for r in flood)},
+                  "server_cpu_s": None if cpu0 is None or cpu1 is None else round(cpu1 - cpu0, 2),
+                  "loadavg_after": round(os.getloadavg()[0], 2), "cpus": os.cpu_count()}
+        print(json.dumps(report))
+        return 0
+    finally:
+        if proc is not None:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(10)
 

@@ -9,6 +9,10 @@ multilateration / range + angle) and runs the Kalman filter (4.3.2), and replies
 position. A device silent for `forget_s` seconds is forgotten (4.4, "suspended signal
 propagation": the server stops serving a device it no longer hears).
 
+Datagram format v2 (`receiver.serve.wire_v2`, what `occloc run --server` sends): the frame's
+observations with their outlines; the server steps a `receiver.locate.indoor.Positioner` per
+device, so the positions are the local run's. v1 stays accepted:
+
 Datagram format v1 (one UTF-8 JSON object per UDP datagram, at most `MAX_DATAGRAM_BYTES`):
 
 Request (device -> server), one per frame, also for frames without LEDs (the filter coasts):
@@ -61,7 +65,7 @@ any datagram arrives (a device is forgotten when silent for more than `forget_s`
 datagram does not count as hearing from it, so a device that restarts its seq at 0 under the same
 name is heard again after `forget_s`).
 
-Layers: `parse_request` (bytes -> `Request`, raising `ProtocolError`) and `LightingServer.handle`
+Layers: `wire_v2.parse_any` (bytes -> `Request` or `RequestV2`, raising `ProtocolError`) and `LightingServer.handle`
 (bytes -> reply dict or None; `handle_many` for datagrams received together, whose fixes are
 solved in one batch) are plain code, tested without sockets; `serve_socket` serves them on a UDP
 socket in a plain loop (every datagram already queued is handled in the same batch), and
@@ -72,6 +76,7 @@ socket in a plain loop (every datagram already queued is handled in the same bat
 from __future__ import annotations
 
 import asyncio
+import json
 import select
 import socket
 import threading
@@ -85,8 +90,10 @@ import numpy as np
 
 from receiver.core import native
 from receiver.core.errors import InputError
-from receiver.serve.wire import (PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode,
-                                 parse_request)
+from receiver.serve.wire import PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode
+from receiver.serve.auth import PREFIX as MAC_PREFIX, verify
+from receiver.serve.limits import SourceBuckets
+from receiver.serve.wire_v2 import VERSION as V2, RequestV2, parse_any, ranges_of
 
 if TYPE_CHECKING:  # the solver is imported once the socket is bound (start-up latency)
     from receiver.locate.posefilter import PoseFilter
@@ -97,6 +104,20 @@ DEFAULT_FORGET_S = 5.0
 DEFAULT_MAX_DEVICES = 10000
 # Devices one source address (IP, any port) may hold at once, so one client cannot fill the table.
 DEFAULT_MAX_DEVICES_PER_SOURCE = 64
+# Datagrams served per second per source host (a token bucket of twice that many): ten phones at
+# 30 frames/s behind one address; a flood beyond it is dropped before parsing ("rate_limited").
+DEFAULT_SOURCE_RATE = 300.0
+# CPU seconds per second the datagrams of one source host may take (a bucket of a tenth of a
+# second): a flood of expensive datagrams (64 LEDs: ~0.33 ms each; v2 frames with outlines:
+# ~1.6 ms) from a few addresses cannot take the core from the others. 0.15 serves three v2
+# phones or thirty 4-LED v1 ones at 30 frames/s behind one address.
+DEFAULT_SOURCE_CPU_SHARE = 0.15
+# Error replies per second (burst: twice) sent to one host for datagrams not proven by a MAC:
+# a forged source address gets at most this many replies, each no larger than its request.
+ERROR_REPLY_RATE = 5.0
+# How far ahead of a live device's last accepted seq a datagram may jump (a missing stretch of
+# 2^20 frames is 9.7 hours at 30 frames/s); beyond it the datagram is refused ("seq_jump").
+SEQ_WINDOW = 1 << 20
 # Socket loop (`serve_socket`): datagrams handled together at most (the ones already queued when
 # the loop looks: it never waits for a batch to fill), the stop flag's polling interval (s), the
 # receive buffer asked for (bytes: a burst of ~10,000 four-LED datagrams) and the largest datagram
@@ -137,10 +158,13 @@ def _pose_filter_class():
 
 @dataclass
 class _Device:
-    pose: PoseFilter
+    pose: PoseFilter | None  # the v1 datagrams' filter (made at the device's first v1 datagram)
     seq: int
     seen: float           # server monotonic time of the last accepted datagram, s
     source: object = None  # the source address (host) that created it, None without a socket
+    loc: object = None    # the v2 datagrams' receiver.locate.indoor.Positioner, or None
+    bound: object = None  # the (host, port) an unkeyed device's name is bound to until forgotten
+    camera_key: tuple | None = None  # the camera `loc` was made for
 
 
 def _str_or_none(v):
@@ -169,9 +193,24 @@ class LightingServer:
     def __init__(self, led_map, *, forget_s: float = DEFAULT_FORGET_S,
                  max_devices: int = DEFAULT_MAX_DEVICES,
                  max_devices_per_source: int = DEFAULT_MAX_DEVICES_PER_SOURCE, clock=time.monotonic,
-                 warm_start: bool = True):
+                 warm_start: bool = True, keys: dict | None = None, source_rate: float = DEFAULT_SOURCE_RATE,
+                 error_rate: float = ERROR_REPLY_RATE, shared=None,
+                 source_cpu_share: float = DEFAULT_SOURCE_CPU_SHARE):
         self.led_map, self.forget_s, self.max_devices, self.clock = led_map, forget_s, max_devices, clock
         self.warm_start = warm_start
+        self.keys = dict(keys or {})
+        # keyed device -> its last accepted seq, kept after it is forgotten (no replay, ever)
+        self.key_seq: dict[str, int] = {}
+        # source_rate 0: no per-source limits at all (one trusted source, e.g. a load test)
+        self.source_limit = SourceBuckets(source_rate, 2 * source_rate)
+        self.cpu_limit = SourceBuckets(source_cpu_share if source_rate else 0.0, 0.1)
+        # Observers (the HTTP API's live view, storage, Redis): on_fix(device, t_device, position
+        # dict or None, LED ids, seq, keyed) for every accepted datagram's reply, on_forget(device).
+        self.on_fix = None
+        self.on_forget = None
+        # receiver.serve.shared.SharedState: device state in Redis, shared with other servers
+        self.shared = shared
+        self.error_limit = SourceBuckets(error_rate, 2 * error_rate)
         self.max_devices_per_source = max_devices_per_source
         self.devices: OrderedDict[str, _Device] = OrderedDict()   # least recently heard first
         self.per_source: Counter = Counter()                      # source host -> devices held
@@ -198,16 +237,35 @@ class LightingServer:
         replies: list[dict | None] = [None] * len(datagrams)
         encoded: dict[int, bytes] = {}
         pending = []
+        cpu0 = time.thread_time()
+        charged = []                                 # (host, bytes) of the datagrams served
         for i, (data, source) in enumerate(datagrams):
             self.counters["datagrams"] += 1
             now = self.clock()
-            self._forget_silent(now)
-            try:
-                req = parse_request(data, self._wire_kernel())
-            except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
-                replies[i] = self._failed(e, None)
+            host = None if source is None else source[0]
+            if not (self.source_limit.take(host, now) and self.cpu_limit.allowed(host, now)):
+                self.counters["rate_limited"] += 1
                 continue
-            pending.append((i, req, now, None if source is None else source[0]))
+            charged.append((host, len(data)))
+            self._forget_silent(now)
+            signed = None
+            try:
+                if data[:len(MAC_PREFIX)] == MAC_PREFIX:
+                    signed = verify(data, self.keys)
+                    data = signed[2]
+                req = parse_any(data, self._wire_kernel())
+                if signed is not None and (req.device, req.seq) != signed[:2]:
+                    raise ProtocolError("bad_mac", "the header's device or seq is not the request's",
+                                        req.device, req.seq)
+                if signed is None and req.device in self.keys:
+                    raise ProtocolError("bad_mac", "this device's datagrams need its MAC", req.device, req.seq)
+            except Exception as e:   # noqa: BLE001 -- ProtocolError, or a parser bug: never stop the server
+                replies[i] = self._unproven(self._failed(e, None), len(data), source, now)
+                continue
+            # nbytes: the request's size for an unproven one's error reply (`_unproven`), 0 when
+            # its MAC proved it (then error replies are not limited)
+            pending.append((i, req, now, source, 0 if signed is not None else len(datagrams[i][0])))
+        names = self._shared_in(pending) if self.shared is not None and pending else None
         while pending:                               # rounds with one datagram per device
             seen, this, later = set(), [], []
             for item in pending:
@@ -215,7 +273,70 @@ class LightingServer:
                 seen.add(item[1].device)
             self._locate_round(this, replies, encoded, as_bytes)
             pending = later
+        if names:
+            self._shared_out(names)
+        if self.cpu_limit.rate and charged:
+            # The batch's CPU time, shared out by size (a datagram's work grows with its LEDs).
+            per_byte = (time.thread_time() - cpu0) / max(1, sum(n for _, n in charged))
+            for host, n in charged:
+                self.cpu_limit.charge(host, n * per_byte)
         return replies, encoded
+
+    def _shared_in(self, pending) -> list[str]:
+        """The batch's devices as the shared state has them (`receiver.serve.shared`): a device
+        another server served meanwhile is taken over, one expired there is forgotten here."""
+        names = list(dict.fromkeys(item[1].device for item in pending))
+        try:
+            devs, seqs = self.shared.load(names)
+        except Exception:   # noqa: BLE001 -- Redis away: serve from the local state, counted
+            self.counters["state_errors"] += 1
+            return names
+        now = self.clock()
+        for name in names:
+            dev, seq = devs[name], seqs[name]
+            if seq is not None and seq > self.key_seq.get(name, -1):
+                self.key_seq[name] = seq
+            if dev is None:
+                if name in self.devices:
+                    self._drop(name, shared=False)
+                    self.counters["forgotten"] += 1
+                continue
+            if name in self.devices:
+                self._drop(name, shared=False, tell=False)
+            dev.seen = now
+            self.devices[name] = dev
+            if dev.source is not None:
+                self.per_source[dev.source] += 1
+        return names
+
+    def _shared_out(self, names) -> None:
+        try:
+            self.shared.save({n: self.devices[n] for n in names if n in self.devices},
+                             {n: self.key_seq[n] for n in names if n in self.key_seq})
+        except Exception:   # noqa: BLE001 -- counted; the next batch tries again
+            self.counters["state_errors"] += 1
+
+    def _refused(self, e: Exception, req, nbytes: int, source, now: float) -> dict | None:
+        """`_failed`'s reply, limited (`_unproven`) unless a MAC proved the request (nbytes 0)."""
+        reply = self._failed(e, req)
+        return reply if nbytes == 0 else self._unproven(reply, nbytes, source, now)
+
+    def _unproven(self, reply: dict | None, request_bytes: int, source, now: float) -> dict | None:
+        """An error reply to a datagram no MAC proves, as the socket may send it: at most
+        `error_rate` a second to one host, and never larger than the request (without its detail,
+        device and seq if need be; else none). Without a source (in-process use) unchanged."""
+        if reply is None or source is None:
+            return reply
+        if not self.error_limit.take(source[0], now):
+            self.counters["error_replies_limited"] += 1
+            return None
+        if len(encode(reply)) <= request_bytes:
+            return reply
+        short = {"v": reply["v"], "error": reply["error"]}
+        if len(encode(short)) <= request_bytes:
+            return short
+        self.counters["error_replies_limited"] += 1
+        return None
 
     def _failed(self, e: Exception, req: Request | None) -> dict | None:
         """The reply to a request that raised e (None for `old_seq`), counted; a failure other
@@ -239,9 +360,12 @@ class LightingServer:
         (`PoseFilter.update`) of requests of distinct devices, as
         `receiver.locate.indoor.Positioner.step` does them for a local receiver."""
         jobs = []                                    # (i, req, pose filter, leds, used, solve args)
-        for i, req, now, host in items:
+        for i, req, now, source, nbytes in items:
+            if isinstance(req, RequestV2):
+                self._locate_v2(i, req, now, source, nbytes, replies, encoded)
+                continue
             try:
-                pf = self._device(req, now, host).pose
+                pf = self._v1_filter(self._device(req, now, source, nbytes == 0), req)
                 pf.sigma_uv = req.sigma_uv
                 leds = [self.led_map.lookup(led_id) for led_id in req.ids]
                 used = [k for k, led in enumerate(leds) if led is not None]
@@ -252,7 +376,7 @@ class LightingServer:
                     args = (pf, req.t, L, req.uv[sel], req.d[sel], req.sigma_d[sel], pf.R_prior(req.t))
                 jobs.append((i, req, pf, leds, used, args))
             except Exception as e:   # noqa: BLE001
-                replies[i] = self._failed(e, req)
+                replies[i] = self._refused(e, req, nbytes, source, now)
         fixes = self._solve([job[5] for job in jobs])
         for (i, req, pf, leds, used, _), fix in zip(jobs, fixes):
             try:
@@ -262,6 +386,40 @@ class LightingServer:
                 self.counters["replies"] += 1
             except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
                 replies[i] = self._failed(e, req)
+
+    def _v1_filter(self, dev: _Device, req: Request):
+        if dev.pose is None:
+            dev.pose = self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
+                                         warm_start=self.warm_start)
+        return dev.pose
+
+    def _locate_v2(self, i: int, req: RequestV2, now: float, source, nbytes: int, replies: list,
+                   encoded: dict) -> None:
+        """A v2 request: the device's own `receiver.locate.indoor.Positioner` (made for its
+        camera, with its default settings, as `occloc run` makes it) steps on the frame's
+        observations, exactly as on the device."""
+        try:
+            dev = self._device(req, now, source, nbytes == 0)
+            if dev.loc is None or dev.camera_key != req.camera_key:
+                from receiver.locate.indoor import Positioner
+
+                dev.loc, dev.camera_key = Positioner(req.camera, self.led_map), req.camera_key
+            res = dev.loc.step(req.t, req.leds)
+            known = [o for o in req.leds if self.led_map.lookup(o.id) is not None]
+            reply = {"v": V2, "device": req.device, "seq": req.seq, "position": res.position,
+                     "unknown_ids": sorted({o.id for o in req.leds} - {o.id for o in known}),
+                     "n_used": sum(1 for o in known if not o.border),
+                     "ranges": ranges_of(res.leds, req.leds)}
+            try:
+                data = encode(reply)
+            except ValueError:
+                raise FloatingPointError("non-finite result") from None
+            self.counters["positions"] += res.position is not None
+            self.counters["replies"] += 1
+            self._tell(req, res.position)
+            replies[i], encoded[i] = reply, data
+        except Exception as e:   # noqa: BLE001 -- a solver failure must not stop the server
+            replies[i] = self._refused(e, req, nbytes, source, now)
 
     def _wire_kernel(self):
         """The compiled request check (`receiver.serve._wire`) or None, looked up once per server."""
@@ -318,7 +476,22 @@ class LightingServer:
             # The solver or filter overflowed: never reply with (or keep) a NaN state.
             raise FloatingPointError("non-finite result") from None
         self.counters["positions"] += position is not None
+        self._tell(req, position)
         return reply, data
+
+    def _tell(self, req, position) -> None:
+        """Hand an accepted datagram's position (dict, JSON bytes or None) to `on_fix`."""
+        if self.on_fix is not None:
+            if isinstance(position, bytes):
+                position = json.loads(position)
+            ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
+            self.on_fix(req.device, req.t, position, ids, req.seq, req.device in self.keys)
+        if self.shared is not None:
+            if isinstance(position, bytes):
+                position = json.loads(position)
+            ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
+            self.shared.publish(req.device, {"device": req.device, "t": time.time(), "t_device": req.t,
+                                             "position": position, "ids": list(ids)})
 
     def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
         """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
@@ -332,6 +505,7 @@ class LightingServer:
             raise FloatingPointError("non-finite result") from None
         unknown = sorted({i for i, led in zip(req.ids, leds) if led is None})
         self.counters["positions"] += position is not None
+        self._tell(req, position)
         return b"".join((_REPLY_HEAD, encode_basestring_ascii(req.device).encode(), b',"seq":',
                          str(req.seq).encode(), b',"position":', b"null" if position is None else position,
                          b',"unknown_ids":[', ",".join(map(str, unknown)).encode(), b'],"n_used":',
@@ -373,37 +547,60 @@ class LightingServer:
             name, dev = next(iter(self.devices.items()))
             if now - dev.seen <= self.forget_s:
                 break
-            self._drop(name)
+            self._drop(name, shared=False)   # shared state: Redis's expiry forgets it for all servers
             self.counters["forgotten"] += 1
 
-    def _drop(self, name) -> None:
+    def _drop(self, name, shared: bool = True, tell: bool = True) -> None:
+        """Forget a device here (`tell`: its observers too) and, with `shared`, in the shared state."""
         dev = self.devices.pop(name, None)
+        if dev is not None and tell and self.on_forget is not None:
+            self.on_forget(name)
+        if dev is not None and shared and self.shared is not None:
+            try:
+                self.shared.drop(name)
+            except Exception:   # noqa: BLE001 -- its expiry forgets it anyway
+                self.counters["state_errors"] += 1
         if dev is not None and dev.source is not None:
             self.per_source[dev.source] -= 1
             if self.per_source[dev.source] <= 0:
                 del self.per_source[dev.source]
 
-    def _device(self, req: Request, now: float, source) -> _Device:
-        """The request's device (new ones are created), after the seq check; marks it heard."""
+    def _device(self, req: Request, now: float, source, proven: bool = False) -> _Device:
+        """The request's device (new ones are created), after the checks that keep others from
+        steering it; marks it heard. `source`: the sender's (host, port) or None; `proven`: a
+        MAC proved the request. A keyed device's seq must pass the last one it ever had accepted
+        (kept after forgetting: no replay); an unkeyed device's name is bound to the source
+        that created it until it is forgotten; a live device's seq moves at most SEQ_WINDOW
+        ahead. Nothing of a refused request touches the device."""
         dev = self.devices.get(req.device)
+        host = None if source is None else source[0]
+        keyed = req.device in self.keys
+        if keyed and req.seq <= self.key_seq.get(req.device, -1):
+            raise ProtocolError("old_seq", device=req.device, seq=req.seq)
         if dev is None:
             if len(self.devices) >= self.max_devices:
                 raise ProtocolError("too_many_devices", f"the server holds {self.max_devices} devices",
                                     req.device, req.seq)
-            if source is not None and self.per_source[source] >= self.max_devices_per_source:
+            if host is not None and self.per_source[host] >= self.max_devices_per_source:
                 raise ProtocolError("too_many_devices_per_source",
                                     f"this address holds {self.max_devices_per_source} devices",
                                     req.device, req.seq)
-            dev = _Device(self._solver()[1](handedness=self.led_map.handedness, sigma_uv=req.sigma_uv,
-                                              warm_start=self.warm_start), -1, now,
-                          source)
+            dev = _Device(None, -1, now, host, bound=None if keyed or source is None else tuple(source[:2]))
             self.devices[req.device] = dev
-            if source is not None:
-                self.per_source[source] += 1
+            if host is not None:
+                self.per_source[host] += 1
             self.counters["new_devices"] += 1
-        elif req.seq <= dev.seq:
-            raise ProtocolError("old_seq", device=req.device, seq=req.seq)
+        else:
+            if dev.bound is not None and (source is None or tuple(source[:2]) != dev.bound):
+                raise ProtocolError("wrong_source", "this device is bound to another address", req.device,
+                                    req.seq)
+            if req.seq <= dev.seq:
+                raise ProtocolError("old_seq", device=req.device, seq=req.seq)
+            if req.seq > dev.seq + SEQ_WINDOW:
+                raise ProtocolError("seq_jump", f"seq may move at most {SEQ_WINDOW} ahead", req.device, req.seq)
         dev.seq, dev.seen = req.seq, now
+        if keyed:
+            self.key_seq[req.device] = req.seq
         self.devices.move_to_end(req.device)
         return dev
 
@@ -423,9 +620,11 @@ def format_url(address) -> str:
     return f"udp://[{host}]:{port}" if ":" in host else f"udp://{host}:{port}"
 
 
-def bind_udp(host: str, port: int) -> socket.socket:
+def bind_udp(host: str, port: int, reuse_port: bool = False) -> socket.socket:
     """A non-blocking UDP socket bound to host:port (receive buffer `RCVBUF_BYTES`, as far as
-    the system allows). A port in use or a host not on this machine: InputError."""
+    the system allows). `reuse_port`: SO_REUSEPORT, so several server processes (sharing their
+    devices with `--state`) bind the same port and the kernel spreads the sources over them.
+    A port in use or a host not on this machine: InputError."""
     if not 0 <= port <= 65535:
         raise InputError(f"--port must be in 0..65535, not {port}")
     try:
@@ -435,6 +634,8 @@ def bind_udp(host: str, port: int) -> socket.socket:
         raise InputError(f"cannot listen on {format_url((host, port))}: {e.strerror or e}") from None
     try:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+        if reuse_port:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
         sock.bind(address)
     except OSError as e:
         sock.close()
@@ -506,12 +707,12 @@ def _handle_batch(server: LightingServer, batch) -> list[bytes | None]:
 
 
 async def serve_until(server: LightingServer, host: str, port: int, stop: asyncio.Event,
-                      on_ready=None) -> None:
+                      on_ready=None, reuse_port: bool = False) -> None:
     """Serve `server` on UDP host:port until `stop` is set. `on_ready(address)` is called with the
     bound (host, port) once listening (datagrams arriving meanwhile wait in the socket's buffer).
     A port in use or a host not on this machine: InputError. The datagrams are served by
     `serve_socket` on a thread of its own; this coroutine only waits for `stop`."""
-    sock = bind_udp(host, port)
+    sock = bind_udp(host, port, reuse_port)
     done = threading.Event()
     worker = None
     try:

@@ -17,6 +17,9 @@ PROTOCOL_VERSION = 1
 # One request must fit here: 64 LEDs with full-precision numbers, 10-digit IDs and pixel
 # centroids take about 11 kB (8 kB with the IDs and no centroids `make_request` writes).
 MAX_DATAGRAM_BYTES = 16384
+# A v2 request carries outlines (`receiver.serve.wire_v2`): up to the largest UDP payload (IPv4).
+# The walk recording's busiest frame (17 LEDs, 1,487 edge points) takes about 45 kB.
+MAX_DATAGRAM_BYTES_V2 = 65507
 MAX_LEDS = 64
 MAX_DEVICE_CHARS = 64
 MAX_SEQ = 2 ** 53          # exact in any JSON implementation's doubles
@@ -33,7 +36,7 @@ MAX_ABS_T_S = 1e9
 # Counted reasons for dropping a request, in the order the summary lists them.
 REASONS = ("oversized", "bad_json", "not_object", "bad_version", "missing_field", "bad_type",
            "bad_value", "too_many_leds", "too_many_devices", "too_many_devices_per_source", "old_seq",
-           "internal_error")
+           "seq_jump", "bad_mac", "wrong_source", "rate_limited", "internal_error")
 
 
 class ProtocolError(Exception):
@@ -125,9 +128,11 @@ _DECODER = json.JSONDecoder(parse_constant=_reject_constant)
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
 
 
-def _decode(data: bytes) -> dict:
-    if len(data) > MAX_DATAGRAM_BYTES:
-        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
+def decode_request(data: bytes, versions=(PROTOCOL_VERSION,)) -> dict:
+    """The request object of a datagram of one of `versions` (1, and 2: `receiver.serve.wire_v2`),
+    each version within its size limit; ProtocolError otherwise."""
+    if len(data) > MAX_DATAGRAM_BYTES_V2:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES_V2}")
     try:
         obj = _DECODER.decode(data.decode("utf-8"))
     except (ValueError, RecursionError) as e:
@@ -135,8 +140,10 @@ def _decode(data: bytes) -> dict:
     if not isinstance(obj, dict):
         raise ProtocolError("not_object", "the datagram must be a JSON object")
     v = obj.get("v")
-    if type(v) is not int or v != PROTOCOL_VERSION:
-        raise ProtocolError("bad_version", f"v must be {PROTOCOL_VERSION}")
+    if type(v) is not int or v not in versions:
+        raise ProtocolError("bad_version", "v must be " + " or ".join(map(str, versions)))
+    if v == PROTOCOL_VERSION and len(data) > MAX_DATAGRAM_BYTES:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_DATAGRAM_BYTES}")
     return obj
 
 
@@ -195,10 +202,14 @@ def _parse_body(obj: dict, device: str, seq: int) -> Request:
 
 
 def parse_request(data: bytes, fast=None) -> Request:
-    """Validate one datagram (format v1, module docstring); raises ProtocolError. `fast`: the
-    compiled check of the common form (`receiver.serve._wire`), tried first; what it does not
-    take is checked here."""
-    obj = _decode(data)
+    """Validate one v1 datagram (module docstring); raises ProtocolError. `fast`: the compiled
+    check of the common form (`receiver.serve._wire`), tried first; what it does not take is
+    checked here. (`receiver.serve.wire_v2.parse_any` takes either version.)"""
+    return parse_object(decode_request(data), fast)
+
+
+def parse_object(obj: dict, fast=None) -> Request:
+    """`parse_request` of a decoded v1 request object."""
     if fast is not None:
         got = fast.parse(obj)
         if got is not None:

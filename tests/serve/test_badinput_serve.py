@@ -22,7 +22,7 @@ import pytest
 from receiver.io.camera import load_camera
 from receiver.io.ledmap import load_map
 from receiver.serve.client import RemotePositioner
-from receiver.serve.server import LightingServer
+from receiver.serve.server import ERROR_REPLY_RATE, LightingServer
 from receiver.serve.wire import REASONS, encode
 from tests.serve.test_server import WALK, FakeClock, _good, request, scene, serve_process
 
@@ -220,7 +220,7 @@ def test_remote_positioner_refuses_malformed_replies(walk_map):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as fake:
         fake.bind(("127.0.0.1", 0))
         host, port = fake.getsockname()
-        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=2.0) as rp:
+        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=2.0, protocol=1) as rp:
             client = rp.sock.getsockname()
             for k, (name, change) in enumerate(BAD_REPLIES):
                 fake.sendto(_reply_bytes(k, change), client)   # queued before the request
@@ -264,8 +264,11 @@ def test_flood_of_names_from_one_source_leaves_room_for_others(walk_map):
     srv = LightingServer(walk_map, max_devices=100, clock=FakeClock())    # default 64 per source
     data = [_js(_good(device=f"flood-{i}", leds=[])) for i in range(200)]
     replies = [srv.handle(d, ("10.6.6.6", 1)) for d in data]
-    assert sum("error" not in r for r in replies) == 64
-    assert {r["error"] for r in replies if "error" in r} == {"too_many_devices_per_source"}
+    assert sum(r is not None and "error" not in r for r in replies) == 64
+    assert srv.counters["too_many_devices_per_source"] == 136
+    # the refusals' replies are rate-limited per host (ERROR_REPLY_RATE, a burst of twice that)
+    errors = [r["error"] for r in replies if r is not None and "error" in r]
+    assert set(errors) == {"too_many_devices_per_source"} and len(errors) == 2 * ERROR_REPLY_RATE
     assert "error" not in srv.handle(_js(_good(device="honest", leds=[])), ("10.0.0.9", 1))
 
 

@@ -173,7 +173,7 @@ MALFORMED = [
     ("array", b"[1, 2, 3]", "not_object"),
     ("string", b'"hello"', "not_object"),
     ("v missing", _js(_good(v=None)), "bad_version"),
-    ("v 2", _js(_good(v=2)), "bad_version"),
+    ("v 3", _js(_good(v=3)), "bad_version"), ("v 2 without camera", _js(_good(v=2)), "missing_field"),
     ("v as string", _js(_good(v="1")), "bad_version"),
     ("v true", _js(_good(v=True)), "bad_version"),
     ("no device", _js(_good(device=None)), "missing_field"),
@@ -334,7 +334,9 @@ def _run_device(address, walk_map, k: int, out: list) -> None:
             out.append((i, _exchange(sock, encode(req), None)))
 
 
-GARBAGE = [(data, reason) for _, data, reason in MALFORMED[::4]]
+# (an error reply is never larger than its request: the garbage is padded with spaces, which
+# JSON allows around a value, so that every one gets its reply)
+GARBAGE = [(data + b" " * 160 if reason != "oversized" else data, reason) for _, data, reason in MALFORMED[::4]]
 
 
 def _run_garbage(address, walk_map, out: list) -> None:
@@ -353,7 +355,8 @@ def test_fifty_devices_at_once_over_udp(walk_map):
     # The server's clock is frozen: no device may be forgotten however slowly the machine runs
     # (with the real clock and forget_s = 5, the garbage thread's device "dup" expired on a
     # slow machine before the last device had sent: 50 devices held instead of 51).
-    srv = LightingServer(walk_map, clock=FakeClock())
+    # 51 devices on one host; error replies not rate-limited (the garbage's are all expected)
+    srv = LightingServer(walk_map, clock=FakeClock(), source_rate=0, error_rate=1e6)
     results = {k: [] for k in range(N_DEVICES)}
     garbage: list = []
     failures: list = []
@@ -458,7 +461,7 @@ def test_remote_positioner_equals_the_local_one(walk_map, mirror, declared, warm
     led_map = mirrored_map(walk_map, declared) if mirror else walk_map
     local = Positioner(cam, led_map)
     with BackgroundServer(LightingServer(led_map, warm_start=warm)) as bg, \
-            RemotePositioner(cam, led_map, bg.url, timeout_s=REPLY_TIMEOUT_S) as remote:
+            RemotePositioner(cam, led_map, bg.url, timeout_s=REPLY_TIMEOUT_S, protocol=1) as remote:
         methods = []
         for t, obs in frames:
             a, b = local.step(t, obs), remote.step(t, obs)
@@ -481,7 +484,7 @@ def test_remote_positioner_timeouts_stale_replies_and_errors(walk_map):
         fake.bind(("127.0.0.1", 0))
         fake.settimeout(REPLY_TIMEOUT_S)
         host, port = fake.getsockname()
-        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=0.05) as rp:
+        with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", device="dev", timeout_s=0.05, protocol=1) as rp:
             t0 = time.monotonic()
             assert rp.step(0.0, []).position is None
             assert rp.timeouts == 1 and time.monotonic() - t0 < 1.0
@@ -500,7 +503,7 @@ def test_remote_positioner_timeouts_stale_replies_and_errors(walk_map):
             assert rp.unknown_ids == {77} and rp.n_fixes == 0 and rp.timeouts == 1
             assert rp.step(0.2, []).position is None          # the error reply to seq 2
             assert rp.errors == 1 and rp.last_error == "too_many_devices"
-    with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", timeout_s=0.5) as rp:   # port closed
+    with RemotePositioner(cam, walk_map, f"udp://{host}:{port}", timeout_s=0.5, protocol=1) as rp:   # port closed
         t0 = time.monotonic()
         for k in range(3):
             assert rp.step(0.1 * k, []).position is None
@@ -592,19 +595,19 @@ def test_serve_and_run_with_server_equal_a_local_run(tmp_path, capsys):
         assert "server" not in capsys.readouterr().err          # no timeouts, no errors
         summary = _stop(proc, signal.SIGINT)
     assert summary.startswith("occloc serve: 10 datagrams, 10 replies") and "dropped/refused: none" in summary
-    # The datagram carries image points and ranges, not edge points: the server solves what a
-    # local positioner without the outline solve does, and must equal it (to the rounding of each
-    # field: the server warm-starts its fixes, `test_remote_positioner_equals_the_local_one`).
-    _local_run(tmp_path / "l.jsonl", 10, outline=False)
+    # The v2 datagram carries the observations with their edge points: the server runs the local
+    # positioner (outline solve included) and gives the local run's numbers.
+    _local_run(tmp_path / "l.jsonl", 10)
     remote, local = _positions(tmp_path / "r.jsonl"), _positions(tmp_path / "l.jsonl")
     assert len(remote) == 10 and sum(r["position"] is not None for r in local) >= 5
-    _assert_same(local, remote, ulp=True)
+    _assert_same(local, remote)
 
 
 def test_serve_stops_on_sigterm_with_a_summary():
     with serve_process("--forget-s", "1") as (proc, url):
         with _udp_client(parse_udp_url(url)) as sock:
-            assert _exchange(sock, b"{oops", None)["error"] == "bad_json"
+            # (an error reply is never larger than its request: a 5-byte one gets none)
+            assert _exchange(sock, b"{oops" + b" " * 100, None)["error"] == "bad_json"
         summary = _stop(proc, signal.SIGTERM)
     assert summary == ("occloc serve: 1 datagrams, 1 replies, 0 positions; devices: 0 new, "
                        "0 forgotten, 0 held; dropped/refused: bad_json 1")
