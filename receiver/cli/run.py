@@ -5,6 +5,12 @@ or --camera/--map. Frames whose size differs from the camera file: a 90-degree-r
 (portrait photo of a landscape sensor) is turned back so that image rows are sensor rows again
 (assumed: portrait = sensor turned clockwise); another size with the same aspect ratio scales
 the camera (`CameraModel.scaled`); anything else is an error.
+
+Photos (an image, or a folder of images) are independent observations: each is fitted to the
+camera on its own (orientation and size), located by a receiver of its own (no tracking or
+Kalman filter across photos), and its line names it (`"file"`). A photo sequence to be tracked
+is a video. A frame without a position says why in `"no_fix"` (`no_fix_reason`), and the summary
+counts the reasons.
 """
 
 from __future__ import annotations
@@ -76,6 +82,57 @@ def _rotated(source):
     from receiver.core.records import Frame
     for f in source:
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
+
+
+def _fit_photo(cam, gray):
+    """(camera fitted to one photo, the photo in sensor orientation): a photo whose long side is
+    not the camera's is turned back first, then the camera is scaled to its size
+    (`fit_camera`: InputError when the aspect ratio is not the camera's)."""
+    import cv2
+    from receiver.io.camera import fit_camera
+    h, w = gray.shape[:2]
+    if w != h and cam.width != cam.height and (w > h) != (cam.width > cam.height):
+        gray = cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE)
+    fitted, _ = fit_camera(cam, (gray.shape[1], gray.shape[0]))
+    return fitted, gray
+
+
+# `no_fix` values of frames without a position that the positioner itself does not explain
+# (see receiver.locate.indoor.Positioner.last_reason for the others).
+NO_LED = "no LED seen"
+NO_ID = "no decoded ID"
+NO_REPLY = "no server position"
+
+
+def no_fix_reason(res, positioner) -> str | None:
+    """Why a frame has no position, in a few words (None when it has one, or when the map has no
+    light to position by: vehicle scenes). The positioner's own reason (`last_reason`: too few
+    LEDs, handedness undecided, solver rejected ...) when it gives one, else what the frame shows."""
+    if res.position is not None or positioner is None:
+        return None
+    reason = getattr(positioner, "last_reason", None)
+    if reason:
+        return reason
+    indoor = [o for o in res.leds if o.mode != "s2psk"]
+    if not indoor:
+        return NO_LED
+    if all(o.id is None for o in indoor):
+        return NO_ID
+    return NO_REPLY if hasattr(positioner, "timeouts") else "no position"
+
+
+def _handedness_hint(summary, led_map) -> str:
+    """The summary's advice when frames had no position because the map's handedness could not
+    be told from them ('' otherwise)."""
+    if not summary.no_fix.get("handedness undecided") or led_map.handedness is not None:
+        return ""
+    return ('; the map does not say its handedness and no photo/frame could tell it (both fits poor): '
+            'add "handedness": "left" or "right" to the map')
+
+
+def _indoor_lights(led_map) -> bool:
+    """Does the map have lights a position can be solved from (not only S2-PSK / taillights)?"""
+    return any(led.mode != "s2psk" for led in led_map.leds.values())
 
 
 def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None):
@@ -250,7 +307,9 @@ def _main(args, stop: "SignalStop") -> int:
     from receiver.io.camera import load_camera
     from receiver.io.ledmap import load_map
     from receiver.core.errors import InputError
-    from receiver.io.output import RunSummary, frame_line
+    import numpy as np
+    from receiver.core.records import Frame
+    from receiver.io.output import RunSummary, frame_line, with_fields
     from receiver.pipeline import Receiver
     from receiver.io.camera import fit_camera
     from receiver.io.sources import default_source, find_recording_files, open_source, parse_size
@@ -297,47 +356,88 @@ def _main(args, stop: "SignalStop") -> int:
     n_threads = getattr(args, "threads", DEFAULT_THREADS)
     src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam,
                       threads=n_threads)
+    images = getattr(src, "inner", src)
+    photos = images.kind == "images"   # independent photos: --realtime has nothing to drop
     try:
+        if photos and src.size is None:
+            first = next(images.photos(), None)
+            if first is None:
+                raise InputError(f"{spec}: no readable image")
+            images.size = (first.gray.shape[1], first.gray.shape[0])
         if src.size is None:
             raise InputError(f"{spec}: frame size unknown")
-        cam, rotate = fit_camera(cam, src.size)
+        cam0 = cam
+        if photos:
+            cam, _ = _fit_photo(cam0, np.zeros(src.size[::-1], np.uint8))
+            rotate = False
+        else:
+            cam, rotate = fit_camera(cam, src.size)
         if rotate:
             print(f"occloc: {spec}: frames are {src.size[0]}x{src.size[1]}, the camera "
                   f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
-        # Without --server the two-argument call of older make_positioner replacements (tests).
-        positioner = (make_positioner(cam, led_map, server=server,
-                                      server_timeout_s=getattr(args, "server_timeout", None)) if server
-                      else make_positioner(cam, led_map))
-        vehicle = make_vehicle_locator(cam, led_map)
         speed = None
         if getattr(args, "odometry", None):
             from receiver.io.odometry import load_odometry
             speed = load_odometry(args.odometry)
-        rx = Receiver(cam, led_map, positioner=positioner, vehicle=vehicle, speed=speed, still=src.is_still)
+        timeout = getattr(args, "server_timeout", None)
+
+        def build(c):
+            # Without --server the two-argument call of older make_positioner replacements (tests).
+            pos = (make_positioner(c, led_map, server=server, server_timeout_s=timeout) if server
+                   else make_positioner(c, led_map))
+            return Receiver(c, led_map, positioner=pos, vehicle=make_vehicle_locator(c, led_map), speed=speed,
+                            still=src.is_still)
+
+        rx = build(cam)
+        positioner, vehicle = rx.positioner, rx.vehicle
         if getattr(args, "settings_out", None):
             write_settings(args.settings_out, rx)
+        explain = positioner is not None and _indoor_lights(led_map)
         # A file is written to a temporary sibling and renamed into place at the end (also after
         # a stop signal); standard output streams line by line.
         out = AtomicWriter(args.out) if args.out else sys.stdout
         summary = RunSummary()
-        total = getattr(getattr(src, "inner", src), "frame_count", None) or None
+        total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
         progress = Progress(sys.stderr, total)
-        frames = _rotated(src) if rotate else src
+        frames = images.photos() if photos else _rotated(src) if rotate else src
         overlay = _open_overlay(getattr(args, "overlay", None), cam, led_map)
         ok = False
         try:
             for frame in _frames_until_stopped(frames, stop):
                 if args.max_frames is not None and summary.frames >= args.max_frames:
                     break
+                fields = {}
+                if photos:
+                    name = os.path.basename(images.files[frame.index])
+                    try:
+                        pcam, gray = _fit_photo(cam0, frame.gray)
+                    except InputError as e:
+                        if len(images.files) == 1:
+                            raise InputError(f"{name}: {e}") from None
+                        images.skipped += 1
+                        print(f"occloc: warning: {name}: {e}: skipped", file=sys.stderr)
+                        continue
+                    # Every photo gets a fresh receiver (nothing carries over from another photo);
+                    # the one built for the settings serves the first photo of its size.
+                    if rx.frames or (pcam.width, pcam.height) != (cam.width, cam.height):
+                        if hasattr(positioner, "close"):
+                            positioner.close()
+                        rx = build(pcam)
+                        positioner, vehicle = rx.positioner, rx.vehicle
+                    frame = Frame(frame.index, frame.t_s, gray)
+                    fields["file"] = name
                 res = rx.process(frame)
                 if overlay is not None:
                     overlay[0].write(frame.gray, res)
-                out.write(frame_line(res, profile=args.profile) + "\n")
+                reason = no_fix_reason(res, positioner) if explain else None
+                if reason is not None:
+                    fields["no_fix"] = reason
+                out.write(with_fields(frame_line(res, profile=args.profile), fields) + "\n")
                 if out is sys.stdout and args.realtime:
                     out.flush()
-                summary.add(res)
+                summary.add(res, no_fix=reason)
                 progress.update(summary.frames, len(summary.ids))
             ok = True
         finally:
@@ -356,7 +456,7 @@ def _main(args, stop: "SignalStop") -> int:
                                         hv_reason=hv_reason)
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
-              + _server_text(positioner), file=sys.stderr)
+              + _server_text(positioner) + _handedness_hint(summary, led_map), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)

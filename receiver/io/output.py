@@ -67,6 +67,15 @@ def frame_line(res: FrameResult, *, profile: bool = False) -> str:
     return dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
 
 
+def with_fields(line: str, fields: dict) -> str:
+    """One JSON line (`frame_line`) with `fields` appended as top-level keys (e.g. `"file"` of
+    a photo, `"no_fix"` of a frame without a position); the line itself when there are none."""
+    if not fields:
+        return line
+    from receiver.io.files import dumps
+    return line[:-1] + "," + dumps(fields, separators=(",", ":"))[1:]
+
+
 def _jsonable(v):
     try:
         return v.tolist()  # numpy arrays and scalars
@@ -86,9 +95,12 @@ class RunSummary:
         self.positions = 0
         self.vehicle_frames = 0  # frames with a vehicle object
         self.hv_frames = 0  # ... of them with the host vehicle placed
+        self.no_fix: dict[str, int] = {}  # why frames have no position -> frames
 
-    def add(self, res: FrameResult) -> None:
+    def add(self, res: FrameResult, no_fix: str | None = None) -> None:
         self.frames += 1
+        if no_fix is not None:
+            self.no_fix[no_fix] = self.no_fix.get(no_fix, 0) + 1
         self.latency_ms.append(res.latency_ms)
         self.led_frames += len(res.leds)
         for o in res.leds:
@@ -109,6 +121,9 @@ class RunSummary:
                 f"positions: {self.positions}; latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
                 f"p99 {percentile(self.latency_ms, 99):.2f} ms; skipped corrupt frames: {skipped}; "
                 f"dropped: {dropped}")
+        if self.no_fix:
+            line += "; no position: " + ", ".join(
+                f"{n} {why}" for why, n in sorted(self.no_fix.items(), key=lambda kv: (-kv[1], kv[0])))
         if self.vehicle_frames or hv_reason:
             line += f"; vehicle frames: {self.vehicle_frames}, host placed in {self.hv_frames}"
             if hv_reason and self.hv_frames == 0:
