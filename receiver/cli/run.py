@@ -121,6 +121,25 @@ def no_fix_reason(res, positioner) -> str | None:
     return NO_REPLY if hasattr(positioner, "timeouts") else "no position"
 
 
+# What `--out` may be called: the run writes JSON Lines, nothing else (no extension: e.g. /dev/null).
+OUT_EXTENSIONS = (".jsonl", ".ndjson", ".json", ".txt", ".log", "")
+# Formats `occloc export` converts a run to, by the extension a user might give --out.
+EXPORT_HINT = {".csv": "csv", ".tum": "tum", ".geojson": "geojson"}
+
+
+def _check_out_extension(path: str | None) -> None:
+    from receiver.core.errors import InputError
+    if path is None:
+        return
+    ext = os.path.splitext(path)[1].lower()
+    if ext in OUT_EXTENSIONS:
+        return
+    fmt = EXPORT_HINT.get(ext)
+    hint = (f": write run.jsonl, then `occloc export run.jsonl --format {fmt} --out {os.path.basename(path)}`"
+            if fmt else "")
+    raise InputError(f"--out {path}: occloc run writes JSON Lines (.jsonl), not {ext}{hint}")
+
+
 def _handedness_hint(summary, led_map) -> str:
     """The summary's advice when frames had no position because the map's handedness could not
     be told from them ('' otherwise)."""
@@ -342,6 +361,7 @@ def _main(args, stop: "SignalStop") -> int:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     refuse_overwrite(args.out, inputs, "--out")
+    _check_out_extension(args.out)
     refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
     refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
                      "--overlay")
