@@ -56,6 +56,9 @@ def add_arguments(p) -> None:
                         "or the last frame as a PNG (.png, e.g. for a photo)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
+    p.add_argument("--settings", metavar="FILE",
+                   help="run with the settings of FILE (what --settings-out writes; a stage or field "
+                        "left out keeps its default)")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve); ranging stays here")
     p.add_argument("--server-timeout", type=seconds_up_to(60.0), default=None, metavar="S",
@@ -154,10 +157,12 @@ def _indoor_lights(led_map) -> bool:
     return any(led.mode != "s2psk" for led in led_map.leds.values())
 
 
-def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None):
+def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None,
+                    settings=None):
     """receiver.locate.indoor.Positioner when that module is available, else None; with `server`
     (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server
-    (waiting `server_timeout_s` for a reply, default the client's)."""
+    (waiting `server_timeout_s` for a reply, default the client's). `settings`: PositionerSettings
+    (None: the defaults)."""
     if server is not None:
         from receiver.serve.client import RemotePositioner
         kw = {} if server_timeout_s is None else {"timeout_s": server_timeout_s}
@@ -166,16 +171,36 @@ def make_positioner(camera, led_map, server: str | None = None, server_timeout_s
         from receiver.locate.indoor import Positioner
     except ImportError:
         return None
-    return Positioner(camera, led_map)
+    return Positioner(camera, led_map, settings=settings)
 
 
-def make_vehicle_locator(camera, led_map):
+def make_vehicle_locator(camera, led_map, settings=None):
     """receiver.locate.vehicle.VehicleLocator for maps with S2-PSK street lights or a taillight
-    block (the vehicle scenes), else None."""
+    block (the vehicle scenes), else None. `settings`: VehicleSettings (None: the defaults)."""
     if not (led_map.by_mode("s2psk") or led_map.taillight is not None):
         return None
     from receiver.locate.vehicle import VehicleLocator
-    return VehicleLocator(camera, led_map)
+    return VehicleLocator(camera, led_map) if settings is None else VehicleLocator(camera, led_map, settings)
+
+
+def read_settings(path: str) -> dict:
+    """{'receiver': ReceiverSettings or None, 'locate': PositionerSettings or None, 'vehicle':
+    VehicleSettings or None} of a file `write_settings` wrote (a stage it leaves out: None)."""
+    from receiver.core.errors import InputError
+    from receiver.core.settings import settings_from_json
+    from receiver.io.files import load_json
+    from receiver.locate.settings import PositionerSettings, VehicleSettings
+    from receiver.pipeline import ReceiverSettings
+
+    obj = load_json(path, "settings")
+    if not isinstance(obj, dict):
+        raise InputError(f"{path}: expected the JSON object --settings-out writes")
+    classes = {"receiver": ReceiverSettings, "locate": PositionerSettings, "vehicle": VehicleSettings}
+    unknown = sorted(set(obj) - set(classes))
+    if unknown:
+        raise InputError(f"{path}: unknown stage {unknown[0]!r} (expected receiver, locate, vehicle)")
+    return {k: settings_from_json(cls, obj[k], f"{path}: {k}") if obj.get(k) is not None else None
+            for k, cls in classes.items()}
 
 
 def _server_text(positioner) -> str:
@@ -362,9 +387,12 @@ def _main(args, stop: "SignalStop") -> int:
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     refuse_overwrite(args.out, inputs, "--out")
     _check_out_extension(args.out)
+    inputs.append(getattr(args, "settings", None))
     refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
     refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
                      "--overlay")
+    given = (read_settings(args.settings) if getattr(args, "settings", None)
+             else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
     if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
@@ -402,11 +430,18 @@ def _main(args, stop: "SignalStop") -> int:
         timeout = getattr(args, "server_timeout", None)
 
         def build(c):
-            # Without --server the two-argument call of older make_positioner replacements (tests).
-            pos = (make_positioner(c, led_map, server=server, server_timeout_s=timeout) if server
-                   else make_positioner(c, led_map))
-            return Receiver(c, led_map, positioner=pos, vehicle=make_vehicle_locator(c, led_map), speed=speed,
-                            still=src.is_still)
+            # Without --server or --settings the two-argument call of older make_positioner
+            # replacements (tests).
+            if server:
+                pos = make_positioner(c, led_map, server=server, server_timeout_s=timeout)
+            elif given["locate"] is not None:
+                pos = make_positioner(c, led_map, settings=given["locate"])
+            else:
+                pos = make_positioner(c, led_map)
+            veh = (make_vehicle_locator(c, led_map, settings=given["vehicle"]) if given["vehicle"] is not None
+                   else make_vehicle_locator(c, led_map))
+            return Receiver(c, led_map, positioner=pos, vehicle=veh, speed=speed, still=src.is_still,
+                            settings=given["receiver"])
 
         rx = build(cam)
         positioner, vehicle = rx.positioner, rx.vehicle
