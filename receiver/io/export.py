@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from receiver.core.errors import InputError
+from receiver.io.output import ZONE_ORDER
 
 FORMATS = ("tum", "csv", "geojson")
 # Extension of each format's file (what `occloc export --out` expects).
@@ -40,7 +41,6 @@ WGS84_E2 = 6.69437999014e-3
 # Decimal places: 0.1 mm in the map frame, ~1 cm in degrees of latitude/longitude is 1e-7.
 TUM_DECIMALS = 6
 DEG_DECIMALS = 9
-ZONE_ORDER = ("safe", "warning", "critical")
 
 
 def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
