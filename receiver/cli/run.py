@@ -52,8 +52,8 @@ def add_arguments(p) -> None:
     p.add_argument("--odometry", metavar="FILE",
                    help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
     p.add_argument("--overlay", metavar="FILE",
-                   help="write the frames annotated with what the receiver saw: a video (.avi), "
-                        "or the last frame as a PNG (.png, e.g. for a photo)")
+                   help="write the frames annotated with what the receiver saw: a video (.mp4 H.264, "
+                        ".avi MJPG, .mkv FFV1), or the last frame as an image (.png, .jpg: e.g. a photo)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--settings", metavar="FILE",
@@ -387,6 +387,9 @@ def _main(args, stop: "SignalStop") -> int:
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     refuse_overwrite(args.out, inputs, "--out")
     _check_out_extension(args.out)
+    if getattr(args, "overlay", None):
+        from receiver.io.overlay import check_overlay_path
+        check_overlay_path(args.overlay)
     inputs.append(getattr(args, "settings", None))
     refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
     refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
