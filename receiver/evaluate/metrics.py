@@ -526,9 +526,11 @@ def _fmt(v, scale=1.0, unit="", nd=2) -> str:
 
 
 def format_table(m: dict) -> str:
-    """The metrics as a readable plain-text table."""
+    """The metrics as a readable plain-text table: the rows of the recording's kind (a vehicle
+    recording has no indoor position rows unless the run gave positions)."""
+    indoor = m.get("vehicle") is None or m["frames_with_position"] > 0
     rows = [
-        ("frames", f"{m['frames']} ({m['frames_with_position']} with a position)"),
+        ("frames", f"{m['frames']} ({m['frames_with_position']} with a position)" if indoor else f"{m['frames']}"),
         ("LED-frames", f"{m['led_frames']} detected, {m['visible_truth_led_frames']} visible in truth, "
                        f"{m['matched_led_frames']} matched (gate {m['gate_px']:g} px)"),
         ("ID rate", f"{_fmt(m['id_rate'], 100, ' %')} ({m['ids_correct']}/{m['matched_led_frames']})"),
@@ -546,7 +548,7 @@ def format_table(m: dict) -> str:
     for name, b in de.get("by_kind", {}).items():
         rows.append((f"  kind {name}", f"median {_fmt(b['p50'], 100, ' %', 3)}  "
                                        f"p95 {_fmt(b['p95'], 100, ' %', 3)}  (n={b['n']})"))
-    for kind in ("filtered", "raw"):
+    for kind in ("filtered", "raw") if indoor else ():
         pe = m["position_error_m"][kind]
         rows.append((f"position {kind}", f"median {_fmt(pe['p50'], 100, ' cm')}  p95 {_fmt(pe['p95'], 100, ' cm')}"
                                          f"  (n={pe['n']})"))
