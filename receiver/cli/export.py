@@ -1,5 +1,5 @@
 """`occloc export`: a run's JSON Lines (or a recording's truth.jsonl) as a TUM trajectory (for
-evo), CSV or GeoJSON (`receiver.io.export`)."""
+evo), CSV or GeoJSON (`receiver.evaluate.export`)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def add_arguments(p) -> None:
 
 def main(args) -> int:
     from receiver.core.errors import InputError
-    from receiver.io import export
+    from receiver.evaluate import export
     from receiver.io.files import AtomicWriter, dumps, read_jsonl, refuse_overwrite
 
     if args.out is not None:

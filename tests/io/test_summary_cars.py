@@ -6,7 +6,7 @@ from __future__ import annotations
 import csv
 import io
 
-from receiver.io.export import to_csv
+from receiver.evaluate.export import to_csv
 from receiver.io.output import RunSummary
 
 

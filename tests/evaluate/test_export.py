@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from receiver.cli import main as cli
-from receiver.io.export import local_to_wgs84
+from receiver.evaluate.export import local_to_wgs84
 
 WALK = Path(__file__).resolve().parents[2] / "recordings" / "indoor-walk"
 FRAMES = 30
