@@ -247,7 +247,8 @@ def _print_tables(rows: list[dict], clock: str, out) -> None:
     print(f"whole pipeline (detect .. locate, vehicle, JSON line) on one core, {what}; frames decoded into "
           f"memory before timing (video decoding not timed); kernels: {native.status()}", file=out)
     for row in rows:
-        fps = f"{row['frames_per_s']:.1f} frames/s" if row["frames_per_s"] else "-"
+        fps = (f"{row['frames_per_s']:.1f} frames/s over the elapsed time of the timed frames"
+               if row["frames_per_s"] else "-")
         print(f"\n{row['case']}: {row['frames']} frames {row['size'][0]}x{row['size'][1]}, {fps} (one core)",
               file=out)
         print(f"{'stage':<10}{'median ms':>11}{'p99 ms':>10}", file=out)
