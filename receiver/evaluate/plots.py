@@ -18,7 +18,9 @@ FIG_DPI = 100
 PANEL_SIZE_IN = (5.0, 4.5)  # width, height of one panel
 AREA_MARGIN = 2.0  # x range of the distance panel extends this factor past data and bin edges
 # Vehicle figure: a full-width road strip on top, two panels below.
-VEHICLE_FIG_IN = (12.0, 9.0)
+VEHICLE_FIG_IN = (12.0, 12.5)
+# The time-to-collision panel spans up to this (s): longer times are not urgent, drawn at the edge.
+TTC_AXIS_MAX_S = 15.0
 # The road strip's y range spans at least this (m): two 3.5 m lanes either side of the host lane
 # centre, so lane-level errors read as such instead of being blown up to the panel height.
 ROAD_MIN_HALF_WIDTH_M = 4.0
@@ -151,7 +153,7 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
     plt = _pyplot()
     fig = plt.figure(figsize=VEHICLE_FIG_IN)
     try:
-        grid = fig.add_gridspec(2, 2, height_ratios=(1.0, 1.3))
+        grid = fig.add_gridspec(3, 2, height_ratios=(1.0, 1.3, 1.1))
         ax = fig.add_subplot(grid[0, :])
         t = vs["t_s"]
         tru = vs["hv_true_xy"]
@@ -217,7 +219,7 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
                 ax.plot(t, e, **st, label=name + (f" ({n_off} off scale)" if n_off else ""))
         ax.set_xlabel("time (s)")
         ax.set_ylabel("HV 2D position error (m)")
-        ax.set_title("Host vehicle error over time" + (f" ({off} points outside {floor:.2g}..{top:.2g} m, at the edge)"
+        ax.set_title("Host vehicle error over time" + (f" ({off} off the axis, at the edge)"
                                                        if off else ""))
         if log:
             ax.set_yscale("log")
@@ -227,10 +229,41 @@ def plot_vehicle(vs: dict, path: str, *, dpi: int = FIG_DPI) -> None:
         ax.grid(True, alpha=0.3)
         if any(np.isfinite(e).any() for e in vs["hv_err_m"].values()):
             ax.legend(fontsize="small")
+        _fv_urgency(fig.add_subplot(grid[2, 0]), fig.add_subplot(grid[2, 1]), t, vs["fv"], colours)
         fig.tight_layout()
         _save(fig, path, dpi)
     finally:
         plt.close(fig)
+
+
+def _fv_urgency(ax_ttc, ax_zone, t, fvs: dict, colours) -> None:
+    """Time to collision (clipped at TTC_AXIS_MAX_S) and zone of each forward vehicle over time."""
+    from receiver.evaluate.metrics import FV_ZONES
+    off = 0
+    for i, (label, fv) in enumerate(fvs.items()):
+        c = colours[i % len(colours)]
+        ttc = fv.get("ttc_s")
+        if ttc is not None and np.isfinite(ttc).any():
+            v, n_off = _clipped(ttc, 0.0, TTC_AXIS_MAX_S)
+            off += n_off
+            ax_ttc.plot(t, v, ".", color=c, ms=4, label=f"FV {label}")
+        zone = fv.get("zone")
+        if zone is not None and np.isfinite(zone).any():
+            ax_zone.step(t, zone + 0.06 * i, where="post", color=c, label=f"FV {label}")
+    ax_ttc.set_ylim(0, TTC_AXIS_MAX_S)
+    ax_ttc.set_xlabel("time (s)")
+    ax_ttc.set_ylabel("time to collision (s)")
+    ax_ttc.set_title("Time to collision (closing cars only)"
+                     + (f" ({off} above {TTC_AXIS_MAX_S:g} s, at the edge)" if off else ""))
+    ax_ttc.grid(True, alpha=0.3)
+    ax_zone.set_yticks(range(len(FV_ZONES)), FV_ZONES)
+    ax_zone.set_ylim(-0.5, len(FV_ZONES) - 0.3)
+    ax_zone.set_xlabel("time (s)")
+    ax_zone.set_title("Zone (thesis Figure 27)")
+    ax_zone.grid(True, alpha=0.3)
+    for ax in (ax_ttc, ax_zone):
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="small")
 
 
 def _hv_styles(fixes: dict) -> dict:
