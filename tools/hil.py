@@ -9,6 +9,8 @@
    stream (`DUMP`): OOK chips or S2-PSK symbols from a packet start.
 3. Rebuilds each light's drive waveform from that read-back stream (not from the scene's
    own encoder), renders the scene through the synthetic camera and runs the receiver.
+   The driver is then put back as it was found (`STATUS` before: mode, ID and rate of each
+   mode the test touched, symbol clock, running or stopped).
 4. Reports, per configured ID that came into view, whether and when it came back, and
    every wrong ID. Exit status 0 only when every *resolvable* ID came back and none was wrong.
 
@@ -127,6 +129,45 @@ def configure_lights(client, port: str, scene, mode: str) -> dict[int, bytearray
     return dumps
 
 
+def parse_status(reply: str) -> dict:
+    """{'mode', 'id', 'rate', 'symclk', 'running'} of an `OK STATUS mode=M id=N ...` reply."""
+    parts = reply.split()
+    try:
+        if parts[:2] != ["OK", "STATUS"]:
+            raise ValueError
+        kv = dict(p.split("=", 1) for p in parts[2:])
+        return {"mode": kv["mode"], "id": int(kv["id"]), "rate": int(kv["rate"]), "symclk": int(kv["symclk"]),
+                "running": kv["running"] == "1"}
+    except (ValueError, KeyError):
+        raise InputError(f"driver sent a malformed STATUS reply: {reply[:60]!r}") from None
+
+
+def driver_state(client, mode: str) -> list[dict]:
+    """The driver's state as found: its current mode's STATUS, then (when the test's `mode` is
+    another) that mode's ID and rate, which the test overwrites too (the driver keeps one ID and
+    rate per mode). `restore_driver` puts them back."""
+    found = parse_status(client.command("STATUS"))
+    states = [found]
+    label = mode.upper()
+    if found["mode"] != label:
+        client.command(f"MODE {label}")
+        states.insert(0, parse_status(client.command("STATUS")))
+        client.command(f"MODE {found['mode']}")
+    return states
+
+
+def restore_driver(client, states: list[dict]) -> None:
+    """Each saved mode's ID and rate, the found mode last (with its symbol clock), and the
+    waveform running or stopped as it was."""
+    for st in states:
+        client.command(f"MODE {st['mode']}")
+        client.command(f"ID {st['id']}")
+        client.command(f"RATE {st['rate']}")
+    found = states[-1]
+    client.command(f"SYMCLK {found['symclk']}")
+    client.command("START" if found["running"] else "STOP")
+
+
 def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int = 1,
              progress=None, scene_name: str | None = None) -> dict:
     """Configure, render and decode; returns the report (see module docstring)."""
@@ -144,7 +185,11 @@ def run_loop(client, port: str, mode: str = "ook", frames: int = 30, seed: int =
     scene = make_scene(scene_name, seed=seed, n_frames=frames)
     truth_frames: dict[int, dict] = {}
     run_frames: list[dict] = []
-    dumps = configure_lights(client, port, scene, mode)
+    saved = driver_state(client, mode)
+    try:
+        dumps = configure_lights(client, port, scene, mode)
+    finally:
+        restore_driver(client, saved)   # the driver is left as it was found
     rx = Receiver(scene.camera, scene.led_map)
     first_seen: dict[int, int] = {}
     first_decoded: dict[int, int] = {}

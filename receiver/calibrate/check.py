@@ -1,7 +1,10 @@
 """Can this camera, with these settings, receive? (`check_frames`, `occloc check`).
 
-Each test looks at a clip of frames and reports a `Finding` (ok or a problem, with what to change;
-V4L2 controls as `v4l2-ctl -d DEV -c name=value`):
+Each test looks at a clip of frames and reports a `Finding` (ok or a problem, its measured value
+and limit, and what to change, worded for the source: `v4l2-ctl -c name=value` for a V4L2
+camera, the camera app's settings for photos, both for a video file). Photos (`source_kind`
+"images") are independent stills: a light seen once counts, and the tests that need a clip
+(drift, banding, timestamps) say they do not apply.
 
 * stripes: stripe depth (`receiver.vision.profile.stripe_depth`) of every LED followed over the
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
@@ -16,7 +19,8 @@ V4L2 controls as `v4l2-ctl -d DEV -c name=value`):
 * timestamps: non-increasing times, gaps longer than 1.5 frame intervals (dropped frames),
   identical consecutive frames (an encoder filling a drop), the source's own skip counters.
 * focus: the blobs' left/right edge blur (`receiver.calibrate.rows.edge_blur_px`) above
-  `MAX_BLUR_PX`.
+  `MAX_BLUR_PX`, unless the stripes keep a median depth of `FOCUS_STRIPE_DEPTH`: a lens blur that
+  wide would flatten them, so the wide edge is the fixture's own soft rim (reported, not failed).
 """
 
 from __future__ import annotations
@@ -37,6 +41,10 @@ DRIFT_FRAC = 0.15
 BAND_MIN_DN = 1.5
 BAND_MIN_FRAC = 0.03
 MAX_BLUR_PX = 2.5
+# A wide LED edge (above MAX_BLUR_PX) with stripes this deep (median) is not a focus problem: a lens
+# blur of that width would have flattened the stripes (a rendered 4 px defocus leaves 0.41); the
+# edge is the fixture's own soft rim (the Luxapose phone photos: 8-13 px edges, depth 0.99).
+FOCUS_STRIPE_DEPTH = 0.8
 EXPOSURE_CHIP_FRAC = 0.5
 GAP_FACTOR = 1.5
 ASSOC_PX = 40.0
@@ -65,6 +73,46 @@ def _chip_rates(led_map) -> list[float]:
     return rates
 
 
+# What to change, by finding and source kind ("v4l2" camera, "images" = photos, else a video file).
+FIXES = {
+    "no_leds": {"v4l2": "point the camera at the lights; lower exposure/gain if the image is saturated",
+                "images": "photograph the lights (they must fill some of the frame); use a lower ISO "
+                          "and a shorter shutter time if they are white blobs",
+                "video": "record with the lights in view; lower exposure/gain if the image is saturated"},
+    "stripes": {"v4l2": "shorten the exposure (v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=1) "
+                        "and lower the gain; the LEDs must be OOK/tone modulated",
+                "images": "use the camera app's manual (pro) mode: the shortest shutter time (1/4000 s or "
+                          "shorter) and a low ISO; the LEDs must be OOK/tone modulated",
+                "video": "record with a short manual exposure and low gain (a V4L2 webcam: v4l2-ctl -c "
+                         "auto_exposure=1 -c exposure_time_absolute=1); the LEDs must be OOK/tone modulated"},
+    "gain_drift": {"v4l2": "fix exposure and gain: v4l2-ctl -c auto_exposure=1 -c gain=N "
+                           "(and white_balance_automatic=0)",
+                   "video": "record with exposure, gain and white balance fixed (a V4L2 webcam: v4l2-ctl -c "
+                            "auto_exposure=1 -c gain=N -c white_balance_automatic=0)"},
+    "banding": {"v4l2": "mains flicker: v4l2-ctl -c power_line_frequency=1 (50 Hz) or 2 (60 Hz); "
+                        "or an exposure of whole flicker periods, or turn off the flickering lights",
+                "video": "mains flicker: set the camera's anti-flicker to the mains frequency (a V4L2 webcam: "
+                         "v4l2-ctl -c power_line_frequency=1 or 2), or turn off the flickering lights"},
+    "timestamps": {"v4l2": "frames are lost: lower the resolution or frame rate (v4l2-ctl --set-fmt-video / "
+                           "--set-parm), disable auto exposure priority (v4l2-ctl -c exposure_dynamic_framerate=0), "
+                           "use a raw format (GREY/YUYV) and a faster disk/USB port",
+                   "video": "frames are lost: record at a lower resolution or frame rate, with a fixed frame "
+                            "rate (no auto-exposure priority), to a faster disk"},
+    "focus": {"v4l2": "focus on the lights: v4l2-ctl -c focus_automatic_continuous=0 -c focus_absolute=N "
+                      "(or focus_auto=0), or clean the lens",
+              "images": "tap the lights to focus on them (or set manual focus to their distance), hold the "
+                        "phone still, clean the lens",
+              "video": "focus on the lights (fixed focus at their distance), or clean the lens"},
+}
+
+
+def fix_for(name: str, source_kind: str) -> str:
+    """The advice of finding `name` worded for the source (`FIXES`)."""
+    kind = source_kind if source_kind in ("v4l2", "images") else "video"
+    options = FIXES[name]
+    return options.get(kind) or options["video"]
+
+
 def _background_rows(gray: np.ndarray) -> np.ndarray:
     """Mean of every row over the background pixels (lights and their glow masked), nan when a
     row is mostly light."""
@@ -81,9 +129,24 @@ def _background_rows(gray: np.ndarray) -> np.ndarray:
     return out
 
 
+def _receiver_detect(camera, led_map, still: bool):
+    """The detection settings `occloc run` uses on these frames (photos: flat regions and blobs
+    much smaller than the biggest light dropped), or None (the defaults) without camera and map:
+    the check judges the blobs the receiver would decode."""
+    if camera is None or led_map is None or not still:
+        return None
+    from receiver.decode.policy import ModePlan
+    from receiver.pipeline import Receiver, ReceiverSettings
+    return Receiver._resolve(ReceiverSettings(), camera, ModePlan.from_map(led_map), True).detect
+
+
 def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_frames: int = 90,
-                 source_counts: dict | None = None) -> list[Finding]:
-    """The findings (see the module docstring) for an iterable of `Frame`s."""
+                 source_counts: dict | None = None, source_kind: str = "video") -> list[Finding]:
+    """The findings (see the module docstring) for an iterable of `Frame`s. `source_kind`: the
+    frame source's kind ("v4l2", "images", "video", "recording", "stdin"): photos are judged
+    as stills, and the advice is worded for the source (`fix_for`)."""
+    still = source_kind == "images"
+    detect_settings = _receiver_detect(camera, led_map, still)
     times, idx, means, peaks, bgrows = [], [], [], [], []
     tracks: list[dict] = []
     blurs = []
@@ -102,7 +165,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         means.append(float(g.mean()))
         bgrows.append(_background_rows(g))
         kept.append(f)
-        blobs = [b for b in detect(g) if not b.border]
+        blobs = [b for b in detect(g, settings=detect_settings) if not b.border]
         pk = [b.peak for b in blobs if b.peak < 250]
         peaks.append(float(np.median(pk)) if pk else np.nan)
         for b in blobs:
@@ -136,22 +199,26 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     rates = _chip_rates(led_map)
     striped = bool(rates) or led_map is None
     # stripes
-    leds = [t for t in tracks if t["n"] >= max(2, len(times) // 4) and t["depth"]]
+    # a light of a photo is seen once; in a clip it must be in a quarter of the frames (and two)
+    min_seen = 1 if still else max(2, len(times) // 4)
+    leds = [t for t in tracks if t["n"] >= min_seen and t["depth"]]
     depth = [{"cx": round(t["cx"], 1), "cy": round(t["cy"], 1), "depth": round(float(np.median(t["depth"])), 3)}
              for t in leds]
+    deep = False   # the stripes are deep enough to clear a wide edge of being a focus problem
     if not leds:
-        out.append(Finding("stripes", False, "no LED seen in most frames",
-                           "point the camera at the lights; lower exposure/gain if the image is saturated"))
+        seen = "in the photo" if still else f"in at least {min_seen} of {len(times)} frames"
+        out.append(Finding("stripes", False, f"no LED seen {seen}", fix_for("no_leds", source_kind)))
     elif striped:
         weak = [d for d in depth if d["depth"] < MIN_STRIPE_DEPTH]
-        text = f"{len(depth)} LEDs, stripe depth median {np.median([d['depth'] for d in depth]):.2f}"
+        text = (f"{len(depth)} LEDs, stripe depth median {np.median([d['depth'] for d in depth]):.2f} "
+                f"(each needs >= {MIN_STRIPE_DEPTH:g})")
         if weak and len(weak) * 2 >= len(depth):
             out.append(Finding("stripes", False, text + f"; {len(weak)} weakly striped",
-                               "shorten the exposure (v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=1) "
-                               "and lower the gain; the LEDs must be OOK/tone modulated",
-                               {"leds": depth}))
+                               fix_for("stripes", source_kind), {"leds": depth, "min_depth": MIN_STRIPE_DEPTH}))
         else:
-            out.append(Finding("stripes", True, text, value={"leds": depth}))
+            deep = float(np.median([d["depth"] for d in depth])) >= FOCUS_STRIPE_DEPTH
+            out.append(Finding("stripes", True, text + (f"; {len(weak)} weakly striped" if weak else ""),
+                               value={"leds": depth, "min_depth": MIN_STRIPE_DEPTH}))
     # exposure
     if rolling and rates:
         chip_us = 1e6 / max(rates)
@@ -192,11 +259,15 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     if ok.sum() >= 5 and span > 0 and np.nanmean(bgl) > 5:
         drift["background"] = float(np.polyfit(t[ok], bgl[ok], 1)[0] * span / np.nanmean(bgl[ok]))
     bad = any(abs(v) > DRIFT_FRAC for v in drift.values())
-    out.append(Finding("gain_drift", not bad,
-                       "brightness trend " + ", ".join(f"{k} {v:+.0%}" for k, v in drift.items()) if drift
-                       else "brightness trend not measurable",
-                       "fix exposure and gain: v4l2-ctl -c auto_exposure=1 -c gain=N "
-                       "(and white_balance_automatic=0)" if bad else "", {"drift": drift}))
+    if still:
+        out.append(Finding("gain_drift", True, "not applicable to independent photos"))
+    else:
+        out.append(Finding("gain_drift", not bad,
+                           "brightness trend " + ", ".join(f"{k} {v:+.0%}" for k, v in drift.items())
+                           + f" (limit +-{DRIFT_FRAC:.0%} over the clip)" if drift
+                           else "brightness trend not measurable",
+                           fix_for("gain_drift", source_kind) if bad else "",
+                           {"drift": drift, "limit_frac": DRIFT_FRAC}))
     # banding
     B = np.asarray(bgrows)
     amps = []
@@ -217,10 +288,14 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 amps.append(float(np.abs(X[k_lo:k_hi + 1]).max() * 4.0 / x.size))
     amp = float(np.median(amps)) if amps else 0.0
     bad = amp > BAND_MIN_DN and amp > BAND_MIN_FRAC * max(level, 1.0)
-    out.append(Finding("banding", not bad, f"background row pattern {amp:.1f} DN on a {level:.0f} DN background",
-                       "mains flicker: v4l2-ctl -c power_line_frequency=1 (50 Hz) or 2 (60 Hz); "
-                       "or an exposure of whole flicker periods, or turn off the flickering lights" if bad else "",
-                       {"band_dn": round(amp, 3), "background_dn": round(level, 2)}))
+    limit = max(BAND_MIN_DN, BAND_MIN_FRAC * max(level, 1.0))
+    if len(B) < 3:
+        out.append(Finding("banding", True, f"not measurable from {len(B)} frame(s) (needs 3)"))
+    else:
+        out.append(Finding("banding", not bad, f"background row pattern {amp:.1f} DN on a {level:.0f} DN "
+                                               f"background (limit {limit:.1f} DN)",
+                           fix_for("banding", source_kind) if bad else "",
+                           {"band_dn": round(amp, 3), "background_dn": round(level, 2), "limit_dn": round(limit, 3)}))
     # timestamps
     dt = np.diff(t)
     rate = fps or (camera.fps if camera is not None and camera.fps else 0.0)
@@ -232,21 +307,27 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     counts = dict(source_counts or {})
     src_lost = int(counts.get("dropped", 0)) + int(counts.get("skipped", 0))
     bad = back > 0 or gaps > 0 or dup > 0 or src_lost > 0 or index_gaps > 0
-    out.append(Finding("timestamps", not bad,
-                       f"{len(t)} frames, interval {nominal * 1000:.1f} ms; {gaps} gaps (~{lost} frames dropped), "
-                       f"{back} non-increasing, {dup} repeated frames, {src_lost} lost by the source",
-                       "frames are lost: lower the resolution or frame rate (v4l2-ctl --set-fmt-video / "
-                       "--set-parm), disable auto exposure priority (v4l2-ctl -c exposure_dynamic_framerate=0), "
-                       "use a raw format (GREY/YUYV) and a faster disk/USB port" if bad else "",
-                       {"gaps": gaps, "dropped_est": lost, "non_increasing": back, "repeated": dup,
-                        "source_lost": src_lost}))
+    if still:
+        out.append(Finding("timestamps", True, f"{len(t)} photo(s): not applicable to independent photos"))
+    else:
+        out.append(Finding("timestamps", not bad,
+                           f"{len(t)} frames, interval {nominal * 1000:.1f} ms; {gaps} gaps longer than "
+                           f"{GAP_FACTOR:g} intervals (~{lost} frames dropped), {back} non-increasing, {dup} repeated "
+                           f"frames, {src_lost} lost by the source (limit: none of these)",
+                           fix_for("timestamps", source_kind) if bad else "",
+                           {"gaps": gaps, "dropped_est": lost, "non_increasing": back, "repeated": dup,
+                            "source_lost": src_lost}))
     # focus
     if blurs:
         blur = float(np.median(blurs))
-        bad = blur > MAX_BLUR_PX
-        out.append(Finding("focus", not bad, f"LED edge blur sigma {blur:.2f} px",
-                           "focus on the lights: v4l2-ctl -c focus_automatic_continuous=0 -c focus_absolute=N "
-                           "(or focus_auto=0), or clean the lens" if bad else "", {"blur_px": round(blur, 3)}))
+        wide = blur > MAX_BLUR_PX
+        bad = wide and not deep
+        text = f"LED edge blur sigma {blur:.2f} px (limit {MAX_BLUR_PX:g} px)"
+        if wide and deep:
+            text += (f"; the stripes keep their depth (median >= {FOCUS_STRIPE_DEPTH:g}), so the edge is the "
+                     f"fixture's, not the focus")
+        out.append(Finding("focus", not bad, text, fix_for("focus", source_kind) if bad else "",
+                           {"blur_px": round(blur, 3), "limit_px": MAX_BLUR_PX}))
     else:
         out.append(Finding("focus", True, "LED edge blur not measurable (LEDs too small or saturated)"))
     return out

@@ -11,8 +11,17 @@ Views are filtered before calibrating:
 * duplicates: a view whose corners lie within `min_move_frac` of the image diagonal (mean
   distance of the common corners) of an accepted view adds nothing (a still board in a video);
 * too few corners (ChArUco: fewer than 6 detected).
+Chessboard corners come from OpenCV's sector-based finder (`cv2.findChessboardCornersSB`, with
+its accuracy flag: sub-pixel corners from the board's own sectors, more accurate than
+`findChessboardCorners` + `cornerSubPix`), the classic finder only where it finds nothing.
 Then `cv2.calibrateCameraExtended` on the accepted views (at most `max_views`, spread evenly),
-which gives the RMS reprojection error and the per-view errors.
+which gives the RMS reprojection error and the per-view errors; views whose error exceeds
+`VIEW_ERROR_FACTOR` x the median (and `MIN_VIEW_ERROR_PX`) are dropped and the camera calibrated
+again (a mis-ordered or mis-detected board pulls every parameter).
+
+`calibration_problems` judges the result: RMS above `MAX_RMS_PX`, or a radial distortion that
+scales the image corner's radius by less than `MIN_RADIAL_SCALE` or more than `MAX_RADIAL_SCALE`
+(no ordinary lens does: a ChArUco fit with k3 = 48925 does), or fewer views than parameters.
 """
 
 from __future__ import annotations
@@ -25,6 +34,18 @@ import cv2
 import numpy as np
 
 from receiver.core.errors import InputError
+
+
+# A view whose reprojection error exceeds this many times the median of the views (and
+# MIN_VIEW_ERROR_PX) is dropped before the final calibration.
+VIEW_ERROR_FACTOR = 3.0
+MIN_VIEW_ERROR_PX = 0.5
+# A calibration with an RMS reprojection error above this (px) is refused (sharp corners of a
+# flat board fit to ~0.1-0.5 px).
+MAX_RMS_PX = 1.0
+# The radial distortion factor 1 + k1 r^2 + k2 r^4 + k3 r^6 anywhere out to the image corner must
+# stay within these (a wide-angle webcam reaches ~0.7; a factor out of range is an overfit).
+MIN_RADIAL_SCALE, MAX_RADIAL_SCALE = 0.5, 1.5
 
 
 @dataclass(frozen=True)
@@ -86,9 +107,11 @@ class CalibrationResult:
     frames: list[int]
     size: tuple[int, int]
     stats: ViewStats = field(default_factory=ViewStats)
+    dropped_views: list[tuple[int, float]] = field(default_factory=list)  # (frame, error px) dropped
 
     def to_json(self) -> dict:
         return {"rms_px": round(self.rms_px, 4), "views": len(self.frames),
+                "dropped_views": [{"frame": i, "error_px": round(e, 4)} for i, e in self.dropped_views],
                 "fx": round(float(self.K[0, 0]), 3), "fy": round(float(self.K[1, 1]), 3),
                 "cx": round(float(self.K[0, 2]), 3), "cy": round(float(self.K[1, 2]), 3),
                 "dist": [round(float(v), 6) for v in self.dist.ravel()[:5]],
@@ -141,12 +164,15 @@ class ViewCollector:
     def _detect(self, gray):
         b = self.board
         if b.kind == "chess":
-            flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-            ok, corners = cv2.findChessboardCorners(gray, (b.cols, b.rows), flags=flags)
+            ok, corners = cv2.findChessboardCornersSB(
+                gray, (b.cols, b.rows), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
             if not ok:
-                return None
-            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-            corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
+                flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+                ok, corners = cv2.findChessboardCorners(gray, (b.cols, b.rows), flags=flags)
+                if not ok:
+                    return None
+                crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+                corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
             return corners.reshape(-1, 2).astype(np.float32), b.object_points(), None
         cc, cids, _mc, _mids = self._det.detectBoard(gray)
         if cids is None or len(cids) < 6:
@@ -196,6 +222,21 @@ def calibrate_views(col: ViewCollector, *, max_views: int = 40, K0: np.ndarray |
     if len(views) > max_views:
         keep = np.linspace(0, len(views) - 1, max_views).round().astype(int)
         views = [views[i] for i in keep]
+    rms, K, dist, per_view = _calibrate(views, col.size, K0)
+    dropped = []
+    med = float(np.median(per_view))
+    limit = max(VIEW_ERROR_FACTOR * med, MIN_VIEW_ERROR_PX)
+    bad = [k for k, e in enumerate(per_view) if e > limit]
+    if bad and len(views) - len(bad) >= min_views:
+        dropped = [(int(views[k][0]), float(per_view[k])) for k in bad]
+        views = [v for k, v in enumerate(views) if k not in bad]
+        rms, K, dist, per_view = _calibrate(views, col.size, K0)
+    return CalibrationResult(K, dist.ravel()[:5] if dist.size >= 5 else np.pad(dist.ravel(), (0, 5 - dist.size)),
+                             float(rms), per_view, [int(v[0]) for v in views], col.size, col.stats, dropped)
+
+
+def _calibrate(views, size, K0):
+    """(rms px, K, dist, per-view errors px) of cv2.calibrateCameraExtended over `views`."""
     obj = [v[2] for v in views]
     img = [v[1].reshape(-1, 1, 2) for v in views]
     flags = 0
@@ -204,7 +245,26 @@ def calibrate_views(col: ViewCollector, *, max_views: int = 40, K0: np.ndarray |
         K, flags = np.array(K0, np.float64), cv2.CALIB_USE_INTRINSIC_GUESS
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     rms, K, dist, _r, _t, _si, _se, per_view = cv2.calibrateCameraExtended(
-        obj, img, col.size, K, None, flags=flags, criteria=crit)
-    return CalibrationResult(K, dist.ravel()[:5] if dist.size >= 5 else np.pad(dist.ravel(), (0, 5 - dist.size)),
-                             float(rms), [float(v) for v in np.asarray(per_view).ravel()],
-                             [int(v[0]) for v in views], col.size, col.stats)
+        obj, img, size, K, None, flags=flags, criteria=crit)
+    return float(rms), K, dist, [float(v) for v in np.asarray(per_view).ravel()]
+
+
+def calibration_problems(res: CalibrationResult) -> list[str]:
+    """Why this calibration should not be trusted, with its numbers ([] when it is sound)."""
+    out = []
+    if not math.isfinite(res.rms_px) or res.rms_px > MAX_RMS_PX:
+        out.append(f"RMS reprojection error {res.rms_px:.3f} px is above {MAX_RMS_PX:g} px")
+    k1, k2, _p1, _p2, k3 = (float(v) for v in np.asarray(res.dist, float).ravel()[:5])
+    w, h = res.size
+    fx, fy, cx, cy = res.K[0, 0], res.K[1, 1], res.K[0, 2], res.K[1, 2]
+    r_max = max(math.hypot((x - cx) / fx, (y - cy) / fy) for x in (0, w) for y in (0, h))
+    r2 = np.linspace(0.0, r_max, 200) ** 2
+    scale = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+    lo, hi = float(scale.min()), float(scale.max())
+    if not (lo >= MIN_RADIAL_SCALE and hi <= MAX_RADIAL_SCALE):
+        out.append(f"distortion k1 {k1:.4g}, k2 {k2:.4g}, k3 {k3:.4g} scales radii by {lo:.3g}..{hi:.3g} "
+                   f"out to the image corner (a lens stays within {MIN_RADIAL_SCALE:g}..{MAX_RADIAL_SCALE:g})")
+    if not (fx > 0 and fy > 0 and 0 <= cx <= w and 0 <= cy <= h):
+        out.append(f"camera matrix fx {fx:.1f}, fy {fy:.1f}, cx {cx:.1f}, cy {cy:.1f} is not a camera's "
+                   f"for a {w}x{h} image")
+    return out

@@ -14,7 +14,8 @@ Method (`measure_row_time`):
    fraction of a row: every stripe edge, rising or falling.
 3. A coarse unit from the gaps between consecutive crossings (`coarse_unit`: the longest unit
    whose comb fits the gaps, so one-chip gaps of Manchester are not mistaken for two-chip ones),
-   searched within [0.5, 2] of the camera file's nominal row time when it has one.
+   searched within [0.5, 2] of the camera file's nominal row time when it has one, else over the
+   physical range of row times (`ROW_US_RANGE`, 3-60 us).
 4. Each crossing gets an integer unit index (consecutive gaps rounded to whole units: robust to
    a 10 % wrong coarse unit and to missed edges), then one least-squares fit over every blob of
    every frame: position = a_blob + U * n + delta * direction (delta: the rising/falling offset of
@@ -53,8 +54,11 @@ HYSTERESIS = 0.2
 MIN_SWING = 10.0
 # The coarse unit is searched within this factor of the nominal one (camera file).
 PRIOR_RANGE = (0.5, 2.0)
-# Without a nominal row time, units are searched in [MIN_UNIT_ROWS, MAX_UNIT_ROWS].
-MIN_UNIT_ROWS, MAX_UNIT_ROWS = 1.2, 400.0
+# Units shorter than this many rows are not resolved (the stripes blur into each other).
+MIN_UNIT_ROWS = 1.2
+# Without a nominal row time, row times in this range are searched (us): phone sensors read a row
+# in about 5-25 us, webcams 10-60 us, fast global-shutter-like CMOS modes a few us.
+ROW_US_RANGE = (3.0, 60.0)
 # Residuals beyond this many robust sigmas (and at least OUTLIER_MIN_ROWS) are dropped.
 OUTLIER_SIGMA, OUTLIER_MIN_ROWS = 4.0, 0.25
 # Largest gap between consecutive edges, in units, kept in a blob (OOK: runs up to 4 chips
@@ -378,40 +382,30 @@ def fit_exposure(seg: Segment, unit: float, delta: float, blur_px: float = 0.0) 
     return None if best is None or not math.isfinite(best[0]) else float(best[1])
 
 
+def unit_range(unit_rate_hz: float) -> tuple[float, float]:
+    """(shortest, longest) unit in rows over `ROW_US_RANGE` for a light of `unit_rate_hz` units/s."""
+    return 1e6 / (unit_rate_hz * ROW_US_RANGE[1]), 1e6 / (unit_rate_hz * ROW_US_RANGE[0])
+
+
 def measure_row_time(frames, *, mode: str, rate_hz: float, prior_row_us: float = 0.0,
                      max_frames: int | None = None, progress=None) -> RowTimeResult:
     """Row readout time from an iterable of `Frame`s of an LED at a known rate.
 
     mode: 'tone' (rate_hz = the tone frequency) or 'ook' (rate_hz = the chip rate);
-    prior_row_us: the camera file's nominal row time (0 = unknown; then units of
-    MIN_UNIT_ROWS..MAX_UNIT_ROWS rows are searched). Raises InputError when no striped LED
-    gives a fit."""
+    prior_row_us: the camera file's nominal row time (0 = unknown; then row times of
+    `ROW_US_RANGE` are searched). Raises InputError when no striped LED gives a fit."""
     if mode not in ("tone", "ook"):
         raise ValueError(mode)
     if not rate_hz > 0:
         raise InputError("the LED's rate must be positive")
     unit_rate = 2.0 * rate_hz if mode == "tone" else rate_hz
-    if not prior_row_us > 0:
-        # No nominal row time: a first look at a few frames with the detector's default bridging
-        # gives the unit (the comb over every blob's edge gaps), then the full measurement.
-        import itertools
-        frames = iter(frames)
-        head = list(itertools.islice(frames, 10))
-        gaps = []
-        for f in head:
-            for prof, _b in blob_profiles(f.gray, 8):
-                gaps.append(np.diff(crossings(prof)[0]))
-        g = np.concatenate(gaps) if gaps else np.zeros(0)
-        u = coarse_unit(g[g >= MIN_UNIT_ROWS], MIN_UNIT_ROWS, 60.0) if g.size else None
-        if u is not None:
-            prior_row_us = 1e6 / (unit_rate * u)
-        frames = itertools.chain(head, frames)
     if prior_row_us > 0:
         u_prior = 1e6 / (unit_rate * prior_row_us)
         u_lo, u_hi = u_prior * PRIOR_RANGE[0], u_prior * PRIOR_RANGE[1]
     else:
-        u_prior = None
-        u_lo, u_hi = MIN_UNIT_ROWS, MAX_UNIT_ROWS
+        # No nominal row time (e.g. a camera file fresh from `calibrate intrinsics`): the units
+        # of the physical range of row times, ROW_US_RANGE.
+        u_lo, u_hi = unit_range(unit_rate)
     u_lo = max(u_lo, MIN_UNIT_ROWS)
     gap_px = int(math.ceil(1.5 * u_hi)) + 1
     segs: list[Segment] = []
@@ -493,3 +487,87 @@ def exposure_warning(exposure_us: float | None, chip_rates_hz, *, frac: float = 
                 f"({chip_us:.0f} us): stripes wash out; shorten it (V4L2: v4l2-ctl -c auto_exposure=1 "
                 f"-c exposure_time_absolute=N, in 100 us units)")
     return None
+
+
+# Several tone lights of a map in one view (`measure_row_time_tones`): their row times must agree
+# within this fraction of the combined one, else a warning names them.
+MAX_LIGHT_DISAGREE = 0.03
+# Smallest spectral SNR (`stripe_frequency_hz` quality) of a blob's stripe frequency that is used.
+MIN_TONE_QUALITY = 25.0
+# Row-time grid of the search (log-spaced over ROW_US_RANGE).
+ROW_GRID_STEPS = 4000
+
+
+@dataclass
+class LightsRowTime:
+    """Row time combined from several tone lights: `t_row_us` (median of the lights' own),
+    `spread_us` (their standard deviation), `lights` [{cx, cy, freq_hz, row_us}], `warning`."""
+
+    t_row_us: float
+    spread_us: float
+    lights: list
+    frames: int
+    warning: str | None = None
+
+    def to_json(self) -> dict:
+        return {"row_readout_us": round(self.t_row_us, 5), "spread_us": round(self.spread_us, 5),
+                "lights": self.lights, "frames": self.frames, "mode": "tone", "warning": self.warning}
+
+
+def measure_row_time_tones(frames, freqs_hz, *, max_frames: int | None = None) -> LightsRowTime:
+    """Row readout time from every striped light of a map's tone frequencies (`freqs_hz`) in
+    view, without a nominal row time. Each blob's stripe frequency is measured in cycles per row
+    k (`receiver.decode.tone.stripe_frequency_hz`); the row time T makes every k = f T for one of
+    the map's f: the T in `ROW_US_RANGE` whose assignment fits best (least sum of |log(k / (f T))|),
+    then each light's own T = k / f, combined by the median with their spread. Lights that
+    disagree by more than `MAX_LIGHT_DISAGREE` are a warning."""
+    from receiver.decode.tone import stripe_frequency_hz
+    from receiver.vision.tone_profile import tone_profile
+
+    f = np.array(sorted({float(v) for v in freqs_hz if v and v > 0}))
+    if f.size == 0:
+        raise InputError("the map has no tone frequencies")
+    u_hi = 1e6 / (2.0 * f.min() * ROW_US_RANGE[0])
+    gap_px = int(min(math.ceil(1.5 * u_hi), 64)) + 1
+    ks, where, nframes = [], [], 0
+    for fr in frames:
+        if max_frames is not None and nframes >= max_frames:
+            break
+        nframes += 1
+        for b in detect(fr.gray, stripe_gap_px=gap_px):
+            if b.border:
+                continue
+            prof, w, _ = tone_profile(fr.gray, b)
+            if prof.size < 8:
+                continue
+            # "Hz at 1 us rows" = cycles per row x 1e6
+            k, q = stripe_frequency_hz(prof, 1.0, w, fmin_hz=0.8 * f.min() * ROW_US_RANGE[0])
+            if math.isfinite(k) and q >= MIN_TONE_QUALITY:
+                ks.append(k * 1e-6)
+                where.append((round(float(b.cx), 1), round(float(b.cy), 1), fr.index))
+    if nframes == 0:
+        raise InputError("no frames")
+    if not ks:
+        raise InputError(f"no striped light found in {nframes} frames (are the map's tone lights in view?)")
+    k = np.array(ks)
+    T = np.geomspace(ROW_US_RANGE[0] * 1e-6, ROW_US_RANGE[1] * 1e-6, ROW_GRID_STEPS)
+    resid = np.abs(np.log(k[None, :, None] / (f[None, None, :] * T[:, None, None])))   # (T, blob, f)
+    cost = resid.min(axis=2).sum(axis=1)
+    best = int(np.argmin(cost))
+    assign = f[resid[best].argmin(axis=1)]
+    each = k / assign
+    t_row = float(np.median(each))
+    spread = float(np.std(each, ddof=1)) if each.size >= 2 else 0.0
+    lights = [{"cx": cx, "cy": cy, "frame": i, "freq_hz": float(fk), "row_us": round(float(t) * 1e6, 4)}
+              for (cx, cy, i), fk, t in zip(where, assign, each)]
+    warn = None
+    off = np.abs(each / t_row - 1.0)
+    if each.size < 2:
+        warn = "one light only: no cross-check of the row time (photograph several of the map's lights)"
+    elif off.max() > MAX_LIGHT_DISAGREE:
+        bad = ", ".join(f"{l['freq_hz']:g} Hz at ({l['cx']:.0f}, {l['cy']:.0f}): {l['row_us']:.2f} us"
+                        for l, o in zip(lights, off) if o > MAX_LIGHT_DISAGREE)
+        warn = (f"the lights disagree by up to {100 * off.max():.1f} % (limit {100 * MAX_LIGHT_DISAGREE:g} %) "
+                f"about the row time {t_row * 1e6:.3f} us: {bad} (a light of another frequency, or a "
+                f"non-LED blob?)")
+    return LightsRowTime(t_row * 1e6, spread * 1e6, lights, nframes, warn)

@@ -26,6 +26,7 @@ SUBCOMMANDS = {
     "eval": "receiver.cli.eval",
     "calibrate": "receiver.cli.calibrate",
     "check": "receiver.cli.check",
+    "export": "receiver.cli.export",
 }
 
 # Developer commands: the synthetic camera and hardware-in-the-loop live in the source

@@ -7,7 +7,10 @@
   exposure_us, fps) kept from EXISTING.
 * `rows SOURCE --camera FILE (--freq-hz F | --ook-rate HZ) [--out FILE2] [--map MAP]`: the row
   readout time (and an exposure estimate) from a tone or OOK LED of known rate; written as
-  `row_readout_us` into FILE2, or into FILE (replaced atomically) without --out.
+  `row_readout_us` into FILE2, or into FILE (replaced atomically) without --out. FILE may have
+  no row time yet (0, as `intrinsics` writes without --camera): the physical range 3-60 us is
+  searched. With `--map MAP` and no rate, every tone light of the map in view is measured and
+  the lights combined (median and spread; a warning when they disagree).
 
 Progress goes to standard error, the result is one JSON line on standard output. Files are written
 to a temporary file in the same folder and renamed into place; an input is never overwritten
@@ -44,15 +47,20 @@ def add_arguments(p) -> None:
     a.add_argument("--max-blur-px", type=float, default=4.0, metavar="PX",
                    help="reject chessboard views whose edges are wider than this (4 px)")
     a.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
+    a.add_argument("--force", action="store_true",
+                   help="write a calibration that fails the checks (RMS above 1 px, absurd distortion), "
+                        "with a warning, instead of refusing it")
     r = sub.add_parser("rows", help="row readout time (and exposure) from a tone or OOK LED",
                        description="rolling-shutter row readout time from the stripes of an LED of known rate")
     r.add_argument("source", metavar="SOURCE", help="recording folder, video file, images or /dev/videoN")
     r.add_argument("--camera", required=True, metavar="FILE", help="camera.yaml (its row_readout_us is the starting guess)")
-    g = r.add_mutually_exclusive_group(required=True)
+    g = r.add_mutually_exclusive_group()
     g.add_argument("--freq-hz", type=float, metavar="F", help="a tone LED blinking at F Hz")
     g.add_argument("--ook-rate", type=float, metavar="HZ", help="an OOK LED at HZ chips per second")
     r.add_argument("--out", metavar="FILE2", help="write the camera file here (default: update FILE)")
-    r.add_argument("--map", metavar="MAP", help="LED map: warn when the exposure is too long for its chip rates")
+    r.add_argument("--map", metavar="MAP",
+                   help="LED map: warn when the exposure is too long for its chip rates; without --freq-hz "
+                        "and --ook-rate, every tone light of the map in view is measured and combined")
     r.add_argument("--max-frames", type=int, default=300, metavar="N", help="frames to read (300)")
     r.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
 
@@ -70,11 +78,15 @@ def _same(a: str, b: str | None) -> bool:
 def write_camera_atomic(path: str, cam) -> None:
     """save_camera to a temporary .yaml beside `path`, then rename it into place."""
     from receiver.io.camera import save_camera
+    from receiver.io.files import _umask
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=".camera-", suffix=".yaml", dir=folder)
     os.close(fd)
     try:
         save_camera(tmp, cam)
+        # mkstemp makes the file 0600: the camera file gets the mode a new file gets (the umask's),
+        # or keeps the mode of the file it replaces
+        os.chmod(tmp, os.stat(path).st_mode & 0o777 if os.path.exists(path) else 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -92,7 +104,7 @@ def _open(spec: str, size):
 
 def run_intrinsics(args) -> dict:
     import numpy as np
-    from receiver.calibrate.intrinsics import ViewCollector, calibrate_views, parse_board
+    from receiver.calibrate.intrinsics import ViewCollector, calibrate_views, calibration_problems, parse_board
     from receiver.core.errors import InputError
     from receiver.io.camera import CameraModel, load_camera
 
@@ -115,7 +127,15 @@ def run_intrinsics(args) -> dict:
     res = calibrate_views(col, max_views=args.max_views)
     for i, e in zip(res.frames, res.per_view_px):
         _progress(f"view frame {i}: {e:.3f} px")
+    for i, e in res.dropped_views:
+        _progress(f"view frame {i} dropped: reprojection error {e:.3f} px, far above the other views'")
     _progress(f"RMS reprojection error {res.rms_px:.3f} px over {len(res.frames)} views")
+    problems = calibration_problems(res)
+    if problems and not getattr(args, "force", False):
+        raise InputError("calibration refused: " + "; ".join(problems)
+                         + " (sharper, more varied board views; --force writes it anyway)")
+    for p in problems:
+        print(f"occloc: warning: {p}", file=sys.stderr)
     w, h = res.size
     keep = {}
     if existing is not None:
@@ -127,9 +147,54 @@ def run_intrinsics(args) -> dict:
     if cam.fps == 0 and getattr(src, "fps", 0):
         cam = dataclasses.replace(cam, fps=float(src.fps))
     write_camera_atomic(args.out, cam)
+    if existing is None:
+        print(f"occloc: note: {args.out}: row_readout_us and exposure_us are not measured from a board "
+              f"(written as 0): measure the row time with `occloc calibrate rows SOURCE --camera {args.out} "
+              f"--map MAP` (or --freq-hz F / --ook-rate HZ), or give --camera EXISTING to keep its values",
+              file=sys.stderr)
     out = res.to_json()
     out["out"] = args.out
+    out["problems"] = problems
     return out
+
+
+def _sensor_frames(src, cam):
+    """Photos turned to the camera's (sensor) orientation as `occloc run` turns them; other
+    sources as they come."""
+    if src.kind != "images":
+        yield from src
+        return
+    from receiver.cli.run import _fit_photo
+    from receiver.core.records import Frame
+    for f in src.photos():
+        _, gray = _fit_photo(cam, f.gray)
+        yield Frame(f.index, f.t_s, gray)
+
+
+def run_rows_from_map(args, cam, out_path) -> dict:
+    """`calibrate rows --map MAP` without a rate: every tone light of the map in view."""
+    from receiver.calibrate.rows import measure_row_time_tones
+    from receiver.core.errors import InputError
+    from receiver.io.ledmap import load_map
+
+    m = load_map(args.map)
+    freqs = [led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
+    if not freqs:
+        raise InputError(f"{args.map} has no tone lights: give --freq-hz F or --ook-rate HZ")
+    src = _open(args.source, args.size)
+    try:
+        res = measure_row_time_tones(_sensor_frames(src, cam), freqs, max_frames=args.max_frames)
+    finally:
+        src.close()
+    for light in res.lights:
+        _progress(f"light {light['freq_hz']:g} Hz at ({light['cx']:.0f}, {light['cy']:.0f}): {light['row_us']:.4f} us")
+    _progress(f"row readout {res.t_row_us:.4f} us, spread {res.spread_us:.4f} us over {len(res.lights)} lights")
+    if res.warning:
+        print(f"occloc: warning: {res.warning}", file=sys.stderr)
+    write_camera_atomic(out_path, dataclasses.replace(cam, row_readout_us=float(res.t_row_us)))
+    d = res.to_json()
+    d.update(previous_row_readout_us=cam.row_readout_us, out=out_path)
+    return d
 
 
 def run_rows(args) -> dict:
@@ -143,12 +208,17 @@ def run_rows(args) -> dict:
         raise InputError(f"--out {args.out} is the SOURCE: choose another file")
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
+    if args.freq_hz is None and args.ook_rate is None:
+        if not args.map:
+            raise InputError("calibrate rows needs the lights' rate: --freq-hz F, --ook-rate HZ, or --map MAP "
+                             "(its tone lights)")
+        return run_rows_from_map(args, cam, out_path)
     mode, rate = ("tone", args.freq_hz) if args.freq_hz is not None else ("ook", args.ook_rate)
     if not rate > 0:
         raise InputError("the LED's rate must be positive")
     src = _open(args.source, args.size)
     try:
-        res = measure_row_time(src, mode=mode, rate_hz=rate, prior_row_us=cam.row_readout_us,
+        res = measure_row_time(_sensor_frames(src, cam), mode=mode, rate_hz=rate, prior_row_us=cam.row_readout_us,
                                max_frames=args.max_frames, progress=_progress)
     finally:
         src.close()

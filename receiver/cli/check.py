@@ -22,12 +22,29 @@ def add_arguments(p) -> None:
     p.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
 
 
+def _photos(src, camera):
+    """Each photo turned to sensor orientation as `occloc run` turns it (`_fit_photo`); a photo
+    of another aspect ratio is skipped and named."""
+    from receiver.cli.run import _fit_photo
+    from receiver.core.errors import InputError
+    from receiver.core.records import Frame
+    for f in src.photos():
+        try:
+            _, gray = _fit_photo(camera, f.gray)
+        except InputError as e:
+            print(f"occloc: warning: {os.path.basename(src.files[f.index])}: {e}: skipped", file=sys.stderr)
+            continue
+        yield Frame(f.index, f.t_s, gray)
+
+
 def main(args) -> int:
     from receiver.calibrate.check import check_frames, render_text
     from receiver.core.errors import InputError
     from receiver.io.camera import fit_camera, load_camera
     from receiver.io.ledmap import load_map
     from receiver.io.sources import find_recording_files, open_source, parse_size
+    import numpy as np
+    from receiver.cli.run import _fit_photo, _rotated
 
     spec = args.source
     if not spec.startswith("/dev/video") and not os.path.exists(spec):
@@ -39,10 +56,16 @@ def main(args) -> int:
     led_map = load_map(map_path) if map_path else None
     src = open_source(spec, size=parse_size(args.size), camera=cam)
     try:
-        if cam is not None and src.size is not None:
-            cam, _rot = fit_camera(cam, src.size)
-        findings = check_frames(src, cam, led_map, fps=src.fps, max_frames=args.max_frames,
-                                source_counts={"dropped": src.dropped, "skipped": src.skipped})
+        frames = src
+        if cam is not None and src.kind == "images":
+            frames = _photos(src, cam)
+            cam, _ = _fit_photo(cam, np.zeros(src.size[::-1], np.uint8)) if src.size else (cam, False)
+        elif cam is not None and src.size is not None:
+            cam, rotate = fit_camera(cam, src.size)
+            frames = _rotated(src) if rotate else src
+        findings = check_frames(frames, cam, led_map, fps=src.fps, max_frames=args.max_frames,
+                                source_counts={"dropped": src.dropped, "skipped": src.skipped},
+                                source_kind=src.kind)
     finally:
         src.close()
     ok = all(f.ok for f in findings)

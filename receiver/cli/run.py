@@ -5,6 +5,12 @@ or --camera/--map. Frames whose size differs from the camera file: a 90-degree-r
 (portrait photo of a landscape sensor) is turned back so that image rows are sensor rows again
 (assumed: portrait = sensor turned clockwise); another size with the same aspect ratio scales
 the camera (`CameraModel.scaled`); anything else is an error.
+
+Photos (an image, or a folder of images) are independent observations: each is fitted to the
+camera on its own (orientation and size), located by a receiver of its own (no tracking or
+Kalman filter across photos), and its line names it (`"file"`). A photo sequence to be tracked
+is a video. A frame without a position says why in `"no_fix"` (`no_fix_reason`), and the summary
+counts the reasons.
 """
 
 from __future__ import annotations
@@ -46,10 +52,13 @@ def add_arguments(p) -> None:
     p.add_argument("--odometry", metavar="FILE",
                    help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
     p.add_argument("--overlay", metavar="FILE",
-                   help="write the frames annotated with what the receiver saw: a video (.avi), "
-                        "or the last frame as a PNG (.png, e.g. for a photo)")
+                   help="write the frames annotated with what the receiver saw: a video (.mp4 H.264, "
+                        ".avi MJPG, .mkv FFV1), or the last frame as an image (.png, .jpg: e.g. a photo)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
+    p.add_argument("--settings", metavar="FILE",
+                   help="run with the settings of FILE (what --settings-out writes; a stage or field "
+                        "left out keeps its default)")
     p.add_argument("--server", metavar="udp://HOST:PORT",
                    help="solve positions on a lighting server (occloc serve), which gets the frame's "
                         "decoded LEDs and outlines and gives the local run's positions")
@@ -82,11 +91,82 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
+def _fit_photo(cam, gray):
+    """(camera fitted to one photo, the photo in sensor orientation): a photo whose long side is
+    not the camera's is turned back first, then the camera is scaled to its size
+    (`fit_camera`: InputError when the aspect ratio is not the camera's)."""
+    import cv2
+    from receiver.io.camera import fit_camera
+    h, w = gray.shape[:2]
+    if w != h and cam.width != cam.height and (w > h) != (cam.width > cam.height):
+        gray = cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE)
+    fitted, _ = fit_camera(cam, (gray.shape[1], gray.shape[0]))
+    return fitted, gray
+
+
+# `no_fix` values of frames without a position that the positioner itself does not explain
+# (see receiver.locate.indoor.Positioner.last_reason for the others).
+NO_LED = "no LED seen"
+NO_ID = "no decoded ID"
+NO_REPLY = "no server position"
+
+
+def no_fix_reason(res, positioner) -> str | None:
+    """Why a frame has no position, in a few words (None when it has one, or when the map has no
+    light to position by: vehicle scenes). The positioner's own reason (`last_reason`: too few
+    LEDs, handedness undecided, solver rejected ...) when it gives one, else what the frame shows."""
+    if res.position is not None or positioner is None:
+        return None
+    reason = getattr(positioner, "last_reason", None)
+    if reason:
+        return reason
+    indoor = [o for o in res.leds if o.mode != "s2psk"]
+    if not indoor:
+        return NO_LED
+    if all(o.id is None for o in indoor):
+        return NO_ID
+    return NO_REPLY if hasattr(positioner, "timeouts") else "no position"
+
+
+# What `--out` may be called: the run writes JSON Lines, nothing else (no extension: e.g. /dev/null).
+OUT_EXTENSIONS = (".jsonl", ".ndjson", ".json", ".txt", ".log", "")
+# Formats `occloc export` converts a run to, by the extension a user might give --out.
+EXPORT_HINT = {".csv": "csv", ".tum": "tum", ".geojson": "geojson"}
+
+
+def _check_out_extension(path: str | None) -> None:
+    from receiver.core.errors import InputError
+    if path is None:
+        return
+    ext = os.path.splitext(path)[1].lower()
+    if ext in OUT_EXTENSIONS:
+        return
+    fmt = EXPORT_HINT.get(ext)
+    hint = (f": write run.jsonl, then `occloc export run.jsonl --format {fmt} --out {os.path.basename(path)}`"
+            if fmt else "")
+    raise InputError(f"--out {path}: occloc run writes JSON Lines (.jsonl), not {ext}{hint}")
+
+
+def _handedness_hint(summary, led_map) -> str:
+    """The summary's advice when frames had no position because the map's handedness could not
+    be told from them ('' otherwise)."""
+    if not summary.no_fix.get("handedness undecided") or led_map.handedness is not None:
+        return ""
+    return ('; the map does not say its handedness and no photo/frame could tell it (both fits poor): '
+            'add "handedness": "left" or "right" to the map')
+
+
+def _indoor_lights(led_map) -> bool:
+    """Does the map have lights a position can be solved from (not only S2-PSK / taillights)?"""
+    return any(led.mode != "s2psk" for led in led_map.leds.values())
+
+
 def make_positioner(camera, led_map, server: str | None = None, server_timeout_s: float | None = None,
-                    key_file: str | None = None):
+                    settings=None, key_file: str | None = None):
     """receiver.locate.indoor.Positioner when that module is available, else None; with `server`
     (udp://HOST:PORT) a receiver.serve.client.RemotePositioner that solves on that lighting server
-    (waiting `server_timeout_s` for a reply, default the client's)."""
+    (waiting `server_timeout_s` for a reply, default the client's). `settings`: PositionerSettings
+    (None: the defaults)."""
     if server is not None:
         from receiver.serve.client import RemotePositioner
         kw = {} if server_timeout_s is None else {"timeout_s": server_timeout_s}
@@ -99,16 +179,36 @@ def make_positioner(camera, led_map, server: str | None = None, server_timeout_s
         from receiver.locate.indoor import Positioner
     except ImportError:
         return None
-    return Positioner(camera, led_map)
+    return Positioner(camera, led_map, settings=settings)
 
 
-def make_vehicle_locator(camera, led_map):
+def make_vehicle_locator(camera, led_map, settings=None):
     """receiver.locate.vehicle.VehicleLocator for maps with S2-PSK street lights or a taillight
-    block (the vehicle scenes), else None."""
+    block (the vehicle scenes), else None. `settings`: VehicleSettings (None: the defaults)."""
     if not (led_map.by_mode("s2psk") or led_map.taillight is not None):
         return None
     from receiver.locate.vehicle import VehicleLocator
-    return VehicleLocator(camera, led_map)
+    return VehicleLocator(camera, led_map) if settings is None else VehicleLocator(camera, led_map, settings)
+
+
+def read_settings(path: str) -> dict:
+    """{'receiver': ReceiverSettings or None, 'locate': PositionerSettings or None, 'vehicle':
+    VehicleSettings or None} of a file `write_settings` wrote (a stage it leaves out: None)."""
+    from receiver.core.errors import InputError
+    from receiver.core.settings import settings_from_json
+    from receiver.io.files import load_json
+    from receiver.locate.settings import PositionerSettings, VehicleSettings
+    from receiver.pipeline import ReceiverSettings
+
+    obj = load_json(path, "settings")
+    if not isinstance(obj, dict):
+        raise InputError(f"{path}: expected the JSON object --settings-out writes")
+    classes = {"receiver": ReceiverSettings, "locate": PositionerSettings, "vehicle": VehicleSettings}
+    unknown = sorted(set(obj) - set(classes))
+    if unknown:
+        raise InputError(f"{path}: unknown stage {unknown[0]!r} (expected receiver, locate, vehicle)")
+    return {k: settings_from_json(cls, obj[k], f"{path}: {k}") if obj.get(k) is not None else None
+            for k, cls in classes.items()}
 
 
 def _server_text(positioner) -> str:
@@ -259,7 +359,9 @@ def _main(args, stop: "SignalStop") -> int:
     from receiver.io.camera import load_camera
     from receiver.io.ledmap import load_map
     from receiver.core.errors import InputError
-    from receiver.io.output import RunSummary, frame_line
+    import numpy as np
+    from receiver.core.records import Frame
+    from receiver.io.output import RunSummary, frame_line, with_fields
     from receiver.pipeline import Receiver
     from receiver.io.camera import fit_camera
     from receiver.io.sources import default_source, find_recording_files, open_source, parse_size
@@ -297,9 +399,16 @@ def _main(args, stop: "SignalStop") -> int:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     refuse_overwrite(args.out, inputs, "--out")
+    _check_out_extension(args.out)
+    if getattr(args, "overlay", None):
+        from receiver.io.overlay import check_overlay_path
+        check_overlay_path(args.overlay)
+    inputs.append(getattr(args, "settings", None))
     refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
     refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
                      "--overlay")
+    given = (read_settings(args.settings) if getattr(args, "settings", None)
+             else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
     if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
@@ -311,48 +420,96 @@ def _main(args, stop: "SignalStop") -> int:
     n_threads = getattr(args, "threads", DEFAULT_THREADS)
     src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam,
                       threads=n_threads)
+    images = getattr(src, "inner", src)
+    photos = images.kind == "images"   # independent photos: --realtime has nothing to drop
     try:
+        if photos and src.size is None:
+            first = next(images.photos(), None)
+            if first is None:
+                raise InputError(f"{spec}: no readable image")
+            images.size = (first.gray.shape[1], first.gray.shape[0])
         if src.size is None:
             raise InputError(f"{spec}: frame size unknown")
-        cam, rotate = fit_camera(cam, src.size)
+        cam0 = cam
+        if photos:
+            cam, _ = _fit_photo(cam0, np.zeros(src.size[::-1], np.uint8))
+            rotate = False
+        else:
+            cam, rotate = fit_camera(cam, src.size)
         if rotate:
             print(f"occloc: {spec}: frames are {src.size[0]}x{src.size[1]}, the camera "
                   f"{cam.width}x{cam.height}: turning them back to sensor orientation", file=sys.stderr)
-        # Without --server the two-argument call of older make_positioner replacements (tests).
-        positioner = (make_positioner(cam, led_map, server=server,
-                                      server_timeout_s=getattr(args, "server_timeout", None),
-                                      key_file=getattr(args, "key_file", None)) if server
-                      else make_positioner(cam, led_map))
-        vehicle = make_vehicle_locator(cam, led_map)
         speed = None
         if getattr(args, "odometry", None):
             from receiver.io.odometry import load_odometry
             speed = load_odometry(args.odometry)
-        rx = Receiver(cam, led_map, positioner=positioner, vehicle=vehicle, speed=speed, still=src.is_still)
+        timeout = getattr(args, "server_timeout", None)
+
+        def build(c):
+            # Without --server or --settings the two-argument call of older make_positioner
+            # replacements (tests).
+            if server:
+                pos = make_positioner(c, led_map, server=server, server_timeout_s=timeout,
+                                      key_file=getattr(args, "key_file", None))
+            elif given["locate"] is not None:
+                pos = make_positioner(c, led_map, settings=given["locate"])
+            else:
+                pos = make_positioner(c, led_map)
+            veh = (make_vehicle_locator(c, led_map, settings=given["vehicle"]) if given["vehicle"] is not None
+                   else make_vehicle_locator(c, led_map))
+            return Receiver(c, led_map, positioner=pos, vehicle=veh, speed=speed, still=src.is_still,
+                            settings=given["receiver"])
+
+        rx = build(cam)
+        positioner, vehicle = rx.positioner, rx.vehicle
         if getattr(args, "settings_out", None):
             write_settings(args.settings_out, rx)
+        explain = positioner is not None and _indoor_lights(led_map)
         # A file is written to a temporary sibling and renamed into place at the end (also after
         # a stop signal); standard output streams line by line.
         out = AtomicWriter(args.out) if args.out else sys.stdout
         summary = RunSummary()
-        total = getattr(getattr(src, "inner", src), "frame_count", None) or None
+        total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
         progress = Progress(sys.stderr, total)
-        frames = _rotated(src) if rotate else src
+        frames = images.photos() if photos else _rotated(src) if rotate else src
         overlay = _open_overlay(getattr(args, "overlay", None), cam, led_map)
         ok = False
         try:
             for frame in _frames_until_stopped(frames, stop):
                 if args.max_frames is not None and summary.frames >= args.max_frames:
                     break
+                fields = {}
+                if photos:
+                    name = os.path.basename(images.files[frame.index])
+                    try:
+                        pcam, gray = _fit_photo(cam0, frame.gray)
+                    except InputError as e:
+                        if len(images.files) == 1:
+                            raise InputError(f"{name}: {e}") from None
+                        images.skipped += 1
+                        print(f"occloc: warning: {name}: {e}: skipped", file=sys.stderr)
+                        continue
+                    # Every photo gets a fresh receiver (nothing carries over from another photo);
+                    # the one built for the settings serves the first photo of its size.
+                    if rx.frames or (pcam.width, pcam.height) != (cam.width, cam.height):
+                        if hasattr(positioner, "close"):
+                            positioner.close()
+                        rx = build(pcam)
+                        positioner, vehicle = rx.positioner, rx.vehicle
+                    frame = Frame(frame.index, frame.t_s, gray)
+                    fields["file"] = name
                 res = rx.process(frame)
                 if overlay is not None:
                     overlay[0].write(frame.gray, res)
-                out.write(frame_line(res, profile=args.profile) + "\n")
+                reason = no_fix_reason(res, positioner) if explain else None
+                if reason is not None:
+                    fields["no_fix"] = reason
+                out.write(with_fields(frame_line(res, profile=args.profile), fields) + "\n")
                 if out is sys.stdout and args.realtime:
                     out.flush()
-                summary.add(res)
+                summary.add(res, no_fix=reason)
                 progress.update(summary.frames, len(summary.ids))
             ok = True
         finally:
@@ -371,7 +528,7 @@ def _main(args, stop: "SignalStop") -> int:
                                         hv_reason=hv_reason)
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
-              + _server_text(positioner), file=sys.stderr)
+              + _server_text(positioner) + _handedness_hint(summary, led_map), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)

@@ -423,7 +423,7 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
         truth_fv = tv["fv"]
         for j, tf in enumerate(truth_fv):
             lab = fv_label(tf, j)
-            s = fv_series.setdefault(lab, {"t_s": t_s, "true_m": np.full(n, np.nan), "run_m": np.full(n, np.nan)})
+            s = fv_series.setdefault(lab, _fv_track(t_s, n))
             if tf["visible"]:
                 fv_truth_visible += 1
                 s["true_m"][k] = tf["distance_m"] if tf["distance_m"] is not None else np.nan
@@ -440,6 +440,10 @@ def evaluate_vehicle(run: list[dict], truth: dict[int, dict], *, fv_gate_deg: fl
             fv_by_bearing += how == "bearing"
             if o["angle_deg"] is not None and tf["angle_deg"] is not None:
                 fv_bear.append(abs(float(_wrap_deg(o["angle_deg"] - tf["angle_deg"]))))
+            if o.get("ttc_s") is not None:
+                fv_series[lab]["ttc_s"][k] = o["ttc_s"]
+            if o.get("zone") in FV_ZONES:
+                fv_series[lab]["zone"][k] = FV_ZONES.index(o["zone"])
             if o["distance_m"] is not None:
                 fv_series[lab]["run_m"][k] = o["distance_m"]
                 first_distance.setdefault(lab, fr["frame"])
@@ -525,10 +529,23 @@ def _fmt(v, scale=1.0, unit="", nd=2) -> str:
     return "-" if v is None else f"{v * scale:.{nd}f}{unit}"
 
 
+# The run's forward-vehicle zones, least to most urgent (receiver.locate.vehicle.ZONES).
+FV_ZONES = ("safe", "min", "critical")
+
+
+def _fv_track(t_s, n: int) -> dict:
+    """One forward vehicle's series: true and run distance (m), the run's time to collision (s)
+    and zone (index into FV_ZONES), nan where absent."""
+    return {"t_s": t_s, "true_m": np.full(n, np.nan), "run_m": np.full(n, np.nan),
+            "ttc_s": np.full(n, np.nan), "zone": np.full(n, np.nan)}
+
+
 def format_table(m: dict) -> str:
-    """The metrics as a readable plain-text table."""
+    """The metrics as a readable plain-text table: the rows of the recording's kind (a vehicle
+    recording has no indoor position rows unless the run gave positions)."""
+    indoor = m.get("vehicle") is None or m["frames_with_position"] > 0
     rows = [
-        ("frames", f"{m['frames']} ({m['frames_with_position']} with a position)"),
+        ("frames", f"{m['frames']} ({m['frames_with_position']} with a position)" if indoor else f"{m['frames']}"),
         ("LED-frames", f"{m['led_frames']} detected, {m['visible_truth_led_frames']} visible in truth, "
                        f"{m['matched_led_frames']} matched (gate {m['gate_px']:g} px)"),
         ("ID rate", f"{_fmt(m['id_rate'], 100, ' %')} ({m['ids_correct']}/{m['matched_led_frames']})"),
@@ -546,7 +563,7 @@ def format_table(m: dict) -> str:
     for name, b in de.get("by_kind", {}).items():
         rows.append((f"  kind {name}", f"median {_fmt(b['p50'], 100, ' %', 3)}  "
                                        f"p95 {_fmt(b['p95'], 100, ' %', 3)}  (n={b['n']})"))
-    for kind in ("filtered", "raw"):
+    for kind in ("filtered", "raw") if indoor else ():
         pe = m["position_error_m"][kind]
         rows.append((f"position {kind}", f"median {_fmt(pe['p50'], 100, ' cm')}  p95 {_fmt(pe['p95'], 100, ' cm')}"
                                          f"  (n={pe['n']})"))

@@ -14,6 +14,8 @@ import math
 from receiver.core.budget import percentile
 from receiver.core.records import FrameResult
 
+# Forward-vehicle zones (receiver.locate.vehicle.ZONES), least to most urgent.
+ZONE_ORDER = ("safe", "min", "critical")
 # Decimal places in the output: sub-pixel centroids, 0.1 px^2 areas, mm distances, us times.
 PX_DECIMALS = 2
 AREA_DECIMALS = 1
@@ -59,6 +61,15 @@ def frame_line(res: FrameResult, *, profile: bool = False) -> str:
     return dumps(frame_record(res, profile=profile), separators=(",", ":"), default=_jsonable)
 
 
+def with_fields(line: str, fields: dict) -> str:
+    """One JSON line (`frame_line`) with `fields` appended as top-level keys (e.g. `"file"` of
+    a photo, `"no_fix"` of a frame without a position); the line itself when there are none."""
+    if not fields:
+        return line
+    from receiver.io.files import dumps
+    return line[:-1] + "," + dumps(fields, separators=(",", ":"))[1:]
+
+
 def _jsonable(v):
     try:
         return v.tolist()  # numpy arrays and scalars
@@ -78,9 +89,18 @@ class RunSummary:
         self.positions = 0
         self.vehicle_frames = 0  # frames with a vehicle object
         self.hv_frames = 0  # ... of them with the host vehicle placed
+        self.no_fix: dict[str, int] = {}  # why frames have no position -> frames
+        # the cars ahead (vehicle "fv"): IDs, closest (m, frame), lowest TTC (s, frame), the
+        # frames by their worst zone
+        self.fv_ids: set = set()
+        self.fv_closest: tuple[float, int] | None = None
+        self.fv_min_ttc: tuple[float, int] | None = None
+        self.fv_zone_frames: dict[str, int] = {}
 
-    def add(self, res: FrameResult) -> None:
+    def add(self, res: FrameResult, no_fix: str | None = None) -> None:
         self.frames += 1
+        if no_fix is not None:
+            self.no_fix[no_fix] = self.no_fix.get(no_fix, 0) + 1
         self.latency_ms.append(res.latency_ms)
         self.led_frames += len(res.leds)
         for o in res.leds:
@@ -91,6 +111,36 @@ class RunSummary:
         if res.vehicle is not None:
             self.vehicle_frames += 1
             self.hv_frames += res.vehicle.get("hv") is not None
+            self._add_fv(res.frame, res.vehicle.get("fv") or ())
+
+    def _add_fv(self, frame: int, fvs) -> None:
+        worst = None
+        for fv in fvs:
+            if fv.get("id") is not None:
+                self.fv_ids.add(fv["id"])
+            d, ttc, zone = fv.get("distance_m"), fv.get("ttc_s"), fv.get("zone")
+            if d is not None and (self.fv_closest is None or d < self.fv_closest[0]):
+                self.fv_closest = (d, frame)
+            if ttc is not None and (self.fv_min_ttc is None or ttc < self.fv_min_ttc[0]):
+                self.fv_min_ttc = (ttc, frame)
+            if zone in ZONE_ORDER and (worst is None or ZONE_ORDER.index(zone) > ZONE_ORDER.index(worst)):
+                worst = zone
+        if worst is not None:
+            self.fv_zone_frames[worst] = self.fv_zone_frames.get(worst, 0) + 1
+
+    def cars_text(self) -> str:
+        """The summary's words on the cars ahead ('' when none was seen)."""
+        if not self.fv_zone_frames and self.fv_closest is None:
+            return ""
+        ids = ", ".join(str(i) for i in sorted(self.fv_ids)) or "none decoded"
+        parts = [f"cars ahead (IDs {ids})"]
+        if self.fv_closest is not None:
+            parts.append(f"closest {self.fv_closest[0]:.1f} m (frame {self.fv_closest[1]})")
+        parts.append(f"lowest TTC {self.fv_min_ttc[0]:.1f} s (frame {self.fv_min_ttc[1]})"
+                     if self.fv_min_ttc is not None else "never closing")
+        parts.append("frames by worst zone: " + ", ".join(f"{z} {self.fv_zone_frames.get(z, 0)}"
+                                                        for z in ZONE_ORDER))
+        return "; " + ", ".join(parts)
 
     def text(self, *, skipped: int = 0, dropped: int = 0, truncated: int = 0,
              hv_reason: str | None = None) -> str:
@@ -101,10 +151,14 @@ class RunSummary:
                 f"positions: {self.positions}; latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
                 f"p99 {percentile(self.latency_ms, 99):.2f} ms; skipped corrupt frames: {skipped}; "
                 f"dropped: {dropped}")
+        if self.no_fix:
+            line += "; no position: " + ", ".join(
+                f"{n} {why}" for why, n in sorted(self.no_fix.items(), key=lambda kv: (-kv[1], kv[0])))
         if self.vehicle_frames or hv_reason:
             line += f"; vehicle frames: {self.vehicle_frames}, host placed in {self.hv_frames}"
             if hv_reason and self.hv_frames == 0:
                 line += f" ({hv_reason})"
+            line += self.cars_text()
         if truncated:
             line += f"; truncated: {truncated} frame(s) missing at the end"
         return line

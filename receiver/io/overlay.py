@@ -2,9 +2,15 @@
 
 Per frame, on a BGR copy of the gray frame (OpenCV drawing only): each LED's envelope, track
 number, decoded ID and distance; the S2-PSK pairs (a line between the emitters and the ID); the
-position (text); the vehicle picture (hv and fv text); and a small top-view inset of the map
-(LED positions, the estimated camera position). Output: FFV1 AVI (MJPG when FFV1 is missing)
-for a video path, or a PNG when the path ends in .png (a single photo: the last frame written).
+position (text); the vehicle picture (hv and fv text, each car coloured by its zone); and a small
+top-view inset of the map (LED positions, the estimated camera or host-vehicle position). Text,
+lines and the inset scale with the image (`scale_for`: a 33 MP photo gets text as readable as a
+720p frame's).
+
+Output by the path's extension (`FORMATS`): a still of the last frame (.png, .jpg/.jpeg) or a
+video with the first codec of its list this OpenCV build can write (.avi: MJPG, FFV1; .mkv: FFV1,
+MJPG; .mp4: H.264 (avc1), MPEG-4 part 2 (mp4v), both of which common players open). Another
+extension, or no codec for it, is an InputError before any frame is processed.
 """
 
 from __future__ import annotations
@@ -16,8 +22,28 @@ import numpy as np
 
 from receiver.core.errors import InputError
 
-INSET = (200, 150)  # top-view inset size, px
+INSET = (200, 150)  # top-view inset size at scale 1, px
 GREEN, YELLOW, CYAN, WHITE, RED = (0, 255, 0), (0, 255, 255), (255, 255, 0), (255, 255, 255), (0, 0, 255)
+ORANGE = (0, 165, 255)
+ZONE_COLOURS = {"safe": GREEN, "min": ORANGE, "critical": RED}
+STILLS = (".png", ".jpg", ".jpeg")
+# Video extension -> FOURCCs tried in order.
+FORMATS = {".avi": ("MJPG", "FFV1"), ".mkv": ("FFV1", "MJPG"), ".mp4": ("avc1", "mp4v")}
+# Image height (px) at which text and lines are drawn at scale 1 (a 720p frame).
+REFERENCE_HEIGHT_PX = 720
+
+
+def scale_for(size) -> float:
+    """Drawing scale of an image of `size` (w, h): its height over a 720p frame's, at least 1."""
+    return max(1.0, float(min(size[0], size[1])) / REFERENCE_HEIGHT_PX)
+
+
+def check_overlay_path(path: str) -> None:
+    """InputError unless `path`'s extension is one the overlay writes (`STILLS`, `FORMATS`)."""
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in STILLS and ext not in FORMATS:
+        raise InputError(f"--overlay {path}: cannot write {ext or 'a file without extension'}; use "
+                         f"{', '.join(STILLS + tuple(FORMATS))}")
 
 
 class OverlayWriter:
@@ -27,29 +53,36 @@ class OverlayWriter:
         self.path, self.size = path, (int(size[0]), int(size[1]))
         self.fps = float(fps) if fps and fps > 0 else 30.0
         self.camera, self.led_map = camera, led_map
-        self.png = path.lower().endswith(".png")
+        check_overlay_path(path)
+        ext = os.path.splitext(path)[1].lower()
+        self.png = ext in STILLS   # a still of the last frame (PNG or JPEG)
         self._writer = None
         self._last = None
         self._pts = None
         if led_map is not None and led_map.leds:
             self._pts = np.array([[l.x, l.y] for l in led_map.leds.values()], np.float64)
         if not self.png:
-            for fourcc in ("FFV1", "MJPG"):
-                w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), self.fps, self.size, True)
-                if w.isOpened():
-                    self._writer = w
-                    break
+            level = cv2.utils.logging.getLogLevel()
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+            try:
+                for fourcc in FORMATS[ext]:
+                    w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), self.fps, self.size, True)
+                    if w.isOpened():
+                        self._writer, self.fourcc = w, fourcc
+                        break
+            finally:
+                cv2.utils.logging.setLogLevel(level)
             if self._writer is None:
-                raise InputError(f"{path}: cannot write an FFV1 or MJPG video")
+                raise InputError(f"{path}: this OpenCV cannot write {' or '.join(FORMATS[ext])} in {ext}")
 
     def _map_xy(self, x, y, lo, scale, origin):
         return (int(origin[0] + (x - lo[0]) * scale), int(origin[1] + INSET[1] - 8 - (y - lo[1]) * scale))
 
-    def _inset(self, img, position) -> None:
+    def _inset(self, img, position, k: float = 1.0) -> None:
         if self._pts is None:
             return
         h, w = img.shape[:2]
-        iw, ih = min(INSET[0], w // 3), min(INSET[1], h // 3)
+        iw, ih = min(int(INSET[0] * k), w // 3), min(int(INSET[1] * k), h // 3)
         ox, oy = w - iw - 8, 8
         roi = img[oy:oy + ih, ox:ox + iw]
         roi[:] = (roi * 0.35).astype(np.uint8)
@@ -61,33 +94,35 @@ class OverlayWriter:
         scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
         for x, y in self._pts:
             p = (int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale))
-            cv2.circle(img, p, 2, YELLOW, -1)
+            cv2.circle(img, p, max(2, int(2 * k)), YELLOW, -1)
         if position is not None:
             p = (int(ox + 8 + (position["x"] - lo[0]) * scale), int(oy + ih - 8 - (position["y"] - lo[1]) * scale))
-            cv2.drawMarker(img, p, RED, cv2.MARKER_CROSS, 10, 2)
+            cv2.drawMarker(img, p, RED, cv2.MARKER_CROSS, int(10 * k), max(2, int(2 * k)))
 
     def annotate(self, gray: np.ndarray, res) -> np.ndarray:
         """The annotated BGR frame."""
         img = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR) if gray.ndim == 2 else gray.copy()
-        if (img.shape[1], img.shape[0]) != self.size:
-            img = cv2.resize(img, self.size)
+        k = scale_for((img.shape[1], img.shape[0]))
+        th = max(1, int(round(k)))  # line thickness
         font = cv2.FONT_HERSHEY_SIMPLEX
         for led in getattr(res, "leds", []) or []:
             c = np.asarray(led.contour, np.float64).reshape(-1, 2)
             colour = GREEN if led.id is not None else YELLOW
             if c.size:
-                cv2.polylines(img, [np.round(c).astype(np.int32)], True, colour, 1, cv2.LINE_AA)
+                cv2.polylines(img, [np.round(c).astype(np.int32)], True, colour, th, cv2.LINE_AA)
             label = f"#{led.track}" + (f" id {led.id}" if led.id is not None else "")
             if led.distance_m is not None:
                 label += f" {led.distance_m:.2f} m"
             y0 = int(c[:, 1].min()) - 4 if c.size else int(led.cy)
-            cv2.putText(img, label, (int(led.cx) - 30, max(y0, 10)), font, 0.4, colour, 1, cv2.LINE_AA)
+            cv2.putText(img, label, (int(led.cx - 30 * k), max(y0, int(10 * k))), font, 0.4 * k, colour, th,
+                        cv2.LINE_AA)
         for pr in getattr(res, "pairs", ()) or ():
             a = tuple(int(round(v)) for v in pr.a_px)
             b = tuple(int(round(v)) for v in pr.b_px)
-            cv2.line(img, a, b, CYAN, 1, cv2.LINE_AA)
+            cv2.line(img, a, b, CYAN, th, cv2.LINE_AA)
             txt = f"{pr.kind or ''} {pr.led_id}" if pr.led_id is not None else "pair"
-            cv2.putText(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - 6), font, 0.4, CYAN, 1, cv2.LINE_AA)
+            cv2.putText(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - int(6 * k)), font, 0.4 * k, CYAN, th,
+                        cv2.LINE_AA)
         lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
         pos = getattr(res, "position", None)
         if pos:
@@ -99,11 +134,15 @@ class OverlayWriter:
             if hv:
                 lines.append(f"hv x {hv.get('x', 0):.1f} y {hv.get('y', 0):.1f} m")
             for fv in veh.get("fv", []) or []:
-                lines.append(f"fv {fv.get('id')} {fv.get('distance_m', 0) or 0:.1f} m "
-                             f"{fv.get('angle_deg', 0) or 0:+.1f} deg")
+                ttc = fv.get("ttc_s")
+                lines.append((f"fv {fv.get('id')} {fv.get('distance_m', 0) or 0:.1f} m "
+                              f"{fv.get('angle_deg', 0) or 0:+.1f} deg" + (f" TTC {ttc:.1f} s" if ttc is not None else "")
+                              + (f" {fv['zone']}" if fv.get("zone") else ""), ZONE_COLOURS.get(fv.get("zone"), WHITE)))
         for i, t in enumerate(lines):
-            cv2.putText(img, t, (8, 18 + 16 * i), font, 0.45, WHITE, 1, cv2.LINE_AA)
-        self._inset(img, pos)
+            text, colour = t if isinstance(t, tuple) else (t, WHITE)
+            cv2.putText(img, text, (int(8 * k), int((18 + 16 * i) * k)), font, 0.45 * k, colour, th, cv2.LINE_AA)
+        hv = (veh or {}).get("hv") if isinstance(veh, dict) else None
+        self._inset(img, pos if pos else hv, k)
         return img
 
     def write(self, gray: np.ndarray, frame_result) -> None:
@@ -111,6 +150,8 @@ class OverlayWriter:
         if self.png:
             self._last = img
         else:
+            if (img.shape[1], img.shape[0]) != self.size:
+                img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
             self._writer.write(img)
 
     def close(self) -> None:
@@ -118,7 +159,8 @@ class OverlayWriter:
             if self._last is not None:
                 folder = os.path.dirname(os.path.abspath(self.path))
                 tmp = os.path.join(folder, ".overlay-" + os.path.basename(self.path))
-                cv2.imwrite(tmp, self._last)
+                if not cv2.imwrite(tmp, self._last):
+                    raise InputError(f"{self.path}: could not write the image")
                 os.replace(tmp, self.path)
         elif self._writer is not None:
             self._writer.release()

@@ -316,12 +316,27 @@ class ImageSource(FrameSource):
     def _read(path: str):
         return cv2.imread(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
 
+    def photos(self) -> Iterator[Frame]:
+        """Every readable image as a Frame of its own size (`Frame.index` is its place in
+        `files`): photos are independent observations, each fitted to the camera on its own
+        (`occloc run`). Unreadable images are skipped, counted and named on stderr."""
+        for i, path in enumerate(self.files):
+            gray = self._image(i, path)
+            if gray is None:
+                self.skipped += 1
+                _warn(f"{path}: not a readable image: skipped")
+                continue
+            yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
+
+    def _image(self, i: int, path: str):
+        if i == 0 and self._first is not None:
+            gray, self._first = self._first, None
+            return gray
+        return self._read(path)
+
     def __iter__(self) -> Iterator[Frame]:
         for i, path in enumerate(self.files):
-            if i == 0 and self._first is not None:
-                gray, self._first = self._first, None
-            else:
-                gray = self._read(path)
+            gray = self._image(i, path)
             if gray is None:
                 self.skipped += 1
                 continue

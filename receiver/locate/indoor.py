@@ -84,6 +84,7 @@ class Positioner:
         self.ranger = Ranger(camera, led_map, s)
         self._undistort = Undistorter(camera)
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
+        self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         # PoseFilter, with its Kalman steps and position object compiled where built
         self.pose = pose_filter_class()(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
@@ -235,6 +236,29 @@ class Positioner:
     def n_fixes(self) -> int:
         return self.pose.n_fixes
 
+    def _no_fix_reason(self, leds, items) -> str:
+        """Why this frame gave no position (`last_reason`), in a few words."""
+        indoor = [o for o in leds if o.mode != "s2psk"]
+        if not indoor:
+            return "no LED seen"
+        decoded = [o for o in indoor if o.id is not None]
+        if not decoded:
+            return "no decoded ID"
+        if not items:
+            known = [o for o in decoded if self.led_map.lookup(o.id) is not None]
+            return "LEDs cut by image edge" if known else "ID not in map"
+        if self.pose.handedness_undecided and self.pose.handedness_source == "default":
+            return "handedness undecided"
+        if len(items) < 3:
+            return "too few LEDs"
+        return "solver rejected"
+
+    def _result(self, t_s: float, fix, leds, items, d, names) -> LocateResult:
+        position = self.pose.update(t_s, fix, len(items))
+        # A few words on a frame without a position (None with one): receiver.cli.run's "no_fix".
+        self.last_reason = None if position is not None else self._no_fix_reason(leds, items)
+        return LocateResult(position=position, leds=self.ranger.annotate(leds, items, d, names))
+
     def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
         items = self.ranger.usable(leds)
         R_prior = self.pose.R_prior(t_s)
@@ -247,8 +271,7 @@ class Positioner:
             done, warm = self._outline_warm(t_s, leds, items, R_prior, pred)
             if done is not None:
                 fix, d, names = done
-                return LocateResult(position=self.pose.update(t_s, fix, len(items)),
-                                    leds=self.ranger.annotate(leds, items, d, names))
+                return self._result(t_s, fix, leds, items, d, names)
         d, sd, names = self.ranger.ranges(items, R_prior)
         fix = None
         if items:
@@ -277,5 +300,4 @@ class Positioner:
                 d, sd, names = self.ranger.ranges(items, fix.R_cw)
         if outline:
             fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior, warm)
-        return LocateResult(position=self.pose.update(t_s, fix, len(items)),
-                            leds=self.ranger.annotate(leds, items, d, names))
+        return self._result(t_s, fix, leds, items, d, names)

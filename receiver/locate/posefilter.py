@@ -91,6 +91,9 @@ class PoseFilter:
         self.warm_start = warm_start
         self._kalman_args = dict(accel_psd=accel_psd, max_coast_s=max_coast_s) if kalman else None
         self.n_fixes = 0
+        # The last frame that could tell the map from its mirror told neither (both fits poor):
+        # a frame without a fix then says "handedness undecided" (`Positioner.last_reason`).
+        self.handedness_undecided = False
         self._restart()
         preload_solvers()      # before the first frame, not inside a cold-start frame's latency
 
@@ -165,12 +168,15 @@ class PoseFilter:
             other = "left" if self.handedness == "right" else "right"
             L_other = L_map @ MIRROR_WORLD if other == "left" else L_map
             fix_other = solve_fix(L_other, uv, d, sigma_d, **kw)
+            self.handedness_undecided = True
             if is_mirror_fit_better(fix_other, fix):
                 self.handedness, self.handedness_source = other, "detected"
+                self.handedness_undecided = False
                 self._restart()
                 return fix_other
             if is_mirror_fit_better(fix, fix_other):
                 self.handedness_source = "detected"
+                self.handedness_undecided = False
         return fix
 
     def update(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:

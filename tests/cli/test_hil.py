@@ -62,3 +62,22 @@ def test_s2psk_resolvable_needs_two_separated_emitters_for_a_packet():
     assert resolved_in_frame({"id": 1, "visible": True}, "ook")
     # 30 symbols x 16 clocks / 200 Hz = 2.4 s = 72 frames at 30 fps
     assert packet_frames(make_scene("vehicle", seed=1, n_frames=2)) == 72
+
+
+@pytest.mark.parametrize("found", [["MODE TONE", "ID 7", "RATE 3000", "START"],
+                                   ["MODE OOK", "ID 1234", "RATE 10000", "STOP"]])
+def test_loop_leaves_the_driver_as_it_found_it(found):
+    from tools.hil import parse_status
+    with VirtualDriver() as driver, TxClient(driver.port, timeout_s=2.0) as client:
+        wait_for_driver(client)
+        for line in found:
+            client.command(line)
+        before = client.command("STATUS")
+        client.command("MODE OOK")
+        ook_before = client.command("STATUS")
+        client.command(found[0])
+        report = run_loop(client, driver.port, mode="ook", frames=3, seed=3)
+        assert report["configured"] > 0
+        assert client.command("STATUS") == before
+        client.command("MODE OOK")
+        assert parse_status(client.command("STATUS"))["id"] == parse_status(ook_before)["id"]

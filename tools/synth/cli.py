@@ -5,12 +5,64 @@ from __future__ import annotations
 import argparse
 import ast
 
-HELP = "render a synthetic scene (indoor-walk, indoor-static, vehicle) into a recording folder"
+HELP = ("render a synthetic scene (indoor-walk, indoor-static, indoor-sparse, vehicle, vehicle-road) "
+        "into a recording folder")
+
+# Units of --set keys, by the end of the key's name (the project's names carry their units).
+UNIT_SUFFIXES = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_kmh", "km/h"), ("_hz", "Hz"), ("_deg", "deg"),
+                 ("_us", "us"), ("_um", "um"), ("_px", "px"), ("_dn", "DN (8-bit levels)"), ("_m", "m"),
+                 ("_xy", "m (x, y)"), ("_xyz", "m (x, y, z)"), ("_s", "s"))
+# Keys whose names do not end in a unit.
+UNITS = {"width": "px", "height": "px", "fps": "frames/s", "seconds": "s", "dist": "OpenCV k1, k2, p1, p2, k3",
+         "symclk": "clock cycles per symbol", "subrows": "samples per row", "motion_blur_samples": "poses per exposure",
+         "shot_noise_alpha": "DN per DN of signal (thesis eq. 4)", "exact_coverage_rows": "image rows"}
+
+
+def unit_of(key: str) -> str:
+    if key in UNITS:
+        return UNITS[key]
+    return next((u for suffix, u in UNIT_SUFFIXES if key.endswith(suffix)), "")
+
+
+def _keys_text(params) -> str:
+    """'key=default [unit]' of each parameter (inspect.Parameter), wrapped."""
+    import textwrap
+    items = []
+    for p in params:
+        unit = unit_of(p.name)
+        items.append(f"{p.name}={p.default!r}" + (f" [{unit}]" if unit else ""))
+    return textwrap.fill(", ".join(items), width=96, initial_indent="    ", subsequent_indent="    ")
+
+
+def set_keys_help() -> str:
+    """The --set keys: camera and sensor keys of every scene, then each scene's own, with
+    their defaults and units."""
+    import dataclasses
+    import inspect
+
+    from tools.synth.camera import make_camera
+    from tools.synth.model import RenderParams
+    from tools.synth.scenes import BUILDERS, SCENES
+
+    cam = list(inspect.signature(make_camera).parameters.values())
+    sensor = [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default)
+              for f in dataclasses.fields(RenderParams)]
+    lines = ["scenes: " + ", ".join(SCENES), "",
+             "--set KEY=VALUE keys (VALUE a Python literal; defaults shown; some scenes set other "
+             "camera and sensor defaults):", "  camera (every scene):", _keys_text(cam),
+             "  sensor (every scene, tools/synth/model.py RenderParams):", _keys_text(sensor)]
+    for name in SCENES:
+        own = [p for p in inspect.signature(BUILDERS[name]).parameters.values() if p.name not in ("rng", "cam")]
+        lines += [f"  scene {name}:", _keys_text(own)]
+    return "\n".join(lines)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from tools.synth.recording import CODECS
     from tools.synth.scenes import SCENES
+
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = set_keys_help()
 
     parser.add_argument("scene", choices=SCENES)
     parser.add_argument("--out", required=True, help="recording folder to write")

@@ -1,0 +1,69 @@
+"""`occloc synth --help` names every scene and --set key with its unit; `occloc run --settings`
+reads back what `--settings-out` wrote."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import json
+from pathlib import Path
+
+import pytest
+
+from receiver.cli import main as cli
+
+ROOT = Path(__file__).resolve().parents[2]
+STATIC = ROOT / "recordings" / "indoor-static"
+
+
+def test_synth_help_lists_every_scene_and_set_key_with_a_unit(capsys):
+    from tools.synth.camera import make_camera
+    from tools.synth.cli import unit_of
+    from tools.synth.model import RenderParams
+    from tools.synth.scenes import BUILDERS, SCENES
+
+    with pytest.raises(SystemExit):
+        cli(["synth", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    keys = set(inspect.signature(make_camera).parameters) | {f.name for f in dataclasses.fields(RenderParams)}
+    for name in SCENES:
+        assert f"scene {name}:" in text
+        keys |= set(inspect.signature(BUILDERS[name]).parameters) - {"rng", "cam"}
+    for key in keys:
+        assert unit_of(key), key
+        assert f"{key}=" in text and f"[{unit_of(key)}]" in text, key
+    assert "row_readout_us=15.0 [us]" in text and "speed0_kmh=40.0 [km/h]" in text
+
+
+def _lines(path):
+    return [{k: v for k, v in json.loads(l).items() if k != "latency_ms"} for l in path.read_text().splitlines()]
+
+
+def test_run_reads_back_the_settings_it_wrote(tmp_path, capsys):
+    s1, s2 = tmp_path / "s1.json", tmp_path / "s2.json"
+    o1, o2 = tmp_path / "o1.jsonl", tmp_path / "o2.jsonl"
+    assert cli(["run", str(STATIC), "--max-frames", "12", "--settings-out", str(s1), "--out", str(o1)]) == 0
+    assert cli(["run", str(STATIC), "--max-frames", "12", "--settings", str(s1), "--settings-out", str(s2),
+                "--out", str(o2)]) == 0
+    assert json.loads(s1.read_text()) == json.loads(s2.read_text())
+    assert _lines(o1) == _lines(o2)
+    # a changed setting takes effect: the position filter off -> unfiltered positions
+    obj = json.loads(s1.read_text())
+    obj["locate"]["kalman"] = False
+    s3 = tmp_path / "s3.json"
+    s3.write_text(json.dumps(obj))
+    assert cli(["run", str(STATIC), "--max-frames", "12", "--settings", str(s3), "--out", str(o2)]) == 0
+    pos = [r["position"] for r in _lines(o2) if r["position"]]
+    assert pos and all(p["filtered"] is False for p in pos)
+    assert any(r["position"] and r["position"]["filtered"] for r in _lines(o1))
+
+
+@pytest.mark.parametrize("text,msg", [('{"receiver": {"bogus": 1}}', "has no setting 'bogus'"),
+                                      ('{"lights": {}}', "unknown stage 'lights'"),
+                                      ('[1, 2]', "expected the JSON object")])
+def test_run_settings_errors_are_one_line(tmp_path, capsys, text, msg):
+    f = tmp_path / "s.json"
+    f.write_text(text)
+    assert cli(["run", str(STATIC), "--settings", str(f), "--out", str(tmp_path / "o.jsonl")]) == 2
+    err = capsys.readouterr().err
+    assert msg in err and err.count("\n") == 1
