@@ -4,6 +4,7 @@ undistorted image points -> `PoseFilter` -> the INTERFACES.md `position` object.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -35,6 +36,29 @@ GOOD_OUTLINE_CHI2_DOF = 4.0
 WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
+
+
+def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
+    """Normalized undistorted image points `uv` (N, 2) of a rolling-shutter frame, each read at
+    image row `rows_px` (N,), as the camera would have seen them at the instant of row `ref_row`:
+    the camera turns at `w_cam` (rad/s, camera frame, `PoseFilter.angular_rate`) and a row is read
+    `row_s` seconds after the one above it, so a point read tau = (row - ref_row) row_s later
+    lies on the ray Exp(tau w) x_ref; its reference ray is Exp(-tau w) x (Rodrigues' formula per
+    point). The camera's translation over tau (a few mm) is left to `Positioner._at_frame_time`."""
+    rate = math.sqrt(float(w_cam @ w_cam))
+    if rate == 0.0:
+        return np.array(uv, float)
+    k0, k1, k2 = (np.asarray(w_cam, float) / rate).tolist()
+    a = (np.asarray(rows_px, float) - ref_row) * (-row_s * rate)
+    c, s = np.cos(a), np.sin(a)
+    u, v = uv[:, 0], uv[:, 1]
+    kx = (k0 * u + k1 * v + k2) * (1.0 - c)
+    # Rodrigues: x c + (k x x) s + k (k . x) (1 - c), x = (u, v, 1)
+    z = c + (k0 * v - k1 * u) * s + k2 * kx
+    out = np.empty((len(u), 2))
+    out[:, 0] = (u * c + (k1 - k2 * v) * s + k0 * kx) / z
+    out[:, 1] = (v * c + (k2 * u - k0) * s + k1 * kx) / z
+    return out
 
 
 def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
@@ -83,6 +107,8 @@ class Positioner:
         self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
         self._undistort = Undistorter(camera)
+        self._row_s = (camera.row_readout_us or 0.0) * 1e-6
+        self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         # PoseFilter, with its Kalman steps and position object compiled where built
         self.pose = pose_filter_class()(handedness=s.handedness or led_map.handedness,
@@ -106,7 +132,7 @@ class Positioner:
         self._fixtures[led_id] = fx
         return fx
 
-    def _outline_targets(self, leds, items):
+    def _outline_targets(self, t_s, leds, items):
         """(`OutlineFrame` or None, item index or None per target) of the LEDs with measured edge
         points and a known shape and size (receiver.locate.outline_pose); LEDs cut by the image
         border (not in `items`) come with their edges only."""
@@ -127,8 +153,17 @@ class Positioner:
         packed = _pack_outline(chosen, self.settings.edge_model_sigma_px, self.camera.focal_px)
         # One undistortion for every edge point and centroid of the frame.
         und = self._undistort(packed[0])
+        w = self.pose.angular_rate(t_s) if self._row_s > 0 else None
         _, sig, ends, xyz, half = packed
         m = len(sig)
+        if w is not None:
+            # Every point to the instant of the frame's time stamp (its first row): one camera
+            # orientation for the whole frame.
+            und = derotate_rows(und, packed[0][:, 1], w, self._row_s, 0.0)
+        # The instant the points' position information stems from, after the frame's time stamp
+        # (their weighted mean read time): `_at_frame_time` moves the fix back to the time stamp.
+        wt = 1.0 / (sig * sig)
+        self._tau_s = float(wt @ packed[0][:m, 1]) / float(wt.sum()) * self._row_s
         L = self.pose.to_solving(xyz)
         uv = und[m:]
         if None in where:
@@ -165,7 +200,7 @@ class Positioner:
         centroid solve. Returns (fix, d, names) when that
         fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
-        targets, where = self._outline_targets(leds, items)
+        targets, where = self._outline_targets(t_s, leds, items)
         if targets is None:
             return None, (targets, where, None)
         if pred is None:
@@ -186,7 +221,7 @@ class Positioner:
         """The frame's fix and ranges refined on the LEDs' outlines (`PositionerSettings.outline`),
         or the given ones when no outline is usable. `warm`: (targets, where, candidate) of a
         failed warm start (`_outline_warm`), whose start is not tried again."""
-        targets, where = self._outline_targets(leds, items) if warm is None else warm[:2]
+        targets, where = self._outline_targets(t_s, leds, items) if warm is None else warm[:2]
         if targets is None:
             return fix, d, names
         # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
@@ -226,6 +261,17 @@ class Positioner:
         d, names = self._with_outline_ranges(ofix, targets, where, d, names)
         return ofix, d, names
 
+    def _at_frame_time(self, fix):
+        """An outline fix moved from its points' mean read time to the frame's time stamp (the
+        instant its first row is read, the `t` the position is reported at) with the tracked
+        velocity (the orientation is there already: `derotate_rows`)."""
+        if fix is None or fix.method != "outline" or not self._row_s or self.pose.kf is None:
+            return fix
+        state = self.pose.kf.state
+        if state is None or not self._tau_s:
+            return fix
+        return dataclasses.replace(fix, C=fix.C - self._tau_s * state[0].reshape(6)[3:])
+
     @property
     def unknown_ids(self) -> set[int]:
         """Decoded IDs the map does not know (counted by the ranger)."""
@@ -247,6 +293,7 @@ class Positioner:
             done, warm = self._outline_warm(t_s, leds, items, R_prior, pred)
             if done is not None:
                 fix, d, names = done
+                fix = self._at_frame_time(fix)
                 return LocateResult(position=self.pose.update(t_s, fix, len(items)),
                                     leds=self.ranger.annotate(leds, items, d, names))
         d, sd, names = self.ranger.ranges(items, R_prior)
@@ -277,5 +324,6 @@ class Positioner:
                 d, sd, names = self.ranger.ranges(items, fix.R_cw)
         if outline:
             fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior, warm)
+            fix = self._at_frame_time(fix)
         return LocateResult(position=self.pose.update(t_s, fix, len(items)),
                             leds=self.ranger.annotate(leds, items, d, names))
