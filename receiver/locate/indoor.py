@@ -17,6 +17,7 @@ from receiver.io.ledmap import LedMap
 from receiver.locate.outline_pose import (
     OutlineFrame,
     fixture_half_extents,
+    panel_start_poses,
     solve_outline_pose,
 )
 from receiver.locate.pose import align_rays
@@ -36,6 +37,14 @@ GOOD_OUTLINE_CHI2_DOF = 4.0
 WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
+# Starts from the panels alone (`Positioner._panel_fix`): two solved poses closer than
+# START_MERGE_M are one; a second pose more than AMBIGUOUS_M from the best whose chi^2 per dof is
+# within AMBIGUOUS_CHI2_RATIO of it makes the frame ambiguous (no fix); with a tracked orientation
+# only starts turned at most TRACKED_TURN_DEG from it (a phone turns < 30 deg/s: 1 deg a frame).
+START_MERGE_M = 0.02
+AMBIGUOUS_M = 0.10
+AMBIGUOUS_CHI2_RATIO = 4.0
+TRACKED_TURN_DEG = 30.0
 
 
 def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
@@ -238,8 +247,6 @@ class Positioner:
             if pred is not None and warm is None:
                 starts.append((R_prior, pred[0][:3]))
         ofix = warm[2] if warm is not None else None
-        if not starts and ofix is None:
-            return fix, d, names
         C_prior = C_cov = None
         if targets.shapes == ("circle",):
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
@@ -252,6 +259,12 @@ class Positioner:
                 ofix = cand
             if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
                 break
+        if (ofix is None or ofix.chi2 / ofix.dof > WARM_OUTLINE_CHI2_DOF) and C_prior is None:
+            # No start explains the frame (or there was none: no track, fewer than two whole
+            # LEDs for a centroid fix): start again from the panels themselves.
+            cold = self._panel_fix(targets, R_prior)
+            if cold is not None and (ofix is None or cold.chi2 / cold.dof < ofix.chi2 / ofix.dof):
+                ofix = cold
         if ofix is None and fix is not None and targets.n_points >= MIN_VETO_POINTS:
             # The frame's own outlines contradict the centroid fix from every start: no fix
             # (the filter coasts) rather than a confident wrong one.
@@ -260,6 +273,32 @@ class Positioner:
             return fix, d, names
         d, names = self._with_outline_ranges(ofix, targets, where, d, names)
         return ofix, d, names
+
+    def _panel_fix(self, targets, R_prior):
+        """The outline fix from the panels alone (`panel_start_poses`): the best of the solves
+        from every start, or None when another pose more than `AMBIGUOUS_M` away fits nearly as
+        well (within `AMBIGUOUS_CHI2_RATIO`: a lone square seen from any of its four sides). With
+        a tracked orientation only the starts within `TRACKED_TURN_DEG` of it are tried."""
+        starts = panel_start_poses(targets, self.camera.focal_px)
+        if R_prior is not None:
+            cos_max = math.cos(math.radians(TRACKED_TURN_DEG))
+            starts = [(R, C) for R, C in starts if (np.trace(R @ R_prior.T) - 1) / 2 >= cos_max]
+        fits = []
+        for R0, C0 in starts:
+            if any(np.linalg.norm(C0 - f.C) < START_MERGE_M for f in fits):
+                continue        # a start next to a pose already solved lands on it
+            cand = self._solve_outline(targets, R0, C0, None, None)
+            if cand is not None and all(np.linalg.norm(cand.C - f.C) > START_MERGE_M for f in fits):
+                fits.append(cand)
+        if not fits:
+            return None
+        fits.sort(key=lambda f: f.chi2 / f.dof)
+        best = fits[0]
+        for other in fits[1:]:
+            if (np.linalg.norm(other.C - best.C) > AMBIGUOUS_M
+                    and other.chi2 / other.dof < AMBIGUOUS_CHI2_RATIO * max(best.chi2 / best.dof, 1.0)):
+                return None
+        return best
 
     def _at_frame_time(self, fix):
         """An outline fix moved from its points' mean read time to the frame's time stamp (the
