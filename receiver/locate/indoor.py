@@ -40,11 +40,13 @@ MIN_VETO_POINTS = 40
 # Starts from the panels alone (`Positioner._panel_fix`): two solved poses closer than
 # START_MERGE_M are one; a second pose more than AMBIGUOUS_M from the best whose chi^2 per dof is
 # within AMBIGUOUS_CHI2_RATIO of it makes the frame ambiguous (no fix); with a tracked orientation
-# only starts turned at most TRACKED_TURN_DEG from it (a phone turns < 30 deg/s: 1 deg a frame).
+# only starts turned at most TRACKED_TURN_DEG plus TURN_RATE_DEG_S times its age from it (a phone
+# turns at 10-30 deg/s; a lone square's other sides are 90 degrees away).
 START_MERGE_M = 0.02
 AMBIGUOUS_M = 0.10
 AMBIGUOUS_CHI2_RATIO = 4.0
-TRACKED_TURN_DEG = 30.0
+TRACKED_TURN_DEG = 20.0
+TURN_RATE_DEG_S = 60.0
 
 
 def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
@@ -262,7 +264,7 @@ class Positioner:
         if (ofix is None or ofix.chi2 / ofix.dof > WARM_OUTLINE_CHI2_DOF) and C_prior is None:
             # No start explains the frame (or there was none: no track, fewer than two whole
             # LEDs for a centroid fix): start again from the panels themselves.
-            cold = self._panel_fix(targets, R_prior)
+            cold = self._panel_fix(targets, R_prior, t_s)
             if cold is not None and (ofix is None or cold.chi2 / cold.dof < ofix.chi2 / ofix.dof):
                 ofix = cold
         if ofix is None and fix is not None and targets.n_points >= MIN_VETO_POINTS:
@@ -274,14 +276,16 @@ class Positioner:
         d, names = self._with_outline_ranges(ofix, targets, where, d, names)
         return ofix, d, names
 
-    def _panel_fix(self, targets, R_prior):
+    def _panel_fix(self, targets, R_prior, t_s=None):
         """The outline fix from the panels alone (`panel_start_poses`): the best of the solves
         from every start, or None when another pose more than `AMBIGUOUS_M` away fits nearly as
         well (within `AMBIGUOUS_CHI2_RATIO`: a lone square seen from any of its four sides). With
-        a tracked orientation only the starts within `TRACKED_TURN_DEG` of it are tried."""
+        a tracked orientation (of `PoseFilter.R_prior`, at frame time `t_s`) only the starts
+        within `TRACKED_TURN_DEG` + `TURN_RATE_DEG_S` x its age of it are tried."""
         starts = panel_start_poses(targets, self.camera.focal_px)
         if R_prior is not None:
-            cos_max = math.cos(math.radians(TRACKED_TURN_DEG))
+            age = (self.pose.orientation_age_s(t_s) if t_s is not None else None) or 0.0
+            cos_max = math.cos(math.radians(min(180.0, TRACKED_TURN_DEG + TURN_RATE_DEG_S * max(age, 0.0))))
             starts = [(R, C) for R, C in starts if (np.trace(R @ R_prior.T) - 1) / 2 >= cos_max]
         fits = []
         for R0, C0 in starts:

@@ -123,6 +123,10 @@ class PoseFilter:
             return self._R_cw
         return None
 
+    def orientation_age_s(self, t_s: float) -> float | None:
+        """Seconds from the orientation `R_prior` gives to t_s, or None without one."""
+        return None if self._t_R is None else t_s - self._t_R
+
     def keep_orientation(self, t_s: float, R_cw: np.ndarray) -> None:
         """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`,
         and the angular rate over the orientations of the last `RATE_MAX_GAP_S` (`angular_rate`)."""
