@@ -109,9 +109,11 @@ class Undistorter:
         self.needs_check = False
         xs, ys = np.meshgrid(np.linspace(0, camera.width - 1, 17), np.linspace(0, camera.height - 1, 9))
         grid = np.column_stack([xs.ravel(), ys.ravel()])
-        self.needs_check = bool(self._off_px(grid, self._first(grid)).max(initial=0.0) > UNDISTORT_TOL_PX)
+        self.needs_check = bool(self._off_px(grid, self.first_pass(grid)).max(initial=0.0) > UNDISTORT_TOL_PX)
 
-    def _first(self, pts: np.ndarray) -> np.ndarray:
+    def first_pass(self, pts: np.ndarray) -> np.ndarray:
+        """(N, 2) float64 px -> cv2.undistortPoints' default (5 iterations), by the compiled
+        kernel where it models the camera (its exact numbers), else by OpenCV."""
         if self._args is not None:
             out = np.empty_like(pts)
             _ku.undistort(pts, *self._args, out)
@@ -129,7 +131,7 @@ class Undistorter:
         pts = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
         if len(pts) == 0:
             return np.zeros((0, 2))
-        out = self._first(pts)
+        out = self.first_pass(pts)
         if self.needs_check:
             bad = ~(self._off_px(pts, out) <= UNDISTORT_TOL_PX)
             if bad.any():
