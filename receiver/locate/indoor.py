@@ -4,6 +4,7 @@ undistorted image points -> `PoseFilter` -> the INTERFACES.md `position` object.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -16,6 +17,7 @@ from receiver.io.ledmap import LedMap
 from receiver.locate.outline_pose import (
     OutlineFrame,
     fixture_half_extents,
+    panel_start_poses,
     solve_outline_pose,
 )
 from receiver.locate.pose import align_rays
@@ -35,6 +37,39 @@ GOOD_OUTLINE_CHI2_DOF = 4.0
 WARM_OUTLINE_CHI2_DOF = 10.0
 # Outline points that may veto a centroid fix they cannot be fitted from.
 MIN_VETO_POINTS = 40
+# Starts from the panels alone (`Positioner._panel_fix`): two solved poses closer than
+# START_MERGE_M are one; a second pose more than AMBIGUOUS_M from the best whose chi^2 per dof is
+# within AMBIGUOUS_CHI2_RATIO of it makes the frame ambiguous (no fix); with a tracked orientation
+# only starts turned at most TRACKED_TURN_DEG plus TURN_RATE_DEG_S times its age from it (a phone
+# turns at 10-30 deg/s; a lone square's other sides are 90 degrees away).
+START_MERGE_M = 0.02
+AMBIGUOUS_M = 0.10
+AMBIGUOUS_CHI2_RATIO = 4.0
+TRACKED_TURN_DEG = 20.0
+TURN_RATE_DEG_S = 60.0
+
+
+def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
+    """Normalized undistorted image points `uv` (N, 2) of a rolling-shutter frame, each read at
+    image row `rows_px` (N,), as the camera would have seen them at the instant of row `ref_row`:
+    the camera turns at `w_cam` (rad/s, camera frame, `PoseFilter.angular_rate`) and a row is read
+    `row_s` seconds after the one above it, so a point read tau = (row - ref_row) row_s later
+    lies on the ray Exp(tau w) x_ref; its reference ray is Exp(-tau w) x (Rodrigues' formula per
+    point). The camera's translation over tau (a few mm) is left to `Positioner._at_frame_time`."""
+    rate = math.sqrt(float(w_cam @ w_cam))
+    if rate == 0.0:
+        return np.array(uv, float)
+    k0, k1, k2 = (np.asarray(w_cam, float) / rate).tolist()
+    a = (np.asarray(rows_px, float) - ref_row) * (-row_s * rate)
+    c, s = np.cos(a), np.sin(a)
+    u, v = uv[:, 0], uv[:, 1]
+    kx = (k0 * u + k1 * v + k2) * (1.0 - c)
+    # Rodrigues: x c + (k x x) s + k (k . x) (1 - c), x = (u, v, 1)
+    z = c + (k0 * v - k1 * u) * s + k2 * kx
+    out = np.empty((len(u), 2))
+    out[:, 0] = (u * c + (k1 - k2 * v) * s + k0 * kx) / z
+    out[:, 1] = (v * c + (k2 * u - k0) * s + k1 * kx) / z
+    return out
 
 
 def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
@@ -83,6 +118,8 @@ class Positioner:
         self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
         self._undistort = Undistorter(camera)
+        self._row_s = (camera.row_readout_us or 0.0) * 1e-6
+        self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         # PoseFilter, with its Kalman steps and position object compiled where built
@@ -107,7 +144,7 @@ class Positioner:
         self._fixtures[led_id] = fx
         return fx
 
-    def _outline_targets(self, leds, items):
+    def _outline_targets(self, t_s, leds, items):
         """(`OutlineFrame` or None, item index or None per target) of the LEDs with measured edge
         points and a known shape and size (receiver.locate.outline_pose); LEDs cut by the image
         border (not in `items`) come with their edges only."""
@@ -128,8 +165,17 @@ class Positioner:
         packed = _pack_outline(chosen, self.settings.edge_model_sigma_px, self.camera.focal_px)
         # One undistortion for every edge point and centroid of the frame.
         und = self._undistort(packed[0])
+        w = self.pose.angular_rate(t_s) if self._row_s > 0 else None
         _, sig, ends, xyz, half = packed
         m = len(sig)
+        if w is not None:
+            # Every point to the instant of the frame's time stamp (its first row): one camera
+            # orientation for the whole frame.
+            und = derotate_rows(und, packed[0][:, 1], w, self._row_s, 0.0)
+        # The instant the points' position information stems from, after the frame's time stamp
+        # (their weighted mean read time): `_at_frame_time` moves the fix back to the time stamp.
+        wt = 1.0 / (sig * sig)
+        self._tau_s = float(wt @ packed[0][:m, 1]) / float(wt.sum()) * self._row_s
         L = self.pose.to_solving(xyz)
         uv = und[m:]
         if None in where:
@@ -166,7 +212,7 @@ class Positioner:
         centroid solve. Returns (fix, d, names) when that
         fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
-        targets, where = self._outline_targets(leds, items)
+        targets, where = self._outline_targets(t_s, leds, items)
         if targets is None:
             return None, (targets, where, None)
         if pred is None:
@@ -187,7 +233,7 @@ class Positioner:
         """The frame's fix and ranges refined on the LEDs' outlines (`PositionerSettings.outline`),
         or the given ones when no outline is usable. `warm`: (targets, where, candidate) of a
         failed warm start (`_outline_warm`), whose start is not tried again."""
-        targets, where = self._outline_targets(leds, items) if warm is None else warm[:2]
+        targets, where = self._outline_targets(t_s, leds, items) if warm is None else warm[:2]
         if targets is None:
             return fix, d, names
         # Starting poses: this frame's centroid fix, else (or when the outlines reject it: with
@@ -204,8 +250,6 @@ class Positioner:
             if pred is not None and warm is None:
                 starts.append((R_prior, pred[0][:3]))
         ofix = warm[2] if warm is not None else None
-        if not starts and ofix is None:
-            return fix, d, names
         C_prior = C_cov = None
         if targets.shapes == ("circle",):
             pred = self.pose.kf.predict_at(t_s) if self.pose.kf is not None else None
@@ -218,6 +262,12 @@ class Positioner:
                 ofix = cand
             if ofix is not None and ofix.chi2 / ofix.dof <= GOOD_OUTLINE_CHI2_DOF:
                 break
+        if (ofix is None or ofix.chi2 / ofix.dof > WARM_OUTLINE_CHI2_DOF) and C_prior is None:
+            # No start explains the frame (or there was none: no track, fewer than two whole
+            # LEDs for a centroid fix): start again from the panels themselves.
+            cold = self._panel_fix(targets, R_prior, t_s)
+            if cold is not None and (ofix is None or cold.chi2 / cold.dof < ofix.chi2 / ofix.dof):
+                ofix = cold
         if ofix is None and fix is not None and targets.n_points >= MIN_VETO_POINTS:
             # The frame's own outlines contradict the centroid fix from every start: no fix
             # (the filter coasts) rather than a confident wrong one.
@@ -226,6 +276,45 @@ class Positioner:
             return fix, d, names
         d, names = self._with_outline_ranges(ofix, targets, where, d, names)
         return ofix, d, names
+
+    def _panel_fix(self, targets, R_prior, t_s=None):
+        """The outline fix from the panels alone (`panel_start_poses`): the best of the solves
+        from every start, or None when another pose more than `AMBIGUOUS_M` away fits nearly as
+        well (within `AMBIGUOUS_CHI2_RATIO`: a lone square seen from any of its four sides). With
+        a tracked orientation (of `PoseFilter.R_prior`, at frame time `t_s`) only the starts
+        within `TRACKED_TURN_DEG` + `TURN_RATE_DEG_S` x its age of it are tried."""
+        starts = panel_start_poses(targets, self.camera.focal_px)
+        if R_prior is not None:
+            age = (self.pose.orientation_age_s(t_s) if t_s is not None else None) or 0.0
+            cos_max = math.cos(math.radians(min(180.0, TRACKED_TURN_DEG + TURN_RATE_DEG_S * max(age, 0.0))))
+            starts = [(R, C) for R, C in starts if (np.trace(R @ R_prior.T) - 1) / 2 >= cos_max]
+        fits = []
+        for R0, C0 in starts:
+            if any(np.linalg.norm(C0 - f.C) < START_MERGE_M for f in fits):
+                continue        # a start next to a pose already solved lands on it
+            cand = self._solve_outline(targets, R0, C0, None, None)
+            if cand is not None and all(np.linalg.norm(cand.C - f.C) > START_MERGE_M for f in fits):
+                fits.append(cand)
+        if not fits:
+            return None
+        fits.sort(key=lambda f: f.chi2 / f.dof)
+        best = fits[0]
+        for other in fits[1:]:
+            if (np.linalg.norm(other.C - best.C) > AMBIGUOUS_M
+                    and other.chi2 / other.dof < AMBIGUOUS_CHI2_RATIO * max(best.chi2 / best.dof, 1.0)):
+                return None
+        return best
+
+    def _at_frame_time(self, fix):
+        """An outline fix moved from its points' mean read time to the frame's time stamp (the
+        instant its first row is read, the `t` the position is reported at) with the tracked
+        velocity (the orientation is there already: `derotate_rows`)."""
+        if fix is None or fix.method != "outline" or not self._row_s or self.pose.kf is None:
+            return fix
+        state = self.pose.kf.state
+        if state is None or not self._tau_s:
+            return fix
+        return dataclasses.replace(fix, C=fix.C - self._tau_s * state[0].reshape(6)[3:])
 
     @property
     def unknown_ids(self) -> set[int]:
@@ -271,6 +360,7 @@ class Positioner:
             done, warm = self._outline_warm(t_s, leds, items, R_prior, pred)
             if done is not None:
                 fix, d, names = done
+                fix = self._at_frame_time(fix)
                 return self._result(t_s, fix, leds, items, d, names)
         d, sd, names = self.ranger.ranges(items, R_prior)
         fix = None
@@ -300,4 +390,5 @@ class Positioner:
                 d, sd, names = self.ranger.ranges(items, fix.R_cw)
         if outline:
             fix, d, names = self._outline(t_s, leds, items, fix, d, names, R_prior, warm)
+            fix = self._at_frame_time(fix)
         return self._result(t_s, fix, leds, items, d, names)

@@ -166,6 +166,67 @@ def fixture_half_extents(shape: str | None, size) -> tuple[float, float] | None:
     return None
 
 
+# A panel start (`panel_start_poses`) must reproject the quadrilateral's corners within this
+# (px at unit focal length: normalized units times the focal length).
+START_CORNER_PX = 6.0
+# Fewest edge points of a whole panel for its own start poses.
+START_MIN_POINTS = 12
+
+
+def _quad(pts: np.ndarray) -> np.ndarray | None:
+    """The 4 corners (4, 2) of the convex quadrilateral around a panel's edge points (the hull
+    simplified until 4 vertices remain), in the hull's order, or None."""
+    hull = cv2.convexHull(np.ascontiguousarray(pts, np.float32))
+    if hull is None or len(hull) < 4:
+        return None
+    peri = cv2.arcLength(hull, True)
+    for eps in (0.01, 0.02, 0.04, 0.06, 0.08):
+        q = cv2.approxPolyDP(hull, eps * peri, True)
+        if len(q) == 4:
+            return q.reshape(4, 2).astype(float)
+        if len(q) < 4:
+            break
+    return None
+
+
+def panel_start_poses(frame: "OutlineFrame", focal_px: float, z_below: float = BELOW_CEILING_M) -> list:
+    """Starting poses (R_cw, C) of the outline solve from the panels alone (no tracked pose, or
+    when every other start failed): for each whole square / rect panel (centroid measured, at
+    least `START_MIN_POINTS` edge points) the quadrilateral around its edge points against the
+    fixture's corners in each of their 8 cyclic orders (4 rotations, 2 directions; a square's
+    four-fold symmetry is in there, and the solve with every LED decides between them), each by
+    OpenCV's planar PnP (IPPE, up to 2 solutions), kept where the camera is below the panel and
+    the corners reproject within `START_CORNER_PX`."""
+    out = []
+    for k in range(len(frame)):
+        if frame.shapes[k] == "circle" or np.isnan(frame.uv[k, 0]):
+            continue
+        a, b = int(frame.ends[k]), int(frame.ends[k + 1])
+        if b - a < START_MIN_POINTS:
+            continue
+        quad = _quad(frame.pts[a:b])
+        if quad is None:
+            continue
+        hx, hy = frame.half[k]
+        obj = np.array([[hx, hy, 0.0], [-hx, hy, 0.0], [-hx, -hy, 0.0], [hx, -hy, 0.0]])
+        L = frame.xyz[k]
+        for order in (quad, quad[::-1]):
+            for shift in range(4):
+                img = np.roll(order, shift, axis=0)
+                try:
+                    n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+                except cv2.error:
+                    continue
+                for rv, tv, err in zip(rvecs, tvecs, np.ravel(errs)):
+                    if not err * focal_px <= START_CORNER_PX:
+                        continue
+                    R = cv2.Rodrigues(rv)[0]
+                    C = L - R.T @ tv.ravel()
+                    if C[2] < L[2] - z_below:
+                        out.append((R, C))
+    return out
+
+
 def _corners(t: OutlineTarget) -> np.ndarray:
     hx, hy = t.half
     return t.xyz + np.array([[hx, hy, 0.0], [-hx, hy, 0.0], [-hx, -hy, 0.0], [hx, -hy, 0.0]])

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+import cv2
+
 from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, PositionKalman, position_std
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
@@ -38,6 +40,9 @@ HANDEDNESS_MIN_LEDS = 3
 # the Luxapose photo's mirror fit has 22, the bundled walk's first decisive frame 6).
 HANDEDNESS_CHI2_RATIO = 10.0
 HANDEDNESS_MAX_CHI2_DOF = 100.0
+# The camera's angular rate is taken from two orientations at most this far apart (s): a phone
+# turns at tens of degrees per second, so over a few frames the rate is about constant.
+RATE_MAX_GAP_S = 0.15
 
 
 def is_mirror_fit_better(good: Fix | None, other: Fix | None) -> bool:
@@ -103,6 +108,8 @@ class PoseFilter:
         self._t_R: float | None = None
         self._C: np.ndarray | None = None
         self._t_C: float | None = None
+        self._w_cam: np.ndarray | None = None
+        self._R_hist: list = []     # (t_s, R_cw) of the fixes of the last RATE_MAX_GAP_S
 
     @property
     def mirrored(self) -> bool:
@@ -119,9 +126,32 @@ class PoseFilter:
             return self._R_cw
         return None
 
+    def orientation_age_s(self, t_s: float) -> float | None:
+        """Seconds from the orientation `R_prior` gives to t_s, or None without one."""
+        return None if self._t_R is None else t_s - self._t_R
+
     def keep_orientation(self, t_s: float, R_cw: np.ndarray) -> None:
-        """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`."""
+        """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`,
+        and the angular rate over the orientations of the last `RATE_MAX_GAP_S` (`angular_rate`)."""
+        if self._t_R is not None and not 0 <= t_s - self._t_R <= RATE_MAX_GAP_S:
+            self._R_hist = []
+        self._R_hist = [(t, R) for t, R in self._R_hist if t_s - t <= RATE_MAX_GAP_S] + [(t_s, R_cw)]
+        t0, R0 = self._R_hist[0]
+        if t_s - t0 > 0:
+            # X_cam(t) = R_cw(t) (X - C): R_new R_old^T = Exp(dt w), w in the camera frame. The
+            # oldest orientation in the window: the longest baseline, the least noise per rad/s.
+            self._w_cam = cv2.Rodrigues(np.asarray(R_cw, float) @ np.asarray(R0, float).T)[0].ravel() / (t_s - t0)
+        else:
+            self._w_cam = None
         self._R_cw, self._t_R = R_cw, t_s
+
+    def angular_rate(self, t_s: float) -> np.ndarray | None:
+        """The camera's angular rate (rad/s, camera frame: a fixed world point's camera
+        coordinates turn as X' = Exp(dt w) X) from the recent orientations, while recent
+        (`RATE_MAX_GAP_S` after the last), else None."""
+        if self._w_cam is not None and 0 <= t_s - self._t_R <= RATE_MAX_GAP_S:
+            return self._w_cam
+        return None
 
     def _kw(self) -> dict:
         return dict(sigma_uv=self.sigma_uv, solver=self.solver, tilt_sigma_deg=self.tilt_sigma_deg,

@@ -86,25 +86,60 @@ def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
     return Undistorter(camera)(points_px)
 
 
+# An undistorted point must reproject onto its pixel within this (px). OpenCV's undistortion runs a
+# fixed 5 fixed-point iterations, which near the corners of a strongly distorted lens (k1 ~ -0.3
+# without a k2 to balance it) leave errors of pixels; such points are undistorted again with
+# `UNDISTORT_MORE_ITERATIONS`.
+UNDISTORT_TOL_PX = 0.01
+UNDISTORT_MORE_ITERATIONS = 60
+
+
 class Undistorter:
     """`undistort_points` of one camera, its matrix and coefficients checked and converted once
-    (the positioner undistorts every frame's outline points)."""
+    (the positioner undistorts every frame's outline points). Where OpenCV's default 5 iterations
+    do not converge within the image (tried once on a grid over it: `needs_check`), each frame's
+    points are reprojected (cv2.projectPoints) and those off by more than `UNDISTORT_TOL_PX` are
+    undistorted again with `UNDISTORT_MORE_ITERATIONS` iterations."""
 
-    __slots__ = ("camera", "_args")
+    __slots__ = ("camera", "_args", "needs_check")
 
     def __init__(self, camera: CameraModel):
         self.camera = camera
         self._args = _kernel_args(camera)
+        self.needs_check = False
+        xs, ys = np.meshgrid(np.linspace(0, camera.width - 1, 17), np.linspace(0, camera.height - 1, 9))
+        grid = np.column_stack([xs.ravel(), ys.ravel()])
+        self.needs_check = bool(self._off_px(grid, self.first_pass(grid)).max(initial=0.0) > UNDISTORT_TOL_PX)
 
-    def __call__(self, points_px: np.ndarray) -> np.ndarray:
-        pts = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
-        if len(pts) == 0:
-            return np.zeros((0, 2))
+    def first_pass(self, pts: np.ndarray) -> np.ndarray:
+        """(N, 2) float64 px -> cv2.undistortPoints' default (5 iterations), by the compiled
+        kernel where it models the camera (its exact numbers), else by OpenCV."""
         if self._args is not None:
             out = np.empty_like(pts)
             _ku.undistort(pts, *self._args, out)
             return out
         return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
+
+    def _off_px(self, pts: np.ndarray, und: np.ndarray) -> np.ndarray:
+        """How far (px) each undistorted point reprojects from its pixel."""
+        X = np.column_stack([und, np.ones(len(und))])
+        back = cv2.projectPoints(X, np.zeros(3), np.zeros(3), self.camera.K, self.camera.dist)[0].reshape(-1, 2)
+        d = back - pts
+        return np.sqrt(np.einsum("ij,ij->i", d, d))
+
+    def __call__(self, points_px: np.ndarray) -> np.ndarray:
+        pts = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
+        if len(pts) == 0:
+            return np.zeros((0, 2))
+        out = self.first_pass(pts)
+        if self.needs_check:
+            bad = ~(self._off_px(pts, out) <= UNDISTORT_TOL_PX)
+            if bad.any():
+                eye = np.eye(3)
+                out[bad] = cv2.undistortPoints(pts[bad].reshape(-1, 1, 2), self.camera.K, self.camera.dist, None, eye,
+                                               eye, (cv2.TERM_CRITERIA_COUNT, UNDISTORT_MORE_ITERATIONS, 0)
+                                               ).reshape(-1, 2)
+        return out
 
 
 def _polygon_sums(p: np.ndarray, perimeter: bool):

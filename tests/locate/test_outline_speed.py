@@ -61,7 +61,7 @@ def _warm_problem(folder, k):
 
     def spy(t_s, leds):
         items = pos.ranger.usable(leds)
-        frame, _ = pos._outline_targets(leds, items)
+        frame, _ = pos._outline_targets(t_s, leds, items)
         targets = frame.targets if frame is not None else []
         R0 = pos.pose.R_prior(t_s)
         pred = pos.pose.kf.predict_at(t_s) if pos.pose.kf is not None else None

@@ -44,7 +44,7 @@ def test_map_heads_follow_the_drawn_spacing_height_and_halves(seed):
         a, b = np.asarray(led.emitters)
         assert np.linalg.norm(a - b) == pytest.approx(0.6)                 # centres 0.6 m apart
         assert 0.6 - led.size[0] == pytest.approx(0.35)                   # a 0.35 m gap between halves
-    assert sc.params.bloom_frac == pytest.approx(road["bloom_frac"])
+    assert sc.params.halo_frac == pytest.approx(road["halo_frac"])
 
 
 def test_the_camera_sways_slowly_with_roll_and_jitter():

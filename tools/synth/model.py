@@ -118,9 +118,25 @@ class RenderParams:
       loses or doubles the flux of shapes about a pixel tall or less. Above it the sampled
       coverage is kept (bit-exact with the recordings made before the exact path existed).
     frame_jitter_us: standard deviation of each frame's start time around k / fps.
-    bloom_frac, bloom_sigma_px: veiling glare and bloom: this fraction of every light's flux
+    halo_frac, halo_sigma_px: a halo: this fraction of every light's flux
       is spread by a wide Gaussian (sigma px) instead of the lens PSF, so a saturating light's
       blob grows well past its image (2-3x its area within saturation; 0 = none).
+
+    Phone effects (`tools.synth.phone`; all 0 = off, and then the frame is drawn as above):
+    glare_frac / glare_sigma_px: share of each light's signal spread as veiling glare by a
+      Gaussian of that sigma.
+    vignetting: relative loss of light at the image corners (quadratic in the radius).
+    row_noise_dn: 1-sigma of a per-row offset (read-out noise common to a row).
+    bloom_frac / bloom_len_px: share of a clipped pixel's excess charge that spills along its
+      column, with an exponential tail of that 1/e length.
+    centre_gain: a panel's centre this much brighter than its edges (diffuser fall-off,
+      quadratic across the panel).
+    bezel_frac: a dark frame around each panel, this fraction of its half size wide, that hides
+      the lit ceiling behind it.
+    tone_gamma: the phone's tone curve, out = 255 (in / 255)^(1 / gamma) (1 = linear).
+    sharpen: unsharp-mask amount (sigma 1 px) after the tone curve.
+    rs_band_rows: in-frame motion: each band of this many rows of a light is drawn with the
+      camera pose of its own read time (0: one pose per light, at its centroid's row).
     """
 
     led_peak_dn: float = 180.0
@@ -133,8 +149,25 @@ class RenderParams:
     motion_blur_samples: int = 1
     frame_jitter_us: float = 100.0
     exact_coverage_rows: float = 8.0
+    halo_frac: float = 0.0
+    halo_sigma_px: float = 3.0
+    glare_frac: float = 0.0
+    glare_sigma_px: float = 40.0
+    vignetting: float = 0.0
+    row_noise_dn: float = 0.0
     bloom_frac: float = 0.0
-    bloom_sigma_px: float = 3.0
+    bloom_len_px: float = 6.0
+    centre_gain: float = 0.0
+    bezel_frac: float = 0.0
+    tone_gamma: float = 1.0
+    sharpen: float = 0.0
+    rs_band_rows: int = 0
+
+    @property
+    def phone(self) -> bool:
+        """True when any effect needs the whole frame drawn (`tools.synth.phone.finish_frame`)."""
+        return bool(self.glare_frac or self.vignetting or self.row_noise_dn or self.bloom_frac
+                    or self.bezel_frac or self.tone_gamma != 1.0 or self.sharpen)
 
 
 @dataclass

@@ -1,9 +1,10 @@
 """Write a rendered scene as a recording folder (INTERFACES.md).
 
     DIR/video.avi: FFV1 (lossless) or MJPEG (as a USB webcam delivers it)
+    DIR/video.mp4: H.264 at `H264_BITRATE` (as a phone records), by an `ffmpeg` found on PATH
     DIR/camera.yaml, DIR/map.json, DIR/truth.jsonl (one object per frame)
 
-Deterministic: the same scene, seed and codec give the same bytes (FFV1 is lossless and the
+Deterministic (FFV1, MJPEG): the same scene, seed and codec give the same bytes (FFV1 is lossless and the
 encoder is fed identical frames; per-frame RNG streams come from `render_frames`).
 """
 
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
+import subprocess
 import sys
 
 import cv2
@@ -24,7 +27,36 @@ from tools.synth.render import render_frames
 
 # FFV1 goes into AVI: OpenCV's Matroska muxer writes a random segment UID, which would break
 # bit-exact regeneration; the AVI muxer is deterministic. Both codecs are lossless-readable by FFmpeg.
-CODECS = {"ffv1": ("FFV1", "video.avi"), "mjpeg": ("MJPG", "video.avi")}
+CODECS = {"ffv1": ("FFV1", "video.avi"), "mjpeg": ("MJPG", "video.avi"), "h264": ("H264", "video.mp4")}
+# A phone's 720p video bit rate.
+H264_BITRATE = "8M"
+
+
+class _FfmpegWriter:
+    """cv2.VideoWriter's write / release / isOpened over an `ffmpeg` process encoding H.264
+    (OpenCV's own FFmpeg has no H.264 encoder)."""
+
+    def __init__(self, path: str, fps: float, size: tuple[int, int]):
+        exe = shutil.which("ffmpeg")
+        if exe is None:
+            raise InputError("codec h264 needs the ffmpeg program on PATH (apt-get install ffmpeg)")
+        w, h = size
+        self.proc = subprocess.Popen(
+            [exe, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "gray", "-s", f"{w}x{h}", "-r", f"{fps:g}",
+             "-i", "-", "-c:v", "libx264", "-b:v", H264_BITRATE, "-pix_fmt", "yuv420p", "-f", "mp4", path],
+            stdin=subprocess.PIPE)
+
+    def isOpened(self) -> bool:
+        return self.proc.poll() is None
+
+    def write(self, img) -> None:
+        self.proc.stdin.write(img.tobytes())
+
+    def release(self) -> None:
+        if self.proc.stdin and not self.proc.stdin.closed:
+            self.proc.stdin.close()
+        if self.proc.wait() != 0:
+            raise OSError("ffmpeg failed to encode the video")
 
 
 RECORDING_FILES = ("camera.yaml", "map.json", "truth.jsonl")
@@ -61,8 +93,11 @@ def write_recording(scene: Scene, out_dir: str, seed: int = 0, codec: str = "ffv
     tmp = {n: os.path.join(out_dir, f".{n}.tmp-{os.getpid()}") for n in (name,) + RECORDING_FILES}
     # the temporary video keeps its extension: OpenCV picks the container from it
     tmp[name] = os.path.join(out_dir, f".tmp-{os.getpid()}-{name}")
-    writer = cv2.VideoWriter(tmp[name], cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height),
-                             isColor=False)
+    if codec == "h264":
+        writer = _FfmpegWriter(tmp[name], fps, (cam.width, cam.height))
+    else:
+        writer = cv2.VideoWriter(tmp[name], cv2.VideoWriter_fourcc(*fourcc), fps, (cam.width, cam.height),
+                                 isColor=False)
     if not writer.isOpened():
         raise InputError(f"cannot write {video}: OpenCV has no {fourcc} encoder")
     n = scene.n_frames if n_frames is None else int(n_frames)

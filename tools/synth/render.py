@@ -18,7 +18,7 @@ Per frame k (start time ``t_k = k / fps + jitter``):
    which grows as ``cos(phi) / (d^2 cos^3(psi))``, this is a per-pixel level
    ``led_peak_dn * brightness * cos^(m-1)(phi) * cos^4(psi)``, independent of distance
    (phi: emission angle from the LED normal, psi: angle off the optical axis).
-3. Lens blur (Gaussian PSF; with `bloom_frac` a share of the flux through a wide Gaussian:
+3. Lens blur (Gaussian PSF; with `halo_frac` a share of the flux through a wide Gaussian:
    veiling glare, which grows a saturating light's blob), then for every pixel of each LED patch a fresh noisy value
    ``black + S + N(0, alpha*S + beta)`` (eq. 4, S = ambient + LED signal), saturation at 255,
    rounding to 8 bits.
@@ -55,6 +55,7 @@ import numpy as np
 from tools.synth.camera import (Pose, max_normalized_radius, project_camera_points, rotation_cam_to_world,
                                 world_to_camera)
 from tools.synth.model import Scene
+from tools.synth.phone import finish_frame, vignette_map
 from tools.synth.raster import coverage, coverage_exact, polygon_area_centroid
 
 NEAR_M = 0.05  # closer than this to the camera plane is not drawn
@@ -170,8 +171,16 @@ class FrameRenderer:
         self.bg_pmf = background_pmf(p.black_level_dn + p.ambient_dn,
                                      math.sqrt(p.shot_noise_alpha * p.ambient_dn + p.read_noise_dn ** 2))
         self.canvas = np.zeros((cam.height, cam.width), dtype=np.float32)
-        spread = max(p.psf_sigma_px, p.bloom_sigma_px if p.bloom_frac > 0 else 0.0)
+        spread = max(p.psf_sigma_px, p.halo_sigma_px if p.halo_frac > 0 else 0.0)
         self.margin = int(math.ceil(3 * spread)) + 1 if spread > 0 else 0
+        if p.rs_band_rows > 0:
+            self.margin += 8        # a phone turning at ~30 deg/s moves a light ~4 px while it is read
+        # Phone effects (tools.synth.phone): the whole frame in linear DN, the lit ceiling behind
+        # the lights as its own canvas (bezels hide it).
+        self.phone = p.phone
+        if self.phone:
+            self.ambient = np.full((cam.height, cam.width), p.ambient_dn, dtype=np.float32)
+            self.vignette = vignette_map(cam.height, cam.width, p.vignetting) if p.vignetting > 0 else None
         self.outlines = [[e.outline_local() for e in light.emitters] for light in scene.lights]
         self.radius_m = np.array([max(np.linalg.norm(o - light.offset, axis=1).max() for o in outl)
                                   for light, outl in zip(scene.lights, self.outlines)])
@@ -294,7 +303,7 @@ class FrameRenderer:
         scene, cam, p = self.scene, self.cam, self.scene.params
         rng = np.random.default_rng([self.seed, int(k)])
         t_k = self.frame_time(k, rng)
-        img = sparse_background(rng, (cam.height, cam.width), self.bg_pmf)
+        img = None if self.phone else sparse_background(rng, (cam.height, cam.width), self.bg_pmf)
         pose0 = scene.trajectory(t_k)
         t_mid = t_k + 0.5 * cam.height * self.t_row_s + 0.5 * self.t_exp_s
         leds, regions = [], []
@@ -319,7 +328,12 @@ class FrameRenderer:
                 if reg is not None:
                     regions.append(reg)
             leds.append(self._truth(light, geo, pose, t_led))
-        self._noise(img, regions, rng)
+        if self.phone:
+            img = finish_frame(self.canvas, self.ambient, p, rng, self.vignette)
+            self.canvas[:] = 0.0
+            self.ambient[:] = np.float32(p.ambient_dn)
+        else:
+            self._noise(img, regions, rng)
         truth = {"frame": int(k), "t": round(t_k, 9), "camera": pose0.as_dict(), "leds": leds}
         if scene.extra_truth is not None:
             truth.update(scene.extra_truth(t_k, leds) if self.extra_takes_leds else scene.extra_truth(t_k))
@@ -333,9 +347,24 @@ class FrameRenderer:
         r1 = min(int(math.floor(poly[:, 1].max() + 0.5)) + 1 + m, cam.height)
         c0 = max(int(math.floor(poly[:, 0].min() + 0.5)) - m, 0)
         c1 = min(int(math.floor(poly[:, 0].max() + 0.5)) + 1 + m, cam.width)
+        if p.bezel_frac > 0:
+            grow = int(math.ceil(p.bezel_frac * 0.5 * float(np.ptp(poly, axis=0).max()))) + 1
+            r0, r1, c0, c1 = max(r0 - grow, 0), min(r1 + grow, cam.height), max(c0 - grow, 0), min(c1 + grow, cam.width)
         if r1 <= r0 or c1 <= c0:
             return None
-        if p.motion_blur_samples > 1:
+        bezel = None
+        if p.rs_band_rows > 0 and self.t_row_s > 0:
+            # In-frame motion: each band of rows with the camera (and carrier) pose of its read time.
+            cov = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+            bezel = np.zeros_like(cov) if p.bezel_frac > 0 else None
+            for b0 in range(r0, r1, p.rs_band_rows):
+                b1 = min(b0 + p.rs_band_rows, r1)
+                t_b = t_k + 0.5 * (b0 + b1 - 1) * self.t_row_s + 0.5 * self.t_exp_s
+                gb = self._project(light, li, t_b, self.scene.trajectory(t_b))[ei]
+                if gb is None:
+                    continue
+                cov[b0 - r0:b1 - r0] = self._shaded(gb, b0, b1, c0, c1, bezel, b0 - r0)
+        elif p.motion_blur_samples > 1:
             cov = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
             for s in np.linspace(0.0, self.t_exp_s, p.motion_blur_samples):
                 gs = self._project(light, li, t_led - 0.5 * self.t_exp_s + s,
@@ -344,7 +373,12 @@ class FrameRenderer:
                     cov += self._cover(gs["poly"], r0, r1, c0, c1)
             cov /= p.motion_blur_samples
         else:
-            cov = self._cover(poly, r0, r1, c0, c1)
+            bezel = np.zeros((r1 - r0, c1 - c0), dtype=np.float32) if p.bezel_frac > 0 else None
+            cov = self._shaded(g, r0, r1, c0, c1, bezel, 0)
+        if bezel is not None:
+            if p.psf_sigma_px > 0:
+                bezel = cv2.GaussianBlur(bezel, (0, 0), p.psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
+            self.ambient[r0:r1, c0:c1] *= 1.0 - np.clip(bezel, 0.0, 1.0)
         if occluders:
             mask = np.ones_like(cov)
             for hull in occluders:
@@ -362,14 +396,33 @@ class FrameRenderer:
                     * g["cos_psi"] ** 4)
         sig = cov * (level[:, None] * np.float32(radiance))
         halo = None
-        if p.bloom_frac > 0 and p.bloom_sigma_px > 0:
-            halo = cv2.GaussianBlur(sig, (0, 0), p.bloom_sigma_px, borderType=cv2.BORDER_CONSTANT)
+        if p.halo_frac > 0 and p.halo_sigma_px > 0:
+            halo = cv2.GaussianBlur(sig, (0, 0), p.halo_sigma_px, borderType=cv2.BORDER_CONSTANT)
         if p.psf_sigma_px > 0:
             sig = cv2.GaussianBlur(sig, (0, 0), p.psf_sigma_px, borderType=cv2.BORDER_CONSTANT)
         if halo is not None:
-            sig = np.float32(1.0 - p.bloom_frac) * sig + np.float32(p.bloom_frac) * halo
+            sig = np.float32(1.0 - p.halo_frac) * sig + np.float32(p.halo_frac) * halo
         self.canvas[r0:r1, c0:c1] += sig
         return (r0, r1, c0, c1)
+
+    def _shaded(self, g, r0, r1, c0, c1, bezel, row0):
+        """Coverage of the emitter outline `g["poly"]` over rows r0..r1-1, columns c0..c1-1,
+        brighter towards its centre by `centre_gain` (quadratic in the distance from its
+        centroid over its half extent); with `bezel` (an array whose rows row0.. match), the
+        coverage of the dark frame around it (the outline grown by `bezel_frac`) is added there."""
+        p = self.scene.params
+        poly = g["poly"]
+        cov = self._cover(poly, r0, r1, c0, c1)
+        if p.centre_gain > 0:
+            half = np.maximum(0.5 * np.ptp(poly, axis=0), 1.0)
+            y = ((np.arange(r0, r1, dtype=np.float32) - np.float32(g["cy"])) / np.float32(half[1]))[:, None]
+            x = ((np.arange(c0, c1, dtype=np.float32) - np.float32(g["cx"])) / np.float32(half[0]))[None, :]
+            cov = cov * (1.0 + np.float32(p.centre_gain) * np.clip(1.0 - x * x - y * y, 0.0, 1.0))
+        if bezel is not None:
+            c = np.array([g["cx"], g["cy"]])
+            grown = self._cover(c + (poly - c) * (1.0 + p.bezel_frac), r0, r1, c0, c1)
+            bezel[row0:row0 + (r1 - r0)] += np.clip(grown - self._cover(poly, r0, r1, c0, c1), 0.0, 1.0)
+        return cov
 
     def _noise(self, img, regions, rng):
         p = self.scene.params

@@ -22,9 +22,11 @@ import numpy as np
 from receiver.io.ledmap import Led, LedMap
 from tools.synth.camera import Pose, make_camera
 from tools.synth.model import Body, Emitter, Light, RenderParams, Scene
+from tools.synth.phone import draw_phone
 from tools.synth.waveform import led_drive
 
-SCENES = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle", "vehicle-road", "vehicle-random")
+SCENES = ("indoor-walk", "indoor-static", "indoor-sparse", "indoor-phone", "vehicle", "vehicle-road",
+          "vehicle-random")
 CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
 PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -141,7 +143,7 @@ def indoor_static(rng, cam, ceiling_m=3.0, camera_xyz=(2.0, 2.0, 1.0), rate_hz=O
 
 def indoor_sparse(rng, cam, room_m=9.0, ceiling_m=2.8, panel_m=0.25, pitch_m=1.1, rate_hz=OOK_RATE_HZ,
                   height_m=1.15, speed_mps=0.8, tilt_deg=(15.0, 30.0), start_xy=(2.2, 3.1), heading_deg=10.0,
-                  seconds=2.0):
+                  seconds=2.0, turn_rad=0.1, turn_rate_rad_s=0.8, tilt_hz=0.3):
     """Walking with a phone held as people hold it, under a sparse ceiling: 0.25 m square OOK
     panels on a 1.1 m grid, ceiling 2.8 m, camera 1.1-1.2 m above the floor and tilted 15-30
     degrees from vertical towards the walking direction (the tilt swings between the two limits
@@ -149,6 +151,9 @@ def indoor_sparse(rng, cam, room_m=9.0, ceiling_m=2.8, panel_m=0.25, pitch_m=1.1
     ceiling the 40 x 65 degree view covers ~1.2 x 2.1 m of it, so one or two whole panels are in
     view at a time; each is ~140 rows tall (~42 chips per frame, less than a 54-chip packet, so
     a new panel needs two or three frames to be decoded). IDs: distinct random 16-bit.
+    `turn_rad` / `turn_rate_rad_s`: the heading swings by this amplitude at this angular
+    frequency (a phone turning at up to their product, rad/s); `tilt_hz`: the rate of the tilt's
+    swing.
     """
     lights, led_map = panel_grid(rng, room_m, (pitch_m, pitch_m), ceiling_m, "square", (panel_m, panel_m), rate_hz)
     h = math.radians(heading_deg)
@@ -156,8 +161,8 @@ def indoor_sparse(rng, cam, room_m=9.0, ceiling_m=2.8, panel_m=0.25, pitch_m=1.1
     t_lo, t_hi = tilt_deg
 
     def trajectory(t):
-        a = h + 0.1 * math.sin(0.8 * t)
-        tilt = 0.5 * (t_lo + t_hi) + 0.5 * (t_hi - t_lo) * math.sin(2 * math.pi * 0.3 * t)
+        a = h + turn_rad * math.sin(turn_rate_rad_s * t)
+        tilt = 0.5 * (t_lo + t_hi) + 0.5 * (t_hi - t_lo) * math.sin(2 * math.pi * tilt_hz * t)
         return Pose(x0 + speed_mps * t * math.cos(h) - 0.1 * math.sin(0.8 * t) * math.sin(h),
                     y0 + speed_mps * t * math.sin(h) + 0.1 * math.sin(0.8 * t) * math.cos(h),
                     height_m + 0.02 * math.sin(2 * math.pi * 1.8 * t),
@@ -373,7 +378,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     and a frame-to-frame jitter (`jitter_deg` rms per axis, held over each frame period).
     `light_layout`: "staggered" (the default above), "one-side" (the left row only) or
     "opposite" (both rows at the same s); `light_brightness`: the heads' radiance relative to
-    `led_peak_dn` (above ~1.5 they saturate; with `bloom_frac` their blobs then bloom).
+    `led_peak_dn` (above ~1.5 they saturate; with `halo_frac` their blobs then bloom).
 
     FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
     `FV_SCRIPT` (gaps 46, 24, 34 m; FV2 cuts in from the left lane at 2-4.5 s, FV3 from the
@@ -539,20 +544,20 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
 # test can check them): the roads the independent recordings showed our own scenes lacked.
 RANDOM_ROAD = dict(head_spacing_m=(12.5, 40.0), light_height_m=(6.0, 10.0), light_offset_y_m=(5.0, 8.0),
                    light_brightness=(1.5, 3.0), slow_shake_rms_deg=(0.2, 0.35), cam_pitch_deg=(2.0, 4.0),
-                   speed0_kmh=(40.0, 70.0), bloom_frac=(0.05, 0.15), bloom_sigma_px=(2.0, 4.0))
+                   speed0_kmh=(40.0, 70.0), halo_frac=(0.05, 0.15), halo_sigma_px=(2.0, 4.0))
 RANDOM_LAYOUTS = ("staggered", "one-side", "opposite")
 
 
 def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_height_m=None, light_offset_y_m=None,
                    light_brightness=None, slow_shake_rms_deg=None, cam_pitch_deg=None, speed0_kmh=None,
-                   bloom_frac=None, bloom_sigma_px=None, jitter_deg=0.05, head_half_m=(0.25, 0.5),
+                   halo_frac=None, halo_sigma_px=None, jitter_deg=0.05, head_half_m=(0.25, 0.5),
                    head_gap_m=0.6, cam_height_m=1.3, seconds=8.0):
     """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`; a keyword given
     is taken instead of drawn): heads `head_spacing_m` apart along the road (12.5-40 m) in a
     staggered, one-side or opposite layout, 6-10 m high, 5-8 m off the host lane; each head two
     separate face-down halves of 0.25 x 0.5 m whose centres are 0.6 m apart across the road
     (a 0.35 m gap: two blobs at every range), bright enough to saturate (1.5-3x `led_peak_dn`)
-    with bloom (`bloom_frac` 0.05-0.15 of the flux through a 2-4 px Gaussian: saturated blobs
+    with bloom (`halo_frac` 0.05-0.15 of the flux through a 2-4 px Gaussian: saturated blobs
     2-3x their image area); the camera 1.3 m high, pitched up 2-4 deg, swaying slowly
     (0.5-2.5 Hz sinusoids, yaw and pitch 0.2-0.35 deg rms, roll half that) with 0.05 deg of
     frame-to-frame jitter and no fast road vibration; the host at 40-70 km/h. The forward
@@ -569,7 +574,7 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                 light_brightness=draw("light_brightness", light_brightness),
                 slow_shake_rms_deg=draw("slow_shake_rms_deg", slow_shake_rms_deg),
                 cam_pitch_deg=draw("cam_pitch_deg", cam_pitch_deg), speed0_kmh=draw("speed0_kmh", speed0_kmh),
-                bloom_frac=draw("bloom_frac", bloom_frac), bloom_sigma_px=draw("bloom_sigma_px", bloom_sigma_px))
+                halo_frac=draw("halo_frac", halo_frac), halo_sigma_px=draw("halo_sigma_px", halo_sigma_px))
     # vehicle_road's light_spacing_m is a row's spacing; a staggered layout puts the other row
     # half-way, so its heads follow each other at half of it.
     row = road["head_spacing_m"] * (2.0 if road["light_layout"] == "staggered" else 1.0)
@@ -580,14 +585,36 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                          roll_rms_deg=road["slow_shake_rms_deg"] / 2.0, jitter_deg=jitter_deg,
                          cam_height_m=cam_height_m, cam_pitch_deg=road["cam_pitch_deg"],
                          speed0_kmh=road["speed0_kmh"], seconds=seconds)
-    built["render"] = dict(bloom_frac=road["bloom_frac"], bloom_sigma_px=road["bloom_sigma_px"])
+    built["render"] = dict(halo_frac=road["halo_frac"], halo_sigma_px=road["halo_sigma_px"])
     built["road"] = road
     built["description"] = "night road drawn per seed: " + ", ".join(
         f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in road.items())
     return built
+def indoor_phone(rng, cam, room_m=9.0, seconds=3.0, **kw):
+    """`indoor_sparse` as a phone films it (`make_scene` draws the phone: `tools.synth.phone`):
+    0.25 m panels on a 1.1 m grid, one or two in view, the walk drawn per seed: start and
+    heading anywhere in the room's middle, 0.8-1.2 m/s, tilt swinging between 15-20 and 30-35
+    degrees, heading swinging by 10-25 degrees (the phone turning at up to 10-30 deg/s).
+    Keywords of `indoor_sparse` override the drawn values."""
+    r = np.random.default_rng(int(rng.integers(2 ** 32)))
+    turn = math.radians(r.uniform(10.0, 25.0))
+    drawn = dict(start_xy=(float(r.uniform(2.5, room_m - 2.5)), float(r.uniform(2.5, room_m - 2.5))),
+                 heading_deg=float(r.uniform(0.0, 360.0)), speed_mps=float(r.uniform(0.8, 1.2)),
+                 tilt_deg=(float(r.uniform(15.0, 20.0)), float(r.uniform(30.0, 35.0))), turn_rad=turn,
+                 turn_rate_rad_s=math.radians(r.uniform(10.0, 30.0)) / turn, tilt_hz=float(r.uniform(0.2, 0.4)))
+    x, y = drawn["start_xy"]
+    h = math.radians(drawn["heading_deg"])
+    # Walk towards the room's middle, so that the whole walk stays under the ceiling's grid.
+    if not (1.0 < x + 4 * math.cos(h) < room_m - 1.0 and 1.0 < y + 4 * math.sin(h) < room_m - 1.0):
+        drawn["heading_deg"] = math.degrees(math.atan2(room_m / 2 - y, room_m / 2 - x))
+    drawn.update(kw)
+    out = indoor_sparse(rng, cam, room_m=room_m, seconds=seconds, **drawn)
+    out["description"] = "phone walk under sparse 0.25 m panels, tilt 15-35 deg, turning, every phone effect"
+    return out
 
 
 BUILDERS = {"indoor-walk": indoor_walk, "indoor-static": indoor_static, "indoor-sparse": indoor_sparse,
+            "indoor-phone": indoor_phone,
             "vehicle": vehicle,
             "vehicle-road": vehicle_road,
             "vehicle-random": vehicle_random}
@@ -601,6 +628,9 @@ CAMERA_DEFAULTS = {
                           row_readout_us=15.0, exposure_us=20.0, fps=30.0),
     "indoor-sparse": dict(focal_px=1000.0, dist=(-0.04, 0.01, 0.0, 0.0, 0.0), pixel_size_um=3.0,
                           row_readout_us=15.0, exposure_us=20.0, fps=30.0),
+    # Phone main camera at 1280x720 (1.4 um pixels, 1100 px focal), 10 us rows, 20 us exposure;
+    # its lens distortion is drawn with the phone (tools.synth.phone.PHONE_RANGES).
+    "indoor-phone": dict(focal_px=1100.0, pixel_size_um=1.4, row_readout_us=10.0, exposure_us=20.0, fps=30.0),
     # Dash camera: 1200 px focal (56 x 33 deg), 100 us exposure << the 2.5 ms S2-PSK half clock.
     "vehicle": dict(focal_px=1200.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0), pixel_size_um=3.75,
                     row_readout_us=15.0, exposure_us=100.0, fps=30.0),
@@ -611,9 +641,10 @@ CAMERA_DEFAULTS["vehicle-random"] = dict(CAMERA_DEFAULTS["vehicle"], focal_px=14
 # The bundled `vehicle` recording was rendered with the sampled coverage throughout
 # (exact_coverage_rows 0 keeps it bit-exact); `vehicle-road` has sub-pixel-tall far heads,
 # which only the exact coverage renders with their true flux.
-PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "indoor-sparse": {}, "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
+PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "indoor-sparse": {}, "indoor-phone": {},
+                  "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
                   "vehicle-road": dict(psf_sigma_px=0.7),
-                  # Lens blur 0.5 px, read noise 1.5 DN over an 8 DN black level (bloom: drawn).
+                  # Lens blur 0.5 px, read noise 1.5 DN over an 8 DN black level (halo: drawn).
                   "vehicle-random": dict(psf_sigma_px=0.5, read_noise_dn=1.5, black_level_dn=8.0)}
 
 
@@ -625,8 +656,16 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
         raise InputError(f"unknown scene '{name}' (choose from {', '.join(SCENES)})")
     cam_kw = dict(CAMERA_DEFAULTS[name])
     par_kw = dict(PARAM_DEFAULTS[name])
+    overrides = dict(overrides)
+    if overrides.pop("phone", name == "indoor-phone"):
+        # One phone per seed (its own stream: the scene's draws stay those of the seed).
+        cam_phone, par_phone = draw_phone(np.random.default_rng([seed, 0x9407E]))
+        cam_kw.update(cam_phone)
+        par_kw.update(par_phone)
     builder = BUILDERS[name]
-    scene_keys = set(inspect.signature(builder).parameters) - {"rng", "cam"}
+    scene_keys = set(inspect.signature(builder).parameters) - {"rng", "cam", "kw"}
+    if builder is indoor_phone:
+        scene_keys |= set(inspect.signature(indoor_sparse).parameters) - {"rng", "cam"}
     scene_kw = {}
     for key, value in overrides.items():
         if key in CAMERA_KEYS:
@@ -656,7 +695,10 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
 # Bounds of the sensor parameters (RenderParams): all finite and non-negative; at most these.
 PARAM_MAX = {"led_peak_dn": 1e4, "ambient_dn": 1e4, "black_level_dn": 255.0, "shot_noise_alpha": 100.0,
              "read_noise_dn": 1e3, "psf_sigma_px": 100.0, "subrows": 64, "motion_blur_samples": 64,
-             "frame_jitter_us": 1e6, "exact_coverage_rows": 1e4, "bloom_frac": 1.0, "bloom_sigma_px": 100.0}
+             "frame_jitter_us": 1e6, "exact_coverage_rows": 1e4, "halo_frac": 1.0, "halo_sigma_px": 100.0,
+             "glare_frac": 1.0, "glare_sigma_px": 500.0,
+             "vignetting": 0.95, "row_noise_dn": 100.0, "bloom_frac": 1.0, "bloom_len_px": 100.0,
+             "centre_gain": 10.0, "bezel_frac": 1.0, "tone_gamma": 5.0, "sharpen": 5.0, "rs_band_rows": 720}
 INT_PARAMS = ("subrows", "motion_blur_samples")
 
 
@@ -705,4 +747,10 @@ def _checked_params(par_kw: dict) -> RenderParams:
             raise InputError(f"bad --set value: {key} must be a number within 0..{PARAM_MAX[key]:g}, not {value!r}")
         if key in INT_PARAMS and (value != int(value) or value < 1):
             raise InputError(f"bad --set value: {key} must be a positive whole number, not {value!r}")
+        if key == "rs_band_rows" and value != int(value):
+            raise InputError(f"bad --set value: {key} must be a whole number, not {value!r}")
+        if key == "tone_gamma" and value < 0.2:
+            raise InputError(f"bad --set value: {key} must be at least 0.2, not {value!r}")
+    if "rs_band_rows" in par_kw:
+        par_kw["rs_band_rows"] = int(par_kw["rs_band_rows"])
     return RenderParams(**par_kw)
