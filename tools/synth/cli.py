@@ -5,8 +5,7 @@ from __future__ import annotations
 import argparse
 import ast
 
-HELP = ("render a synthetic scene (indoor-walk, indoor-static, indoor-sparse, vehicle, vehicle-road) "
-        "into a recording folder")
+HELP = "render a synthetic scene (indoor rooms, a phone's view, roads) into a recording folder"
 
 # Units of --set keys, by the end of the key's name (the project's names carry their units).
 UNIT_SUFFIXES = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_kmh", "km/h"), ("_hz", "Hz"), ("_deg", "deg"),
@@ -15,7 +14,13 @@ UNIT_SUFFIXES = (("_mps2", "m/s^2"), ("_mps", "m/s"), ("_kmh", "km/h"), ("_hz", 
 # Keys whose names do not end in a unit.
 UNITS = {"width": "px", "height": "px", "fps": "frames/s", "seconds": "s", "dist": "OpenCV k1, k2, p1, p2, k3",
          "symclk": "clock cycles per symbol", "subrows": "samples per row", "motion_blur_samples": "poses per exposure",
-         "shot_noise_alpha": "DN per DN of signal (thesis eq. 4)", "exact_coverage_rows": "image rows"}
+         "shot_noise_alpha": "DN per DN of signal (thesis eq. 4)", "exact_coverage_rows": "image rows",
+         "halo_frac": "fraction of a light's flux", "glare_frac": "fraction of a light's flux",
+         "bloom_frac": "fraction of a clipped pixel's excess", "vignetting": "fraction of light lost at the corners",
+         "centre_gain": "fraction brighter at a panel's centre", "bezel_frac": "fraction of a panel's half size",
+         "tone_gamma": "exponent of the tone curve", "sharpen": "unsharp-mask amount", "rs_band_rows": "image rows",
+         "turn_rad": "rad", "light_brightness": "times led_peak_dn",
+         "light_layout": "staggered, one-side or opposite"}
 
 
 def unit_of(key: str) -> str:
@@ -52,7 +57,7 @@ def set_keys_help() -> str:
              "camera and sensor defaults):", "  camera (every scene):", _keys_text(cam),
              "  sensor (every scene, tools/synth/model.py RenderParams):", _keys_text(sensor)]
     for name in SCENES:
-        own = [p for p in inspect.signature(BUILDERS[name]).parameters.values() if p.name not in ("rng", "cam")]
+        own = [p for p in inspect.signature(BUILDERS[name]).parameters.values() if p.name not in ("rng", "cam") and p.kind is not p.VAR_KEYWORD]
         lines += [f"  scene {name}:", _keys_text(own)]
     return "\n".join(lines)
 
