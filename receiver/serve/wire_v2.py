@@ -6,7 +6,8 @@ local run's.
 Request (device -> server), one per frame:
     {"v": 2, "device": "phone-7", "seq": 12, "t": 0.400,
      "camera": {"width": 1280, "height": 720, "K": [fx, fy, cx, cy], "dist": [k1, k2, p1, p2, k3],
-                "pixel_size_um": 1.12 | null, "focal_length_mm": 4.0 | null},
+                "pixel_size_um": 1.12 | null, "focal_length_mm": 4.0 | null,
+                "row_readout_us": 10.0, "exposure_us": 20.0},   (both optional, 0 = unknown)
      "obs": [{"id": 42, "cx": 612.3, "cy": 200.1, "area_px": 812.5, "border": false,
               "mode": "ook", "contour": ["f4:<b64>", "f4:<b64>"],
               "edge": ["f8:<b64>", "f4:<b64>", "f8:<b64>"]}]}
@@ -46,7 +47,7 @@ MAX_ABS_PX = 1e5
 # Points of one observation's contour or edges at most (bounds the work of one LED).
 MAX_POINTS = 4096
 MODES = ("ook", "tone", None)
-CAMERA_KEYS = ("width", "height", "K", "dist", "pixel_size_um", "focal_length_mm")
+CAMERA_KEYS = ("width", "height", "K", "dist", "pixel_size_um", "focal_length_mm", "row_readout_us", "exposure_us")
 
 
 @dataclass(frozen=True)
@@ -112,7 +113,8 @@ def camera_fields(cam) -> dict:
             "K": [float(cam.K[0, 0]), float(cam.K[1, 1]), float(cam.K[0, 2]), float(cam.K[1, 2])],
             "dist": [float(x) for x in np.asarray(cam.dist, dtype=np.float64).ravel()],
             "pixel_size_um": None if cam.pixel_size_um is None else float(cam.pixel_size_um),
-            "focal_length_mm": None if cam.focal_length_mm is None else float(cam.focal_length_mm)}
+            "focal_length_mm": None if cam.focal_length_mm is None else float(cam.focal_length_mm),
+            "row_readout_us": float(cam.row_readout_us or 0.0), "exposure_us": float(cam.exposure_us or 0.0)}
 
 
 def _parse_camera(obj):
@@ -130,13 +132,18 @@ def _parse_camera(obj):
     d = [_number(v, "camera.dist") for v in dist]
     phys = [None if obj.get(key) is None else _number(obj[key], "camera." + key)
             for key in ("pixel_size_um", "focal_length_mm")]
+    # the rolling shutter's row time: the outline fit takes the camera's turn while rows are read
+    times = [0.0 if obj.get(key) is None else _number(obj[key], "camera." + key) for key in ("row_readout_us", "exposure_us")]
+    if not all(0.0 <= v <= 1e6 for v in times):
+        raise ProtocolError("bad_value", "camera.row_readout_us and camera.exposure_us must be within 0..1e6 us")
     cam = CameraModel(w, h, np.array([[k[0], 0.0, k[2]], [0.0, k[1], k[3]], [0.0, 0.0, 1.0]]),
-                      np.array(d), pixel_size_um=phys[0], focal_length_mm=phys[1])
+                      np.array(d), pixel_size_um=phys[0], focal_length_mm=phys[1], row_readout_us=times[0],
+                      exposure_us=times[1])
     try:
         check_camera(cam, "camera")
     except InputError as e:
         raise ProtocolError("bad_value", str(e)) from None
-    return cam, (w, h, tuple(k), tuple(d), tuple(phys))
+    return cam, (w, h, tuple(k), tuple(d), tuple(phys), tuple(times))
 
 
 def _parse_obs(item, i: int):
