@@ -31,7 +31,7 @@ def _rows2(a) -> np.ndarray:
 def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14.0, bin_px: float = 0.5,
                    refine_px: float = 1.0, min_votes: int = 3, extra: np.ndarray | None = None) -> float | None:
     """dy px, the common vertical image shift (pitch) alone: the mode of the vertical parts of
-    the displacements within `radius_px` (as `frame_shift`). Street-light heads are horizontal,
+    the displacements within `radius_px`. Street-light heads are horizontal,
     so whichever half of a head is lit in either frame, its displacement's vertical part is the
     shift: every head votes right, unlike the horizontal part (ambiguous by the baseline)."""
     if _k is not None and min_votes >= 1:

@@ -376,7 +376,7 @@ class Pairer:
         # vibration moves every light by a few px within a second).
         tol0 = min(self.match_frac * 2 * math.hypot(hx, hy), max(self.match_min_px, self.match_size * math.sqrt(single)))
         tol = tol0 + self.miss_growth_px * p.misses
-        # With the frame's vertical shift measured (`shake` "vertical" / "2d"), the vertical
+        # With the frame's vertical shift measured (`shake` "pairs" / "vertical"), the vertical
         # prediction error does not grow while the pair coasts: only the horizontal gate widens
         # (else a coasting pair reaches the heads just above or below it, farther down the road).
         tol_y = tol0 + self.miss_growth_px if self.vertical_known else math.inf

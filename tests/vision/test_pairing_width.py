@@ -137,3 +137,19 @@ def test_a_decoded_far_head_beside_a_blob_it_did_not_take_is_not_reported():
     q = decoded()
     q.led_id = None
     assert not follow(Pairer(), q, 95.5).beside
+
+
+def test_a_two_track_pair_scales_its_founding_baseline_by_the_area():
+    """A pair of two tracks (taillights, a near head's separate halves) does not re-measure its
+    baseline (only a far head's jumper pair does): its half baseline goes as the square root of
+    the emitters' area since formation, four times the area -> twice the baseline."""
+    pr = Pairer()
+    a0, b0 = _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4)
+    ta, tb = Track(3, a0, 0, 0), Track(4, b0, 0, 0)
+    p = Pair(Track(3, a0, 0, 0), Track(4, b0, 0, 0), fresh=False, tracks=[ta, tb], nearby=[ta, tb], ids=(1, 2))
+    pr.pairs = [p]
+    pr.step(None, [Track(3, _blob(180.0, 80.0, 6, 4), 1, 1), Track(4, _blob(220.0, 80.0, 6, 4), 1, 1)],
+            lambda g, t: 0.0, shift=(0.0, 0.0))
+    assert p in pr.pairs and p.base is None  # both own blobs seen, still not measured
+    p.a.blob = p.b.blob = _blob(180.0, 80.0, 12, 8)
+    assert pr._predict(p)[2] == pytest.approx(40.0)
