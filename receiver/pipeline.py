@@ -39,9 +39,9 @@ from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
-from receiver.vision.motion import frame_shift, pair_dx, vertical_shift, yaw_pitch_shift
+from receiver.vision.motion import pair_dx, vertical_shift
 from receiver.vision.outline import stripe_edge_points_batch
-from receiver.vision.pairing import Pairer
+from receiver.vision.pairing import TUNING, Pairer
 from receiver.vision.profile import mean_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
@@ -56,7 +56,7 @@ from receiver.vision.track import preload as preload_assignment
 # sub-pixel-tall panel seen from below is one or two rows several px wide) and the aspect limit
 # is 12 (two blurred halves of a far head side by side are ~18 x 4 px; a near head seen from
 # below is a 23 x 6 px bar at 27 m). Default together with PairSettings(shake="vertical") and the
-# far-head backlog (`head_backlog`), measured (README "S2-PSK pairs", resolvable light-frames):
+# far-head backlog (Pairer._head_backlog), measured (README "S2-PSK pairs", resolvable light-frames):
 # recordings/vehicle SL 604 -> 635 of 658, FV 156/156; hil --mode s2psk seeds 1-4 SL
 # 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214 (216/214/214/214 with
 # S2pskSettings.sync_margin 0.25); vehicle-road seeds
@@ -247,7 +247,7 @@ class Receiver:
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
-        self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its head's flux (`PairSettings.flux_jumpers`)
+        self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its far head's flux (Pairer.reads_flux)
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
@@ -398,38 +398,33 @@ class Receiver:
         return pair_of
 
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
-        """The frame's common image shift (dx, dy) px from the camera's shake, or None (off, or
-        not measurable): `PairSettings.shake` "vertical", "pairs", "2d" or "yawpitch"
+        """The frame's common image shift (dx, dy) px from the camera's shake, or None (`shake`
+        "pitch", or not measurable): `PairSettings.shake` "vertical" or "pairs"
         (receiver.vision.motion)."""
-        shift = None
-        if self.pairer is not None and self.settings.pair.shake in ("vertical", "2d", "yawpitch", "pairs"):
-            # Road vibration shifts every far light alike, in pitch and yaw, by up to several px
-            # per frame: the blobs' common displacement (receiver.vision.motion) goes into every
-            # track's and pair's prediction.
-            xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
-            r = self.settings.pair.shake_radius_px
-            votes = [self.pairer.shift_votes(xy, r)]
-            for old in self._prev_xy[1:]:  # older frames vote too (each head blinks)
-                votes.append((xy[None, :, :] - old[:, None, :]).reshape(-1, 2))
-            prev = self._prev_xy[0] if self._prev_xy else np.zeros((0, 2))
-            if self.settings.pair.shake in ("vertical", "pairs"):
-                dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
-                shift = None if dy is None else (0.0, dy)
-                if shift is not None and self.settings.pair.shake == "pairs":
-                    # the horizontal shift (yaw) that puts the blobs where the pairs expect them
-                    ps = self.settings.pair
-                    dx = pair_dx(self.pairer.dx_offsets(blobs, xy, dy, r), radius_px=r, sigma_px=ps.shake_sigma_px,
-                                 step_px=ps.shake_step_px, zero_rel=ps.shake_zero_rel)
-                    shift = (dx or 0.0, dy)
-            elif self.settings.pair.shake == "yawpitch":
-                # each blob of this frame against the last frames' blobs (one vote per cell)
-                refs = np.concatenate(self._prev_xy) if self._prev_xy else np.zeros((0, 2))
-                shift = yaw_pitch_shift(refs, xy, radius_px=r, extra=votes[0])
-            else:
-                shift = frame_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
-            s_ = shift or (0.0, 0.0)
-            # the older frames' blobs, moved by this frame's shift (as if seen in this view)
-            self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
+        shake = self.settings.pair.shake
+        if self.pairer is None or shake not in ("vertical", "pairs"):
+            return None
+        # Road vibration shifts every far light alike, in pitch and yaw, by up to several px per
+        # frame: the blobs' common displacement (receiver.vision.motion) goes into every track's
+        # and pair's prediction.
+        xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
+        ps = self.settings.pair
+        r = ps.shake_radius_px
+        votes = [self.pairer.shift_votes(xy, r)]
+        for old in self._prev_xy[1:]:  # older frames vote too (each head blinks)
+            votes.append((xy[None, :, :] - old[:, None, :]).reshape(-1, 2))
+        prev = self._prev_xy[0] if self._prev_xy else np.zeros((0, 2))
+        dy = vertical_shift(prev, xy, radius_px=r, extra=np.concatenate(votes))
+        shift = None if dy is None else (0.0, dy)
+        if shift is not None and shake == "pairs":
+            # the horizontal shift (yaw) that puts the blobs where the pairs expect them
+            k = TUNING
+            dx = pair_dx(self.pairer.dx_offsets(blobs, xy, dy, r), radius_px=r, sigma_px=k.shake_sigma_px,
+                         step_px=k.shake_step_px, zero_rel=k.shake_zero_rel)
+            shift = (dx or 0.0, dy)
+        s_ = shift or (0.0, 0.0)
+        # the older frames' blobs, moved by this frame's shift (as if seen in this view)
+        self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
         return shift
 
     def _report(self, gray: np.ndarray, seen: list[Track], lights: list[LightDecoder], env: dict,

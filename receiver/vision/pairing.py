@@ -25,12 +25,19 @@ pair are its `tracks` and are not paired again; the pair's two emitters (`Pair.i
 `max_missed` frames without such a blob, when an emitter leaves the image, or when it has not
 decoded after `give_up_frames` (a wrong pairing: its two tracks are then never paired again).
 
+What a user sets is `PairSettings` (receiver.vision.settings: geometry gates, time limits, the
+shake estimate); the internal constants are `TUNING` (`PairTuning`), each documented there. A
+far head's (jumper) pair re-measures its baseline whenever both emitters' own blobs are seen in
+one frame, or from a merged blob's width, and grows at the measured rate in between (its area, one
+or two rows, is no measure of its size); a pair of two tracks scales its founding baseline by the
+emitters' size (square root of the blob area).
+
 Per frame, each emitter's intensity is the mean gray inside its envelope at its current
 position (also when dark, so no frame is lost); `EmitterLevels` learns its on/off levels from
 recent frames, and `pair_xor` (receiver.decode.s2psk) turns the two intensities into the soft
 XOR of one sample.
 
-Cost (issue 14): the loops over pairs x blobs run compiled (receiver/vision/_pairing.pyx), once per
+Cost: the loops over pairs x blobs run compiled (receiver/vision/_pairing.pyx), once per
 pass and frame, not per pair: `_explain` of every pair with `_first_pass`'s claims
 (`_explain_batch`), `shift_votes`, `dx_offsets` and the heads' fluxes (`sample_fluxes`); the
 intensities of a frame's emitters are read in one call (receiver.vision.profile.mean_in_masks).
@@ -70,6 +77,48 @@ def _quantile_index(n: int, q: float) -> tuple[int, int, float]:
 
 
 BANNED_PRUNE_AT = 64  # Pairer.banned entries above which bans of dropped tracks are forgotten
+
+
+@dataclass(frozen=True)
+class PairTuning:
+    """The pairing's internal constants (what a user sets is `PairSettings`). Sizes in emitter
+    diameters (sqrt of a blob's area) or px as named; frames at the camera's rate."""
+
+    min_frames: int = 4  # frames of intensity history before the on/off check (two clock beats)
+    match_frac: float = 0.75  # a blob explains an emitter within this fraction of the baseline ...
+    match_size: float = 1.5  # ... and within this many emitter diameters (blur, centroid noise)
+    merged_ratio: float = 1.5  # a blob of 1.5-3 emitters' area at the midpoint: both lit as one
+    max_merged: float = 3.0  # (two halves and the blurred gap)
+    max_cut: float = 3.0  # one emitter's blob may be cut to 1/3 by a clock edge in the readout
+    miss_growth_px: float = 1.0  # the gate grows this many px per frame while a pair coasts
+    velocity_gain: float = 0.3  # smoothing of a pair's px/frame velocity
+    jump_max_baseline: float = 4.0  # a far head's jumping track: jumps of at most 4 diameters ...
+    jump_agree: float = 0.5  # ... two in a row agreeing within half a diameter ...
+    jump_agree_y_px: float = 4.0  # ... after forgiving this much vertical shake (px)
+    shake_min_pairs: int = 3  # pairs explaining a blob before their median pitch is trusted
+    shake_sigma_px: float = 1.5  # `motion.pair_dx`: each blob's Gaussian (centroid noise + blur)
+    shake_step_px: float = 0.25  # its grid step
+    shake_zero_rel: float = 0.15  # dx 0 when that scores within 15 % of the best (no yaw: no noise)
+    flux_margin_px: float = 10.0  # a far head's flux box: one baseline plus this either side ...
+    flux_margin_y_px: float = 2.0  # ... and this above and below its envelopes (yaw moves it more)
+    flux_min: float = 4.0  # fluxes above this count as lit (gray x px)
+    flux_recent: int = 12  # the both-lit flux from the last this many lit fluxes (heads approach)
+    jumper_levels_min_area_px: float = 16.0  # a near head's jumper pair inherits its track's levels
+    head_follow: float = 0.2  # a far head's backlog follows its blobs by this much per frame
+    head_gap_frames: int = 4  # ... until this many frames in a row without a blob
+    jumper_unseen_frames: int = 12  # a far head's emitter without its own blob this long: not reported
+    width_tol: float = 0.25  # a short (far) blob's width within 25 % (+1 px) of one emitter's / a merged
+    width_min_px: float = 2.0  # merged one's (at least 2 px wider)
+    width_max_rows: int = 3  # blobs of at most 3 rows are judged by width (a far half is 1-2 rows)
+    baseline_gain: float = 0.5  # a new baseline measurement is blended in by this much
+    baseline_max_ratio: float = 1.5  # measurements off by more than this factor are another light's
+    growth_gain: float = 0.2  # smoothing of the baseline's growth per frame (an approaching light)
+    growth_span_frames: int = 8  # growth is extrapolated over at most this many frames
+    max_growth: float = 0.08  # and at most 8 % a frame (a head at 10 m at 70 km/h)
+    anchor_coast_frames: int = 5  # a far head's pair that coasted this long is not reported until re-placed
+
+
+TUNING = PairTuning()
 
 
 class EmitterLevels:
@@ -159,7 +208,7 @@ class Pair:
     mx: float = 0.0  # midpoint, px
     my: float = 0.0
     # a decoded street light's one-emitter area (px^2) from the latest blob it explained, half
-    # of a merged one (`PairSettings.follow_size`); 0 = none
+    # of a merged one; 0 = none
     size: float = 0.0
     # Both emitters' own blobs were seen apart, each within the last BOTH_SEEN_FRAMES frames
     # (S2-PSK lights one emitter at a time for half the symbols and far heads merge when both
@@ -175,7 +224,7 @@ class Pair:
     uid: int = field(default_factory=itertools.count().__next__)  # unique for the process's life
     base0: tuple | None = None  # b - a at formation, px
     area0: float = 1.0  # one emitter's area at formation, px
-    # The baseline b - a as last measured in one frame (px; `PairSettings.measure_baseline`):
+    # The baseline b - a as last measured in one frame (px):
     # from A's and B's own blobs seen together, or from a merged blob's width less one
     # emitter's; None until then (`base0` scaled by the emitters' size is used). `base_frames`:
     # the `frames` count of that measurement; `growth`: the baseline's relative growth per frame
@@ -183,12 +232,12 @@ class Pair:
     base: tuple | None = None
     base_frames: int = 0
     growth: float = 0.0
-    # A jumper pair's place is sure (`PairSettings.anchor_coast_frames`): False after a coast of
+    # A jumper pair's place is sure (`TUNING.anchor_coast_frames`): False after a coast of
     # that many frames, True again once a blob both lit (at the midpoint) or both emitters' own
     # blobs in one frame place it; a single half's blob cannot tell which half it is.
     anchored: bool = True
     # A decoded jumper pair that explained no blob in this frame while a blob no pair explains
-    # lies beside one of its emitters (`PairSettings.beside_hold`): its place is in doubt
+    # lies beside one of its emitters: its place is in doubt
     beside: bool = False
     ids: tuple[int, int] = (-1, -1)  # the LED ids of emitters A and B in the output (`Pairer.emitters`)
     # the frames before the pair formed, oldest first: (t_s, a, b, a_on, b_on, a_off, b_off),
@@ -243,6 +292,7 @@ class Pairer:
         """`new_id() -> int`: fresh LED ids for the pairs' emitters, never a track's id
         (receiver.vision.track.Tracker.new_id); None: a counter of this pairer's own."""
         s = self.settings = resolve_settings(settings, PairSettings, overrides)
+        k = TUNING
         self.new_id = new_id if new_id is not None else itertools.count().__next__
         self.report_coast_frames = s.report_coast_frames
         self.backlog_frames = s.backlog_frames
@@ -250,39 +300,34 @@ class Pairer:
         self.past: dict[int, deque] = {}
         self.geom = dict(row_band=s.row_band, max_area_ratio=s.max_area_ratio,
                          min_baseline=s.min_baseline, max_baseline=s.max_baseline)
-        self.min_frames = s.min_frames
+        self.min_frames = k.min_frames
         self.min_swing = s.min_swing
-        self.match_frac, self.match_min_px, self.match_size = s.match_frac, s.match_min_px, s.match_size
-        self.max_cut = s.max_cut
-        self.max_merged = s.max_merged
-        self.miss_growth_px = s.miss_growth_px
-        self.merged_ratio = s.merged_ratio
-        self.velocity_gain = s.velocity_gain
+        self.match_frac, self.match_min_px, self.match_size = k.match_frac, s.match_min_px, k.match_size
+        self.max_cut = k.max_cut
+        self.max_merged = k.max_merged
+        self.miss_growth_px = k.miss_growth_px
+        self.merged_ratio = k.merged_ratio
+        self.velocity_gain = k.velocity_gain
         self.max_missed = s.max_missed
         self.give_up_frames = s.give_up_frames
         self.unseen_give_up_frames = s.unseen_give_up_frames
         self.pairs: list[Pair] = []
         self.levels: dict[int, EmitterLevels] = {}  # per unpaired track, for the on/off check
         self.banned: set[tuple[int, int]] = set()  # track pairs that formed a pair and gave up
-        self.jump_max_baseline, self.jump_agree = s.jump_max_baseline, s.jump_agree
-        self.jump_agree_y_px = s.jump_agree_y_px
-        self.shake_min_pairs = s.shake_min_pairs
-        self.shake_x_wide = s.shake_x_wide
-        self.flux_jumpers, self.flux_margin_px, self.flux_floor = s.flux_jumpers, s.flux_margin_px, s.flux_floor
-        self.flux_margin_y_px = s.flux_margin_y_px
-        self.flux_min, self.flux_recent = s.flux_min, s.flux_recent
-        self.drop_twins = s.drop_twins
-        self.follow_size = s.follow_size
-        self.jumper_levels_min_area_px = s.jumper_levels_min_area_px
-        self.jumper_unseen_frames = s.jumper_unseen_frames
-        self.emitter_gate_larger = s.emitter_gate_larger
-        self.width_size, self.width_tol, self.width_min_px = s.width_size, s.width_tol, s.width_min_px
-        self.width_max_rows, self.baseline_max_ratio = s.width_max_rows, s.baseline_max_ratio
-        self.measure_baseline, self.baseline_gain = s.measure_baseline, s.baseline_gain
-        self.anchor_coast_frames = s.anchor_coast_frames
-        self.beside_hold = s.beside_hold
-        self.growth_gain, self.growth_span_frames, self.max_growth = s.growth_gain, s.growth_span_frames, s.max_growth
-        self.head_backlog, self.head_follow, self.head_gap_frames = s.head_backlog, s.head_follow, s.head_gap_frames
+        self.jump_max_baseline, self.jump_agree = k.jump_max_baseline, k.jump_agree
+        self.jump_agree_y_px = k.jump_agree_y_px
+        self.shake_min_pairs = k.shake_min_pairs
+        self.flux_margin_px, self.flux_floor = k.flux_margin_px, s.flux_floor
+        self.flux_margin_y_px = k.flux_margin_y_px
+        self.flux_min, self.flux_recent = k.flux_min, k.flux_recent
+        self.jumper_levels_min_area_px = k.jumper_levels_min_area_px
+        self.jumper_unseen_frames = k.jumper_unseen_frames
+        self.width_tol, self.width_min_px = k.width_tol, k.width_min_px
+        self.width_max_rows, self.baseline_max_ratio = k.width_max_rows, k.baseline_max_ratio
+        self.baseline_gain = k.baseline_gain
+        self.anchor_coast_frames = k.anchor_coast_frames
+        self.growth_gain, self.growth_span_frames, self.max_growth = k.growth_gain, k.growth_span_frames, k.max_growth
+        self.head_follow, self.head_gap_frames = k.head_follow, k.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
         # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
         self.scene_past: deque = deque(maxlen=max(self.backlog_frames, 1))
@@ -331,7 +376,7 @@ class Pairer:
         # vibration moves every light by a few px within a second).
         tol0 = min(self.match_frac * 2 * math.hypot(hx, hy), max(self.match_min_px, self.match_size * math.sqrt(single)))
         tol = tol0 + self.miss_growth_px * p.misses
-        # With the frame's vertical shift measured (`shake` "vertical" / "2d"), the vertical
+        # With the frame's vertical shift measured (`shake` "pairs" / "vertical"), the vertical
         # prediction error does not grow while the pair coasts: only the horizontal gate widens
         # (else a coasting pair reaches the heads just above or below it, farther down the road).
         tol_y = tol0 + self.miss_growth_px if self.vertical_known else math.inf
@@ -346,7 +391,7 @@ class Pairer:
             nearby.append(t)  # not paired anew while this pair lives
             if not t.seen or t.track_id in exclude:
                 continue
-            # By width (`PairSettings.width_size`): one emitter's blob is as wide as its
+            # By width: one emitter's blob is as wide as its
             # envelope, both lit as one blob is one baseline wider (horizontal heads: a far
             # half covers one or two rows, so its area doubles between frames; its width holds).
             wide = self._width_class(p, t.blob, hx)
@@ -383,11 +428,11 @@ class Pairer:
 
     def _width_class(self, p: Pair, blob: Blob, hx: float) -> str | None:
         """"single" (as wide as one emitter's envelope), "merged" (one horizontal baseline wider:
-        both emitters lit as one blob) or None (neither, or `width_size` off; px widths of the
-        half-open boxes, within `width_tol` of the expected width plus one px)."""
+        both emitters lit as one blob) or None (neither; px widths of the half-open boxes, within
+        `width_tol` of the expected width plus one px)."""
         # both this blob and the pair's envelopes short: a far horizontal head, not a row or two
         # of a taller one cut by a clock edge during the rolling readout
-        if not self.width_size or max(blob.y1 - blob.y0, p.a.blob.y1 - p.a.blob.y0,
+        if max(blob.y1 - blob.y0, p.a.blob.y1 - p.a.blob.y0,
                                       p.b.blob.y1 - p.b.blob.y0) > self.width_max_rows:
             return None
         w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
@@ -551,7 +596,7 @@ class Pairer:
         cfg = self._cfg_arr
         if cfg is None:
             cfg = self._cfg_arr = np.array((self.match_frac, self.match_min_px, self.match_size, self.miss_growth_px,
-                                            0.0, self.merged_ratio, self.max_merged, self.max_cut, self.width_size,
+                                            0.0, self.merged_ratio, self.max_merged, self.max_cut, 1.0,
                                             self.width_tol, self.width_min_px, self.width_max_rows), float)
         cfg[4] = float(self.vertical_known)
         return cfg
@@ -632,7 +677,9 @@ class Pairer:
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
             p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
         mx, my, hx, hy, single = self._predict(p)
-        if self.shake_x_wide or p.a.track_id == p.b.track_id:  # `PairSettings.shake_x_wide`
+        if p.a.track_id == p.b.track_id:
+            # the horizontal shift (yaw) only for a far head's pair: a pair of two tracks follows
+            # its two emitters' own blobs, wide apart, by its own velocity
             mx += dx
         my += dy
         return mx, my, hx, hy, single
@@ -644,7 +691,7 @@ class Pairer:
         mx, my, hx, hy, single = pred
         self._preds = None  # the pairs move
         p.tracks, p.nearby = explaining, nearby
-        if self.measure_baseline and p.a.track_id == p.b.track_id:
+        if p.a.track_id == p.b.track_id:
             self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
             p.anchored = True
@@ -664,7 +711,7 @@ class Pairer:
             # a wrong pairing (`PairSettings.unseen_give_up_frames`), as after give_up_frames
             self.banned.add(p.founding)
             return False
-        if self.follow_size and p.tracks and p.kind == "SL":
+        if p.tracks and p.kind == "SL":
             # A near street light grows by several % a frame, and while both its halves are lit
             # they show as one merged blob that leaves the emitters' envelopes as they were: the
             # next single or merged blob, grown past `merged_ratio` / `max_merged` of them, was
@@ -702,9 +749,10 @@ class Pairer:
         return True
 
     def _measure_baseline(self, p: Pair, hx: float, hy: float, obs_a, obs_b, merged) -> None:
-        """Re-measure pair `p`'s baseline from this frame's blobs (`PairSettings.measure_baseline`),
-        free of the camera's shake (both ends in one frame): A's and B's own blobs, or a merged
-        blob's width less one emitter's envelope width (horizontal part; the vertical one is kept).
+        """Re-measure a jumper pair's (one jumping track's: a far head) baseline from this frame's
+        blobs, free of the camera's shake (both ends in one frame): A's and B's own blobs, or a
+        merged blob's width less one emitter's envelope width (horizontal part; the vertical one is
+        kept).
         `hx`, `hy`: the predicted half baseline, px. The baseline was otherwise only scaled by the
         emitters' area from formation, and a far head's area is no measure of its size (one or
         two rows): on vehicle-road it fell 20-40 % short, merged blobs then read as one emitter
@@ -754,7 +802,7 @@ class Pairer:
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
         self.vertical_known = shift is not None
         self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
-        if t_s is not None and self.backlog_frames > 0 and self.head_backlog:
+        if t_s is not None and self.backlog_frames > 0:
             if table is not None:
                 lit = table[table[:, 7] != 0.0]
                 self.scene_past.append((float(t_s), self.view_sum, lit[:, :2], lit[:, 2]))
@@ -821,7 +869,7 @@ class Pairer:
         return self.pairs
 
     def _mark_beside(self, tracks: list[Track]) -> None:
-        """`Pair.beside` of every pair in this frame (`PairSettings.beside_hold`): a decoded
+        """`Pair.beside` of every pair in this frame: a decoded
         jumper pair that explained no blob, with a blob of this frame that no pair explains within
         its baseline plus `match_min_px` horizontally and `match_min_px` vertically of one of its
         emitters. That blob is most likely its own head's half that the gate missed: the pair
@@ -830,7 +878,7 @@ class Pairer:
         cand = [p for p in self.pairs if p.led_id is not None and p.a.track_id == p.b.track_id]
         for p in self.pairs:
             p.beside = False
-        if not self.beside_hold or not cand:
+        if not cand:
             return
         taken = {t.track_id for p in self.pairs for t in p.tracks}
         free = [t for t in tracks if t.seen and t.track_id not in taken]
@@ -850,9 +898,7 @@ class Pairer:
         pair's head (within its baseline plus `match_min_px` horizontally, `match_min_px`
         vertically): one far head followed twice, half a baseline apart (which half a blob is
         cannot be told), when one copy decoded; the twin's emitters would sit beside the
-        decoded ones, on nobody's light. Off with `drop_twins` False."""
-        if not self.drop_twins:
-            return pairs
+        decoded ones, on nobody's light."""
         heads = [p for p in pairs if p.led_id is not None and p.a.track_id == p.b.track_id]
         if not heads:
             return pairs
@@ -926,11 +972,9 @@ class Pairer:
                     p.levels_a.add(v)
                     p.levels_b.add(v)
             p.backlog = self._jumper_backlog(self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
-            if self.head_backlog:
-                head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx,
-                                          max(0.5 * (t.blob.area_px + last.area_px), 1.0))
-                if len(head) > len(p.backlog):
-                    p.backlog = head
+            head = self._head_backlog(ax + 0.5 * jx, ay + 0.5 * jy, jx, max(0.5 * (t.blob.area_px + last.area_px), 1.0))
+            if len(head) > len(p.backlog):
+                p.backlog = head
             self.pairs.append(p)
             busy.add(t.track_id)
             self.jumps.pop(t.track_id, None)
@@ -1024,12 +1068,9 @@ class Pairer:
             # every decoded emitter against every other pair's at once (row k: emitter k)
             d = np.hypot(xy[None, :, 0] - xy[:, 0, None], xy[None, :, 1] - xy[:, 1, None])
             other = owner[None, :] != owner[:, None]
-            if self.emitter_gate_larger:
-                # both emitters of a pair are the same size: its larger envelope (the other
-                # may be stale), and the larger of the two lights'
-                area = np.maximum(size[:, None], size[None, :])
-            else:
-                area = np.array([b.area_px for _, b, _, _ in dec], float)[:, None]
+            # both emitters of a pair are the same size: its larger envelope (the other may be
+            # stale), and the larger of the two lights'
+            area = np.maximum(size[:, None], size[None, :])
             gate = np.maximum(self.match_min_px, self.match_size * np.sqrt(np.maximum(area, 1.0)))
             clear = ((d > gate) | ~other).all(axis=1)
             # An emitter without its own blob in this frame sits where the pair predicts it: left
@@ -1078,9 +1119,8 @@ class Pairer:
 
     def reads_flux(self, p: Pair) -> bool:
         """Pair `p` is read by its head's total flux (`head_flux`), not per emitter: a pair from
-        one jumping track (`_pair_jumpers`: a far head whose halves merge) when
-        `PairSettings.flux_jumpers` is on."""
-        return self.flux_jumpers and p.a.track_id == p.b.track_id
+        one jumping track (`_pair_jumpers`: a far head whose halves merge)."""
+        return p.a.track_id == p.b.track_id
 
     def flux_on(self, p: Pair) -> float:
         """Pair `p`'s both-lit flux 2F (gray x px) for `flux_xor`: twice the median of its last

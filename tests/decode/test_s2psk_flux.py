@@ -67,7 +67,6 @@ def _mean(gray, e):
 def test_far_shaken_head_decodes_from_its_flux_not_from_its_emitters():
     frames = _far_head_frames(150)
     pr = Pairer()
-    assert pr.flux_jumpers  # the default
     p = _pair(pr)
     assert pr.reads_flux(p)
     by_flux, by_emitters = S2pskDecoder(), S2pskDecoder()
@@ -84,10 +83,9 @@ def test_far_shaken_head_decodes_from_its_flux_not_from_its_emitters():
     assert got_emitters is None
 
 
-def test_flux_needs_a_jumper_pair_and_the_setting():
-    pr = Pairer(flux_jumpers=False)
-    assert not pr.reads_flux(_pair(pr))
+def test_flux_needs_a_jumper_pair():
     pr = Pairer()
+    assert pr.reads_flux(_pair(pr))
     p = _pair(pr)
     p.b = Track(8, p.b.blob, 0, 0)  # two founding tracks: read per emitter
     assert not pr.reads_flux(p)
@@ -110,7 +108,6 @@ def test_a_decoded_far_head_drops_its_undecoded_twin_only():
     twin.mx = d.mx - SEP_PX       # the same head, followed a baseline to the left
     other.mx = d.mx + 40.0        # another head
     assert pr._drop_twins([d, twin, other]) == [d, other]
-    assert Pairer(drop_twins=False)._drop_twins([d, twin, other]) == [d, twin, other]
     d.led_id = None               # no decoded head: nothing dropped
     assert pr._drop_twins([d, twin, other]) == [d, twin, other]
 

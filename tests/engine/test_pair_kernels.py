@@ -96,8 +96,7 @@ def _reference(pr, items, tracks, claims):
 @pytest.mark.parametrize("seed", range(12))
 def test_explain_batch_equals_explain(seed):
     rng = np.random.default_rng(seed)
-    settings = dict(width_size=bool(seed % 3), measure_baseline=True)
-    pr = Pairer(**settings)
+    pr = Pairer()
     pr.vertical_known = bool(seed % 2)
     pairs, items, tracks = _scene(rng, int(rng.integers(1, 8)), int(rng.integers(1, 9)))
     got = pr._explain_batch(items, tracks, claims=seed % 4 != 0)
@@ -123,7 +122,7 @@ def test_explain_batch_covers_every_branch():
     seen = dict(merged=0, obs_a=0, obs_b=0, claims=0, many=0)
     for seed in range(40):
         rng = np.random.default_rng(100 + seed)
-        pr = Pairer(width_size=bool(seed % 2))
+        pr = Pairer()
         pr.vertical_known = bool(seed % 3)
         _, items, tracks = _scene(rng, 6, 8)
         got = pr._explain_batch(items, tracks, claims=True)
@@ -241,7 +240,7 @@ def _ref_dx_offsets(pr, blobs, xy, dy, radius_px):
 def test_dx_offsets_kernel_equals_loop(seed):
     from receiver.vision.motion import pair_dx
     rng = np.random.default_rng(40 + seed)
-    pr = Pairer(width_size=bool(seed % 2))
+    pr = Pairer()
     pairs, items, tracks = _scene(rng, int(rng.integers(1, 7)), int(rng.integers(1, 8)))
     for p, (mx, my, hx, hy, single), _ in items:
         p.base0, p.area0, p.mx, p.my = (2 * hx, 2 * hy), single, mx, my
@@ -267,8 +266,9 @@ def test_sample_fluxes_equal_head_flux():
     gray = rng.integers(0, 256, size=(120, 200), dtype=np.uint8)
     gray[rng.random(gray.shape) < 0.7] = 3  # mostly background, as around a far head
     for margins in ((4.0, 3.0), (0.0, 0.0)):
-        _check_fluxes(rng, gray, Pairer(flux_floor=float(rng.uniform(0, 5)), flux_margin_px=margins[0],
-                                        flux_margin_y_px=margins[1]))
+        pr = Pairer(flux_floor=float(rng.uniform(0, 5)))
+        pr.flux_margin_px, pr.flux_margin_y_px = margins
+        _check_fluxes(rng, gray, pr)
 
 
 def _check_fluxes(rng, gray, pr):

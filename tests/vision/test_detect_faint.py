@@ -5,7 +5,6 @@ vehicle-road scene."""
 
 from __future__ import annotations
 
-import math
 
 import cv2
 import numpy as np
@@ -13,7 +12,6 @@ import pytest
 
 from receiver.pipeline import S2PSK_FAINT_DETECT
 from receiver.vision.detect import auto_level, detect, noise_sigma
-from receiver.vision.motion import frame_shift
 from receiver.vision.track import Tracker
 
 H, W = 240, 320
@@ -77,18 +75,6 @@ def test_a_one_row_panel_skips_the_shape_test():
     img = np.clip(img, 0, 255).astype(np.uint8)
     assert len(detect(img, **S2PSK_FAINT_DETECT)) == 1
     assert detect(img, **{**S2PSK_FAINT_DETECT, "shape_min_rows": 0}) == []
-
-
-def test_frame_shift_finds_the_common_shake_among_blinking_lights():
-    rng = np.random.default_rng(5)
-    prev = rng.uniform((0, 0), (W, H), size=(30, 2))
-    shift = np.array([4.3, -5.2])
-    cur = prev + shift + rng.normal(0, 0.2, prev.shape)
-    keep = rng.random(30) < 0.6  # the others are dark in this frame
-    cur = np.concatenate((cur[keep], rng.uniform((0, 0), (W, H), size=(6, 2))))  # plus new lights
-    est = frame_shift(prev, cur)
-    assert est is not None and math.hypot(est[0] - shift[0], est[1] - shift[1]) < 0.4
-    assert frame_shift(prev[:1], cur[:1] + 50.0) is None
 
 
 def test_tracker_follows_a_light_through_the_shake_with_the_shift():

@@ -91,10 +91,7 @@ def _ref_emitters(pr):
     for k, (i, b, p, own) in enumerate(dec):
         other = owner != id(p)
         d = np.hypot(*(xy - (b.cx, b.cy)).T)[other]
-        if pr.emitter_gate_larger:
-            area = np.maximum(size[k], size[other])
-        else:
-            area = np.full(d.shape, b.area_px)
+        area = np.maximum(size[k], size[other])
         if own or not d.size or (d > np.maximum(pr.match_min_px, pr.match_size * np.sqrt(np.maximum(area, 1.0)))).all():
             out.append((i, b, p))
     for p in live:
@@ -131,7 +128,7 @@ def test_shift_votes_and_emitters_equal_their_loops(kernel, monkeypatch):
     rng = np.random.default_rng(8)
     kept = 0
     for trial in range(60):
-        pr = Pairer(emitter_gate_larger=bool(trial % 2))
+        pr = Pairer()
         _random_pairs(rng, pr, int(rng.integers(0, 12)))
         xy = rng.uniform(0, 220, size=(int(rng.integers(0, 30)), 2))
         got, want = pr.shift_votes(xy, 14.0), _ref_shift_votes(pr, xy, 14.0)

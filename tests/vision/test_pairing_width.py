@@ -1,6 +1,6 @@
-"""Width-based size test and baseline re-measurement of S2-PSK pairs (PairSettings.width_size,
-measure_baseline): a far street-light half is one or two rows tall, so its area doubles
-between frames while its width holds, and a merged both-lit blob is one baseline wider."""
+"""Width-based size test and baseline re-measurement of S2-PSK pairs: a far street-light half is
+one or two rows tall, so its area doubles between frames while its width holds, and a merged
+both-lit blob is one baseline wider."""
 
 import math
 
@@ -30,19 +30,18 @@ def _jumper(hx=6.0, w=10, h=1):
 
 
 def test_width_classes_single_and_merged_short_blobs_only():
-    pr = Pairer(width_size=True)
+    pr = Pairer()
     p = _jumper(hx=6.0, w=10)
     assert pr._width_class(p, _blob(100, 50, 10, 2), 6.0) == "single"  # twice the area, same width
     assert pr._width_class(p, _blob(100, 50, 22, 1), 6.0) == "merged"  # one baseline (12 px) wider
     assert pr._width_class(p, _blob(100, 50, 16, 1), 6.0) is None      # neither
     assert pr._width_class(p, _blob(100, 50, 22, 5), 6.0) is None      # tall: its area tells
-    assert Pairer(width_size=False)._width_class(p, _blob(100, 50, 10, 2), 6.0) is None  # off
     # a short cut row of a tall (5-row) head is not judged by width
     assert pr._width_class(_jumper(hx=6.0, w=10, h=5), _blob(100, 50, 22, 2), 6.0) is None
 
 
 def test_merged_width_remeasures_a_short_baseline():
-    pr = Pairer(width_size=True, measure_baseline=True)
+    pr = Pairer()
     p = _jumper(hx=4.5, w=10)  # founded 9 px apart; the head's halves are 12 px apart
     mx, my, hx, hy, single = pr._predict(p)
     assert hx == pytest.approx(4.5)
@@ -59,15 +58,6 @@ def test_merged_width_remeasures_a_short_baseline():
     assert math.isfinite(p.growth) and 0.0 <= p.growth <= pr.max_growth
 
 
-def test_without_measurement_the_baseline_scales_with_the_area():
-    pr = Pairer(measure_baseline=False)
-    q = _jumper(hx=4.5, w=10)
-    assert pr._predict(q)[2] == pytest.approx(4.5)
-    q.a.blob = q.b.blob = _blob(100, 50, 10, 4)  # four times the area: twice the baseline
-    assert pr._predict(q)[2] == pytest.approx(9.0)
-    assert Pairer().measure_baseline and Pairer().width_size  # the defaults
-
-
 def _explain(pr, p, blob):
     t = Track(9, blob, 0, 0)
     mx, my, hx, hy, single = pr._predict(p)
@@ -75,14 +65,11 @@ def _explain(pr, p, blob):
 
 
 def test_width_takes_a_taller_half_but_not_a_cut_one():
-    pr = Pairer(width_size=True)
+    pr = Pairer()
     # one-row envelopes: the same half seen over two rows (twice the area) is its emitter A
     p = _jumper(hx=6.0, w=10, h=1)
     expl, _, shifts, obs_a, obs_b, merged = _explain(pr, p, _blob(94.0, 50.0, 10, 2))
     assert len(expl) == 1 and obs_a is not None and obs_b is None and merged is None
-    off = Pairer(width_size=False)
-    assert off._explain(p, [Track(9, _blob(94.0, 50.0, 10, 2), 0, 0)], np.array([[94.0, 50.0]]),
-                        *off._predict(p))[0] == []  # by area: "another light's"
     # a 3-row head: one row of A cut by a clock edge is as wide; it moves the pair (area 1/3,
     # `max_cut`) but never becomes A's envelope; a fifth of it is not A's at all
     q = _jumper(hx=6.0, w=10, h=3)
@@ -125,7 +112,7 @@ def test_a_decoded_far_head_that_coasted_is_reported_again_once_a_merged_blob_pl
 def test_a_decoded_far_head_beside_a_blob_it_did_not_take_is_not_reported():
     """vehicle-road seed 3 frame 125: head 17's pair (3 px baseline, 2 px right of its head)
     missed its own half's blob 2.5 px left of emitter A; its emitter B, reported, was matched to
-    the neighbouring head 62 (PairSettings.beside_hold)."""
+    the neighbouring head 62."""
     def follow(pr, p, x, w=3):
         t = Track(9, _blob(x, 50.0, w, 1), 0, 0)
         pr.pairs = [p]
@@ -143,12 +130,26 @@ def test_a_decoded_far_head_beside_a_blob_it_did_not_take_is_not_reported():
     p = follow(pr, p, 98.5)  # its own half at A: taken, reported again
     assert p.misses == 0 and not p.beside and len(pr.emitters()) == 2
     # not held: a blob between its emitters, a speck a third of an emitter's size, an undecoded
-    # pair, or with beside_hold off
+    # pair
     assert not follow(Pairer(), decoded(), 100.0, w=9).beside
     assert not follow(Pairer(), decoded(w=6), 95.5, w=1).beside
     assert follow(Pairer(), decoded(w=6), 95.5, w=2).beside
     q = decoded()
     q.led_id = None
     assert not follow(Pairer(), q, 95.5).beside
-    off = Pairer(beside_hold=False)
-    assert not follow(off, decoded(), 95.5).beside and len(off.emitters()) == 2
+
+
+def test_a_two_track_pair_scales_its_founding_baseline_by_the_area():
+    """A pair of two tracks (taillights, a near head's separate halves) does not re-measure its
+    baseline (only a far head's jumper pair does): its half baseline goes as the square root of
+    the emitters' area since formation, four times the area -> twice the baseline."""
+    pr = Pairer()
+    a0, b0 = _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4)
+    ta, tb = Track(3, a0, 0, 0), Track(4, b0, 0, 0)
+    p = Pair(Track(3, a0, 0, 0), Track(4, b0, 0, 0), fresh=False, tracks=[ta, tb], nearby=[ta, tb], ids=(1, 2))
+    pr.pairs = [p]
+    pr.step(None, [Track(3, _blob(180.0, 80.0, 6, 4), 1, 1), Track(4, _blob(220.0, 80.0, 6, 4), 1, 1)],
+            lambda g, t: 0.0, shift=(0.0, 0.0))
+    assert p in pr.pairs and p.base is None  # both own blobs seen, still not measured
+    p.a.blob = p.b.blob = _blob(180.0, 80.0, 12, 8)
+    assert pr._predict(p)[2] == pytest.approx(40.0)

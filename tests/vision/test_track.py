@@ -88,7 +88,8 @@ def test_pairer_pairs_blinking_neighbours_only():
     steady, c = _track(2, 100, 300), _track(3, 180, 300)  # a lamp pair that never blinks
     rng = np.random.default_rng(2)
     on = {0: rng.random(12) < 0.5, 1: rng.random(12) < 0.5, 2: np.ones(12, bool), 3: np.ones(12, bool)}
-    pr = Pairer(min_frames=4)
+    pr = Pairer()
+    assert pr.min_frames == 4
     for k in range(12):
         lum = {tid: (200.0 if on[tid][k] else 15.0) for tid in on}
         pairs = pr.step(None, [a, b, steady, c], lambda g, t: lum[t.track_id])
@@ -170,7 +171,8 @@ def test_jumping_track_pairs_despite_the_heads_vertical_motion():
     assert abs((p.b.blob.cx - p.a.blob.cx) - 7.0) <= 1.0
     assert abs(p.b.blob.cy - p.a.blob.cy) <= 0.5  # a level head: no vertical baseline
     # without the vertical allowance the same motion forms no pair
-    pr = Pairer(jump_agree_y_px=0.0)
+    pr = Pairer()
+    pr.jump_agree_y_px = 0.0
     for k, x in enumerate(xs):
         assert not pr.step(None, [Track(5, blob(x + 0.1 * k, 50.0 - 1.5 * k, 2.0), 0, k)],
                            lambda g, tr: 100.0)
@@ -196,13 +198,14 @@ def test_a_decoded_street_lights_pair_follows_its_size_through_merged_blobs():
     """An approaching street light (decoded) shows both halves lit as one merged blob for a
     few frames; its envelopes stay the size they were. Its next merged blob, grown to 3.5x an
     envelope (over `max_merged` 3x), is still its own: the merged blob before it (2.6x, half
-    of it one emitter) set the pair's size. Without `follow_size` the pair misses it."""
+    of it one emitter) set the pair's size. A pair not known to be a street light (a car's
+    taillights never merge) keeps its envelopes' size and misses it."""
     from receiver.vision.pairing import Pair, _emitter
 
     def run(follow):
-        pr = Pairer(max_missed=100, follow_size=follow)
+        pr = Pairer(max_missed=100)
         a, b = Track(1, blob(100.0, 50.0, 4.0), 0, 0), Track(2, blob(120.0, 50.0, 4.0), 0, 0)
-        p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], led_id=110, kind="SL")
+        p = Pair(_emitter(a), _emitter(b), tracks=[a, b], nearby=[a, b], led_id=110, kind="SL" if follow else None)
         assert pr._follow(p, [], np.zeros((0, 2)), None)  # forms the geometry
         env = p.a.blob.area_px
         misses = []
@@ -225,7 +228,8 @@ def test_a_near_jumper_pairs_first_sample_reads_against_its_tracks_levels():
     from receiver.decode.s2psk import pair_xor
 
     def first_xor(min_area):
-        pr = Pairer(jumper_levels_min_area_px=min_area)
+        pr = Pairer()
+        pr.jumper_levels_min_area_px = min_area
         xs = [100.0, 112.0, 100.0, 112.0, 100.0]
         lum = [200.0, 10.0, 200.0, 10.0, 200.0]
         pairs = []
