@@ -100,14 +100,19 @@ class RunSummary:
             self.vehicle_frames += 1
             self.hv_frames += res.vehicle.get("hv") is not None
 
+    def _latency_text(self) -> str:
+        if not self.latency_ms:
+            return "latency: no frames"
+        return (f"latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
+                f"p99 {percentile(self.latency_ms, 99):.2f} ms")
+
     def text(self, *, skipped: int = 0, dropped: int = 0, truncated: int = 0,
              hv_reason: str | None = None) -> str:
         """The summary line; `hv_reason`: why the host vehicle is not placed (vehicle scenes)."""
         ids = ", ".join(str(i) for i in sorted(self.ids)) or "none"
         line = (f"{self.frames} frames, {self.led_frames} LED observations "
                 f"({self.decoded_led_frames} with ID), decoded IDs: {ids}; "
-                f"positions: {self.positions}; latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
-                f"p99 {percentile(self.latency_ms, 99):.2f} ms; skipped corrupt frames: {skipped}; "
+                f"positions: {self.positions}; {self._latency_text()}; skipped corrupt frames: {skipped}; "
                 f"dropped: {dropped}")
         if self.vehicle_frames or hv_reason:
             line += f"; vehicle frames: {self.vehicle_frames}, host placed in {self.hv_frames}"

@@ -29,6 +29,7 @@ class OverlayWriter:
         self.camera, self.led_map = camera, led_map
         self.png = path.lower().endswith(".png")
         self._writer = None
+        self._frames = 0
         self._last = None
         self._pts = None
         if led_map is not None and led_map.leds:
@@ -112,14 +113,27 @@ class OverlayWriter:
             self._last = img
         else:
             self._writer.write(img)
+            self._frames += 1
 
     def close(self) -> None:
+        """Finish the file; InputError when it is incomplete (OpenCV's video writer does not
+        report a failed write, e.g. a full disk: the file is read back and its frames counted)."""
         if self.png:
             if self._last is not None:
-                folder = os.path.dirname(os.path.abspath(self.path))
-                tmp = os.path.join(folder, ".overlay-" + os.path.basename(self.path))
-                cv2.imwrite(tmp, self._last)
-                os.replace(tmp, self.path)
+                ok, buf = cv2.imencode(".png", self._last)
+                if not ok:
+                    raise InputError(f"{self.path}: cannot encode the overlay PNG")
+                with open(self.path, "wb") as f:
+                    f.write(buf.tobytes())
         elif self._writer is not None:
             self._writer.release()
             self._writer = None
+            if self._frames and self._count_frames() != self._frames:
+                raise InputError("the video is incomplete (disk full?)")
+
+    def _count_frames(self) -> int:
+        cap = cv2.VideoCapture(self.path)
+        try:
+            return int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        finally:
+            cap.release()
