@@ -51,3 +51,5 @@ def whole_in(lo: int, hi: int):
 
 # Frame counts an option may ask for: a day of video at 1,000 frames/s is under 10^8.
 MAX_FRAMES = 10**9
+# Upper bound of --max-pixels: a 16-bit OpenCV image dimension squared (32767^2 ~ 1.07e9).
+MAX_PIXELS = 1 << 30

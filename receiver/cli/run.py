@@ -17,7 +17,7 @@ import time
 
 # Nothing heavy at module level: `occloc run --help` and the argument set-up (`add_arguments`)
 # must not load OpenCV, numpy or the pipeline; `_main` imports what a run needs.
-from receiver.cli.args import MAX_FRAMES, number_in, seconds_up_to, whole_in
+from receiver.cli.args import MAX_FRAMES, MAX_PIXELS, number_in, seconds_up_to, whole_in
 from receiver.core.budget import DEFAULT_THREADS, limit_blas_threads, threads
 
 HELP = "receive LEDs from a recording, video, photos, raw pipe or camera: JSON lines per frame"
@@ -43,6 +43,9 @@ def add_arguments(p) -> None:
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
     p.add_argument("--fps", type=number_in(*FPS_RANGE, "frames/s"), metavar="F", help="frame rate for timestamps of images and pipes")
     p.add_argument("--max-frames", type=whole_in(0, MAX_FRAMES), metavar="N", help="stop after N frames")
+    p.add_argument("--max-pixels", type=whole_in(1, MAX_PIXELS), default=None, metavar="N",
+                   help="largest photo or raw frame, width x height, checked before decoding "
+                        "(default 200,000,000: the largest phone sensors)")
     p.add_argument("--odometry", metavar="FILE",
                    help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
     p.add_argument("--overlay", metavar="FILE",
@@ -310,7 +313,7 @@ def _main(args, stop: "SignalStop") -> int:
     size = parse_size(args.size)
     n_threads = getattr(args, "threads", DEFAULT_THREADS)
     src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam,
-                      threads=n_threads)
+                      threads=n_threads, max_pixels=getattr(args, "max_pixels", None))
     try:
         if src.size is None:
             raise InputError(f"{spec}: frame size unknown")
