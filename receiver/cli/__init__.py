@@ -255,15 +255,12 @@ def _main(argv: list[str] | None) -> int:
     if selected not in commands:
         selected = None
     parser = build_parser(commands, selected, every_help=_needs_every_help(argv, selected))
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as e:  # a usage error (2, said on stderr), --help or --version (0)
-        return e.code if isinstance(e.code, int) else EXIT_BAD_INPUT
+    args = parser.parse_args(argv)  # a usage error: argparse's SystemExit(2), said on stderr
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     old = {}
-    if args.command in _STAGING_COMMANDS and sys.stdout is not None and not isinstance(sys.stdout, _Stdout):
+    if sys.stdout is not None and not isinstance(sys.stdout, _Stdout):
         old["stdout"] = sys.stdout
         sys.stdout = _Stdout(sys.stdout)
     if args.command in _STAGING_COMMANDS:

@@ -212,9 +212,26 @@ def test_run_stdout_full_disk_names_standard_output():
     assert "indoor-static" not in line
 
 
-def test_run_out_device_full_names_the_output(rec):
-    _refused(occloc("run", rec, "--max-frames", "2", "--out", "/dev/full"), "--out /dev/full")
-    assert stat.S_ISCHR(os.stat("/dev/full").st_mode)
+def _private_full_device(folder):
+    """A character device like /dev/full in `folder` (root only), so that a regression that
+    renames over its output can never replace the system's /dev/full; None when not allowed."""
+    path = os.path.join(folder, "full")
+    try:
+        os.mknod(path, 0o666 | stat.S_IFCHR, os.makedev(1, 7))
+    except (PermissionError, OSError):
+        return None
+    return path
+
+
+def test_run_out_device_full_names_the_output(rec, tmp_path):
+    dev = _private_full_device(str(tmp_path))
+    if dev is not None:
+        _refused(occloc("run", rec, "--max-frames", "2", "--out", dev), f"--out {dev}", "No space left")
+        assert stat.S_ISCHR(os.stat(dev).st_mode)
+    # a regular file on a full disk (files stop growing at 64 KB)
+    out = tmp_path / "big.jsonl"
+    _refused(occloc("run", WALK, "--out", out, preexec_fn=_small_full_disk), f"--out {out}")
+    assert not out.exists() and _hidden(tmp_path) == []
 
 
 def test_run_overlay_on_a_full_disk_is_an_error(rec, tmp_path):
