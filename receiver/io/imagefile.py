@@ -154,10 +154,15 @@ def read_gray(path: str, max_pixels: int = DEFAULT_MAX_PIXELS):
             data = head + f.read()
     except OSError as e:
         return None, e.strerror or str(e)
+    if not data:
+        return None, "empty file"
     if not jpeg_complete(data):
         return None, "JPEG cut short (no end-of-image marker)"
     with _QuietStderr() as quiet:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+        except cv2.error:
+            img = None
     if img is None:
         return None, "not a readable image"
     if any(w in quiet.text for w in _DAMAGE_WORDS):
