@@ -271,8 +271,10 @@ def _says(*words):
 
 
 def _no_raw_decoder_text(rc, out, err):
+    """No line of stderr that is not ours (`occloc...`) carries a decoder's own message."""
+    raw = "\n".join(ln for ln in err.splitlines() if not ln.startswith("occloc"))
     for w in ("Premature end", "Corrupt JPEG", "libpng", "[ WARN:", "[ERROR:"):
-        if w in err:
+        if w in raw:
             return f"raw decoder message on stderr: {w!r}"
     return ""
 
