@@ -189,6 +189,7 @@ class Output:
         self.path, self.flag, self.target = path, flag, target
         self.special = st is not None and not stat.S_ISREG(st.st_mode)
         self.mode = (st.st_mode & 0o7777) if st is not None and not self.special else None
+        self.owner = (st.st_uid, st.st_gid) if st is not None and not self.special else None
 
     def open(self, binary: bool = False) -> "OutputFile":
         return OutputFile(self, binary)
@@ -307,6 +308,11 @@ class OutputFile:
                 self.file.close()
                 return
             fd = self.file.fileno()
+            if out.owner is not None and out.owner != (os.geteuid(), os.getegid()):
+                try:  # root replacing another user's file: it stays theirs
+                    os.fchown(fd, *out.owner)
+                except OSError:
+                    pass
             os.fchmod(fd, out.mode if out.mode is not None else 0o666 & ~_umask())
             os.fsync(fd)
             if self.tmp is None:
