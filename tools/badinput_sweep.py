@@ -361,28 +361,29 @@ def build_more_cases(tmp: str, rng) -> list[Case]:
     fmt = {"static": static, "views": views, "tmp": o, "run": run_file}
 
     def case(name, argv, inputs=(r,), **kw):
-        kw.setdefault("clean", [o, r])
+        kw.setdefault("clean", [o, r, tmp])
         cases.append(Case(name, argv, list(inputs), **kw))
 
     refused = dict(expect=(2,))
+    is_input = dict(expect=(2,), check=_says("input of this command"))
     # -- outputs that are inputs, folders, other outputs (every command that writes a file)
-    case("run --out hard link to the video", occloc("run", r, "--out", hard), quick=True, **refused)
-    case("run --out symlink to camera.yaml", occloc("run", r, "--out", soft), **refused)
-    case("run --overlay map.json", occloc("run", r, "--max-frames", "2", "--overlay", map_), **refused)
-    case("run --settings-out truth.jsonl", occloc("run", r, "--settings-out", truth), **refused)
+    case("run --out hard link to the video", occloc("run", r, "--out", hard), quick=True, **is_input)
+    case("run --out symlink to camera.yaml", occloc("run", r, "--out", soft), **is_input)
+    case("run --overlay map.json", occloc("run", r, "--max-frames", "2", "--overlay", map_), **is_input)
+    case("run --settings-out truth.jsonl", occloc("run", r, "--settings-out", truth), **is_input)
     case("run --out DIR", occloc("run", r, "--out", o), quick=True, **refused)
     case("run --overlay DIR", occloc("run", r, "--overlay", o), **refused)
     case("run --out X --settings-out X", occloc("run", r, "--out", f"{o}/x", "--settings-out", f"{o}/x"), **refused)
     case("eval --plot map.json beside truth", occloc("eval", run_file, "--truth", truth, "--plot", map_),
-         quick=True, **refused)
-    case("eval --plot RUN", occloc("eval", run_file, "--truth", truth, "--plot", run_file), [r, run_file], **refused)
+         quick=True, **is_input)
+    case("eval --plot RUN", occloc("eval", run_file, "--truth", truth, "--plot", run_file), [r, run_file], **is_input)
     case("calibrate rows --out video.avi", occloc("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000",
-                                                  "--out", os.path.join(r, "video.avi")), **refused)
+                                                  "--out", os.path.join(r, "video.avi")), **is_input)
     case("calibrate rows --out map.json --map map.json",
-         occloc("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000", "--out", map_, "--map", map_), **refused)
+         occloc("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000", "--out", map_, "--map", map_), **is_input)
     case("calibrate intrinsics --out a source image",
          occloc("calibrate", "intrinsics", views, "--board", "chess:9x6", "--square-mm", "20",
-                "--out", os.path.join(views, "v1.png")), [views], quick=True, **refused)
+                "--out", os.path.join(views, "v1.png")), [views], quick=True, **is_input)
     case("calibrate intrinsics --out DIR", occloc("calibrate", "intrinsics", views, "--board", "chess:9x6",
                                                   "--square-mm", "20", "--out", o), [views], **refused)
     fifo = os.path.join(o, "fifo")
