@@ -46,8 +46,13 @@ def serve(fd_in=0, out=None):
         replies = proto.feed(data) if data else proto.finish()
         backend.advance()
         for r in replies:
-            out.write(r.encode() + b"\n")
-            out.flush()
+            try:
+                out.write(r.encode() + b"\n")
+                out.flush()
+            except BrokenPipeError:
+                raise
+            except OSError as e:
+                raise OSError(e.errno, f"cannot write standard output: {e.strerror or e}") from None
         if not data:
             return 0
 
@@ -57,6 +62,21 @@ def main():
         return serve()
     except (BrokenPipeError, KeyboardInterrupt):
         return 0
+    except OSError as e:  # replies cannot be written (a full disk) or input cannot be read
+        _quiet_stdout()
+        print("firmware_tx: " + (e.strerror or str(e)), file=sys.stderr)
+        return 1
+
+
+def _quiet_stdout():
+    """Point fd 1 at /dev/null so that the interpreter's last flush of what could not be
+    written does not raise again at exit."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 1)
+        os.close(fd)
+    except OSError:
+        pass
 
 
 if __name__ == "__main__":

@@ -1,11 +1,17 @@
 """Bad-input sweep: run every command of the project on damaged, hostile or wrong input and
-check that it never hangs, never prints a traceback and never damages its input.
+check that it never hangs, never prints a traceback, never damages its input, never leaves a
+hidden temporary file, and keeps standard output clean.
 
-    python tools/badinput_sweep.py [--realtime-runs 20] [--only SUBSTRING] [--keep]
+    python tools/badinput_sweep.py [--quick] [--seed N] [--budget-s S] [--realtime-runs 20]
+                                   [--only SUBSTRING] [--keep]
 
 Prints one row per case: input, exit code, first line of stderr, traceback yes/no, input
-intact yes/no. Exits 1 when any row has a traceback, a hang (timeout) or a damaged input.
-Every case works on copies in a temporary folder; the bundled recordings are only read.
+intact yes/no, and a closing line `N cases, M held`. Exits 1 when any row has a traceback, a
+hang (timeout), a damaged input or a failed check. Every case works on copies in a temporary
+folder; the bundled recordings are only read. `--quick`: the cases marked quick (one or more of
+every command and class, a few frames each), for CI. `--seed`: the seeded cases (random option
+values, random cuts and byte flips, signal delays) draw from random.Random(seed). `--budget-s`:
+cases not started within this many seconds are counted as not run (said in the closing line).
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import os
 import re
 import shutil
 import signal
+import stat
 import struct
 import subprocess
 import sys
@@ -47,10 +54,15 @@ def sha(path: str) -> str | None:
 
 
 class Case:
+    """One command line. `inputs`: files/folders that must be byte-identical afterwards;
+    `expect`: allowed exit codes (None: any); `check(rc, out, err) -> problem or ''`;
+    `clean`: folders that must hold no hidden (dot) file afterwards; `quick`: in --quick."""
+
     def __init__(self, name, argv, inputs=(), shell=False, stdin=None, expect=None, signal_after=None,
-                 check=None):
+                 check=None, clean=(), quick=False, preexec_fn=None):
         self.name, self.argv, self.inputs, self.shell = name, argv, list(inputs), shell
         self.stdin, self.expect, self.signal_after, self.check = stdin, expect, signal_after, check
+        self.clean, self.quick, self.preexec_fn = list(clean), quick, preexec_fn
 
 
 def run_case(c: Case) -> dict:
@@ -61,7 +73,7 @@ def run_case(c: Case) -> dict:
     try:
         p = subprocess.Popen(c.argv, cwd=ROOT, shell=c.shell, stdin=stdin if stdin is not None else subprocess.DEVNULL,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
-                             executable="/bin/bash" if c.shell else None)
+                             executable="/bin/bash" if c.shell else None, preexec_fn=c.preexec_fn)
         if c.signal_after is not None:
             sig, delay = c.signal_after
             time.sleep(delay)
@@ -83,8 +95,16 @@ def run_case(c: Case) -> dict:
                                                                                          and c.signal_after is None),
            "intact": all(sha(q) == before[q] for q in c.inputs), "s": time.monotonic() - t0, "hung": hung,
            "problem": ""}
+    problems = []
     if c.check is not None and not hung:
-        row["problem"] = c.check(rc, out.decode("utf-8", "replace"), err_text) or ""
+        problems.append(c.check(rc, out.decode("utf-8", "replace"), err_text) or "")
+    if c.expect is not None and not hung and rc not in c.expect:
+        problems.append(f"exit {rc}, expected {'/'.join(map(str, c.expect))}")
+    for folder in c.clean:
+        left = [n for n in os.listdir(folder) if n.startswith(".")] if os.path.isdir(folder) else []
+        if left:
+            problems.append(f"hidden file left: {left[0]}")
+    row["problem"] = "; ".join(p for p in problems if p)
     return row
 
 
@@ -234,23 +254,271 @@ def build_cases(tmp: str, realtime_runs: int) -> list[Case]:
     return cases
 
 
+def _json_lines_only(rc, out, err):
+    bad = [ln for ln in out.splitlines() if not ln.startswith("{")]
+    return f"stdout holds a non-JSON line: {bad[0][:40]!r}" if bad else ""
+
+
+def _no_nan(rc, out, err):
+    return "nan in output" if re.search(r"\bnan\b", out + err, re.I) else ""
+
+
+def _says(*words):
+    def check(rc, out, err):
+        missing = [w for w in words if w not in err]
+        return f"stderr lacks {missing[0]!r}" if missing else ""
+    return check
+
+
+def _no_raw_decoder_text(rc, out, err):
+    """No line of stderr that is not ours (`occloc...`) carries a decoder's own message."""
+    raw = "\n".join(ln for ln in err.splitlines() if not ln.startswith("occloc"))
+    for w in ("Premature end", "Corrupt JPEG", "libpng", "[ WARN:", "[ERROR:"):
+        if w in raw:
+            return f"raw decoder message on stderr: {w!r}"
+    return ""
+
+
+def _all(*checks):
+    def check(rc, out, err):
+        return "; ".join(p for p in (c(rc, out, err) for c in checks) if p)
+    return check
+
+
+def _file_limit():
+    """preexec_fn: files stop growing at 64 KB (EFBIG): a full disk for the command's outputs."""
+    import resource
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 << 10, 64 << 10))
+
+
+def _png_header(path, w, h):
+    import zlib
+
+    def chunk(t, d):
+        return struct.pack(">I", len(d)) + t + d + struct.pack(">I", zlib.crc32(t + d) & 0xFFFFFFFF)
+    with open(path, "wb") as f:
+        f.write(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0))
+                + chunk(b"IDAT", __import__("zlib").compress(bytes(64))) + chunk(b"IEND", b""))
+
+
+# Numeric options of every command, with a valid value each (the seeded cases replace it with
+# a hostile one: huge, tiny, negative, zero, NaN, infinite, not a number).
+NUMERIC_OPTIONS = [
+    (("run", "{static}", "--max-frames", "2"), "--fps", "30"),
+    (("run", "{static}"), "--max-frames", "2"),
+    (("run", "{static}", "--max-frames", "2"), "--max-pixels", "1000000"),
+    (("run", "{static}", "--max-frames", "2"), "--threads", "1"),
+    (("calibrate", "intrinsics", "{views}", "--board", "chess:9x6", "--out", "{tmp}/i.yaml"), "--square-mm", "20"),
+    (("calibrate", "intrinsics", "{views}", "--board", "chess:9x6", "--square-mm", "20", "--out", "{tmp}/i.yaml"),
+     "--max-views", "40"),
+    (("calibrate", "intrinsics", "{views}", "--board", "chess:9x6", "--square-mm", "20", "--out", "{tmp}/i.yaml"),
+     "--max-blur-px", "4"),
+    (("calibrate", "rows", "{static}", "--camera", "{static}/camera.yaml", "--out", "{tmp}/r.yaml",
+      "--max-frames", "5"), "--freq-hz", "1000"),
+    (("calibrate", "rows", "{static}", "--camera", "{static}/camera.yaml", "--out", "{tmp}/r.yaml",
+      "--max-frames", "5"), "--ook-rate", "20000"),
+    (("eval", "{run}", "--truth", "{static}/truth.jsonl"), "--gate-px", "15"),
+    (("eval", "{run}", "--truth", "{static}/truth.jsonl"), "--fv-gate-deg", "5"),
+    (("check", "{static}"), "--max-frames", "5"),
+    (("bench", "{static}", "--frames", "2"), "--repeat", "1"),
+    (("tx", "--port", "loop://", "--status"), "--timeout", "0.2"),
+]
+HOSTILE = ["1e300", "1e-300", "-1", "0", "nan", "inf", "-inf", "1e400", "x", "9" * 40]
+
+
+def build_more_cases(tmp: str, rng) -> list[Case]:
+    """The output discipline, full disks, closed streams, range checks, bounded work and silent
+    loss, for every command; `rng` draws the seeded ones."""
+    import numpy as np
+    static, vehicle = os.path.join(REC, "indoor-static"), os.path.join(REC, "vehicle")
+    cases: list[Case] = []
+    full = "/dev/full"
+
+    def rec(name):
+        d = os.path.join(tmp, name)
+        shutil.copytree(static, d)
+        return d
+
+    def outdir(name):
+        d = os.path.join(tmp, name)
+        os.makedirs(d, exist_ok=True)
+        return d
+
+    r = rec("out-rec")
+    o = outdir("outs")
+    cam, map_, truth = (os.path.join(r, n) for n in ("camera.yaml", "map.json", "truth.jsonl"))
+    hard = os.path.join(o, "hard.jsonl")
+    os.link(os.path.join(r, "video.avi"), hard)
+    soft = os.path.join(o, "soft.jsonl")
+    os.symlink(cam, soft)
+    run_file = os.path.join(tmp, "run3.jsonl")
+    subprocess.run(occloc("run", static, "--max-frames", "3", "--out", run_file), cwd=ROOT, capture_output=True,
+                   timeout=TIMEOUT_S)
+    views = outdir("views")
+    import cv2
+    for i in range(3):
+        cv2.imwrite(os.path.join(views, f"v{i}.png"), np.full((90, 160), 60 * i, np.uint8))
+    fmt = {"static": static, "views": views, "tmp": o, "run": run_file}
+
+    def case(name, argv, inputs=(r,), **kw):
+        kw.setdefault("clean", [o, r, tmp])
+        cases.append(Case(name, argv, list(inputs), **kw))
+
+    refused = dict(expect=(2,))
+    is_input = dict(expect=(2,), check=_says("input of this command"))
+    # -- outputs that are inputs, folders, other outputs (every command that writes a file)
+    case("run --out hard link to the video", occloc("run", r, "--out", hard), quick=True, **is_input)
+    case("run --out symlink to camera.yaml", occloc("run", r, "--out", soft), **is_input)
+    case("run --overlay map.json", occloc("run", r, "--max-frames", "2", "--overlay", map_), **is_input)
+    case("run --settings-out truth.jsonl", occloc("run", r, "--settings-out", truth), **is_input)
+    case("run --out DIR", occloc("run", r, "--out", o), quick=True, **refused)
+    case("run --overlay DIR", occloc("run", r, "--overlay", o), **refused)
+    case("run --out X --settings-out X", occloc("run", r, "--out", f"{o}/x", "--settings-out", f"{o}/x"), **refused)
+    case("eval --plot map.json beside truth", occloc("eval", run_file, "--truth", truth, "--plot", map_),
+         quick=True, **is_input)
+    case("eval --plot RUN", occloc("eval", run_file, "--truth", truth, "--plot", run_file), [r, run_file], **is_input)
+    case("calibrate rows --out video.avi", occloc("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000",
+                                                  "--out", os.path.join(r, "video.avi")), **is_input)
+    case("calibrate rows --out map.json --map map.json",
+         occloc("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000", "--out", map_, "--map", map_), **is_input)
+    case("calibrate intrinsics --out a source image",
+         occloc("calibrate", "intrinsics", views, "--board", "chess:9x6", "--square-mm", "20",
+                "--out", os.path.join(views, "v1.png")), [views], quick=True, **is_input)
+    case("calibrate intrinsics --out DIR", occloc("calibrate", "intrinsics", views, "--board", "chess:9x6",
+                                                  "--square-mm", "20", "--out", o), [views], **refused)
+    fifo = os.path.join(o, "fifo")
+    os.mkfifo(fifo)
+    case("run --out FIFO (reader: cat)", f"cat {fifo} > {o}/fifo.txt & exec {PY} -m receiver.cli run {r} "
+         f"--max-frames 2 --out {fifo}", shell=True, expect=(0,), quick=True,
+         check=lambda rc, out, err: "" if os.path.exists(fifo) and not os.path.isfile(fifo) else "FIFO replaced")
+    # -- full disks and closed streams
+    for cmd in (("run", r, "--max-frames", "2"), ("eval", run_file, "--truth", truth), ("check", r, "--max-frames", "5"),
+                ("bench", r, "--frames", "2"), ("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000",
+                                                "--max-frames", "5", "--out", f"{o}/rows.yaml")):
+        case(f"{cmd[0]} >/dev/full", f"exec {PY} -m receiver.cli {' '.join(cmd)} >{full}", shell=True, expect=(2,),
+             check=_says("standard output"), quick=cmd[0] in ("run", "eval"))
+    # a private copy of /dev/full (root): a regression must never replace the system's device
+    dev = os.path.join(o, "full")
+    try:
+        os.mknod(dev, 0o666 | stat.S_IFCHR, os.makedev(1, 7))
+        case("run --out DEVICE (a /dev/full)", occloc("run", r, "--max-frames", "2", "--out", dev), quick=True,
+             check=_all(_says("No space left"),
+                        lambda rc, out, err: "" if stat.S_ISCHR(os.stat(dev).st_mode) else "device replaced"),
+             **refused)
+    except OSError:
+        pass
+    case("run --out on a full disk", occloc("run", os.path.join(REC, "indoor-walk"), "--out", f"{o}/big.jsonl"),
+         preexec_fn=_file_limit, check=_says("--out"), **refused)
+    case("run --overlay o.avi on a full disk", occloc("run", r, "--max-frames", "12", "--out", f"{o}/ov.jsonl",
+                                                     "--overlay", f"{o}/ov.avi"),
+         preexec_fn=_file_limit, check=_says("--overlay"), quick=True, **refused)
+    case("firmware_tx >/dev/full", f"echo PING | exec {PY} -m firmware_tx >{full}", shell=True, expect=(1,),
+         quick=True)
+    case("run 2>&- (closed stderr)", f"exec {PY} -m receiver.cli run {r} --max-frames 2 2>&-", shell=True,
+         expect=(0,), check=_json_lines_only, quick=True)
+    case("run --max-frames 0", occloc("run", r, "--max-frames", "0"), expect=(0,), check=_no_nan)
+    # -- range checks (seeded hostile values for every numeric option)
+    for base, opt, _ok in NUMERIC_OPTIONS:
+        for value in rng.sample(HOSTILE, 3):
+            if opt in ("--max-frames",) and value == "0" and base[0] == "run":
+                continue  # 0 frames is a valid request
+            argv = [a.format(**fmt) for a in base] + [opt, value]
+            case(f"{base[0]} {opt} {value}", occloc(*argv), [r, views], expect=(2,))
+    quick_opts = [("calibrate", "intrinsics", views, "--board", "chess:9x6", "--square-mm", "1e300", "--out", f"{o}/q.yaml"),
+                  ("calibrate", "intrinsics", views, "--board", "chess:9x6", "--square-mm", "20", "--max-views", "1",
+                   "--out", f"{o}/q.yaml"),
+                  ("calibrate", "rows", r, "--camera", cam, "--freq-hz", "1e-10")]
+    for argv in quick_opts:
+        case(f"{argv[0]} {argv[1]} {' '.join(argv[-4:-2] if argv[1] == 'intrinsics' else argv[-2:])}",
+             occloc(*argv), [r, views], expect=(2,), quick=True)
+    # -- bounded work
+    lines = open(run_file, encoding="utf-8").read().splitlines()
+    tlines = open(os.path.join(vehicle, "truth.jsonl"), encoding="utf-8").read().splitlines()
+    vrun = os.path.join(tmp, "vrun2.jsonl")
+    subprocess.run(occloc("run", vehicle, "--max-frames", "2", "--out", vrun), cwd=ROOT, capture_output=True,
+                   timeout=TIMEOUT_S)
+    vlines = open(vrun, encoding="utf-8").read().splitlines()
+    for big in (3 * 10 ** 7, 10 ** 12):
+        ro, to = json.loads(vlines[1]), json.loads(tlines[1])
+        ro["frame"] = to["frame"] = big
+        rp, tp = os.path.join(tmp, f"vr{big}.jsonl"), os.path.join(tmp, f"vt{big}.jsonl")
+        open(rp, "w").write(vlines[0] + "\n" + json.dumps(ro) + "\n")
+        open(tp, "w").write(tlines[0] + "\n" + json.dumps(to) + "\n")
+        case(f"eval 2-line vehicle run, frame {big:.0e}", occloc("eval", rp, "--truth", tp, "--map",
+                                                               os.path.join(vehicle, "map.json")),
+             [rp, tp], expect=(0,), quick=big > 10 ** 9)
+    huge = os.path.join(tmp, "huge.png")
+    _png_header(huge, 32000, 18000)
+    case("run 32000x18000 PNG (header)", occloc("run", huge, "--camera", cam, "--map", map_), [huge, r],
+         check=_says("pixel limit"), quick=True, **refused)
+    case("run - --size 100000x100000", occloc("run", "-", "--size", "100000x100000", "--camera", cam, "--map", map_),
+         **refused)
+    del lines
+    # -- silent loss: damaged photos (seeded cuts), first file unreadable
+    img = (np.indices((180, 320)).sum(axis=0) % 256).astype(np.uint8)
+    jpg = cv2.imencode(".jpg", img)[1].tobytes()
+    for k in range(4):
+        cut = rng.uniform(0.1, 0.9)
+        pth = os.path.join(tmp, f"cut{k}.jpg")
+        open(pth, "wb").write(jpg[:int(len(jpg) * cut)])
+        case(f"run one JPEG cut at {cut:.2f}", occloc("run", pth, "--camera", cam, "--map", map_), [pth, r],
+             check=_no_raw_decoder_text, quick=k == 0, **refused)
+    ph = outdir("photos")
+    open(os.path.join(ph, "a.jpg"), "wb").write(jpg[:len(jpg) // 3])
+    for n in ("b.jpg", "c.jpg"):
+        open(os.path.join(ph, n), "wb").write(jpg)
+    case("run photo folder, first JPEG cut to a third", occloc("run", ph, "--camera", cam, "--map", map_), [ph, r],
+         expect=(0,), check=_all(_says("skipped corrupt frames: 1"), _no_raw_decoder_text, _json_lines_only),
+         quick=True)
+    for k in range(3):
+        data = bytearray(jpg)
+        for _ in range(8):
+            data[rng.randrange(200, len(data) - 2)] = rng.randrange(256)
+        pth = os.path.join(tmp, f"flip{k}.jpg")
+        open(pth, "wb").write(bytes(data))
+        case(f"run JPEG with 8 random bytes changed (#{k})", occloc("run", pth, "--camera", cam, "--map", map_),
+             [pth, r], expect=(0, 2), check=_no_raw_decoder_text)
+    # -- interrupts at seeded moments, including imports
+    for k in range(4):
+        delay = round(rng.uniform(0.1, 3.0), 2)
+        case(f"calibrate rows, SIGINT after {delay} s", f"exec {PY} -m receiver.cli calibrate rows {r} --camera {cam} "
+             f"--ook-rate 20000 --out {o}/int.yaml", shell=True, signal_after=(signal.SIGINT, delay),
+             expect=(0, 130, -signal.SIGINT), quick=k == 0)
+    case("tx --port /nonexistent", occloc("tx", "--port", "/nonexistent/ttyACM0", "--status"), (), expect=(2,),
+         quick=True)
+    return cases
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime-runs", type=int, default=20, help="realtime runs of each kind (20)")
     ap.add_argument("--only", help="run only cases whose name contains this")
     ap.add_argument("--keep", action="store_true", help="keep the temporary folder")
+    ap.add_argument("--quick", action="store_true", help="only the quick cases (CI)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the drawn cases (1)")
+    ap.add_argument("--budget-s", type=float, default=None, help="start no case after this many seconds")
     args = ap.parse_args(argv)
+    import random
     tmp = tempfile.mkdtemp(prefix="occloc-sweep-")
-    bad = 0
+    bad = held = skipped = 0
+    t0 = time.monotonic()
     try:
-        cases = build_cases(tmp, args.realtime_runs)
+        rng = random.Random(args.seed)
+        cases = [] if args.quick else build_cases(tmp, args.realtime_runs)
+        cases += build_more_cases(tmp, rng)
+        if args.quick:
+            cases = [c for c in cases if c.quick]
         if args.only:
             cases = [c for c in cases if args.only in c.name]
         print(f"{'input':58} {'exit':>5}  {'tb':3} {'intact':6}  first line of stderr")
         for c in cases:
+            if args.budget_s is not None and time.monotonic() - t0 > args.budget_s:
+                skipped += 1
+                continue
             r = run_case(c)
             failed = r["traceback"] or r["hung"] or not r["intact"] or r["problem"]
             bad += bool(failed)
+            held += not failed
             note = f"  <-- {r['problem']}" if r["problem"] else ""
             print(f"{r['input'][:58]:58} {str(r['rc']):>5}  {'yes' if r['traceback'] else 'no':3} "
                   f"{'yes' if r['intact'] else 'NO':6}  {r['stderr']}{note}", flush=True)
@@ -260,6 +528,7 @@ def main(argv=None) -> int:
         else:
             shutil.rmtree(tmp, ignore_errors=True)
     print(f"{bad} problem row(s)" if bad else "no traceback, hang or damaged input")
+    print(f"seed {args.seed}: {held + bad} cases, {held} held" + (f", {skipped} not run (budget)" if skipped else ""))
     return 1 if bad else 0
 
 

@@ -145,29 +145,152 @@ def _needs_every_help(argv: list[str], selected: str | None) -> bool:
     return any(a == "-h" or (len(a) > 2 and "--help".startswith(a)) for a in before)
 
 
+# Commands whose files are staged: SIGTERM/SIGHUP end them through their `finally` blocks (no
+# temporary file left); the others (servers, the serial link) keep their own signal handling.
+_STAGING_COMMANDS = ("run", "eval", "calibrate", "check", "bench", "synth")
+
+
+class _Stopped(BaseException):
+    """Raised by the SIGTERM/SIGHUP handler: unwinds the command through its cleanups."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_stopped(signum, frame):
+    raise _Stopped(signum)
+
+
+class _Stdout:
+    """sys.stdout whose write errors name standard output (a full disk, a closed terminal)
+    instead of surfacing as a bare OSError that a command would blame on its input."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, s):
+        try:
+            return self._stream.write(s)
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise InputError(f"cannot write standard output: {e.strerror or e}") from None
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise InputError(f"cannot write standard output: {e.strerror or e}") from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _devnull_fd(fd: int) -> None:
+    """Point file descriptor `fd` at /dev/null (the interpreter's final flush of text that could
+    not be written, or a closed standard stream that a later open would otherwise reuse)."""
+    try:
+        null = os.open(os.devnull, os.O_RDWR)
+    except OSError:
+        return
+    if null != fd:
+        os.dup2(null, fd)
+        os.close(null)
+
+
+def _fill_closed_std_fds() -> None:
+    """A closed fd 0/1/2 (`2>&-`) is pointed at /dev/null: the next file opened would get that
+    number, and OpenCV's or libjpeg's messages to fd 2 would land in it. A closed standard error
+    also gets a /dev/null sys.stderr: `print(file=None)` writes to standard output."""
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            _devnull_fd(fd)
+    if sys.stderr is None:
+        sys.stderr = open(os.devnull, "w", encoding="utf-8")
+
+
+def _finish_stdout() -> int:
+    """Flush standard output; 2 with a one-line error when it cannot be written."""
+    stream = sys.stdout
+    if stream is None:
+        return 0
+    try:
+        stream.flush()
+    except BrokenPipeError:
+        _devnull_fd(1)
+    except (OSError, InputError) as e:
+        _devnull_fd(1)
+        msg = str(e) if isinstance(e, InputError) else f"cannot write standard output: {e.strerror or e}"
+        print(f"occloc: {msg}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
+    import receiver
+    try:
+        if signal.getsignal(signal.SIGINT) is receiver._interrupted_while_loading:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        return _main(argv)
+    except KeyboardInterrupt:  # e.g. while a command module is imported
+        print("occloc: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
+    import signal
+
+    from receiver.io.files import remove_live_temps
+
+    _fill_closed_std_fds()
     argv = list(sys.argv[1:] if argv is None else argv)
     commands = _available()
     selected = next((a for a in argv if not a.startswith("-")), None)
     if selected not in commands:
         selected = None
     parser = build_parser(commands, selected, every_help=_needs_every_help(argv, selected))
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv)  # a usage error: argparse's SystemExit(2), said on stderr
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
+    old = {}
+    if sys.stdout is not None and not isinstance(sys.stdout, _Stdout):
+        old["stdout"] = sys.stdout
+        sys.stdout = _Stdout(sys.stdout)
+    if args.command in _STAGING_COMMANDS:
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            try:
+                if signal.getsignal(sig) is signal.SIG_DFL:
+                    old[sig] = signal.signal(sig, _raise_stopped)
+            except (OSError, ValueError):  # not the main thread
+                pass
     try:
-        return int(importlib.import_module(commands[args.command]).main(args) or 0)
+        rc = int(importlib.import_module(commands[args.command]).main(args) or 0)
+        return _finish_stdout() or rc
     except InputError as e:
+        _finish_stdout()
         print(f"occloc: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("occloc: interrupted", file=sys.stderr)
         return 130
+    except _Stopped as e:
+        return 128 + e.signum
     except BrokenPipeError:
         # Downstream closed the pipe (e.g. `occloc run | head`): not an error of ours.
-        try:
-            sys.stdout = None
-        finally:
-            return 0
-
+        _devnull_fd(1)
+        return 0
+    finally:
+        remove_live_temps()
+        for key, value in old.items():
+            if key == "stdout":
+                sys.stdout = value
+            else:
+                signal.signal(key, value)

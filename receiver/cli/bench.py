@@ -29,6 +29,8 @@ import sys
 import tempfile
 import time
 
+from receiver.cli.args import whole_in
+
 HELP = "time the whole receiver per stage (median/p99 ms, instructions/frame) on the bundled recordings or a SOURCE"
 
 SCENE = "synthetic"          # the name of the built-in scene's case
@@ -46,11 +48,11 @@ def add_arguments(p) -> None:
     p.add_argument("source", nargs="?", metavar="SOURCE",
                    help="recording, video or photo (default: every bundled recording and the built-in "
                         "1280x720 16-LED synthetic scene)")
-    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, metavar="N",
+    p.add_argument("--frames", type=whole_in(1, 1_000_000), default=DEFAULT_FRAMES, metavar="N",
                    help=f"frames to time per case ({DEFAULT_FRAMES}; a recording's own length when shorter)")
     p.add_argument("--camera", metavar="FILE", help="camera.yaml for a bare video/photo")
     p.add_argument("--map", metavar="FILE", help="map.json for a bare video/photo")
-    p.add_argument("--repeat", type=int, default=1, metavar="R",
+    p.add_argument("--repeat", type=whole_in(1, 10_000), default=1, metavar="R",
                    help="process the loaded frames R times, each time with a fresh receiver (photos: 1 frame, "
                         "so e.g. 20)")
     p.add_argument("--clock", choices=tuple(CLOCKS), default="cpu",
@@ -61,7 +63,7 @@ def add_arguments(p) -> None:
     p.add_argument("--instructions", action="store_true",
                    help=f"also count instructions per frame under valgrind's callgrind "
                         f"({DEFAULT_INSTR_FRAMES} frames after {INSTR_WARM_FRAMES}; slow: minutes per case)")
-    p.add_argument("--instr-frames", type=int, default=DEFAULT_INSTR_FRAMES, metavar="K",
+    p.add_argument("--instr-frames", type=whole_in(1, 10_000), default=DEFAULT_INSTR_FRAMES, metavar="K",
                    help=f"frames counted per case with --instructions ({DEFAULT_INSTR_FRAMES})")
     # The child of --instructions: process frames [W, W+K) of the case inside functools.reduce.
     p.add_argument("--_count", nargs=3, metavar=("CASE", "W", "K"), help=argparse.SUPPRESS)

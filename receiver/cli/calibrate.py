@@ -23,9 +23,14 @@ import dataclasses
 import json
 import os
 import sys
-import tempfile
+
+from receiver.cli.args import MAX_FRAMES, number_in, whole_in
 
 HELP = "calibrate a camera: intrinsics from a chess/ChArUco board, row readout time from an LED"
+
+# Fewest board views calibration uses (calibrate_views' min_views): Zhang's method needs three
+# in general position for the five intrinsics, one more guards against a degenerate view.
+MIN_VIEWS = 4
 
 
 def add_arguments(p) -> None:
@@ -37,14 +42,15 @@ def add_arguments(p) -> None:
     a.add_argument("--board", required=True, metavar="SPEC",
                    help="chess:COLSxROWS (inner corners, as OpenCV counts them) or "
                         "charuco:COLSxROWS:DICT (squares, e.g. charuco:7x5:DICT_4X4_50)")
-    a.add_argument("--square-mm", type=float, required=True, metavar="S", help="square side, mm")
-    a.add_argument("--marker-mm", type=float, metavar="M", help="ChArUco marker side, mm")
+    a.add_argument("--square-mm", type=number_in(0.01, 10_000.0, "mm", low_open=True), required=True, metavar="S", help="square side, mm")
+    a.add_argument("--marker-mm", type=number_in(0.01, 10_000.0, "mm", low_open=True), metavar="M", help="ChArUco marker side, mm")
     a.add_argument("--out", required=True, metavar="FILE", help="camera.yaml to write")
     a.add_argument("--camera", metavar="EXISTING",
                    help="camera.yaml whose unmeasured keys (pixel size, focal length, row time, exposure, fps) are kept")
-    a.add_argument("--max-frames", type=int, metavar="N", help="look at no more than N frames")
-    a.add_argument("--max-views", type=int, default=40, metavar="N", help="calibrate on at most N views (40)")
-    a.add_argument("--max-blur-px", type=float, default=4.0, metavar="PX",
+    a.add_argument("--max-frames", type=whole_in(1, MAX_FRAMES), metavar="N", help="look at no more than N frames")
+    a.add_argument("--max-views", type=whole_in(MIN_VIEWS, 10_000), default=40, metavar="N",
+                   help=f"calibrate on at most N views (40; at least {MIN_VIEWS}: fewer leave the camera matrix unsolved)")
+    a.add_argument("--max-blur-px", type=number_in(0.0, 1000.0, "px", low_open=True), default=4.0, metavar="PX",
                    help="reject chessboard views whose edges are wider than this (4 px)")
     a.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
     a.add_argument("--force", action="store_true",
@@ -55,13 +61,13 @@ def add_arguments(p) -> None:
     r.add_argument("source", metavar="SOURCE", help="recording folder, video file, images or /dev/videoN")
     r.add_argument("--camera", required=True, metavar="FILE", help="camera.yaml (its row_readout_us is the starting guess)")
     g = r.add_mutually_exclusive_group()
-    g.add_argument("--freq-hz", type=float, metavar="F", help="a tone LED blinking at F Hz")
-    g.add_argument("--ook-rate", type=float, metavar="HZ", help="an OOK LED at HZ chips per second")
+    g.add_argument("--freq-hz", type=number_in(1.0, 1e6, "Hz"), metavar="F", help="a tone LED blinking at F Hz")
+    g.add_argument("--ook-rate", type=number_in(1.0, 1e7, "chips/s"), metavar="HZ", help="an OOK LED at HZ chips per second")
     r.add_argument("--out", metavar="FILE2", help="write the camera file here (default: update FILE)")
     r.add_argument("--map", metavar="MAP",
                    help="LED map: warn when the exposure is too long for its chip rates; without --freq-hz "
                         "and --ook-rate, every tone light of the map in view is measured and combined")
-    r.add_argument("--max-frames", type=int, default=300, metavar="N", help="frames to read (300)")
+    r.add_argument("--max-frames", type=whole_in(1, MAX_FRAMES), default=300, metavar="N", help="frames to read (300)")
     r.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
 
 
@@ -69,29 +75,14 @@ def _progress(msg: str) -> None:
     print(f"occloc calibrate: {msg}", file=sys.stderr)
 
 
-def _same(a: str, b: str | None) -> bool:
-    if not b or not os.path.exists(a) or not os.path.exists(b):
-        return bool(b) and os.path.abspath(a) == os.path.abspath(b)
-    return os.path.samefile(a, b)
-
-
-def write_camera_atomic(path: str, cam) -> None:
-    """save_camera to a temporary .yaml beside `path`, then rename it into place."""
-    from receiver.io.camera import save_camera
-    from receiver.io.files import _umask
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".camera-", suffix=".yaml", dir=folder)
-    os.close(fd)
-    try:
-        save_camera(tmp, cam)
-        # mkstemp makes the file 0600: the camera file gets the mode a new file gets (the umask's),
-        # or keeps the mode of the file it replaces
-        os.chmod(tmp, os.stat(path).st_mode & 0o777 if os.path.exists(path) else 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+def write_camera_atomic(output, cam) -> None:
+    """The camera file of `cam` written through `output` (receiver.io.files.Output: a temporary
+    file renamed into place, the existing file's mode kept)."""
+    from receiver.io.camera import camera_yaml
+    from receiver.io.files import claim_output
+    if isinstance(output, str):
+        output = claim_output(output, (), "--out")
+    output.write_text(camera_yaml(cam))
 
 
 def _open(spec: str, size):
@@ -108,10 +99,10 @@ def run_intrinsics(args) -> dict:
     from receiver.core.errors import InputError
     from receiver.io.camera import CameraModel, load_camera
 
+    from receiver.io.files import claim_output
+
     board = parse_board(args.board, args.square_mm, args.marker_mm)
-    for inp in (args.source, args.camera):
-        if inp and _same(args.out, inp):
-            raise InputError(f"--out {args.out} is an input: choose another file")
+    output = claim_output(args.out, [args.source, args.camera], "--out")
     existing = load_camera(args.camera) if args.camera else None
     col = ViewCollector(board, max_blur_px=args.max_blur_px)
     src = _open(args.source, args.size)
@@ -124,7 +115,7 @@ def run_intrinsics(args) -> dict:
                 _progress(f"frame {frame.index}: {what} ({col.stats.accepted} views)")
     finally:
         src.close()
-    res = calibrate_views(col, max_views=args.max_views)
+    res = calibrate_views(col, max_views=args.max_views, min_views=MIN_VIEWS)
     for i, e in zip(res.frames, res.per_view_px):
         _progress(f"view frame {i}: {e:.3f} px")
     for i, e in res.dropped_views:
@@ -146,7 +137,7 @@ def run_intrinsics(args) -> dict:
                       **keep)
     if cam.fps == 0 and getattr(src, "fps", 0):
         cam = dataclasses.replace(cam, fps=float(src.fps))
-    write_camera_atomic(args.out, cam)
+    write_camera_atomic(output, cam)
     if existing is None:
         print(f"occloc: note: {args.out}: row_readout_us and exposure_us are not measured from a board "
               f"(written as 0): measure the row time with `occloc calibrate rows SOURCE --camera {args.out} "
@@ -171,7 +162,7 @@ def _sensor_frames(src, cam):
         yield Frame(f.index, f.t_s, gray)
 
 
-def run_rows_from_map(args, cam, out_path) -> dict:
+def run_rows_from_map(args, cam, out_path, output) -> dict:
     """`calibrate rows --map MAP` without a rate: every tone light of the map in view."""
     from receiver.calibrate.rows import measure_row_time_tones
     from receiver.core.errors import InputError
@@ -191,7 +182,7 @@ def run_rows_from_map(args, cam, out_path) -> dict:
     _progress(f"row readout {res.t_row_us:.4f} us, spread {res.spread_us:.4f} us over {len(res.lights)} lights")
     if res.warning:
         print(f"occloc: warning: {res.warning}", file=sys.stderr)
-    write_camera_atomic(out_path, dataclasses.replace(cam, row_readout_us=float(res.t_row_us)))
+    write_camera_atomic(output, dataclasses.replace(cam, row_readout_us=float(res.t_row_us)))
     d = res.to_json()
     d.update(previous_row_readout_us=cam.row_readout_us, out=out_path)
     return d
@@ -202,17 +193,19 @@ def run_rows(args) -> dict:
     from receiver.core.errors import InputError
     from receiver.io.camera import load_camera
 
-    cam = load_camera(args.camera)
+    from receiver.io.files import claim_output
+
     out_path = args.out or args.camera
-    if args.out and _same(args.out, args.source):
-        raise InputError(f"--out {args.out} is the SOURCE: choose another file")
+    # Without --out the camera file is updated in place: that is the point of it.
+    output = claim_output(out_path, [args.source, args.map, args.camera], "--out", update=not args.out)
+    cam = load_camera(args.camera)
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     if args.freq_hz is None and args.ook_rate is None:
         if not args.map:
             raise InputError("calibrate rows needs the lights' rate: --freq-hz F, --ook-rate HZ, or --map MAP "
                              "(its tone lights)")
-        return run_rows_from_map(args, cam, out_path)
+        return run_rows_from_map(args, cam, out_path, output)
     mode, rate = ("tone", args.freq_hz) if args.freq_hz is not None else ("ook", args.ook_rate)
     if not rate > 0:
         raise InputError("the LED's rate must be positive")
@@ -240,13 +233,16 @@ def run_rows(args) -> dict:
               f"spread {res.spread_us:.4f} us over {res.blobs} blobs in {res.frames} frames; "
               f"exposure ~{res.exposure_us if res.exposure_us is None else round(res.exposure_us, 1)} us")
     new = dataclasses.replace(cam, row_readout_us=float(res.t_row_us))
-    write_camera_atomic(out_path, new)
+    write_camera_atomic(output, new)
     d = res.to_json()
     d.update(previous_row_readout_us=cam.row_readout_us, out=out_path, warning=warn)
     return d
 
 
 def main(args) -> int:
+    from receiver.io.files import StdoutOutput
     res = run_intrinsics(args) if args.what == "intrinsics" else run_rows(args)
-    print(json.dumps(res))
+    out = StdoutOutput()
+    out.write(json.dumps(res) + "\n")
+    out.flush()
     return 0

@@ -8,6 +8,8 @@ import json
 import os
 import sys
 
+from receiver.cli.args import MAX_FRAMES, whole_in
+
 HELP = "check a camera/recording can receive (stripes, exposure, drift, banding, drops, focus); exit 1 on a problem"
 
 
@@ -18,7 +20,7 @@ def add_arguments(p) -> None:
     p.add_argument("--camera", metavar="FILE", help="camera.yaml (default: the recording's)")
     p.add_argument("--map", metavar="FILE", help="LED map.json (default: the recording's)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of the text verdict")
-    p.add_argument("--max-frames", type=int, default=90, metavar="N", help="frames to look at (90)")
+    p.add_argument("--max-frames", type=whole_in(1, MAX_FRAMES), default=90, metavar="N", help="frames to look at (90)")
     p.add_argument("--size", metavar="WxH", help="frame size to request from a camera")
 
 

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 
+from receiver.cli.args import number_in
 from receiver.core.errors import InputError
 from receiver.evaluate.metrics import (DEFAULT_AREA_BINS_PX, DEFAULT_FV_GATE_DEG, DEFAULT_GATE_PX,
                                       DEFAULT_S2PSK_PACKET_S, evaluate, format_table, json_safe, s2psk_packet_s)
@@ -23,9 +24,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--truth", required=True, help="the recording's truth.jsonl")
     parser.add_argument("--plot", metavar="OUT.png", help="write trajectory/error plots (PNG)")
     parser.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
-    parser.add_argument("--gate-px", type=float, default=DEFAULT_GATE_PX,
+    parser.add_argument("--gate-px", type=number_in(0.0, 100_000.0, "px", low_open=True), default=DEFAULT_GATE_PX,
                         help=f"LED match gate in pixels (default {DEFAULT_GATE_PX:g})")
-    parser.add_argument("--fv-gate-deg", type=float, default=DEFAULT_FV_GATE_DEG,
+    parser.add_argument("--fv-gate-deg", type=number_in(0.0, 180.0, "degrees", low_open=True), default=DEFAULT_FV_GATE_DEG,
                         help="bearing gate for matching forward vehicles without a decoded ID, degrees "
                              f"(default {DEFAULT_FV_GATE_DEG:g})")
     parser.add_argument("--map", help="the recording's map.json, for each S2-PSK light's packet duration "
@@ -33,25 +34,14 @@ def add_arguments(parser) -> None:
                                       f"{DEFAULT_S2PSK_PACKET_S:g} s)")
 
 
-def _write_plot(series, path: str, plot_eval) -> None:
-    """The PNG goes to a temporary sibling renamed into place: a failed plot leaves no half file."""
-    import os
-    import tempfile
+def _write_plot(series, output, plot_eval) -> None:
+    """The PNG is drawn into memory and written through `output` (receiver.io.files.Output):
+    a failed plot leaves no half file."""
+    import io
 
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=".plot-", suffix=".png", dir=folder)
-    except OSError as e:
-        raise InputError(f"cannot write {path}: {e.strerror or e}") from None
-    os.close(fd)
-    try:
-        plot_eval(series, tmp, area_bins_px=DEFAULT_AREA_BINS_PX)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    buf = io.BytesIO()
+    plot_eval(series, buf, area_bins_px=DEFAULT_AREA_BINS_PX)
+    output.write_bytes(buf.getvalue())
 
 
 def main(args) -> int:
@@ -59,15 +49,15 @@ def main(args) -> int:
         raise InputError(f"--gate-px must be positive, got {args.gate_px}")
     if not (args.fv_gate_deg > 0):
         raise InputError(f"--fv-gate-deg must be positive, got {args.fv_gate_deg}")
-    from receiver.io.files import refuse_overwrite
+    from receiver.io.files import StdoutOutput, claim_output
 
-    refuse_overwrite(args.plot, [args.run, args.truth], "--plot")
-    truth = load_truth(args.truth)
-    run = load_run(args.run, truth)
     map_path = args.map
     if map_path is None:
         beside = Path(args.truth).with_name("map.json")
         map_path = str(beside) if beside.is_file() else None
+    plot_file = claim_output(args.plot, [args.run, args.truth, map_path], "--plot")
+    truth = load_truth(args.truth)
+    run = load_run(args.run, truth)
     packet_s = DEFAULT_S2PSK_PACKET_S
     if map_path is not None:
         from receiver.io.ledmap import load_map
@@ -75,13 +65,13 @@ def main(args) -> int:
         packet_s = s2psk_packet_s(load_map(map_path)) or DEFAULT_S2PSK_PACKET_S
     metrics, series = evaluate(run, truth, gate_px=args.gate_px, fv_gate_deg=args.fv_gate_deg,
                                s2psk_packet_s=packet_s)
-    if args.json:
-        print(json.dumps(json_safe(metrics), allow_nan=False))
-    else:
-        print(format_table(metrics))
-    if args.plot:
+    if plot_file is not None:
         from receiver.evaluate.plots import plot_eval
 
-        _write_plot(series, args.plot, plot_eval)
+        _write_plot(series, plot_file, plot_eval)
+    out = StdoutOutput()
+    out.write((json.dumps(json_safe(metrics), allow_nan=False) if args.json else format_table(metrics)) + "\n")
+    out.flush()
+    if plot_file is not None:
         print(f"occloc: wrote {args.plot}", file=sys.stderr)
     return 0

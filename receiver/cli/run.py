@@ -23,7 +23,7 @@ import time
 
 # Nothing heavy at module level: `occloc run --help` and the argument set-up (`add_arguments`)
 # must not load OpenCV, numpy or the pipeline; `_main` imports what a run needs.
-from receiver.cli.args import seconds_up_to
+from receiver.cli.args import MAX_FRAMES, MAX_PIXELS, number_in, seconds_up_to, whole_in
 from receiver.core.budget import DEFAULT_THREADS, limit_blas_threads, threads
 
 HELP = "receive LEDs from a recording, video, photos, raw pipe or camera: JSON lines per frame"
@@ -47,8 +47,11 @@ def add_arguments(p) -> None:
     p.add_argument("--size", metavar="WxH", help="frame size of raw frames on stdin (or to request from a camera)")
     p.add_argument("--pix-fmt", choices=("gray", "bgr24"), default=None, help="raw frame format on stdin (gray)")
     p.add_argument("--profile", action="store_true", help="add per-stage milliseconds (stage_ms) to each line")
-    p.add_argument("--fps", type=float, metavar="F", help="frame rate for timestamps of images and pipes")
-    p.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    p.add_argument("--fps", type=number_in(*FPS_RANGE, "frames/s"), metavar="F", help="frame rate for timestamps of images and pipes")
+    p.add_argument("--max-frames", type=whole_in(0, MAX_FRAMES), metavar="N", help="stop after N frames")
+    p.add_argument("--max-pixels", type=whole_in(1, MAX_PIXELS), default=None, metavar="N",
+                   help="largest photo or raw frame, width x height, checked before decoding "
+                        "(default 200,000,000: the largest phone sensors)")
     p.add_argument("--odometry", metavar="FILE",
                    help='vehicle scenes: host speed log, JSON lines {"t": s, "speed_mps": v}')
     p.add_argument("--overlay", metavar="FILE",
@@ -305,30 +308,43 @@ def _frames_until_stopped(frames, stop: SignalStop):
         yield frame
 
 
-def _open_overlay(path: str | None, cam, led_map):
-    """(OverlayWriter on a temporary sibling of `path`, path) or None; renamed into place by
-    `_close_overlay` (a crash never leaves a half video under the name asked for)."""
-    if not path:
+def _open_overlay(output, cam, led_map):
+    """(OverlayWriter on a staging file of `output` (receiver.io.files.Output), tmp, output) or
+    None; moved into place by `_close_overlay` (a crash never leaves a half video under the name
+    asked for)."""
+    if output is None:
         return None
     from receiver.io.overlay import OverlayWriter
-    folder, name = os.path.split(os.path.abspath(path))
-    stem, ext = os.path.splitext(name)
-    tmp = os.path.join(folder, f".{stem}.{os.getpid()}.tmp{ext or '.avi'}")
-    return OverlayWriter(tmp, (cam.width, cam.height), cam.fps, cam, led_map), tmp, path
+    ext = os.path.splitext(output.path)[1] or ".avi"
+    tmp = output.staging_path(ext)
+    try:
+        return OverlayWriter(tmp, (cam.width, cam.height), cam.fps, cam, led_map), tmp, output
+    except BaseException:
+        output.discard_staged(tmp)
+        raise
 
 
 def _close_overlay(overlay, ok: bool) -> None:
-    writer, tmp, path = overlay
-    writer.close()
-    if ok and os.path.exists(tmp):
-        os.replace(tmp, path)
-    elif os.path.exists(tmp):
-        os.unlink(tmp)
+    writer, tmp, output = overlay
+    try:
+        writer.close()
+    except BaseException as e:
+        output.discard_staged(tmp)
+        if isinstance(e, OSError):
+            raise output.error(e) from None
+        if type(e).__name__ == "InputError":
+            raise type(e)(f"cannot write {output.flag} {output.path}: {e}") from None
+        raise
+    if ok:
+        output.commit_staged(tmp)
+    else:
+        output.discard_staged(tmp)
 
 
-def write_settings(path: str, rx) -> None:
-    """The receiver's resolved settings and its locators', as one JSON object, written to a
-    temporary file renamed into place."""
+def write_settings(path, rx) -> None:
+    """The receiver's resolved settings and its locators', as one JSON object, written to
+    `path` (a receiver.io.files.Output, or a file name) through a temporary file renamed into
+    place."""
     from receiver.core.settings import settings_json
     from receiver.io.files import AtomicWriter, dumps
 
@@ -336,7 +352,7 @@ def write_settings(path: str, rx) -> None:
     obj = {"receiver": settings_json(rx.settings),
            "locate": settings_json(loc.settings) if getattr(loc, "settings", None) is not None else None,
            "vehicle": settings_json(rx.vehicle.s) if rx.vehicle is not None else None}
-    out = AtomicWriter(path)
+    out = path.open() if hasattr(path, "open") else AtomicWriter(path)
     try:
         out.write(dumps(obj, indent=1, sort_keys=True) + "\n")
         out.commit()
@@ -366,7 +382,7 @@ def _main(args, stop: "SignalStop") -> int:
     from receiver.io.camera import fit_camera
     from receiver.io.sources import default_source, find_recording_files, open_source, parse_size
 
-    from receiver.io.files import AtomicWriter, refuse_overwrite
+    from receiver.io.files import StdoutOutput, claim_output
 
     spec = args.source or default_source()
     if args.max_frames is not None and args.max_frames < 0:
@@ -398,15 +414,16 @@ def _main(args, stop: "SignalStop") -> int:
     if map_path is None:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
-    refuse_overwrite(args.out, inputs, "--out")
     _check_out_extension(args.out)
     if getattr(args, "overlay", None):
         from receiver.io.overlay import check_overlay_path
         check_overlay_path(args.overlay)
     inputs.append(getattr(args, "settings", None))
-    refuse_overwrite(getattr(args, "settings_out", None), inputs + [args.out], "--settings-out")
-    refuse_overwrite(getattr(args, "overlay", None), inputs + [args.out, getattr(args, "settings_out", None)],
-                     "--overlay")
+    out_file = claim_output(args.out, inputs, "--out")
+    settings_file = claim_output(getattr(args, "settings_out", None), inputs, "--settings-out",
+                                 others=[("--out", args.out)])
+    overlay_file = claim_output(getattr(args, "overlay", None), inputs, "--overlay",
+                                others=[("--out", args.out), ("--settings-out", getattr(args, "settings_out", None))])
     given = (read_settings(args.settings) if getattr(args, "settings", None)
              else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)
@@ -419,7 +436,7 @@ def _main(args, stop: "SignalStop") -> int:
     size = parse_size(args.size)
     n_threads = getattr(args, "threads", DEFAULT_THREADS)
     src = open_source(spec, size=size, pix_fmt=args.pix_fmt, realtime=args.realtime, camera=cam,
-                      threads=n_threads)
+                      threads=n_threads, max_pixels=getattr(args, "max_pixels", None))
     images = getattr(src, "inner", src)
     photos = images.kind == "images"   # independent photos: --realtime has nothing to drop
     try:
@@ -462,19 +479,19 @@ def _main(args, stop: "SignalStop") -> int:
 
         rx = build(cam)
         positioner, vehicle = rx.positioner, rx.vehicle
-        if getattr(args, "settings_out", None):
-            write_settings(args.settings_out, rx)
+        if settings_file is not None:
+            write_settings(settings_file, rx)
         explain = positioner is not None and _indoor_lights(led_map)
         # A file is written to a temporary sibling and renamed into place at the end (also after
         # a stop signal); standard output streams line by line.
-        out = AtomicWriter(args.out) if args.out else sys.stdout
+        out = out_file.open() if out_file is not None else StdoutOutput()
         summary = RunSummary()
         total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
         progress = Progress(sys.stderr, total)
         frames = images.photos() if photos else _rotated(src) if rotate else src
-        overlay = _open_overlay(getattr(args, "overlay", None), cam, led_map)
+        overlay = _open_overlay(overlay_file, cam, led_map)
         ok = False
         try:
             for frame in _frames_until_stopped(frames, stop):
@@ -507,7 +524,7 @@ def _main(args, stop: "SignalStop") -> int:
                 if reason is not None:
                     fields["no_fix"] = reason
                 out.write(with_fields(frame_line(res, profile=args.profile), fields) + "\n")
-                if out is sys.stdout and args.realtime:
+                if out_file is None and args.realtime:
                     out.flush()
                 summary.add(res, no_fix=reason)
                 progress.update(summary.frames, len(summary.ids))
@@ -518,10 +535,7 @@ def _main(args, stop: "SignalStop") -> int:
                 positioner.close()
             if overlay is not None:
                 _close_overlay(overlay, ok)
-            if out is not sys.stdout:
-                out.commit() if ok else out.discard()
-            else:
-                out.flush()
+            out.commit() if ok else out.discard()
         hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,

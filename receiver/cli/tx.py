@@ -11,7 +11,7 @@ import argparse
 
 from receiver.cli.args import seconds_up_to
 from receiver.core.errors import InputError
-from receiver.io.txlink import DEFAULT_TIMEOUT_S, TxClient
+from receiver.io.txlink import DEFAULT_TIMEOUT_S, PortGone, TxClient
 
 
 HELP = "talk to an LED driver (firmware_tx) over a serial port: mode, ID, rate, start/stop"
@@ -126,6 +126,8 @@ def main(args: argparse.Namespace) -> int:
         for line in lines[1:]:
             try:
                 reply = client.command(line)
+            except PortGone:
+                raise  # nothing reaches the driver any more: no rollback
             except InputError:
                 if before is not None and line.split()[0] in CHANGES:
                     _roll_back(client, before)
@@ -140,5 +142,7 @@ def _roll_back(client, before: dict) -> None:
     for line in restore_commands(before):
         try:
             client.command(line)
+        except PortGone:
+            return
         except InputError:
             pass

@@ -156,7 +156,9 @@ def s2psk_resolvable(run: list[dict], truth: dict[int, dict], *, gate_px: float 
     if not by_frame:
         return {**out, **groups}
     lo, hi = min(by_frame), max(by_frame)
-    frames = list(range(lo, hi + 1))
+    # Frame numbers are keys: only frames that the truth or the run has count (a frame in
+    # neither has nothing to score), so the cost follows the files, not the numbers in them.
+    frames = sorted({f for f in truth if lo <= f <= hi} | set(by_frame))
     qual = s2psk_qualifying(truth, frames, packet_s=packet_s, min_area_px=min_area_px,
                             min_separation_px=min_separation_px)
     wrong = 0

@@ -213,7 +213,13 @@ def load_camera(path: str) -> CameraModel:
 
 def save_camera(path: str, cam: CameraModel) -> None:
     """Write a camera file that `load_camera` (and any OpenCV tool) reads back."""
-    fs = cv2.FileStorage(path, cv2.FILE_STORAGE_WRITE)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(camera_yaml(cam))
+
+
+def camera_yaml(cam: CameraModel) -> str:
+    """The text of the camera file of `cam` (OpenCV FileStorage YAML)."""
+    fs = cv2.FileStorage(".yaml", cv2.FILE_STORAGE_WRITE | cv2.FILE_STORAGE_MEMORY)
     fs.write("image_width", int(cam.width))
     fs.write("image_height", int(cam.height))
     fs.write("camera_matrix", np.asarray(cam.K, dtype=np.float64))
@@ -224,7 +230,7 @@ def save_camera(path: str, cam: CameraModel) -> None:
     fs.write("row_readout_us", float(cam.row_readout_us))
     fs.write("exposure_us", float(cam.exposure_us))
     fs.write("fps", float(cam.fps))
-    fs.release()
+    return fs.releaseAndGetString()
 
 
 def _cv_reason(e: Exception) -> str:

@@ -7,21 +7,23 @@ atomic replacement, JSON without NaN/Infinity.
   before a recursive parser (json, cv2.FileStorage) sees the text: 100,000 nested lists are
   a RecursionError in json and a SIGSEGV in OpenCV.
 * `load_json(path, what)`: read_text + check_nesting + json.loads, the map's loader.
-* `refuse_overwrite(out, inputs, flag)`: `out` must not be one of the command's inputs (by
-  os.path.samefile, so also through symlinks and hard links, and by realpath for files not
-  yet there).
-* `AtomicWriter(path)`: a temporary file in the target's folder, renamed over `path` on
-  `commit()`, removed on `discard()`: a crash never leaves half a file.
+* `claim_output(path, inputs, flag)`: every output of every command goes through this, before
+  any work: refused (one-line `InputError`) when it resolves to an input (by st_dev/st_ino, so
+  also through symlinks and hard links), to another output or to a folder. `Output.open()`
+  stages a regular file anonymously in its folder and renames it into place on commit (a crash
+  leaves nothing); a device, FIFO or socket is opened and written directly; a symlink is
+  followed; an existing file keeps its mode. `StdoutOutput`: standard output, same interface.
 * `dumps(obj)`: json.dumps with non-finite floats turned into null, allow_nan=False.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
 import stat
-import tempfile
+import sys
 
 from receiver.core.errors import InputError
 
@@ -117,74 +119,342 @@ def load_json(path: str, what: str, max_bytes: int = MAX_JSON_BYTES):
     return loads(text, path)
 
 
-def _same(a: str, b: str) -> bool:
-    try:
-        if os.path.exists(a) and os.path.exists(b):
-            return os.path.samefile(a, b)
-    except OSError:
-        pass
-    return os.path.realpath(a) == os.path.realpath(b)
-
-
-def refuse_overwrite(out: str | None, inputs, flag: str = "--out") -> None:
-    """InputError when writing `out` would replace one of `inputs` (files or folders whose files
-    are inputs: a recording folder's video, map, camera, truth)."""
-    if out is None:
-        return
-    for inp in inputs:
-        if inp is None or inp == "-":
-            continue
-        if _same(out, inp):
-            raise InputError(f"{flag} {out} is an input of this command ({inp}): refusing to overwrite it")
-        if os.path.isdir(inp) and os.path.exists(out) and not os.path.isdir(out):
-            # a file inside an input folder that the command reads (recording files)
-            for name in os.listdir(inp):
-                p = os.path.join(inp, name)
-                if os.path.isfile(p) and _same(out, p) and _is_recording_file(name):
-                    raise InputError(f"{flag} {out} is an input of this command ({p}): refusing to overwrite it")
+# Names in an input folder that a command reads: a recording's files and any image or video
+# (a photo folder's images, calibration views). Other files in the folder are not inputs.
+_MEDIA_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm",
+               ".avi", ".mkv", ".mp4", ".mov", ".webm")
 
 
 def _is_recording_file(name: str) -> bool:
-    return name.startswith("video.") or name in ("camera.yaml", "map.json", "truth.jsonl")
+    return (name.startswith("video.") or name in ("camera.yaml", "map.json", "truth.jsonl")
+            or name.lower().endswith(_MEDIA_EXTS))
 
 
-class AtomicWriter:
-    """Text file written to a temporary sibling and renamed over `path` on commit()."""
-
-    def __init__(self, path: str, mode: str = "w"):
-        self.path = path
-        folder = os.path.dirname(os.path.abspath(path))
+def _identities(inputs) -> dict[tuple[int, int], str]:
+    """(st_dev, st_ino) -> path of every input file (symlinks followed); a folder stands for
+    itself and the files in it that a command reads (`_is_recording_file`)."""
+    ids: dict[tuple[int, int], str] = {}
+    for inp in inputs:
+        if inp is None or inp == "-":
+            continue
         try:
-            fd, self.tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp", dir=folder)
-        except OSError as e:
-            raise InputError(f"cannot write {path}: {e.strerror or e}") from None
-        self.file = os.fdopen(fd, mode, encoding=None if "b" in mode else "utf-8")
+            st = os.stat(inp)
+        except (OSError, ValueError):
+            continue
+        ids.setdefault((st.st_dev, st.st_ino), inp)
+        if stat.S_ISDIR(st.st_mode):
+            try:
+                names = os.listdir(inp)
+            except OSError:
+                continue
+            for name in names:
+                if _is_recording_file(name):
+                    p = os.path.join(inp, name)
+                    try:
+                        sp = os.stat(p)
+                    except OSError:
+                        continue
+                    ids.setdefault((sp.st_dev, sp.st_ino), p)
+    return ids
 
-    def write(self, s):
-        return self.file.write(s)
 
-    def flush(self):
-        self.file.flush()
+# Named temporary files alive right now (the staging of a library that needs a path): removed
+# by `remove_live_temps`, which the command line calls from its signal handlers and at exit.
+_LIVE_TEMPS: set[str] = set()
 
-    def commit(self) -> None:
-        if self.file.closed and not os.path.exists(self.tmp):
-            return
-        self.file.close()
+
+def remove_live_temps() -> None:
+    for p in list(_LIVE_TEMPS):
         try:
-            mode = os.stat(self.path).st_mode & 0o777 if os.path.exists(self.path) else 0o666 & ~_umask()
-            os.chmod(self.tmp, mode)
+            os.unlink(p)
         except OSError:
             pass
-        os.replace(self.tmp, self.path)
+        _LIVE_TEMPS.discard(p)
+
+
+def _reason(e: OSError) -> str:
+    return e.strerror or str(e)
+
+
+class Output:
+    """An output file of a command, checked before any work (`claim_output`).
+
+    `target`: the path written (symlinks followed: a link is never replaced, its target is
+    written). `special`: the target exists and is not a regular file (a device, FIFO or socket),
+    so it is opened and written directly; a regular or new target is written to a file in its
+    folder and renamed into place on commit (a crash never leaves half a file). An existing file
+    keeps its mode; a new one gets the umask's."""
+
+    def __init__(self, path: str, flag: str, target: str, st):
+        self.path, self.flag, self.target = path, flag, target
+        self.special = st is not None and not stat.S_ISREG(st.st_mode)
+        self.mode = (st.st_mode & 0o7777) if st is not None and not self.special else None
+        self.owner = (st.st_uid, st.st_gid) if st is not None and not self.special else None
+
+    def open(self, binary: bool = False) -> "OutputFile":
+        return OutputFile(self, binary)
+
+    def write_bytes(self, data: bytes) -> None:
+        with self.open(binary=True) as f:
+            f.write(data)
+
+    def write_text(self, text: str) -> None:
+        with self.open() as f:
+            f.write(text)
+
+    def error(self, e: OSError) -> InputError:
+        return InputError(f"cannot write {self.flag} {self.path}: {_reason(e)}")
+
+    def staging_path(self, suffix: str) -> str:
+        """A named temporary file (ending in `suffix`) for a library that only writes to a path
+        (OpenCV's video writer); `commit_staged` moves it into place, `discard_staged` removes
+        it. It is hidden in the target's folder (a private folder for a special target)."""
+        import tempfile
+        try:
+            if self.special:
+                folder = tempfile.mkdtemp(prefix=".occloc-")
+                tmp = os.path.join(folder, "out" + suffix)
+                open(tmp, "wb").close()
+            else:
+                fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(self.target) + ".",
+                                           suffix=".tmp" + suffix, dir=os.path.dirname(self.target))
+                os.close(fd)
+        except OSError as e:
+            raise self.error(e) from None
+        _LIVE_TEMPS.add(tmp)
+        return tmp
+
+    def commit_staged(self, tmp: str) -> None:
+        try:
+            if self.special:
+                with open(tmp, "rb") as src, self.open(binary=True) as dst:
+                    while True:
+                        block = src.read(1 << 20)
+                        if not block:
+                            break
+                        dst.write(block)
+            else:
+                os.chmod(tmp, self.mode if self.mode is not None else 0o666 & ~_umask())
+                os.replace(tmp, self.target)
+                _LIVE_TEMPS.discard(tmp)
+        except OSError as e:
+            raise self.error(e) from None
+        finally:
+            self.discard_staged(tmp)
+
+    def discard_staged(self, tmp: str) -> None:
+        _LIVE_TEMPS.discard(tmp)
+        for p in (tmp, os.path.dirname(tmp)) if self.special else (tmp,):
+            try:
+                os.rmdir(p) if p != tmp else os.unlink(p)
+            except OSError:
+                pass
+
+
+class OutputFile:
+    """A writable file of an `Output`: write(), flush(), commit() (into place), discard()
+    (nothing left behind). A regular target is staged in an anonymous file of its folder
+    (O_TMPFILE: nothing survives a crash, even SIGKILL) linked into place on commit; where the
+    file system has no anonymous files, a hidden named one removed on error and on signals.
+    Every OSError becomes an InputError naming the output. As a context manager: commit on
+    success, discard on an exception."""
+
+    def __init__(self, out: Output, binary: bool):
+        self.out, self.tmp, self.done = out, None, False
+        flags = os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)
+        try:
+            if out.special:
+                fd = os.open(out.target, flags)
+            else:
+                fd = self._stage(flags)
+        except OSError as e:
+            raise out.error(e) from None
+        self.file = os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"}))
+
+    def _stage(self, flags: int) -> int:
+        folder = os.path.dirname(self.out.target)
+        if hasattr(os, "O_TMPFILE"):
+            try:
+                return os.open(folder, flags | os.O_TMPFILE, 0o600)
+            except OSError as e:
+                if e.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL, errno.ENOENT):
+                    raise
+        import tempfile
+        fd, self.tmp = tempfile.mkstemp(prefix="." + os.path.basename(self.out.target) + ".",
+                                        suffix=".tmp", dir=folder)
+        _LIVE_TEMPS.add(self.tmp)
+        return fd
+
+    def write(self, s):
+        try:
+            return self.file.write(s)
+        except OSError as e:
+            raise self.out.error(e) from None
+
+    def flush(self) -> None:
+        try:
+            self.file.flush()
+        except OSError as e:
+            raise self.out.error(e) from None
+
+    def commit(self) -> None:
+        if self.done:
+            return
+        self.done = True
+        out = self.out
+        try:
+            self.file.flush()
+            if out.special:
+                self.file.close()
+                return
+            fd = self.file.fileno()
+            if out.owner is not None and out.owner != (os.geteuid(), os.getegid()):
+                try:  # root replacing another user's file: it stays theirs
+                    os.fchown(fd, *out.owner)
+                except OSError:
+                    pass
+            os.fchmod(fd, out.mode if out.mode is not None else 0o666 & ~_umask())
+            os.fsync(fd)
+            if self.tmp is None:
+                name = os.path.join(os.path.dirname(out.target),
+                                    f".{os.path.basename(out.target)}.{os.getpid()}.{id(self):x}.tmp")
+                # linkat(AT_SYMLINK_FOLLOW) through /proc: a plain link() would link the magic link
+                proc = os.open("/proc/self/fd", os.O_RDONLY | os.O_DIRECTORY)
+                try:
+                    os.link(str(fd), name, src_dir_fd=proc, follow_symlinks=True)
+                finally:
+                    os.close(proc)
+                self.tmp = name
+                _LIVE_TEMPS.add(name)
+            self.file.close()
+            os.replace(self.tmp, out.target)
+            _LIVE_TEMPS.discard(self.tmp)
+            self.tmp = None
+        except OSError as e:
+            self.discard()
+            raise out.error(e) from None
 
     def discard(self) -> None:
+        self.done = True
         try:
             self.file.close()
-        finally:
+        except OSError:
+            pass
+        if self.tmp is not None:
+            _LIVE_TEMPS.discard(self.tmp)
             try:
                 os.unlink(self.tmp)
             except OSError:
                 pass
+            self.tmp = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+        return False
+
+
+class StdoutOutput:
+    """Standard output with the OutputFile interface: an OSError names standard output."""
+
+    def write(self, s):
+        try:
+            return sys.stdout.write(s)
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise InputError(f"cannot write standard output: {_reason(e)}") from None
+
+    def flush(self) -> None:
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            raise
+        except OSError as e:
+            raise InputError(f"cannot write standard output: {_reason(e)}") from None
+
+    def commit(self) -> None:
+        self.flush()
+
+    def discard(self) -> None:
+        try:
+            self.flush()
+        except InputError:
+            pass
+
+
+def claim_output(path: str | None, inputs=(), flag: str = "--out", *, others=(),
+                 update: bool = False) -> Output | None:
+    """The checked `Output` of `path` (None for None): an InputError, before any work, when the
+    path (symlinks and hard links followed) is one of `inputs` (files, or folders standing for
+    the files in them that a command reads), one of the `others` (this command's other outputs),
+    a folder, or inside a folder that is not there. `update`: the output is meant to replace
+    the input of the same name (a file updated in place), which is not refused."""
+    if path is None:
+        return None
+    if path == "":
+        raise InputError(f"{flag}: empty file name")
+    target = os.path.realpath(path)
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        st = None
+    except OSError as e:
+        raise InputError(f"cannot write {flag} {path}: {_reason(e)}") from None
+    if st is not None and stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{flag} {path} is a folder: give a file name")
+    if path.endswith(os.sep) or os.path.basename(path) in ("", ".", ".."):
+        raise InputError(f"{flag} {path} is a folder: give a file name")
+    if st is None:
+        folder = os.path.dirname(target)
+        if not os.path.isdir(folder):
+            raise InputError(f"cannot write {flag} {path}: no folder {os.path.dirname(path) or '.'}")
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise InputError(f"cannot write {flag} {path}: Permission denied")
+        key = None
+    else:
+        key = (st.st_dev, st.st_ino)
+    ids = _identities(inputs)
+    if update and key is not None:
+        ids.pop(key, None)
+    if key is not None and key in ids:
+        raise InputError(f"{flag} {path} is an input of this command ({ids[key]}): refusing to overwrite it")
+    if key is None and not update:
+        for inp in inputs:
+            if inp not in (None, "-") and os.path.realpath(inp) == target:
+                raise InputError(f"{flag} {path} is an input of this command ({inp}): refusing to overwrite it")
+    for other_flag, other in others:
+        if other is None:
+            continue
+        if os.path.realpath(other) == target or (key is not None and _key(other) == key):
+            raise InputError(f"{flag} {path} is also {other_flag}: give each output its own file")
+    return Output(path, flag, target, st)
+
+
+def _key(path: str):
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def refuse_overwrite(out: str | None, inputs, flag: str = "--out") -> None:
+    """InputError when writing `out` would replace one of `inputs` (see `claim_output`)."""
+    claim_output(out, inputs, flag)
+
+
+class AtomicWriter(OutputFile):
+    """An `OutputFile` of a path checked against nothing but its own kind (folders refused,
+    devices written directly, symlinks followed)."""
+
+    def __init__(self, path: str, mode: str = "w"):
+        super().__init__(claim_output(path, (), "file"), "b" in mode)
 
 
 def _umask() -> int:

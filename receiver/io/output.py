@@ -142,14 +142,19 @@ class RunSummary:
                                                         for z in ZONE_ORDER))
         return "; " + ", ".join(parts)
 
+    def _latency_text(self) -> str:
+        if not self.latency_ms:
+            return "latency: no frames"
+        return (f"latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
+                f"p99 {percentile(self.latency_ms, 99):.2f} ms")
+
     def text(self, *, skipped: int = 0, dropped: int = 0, truncated: int = 0,
              hv_reason: str | None = None) -> str:
         """The summary line; `hv_reason`: why the host vehicle is not placed (vehicle scenes)."""
         ids = ", ".join(str(i) for i in sorted(self.ids)) or "none"
         line = (f"{self.frames} frames, {self.led_frames} LED observations "
                 f"({self.decoded_led_frames} with ID), decoded IDs: {ids}; "
-                f"positions: {self.positions}; latency p50 {percentile(self.latency_ms, 50):.2f} ms, "
-                f"p99 {percentile(self.latency_ms, 99):.2f} ms; skipped corrupt frames: {skipped}; "
+                f"positions: {self.positions}; {self._latency_text()}; skipped corrupt frames: {skipped}; "
                 f"dropped: {dropped}")
         if self.no_fix:
             line += "; no position: " + ", ".join(

@@ -57,6 +57,7 @@ class OverlayWriter:
         ext = os.path.splitext(path)[1].lower()
         self.png = ext in STILLS   # a still of the last frame (PNG or JPEG)
         self._writer = None
+        self._frames = 0
         self._last = None
         self._pts = None
         if led_map is not None and led_map.leds:
@@ -153,15 +154,29 @@ class OverlayWriter:
             if (img.shape[1], img.shape[0]) != self.size:
                 img = cv2.resize(img, self.size, interpolation=cv2.INTER_AREA)
             self._writer.write(img)
+            self._frames += 1
 
     def close(self) -> None:
+        """Finish the file; InputError when it is incomplete (OpenCV's video writer does not
+        report a failed write, e.g. a full disk: the file is read back and its frames counted)."""
         if self.png:
             if self._last is not None:
-                folder = os.path.dirname(os.path.abspath(self.path))
-                tmp = os.path.join(folder, ".overlay-" + os.path.basename(self.path))
-                if not cv2.imwrite(tmp, self._last):
-                    raise InputError(f"{self.path}: could not write the image")
-                os.replace(tmp, self.path)
+                # the still in the format its name asks for (PNG or JPEG), written straight into
+                # the file the caller staged (receiver.cli.run: renamed into place when the run ends)
+                ok, buf = cv2.imencode(os.path.splitext(self.path)[1].lower(), self._last)
+                if not ok:
+                    raise InputError(f"{self.path}: cannot encode the overlay image")
+                with open(self.path, "wb") as f:
+                    f.write(buf.tobytes())
         elif self._writer is not None:
             self._writer.release()
             self._writer = None
+            if self._frames and self._count_frames() != self._frames:
+                raise InputError("the video is incomplete (disk full?)")
+
+    def _count_frames(self) -> int:
+        cap = cv2.VideoCapture(self.path)
+        try:
+            return int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        finally:
+            cap.release()

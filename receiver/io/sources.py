@@ -289,10 +289,12 @@ class ImageSource(FrameSource):
 
     kind = "images"
 
-    def __init__(self, path: str, *, fps: float = 0.0):
+    def __init__(self, path: str, *, fps: float = 0.0, max_pixels: int | None = None):
         from receiver.io.files import check_regular
+        from receiver.io.imagefile import DEFAULT_MAX_PIXELS
 
         super().__init__(path)
+        self.max_pixels = max_pixels or DEFAULT_MAX_PIXELS
         if os.path.isdir(path):
             # only regular files: a FIFO or device named *.png would block imread forever
             files = sorted(p for p in glob.glob(os.path.join(path, "*"))
@@ -305,16 +307,27 @@ class ImageSource(FrameSource):
         self.files = files
         self.fps = fps
         self.is_still = True
-        first = self._read(files[0])
-        if first is None and len(files) == 1:
-            raise InputError(f"{path}: not a readable image")
-        self._first = first
-        if first is not None:
-            self.size = (first.shape[1], first.shape[0])
+        # The frame size is the first readable image's: unreadable ones before it are skipped
+        # and counted, not a reason to refuse the folder.
+        self._first, self._first_index = None, len(files)
+        for i, p in enumerate(files):
+            img = self._read(p)
+            if img is not None:
+                self._first, self._first_index = img, i
+                self.size = (img.shape[1], img.shape[0])
+                break
+            if len(files) == 1:
+                raise InputError(f"{path}: {self._why}")
+        else:
+            raise InputError(f"{path}: no readable image in {len(files)} files (first: {self._why})")
 
-    @staticmethod
-    def _read(path: str):
-        return cv2.imread(path, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION)
+    def _read(self, path: str):
+        """The gray image, or None (the reason in `_why`, said on stderr for a folder's file)."""
+        from receiver.io.imagefile import read_gray
+        img, self._why = read_gray(path, self.max_pixels)
+        if img is None and len(self.files) > 1:
+            _warn(f"{path}: {self._why}: skipped")
+        return img
 
     def photos(self) -> Iterator[Frame]:
         """Every readable image as a Frame of its own size (`Frame.index` is its place in
@@ -323,13 +336,16 @@ class ImageSource(FrameSource):
         for i, path in enumerate(self.files):
             gray = self._image(i, path)
             if gray is None:
-                self.skipped += 1
-                _warn(f"{path}: not a readable image: skipped")
+                self.skipped += 1   # said on stderr when it was read
                 continue
             yield Frame(i, i / self.fps if self.fps > 0 else 0.0, gray)
 
     def _image(self, i: int, path: str):
-        if i == 0 and self._first is not None:
+        """Image i of the folder, or None: the first readable one was read (and kept) when the
+        folder was opened, the unreadable ones before it were named on stderr then."""
+        if i < self._first_index:
+            return None
+        if i == self._first_index and self._first is not None:
             gray, self._first = self._first, None
             return gray
         return self._read(path)
@@ -357,6 +373,8 @@ class ImageSource(FrameSource):
 # stride by this factor (and the frame must have some structure) before the size is doubted.
 STRIDE_DOUBT_RATIO = 1.5
 STRIDE_MIN_STD = 2.0  # gray levels: flatter frames cannot tell
+# Rows of a large frame the stride is judged from (many more than the two-row lag range).
+STRIDE_SAMPLE_ROWS = 64
 
 
 def likely_row_stride(data: np.ndarray, stride: int) -> int | None:
@@ -364,7 +382,12 @@ def likely_row_stride(data: np.ndarray, stride: int) -> int | None:
     (the one --size and --pix-fmt give); None when they agree or the frame cannot tell.
     Vertical edges line up one row down only at the true stride, so the normalised
     autocorrelation (FFT) of the byte stream's differences is compared over lags from half to
-    twice the stated stride."""
+    twice the stated stride. Only a middle band of rows is looked at (`STRIDE_SAMPLE_ROWS`): the
+    lags are at most twice a row, and the cost stays that of a small frame however large it is."""
+    keep = max(STRIDE_SAMPLE_ROWS * stride, 1 << 16)
+    if data.size > keep:
+        start = (data.size - keep) // 2
+        data = data[start:start + keep]
     x = np.diff(data.astype(np.float64))
     sd = float(x.std())
     if sd < STRIDE_MIN_STD or x.size < 4 * stride:
@@ -385,10 +408,16 @@ class RawPipeSource(FrameSource):
 
     kind = "stdin"
 
-    def __init__(self, stream, size: tuple[int, int] | None, pix_fmt: str | None, *, fps: float = 0.0):
+    def __init__(self, stream, size: tuple[int, int] | None, pix_fmt: str | None, *, fps: float = 0.0,
+                 max_pixels: int | None = None):
+        from receiver.io.imagefile import DEFAULT_MAX_PIXELS
+
         super().__init__("-")
         if size is None:
             raise InputError("reading frames from stdin needs --size WxH (and --pix-fmt gray|bgr24)")
+        if size[0] * size[1] > (max_pixels or DEFAULT_MAX_PIXELS):
+            raise InputError(f"--size {size[0]}x{size[1]} is over the {max_pixels or DEFAULT_MAX_PIXELS:,} "
+                             f"pixel limit (--max-pixels)")
         pix_fmt = pix_fmt or "gray"
         if pix_fmt not in PIX_FMTS:
             raise InputError(f"--pix-fmt must be one of {', '.join(PIX_FMTS)}, not {pix_fmt!r}")
@@ -413,15 +442,33 @@ class RawPipeSource(FrameSource):
                 raise InputError(f"stdin: {e.strerror or e}") from None
         return self._stream.read(n)
 
-    def _read_exact(self, n: int) -> bytes:
-        chunks, got = [], 0
+    def _read_exact(self, n: int):
+        """Up to `n` bytes (fewer at the end of input), read into one buffer: a frame costs
+        its own size once, as a frame decoded from a file does."""
+        if self._fd is None:
+            chunks, got = [], 0
+            while got < n:
+                b = self._read(n - got)
+                if not b:
+                    break
+                chunks.append(b)
+                got += len(b)
+            return b"".join(chunks)
+        buf = bytearray(n)
+        view, got = memoryview(buf), 0
+        raw = os.fdopen(self._fd, "rb", buffering=0, closefd=False)
         while got < n:
-            b = self._read(n - got)
-            if not b:
+            try:
+                k = raw.readinto(view[got:got + (1 << 20)])
+            except OSError as e:
+                raise InputError(f"stdin: {e.strerror or e}") from None
+            if not k:
                 break
-            chunks.append(b)
-            got += len(b)
-        return b"".join(chunks)
+            got += k
+        view.release()
+        if got < n:
+            del buf[got:]
+        return buf
 
     def __iter__(self) -> Iterator[Frame]:
         w, h = self.size
@@ -666,14 +713,16 @@ def parse_size(text: str | None) -> tuple[int, int] | None:
 
 def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: bool = False,
                 camera=None, stdin=None, capture_factory=cv2.VideoCapture,
-                threads: int | None = None) -> FrameSource:
+                threads: int | None = None, max_pixels: int | None = None) -> FrameSource:
     """Open the SOURCE argument of `occloc run` (see module docstring).
 
     size: (W, H) or 'WxH' for raw pipes / V4L2; pix_fmt: 'gray' | 'bgr24' for pipes;
     realtime: wrap in `LatestFrameSource`; camera: CameraModel for rates, size and exposure;
     stdin: binary stream for '-' (default sys.stdin.buffer); capture_factory: the
     cv2.VideoCapture constructor (tests pass a fake); threads: video decoding threads of a video
-    file or recording (FFmpeg, CAP_PROP_N_THREADS; None: OpenCV's default, one per core)."""
+    file or recording (FFmpeg, CAP_PROP_N_THREADS; None: OpenCV's default, one per core);
+    max_pixels: largest image or raw frame (W*H) accepted, checked before decoding (None:
+    receiver.io.imagefile.DEFAULT_MAX_PIXELS)."""
     if isinstance(size, str):
         size = parse_size(size)
     fps = camera.fps if camera is not None else 0.0
@@ -681,7 +730,8 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
     if spec == "-":
         if stdin is None and sys.stdin is None:
             raise InputError("standard input is closed: nothing to read frames from")
-        src = RawPipeSource(stdin if stdin is not None else sys.stdin.buffer, size, pix_fmt, fps=fps)
+        src = RawPipeSource(stdin if stdin is not None else sys.stdin.buffer, size, pix_fmt, fps=fps,
+                            max_pixels=max_pixels)
     elif V4L2_RE.match(spec):
         src = V4l2Source(spec, camera=camera, size=size, capture_factory=capture_factory)
     elif os.path.isdir(spec):
@@ -691,12 +741,12 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
             src.kind = "recording"
             src.camera_path, src.map_path, src.truth_path = files["camera"], files["map"], files["truth"]
         else:
-            src = ImageSource(spec, fps=fps)
+            src = ImageSource(spec, fps=fps, max_pixels=max_pixels)
             src.camera_path, src.map_path = files["camera"], files["map"]
     elif not os.path.exists(spec):
         raise InputError(f"no such file or folder: {spec}")
     elif spec.lower().endswith(IMAGE_EXTS):
-        src = ImageSource(spec, fps=fps)
+        src = ImageSource(spec, fps=fps, max_pixels=max_pixels)
     else:
         from receiver.io.files import check_regular
         check_regular(spec, "video")

@@ -28,6 +28,25 @@ REPLY_KEYWORD = {"PING": "PONG", "MODE": "MODE", "ID": "ID", "RATE": "RATE",
                  "DUMP": "DUMP"}
 
 
+class PortGone(InputError):
+    """The port itself failed (unplugged, closed under us): no further command can reach the
+    driver, so a rollback is not tried."""
+
+
+def _port_errors() -> tuple:
+    """Exceptions of a failing port: pyserial's, the OS's, and termios.error (a USB adapter
+    pulled mid-command: pyserial's tcgetattr/tcflush raise it, and it is neither OSError nor
+    SerialException)."""
+    import serial
+    errors = (serial.SerialException, OSError)
+    try:
+        import termios
+        errors += (termios.error,)
+    except ImportError:  # not a POSIX system
+        pass
+    return errors
+
+
 class TxClient:
     """One open connection to a driver. `command(line) -> reply` (the `OK ...` line).
 
@@ -54,7 +73,10 @@ class TxClient:
         self.close()
 
     def close(self) -> None:
-        self.port.close()
+        try:
+            self.port.close()
+        except _port_errors():
+            pass  # a port that is gone is closed
 
     def command(self, line: str) -> str:
         """Send one command line, return its `OK ...` reply (without the line end)."""
@@ -69,8 +91,8 @@ class TxClient:
             self.port.write(line.encode("ascii") + b"\n")
             self.port.flush()
             raw = self.port.read_until(b"\n", MAX_REPLY_BYTES)
-        except (serial.SerialException, OSError) as e:
-            raise InputError(f"LED driver port {self.url} failed: {_one_line(e)}") from None
+        except _port_errors() as e:
+            raise PortGone(f"LED driver port {self.url} failed: {_one_line(e)}") from None
         if not raw:
             raise InputError(f"no reply from LED driver on {self.url} to {line!r} "
                              f"within {self.timeout_s:g} s")
