@@ -33,6 +33,7 @@ SUBCOMMANDS = {
 DEV_SUBCOMMANDS = {
     "synth": "tools.synth.cli",
     "hil": "tools.hil",
+    "experiments": "tools.experiments.cli",
 }
 
 EXIT_BAD_INPUT = 2
