@@ -1,6 +1,7 @@
 """Rendered frames stored by a hash of everything that makes them: the scene builder and its
-keywords, the scene and noise seeds, the frame count, and the source of the renderer (so an edit
-of `tools/synth` or of the experiments' own scenes never reuses a stale render).
+keywords, the scene and noise seeds, the frame count, and the source of the renderer and of the
+builder (so an edit of `tools/synth` or of the experiment's scene builder never reuses a stale
+render; editing another builder keeps the others' renders).
 
 A render is one .npz: `frames` (N, H, W) uint8 and `truth` (the renderer's truth lines as one JSON
 text). Files are written to a temporary sibling and renamed, so parallel workers never read half
@@ -17,7 +18,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 _SOURCE_DIRS = ("tools/synth",)
-_SOURCE_FILES = ("tools/experiments/scenes.py",)
 _source_digest: str | None = None
 
 
@@ -28,12 +28,12 @@ def default_cache_dir() -> str:
 
 
 def source_digest() -> str:
-    """sha1 over the renderer's source files (tools/synth/*.py and tools/experiments/scenes.py)."""
+    """sha1 over the renderer's source files (tools/synth/*.py)."""
     global _source_digest
     if _source_digest is None:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
         h = hashlib.sha1()
-        paths = [os.path.join(root, f) for f in _SOURCE_FILES]
+        paths = []
         for d in _SOURCE_DIRS:
             folder = os.path.join(root, d)
             paths += [os.path.join(folder, n) for n in sorted(os.listdir(folder)) if n.endswith(".py")]
@@ -62,8 +62,10 @@ class SceneSpec:
         return SceneSpec(builder, tuple(sorted(kwargs.items())), int(scene_seed), int(noise_seed), int(n_frames))
 
     def key(self) -> str:
+        from tools.experiments.scenes import builder_source
         text = json.dumps([self.builder, [list(kv) for kv in self.kwargs], self.scene_seed, self.noise_seed,
-                           self.n_frames, source_digest()], sort_keys=True, default=list)
+                           self.n_frames, source_digest(), builder_source(self.builder)], sort_keys=True,
+                          default=list)
         return hashlib.sha1(text.encode()).hexdigest()[:20]
 
     def scene(self):

@@ -62,6 +62,7 @@ def main(args) -> int:
     from receiver.core.errors import InputError
     from tools.experiments.registry import all_experiments
     from tools.experiments import report
+    from tools.experiments.cache import Cache
 
     exps = all_experiments()
     if args.list:
@@ -114,11 +115,20 @@ def main(args) -> int:
         exp = exps[n]
         rs = sorted(rows[n], key=lambda r: (r[exp.param], r["seed"]))
         report.write_csv(os.path.join(out, f"{n}.csv"), exp, rs)
-        report.write_png(os.path.join(out, f"{n}.png"), exp, rs, n_seeds)
+        report.write_png(os.path.join(out, f"{n}.png"), exp, rs, n_seeds, cache=Cache(cache_dir), quick=args.quick)
         results.append((exp, rs, exp.summarize(rs)))
     command = "occloc experiments " + " ".join(
         (["--quick"] if args.quick else []) + [f"--seeds {n_seeds}", f"--jobs {args.jobs}"] + (args.names or []))
-    report.write_summary(os.path.join(out, "summary.md"), results, command)
+    commands = report.record_commands(out, names, command)
+    # Experiments of earlier runs into the same folder stay in the summary (read back from their CSV).
+    for n, exp in exps.items():
+        path = os.path.join(out, f"{n}.csv")
+        if n not in names and n in commands and os.path.exists(path):
+            rs = report.read_csv(path)
+            results.append((exp, rs, exp.summarize(rs)))
+    order = list(exps)
+    results.sort(key=lambda r: order.index(r[0].name))
+    report.write_summary(os.path.join(out, "summary.md"), results, commands)
     print(f"occloc experiments: wrote {len(names)} CSV/PNG and summary.md to {out} in "
           f"{time.monotonic() - t0:.0f} s; renders cached {done['hits']}, made {done['misses']}"
           + (f"; {len(errors)} points failed" if errors else ""), file=sys.stderr)

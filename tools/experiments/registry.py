@@ -33,7 +33,8 @@ class Experiment:
     `points`/`quick_points`: the sweep of a full and of a --quick run; `measure(value, seed,
     quick, cache) -> dict` one point and seed (module-level, so worker processes can run it);
     `summarize(rows) -> {"thesis", "ours", "why"}` the summary.md cells (`rows` as in the CSV);
-    `plot(rows, path)` replaces the generic panel plot when given (e.g. time traces)."""
+    `plot(rows, path, cache=, quick=)` replaces the generic panel plot when given (e.g. time
+    traces, re-made from the cached renders)."""
 
     name: str
     figure: str

@@ -36,6 +36,39 @@ def write_csv(path: str, exp, rows: list[dict]) -> None:
     os.replace(tmp, path)
 
 
+def read_csv(path: str) -> list[dict]:
+    """Rows of `write_csv` back: numbers as float, empty cells as None."""
+    out = []
+    with open(path, newline="", encoding="utf-8") as f:
+        for r in csv.DictReader(f):
+            row = {}
+            for k, v in r.items():
+                try:
+                    row[k] = None if v == "" else float(v)
+                except ValueError:
+                    row[k] = v
+            out.append(row)
+    return out
+
+
+def record_commands(folder: str, names: list[str], command: str) -> dict:
+    """{experiment: the command that made its files in `folder`}, kept in folder/.commands.json."""
+    import json
+    path = os.path.join(folder, ".commands.json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            commands = json.load(f)
+        if not isinstance(commands, dict):
+            commands = {}
+    except (OSError, ValueError):
+        commands = {}
+    commands.update({n: command for n in names})
+    with open(path + ".tmp", "w", encoding="utf-8") as f:
+        json.dump(commands, f, indent=1, sort_keys=True)
+    os.replace(path + ".tmp", path)
+    return commands
+
+
 def by_point(rows: list[dict], param: str, column: str):
     """(xs, mean, lo, hi) over seeds of `column` per parameter value (points where no seed has a
     value are left out)."""
@@ -58,9 +91,9 @@ def pyplot():
     return plt
 
 
-def write_png(path: str, exp, rows: list[dict], n_seeds: int) -> None:
+def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick: bool = False) -> None:
     if exp.plot is not None:
-        exp.plot(rows, path)
+        exp.plot(rows, path, cache=cache, quick=quick)
         return
     plt = pyplot()
     n = len(exp.panels)
@@ -101,10 +134,14 @@ def _md(text: str) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
-def write_summary(path: str, results: list, command: str) -> None:
-    """`results`: (experiment, rows, summary dict) in run order."""
-    lines = ["# occloc experiments: the thesis's chapter 6 redone with the receiver", "",
-             f"Made by: `{command}`", "",
+def write_summary(path: str, results: list, commands: dict) -> None:
+    """`results`: (experiment, rows, summary dict) in run order; `commands`: {name: command}."""
+    made = {}
+    for exp, _, _ in results:
+        made.setdefault(commands.get(exp.name, "?"), []).append(exp.name)
+    lines = ["# occloc experiments: the thesis's chapter 6 redone with the receiver", "", "Made by:", ""]
+    lines += [f"- `{c}` ({', '.join(ns)})" for c, ns in made.items()]
+    lines += ["",
              "Each row: what the thesis reports, what the whole receiver measures on the synthetic "
              "camera's renders, and where and why they differ. Figures: NAME.png; numbers: NAME.csv.", "",
              "| Figure | Experiment | Thesis reports | We measure | Disagreement and why |",

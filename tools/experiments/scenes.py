@@ -24,16 +24,33 @@ PHONE = CAMERA_DEFAULTS["indoor-static"]  # the synthetic smartphone: 1280x720, 
 DASHCAM = CAMERA_DEFAULTS["vehicle-road"]  # the synthetic dash camera: 1280x720, 1200 px focal
 
 
-def lab_led(rng, cam, distance_m=1.0, diameter_m=0.15, offset_m=(0.05, 0.0), seconds=0.4):
-    """One circular OOK LED facing down at `distance_m` above a still camera that looks straight
-    up; the LED sits `offset_m` (x, y) off the camera's axis so that its image is not centred on
-    a pixel corner by construction. The thesis's lab set-up (Figure 40) at 0.6-2.55 m."""
+def lab_led(rng, cam, distance_m=1.0, diameter_m=0.15, length_m=None, offset_m=(0.05, 0.0), seconds=0.4):
+    """One OOK LED facing down at `distance_m` above a still camera that looks straight up: a
+    circle of `diameter_m`, or with `length_m` a rectangle `diameter_m` wide (image columns) and
+    `length_m` long (image rows). It sits `offset_m` (x, y) off the camera's axis so that its
+    image is not centred on a pixel corner by construction. The thesis's lab set-up (Figure 40)."""
     led_id = int(rng.integers(1, 1 << 16))
-    light = ceiling_light(rng, led_id, (1.0 + offset_m[0], 1.0 + offset_m[1], distance_m), "circle", (diameter_m,))
+    shape, size = ("circle", (diameter_m,)) if length_m is None else ("rect", (diameter_m, length_m))
+    light = ceiling_light(rng, led_id, (1.0 + offset_m[0], 1.0 + offset_m[1], distance_m), shape, size)
     pose = Pose(1.0, 1.0, 0.0, yaw=0.0, pitch=90.0, roll=0.0)
     return dict(lights=[light], led_map=LedMap(addressing="map", leds={led_id: map_entry(light, rate_hz=OOK_RATE_HZ)}),
                 trajectory=lambda t: pose, n_frames=int(round(seconds * cam.fps)),
                 description="one circular LED above a camera looking up")
+
+
+def pair_lab(rng, cam, distance_m=60.0, head_half_m=(0.4, 0.3), head_gap_m=0.5, clk_hz=S2PSK_CLOCK_HZ,
+             symbol_clocks=S2PSK_SYMCLK, seconds=4.0):
+    """One S2-PSK street-light head (two halves of `head_half_m`, centres `head_gap_m` apart,
+    PROTOCOL.md section 3) facing a still camera `distance_m` away on its axis: at 60 m with the
+    1200 px dash camera each half is 8 x 6 px and the halves 2 px apart, so a channel blur of
+    about a pixel mixes them (Figure 34's Gaussian channel filter)."""
+    led_id = int(rng.integers(0, 0x80))
+    light = s2psk_pair(rng, led_id, (distance_m, 0.0, 0.0), (-1.0, 0.0, 0.0), (0.0, 1.0, 0.0), head_half_m,
+                       head_gap_m, clk_hz, symbol_clocks)
+    pose = Pose(0.0, 0.0, 0.0, yaw=0.0, pitch=0.0, roll=0.0)
+    led_map = LedMap(addressing="map", leds={led_id: map_entry(light, rate_hz=clk_hz, symbol_clocks=symbol_clocks)})
+    return dict(lights=[light], led_map=led_map, trajectory=lambda t: pose, n_frames=int(round(seconds * cam.fps)),
+                description="one S2-PSK head facing the camera")
 
 
 def ceiling_grid(rng, cam, ceiling_m=3.0, panel_m=0.10, pitch_per_m=0.3, camera_height_m=1.0, tilt_deg=2.0,
@@ -122,9 +139,18 @@ def night_road(rng, cam, hv_kmh=50.0, fv_kmh=None, fv_gap_m=30.0, light_spacing_
 
 
 BUILDERS = {"lab-led": (lab_led, PHONE, {}), "ceiling-grid": (ceiling_grid, PHONE, {}),
+            "pair-lab": (pair_lab, DASHCAM, dict(psf_sigma_px=0.7)),
             "night-road": (night_road, DASHCAM, dict(psf_sigma_px=0.7))}
 CAMERA_KEYS = tuple(inspect.signature(make_camera).parameters)
 PARAM_KEYS = tuple(RenderParams.__dataclass_fields__)
+
+
+def builder_source(builder: str) -> str:
+    """The source of an experiments' builder and of `build_scene` ('' for a tools.synth scene, whose
+    source the cache hashes with the rest of tools/synth)."""
+    if builder not in BUILDERS:
+        return ""
+    return inspect.getsource(BUILDERS[builder][0]) + repr(BUILDERS[builder][1:]) + inspect.getsource(build_scene)
 
 
 def build_scene(builder: str, seed: int, n_frames: int | None, kwargs: dict) -> Scene:
