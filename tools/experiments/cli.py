@@ -87,9 +87,14 @@ def main(args) -> int:
     t0 = time.monotonic()
     done = {"n": 0, "hits": 0, "misses": 0}
 
+    left = {n: sum(1 for t in tasks if t[0] == n) for n in names}
+
     def finish(name, value, seed, result):
         row, hits, misses, err = result
         rows[name].append(row)
+        left[name] -= 1
+        if left[name] == 0:  # its files as soon as it is complete: a long run stopped early keeps them
+            write_files(name)
         done["n"] += 1
         done["hits"] += hits
         done["misses"] += misses
@@ -99,6 +104,14 @@ def main(args) -> int:
         print(f"[{done['n']}/{len(tasks)}] {name} {exps[name].param}={value:g} seed {seed} "
               f"({time.monotonic() - t0:.0f} s){note}", file=sys.stderr, flush=True)
 
+    def write_files(n):
+        exp = exps[n]
+        rs = sorted(rows[n], key=lambda r: (r[exp.param], r["seed"]))
+        report.write_csv(os.path.join(out, f"{n}.csv"), exp, rs)
+        report.write_png(os.path.join(out, f"{n}.png"), exp, rs, n_seeds, cache=Cache(cache_dir), quick=args.quick)
+        results.append((exp, rs, exp.summarize(rs)))
+
+    results = []
     print(f"occloc experiments: {len(names)} experiments, {len(tasks)} points x seeds, {args.jobs} jobs, "
           f"cache {cache_dir or 'off'}", file=sys.stderr, flush=True)
     if args.jobs == 1:
@@ -110,13 +123,6 @@ def main(args) -> int:
             futs = {pool.submit(_task, n, v, s, args.quick, cache_dir): (n, v, s) for n, v, s in tasks}
             for f in as_completed(futs):
                 finish(*futs[f], f.result())
-    results = []
-    for n in names:
-        exp = exps[n]
-        rs = sorted(rows[n], key=lambda r: (r[exp.param], r["seed"]))
-        report.write_csv(os.path.join(out, f"{n}.csv"), exp, rs)
-        report.write_png(os.path.join(out, f"{n}.png"), exp, rs, n_seeds, cache=Cache(cache_dir), quick=args.quick)
-        results.append((exp, rs, exp.summarize(rs)))
     command = "occloc experiments " + " ".join(
         (["--quick"] if args.quick else []) + [f"--seeds {n_seeds}", f"--jobs {args.jobs}"] + (args.names or []))
     commands = report.record_commands(out, names, command)

@@ -124,12 +124,12 @@ def exposure_camera(exposure_s: float) -> dict:
     exposes at 15 fps at most); motion blur sampled every ~2 ms of the exposure (4..16 poses)."""
     fps = min(30.0, 1.0 / exposure_s)
     return dict(exposure_us=round(exposure_s * 1e6, 3), fps=round(fps, 6),
-                motion_blur_samples=int(min(16, max(4, math.ceil(exposure_s / 0.002)))))
+                motion_blur_samples=int(min(8, max(4, math.ceil(exposure_s / 0.004)))))
 
 
 def measure_exposure(exposure_s: float, seed: int, quick: bool, cache) -> dict:
     cam = exposure_camera(exposure_s)
-    seconds = 1.5 if quick else 4.0
+    seconds = 1.5 if quick else 3.0
     spec = SceneSpec.of("night-road", scene_seed=seed, noise_seed=seed, n_frames=int(round(seconds * cam["fps"])),
                         hv_kmh=50.0, fv_kmh=40.0, fv_gap_m=25.0, **cam)
     scene, frames, truth = cache.render(spec)

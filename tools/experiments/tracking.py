@@ -14,7 +14,7 @@ from tools.experiments.cache import SceneSpec
 from tools.experiments.receive import run_receiver
 from tools.experiments.registry import Experiment, Panel
 
-SECONDS = 8.0
+SECONDS = 6.0
 TRACE_SPEED = 1.0
 
 
