@@ -85,3 +85,19 @@ def test_bad_names_and_numbers_are_one_line_errors(tmp_path):
     f.write_text("x")
     r = _occloc("experiments", "fig41", "--out", str(f))
     assert r.returncode == 2 and "not a folder" in r.stderr and f.read_text() == "x"
+
+
+def test_ber_falls_with_snir(tmp_path):
+    r = _occloc("experiments", "fig29", "--quick", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    rows = {float(x["snir_db"]): x for x in _rows(tmp_path / "fig29.csv")}
+    assert sorted(rows) == [0.0, 8.0, 16.0]
+    rates = [_num(rows[s]["chip_error_rate"]) for s in sorted(rows)]
+    theory = [_num(rows[s]["theory_pixel"]) for s in sorted(rows)]
+    assert theory == sorted(theory, reverse=True)
+    measured = [(s, v) for s, v in zip(sorted(rows), rates) if v is not None]
+    assert len(measured) >= 2  # chips are found at least at the two higher SNIRs
+    assert [v for _, v in measured] == sorted((v for _, v in measured), reverse=True)
+    assert measured[-1][1] < 0.01
+    ids = [_num(rows[s]["id_frac"]) for s in sorted(rows)]
+    assert ids[-1] >= ids[0] and ids[-1] > 0.5  # the whole receiver reads the ID at 16 dB

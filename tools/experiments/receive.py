@@ -9,15 +9,16 @@ import math
 import numpy as np
 
 
-def run_receiver(scene, frames, truth) -> list[dict]:
+def run_receiver(scene, frames, truth, camera=None) -> list[dict]:
     """The INTERFACES.md frame objects `occloc run` would write for `frames` (N, H, W) of
-    `scene`, frame k stamped with its render time truth[k]["t"]."""
+    `scene`, frame k stamped with its render time truth[k]["t"]. `camera`: the camera file the
+    receiver is given (default: the scene's true camera)."""
     from receiver.cli.run import make_positioner, make_vehicle_locator
     from receiver.core.records import Frame
     from receiver.io.output import frame_record
     from receiver.pipeline import Receiver
 
-    cam, led_map = scene.camera, scene.led_map
+    cam, led_map = (camera if camera is not None else scene.camera), scene.led_map
     rx = Receiver(cam, led_map, positioner=make_positioner(cam, led_map),
                   vehicle=make_vehicle_locator(cam, led_map))
     return [frame_record(rx.process(Frame(k, float(t["t"]), img))) for k, (img, t) in enumerate(zip(frames, truth))]
