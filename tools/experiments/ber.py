@@ -44,7 +44,7 @@ OOK_LED = dict(diameter_m=0.08, length_m=0.30, distance_m=2.0)
 S2PSK_S_DN = 40.0
 OOK_SNIR_DB = tuple(float(v) for v in range(-12, 31, 3))
 # up to 30 dB: the whole receiver's detector needs ~20 dB per pixel to find the 8 x 6 px halves
-SNIR_DB = (-10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 30.0)
+SNIR_DB = (-5.0, 0.0, 5.0, 10.0, 20.0, 30.0)
 CHANNEL_VARS_PX2 = (0.1, 0.5, 1.0)
 
 

@@ -116,7 +116,7 @@ def summarize_resolution(rows):
 
 # ------------------------------------------------------------------ Figure 37: exposure
 
-EXPOSURES_S = (1 / 2000, 1 / 1000, 1 / 500, 1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15)
+EXPOSURES_S = (1 / 2000, 1 / 500, 1 / 125, 1 / 30, 1 / 15)
 
 
 def exposure_camera(exposure_s: float) -> dict:
@@ -129,14 +129,12 @@ def exposure_camera(exposure_s: float) -> dict:
 
 def measure_exposure(exposure_s: float, seed: int, quick: bool, cache) -> dict:
     cam = exposure_camera(exposure_s)
-    seconds = 1.5 if quick else 3.0
+    seconds = 1.0 if quick else 2.0
     spec = SceneSpec.of("night-road", scene_seed=seed, noise_seed=seed, n_frames=int(round(seconds * cam["fps"])),
                         hv_kmh=50.0, fv_kmh=40.0, fv_gap_m=25.0, **cam)
     scene, frames, truth = cache.render(spec)
-    recs = run_receiver(scene, frames, truth)
-    st = fv_stats(fv_ranges(recs, truth))
-    sl = error_stats(led_ranges(recs, truth, mode="s2psk"), prefix="sl_")
-    st.update({"sl_decoded_frac": sl["sl_decoded_frac"], "fps": cam["fps"]})
+    st = fv_stats(fv_ranges(run_receiver(scene, frames, truth), truth))
+    st["fps"] = cam["fps"]
     return st
 
 
@@ -144,19 +142,20 @@ def summarize_exposure(rows):
     mean = _mean_over_seeds(rows, "exposure_s", "mean_err_m")
     mx = _mean_over_seeds(rows, "exposure_s", "max_err_m")
     rng = _mean_over_seeds(rows, "exposure_s", "ranged_frac")
-    sl = _mean_over_seeds(rows, "exposure_s", "sl_decoded_frac")
+    thesis = "mean and max error grow with exposure 1/2000 -> 1/15 s (no numbers)"
     if not mean:
-        return {"thesis": "mean and max error grow with exposure 1/2000 -> 1/15 s", "ours": "FV never ranged",
-                "why": "no forward vehicle was ranged at any exposure"}
+        return {"thesis": thesis, "ours": "FV never ranged", "why": "no forward vehicle was ranged at any exposure"}
     short, long_ = min(mean), max(mean)
-    ours = (f"FV (25 m ahead, HV 50 km/h) mean |error| {mean[short]:.2f} m at 1/{1 / short:.0f} s, "
-            f"{mean[long_]:.2f} m at 1/{1 / long_:.0f} s (max {mx[short]:.2f} -> {mx[long_]:.2f} m); FV ranged "
-            f"{rng.get(short, 0):.0%} -> {rng.get(long_, 0):.0%}; SL IDs decoded {sl.get(short, 0):.0%} -> "
-            f"{sl.get(long_, 0):.0%}")
-    why = ("The S2-PSK states last half a 200 Hz clock (2.5 ms): an exposure longer than that averages the two "
-           "phases, so IDs stop decoding well before blur spoils the ranging; the thesis's model has no modulation "
-           "in the exposure.")
-    return {"thesis": "mean and max error grow with exposure 1/2000 -> 1/15 s (no numbers)", "ours": ours, "why": why}
+    ours = (f"FV 25 m ahead (HV 50 km/h, FV 40 km/h, road shake 0.3 deg): mean |error| {mean[short]:.2f} m at "
+            f"1/{1 / short:.0f} s, {mean[long_]:.2f} m at 1/{1 / long_:.0f} s (max {mx[short]:.2f} -> "
+            f"{mx[long_]:.2f} m); FV ranged in {rng.get(short, 0):.0%} -> {rng.get(long_, 0):.0%} of frames")
+    grows = mean[long_] > 1.5 * mean[short]
+    why = ("Agrees in trend: " if grows else "Disagrees: ") + (
+        "the ranging uses the taillight pair's separation (1.4 m baseline), which blur of both lamps alike "
+        "barely moves; " + ("the camera shake's blur still grows the error." if grows else
+                            "blur widens both blobs but keeps their centroids, so the range hardly changes.")
+        + " Not measured here: S2-PSK IDs need the 2.5 ms half clock unmixed, i.e. exposures under ~1/400 s.")
+    return {"thesis": thesis, "ours": ours, "why": why}
 
 
 EXPERIMENTS = [
@@ -179,6 +178,7 @@ EXPERIMENTS = [
                "exposure time (s)", EXPOSURES_S, (1 / 2000, 1 / 60),
                measure_exposure,
                (Panel("|FV distance error| (m)", (("mean_err_m", "mean"), ("max_err_m", "max"))),
-                Panel("fraction of frames", (("ranged_frac", "FV ranged"), ("sl_decoded_frac", "SL ID decoded")))),
+                Panel("fraction of frames", (("ranged_frac", "FV ranged"),)),
+                Panel("frame rate (fps)", (("fps", "30, or 1 / exposure when longer"),))),
                summarize_exposure, logx=True),
 ]
