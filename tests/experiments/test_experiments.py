@@ -73,6 +73,10 @@ def test_rerun_uses_the_cache(quick_run, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "renders cached 3, made 0" in r.stderr
     assert _rows(tmp_path / "fig41.csv") == _rows(out / "fig41.csv")
+    (tmp_path / "summary.md").unlink()
+    r = _occloc("experiments", "--report", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "| Fig. 41 |" in (tmp_path / "summary.md").read_text()
 
 
 def test_bad_names_and_numbers_are_one_line_errors(tmp_path):

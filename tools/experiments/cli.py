@@ -37,6 +37,8 @@ def add_arguments(p) -> None:
     p.add_argument("--cache", metavar="DIR", default=None,
                    help="render cache (default DIR/.cache; 'none' renders every time)")
     p.add_argument("--list", action="store_true", help="list the experiments and exit")
+    p.add_argument("--report", action="store_true",
+                   help="measure nothing: redraw NAME.png and summary.md from the CSVs already in --out")
 
 
 def _task(name: str, value, seed: int, quick: bool, cache_dir):
@@ -58,6 +60,46 @@ def _task(name: str, value, seed: int, quick: bool, cache_dir):
     return {exp.param: value, "seed": seed, **row}, cache.hits, cache.misses, err
 
 
+def _report(args, exps, names) -> int:
+    """--report: NAME.png and summary.md again from DIR/NAME.csv (e.g. after a change of a
+    summary text or plot), with the commands recorded when the CSVs were made."""
+    import json
+    from receiver.core.errors import InputError
+    from tools.experiments import report
+    from tools.experiments.cache import Cache
+
+    out = args.out
+    try:
+        with open(os.path.join(out, ".commands.json"), encoding="utf-8") as f:
+            commands = json.load(f)
+    except (OSError, ValueError):
+        raise InputError(f"--report: no experiments run into {out} yet") from None
+    cache_dir = None if args.cache == "none" else (args.cache or os.path.join(out, ".cache"))
+    results = []
+    for n in (args.names or list(exps)):
+        path = os.path.join(out, f"{n}.csv")
+        if n not in commands or not os.path.exists(path):
+            continue
+        rows = report.read_csv(path)
+        n_seeds = len({r["seed"] for r in rows})
+        quick = "--quick" in commands[n].split()
+        report.write_png(os.path.join(out, f"{n}.png"), exps[n], rows, n_seeds, cache=Cache(cache_dir), quick=quick)
+        results.append((exps[n], rows, exps[n].summarize(rows)))
+    if not results:
+        raise InputError(f"--report: no CSV of {', '.join(names)} in {out}")
+    done = {e.name for e, _, _ in results}
+    for n, exp in exps.items():
+        path = os.path.join(out, f"{n}.csv")
+        if n not in done and n in commands and os.path.exists(path):
+            rows = report.read_csv(path)
+            results.append((exp, rows, exp.summarize(rows)))
+    order = list(exps)
+    results.sort(key=lambda r: order.index(r[0].name))
+    report.write_summary(os.path.join(out, "summary.md"), results, commands)
+    print(f"occloc experiments: redrew {len(done)} PNG and summary.md in {out}", file=sys.stderr)
+    return 0
+
+
 def main(args) -> int:
     from receiver.core.errors import InputError
     from tools.experiments.registry import all_experiments
@@ -75,6 +117,8 @@ def main(args) -> int:
         raise InputError(f"unknown experiment {', '.join(unknown)} (choose from {', '.join(exps)})")
     names = list(dict.fromkeys(names))
     n_seeds = args.seeds or (1 if args.quick else 3)
+    if args.report:
+        return _report(args, exps, names)
     out = args.out
     if os.path.exists(out) and not os.path.isdir(out):
         raise InputError(f"--out {out}: not a folder")

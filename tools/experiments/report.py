@@ -112,7 +112,9 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
         if panel.logy:
             ax.set_yscale("log")
         if exp.logx:
+            from matplotlib.ticker import ScalarFormatter
             ax.set_xscale("log")
+            ax.xaxis.set_major_formatter(ScalarFormatter())
         ax.grid(True, alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
