@@ -18,7 +18,8 @@ MODULES = ("tools.experiments.ber", "tools.experiments.tracking", "tools.experim
 class Panel:
     """One plot panel: `series` ((CSV column, legend label), ...) drawn against the parameter,
     the mean over seeds as a line and their min..max as a band; `thesis` ((xs, ys, label), ...)
-    the thesis's reported values or trend, drawn dashed beside ours."""
+    reference curves drawn dashed beside ours: the thesis's reported values or trend (labels
+    starting "thesis:") or a theoretical formula (labels naming it)."""
 
     ylabel: str
     series: tuple

@@ -9,6 +9,8 @@ import os
 import numpy as np
 
 FIG_DPI = 110
+# Lowest value drawn on a log axis (error rates: a few thousand chips per point resolve ~1e-4).
+LOG_FLOOR = 1e-5
 
 
 def _cell(v) -> str:
@@ -99,15 +101,31 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
     n = len(exp.panels)
     fig, axes = plt.subplots(n, 1, figsize=(7.0, 3.2 * n), squeeze=False, sharex=True)
     for ax, panel in zip(axes[:, 0], exp.panels):
+        floor = LOG_FLOOR if panel.logy else None
         for i, (col, label) in enumerate(panel.series):
             xs, m, lo, hi = by_point(rows, exp.param, col)
             color = f"C{i}"
-            if len(xs):
-                ax.plot(xs, m, "o-", color=color, ms=3, label=f"ours: {label}")
-                if n_seeds > 1:
-                    ax.fill_between(xs, lo, hi, color=color, alpha=0.2, lw=0)
+            if not len(xs):
+                continue
+            if floor is not None:
+                # a log axis cannot show 0 (e.g. no bit error among the chips seen): such points are
+                # drawn as triangles on the axis floor, the band is cut there
+                zero = m <= 0
+                if zero.any():
+                    ax.plot(xs[zero], np.full(zero.sum(), floor), "v", color=color, ms=5, label=f"ours: {label}: 0 seen")
+                m = np.where(zero, np.nan, m)
+                lo, hi = np.maximum(lo, floor), np.maximum(hi, floor)
+            ax.plot(xs, m, "o-", color=color, ms=3, label=f"ours: {label}")
+            if n_seeds > 1:
+                ax.fill_between(xs, lo, hi, color=color, alpha=0.2, lw=0)
         for j, (txs, tys, label) in enumerate(panel.thesis):
-            ax.plot(txs, tys, "s--", color="k" if j == 0 else "0.45", ms=3, lw=1, label=f"thesis: {label}")
+            txs, tys = np.asarray(txs, float), np.asarray(tys, float)
+            if floor is not None:
+                keep = tys >= floor
+                txs, tys = txs[keep], tys[keep]
+            ax.plot(txs, tys, "s--" if len(txs) < 10 else "--", color="k" if j == 0 else "0.45", ms=3, lw=1, label=label)
+        if floor is not None:
+            ax.set_ylim(bottom=floor / 2)
         ax.set_ylabel(panel.ylabel)
         if panel.logy:
             ax.set_yscale("log")
@@ -120,7 +138,8 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
             ax.legend(fontsize=7, loc="best")
     axes[-1, 0].set_xlabel(exp.param_label)
     band = f"; band: min..max over {n_seeds} seeds" if n_seeds > 1 else "; one seed"
-    axes[0, 0].set_title(f"{exp.figure}: {exp.title}{band}", fontsize=9)
+    import textwrap
+    axes[0, 0].set_title("\n".join(textwrap.wrap(f"{exp.figure}: {exp.title}{band}", 90)), fontsize=9)
     fig.tight_layout()
     save(fig, path)
 

@@ -108,7 +108,8 @@ def summarize_walk(rows):
         return {"thesis": "9-10 cm with the Kalman filter; 50 % error without it at 10 s", "ours": "no fix",
                 "why": "the walk was never positioned"}
     ours = (f"at {TRACE_SPEED:g} m/s: Kalman {100 * kf:.1f} cm, raw fix {100 * raw:.1f} cm mean horizontal error; "
-            f"fix in {fix:.0%} of frames; first fix after {m('first_fix_s'):.2f} s")
+            f"fix in {fix:.0%} of frames" + (f"; first fix after {m('first_fix_s'):.2f} s"
+                                               if m("first_fix_s") is not None else ""))
     why = ("Ours is far below the thesis's 9-10 cm because each raw fix already uses several large decoded panels "
            "and their outlines at 30 fps; the filter mainly smooths, not rescues. The thesis's 50 % error without "
            "a filter has no unit we can reproduce.")
