@@ -70,11 +70,16 @@ def summarize_fv_speed(rows):
                 "why": "no FV ranged"}
     lo, hi = min(mean), max(mean)
     pct = _means(rows, "fv_kmh", "mean_err_pct")
+    rng = _means(rows, "fv_kmh", "ranged_frac")
+    never = sum(1 for r in rows if r.get("ranged_frac") == 0.0)
     ours = (f"mean |error| {mean[lo]:.2f} m ({pct[lo]:.1f} %) at {lo:g} km/h, {mean[hi]:.2f} m ({pct[hi]:.1f} %) at "
-            f"{hi:g} km/h; max {mx[lo]:.2f} -> {mx[hi]:.2f} m (gap starts at 40 m, 3 s)")
-    why = ("A faster FV ends the 3 s further away (15 m at 0 km/h, 107 m at 110 km/h), and the range error of a "
-           "1.4 m baseline grows with the square of the distance; speed itself enters only through the filter's "
-           "lag, which the thesis attributes to execution time.")
+            f"{hi:g} km/h; max {mx[lo]:.2f} -> {mx[hi]:.2f} m (gap starts at 40 m, 3 s); FV ranged in "
+            f"{min(rng.values()):.0%}-{max(rng.values()):.0%} of frames (mean over seeds)"
+            + (f"; {never} of {len(rows)} runs never ranged it" if never else ""))
+    why = ("Agrees in trend, but here a faster FV also ends the 3 s further away (15 m at 0 km/h, 107 m at "
+           "110 km/h) and the range from a 1.4 m taillight baseline loses accuracy with distance, so this sweep does "
+           "not separate speed from distance; the thesis attributes the growth to execution time. Runs where the "
+           "pair was never ranged are the receiver failing, shown as such.")
     return {"thesis": "mean and max error grow steadily with FV speed 0-110 km/h (HV 30 km/h, within 200 m)",
             "ours": ours, "why": why}
 
