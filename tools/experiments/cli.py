@@ -154,7 +154,10 @@ def main(args) -> int:
         report.write_csv(os.path.join(out, f"{n}.csv"), exp, rs)
         report.write_png(os.path.join(out, f"{n}.png"), exp, rs, n_seeds, cache=Cache(cache_dir), quick=args.quick)
         results.append((exp, rs, exp.summarize(rs)))
+        report.record_commands(out, [n], command)
 
+    command = "occloc experiments " + " ".join(
+        (["--quick"] if args.quick else []) + [f"--seeds {n_seeds}", f"--jobs {args.jobs}"] + (args.names or []))
     results = []
     print(f"occloc experiments: {len(names)} experiments, {len(tasks)} points x seeds, {args.jobs} jobs, "
           f"cache {cache_dir or 'off'}", file=sys.stderr, flush=True)
@@ -167,9 +170,7 @@ def main(args) -> int:
             futs = {pool.submit(_task, n, v, s, args.quick, cache_dir): (n, v, s) for n, v, s in tasks}
             for f in as_completed(futs):
                 finish(*futs[f], f.result())
-    command = "occloc experiments " + " ".join(
-        (["--quick"] if args.quick else []) + [f"--seeds {n_seeds}", f"--jobs {args.jobs}"] + (args.names or []))
-    commands = report.record_commands(out, names, command)
+    commands = report.record_commands(out, [], command)
     # Experiments of earlier runs into the same folder stay in the summary (read back from their CSV).
     for n, exp in exps.items():
         path = os.path.join(out, f"{n}.csv")
