@@ -76,9 +76,14 @@ def summarize_fps(rows):
     idf, fix, first = _means(rows, "fps", "id_frac"), _means(rows, "fps", "fix_frac"), _means(rows, "fps", "first_fix_s")
     ours = "; ".join(f"{f:g} fps: ID {idf[f]:.0%}, fix {fix[f]:.0%}"
                      + (f", first fix {first[f]:.2f} s" if f in first else "") for f in idf)
+    why = "Frame rate sets how fast frames of a panel too small for a whole packet fill the 54-chip accumulator. "
+    if first and idf:
+        lo, hi = min(idf), max(idf)
+        why += (f"Here the first fix comes {first.get(lo, float('nan')) * lo:.1f} frames in at {lo:g} fps and "
+                f"{first.get(hi, float('nan')) * hi:.1f} at {hi:g} fps, so in seconds the low rate waits longer, while "
+                f"the share of frames with a fix stays {min(fix.values()):.0%}-{max(fix.values()):.0%}.")
     return {"thesis": "not measured (Table 2: 30 fps; 6.2: one bit per frame)", "ours": ours or "no data",
-            "why": "Frame rate sets how fast the frames of a panel too small for a whole packet fill the 54-chip "
-                   "accumulator, so the first fix comes later at low rates."}
+            "why": why}
 
 
 def summarize_ambient(rows):
@@ -89,8 +94,10 @@ def summarize_ambient(rows):
     drop = min((a for a, v in idf.items() if base is not None and v < 0.5 * base), default=None)
     why = ("The LED adds 180 DN on top of the ambient level, so above 75 DN its ON rows saturate at 255 and the "
            "stripe contrast is 255 minus the ambient level; ")
-    why += (f"the receiver keeps decoding until that contrast is ~{255 - drop:g} DN (ID share halves at {drop:g} DN)."
-            if drop is not None else "the receiver kept decoding over the whole sweep.")
+    why += (f"the receiver keeps decoding until that contrast is ~{255 - drop:g} DN (ID share halves at {drop:g} DN)"
+            if drop is not None else "the receiver kept decoding over the whole sweep")
+    no_fix = min((a for a, v in fix.items() if v == 0.0), default=None)
+    why += (f"; no fix from {no_fix:g} DN ({255 - no_fix:g} DN of contrast)." if no_fix is not None else ".")
     return {"thesis": "6.5.2: ambient light disturbs the projection; HDR helps (no numbers)", "ours": ours or "no data",
             "why": why}
 
