@@ -34,6 +34,7 @@ SUBCOMMANDS = {
 DEV_SUBCOMMANDS = {
     "synth": "tools.synth.cli",
     "hil": "tools.hil",
+    "experiments": "tools.experiments.cli",
 }
 
 EXIT_BAD_INPUT = 2
