@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled per-frame glue of the indoor positioner (issue 14): one call per frame instead of a
+"""Compiled per-frame glue of the indoor positioner: one call per frame instead of a
 dozen numpy calls on 16 small arrays.
 
 * `cut_by_edge`: `Ranger._touching_edge` -- does each envelope come within the margin of the

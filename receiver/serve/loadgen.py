@@ -1,4 +1,4 @@
-"""Load generator for the lighting server (issue 14: datagrams/s per process and the reply
+"""Load generator for the lighting server (datagrams/s per process and the reply
 latency under that load), over UDP: `python -m receiver.serve.loadgen [udp://HOST:PORT]
 --rate R --seconds S`. Without a URL it starts `occloc serve --port 0` as a subprocess (its own
 process, so the generator does not share its interpreter).

@@ -25,7 +25,7 @@ def envelope_mask(blob: Blob) -> np.ndarray:
 
 
 def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, int]:
-    """Row profile of one blob (issue 4 decoder interface).
+    """Row profile of one blob (the decoders' interface).
 
     Returns `(profile, weights, y0)`: `profile` float32 (R,) = mean gray over the blob's
     filled envelope on each image row y0..y0+R-1 (top to bottom, one sensor row apart, i.e.

@@ -755,7 +755,7 @@ def test_handle_batch_benchmark(walk_map, benchmark):
 
 
 def test_server_load_benchmark(walk_map, benchmark, request):
-    """Issue 14: 4-LED datagrams at 3,000/s over loopback to `occloc serve` in its own process
+    """4-LED datagrams at 3,000/s over loopback to `occloc serve` in its own process
     (receiver.serve.loadgen); reports replies/s and the reply latency. Only with
     --benchmark-enable: it measures this machine. Without it, a slow functional run of the same
     path (40 datagrams at 40/s, up to 60 s for the replies): every datagram is answered."""
