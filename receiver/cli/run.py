@@ -414,12 +414,12 @@ def _main(args, stop: "SignalStop") -> int:
     if map_path is None:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
+    inputs.append(getattr(args, "settings", None))
+    out_file = claim_output(args.out, inputs, "--out")
     _check_out_extension(args.out)
     if getattr(args, "overlay", None):
         from receiver.io.overlay import check_overlay_path
         check_overlay_path(args.overlay)
-    inputs.append(getattr(args, "settings", None))
-    out_file = claim_output(args.out, inputs, "--out")
     settings_file = claim_output(getattr(args, "settings_out", None), inputs, "--settings-out",
                                  others=[("--out", args.out)])
     overlay_file = claim_output(getattr(args, "overlay", None), inputs, "--overlay",
