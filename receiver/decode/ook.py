@@ -52,6 +52,7 @@ from functools import lru_cache
 import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
+from receiver.decode import exposure
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
@@ -421,6 +422,14 @@ class OokDecoder:
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
         self.exposure_rows = exposure_us / row_readout_us
+        # the exposure model (receiver.decode.exposure) reads the chips where the exposure
+        # averages them: a sizeable fraction of a chip or more
+        self.exposure_model = (s.exposure_model == "on" or (
+            s.exposure_model == "auto" and self.exposure_rows >= s.model_min_chips * self.period0_rows))
+        self.blur_rows = s.blur_rows
+        self.model_phases = s.model_phases
+        self.model_min_fit = s.model_min_fit
+        self.model_fit: float | None = None  # the latest frame's fit (1 - residual / variance)
         self.min_row_frac = s.min_row_frac
         self.segment_chips = s.segment_chips
         self.max_period_error = s.max_period_error
@@ -485,6 +494,8 @@ class OokDecoder:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
         self.last_start_row = None
+        if self.exposure_model:
+            return self._model_chips(profile, weights)
         if _k is not None and (self._period is not None or self._learner.period is not None):
             fast = self._frame_chips_native(profile, weights)
             if fast is not None:
@@ -519,6 +530,45 @@ class OokDecoder:
                 self._phasor = np.zeros(0, dtype=np.complex128)
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
+
+    def _model_chips(self, profile, weights) -> tuple[np.ndarray, np.ndarray]:
+        """`frame_chips` by the exposure model (receiver.decode.exposure): the whole chips of
+        the frame as max-log likelihood ratios scaled to ~ +-1, their weights the rows' relative
+        pixel counts; empty when the profile is short or the model does not fit it."""
+        x = np.asarray(profile, dtype=np.float64)
+        a, b = trim_rows(weights, x.size, self.min_row_frac)
+        x = x[a:b]
+        p = self.rows_per_chip
+        if x.size < 4 * p:
+            return np.zeros(0), np.zeros(0)
+        w = np.ones(x.size) if weights is None else np.asarray(weights, dtype=np.float64)[a:b]
+        w = w / max(float(w.max()), 1e-9)
+        e = self.exposure_rows / p
+        blur = self.blur_rows / p
+        z = exposure.linearise(x, p, e, blur, self.norm_chips)
+        r = exposure.mlse_chips(z, w, p, e, blur, self.model_phases)
+        if r is None:
+            return np.zeros(0), np.zeros(0)
+        llr, k0, tau0, resid = r
+        zm = float(np.average(z, weights=w))
+        var = float(np.average((z - zm) ** 2, weights=w))
+        self.model_fit = 1.0 - resid / var if var > 0 else 0.0
+        if self.model_fit < self.model_min_fit:
+            return np.zeros(0), np.zeros(0)
+        # chip k's start shows in the samples where the middle of a row's exposure crosses it
+        k = k0 + np.arange(llr.size)
+        start = (k - 0.5 * e - tau0) * p
+        whole = (start >= 0) & (start + p <= x.size - 1)
+        if not whole.any():
+            return np.zeros(0), np.zeros(0)
+        llr, start = llr[whole], start[whole]
+        scale = float(np.median(np.abs(llr)))
+        if scale <= 0:
+            return np.zeros(0), np.zeros(0)
+        soft = np.clip(llr / scale, -SOFT_CLIP, SOFT_CLIP)
+        cw = np.interp(start + 0.5 * p, _arange(x.size), w)
+        self.last_start_row = a + float(start[0])
+        return soft, cw
 
     def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);

@@ -53,7 +53,13 @@ class OokSettings:
         surely placed chips must correlate with them this well, else timing is disabled;
         trust_timed [True]: timed placements count as sure once a sync frame has confirmed
         the offsets (their frames are then checked at their own shift, `_timed_frames_fit`).
-    
+      Exposure model (receiver.decode.exposure): exposure_model ["auto"]: "auto" reads the
+        chips by the exposure model when the exposure is at least model_min_chips [0.5] of a
+        chip (shorter exposures leave flat chip middles, which the plain sampler reads),
+        "on" always, "off" never; blur_rows [1.0]: optical blur sigma across rows (px) in the
+        model; model_phases [8]: sub-chip offsets tried per frame; model_min_fit [0.3]:
+        frames the model explains less than this fraction of the level variance of are
+        skipped (no chip stream behind them).
     """
 
     min_row_frac: float = 0.25
@@ -82,6 +88,11 @@ class OokSettings:
     timing_min_overlap: int = 4
     timing_min_corr: float = 0.6
     trust_timed: bool = True
+    exposure_model: str = "auto"
+    model_min_chips: float = 0.5
+    blur_rows: float = 1.0
+    model_phases: int = 8
+    model_min_fit: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,164 @@
+"""Exposure-aware chip estimation: the row profile as the chip stream averaged over the exposure.
+
+A rolling-shutter row r of one frame integrates the LED over `[t_r, t_r + t_exp]` (PROTOCOL.md
+section 2), and the lens spreads each row over its neighbours (Gaussian blur). In chip units,
+with the row's exposure starting at chip time `tau_r = tau_0 + r / p` (p rows per chip) and
+lasting `e = t_exp * rate` chips, row r sees
+
+    y_r = sum_k c_k h(tau_r - k),    h = (box of length e over one chip) * Gaussian(blur),
+
+with c_k in {0, 1} the chips: a linear, finite-memory channel (thesis eq. 3 integrated over the
+exposure). When e is a sizeable fraction of a chip the stripes no longer have edges on a chip
+grid; each row then mixes up to ceil(e) + 2 chips, and the chips are recovered here by
+maximum-likelihood sequence estimation (Viterbi over the chips, states = the last chips a row
+still sees) for each of `phases` sub-chip offsets tau_0; the offset with the smallest residual
+wins. Soft chips are the max-log likelihood ratios (best path with the chip ON against the best
+with it OFF, forward-backward), scaled by their median so that they read like the plain
+sampler's (~ +-1): the packet assembly, sync search and CRC of `receiver.decode.ook` take them
+unchanged.
+
+The measured profile is not y itself: gain and offset vary slowly across a blob (vignetting,
+diffuser falloff, a dark bezel) and a phone's tone curve bends the levels. Both are undone
+before the fit: the running minimum and maximum over `norm_chips` chips give the local OFF and
+ON levels (Manchester keeps both in every such window), and the normalised levels are mapped
+through their empirical distribution onto the model's own distribution of y (a monotone tone
+curve changes levels, not their order).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d, uniform_filter1d
+
+from firmware_tx.framing import ook_packet
+
+# A chip whose weight in a row is below this fraction of the kernel's peak is ignored there.
+KERNEL_FLOOR = 0.03
+# Chips a row may mix at most (2^(this - 1) Viterbi states); longer kernels are truncated.
+MAX_MEMORY = 6
+# Fine grid of the tabulated kernel, points per chip.
+KERNEL_FINE = 64
+
+
+@lru_cache(maxsize=32)
+def chip_kernel(e_chips: float, blur_chips: float) -> tuple[np.ndarray, np.ndarray]:
+    """(d, h): the weight h(d) of a chip in a row whose exposure starts d chips after the chip's
+    start (box of e_chips over a one-chip rectangle, normalised to the row's mean level, then a
+    Gaussian of blur_chips); read-only tables."""
+    span = 4.0 * blur_chips
+    d = np.arange(-e_chips - 1.0 - span - 0.5, 1.0 + span + 0.5, 1.0 / KERNEL_FINE)
+    if e_chips > 1e-6:
+        h = np.clip(np.minimum(d + e_chips, 1.0) - np.maximum(d, 0.0), 0.0, None) / e_chips
+    else:
+        h = ((d > -1.0) & (d <= 0.0)).astype(float)  # an instant sample at d sees chip k if k <= -d... < k+1
+    if blur_chips > 0:
+        g = np.arange(-int(span * KERNEL_FINE) - 1, int(span * KERNEL_FINE) + 2) / (blur_chips * KERNEL_FINE)
+        g = np.exp(-0.5 * g * g)
+        h = np.convolve(h, g / g.sum(), mode="same")
+    d.setflags(write=False)
+    h.setflags(write=False)
+    return d, h
+
+
+@lru_cache(maxsize=32)
+def model_quantiles(period_rows: float, e_chips: float, blur_chips: float, n: int = 257) -> np.ndarray:
+    """Quantiles (n,) of the noise-free row level y of random Manchester packets seen with this
+    exposure and blur at random sub-chip offsets: the target of the level mapping."""
+    ids = np.random.default_rng(0).integers(0, 1 << 16, 64)
+    chips = np.concatenate([np.frombuffer(bytes(ook_packet(int(i))), np.uint8) for i in ids]).astype(float)
+    d, h = chip_kernel(e_chips, blur_chips)
+    rng = np.random.default_rng(1)
+    tau = np.sort(rng.uniform(8.0, chips.size - 8.0, 20000))
+    k = np.floor(tau)[:, None] + np.arange(-int(e_chips) - 4, 6)[None, :]
+    y = (np.interp(tau[:, None] - k, d, h, left=0.0, right=0.0) * chips[k.astype(int)]).sum(axis=1)
+    q = np.quantile(y, np.linspace(0.0, 1.0, n))
+    q.setflags(write=False)
+    return q
+
+
+def linearise(x: np.ndarray, period_rows: float, e_chips: float, blur_chips: float,
+              norm_chips: float) -> np.ndarray:
+    """Profile levels mapped onto the model's level scale y in [0, 1] (module docstring)."""
+    win = max(3, int(round(norm_chips * period_rows)))
+    hi = uniform_filter1d(maximum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    lo = uniform_filter1d(minimum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    xn = (x - lo) / np.maximum(hi - lo, 1e-6)
+    q = model_quantiles(period_rows, e_chips, blur_chips)
+    ranks = (np.argsort(np.argsort(xn, kind="stable"), kind="stable") + 0.5) / xn.size
+    return np.interp(ranks, np.linspace(0.0, 1.0, q.size), q)
+
+
+def _taps(tau: np.ndarray, d: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """For rows whose exposure starts at chip times `tau` (P, R): the last chip each row sees
+    (P, R) int and its weights on that chip and the L - 1 before it (P, R, L), newest first."""
+    hmax = float(h.max())
+    ok = d[h >= KERNEL_FLOOR * hmax]
+    # chip k is seen by a row when tau - k lies in [ok.min(), ok.max()]
+    last = np.floor(tau - ok.min()).astype(np.int64)
+    first = np.ceil(tau - ok.max()).astype(np.int64)
+    mem = int(min(MAX_MEMORY, max(1, int((last - first).max()) + 1)))
+    k = last[..., None] - np.arange(mem)
+    wts = np.interp(tau[..., None] - k, d, h, left=0.0, right=0.0)
+    wts[wts < KERNEL_FLOOR * hmax] = 0.0
+    return last, wts, mem
+
+
+def mlse_chips(z: np.ndarray, w: np.ndarray, period_rows: float, e_chips: float, blur_chips: float,
+               phases: int = 8):
+    """Maximum-likelihood chip sequence of one frame's linearised profile.
+
+    z: (R,) levels on the model scale (`linearise`), w: (R,) row weights (pixels). Tries
+    `phases` sub-chip offsets tau_0 = j / phases. Returns (llr, first_chip, tau0, resid):
+    llr (n,) max-log ratios (positive = ON) of chips first_chip .. first_chip + n - 1 (chip
+    indices relative to tau_0's chip 0), the winning tau_0 (chip time of row 0's exposure
+    start) and its weighted residual per row; None when the profile is too short.
+    """
+    R = z.size
+    d, h = chip_kernel(e_chips, blur_chips)
+    tau = (np.arange(phases) / phases)[:, None] + np.arange(R)[None, :] / period_rows  # (P, R)
+    last, wts, L = _taps(tau, d, h)
+    k0 = int(last.min()) - L + 1  # first chip any row sees (state history starts here)
+    k1 = int(last.max())
+    n = k1 - k0 + 1
+    if n < L + 2:
+        return None
+    S = 1 << (L - 1)  # states: the last L - 1 chips, newest in bit 0
+    pats = (np.arange(1 << L)[:, None] >> np.arange(L)[None, :]) & 1  # (2^L, L): bit j = chip (k - j)
+    pred = wts @ pats.T.astype(float)  # (P, R, 2^L)
+    err = w[None, :, None] * (z[None, :, None] - pred) ** 2
+    # branch metrics per (phase, step, pattern): rows whose newest chip is this step's chip
+    P = phases
+    step = last - k0  # (P, R)
+    idx = ((np.arange(P)[:, None] * n + step)[..., None] * (1 << L) + np.arange(1 << L)).ravel()
+    bm = np.bincount(idx, err.ravel(), P * n << L).reshape(P, n, 1 << L)
+    # Viterbi: the pattern of step k is (state before: chips k-1..k-L+1) << 1 | chip k; the
+    # state after is the pattern's low L - 1 bits
+    pat_prev = np.arange(1 << L) >> 1  # state before (chips k-1 .. k-L+1)
+    pat_next = np.arange(1 << L) & (S - 1)
+    by_next = np.argsort(pat_next, kind="stable")  # the two patterns ending in each state
+    alpha = np.zeros((P, n, S))
+    a = np.zeros((P, S))
+    for k in range(n):
+        cand = a[:, pat_prev] + bm[:, k]  # (P, 2^L)
+        a = cand[:, by_next].reshape(P, S, 2).min(axis=2)
+        alpha[:, k] = a
+    total = alpha[:, -1].min(axis=1)  # (P,)
+    p = int(np.argmin(total))
+    # backward pass for the winning phase only
+    beta = np.zeros((n, S))
+    b = np.zeros(S)
+    for k in range(n - 1, -1, -1):
+        beta[k] = b
+        # pattern at step k: (state_{k-1}, chip k); b over the state after step k-1
+        cand = bm[p, k] + b[pat_next]
+        b = cand.reshape(S, 2).min(axis=1)  # patterns 2s, 2s + 1 follow state s
+    through = alpha[p] + beta  # (n, S): best total metric through state s after step k
+    on = through[:, 1::2].min(axis=1)  # bit 0 of the state = chip k
+    off = through[:, 0::2].min(axis=1)
+    llr = off - on
+    wsum = float(w.sum())
+    resid = float(total[p]) / max(wsum, 1e-9)
+    return llr, k0, p / phases, resid
+
