@@ -90,19 +90,32 @@ def linearise(x: np.ndarray, period_rows: float, e_chips: float, blur_chips: flo
     return np.interp(ranks, np.linspace(0.0, 1.0, q.size), q)
 
 
-def _taps(tau: np.ndarray, d: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """For rows whose exposure starts at chip times `tau` (P, R): the last chip each row sees
-    (P, R) int and its weights on that chip and the L - 1 before it (P, R, L), newest first."""
+@lru_cache(maxsize=256)
+def _trellis(R: int, period_rows: float, e_chips: float, blur_chips: float, phases: int):
+    """The frame-independent part of `mlse_chips` for R rows (cached: the same few blob
+    heights recur): (L, k0, n, pred (P, R, 2^L) model level of every row under every pattern
+    of its L chips, idx (P * R * 2^L) the branch-metric bin of each), or None when too short.
+    A row whose exposure starts at chip time tau sees chips k with tau - k inside the
+    kernel's support; its newest chip decides at which Viterbi step it is scored."""
+    d, h = chip_kernel(e_chips, blur_chips)
+    tau = (np.arange(phases) / phases)[:, None] + np.arange(R)[None, :] / period_rows  # (P, R)
     hmax = float(h.max())
     ok = d[h >= KERNEL_FLOOR * hmax]
-    # chip k is seen by a row when tau - k lies in [ok.min(), ok.max()]
     last = np.floor(tau - ok.min()).astype(np.int64)
     first = np.ceil(tau - ok.max()).astype(np.int64)
-    mem = int(min(MAX_MEMORY, max(1, int((last - first).max()) + 1)))
-    k = last[..., None] - np.arange(mem)
-    wts = np.interp(tau[..., None] - k, d, h, left=0.0, right=0.0)
+    L = int(min(MAX_MEMORY, max(1, int((last - first).max()) + 1)))
+    wts = np.interp(tau[..., None] - (last[..., None] - np.arange(L)), d, h, left=0.0, right=0.0)
     wts[wts < KERNEL_FLOOR * hmax] = 0.0
-    return last, wts, mem
+    k0 = int(last.min()) - L + 1  # first chip any row sees (state history starts here)
+    n = int(last.max()) - k0 + 1
+    if n < L + 2:
+        return None
+    pats = (np.arange(1 << L)[:, None] >> np.arange(L)[None, :]) & 1  # (2^L, L): bit j = chip (k - j)
+    pred = wts @ pats.T.astype(float)  # (P, R, 2^L)
+    idx = ((np.arange(phases)[:, None] * n + (last - k0))[..., None] * (1 << L) + np.arange(1 << L)).ravel()
+    for a in (pred, idx):
+        a.setflags(write=False)
+    return L, k0, n, pred, idx
 
 
 def mlse_chips(z: np.ndarray, w: np.ndarray, period_rows: float, e_chips: float, blur_chips: float,
@@ -115,23 +128,14 @@ def mlse_chips(z: np.ndarray, w: np.ndarray, period_rows: float, e_chips: float,
     indices relative to tau_0's chip 0), the winning tau_0 (chip time of row 0's exposure
     start) and its weighted residual per row; None when the profile is too short.
     """
-    R = z.size
-    d, h = chip_kernel(e_chips, blur_chips)
-    tau = (np.arange(phases) / phases)[:, None] + np.arange(R)[None, :] / period_rows  # (P, R)
-    last, wts, L = _taps(tau, d, h)
-    k0 = int(last.min()) - L + 1  # first chip any row sees (state history starts here)
-    k1 = int(last.max())
-    n = k1 - k0 + 1
-    if n < L + 2:
+    t = _trellis(z.size, float(period_rows), float(e_chips), float(blur_chips), int(phases))
+    if t is None:
         return None
+    L, k0, n, pred, idx = t
+    P = phases
     S = 1 << (L - 1)  # states: the last L - 1 chips, newest in bit 0
-    pats = (np.arange(1 << L)[:, None] >> np.arange(L)[None, :]) & 1  # (2^L, L): bit j = chip (k - j)
-    pred = wts @ pats.T.astype(float)  # (P, R, 2^L)
     err = w[None, :, None] * (z[None, :, None] - pred) ** 2
     # branch metrics per (phase, step, pattern): rows whose newest chip is this step's chip
-    P = phases
-    step = last - k0  # (P, R)
-    idx = ((np.arange(P)[:, None] * n + step)[..., None] * (1 << L) + np.arange(1 << L)).ravel()
     bm = np.bincount(idx, err.ravel(), P * n << L).reshape(P, n, 1 << L)
     # Viterbi: the pattern of step k is (state before: chips k-1..k-L+1) << 1 | chip k; the
     # state after is the pattern's low L - 1 bits
