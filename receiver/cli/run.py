@@ -314,6 +314,9 @@ def _main(args, stop: "SignalStop") -> int:
             from receiver.io.odometry import load_odometry
             speed = load_odometry(args.odometry)
         rx = Receiver(cam, led_map, positioner=positioner, vehicle=vehicle, speed=speed, still=src.is_still)
+        for readable, note in rx.policy.exposure_notes():
+            if not readable:  # known before the first frame: say so at once
+                print(f"occloc: warning: {note}", file=sys.stderr)
         if getattr(args, "settings_out", None):
             write_settings(args.settings_out, rx)
         # A file is written to a temporary sibling and renamed into place at the end (also after
@@ -357,6 +360,9 @@ def _main(args, stop: "SignalStop") -> int:
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
               + _server_text(positioner), file=sys.stderr)
+        if cam.exposure_us <= 0:  # learned during the run
+            for readable, note in rx.policy.exposure_notes():
+                print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)

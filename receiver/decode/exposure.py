@@ -166,3 +166,70 @@ def mlse_chips(z: np.ndarray, w: np.ndarray, period_rows: float, e_chips: float,
     resid = float(total[p]) / max(wsum, 1e-9)
     return llr, k0, p / phases, resid
 
+
+
+def ramp_exposure_rows(x: np.ndarray, period_rows: float, norm_chips: float = 8.0,
+                       steep_frac: float = 0.4) -> float | None:
+    """Exposure (rows) of one row profile from its stripes' edges, or None (too short or flat).
+
+    A row reads the mean of the LED over its exposure, so its level changes from row to row
+    by at most t_row / t_exp of the ON-OFF swing, and by that much at every row whose
+    exposure window gains a chip edge at one end without losing one at the other: the edges
+    are ramps t_exp long. With the levels normalised by the local OFF and ON envelopes, the
+    median of the steep row-to-row steps (above `steep_frac` of the 98th percentile step:
+    the rows inside ramps) is t_row / t_exp. Blur widens the ramps (by about its sigma) and
+    an exposure shorter than a row reads as one row."""
+    win = max(3, int(round(norm_chips * period_rows)))
+    if x.size < win:
+        return None
+    hi = uniform_filter1d(maximum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    lo = uniform_filter1d(minimum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    d = np.abs(np.diff((x - lo) / np.maximum(hi - lo, 1e-6)))
+    top = float(np.percentile(d, 98))
+    if top <= 0:
+        return None
+    step = float(np.median(d[d > steep_frac * top]))
+    return 1.0 / min(max(step, 1e-3), 1.0)
+
+
+class ExposureLearner:
+    """Exposure of one camera (rows) learned from OOK row profiles when the camera file does not
+    state it: the median of `frames` per-profile estimates (`ramp_exposure_rows`). Shared by
+    the decoders of one chip rate, as `receiver.decode.ook.PeriodLearner` is."""
+
+    def __init__(self, frames: int = 8):
+        self.frames = frames
+        self.estimates: list[float] = []
+        self.exposure_rows: float | None = None
+
+    def add(self, x: np.ndarray, period_rows: float) -> None:
+        if self.exposure_rows is not None:
+            return
+        e = ramp_exposure_rows(x, period_rows)
+        if e is not None:
+            self.estimates.append(e)
+            if len(self.estimates) >= self.frames:
+                self.exposure_rows = float(np.median(self.estimates))
+
+
+# Longest exposure (chips) whose chips the model still reads: at two chips a row averages a
+# whole Manchester pair (always half ON), and only the pair boundaries carry the data.
+MAX_EXPOSURE_CHIPS = 1.8
+# From this exposure (chips) up, the exposure model reads the chips (OokSettings.model_min_chips).
+MODEL_FROM_CHIPS = 0.5
+
+
+def exposure_verdict(exposure_us: float, rate_hz: float) -> tuple[bool, str]:
+    """(readable, one-line text with the numbers) for OOK chips at `rate_hz` seen with this
+    exposure; when not readable, the text names the longest exposure and the fastest chip
+    rate that would be."""
+    chip_us = 1e6 / rate_hz
+    e = exposure_us / chip_us
+    head = f"exposure {exposure_us:.0f} us is {e:.2f} chips of the {rate_hz / 1000:g} kHz OOK chips ({chip_us:.0f} us)"
+    if e >= MAX_EXPOSURE_CHIPS:
+        return False, (f"{head}: IDs are not reliably read beyond {MAX_EXPOSURE_CHIPS:g} chips (a row then averages "
+                       f"whole Manchester pairs); use an exposure <= {MAX_EXPOSURE_CHIPS * chip_us:.0f} us or "
+                       f"chips at <= {MAX_EXPOSURE_CHIPS * 1e3 / exposure_us:.1f} kHz")
+    if e >= MODEL_FROM_CHIPS:
+        return True, f"{head}: read by the exposure model (up to {MAX_EXPOSURE_CHIPS:g} chips)"
+    return True, f"{head}: sharp stripes"

@@ -412,7 +412,7 @@ class OokDecoder:
 
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
-                 **overrides):
+                 exposure_learner: exposure.ExposureLearner | None = None, **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
@@ -421,11 +421,11 @@ class OokDecoder:
         self._learner = period_learner if period_learner is not None else PeriodLearner(s.period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
-        self.exposure_rows = exposure_us / row_readout_us
-        # the exposure model (receiver.decode.exposure) reads the chips where the exposure
-        # averages them: a sizeable fraction of a chip or more
-        self.exposure_model = (s.exposure_model == "on" or (
-            s.exposure_model == "auto" and self.exposure_rows >= s.model_min_chips * self.period0_rows))
+        self._model_mode, self._model_min_chips = s.exposure_model, s.model_min_chips
+        # exposure_us <= 0: unknown, learned from the stripes' edges (shared per rate and camera)
+        self.exposure_learner = (None if exposure_us > 0 else exposure_learner if exposure_learner is not None
+                                 else exposure.ExposureLearner())
+        self._set_exposure(max(exposure_us, 0.0) / row_readout_us)
         self.blur_rows = s.blur_rows
         self.model_phases = s.model_phases
         self.model_min_fit = s.model_min_fit
@@ -490,10 +490,29 @@ class OokDecoder:
         self._tpl: tuple[int, np.ndarray] | None = None
         self.timed_frames: deque = deque(maxlen=s.verify_frames)  # (soft, shift) of timed placements
 
+    def _set_exposure(self, exposure_rows: float) -> None:
+        """Use this exposure (rows): the exposure model (receiver.decode.exposure) reads the
+        chips where the exposure averages them, from `model_min_chips` of a chip up."""
+        self.exposure_rows = exposure_rows
+        self.exposure_model = self._model_mode == "on" or (
+            self._model_mode == "auto" and exposure_rows >= self._model_min_chips * self.period0_rows)
+
+    def _learn_exposure(self, profile, weights) -> None:
+        lr = self.exposure_learner
+        if lr.exposure_rows is None:
+            x = np.asarray(profile, dtype=np.float64)
+            a, b = trim_rows(weights, x.size, 0.5)
+            lr.add(x[a:b], self.rows_per_chip)
+        if lr.exposure_rows is not None:
+            self._set_exposure(lr.exposure_rows)
+            self.exposure_learner = None  # learned: this decoder is set
+
     def frame_chips(self, profile, weights=None) -> tuple[np.ndarray, np.ndarray]:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
         self.last_start_row = None
+        if self.exposure_learner is not None:
+            self._learn_exposure(profile, weights)
         if self.exposure_model:
             return self._model_chips(profile, weights)
         if _k is not None and (self._period is not None or self._learner.period is not None):

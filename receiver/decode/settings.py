@@ -10,7 +10,8 @@ class OokSettings:
     """Tunables of `OokDecoder` (defaults in brackets).
 
       rate_hz [20000]: chip rate from the LED map; row_readout_us [15]: sensor row time t_row;
-      exposure_us [0]: row exposure (only narrows the sampled part of a chip; 0 if unknown).
+      exposure_us [0]: row exposure (camera.yaml); 0 = unknown: learned from the stripes'
+        edge ramps (`receiver.decode.exposure.ExposureLearner`, shared per rate).
       min_row_frac [0.25]: rows with fewer pixels than this fraction of the widest row are
         trimmed from the blob's top and bottom.
       segment_chips [6]: segment length for the period refinement (drift per segment must stay

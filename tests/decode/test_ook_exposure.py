@@ -104,3 +104,28 @@ def test_every_persistent_single_chip_error_never_a_wrong_id(exposure_us):
                                   flip_chips=(chip,), noise=2.0, width_px=120):
             st = dec.step(prof, w)
         assert st.led_id in (None, led_id), chip
+
+
+@pytest.mark.parametrize("exposure_us", [20.0, 50.0, 87.0])
+def test_exposure_learned_from_the_stripes_when_unknown(exposure_us):
+    """exposure_us 0 (not in the camera file): the decoders' shared learner measures it from
+    the stripes' edge ramps within a row plus the blur, and the ID is decoded."""
+    from receiver.decode.exposure import ExposureLearner
+
+    learner = ExposureLearner()
+    rng = np.random.default_rng(int(exposure_us))
+    dec = OokDecoder(RATE_HZ, ROW_US, 0.0, exposure_learner=learner)
+    for prof, w in ook_frames(0x2468, RATE_HZ, ROW_US, exposure_us, 130, 40, rng,
+                              gain=200.0, offset=15.0, noise=2.0, width_px=120):
+        st = dec.step(prof, w)
+    assert learner.exposure_rows * ROW_US == pytest.approx(exposure_us, abs=ROW_US + 2.0)
+    assert st.led_id == 0x2468
+
+
+def test_verdict_names_what_would_work():
+    from receiver.decode.exposure import exposure_verdict
+
+    ok, text = exposure_verdict(100.0, 20000.0)
+    assert not ok and "2.00 chips" in text and "<= 90 us" in text and "<= 18.0 kHz" in text
+    assert exposure_verdict(87.0, 20000.0)[0] and exposure_verdict(20.0, 20000.0)[0]
+    assert not exposure_verdict(400.0, 5000.0)[0]
