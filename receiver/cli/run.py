@@ -353,6 +353,9 @@ def _main(args, stop: "SignalStop") -> int:
                 out.commit() if ok else out.discard()
             else:
                 out.flush()
+        if cam.exposure_us <= 0:  # learned during the run (before the summary: it stays the last line)
+            for readable, note in rx.policy.exposure_notes():
+                print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
         hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,
@@ -360,9 +363,6 @@ def _main(args, stop: "SignalStop") -> int:
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
               + _server_text(positioner), file=sys.stderr)
-        if cam.exposure_us <= 0:  # learned during the run
-            for readable, note in rx.policy.exposure_notes():
-                print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)

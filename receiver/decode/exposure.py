@@ -168,7 +168,7 @@ def mlse_chips(z: np.ndarray, w: np.ndarray, period_rows: float, e_chips: float,
 
 
 
-def ramp_exposure_rows(x: np.ndarray, period_rows: float, norm_chips: float = 8.0,
+def ramp_exposure_rows(x: np.ndarray, period_rows: float, norm_chips: float = 16.0,
                        steep_frac: float = 0.4) -> float | None:
     """Exposure (rows) of one row profile from its stripes' edges, or None (too short or flat).
 
@@ -179,9 +179,11 @@ def ramp_exposure_rows(x: np.ndarray, period_rows: float, norm_chips: float = 8.
     median of the steep row-to-row steps (above `steep_frac` of the 98th percentile step:
     the rows inside ramps) is t_row / t_exp. Blur widens the ramps (by about its sigma) and
     an exposure shorter than a row reads as one row."""
-    win = max(3, int(round(norm_chips * period_rows)))
-    if x.size < win:
+    if x.size < 4 * period_rows:
         return None
+    # envelopes over up to `norm_chips` chips: at long exposures only the sync's runs reach
+    # the full ON and OFF levels, and a narrower envelope would shrink the swing
+    win = max(3, min(int(round(norm_chips * period_rows)), x.size))
     hi = uniform_filter1d(maximum_filter1d(x, win, mode="nearest"), win, mode="nearest")
     lo = uniform_filter1d(minimum_filter1d(x, win, mode="nearest"), win, mode="nearest")
     d = np.abs(np.diff((x - lo) / np.maximum(hi - lo, 1e-6)))
