@@ -370,6 +370,58 @@ def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
 
 
+_CODEBOOK: np.ndarray | None = None
+
+
+def codebook() -> np.ndarray:
+    """(65536, 54) float32: the +-1 packet of every ID (sync first), built once (14 MB)."""
+    global _CODEBOOK
+    if _CODEBOOK is None:
+        ids = np.arange(1 << OOK_ID_BITS, dtype=np.int64)
+        value = (ids << CRC_BITS) | crc8_table().astype(np.int64)
+        bits = (value[:, None] >> np.arange(N_BITS - 1, -1, -1)) & 1
+        data = np.stack([bits, 1 - bits], axis=2).reshape(ids.size, 2 * N_BITS) * 2 - 1  # Manchester
+        book = np.concatenate((np.broadcast_to(_SYNC_T, (ids.size, SYNC_LEN)), data), axis=1)
+        _CODEBOOK = book.astype(np.float32)
+        _CODEBOOK.setflags(write=False)
+    return _CODEBOOK
+
+
+def soft_decide(sums: np.ndarray, weights: np.ndarray, squares: np.ndarray, *,
+                sigma_floor: float = 0.05) -> tuple[int, float, float]:
+    """Maximum-likelihood ID of an anchored packet accumulation over all 65,536 packets.
+
+    sums, weights, squares: (54,) per packet position the weighted sum of the soft chips, the
+    sum of their weights and the weighted sum of their squares (0 where nothing was seen).
+    Model (as `receiver.decode.s2psk.soft_stats`): a soft chip at position p is x = a c_p + n,
+    c_p = +-1 the hypothesis' chip, n white of variance sigma^2; the log-likelihood is then
+    const + a sum_p c_p S_p / sigma^2, largest for the largest correlation sum_p c_p S_p (one
+    matrix product over the codebook). a and sigma^2 are fitted under the best packet
+    (sigma floored by `sigma_floor`). Between the best packet c1 and another c, the score
+    difference 2 sum_{p: c1 != c} c1_p S_p has sd 2 sigma sqrt(W), W = the weight of the
+    positions where they differ (unseen positions weigh 0: a packet that differs only there
+    has z = 0). Returns (best ID, z = the smallest such margin over every other ID in noise
+    sds, snr = a / sigma)."""
+    book = codebook()
+    w = np.asarray(weights, dtype=np.float64)
+    n = float(w.sum())
+    if n <= 0:
+        return 0, 0.0, 0.0
+    scores = book @ np.asarray(sums, dtype=np.float32)
+    i1 = int(np.argmax(scores))
+    score1 = float(scores[i1])
+    amp = score1 / n
+    rss = max(float(np.sum(squares)) - score1 * amp, 0.0)
+    var = max(rss / max(n - 1.0, 1.0), sigma_floor ** 2)
+    # W of every packet against c1: sum_p w_p [c_p != c1_p] = (n - sum_p w_p c1_p c_p) / 2
+    W = 0.5 * (n - book @ (w * book[i1]).astype(np.float32))
+    W[i1] = np.inf
+    z = (score1 - scores) / (2.0 * np.sqrt(np.maximum(W, 1e-12) * var))
+    z[W <= 1e-9] = 0.0  # differs only where nothing was seen: not told apart
+    z[i1] = np.inf
+    return i1, float(z.min()), amp / math.sqrt(var)
+
+
 @dataclass(frozen=True)
 class OokState:
     """Decoder state after a frame. `led_id`: CRC-valid ID or None (once decoded it stays
@@ -481,6 +533,12 @@ class OokDecoder:
         self._tc: float | None = None  # this frame: clock coordinate of frame chip 0
         self._tk = 0
         self.timed_w = self._acc4[3]  # weight of timed placements not yet confirmed
+        self.acc_sq = np.zeros(PACKET_LEN)  # sum of weighted squared soft chips (exposure model only)
+        self.soft_min_z = s.soft_min_z
+        self.soft_min_snr = s.soft_min_snr
+        self.soft_min_chips = s.soft_min_chips
+        self.soft_sigma_floor = s.soft_sigma_floor
+        self.soft_z = 0.0  # the latest soft decision's margin (noise sds)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -666,6 +724,8 @@ class OokDecoder:
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
+        if self.exposure_model:  # the squares, for the soft decision's noise fit
+            self.acc_sq += np.bincount(_cyclic_index(soft.size)[shift % PACKET_LEN], cw * soft * soft, PACKET_LEN)
         if _k is not None:
             _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
             return
@@ -686,6 +746,7 @@ class OokDecoder:
         (image row of the profile's first row); with them, frames are also placed by timing
         (`_timed_shift`)."""
         self.frames += 1
+        self.acc_sq *= self.decay
         if _k is not None:
             _k.decay4(self._acc4, self.decay)
         else:
@@ -793,6 +854,7 @@ class OokDecoder:
     def _rotate(self, q: int) -> None:
         """Rotate the unanchored accumulator so that its sync (at q) lands on position 0."""
         self._acc4[:] = np.roll(self._acc4, -q, axis=1)  # in place: acc .. timed_w stay its rows
+        self.acc_sq[:] = np.roll(self.acc_sq, -q)
         self._tobs = deque(((k, o - q) for k, o in self._tobs), maxlen=self._tobs.maxlen)
         self.timed_frames = deque(((x, (sh - q) % PACKET_LEN) for x, sh in self.timed_frames),
                                   maxlen=self.timed_frames.maxlen)
@@ -978,7 +1040,21 @@ class OokDecoder:
             self._clear()
             self._stale = 0
 
+    def _soft_due(self) -> bool:
+        """Try the maximum-likelihood ID decision? Only for a light without an ID whose chips
+        the exposure model reads, with the packet anchored and `soft_min_chips` positions seen."""
+        return (self.soft_min_z > 0 and self.exposure_model and self.led_id is None and self.anchored
+                and int(np.count_nonzero(self.acc_w)) >= self.soft_min_chips)
+
+    def _soft_decode(self) -> int | None:
+        """The ID of `soft_decide` on the accumulated packet when it passes `soft_min_z` and
+        `soft_min_snr`, else None."""
+        led_id, z, snr = soft_decide(self.acc, self.acc_w, self.acc_sq, sigma_floor=self.soft_sigma_floor)
+        self.soft_z = z
+        return led_id if z >= self.soft_min_z and snr >= self.soft_min_snr else None
+
     def _clear(self) -> None:
+        self.acc_sq[:] = 0.0
         self.acc[:] = 0.0
         self.acc_w[:] = 0.0
         self.trust_w[:] = 0.0
@@ -986,12 +1062,14 @@ class OokDecoder:
         self._timing_reset()
         self.timed_frames.clear()
 
-    def _verified(self, led_id: int) -> bool:
+    def _verified(self, led_id: int, soft: bool = False) -> bool:
         """A packet whose every data chip was placed by trusted placements (the frame's own
-        sync, or a complete alignment, see `_align`) is accepted as it is. One that needed
-        other alignments must fit all of the last `verify_frames` frames (there must be that
-        many): a 2-chip slip in the assembly is then exposed by the frames straddling it."""
-        if (self.trust_w[SYNC_LEN:] > 0).all():
+        sync, or a complete alignment, see `_align`) is accepted as it is (a `soft` decision:
+        every chip seen so far). One that needed other alignments must fit all of the last
+        `verify_frames` frames (there must be that many): a 2-chip slip in the assembly is then
+        exposed by the frames straddling it."""
+        sure = self.trust_w[self.acc_w > 0] if soft else self.trust_w[SYNC_LEN:]
+        if (sure > 0).all():
             return self._timed_frames_fit(led_id)
         if len(self.recent) < self.recent.maxlen:
             return False
@@ -1023,20 +1101,25 @@ class OokDecoder:
         return True
 
     def _decode(self) -> None:
+        complete = False
+        led_id, conf = None, 0.0
         if _k is not None:
             table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
             r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
-            if r is None:
-                self.confidence = 0.0
-                return
-            led_id, conf = r
+            if r is not None:
+                (led_id, conf), complete = r, True
         else:
             known = self.acc_w > 0
-            if not (self.anchored and known[SYNC_LEN:].all()):
-                self.confidence = 0.0
-                return
-            m = self._mean_packet(known)
-            led_id, conf = decode_packet(m, min_margin=self.min_margin)
+            if self.anchored and known[SYNC_LEN:].all():
+                m = self._mean_packet(known)
+                (led_id, conf), complete = decode_packet(m, min_margin=self.min_margin), True
+        soft = False
+        if led_id is None and self._soft_due():
+            led_id, soft = self._soft_decode(), True
+            complete = complete or led_id is not None
+        if not complete:
+            self.confidence = 0.0
+            return
         self.confidence = conf
         if led_id is not None:
             self._stale = 0
@@ -1045,7 +1128,7 @@ class OokDecoder:
         if led_id is None or led_id == self.led_id:
             self._cand, self._cand_n = None, 0
             return
-        if not self._verified(led_id):
+        if not self._verified(led_id, soft=soft):
             return
         if self.led_id is None:
             self.led_id = led_id

@@ -61,6 +61,13 @@ class OokSettings:
         model; model_phases [8]: sub-chip offsets tried per frame; model_min_fit [0.3]:
         frames the model explains less than this fraction of the level variance of are
         skipped (no chip stream behind them).
+      Soft ID decision (with the exposure model, for a light without an ID, when the rule
+        above rejects its packet): maximum likelihood over all 65,536 packets at the anchored
+        positions (`receiver.decode.ook.soft_decide`; unseen positions are erasures), once
+        soft_min_chips [30] positions are seen; accepted when the best ID beats every other by
+        soft_min_z [4.0] noise sds with amplitude >= soft_min_snr [1.0] noise sds (noise sd
+        floored at soft_sigma_floor [0.05] soft units), and only when every position seen was
+        placed by a trusted placement (else the `verify_frames` check). 0 = off.
     """
 
     min_row_frac: float = 0.25
@@ -90,6 +97,10 @@ class OokSettings:
     timing_min_corr: float = 0.6
     trust_timed: bool = True
     exposure_model: str = "auto"
+    soft_min_z: float = 4.0
+    soft_min_snr: float = 1.0
+    soft_min_chips: int = 30
+    soft_sigma_floor: float = 0.05
     model_min_chips: float = 0.5
     blur_rows: float = 1.0
     model_phases: int = 8
