@@ -370,56 +370,70 @@ def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
 
 
-_CODEBOOK: np.ndarray | None = None
+# Packets whose margins `soft_decide` computes at once (nearest scores first).
+_NEAR_CHUNK = 256
+# (256, 8) +-1: the bits of every byte, most significant first.
+_BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(7, -1, -1)) & 1) * 2.0 - 1.0)
 
 
-def codebook() -> np.ndarray:
-    """(65536, 54) float32: the +-1 packet of every ID (sync first), built once (14 MB)."""
-    global _CODEBOOK
-    if _CODEBOOK is None:
-        ids = np.arange(1 << OOK_ID_BITS, dtype=np.int64)
-        value = (ids << CRC_BITS) | crc8_table().astype(np.int64)
-        bits = (value[:, None] >> np.arange(N_BITS - 1, -1, -1)) & 1
-        data = np.stack([bits, 1 - bits], axis=2).reshape(ids.size, 2 * N_BITS) * 2 - 1  # Manchester
-        book = np.concatenate((np.broadcast_to(_SYNC_T, (ids.size, SYNC_LEN)), data), axis=1)
-        _CODEBOOK = book.astype(np.float32)
-        _CODEBOOK.setflags(write=False)
-    return _CODEBOOK
+def _bit_signs(ids: np.ndarray) -> np.ndarray:
+    """(len(ids), 24) +-1 data bits (ID then CRC-8, MSB first) of the given IDs' packets."""
+    value = (ids.astype(np.int64) << CRC_BITS) | crc8_table()[ids].astype(np.int64)
+    return ((value[:, None] >> np.arange(N_BITS - 1, -1, -1)) & 1) * 2.0 - 1.0
 
 
 def soft_decide(sums: np.ndarray, weights: np.ndarray, squares: np.ndarray, *,
-                sigma_floor: float = 0.05) -> tuple[int, float, float]:
+                sigma_floor: float = 0.05, z_cap: float = 8.0) -> tuple[int, float, float]:
     """Maximum-likelihood ID of an anchored packet accumulation over all 65,536 packets.
 
     sums, weights, squares: (54,) per packet position the weighted sum of the soft chips, the
     sum of their weights and the weighted sum of their squares (0 where nothing was seen).
     Model (as `receiver.decode.s2psk.soft_stats`): a soft chip at position p is x = a c_p + n,
     c_p = +-1 the hypothesis' chip, n white of variance sigma^2; the log-likelihood is then
-    const + a sum_p c_p S_p / sigma^2, largest for the largest correlation sum_p c_p S_p (one
-    matrix product over the codebook). a and sigma^2 are fitted under the best packet
+    const + a sum_p c_p S_p / sigma^2, largest for the largest correlation sum_p c_p S_p. a and sigma^2 are fitted under the best packet
     (sigma floored by `sigma_floor`). Between the best packet c1 and another c, the score
     difference 2 sum_{p: c1 != c} c1_p S_p has sd 2 sigma sqrt(W), W = the weight of the
     positions where they differ (unseen positions weigh 0: a packet that differs only there
-    has z = 0). Returns (best ID, z = the smallest such margin over every other ID in noise
-    sds, snr = a / sigma)."""
-    book = codebook()
+    has z = 0). Returns (best ID, z, snr = a / sigma): z is the smallest such margin over
+    every other ID in noise sds when it is below `z_cap`, else z_cap (larger margins are not
+    computed; below the cap, the first packet found under it may stand for the smallest)."""
     w = np.asarray(weights, dtype=np.float64)
+    S = np.asarray(sums, dtype=np.float64)
     n = float(w.sum())
     if n <= 0:
         return 0, 0.0, 0.0
-    scores = book @ np.asarray(sums, dtype=np.float32)
+    # Every packet shares the sync and sends bit d as the chip pair (d, -d): its correlation is
+    # the sync's plus sum_i d_i u_i, u_i the pair's difference; with the ID's two bytes and the
+    # CRC byte apart, all 65,536 of them are sums of three 256-entry tables.
+    u = S[DATA_START::2] - S[DATA_START + 1::2]
+    hi, lo, cr = (_BYTE_SIGNS @ u[8 * j:8 * j + 8] for j in range(3))
+    scores = (hi[:, None] + lo[None, :]).ravel() + cr[crc8_table()] + float(S[:SYNC_LEN] @ _SYNC_T)
     i1 = int(np.argmax(scores))
     score1 = float(scores[i1])
     amp = score1 / n
     rss = max(float(np.sum(squares)) - score1 * amp, 0.0)
     var = max(rss / max(n - 1.0, 1.0), sigma_floor ** 2)
-    # W of every packet against c1: sum_p w_p [c_p != c1_p] = (n - sum_p w_p c1_p c_p) / 2
-    W = 0.5 * (n - book @ (w * book[i1]).astype(np.float32))
-    W[i1] = np.inf
-    z = (score1 - scores) / (2.0 * np.sqrt(np.maximum(W, 1e-12) * var))
-    z[W <= 1e-9] = 0.0  # differs only where nothing was seen: not told apart
-    z[i1] = np.inf
-    return i1, float(z.min()), amp / math.sqrt(var)
+    # W <= n, so a packet whose score is below score1 - 2 sqrt(n var) z_cap has z >= z_cap:
+    # W (the weight of the chip pairs whose bits differ from c1's) is only needed for the others
+    gap = score1 - scores
+    near = np.flatnonzero(gap < 2.0 * math.sqrt(n * var) * z_cap)
+    near = near[near != i1]
+    pair_w = w[DATA_START::2] + w[DATA_START + 1::2]
+    c1 = _bit_signs(np.array([i1]))
+    zmin = z_cap
+    # nearest scores first, in chunks: a packet below the cap settles a rejection
+    if near.size > _NEAR_CHUNK:
+        first = np.argpartition(gap[near], _NEAR_CHUNK)[:_NEAR_CHUNK]
+        near = np.concatenate((near[first], np.delete(near, first)))
+    for k in range(0, near.size, _NEAR_CHUNK):
+        part = near[k:k + _NEAR_CHUNK]
+        W = (_bit_signs(part) != c1) @ pair_w
+        z = gap[part] / (2.0 * np.sqrt(np.maximum(W, 1e-12) * var))
+        z[W <= 1e-9] = 0.0  # differs only where nothing was seen: not told apart
+        zmin = min(zmin, float(z.min()))
+        if zmin < z_cap:
+            break
+    return i1, zmin, amp / math.sqrt(var)
 
 
 @dataclass(frozen=True)
@@ -1049,7 +1063,8 @@ class OokDecoder:
     def _soft_decode(self) -> int | None:
         """The ID of `soft_decide` on the accumulated packet when it passes `soft_min_z` and
         `soft_min_snr`, else None."""
-        led_id, z, snr = soft_decide(self.acc, self.acc_w, self.acc_sq, sigma_floor=self.soft_sigma_floor)
+        led_id, z, snr = soft_decide(self.acc, self.acc_w, self.acc_sq, sigma_floor=self.soft_sigma_floor,
+                                     z_cap=self.soft_min_z)
         self.soft_z = z
         return led_id if z >= self.soft_min_z and snr >= self.soft_min_snr else None
 
