@@ -36,6 +36,13 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
    packet that relied on a risky alignment (short overlaps: small blobs) is also checked
    against the last frames as a whole template before its ID is reported (`_verified`).
 
+With an exposure of half a chip or more, stages 1-2 are replaced by the exposure model
+(receiver.decode.exposure: the profile as the chip stream averaged over the exposure, chips by
+maximum-likelihood sequence estimation), and a packet that stage 5 rejects may still be decided
+by maximum likelihood over all 65,536 packets (`soft_decide`, with a margin that noise and wrong
+assemblies do not reach). The exposure comes from the camera file or, when it is 0, from the
+stripes' edge ramps (`exposure.ExposureLearner`).
+
 A single wrong chip changes at most one Manchester pair, so it is either outvoted in the
 accumulator or it yields one wrong bit, which CRC-8 always detects (any CRC whose polynomial has
 more than one term detects every single-bit error); a wrong pair also has a small margin.
