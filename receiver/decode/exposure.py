@@ -30,7 +30,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d, minimum_filter1d, uniform_filter1d
+import cv2
 
 from firmware_tx.framing import ook_packet
 
@@ -78,12 +78,22 @@ def model_quantiles(period_rows: float, e_chips: float, blur_chips: float, n: in
     return q
 
 
+def envelopes(x: np.ndarray, win: int) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi): running minimum and maximum of x over `win` samples, each smoothed by a
+    running mean of `win` (edges: the window's part inside x)."""
+    row = np.ascontiguousarray(x, dtype=np.float64)[None, :]
+    k = np.ones((1, win), np.uint8)
+    out = []
+    for op in (cv2.erode, cv2.dilate):
+        e = op(row, k, borderType=cv2.BORDER_REPLICATE)
+        out.append(cv2.blur(e, (win, 1), borderType=cv2.BORDER_REPLICATE)[0])
+    return out[0], out[1]
+
+
 def linearise(x: np.ndarray, period_rows: float, e_chips: float, blur_chips: float,
               norm_chips: float) -> np.ndarray:
     """Profile levels mapped onto the model's level scale y in [0, 1] (module docstring)."""
-    win = max(3, int(round(norm_chips * period_rows)))
-    hi = uniform_filter1d(maximum_filter1d(x, win, mode="nearest"), win, mode="nearest")
-    lo = uniform_filter1d(minimum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    lo, hi = envelopes(x, max(3, int(round(norm_chips * period_rows))))
     xn = (x - lo) / np.maximum(hi - lo, 1e-6)
     q = model_quantiles(period_rows, e_chips, blur_chips)
     ranks = (np.argsort(np.argsort(xn, kind="stable"), kind="stable") + 0.5) / xn.size
@@ -183,9 +193,7 @@ def ramp_exposure_rows(x: np.ndarray, period_rows: float, norm_chips: float = 16
         return None
     # envelopes over up to `norm_chips` chips: at long exposures only the sync's runs reach
     # the full ON and OFF levels, and a narrower envelope would shrink the swing
-    win = max(3, min(int(round(norm_chips * period_rows)), x.size))
-    hi = uniform_filter1d(maximum_filter1d(x, win, mode="nearest"), win, mode="nearest")
-    lo = uniform_filter1d(minimum_filter1d(x, win, mode="nearest"), win, mode="nearest")
+    lo, hi = envelopes(x, max(3, min(int(round(norm_chips * period_rows)), x.size)))
     d = np.abs(np.diff((x - lo) / np.maximum(hi - lo, 1e-6)))
     top = float(np.percentile(d, 98))
     if top <= 0:
