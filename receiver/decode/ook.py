@@ -59,7 +59,7 @@ from functools import lru_cache
 import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
-from receiver.decode import exposure
+from receiver.decode import exposure, pieces
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
@@ -364,6 +364,14 @@ def packet_template(led_id: int) -> np.ndarray:
     return np.concatenate((_SYNC_T, data))
 
 
+@lru_cache(maxsize=16)
+def _templates(ids: tuple) -> np.ndarray:
+    """(K, 54) +-1 packets of the IDs (shared by the decoders of one map and rate)."""
+    t = np.stack([packet_template(i) for i in ids]) if ids else np.zeros((0, PACKET_LEN))
+    t.setflags(write=False)
+    return t
+
+
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
@@ -485,7 +493,8 @@ class OokDecoder:
 
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
-                 exposure_learner: exposure.ExposureLearner | None = None, **overrides):
+                 exposure_learner: exposure.ExposureLearner | None = None,
+                 candidates: np.ndarray | None = None, **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
@@ -560,6 +569,17 @@ class OokDecoder:
         self.soft_min_chips = s.soft_min_chips
         self.soft_sigma_floor = s.soft_sigma_floor
         self.soft_z = 0.0  # the latest soft decision's margin (noise sds)
+        # pieces placed by the frame times (receiver.decode.pieces), for lights showing few
+        # chips a frame; only with candidate IDs (the map's at this rate)
+        self.rate_hz = rate_hz
+        self.pieces_max_chips = s.pieces_max_chips
+        self.pieces = None
+        if candidates is not None and len(candidates) and s.pieces_max_chips > 0:
+            ids = np.asarray(candidates, dtype=np.int64)
+            self.pieces = pieces.PieceAssembler(
+                ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
+                history=s.pieces_frames, min_frames=s.pieces_min_frames, min_corr=s.pieces_min_corr,
+                min_gap=s.pieces_min_gap, shift_penalty=s.pieces_shift_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -761,8 +781,9 @@ class OokDecoder:
 
     def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
         """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
-        and its per-row pixel counts `weights` (R,) or None. `t_s` is unused (OOK packets are
-        assembled by sync, not by time) and accepted for a uniform decoder interface.
+        and its per-row pixel counts `weights` (R,) or None. `t_s`: the frame's timestamp (s),
+        used with `y0` to place short pieces by time (receiver.decode.pieces) when the decoder
+        has candidate IDs.
         Optional timing hint: `clock` (receiver.decode.frameclock.ClockTick of this frame) and `y0`
         (image row of the profile's first row); with them, frames are also placed by timing
         (`_timed_shift`)."""
@@ -783,6 +804,9 @@ class OokDecoder:
                 self._t_epoch = clock.epoch
             self._tk = clock.k
             self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
+        if (self.pieces is not None and self.led_id is None and t_s is not None and y0 is not None
+                and self.last_start_row is not None and soft.size >= 2):
+            self._add_piece(soft, cw, t_s, y0)
         added = None
         if soft.size >= SYNC_LEN:
             self.recent.append(soft)
@@ -863,6 +887,17 @@ class OokDecoder:
                 shift = (shift - q) % PACKET_LEN
         self._t_observe(shift, sync=False)
         return True
+
+    def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
+        """Keep a short piece (no more than `pieces_max_chips` chips) with its packet time
+        (receiver.decode.pieces) and try the ML choice of the light's ID."""
+        if soft.size > self.pieces_max_chips:
+            return  # a long piece: the assembly above places it by its own chips
+        q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
+        self.pieces.add(soft, cw, q)
+        led_id = self.pieces.decide()
+        if led_id is not None:
+            self.led_id = led_id
 
     def _add_timed(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
         """Add a frame placed by the frame clock: trusted once the offsets are tied to packet

@@ -168,6 +168,14 @@ class DecodePolicy:
         # Rows per chip is a constant of this camera and the rate: one learner per rate serves
         # every track, so a new track does not refine it again for its first frames.
         self.period_learners = {rate: PeriodLearner(ook.period_frames) for rate in plan.ook_rates}
+        # the map's IDs per OOK rate (map addressing): the candidates of a light whose frames
+        # show only short pieces of its packet (receiver.decode.pieces)
+        self.candidates = {}
+        if led_map.addressing != "xy" and camera.rolling_shutter:
+            for rate in plan.ook_rates:
+                ids = sorted(led.id for led in led_map.by_mode("ook")
+                             if accept(led_map, "ook", led.id, rate))
+                self.candidates[rate] = np.array(ids, dtype=np.int64)
         # the exposure, when the camera file does not state it, is learned from the stripes
         self.exposure_learners = ({rate: ExposureLearner() for rate in plan.ook_rates}
                                   if camera.rolling_shutter and camera.exposure_us <= 0 else {})
@@ -198,7 +206,8 @@ class DecodePolicy:
         for rate in self.plan.ook_rates:
             decoders[("ook", rate)] = OokDecoder(rate, cam.row_readout_us, cam.exposure_us, settings=self.ook,
                                                  period_learner=self.period_learners[rate],
-                                                 exposure_learner=self.exposure_learners.get(rate))
+                                                 exposure_learner=self.exposure_learners.get(rate),
+                                                 candidates=self.candidates.get(rate))
         if self.plan.tone_table:
             decoders[("tone", 0.0)] = ToneDecoder(self.plan.tone_table, cam.row_readout_us, settings=self.tone)
         return LightDecoder(decoders)
@@ -236,7 +245,7 @@ class DecodePolicy:
             elif ticks and ticks.get(rate) is not None:
                 st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
             else:
-                st = dec.step(profile, weights, t_s)
+                st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None
