@@ -74,12 +74,13 @@ class OokSettings:
         by their timestamps and image rows within +-pieces_jitter_us [200] (the camera's
         frame-start jitter; pieces_shift_penalty [0.2] correlation off per chip of shift),
         and the ID and packet phase chosen by maximum likelihood over the candidates, from
-        pieces_min_frames [6] pieces, when the mean correlation is >= pieces_min_corr [0.8],
-        beats every other ID by pieces_min_gap [0.25] and the pieces cover the packet.
-        Seeded Monte Carlo (tools-free, /tests/decode/test_ook_pieces.py is a small version):
-        pieces of 5-13 chips, 100 us rms jitter, 20-360 candidates, half of the lights not
-        among them: the largest gap of a wrong best ID with mean correlation >= 0.8 was 0.145
-        (25 such decisions in 1000), right IDs' median gap 0.25.
+        pieces_min_frames [6] pieces, when the mean correlation is >= pieces_min_corr [0.85],
+        beats every other ID by pieces_min_gap [0.3] and the pieces cover the packet.
+        Seeded Monte Carlo (/tmp-free small version: tests/decode/test_ook_pieces.py): pieces
+        of 5-13 chips, 100 us rms jitter, 20-360 candidates, half of the lights not among
+        them, 25 decisions a light: in 25,000 decisions the largest gap of a wrong best ID
+        with mean correlation >= 0.8 was 0.230 (in 10,000 with >= 0.85: 0.191); a light in
+        the map passes 0.85 / 0.3 in 15 % of its decisions (it needs one).
     """
 
     min_row_frac: float = 0.25
@@ -117,8 +118,8 @@ class OokSettings:
     pieces_jitter_us: float = 200.0
     pieces_frames: int = 30
     pieces_min_frames: int = 6
-    pieces_min_corr: float = 0.8
-    pieces_min_gap: float = 0.25
+    pieces_min_corr: float = 0.85
+    pieces_min_gap: float = 0.3
     pieces_shift_penalty: float = 0.2
     model_min_chips: float = 0.5
     blur_rows: float = 1.0
@@ -225,8 +226,8 @@ class S2pskSettings:
     pieces_jitter_us: float = 200.0
     pieces_frames: int = 30
     pieces_min_frames: int = 6
-    pieces_min_corr: float = 0.8
-    pieces_min_gap: float = 0.25
+    pieces_min_corr: float = 0.85
+    pieces_min_gap: float = 0.3
     pieces_shift_penalty: float = 0.2
     soft_position_dof: float = 0.0
 
