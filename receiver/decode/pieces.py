@@ -49,7 +49,7 @@ class PieceAssembler:
         self.min_gap = min_gap
         self.shift_penalty = shift_penalty
         self.phis = np.arange(PACKET_LEN * PHASE_STEPS) / PHASE_STEPS
-        self.ll = np.zeros((self.ids.size, self.phis.size))  # sum over pieces of weight * best[:, s(phi)]
+        self.ll: np.ndarray | None = None  # sum over pieces of weight * best[:, s(phi)] (K, 54 * steps)
         self.total = 0.0
         self.score = 0.0  # the latest decision's mean correlation, gap and best ID (diagnostics)
         self.gap = 0.0
@@ -73,6 +73,8 @@ class PieceAssembler:
             pen = self.shift_penalty * d
             np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
             np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
+        if self.ll is None:  # made with the first piece: most lights never show a short one
+            self.ll = np.zeros((self.ids.size, self.phis.size))
         if len(self.pieces) >= self.history:
             old, w, q0, _ = self.pieces.popleft()
             self.ll -= w * old[:, self._slots(q0)]
