@@ -76,7 +76,7 @@ class OokSettings:
         and the ID and packet phase chosen by maximum likelihood over the candidates, from
         pieces_min_frames [6] pieces, when the mean correlation is >= pieces_min_corr [0.85],
         beats every other ID by pieces_min_gap [0.3] and the pieces cover the packet.
-        Seeded Monte Carlo (/tmp-free small version: tests/decode/test_ook_pieces.py): pieces
+        Seeded Monte Carlo (a small version is tests/decode/test_ook_pieces.py): pieces
         of 5-13 chips, 100 us rms jitter, 20-360 candidates, half of the lights not among
         them, 25 decisions a light: in 25,000 decisions the largest gap of a wrong best ID
         with mean correlation >= 0.8 was 0.230 (in 10,000 with >= 0.85: 0.191); a light in
