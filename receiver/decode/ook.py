@@ -367,7 +367,9 @@ def packet_template(led_id: int) -> np.ndarray:
 @lru_cache(maxsize=16)
 def _templates(ids: tuple) -> np.ndarray:
     """(K, 54) +-1 packets of the IDs (shared by the decoders of one map and rate)."""
-    t = np.stack([packet_template(i) for i in ids]) if ids else np.zeros((0, PACKET_LEN))
+    bits = _bit_signs(np.array(ids, dtype=np.int64))  # (K, 24) +-1; Manchester: bit b -> (b, -b)
+    t = np.concatenate((np.broadcast_to(_SYNC_T, (len(ids), SYNC_LEN)),
+                        np.stack((bits, -bits), axis=2).reshape(len(ids), 2 * N_BITS)), axis=1)
     t.setflags(write=False)
     return t
 

@@ -40,10 +40,13 @@ class PieceAssembler:
                  min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2):
         self.ids = np.asarray(ids)
         self.templates = np.asarray(templates, dtype=np.float32)
+        self._wrapped = None if self.templates.size == 0 else np.concatenate(
+            (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
         self.jitter = int(jitter_chips)
         self.history = history
         # per piece: (best (K, 54) float32 windowed correlation, weight, q, n)
         self.pieces: deque = deque()
+        self._raw: list = []  # pieces kept until min_frames are there: (x, q)
         self.min_frames = min_frames
         self.min_corr = min_corr
         self.min_gap = min_gap
@@ -60,20 +63,32 @@ class PieceAssembler:
         return np.floor(q + self.phis + 0.5).astype(np.int64) % PACKET_LEN
 
     def add(self, soft: np.ndarray, cw: np.ndarray, q: float) -> None:
+        """Keep a piece (soft chips, weights, packet time q); its correlations with the
+        candidates are computed once `min_frames` pieces are there (a light that shows a short
+        piece for a frame or two, entering the image, costs nothing)."""
         x = (np.clip(soft, -1.0, 1.0) * cw).astype(np.float32)
-        den = float(np.abs(x).sum())
-        if den <= 0 or self.ids.size == 0:
+        if float(np.abs(x).sum()) <= 0 or self.ids.size == 0:
             return
+        self._raw.append((x, float(q) % PACKET_LEN))
+        if len(self.pieces) + len(self._raw) >= self.min_frames:
+            for x, q in self._raw:
+                self._add(x, q)
+            self._raw.clear()
+
+    def _add(self, x: np.ndarray, q: float) -> None:
+        den = float(np.abs(x).sum())
         n = x.size
-        q = float(q) % PACKET_LEN
-        idx = (np.arange(PACKET_LEN)[:, None] + np.arange(n)[None, :]) % PACKET_LEN
-        corr = (self.templates[:, idx] @ x) / den  # (K, 54): the piece at each packet position
+        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54]
+        corr = np.zeros((self.ids.size, PACKET_LEN), np.float32)
+        for k in range(n):
+            corr += x[k] * self._wrapped[:, k:k + PACKET_LEN]
+        corr /= den
         best = corr.copy()
         for d in range(1, self.jitter + 1):  # the best within the jitter window of each position
             pen = self.shift_penalty * d
             np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
             np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
-        if self.ll is None:  # made with the first piece: most lights never show a short one
+        if self.ll is None:  # made with the first piece: most lights never show enough short ones
             self.ll = np.zeros((self.ids.size, self.phis.size))
         if len(self.pieces) >= self.history:
             old, w, q0, _ = self.pieces.popleft()
