@@ -8,9 +8,11 @@ camera, the camera app's settings for photos, both for a video file). Photos (`s
 
 * stripes: stripe depth (`receiver.vision.profile.stripe_depth`) of every LED followed over the
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
-* exposure: estimated from the stripes' edge ramps (`receiver.calibrate.rows`) and the camera
-  file's `exposure_us`, against the map's shortest chip (OOK chip, half a tone period): more than
-  half a chip washes the stripes out.
+* exposure: estimated from the stripes (`receiver.calibrate.rows`, else the edge ramps of the
+  LEDs' row profiles, `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's
+  `exposure_us`: OOK chips are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure
+  model; `exposure_verdict` names the exposure and chip rate that would work), a tone's stripes
+  up to half of its half period.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
   the clip (more than `DRIFT_FRAC` of the level).
 * anti-flicker banding: mains-lit rooms put a periodic row pattern into the background (100 or
@@ -32,6 +34,8 @@ import cv2
 import numpy as np
 
 from receiver.calibrate.rows import edge_blur_px, measure_row_time
+from receiver.decode.exposure import MAX_EXPOSURE_CHIPS, MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
+from receiver.decode.ook import rows_per_chip
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
 from receiver.vision.profile import row_profile, stripe_depth
@@ -48,6 +52,7 @@ FOCUS_STRIPE_DEPTH = 0.8
 EXPOSURE_CHIP_FRAC = 0.5
 GAP_FACTOR = 1.5
 ASSOC_PX = 40.0
+MAX_RAMP_PROFILES = 60
 
 
 @dataclass
@@ -151,6 +156,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     tracks: list[dict] = []
     blurs = []
     kept = []
+    ook_profiles: list[np.ndarray] = []  # the LEDs' row profiles (well-covered rows), for edge ramps
     dup = 0
     prev = None
     for f in frames:
@@ -173,6 +179,10 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
             if b.y1 - b.y0 >= 6:
                 prof, w, _ = row_profile(g, b)
                 depth = stripe_depth(prof, w, background=b.background)
+                if len(ook_profiles) < MAX_RAMP_PROFILES and b.peak < 250:
+                    keep = w >= 0.5 * w.max()
+                    if keep.sum() >= 24:
+                        ook_profiles.append(np.asarray(prof, np.float64)[keep.nonzero()[0][0]:keep.nonzero()[0][-1] + 1])
             bl = edge_blur_px(g, b)
             if bl is not None:
                 blurs.append(bl)
@@ -221,26 +231,63 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                                value={"leds": depth, "min_depth": MIN_STRIPE_DEPTH}))
     # exposure
     if rolling and rates:
-        chip_us = 1e6 / max(rates)
-        est = None
-        try:
-            ook = [float(l.rate_hz) for l in led_map.by_mode("ook") if l.rate_hz]
-            tone = [float(l.freq_hz) for l in led_map.by_mode("tone") if l.freq_hz]
-            mode, rate = ("ook", max(ook)) if ook else ("tone", max(tone))
-            est = measure_row_time(kept, mode=mode, rate_hz=rate, prior_row_us=camera.row_readout_us).exposure_us
-        except (InputError, ValueError):
-            est = None
+        est, how = None, ""
+        ook = [float(l.rate_hz) for l in led_map.by_mode("ook") if l.rate_hz]
+        if led_map.addressing == "xy" and led_map.default_rate_hz:
+            ook.append(float(led_map.default_rate_hz))
+        tone = [float(l.freq_hz) for l in led_map.by_mode("tone") if l.freq_hz]
+        ramp = None
+        if ook:
+            # the edges' ramps (every stripe shape); past half a chip they are the measurement,
+            # the stripe fit below assumes clean chip edges
+            ramps = [e for e in (ramp_exposure_rows(p, rows_per_chip(max(ook), camera.row_readout_us))
+                                 for p in ook_profiles) if e is not None]
+            if len(ramps) >= 3:
+                ramp = float(np.median(ramps)) * camera.row_readout_us
+        if ramp is not None and ramp >= MODEL_FROM_CHIPS * 1e6 / max(ook):
+            est, how = ramp, "edge ramps"
+        else:
+            try:
+                mode, rate = ("ook", max(ook)) if ook else ("tone", max(tone))
+                est = measure_row_time(kept, mode=mode, rate_hz=rate,
+                                       prior_row_us=camera.row_readout_us).exposure_us
+                how = "stripe fit"
+            except (InputError, ValueError):
+                est = None
+            if est is None and ramp is not None:
+                est, how = ramp, "edge ramps"
         exp = est if est is not None else (camera.exposure_us or None)
-        bad = exp is not None and exp > EXPOSURE_CHIP_FRAC * chip_us
+        if est is None and exp:
+            how = "camera file"
+        chip_us = 1e6 / max(rates)
+        texts, fixes, bad = [], [], False
+        if exp is not None and ook:
+            # OOK: the exposure model reads chips up to MAX_EXPOSURE_CHIPS (receiver.decode.exposure)
+            for r in sorted(set(ook)):
+                ok_r, t = exposure_verdict(exp, r)
+                texts.append(t)
+                bad |= not ok_r
+            fix_us = MAX_EXPOSURE_CHIPS * 1e6 / max(ook)
+        else:
+            fix_us = EXPOSURE_CHIP_FRAC * chip_us
+        if exp is not None and tone:
+            half_us = 1e6 / (2.0 * max(tone))
+            tone_bad = exp > EXPOSURE_CHIP_FRAC * half_us
+            texts.append(f"exposure ~{exp:.0f} us vs the {max(tone):g} Hz tone's half period {half_us:.0f} us"
+                         + (": stripes wash out" if tone_bad else ""))
+            if tone_bad:
+                bad = True
+                fix_us = min(fix_us, EXPOSURE_CHIP_FRAC * half_us)
         weak_all = out[0].name == "stripes" and not out[0].ok
         if exp is None and weak_all:
             bad = True
-        text = (f"exposure ~{exp:.0f} us" if exp is not None else "exposure unknown") + \
-            f" vs shortest chip {chip_us:.0f} us" + (" (camera file)" if est is None and exp else "")
+        text = ("; ".join(texts) if texts else "exposure unknown" if exp is None
+                else f"exposure ~{exp:.0f} us vs shortest chip {chip_us:.0f} us") + (f" ({how})" if how else "")
         out.append(Finding("exposure", not bad, text,
                            "set a short manual exposure: v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=N "
-                           f"(100 us units; N <= {max(1, int(EXPOSURE_CHIP_FRAC * chip_us / 100))})" if bad else "",
-                           {"exposure_us": exp, "chip_us": chip_us}))
+                           f"(100 us units; N <= {max(1, int(fix_us / 100))}, i.e. <= {fix_us:.0f} us)" if bad else "",
+                           {"exposure_us": exp, "chip_us": chip_us,
+                            "exposure_chips": None if exp is None else round(exp / chip_us, 3)}))
     # drift
     t = np.asarray(times)
     span = float(t[-1] - t[0]) if len(t) > 1 else 0.0

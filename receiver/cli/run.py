@@ -479,6 +479,9 @@ def _main(args, stop: "SignalStop") -> int:
 
         rx = build(cam)
         positioner, vehicle = rx.positioner, rx.vehicle
+        for readable, note in rx.policy.exposure_notes():
+            if not readable:  # known before the first frame: say so at once
+                print(f"occloc: warning: {note}", file=sys.stderr)
         if settings_file is not None:
             write_settings(settings_file, rx)
         explain = positioner is not None and _indoor_lights(led_map)
@@ -536,6 +539,9 @@ def _main(args, stop: "SignalStop") -> int:
             if overlay is not None:
                 _close_overlay(overlay, ok)
             out.commit() if ok else out.discard()
+        if cam.exposure_us <= 0:  # learned during the run (before the summary: it stays the last line)
+            for readable, note in rx.policy.exposure_notes():
+                print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
         hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,

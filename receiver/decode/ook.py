@@ -36,6 +36,13 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
    packet that relied on a risky alignment (short overlaps: small blobs) is also checked
    against the last frames as a whole template before its ID is reported (`_verified`).
 
+With an exposure of half a chip or more, stages 1-2 are replaced by the exposure model
+(receiver.decode.exposure: the profile as the chip stream averaged over the exposure, chips by
+maximum-likelihood sequence estimation), and a packet that stage 5 rejects may still be decided
+by maximum likelihood over all 65,536 packets (`soft_decide`, with a margin that noise and wrong
+assemblies do not reach). The exposure comes from the camera file or, when it is 0, from the
+stripes' edge ramps (`exposure.ExposureLearner`).
+
 A single wrong chip changes at most one Manchester pair, so it is either outvoted in the
 accumulator or it yields one wrong bit, which CRC-8 always detects (any CRC whose polynomial has
 more than one term detects every single-bit error); a wrong pair also has a small margin.
@@ -52,6 +59,7 @@ from functools import lru_cache
 import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
+from receiver.decode import exposure, pieces
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
@@ -356,6 +364,16 @@ def packet_template(led_id: int) -> np.ndarray:
     return np.concatenate((_SYNC_T, data))
 
 
+@lru_cache(maxsize=16)
+def _templates(ids: tuple) -> np.ndarray:
+    """(K, 54) +-1 packets of the IDs (shared by the decoders of one map and rate)."""
+    bits = _bit_signs(np.array(ids, dtype=np.int64))  # (K, 24) +-1; Manchester: bit b -> (b, -b)
+    t = np.concatenate((np.broadcast_to(_SYNC_T, (len(ids), SYNC_LEN)),
+                        np.stack((bits, -bits), axis=2).reshape(len(ids), 2 * N_BITS)), axis=1)
+    t.setflags(write=False)
+    return t
+
+
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
@@ -367,6 +385,72 @@ def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     idx = _cyclic_index(s.size)
     den = np.abs(s).sum()
     return float((template[idx] @ s).max() / den) if den > 0 else 0.0
+
+
+# Packets whose margins `soft_decide` computes at once (nearest scores first).
+_NEAR_CHUNK = 256
+# (256, 8) +-1: the bits of every byte, most significant first.
+_BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(7, -1, -1)) & 1) * 2.0 - 1.0)
+
+
+def _bit_signs(ids: np.ndarray) -> np.ndarray:
+    """(len(ids), 24) +-1 data bits (ID then CRC-8, MSB first) of the given IDs' packets."""
+    value = (ids.astype(np.int64) << CRC_BITS) | crc8_table()[ids].astype(np.int64)
+    return ((value[:, None] >> np.arange(N_BITS - 1, -1, -1)) & 1) * 2.0 - 1.0
+
+
+def soft_decide(sums: np.ndarray, weights: np.ndarray, squares: np.ndarray, *,
+                sigma_floor: float = 0.05, z_cap: float = 8.0) -> tuple[int, float, float]:
+    """Maximum-likelihood ID of an anchored packet accumulation over all 65,536 packets.
+
+    sums, weights, squares: (54,) per packet position the weighted sum of the soft chips, the
+    sum of their weights and the weighted sum of their squares (0 where nothing was seen).
+    Model (as `receiver.decode.s2psk.soft_stats`): a soft chip at position p is x = a c_p + n,
+    c_p = +-1 the hypothesis' chip, n white of variance sigma^2; the log-likelihood is then
+    const + a sum_p c_p S_p / sigma^2, largest for the largest correlation sum_p c_p S_p. a and sigma^2 are fitted under the best packet
+    (sigma floored by `sigma_floor`). Between the best packet c1 and another c, the score
+    difference 2 sum_{p: c1 != c} c1_p S_p has sd 2 sigma sqrt(W), W = the weight of the
+    positions where they differ (unseen positions weigh 0: a packet that differs only there
+    has z = 0). Returns (best ID, z, snr = a / sigma): z is the smallest such margin over
+    every other ID in noise sds when it is below `z_cap`, else z_cap (larger margins are not
+    computed; below the cap, the first packet found under it may stand for the smallest)."""
+    w = np.asarray(weights, dtype=np.float64)
+    S = np.asarray(sums, dtype=np.float64)
+    n = float(w.sum())
+    if n <= 0:
+        return 0, 0.0, 0.0
+    # Every packet shares the sync and sends bit d as the chip pair (d, -d): its correlation is
+    # the sync's plus sum_i d_i u_i, u_i the pair's difference; with the ID's two bytes and the
+    # CRC byte apart, all 65,536 of them are sums of three 256-entry tables.
+    u = S[DATA_START::2] - S[DATA_START + 1::2]
+    hi, lo, cr = (_BYTE_SIGNS @ u[8 * j:8 * j + 8] for j in range(3))
+    scores = (hi[:, None] + lo[None, :]).ravel() + cr[crc8_table()] + float(S[:SYNC_LEN] @ _SYNC_T)
+    i1 = int(np.argmax(scores))
+    score1 = float(scores[i1])
+    amp = score1 / n
+    rss = max(float(np.sum(squares)) - score1 * amp, 0.0)
+    var = max(rss / max(n - 1.0, 1.0), sigma_floor ** 2)
+    # W <= n, so a packet whose score is below score1 - 2 sqrt(n var) z_cap has z >= z_cap:
+    # W (the weight of the chip pairs whose bits differ from c1's) is only needed for the others
+    gap = score1 - scores
+    near = np.flatnonzero(gap < 2.0 * math.sqrt(n * var) * z_cap)
+    near = near[near != i1]
+    pair_w = w[DATA_START::2] + w[DATA_START + 1::2]
+    c1 = _bit_signs(np.array([i1]))
+    zmin = z_cap
+    # nearest scores first, in chunks: a packet below the cap settles a rejection
+    if near.size > _NEAR_CHUNK:
+        first = np.argpartition(gap[near], _NEAR_CHUNK)[:_NEAR_CHUNK]
+        near = np.concatenate((near[first], np.delete(near, first)))
+    for k in range(0, near.size, _NEAR_CHUNK):
+        part = near[k:k + _NEAR_CHUNK]
+        W = (_bit_signs(part) != c1) @ pair_w
+        z = gap[part] / (2.0 * np.sqrt(np.maximum(W, 1e-12) * var))
+        z[W <= 1e-9] = 0.0  # differs only where nothing was seen: not told apart
+        zmin = min(zmin, float(z.min()))
+        if zmin < z_cap:
+            break
+    return i1, zmin, amp / math.sqrt(var)
 
 
 @dataclass(frozen=True)
@@ -411,7 +495,8 @@ class OokDecoder:
 
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
-                 **overrides):
+                 exposure_learner: exposure.ExposureLearner | None = None,
+                 candidates: np.ndarray | None = None, **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
@@ -420,7 +505,15 @@ class OokDecoder:
         self._learner = period_learner if period_learner is not None else PeriodLearner(s.period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
-        self.exposure_rows = exposure_us / row_readout_us
+        self._model_mode, self._model_min_chips = s.exposure_model, s.model_min_chips
+        # exposure_us <= 0: unknown, learned from the stripes' edges (shared per rate and camera)
+        self.exposure_learner = (None if exposure_us > 0 else exposure_learner if exposure_learner is not None
+                                 else exposure.ExposureLearner())
+        self._set_exposure(max(exposure_us, 0.0) / row_readout_us)
+        self.blur_rows = s.blur_rows
+        self.model_phases = s.model_phases
+        self.model_min_fit = s.model_min_fit
+        self.model_fit: float | None = None  # the latest frame's fit (1 - residual / variance)
         self.min_row_frac = s.min_row_frac
         self.segment_chips = s.segment_chips
         self.max_period_error = s.max_period_error
@@ -472,6 +565,23 @@ class OokDecoder:
         self._tc: float | None = None  # this frame: clock coordinate of frame chip 0
         self._tk = 0
         self.timed_w = self._acc4[3]  # weight of timed placements not yet confirmed
+        self.acc_sq = np.zeros(PACKET_LEN)  # sum of weighted squared soft chips (exposure model only)
+        self.soft_min_z = s.soft_min_z
+        self.soft_min_snr = s.soft_min_snr
+        self.soft_min_chips = s.soft_min_chips
+        self.soft_sigma_floor = s.soft_sigma_floor
+        self.soft_z = 0.0  # the latest soft decision's margin (noise sds)
+        # pieces placed by the frame times (receiver.decode.pieces), for lights showing few
+        # chips a frame; only with candidate IDs (the map's at this rate)
+        self.rate_hz = rate_hz
+        self.pieces_max_chips = s.pieces_max_chips
+        self.pieces = None
+        if candidates is not None and len(candidates) and s.pieces_max_chips > 0:
+            ids = np.asarray(candidates, dtype=np.int64)
+            self.pieces = pieces.PieceAssembler(
+                ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
+                history=s.pieces_frames, min_frames=s.pieces_min_frames, min_corr=s.pieces_min_corr,
+                min_gap=s.pieces_min_gap, shift_penalty=s.pieces_shift_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -481,10 +591,31 @@ class OokDecoder:
         self._tpl: tuple[int, np.ndarray] | None = None
         self.timed_frames: deque = deque(maxlen=s.verify_frames)  # (soft, shift) of timed placements
 
+    def _set_exposure(self, exposure_rows: float) -> None:
+        """Use this exposure (rows): the exposure model (receiver.decode.exposure) reads the
+        chips where the exposure averages them, from `model_min_chips` of a chip up."""
+        self.exposure_rows = exposure_rows
+        self.exposure_model = self._model_mode == "on" or (
+            self._model_mode == "auto" and exposure_rows >= self._model_min_chips * self.period0_rows)
+
+    def _learn_exposure(self, profile, weights) -> None:
+        lr = self.exposure_learner
+        if lr.exposure_rows is None:
+            x = np.asarray(profile, dtype=np.float64)
+            a, b = trim_rows(weights, x.size, 0.5)
+            lr.add(x[a:b], self.rows_per_chip)
+        if lr.exposure_rows is not None:
+            self._set_exposure(lr.exposure_rows)
+            self.exposure_learner = None  # learned: this decoder is set
+
     def frame_chips(self, profile, weights=None) -> tuple[np.ndarray, np.ndarray]:
         """Soft chips and weights of one frame's row profile (stages 1-2); empty when the
         profile is too short or shows no chip grid."""
         self.last_start_row = None
+        if self.exposure_learner is not None:
+            self._learn_exposure(profile, weights)
+        if self.exposure_model:
+            return self._model_chips(profile, weights)
         if _k is not None and (self._period is not None or self._learner.period is not None):
             fast = self._frame_chips_native(profile, weights)
             if fast is not None:
@@ -519,6 +650,45 @@ class OokDecoder:
                 self._phasor = np.zeros(0, dtype=np.complex128)
         return soft_chips(x, w, period, phase, exposure_rows=self.exposure_rows,
                           norm_chips=self.norm_chips)
+
+    def _model_chips(self, profile, weights) -> tuple[np.ndarray, np.ndarray]:
+        """`frame_chips` by the exposure model (receiver.decode.exposure): the whole chips of
+        the frame as max-log likelihood ratios scaled to ~ +-1, their weights the rows' relative
+        pixel counts; empty when the profile is short or the model does not fit it."""
+        x = np.asarray(profile, dtype=np.float64)
+        a, b = trim_rows(weights, x.size, self.min_row_frac)
+        x = x[a:b]
+        p = self.rows_per_chip
+        if x.size < 4 * p:
+            return np.zeros(0), np.zeros(0)
+        w = np.ones(x.size) if weights is None else np.asarray(weights, dtype=np.float64)[a:b]
+        w = w / max(float(w.max()), 1e-9)
+        e = self.exposure_rows / p
+        blur = self.blur_rows / p
+        z = exposure.linearise(x, p, e, blur, self.norm_chips)
+        r = exposure.mlse_chips(z, w, p, e, blur, self.model_phases)
+        if r is None:
+            return np.zeros(0), np.zeros(0)
+        llr, k0, tau0, resid = r
+        zm = float(np.average(z, weights=w))
+        var = float(np.average((z - zm) ** 2, weights=w))
+        self.model_fit = 1.0 - resid / var if var > 0 else 0.0
+        if self.model_fit < self.model_min_fit:
+            return np.zeros(0), np.zeros(0)
+        # chip k's start shows in the samples where the middle of a row's exposure crosses it
+        k = k0 + np.arange(llr.size)
+        start = (k - 0.5 * e - tau0) * p
+        whole = (start >= 0) & (start + p <= x.size - 1)
+        if not whole.any():
+            return np.zeros(0), np.zeros(0)
+        llr, start = llr[whole], start[whole]
+        scale = float(np.median(np.abs(llr)))
+        if scale <= 0:
+            return np.zeros(0), np.zeros(0)
+        soft = np.clip(llr / scale, -SOFT_CLIP, SOFT_CLIP)
+        cw = np.interp(start + 0.5 * p, _arange(x.size), w)
+        self.last_start_row = a + float(start[0])
+        return soft, cw
 
     def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
@@ -597,6 +767,8 @@ class OokDecoder:
 
     def _add(self, soft: np.ndarray, cw: np.ndarray, shift: int, trusted: bool = False,
              timed: bool = False) -> None:
+        if self.exposure_model:  # the squares, for the soft decision's noise fit
+            self.acc_sq += np.bincount(_cyclic_index(soft.size)[shift % PACKET_LEN], cw * soft * soft, PACKET_LEN)
         if _k is not None:
             _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
             return
@@ -611,12 +783,14 @@ class OokDecoder:
 
     def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
         """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
-        and its per-row pixel counts `weights` (R,) or None. `t_s` is unused (OOK packets are
-        assembled by sync, not by time) and accepted for a uniform decoder interface.
+        and its per-row pixel counts `weights` (R,) or None. `t_s`: the frame's timestamp (s),
+        used with `y0` to place short pieces by time (receiver.decode.pieces) when the decoder
+        has candidate IDs.
         Optional timing hint: `clock` (receiver.decode.frameclock.ClockTick of this frame) and `y0`
         (image row of the profile's first row); with them, frames are also placed by timing
         (`_timed_shift`)."""
         self.frames += 1
+        self.acc_sq *= self.decay
         if _k is not None:
             _k.decay4(self._acc4, self.decay)
         else:
@@ -632,6 +806,9 @@ class OokDecoder:
                 self._t_epoch = clock.epoch
             self._tk = clock.k
             self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
+        if (self.pieces is not None and self.led_id is None and t_s is not None and y0 is not None
+                and self.last_start_row is not None and soft.size >= 2):
+            self._add_piece(soft, cw, t_s, y0)
         added = None
         if soft.size >= SYNC_LEN:
             self.recent.append(soft)
@@ -713,6 +890,17 @@ class OokDecoder:
         self._t_observe(shift, sync=False)
         return True
 
+    def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
+        """Keep a short piece (no more than `pieces_max_chips` chips) with its packet time
+        (receiver.decode.pieces) and try the ML choice of the light's ID."""
+        if soft.size > self.pieces_max_chips:
+            return  # a long piece: the assembly above places it by its own chips
+        q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
+        self.pieces.add(soft, cw, q)
+        led_id = self.pieces.decide()
+        if led_id is not None:
+            self.led_id = led_id
+
     def _add_timed(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
         """Add a frame placed by the frame clock: trusted once the offsets are tied to packet
         coordinates by a sync frame, else kept apart (`timed_w`) until one confirms them."""
@@ -724,6 +912,7 @@ class OokDecoder:
     def _rotate(self, q: int) -> None:
         """Rotate the unanchored accumulator so that its sync (at q) lands on position 0."""
         self._acc4[:] = np.roll(self._acc4, -q, axis=1)  # in place: acc .. timed_w stay its rows
+        self.acc_sq[:] = np.roll(self.acc_sq, -q)
         self._tobs = deque(((k, o - q) for k, o in self._tobs), maxlen=self._tobs.maxlen)
         self.timed_frames = deque(((x, (sh - q) % PACKET_LEN) for x, sh in self.timed_frames),
                                   maxlen=self.timed_frames.maxlen)
@@ -909,7 +1098,22 @@ class OokDecoder:
             self._clear()
             self._stale = 0
 
+    def _soft_due(self) -> bool:
+        """Try the maximum-likelihood ID decision? Only for a light without an ID whose chips
+        the exposure model reads, with the packet anchored and `soft_min_chips` positions seen."""
+        return (self.soft_min_z > 0 and self.exposure_model and self.led_id is None and self.anchored
+                and int(np.count_nonzero(self.acc_w)) >= self.soft_min_chips)
+
+    def _soft_decode(self) -> int | None:
+        """The ID of `soft_decide` on the accumulated packet when it passes `soft_min_z` and
+        `soft_min_snr`, else None."""
+        led_id, z, snr = soft_decide(self.acc, self.acc_w, self.acc_sq, sigma_floor=self.soft_sigma_floor,
+                                     z_cap=self.soft_min_z)
+        self.soft_z = z
+        return led_id if z >= self.soft_min_z and snr >= self.soft_min_snr else None
+
     def _clear(self) -> None:
+        self.acc_sq[:] = 0.0
         self.acc[:] = 0.0
         self.acc_w[:] = 0.0
         self.trust_w[:] = 0.0
@@ -917,12 +1121,14 @@ class OokDecoder:
         self._timing_reset()
         self.timed_frames.clear()
 
-    def _verified(self, led_id: int) -> bool:
+    def _verified(self, led_id: int, soft: bool = False) -> bool:
         """A packet whose every data chip was placed by trusted placements (the frame's own
-        sync, or a complete alignment, see `_align`) is accepted as it is. One that needed
-        other alignments must fit all of the last `verify_frames` frames (there must be that
-        many): a 2-chip slip in the assembly is then exposed by the frames straddling it."""
-        if (self.trust_w[SYNC_LEN:] > 0).all():
+        sync, or a complete alignment, see `_align`) is accepted as it is (a `soft` decision:
+        every chip seen so far). One that needed other alignments must fit all of the last
+        `verify_frames` frames (there must be that many): a 2-chip slip in the assembly is then
+        exposed by the frames straddling it."""
+        sure = self.trust_w[self.acc_w > 0] if soft else self.trust_w[SYNC_LEN:]
+        if (sure > 0).all():
             return self._timed_frames_fit(led_id)
         if len(self.recent) < self.recent.maxlen:
             return False
@@ -954,20 +1160,25 @@ class OokDecoder:
         return True
 
     def _decode(self) -> None:
+        complete = False
+        led_id, conf = None, 0.0
         if _k is not None:
             table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
             r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
-            if r is None:
-                self.confidence = 0.0
-                return
-            led_id, conf = r
+            if r is not None:
+                (led_id, conf), complete = r, True
         else:
             known = self.acc_w > 0
-            if not (self.anchored and known[SYNC_LEN:].all()):
-                self.confidence = 0.0
-                return
-            m = self._mean_packet(known)
-            led_id, conf = decode_packet(m, min_margin=self.min_margin)
+            if self.anchored and known[SYNC_LEN:].all():
+                m = self._mean_packet(known)
+                (led_id, conf), complete = decode_packet(m, min_margin=self.min_margin), True
+        soft = False
+        if led_id is None and self._soft_due():
+            led_id, soft = self._soft_decode(), True
+            complete = complete or led_id is not None
+        if not complete:
+            self.confidence = 0.0
+            return
         self.confidence = conf
         if led_id is not None:
             self._stale = 0
@@ -976,7 +1187,7 @@ class OokDecoder:
         if led_id is None or led_id == self.led_id:
             self._cand, self._cand_n = None, 0
             return
-        if not self._verified(led_id):
+        if not self._verified(led_id, soft=soft):
             return
         if self.led_id is None:
             self.led_id = led_id

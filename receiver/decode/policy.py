@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from receiver.core import protocol
+from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, crc8_table
 from receiver.decode.s2psk import S2pskDecoder
 from receiver.decode.settings import OokSettings, PolicySettings, S2pskSettings, ToneSettings
@@ -167,13 +168,46 @@ class DecodePolicy:
         # Rows per chip is a constant of this camera and the rate: one learner per rate serves
         # every track, so a new track does not refine it again for its first frames.
         self.period_learners = {rate: PeriodLearner(ook.period_frames) for rate in plan.ook_rates}
+        # the map's IDs per OOK rate (map addressing): the candidates of a light whose frames
+        # show only short pieces of its packet (receiver.decode.pieces)
+        self.candidates = {}
+        if led_map.addressing != "xy" and camera.rolling_shutter:
+            for rate in plan.ook_rates:
+                ids = sorted(led.id for led in led_map.by_mode("ook")
+                             if accept(led_map, "ook", led.id, rate))
+                self.candidates[rate] = np.array(ids, dtype=np.int64)
+        # the exposure, when the camera file does not state it, is learned from the stripes
+        self.exposure_learners = ({rate: ExposureLearner() for rate in plan.ook_rates}
+                                  if camera.rolling_shutter and camera.exposure_us <= 0 else {})
+
+    def exposure_notes(self) -> list[tuple[bool, str]]:
+        """(readable, text) per OOK chip rate: the exposure (camera file, or learned from the
+        stripes so far) against the chips (`receiver.decode.exposure.exposure_verdict`)."""
+        out = []
+        if not self.camera.rolling_shutter:
+            return out
+        for rate in self.plan.ook_rates:
+            exp_us = self.camera.exposure_us
+            how = "camera file"
+            if exp_us <= 0:
+                lr = self.exposure_learners.get(rate)
+                if lr is None or lr.exposure_rows is None:
+                    out.append((True, f"exposure unknown (not in the camera file, not yet seen in stripes) "
+                                      f"for the {rate / 1000:g} kHz OOK chips"))
+                    continue
+                exp_us, how = lr.exposure_rows * self.camera.row_readout_us, "from the stripes' edges"
+            ok, text = exposure_verdict(exp_us, rate)
+            out.append((ok, f"{text} ({how})"))
+        return out
 
     def new_light(self) -> LightDecoder:
         cam = self.camera
         decoders = {}
         for rate in self.plan.ook_rates:
             decoders[("ook", rate)] = OokDecoder(rate, cam.row_readout_us, cam.exposure_us, settings=self.ook,
-                                                 period_learner=self.period_learners[rate])
+                                                 period_learner=self.period_learners[rate],
+                                                 exposure_learner=self.exposure_learners.get(rate),
+                                                 candidates=self.candidates.get(rate))
         if self.plan.tone_table:
             decoders[("tone", 0.0)] = ToneDecoder(self.plan.tone_table, cam.row_readout_us, settings=self.tone)
         return LightDecoder(decoders)
@@ -211,7 +245,7 @@ class DecodePolicy:
             elif ticks and ticks.get(rate) is not None:
                 st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
             else:
-                st = dec.step(profile, weights, t_s)
+                st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None

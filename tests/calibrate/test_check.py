@@ -40,8 +40,19 @@ def test_clean_clip_passes(clean):
 
 
 def test_long_exposure():
-    bad, fs = _failed(*_render(exposure_us=70.0))
+    """Two 20 kHz chips of exposure: flagged, with the numbers and the exposure that works."""
+    bad, fs = _failed(*_render(exposure_us=100.0))
     assert "exposure" in bad, render_text(fs)
+    f = next(f for f in fs if f.name == "exposure")
+    assert "20 kHz" in f.text and "<= 90 us" in f.text, f.text
+
+
+def test_exposure_the_model_reads_passes():
+    """1.4 chips of exposure: readable by the exposure model, and said so."""
+    bad, fs = _failed(*_render(exposure_us=70.0))
+    assert "exposure" not in bad, render_text(fs)
+    f = next(f for f in fs if f.name == "exposure")
+    assert "exposure model" in f.text, f.text
 
 
 def test_gain_drift(clean):
