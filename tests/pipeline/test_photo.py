@@ -23,13 +23,20 @@ def _block_means(gray: np.ndarray, f: int) -> np.ndarray:
     return blocks.mean(axis=(1, 3))
 
 
-@pytest.mark.parametrize("shape,f", [((4352, 7712), 6), ((61, 83), 4), ((40, 40), 2), ((37, 50), 3)])
+@pytest.mark.parametrize("shape,f", [((4352, 7712), 6), ((61, 83), 4), ((40, 40), 2), ((37, 50), 3),
+                                     ((2160, 3840), 4), ((131, 77), 8)])
 def test_search_image_is_the_mean_of_whole_blocks(shape, f):
     g = np.random.default_rng(f).integers(0, 256, shape, dtype=np.uint8)
     small = search_image(g, f)
     assert small.shape == (shape[0] // f, shape[1] // f) and small.dtype == np.uint8
-    # INTER_AREA's fixed-point sum rounds to the nearest gray level (half-way cases either way)
-    assert np.abs(small - _block_means(g, f)).max() <= 0.5 + 1e-9
+    # INTER_AREA's fixed-point sum rounds to the nearest gray level (half-way cases either way);
+    # a power of two is made by halvings, each rounded
+    tol = 0.5 * math.log2(f) if f & (f - 1) == 0 else 0.5
+    assert np.abs(small - _block_means(g, f)).max() <= tol + 1e-9
+
+
+def test_search_factor_is_one_opencv_serves_fast():
+    assert [detect_scale((h, w)) for h, w in ((720, 1280), (1080, 1920), (2160, 3840), (4352, 7712))] == [1, 2, 4, 6]
 
 
 def test_search_image_keeps_the_blocks_in_place():
