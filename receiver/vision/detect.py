@@ -634,7 +634,11 @@ def _masked_boxes(gray, small_shape, contours, boxes, f, scratch: Scratch | None
         # search pixel j of the padded mask covers full-resolution pixels [(j - pad) f, (j - pad + 1) f)
         j0, i0 = x0 // f + pad, y0 // f + pad
         j1, i1 = -(-(x0 + bw) // f) + pad, -(-(y0 + bh) // f) + pad
-        up = cv2.resize(comp[i0:i1, j0:j1], ((j1 - j0) * f, (i1 - i0) * f), interpolation=cv2.INTER_NEAREST)
+        crop = comp[i0:i1, j0:j1]
+        if cv2.countNonZero(crop) == crop.size:  # the mask covers the box (a panel): a plain copy
+            out[y0:y0 + bh, x0:x0 + bw] = gray[y0:y0 + bh, x0:x0 + bw]
+            continue
+        up = cv2.resize(crop, ((j1 - j0) * f, (i1 - i0) * f), interpolation=cv2.INTER_NEAREST)
         ox, oy = x0 - (j0 - pad) * f, y0 - (i0 - pad) * f
         cv2.bitwise_and(gray[y0:y0 + bh, x0:x0 + bw], up[oy:oy + bh, ox:ox + bw], dst=out[y0:y0 + bh, x0:x0 + bw])
     return out
