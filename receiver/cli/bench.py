@@ -34,6 +34,12 @@ from receiver.cli.args import whole_in
 HELP = "time the whole receiver per stage (median/p99 ms, instructions/frame) on the bundled recordings or a SOURCE"
 
 SCENE = "synthetic"          # the name of the built-in scene's case
+# Scenes `--scale WxH` renders at another size; the case is named "SCENE@WxH".
+SCALED_SCENES = (SCENE, "indoor-walk")
+# Sizes --scale accepts (px): a few pixels up to 8K.
+SCALE_MIN_PX, SCALE_MAX_PX = 64, 8192
+# Default frames of --scale: they are held in memory (40 frames of 3840x2160 are 330 MB).
+SCALE_FRAMES = 40
 DEFAULT_FRAMES = 300         # frames per case (the bundled recordings have 30-150)
 DEFAULT_INSTR_FRAMES = 5     # frames counted under callgrind per case
 # Frames processed before the counted ones under callgrind (IDs decoded, trackers settled).
@@ -48,8 +54,9 @@ def add_arguments(p) -> None:
     p.add_argument("source", nargs="?", metavar="SOURCE",
                    help="recording, video or photo (default: every bundled recording and the built-in "
                         "1280x720 16-LED synthetic scene)")
-    p.add_argument("--frames", type=whole_in(1, 1_000_000), default=DEFAULT_FRAMES, metavar="N",
-                   help=f"frames to time per case ({DEFAULT_FRAMES}; a recording's own length when shorter)")
+    p.add_argument("--frames", type=whole_in(1, 1_000_000), metavar="N",
+                   help=f"frames to time per case ({DEFAULT_FRAMES}, {SCALE_FRAMES} with --scale; a recording's own "
+                        f"length when shorter)")
     p.add_argument("--camera", metavar="FILE", help="camera.yaml for a bare video/photo")
     p.add_argument("--map", metavar="FILE", help="map.json for a bare video/photo")
     p.add_argument("--repeat", type=whole_in(1, 10_000), default=1, metavar="R",
@@ -59,6 +66,12 @@ def add_arguments(p) -> None:
                    help="cpu: the main thread's CPU time (default; steady on a shared machine, and with OpenCV "
                         "on one thread all the work is on that thread); wall: elapsed time")
     p.add_argument("--scene-only", action="store_true", help="only the built-in synthetic scene")
+    p.add_argument("--scale", metavar="WxH",
+                   help="only a synthetic scene rendered at W x H px (--scale-scene), focal length and row time "
+                        "scaled so the scene is the one at 1280x720; reports ms per megapixel too")
+    p.add_argument("--scale-scene", choices=SCALED_SCENES, default=SCENE,
+                   help=f"the scene of --scale: {SCENE} (the built-in one, default) or indoor-walk (tools.synth's "
+                        f"scene, needs a source checkout)")
     p.add_argument("--json", action="store_true", help="print one JSON object (machines) instead of the tables")
     p.add_argument("--instructions", action="store_true",
                    help=f"also count instructions per frame under valgrind's callgrind "
@@ -93,6 +106,9 @@ def load_case(spec: str, n_frames: int, camera: str | None = None, map_path: str
         from receiver.cli.benchscene import bench_frames
         cam, led_map, frames = bench_frames(n_frames)
         return cam, led_map, frames, False
+    if "@" in spec and spec.split("@", 1)[0] in SCALED_SCENES:
+        name, size = spec.split("@", 1)
+        return scaled_scene(name, parse_scale(size), n_frames)
     import cv2
     from receiver.core.errors import InputError
     from receiver.core.records import Frame
@@ -121,6 +137,49 @@ def load_case(spec: str, n_frames: int, camera: str | None = None, map_path: str
     if not frames:
         raise InputError(f"{spec}: no frames")
     return cam, led_map, frames, src.is_still
+
+
+def parse_scale(text: str) -> tuple[int, int]:
+    """(W, H) px of a --scale value "WxH"."""
+    from receiver.core.errors import InputError
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--scale needs WxH in pixels (e.g. 1920x1080), not {text!r}") from None
+    if not (SCALE_MIN_PX <= w <= SCALE_MAX_PX and SCALE_MIN_PX <= h <= SCALE_MAX_PX):
+        raise InputError(f"--scale: width and height must be within {SCALE_MIN_PX}..{SCALE_MAX_PX} px, not {text}")
+    return w, h
+
+
+def scaled_scene(name: str, size: tuple[int, int], n_frames: int):
+    """(camera, map, frames, still) of synthetic scene `name` (SCALED_SCENES) rendered at `size`
+    (W, H) px: the 1280x720 scene with its focal length scaled by W / 1280 and its row time by
+    720 / H, so the lights cover the same angles and the same chips (as `occloc synth indoor-walk
+    --set width=W --set height=H --set focal_px=... --set row_readout_us=...`)."""
+    from receiver.core.records import Frame
+    w, h = size
+    if name == SCENE:
+        from receiver.cli.benchscene import bench_frames
+        cam, led_map, frames = bench_frames(n_frames, size=size)
+        return cam, led_map, frames, False
+    from receiver.core.errors import InputError
+    try:
+        from tools.synth.render import render_frames
+        from tools.synth.scenes import CAMERA_DEFAULTS, make_scene
+    except ImportError:
+        raise InputError(f"--scale-scene {name} needs the tools package of a source checkout") from None
+    base = CAMERA_DEFAULTS[name]
+    scene = make_scene(name, seed=1, n_frames=n_frames, width=w, height=h, focal_px=base["focal_px"] * w / 1280.0,
+                       row_readout_us=base["row_readout_us"] * 720.0 / h)
+    fps = scene.camera.fps or 30.0
+    frames = [Frame(k, k / fps, img) for k, (img, _) in enumerate(render_frames(scene, n_frames=n_frames, seed=1))]
+    return scene.camera, scene.led_map, frames, False
+
+
+def add_per_megapixel(row: dict) -> dict:
+    """The row with `mp` (the frame's megapixels) and `ms_per_mp` (median total ms per megapixel)."""
+    mp = row["size"][0] * row["size"][1] / 1e6
+    return dict(row, mp=mp, ms_per_mp=row["total"]["median_ms"] / mp)
 
 
 def whole_receiver(camera, led_map, *, still: bool = False, clock=time.perf_counter):
@@ -271,9 +330,16 @@ def main(args) -> int:
     from receiver.core.errors import InputError
     if getattr(args, "_count", None):
         return _count_child(args)
+    if args.frames is None:
+        args.frames = SCALE_FRAMES if args.scale is not None else DEFAULT_FRAMES
     if args.frames <= 0 or args.repeat <= 0 or args.instr_frames <= 0:
         raise InputError("--frames, --repeat and --instr-frames must be positive")
-    if args.source is not None:
+    if args.scale is not None:
+        if args.source is not None or args.camera or args.map:
+            raise InputError("--scale renders a synthetic scene: no SOURCE, --camera or --map")
+        w, h = parse_scale(args.scale)
+        specs = [f"{args.scale_scene}@{w}x{h}"]
+    elif args.source is not None:
         specs = [args.source]
     else:
         if args.camera or args.map:
@@ -282,7 +348,7 @@ def main(args) -> int:
     rows = []
     for spec in specs:
         print(f"occloc bench: {_case_name(spec)} ...", file=sys.stderr, flush=True)
-        row = bench_case(spec, args)
+        row = add_per_megapixel(bench_case(spec, args))
         if args.instructions:
             c = count_instructions(spec, args.instr_frames, camera=args.camera, map_path=args.map)
             row["instructions_per_frame"] = c["instructions_per_frame"]
@@ -296,4 +362,6 @@ def main(args) -> int:
                           "kernels": native.status(), "cases": rows}, indent=1))
     else:
         _print_tables(rows, args.clock, sys.stdout)
+        for row in rows:
+            print(f"{row['case']}: {row['mp']:.2f} MP, {row['ms_per_mp']:.3f} ms per megapixel (median)")
     return 0

@@ -84,10 +84,14 @@ def render_bench_frame(leds: list[SceneLed], k: int, *, size=BENCH_SIZE, fps: fl
     return np.clip(img + 0.5, 0, 255).astype(np.uint8)
 
 
-def bench_camera(size=BENCH_SIZE, row_readout_us: float = BENCH_ROW_US, fps: float = BENCH_FPS):
+BENCH_FOCAL_PX = 1000.0
+
+
+def bench_camera(size=BENCH_SIZE, row_readout_us: float = BENCH_ROW_US, fps: float = BENCH_FPS,
+                 focal_px: float = BENCH_FOCAL_PX):
     from receiver.io.camera import CameraModel
     w, h = size
-    K = np.array([[1000.0, 0, (w - 1) / 2], [0, 1000.0, (h - 1) / 2], [0, 0, 1]])
+    K = np.array([[focal_px, 0, (w - 1) / 2], [0, focal_px, (h - 1) / 2], [0, 0, 1]])
     return CameraModel(w, h, K, np.zeros(5), row_readout_us=row_readout_us, exposure_us=0.0, fps=fps)
 
 
@@ -109,10 +113,20 @@ def bench_map(leds: list[SceneLed], rate_hz: float = BENCH_RATE_HZ, camera=None,
          "size": [round(2.0 * led.radius_px * ceiling_m / fx, 6)], "rate_hz": rate_hz} for led in leds]})
 
 
-def bench_frames(n: int, *, seed: int = 0):
-    """(camera, map, frames) of the built-in scene."""
+def bench_frames(n: int, *, seed: int = 0, size=BENCH_SIZE):
+    """(camera, map, frames) of the built-in scene, rendered at `size` (W, H) px.
+
+    Another size is the same scene seen by a sensor with more (or fewer) pixels: lengths in
+    pixels (focal length, disc radius, drift per frame) scale with W / 1280 and the row time
+    with 720 / H, so each disc spans the same chips of its packet and the map is the same."""
     from receiver.core.records import Frame
-    leds = bench_scene(seed=seed)
+    w, h = int(size[0]), int(size[1])
+    sx, sy = w / BENCH_SIZE[0], h / BENCH_SIZE[1]
+    leds = bench_scene(size=(w, h), radius_px=BENCH_RADIUS_PX * sx, seed=seed)
+    row_us = BENCH_ROW_US / sy
     rng = np.random.default_rng(seed)
-    frames = [Frame(k, k / BENCH_FPS, render_bench_frame(leds, k, rng=rng)) for k in range(n)]
-    return bench_camera(), bench_map(leds), frames
+    frames = [Frame(k, k / BENCH_FPS, render_bench_frame(leds, k, size=(w, h), row_readout_us=row_us,
+                                                         drift_px=(0.7 * sx, 0.3 * sx), rng=rng))
+              for k in range(n)]
+    cam = bench_camera((w, h), row_readout_us=row_us, focal_px=BENCH_FOCAL_PX * sx)
+    return cam, bench_map(leds, camera=cam), frames

@@ -142,3 +142,42 @@ def test_callgrind_total_reads_the_summary_line(tmp_path):
     p = tmp_path / "cg.out"
     p.write_text("version: 1\ncreator: callgrind\nevents: Ir\nfn=x\n1 5\nsummary: 123456\ntotals: 123456\n")
     assert callgrind_total(str(p)) == 123456
+
+
+def test_bench_scale_renders_the_requested_size_and_reports_per_megapixel(capsys):
+    assert cli(["bench", "--scale", "1920x1080", "--frames", "3", "--json"]) == 0
+    (case,) = json.loads(capsys.readouterr().out)["cases"]
+    assert case["case"] == "synthetic@1920x1080" and case["size"] == [1920, 1080] and case["frames"] == 3
+    assert case["mp"] == pytest.approx(1920 * 1080 / 1e6)
+    assert case["ms_per_mp"] == pytest.approx(case["total"]["median_ms"] / case["mp"])
+
+
+def test_bench_scaled_scene_is_the_same_scene():
+    """At twice the size the built-in scene's discs are twice as big and as many, the camera's
+    focal length doubles and its rows take half the time, and the map is the same."""
+    from receiver.cli.bench import scaled_scene
+    cam1, map1, f1, _ = load_case("synthetic", 1)
+    cam2, map2, f2, _ = scaled_scene("synthetic", (2560, 1440), 1)
+    assert f2[0].gray.shape == (1440, 2560) and (cam2.width, cam2.height) == (2560, 1440)
+    assert cam2.K[0, 0] == 2 * cam1.K[0, 0] and cam2.row_readout_us == cam1.row_readout_us / 2
+    assert sorted(map2.leds) == sorted(map1.leds)
+    xyz1 = np.array([map1.leds[i].xyz for i in sorted(map1.leds)])
+    xyz2 = np.array([map2.leds[i].xyz for i in sorted(map1.leds)])
+    assert np.abs(xyz2 - xyz1).max() < 1e-3  # up to the half pixel of the principal point
+    lit1 = (f1[0].gray > 100).sum()
+    lit2 = (f2[0].gray > 100).sum()
+    assert 3.5 < lit2 / lit1 < 4.5
+
+
+def test_bench_scale_indoor_walk_renders_the_synth_scene(capsys):
+    assert cli(["bench", "--scale", "640x360", "--scale-scene", "indoor-walk", "--frames", "2", "--json"]) == 0
+    (case,) = json.loads(capsys.readouterr().out)["cases"]
+    assert case["case"] == "indoor-walk@640x360" and case["size"] == [640, 360] and case["mp"] > 0
+
+
+@pytest.mark.parametrize("bad", [["--scale", "1920"], ["--scale", "axb"], ["--scale", "10x10"],
+                                 ["--scale", "1920x1080", "recordings/vehicle"]])
+def test_bench_scale_rejects_bad_sizes(bad, capsys):
+    assert cli(["bench", *bad]) != 0
+    err = capsys.readouterr().err
+    assert "scale" in err and "Traceback" not in err

@@ -23,13 +23,20 @@ def _block_means(gray: np.ndarray, f: int) -> np.ndarray:
     return blocks.mean(axis=(1, 3))
 
 
-@pytest.mark.parametrize("shape,f", [((4352, 7712), 6), ((61, 83), 4), ((40, 40), 2), ((37, 50), 3)])
+@pytest.mark.parametrize("shape,f", [((4352, 7712), 6), ((61, 83), 4), ((40, 40), 2), ((37, 50), 3),
+                                     ((2160, 3840), 4), ((131, 77), 8)])
 def test_search_image_is_the_mean_of_whole_blocks(shape, f):
     g = np.random.default_rng(f).integers(0, 256, shape, dtype=np.uint8)
     small = search_image(g, f)
     assert small.shape == (shape[0] // f, shape[1] // f) and small.dtype == np.uint8
-    # INTER_AREA's fixed-point sum rounds to the nearest gray level (half-way cases either way)
-    assert np.abs(small - _block_means(g, f)).max() <= 0.5 + 1e-9
+    # INTER_AREA's fixed-point sum rounds to the nearest gray level (half-way cases either way);
+    # a power of two is made by halvings, each rounded
+    tol = 0.5 * math.log2(f) if f & (f - 1) == 0 else 0.5
+    assert np.abs(small - _block_means(g, f)).max() <= tol + 1e-9
+
+
+def test_search_factor_is_one_opencv_serves_fast():
+    assert [detect_scale((h, w)) for h, w in ((720, 1280), (1080, 1920), (2160, 3840), (4352, 7712))] == [1, 2, 4, 6]
 
 
 def test_search_image_keeps_the_blocks_in_place():
@@ -92,3 +99,37 @@ def test_percentile_is_numpys(n):
         for q in (0, 1, 10, 25, 33.3, 50, 66.7, 90, 99, 99.9, 100):
             assert percentile(list(values), q) == float(np.percentile(values, q)), (n, q)
     assert math.isnan(percentile([], 50)) and math.isnan(percentile([1.0, float("nan")], 50))
+
+
+@pytest.mark.parametrize("shape", [(2160, 3840), (1080, 1920), (4352, 7712)])
+def test_a_downsampled_search_refines_in_one_batch_as_one_by_one(shape, monkeypatch):
+    """Isolated components of a downsampled search are refined together (their boxes mapped back
+    to full resolution, masked as `_refine` masks them) with the same blobs, to the bit, as
+    `_refine` one by one: clipped lights with a glow (refined near the background, where the
+    mask decides), lights in the frame's corners, and two lights close enough to share a box."""
+    import receiver.vision.detect as det
+    rng = np.random.default_rng(shape[0])
+    g = rng.integers(0, 6, shape, dtype=np.uint8)
+    h, w = shape
+    r = w / 160.0
+    for cx, cy in ((0.3 * w, 0.3 * h), (0.7 * w, 0.4 * h), (2.5 * r, 2.5 * r), (w - 2.5 * r, h - 2.5 * r)):
+        _paint_led(g, cx, cy, r)
+    # two lights side by side (their boxes overlap): refined one by one either way
+    _paint_led(g, 0.5 * w, 0.75 * h, r)
+    _paint_led(g, 0.5 * w + 4.2 * r, 0.75 * h + 2.0 * r, r)
+    # a dimmer, unclipped light (refined at half maximum)
+    yy, xx = np.mgrid[:h, :w]
+    g[(xx - 0.2 * w) ** 2 + (yy - 0.8 * h) ** 2 <= r * r] = 150
+    assert det.detect_scale(g.shape) > 1
+    batched = detect(g, stripe_gap_px=14)
+    calls = []
+    real = det._refine_alone_batch
+    monkeypatch.setattr(det, "_refine_alone_batch",
+                        lambda gray, rects, *a, **k: calls.append(len(rects)) or (None if len(rects) else real(gray, rects, *a, **k)))
+    one_by_one = detect(g, stripe_gap_px=14)
+    assert calls and calls[0] >= 4  # the isolated ones did go through the batch
+    assert len(batched) == len(one_by_one) >= 6
+    for a, b in zip(batched, one_by_one):
+        assert (a.cx, a.cy, a.area_px, a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level) == \
+               (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level)
+        assert np.array_equal(a.hull, b.hull)
