@@ -150,15 +150,20 @@ def run_intrinsics(args) -> dict:
 
 
 def _sensor_frames(src, cam):
-    """Photos turned to the camera's (sensor) orientation as `occloc run` turns them; other
+    """Photos turned to the camera's (sensor) orientation as `occloc run` turns them and brought
+    to the camera's size (a photo saved smaller spans several sensor rows per image row: the
+    stripes measured on it give the time of the camera file's rows only at its size); other
     sources as they come."""
     if src.kind != "images":
         yield from src
         return
+    import cv2
     from receiver.cli.run import _fit_photo
     from receiver.core.records import Frame
     for f in src.photos():
         _, gray = _fit_photo(cam, f.gray)
+        if gray.shape[:2] != (cam.height, cam.width):
+            gray = cv2.resize(gray, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
         yield Frame(f.index, f.t_s, gray)
 
 
