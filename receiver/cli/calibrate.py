@@ -20,7 +20,6 @@ to a temporary file in the same folder and renamed into place; an input is never
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import sys
 
@@ -245,9 +244,9 @@ def run_rows(args) -> dict:
 
 
 def main(args) -> int:
-    from receiver.io.files import StdoutOutput
+    from receiver.io.files import StdoutOutput, dumps
     res = run_intrinsics(args) if args.what == "intrinsics" else run_rows(args)
     out = StdoutOutput()
-    out.write(json.dumps(res) + "\n")
+    out.write(dumps(res) + "\n")   # a statistic without a value (one blob: no spread) is null, not NaN
     out.flush()
     return 0

@@ -170,3 +170,11 @@ def test_rows_of_a_photo_saved_smaller_are_the_camera_files_rows(luxapose, tmp_p
     res = json.loads(capsys.readouterr().out)
     assert res["row_readout_us"] == pytest.approx(21.035, rel=0.02)
     assert load_camera(str(out)).row_readout_us == pytest.approx(res["row_readout_us"])
+
+
+def test_calibrate_prints_no_nan(monkeypatch, capsys):
+    """A statistic the measurement could not give (NaN) is null in the JSON line."""
+    import receiver.cli.calibrate as cal
+    monkeypatch.setattr(cal, "run_rows", lambda args: {"row_readout_us": 15.0, "stderr_us": float("nan")})
+    assert cal.main(type("A", (), {"what": "rows"})()) == 0
+    assert json.loads(capsys.readouterr().out) == {"row_readout_us": 15.0, "stderr_us": None}
