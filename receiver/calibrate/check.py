@@ -315,8 +315,10 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                            else "brightness trend not measurable",
                            fix_for("gain_drift", source_kind) if bad else "",
                            {"drift": drift, "limit_frac": DRIFT_FRAC}))
-    # banding
-    B = np.asarray(bgrows)
+    # banding: across the frames of the most common size (photos of a folder may differ in size)
+    heights = [r.size for r in bgrows]
+    common = max(set(heights), key=heights.count) if heights else 0
+    B = np.asarray([r for r in bgrows if r.size == common])
     amps = []
     level = float(np.nanmedian(B)) if np.isfinite(B).any() else 0.0
     if len(B) >= 3:

@@ -20,7 +20,6 @@ to a temporary file in the same folder and renamed into place; an input is never
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import sys
 
@@ -150,15 +149,20 @@ def run_intrinsics(args) -> dict:
 
 
 def _sensor_frames(src, cam):
-    """Photos turned to the camera's (sensor) orientation as `occloc run` turns them; other
+    """Photos turned to the camera's (sensor) orientation as `occloc run` turns them and brought
+    to the camera's size (a photo saved smaller spans several sensor rows per image row: the
+    stripes measured on it give the time of the camera file's rows only at its size); other
     sources as they come."""
     if src.kind != "images":
         yield from src
         return
+    import cv2
     from receiver.cli.run import _fit_photo
     from receiver.core.records import Frame
     for f in src.photos():
         _, gray = _fit_photo(cam, f.gray)
+        if gray.shape[:2] != (cam.height, cam.width):
+            gray = cv2.resize(gray, (cam.width, cam.height), interpolation=cv2.INTER_LINEAR)
         yield Frame(f.index, f.t_s, gray)
 
 
@@ -240,9 +244,9 @@ def run_rows(args) -> dict:
 
 
 def main(args) -> int:
-    from receiver.io.files import StdoutOutput
+    from receiver.io.files import StdoutOutput, dumps
     res = run_intrinsics(args) if args.what == "intrinsics" else run_rows(args)
     out = StdoutOutput()
-    out.write(json.dumps(res) + "\n")
+    out.write(dumps(res) + "\n")   # a statistic without a value (one blob: no spread) is null, not NaN
     out.flush()
     return 0

@@ -33,12 +33,13 @@ def settings_from_json(cls, obj, where: str = "settings"):
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected an object of {cls.__name__} fields")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     kw = {}
     for key, value in obj.items():
-        if key not in names:
+        if key not in fields:
             raise InputError(f"{where}: {cls.__name__} has no setting {key!r}")
         kw[key] = _from_json(hints[key], value, f"{where}.{key}")
+        _check_scalar(hints[key], kw[key], fields[key].default, f"{where}.{key}")
     try:
         return cls(**kw)
     except (TypeError, ValueError) as e:
@@ -53,3 +54,39 @@ def _from_json(tp, value, where: str):
     if isinstance(value, list):
         return tuple(_from_json(None, v, where) for v in value)
     return value
+
+
+def _check_scalar(tp, value, default, where: str) -> None:
+    """InputError unless a number, flag or text setting has its field's type (None where the
+    field allows it), is finite, and is not negative where the default is not (a count, a
+    length, a time or a threshold: a negative one has no meaning). Other fields pass."""
+    import math
+    import types
+    import typing
+
+    from receiver.core.errors import InputError
+
+    args = typing.get_args(tp) if typing.get_origin(tp) in (typing.Union, types.UnionType) else (tp,)
+    if not args or not all(a in (int, float, bool, str, type(None)) for a in args):
+        return
+    if value is None:
+        if type(None) not in args:
+            raise InputError(f"{where}: a value is needed, not null")
+        return
+    if isinstance(value, bool):
+        ok = bool in args
+    elif isinstance(value, int):
+        ok = int in args or float in args
+    elif isinstance(value, float):
+        ok = float in args
+    else:
+        ok = isinstance(value, str) and str in args
+    if not ok:
+        want = " or ".join(a.__name__ for a in args if a is not type(None))
+        raise InputError(f"{where}: expected {want}, not {value!r}")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise InputError(f"{where}: must be a finite number, not {value!r}")
+        if (isinstance(default, (int, float)) and not isinstance(default, bool) and default >= 0
+                and value < 0):
+            raise InputError(f"{where}: must not be negative, not {value!r}")

@@ -227,7 +227,7 @@ def test_fifo_as_a_photo_is_an_error_not_a_hang(tmp_path, capsys):
 
 
 def test_fps_inf_is_refused(capsys):
-    with pytest.raises(SystemExit) as e:  # range-checked at parse time; before: every t was 0
+    with pytest.raises(SystemExit) as e:  # range-checked at parse time (an infinite rate would make every t 0)
         cli(["run", STATIC, "--fps", "inf"])
     assert e.value.code == 2 and "--fps" in capsys.readouterr().err
 

@@ -152,3 +152,29 @@ def test_rows_from_every_tone_light_of_a_real_photo(luxapose, tmp_path, capsys):
         # small_blob.jpg's non-LED blob does not fit the others: a warning that names it
         assert ("disagree" in captured.err) == warned, captured.err
         assert load_camera(str(out)).row_readout_us == pytest.approx(res["row_readout_us"])
+
+
+def test_rows_of_a_photo_saved_smaller_are_the_camera_files_rows(luxapose, tmp_path, capsys):
+    """A photo at half the sensor's size: each image row spans two sensor rows, and the row time
+    written is still the camera file's (per sensor row), not twice it."""
+    cam0 = tmp_path / "lumia0.yaml"
+    text = (luxapose / "camera_lumia1020.yaml").read_text()
+    lines = [("row_readout_us: 0." if l.startswith("row_readout_us:") else l) for l in text.splitlines()]
+    cam0.write_text("\n".join(lines) + "\n")
+    g = cv2.imread(str(luxapose / "x_0_y_1.27.jpg"), cv2.IMREAD_GRAYSCALE)
+    half = tmp_path / "half.png"
+    cv2.imwrite(str(half), cv2.resize(g, (g.shape[1] // 2, g.shape[0] // 2), interpolation=cv2.INTER_AREA))
+    out = tmp_path / "lumia1.yaml"
+    assert occloc(["calibrate", "rows", str(half), "--camera", str(cam0),
+                   "--map", str(luxapose / "map_test_rig.json"), "--out", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["row_readout_us"] == pytest.approx(21.035, rel=0.02)
+    assert load_camera(str(out)).row_readout_us == pytest.approx(res["row_readout_us"])
+
+
+def test_calibrate_prints_no_nan(monkeypatch, capsys):
+    """A statistic the measurement could not give (NaN) is null in the JSON line."""
+    import receiver.cli.calibrate as cal
+    monkeypatch.setattr(cal, "run_rows", lambda args: {"row_readout_us": 15.0, "stderr_us": float("nan")})
+    assert cal.main(type("A", (), {"what": "rows"})()) == 0
+    assert json.loads(capsys.readouterr().out) == {"row_readout_us": 15.0, "stderr_us": None}

@@ -72,3 +72,22 @@ def test_every_clip_verdict_names_its_limit():
     assert "limit" in texts["gain_drift"] and "limit" in texts["banding"] and "limit" in texts["focus"]
     assert "limit" in texts["timestamps"]
     assert isinstance(fs[0], Finding)
+
+
+def test_check_on_a_folder_of_photos_of_several_sizes(luxapose, tmp_path, capsys):
+    """Photos of one camera saved at several sizes (and one turned to portrait): every check
+    gives a verdict (banding over the photos of the most common size), no traceback."""
+    import cv2
+    g = cv2.imread(str(luxapose / "x_0_y_1.27.jpg"), cv2.IMREAD_GRAYSCALE)
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), g)
+    cv2.imwrite(str(folder / "b.png"), cv2.resize(g, (g.shape[1] // 2, g.shape[0] // 2), interpolation=cv2.INTER_AREA))
+    cv2.imwrite(str(folder / "c.png"), cv2.rotate(g, cv2.ROTATE_90_CLOCKWISE))
+    cv2.imwrite(str(folder / "d.png"), cv2.resize(g, (g.shape[1] // 4, g.shape[0] // 4), interpolation=cv2.INTER_AREA))
+    rc = occloc(["check", str(folder), "--camera", str(luxapose / "camera_lumia1020.yaml"),
+                 "--map", str(luxapose / "map_test_rig.json"), "--json"])
+    assert rc in (0, 1)
+    out = json.loads(capsys.readouterr().out)
+    by = {f["check"]: f for f in out["findings"]}
+    assert "banding" in by and by["stripes"]["ok"], out

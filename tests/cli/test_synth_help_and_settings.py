@@ -60,7 +60,11 @@ def test_run_reads_back_the_settings_it_wrote(tmp_path, capsys):
 
 @pytest.mark.parametrize("text,msg", [('{"receiver": {"bogus": 1}}', "has no setting 'bogus'"),
                                       ('{"lights": {}}', "unknown stage 'lights'"),
-                                      ('[1, 2]', "expected the JSON object")])
+                                      ('[1, 2]', "expected the JSON object"),
+                                      ('{"locate": {"max_coast_s": "x"}}', "locate.max_coast_s: expected float"),
+                                      ('{"receiver": {"detect": {"max_detect_px": -5}}}', "must not be negative"),
+                                      ('{"receiver": {"detect": {"max_detect_px": 1e999}}}', "expected int"),
+                                      ('{"locate": {"max_coast_s": NaN}}', "must be a finite number")])
 def test_run_settings_errors_are_one_line(tmp_path, capsys, text, msg):
     f = tmp_path / "s.json"
     f.write_text(text)

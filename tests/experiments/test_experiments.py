@@ -105,3 +105,15 @@ def test_ber_falls_with_snir(tmp_path):
     assert measured[-1][1] < 0.01
     ids = [_num(rows[s]["id_frac"]) for s in sorted(rows)]
     assert ids[-1] >= ids[0] and ids[-1] > 0.5  # the whole receiver reads the ID at 24 dB
+
+
+def test_report_reads_a_cut_csv(tmp_path):
+    """A CSV whose last row was cut short, or has more cells than the header, is read (missing
+    cells None, extra ones dropped) rather than a traceback."""
+    from tools.experiments.report import read_csv
+    p = tmp_path / "fig41.csv"
+    p.write_text("distance_m,error_pct,note\n1.0,0.5,ok\n2.0\n3.0,0.7,x,extra\n")
+    rows = read_csv(str(p))
+    assert rows[0] == {"distance_m": 1.0, "error_pct": 0.5, "note": "ok"}
+    assert rows[1] == {"distance_m": 2.0, "error_pct": None, "note": None}
+    assert rows[2] == {"distance_m": 3.0, "error_pct": 0.7, "note": "x"}

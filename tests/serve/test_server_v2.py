@@ -26,7 +26,7 @@ from tests.locate.test_locate import observe
 ROOT = Path(__file__).resolve().parents[2]
 RECORDINGS = sorted(p.name for p in (ROOT / "recordings").iterdir() if (p / "map.json").is_file())
 WALK = ROOT / "recordings" / "indoor-walk"
-TOL_M = 1e-4              # the bound: positions within 0.1 mm of the local run's
+TOL_M = 1e-4              # m: a server position is within 0.1 mm of the local run's
 
 
 class _Tee:

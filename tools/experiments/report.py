@@ -39,14 +39,17 @@ def write_csv(path: str, exp, rows: list[dict]) -> None:
 
 
 def read_csv(path: str) -> list[dict]:
-    """Rows of `write_csv` back: numbers as float, empty cells as None."""
+    """Rows of `write_csv` back: numbers as float, empty cells (and those a cut last row lacks) as
+    None."""
     out = []
     with open(path, newline="", encoding="utf-8") as f:
         for r in csv.DictReader(f):
             row = {}
             for k, v in r.items():
+                if k is None:   # cells beyond the header's columns
+                    continue
                 try:
-                    row[k] = None if v == "" else float(v)
+                    row[k] = None if v is None or v == "" else float(v)
                 except ValueError:
                     row[k] = v
             out.append(row)
