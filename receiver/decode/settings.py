@@ -222,13 +222,6 @@ class S2pskSettings:
     soft_min_snr: float = 1.0
     soft_max_contradiction: float = 2.0
     soft_sigma_floor: float = 0.05
-    pieces_max_chips: float = 16.0
-    pieces_jitter_us: float = 200.0
-    pieces_frames: int = 30
-    pieces_min_frames: int = 6
-    pieces_min_corr: float = 0.85
-    pieces_min_gap: float = 0.3
-    pieces_shift_penalty: float = 0.2
     soft_position_dof: float = 0.0
 
 
