@@ -3,7 +3,9 @@
 A stage imports its kernel module with `load("receiver.vision._edges")` and calls it when the
 result is not None; otherwise it runs its pure numpy path, which stays the tested reference the
 kernel must equal. `OCCLOC_PURE=1` in the environment forces the pure path everywhere (for A/B
-measurements and the equality tests); `status()` says which kernels are in use.
+measurements and the equality tests); `OCCLOC_PURE=_tone,_pnp` (module names, without their
+package) forces it for those kernels only, to measure what one kernel saves
+(`tools/kernel_shares.py`); `status()` says which kernels are in use.
 
 Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
 `tool.setuptools.ext-modules`): the remaining cost of a frame is interpreter and numpy dispatch
@@ -28,9 +30,15 @@ def pure_forced() -> bool:
     return os.environ.get("OCCLOC_PURE", "") == "1"
 
 
+def _named_pure() -> set[str]:
+    """The kernels OCCLOC_PURE names (`_tone,_pnp`); empty for "1" or unset."""
+    value = os.environ.get("OCCLOC_PURE", "")
+    return set() if value in ("", "1") else {n.strip() for n in value.split(",") if n.strip()}
+
+
 def load(name: str) -> ModuleType | None:
-    """The compiled module `name`, or None (not built, or OCCLOC_PURE=1)."""
-    if pure_forced():
+    """The compiled module `name`, or None (not built, or OCCLOC_PURE forces its pure path)."""
+    if pure_forced() or name.rsplit(".", 1)[-1] in _named_pure():
         return None
     if name not in _LOADED:
         try:

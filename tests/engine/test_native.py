@@ -43,3 +43,11 @@ def test_pure_forced(monkeypatch):
     assert native.pure_forced()
     assert all(native.load(n) is None for n in native.kernel_sources())
     assert native.status() == "pure (OCCLOC_PURE=1)"
+
+
+def test_pure_forced_for_named_kernels_only(monkeypatch):
+    monkeypatch.setenv("OCCLOC_PURE", "_kalman, _wire")
+    assert not native.pure_forced()
+    assert native.load("receiver.locate._kalman") is None
+    assert native.load("receiver.serve._wire") is None
+    assert native.load("receiver.locate._position") is not None

@@ -1,0 +1,69 @@
+"""What each compiled kernel saves of a whole frame, in instructions (callgrind), per bench case.
+
+    .venv/bin/python -m tools.kernel_shares [KERNEL ...] [--source DIR] [--instr-frames K] [--out FILE.md]
+
+Runs `occloc bench --instructions --json` once with every kernel built in, then once per KERNEL
+(default: all of them) with `OCCLOC_PURE=KERNEL` (`--source`: on that one recording only), which sends only that kernel's stage down its
+numpy path. A kernel's share on a case is (pure - native) / native instructions per frame: the
+part of a whole frame the kernel saves there. The house keeps a kernel only where that share is
+at least KEEP_SHARE_PCT on some bundled case. Instruction counts do not depend on the machine's
+load, so the figures are repeatable on a busy machine (slow: minutes per run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from receiver.core import native
+
+KEEP_SHARE_PCT = 5.0
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def bench_instructions(pure: str, instr_frames: int, source: str | None = None) -> dict[str, float]:
+    """{case: instructions per frame} of one `occloc bench --instructions` run with OCCLOC_PURE=pure."""
+    env = dict(os.environ)
+    env.pop("OCCLOC_PURE", None)
+    if pure:
+        env["OCCLOC_PURE"] = pure
+    cmd = [sys.executable, "-m", "receiver.cli", "bench", "--instructions", "--json", "--frames", "20",
+           "--instr-frames", str(instr_frames)] + ([source] if source else [])
+    out = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    return {row["case"]: row["instructions_per_frame"] for row in json.loads(out)["cases"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m tools.kernel_shares", description=__doc__.split("\n\n")[0])
+    p.add_argument("kernels", nargs="*", help="kernel module names, e.g. _tone (default: every kernel)")
+    p.add_argument("--instr-frames", type=int, default=5, help="frames counted per case (5)")
+    p.add_argument("--source", help="one recording folder instead of every bench case")
+    p.add_argument("--out", help="also write the table to this Markdown file")
+    args = p.parse_args(argv)
+    names = args.kernels or [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
+    print("kernel_shares: all kernels built in ...", file=sys.stderr, flush=True)
+    base = bench_instructions("", args.instr_frames, args.source)
+    cases = list(base)
+    lines = ["| kernel | " + " | ".join(cases) + " | max % | keep |",
+             "|---|" + "---|" * (len(cases) + 2),
+             "| (M instr/frame, all built) | " + " | ".join(f"{base[c] / 1e6:.2f}" for c in cases) + " | | |"]
+    for name in names:
+        print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
+        pure = bench_instructions(name, args.instr_frames, args.source)
+        shares = [100.0 * (pure[c] - base[c]) / base[c] for c in cases]
+        best = max(shares)
+        lines.append(f"| {name} | " + " | ".join(f"{s:.1f}" for s in shares)
+                     + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
+    table = "\n".join(lines)
+    print(table)
+    if args.out:
+        Path(args.out).write_text(table + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
