@@ -14,7 +14,8 @@
 
 Progress goes to standard error, the result is one JSON line on standard output. Files are written
 to a temporary file in the same folder and renamed into place; an input is never overwritten
-(except FILE by `rows` without --out, which is the point).
+(except FILE by `rows` without --out, which is the point, unless FILE is read-only: then --out
+is needed).
 """
 
 from __future__ import annotations
@@ -192,6 +193,20 @@ def run_rows_from_map(args, cam, out_path, output) -> dict:
     return d
 
 
+def _check_updatable(path: str) -> None:
+    """InputError when the camera file `rows` would update in place is marked read-only (no write
+    permission for anyone: a file the user protected, which a rename into place would replace
+    even where the system lets it, e.g. as root)."""
+    import stat
+    from receiver.core.errors import InputError
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # load_camera names the problem
+    if stat.S_ISREG(mode) and not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
+        raise InputError(f"{path} is read-only: give --out FILE2 for the calibrated camera file")
+
+
 def run_rows(args) -> dict:
     from receiver.calibrate.rows import exposure_warning, measure_row_time
     from receiver.core.errors import InputError
@@ -200,6 +215,8 @@ def run_rows(args) -> dict:
     from receiver.io.files import claim_output
 
     out_path = args.out or args.camera
+    if not args.out:
+        _check_updatable(args.camera)
     # Without --out the camera file is updated in place: that is the point of it.
     output = claim_output(out_path, [args.source, args.map, args.camera], "--out", update=not args.out)
     cam = load_camera(args.camera)

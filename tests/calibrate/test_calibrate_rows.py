@@ -77,6 +77,24 @@ def test_cli_updates_camera_in_place(tmp_path, capsys):
     assert not [p for p in rec.iterdir() if p.name.startswith(".camera-")]  # no temp file left
 
 
+def test_a_read_only_camera_file_is_not_updated_in_place(tmp_path, capsys):
+    """A camera file without write permission is left alone (even by root, whom the system lets
+    replace it): one-line error naming --out, the file unchanged; with --out the result goes there."""
+    import os
+    rec = tmp_path / "rec"
+    shutil.copytree(REC / "indoor-static", rec)
+    cam = rec / "camera.yaml"
+    before = cam.read_text()
+    os.chmod(cam, 0o444)
+    argv = ["calibrate", "rows", str(rec), "--camera", str(cam), "--freq-hz", "2000", "--max-frames", "10"]
+    assert occloc(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"occloc: {cam} is read-only: give --out FILE2 for the calibrated camera file"
+    assert cam.read_text() == before and (os.stat(cam).st_mode & 0o777) == 0o444
+    assert occloc(argv + ["--out", str(tmp_path / "new.yaml")]) == 0
+    assert load_camera(str(tmp_path / "new.yaml")).row_readout_us > 0
+
+
 def test_no_stripes_is_one_line_error(tmp_path, capsys):
     import cv2
     import numpy as np
