@@ -2,9 +2,9 @@
 
 Each test looks at a clip of frames and reports a `Finding` (ok or a problem, its measured value
 and limit, and what to change, worded for the source: `v4l2-ctl -c name=value` for a V4L2
-camera, the camera app's settings for photos, both for a video file). Photos (`source_kind`
-"images") are independent stills: a light seen once counts, and the tests that need a clip
-(drift, banding, timestamps) say they do not apply.
+camera, the camera app's settings for photos, both for a video file: `fix_for`, `exposure_fix`).
+Photos (`source_kind` "images") are independent stills: a light seen once counts, and the tests
+that need a clip (drift, banding, timestamps) say they do not apply.
 
 * stripes: stripe depth (`receiver.vision.profile.stripe_depth`) of every LED followed over the
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
@@ -12,7 +12,8 @@ camera, the camera app's settings for photos, both for a video file). Photos (`s
   LEDs' row profiles, `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's
   `exposure_us`: OOK chips are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure
   model; `exposure_verdict` names the exposure and chip rate that would work), a tone's stripes
-  up to half of its half period.
+  keep their depth up to its half period (`TONE_EXPOSURE_HALF_PERIODS`). A stripe fit below one
+  row resolved no edge ramp: the camera file's exposure is judged instead.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
   the clip (more than `DRIFT_FRAC` of the level).
 * anti-flicker banding: mains-lit rooms put a periodic row pattern into the background (100 or
@@ -50,6 +51,10 @@ MAX_BLUR_PX = 2.5
 # edge is the fixture's own soft rim (the Luxapose phone photos: 8-13 px edges, depth 0.99).
 FOCUS_STRIPE_DEPTH = 0.8
 EXPOSURE_CHIP_FRAC = 0.5
+# A tone's stripes keep their full depth up to an exposure of this many half periods: a row
+# integrating a 50 % square wave over its half period still swings from fully on to fully off (a
+# triangle); beyond, the depth falls as 2 - 2 E / period, to nothing at one period.
+TONE_EXPOSURE_HALF_PERIODS = 1.0
 GAP_FACTOR = 1.5
 ASSOC_PX = 40.0
 MAX_RAMP_PROFILES = 60
@@ -116,6 +121,19 @@ def fix_for(name: str, source_kind: str) -> str:
     kind = source_kind if source_kind in ("v4l2", "images") else "video"
     options = FIXES[name]
     return options.get(kind) or options["video"]
+
+
+def exposure_fix(source_kind: str, limit_us: float) -> str:
+    """The advice for an exposure above `limit_us`, worded for the source (`fix_for`)."""
+    shutter = f"1/{math.ceil(1e6 / limit_us)} s" if limit_us > 0 else "the shortest"
+    if source_kind == "images":
+        return (f"use the camera app's manual (pro) mode: a shutter time of {shutter} or shorter "
+                f"(<= {limit_us:.0f} us) and a low ISO")
+    v4l2 = (f"v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=N (100 us units; "
+            f"N <= {max(1, int(limit_us / 100))}, i.e. <= {limit_us:.0f} us)")
+    if source_kind == "v4l2":
+        return "set a short manual exposure: " + v4l2
+    return f"record with a manual exposure of <= {limit_us:.0f} us ({shutter}; a V4L2 webcam: {v4l2})"
 
 
 def _background_rows(gray: np.ndarray) -> np.ndarray:
@@ -256,37 +274,48 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 est = None
             if est is None and ramp is not None:
                 est, how = ramp, "edge ramps"
+        row_us = camera.row_readout_us
+        # A stripe fit below one row has not resolved the exposure (edge ramps sharper than a
+        # row): the camera file's value is judged when it has one, else "under one row".
+        under_row = est is not None and est < row_us
+        if under_row:
+            est = None if camera.exposure_us > 0 else row_us
+            under_row = est is not None
         exp = est if est is not None else (camera.exposure_us or None)
         if est is None and exp:
-            how = "camera file"
+            how = "camera file" if how != "stripe fit" else "camera file; the stripe fit resolves no ramp"
+        said = (f"exposure under one row ({row_us:.0f} us)" if under_row
+                else None if exp is None else f"exposure ~{exp:.0f} us")
         chip_us = 1e6 / max(rates)
-        texts, fixes, bad = [], [], False
+        texts, bad = [], False
         if exp is not None and ook:
             # OOK: the exposure model reads chips up to MAX_EXPOSURE_CHIPS (receiver.decode.exposure)
             for r in sorted(set(ook)):
                 ok_r, t = exposure_verdict(exp, r)
-                texts.append(t)
+                texts.append(t + (f" (limit {MAX_EXPOSURE_CHIPS * 1e6 / r:.0f} us)" if ok_r else ""))
                 bad |= not ok_r
             fix_us = MAX_EXPOSURE_CHIPS * 1e6 / max(ook)
+        elif tone:
+            fix_us = TONE_EXPOSURE_HALF_PERIODS * 1e6 / (2.0 * max(tone))
         else:
             fix_us = EXPOSURE_CHIP_FRAC * chip_us
         if exp is not None and tone:
             half_us = 1e6 / (2.0 * max(tone))
-            tone_bad = exp > EXPOSURE_CHIP_FRAC * half_us
-            texts.append(f"exposure ~{exp:.0f} us vs the {max(tone):g} Hz tone's half period {half_us:.0f} us"
+            limit_us = TONE_EXPOSURE_HALF_PERIODS * half_us
+            tone_bad = exp > limit_us
+            texts.append(f"{said} (limit {limit_us:.0f} us: the {max(tone):g} Hz tone's half period)"
                          + (": stripes wash out" if tone_bad else ""))
             if tone_bad:
                 bad = True
-                fix_us = min(fix_us, EXPOSURE_CHIP_FRAC * half_us)
+                fix_us = min(fix_us, limit_us)
         weak_all = out[0].name == "stripes" and not out[0].ok
         if exp is None and weak_all:
             bad = True
-        text = ("; ".join(texts) if texts else "exposure unknown" if exp is None
-                else f"exposure ~{exp:.0f} us vs shortest chip {chip_us:.0f} us") + (f" ({how})" if how else "")
-        out.append(Finding("exposure", not bad, text,
-                           "set a short manual exposure: v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=N "
-                           f"(100 us units; N <= {max(1, int(fix_us / 100))}, i.e. <= {fix_us:.0f} us)" if bad else "",
-                           {"exposure_us": exp, "chip_us": chip_us,
+        text = ("; ".join(texts) if texts else
+                f"exposure unknown (limit {fix_us:.0f} us)" if exp is None
+                else f"{said} vs shortest chip {chip_us:.0f} us (limit {fix_us:.0f} us)") + (f" ({how})" if how else "")
+        out.append(Finding("exposure", not bad, text, exposure_fix(source_kind, fix_us) if bad else "",
+                           {"exposure_us": exp, "chip_us": chip_us, "limit_us": round(fix_us, 2),
                             "exposure_chips": None if exp is None else round(exp / chip_us, 3)}))
     # drift
     t = np.asarray(times)
@@ -338,7 +367,9 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     amp = float(np.median(amps)) if amps else 0.0
     bad = amp > BAND_MIN_DN and amp > BAND_MIN_FRAC * max(level, 1.0)
     limit = max(BAND_MIN_DN, BAND_MIN_FRAC * max(level, 1.0))
-    if len(B) < 3:
+    if still:
+        out.append(Finding("banding", True, "not applicable to independent photos"))
+    elif len(B) < 3:
         out.append(Finding("banding", True, f"not measurable from {len(B)} frame(s) (needs 3)"))
     else:
         out.append(Finding("banding", not bad, f"background row pattern {amp:.1f} DN on a {level:.0f} DN "
