@@ -15,7 +15,9 @@ that need a clip (drift, banding, timestamps) say they do not apply.
   keep their depth up to its half period (`TONE_EXPOSURE_HALF_PERIODS`). A stripe fit below one
   row resolved no edge ramp: the camera file's exposure is judged instead.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
-  the clip (more than `DRIFT_FRAC` of the level).
+  the clip (more than `DRIFT_FRAC` of the level); the background's only while the camera is
+  still (the lights' median frame-to-frame step, summed, under `MOVING_PX`) or nothing else
+  measures it: a moving camera sees another background as it goes.
 * anti-flicker banding: mains-lit rooms put a periodic row pattern into the background (100 or
   120 Hz through the rolling shutter); the background's row means minus their median over the
   clip, its strongest sinusoid (`BAND_MIN_DN` and `BAND_MIN_FRAC` of the background).
@@ -56,6 +58,9 @@ EXPOSURE_CHIP_FRAC = 0.5
 # triangle); beyond, the depth falls as 2 - 2 E / period, to nothing at one period.
 TONE_EXPOSURE_HALF_PERIODS = 1.0
 GAP_FACTOR = 1.5
+# A picture whose lights travel this far (px: their median step from frame to frame, summed over
+# the clip) comes from a moving camera (gain_drift).
+MOVING_PX = 40.0
 ASSOC_PX = 40.0
 MAX_RAMP_PROFILES = 60
 
@@ -176,6 +181,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     kept = []
     ook_profiles: list[np.ndarray] = []  # the LEDs' row profiles (well-covered rows), for edge ramps
     dup = 0
+    moved_px = 0.0   # the picture's path: the lights' median step, frame to frame, summed
     prev = None
     for f in frames:
         if len(times) >= max_frames:
@@ -192,6 +198,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         blobs = [b for b in detect(g, settings=detect_settings) if not b.border]
         pk = [b.peak for b in blobs if b.peak < 250]
         peaks.append(float(np.median(pk)) if pk else np.nan)
+        steps = []   # this frame's lights' steps from the frame before (px)
         for b in blobs:
             depth = None
             if b.y1 - b.y0 >= 6:
@@ -210,16 +217,21 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 if d < ASSOC_PX and (best is None or d < best[0]):
                     best = (d, t)
             if best is None:
-                t = {"cx": b.cx, "cy": b.cy, "depth": [], "n": 0, "peaks": []}
+                t = {"cx": b.cx, "cy": b.cy, "depth": [], "n": 0, "peaks": [], "seen": -1}
                 tracks.append(t)
             else:
                 t = best[1]
+                if t["seen"] == len(times) - 2:   # seen in the frame before: its step
+                    steps.append((b.cx - t["cx"], b.cy - t["cy"]))
                 t["cx"], t["cy"] = b.cx, b.cy
             t["n"] += 1
+            t["seen"] = len(times) - 1
             if b.peak < 250:
                 t["peaks"].append((float(f.t_s), float(b.peak)))
             if depth is not None:
                 t["depth"].append(depth)
+        if steps:
+            moved_px += float(np.hypot(*np.median(np.asarray(steps), axis=0)))
     if not times:
         raise InputError("no frames to check")
     out: list[Finding] = []
@@ -334,16 +346,21 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     ok = np.isfinite(bgl)
     if ok.sum() >= 5 and span > 0 and np.nanmean(bgl) > 5:
         drift["background"] = float(np.polyfit(t[ok], bgl[ok], 1)[0] * span / np.nanmean(bgl[ok]))
-    bad = any(abs(v) > DRIFT_FRAC for v in drift.values())
+    # A camera that moves (a light travels across the picture) sees another background as it
+    # goes: the background's trend is then the scene's, and only the lights' own peaks judge.
+    scene_bg = moved_px >= MOVING_PX and "blob_peak" in drift
+    judged = {k: v for k, v in drift.items() if not (k == "background" and scene_bg)}
+    bad = any(abs(v) > DRIFT_FRAC for v in judged.values())
+    trends = [f"{k} {v:+.0%}" + ("" if k in judged else f" (not judged: the camera moves, the lights travel {moved_px:.0f} px)")
+              for k, v in drift.items()]
     if still:
         out.append(Finding("gain_drift", True, "not applicable to independent photos"))
     else:
         out.append(Finding("gain_drift", not bad,
-                           "brightness trend " + ", ".join(f"{k} {v:+.0%}" for k, v in drift.items())
-                           + f" (limit +-{DRIFT_FRAC:.0%} over the clip)" if drift
-                           else "brightness trend not measurable",
+                           "brightness trend " + ", ".join(trends) + f" (limit +-{DRIFT_FRAC:.0%} over the clip)"
+                           if drift else "brightness trend not measurable",
                            fix_for("gain_drift", source_kind) if bad else "",
-                           {"drift": drift, "limit_frac": DRIFT_FRAC}))
+                           {"drift": drift, "limit_frac": DRIFT_FRAC, "moved_px": round(moved_px, 1)}))
     # banding: across the frames of the most common size (photos of a folder may differ in size)
     heights = [r.size for r in bgrows]
     common = max(set(heights), key=heights.count) if heights else 0
