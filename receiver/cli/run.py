@@ -150,13 +150,26 @@ def _check_out_extension(path: str | None) -> None:
     raise InputError(f"--out {path}: occloc run writes JSON Lines (.jsonl), not {ext}{hint}")
 
 
-def _handedness_hint(summary, led_map) -> str:
+def _handedness_hint(summary, led_map, told: dict | None = None) -> str:
     """The summary's advice when frames had no position because the map's handedness could not
-    be told from them ('' otherwise)."""
+    be told from them ('' otherwise). `told`: handedness -> the first photo (or frame) that told
+    it (each photo has a receiver of its own, so one photo's answer does not reach another)."""
     if not summary.no_fix.get("handedness undecided") or led_map.handedness is not None:
         return ""
+    if told and len(told) == 1:
+        (hand, where), = told.items()
+        return (f'; the map does not say its handedness; {where} tells it is {hand}-handed: add '
+                f'"handedness": "{hand}" to the map')
     return ('; the map does not say its handedness and no photo/frame could tell it (both fits poor): '
             'add "handedness": "left" or "right" to the map')
+
+
+def _told_handedness(positioner) -> str | None:
+    """The handedness a receiver's positioner detected from its frames (None: not detected)."""
+    pose = getattr(positioner, "pose", None)
+    if getattr(pose, "handedness_source", None) == "detected":
+        return pose.handedness
+    return None
 
 
 def _indoor_lights(led_map) -> bool:
@@ -489,6 +502,7 @@ def _main(args, stop: "SignalStop") -> int:
         # a stop signal); standard output streams line by line.
         out = out_file.open() if out_file is not None else StdoutOutput()
         summary = RunSummary()
+        told: dict[str, str] = {}   # handedness -> the photo/frame that told it
         total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
@@ -530,6 +544,9 @@ def _main(args, stop: "SignalStop") -> int:
                 if out_file is None and args.realtime:
                     out.flush()
                 summary.add(res, no_fix=reason)
+                hand = _told_handedness(positioner)
+                if hand is not None and hand not in told:
+                    told[hand] = fields.get("file") or f"frame {frame.index}"
                 progress.update(summary.frames, len(summary.ids))
             ok = True
         finally:
@@ -548,7 +565,7 @@ def _main(args, stop: "SignalStop") -> int:
                                         hv_reason=hv_reason)
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
-              + _server_text(positioner) + _handedness_hint(summary, led_map), file=sys.stderr)
+              + _server_text(positioner) + _handedness_hint(summary, led_map, told), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)
