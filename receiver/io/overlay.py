@@ -3,7 +3,8 @@
 Per frame, on a BGR copy of the gray frame (OpenCV drawing only): each LED's envelope, track
 number, decoded ID and distance; the S2-PSK pairs (a line between the emitters and the ID); the
 position (text); the vehicle picture (hv and fv text, each car coloured by its zone); and a small
-top-view inset of the map (LED positions, the estimated camera or host-vehicle position). Text,
+top-view inset of the map (LED positions, the estimated camera or host-vehicle position, the cars
+ahead placed on the road in their zone's colour). Labels close together are moved apart. Text,
 lines and the inset scale with the image (`scale_for`: a 33 MP photo gets text as readable as a
 720p frame's).
 
@@ -46,6 +47,28 @@ def check_overlay_path(path: str) -> None:
                          f"{', '.join(STILLS + tuple(FORMATS))}")
 
 
+class _Labels:
+    """Labels of one frame, each moved up (by its own height, a few times at most) off the ones
+    already drawn: the labels of lights and cars close together do not pile on each other."""
+
+    TRIES = 6
+
+    def __init__(self):
+        self.boxes: list[tuple[int, int, int, int]] = []
+
+    def put(self, img, text: str, org, scale: float, colour, th: int) -> None:
+        font = cv2.FONT_HERSHEY_SIMPLEX
+        (tw, tht), base = cv2.getTextSize(text, font, scale, th)
+        x, y = int(org[0]), int(org[1])
+        for _ in range(self.TRIES):
+            box = (x, y - tht, x + tw, y + base)
+            if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in self.boxes):
+                break
+            y -= tht + base + 2
+        self.boxes.append((x, y - tht, x + tw, y + base))
+        cv2.putText(img, text, (x, y), font, scale, colour, th, cv2.LINE_AA)
+
+
 class OverlayWriter:
     """OverlayWriter(path, size=(w, h), fps, camera, led_map); .write(gray, frame_result); .close()."""
 
@@ -79,7 +102,9 @@ class OverlayWriter:
     def _map_xy(self, x, y, lo, scale, origin):
         return (int(origin[0] + (x - lo[0]) * scale), int(origin[1] + INSET[1] - 8 - (y - lo[1]) * scale))
 
-    def _inset(self, img, position, k: float = 1.0) -> None:
+    def _inset(self, img, position, k: float = 1.0, cars=()) -> None:
+        """The top view: the map's lights (yellow), the camera or host (white cross) and the cars
+        ahead placed on the road map (`cars`: (x, y, zone), a dot in the zone's colour)."""
         if self._pts is None:
             return
         h, w = img.shape[:2]
@@ -89,16 +114,21 @@ class OverlayWriter:
         roi[:] = (roi * 0.35).astype(np.uint8)
         cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, 1)
         pts = self._pts
-        if position is not None:
-            pts = np.vstack((pts, [[position["x"], position["y"]]]))
+        extra = ([[position["x"], position["y"]]] if position is not None else []) + [[x, y] for x, y, _ in cars]
+        if extra:
+            pts = np.vstack((pts, extra))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
+
+        def at(x, y):
+            return int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale)
         for x, y in self._pts:
-            p = (int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale))
-            cv2.circle(img, p, max(2, int(2 * k)), YELLOW, -1)
+            cv2.circle(img, at(x, y), max(2, int(2 * k)), YELLOW, -1)
+        for x, y, zone in cars:
+            cv2.circle(img, at(x, y), max(3, int(4 * k)), ZONE_COLOURS.get(zone, WHITE), -1)
         if position is not None:
-            p = (int(ox + 8 + (position["x"] - lo[0]) * scale), int(oy + ih - 8 - (position["y"] - lo[1]) * scale))
-            cv2.drawMarker(img, p, RED, cv2.MARKER_CROSS, int(10 * k), max(2, int(2 * k)))
+            cv2.drawMarker(img, at(position["x"], position["y"]), WHITE if cars else RED, cv2.MARKER_CROSS,
+                           int(10 * k), max(2, int(2 * k)))
 
     def annotate(self, gray: np.ndarray, res) -> np.ndarray:
         """The annotated BGR frame."""
@@ -106,6 +136,7 @@ class OverlayWriter:
         k = scale_for((img.shape[1], img.shape[0]))
         th = max(1, int(round(k)))  # line thickness
         font = cv2.FONT_HERSHEY_SIMPLEX
+        labels = _Labels()
         for led in getattr(res, "leds", []) or []:
             c = np.asarray(led.contour, np.float64).reshape(-1, 2)
             colour = GREEN if led.id is not None else YELLOW
@@ -115,15 +146,13 @@ class OverlayWriter:
             if led.distance_m is not None:
                 label += f" {led.distance_m:.2f} m"
             y0 = int(c[:, 1].min()) - 4 if c.size else int(led.cy)
-            cv2.putText(img, label, (int(led.cx - 30 * k), max(y0, int(10 * k))), font, 0.4 * k, colour, th,
-                        cv2.LINE_AA)
+            labels.put(img, label, (int(led.cx - 30 * k), max(y0, int(10 * k))), 0.4 * k, colour, th)
         for pr in getattr(res, "pairs", ()) or ():
             a = tuple(int(round(v)) for v in pr.a_px)
             b = tuple(int(round(v)) for v in pr.b_px)
             cv2.line(img, a, b, CYAN, th, cv2.LINE_AA)
             txt = f"{pr.kind or ''} {pr.led_id}" if pr.led_id is not None else "pair"
-            cv2.putText(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - int(6 * k)), font, 0.4 * k, CYAN, th,
-                        cv2.LINE_AA)
+            labels.put(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - int(6 * k)), 0.4 * k, CYAN, th)
         lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
         pos = getattr(res, "position", None)
         if pos:
@@ -143,7 +172,9 @@ class OverlayWriter:
             text, colour = t if isinstance(t, tuple) else (t, WHITE)
             cv2.putText(img, text, (int(8 * k), int((18 + 16 * i) * k)), font, 0.45 * k, colour, th, cv2.LINE_AA)
         hv = (veh or {}).get("hv") if isinstance(veh, dict) else None
-        self._inset(img, pos if pos else hv, k)
+        cars = [(fv["road_x"], fv["road_y"], fv.get("zone")) for fv in ((veh or {}).get("fv") or [])
+                if isinstance(veh, dict) and fv.get("road_x") is not None and fv.get("road_y") is not None]
+        self._inset(img, pos if pos else hv, k, cars)
         return img
 
     def write(self, gray: np.ndarray, frame_result) -> None:
