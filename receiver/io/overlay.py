@@ -24,6 +24,9 @@ import numpy as np
 from receiver.core.errors import InputError
 
 INSET = (200, 150)  # top-view inset size at scale 1, px
+# A vehicle's inset shows the road map within this many metres of the host (x and y), at least a
+# quarter of it around the host: the cars ahead (up to ~60 m) and the nearest street lights.
+VEHICLE_VIEW_M = 80.0
 GREEN, YELLOW, CYAN, WHITE, RED = (0, 255, 0), (0, 255, 255), (255, 255, 0), (255, 255, 255), (0, 0, 255)
 ORANGE = (0, 165, 255)
 ZONE_COLOURS = {"safe": GREEN, "min": ORANGE, "critical": RED}
@@ -48,8 +51,8 @@ def check_overlay_path(path: str) -> None:
 
 
 class _Labels:
-    """Labels of one frame, each moved up (by its own height, a few times at most) off the ones
-    already drawn: the labels of lights and cars close together do not pile on each other."""
+    """Labels of one frame, each moved up or down (by its own height, a few lines at most) off the
+    ones already drawn: the labels of lights and cars close together do not pile on each other."""
 
     TRIES = 6
 
@@ -60,11 +63,13 @@ class _Labels:
         font = cv2.FONT_HERSHEY_SIMPLEX
         (tw, tht), base = cv2.getTextSize(text, font, scale, th)
         x, y = int(org[0]), int(org[1])
-        for _ in range(self.TRIES):
-            box = (x, y - tht, x + tw, y + base)
+        step = tht + base + 2
+        for k in range(2 * self.TRIES + 1):   # the place asked for, then one line up, one down, two up...
+            yy = y + (-(k + 1) // 2 if k % 2 else k // 2) * step
+            box = (x, yy - tht, x + tw, yy + base)
             if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in self.boxes):
+                y = yy
                 break
-            y -= tht + base + 2
         self.boxes.append((x, y - tht, x + tw, y + base))
         cv2.putText(img, text, (x, y), font, scale, colour, th, cv2.LINE_AA)
 
@@ -102,9 +107,10 @@ class OverlayWriter:
     def _map_xy(self, x, y, lo, scale, origin):
         return (int(origin[0] + (x - lo[0]) * scale), int(origin[1] + INSET[1] - 8 - (y - lo[1]) * scale))
 
-    def _inset(self, img, position, k: float = 1.0, cars=()) -> None:
+    def _inset(self, img, position, k: float = 1.0, cars=(), vehicle: bool = False) -> None:
         """The top view: the map's lights (yellow), the camera or host (white cross) and the cars
-        ahead placed on the road map (`cars`: (x, y, zone), a dot in the zone's colour)."""
+        ahead placed on the road map (`cars`: (x, y, zone), a dot in the zone's colour); a
+        `vehicle` view shows the host's surroundings only."""
         if self._pts is None:
             return
         h, w = img.shape[:2]
@@ -115,7 +121,13 @@ class OverlayWriter:
         cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, 1)
         pts = self._pts
         extra = ([[position["x"], position["y"]]] if position is not None else []) + [[x, y] for x, y, _ in cars]
-        if extra:
+        if vehicle and position is not None:
+            # the host's surroundings (a road map is hundreds of metres long): the host, the cars
+            # ahead and the lights within VEHICLE_VIEW_M
+            here = np.array([position["x"], position["y"]], np.float64)
+            near = np.abs(pts - here).max(axis=1) <= VEHICLE_VIEW_M
+            pts = np.vstack((pts[near], extra, here - VEHICLE_VIEW_M / 4, here + VEHICLE_VIEW_M / 4))
+        elif extra:
             pts = np.vstack((pts, extra))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
@@ -123,7 +135,8 @@ class OverlayWriter:
         def at(x, y):
             return int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale)
         for x, y in self._pts:
-            cv2.circle(img, at(x, y), max(2, int(2 * k)), YELLOW, -1)
+            if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
+                cv2.circle(img, at(x, y), max(2, int(2 * k)), YELLOW, -1)
         for x, y, zone in cars:
             cv2.circle(img, at(x, y), max(3, int(4 * k)), ZONE_COLOURS.get(zone, WHITE), -1)
         if position is not None:
@@ -137,21 +150,30 @@ class OverlayWriter:
         th = max(1, int(round(k)))  # line thickness
         font = cv2.FONT_HERSHEY_SIMPLEX
         labels = _Labels()
+        pairs = getattr(res, "pairs", ()) or ()
+        ranges = {}   # S2-PSK ID -> its range (m), for the pair's label
         for led in getattr(res, "leds", []) or []:
             c = np.asarray(led.contour, np.float64).reshape(-1, 2)
             colour = GREEN if led.id is not None else YELLOW
             if c.size:
                 cv2.polylines(img, [np.round(c).astype(np.int32)], True, colour, th, cv2.LINE_AA)
+            if led.mode == "s2psk" and pairs:
+                # an emitter of a pair: the pair's one label names its ID and range
+                if led.id is not None and led.distance_m is not None:
+                    ranges.setdefault(led.id, led.distance_m)
+                continue
             label = f"#{led.track}" + (f" id {led.id}" if led.id is not None else "")
             if led.distance_m is not None:
                 label += f" {led.distance_m:.2f} m"
             y0 = int(c[:, 1].min()) - 4 if c.size else int(led.cy)
             labels.put(img, label, (int(led.cx - 30 * k), max(y0, int(10 * k))), 0.4 * k, colour, th)
-        for pr in getattr(res, "pairs", ()) or ():
+        for pr in pairs:
             a = tuple(int(round(v)) for v in pr.a_px)
             b = tuple(int(round(v)) for v in pr.b_px)
             cv2.line(img, a, b, CYAN, th, cv2.LINE_AA)
             txt = f"{pr.kind or ''} {pr.led_id}" if pr.led_id is not None else "pair"
+            if pr.led_id in ranges:
+                txt += f" {ranges[pr.led_id]:.1f} m"
             labels.put(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - int(6 * k)), 0.4 * k, CYAN, th)
         lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
         pos = getattr(res, "position", None)
@@ -174,7 +196,7 @@ class OverlayWriter:
         hv = (veh or {}).get("hv") if isinstance(veh, dict) else None
         cars = [(fv["road_x"], fv["road_y"], fv.get("zone")) for fv in ((veh or {}).get("fv") or [])
                 if isinstance(veh, dict) and fv.get("road_x") is not None and fv.get("road_y") is not None]
-        self._inset(img, pos if pos else hv, k, cars)
+        self._inset(img, pos if pos else hv, k, cars, vehicle=bool(hv) and not pos)
         return img
 
     def write(self, gray: np.ndarray, frame_result) -> None:
