@@ -85,3 +85,22 @@ def test_vehicle_inset_shows_the_host_and_the_cars_in_their_zone_colours(tmp_pat
     two = OverlayWriter(str(tmp_path / "p.png"), (1280, 720), 30.0).annotate(gray, res2)
     cyan_rows = lambda im: int(((im == (255, 255, 0)).all(axis=2)[:398]).any(axis=1).sum())  # label rows above the lines
     assert cyan_rows(two) >= 1.8 * cyan_rows(one) > 0
+
+
+def test_vehicle_inset_is_the_hosts_surroundings_not_the_whole_road(tmp_path):
+    """On a road map hundreds of metres long, a car 14 m ahead is drawn well apart from the host
+    (the inset shows the host's surroundings), and only the nearby street lights are drawn."""
+    from receiver.core.records import FrameResult
+    from receiver.io.ledmap import load_map
+    from receiver.io.overlay import ZONE_COLOURS
+    led_map = load_map(str(REC_VEH / "map.json"))
+    xs = [l.x for l in led_map.leds.values()]
+    assert max(xs) - min(xs) > 300
+    host = {"x": min(xs) + 100.0, "y": 0.0}
+    fv = [{"id": 142, "distance_m": 14.0, "angle_deg": 0.0, "zone": "critical", "road_x": host["x"] + 14.0, "road_y": 0.0}]
+    img = OverlayWriter(str(tmp_path / "v.png"), (1280, 720), 30.0, None, led_map).annotate(
+        np.zeros((720, 1280), np.uint8), FrameResult(0, 0.0, 1.0, [], position=None, vehicle={"hv": host, "fv": fv}))
+    inset = img[8:8 + 150, 1280 - 200 - 8:1280 - 8]
+    car = np.argwhere((inset == ZONE_COLOURS["critical"]).all(axis=2)).mean(axis=0)
+    white = np.argwhere((inset[4:-4, 4:-4] == (255, 255, 255)).all(axis=2)).mean(axis=0) + 4  # the host's cross
+    assert np.hypot(*(car - white)) >= 14, (car, white)  # at least a pixel per metre (the whole road: 0.5)
