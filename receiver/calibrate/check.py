@@ -12,7 +12,7 @@ that need a clip (drift, banding, timestamps) say they do not apply.
   LEDs' row profiles, `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's
   `exposure_us`: OOK chips are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure
   model; `exposure_verdict` names the exposure and chip rate that would work), a tone's stripes
-  keep their depth up to its half period (`TONE_EXPOSURE_HALF_PERIODS`). A stripe fit below one
+  keep their depth up to its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one
   row resolved no edge ramp: the camera file's exposure is judged instead.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
   the clip (more than `DRIFT_FRAC` of the level); the background's only while the camera is
@@ -36,8 +36,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from receiver.calibrate.rows import edge_blur_px, measure_row_time
-from receiver.decode.exposure import MAX_EXPOSURE_CHIPS, MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
+from receiver.calibrate.rows import edge_blur_px, exposure_limit_us, measure_row_time
+from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
 from receiver.decode.ook import rows_per_chip
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
@@ -52,11 +52,6 @@ MAX_BLUR_PX = 2.5
 # blur of that width would have flattened the stripes (a rendered 4 px defocus leaves 0.41); the
 # edge is the fixture's own soft rim (the Luxapose phone photos: 8-13 px edges, depth 0.99).
 FOCUS_STRIPE_DEPTH = 0.8
-EXPOSURE_CHIP_FRAC = 0.5
-# A tone's stripes keep their full depth up to an exposure of this many half periods: a row
-# integrating a 50 % square wave over its half period still swings from fully on to fully off (a
-# triangle); beyond, the depth falls as 2 - 2 E / period, to nothing at one period.
-TONE_EXPOSURE_HALF_PERIODS = 1.0
 GAP_FACTOR = 1.5
 # A picture whose lights travel this far (px: their median step from frame to frame, summed over
 # the clip) comes from a moving camera (gain_drift).
@@ -300,32 +295,23 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 else None if exp is None else f"exposure ~{exp:.0f} us")
         chip_us = 1e6 / max(rates)
         texts, bad = [], False
+        fix_us = exposure_limit_us(ook, tone)
         if exp is not None and ook:
             # OOK: the exposure model reads chips up to MAX_EXPOSURE_CHIPS (receiver.decode.exposure)
             for r in sorted(set(ook)):
                 ok_r, t = exposure_verdict(exp, r)
-                texts.append(t + (f" (limit {MAX_EXPOSURE_CHIPS * 1e6 / r:.0f} us)" if ok_r else ""))
+                texts.append(t + (f" (limit {exposure_limit_us([r]):.0f} us)" if ok_r else ""))
                 bad |= not ok_r
-            fix_us = MAX_EXPOSURE_CHIPS * 1e6 / max(ook)
-        elif tone:
-            fix_us = TONE_EXPOSURE_HALF_PERIODS * 1e6 / (2.0 * max(tone))
-        else:
-            fix_us = EXPOSURE_CHIP_FRAC * chip_us
         if exp is not None and tone:
-            half_us = 1e6 / (2.0 * max(tone))
-            limit_us = TONE_EXPOSURE_HALF_PERIODS * half_us
+            limit_us = exposure_limit_us((), [max(tone)])
             tone_bad = exp > limit_us
             texts.append(f"{said} (limit {limit_us:.0f} us: the {max(tone):g} Hz tone's half period)"
                          + (": stripes wash out" if tone_bad else ""))
-            if tone_bad:
-                bad = True
-                fix_us = min(fix_us, limit_us)
+            bad |= tone_bad
         weak_all = out[0].name == "stripes" and not out[0].ok
         if exp is None and weak_all:
             bad = True
-        text = ("; ".join(texts) if texts else
-                f"exposure unknown (limit {fix_us:.0f} us)" if exp is None
-                else f"{said} vs shortest chip {chip_us:.0f} us (limit {fix_us:.0f} us)") + (f" ({how})" if how else "")
+        text = ("; ".join(texts) if texts else f"exposure unknown (limit {fix_us:.0f} us)") + (f" ({how})" if how else "")
         out.append(Finding("exposure", not bad, text, exposure_fix(source_kind, fix_us) if bad else "",
                            {"exposure_us": exp, "chip_us": chip_us, "limit_us": round(fix_us, 2),
                             "exposure_chips": None if exp is None else round(exp / chip_us, 3)}))

@@ -239,17 +239,19 @@ def run_rows(args) -> dict:
     if src.size is not None and src.size != (cam.width, cam.height):
         _progress(f"frames are {src.size[0]}x{src.size[1]}, the camera file {cam.width}x{cam.height}: "
                   f"row time measured in the frames' rows")
-    rates = [2 * rate if mode == "tone" else rate]
+    ook, tones = ([rate], []) if mode == "ook" else ([], [rate])
     if args.map:
         from receiver.io.ledmap import load_map
         m = load_map(args.map)
-        rates += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
-        rates += [2 * led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
+        ook += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
+        tones += [led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
         if m.default_rate_hz:
-            rates.append(m.default_rate_hz)
-    warn = exposure_warning(res.exposure_us, rates)
+            ook.append(m.default_rate_hz)
+    warn = exposure_warning(res.exposure_us, ook, tones)
     if warn:
-        print(f"occloc: warning: {warn}", file=sys.stderr)
+        from receiver.calibrate.check import exposure_fix
+        from receiver.calibrate.rows import exposure_limit_us
+        print(f"occloc: warning: {warn}; {exposure_fix(src.kind, exposure_limit_us(ook, tones))}", file=sys.stderr)
     _progress(f"row readout {res.t_row_us:.4f} us +- {res.stderr_us:.4f} (standard error), "
               f"spread {res.spread_us:.4f} us over {res.blobs} blobs in {res.frames} frames; "
               f"exposure ~{res.exposure_us if res.exposure_us is None else round(res.exposure_us, 1)} us")

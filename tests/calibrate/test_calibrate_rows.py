@@ -116,5 +116,8 @@ def test_crossings_and_warning():
     x = np.tile(np.r_[np.zeros(5), np.full(5, 100.0)], 4)
     pos, d = crossings(x)
     assert np.allclose(np.diff(pos), 5.0) and set(d.tolist()) == {-1, 1}
-    assert exposure_warning(40.0, [20000.0]) is not None
-    assert exposure_warning(10.0, [20000.0]) is None
+    # the limits the decoders read to: 1.8 chips of 20 kHz OOK (90 us), a 4 kHz tone's half period
+    assert exposure_warning(95.0, [20000.0]) is not None and "limit 90 us" in exposure_warning(95.0, [20000.0])
+    assert exposure_warning(79.0, [20000.0]) is None
+    assert exposure_warning(130.0, (), [4000.0]) is not None and exposure_warning(60.0, (), [4000.0]) is None
+    assert exposure_warning(60.0, [20000.0], [5000.0]) is None and exposure_warning(None, [20000.0]) is None
