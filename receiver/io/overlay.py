@@ -74,38 +74,14 @@ class _Labels:
         cv2.putText(img, text, (x, y), font, scale, colour, th, cv2.LINE_AA)
 
 
-class OverlayWriter:
-    """OverlayWriter(path, size=(w, h), fps, camera, led_map); .write(gray, frame_result); .close()."""
+class Annotator:
+    """What the receiver saw drawn on a frame (`annotate`): the picture of `OverlayWriter` and
+    `LiveWindow`. `led_map`: the map of the inset (None: no inset)."""
 
-    def __init__(self, path: str, size, fps: float, camera=None, led_map=None):
-        self.path, self.size = path, (int(size[0]), int(size[1]))
-        self.fps = float(fps) if fps and fps > 0 else 30.0
-        self.camera, self.led_map = camera, led_map
-        check_overlay_path(path)
-        ext = os.path.splitext(path)[1].lower()
-        self.png = ext in STILLS   # a still of the last frame (PNG or JPEG)
-        self._writer = None
-        self._frames = 0
-        self._last = None
+    def __init__(self, led_map=None):
         self._pts = None
         if led_map is not None and led_map.leds:
             self._pts = np.array([[l.x, l.y] for l in led_map.leds.values()], np.float64)
-        if not self.png:
-            level = cv2.utils.logging.getLogLevel()
-            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
-            try:
-                for fourcc in FORMATS[ext]:
-                    w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), self.fps, self.size, True)
-                    if w.isOpened():
-                        self._writer, self.fourcc = w, fourcc
-                        break
-            finally:
-                cv2.utils.logging.setLogLevel(level)
-            if self._writer is None:
-                raise InputError(f"{path}: this OpenCV cannot write {' or '.join(FORMATS[ext])} in {ext}")
-
-    def _map_xy(self, x, y, lo, scale, origin):
-        return (int(origin[0] + (x - lo[0]) * scale), int(origin[1] + INSET[1] - 8 - (y - lo[1]) * scale))
 
     def _inset(self, img, position, k: float = 1.0, cars=(), vehicle: bool = False) -> None:
         """The top view: the map's lights (yellow), the camera or host (white cross) and the cars
@@ -198,6 +174,39 @@ class OverlayWriter:
                 if isinstance(veh, dict) and fv.get("road_x") is not None and fv.get("road_y") is not None]
         self._inset(img, pos if pos else hv, k, cars, vehicle=bool(hv) and not pos)
         return img
+
+
+class OverlayWriter:
+    """OverlayWriter(path, size=(w, h), fps, camera, led_map); .write(gray, frame_result); .close()."""
+
+    def __init__(self, path: str, size, fps: float, camera=None, led_map=None):
+        self.path, self.size = path, (int(size[0]), int(size[1]))
+        self.fps = float(fps) if fps and fps > 0 else 30.0
+        self.camera, self.led_map = camera, led_map
+        check_overlay_path(path)
+        ext = os.path.splitext(path)[1].lower()
+        self.png = ext in STILLS   # a still of the last frame (PNG or JPEG)
+        self._writer = None
+        self._frames = 0
+        self._last = None
+        self._annotator = Annotator(led_map)
+        if not self.png:
+            level = cv2.utils.logging.getLogLevel()
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+            try:
+                for fourcc in FORMATS[ext]:
+                    w = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*fourcc), self.fps, self.size, True)
+                    if w.isOpened():
+                        self._writer, self.fourcc = w, fourcc
+                        break
+            finally:
+                cv2.utils.logging.setLogLevel(level)
+            if self._writer is None:
+                raise InputError(f"{path}: this OpenCV cannot write {' or '.join(FORMATS[ext])} in {ext}")
+
+    def annotate(self, gray: np.ndarray, res) -> np.ndarray:
+        """The annotated BGR frame (`Annotator.annotate`)."""
+        return self._annotator.annotate(gray, res)
 
     def write(self, gray: np.ndarray, frame_result) -> None:
         img = self.annotate(gray, frame_result)
