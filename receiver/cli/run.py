@@ -57,6 +57,8 @@ def add_arguments(p) -> None:
     p.add_argument("--overlay", metavar="FILE",
                    help="write the frames annotated with what the receiver saw: a video (.mp4 H.264, "
                         ".avi MJPG, .mkv FFV1), or the last frame as an image (.png, .jpg: e.g. a photo)")
+    p.add_argument("--show", action="store_true",
+                   help="show the frames annotated live in a window (where a display exists)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--settings", metavar="FILE",
@@ -441,6 +443,10 @@ def _main(args, stop: "SignalStop") -> int:
              else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
+    window = None
+    if getattr(args, "show", False):   # a display to show on, before any work
+        from receiver.io.overlay import LiveWindow
+        window = LiveWindow(led_map, f"occloc run {spec}")
     if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
         raise InputError(f"{cam_path}: row_readout_us 0 (global shutter), but the map has OOK or tone "
                          f"lights, which need a rolling shutter (give the sensor's row readout time)")
@@ -537,6 +543,8 @@ def _main(args, stop: "SignalStop") -> int:
                 res = rx.process(frame)
                 if overlay is not None:
                     overlay[0].write(frame.gray, res)
+                if window is not None:
+                    window.write(frame.gray, res)
                 reason = no_fix_reason(res, positioner) if explain else None
                 if reason is not None:
                     fields["no_fix"] = reason
@@ -553,6 +561,8 @@ def _main(args, stop: "SignalStop") -> int:
             progress.done()
             if hasattr(positioner, "close"):
                 positioner.close()
+            if window is not None:
+                window.close()
             if overlay is not None:
                 _close_overlay(overlay, ok)
             out.commit() if ok else out.discard()
@@ -576,4 +586,6 @@ def _main(args, stop: "SignalStop") -> int:
         raise InputError(f"{getattr(e, 'filename', None) or spec}: {e.strerror or e}") from None
     finally:
         src.close()
+        if window is not None:
+            window.close()
     return 0

@@ -8,6 +8,8 @@ ahead placed on the road in their zone's colour). Labels close together are move
 lines and the inset scale with the image (`scale_for`: a 33 MP photo gets text as readable as a
 720p frame's).
 
+`LiveWindow` shows the same picture live in a window (`occloc run --show`) where a display exists.
+
 Output by the path's extension (`FORMATS`): a still of the last frame (.png, .jpg/.jpeg) or a
 video with the first codec of its list this OpenCV build can write (.avi: MJPG, FFV1; .mkv: FFV1,
 MJPG; .mp4: H.264 (avc1), MPEG-4 part 2 (mp4v), both of which common players open). Another
@@ -242,3 +244,60 @@ class OverlayWriter:
             return int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         finally:
             cap.release()
+
+
+# The live window's picture is at most this size (px, w x h): a 33 MP photo is shown scaled down.
+WINDOW_MAX = (1280, 800)
+
+
+class LiveWindow:
+    """A window showing each frame annotated (`occloc run SOURCE --show`), drawn with Tk (the
+    standard library's; this OpenCV is built without a GUI). InputError when there is no display
+    to open it on. Closing the window stops the showing, not the run."""
+
+    def __init__(self, led_map=None, title: str = "occloc"):
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise InputError("--show needs a display (DISPLAY is not set): use --overlay FILE to write "
+                             "the picture instead")
+        try:
+            import tkinter
+            self._root = tkinter.Tk()
+        except Exception as e:   # no tkinter, or Tk cannot reach the display
+            raise InputError(f"--show cannot open a window ({str(e).splitlines()[0] if str(e) else type(e).__name__}): "
+                             f"use --overlay FILE to write the picture instead") from None
+        self._root.title(title)
+        self._label = tkinter.Label(self._root)
+        self._label.pack()
+        self._photo = None
+        self.open = True
+        self._root.protocol("WM_DELETE_WINDOW", self.close)
+        self._annotator = Annotator(led_map)
+
+    def write(self, gray: np.ndarray, frame_result) -> None:
+        """Show this frame annotated (nothing once the window is closed)."""
+        if not self.open:
+            return
+        import base64
+        import tkinter
+        img = self._annotator.annotate(gray, frame_result)
+        h, w = img.shape[:2]
+        f = min(1.0, WINDOW_MAX[0] / w, WINDOW_MAX[1] / h)
+        if f < 1.0:
+            img = cv2.resize(img, (max(1, int(w * f)), max(1, int(h * f))), interpolation=cv2.INTER_AREA)
+        ok, buf = cv2.imencode(".png", img)
+        if not ok:
+            return
+        try:
+            self._photo = tkinter.PhotoImage(data=base64.b64encode(buf.tobytes()))
+            self._label.configure(image=self._photo)
+            self._root.update()
+        except tkinter.TclError:   # the window went away
+            self.open = False
+
+    def close(self) -> None:
+        if self.open:
+            self.open = False
+            try:
+                self._root.destroy()
+            except Exception:
+                pass

@@ -104,3 +104,18 @@ def test_vehicle_inset_is_the_hosts_surroundings_not_the_whole_road(tmp_path):
     car = np.argwhere((inset == ZONE_COLOURS["critical"]).all(axis=2)).mean(axis=0)
     white = np.argwhere((inset[4:-4, 4:-4] == (255, 255, 255)).all(axis=2)).mean(axis=0) + 4  # the host's cross
     assert np.hypot(*(car - white)) >= 14, (car, white)  # at least a pixel per metre (the whole road: 0.5)
+
+
+def test_show_without_a_display_is_a_one_line_error_before_any_work(tmp_path, capsys, monkeypatch):
+    from receiver.io.overlay import LiveWindow
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    out = tmp_path / "o.jsonl"
+    assert occloc(["run", str(STATIC), "--max-frames", "1", "--show", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["occloc: --show needs a display (DISPLAY is not set): use --overlay FILE to write the picture instead"]
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    # a display named but not there (Tk cannot reach it): the same kind of error, not a traceback
+    monkeypatch.setenv("DISPLAY", ":97")
+    with pytest.raises(InputError, match="--show cannot open a window"):
+        LiveWindow(None)
