@@ -2,9 +2,9 @@
 
 Each test looks at a clip of frames and reports a `Finding` (ok or a problem, its measured value
 and limit, and what to change, worded for the source: `v4l2-ctl -c name=value` for a V4L2
-camera, the camera app's settings for photos, both for a video file). Photos (`source_kind`
-"images") are independent stills: a light seen once counts, and the tests that need a clip
-(drift, banding, timestamps) say they do not apply.
+camera, the camera app's settings for photos, both for a video file: `fix_for`, `exposure_fix`).
+Photos (`source_kind` "images") are independent stills: a light seen once counts, and the tests
+that need a clip (drift, banding, timestamps) say they do not apply.
 
 * stripes: stripe depth (`receiver.vision.profile.stripe_depth`) of every LED followed over the
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
@@ -12,9 +12,12 @@ camera, the camera app's settings for photos, both for a video file). Photos (`s
   LEDs' row profiles, `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's
   `exposure_us`: OOK chips are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure
   model; `exposure_verdict` names the exposure and chip rate that would work), a tone's stripes
-  up to half of its half period.
+  keep their depth up to its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one
+  row resolved no edge ramp: the camera file's exposure is judged instead.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
-  the clip (more than `DRIFT_FRAC` of the level).
+  the clip (more than `DRIFT_FRAC` of the level); the background's only while the camera is
+  still (the lights' median frame-to-frame step, summed, under `MOVING_PX`) or nothing else
+  measures it: a moving camera sees another background as it goes.
 * anti-flicker banding: mains-lit rooms put a periodic row pattern into the background (100 or
   120 Hz through the rolling shutter); the background's row means minus their median over the
   clip, its strongest sinusoid (`BAND_MIN_DN` and `BAND_MIN_FRAC` of the background).
@@ -33,8 +36,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from receiver.calibrate.rows import edge_blur_px, measure_row_time
-from receiver.decode.exposure import MAX_EXPOSURE_CHIPS, MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
+from receiver.calibrate.rows import edge_blur_px, exposure_limit_us, measure_row_time
+from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
 from receiver.decode.ook import rows_per_chip
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
@@ -49,8 +52,10 @@ MAX_BLUR_PX = 2.5
 # blur of that width would have flattened the stripes (a rendered 4 px defocus leaves 0.41); the
 # edge is the fixture's own soft rim (the Luxapose phone photos: 8-13 px edges, depth 0.99).
 FOCUS_STRIPE_DEPTH = 0.8
-EXPOSURE_CHIP_FRAC = 0.5
 GAP_FACTOR = 1.5
+# A picture whose lights travel this far (px: their median step from frame to frame, summed over
+# the clip) comes from a moving camera (gain_drift).
+MOVING_PX = 40.0
 ASSOC_PX = 40.0
 MAX_RAMP_PROFILES = 60
 
@@ -118,6 +123,19 @@ def fix_for(name: str, source_kind: str) -> str:
     return options.get(kind) or options["video"]
 
 
+def exposure_fix(source_kind: str, limit_us: float) -> str:
+    """The advice for an exposure above `limit_us`, worded for the source (`fix_for`)."""
+    shutter = f"1/{math.ceil(1e6 / limit_us)} s" if limit_us > 0 else "the shortest"
+    if source_kind == "images":
+        return (f"use the camera app's manual (pro) mode: a shutter time of {shutter} or shorter "
+                f"(<= {limit_us:.0f} us) and a low ISO")
+    v4l2 = (f"v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=N (100 us units; "
+            f"N <= {max(1, int(limit_us / 100))}, i.e. <= {limit_us:.0f} us)")
+    if source_kind == "v4l2":
+        return "set a short manual exposure: " + v4l2
+    return f"record with a manual exposure of <= {limit_us:.0f} us ({shutter}; a V4L2 webcam: {v4l2})"
+
+
 def _background_rows(gray: np.ndarray) -> np.ndarray:
     """Mean of every row over the background pixels (lights and their glow masked), nan when a
     row is mostly light."""
@@ -158,6 +176,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     kept = []
     ook_profiles: list[np.ndarray] = []  # the LEDs' row profiles (well-covered rows), for edge ramps
     dup = 0
+    moved_px = 0.0   # the picture's path: the lights' median step, frame to frame, summed
     prev = None
     for f in frames:
         if len(times) >= max_frames:
@@ -174,6 +193,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         blobs = [b for b in detect(g, settings=detect_settings) if not b.border]
         pk = [b.peak for b in blobs if b.peak < 250]
         peaks.append(float(np.median(pk)) if pk else np.nan)
+        steps = []   # this frame's lights' steps from the frame before (px)
         for b in blobs:
             depth = None
             if b.y1 - b.y0 >= 6:
@@ -192,16 +212,21 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 if d < ASSOC_PX and (best is None or d < best[0]):
                     best = (d, t)
             if best is None:
-                t = {"cx": b.cx, "cy": b.cy, "depth": [], "n": 0, "peaks": []}
+                t = {"cx": b.cx, "cy": b.cy, "depth": [], "n": 0, "peaks": [], "seen": -1}
                 tracks.append(t)
             else:
                 t = best[1]
+                if t["seen"] == len(times) - 2:   # seen in the frame before: its step
+                    steps.append((b.cx - t["cx"], b.cy - t["cy"]))
                 t["cx"], t["cy"] = b.cx, b.cy
             t["n"] += 1
+            t["seen"] = len(times) - 1
             if b.peak < 250:
                 t["peaks"].append((float(f.t_s), float(b.peak)))
             if depth is not None:
                 t["depth"].append(depth)
+        if steps:
+            moved_px += float(np.hypot(*np.median(np.asarray(steps), axis=0)))
     if not times:
         raise InputError("no frames to check")
     out: list[Finding] = []
@@ -256,37 +281,39 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
                 est = None
             if est is None and ramp is not None:
                 est, how = ramp, "edge ramps"
+        row_us = camera.row_readout_us
+        # A stripe fit below one row has not resolved the exposure (edge ramps sharper than a
+        # row): the camera file's value is judged when it has one, else "under one row".
+        under_row = est is not None and est < row_us
+        if under_row:
+            est = None if camera.exposure_us > 0 else row_us
+            under_row = est is not None
         exp = est if est is not None else (camera.exposure_us or None)
         if est is None and exp:
-            how = "camera file"
+            how = "camera file" if how != "stripe fit" else "camera file; the stripe fit resolves no ramp"
+        said = (f"exposure under one row ({row_us:.0f} us)" if under_row
+                else None if exp is None else f"exposure ~{exp:.0f} us")
         chip_us = 1e6 / max(rates)
-        texts, fixes, bad = [], [], False
+        texts, bad = [], False
+        fix_us = exposure_limit_us(ook, tone)
         if exp is not None and ook:
             # OOK: the exposure model reads chips up to MAX_EXPOSURE_CHIPS (receiver.decode.exposure)
             for r in sorted(set(ook)):
                 ok_r, t = exposure_verdict(exp, r)
-                texts.append(t)
+                texts.append(t + (f" (limit {exposure_limit_us([r]):.0f} us)" if ok_r else ""))
                 bad |= not ok_r
-            fix_us = MAX_EXPOSURE_CHIPS * 1e6 / max(ook)
-        else:
-            fix_us = EXPOSURE_CHIP_FRAC * chip_us
         if exp is not None and tone:
-            half_us = 1e6 / (2.0 * max(tone))
-            tone_bad = exp > EXPOSURE_CHIP_FRAC * half_us
-            texts.append(f"exposure ~{exp:.0f} us vs the {max(tone):g} Hz tone's half period {half_us:.0f} us"
+            limit_us = exposure_limit_us((), [max(tone)])
+            tone_bad = exp > limit_us
+            texts.append(f"{said} (limit {limit_us:.0f} us: the {max(tone):g} Hz tone's half period)"
                          + (": stripes wash out" if tone_bad else ""))
-            if tone_bad:
-                bad = True
-                fix_us = min(fix_us, EXPOSURE_CHIP_FRAC * half_us)
+            bad |= tone_bad
         weak_all = out[0].name == "stripes" and not out[0].ok
         if exp is None and weak_all:
             bad = True
-        text = ("; ".join(texts) if texts else "exposure unknown" if exp is None
-                else f"exposure ~{exp:.0f} us vs shortest chip {chip_us:.0f} us") + (f" ({how})" if how else "")
-        out.append(Finding("exposure", not bad, text,
-                           "set a short manual exposure: v4l2-ctl -c auto_exposure=1 -c exposure_time_absolute=N "
-                           f"(100 us units; N <= {max(1, int(fix_us / 100))}, i.e. <= {fix_us:.0f} us)" if bad else "",
-                           {"exposure_us": exp, "chip_us": chip_us,
+        text = ("; ".join(texts) if texts else f"exposure unknown (limit {fix_us:.0f} us)") + (f" ({how})" if how else "")
+        out.append(Finding("exposure", not bad, text, exposure_fix(source_kind, fix_us) if bad else "",
+                           {"exposure_us": exp, "chip_us": chip_us, "limit_us": round(fix_us, 2),
                             "exposure_chips": None if exp is None else round(exp / chip_us, 3)}))
     # drift
     t = np.asarray(times)
@@ -305,16 +332,21 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     ok = np.isfinite(bgl)
     if ok.sum() >= 5 and span > 0 and np.nanmean(bgl) > 5:
         drift["background"] = float(np.polyfit(t[ok], bgl[ok], 1)[0] * span / np.nanmean(bgl[ok]))
-    bad = any(abs(v) > DRIFT_FRAC for v in drift.values())
+    # A camera that moves (a light travels across the picture) sees another background as it
+    # goes: the background's trend is then the scene's, and only the lights' own peaks judge.
+    scene_bg = moved_px >= MOVING_PX and "blob_peak" in drift
+    judged = {k: v for k, v in drift.items() if not (k == "background" and scene_bg)}
+    bad = any(abs(v) > DRIFT_FRAC for v in judged.values())
+    trends = [f"{k} {v:+.0%}" + ("" if k in judged else f" (not judged: the camera moves, the lights travel {moved_px:.0f} px)")
+              for k, v in drift.items()]
     if still:
         out.append(Finding("gain_drift", True, "not applicable to independent photos"))
     else:
         out.append(Finding("gain_drift", not bad,
-                           "brightness trend " + ", ".join(f"{k} {v:+.0%}" for k, v in drift.items())
-                           + f" (limit +-{DRIFT_FRAC:.0%} over the clip)" if drift
-                           else "brightness trend not measurable",
+                           "brightness trend " + ", ".join(trends) + f" (limit +-{DRIFT_FRAC:.0%} over the clip)"
+                           if drift else "brightness trend not measurable",
                            fix_for("gain_drift", source_kind) if bad else "",
-                           {"drift": drift, "limit_frac": DRIFT_FRAC}))
+                           {"drift": drift, "limit_frac": DRIFT_FRAC, "moved_px": round(moved_px, 1)}))
     # banding: across the frames of the most common size (photos of a folder may differ in size)
     heights = [r.size for r in bgrows]
     common = max(set(heights), key=heights.count) if heights else 0
@@ -338,7 +370,9 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     amp = float(np.median(amps)) if amps else 0.0
     bad = amp > BAND_MIN_DN and amp > BAND_MIN_FRAC * max(level, 1.0)
     limit = max(BAND_MIN_DN, BAND_MIN_FRAC * max(level, 1.0))
-    if len(B) < 3:
+    if still:
+        out.append(Finding("banding", True, "not applicable to independent photos"))
+    elif len(B) < 3:
         out.append(Finding("banding", True, f"not measurable from {len(B)} frame(s) (needs 3)"))
     else:
         out.append(Finding("banding", not bad, f"background row pattern {amp:.1f} DN on a {level:.0f} DN "

@@ -475,18 +475,29 @@ def measure_row_time(frames, *, mode: str, rate_hz: float, prior_row_us: float =
                                 "blur_px": round(blur, 3)})
 
 
-def exposure_warning(exposure_us: float | None, chip_rates_hz, *, frac: float = 0.5) -> str | None:
-    """A warning when the exposure is longer than `frac` of the shortest chip (or half tone
-    period) among `chip_rates_hz` (unit rates: OOK chip rate, or 2 x tone frequency)."""
-    rates = [r for r in chip_rates_hz if r and r > 0]
-    if exposure_us is None or not rates:
+# A tone's stripes keep their full depth up to an exposure of this many half periods: a row
+# integrating a 50 % square wave over its half period still swings from fully on to fully off (a
+# triangle); beyond, the depth falls as 2 - 2 E / period, to nothing at one period.
+TONE_EXPOSURE_HALF_PERIODS = 1.0
+
+
+def exposure_limit_us(ook_rates_hz=(), tone_freqs_hz=()) -> float | None:
+    """The longest exposure (us) at which every light is still read: OOK chips up to
+    `MAX_EXPOSURE_CHIPS` chips (the exposure model, receiver.decode.exposure), a tone up to
+    `TONE_EXPOSURE_HALF_PERIODS` of its half period; None without a rate."""
+    from receiver.decode.exposure import MAX_EXPOSURE_CHIPS
+    limits = [MAX_EXPOSURE_CHIPS * 1e6 / r for r in ook_rates_hz if r and r > 0]
+    limits += [TONE_EXPOSURE_HALF_PERIODS * 1e6 / (2.0 * f) for f in tone_freqs_hz if f and f > 0]
+    return min(limits) if limits else None
+
+
+def exposure_warning(exposure_us: float | None, ook_rates_hz=(), tone_freqs_hz=()) -> str | None:
+    """A warning when the exposure is longer than the lights allow (`exposure_limit_us`)."""
+    limit = exposure_limit_us(ook_rates_hz, tone_freqs_hz)
+    if exposure_us is None or limit is None or exposure_us <= limit:
         return None
-    chip_us = 1e6 / max(rates)
-    if exposure_us > frac * chip_us:
-        return (f"exposure ~{exposure_us:.0f} us is longer than {frac:.0%} of the shortest chip "
-                f"({chip_us:.0f} us): stripes wash out; shorten it (V4L2: v4l2-ctl -c auto_exposure=1 "
-                f"-c exposure_time_absolute=N, in 100 us units)")
-    return None
+    return (f"exposure ~{exposure_us:.0f} us is longer than the lights allow (limit {limit:.0f} us: "
+            f"OOK chips are read up to a few chips of exposure, a tone's stripes up to its half period)")
 
 
 # Several tone lights of a map in one view (`measure_row_time_tones`): their row times must agree

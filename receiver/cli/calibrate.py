@@ -14,7 +14,8 @@
 
 Progress goes to standard error, the result is one JSON line on standard output. Files are written
 to a temporary file in the same folder and renamed into place; an input is never overwritten
-(except FILE by `rows` without --out, which is the point).
+(except FILE by `rows` without --out, which is the point, unless FILE is read-only: then --out
+is needed).
 """
 
 from __future__ import annotations
@@ -192,6 +193,20 @@ def run_rows_from_map(args, cam, out_path, output) -> dict:
     return d
 
 
+def _check_updatable(path: str) -> None:
+    """InputError when the camera file `rows` would update in place is marked read-only (no write
+    permission for anyone: a file the user protected, which a rename into place would replace
+    even where the system lets it, e.g. as root)."""
+    import stat
+    from receiver.core.errors import InputError
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # load_camera names the problem
+    if stat.S_ISREG(mode) and not mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
+        raise InputError(f"{path} is read-only: give --out FILE2 for the calibrated camera file")
+
+
 def run_rows(args) -> dict:
     from receiver.calibrate.rows import exposure_warning, measure_row_time
     from receiver.core.errors import InputError
@@ -200,6 +215,8 @@ def run_rows(args) -> dict:
     from receiver.io.files import claim_output
 
     out_path = args.out or args.camera
+    if not args.out:
+        _check_updatable(args.camera)
     # Without --out the camera file is updated in place: that is the point of it.
     output = claim_output(out_path, [args.source, args.map, args.camera], "--out", update=not args.out)
     cam = load_camera(args.camera)
@@ -222,17 +239,19 @@ def run_rows(args) -> dict:
     if src.size is not None and src.size != (cam.width, cam.height):
         _progress(f"frames are {src.size[0]}x{src.size[1]}, the camera file {cam.width}x{cam.height}: "
                   f"row time measured in the frames' rows")
-    rates = [2 * rate if mode == "tone" else rate]
+    ook, tones = ([rate], []) if mode == "ook" else ([], [rate])
     if args.map:
         from receiver.io.ledmap import load_map
         m = load_map(args.map)
-        rates += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
-        rates += [2 * led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
+        ook += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
+        tones += [led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
         if m.default_rate_hz:
-            rates.append(m.default_rate_hz)
-    warn = exposure_warning(res.exposure_us, rates)
+            ook.append(m.default_rate_hz)
+    warn = exposure_warning(res.exposure_us, ook, tones)
     if warn:
-        print(f"occloc: warning: {warn}", file=sys.stderr)
+        from receiver.calibrate.check import exposure_fix
+        from receiver.calibrate.rows import exposure_limit_us
+        print(f"occloc: warning: {warn}; {exposure_fix(src.kind, exposure_limit_us(ook, tones))}", file=sys.stderr)
     _progress(f"row readout {res.t_row_us:.4f} us +- {res.stderr_us:.4f} (standard error), "
               f"spread {res.spread_us:.4f} us over {res.blobs} blobs in {res.frames} frames; "
               f"exposure ~{res.exposure_us if res.exposure_us is None else round(res.exposure_us, 1)} us")

@@ -40,6 +40,8 @@ def main(args) -> int:
         text, missing = export.to_tum(lines, raw=args.raw)
         if missing:
             note = f"; {missing} poses without an orientation left out"
+        if export.photo_times(lines):
+            note += "; photos have no time of their own: t is the frame number"
         n = text.count("\n")
     elif args.format == "csv":
         text = export.to_csv(lines, raw=args.raw)

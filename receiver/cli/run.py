@@ -57,6 +57,8 @@ def add_arguments(p) -> None:
     p.add_argument("--overlay", metavar="FILE",
                    help="write the frames annotated with what the receiver saw: a video (.mp4 H.264, "
                         ".avi MJPG, .mkv FFV1), or the last frame as an image (.png, .jpg: e.g. a photo)")
+    p.add_argument("--show", action="store_true",
+                   help="show the frames annotated live in a window (where a display exists)")
     p.add_argument("--settings-out", metavar="FILE",
                    help="write the exact settings this run used (every stage's, as JSON) to FILE")
     p.add_argument("--settings", metavar="FILE",
@@ -150,13 +152,26 @@ def _check_out_extension(path: str | None) -> None:
     raise InputError(f"--out {path}: occloc run writes JSON Lines (.jsonl), not {ext}{hint}")
 
 
-def _handedness_hint(summary, led_map) -> str:
+def _handedness_hint(summary, led_map, told: dict | None = None) -> str:
     """The summary's advice when frames had no position because the map's handedness could not
-    be told from them ('' otherwise)."""
+    be told from them ('' otherwise). `told`: handedness -> the first photo (or frame) that told
+    it (each photo has a receiver of its own, so one photo's answer does not reach another)."""
     if not summary.no_fix.get("handedness undecided") or led_map.handedness is not None:
         return ""
+    if told and len(told) == 1:
+        (hand, where), = told.items()
+        return (f'; the map does not say its handedness; {where} tells it is {hand}-handed: add '
+                f'"handedness": "{hand}" to the map')
     return ('; the map does not say its handedness and no photo/frame could tell it (both fits poor): '
             'add "handedness": "left" or "right" to the map')
+
+
+def _told_handedness(positioner) -> str | None:
+    """The handedness a receiver's positioner detected from its frames (None: not detected)."""
+    pose = getattr(positioner, "pose", None)
+    if getattr(pose, "handedness_source", None) == "detected":
+        return pose.handedness
+    return None
 
 
 def _indoor_lights(led_map) -> bool:
@@ -428,6 +443,10 @@ def _main(args, stop: "SignalStop") -> int:
              else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)
     led_map = load_map(map_path)
+    window = None
+    if getattr(args, "show", False):   # a display to show on, before any work
+        from receiver.io.overlay import LiveWindow
+        window = LiveWindow(led_map, f"occloc run {spec}")
     if not cam.rolling_shutter and (led_map.by_mode("ook") or led_map.by_mode("tone") or led_map.addressing == "xy"):
         raise InputError(f"{cam_path}: row_readout_us 0 (global shutter), but the map has OOK or tone "
                          f"lights, which need a rolling shutter (give the sensor's row readout time)")
@@ -489,6 +508,7 @@ def _main(args, stop: "SignalStop") -> int:
         # a stop signal); standard output streams line by line.
         out = out_file.open() if out_file is not None else StdoutOutput()
         summary = RunSummary()
+        told: dict[str, str] = {}   # handedness -> the photo/frame that told it
         total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
@@ -523,6 +543,8 @@ def _main(args, stop: "SignalStop") -> int:
                 res = rx.process(frame)
                 if overlay is not None:
                     overlay[0].write(frame.gray, res)
+                if window is not None:
+                    window.write(frame.gray, res)
                 reason = no_fix_reason(res, positioner) if explain else None
                 if reason is not None:
                     fields["no_fix"] = reason
@@ -530,12 +552,17 @@ def _main(args, stop: "SignalStop") -> int:
                 if out_file is None and args.realtime:
                     out.flush()
                 summary.add(res, no_fix=reason)
+                hand = _told_handedness(positioner)
+                if hand is not None and hand not in told:
+                    told[hand] = fields.get("file") or f"frame {frame.index}"
                 progress.update(summary.frames, len(summary.ids))
             ok = True
         finally:
             progress.done()
             if hasattr(positioner, "close"):
                 positioner.close()
+            if window is not None:
+                window.close()
             if overlay is not None:
                 _close_overlay(overlay, ok)
             out.commit() if ok else out.discard()
@@ -548,7 +575,7 @@ def _main(args, stop: "SignalStop") -> int:
                                         hv_reason=hv_reason)
               + (f"; forward vehicles not ranged ({fv_reason})" if fv_reason else "")
               + (f"; {speed.note()}" if speed is not None and speed.note() else "") + f"; threads: {n_threads}"
-              + _server_text(positioner) + _handedness_hint(summary, led_map), file=sys.stderr)
+              + _server_text(positioner) + _handedness_hint(summary, led_map, told), file=sys.stderr)
         if stop.signum is not None:
             name = signal.Signals(stop.signum).name
             print(f"occloc: stopped by {name} after {summary.frames} frames", file=sys.stderr)
@@ -559,4 +586,6 @@ def _main(args, stop: "SignalStop") -> int:
         raise InputError(f"{getattr(e, 'filename', None) or spec}: {e.strerror or e}") from None
     finally:
         src.close()
+        if window is not None:
+            window.close()
     return 0

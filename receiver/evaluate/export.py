@@ -5,6 +5,7 @@ tools read (`occloc export`):
   metres, the camera-to-world rotation as a unit quaternion, scalar last): what `evo_traj`,
   `evo_ape` and `evo_rpe` read (`evo_ape tum truth.tum run.tum`). A frame needs a position and
   an orientation (`R_wc`); the host vehicle's pose is its (x, y, 0) and its heading about z.
+  Photos (all at t = 0) are numbered instead: their time is the frame number.
 * `csv`: one row per frame with a header (`CSV_COLUMNS`), empty cells where a value is absent;
   for spreadsheets and pandas.
 * `geojson`: an RFC 7946 FeatureCollection: a Point per located frame (properties: frame, t,
@@ -103,15 +104,28 @@ def poses(lines: list[dict], *, raw: bool = False) -> list[tuple[dict, tuple, np
     return out
 
 
+def photo_times(lines: list[dict]) -> bool:
+    """True when the lines are photos (each names its `file`) whose times do not increase (every
+    photo has t = 0 unless the run was given --fps): their TUM time is then the frame number,
+    since evo needs increasing times."""
+    if not lines or not all(o.get("file") for o in lines):
+        return False
+    t = [float(o.get("t") or 0.0) for o in lines]
+    return any(b <= a for a, b in zip(t, t[1:]))
+
+
 def to_tum(lines: list[dict], *, raw: bool = False) -> tuple[str, int]:
-    """(TUM text, poses left out for want of an orientation)."""
+    """(TUM text, poses left out for want of an orientation). Photos without increasing times
+    (`photo_times`) get their frame number as time."""
     rows, missing = [], 0
+    by_frame = photo_times(lines)
     for o, (x, y, z), R in poses(lines, raw=raw):
         if R is None:
             missing += 1
             continue
         q = quaternion_xyzw(R)
-        rows.append(" ".join(f"{float(v):.{TUM_DECIMALS}f}" for v in (o.get("t") or 0.0, x, y, z))
+        t = float(o.get("frame") or 0) if by_frame else o.get("t") or 0.0
+        rows.append(" ".join(f"{float(v):.{TUM_DECIMALS}f}" for v in (t, x, y, z))
                     + " " + " ".join(f"{v:.9f}" for v in q))
     return "".join(r + "\n" for r in rows), missing
 

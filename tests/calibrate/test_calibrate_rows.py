@@ -77,6 +77,24 @@ def test_cli_updates_camera_in_place(tmp_path, capsys):
     assert not [p for p in rec.iterdir() if p.name.startswith(".camera-")]  # no temp file left
 
 
+def test_a_read_only_camera_file_is_not_updated_in_place(tmp_path, capsys):
+    """A camera file without write permission is left alone (even by root, whom the system lets
+    replace it): one-line error naming --out, the file unchanged; with --out the result goes there."""
+    import os
+    rec = tmp_path / "rec"
+    shutil.copytree(REC / "indoor-static", rec)
+    cam = rec / "camera.yaml"
+    before = cam.read_text()
+    os.chmod(cam, 0o444)
+    argv = ["calibrate", "rows", str(rec), "--camera", str(cam), "--freq-hz", "2000", "--max-frames", "10"]
+    assert occloc(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"occloc: {cam} is read-only: give --out FILE2 for the calibrated camera file"
+    assert cam.read_text() == before and (os.stat(cam).st_mode & 0o777) == 0o444
+    assert occloc(argv + ["--out", str(tmp_path / "new.yaml")]) == 0
+    assert load_camera(str(tmp_path / "new.yaml")).row_readout_us > 0
+
+
 def test_no_stripes_is_one_line_error(tmp_path, capsys):
     import cv2
     import numpy as np
@@ -98,5 +116,8 @@ def test_crossings_and_warning():
     x = np.tile(np.r_[np.zeros(5), np.full(5, 100.0)], 4)
     pos, d = crossings(x)
     assert np.allclose(np.diff(pos), 5.0) and set(d.tolist()) == {-1, 1}
-    assert exposure_warning(40.0, [20000.0]) is not None
-    assert exposure_warning(10.0, [20000.0]) is None
+    # the limits the decoders read to: 1.8 chips of 20 kHz OOK (90 us), a 4 kHz tone's half period
+    assert exposure_warning(95.0, [20000.0]) is not None and "limit 90 us" in exposure_warning(95.0, [20000.0])
+    assert exposure_warning(79.0, [20000.0]) is None
+    assert exposure_warning(130.0, (), [4000.0]) is not None and exposure_warning(60.0, (), [4000.0]) is None
+    assert exposure_warning(60.0, [20000.0], [5000.0]) is None and exposure_warning(None, [20000.0]) is None

@@ -120,3 +120,38 @@ def test_edge_blur_is_measured_row_by_row_on_a_rotated_square():
     img = cv2.GaussianBlur(img, (0, 0), 0.7)
     (blob,) = detect(img)
     assert edge_blur_px(img, blob) < 1.5
+
+
+def _shifted(frames, step_px):
+    """The clip as a camera panning `step_px` per frame would see it (the picture slides)."""
+    out = []
+    for k, f in enumerate(frames):
+        M = np.float32([[1, 0, step_px * k], [0, 1, 0]])
+        g = cv2.warpAffine(f.gray, M, f.gray.shape[::-1], borderMode=cv2.BORDER_REPLICATE)
+        out.append(Frame(f.index, f.t_s, g))
+    return out
+
+
+def _background_fades(frames, to_frac, level_dn=40.0):
+    """A lit room behind the lights (`level_dn`) that darkens to `to_frac` of it over the clip,
+    the lights untouched: a darker part of the room coming into view."""
+    out = []
+    for k, f in enumerate(frames):
+        g = f.gray.astype(np.float32)
+        bg = g < 20
+        g[bg] += level_dn * (1.0 - (1.0 - to_frac) * k / (len(frames) - 1))
+        out.append(Frame(f.index, f.t_s, np.clip(g, 0, 255).astype(np.uint8)))
+    return out
+
+
+def test_background_change_of_a_moving_camera_is_the_scenes(clean):
+    """A panning camera (the lights travel ~130 px) whose background darkens while the lights'
+    own peaks stay: the scene changed, not the gain; the same fade seen by a still camera fails."""
+    frames, scene = clean
+    bad, fs = _failed(_background_fades(frames, 0.6), scene)
+    drift = next(f for f in fs if f.name == "gain_drift")
+    assert "gain_drift" in bad and drift.value["drift"]["background"] < -0.15, render_text(fs)
+    bad, fs = _failed(_background_fades(_shifted(frames, 12), 0.6), scene)
+    drift = next(f for f in fs if f.name == "gain_drift")
+    assert drift.value["moved_px"] >= 40 and drift.value["drift"]["background"] < -0.15, drift.text
+    assert "gain_drift" not in bad and "not judged: the camera moves" in drift.text, render_text(fs)

@@ -116,3 +116,25 @@ def test_run_out_refuses_an_extension_it_does_not_write(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "writes JSON Lines" in err and "occloc export run.jsonl --format csv" in err
     assert not out.exists()
+
+
+def test_tum_of_photos_numbers_them_and_evo_reads_it(tmp_path, capsys):
+    """Photos all have t = 0: their TUM time is the frame number (increasing, as evo needs), and
+    the note says so; a photo run given --fps keeps its own times."""
+    lines = [{"frame": i, "t": 0.0, "file": f"p{i}.jpg", "leds": [],
+              "position": {"x": 0.1 * i, "y": 0.0, "z": 0.0, "R_wc": np.eye(3).tolist()}} for i in range(3)]
+    run = tmp_path / "photos.jsonl"
+    run.write_text("".join(json.dumps(o) + "\n" for o in lines))
+    out = tmp_path / "photos.tum"
+    assert cli(["export", str(run), "--format", "tum", "--out", str(out)]) == 0
+    assert "t is the frame number" in capsys.readouterr().err
+    assert _tum(out)[:, 0].tolist() == [0.0, 1.0, 2.0]
+    file_interface = pytest.importorskip("evo.tools.file_interface")
+    traj = file_interface.read_tum_trajectory_file(str(out))
+    assert traj.num_poses == 3 and traj.check()[0]
+    timed = [dict(o, t=o["frame"] / 10.0) for o in lines]
+    run.write_text("".join(json.dumps(o) + "\n" for o in timed))
+    out2 = tmp_path / "timed.tum"
+    assert cli(["export", str(run), "--format", "tum", "--out", str(out2)]) == 0
+    assert "frame number" not in capsys.readouterr().err
+    assert _tum(out2)[:, 0].tolist() == [0.0, 0.1, 0.2]

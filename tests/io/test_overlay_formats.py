@@ -15,6 +15,7 @@ from receiver.io.overlay import OverlayWriter, scale_for
 from tests.io.test_overlay import _frame
 
 STATIC = Path(__file__).resolve().parents[2] / "recordings" / "indoor-static"
+REC_VEH = Path(__file__).resolve().parents[2] / "recordings" / "vehicle"
 
 
 def _text_rows(img) -> int:
@@ -57,3 +58,64 @@ def test_an_extension_it_cannot_write_is_an_error(tmp_path, capsys):
                    "--out", str(tmp_path / "o.jsonl")]) == 2
     assert "cannot write .gif" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / "o.jsonl").exists()
+
+
+def test_vehicle_inset_shows_the_host_and_the_cars_in_their_zone_colours(tmp_path):
+    from receiver.core.records import FrameResult, PairObservation
+    from receiver.io.ledmap import load_map
+    from receiver.io.overlay import RED, ZONE_COLOURS
+    veh = REC_VEH / "map.json"
+    led_map = load_map(str(veh))
+    xs = [l.x for l in led_map.leds.values()]
+    gray = np.zeros((720, 1280), np.uint8)
+    fv = [{"id": 142, "distance_m": 14.0, "angle_deg": 0.0, "zone": "critical", "road_x": min(xs) + 20.0, "road_y": 0.0},
+          {"id": 206, "distance_m": 45.0, "angle_deg": 1.0, "zone": "safe", "road_x": min(xs) + 51.0, "road_y": 3.5}]
+    res = FrameResult(0, 0.0, 1.0, [], position=None,
+                      vehicle={"hv": {"x": min(xs) + 6.0, "y": 0.0}, "fv": fv})
+    img = OverlayWriter(str(tmp_path / "v.png"), (1280, 720), 30.0, None, led_map).annotate(gray, res)
+    inset = img[8:8 + 150, 1280 - 200 - 8:1280 - 8]
+    for zone in ("critical", "safe"):
+        assert (inset == ZONE_COLOURS[zone]).all(axis=2).sum() >= 9, zone   # a car's dot
+    assert (inset == (255, 255, 255)).all(axis=2).sum() >= 10                # the host's cross and frame
+    # two pairs whose labels would be drawn at the same place: moved apart, both readable
+    pairs = (PairObservation((1, 2), 0x81, "FV", (600.0, 400.0), (650.0, 400.0), 30.0, 30.0, 50.0, True),
+             PairObservation((3, 4), 0x82, "FV", (602.0, 402.0), (652.0, 402.0), 30.0, 30.0, 50.0, True))
+    res2 = FrameResult(0, 0.0, 1.0, [], pairs=pairs)
+    one = OverlayWriter(str(tmp_path / "p.png"), (1280, 720), 30.0).annotate(gray, FrameResult(0, 0.0, 1.0, [], pairs=pairs[:1]))
+    two = OverlayWriter(str(tmp_path / "p.png"), (1280, 720), 30.0).annotate(gray, res2)
+    cyan_rows = lambda im: int(((im == (255, 255, 0)).all(axis=2)[:398]).any(axis=1).sum())  # label rows above the lines
+    assert cyan_rows(two) >= 1.8 * cyan_rows(one) > 0
+
+
+def test_vehicle_inset_is_the_hosts_surroundings_not_the_whole_road(tmp_path):
+    """On a road map hundreds of metres long, a car 14 m ahead is drawn well apart from the host
+    (the inset shows the host's surroundings), and only the nearby street lights are drawn."""
+    from receiver.core.records import FrameResult
+    from receiver.io.ledmap import load_map
+    from receiver.io.overlay import ZONE_COLOURS
+    led_map = load_map(str(REC_VEH / "map.json"))
+    xs = [l.x for l in led_map.leds.values()]
+    assert max(xs) - min(xs) > 300
+    host = {"x": min(xs) + 100.0, "y": 0.0}
+    fv = [{"id": 142, "distance_m": 14.0, "angle_deg": 0.0, "zone": "critical", "road_x": host["x"] + 14.0, "road_y": 0.0}]
+    img = OverlayWriter(str(tmp_path / "v.png"), (1280, 720), 30.0, None, led_map).annotate(
+        np.zeros((720, 1280), np.uint8), FrameResult(0, 0.0, 1.0, [], position=None, vehicle={"hv": host, "fv": fv}))
+    inset = img[8:8 + 150, 1280 - 200 - 8:1280 - 8]
+    car = np.argwhere((inset == ZONE_COLOURS["critical"]).all(axis=2)).mean(axis=0)
+    white = np.argwhere((inset[4:-4, 4:-4] == (255, 255, 255)).all(axis=2)).mean(axis=0) + 4  # the host's cross
+    assert np.hypot(*(car - white)) >= 14, (car, white)  # at least a pixel per metre (the whole road: 0.5)
+
+
+def test_show_without_a_display_is_a_one_line_error_before_any_work(tmp_path, capsys, monkeypatch):
+    from receiver.io.overlay import LiveWindow
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    out = tmp_path / "o.jsonl"
+    assert occloc(["run", str(STATIC), "--max-frames", "1", "--show", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["occloc: --show needs a display (DISPLAY is not set): use --overlay FILE to write the picture instead"]
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    # a display named but not there (Tk cannot reach it): the same kind of error, not a traceback
+    monkeypatch.setenv("DISPLAY", ":97")
+    with pytest.raises(InputError, match="--show cannot open a window"):
+        LiveWindow(None)

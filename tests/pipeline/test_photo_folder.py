@@ -125,3 +125,12 @@ def test_real_photos_in_one_folder_each_on_its_own(luxapose, tmp_path, capsys):
     assert len([d for d in blob["leds"] if d["id"] is not None]) == 4
     assert blob["position"] is None and blob["no_fix"] == "handedness undecided"
     assert "no position: 1 handedness undecided" in err and '"handedness"' in err
+    # ... but another photo of the folder tells it (on its own receiver): the summary names it
+    assert 'x_0_y_1.27.jpg tells it is left-handed: add "handedness": "left" to the map' in err
+
+
+def test_a_photo_alone_whose_handedness_is_undecided_gets_the_general_advice(luxapose, capsys):
+    assert cli(["run", str(luxapose / "small_blob.jpg"), "--camera", str(luxapose / "camera_lumia1020.yaml"),
+                "--map", str(luxapose / "map_test_rig.json")]) == 0
+    err = capsys.readouterr().err
+    assert 'no photo/frame could tell it (both fits poor): add "handedness": "left" or "right"' in err
