@@ -36,6 +36,15 @@ S2PSK_SYMCLK = 16
 CLOCK_PPM_SPREAD = 50.0  # crystal oscillators: tens of ppm
 
 
+def _require_positive(**values) -> None:
+    """InputError unless every value is a positive number (lengths a road is built from)."""
+    from receiver.core.errors import InputError
+
+    for key, value in values.items():
+        if not value > 0:
+            raise InputError(f"bad --set value: {key} must be positive, not {value!r}")
+
+
 def _drive(rng, mode, led_id, rate_hz, symclk=S2PSK_SYMCLK, pin=0, phase_s=None, ppm=None):
     d = led_drive(mode, led_id, rate_hz, symclk, pin=0)
     phase = float(rng.uniform(0.0, d.period_s)) if phase_s is None else phase_s
@@ -273,6 +282,7 @@ def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, li
     default 200 Hz clock and 16 clocks/symbol a 30-symbol packet lasts 2.4 s, so 6.7 s holds
     two full packets of every forward vehicle.
     """
+    _require_positive(road_m=road_m, light_spacing_m=light_spacing_m)
     tilt = math.radians(head_tilt_deg)
     normal = np.array([-math.sin(tilt), 0.0, -math.cos(tilt)])
     across = np.array([0.0, 1.0, 0.0])
@@ -402,6 +412,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     image, facing the camera and not occluded; false when the FV is out of view),
     occluded_frac (mean hidden fraction of the two taillights)}.
     """
+    _require_positive(road_m=road_m, light_spacing_m=light_spacing_m)
     R_curve = None if curve_radius_m is None else float(curve_radius_m)
     tilt = math.radians(head_tilt_deg)
     if light_layout not in ("staggered", "one-side", "opposite"):
@@ -594,7 +605,7 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
             return str(rng.choice(choices))
         if given not in choices:
             from receiver.core.errors import InputError
-            raise InputError(f"{what} must be {' or '.join(choices)}, not {given!r}")
+            raise InputError(f"bad --set value: {what} must be {' or '.join(choices)}, not {given!r}")
         return given
 
     road = dict(head_spacing_m=draw("head_spacing_m", head_spacing_m),
@@ -612,11 +623,13 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                 head_half_width_m=draw("head_half_width_m", head_half_width_m),
                 head_sep_m=draw("head_sep_m", head_sep_m),
                 taillight_baseline_m=draw("taillight_baseline_m", taillight_baseline_m))
+    _require_positive(**{k: road[k] for k in ("head_spacing_m", "light_height_m", "head_half_width_m",
+                                              "taillight_baseline_m")})
     if road["head_style"] == "merged" and head_sep_m is None:
         road["head_sep_m"] = road["head_half_width_m"]      # the halves touch
     if road["head_sep_m"] < road["head_half_width_m"]:
         from receiver.core.errors import InputError
-        raise InputError(f"head_sep_m ({road['head_sep_m']:g}) must be at least head_half_width_m "
+        raise InputError(f"bad --set value: head_sep_m ({road['head_sep_m']:g}) must be at least head_half_width_m "
                          f"({road['head_half_width_m']:g}): the halves would overlap")
     # vehicle_road's light_spacing_m is a row's spacing; a staggered layout puts the other row
     # half-way, so its heads follow each other at half of it.
@@ -802,6 +815,8 @@ def _checked_params(par_kw: dict) -> RenderParams:
             raise InputError(f"bad --set value: {key} must be a whole number, not {value!r}")
         if key == "tone_gamma" and value < 0.2:
             raise InputError(f"bad --set value: {key} must be at least 0.2, not {value!r}")
+    if par_kw.get("bloom_frac", 0) > 0 and not par_kw.get("bloom_len_px", RenderParams.bloom_len_px) > 0:
+        raise InputError("bad --set value: bloom_len_px must be positive when bloom_frac is above 0")
     if "rs_band_rows" in par_kw:
         par_kw["rs_band_rows"] = int(par_kw["rs_band_rows"])
     return RenderParams(**par_kw)
