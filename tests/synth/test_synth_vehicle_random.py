@@ -256,3 +256,27 @@ def test_a_seed_renders_the_same_recording_twice_and_another_seed_differs(tmp_pa
     assert a == b
     assert a["truth.jsonl"] != c["truth.jsonl"] and a["map.json"] != c["map.json"]
     assert a["camera.yaml"] != c["camera.yaml"]
+
+
+def test_the_host_wanders_and_changes_lane_as_drawn_and_the_cars_gaps_scale():
+    """Truth of the host's lateral position: the drawn lane change plus a wander of at most
+    `wander_m`; the cars' gaps at the start are `FV_SCRIPT`'s times `fv_gap_scale`."""
+    from tools.synth.scenes import FV_SCRIPT, RANDOM_LANE_CHANGES_M, smoothstep5
+
+    roads = [_road(s) for s in SEEDS]
+    assert len({r["lane_change_m"] for r in roads}) >= 2
+    assert all(r["lane_change_m"] in RANDOM_LANE_CHANGES_M for r in roads)
+    for seed in (2, 7):
+        road = _road(seed)
+        sc = make_scene("vehicle-random", seed=seed)
+        t = np.arange(0.0, 8.0, 0.1)
+        lateral = np.array([sc.extra_truth(x)["vehicle"]["hv"]["lateral_m"] for x in t])
+        change = np.array([road["lane_change_m"] * smoothstep5((x - road["lane_change_start_s"]) / 3.5) for x in t])
+        wander = lateral - change
+        assert np.max(np.abs(wander)) <= road["wander_m"] + 1e-4
+        assert np.ptp(wander) > 0.5 * road["wander_m"] * min(1.0, 2 * math.pi * road["wander_hz"] * 8.0 / 2)
+        fv = sc.extra_truth(0.0)["vehicle"]
+        gaps = sorted(f["s_m"] - fv["hv"]["s_m"] for f in fv["fv"])
+        assert gaps == pytest.approx(sorted(spec[1] * road["fv_gap_scale"] for spec in FV_SCRIPT), abs=1e-4)
+    still = make_scene("vehicle-random", seed=2, wander_m=0.0, lane_change_m=0.0)
+    assert all(still.extra_truth(x)["vehicle"]["hv"]["lateral_m"] == 0.0 for x in (0.0, 3.0, 6.0))

@@ -357,7 +357,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
             taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0,
             body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0,
             light_layout="staggered", light_brightness=1.0, slow_shake_rms_deg=0.0, roll_rms_deg=0.0,
-            jitter_deg=0.0):
+            jitter_deg=0.0, fv_gap_scale=1.0, wander_m=0.0, wander_hz=0.1):
     """Night road: host vehicle (HV) with a forward camera, S2-PSK street lights (SL), three
     forward vehicles (FV) with opaque bodies that hide each other's taillights.
 
@@ -380,7 +380,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     at 8 s, inside Table 2's 0-80 km/h. From `lane_change_start_s` (4 s) over
     `lane_change_s` (3.5 s) it moves `lane_change_m` (3.5 m) left on a quintic ramp
     (`smoothstep5`); its heading is the direction of its velocity, and the camera's yaw
-    follows it. Camera: `cam_height_m` high at the HV's reference point, pitched up
+    follows it. `wander_m` > 0 adds a wander within the lane (a sinusoid of that amplitude at
+    `wander_hz`, phase seeded). Camera: `cam_height_m` high at the HV's reference point, pitched up
     `cam_pitch_deg`; on top, a 3.1 Hz 5 mm bounce with a 1.3 Hz 0.2 deg pitch nod, and road
     vibration in pitch and yaw: per axis three sinusoids (2-17 Hz, seeded) summing to at most
     `shake_deg`; a dash camera's slow sway (`slow_shake_rms_deg` in yaw and pitch,
@@ -391,10 +392,11 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     `led_peak_dn` (above ~1.5 they saturate; with `halo_frac` their blobs then bloom).
 
     FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
-    `FV_SCRIPT` (gaps 46, 24, 34 m; FV2 cuts in from the left lane at 2-4.5 s, FV3 from the
-    right lane at 5-7.5 s). Taillights: 0.15 x 0.10 m rects, 1.4 m apart, 1 m high on the
-    body's rear face, facing backwards; emitter A is the left one. Bodies (`model.Body`):
-    `body_size_m` = (length, width, height) = 4.5 x 1.8 x 1.4 m boxes from `body_z0_m` up.
+    `FV_SCRIPT` (gaps 46, 24, 34 m, and their rates, times `fv_gap_scale`; FV2 cuts in from
+    the left lane at 2-4.5 s, FV3 from the right lane at 5-7.5 s). Taillights: 0.15 x 0.10 m
+    rects, 1.4 m apart, 1 m high on the body's rear face, facing backwards; emitter A is the
+    left one. Bodies (`model.Body`): `body_size_m` = (length, width, height) = 4.5 x 1.8 x 1.4 m
+    boxes from `body_z0_m` up.
 
     Length: `seconds` = 8 s = 240 frames at 30 fps; a 30-symbol packet at 200 Hz / 16 clocks
     lasts 2.4 s, so the SLs in view early are seen for several packets before they pass
@@ -440,7 +442,10 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     dt = 1e-3  # central differences for headings and speeds (paths are smooth at this scale)
 
     def hv_road(t):
-        return v0 * t + 0.5 * accel_mps2 * t * t, lane_change_m * smoothstep5((t - lane_change_start_s) / lane_change_s)
+        lat = lane_change_m * smoothstep5((t - lane_change_start_s) / lane_change_s)
+        if wander_m > 0:
+            lat += wander_m * math.sin(2 * math.pi * wander_hz * t + wander_phase)
+        return v0 * t + 0.5 * accel_mps2 * t * t, lat
 
     def hv_xy(t):
         x, y, _ = road_point(*hv_road(t), R_curve)
@@ -457,7 +462,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
         _, gap0, rate, l0, l1, t0, dur = spec
         s_hv, _ = hv_road(t)
         lat = l0 if dur <= 0 else l0 + (l1 - l0) * smoothstep5((t - t0) / dur)
-        return s_hv + gap0 + rate * t, lat
+        return s_hv + gap0 * fv_gap_scale + rate * fv_gap_scale * t, lat
 
     def fv_xy_fn(spec):
         def xy(t):
@@ -493,6 +498,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
         n_jit = int(round(seconds * cam.fps)) + 2
         jit = rng.normal(0.0, jitter_deg, (3, n_jit)) if jitter_deg > 0 else np.zeros((3, n_jit))
         fps = cam.fps or 30.0
+    # Drawn last and only when asked, for the same reason.
+    wander_phase = float(rng.uniform(0.0, 2 * math.pi)) if wander_m > 0 else 0.0
 
     def camera_sway(t):
         """(yaw, pitch, roll) deg of the slow sway plus the jitter held over the frame period."""
@@ -557,7 +564,11 @@ RANDOM_ROAD = dict(head_spacing_m=(12.5, 40.0), light_height_m=(6.0, 10.0), ligh
                    light_brightness=(1.5, 3.0), slow_shake_rms_deg=(0.2, 0.35), cam_pitch_deg=(2.0, 4.0),
                    speed0_kmh=(40.0, 70.0), halo_frac=(0.05, 0.15), halo_sigma_px=(2.0, 4.0),
                    accel_mps2=(-0.5, 0.8), bloom_frac=(0.02, 0.1), bloom_len_px=(1.0, 4.0),
-                   head_half_width_m=(0.2, 0.3), head_sep_m=(0.5, 0.8), taillight_baseline_m=(1.2, 1.7))
+                   head_half_width_m=(0.2, 0.3), head_sep_m=(0.5, 0.8), taillight_baseline_m=(1.2, 1.7),
+                   fv_gap_scale=(0.5, 1.3), wander_m=(0.0, 0.3), wander_hz=(0.05, 0.2),
+                   lane_change_start_s=(1.0, 4.0))
+# The host's lane change per seed: left, none or right (m to the left).
+RANDOM_LANE_CHANGES_M = (3.5, 0.0, -3.5)
 RANDOM_LAYOUTS = ("staggered", "one-side", "opposite")
 # "split": a head's two halves `head_sep_m` apart with a gap between them (two blobs at every
 # range); "merged": the halves touch (one blob, the separation below the blur).
@@ -578,6 +589,7 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                    light_brightness=None, slow_shake_rms_deg=None, cam_pitch_deg=None, speed0_kmh=None,
                    halo_frac=None, halo_sigma_px=None, accel_mps2=None, bloom_frac=None, bloom_len_px=None,
                    head_style=None, head_half_width_m=None, head_sep_m=None, taillight_baseline_m=None,
+                   fv_gap_scale=None, wander_m=None, wander_hz=None, lane_change_m=None, lane_change_start_s=None,
                    jitter_deg=0.05, cam_height_m=1.3, seconds=8.0):
     """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`,
     `RANDOM_HEAD_STYLES`; a keyword given is taken instead of drawn, so each effect can be
@@ -592,10 +604,14 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
     length `bloom_len_px` 1-4 px). The camera is 1.3 m high, pitched up 2-4 deg, swaying slowly
     (0.5-2.5 Hz sinusoids, yaw and pitch `slow_shake_rms_deg` 0.2-0.35 deg rms, roll half
     that) with `jitter_deg` (0.05 deg) of frame-to-frame jitter and no fast road vibration;
-    the host starts at 40-70 km/h and accelerates or brakes (`accel_mps2` -0.5..0.8). The forward
-    vehicles are `vehicle_road`'s, their taillights `taillight_baseline_m` (1.2-1.7 m) apart
-    (the map's `taillight` block). Returns `vehicle_road`'s dict plus `render` (the drawn
-    sensor values, for `make_scene`) and `road` (every drawn value)."""
+    the host starts at 40-70 km/h and accelerates or brakes (`accel_mps2` -0.5..0.8), wanders
+    within its lane (`wander_m` 0-0.3 m at `wander_hz` 0.05-0.2 Hz) and changes lane to the
+    left, not at all or to the right (`lane_change_m` from `RANDOM_LANE_CHANGES_M`) from
+    `lane_change_start_s` (1-4 s). The forward vehicles are `vehicle_road`'s with their gaps
+    scaled by `fv_gap_scale` (0.5-1.3: the nearest 9-31 m ahead, the farthest 23-65 m), their
+    taillights `taillight_baseline_m` (1.2-1.7 m) apart (the map's `taillight` block). Returns
+    `vehicle_road`'s dict plus `render` (the drawn sensor values, for `make_scene`) and `road`
+    (every drawn value)."""
     def draw(name, given):
         lo, hi = RANDOM_ROAD[name]
         return float(rng.uniform(lo, hi)) if given is None else float(given)
@@ -622,9 +638,14 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                 head_style=pick(RANDOM_HEAD_STYLES, head_style, "head_style"),
                 head_half_width_m=draw("head_half_width_m", head_half_width_m),
                 head_sep_m=draw("head_sep_m", head_sep_m),
-                taillight_baseline_m=draw("taillight_baseline_m", taillight_baseline_m))
+                taillight_baseline_m=draw("taillight_baseline_m", taillight_baseline_m),
+                fv_gap_scale=draw("fv_gap_scale", fv_gap_scale), wander_m=draw("wander_m", wander_m),
+                wander_hz=draw("wander_hz", wander_hz),
+                lane_change_m=(float(rng.choice(RANDOM_LANE_CHANGES_M)) if lane_change_m is None
+                               else float(lane_change_m)),
+                lane_change_start_s=draw("lane_change_start_s", lane_change_start_s))
     _require_positive(**{k: road[k] for k in ("head_spacing_m", "light_height_m", "head_half_width_m",
-                                              "taillight_baseline_m")})
+                                              "taillight_baseline_m", "fv_gap_scale")})
     if road["head_style"] == "merged" and head_sep_m is None:
         road["head_sep_m"] = road["head_half_width_m"]      # the halves touch
     if road["head_sep_m"] < road["head_half_width_m"]:
@@ -642,7 +663,9 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                          roll_rms_deg=road["slow_shake_rms_deg"] / 2.0, jitter_deg=jitter_deg,
                          cam_height_m=cam_height_m, cam_pitch_deg=road["cam_pitch_deg"],
                          speed0_kmh=road["speed0_kmh"], accel_mps2=road["accel_mps2"],
-                         taillight_baseline_m=road["taillight_baseline_m"], seconds=seconds)
+                         taillight_baseline_m=road["taillight_baseline_m"], fv_gap_scale=road["fv_gap_scale"],
+                         wander_m=road["wander_m"], wander_hz=road["wander_hz"], lane_change_m=road["lane_change_m"],
+                         lane_change_start_s=road["lane_change_start_s"], seconds=seconds)
     built["render"] = {k: road[k] for k in ROAD_SENSOR_KEYS}
     built["road"] = road
     built["description"] = "night road drawn per seed: " + ", ".join(
