@@ -612,14 +612,18 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
     taillights `taillight_baseline_m` (1.2-1.7 m) apart (the map's `taillight` block). Returns
     `vehicle_road`'s dict plus `render` (the drawn sensor values, for `make_scene`) and `road`
     (every drawn value)."""
+    # Every value is drawn, given or not, so that fixing one leaves the seed's other values as
+    # they were (an effect can be switched off on the same road).
     def draw(name, given):
         lo, hi = RANDOM_ROAD[name]
-        return float(rng.uniform(lo, hi)) if given is None else float(given)
+        drawn = float(rng.uniform(lo, hi))
+        return drawn if given is None else float(given)
 
-    def pick(choices, given, what):
+    def pick(choices, given, what, any_value=False):
+        drawn = choices[int(rng.integers(len(choices)))]
         if given is None:
-            return str(rng.choice(choices))
-        if given not in choices:
+            return drawn
+        if not any_value and given not in choices:
             from receiver.core.errors import InputError
             raise InputError(f"bad --set value: {what} must be {' or '.join(choices)}, not {given!r}")
         return given
@@ -641,8 +645,7 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                 taillight_baseline_m=draw("taillight_baseline_m", taillight_baseline_m),
                 fv_gap_scale=draw("fv_gap_scale", fv_gap_scale), wander_m=draw("wander_m", wander_m),
                 wander_hz=draw("wander_hz", wander_hz),
-                lane_change_m=(float(rng.choice(RANDOM_LANE_CHANGES_M)) if lane_change_m is None
-                               else float(lane_change_m)),
+                lane_change_m=float(pick(RANDOM_LANE_CHANGES_M, lane_change_m, "lane_change_m", any_value=True)),
                 lane_change_start_s=draw("lane_change_start_s", lane_change_start_s))
     _require_positive(**{k: road[k] for k in ("head_spacing_m", "light_height_m", "head_half_width_m",
                                               "taillight_baseline_m", "fv_gap_scale")})
