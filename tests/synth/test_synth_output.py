@@ -130,6 +130,12 @@ def test_cli_writes_recording(tmp_path):
     (("indoor-static", "--set", "fps=abc"), "bad --set value"),
     (("indoor-static", "--set", "fps"), "KEY=VALUE"),
     (("indoor-static", "--frames", "0"), "--frames"),
+    (("vehicle-road", "--set", "light_spacing_m=0"), "light_spacing_m must be positive"),
+    (("vehicle-random", "--set", "head_spacing_m=0"), "head_spacing_m must be positive"),
+    (("vehicle-random", "--set", "head_half_width_m=-0.2"), "head_half_width_m must be positive"),
+    (("vehicle-random", "--set", "head_style=fused"), "head_style must be split or merged"),
+    (("vehicle-random", "--set", "head_sep_m=0.1", "--set", "head_half_width_m=0.3"), "overlap"),
+    (("vehicle-random", "--set", "bloom_len_px=0"), "bloom_len_px must be positive"),
 ])
 def test_cli_bad_input_one_line_exit_2(tmp_path, args, needle):
     out = tmp_path / "rec"

@@ -127,8 +127,9 @@ class RenderParams:
       Gaussian of that sigma.
     vignetting: relative loss of light at the image corners (quadratic in the radius).
     row_noise_dn: 1-sigma of a per-row offset (read-out noise common to a row).
-    bloom_frac / bloom_len_px: share of a clipped pixel's excess charge that spills along its
-      column, with an exponential tail of that 1/e length.
+    bloom_frac / bloom_len_px: share of a clipped pixel's excess charge (above the white level,
+      255) that spills along its column, with an exponential tail of that 1/e length (also
+      without the other phone effects: a saturated street light or taillight on a dash camera).
     centre_gain: a panel's centre this much brighter than its edges (diffuser fall-off,
       quadratic across the panel).
     bezel_frac: a dark frame around each panel, this fraction of its half size wide, that hides
@@ -166,7 +167,7 @@ class RenderParams:
     @property
     def phone(self) -> bool:
         """True when any effect needs the whole frame drawn (`tools.synth.phone.finish_frame`)."""
-        return bool(self.glare_frac or self.vignetting or self.row_noise_dn or self.bloom_frac
+        return bool(self.glare_frac or self.vignetting or self.row_noise_dn
                     or self.bezel_frac or self.tone_gamma != 1.0 or self.sharpen)
 
 

@@ -55,10 +55,15 @@ def vignette_map(height: int, width: int, strength: float) -> np.ndarray:
     return (1.0 - np.float32(strength) * r2).astype(np.float32)
 
 
+def bloom_reach_px(length_px: float) -> int:
+    """Rows above and below a clipped pixel that `column_bloom` spills into (4 1/e lengths)."""
+    return max(1, int(math.ceil(4 * length_px)))
+
+
 def column_bloom(excess: np.ndarray, length_px: float) -> np.ndarray:
     """The clipped charge `excess` (H, W) spilt along each column both ways with an exponential
     tail of 1/e length `length_px` (the kernel sums to 1: the spilt charge is conserved)."""
-    half = max(1, int(math.ceil(4 * length_px)))
+    half = bloom_reach_px(length_px)
     k = np.exp(-np.abs(np.arange(-half, half + 1, dtype=np.float32)) / np.float32(length_px))
     k[half] = 0.0
     k /= k.sum()

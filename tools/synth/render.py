@@ -20,8 +20,9 @@ Per frame k (start time ``t_k = k / fps + jitter``):
    (phi: emission angle from the LED normal, psi: angle off the optical axis).
 3. Lens blur (Gaussian PSF; with `halo_frac` a share of the flux through a wide Gaussian:
    veiling glare, which grows a saturating light's blob), then for every pixel of each LED patch a fresh noisy value
-   ``black + S + N(0, alpha*S + beta)`` (eq. 4, S = ambient + LED signal), saturation at 255,
-   rounding to 8 bits.
+   ``black + S + N(0, alpha*S + beta)`` (eq. 4, S = ambient + LED signal), saturation at the
+   white level 255, rounding to 8 bits. With `bloom_frac`, that share of the expected charge
+   above the white level spills along its column first (`tools.synth.phone.column_bloom`).
 
 Truth per light (INTERFACES.md plus extra fields):
 ``cx, cy``: area centroid of the true projected (distorted) outline polygon, in pixels;
@@ -55,7 +56,7 @@ import numpy as np
 from tools.synth.camera import (Pose, max_normalized_radius, project_camera_points, rotation_cam_to_world,
                                 world_to_camera)
 from tools.synth.model import Scene
-from tools.synth.phone import finish_frame, vignette_map
+from tools.synth.phone import bloom_reach_px, column_bloom, finish_frame, vignette_map
 from tools.synth.raster import coverage, coverage_exact, polygon_area_centroid
 
 NEAR_M = 0.05  # closer than this to the camera plane is not drawn
@@ -66,6 +67,7 @@ OCCLUDED_MAX = 0.01
 BOX_EDGE_SAMPLES = 8  # points per box edge, so lens distortion can bend a silhouette's edges
 TRUTH_DIGITS_PX = 4
 TRUTH_DIGITS_M = 5
+WHITE_DN = 255.0  # the sensor's white level: an 8-bit frame's full scale
 
 
 def _rot_z(deg: float) -> np.ndarray:
@@ -173,6 +175,9 @@ class FrameRenderer:
         self.canvas = np.zeros((cam.height, cam.width), dtype=np.float32)
         spread = max(p.psf_sigma_px, p.halo_sigma_px if p.halo_frac > 0 else 0.0)
         self.margin = int(math.ceil(3 * spread)) + 1 if spread > 0 else 0
+        # Rows below and above each light that its column bloom can reach (sparse path only:
+        # the phone path draws the whole frame).
+        self.bloom_rows = bloom_reach_px(p.bloom_len_px) if p.bloom_frac > 0 and not p.phone else 0
         if p.rs_band_rows > 0:
             self.margin += 8        # a phone turning at ~30 deg/s moves a light ~4 px while it is read
         # Phone effects (tools.synth.phone): the whole frame in linear DN, the lit ceiling behind
@@ -333,6 +338,8 @@ class FrameRenderer:
             self.canvas[:] = 0.0
             self.ambient[:] = np.float32(p.ambient_dn)
         else:
+            if self.bloom_rows and regions:
+                self._bloom(regions)
             self._noise(img, regions, rng)
         truth = {"frame": int(k), "t": round(t_k, 9), "camera": pose0.as_dict(), "leds": leds}
         if scene.extra_truth is not None:
@@ -403,7 +410,7 @@ class FrameRenderer:
         if halo is not None:
             sig = np.float32(1.0 - p.halo_frac) * sig + np.float32(p.halo_frac) * halo
         self.canvas[r0:r1, c0:c1] += sig
-        return (r0, r1, c0, c1)
+        return (max(r0 - self.bloom_rows, 0), min(r1 + self.bloom_rows, cam.height), c0, c1)
 
     def _shaded(self, g, r0, r1, c0, c1, bezel, row0):
         """Coverage of the emitter outline `g["poly"]` over rows r0..r1-1, columns c0..c1-1,
@@ -424,6 +431,17 @@ class FrameRenderer:
             bezel[row0:row0 + (r1 - r0)] += np.clip(grown - self._cover(poly, r0, r1, c0, c1), 0.0, 1.0)
         return cov
 
+    def _bloom(self, regions):
+        """Spill `bloom_frac` of the expected charge above the white level along the columns,
+        over the box that holds every region (the regions include the bloom's reach)."""
+        p = self.scene.params
+        r0, r1 = min(r[0] for r in regions), max(r[1] for r in regions)
+        c0, c1 = min(r[2] for r in regions), max(r[3] for r in regions)
+        box = self.canvas[r0:r1, c0:c1]
+        excess = np.maximum(box + np.float32(p.ambient_dn + p.black_level_dn - WHITE_DN), np.float32(0.0))
+        if excess.any():
+            box += np.float32(p.bloom_frac) * column_bloom(excess, p.bloom_len_px)
+
     def _noise(self, img, regions, rng):
         p = self.scene.params
         beta = p.read_noise_dn ** 2
@@ -431,7 +449,7 @@ class FrameRenderer:
             s = self.canvas[r0:r1, c0:c1] + np.float32(p.ambient_dn)
             std = np.sqrt(np.float32(p.shot_noise_alpha) * s + np.float32(beta))
             v = s + np.float32(p.black_level_dn) + std * rng.standard_normal(s.shape, dtype=np.float32)
-            img[r0:r1, c0:c1] = np.clip(np.rint(v), 0, 255).astype(np.uint8)
+            img[r0:r1, c0:c1] = np.clip(np.rint(v), 0, WHITE_DN).astype(np.uint8)
         for r0, r1, c0, c1 in regions:
             self.canvas[r0:r1, c0:c1] = 0.0
 

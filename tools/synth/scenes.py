@@ -36,6 +36,15 @@ S2PSK_SYMCLK = 16
 CLOCK_PPM_SPREAD = 50.0  # crystal oscillators: tens of ppm
 
 
+def _require_positive(**values) -> None:
+    """InputError unless every value is a positive number (lengths a road is built from)."""
+    from receiver.core.errors import InputError
+
+    for key, value in values.items():
+        if not value > 0:
+            raise InputError(f"bad --set value: {key} must be positive, not {value!r}")
+
+
 def _drive(rng, mode, led_id, rate_hz, symclk=S2PSK_SYMCLK, pin=0, phase_s=None, ppm=None):
     d = led_drive(mode, led_id, rate_hz, symclk, pin=0)
     phase = float(rng.uniform(0.0, d.period_s)) if phase_s is None else phase_s
@@ -273,6 +282,7 @@ def vehicle(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.0, li
     default 200 Hz clock and 16 clocks/symbol a 30-symbol packet lasts 2.4 s, so 6.7 s holds
     two full packets of every forward vehicle.
     """
+    _require_positive(road_m=road_m, light_spacing_m=light_spacing_m)
     tilt = math.radians(head_tilt_deg)
     normal = np.array([-math.sin(tilt), 0.0, -math.cos(tilt)])
     across = np.array([0.0, 1.0, 0.0])
@@ -347,7 +357,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
             taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0,
             body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0,
             light_layout="staggered", light_brightness=1.0, slow_shake_rms_deg=0.0, roll_rms_deg=0.0,
-            jitter_deg=0.0):
+            jitter_deg=0.0, fv_gap_scale=1.0, wander_m=0.0, wander_hz=0.1):
     """Night road: host vehicle (HV) with a forward camera, S2-PSK street lights (SL), three
     forward vehicles (FV) with opaque bodies that hide each other's taillights.
 
@@ -370,7 +380,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     at 8 s, inside Table 2's 0-80 km/h. From `lane_change_start_s` (4 s) over
     `lane_change_s` (3.5 s) it moves `lane_change_m` (3.5 m) left on a quintic ramp
     (`smoothstep5`); its heading is the direction of its velocity, and the camera's yaw
-    follows it. Camera: `cam_height_m` high at the HV's reference point, pitched up
+    follows it. `wander_m` > 0 adds a wander within the lane (a sinusoid of that amplitude at
+    `wander_hz`, phase seeded). Camera: `cam_height_m` high at the HV's reference point, pitched up
     `cam_pitch_deg`; on top, a 3.1 Hz 5 mm bounce with a 1.3 Hz 0.2 deg pitch nod, and road
     vibration in pitch and yaw: per axis three sinusoids (2-17 Hz, seeded) summing to at most
     `shake_deg`; a dash camera's slow sway (`slow_shake_rms_deg` in yaw and pitch,
@@ -381,10 +392,11 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     `led_peak_dn` (above ~1.5 they saturate; with `halo_frac` their blobs then bloom).
 
     FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
-    `FV_SCRIPT` (gaps 46, 24, 34 m; FV2 cuts in from the left lane at 2-4.5 s, FV3 from the
-    right lane at 5-7.5 s). Taillights: 0.15 x 0.10 m rects, 1.4 m apart, 1 m high on the
-    body's rear face, facing backwards; emitter A is the left one. Bodies (`model.Body`):
-    `body_size_m` = (length, width, height) = 4.5 x 1.8 x 1.4 m boxes from `body_z0_m` up.
+    `FV_SCRIPT` (gaps 46, 24, 34 m, and their rates, times `fv_gap_scale`; FV2 cuts in from
+    the left lane at 2-4.5 s, FV3 from the right lane at 5-7.5 s). Taillights: 0.15 x 0.10 m
+    rects, 1.4 m apart, 1 m high on the body's rear face, facing backwards; emitter A is the
+    left one. Bodies (`model.Body`): `body_size_m` = (length, width, height) = 4.5 x 1.8 x 1.4 m
+    boxes from `body_z0_m` up.
 
     Length: `seconds` = 8 s = 240 frames at 30 fps; a 30-symbol packet at 200 Hz / 16 clocks
     lasts 2.4 s, so the SLs in view early are seen for several packets before they pass
@@ -402,6 +414,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     image, facing the camera and not occluded; false when the FV is out of view),
     occluded_frac (mean hidden fraction of the two taillights)}.
     """
+    _require_positive(road_m=road_m, light_spacing_m=light_spacing_m)
     R_curve = None if curve_radius_m is None else float(curve_radius_m)
     tilt = math.radians(head_tilt_deg)
     if light_layout not in ("staggered", "one-side", "opposite"):
@@ -429,7 +442,10 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     dt = 1e-3  # central differences for headings and speeds (paths are smooth at this scale)
 
     def hv_road(t):
-        return v0 * t + 0.5 * accel_mps2 * t * t, lane_change_m * smoothstep5((t - lane_change_start_s) / lane_change_s)
+        lat = lane_change_m * smoothstep5((t - lane_change_start_s) / lane_change_s)
+        if wander_m > 0:
+            lat += wander_m * math.sin(2 * math.pi * wander_hz * t + wander_phase)
+        return v0 * t + 0.5 * accel_mps2 * t * t, lat
 
     def hv_xy(t):
         x, y, _ = road_point(*hv_road(t), R_curve)
@@ -446,7 +462,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
         _, gap0, rate, l0, l1, t0, dur = spec
         s_hv, _ = hv_road(t)
         lat = l0 if dur <= 0 else l0 + (l1 - l0) * smoothstep5((t - t0) / dur)
-        return s_hv + gap0 + rate * t, lat
+        return s_hv + gap0 * fv_gap_scale + rate * fv_gap_scale * t, lat
 
     def fv_xy_fn(spec):
         def xy(t):
@@ -482,6 +498,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
         n_jit = int(round(seconds * cam.fps)) + 2
         jit = rng.normal(0.0, jitter_deg, (3, n_jit)) if jitter_deg > 0 else np.zeros((3, n_jit))
         fps = cam.fps or 30.0
+    # Drawn last and only when asked, for the same reason.
+    wander_phase = float(rng.uniform(0.0, 2 * math.pi)) if wander_m > 0 else 0.0
 
     def camera_sway(t):
         """(yaw, pitch, roll) deg of the slow sway plus the jitter held over the frame period."""
@@ -544,52 +562,120 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
 # test can check them): the roads the independent recordings showed our own scenes lacked.
 RANDOM_ROAD = dict(head_spacing_m=(12.5, 40.0), light_height_m=(6.0, 10.0), light_offset_y_m=(5.0, 8.0),
                    light_brightness=(1.5, 3.0), slow_shake_rms_deg=(0.2, 0.35), cam_pitch_deg=(2.0, 4.0),
-                   speed0_kmh=(40.0, 70.0), halo_frac=(0.05, 0.15), halo_sigma_px=(2.0, 4.0))
+                   speed0_kmh=(40.0, 70.0), halo_frac=(0.05, 0.15), halo_sigma_px=(2.0, 4.0),
+                   accel_mps2=(-0.5, 0.8), bloom_frac=(0.02, 0.1), bloom_len_px=(1.0, 4.0),
+                   head_half_width_m=(0.2, 0.3), head_sep_m=(0.5, 0.8), taillight_baseline_m=(1.2, 1.7),
+                   fv_gap_scale=(0.5, 1.3), wander_m=(0.0, 0.3), wander_hz=(0.05, 0.2),
+                   lane_change_start_s=(1.0, 4.0))
+# The host's lane change per seed: left, none or right (m to the left).
+RANDOM_LANE_CHANGES_M = (3.5, 0.0, -3.5)
 RANDOM_LAYOUTS = ("staggered", "one-side", "opposite")
+# "split": a head's two halves `head_sep_m` apart with a gap between them (two blobs at every
+# range); "merged": the halves touch (one blob, the separation below the blur).
+RANDOM_HEAD_STYLES = ("split", "merged")
+HEAD_LENGTH_M = 0.5  # a head's halves along the road
+# A dash camera per seed (its own stream, as `draw_phone`): focal length and radial distortion.
+DASH_CAMERA_RANGES = dict(focal_px=(1300.0, 1500.0), k1=(-0.05, 0.05))
+ROAD_SENSOR_KEYS = ("halo_frac", "halo_sigma_px", "bloom_frac", "bloom_len_px")
+
+
+def draw_dash_camera(rng: np.random.Generator) -> dict:
+    """Camera keywords of one dash camera drawn from `DASH_CAMERA_RANGES` (k2..k3 zero)."""
+    v = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in DASH_CAMERA_RANGES.items()}
+    return dict(focal_px=v["focal_px"], dist=(v["k1"], 0.0, 0.0, 0.0, 0.0))
 
 
 def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_height_m=None, light_offset_y_m=None,
                    light_brightness=None, slow_shake_rms_deg=None, cam_pitch_deg=None, speed0_kmh=None,
-                   halo_frac=None, halo_sigma_px=None, jitter_deg=0.05, head_half_m=(0.25, 0.5),
-                   head_gap_m=0.6, cam_height_m=1.3, seconds=8.0):
-    """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`; a keyword given
-    is taken instead of drawn): heads `head_spacing_m` apart along the road (12.5-40 m) in a
-    staggered, one-side or opposite layout, 6-10 m high, 5-8 m off the host lane; each head two
-    separate face-down halves of 0.25 x 0.5 m whose centres are 0.6 m apart across the road
-    (a 0.35 m gap: two blobs at every range), bright enough to saturate (1.5-3x `led_peak_dn`)
-    with bloom (`halo_frac` 0.05-0.15 of the flux through a 2-4 px Gaussian: saturated blobs
-    2-3x their image area); the camera 1.3 m high, pitched up 2-4 deg, swaying slowly
-    (0.5-2.5 Hz sinusoids, yaw and pitch 0.2-0.35 deg rms, roll half that) with 0.05 deg of
-    frame-to-frame jitter and no fast road vibration; the host at 40-70 km/h. The forward
-    vehicles are `vehicle_road`'s. Returns `vehicle_road`'s dict plus `render` (the drawn
-    bloom, for `make_scene`) and `road` (every drawn value)."""
+                   halo_frac=None, halo_sigma_px=None, accel_mps2=None, bloom_frac=None, bloom_len_px=None,
+                   head_style=None, head_half_width_m=None, head_sep_m=None, taillight_baseline_m=None,
+                   fv_gap_scale=None, wander_m=None, wander_hz=None, lane_change_m=None, lane_change_start_s=None,
+                   jitter_deg=0.05, cam_height_m=1.3, seconds=8.0):
+    """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`,
+    `RANDOM_HEAD_STYLES`; a keyword given is taken instead of drawn, so each effect can be
+    switched off or fixed): heads `head_spacing_m` apart along the road (12.5-40 m) in a
+    staggered, one-side or opposite layout, 6-10 m high, 5-8 m off the host lane. Each head is
+    two face-down halves `head_half_width_m` (0.2-0.3 m) across by 0.5 m along the road: "split"
+    heads have their centres `head_sep_m` (0.5-0.8 m) apart, a gap between them (two blobs at
+    every range); "merged" heads have the halves touching (one blob). The heads are bright
+    enough to saturate (`light_brightness` 1.5-3x `led_peak_dn`) and bloom: `halo_frac`
+    0.05-0.15 of the flux through a 2-4 px Gaussian (saturated blobs 2-3x their image area) and
+    `bloom_frac` 0.02-0.1 of the charge above the white level spilt along the columns (1/e
+    length `bloom_len_px` 1-4 px). The camera is 1.3 m high, pitched up 2-4 deg, swaying slowly
+    (0.5-2.5 Hz sinusoids, yaw and pitch `slow_shake_rms_deg` 0.2-0.35 deg rms, roll half
+    that) with `jitter_deg` (0.05 deg) of frame-to-frame jitter and no fast road vibration;
+    the host starts at 40-70 km/h and accelerates or brakes (`accel_mps2` -0.5..0.8), wanders
+    within its lane (`wander_m` 0-0.3 m at `wander_hz` 0.05-0.2 Hz) and changes lane to the
+    left, not at all or to the right (`lane_change_m` from `RANDOM_LANE_CHANGES_M`) from
+    `lane_change_start_s` (1-4 s). The forward vehicles are `vehicle_road`'s with their gaps
+    scaled by `fv_gap_scale` (0.5-1.3: the nearest 9-31 m ahead, the farthest 23-65 m), their
+    taillights `taillight_baseline_m` (1.2-1.7 m) apart (the map's `taillight` block). Returns
+    `vehicle_road`'s dict plus `render` (the drawn sensor values, for `make_scene`) and `road`
+    (every drawn value)."""
+    # Every value is drawn, given or not, so that fixing one leaves the seed's other values as
+    # they were (an effect can be switched off on the same road).
     def draw(name, given):
         lo, hi = RANDOM_ROAD[name]
-        return float(rng.uniform(lo, hi)) if given is None else float(given)
+        drawn = float(rng.uniform(lo, hi))
+        return drawn if given is None else float(given)
+
+    def pick(choices, given, what, any_value=False):
+        drawn = choices[int(rng.integers(len(choices)))]
+        if given is None:
+            return drawn
+        if not any_value and given not in choices:
+            from receiver.core.errors import InputError
+            raise InputError(f"bad --set value: {what} must be {' or '.join(choices)}, not {given!r}")
+        return given
 
     road = dict(head_spacing_m=draw("head_spacing_m", head_spacing_m),
-                light_layout=str(rng.choice(RANDOM_LAYOUTS)) if light_layout is None else light_layout,
+                light_layout=pick(RANDOM_LAYOUTS, light_layout, "light_layout"),
                 light_height_m=draw("light_height_m", light_height_m),
                 light_offset_y_m=draw("light_offset_y_m", light_offset_y_m),
                 light_brightness=draw("light_brightness", light_brightness),
                 slow_shake_rms_deg=draw("slow_shake_rms_deg", slow_shake_rms_deg),
                 cam_pitch_deg=draw("cam_pitch_deg", cam_pitch_deg), speed0_kmh=draw("speed0_kmh", speed0_kmh),
                 halo_frac=draw("halo_frac", halo_frac), halo_sigma_px=draw("halo_sigma_px", halo_sigma_px))
+    # Drawn after the values above, so those stay what each seed drew before these existed.
+    road.update(accel_mps2=draw("accel_mps2", accel_mps2), bloom_frac=draw("bloom_frac", bloom_frac),
+                bloom_len_px=draw("bloom_len_px", bloom_len_px),
+                head_style=pick(RANDOM_HEAD_STYLES, head_style, "head_style"),
+                head_half_width_m=draw("head_half_width_m", head_half_width_m),
+                head_sep_m=draw("head_sep_m", head_sep_m),
+                taillight_baseline_m=draw("taillight_baseline_m", taillight_baseline_m),
+                fv_gap_scale=draw("fv_gap_scale", fv_gap_scale), wander_m=draw("wander_m", wander_m),
+                wander_hz=draw("wander_hz", wander_hz),
+                lane_change_m=float(pick(RANDOM_LANE_CHANGES_M, lane_change_m, "lane_change_m", any_value=True)),
+                lane_change_start_s=draw("lane_change_start_s", lane_change_start_s))
+    _require_positive(**{k: road[k] for k in ("head_spacing_m", "light_height_m", "head_half_width_m",
+                                              "taillight_baseline_m", "fv_gap_scale")})
+    if road["head_style"] == "merged" and head_sep_m is None:
+        road["head_sep_m"] = road["head_half_width_m"]      # the halves touch
+    if road["head_sep_m"] < road["head_half_width_m"]:
+        from receiver.core.errors import InputError
+        raise InputError(f"bad --set value: head_sep_m ({road['head_sep_m']:g}) must be at least head_half_width_m "
+                         f"({road['head_half_width_m']:g}): the halves would overlap")
     # vehicle_road's light_spacing_m is a row's spacing; a staggered layout puts the other row
     # half-way, so its heads follow each other at half of it.
     row = road["head_spacing_m"] * (2.0 if road["light_layout"] == "staggered" else 1.0)
     built = vehicle_road(rng, cam, light_spacing_m=row, light_layout=road["light_layout"],
                          light_height_m=road["light_height_m"], light_offset_y_m=road["light_offset_y_m"],
-                         light_brightness=road["light_brightness"], head_half_m=tuple(head_half_m),
-                         head_gap_m=head_gap_m, shake_deg=0.0, slow_shake_rms_deg=road["slow_shake_rms_deg"],
+                         light_brightness=road["light_brightness"],
+                         head_half_m=(road["head_half_width_m"], HEAD_LENGTH_M), head_gap_m=road["head_sep_m"],
+                         shake_deg=0.0, slow_shake_rms_deg=road["slow_shake_rms_deg"],
                          roll_rms_deg=road["slow_shake_rms_deg"] / 2.0, jitter_deg=jitter_deg,
                          cam_height_m=cam_height_m, cam_pitch_deg=road["cam_pitch_deg"],
-                         speed0_kmh=road["speed0_kmh"], seconds=seconds)
-    built["render"] = dict(halo_frac=road["halo_frac"], halo_sigma_px=road["halo_sigma_px"])
+                         speed0_kmh=road["speed0_kmh"], accel_mps2=road["accel_mps2"],
+                         taillight_baseline_m=road["taillight_baseline_m"], fv_gap_scale=road["fv_gap_scale"],
+                         wander_m=road["wander_m"], wander_hz=road["wander_hz"], lane_change_m=road["lane_change_m"],
+                         lane_change_start_s=road["lane_change_start_s"], seconds=seconds)
+    built["render"] = {k: road[k] for k in ROAD_SENSOR_KEYS}
     built["road"] = road
     built["description"] = "night road drawn per seed: " + ", ".join(
         f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in road.items())
     return built
+
+
 def indoor_phone(rng, cam, room_m=9.0, seconds=3.0, **kw):
     """`indoor_sparse` as a phone films it (`make_scene` draws the phone: `tools.synth.phone`):
     0.25 m panels on a 1.1 m grid, one or two in view, the walk drawn per seed: start and
@@ -636,7 +722,8 @@ CAMERA_DEFAULTS = {
                     row_readout_us=15.0, exposure_us=100.0, fps=30.0),
 }
 CAMERA_DEFAULTS["vehicle-road"] = CAMERA_DEFAULTS["vehicle"]
-# A dash camera as the independent recordings' (1300-1500 px focal, 15 us rows, 100 us exposure).
+# A dash camera as the independent recordings' (15 us rows, 100 us exposure); its focal length
+# (1300-1500 px) and k1 (-0.05..0.05) are drawn per seed (`draw_dash_camera`).
 CAMERA_DEFAULTS["vehicle-random"] = dict(CAMERA_DEFAULTS["vehicle"], focal_px=1400.0, dist=(-0.03, 0.0, 0.0, 0.0, 0.0))
 # The bundled `vehicle` recording was rendered with the sampled coverage throughout
 # (exact_coverage_rows 0 keeps it bit-exact); `vehicle-road` has sub-pixel-tall far heads,
@@ -644,7 +731,7 @@ CAMERA_DEFAULTS["vehicle-random"] = dict(CAMERA_DEFAULTS["vehicle"], focal_px=14
 PARAM_DEFAULTS = {"indoor-walk": {}, "indoor-static": {}, "indoor-sparse": {}, "indoor-phone": {},
                   "vehicle": dict(psf_sigma_px=0.7, exact_coverage_rows=0.0),
                   "vehicle-road": dict(psf_sigma_px=0.7),
-                  # Lens blur 0.5 px, read noise 1.5 DN over an 8 DN black level (halo: drawn).
+                  # Lens blur 0.5 px, read noise 1.5 DN over an 8 DN black level (halo and bloom: drawn).
                   "vehicle-random": dict(psf_sigma_px=0.5, read_noise_dn=1.5, black_level_dn=8.0)}
 
 
@@ -662,6 +749,9 @@ def make_scene(name: str, seed: int = 0, n_frames: int | None = None, **override
         cam_phone, par_phone = draw_phone(np.random.default_rng([seed, 0x9407E]))
         cam_kw.update(cam_phone)
         par_kw.update(par_phone)
+    if name == "vehicle-random":
+        # One dash camera per seed (its own stream); an explicit --set still wins.
+        cam_kw.update(draw_dash_camera(np.random.default_rng([seed, 0xDA5C])))
     builder = BUILDERS[name]
     scene_keys = set(inspect.signature(builder).parameters) - {"rng", "cam", "kw"}
     if builder is indoor_phone:
@@ -751,6 +841,8 @@ def _checked_params(par_kw: dict) -> RenderParams:
             raise InputError(f"bad --set value: {key} must be a whole number, not {value!r}")
         if key == "tone_gamma" and value < 0.2:
             raise InputError(f"bad --set value: {key} must be at least 0.2, not {value!r}")
+    if par_kw.get("bloom_frac", 0) > 0 and not par_kw.get("bloom_len_px", RenderParams.bloom_len_px) > 0:
+        raise InputError("bad --set value: bloom_len_px must be positive when bloom_frac is above 0")
     if "rs_band_rows" in par_kw:
         par_kw["rs_band_rows"] = int(par_kw["rs_band_rows"])
     return RenderParams(**par_kw)
