@@ -6,6 +6,7 @@ one per device, by the lighting server.
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
@@ -43,6 +44,18 @@ HANDEDNESS_MAX_CHI2_DOF = 100.0
 # The camera's angular rate is taken from two orientations at most this far apart (s): a phone
 # turns at tens of degrees per second, so over a few frames the rate is about constant.
 RATE_MAX_GAP_S = 0.15
+# A turn between two orientations faster than this (deg/s) is not the camera's: a hand swings a
+# phone at up to a few hundred deg/s, while a lone symmetric panel's fits (a rect seen from
+# below fits equally turned by 180 degrees) or a wrong branch jump by 90-180 degrees within a
+# frame or two. Such a jump starts the orientation history afresh (`keep_orientation`): the
+# angular rate across it would derotate the next frames' points by radians (`derotate_rows`).
+MAX_TURN_RATE_DEG_S = 720.0
+
+
+def _turn_rad(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """The angle (rad) of the rotation between two world-to-camera rotations."""
+    c = (float(np.trace(np.asarray(Ra, float) @ np.asarray(Rb, float).T)) - 1.0) / 2.0
+    return math.acos(min(1.0, max(-1.0, c)))
 
 
 def is_mirror_fit_better(good: Fix | None, other: Fix | None) -> bool:
@@ -134,6 +147,8 @@ class PoseFilter:
         """Remember a fix's world-to-camera rotation (solving frame) of time t_s for `R_prior`,
         and the angular rate over the orientations of the last `RATE_MAX_GAP_S` (`angular_rate`)."""
         if self._t_R is not None and not 0 <= t_s - self._t_R <= RATE_MAX_GAP_S:
+            self._R_hist = []
+        elif self._R_hist and _turn_rad(R_cw, self._R_cw) > math.radians(MAX_TURN_RATE_DEG_S) * max(t_s - self._t_R, 1e-3):
             self._R_hist = []
         self._R_hist = [(t, R) for t, R in self._R_hist if t_s - t <= RATE_MAX_GAP_S] + [(t_s, R_cw)]
         t0, R0 = self._R_hist[0]

@@ -28,6 +28,21 @@ def test_angular_rate_from_tracked_orientations():
     assert pf.angular_rate(2.0) is None
 
 
+def test_an_orientation_jump_starts_the_rate_afresh():
+    """A lone rect seen from below fits turned by 180 degrees as well: a track whose orientation
+    flips between two frames has no rate across the flip (it would derotate the next frames'
+    points by radians), and the rate after it comes from the orientations after the flip."""
+    flip = cv2.Rodrigues(np.array([[0.0], [0.0], [np.pi]]))[0]   # half a turn about the optical axis
+    pf = PoseFilter(sigma_uv=1e-3)
+    for k in range(3):
+        pf.keep_orientation(k / 30, _R(k / 30))
+    assert np.allclose(pf.angular_rate(2 / 30), W_CAM, atol=1e-9)
+    pf.keep_orientation(3 / 30, flip @ _R(3 / 30))
+    assert pf.angular_rate(3 / 30) is None
+    pf.keep_orientation(4 / 30, flip @ _R(4 / 30))
+    w = pf.angular_rate(4 / 30)
+    assert w is not None and np.linalg.norm(w) < 1.0   # the flipped track's own rate (~0.6 rad/s), not ~90
+
 def test_derotated_points_are_the_first_rows_view():
     rng = np.random.default_rng(3)
     C = np.array([1.0, 2.0, 1.2])
