@@ -345,6 +345,24 @@ def test_bench_stdout_full_disk_names_standard_output():
     _refused(occloc("bench", STATIC, "--frames", "2", stdout=open("/dev/full", "wb")), "standard output")
 
 
+@pytest.mark.parametrize("args", [("--help",), ("--version",), ("run", "--help"), ("calibrate", "rows", "--help"),
+                                  ("-h", "eval")])
+@pytest.mark.parametrize("unbuffered", ["1", ""])
+def test_help_and_version_on_a_full_disk_are_an_error(args, unbuffered, monkeypatch):
+    """argparse drops an OSError of its --help/--version text silently (exit 0, nothing
+    printed): the standard output wrapper every command runs under turns it into one line."""
+    monkeypatch.setenv("PYTHONUNBUFFERED", unbuffered)
+    line = _refused(occloc(*args, stdout=open("/dev/full", "wb")), "cannot write standard output")
+    assert "No space left" in line
+
+
+def test_help_on_a_writable_stdout_still_exits_0():
+    p = occloc("--version")
+    assert p.returncode == 0 and p.stdout.decode().startswith("occloc "), _err(p)
+    p = occloc("run", "--help")
+    assert p.returncode == 0 and "--max-pixels" in p.stdout.decode() and not p.stderr, _err(p)
+
+
 # ------------------------------------------------------------------ signals
 
 def test_sigint_while_loading_exits_130_quietly():
