@@ -139,27 +139,36 @@ def test_helper_writes_a_fifo_directly(tmp_path):
 def test_run_out_hard_link_to_the_video_is_refused(rec, tmp_path):
     os.link(rec / "video.avi", tmp_path / "run.jsonl")
     before = _sha(rec / "video.avi")
-    _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "run.jsonl"), "input")
+    _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "run.jsonl"),
+             "is an input of this command")
     assert _sha(rec / "video.avi") == before
 
 
 @pytest.mark.parametrize("flag", ["--out", "--settings-out", "--overlay"])
 def test_run_outputs_into_inputs_are_refused(rec, flag):
+    """Refused as the input it is, before any check of its name (the map is not a .png)."""
     before = _sha(rec / "map.json")
-    _refused(occloc("run", rec, "--max-frames", "2", flag, rec / "map.json"), flag, "input")
+    line = _refused(occloc("run", rec, "--max-frames", "2", flag, rec / "map.json"))
+    assert line == f"occloc: {flag} {rec / 'map.json'} is an input of this command ({rec / 'map.json'}): " \
+                   "refusing to overwrite it", line
     assert _sha(rec / "map.json") == before
+
+
+def test_run_same_file_for_two_outputs_is_said_before_its_extension(rec, tmp_path):
+    line = _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "o.png", "--overlay", tmp_path / "o.png"))
+    assert line == f"occloc: --overlay {tmp_path / 'o.png'} is also --out: give each output its own file", line
 
 
 def test_run_two_outputs_one_file_is_refused(rec, tmp_path):
     _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "a", "--settings-out", tmp_path / "a"),
-             "--settings-out")
+             "--settings-out", "is also --out")
 
 
 @pytest.mark.parametrize("flag", ["--out", "--overlay", "--settings-out"])
 def test_run_output_folder_is_refused_before_work_and_leaves_nothing(rec, tmp_path, flag):
     d = tmp_path / "outdir"
     d.mkdir()
-    _refused(occloc("run", rec, flag, d), "folder")
+    _refused(occloc("run", rec, flag, d), f"{flag} {d} is a folder: give a file name")
     assert os.listdir(d) == [] and _hidden(tmp_path) == []
 
 
