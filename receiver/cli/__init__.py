@@ -163,33 +163,6 @@ def _raise_stopped(signum, frame):
     raise _Stopped(signum)
 
 
-class _Stdout:
-    """sys.stdout whose write errors name standard output (a full disk, a closed terminal)
-    instead of surfacing as a bare OSError that a command would blame on its input."""
-
-    def __init__(self, stream):
-        self._stream = stream
-
-    def write(self, s):
-        try:
-            return self._stream.write(s)
-        except BrokenPipeError:
-            raise
-        except OSError as e:
-            raise InputError(f"cannot write standard output: {e.strerror or e}") from None
-
-    def flush(self):
-        try:
-            return self._stream.flush()
-        except BrokenPipeError:
-            raise
-        except OSError as e:
-            raise InputError(f"cannot write standard output: {e.strerror or e}") from None
-
-    def __getattr__(self, name):
-        return getattr(self._stream, name)
-
-
 def _devnull_fd(fd: int) -> None:
     """Point file descriptor `fd` at /dev/null (the interpreter's final flush of text that could
     not be written, or a closed standard stream that a later open would otherwise reuse)."""
@@ -246,25 +219,43 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
+    from receiver.io.files import StdoutOutput
+
+    _fill_closed_std_fds()
+    old = sys.stdout
+    if sys.stdout is not None and not isinstance(sys.stdout, StdoutOutput):
+        sys.stdout = StdoutOutput(sys.stdout)
+    try:
+        return _parse_and_run(argv)
+    finally:
+        sys.stdout = old
+
+
+def _parse_and_run(argv: list[str] | None) -> int:
     import signal
 
     from receiver.io.files import remove_live_temps
 
-    _fill_closed_std_fds()
     argv = list(sys.argv[1:] if argv is None else argv)
     commands = _available()
     selected = next((a for a in argv if not a.startswith("-")), None)
     if selected not in commands:
         selected = None
     parser = build_parser(commands, selected, every_help=_needs_every_help(argv, selected))
-    args = parser.parse_args(argv)  # a usage error: argparse's SystemExit(2), said on stderr
+    try:
+        args = parser.parse_args(argv)  # a usage error: argparse's SystemExit(2), said on stderr
+    except InputError as e:  # --help or --version on a standard output that cannot be written
+        _devnull_fd(1)
+        print(f"occloc: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SystemExit:  # --help, --version (buffered): their text must reach standard output
+        if _finish_stdout():
+            return EXIT_BAD_INPUT
+        raise
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     old = {}
-    if sys.stdout is not None and not isinstance(sys.stdout, _Stdout):
-        old["stdout"] = sys.stdout
-        sys.stdout = _Stdout(sys.stdout)
     if args.command in _STAGING_COMMANDS:
         for sig in (signal.SIGTERM, signal.SIGHUP):
             try:
@@ -291,7 +282,4 @@ def _main(argv: list[str] | None) -> int:
     finally:
         remove_live_temps()
         for key, value in old.items():
-            if key == "stdout":
-                sys.stdout = value
-            else:
-                signal.signal(key, value)
+            signal.signal(key, value)

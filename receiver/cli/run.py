@@ -430,15 +430,17 @@ def _main(args, stop: "SignalStop") -> int:
         raise InputError(f"{spec}: no LED map (give --map FILE)")
     inputs = [spec, cam_path, map_path, getattr(args, "odometry", None), rec.get("video"), rec.get("truth")]
     inputs.append(getattr(args, "settings", None))
+    # What each output is (an input, a folder, another output) before what it is called: `--overlay
+    # map.json` is refused as the map, not as a wrong extension.
     out_file = claim_output(args.out, inputs, "--out")
-    _check_out_extension(args.out)
-    if getattr(args, "overlay", None):
-        from receiver.io.overlay import check_overlay_path
-        check_overlay_path(args.overlay)
     settings_file = claim_output(getattr(args, "settings_out", None), inputs, "--settings-out",
                                  others=[("--out", args.out)])
     overlay_file = claim_output(getattr(args, "overlay", None), inputs, "--overlay",
                                 others=[("--out", args.out), ("--settings-out", getattr(args, "settings_out", None))])
+    _check_out_extension(args.out)
+    if getattr(args, "overlay", None):
+        from receiver.io.overlay import check_overlay_path
+        check_overlay_path(args.overlay)
     given = (read_settings(args.settings) if getattr(args, "settings", None)
              else {"receiver": None, "locate": None, "vehicle": None})
     cam = load_camera(cam_path)

@@ -360,11 +360,22 @@ class OutputFile:
 
 
 class StdoutOutput:
-    """Standard output with the OutputFile interface: an OSError names standard output."""
+    """Standard output with the OutputFile interface (write, flush, commit, discard): a write
+    error (a full disk, a closed terminal) is an InputError naming standard output, never a
+    bare OSError a command would blame on its input. `stream`: the stream wrapped (None:
+    whatever sys.stdout is at each write). The command line puts one around sys.stdout for
+    every command, argparse's --help and --version included."""
+
+    def __init__(self, stream=None):
+        self._stream = stream
+
+    @property
+    def stream(self):
+        return sys.stdout if self._stream is None else self._stream
 
     def write(self, s):
         try:
-            return sys.stdout.write(s)
+            return self.stream.write(s)
         except BrokenPipeError:
             raise
         except OSError as e:
@@ -372,7 +383,7 @@ class StdoutOutput:
 
     def flush(self) -> None:
         try:
-            sys.stdout.flush()
+            self.stream.flush()
         except BrokenPipeError:
             raise
         except OSError as e:
@@ -386,6 +397,11 @@ class StdoutOutput:
             self.flush()
         except InputError:
             pass
+
+    def __getattr__(self, name):  # isatty, fileno, encoding, buffer ... of the stream
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.stream, name)
 
 
 def claim_output(path: str | None, inputs=(), flag: str = "--out", *, others=(),

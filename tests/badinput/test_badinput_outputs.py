@@ -139,27 +139,36 @@ def test_helper_writes_a_fifo_directly(tmp_path):
 def test_run_out_hard_link_to_the_video_is_refused(rec, tmp_path):
     os.link(rec / "video.avi", tmp_path / "run.jsonl")
     before = _sha(rec / "video.avi")
-    _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "run.jsonl"), "input")
+    _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "run.jsonl"),
+             "is an input of this command")
     assert _sha(rec / "video.avi") == before
 
 
 @pytest.mark.parametrize("flag", ["--out", "--settings-out", "--overlay"])
 def test_run_outputs_into_inputs_are_refused(rec, flag):
+    """Refused as the input it is, before any check of its name (the map is not a .png)."""
     before = _sha(rec / "map.json")
-    _refused(occloc("run", rec, "--max-frames", "2", flag, rec / "map.json"), flag, "input")
+    line = _refused(occloc("run", rec, "--max-frames", "2", flag, rec / "map.json"))
+    assert line == f"occloc: {flag} {rec / 'map.json'} is an input of this command ({rec / 'map.json'}): " \
+                   "refusing to overwrite it", line
     assert _sha(rec / "map.json") == before
+
+
+def test_run_same_file_for_two_outputs_is_said_before_its_extension(rec, tmp_path):
+    line = _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "o.png", "--overlay", tmp_path / "o.png"))
+    assert line == f"occloc: --overlay {tmp_path / 'o.png'} is also --out: give each output its own file", line
 
 
 def test_run_two_outputs_one_file_is_refused(rec, tmp_path):
     _refused(occloc("run", rec, "--max-frames", "2", "--out", tmp_path / "a", "--settings-out", tmp_path / "a"),
-             "--settings-out")
+             "--settings-out", "is also --out")
 
 
 @pytest.mark.parametrize("flag", ["--out", "--overlay", "--settings-out"])
 def test_run_output_folder_is_refused_before_work_and_leaves_nothing(rec, tmp_path, flag):
     d = tmp_path / "outdir"
     d.mkdir()
-    _refused(occloc("run", rec, flag, d), "folder")
+    _refused(occloc("run", rec, flag, d), f"{flag} {d} is a folder: give a file name")
     assert os.listdir(d) == [] and _hidden(tmp_path) == []
 
 
@@ -343,6 +352,24 @@ def test_check_stdout_full_disk_names_standard_output():
 
 def test_bench_stdout_full_disk_names_standard_output():
     _refused(occloc("bench", STATIC, "--frames", "2", stdout=open("/dev/full", "wb")), "standard output")
+
+
+@pytest.mark.parametrize("args", [("--help",), ("--version",), ("run", "--help"), ("calibrate", "rows", "--help"),
+                                  ("-h", "eval")])
+@pytest.mark.parametrize("unbuffered", ["1", ""])
+def test_help_and_version_on_a_full_disk_are_an_error(args, unbuffered, monkeypatch):
+    """argparse drops an OSError of its --help/--version text silently (exit 0, nothing
+    printed): the standard output wrapper every command runs under turns it into one line."""
+    monkeypatch.setenv("PYTHONUNBUFFERED", unbuffered)
+    line = _refused(occloc(*args, stdout=open("/dev/full", "wb")), "cannot write standard output")
+    assert "No space left" in line
+
+
+def test_help_on_a_writable_stdout_still_exits_0():
+    p = occloc("--version")
+    assert p.returncode == 0 and p.stdout.decode().startswith("occloc "), _err(p)
+    p = occloc("run", "--help")
+    assert p.returncode == 0 and "--max-pixels" in p.stdout.decode() and not p.stderr, _err(p)
 
 
 # ------------------------------------------------------------------ signals
