@@ -14,14 +14,17 @@ the displacement the receiver predicted for it and the true one. "motion+roll" s
 "motion" estimate's roll too (`MotionEstimate.apply` at each emitter), which the tracks do not
 use yet (they take one common shift).
 
-Printed per mode: the median error over the frames after the first (px), its 95th percentile
-and the frames whose error is over 2 px.
+Printed per mode, against the camera's turn ("turn") and against each emitter's whole
+displacement, its own motion included ("lights": what a track without a velocity would need):
+the median error over the frames after the first (px), its 95th percentile and the frames whose
+error is over 2 px.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 import numpy as np
@@ -32,8 +35,9 @@ BAD_PX = 2.0  # a frame's shift is counted as wrong beyond this error
 
 
 def true_motion(truth_path: str, focal_px: float, center_px: tuple[float, float]):
-    """Per frame after the first: (frame index, [(x, y) of the truth emitters in the previous frame
-    (visible in both)], their true displacement by the camera's turn (K, 2) px). The turn's
+    """Per frame after the first: (frame index, (K, 2) places of the truth emitters in the previous
+    frame (visible in both), their displacement by the camera's turn (K, 2) px, their whole
+    displacement (K, 2) px). The turn's
     displacement of a point p: (f d_yaw, f d_pitch) + d_roll * (-(p_y - c_y), p_x - c_x), the
     angle changes in radians from truth.jsonl's camera pose; each angle's sign (how the renderer
     counts it) is the one that agrees with the lights' own displacements over the recording."""
@@ -64,7 +68,7 @@ def true_motion(truth_path: str, focal_px: float, center_px: tuple[float, float]
         for i in range(3):
             corr[i] += np.sum(basis[i] * da[i] * d)
     signs = np.where(corr >= 0, 1.0, -1.0)
-    return [(f, p0, np.einsum("i,ikj->kj", da * signs, basis)) for f, p0, _, basis, da in frames]
+    return [(f, p0, np.einsum("i,ikj->kj", da * signs, basis), d) for f, p0, d, basis, da in frames]
 
 
 def _emitters(obj: dict) -> dict:
@@ -77,7 +81,7 @@ def _emitters(obj: dict) -> dict:
     return out
 
 
-def receiver_shifts(folder: str, shake: str, max_frames: int | None) -> dict[int, object]:
+def receiver_shifts(folder: str, shake: str, max_frames: int | None, motion: dict | None = None) -> dict[int, object]:
     """{frame index: displacement(points (K, 2)) -> (K, 2) px} of the receiver with
     `PairSettings(shake=shake)`: the common shift it gave its tracks and pairs (`Receiver.shift`,
     None as no shift); for "motion+roll", "motion" with the whole estimate at each point
@@ -101,7 +105,8 @@ def receiver_shifts(folder: str, shake: str, max_frames: int | None) -> dict[int
     whole = shake == "motion+roll"
     base = ReceiverSettings()
     pair = dataclasses.replace(base.pair, shake="motion" if whole else shake)
-    rx = Receiver(cam, led_map, settings=dataclasses.replace(base, pair=pair))
+    ms = dataclasses.replace(base.motion, **(motion or {}))
+    rx = Receiver(cam, led_map, settings=dataclasses.replace(base, pair=pair, motion=ms))
     if rx.pairer is None:
         raise InputError(f"{folder}: the map has no S2-PSK lights (no camera shift is estimated)")
     out = {}
@@ -118,6 +123,27 @@ def receiver_shifts(folder: str, shake: str, max_frames: int | None) -> dict[int
     return out
 
 
+def _motion_fields(items: list[str]) -> dict:
+    """{field: value} of NAME=VALUE items, each a MotionSettings field, its value of the field's type."""
+    from receiver.vision.camera_motion import MotionSettings
+
+    base = MotionSettings()
+    out = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        if not hasattr(base, name) or not text:
+            raise InputError(f"--motion {item!r}: expected NAME=VALUE with NAME a MotionSettings field")
+        kind = type(getattr(base, name))
+        try:
+            value = kind(text)
+        except ValueError:
+            raise InputError(f"--motion {item!r}: {text!r} is not a {kind.__name__}") from None
+        if not math.isfinite(value):
+            raise InputError(f"--motion {item!r}: not a finite number")
+        out[name] = value
+    return out
+
+
 def score(err: np.ndarray) -> dict:
     return {"frames": int(len(err)), "median_px": float(np.median(err)) if len(err) else None,
             "p95_px": float(np.percentile(err, 95)) if len(err) else None,
@@ -130,9 +156,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shake", nargs="+", default=["pairs", "motion"],
                         help="PairSettings.shake values to compare (default: pairs motion)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    parser.add_argument("--motion", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="MotionSettings fields for \"motion\" (receiver.vision.camera_motion)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     try:
+        motion = _motion_fields(args.motion)
         from receiver.io.camera import load_camera
         from receiver.io.sources import find_recording_files
 
@@ -145,20 +174,23 @@ def main(argv: list[str] | None = None) -> int:
         truth = true_motion(files["truth"], 0.5 * (cam.fx + cam.fy), (cam.cx, cam.cy))
         result = {}
         for shake in args.shake:
-            got = receiver_shifts(args.recording, shake, args.max_frames)
+            got = receiver_shifts(args.recording, shake, args.max_frames, motion)
             # per frame, the median over the lights of the error of their predicted displacement
             err = np.array([np.median(np.hypot(*(got[f](p0) - p0 - d).T))
-                            for f, p0, d in truth if f in got and len(p0)])
-            result[shake] = score(err)
+                            for f, p0, d, _ in truth if f in got and len(p0)])
+            whole = np.array([np.median(np.hypot(*(got[f](p0) - p0 - d).T))
+                              for f, p0, _, d in truth if f in got and len(p0)])
+            result[shake] = {"turn": score(err), "lights": score(whole)}
     except InputError as e:
         print(f"shift_truth: {e}", file=sys.stderr)
         return 2
     if args.json:
         print(json.dumps(result))
     else:
-        for shake, r in result.items():
-            print(f"{shake:>9}: {r['frames']} frames, median {r['median_px']:.2f} px, p95 {r['p95_px']:.2f} px, "
-                  f"{r['over_2px']} frames over {BAD_PX:g} px")
+        for shake, both in result.items():
+            for what, r in both.items():
+                print(f"{shake:>11} vs {what:>6}: {r['frames']} frames, median {r['median_px']:.2f} px, "
+                      f"p95 {r['p95_px']:.2f} px, {r['over_2px']} frames over {BAD_PX:g} px")
     return 0
 
 

@@ -67,6 +67,9 @@ class MotionSettings:
         ambiguous by its baseline).
     process_px [1.5 px]: 1-sigma change of the per-frame shift from one frame to the next (the
         jitter of about 0.05 degrees plus the swings' curvature at a 1500 px focal length).
+    prior_votes [0.5 blobs]: what the motion model's prediction weighs in the vote, as this many
+        blobs at the predicted shift spread by its uncertainty (settles ties, never outvotes a
+        blob).
     measure_floor_px [0.3 px]: the smallest 1-sigma error of a measured shift (the blobs' centroid
         noise, shared by every blob of a compressed frame).
     max_roll_deg [0.5 degrees]: a fitted frame-to-frame roll beyond this is not camera motion (a
@@ -81,6 +84,7 @@ class MotionSettings:
     min_matches: int = 3
     process_px: float = 1.5
     measure_floor_px: float = 0.3
+    prior_votes: float = 0.5
     max_roll_deg: float = 0.5
 
 
@@ -157,14 +161,15 @@ class CameraMotion:
 
     def step(self, xy: np.ndarray, area_px: np.ndarray | None = None) -> MotionEstimate:
         """This frame's estimate from its (N, 2) blob centroids (px) and, when given, their (N,)
-        areas (px^2; only blobs of like size are matched)."""
+        areas (px^2; only blobs of like size are matched; NaN: a saturated blob, whose area
+        follows its brightness and bloom, not its size, matched whatever its area)."""
         s = self.settings
         xy = np.asarray(xy, float).reshape(-1, 2)
         area = (np.ones(len(xy)) if area_px is None else np.asarray(area_px, float).reshape(-1))
         kf = self.kf
         kf.predict()
         pred = (float(kf.x[0, 0]), float(kf.x[1, 0]))
-        fit = self._register(xy, area, pred) if self._history else None
+        fit = self._register(xy, area, pred, self._history) if self._history else None
         roll, n = 0.0, 0
         if fit is not None:
             (tx, ty), roll, n, rms = fit
@@ -183,7 +188,7 @@ class CameraMotion:
 
     # -- registration ----------------------------------------------------------------------
 
-    def _register(self, xy: np.ndarray, area: np.ndarray, pred: tuple[float, float]):
+    def _register(self, xy: np.ndarray, area: np.ndarray, pred: tuple[float, float], history: list):
         """((tx, ty) at the principal point, roll rad, matches, residual rms px) of this
         frame's blobs on the history, or None when fewer than `min_matches` blobs match."""
         s = self.settings
@@ -193,11 +198,12 @@ class CameraMotion:
         # every displacement within the radius, to each earlier frame (blob index kept)
         cand_d, cand_src, cand_j = [], [], []
         slack = s.area_slack_px2
-        for old, old_area in self._history:
+        for old, old_area in history:
             d = xy[:, None, :] - old[None, :, :]
-            big = np.maximum(area[:, None], old_area[None, :]) + slack
-            small = np.minimum(area[:, None], old_area[None, :]) + slack
-            ok = (np.abs(d[..., 0]) <= r) & (np.abs(d[..., 1]) <= r) & (big <= s.max_area_ratio * small)
+            big = np.fmax(area[:, None], old_area[None, :]) + slack
+            small = np.fmin(area[:, None], old_area[None, :]) + slack
+            like = (big <= s.max_area_ratio * small) | np.isnan(area)[:, None] | np.isnan(old_area)[None, :]
+            ok = (np.abs(d[..., 0]) <= r) & (np.abs(d[..., 1]) <= r) & like
             j, i = np.nonzero(ok)
             cand_d.append(d[j, i])
             cand_src.append(old[i])
@@ -250,20 +256,25 @@ class CameraMotion:
 
     def _mode(self, d: np.ndarray, jj: np.ndarray, pred: tuple[float, float]) -> tuple[float, float]:
         """The displacement most blobs agree on: a 2-D histogram of `d` (each blob of this frame
-        counted once per bin), smoothed over `match_px`, plus half a vote at the prediction."""
+        one vote, shared by the bins of its displacements), smoothed over `match_px`, plus
+        `prior_votes` at the prediction."""
         s = self.settings
         step = 0.5
         nb = int(math.ceil(s.radius_px / step))
         ix = np.clip(np.floor(d[:, 0] / step + 0.5).astype(np.int64) + nb, 0, 2 * nb)
         iy = np.clip(np.floor(d[:, 1] / step + 0.5).astype(np.int64) + nb, 0, 2 * nb)
         side = 2 * nb + 1
-        cell = np.unique(jj * side * side + iy * side + ix) % (side * side)
-        h = np.bincount(cell, minlength=side * side).reshape(side, side).astype(float)
+        key = np.unique(jj * side * side + iy * side + ix)
+        blob, cell = key // (side * side), key % (side * side)
+        # a blob's one vote shared among the places it may have come from: a lone light votes
+        # whole, a far head in a row of like heads (any of which it might be) little
+        share = 1.0 / np.bincount(blob)[blob]
+        h = np.bincount(cell, weights=share, minlength=side * side).reshape(side, side)
         w = max(1, int(round(s.match_px / step)))
         sm = cv2.boxFilter(h, -1, (2 * w + 1, 2 * w + 1), normalize=False, borderType=cv2.BORDER_CONSTANT)
         g = (np.arange(side) - nb) * step
         sig = max(math.sqrt(max(self.kf.P[0, 0], self.kf.P[1, 1])), s.match_px)
-        sm += 0.5 * np.exp(-0.5 * (((g[None, :] - pred[0]) ** 2 + (g[:, None] - pred[1]) ** 2) / sig ** 2))
+        sm += s.prior_votes * np.exp(-0.5 * (((g[None, :] - pred[0]) ** 2 + (g[:, None] - pred[1]) ** 2) / sig ** 2))
         iy0, ix0 = np.unravel_index(int(np.argmax(sm)), sm.shape)
         gx, gy = g[ix0], g[iy0]
         near = d[np.hypot(d[:, 0] - gx, d[:, 1] - gy) <= s.match_px]

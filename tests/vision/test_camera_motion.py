@@ -134,3 +134,45 @@ def test_no_blobs_at_all():
         est = cm.step(np.zeros((0, 2)))
         assert not est.measured
         assert all(math.isfinite(v) for v in (est.dx_px, est.dy_px, est.sigma_px, est.var_sum_px2))
+
+
+def test_receiver_hook_follows_the_recorded_shake(tmp_path):
+    """`PairSettings.shake` "motion" in the receiver on the bundled vehicle recording: the shift
+    it gives the tracks follows the camera's true turn (truth.jsonl) over the first 30 frames."""
+    from pathlib import Path
+
+    from receiver.io.camera import load_camera
+    from tools.shift_truth import receiver_shifts, true_motion
+
+    rec = Path(__file__).resolve().parents[2] / "recordings" / "vehicle"
+    cam = load_camera(str(rec / "camera.yaml"))
+    truth = true_motion(str(rec / "truth.jsonl"), 0.5 * (cam.fx + cam.fy), (cam.cx, cam.cy))
+    got = receiver_shifts(str(rec), "motion", 30)
+    err = [np.median(np.hypot(*(got[f](p0) - p0 - d).T)) for f, p0, d, _ in truth if f in got and len(p0)]
+    assert len(err) == 29
+    # the scene pitches by up to 1.1 px per frame: a shift of the wrong sign is 2 px off
+    assert np.median(err) < 0.6
+    assert max(err) < 2.0
+
+
+def test_true_motion_signs_from_the_lights(tmp_path):
+    """The truth tool's camera turn: a renderer that counts yaw the other way round still gives
+    the lights' displacement (the sign is taken from the lights)."""
+    import json
+
+    from tools.shift_truth import true_motion
+
+    f = 1000.0
+    rows, pts = [], np.array([[300.0, 200.0], [900.0, 250.0], [640.0, 400.0]])
+    yaw = [0.0, 0.1, 0.25, 0.2]
+    for k, y in enumerate(yaw):
+        xy = pts + np.array([f * math.radians(y), 0.0])  # + yaw moves the image right here
+        leds = [{"id": i, "emitters": [{"cx": float(x), "cy": float(v), "visible": True}]} for i, (x, v) in enumerate(xy)]
+        rows.append({"frame": k, "camera": {"yaw": y, "pitch": 0.0, "roll": 0.0}, "leds": leds})
+    path = tmp_path / "truth.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    out = true_motion(str(path), f, CENTER)
+    assert [o[0] for o in out] == [1, 2, 3]
+    for (_, p0, d, whole), dy in zip(out, np.diff(yaw)):
+        assert np.allclose(d, whole)
+        assert np.allclose(d, [[f * math.radians(dy), 0.0]] * 3)
