@@ -113,12 +113,6 @@ def pair_owners(pairs) -> dict[int, object]:
     return owner
 
 
-def _motion_areas(blobs, white_gray: float) -> np.ndarray:
-    """The blobs' areas (px^2) for the camera-motion estimate, NaN where a blob's peak is at the
-    sensor's white level (a saturated blob's area is its brightness and bloom, not its size)."""
-    return np.array([b.area_px for b in blobs], float)
-
-
 def pair_observation(p, white_gray: float = math.inf) -> PairObservation:
     """The record of one live pair in this frame (see `PairObservation`); `white_gray`: the gray
     level at which a blob's peak is clipped (DetectSettings.saturated_gray)."""
@@ -418,7 +412,7 @@ class Receiver:
         shake = self.settings.pair.shake
         if self.motion is not None:
             xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
-            est = self.motion_estimate = self.motion.step(xy, _motion_areas(blobs, self.settings.detect.saturated_gray))
+            est = self.motion_estimate = self.motion.step(xy, np.array([b.area_px for b in blobs], float))
             if self.motion.frames < 2:
                 return None
             # one shift for every track: the estimate's at the blobs' mean place (the roll's

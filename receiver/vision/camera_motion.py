@@ -161,8 +161,8 @@ class CameraMotion:
 
     def step(self, xy: np.ndarray, area_px: np.ndarray | None = None) -> MotionEstimate:
         """This frame's estimate from its (N, 2) blob centroids (px) and, when given, their (N,)
-        areas (px^2; only blobs of like size are matched; NaN: a saturated blob, whose area
-        follows its brightness and bloom, not its size, matched whatever its area)."""
+        areas (px^2; only blobs of like size are matched; NaN: a blob matched whatever its
+        area)."""
         s = self.settings
         xy = np.asarray(xy, float).reshape(-1, 2)
         area = (np.ones(len(xy)) if area_px is None else np.asarray(area_px, float).reshape(-1))
