@@ -37,6 +37,7 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
                                       ToneSettings)
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.vision.camera_motion import CameraMotion, MotionEstimate, MotionSettings
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import pair_dx, vertical_shift
@@ -79,7 +80,8 @@ class ReceiverSettings:
     hull of its blobs in the last this many frames (receiver.vision.envelope; the rows hidden
     by OFF chips in one frame are lit in another, so the caps, area eta and centroid, are
     recovered); `s2psk_inverted` [False]: PROTOCOL.md's inverted polarity (thesis polarity by
-    default). `Receiver.settings` holds the resolved record: no None left where a default was
+    default); `motion`: the camera-motion estimate of `PairSettings.shake` "motion"
+    (receiver.vision.camera_motion). `Receiver.settings` holds the resolved record: no None left where a default was
     derived.
     """
 
@@ -93,6 +95,7 @@ class ReceiverSettings:
     policy: PolicySettings = field(default_factory=PolicySettings)
     envelope_frames: int | None = None
     s2psk_inverted: bool = False
+    motion: MotionSettings = field(default_factory=MotionSettings)
 
 
 def pair_owners(pairs) -> dict[int, object]:
@@ -252,6 +255,10 @@ class Receiver:
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
         self.shift = None  # this frame's common image shift, px (S2-PSK maps)
+        # the camera-motion estimate from all blobs (`shake` "motion"), and its latest frame's
+        self.motion = (CameraMotion((camera.cx, camera.cy), s.motion)
+                       if plan.s2psk and s.pair.shake == "motion" else None)
+        self.motion_estimate: MotionEstimate | None = None
         self.frames = 0
         self.decoded_ids: set[int] = set()
         self.last_counts: dict[str, int] = {}
@@ -400,8 +407,17 @@ class Receiver:
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
         """The frame's common image shift (dx, dy) px from the camera's shake, or None (`shake`
         "pitch", or not measurable): `PairSettings.shake` "vertical" or "pairs"
-        (receiver.vision.motion)."""
+        (receiver.vision.motion), or "motion" (receiver.vision.camera_motion, from every blob;
+        none in the first frame)."""
         shake = self.settings.pair.shake
+        if self.motion is not None:
+            xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
+            est = self.motion_estimate = self.motion.step(xy, np.array([b.area_px for b in blobs], float))
+            if self.motion.frames < 2:
+                return None
+            # one shift for every track: the estimate's at the blobs' mean place (the roll's
+            # part cancels over the blobs)
+            return est.at(*xy.mean(axis=0)) if len(xy) else (est.dx_px, est.dy_px)
         if self.pairer is None or shake not in ("vertical", "pairs"):
             return None
         # Road vibration shifts every far light alike, in pitch and yaw, by up to several px per
