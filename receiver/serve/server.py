@@ -287,7 +287,7 @@ class LightingServer:
         another server served meanwhile is taken over, one expired there is forgotten here."""
         names = list(dict.fromkeys(item[1].device for item in pending))
         try:
-            devs, seqs = self.shared.load(names)
+            devs, seqs = self.shared.load(names, self.devices)
         except Exception:   # noqa: BLE001 -- Redis away: serve from the local state, counted
             self.counters["state_errors"] += 1
             return names
@@ -487,11 +487,8 @@ class LightingServer:
             ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
             self.on_fix(req.device, req.t, position, ids, req.seq, req.device in self.keys)
         if self.shared is not None:
-            if isinstance(position, bytes):
-                position = json.loads(position)
             ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
-            self.shared.publish(req.device, {"device": req.device, "t": time.time(), "t_device": req.t,
-                                             "position": position, "ids": list(ids)})
+            self.shared.publish_fix(req.device, time.time(), req.t, position, ids)
 
     def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
         """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
@@ -553,6 +550,8 @@ class LightingServer:
     def _drop(self, name, shared: bool = True, tell: bool = True) -> None:
         """Forget a device here (`tell`: its observers too) and, with `shared`, in the shared state."""
         dev = self.devices.pop(name, None)
+        if dev is not None and self.shared is not None:
+            self.shared.forget(name)
         if dev is not None and tell and self.on_forget is not None:
             self.on_forget(name)
         if dev is not None and shared and self.shared is not None:
