@@ -302,7 +302,7 @@ def main(argv=None) -> int:
                    help="every load figure, each against servers of its own (receiver.serve.loadsuite; "
                         "with --runs N, alternating, then each figure's medians)")
     p.add_argument("--figures", metavar="A,B", help="with --suite: only these figures "
-                   "(rate_10k, p99_5k, devices_10k, scale, flood)")
+                   "(rate_10k, p99_5k, devices_10k, scale, flood, v2)")
     a = p.parse_args(argv)
     if a.suite:
         from receiver.serve.loadsuite import suite_main

@@ -18,7 +18,9 @@ servers; only position replies count as served (`receiver.serve.loadgen.run_load
                the same offer. The generator and redis-server run on the same cores;
   flood        one honest device at 30 frames/s while four other addresses (127.0.0.2-5) send
                50,000 valid 64-LED datagrams at 10,000/s (from a process of their own), to a
-               server with its default limits: the honest device's reply latency.
+               server with its default limits: the honest device's reply latency;
+  v2           the server's CPU time per v2 datagram (outlines and edge points) of the walk
+               recording, as `occloc run recordings/indoor-walk --server` sends them.
 
 Each line carries the machine's CPU count and 1-minute load average before and after: a load
 above the CPU count means other processes competed for the cores, and rates and latencies then
@@ -36,8 +38,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
-from receiver.serve.loadgen import (SERVER_ARGS, four_led_datagrams, median_report, one_run, open_socket,
+import numpy as np
+
+from receiver.serve.loadgen import (DEFAULT_MAP, ROOT, SERVER_ARGS, four_led_datagrams, median_report, one_run, open_socket,
                                     process_cpu_s, run_load, start_server, stop_server, warm_up)
 
 # devices_10k: devices, datagrams/s, s, devices per source address (the server's default quota),
@@ -59,7 +64,7 @@ FLOOD_TOTAL = 50000
 FLOOD_RATE = 10000.0
 FLOOD_SOURCES = 4
 FLOOD_LEDS = 64
-FIGURES = ("rate_10k", "p99_5k", "devices_10k", "scale", "flood")
+FIGURES = ("rate_10k", "p99_5k", "devices_10k", "scale", "flood", "v2")
 
 
 def _machine(report: dict, load0: float) -> dict:
@@ -262,6 +267,48 @@ def fig_flood(led_map, total: int = FLOOD_TOTAL, rate: float = FLOOD_RATE) -> di
     return _machine(out, load0)
 
 
+def fig_v2(recording=None, passes: int = 5) -> dict:
+    """Server CPU per v2 datagram (outlines and edge points): the datagrams `occloc run
+    RECORDING --server` sends (the bundled walk by default; captured by a server in this
+    process), handled in order by a fresh warmed-up server, `passes` times: the median over
+    passes of the CPU ms per datagram, whole and the parse alone (`wire_v2.parse_any`)."""
+    from receiver.io.ledmap import load_map
+    from receiver.serve.server import BackgroundServer, LightingServer
+    from receiver.serve.wire_v2 import parse_any
+
+    load0 = os.getloadavg()[0]
+    rec = Path(recording) if recording is not None else DEFAULT_MAP.parent
+    led_map = load_map(str(rec / "map.json"))
+    captured: list[bytes] = []
+
+    class Capture(LightingServer):
+        def handle_datagrams(self, datagrams):
+            captured.extend(data for data, _ in datagrams)
+            return super().handle_datagrams(datagrams)
+
+    with BackgroundServer(Capture(led_map)) as bg, tempfile.TemporaryDirectory() as tmp:
+        run = subprocess.run([sys.executable, "-m", "receiver.cli", "run", str(rec), "--server", bg.url,
+                              "--server-timeout", "30", "--out", str(Path(tmp) / "run.jsonl")],
+                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    if run.returncode != 0 or not captured:
+        raise RuntimeError(f"occloc run --server failed: {run.stderr.strip().splitlines()[-1:]}")
+    whole, parse = [], []
+    for _ in range(passes):
+        srv = LightingServer(led_map, source_rate=0)
+        srv.warm_up()
+        t0 = time.thread_time()
+        for data in captured:
+            srv.handle_datagram(data, ("127.0.0.1", 1))
+        whole.append((time.thread_time() - t0) * 1e3 / len(captured))
+        t0 = time.thread_time()
+        for data in captured:
+            parse_any(data)
+        parse.append((time.thread_time() - t0) * 1e3 / len(captured))
+    return _machine({"recording": rec.name, "datagrams": len(captured), "bytes_max": max(map(len, captured)),
+                     "positions": srv.counters["positions"], "cpu_ms_per_datagram": round(float(np.median(whole)), 3),
+                     "parse_ms_per_datagram": round(float(np.median(parse)), 3), "passes": passes}, load0)
+
+
 def _flat(report: dict, prefix: str = "") -> dict:
     out = {}
     for k, v in report.items():
@@ -277,7 +324,7 @@ def run_suite(led_map, runs: int = 1, figures=FIGURES, emit=print) -> dict:
     runs, each figure's medians; returns {figure: [reports]}."""
     makers = {"rate_10k": lambda: fig_rate(led_map, 10000.0), "p99_5k": lambda: fig_rate(led_map, 5000.0),
               "devices_10k": lambda: fig_devices(led_map), "scale": lambda: fig_scale(led_map),
-              "flood": lambda: fig_flood(led_map)}
+              "flood": lambda: fig_flood(led_map), "v2": lambda: fig_v2()}
     out: dict = {f: [] for f in figures}
     for r in range(runs):
         for f in figures:
