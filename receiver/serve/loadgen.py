@@ -358,51 +358,22 @@ def one_run(address, datagrams, rate: float, warmup=()) -> dict:
 
 def flood_main(a) -> int:
     """An honest device's reply latency while other sources flood the server with valid
-    datagrams: the flood's own report and the honest device's, as one JSON line."""
+    datagrams (`receiver.serve.loadsuite.fig_flood`): the flood's own counts and the honest
+    device's report, as one JSON line."""
     from receiver.io.ledmap import load_map
     from receiver.serve.client import parse_udp_url
+    from receiver.serve.loadsuite import fig_flood
 
-    led_map = load_map(a.map)
-    if a.url:
-        proc, address = None, parse_udp_url(a.url)
-    else:
-        proc, address = start_server(())        # the default per-source limits
-    try:
-        per_source = a.flood_total // a.flood_sources
-        floods = [four_led_datagrams(led_map, per_source, 64, seed=1 + k, n_leds=a.flood_leds,
-                                     prefix=f"flood{k}-") for k in range(a.flood_sources)]
-        n_honest = max(1, int(a.rate * a.flood_total / a.flood_rate))
-        honest = four_led_datagrams(led_map, n_honest + a.devices, a.devices, prefix="honest-")
-        honest_sock = open_socket(address)
-        warm_up(address, honest[:a.devices], honest_sock)
-        results: dict = {}
-        cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        threads = [threading.Thread(target=lambda k=k: results.__setitem__(
-            k, run_load(address, floods[k], a.flood_rate / a.flood_sources, source=f"127.0.0.{2 + k}")))
-            for k in range(a.flood_sources)]
-        for t in threads:
-            t.start()
-        results["honest"] = run_load(address, honest[a.devices:], a.rate, sock=honest_sock)
-        for t in threads:
-            t.join()
-        cpu1 = None if proc is None else process_cpu_s(proc.pid)
-        flood = [results[k] for k in range(a.flood_sources)]
-        report = {"honest": results["honest"],
-                  "flood": {"sent": sum(r["sent"] for r in flood), "position_replies": sum(r["replies"] for r in flood),
-                            "error_replies": sum(sum(r["errors"].values()) for r in flood),
-                            "send_s": max(r["send_s"] for r in flood)},
-                  "server_cpu_s": None if cpu0 is None or cpu1 is None else round(cpu1 - cpu0, 2),
-                  "loadavg_after": round(os.getloadavg()[0], 2), "cpus": os.cpu_count()}
-        print(json.dumps(report))
-        return 0
-    finally:
-        if proc is not None:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+    if min(a.rate, a.flood_rate, a.flood_total, a.flood_sources, a.flood_leds, a.devices) <= 0:
+        print("loadgen: --rate, --devices and the --flood-* values must be positive", file=sys.stderr)
+        return 2
+    if a.flood_leds > 64 or a.flood_sources > 250:
+        print("loadgen: --flood-leds must be at most 64 and --flood-sources at most 250", file=sys.stderr)
+        return 2
+    report = fig_flood(load_map(a.map), a.flood_total, a.flood_rate, sources=a.flood_sources, leds=a.flood_leds,
+                       honest_rate=a.rate, honest_devices=a.devices, address=a.url and parse_udp_url(a.url))
+    print(json.dumps(report))
+    return 0
 
 
 def median_report(reports: list[dict]) -> dict:

@@ -237,31 +237,39 @@ def _flood_sender(address, floods, rate: float, out) -> None:
     out.close()
 
 
-def fig_flood(led_map, total: int = FLOOD_TOTAL, rate: float = FLOOD_RATE) -> dict:
-    """An honest device's reply latency while FLOOD_SOURCES other addresses send `total` valid
-    FLOOD_LEDS-LED datagrams at `rate`/s, to a server with its default limits."""
+def fig_flood(led_map, total: int = FLOOD_TOTAL, rate: float = FLOOD_RATE, *, sources: int = FLOOD_SOURCES,
+              leds: int = FLOOD_LEDS, honest_rate: float = HONEST_RATE, honest_devices: int = 1,
+              address=None) -> dict:
+    """An honest device's reply latency while `sources` other addresses send `total` valid
+    `leds`-LED datagrams at `rate`/s, to a server with its default limits (started here unless
+    `address` is given): `honest_devices` devices at `honest_rate` datagrams/s in all."""
     load0 = os.getloadavg()[0]
-    per_source = total // FLOOD_SOURCES
-    floods = [four_led_datagrams(led_map, per_source, 64, seed=1 + k, n_leds=FLOOD_LEDS, prefix=f"flood{k}-")
-              for k in range(FLOOD_SOURCES)]
-    n_honest = max(1, int(HONEST_RATE * total / rate))
-    honest = four_led_datagrams(led_map, n_honest + 1, 1, prefix="honest-")
-    proc, address = start_server(())
+    per_source = total // sources
+    floods = [four_led_datagrams(led_map, per_source, 64, seed=1 + k, n_leds=leds, prefix=f"flood{k}-")
+              for k in range(sources)]
+    n_honest = max(1, int(honest_rate * total / rate))
+    honest = four_led_datagrams(led_map, n_honest + honest_devices, honest_devices, prefix="honest-")
+    proc = None
+    if address is None:
+        proc, address = start_server(())
+    cpu0 = cpu1 = None
+    summary = ""
     try:
         sock = open_socket(address)
-        warm_up(address, honest[:1], sock)
-        cpu0 = process_cpu_s(proc.pid)
+        warm_up(address, honest[:honest_devices], sock)
+        cpu0 = None if proc is None else process_cpu_s(proc.pid)
         ctx = multiprocessing.get_context("fork")
         recv_end, send_end = ctx.Pipe(duplex=False)
         child = ctx.Process(target=_flood_sender, args=(address, floods, rate, send_end), daemon=True)
         child.start()
         send_end.close()
-        report = run_load(address, honest[1:], HONEST_RATE, sock=sock)
+        report = run_load(address, honest[honest_devices:], honest_rate, sock=sock)
         flood = recv_end.recv() if recv_end.poll(120) else None
         child.join(30)
-        cpu1 = process_cpu_s(proc.pid)
+        cpu1 = None if proc is None else process_cpu_s(proc.pid)
     finally:
-        summary = stop_server(proc)
+        if proc is not None:
+            summary = stop_server(proc)
     out = {"honest": report, "flood": flood, "server_summary": summary,
            "server_cpu_s": None if cpu0 is None or cpu1 is None else round(cpu1 - cpu0, 2)}
     return _machine(out, load0)
