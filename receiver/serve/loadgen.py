@@ -32,14 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
+from receiver.serve.server import DEFAULT_MAX_DEVICES_PER_SOURCE
 from receiver.serve.wire import encode, make_request
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_MAP = ROOT / "recordings" / "indoor-walk" / "map.json"
 SIGMA_UV = 3e-4
 SIGMA_M = 0.002
-# Longest wait for a warm-up datagram's reply (s).
+# Longest wait for a warm-up datagram's reply (s), and the warm-up's datagrams awaiting a reply
+# at once (the server's batch: receiver.serve.server.MAX_BATCH).
 WARMUP_WAIT_S = 5.0
+WARMUP_WINDOW = 16
 
 
 def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0, n_leds: int = 4,
@@ -312,6 +315,9 @@ def main(argv=None) -> int:
     if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0 or a.runs <= 0:
         print("loadgen: --rate, --seconds, --devices and --runs must be positive", file=sys.stderr)
         return 2
+    if a.devices > 1000000 or a.rate * a.seconds > 1e7:
+        print("loadgen: at most 1,000,000 --devices and 10,000,000 datagrams (--rate x --seconds)", file=sys.stderr)
+        return 2
     if a.url and a.runs > 1:
         print("loadgen: --runs needs a server of its own (no URL): the devices' seqs restart", file=sys.stderr)
         return 2
@@ -326,20 +332,33 @@ def main(argv=None) -> int:
     return 0
 
 
+def source_socks(address: tuple[str, int], n: int) -> list[socket.socket]:
+    """n sockets connected to `address`, each bound to a source address of its own (127.0.1.1,
+    127.0.1.2, ... on the loopback network): a server holds at most --max-devices-per-source
+    devices of one address."""
+    if not 0 < n <= 250 * 250:
+        raise ValueError(f"source addresses: 1..62500, not {n}")
+    return [open_socket(address, f"127.0.{1 + k // 250}.{1 + k % 250}") for k in range(n)]
+
+
 def one_run(address, datagrams, rate: float, warmup=()) -> dict:
     """`run_load` against `address`, or a server started for this run (then with its CPU time
     per reply); with the machine's 1-minute load average before and after (`os.getloadavg`) and
-    its CPU count, which say whether other work competed for the cores."""
+    its CPU count, which say whether other work competed for the cores. More devices than the
+    server's default per-address quota come from several source addresses (`source_socks`);
+    the warm-up keeps WARMUP_WINDOW datagrams awaiting their reply."""
     proc = None
     if not address:
         proc, address = start_server()
     try:
-        sock = open_socket(address)
-        warmed = warm_up(address, warmup, sock)
+        devices = len({dev for dev, _, _ in (warmup or datagrams)})
+        per_source = DEFAULT_MAX_DEVICES_PER_SOURCE
+        socks = source_socks(address, -(-devices // per_source)) if devices > per_source else [open_socket(address)]
+        warmed = warm_up(address, warmup, socks=socks, window=WARMUP_WINDOW)
         load0 = os.getloadavg()[0]
         cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        report = run_load(address, datagrams, rate, sock=sock)
-        report.update(warmup=len(warmup), warmup_replies=warmed)
+        report = run_load(address, datagrams, rate, socks=socks)
+        report.update(warmup=len(warmup), warmup_replies=warmed, sources=len(socks))
         cpu1 = None if proc is None else process_cpu_s(proc.pid)
         if cpu0 is not None and cpu1 is not None and report["replies"]:
             report["server_cpu_ms_per_reply"] = round((cpu1 - cpu0) * 1e3 / report["replies"], 3)
@@ -348,12 +367,7 @@ def one_run(address, datagrams, rate: float, warmup=()) -> dict:
         return report
     finally:
         if proc is not None:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:     # still working through a backlog
-                proc.kill()
-                proc.wait(10)
+            stop_server(proc)
 
 
 def flood_main(a) -> int:

@@ -42,16 +42,17 @@ from pathlib import Path
 
 import numpy as np
 
-from receiver.serve.loadgen import (DEFAULT_MAP, ROOT, SERVER_ARGS, four_led_datagrams, median_report, one_run, open_socket,
-                                    process_cpu_s, run_load, start_server, stop_server, warm_up)
+from receiver.serve.loadgen import (DEFAULT_MAP, ROOT, SERVER_ARGS, WARMUP_WINDOW, four_led_datagrams, median_report,
+                                    one_run, open_socket, process_cpu_s, run_load, source_socks, start_server,
+                                    stop_server, warm_up)
+from receiver.serve.server import DEFAULT_MAX_DEVICES_PER_SOURCE
 
 # devices_10k: devices, datagrams/s, s, devices per source address (the server's default quota),
 # reply window of the warm-up, the server's --forget-s.
 DEVICES = 10000
 DEVICES_RATE = 10000.0
 DEVICES_S = 3.0
-DEVICES_PER_SOURCE = 64
-WARMUP_WINDOW = 16
+DEVICES_PER_SOURCE = DEFAULT_MAX_DEVICES_PER_SOURCE
 DEVICES_FORGET_S = 60.0
 # scale: offered datagrams/s (above what one process serves), s, devices, source ports.
 SCALE_RATE = 24000.0
@@ -78,12 +79,6 @@ def fig_rate(led_map, rate: float, seconds: float = 3.0, devices: int = 50) -> d
     return one_run(None, dg[devices:], rate, dg[:devices])
 
 
-def _source_socks(address, n: int) -> list[socket.socket]:
-    """n sockets connected to `address`, each bound to a source address of its own (127.0.1.1,
-    127.0.1.2, ... on the loopback network)."""
-    return [open_socket(address, f"127.0.{1 + k // 250}.{1 + k % 250}") for k in range(n)]
-
-
 def fig_devices(led_map, devices: int = DEVICES, rate: float = DEVICES_RATE, seconds: float = DEVICES_S) -> dict:
     """`devices` devices held at once: their first datagrams (windowed warm-up), then `rate`/s
     for `seconds`; the server's count of devices held at the end."""
@@ -92,7 +87,7 @@ def fig_devices(led_map, devices: int = DEVICES, rate: float = DEVICES_RATE, sec
     proc, address = start_server(("--forget-s", f"{DEVICES_FORGET_S:g}"))
     summary = ""
     try:
-        socks = _source_socks(address, -(-devices // DEVICES_PER_SOURCE))
+        socks = source_socks(address, -(-devices // DEVICES_PER_SOURCE))
         t0 = time.monotonic()
         warmed = warm_up(address, dg[:devices], socks=socks, window=WARMUP_WINDOW)
         warm_s = time.monotonic() - t0

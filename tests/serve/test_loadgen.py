@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 
 from receiver.io.ledmap import load_map
-from receiver.serve.loadgen import four_led_datagrams, read_reply, run_load, start_server, stop_server, warm_up
-from receiver.serve.loadsuite import _source_socks
+from receiver.serve.loadgen import (four_led_datagrams, read_reply, run_load, source_socks, start_server, stop_server,
+                                    warm_up)
 from receiver.serve.server import LightingServer
 from receiver.serve.wire import ProtocolError, encode
 from tests.serve.test_server import WALK, FakeClock
@@ -45,7 +45,7 @@ def test_many_devices_from_many_sources_within_the_default_quota():
     dg = four_led_datagrams(walk_map, 2 * devices, devices)
     proc, address = start_server(("--forget-s", "600"))
     try:
-        socks = _source_socks(address, 5)
+        socks = source_socks(address, 5)
         assert warm_up(address, dg[:devices], socks=socks, window=16, wait_s=60.0) == devices
         report = run_load(address, dg[devices:], 300.0, drain_s=60.0, socks=socks)
     finally:
