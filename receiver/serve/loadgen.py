@@ -21,6 +21,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import selectors
 import socket
 import subprocess
 import sys
@@ -30,14 +32,17 @@ from pathlib import Path
 
 import numpy as np
 
+from receiver.serve.server import DEFAULT_MAX_DEVICES_PER_SOURCE
 from receiver.serve.wire import encode, make_request
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_MAP = ROOT / "recordings" / "indoor-walk" / "map.json"
 SIGMA_UV = 3e-4
 SIGMA_M = 0.002
-# Longest wait for a warm-up datagram's reply (s).
+# Longest wait for a warm-up datagram's reply (s), and the warm-up's datagrams awaiting a reply
+# at once (the server's batch: receiver.serve.server.MAX_BATCH).
 WARMUP_WAIT_S = 5.0
+WARMUP_WINDOW = 16
 
 
 def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0, n_leds: int = 4,
@@ -49,14 +54,18 @@ def four_led_datagrams(led_map, n: int, devices: int, seed: int = 0, n_leds: int
     leds = list(led_map.leds.values())
     xyz = np.array([led.xyz for led in leds])
     R = ypr_to_rotation(10.0, 88.0, 2.0)
+    # the map's distinct x and y values (in set order: ties in distance go as a sort of the set would)
+    grid = [np.array(list(set(xyz[:, a]))) for a in (0, 1)]
+    mean_xy = xyz[:, 0].mean(), xyz[:, 1].mean()
     out = []
     for k in range(n):
         dev, seq = k % devices, k // devices
-        C = np.array([xyz[:, 0].mean() + 0.3 * np.sin(0.01 * seq + dev),
-                      xyz[:, 1].mean() + 0.3 * np.cos(0.01 * seq + dev), 1.0])
+        C = np.array([mean_xy[0] + 0.3 * np.sin(0.01 * seq + dev), mean_xy[1] + 0.3 * np.cos(0.01 * seq + dev), 1.0])
         if n_leds == 4:
-            cols = [sorted(set(xyz[:, a]), key=lambda c: abs(c - C[a]))[:2] for a in (0, 1)]
-            near = np.flatnonzero(np.isin(xyz[:, 0], cols[0]) & np.isin(xyz[:, 1], cols[1]))[:4]
+            # the two nearest grid columns and rows (a stable sort: the first of equal distances)
+            cols = [g[np.argsort(np.abs(g - C[a]), kind="stable")[:2]] for a, g in enumerate(grid)]
+            near = np.flatnonzero(((xyz[:, 0] == cols[0][0]) | (xyz[:, 0] == cols[0][1]))
+                                  & ((xyz[:, 1] == cols[1][0]) | (xyz[:, 1] == cols[1][1])))[:4]
         else:
             near = np.argsort(np.linalg.norm(xyz[:, :2] - C[:2], axis=1))[:n_leds]
         L = xyz[near]
@@ -81,51 +90,76 @@ def open_socket(address: tuple[str, int], source: str | None = None) -> socket.s
     return sock
 
 
+# A position reply's head as the server writes it (`LightingServer._reply_json`, `wire.encode`):
+# device, seq, and the first byte of the position (n: null). Other replies are read as JSON.
+_REPLY_HEAD = re.compile(rb'\{"v":\d+,"device":"([^"\\]*)","seq":(\d+),"position":(.)')
+
+
+def read_reply(data: bytes) -> tuple[str, object, object]:
+    """(kind, device, seq) of a reply: kind "position", "no_position", an error's reason, or
+    "unreadable". Position replies are recognised by their head (`_REPLY_HEAD`) without a full
+    JSON parse: the generator shares the machine with the server it measures."""
+    m = _REPLY_HEAD.match(data)
+    if m is not None:
+        return ("no_position" if m[3] == b"n" else "position"), m[1].decode(), int(m[2])
+    try:
+        rep = json.loads(data)
+    except ValueError:
+        return "unreadable", None, None
+    if not isinstance(rep, dict):
+        return "unreadable", None, None
+    if "error" in rep:
+        return str(rep["error"]), rep.get("device"), rep.get("seq")
+    return ("no_position" if rep.get("position") is None else "position"), rep.get("device"), rep.get("seq")
+
+
 def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 1.0,
-             source: str | None = None, sock: socket.socket | None = None) -> dict:
+             source: str | None = None, sock: socket.socket | None = None, socks=None) -> dict:
     """Send `datagrams` ((device, seq, bytes)) to `address` at `rate` per second (from the
     address `source`, default any), then wait up to `drain_s` for the replies still missing; the
     report. Only replies with a position count as served (`replies`, the latencies); error
     replies are counted by reason (`errors`), replies without a position in `no_position`, and
     `lost` is every datagram without a position reply. `sock`: the socket to use (`open_socket`;
-    closed at the end), else one of its own."""
-    sock = open_socket(address, source) if sock is None else sock
-    sock.settimeout(0.05)
+    closed at the end), else one of its own; `socks`: several (closed at the end), a device's
+    datagrams all from one of them (round robin in the order devices first appear)."""
+    if socks is None:
+        socks = [open_socket(address, source) if sock is None else sock]
     sent_at: dict[tuple[str, int], float] = {}
     lat: list[float] = []
     errors: dict[str, int] = {}
     no_position = [0]
     done = threading.Event()
     last_reply = [0.0]
+    sel = selectors.DefaultSelector()
+    for s in socks:
+        s.setblocking(False)
+        sel.register(s, selectors.EVENT_READ)
 
     def receive():
-        while True:
-            try:
-                data = sock.recv(65536)
-            except socket.timeout:
-                if done.is_set():
-                    return
-                continue
-            except OSError:
-                return
-            now = time.monotonic()
-            try:
-                rep = json.loads(data)
-            except ValueError:
-                errors["unreadable"] = errors.get("unreadable", 0) + 1
-                continue
-            if "error" in rep:
-                errors[str(rep["error"])] = errors.get(str(rep["error"]), 0) + 1
-                continue
-            if rep.get("position") is None:
-                no_position[0] += 1
-                continue
-            t0 = sent_at.get((rep.get("device"), rep.get("seq")))
-            if t0 is not None:
-                lat.append(now - t0)
-                last_reply[0] = now
+        while not done.is_set():
+            for key, _ in sel.select(0.05):
+                while True:
+                    try:
+                        data = key.fileobj.recv(65536)
+                    except (BlockingIOError, InterruptedError):
+                        break
+                    except OSError:
+                        break
+                    now = time.monotonic()
+                    kind, dev, seq = read_reply(data)
+                    if kind == "position":
+                        t0 = sent_at.get((dev, seq))
+                        if t0 is not None:
+                            lat.append(now - t0)
+                            last_reply[0] = now
+                    elif kind == "no_position":
+                        no_position[0] += 1
+                    else:
+                        errors[kind] = errors.get(kind, 0) + 1
     rx = threading.Thread(target=receive, daemon=True)
     rx.start()
+    owner: dict[str, socket.socket] = {}
+    out = [owner.setdefault(dev, socks[len(owner) % len(socks)]) for dev, _, _ in datagrams]
     start = time.monotonic()
     k = 0
     while k < len(datagrams):
@@ -133,7 +167,10 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
         while k < due:
             dev, seq, data = datagrams[k]
             sent_at[(dev, seq)] = time.monotonic()
-            sock.send(data)
+            try:
+                out[k].send(data)
+            except (BlockingIOError, ConnectionRefusedError):
+                pass                                  # a full send buffer or no server: lost
             k += 1
         time.sleep(0.0005)
     send_s = time.monotonic() - start
@@ -142,7 +179,9 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
         time.sleep(0.01)
     done.set()
     rx.join(5.0)
-    sock.close()
+    sel.close()
+    for s in socks:
+        s.close()
     ms = np.array(lat) * 1e3
     span = (last_reply[0] - start) if len(lat) else float("nan")
     return {"sent": len(datagrams), "send_s": round(send_s, 3), "replies": len(lat),
@@ -153,27 +192,48 @@ def run_load(address: tuple[str, int], datagrams, rate: float, drain_s: float = 
             "errors": errors, "no_position": no_position[0]}
 
 
-def warm_up(address: tuple[str, int], datagrams, sock: socket.socket | None = None) -> int:
-    """Send `datagrams` ((device, seq, bytes)) one at a time, each after the previous one's reply
-    (at most WARMUP_WAIT_S each); the replies received. Before a timed load, the devices' first
-    datagrams: a device's first datagram is solved from scratch (PnP, and both handednesses of a
-    map that does not declare it: ~1.6 ms of CPU against ~0.1 ms warm), so 50 devices starting
-    together put ~80 ms of backlog in front of the first timed replies."""
-    got = 0
-    own = sock is None
-    sock = open_socket(address) if own else sock
+def warm_up(address: tuple[str, int], datagrams, sock: socket.socket | None = None, *, socks=None,
+            window: int = 1, wait_s: float = WARMUP_WAIT_S) -> int:
+    """Send `datagrams` ((device, seq, bytes)) with at most `window` of them awaiting their reply
+    (a reply, or `wait_s` without any, frees the window); the position replies received.
+    Before a timed load, the devices' first datagrams: a device's first datagram is solved from
+    scratch (PnP, and both handednesses of a map that does not declare it: ~1.6 ms of CPU against
+    ~0.1 ms warm), so 50 devices starting together put ~80 ms of backlog in front of the first
+    timed replies. `sock` / `socks`: as `run_load`'s (the same assignment of devices to
+    sockets when the datagrams name the devices in the same order; not closed here)."""
+    own = sock is None and socks is None
+    socks = socks if socks is not None else [sock if sock is not None else open_socket(address)]
+    owner: dict[str, socket.socket] = {}
+    sel = selectors.DefaultSelector()
+    for s in socks:
+        s.setblocking(False)
+        sel.register(s, selectors.EVENT_READ)
+    got = pending = k = 0
     try:
-        sock.settimeout(WARMUP_WAIT_S)
-        for _, _, data in datagrams:
-            sock.send(data)
-            try:
-                sock.recv(65536)
-                got += 1
-            except socket.timeout:
-                pass
+        while k < len(datagrams) or pending:
+            while k < len(datagrams) and pending < window:
+                dev, _, data = datagrams[k]
+                try:
+                    owner.setdefault(dev, socks[len(owner) % len(socks)]).send(data)
+                except (BlockingIOError, ConnectionRefusedError):
+                    pass
+                pending, k = pending + 1, k + 1
+            events = sel.select(wait_s)
+            if not events:
+                pending = 0                           # those are lost
+                continue
+            for key, _ in events:
+                while pending:
+                    try:
+                        data = key.fileobj.recv(65536)
+                    except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                        break
+                    pending -= 1
+                    got += read_reply(data)[0] == "position"
     finally:
+        sel.close()
         if own:
-            sock.close()
+            socks[0].close()
     return got
 
 
@@ -192,17 +252,32 @@ def process_cpu_s(pid: int) -> float | None:
 SERVER_ARGS = ("--source-rate", "0")
 
 
-def start_server(args=SERVER_ARGS) -> tuple[subprocess.Popen, tuple[str, int]]:
-    """`occloc serve --port 0 ARGS` as a subprocess, once ready: (process, (host, port))."""
-    proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "serve", "--port", "0", *args], cwd=ROOT,
+def start_server(args=SERVER_ARGS, port: int = 0) -> tuple[subprocess.Popen, tuple[str, int]]:
+    """`occloc serve --port PORT ARGS` as a subprocess, once ready: (process, (host, port))."""
+    proc = subprocess.Popen([sys.executable, "-m", "receiver.cli", "serve", "--port", str(port), *args], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     line = proc.stderr.readline()
     if "listening on udp://" not in line:
         proc.kill()
+        proc.wait(10)
         raise RuntimeError(f"occloc serve did not start: {line.strip()}")
     proc.stderr.readline()                      # "occloc serve: ready"
     host, port = line.split("udp://")[1].strip().rsplit(":", 1)
     return proc, (host, int(port))
+
+
+def stop_server(proc: subprocess.Popen) -> str:
+    """SIGTERM `proc` (from `start_server`) and wait; its summary line (devices held, counters),
+    or "" when it had to be killed."""
+    proc.terminate()
+    try:
+        _, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:         # still working through a backlog
+        proc.kill()
+        proc.communicate(timeout=10)
+        return ""
+    lines = [x for x in err.splitlines() if x.startswith("occloc serve: ") and "datagrams" in x]
+    return lines[-1] if lines else ""
 
 
 def main(argv=None) -> int:
@@ -226,11 +301,22 @@ def main(argv=None) -> int:
     p.add_argument("--flood-total", type=int, default=50000, help="flood datagrams in all (50000)")
     p.add_argument("--flood-sources", type=int, default=4, help="flood source addresses (4)")
     p.add_argument("--flood-leds", type=int, default=64, help="LEDs per flood datagram (64)")
+    p.add_argument("--suite", action="store_true",
+                   help="every load figure, each against servers of its own (receiver.serve.loadsuite; "
+                        "with --runs N, alternating, then each figure's medians)")
+    p.add_argument("--figures", metavar="A,B", help="with --suite: only these figures "
+                   "(rate_10k, p99_5k, devices_10k, scale, flood, v2)")
     a = p.parse_args(argv)
+    if a.suite:
+        from receiver.serve.loadsuite import suite_main
+        return suite_main(a)
     if a.flood_rate:
         return flood_main(a)
     if a.rate <= 0 or a.seconds <= 0 or a.devices <= 0 or a.runs <= 0:
         print("loadgen: --rate, --seconds, --devices and --runs must be positive", file=sys.stderr)
+        return 2
+    if a.devices > 1000000 or a.rate * a.seconds > 1e7:
+        print("loadgen: at most 1,000,000 --devices and 10,000,000 datagrams (--rate x --seconds)", file=sys.stderr)
         return 2
     if a.url and a.runs > 1:
         print("loadgen: --runs needs a server of its own (no URL): the devices' seqs restart", file=sys.stderr)
@@ -246,20 +332,33 @@ def main(argv=None) -> int:
     return 0
 
 
+def source_socks(address: tuple[str, int], n: int) -> list[socket.socket]:
+    """n sockets connected to `address`, each bound to a source address of its own (127.0.1.1,
+    127.0.1.2, ... on the loopback network): a server holds at most --max-devices-per-source
+    devices of one address."""
+    if not 0 < n <= 250 * 250:
+        raise ValueError(f"source addresses: 1..62500, not {n}")
+    return [open_socket(address, f"127.0.{1 + k // 250}.{1 + k % 250}") for k in range(n)]
+
+
 def one_run(address, datagrams, rate: float, warmup=()) -> dict:
     """`run_load` against `address`, or a server started for this run (then with its CPU time
     per reply); with the machine's 1-minute load average before and after (`os.getloadavg`) and
-    its CPU count, which say whether other work competed for the cores."""
+    its CPU count, which say whether other work competed for the cores. More devices than the
+    server's default per-address quota come from several source addresses (`source_socks`);
+    the warm-up keeps WARMUP_WINDOW datagrams awaiting their reply."""
     proc = None
     if not address:
         proc, address = start_server()
     try:
-        sock = open_socket(address)
-        warmed = warm_up(address, warmup, sock)
+        devices = len({dev for dev, _, _ in (warmup or datagrams)})
+        per_source = DEFAULT_MAX_DEVICES_PER_SOURCE
+        socks = source_socks(address, -(-devices // per_source)) if devices > per_source else [open_socket(address)]
+        warmed = warm_up(address, warmup, socks=socks, window=WARMUP_WINDOW)
         load0 = os.getloadavg()[0]
         cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        report = run_load(address, datagrams, rate, sock=sock)
-        report.update(warmup=len(warmup), warmup_replies=warmed)
+        report = run_load(address, datagrams, rate, socks=socks)
+        report.update(warmup=len(warmup), warmup_replies=warmed, sources=len(socks))
         cpu1 = None if proc is None else process_cpu_s(proc.pid)
         if cpu0 is not None and cpu1 is not None and report["replies"]:
             report["server_cpu_ms_per_reply"] = round((cpu1 - cpu0) * 1e3 / report["replies"], 3)
@@ -268,61 +367,27 @@ def one_run(address, datagrams, rate: float, warmup=()) -> dict:
         return report
     finally:
         if proc is not None:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:     # still working through a backlog
-                proc.kill()
-                proc.wait(10)
+            stop_server(proc)
 
 
 def flood_main(a) -> int:
     """An honest device's reply latency while other sources flood the server with valid
-    datagrams: the flood's own report and the honest device's, as one JSON line."""
+    datagrams (`receiver.serve.loadsuite.fig_flood`): the flood's own counts and the honest
+    device's report, as one JSON line."""
     from receiver.io.ledmap import load_map
     from receiver.serve.client import parse_udp_url
+    from receiver.serve.loadsuite import fig_flood
 
-    led_map = load_map(a.map)
-    if a.url:
-        proc, address = None, parse_udp_url(a.url)
-    else:
-        proc, address = start_server(())        # the default per-source limits
-    try:
-        per_source = a.flood_total // a.flood_sources
-        floods = [four_led_datagrams(led_map, per_source, 64, seed=1 + k, n_leds=a.flood_leds,
-                                     prefix=f"flood{k}-") for k in range(a.flood_sources)]
-        n_honest = max(1, int(a.rate * a.flood_total / a.flood_rate))
-        honest = four_led_datagrams(led_map, n_honest + a.devices, a.devices, prefix="honest-")
-        honest_sock = open_socket(address)
-        warm_up(address, honest[:a.devices], honest_sock)
-        results: dict = {}
-        cpu0 = None if proc is None else process_cpu_s(proc.pid)
-        threads = [threading.Thread(target=lambda k=k: results.__setitem__(
-            k, run_load(address, floods[k], a.flood_rate / a.flood_sources, source=f"127.0.0.{2 + k}")))
-            for k in range(a.flood_sources)]
-        for t in threads:
-            t.start()
-        results["honest"] = run_load(address, honest[a.devices:], a.rate, sock=honest_sock)
-        for t in threads:
-            t.join()
-        cpu1 = None if proc is None else process_cpu_s(proc.pid)
-        flood = [results[k] for k in range(a.flood_sources)]
-        report = {"honest": results["honest"],
-                  "flood": {"sent": sum(r["sent"] for r in flood), "position_replies": sum(r["replies"] for r in flood),
-                            "error_replies": sum(sum(r["errors"].values()) for r in flood),
-                            "send_s": max(r["send_s"] for r in flood)},
-                  "server_cpu_s": None if cpu0 is None or cpu1 is None else round(cpu1 - cpu0, 2),
-                  "loadavg_after": round(os.getloadavg()[0], 2), "cpus": os.cpu_count()}
-        print(json.dumps(report))
-        return 0
-    finally:
-        if proc is not None:
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(10)
+    if min(a.rate, a.flood_rate, a.flood_total, a.flood_sources, a.flood_leds, a.devices) <= 0:
+        print("loadgen: --rate, --devices and the --flood-* values must be positive", file=sys.stderr)
+        return 2
+    if a.flood_leds > 64 or a.flood_sources > 250:
+        print("loadgen: --flood-leds must be at most 64 and --flood-sources at most 250", file=sys.stderr)
+        return 2
+    report = fig_flood(load_map(a.map), a.flood_total, a.flood_rate, sources=a.flood_sources, leds=a.flood_leds,
+                       honest_rate=a.rate, honest_devices=a.devices, address=a.url and parse_udp_url(a.url))
+    print(json.dumps(report))
+    return 0
 
 
 def median_report(reports: list[dict]) -> dict:

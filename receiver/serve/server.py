@@ -126,6 +126,11 @@ SEQ_WINDOW = 1 << 20
 # alone as in a batch (README "Measured"), so the bound only caps how long the first datagram of
 # a backlog waits for its reply: 16 x ~0.1 ms.
 MAX_BATCH = 16
+# A batch also ends once it holds this many bytes: its datagrams are answered together, so a
+# datagram waits for the whole batch's work, which grows with the LEDs and points carried (four
+# 64-LED datagrams, ~1.3 ms; one v2 frame with outlines). A small one behind a run of large ones
+# (another source's flood) waits for at most this much more work.
+MAX_BATCH_BYTES = 32768
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
 RECV_BYTES = 65536
@@ -287,7 +292,7 @@ class LightingServer:
         another server served meanwhile is taken over, one expired there is forgotten here."""
         names = list(dict.fromkeys(item[1].device for item in pending))
         try:
-            devs, seqs = self.shared.load(names)
+            devs, seqs = self.shared.load(names, self.devices)
         except Exception:   # noqa: BLE001 -- Redis away: serve from the local state, counted
             self.counters["state_errors"] += 1
             return names
@@ -487,11 +492,8 @@ class LightingServer:
             ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
             self.on_fix(req.device, req.t, position, ids, req.seq, req.device in self.keys)
         if self.shared is not None:
-            if isinstance(position, bytes):
-                position = json.loads(position)
             ids = req.ids if isinstance(req, Request) else [o.id for o in req.leds]
-            self.shared.publish(req.device, {"device": req.device, "t": time.time(), "t_device": req.t,
-                                             "position": position, "ids": list(ids)})
+            self.shared.publish_fix(req.device, time.time(), req.t, position, ids)
 
     def _reply_json(self, req: Request, pf, fix, leds, used) -> bytes:
         """`_reply`'s encoding without the dict: the same bytes (`wire.encode` of the reply:
@@ -553,6 +555,8 @@ class LightingServer:
     def _drop(self, name, shared: bool = True, tell: bool = True) -> None:
         """Forget a device here (`tell`: its observers too) and, with `shared`, in the shared state."""
         dev = self.devices.pop(name, None)
+        if dev is not None and self.shared is not None:
+            self.shared.forget(name)
         if dev is not None and tell and self.on_forget is not None:
             self.on_forget(name)
         if dev is not None and shared and self.shared is not None:
@@ -645,10 +649,11 @@ def bind_udp(host: str, port: int, reuse_port: bool = False) -> socket.socket:
 
 
 def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Event, *,
-                 max_batch: int = MAX_BATCH) -> None:
+                 max_batch: int = MAX_BATCH, max_batch_bytes: int = MAX_BATCH_BYTES) -> None:
     """Serve `server` on the bound non-blocking UDP socket until `stop` is set (checked every
     `POLL_S`, and between batches): wait for a datagram, take every datagram already queued behind
-    it (at most `max_batch`; drain, then solve: never waiting for more), handle them together
+    it (at most `max_batch`, ending after the one that reaches `max_batch_bytes`; drain, then
+    solve: never waiting for more), handle them together
     (`LightingServer.handle_datagrams`), send the replies, and go on with what queued meanwhile. A plain blocking loop: asyncio's per-datagram callbacks cost more than the
     datagram's JSON. Socket errors (e.g. ICMP port unreachable for a reply to a device that went
     away) are counted as `socket_errors`, the batches as `batches`."""
@@ -666,9 +671,10 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
                 counters["socket_errors"] += 1
                 return
         batch = []
-        while len(batch) < max_batch:
+        nbytes = 0
+        while len(batch) < max_batch and nbytes < max_batch_bytes:
             try:
-                batch.append(recvfrom(RECV_BYTES))
+                item = recvfrom(RECV_BYTES)
             except BlockingIOError:
                 break
             except OSError:
@@ -676,7 +682,9 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
                 # spin here, away from the `stop` check.
                 counters["socket_errors"] += 1
                 break
-        backlog = len(batch) == max_batch
+            batch.append(item)
+            nbytes += len(item[0])
+        backlog = len(batch) == max_batch or nbytes >= max_batch_bytes
         if not batch:
             continue
         counters["batches"] += 1

@@ -16,6 +16,7 @@ compiled kernels by reference): Redis is the servers' own back end, to be reacha
 
 from __future__ import annotations
 
+import copyreg
 import importlib
 import io
 import json
@@ -47,18 +48,14 @@ def check_url(url: str) -> None:
         raise InputError(f"--state must be redis://HOST:PORT/DB, not {url!r}")
 
 
-class _Pickler(pickle.Pickler):
-    def __init__(self, f, led_map):
-        super().__init__(f, protocol=5)
-        self.led_map = led_map
+def _server_map():
+    """Stands for the server's LED map in a stored value (`_Unpickler.find_class` gives each
+    server its own map object): the map is the servers' configuration, not device state."""
+    raise pickle.UnpicklingError("the LED map is resolved by the unpickler")
 
-    def persistent_id(self, obj):
-        return "map" if obj is self.led_map else None
 
-    def reducer_override(self, obj):
-        if isinstance(obj, types.ModuleType):      # the compiled kernels, by name
-            return importlib.import_module, (obj.__name__,)
-        return NotImplemented
+def _module(name: str):
+    return importlib.import_module(name)
 
 
 class _Unpickler(pickle.Unpickler):
@@ -66,10 +63,10 @@ class _Unpickler(pickle.Unpickler):
         super().__init__(f)
         self.led_map = led_map
 
-    def persistent_load(self, pid):
-        if pid != "map":
-            raise pickle.UnpicklingError("unknown reference")
-        return self.led_map
+    def find_class(self, module, name):
+        if module == __name__ and name == "_server_map":
+            return lambda: self.led_map
+        return super().find_class(module, name)
 
 
 class SharedState:
@@ -90,20 +87,44 @@ class SharedState:
             raise InputError(f"--state {url}: {e}") from None
         self._events: list[bytes] = []
         self._relay = None
+        # Each device's value as this server last wrote it: a value read back unchanged is this
+        # server's own device object, which is kept instead of unpickled (`load`).
+        self._written: dict[str, bytes] = {}
+        # The reductions (in C, per type, no call per object): the compiled kernels by name,
+        # the server's map by reference.
+        self._dispatch = copyreg.dispatch_table.copy()
+        self._dispatch[types.ModuleType] = lambda mod: (_module, (mod.__name__,))
+        self._dispatch[type(led_map)] = self._reduce_map
+
+    def _reduce_map(self, obj):
+        return (_server_map, ()) if obj is self.led_map else obj.__reduce_ex__(5)
 
     def dumps(self, dev) -> bytes:
         f = io.BytesIO()
-        _Pickler(f, self.led_map).dump(dev)
+        p = pickle.Pickler(f, protocol=5)
+        p.dispatch_table = self._dispatch
+        p.dump(dev)
         return f.getvalue()
 
     def loads(self, data: bytes):
         return _Unpickler(io.BytesIO(data), self.led_map).load()
 
-    def load(self, names) -> tuple[dict, dict]:
-        """({device: its stored state or None}, {device: keyed last seq or None}) in one round trip."""
+    def load(self, names, local=None) -> tuple[dict, dict]:
+        """({device: its stored state or None}, {device: keyed last seq or None}) in one round trip.
+        `local`: this server's device objects by name; one whose stored value is still what
+        this server wrote is returned as it is (the same state, not unpickled again)."""
         names = list(names)
+        local = local or {}
         values = self.redis.mget([DEVICE_KEY + n for n in names] + [KEYSEQ_KEY + n for n in names])
-        devs = {n: None if v is None else self.loads(v) for n, v in zip(names, values)}
+        devs = {}
+        for n, v in zip(names, values):
+            if v is None:
+                devs[n] = None
+            elif n in local and self._written.get(n) == v:
+                devs[n] = local[n]
+            else:
+                self._written.pop(n, None)
+                devs[n] = self.loads(v)
         seqs = {n: None if v is None else int(v) for n, v in zip(names, values[len(names):])}
         return devs, seqs
 
@@ -111,20 +132,44 @@ class SharedState:
         """Queue a fix event for the next `save`."""
         self._events.append(json.dumps({**event, "server": self.server_id}, separators=(",", ":")).encode())
 
+    def publish_fix(self, device: str, t: float, t_device: float, position, ids) -> None:
+        """`publish` of a fix whose `position` is its JSON already (bytes; or a dict, or None):
+        the event's bytes are joined, not encoded again (json.dumps' output for the same event)."""
+        if not isinstance(position, bytes):
+            self.publish(device, {"device": device, "t": t, "t_device": t_device, "position": position,
+                                  "ids": list(ids)})
+            return
+        self._events.append(b"".join((
+            b'{"device":', json.dumps(device).encode(), b',"t":', repr(float(t)).encode(), b',"t_device":',
+            json.dumps(t_device).encode(), b',"position":', position, b',"ids":[',
+            ",".join(str(int(i)) for i in ids).encode(), b'],"server":"', self.server_id.encode(), b'"}')))
+
     def save(self, devices: dict, key_seqs: dict) -> None:
         """Write the devices' states (expiring after forget_s) and keyed seqs, and publish the
         queued events, in one round trip."""
         pipe = self.redis.pipeline(transaction=False)
-        for name, dev in devices.items():
-            pipe.set(DEVICE_KEY + name, self.dumps(dev), px=self.forget_ms)
+        written = {name: self.dumps(dev) for name, dev in devices.items()}
+        for name, data in written.items():
+            pipe.set(DEVICE_KEY + name, data, px=self.forget_ms)
         for name, seq in key_seqs.items():
             pipe.set(KEYSEQ_KEY + name, seq)
         for e in self._events:
             pipe.publish(CHANNEL, e)
         self._events = []
-        pipe.execute()
+        try:
+            pipe.execute()
+        except BaseException:
+            for name in written:
+                self._written.pop(name, None)
+            raise
+        self._written.update(written)
+
+    def forget(self, name: str) -> None:
+        """This server no longer holds the device (it may still be stored)."""
+        self._written.pop(name, None)
 
     def drop(self, name: str) -> None:
+        self._written.pop(name, None)
         self.redis.delete(DEVICE_KEY + name)
 
     def relay(self, on_event) -> None:

@@ -701,6 +701,40 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     assert srv.counters["batches"] <= 20 and srv.counters["replies"] == 120
 
 
+def test_batches_end_at_their_byte_bound(walk_map):
+    """Large datagrams (64 LEDs, ~7 kB) queued together are taken a few at a time (a batch ends
+    after the datagram that reaches MAX_BATCH_BYTES), so a small datagram behind them waits for
+    little work; every one is answered with the position one-by-one handling gives."""
+    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.server import MAX_BATCH_BYTES, bind_udp, serve_socket
+    dg = four_led_datagrams(walk_map, 40, 4, n_leds=64)
+    size = min(len(data) for _, _, data in dg)
+    per_batch = -(-MAX_BATCH_BYTES // size)             # datagrams that reach the bound, at most
+    assert 1 < per_batch < 16
+    one_by_one = LightingServer(walk_map, clock=FakeClock())
+    expected = {(dev, seq): one_by_one.handle(data) for dev, seq, data in dg}
+    srv = LightingServer(walk_map, clock=FakeClock())
+    sock = bind_udp("127.0.0.1", 0)
+    stop = threading.Event()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        client.settimeout(REPLY_TIMEOUT_S)
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        for _, _, data in dg:
+            client.sendto(data, sock.getsockname())
+        worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
+        worker.start()
+        try:
+            replies = [json.loads(client.recv(65536)) for _ in dg]
+        finally:
+            stop.set()
+            worker.join(5.0)
+            sock.close()
+    assert sorted((r["device"], r["seq"]) for r in replies) == sorted(expected)
+    for r in replies:
+        _assert_same(expected[r["device"], r["seq"]]["position"], r["position"], ulp=True)
+    assert srv.counters["batches"] >= len(dg) / per_batch and srv.counters["replies"] == len(dg)
+
+
 def test_serve_socket_ends_when_its_socket_is_closed(walk_map):
     """A socket closed under the loop (a persistent error) ends it instead of spinning on the
     error away from the stop check: the thread is gone without `stop` being set."""

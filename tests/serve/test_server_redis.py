@@ -165,3 +165,39 @@ def test_two_servers_on_one_port_with_reuse_port(redis_url):
                 sock.close()
         counts = [int(stop(p).split()[2]) for p in (a, b)]
     assert sum(counts) == 24
+
+
+def test_stored_state_round_trips_and_an_unchanged_value_keeps_the_servers_object(redis_url):
+    """Two servers' shared states on one Redis: a device written by A and read back unchanged
+    is A's own object (not unpickled again); once B has served it, A reads B's newer state (a
+    new object whose positioner refers to A's own map); a fix event joined from the position's
+    JSON is the bytes json.dumps gives for the same event."""
+    from receiver.serve.shared import SharedState
+    from tests.serve.test_server_v2 import _v2_request
+
+    walk_map = load_map(str(WALK / "map.json"))
+    state_a, state_b = SharedState(redis_url, walk_map, 60.0), SharedState(redis_url, walk_map, 60.0)
+    a = LightingServer(walk_map, clock=FakeClock(), shared=state_a)
+    b = LightingServer(walk_map, clock=FakeClock(), shared=state_b)
+    try:
+        first = json.loads(_v2_request())
+        assert "error" not in a.handle(encode(first), ("127.0.0.1", 5))
+        devs, _ = state_a.load(["dev"], a.devices)
+        assert devs["dev"] is a.devices["dev"]
+        nxt = {**first, "seq": 1, "t": 1 / 30}
+        reply_b = b.handle(encode(nxt), ("127.0.0.1", 5))
+        assert reply_b["position"] is not None
+        devs, _ = state_a.load(["dev"], a.devices)
+        assert devs["dev"] is not a.devices["dev"] and devs["dev"].seq == 1
+        assert devs["dev"].loc.led_map is walk_map
+        assert b.devices["dev"].loc.led_map is walk_map
+        position = reply_b["position"]
+        state_a._events.clear()
+        state_a.publish_fix("dev \"q\"", 1765000000.25, 1 / 30, encode(position), [7, 42])
+        state_a.publish("dev \"q\"", {"device": "dev \"q\"", "t": 1765000000.25, "t_device": 1 / 30,
+                                      "position": position, "ids": [7, 42]})
+        joined, dumped = state_a._events
+        assert joined == dumped and json.loads(joined)["position"] == position
+    finally:
+        state_a.close()
+        state_b.close()

@@ -170,3 +170,72 @@ def test_malformed_v2_requests_are_refused_with_a_reason(change, reason):
     assert server.counters[reason] == 1 and not server.devices
     ok = server.handle(_v2_request(), ("127.0.0.1", 5))
     assert ok["v"] == 2 and ok["position"] is not None and len(ok["ranges"]) == 6
+
+
+def _same_request(a, b):
+    assert (a.device, a.seq, a.t, a.camera_key) == (b.device, b.seq, b.t, b.camera_key)
+    assert all(np.array_equal(getattr(a.camera, f), getattr(b.camera, f))
+               for f in ("K", "dist", "width", "height", "pixel_size_um", "focal_length_mm"))
+    assert len(a.leds) == len(b.leds)
+    for x, y in zip(a.leds, b.leds):
+        assert (x.track, x.cx, x.cy, x.area_px, x.border, x.id, x.mode) == \
+            (y.track, y.cx, y.cy, y.area_px, y.border, y.id, y.mode)
+        pairs = [(x.contour, y.contour)]
+        assert (x.edge_px is None) == (y.edge_px is None)
+        if x.edge_px is not None:
+            pairs += list(zip(x.edge_px, y.edge_px))
+        for p, q in pairs:
+            assert p.dtype == q.dtype == np.float64 and p.shape == q.shape and p.flags.c_contiguous
+            assert np.array_equal(p, q)
+
+
+def _edged_frame(rng, cam, frame):
+    """A v2 request object of camera `cam` whose observations (`frame`) carry random stripe edge
+    points (float32-exact and full float64 columns both)."""
+    from dataclasses import replace
+    obs = []
+    for o in frame:
+        n = int(rng.integers(0, 40))
+        pts = np.column_stack([rng.uniform(0, cam.width, n), rng.uniform(0, cam.height, n)])
+        if rng.random() < 0.5:
+            pts = np.round(pts * 4) / 4                 # float32-exact: packed as f4
+        obs.append(replace(o, edge_px=(pts, rng.uniform(0.05, 0.5, n))))
+    return json.loads(encode(make_request_v2("dev", 3, 0.1, camera_fields(cam), obs)))
+
+
+def test_fast_v2_check_takes_only_what_the_full_check_takes():
+    """The common-form check (`_parse_v2_fast`) gives the full check's request on well-formed
+    requests, and on seeded mutations either the full check's request or None (never a request
+    the full check refuses)."""
+    from receiver.serve.wire import ProtocolError
+    from receiver.serve.wire_v2 import _parse_v2_checked, _parse_v2_fast
+    rng = np.random.default_rng(11)
+    odd = [None, True, 0, -1, 1, 2.5, -0.0, 1e300, 1e-12, 2 ** 31, 2 ** 53 + 1, "x", "ook", [], {},
+           ["f4:", "f4:"], ["f8:AAAAAAAA+H8=", "f8:AAAAAAAA8D8="], ["f4:AACAPw==", "f4:AACAPw=="],
+           ["f4:AACAPw==", "f4:AACAPw==", "f4:AAAAAA=="], ["f4:AACAPw==", "f4:AACAPw==", "f4:AACAfw=="],
+           ["f4:AACAPw=", "f4:AACAPw=="], ["f4:AACA Pw==", "f4:AACAPw=="], ["f8:AACAPw==", "f8:AACAPw=="]]
+    cam, walk_map = load_camera(str(WALK / "camera.yaml")), load_map(str(WALK / "map.json"))
+    frame = _frame(cam, walk_map)
+    taken = refused = 0
+    for n in range(300):
+        obj = _edged_frame(rng, cam, frame)
+        if n:
+            pick = obj["obs"][int(rng.integers(0, len(obj["obs"])))]
+            where = obj if n % 5 == 0 else obj["camera"] if n % 5 == 1 else pick
+            keys = list(where) + ["extra"]
+            where[keys[int(rng.integers(0, len(keys)))]] = odd[int(rng.integers(0, len(odd)))]
+            obs = obj["obs"]
+            if n % 7 == 0 and isinstance(obs, list) and len(obs) > 1 and isinstance(obs[-1], dict) \
+                    and isinstance(obs[0], dict):
+                obs[-1]["id"] = obs[0].get("id")                      # a repeated LED id
+        fast = _parse_v2_fast(obj)
+        try:
+            full = _parse_v2_checked(obj)
+        except ProtocolError:
+            assert fast is None, (n, obj)
+            refused += 1
+            continue
+        if fast is not None:
+            _same_request(fast, full)
+            taken += 1
+    assert taken > 30 and refused > 30, (taken, refused)
