@@ -154,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recording", help="recording folder (video.*, camera.yaml, map.json, truth.jsonl)")
     parser.add_argument("--shake", nargs="+", default=["pairs", "motion"],
+                        choices=["pairs", "vertical", "pitch", "motion", "motion+roll"],
                         help="PairSettings.shake values to compare (default: pairs motion)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--motion", nargs="+", default=[], metavar="NAME=VALUE",

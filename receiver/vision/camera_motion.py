@@ -92,13 +92,12 @@ class MotionSettings:
 class MotionEstimate:
     """The camera's image motion from the previous frame to this one.
 
-    A point at p in the previous frame is at c + R(roll_rad) (p - c) + (dx_px, dy_px) in
-    this one, c = `center_px` (the principal point): (dx_px, dy_px) is the shift of the image
-    centre (yaw and pitch), `roll_rad` the turn about it (+: from the x axis toward the y axis,
-    image coordinates). `sigma_px`: 1-sigma error of
-    (dx_px, dy_px) per axis; `var_sum_px2`: the sum of every frame's sigma_px^2 so far (see
-    `CameraMotion.sigma_since`); `matches`: blobs registered this frame (0: the motion model's
-    prediction alone)."""
+    A point at p in the previous frame is at c + R(roll_rad) (p - c) + (dx_px, dy_px) in this
+    one, c = `center_px` (the principal point): (dx_px, dy_px) is the shift of the image centre
+    (yaw and pitch), `roll_rad` the turn about it (+: from the x axis toward the y axis, image
+    coordinates). `sigma_px`: 1-sigma error of (dx_px, dy_px) per axis; `var_sum_px2`: the sum
+    of every frame's sigma_px^2 so far (see `CameraMotion.sigma_since`); `matches`: blobs
+    registered this frame (0: the motion model's prediction alone)."""
 
     dx_px: float
     dy_px: float
@@ -152,7 +151,6 @@ class CameraMotion:
         self._history: list[tuple[np.ndarray, np.ndarray]] = []
         self.var_sum_px2 = 0.0
         self.frames = 0
-        self.latest: MotionEstimate | None = None
 
     def sigma_since(self, var_sum_then_px2: float) -> float:
         """1-sigma error (px per axis) of the shifts summed since the frame whose estimate had
@@ -183,7 +181,6 @@ class CameraMotion:
         # a frame without blobs adds nothing to register on: the lit frames before it stay
         self._history = ([(xy, area)] + moved[:s.history_frames - 1]) if len(xy) else moved
         self.frames += 1
-        self.latest = est
         return est
 
     # -- registration ----------------------------------------------------------------------
