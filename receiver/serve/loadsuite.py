@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from receiver.serve.loadgen import (DEFAULT_MAP, ROOT, SERVER_ARGS, WARMUP_WINDOW, four_led_datagrams, median_report,
+from receiver.serve.loadcore import (DEFAULT_MAP, ROOT, SERVER_ARGS, WARMUP_WINDOW, four_led_datagrams, median_report,
                                     one_run, open_socket, process_cpu_s, run_load, source_socks, start_server,
                                     stop_server, warm_up)
 from receiver.serve.server import DEFAULT_MAX_DEVICES_PER_SOURCE

@@ -43,7 +43,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from filterpy.kalman import KalmanFilter
 
 
 @dataclass(frozen=True)
@@ -126,9 +125,10 @@ class MotionEstimate:
         return np.stack((cx + c * u - s * v + self.dx_px, cy + s * u + c * v + self.dy_px), axis=1)
 
 
-def _kalman(s: MotionSettings) -> KalmanFilter:
+def _kalman(s: MotionSettings):
     """State (dx, dy): the per-frame shift, a random walk of `process_px` per frame (a slow
     swing's shift of one frame is the next frame's best guess; the jitter is the walk's step)."""
+    from filterpy.kalman import KalmanFilter  # only runs with shake="motion": a photo never imports filterpy
     kf = KalmanFilter(dim_x=2, dim_z=2)
     kf.F = np.eye(2)
     kf.H = np.eye(2)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 
 from receiver.io.ledmap import load_map
-from receiver.serve.loadgen import (four_led_datagrams, read_reply, run_load, source_socks, start_server, stop_server,
+from receiver.serve.loadcore import (four_led_datagrams, read_reply, run_load, source_socks, start_server, stop_server,
                                     warm_up)
 from receiver.serve.server import LightingServer
 from receiver.serve.wire import ProtocolError, encode

@@ -16,7 +16,7 @@ from receiver.io.ledmap import load_map
 from receiver.locate.pose import WARM_MAX_CHI2_DOF, solve_warm_batch, warm_problem, ypr_to_rotation
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.serve.fixes import KERNEL, warm_fix
-from receiver.serve.loadgen import DEFAULT_MAP, four_led_datagrams
+from receiver.serve.loadcore import DEFAULT_MAP, four_led_datagrams
 from receiver.serve.server import LightingServer
 from receiver.serve.wire import encode, make_request
 

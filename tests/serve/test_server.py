@@ -668,7 +668,7 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     """serve_socket takes every datagram already queued: 120 datagrams of 12 devices (10 each,
     a device's in seq order) waiting before it starts are handled in a few batches, each answered
     once with the position a server handling them one by one gives (to WARM_TOL)."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
     from receiver.serve.server import bind_udp, serve_socket
     dg = four_led_datagrams(walk_map, 120, 12)
     one_by_one = LightingServer(walk_map, clock=FakeClock())
@@ -705,7 +705,7 @@ def test_batches_end_at_their_byte_bound(walk_map):
     """Large datagrams (64 LEDs, ~7 kB) queued together are taken a few at a time (a batch ends
     after the datagram that reaches MAX_BATCH_BYTES), so a small datagram behind them waits for
     little work; every one is answered with the position one-by-one handling gives."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
     from receiver.serve.server import MAX_BATCH_BYTES, bind_udp, serve_socket
     dg = four_led_datagrams(walk_map, 40, 4, n_leds=64)
     size = min(len(data) for _, _, data in dg)
@@ -754,7 +754,7 @@ def test_serve_socket_ends_when_its_socket_is_closed(walk_map):
 def test_a_failing_batch_is_answered_one_by_one(walk_map, monkeypatch):
     """Should the batched path raise (a bug's guard), every datagram of the batch is still
     answered, each handled alone."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
     from receiver.serve.server import _handle_batch
     dg = four_led_datagrams(walk_map, 8, 4)
     srv = LightingServer(walk_map, clock=FakeClock())
@@ -772,7 +772,7 @@ def test_handle_batch_benchmark(walk_map, benchmark):
     """16 queued 4-LED datagrams of 16 walking devices handled together, as `serve_socket` does
     under load (`handle_datagrams`: one batched warm-started solve): divide by 16 for the cost
     of one datagram. Every reply is a warm-started range+angle position."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
     srv = LightingServer(walk_map, clock=FakeClock())
     dg = [(data, ("127.0.0.1", 9)) for _, _, data in four_led_datagrams(walk_map, 16 * 240, 16)]
     srv.handle_datagrams(dg[:16 * 20])                   # every device has a track
@@ -793,7 +793,7 @@ def test_server_load_benchmark(walk_map, benchmark, request):
     (receiver.serve.loadgen); reports replies/s and the reply latency. Only with
     --benchmark-enable: it measures this machine. Without it, a slow functional run of the same
     path (40 datagrams at 40/s, up to 60 s for the replies): every datagram is answered."""
-    from receiver.serve.loadgen import four_led_datagrams, run_load, start_server
+    from receiver.serve.loadcore import four_led_datagrams, run_load, start_server
     timed = request.config.getoption("benchmark_enable", False)
     rate, n, drain_s = (3000.0, 6000, 1.0) if timed else (40.0, 40, 60.0)
     dg = four_led_datagrams(walk_map, n, devices=50 if timed else 4)

@@ -177,7 +177,7 @@ def test_serve_keys_and_run_key_file(tmp_path, capsys):
 
 def test_loadgen_counts_only_position_replies_as_served(walk_map):
     """Refusals are errors, not service: 10 devices against a server holding 4."""
-    from receiver.serve.loadgen import four_led_datagrams, run_load
+    from receiver.serve.loadcore import four_led_datagrams, run_load
     from receiver.serve.server import BackgroundServer
 
     dg = four_led_datagrams(walk_map, 40, 10)
@@ -192,7 +192,7 @@ def test_a_sources_cpu_share_is_bounded(walk_map):
     """Expensive datagrams (64 LEDs) from one host: once they have taken its CPU budget (a
     tenth of a second, refilled at --source-cpu-share per second of the server's clock, frozen
     here) the rest is dropped unread; another host is still served."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
 
     srv = LightingServer(walk_map, clock=FakeClock(), source_rate=1e6)
     served = 0

@@ -20,7 +20,8 @@ UNITS = {"width": "px", "height": "px", "fps": "frames/s", "seconds": "s", "dist
          "centre_gain": "fraction brighter at a panel's centre", "bezel_frac": "fraction of a panel's half size",
          "tone_gamma": "exponent of the tone curve", "sharpen": "unsharp-mask amount", "rs_band_rows": "image rows",
          "turn_rad": "rad", "light_brightness": "times led_peak_dn",
-         "light_layout": "staggered, one-side or opposite", "head_style": "split or merged"}
+         "light_layout": "staggered, one-side or opposite", "head_style": "split or merged",
+         "fv_gap_scale": "times the scripted gaps to the cars ahead"}
 
 
 def unit_of(key: str) -> str:
