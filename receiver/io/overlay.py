@@ -94,9 +94,10 @@ class Annotator:
         h, w = img.shape[:2]
         iw, ih = min(int(INSET[0] * k), w // 3), min(int(INSET[1] * k), h // 3)
         ox, oy = w - iw - 8, 8
+        m = min(int(8 * k), iw // 6, ih // 6)   # margin inside the frame, px (the dots' room)
         roi = img[oy:oy + ih, ox:ox + iw]
         roi[:] = (roi * 0.35).astype(np.uint8)
-        cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, 1)
+        cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, max(1, int(round(k / 2))))
         pts = self._pts
         extra = ([[position["x"], position["y"]]] if position is not None else []) + [[x, y] for x, y, _ in cars]
         if vehicle and position is not None:
@@ -108,10 +109,11 @@ class Annotator:
         elif extra:
             pts = np.vstack((pts, extra))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
+        scale = min((iw - 2 * m) / max(hi[0] - lo[0], 1e-6), (ih - 2 * m) / max(hi[1] - lo[1], 1e-6))
+        mid = (lo + hi) / 2   # drawn at the inset's centre
 
         def at(x, y):
-            return int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale)
+            return int(ox + iw / 2 + (x - mid[0]) * scale), int(oy + ih / 2 - (y - mid[1]) * scale)
         for x, y in self._pts:
             if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
                 cv2.circle(img, at(x, y), max(2, int(2 * k)), YELLOW, -1)
