@@ -129,7 +129,7 @@ def test_no_stripes_with_an_exposure_longer_than_a_chip_says_why(tmp_path, capsy
     folder = tmp_path / "dark"
     folder.mkdir()
     for i in range(3):
-        cv2.imwrite(str(folder / f"{i}.png"), np.zeros((120, 160), np.uint8))
+        cv2.imwrite(str(folder / f"{i}.png"), np.zeros((90, 160), np.uint8))
     text = (REC / "indoor-static" / "camera.yaml").read_text()
     for exposure, hint in (("20.", False), ("87.", True)):
         cam = tmp_path / f"c{exposure}yaml"
