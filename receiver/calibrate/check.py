@@ -8,12 +8,13 @@ that need a clip (drift, banding, timestamps) say they do not apply.
 
 * stripes: stripe depth (`receiver.vision.profile.stripe_depth`) of every LED followed over the
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
-* exposure: estimated from the stripes (`receiver.calibrate.rows`, else the edge ramps of the
-  LEDs' row profiles, `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's
-  `exposure_us`: OOK chips are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure
-  model; `exposure_verdict` names the exposure and chip rate that would work), a tone's stripes
-  keep their depth up to its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one
-  row resolved no edge ramp: the camera file's exposure is judged instead.
+* exposure: the photos' own EXIF shutter time where they have one, else estimated from the
+  stripes (`receiver.calibrate.rows`, else the edge ramps of the LEDs' row profiles,
+  `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's `exposure_us`. OOK chips
+  are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure model; `exposure_verdict`
+  names the exposure and chip rate that would work), a tone's stripes keep their depth up to
+  its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one row
+  resolved no edge ramp: the camera file's exposure is judged instead.
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
   the clip (more than `DRIFT_FRAC` of the level); the background's only while the camera is
   still (the lights' median frame-to-frame step, summed, under `MOVING_PX`) or nothing else
@@ -164,10 +165,13 @@ def _receiver_detect(camera, led_map, still: bool):
 
 
 def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_frames: int = 90,
-                 source_counts: dict | None = None, source_kind: str = "video") -> list[Finding]:
+                 source_counts: dict | None = None, source_kind: str = "video",
+                 stated_exposure_us: float | None = None) -> list[Finding]:
     """The findings (see the module docstring) for an iterable of `Frame`s. `source_kind`: the
     frame source's kind ("v4l2", "images", "video", "recording", "stdin"): photos are judged
-    as stills, and the advice is worded for the source (`fix_for`)."""
+    as stills, and the advice is worded for the source (`fix_for`). `stated_exposure_us`: the
+    exposure the photos record themselves (EXIF; the longest of them), judged instead of an
+    estimate."""
     still = source_kind == "images"
     detect_settings = _receiver_detect(camera, led_map, still)
     times, idx, means, peaks, bgrows = [], [], [], [], []
@@ -262,14 +266,19 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
             ook.append(float(led_map.default_rate_hz))
         tone = [float(l.freq_hz) for l in led_map.by_mode("tone") if l.freq_hz]
         ramp = None
-        if ook:
+        if stated_exposure_us:
+            # the photos' own record of their shutter time: exact, nothing to estimate
+            est, how = float(stated_exposure_us), "the photos' EXIF"
+        elif ook:
             # the edges' ramps (every stripe shape); past half a chip they are the measurement,
             # the stripe fit below assumes clean chip edges
             ramps = [e for e in (ramp_exposure_rows(p, rows_per_chip(max(ook), camera.row_readout_us))
                                  for p in ook_profiles) if e is not None]
             if len(ramps) >= 3:
                 ramp = float(np.median(ramps)) * camera.row_readout_us
-        if ramp is not None and ramp >= MODEL_FROM_CHIPS * 1e6 / max(ook):
+        if stated_exposure_us:
+            pass
+        elif ramp is not None and ramp >= MODEL_FROM_CHIPS * 1e6 / max(ook):
             est, how = ramp, "edge ramps"
         else:
             try:
@@ -284,7 +293,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         row_us = camera.row_readout_us
         # A stripe fit below one row has not resolved the exposure (edge ramps sharper than a
         # row): the camera file's value is judged when it has one, else "under one row".
-        under_row = est is not None and est < row_us
+        under_row = est is not None and est < row_us and not stated_exposure_us
         if under_row:
             est = None if camera.exposure_us > 0 else row_us
             under_row = est is not None

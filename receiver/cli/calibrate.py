@@ -234,6 +234,16 @@ def run_rows(args) -> dict:
     try:
         res = measure_row_time(_sensor_frames(src, cam), mode=mode, rate_hz=rate, prior_row_us=cam.row_readout_us,
                                max_frames=args.max_frames, progress=_progress)
+    except InputError as e:
+        # The camera's own exposure, when longer than a unit (a chip, half a tone period), smears
+        # the edges this measurement needs: say so rather than only "no stripes".
+        unit_us = 1e6 / (2 * rate if mode == "tone" else rate)
+        if cam.exposure_us > unit_us and "stripe" in str(e):
+            raise InputError(f"{e}; the camera file's exposure {cam.exposure_us:g} us is longer than one "
+                             f"{'half period' if mode == 'tone' else 'chip'} ({unit_us:.0f} us), which smears "
+                             f"the stripe edges the row time is measured from: record the LED with an exposure "
+                             f"under {unit_us:.0f} us for the calibration") from None
+        raise
     finally:
         src.close()
     if src.size is not None and src.size != (cam.width, cam.height):

@@ -65,9 +65,14 @@ def main(args) -> int:
         elif cam is not None and src.size is not None:
             cam, rotate = fit_camera(cam, src.size)
             frames = _rotated(src) if rotate else src
+        stated = None
+        if src.kind == "images":
+            from receiver.io.imagefile import exif_exposure_us
+            times = [exif_exposure_us(p) for p in src.files[:args.max_frames]]
+            stated = max(times) if times and all(t is not None for t in times) else None
         findings = check_frames(frames, cam, led_map, fps=src.fps, max_frames=args.max_frames,
                                 source_counts={"dropped": src.dropped, "skipped": src.skipped},
-                                source_kind=src.kind)
+                                source_kind=src.kind, stated_exposure_us=stated)
     finally:
         src.close()
     ok = all(f.ok for f in findings)

@@ -6,6 +6,7 @@ short refused, and the decoder's own messages kept off the user's standard error
 * `jpeg_complete(data)`: False when a JPEG has no end-of-image marker after its last scan
   (a file cut short: libjpeg would fill the missing rows with grey and only warn).
 * `read_gray(path, max_pixels)`: (8-bit gray image, None) or (None, reason).
+* `exif_exposure_us(path)`: the shutter time a photo's EXIF records, us (None without one).
 """
 
 from __future__ import annotations
@@ -173,3 +174,20 @@ def read_gray(path: str, max_pixels: int = DEFAULT_MAX_PIXELS):
 # What libjpeg says of a damaged file (it still returns an image, part of it made up). Other
 # messages (libpng's note on an sRGB profile, say) leave the image whole and are dropped.
 _DAMAGE_WORDS = ("Corrupt JPEG", "Premature end", "Bogus", "Invalid JPEG", "unknown JFIF")
+
+
+# EXIF tags (the Exif sub-IFD's ExposureTime, s).
+_EXIF_IFD, _EXPOSURE_TIME = 0x8769, 0x829A
+
+
+def exif_exposure_us(path: str) -> float | None:
+    """The exposure (shutter) time a photo records in its EXIF, us; None when it has none or
+    the file is not a photo Pillow (matplotlib's image library) reads."""
+    try:
+        from PIL import Image
+        with Image.open(path) as im:
+            value = im.getexif().get_ifd(_EXIF_IFD).get(_EXPOSURE_TIME)
+        us = float(value) * 1e6
+    except Exception:   # no Pillow, no EXIF, a damaged header: the photo simply does not say
+        return None
+    return us if 0.0 < us < 1e8 else None

@@ -61,6 +61,11 @@ class _Labels:
     def __init__(self):
         self.boxes: list[tuple[int, int, int, int]] = []
 
+    def reserve(self, text: str, org, scale: float, th: int) -> None:
+        """Keep the place of `text` drawn at `org` free of the labels put later."""
+        (tw, tht), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, th)
+        self.boxes.append((int(org[0]), int(org[1]) - tht, int(org[0]) + tw, int(org[1]) + base))
+
     def put(self, img, text: str, org, scale: float, colour, th: int) -> None:
         font = cv2.FONT_HERSHEY_SIMPLEX
         (tw, tht), base = cv2.getTextSize(text, font, scale, th)
@@ -69,11 +74,21 @@ class _Labels:
         for k in range(2 * self.TRIES + 1):   # the place asked for, then one line up, one down, two up...
             yy = y + (-(k + 1) // 2 if k % 2 else k // 2) * step
             box = (x, yy - tht, x + tw, yy + base)
+            if box[1] < 0 or box[3] > img.shape[0]:   # off the image
+                continue
             if not any(box[0] < b[2] and b[0] < box[2] and box[1] < b[3] and b[1] < box[3] for b in self.boxes):
                 y = yy
                 break
         self.boxes.append((x, y - tht, x + tw, y + base))
         cv2.putText(img, text, (x, y), font, scale, colour, th, cv2.LINE_AA)
+
+
+def _inset_box(shape, k: float) -> tuple[int, int, int, int]:
+    """(left, top, width, height) px of the inset in an image of `shape` at drawing scale `k`:
+    the top right corner, at most a third of the image each way."""
+    h, w = shape[:2]
+    iw, ih = min(int(INSET[0] * k), w // 3), min(int(INSET[1] * k), h // 3)
+    return w - iw - 8, 8, iw, ih
 
 
 class Annotator:
@@ -91,12 +106,11 @@ class Annotator:
         `vehicle` view shows the host's surroundings only."""
         if self._pts is None:
             return
-        h, w = img.shape[:2]
-        iw, ih = min(int(INSET[0] * k), w // 3), min(int(INSET[1] * k), h // 3)
-        ox, oy = w - iw - 8, 8
+        ox, oy, iw, ih = _inset_box(img.shape, k)
+        m = min(int(8 * k), iw // 6, ih // 6)   # margin inside the frame, px (the dots' room)
         roi = img[oy:oy + ih, ox:ox + iw]
         roi[:] = (roi * 0.35).astype(np.uint8)
-        cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, 1)
+        cv2.rectangle(img, (ox, oy), (ox + iw - 1, oy + ih - 1), WHITE, max(1, int(round(k / 2))))
         pts = self._pts
         extra = ([[position["x"], position["y"]]] if position is not None else []) + [[x, y] for x, y, _ in cars]
         if vehicle and position is not None:
@@ -108,10 +122,11 @@ class Annotator:
         elif extra:
             pts = np.vstack((pts, extra))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
-        scale = min((iw - 16) / max(hi[0] - lo[0], 1e-6), (ih - 16) / max(hi[1] - lo[1], 1e-6))
+        scale = min((iw - 2 * m) / max(hi[0] - lo[0], 1e-6), (ih - 2 * m) / max(hi[1] - lo[1], 1e-6))
+        mid = (lo + hi) / 2   # drawn at the inset's centre
 
         def at(x, y):
-            return int(ox + 8 + (x - lo[0]) * scale), int(oy + ih - 8 - (y - lo[1]) * scale)
+            return int(ox + iw / 2 + (x - mid[0]) * scale), int(oy + ih / 2 - (y - mid[1]) * scale)
         for x, y in self._pts:
             if lo[0] <= x <= hi[0] and lo[1] <= y <= hi[1]:
                 cv2.circle(img, at(x, y), max(2, int(2 * k)), YELLOW, -1)
@@ -128,6 +143,27 @@ class Annotator:
         th = max(1, int(round(k)))  # line thickness
         font = cv2.FONT_HERSHEY_SIMPLEX
         labels = _Labels()
+        lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
+        pos = getattr(res, "position", None)
+        if pos:
+            lines.append(f"pos x {pos['x']:.2f} y {pos['y']:.2f} z {pos.get('z', 0):.2f} m "
+                         f"({pos.get('method', '')}, {pos.get('n_leds', '')} LEDs)")
+        veh = getattr(res, "vehicle", None)
+        if veh:
+            hv = veh.get("hv")
+            if hv:
+                lines.append(f"hv x {hv.get('x', 0):.1f} y {hv.get('y', 0):.1f} m")
+            for fv in veh.get("fv", []) or []:
+                ttc = fv.get("ttc_s")
+                lines.append((f"fv {fv.get('id')} {fv.get('distance_m', 0) or 0:.1f} m "
+                              f"{fv.get('angle_deg', 0) or 0:+.1f} deg" + (f" TTC {ttc:.1f} s" if ttc is not None else "")
+                              + (f" {fv['zone']}" if fv.get("zone") else ""), ZONE_COLOURS.get(fv.get("zone"), WHITE)))
+        # the text block and the inset are kept free of the lights' labels
+        for i, t in enumerate(lines):
+            labels.reserve(t[0] if isinstance(t, tuple) else t, (int(8 * k), int((18 + 16 * i) * k)), 0.45 * k, th)
+        if self._pts is not None:
+            ox, oy, iw, ih = _inset_box(img.shape, k)
+            labels.boxes.append((ox, oy, ox + iw, oy + ih))
         pairs = getattr(res, "pairs", ()) or ()
         ranges = {}   # S2-PSK ID -> its range (m), for the pair's label
         for led in getattr(res, "leds", []) or []:
@@ -153,21 +189,6 @@ class Annotator:
             if pr.led_id in ranges:
                 txt += f" {ranges[pr.led_id]:.1f} m"
             labels.put(img, txt, ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2 - int(6 * k)), 0.4 * k, CYAN, th)
-        lines = [f"frame {res.frame}  t {res.t_s:.3f} s"]
-        pos = getattr(res, "position", None)
-        if pos:
-            lines.append(f"pos x {pos['x']:.2f} y {pos['y']:.2f} z {pos.get('z', 0):.2f} m "
-                         f"({pos.get('method', '')}, {pos.get('n_leds', '')} LEDs)")
-        veh = getattr(res, "vehicle", None)
-        if veh:
-            hv = veh.get("hv")
-            if hv:
-                lines.append(f"hv x {hv.get('x', 0):.1f} y {hv.get('y', 0):.1f} m")
-            for fv in veh.get("fv", []) or []:
-                ttc = fv.get("ttc_s")
-                lines.append((f"fv {fv.get('id')} {fv.get('distance_m', 0) or 0:.1f} m "
-                              f"{fv.get('angle_deg', 0) or 0:+.1f} deg" + (f" TTC {ttc:.1f} s" if ttc is not None else "")
-                              + (f" {fv['zone']}" if fv.get("zone") else ""), ZONE_COLOURS.get(fv.get("zone"), WHITE)))
         for i, t in enumerate(lines):
             text, colour = t if isinstance(t, tuple) else (t, WHITE)
             cv2.putText(img, text, (int(8 * k), int((18 + 16 * i) * k)), font, 0.45 * k, colour, th, cv2.LINE_AA)

@@ -44,6 +44,11 @@ from receiver.core.errors import InputError  # noqa: E402
 from receiver.core.records import Frame
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+# Photo formats a phone or camera saves that OpenCV does not decode (HEIF: iPhones by default;
+# raw sensor files): named in the error with what to do, never "not a readable video".
+UNREAD_PHOTO_EXTS = (".heic", ".heif", ".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2")
+CONVERT_HINT = ("convert them to JPEG or PNG (e.g. heif-convert IMG.HEIC IMG.jpg; or set the camera "
+                "to save JPEG: on an iPhone, Settings > Camera > Formats > Most Compatible)")
 V4L2_RE = re.compile(r"^/dev/video\d+$")
 PIX_FMTS = {"gray": 1, "bgr24": 3}
 # V4L2 pixel formats, most useful first: raw luma keeps the stripes, MJPEG blurs them.
@@ -297,8 +302,15 @@ class ImageSource(FrameSource):
         self.max_pixels = max_pixels or DEFAULT_MAX_PIXELS
         if os.path.isdir(path):
             # only regular files: a FIFO or device named *.png would block imread forever
-            files = sorted(p for p in glob.glob(os.path.join(path, "*"))
-                           if p.lower().endswith(IMAGE_EXTS) and os.path.isfile(p))
+            every = sorted(p for p in glob.glob(os.path.join(path, "*")) if os.path.isfile(p))
+            files = [p for p in every if p.lower().endswith(IMAGE_EXTS)]
+            unread = [p for p in every if p.lower().endswith(UNREAD_PHOTO_EXTS)]
+            if unread:
+                kinds = "/".join(sorted({os.path.splitext(p)[1].upper().lstrip(".") for p in unread}))
+                what = f"{len(unread)} {kinds} photo(s) are not read: {CONVERT_HINT}"
+                if not files:
+                    raise InputError(f"{path}: no images in folder ({what})")
+                _warn(f"{path}: {what}")
             if not files:
                 raise InputError(f"{path}: no images in folder")
         else:
@@ -747,6 +759,9 @@ def open_source(spec: str, *, size=None, pix_fmt: str | None = None, realtime: b
         raise InputError(f"no such file or folder: {spec}")
     elif spec.lower().endswith(IMAGE_EXTS):
         src = ImageSource(spec, fps=fps, max_pixels=max_pixels)
+    elif spec.lower().endswith(UNREAD_PHOTO_EXTS):
+        ext = os.path.splitext(spec)[1].upper().lstrip(".")
+        raise InputError(f"{spec}: {ext} photos are not read (OpenCV has no decoder for them): {CONVERT_HINT}")
     else:
         from receiver.io.files import check_regular
         check_regular(spec, "video")

@@ -121,3 +121,21 @@ def test_crossings_and_warning():
     assert exposure_warning(79.0, [20000.0]) is None
     assert exposure_warning(130.0, (), [4000.0]) is not None and exposure_warning(60.0, (), [4000.0]) is None
     assert exposure_warning(60.0, [20000.0], [5000.0]) is None and exposure_warning(None, [20000.0]) is None
+
+
+def test_no_stripes_with_an_exposure_longer_than_a_chip_says_why(tmp_path, capsys):
+    import cv2
+    import numpy as np
+    folder = tmp_path / "dark"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), np.zeros((90, 160), np.uint8))
+    text = (REC / "indoor-static" / "camera.yaml").read_text()
+    for exposure, hint in (("20.", False), ("87.", True)):
+        cam = tmp_path / f"c{exposure}yaml"
+        cam.write_text("\n".join(f"exposure_us: {exposure}" if l.startswith("exposure_us:") else l
+                                 for l in text.splitlines()) + "\n")
+        assert occloc(["calibrate", "rows", str(folder), "--camera", str(cam), "--ook-rate", "20000"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("occloc: no OOK stripes found at 20000 Hz")
+        assert ("exposure 87 us is longer than one chip (50 us)" in err[-1]) == hint, err[-1]

@@ -133,3 +133,27 @@ def test_a_too_long_exposure_on_a_photo_is_failed_with_photo_advice(luxapose, tm
     exp = next(f for f in fs if f.name == "exposure")
     assert not exp.ok and "exposure ~2000 us (limit 125 us" in exp.text and "(camera file)" in exp.text
     assert "shutter time" in exp.fix and "v4l2" not in exp.fix
+
+
+def test_the_photos_own_exif_exposure_is_judged(luxapose, tmp_path, capsys):
+    """A photo records its shutter time (EXIF ExposureTime): check judges that, whatever the
+    camera file says; the Luxapose photos' 60 us pass, the same photo marked 1/500 s fails with
+    both numbers and the camera app's advice."""
+    from PIL import Image
+    from receiver.io.imagefile import exif_exposure_us
+    assert exif_exposure_us(str(luxapose / "x_0_y_1.27.jpg")) == pytest.approx(60.0)
+    slow = tmp_path / "slow.jpg"
+    exif = Image.Exif()
+    exif[0x8769] = {0x829A: 0.002}
+    with Image.open(luxapose / "x_0_y_1.27.jpg") as im:
+        im.convert("L").resize((1928, 1088)).save(slow, exif=exif, quality=95)
+    assert exif_exposure_us(str(slow)) == pytest.approx(2000.0)
+    assert exif_exposure_us(str(tmp_path)) is None
+    argv = ["--camera", str(luxapose / "camera_lumia1020.yaml"), "--map", str(luxapose / "map_test_rig.json"), "--json"]
+    assert occloc(["check", str(luxapose / "x_0_y_1.27.jpg"), *argv]) == 0
+    exp = {f["check"]: f for f in json.loads(capsys.readouterr().out)["findings"]}["exposure"]
+    assert exp["ok"] and exp["text"].endswith("(the photos' EXIF)") and exp["exposure_us"] == pytest.approx(60.0)
+    assert occloc(["check", str(slow), *argv]) == 1
+    exp = {f["check"]: f for f in json.loads(capsys.readouterr().out)["findings"]}["exposure"]
+    assert not exp["ok"] and "exposure ~2000 us (limit 125 us" in exp["text"] and "EXIF" in exp["text"]
+    assert "shutter time of 1/8000 s or shorter" in exp["fix"]

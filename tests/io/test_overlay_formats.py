@@ -119,3 +119,38 @@ def test_show_without_a_display_is_a_one_line_error_before_any_work(tmp_path, ca
     monkeypatch.setenv("DISPLAY", ":97")
     with pytest.raises(InputError, match="--show cannot open a window"):
         LiveWindow(None)
+
+
+def test_inset_of_a_large_photo_keeps_the_lights_inside_its_frame_and_centred(tmp_path):
+    """On a 33 MP photo (drawing scale 6) the map's lights are dots of 12 px: the margin grows
+    with them, so none touches the inset's frame, and the map sits in the middle."""
+    from receiver.core.records import FrameResult
+    from receiver.io.ledmap import load_map
+    from receiver.io.overlay import INSET, YELLOW, scale_for
+    led_map = load_map(str(STATIC / "map.json"))
+    size = (7712, 4352)
+    k = scale_for(size)
+    img = OverlayWriter(str(tmp_path / "p.jpg"), size, 30.0, None, led_map).annotate(
+        np.zeros(size[::-1], np.uint8), FrameResult(0, 0.0, 1.0, [], position={"x": 2.0, "y": 2.0, "z": 1.0}))
+    iw, ih = int(INSET[0] * k), int(INSET[1] * k)
+    inset = img[8:8 + ih, size[0] - iw - 8:size[0] - 8]
+    ys, xs = np.nonzero((inset == YELLOW).all(axis=2))
+    assert xs.size and xs.min() > 4 and ys.min() > 4 and xs.max() < iw - 5 and ys.max() < ih - 5
+    assert abs((xs.min() + xs.max()) / 2 - iw / 2) < 0.05 * iw and abs((ys.min() + ys.max()) / 2 - ih / 2) < 0.05 * ih
+
+
+def test_labels_keep_off_the_text_block_and_inside_the_image():
+    """A light at the top left: its label is not drawn over the frame/position text (nor off the
+    image), but just below it."""
+    from receiver.core.records import FrameResult, LedObservation
+    gray = np.zeros((720, 1280), np.uint8)
+    c = np.array([[10, 2], [160, 2], [160, 200], [10, 200]], float)
+    led = LedObservation(track=5, cx=85.0, cy=100.0, area_px=30000.0, contour=c, id=4505, mode="ook")
+    res = FrameResult(0, 0.0, 1.0, [led], position={"x": 1.0, "y": 2.0, "z": 1.0, "method": "outline", "n_leds": 5})
+    img = OverlayWriter("x.png", (1280, 720), 30.0).annotate(gray, res)
+    green = (img == (0, 255, 0)).all(axis=2)
+    green[:, 8:12] = False; green[:, 158:162] = False   # the envelope's sides
+    green[:5, :] = False                                 # its top edge
+    rows = np.nonzero(green[:, 20:150].any(axis=1))[0]
+    white_rows = np.nonzero((img[:, :300] == (255, 255, 255)).all(axis=2).any(axis=1))[0]
+    assert rows.size and white_rows.size and rows.min() > white_rows.max(), (rows.min(), white_rows.max())

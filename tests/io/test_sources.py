@@ -241,3 +241,19 @@ def test_realtime_keeps_newest_and_counts_every_dropped_frame():
         time.sleep(0.002)  # a slow consumer: the reader overwrites frames meanwhile
     assert got == sorted(got) and got[-1] == 49
     assert len(got) + src.dropped == 50
+
+
+def test_phone_formats_opencv_cannot_read_are_named_with_what_to_do(tmp_path, capsys):
+    """An iPhone's HEIC (or a raw DNG) photo: an error naming the format and the conversion, not
+    'not a readable video file'; a folder of them likewise; beside JPEGs a warning counts them."""
+    heic = tmp_path / "IMG_0001.HEIC"
+    heic.write_bytes(b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic")
+    with pytest.raises(InputError, match=r"IMG_0001.HEIC: HEIC photos are not read .*convert them to JPEG"):
+        open_source(str(heic))
+    (tmp_path / "raw.dng").write_bytes(b"II*\x00")
+    with pytest.raises(InputError, match=r"no images in folder \(2 DNG/HEIC photo\(s\) are not read"):
+        open_source(str(tmp_path))
+    cv2.imwrite(str(tmp_path / "a.png"), _gradient(0))
+    src = open_source(str(tmp_path))
+    assert len(src.files) == 1
+    assert "2 DNG/HEIC photo(s) are not read" in capsys.readouterr().err
