@@ -197,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="folder for the renders (kept and reused)")
     p.add_argument("--write", metavar="PAGE.md", help="write the page (head and table) to this file")
     args = p.parse_args(argv)
+    from receiver.core.errors import InputError
+
     unknown = [n for n in args.names if n not in BY_NAME]
     if unknown:
         p.error(f"unknown scene {', '.join(unknown)} (choose from {', '.join(BY_NAME)})")
@@ -207,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         sc = BY_NAME[name]
         try:
             r = run_scene(sc, work)
-        except (FileNotFoundError, RuntimeError) as e:
+        except (OSError, RuntimeError, InputError) as e:  # (FileNotFoundError is an OSError)
             print(f"indoor_score: {name}: {e}", file=sys.stderr)
             return 1
         print(f"indoor_score: {name}: {json.dumps(r)}", file=sys.stderr)

@@ -571,6 +571,8 @@ def _main(args, stop: "SignalStop") -> int:
         if cam.exposure_us <= 0:  # learned during the run (before the summary: it stays the last line)
             for readable, note in rx.policy.exposure_notes():
                 print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
+        for note in rx.policy.chip_notes():  # lights too short in the image for their chips
+            print(f"occloc: warning: {note}", file=sys.stderr)
         hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None
         print("occloc: " + summary.text(skipped=src.skipped, dropped=src.dropped, truncated=src.truncated,

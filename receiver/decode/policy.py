@@ -15,6 +15,7 @@ key and drops it with its track.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,10 @@ from receiver.vision.tone_profile import tone_profile
 
 # Longest OFF run of an OOK stream in chips: the sync's OFF run (PROTOCOL.md section 1).
 OOK_MAX_OFF_CHIPS = 4
+# `DecodePolicy.chip_notes`: the chips a frame of the last CHIPS_SEEN striped OOK light images
+# per rate, judged once CHIPS_MIN_IMAGES are there.
+CHIPS_SEEN = 512
+CHIPS_MIN_IMAGES = 10
 # Rows added to the longest expected dark stripe (exposure edges, JPEG ringing).
 STRIPE_GAP_MARGIN_ROWS = 2
 # Dark-stripe gap bridged when the camera has a global shutter (no stripes).
@@ -176,6 +181,9 @@ class DecodePolicy:
                 ids = sorted(led.id for led in led_map.by_mode("ook")
                              if accept(led_map, "ook", led.id, rate))
                 self.candidates[rate] = np.array(ids, dtype=np.int64)
+        # chips per frame of the striped OOK lights' images, per rate (`chip_notes`)
+        self.chips_seen = ({rate: deque(maxlen=CHIPS_SEEN) for rate in plan.ook_rates}
+                           if camera.rolling_shutter else {})
         # the exposure, when the camera file does not state it, is learned from the stripes
         self.exposure_learners = ({rate: ExposureLearner() for rate in plan.ook_rates}
                                   if camera.rolling_shutter and camera.exposure_us <= 0 else {})
@@ -198,6 +206,26 @@ class DecodePolicy:
                 exp_us, how = lr.exposure_rows * self.camera.row_readout_us, "from the stripes' edges"
             ok, text = exposure_verdict(exp_us, rate)
             out.append((ok, f"{text} ({how})"))
+        return out
+
+    def chip_notes(self) -> list[str]:
+        """Per OOK chip rate whose lights' images showed at most `OokSettings.pieces_max_chips`
+        chips a frame (median over the striped light images fed): a line with the numbers and
+        the chip rate or image height that would give more. Such packets are pieced together
+        from short pieces by the frame times (`receiver.decode.pieces`): slowly or not at all."""
+        out = []
+        limit = float(self.ook.pieces_max_chips)
+        for rate, seen in self.chips_seen.items():
+            if len(seen) < CHIPS_MIN_IMAGES or limit <= 0:
+                continue
+            med = float(np.median(np.fromiter(seen, float)))
+            if med > limit or med <= 0:
+                continue
+            more = limit / med
+            out.append(f"the lights' images show {med:.0f} chips a frame (median) of the {rate / 1000:g} kHz OOK "
+                       f"chips, a packet is {protocol.OOK_PACKET_LEN}: its IDs are pieced together over many frames, slowly "
+                       f"or not at all; more than {limit:g} chips a frame (chips at > {rate * more / 1000:.0f} kHz, "
+                       f"or lights {more:.1f}x taller in the image) are read from their own chips")
         return out
 
     def new_light(self) -> LightDecoder:
@@ -242,10 +270,13 @@ class DecodePolicy:
         for (mode, rate), dec in light.decoders.items():
             if mode == "tone":  # the LED's whole striped extent, log intensity (tone_profile.py)
                 st = dec.step(*tone_profile(gray, blob)[:2], t_s)
-            elif ticks and ticks.get(rate) is not None:
-                st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
             else:
-                st = dec.step(profile, weights, t_s, y0=y0)
+                if rate in self.chips_seen:  # this image's chips a frame (`chip_notes`)
+                    self.chips_seen[rate].append(len(profile) * rate * self.camera.row_readout_us * 1e-6)
+                if ticks and ticks.get(rate) is not None:
+                    st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
+                else:
+                    st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None

@@ -47,6 +47,10 @@ AMBIGUOUS_M = 0.10
 AMBIGUOUS_CHI2_RATIO = 4.0
 TRACKED_TURN_DEG = 20.0
 TURN_RATE_DEG_S = 60.0
+# Each panel start's solve is repeated from its result while chi^2 per dof drops by more than
+# POLISH_GAIN, at most POLISH_SOLVES times (`Positioner._polished`).
+POLISH_SOLVES = 3
+POLISH_GAIN = 0.05
 
 
 def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
@@ -292,7 +296,7 @@ class Positioner:
         for R0, C0 in starts:
             if any(np.linalg.norm(C0 - f.C) < START_MERGE_M for f in fits):
                 continue        # a start next to a pose already solved lands on it
-            cand = self._solve_outline(targets, R0, C0, None, None)
+            cand = self._polished(targets, self._solve_outline(targets, R0, C0, None, None))
             if cand is not None and all(np.linalg.norm(cand.C - f.C) > START_MERGE_M for f in fits):
                 fits.append(cand)
         if not fits:
@@ -304,6 +308,20 @@ class Positioner:
                     and other.chi2 / other.dof < AMBIGUOUS_CHI2_RATIO * max(best.chi2 / best.dof, 1.0)):
                 return None
         return best
+
+    def _polished(self, targets, fix):
+        """`fix` solved again from itself while that lowers its chi^2 per dof by more than
+        `POLISH_GAIN` (at most `POLISH_SOLVES` times). A panel start is far from its branch's
+        optimum, and one solve may stop short of it: the ambiguity test of `_panel_fix` must
+        compare the branches' optima, or a lone small panel seen nearly square-on, whose
+        tilted-and-shifted branches fit equally well, yields whichever branch happened to
+        converge (a first fix 0.8-1.2 m off, which the track then followed)."""
+        for _ in range(POLISH_SOLVES if fix is not None else 0):
+            again = self._solve_outline(targets, fix.R_cw, fix.C, None, None)
+            if again is None or again.chi2 / again.dof >= (1.0 - POLISH_GAIN) * fix.chi2 / fix.dof:
+                break
+            fix = again
+        return fix
 
     def _at_frame_time(self, fix):
         """An outline fix moved from its points' mean read time to the frame's time stamp (the

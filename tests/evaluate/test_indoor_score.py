@@ -85,3 +85,12 @@ def test_unknown_scene_is_refused(capsys):
         main(["no-such-scene"])
     assert e.value.code != 0
     assert "unknown scene no-such-scene" in capsys.readouterr().err
+
+
+def test_a_missing_recording_is_one_line_and_exit_1(tmp_path, monkeypatch, capsys):
+    import tools.indoor_score as tool
+
+    monkeypatch.setattr(tool, "INDEPENDENT", tmp_path / "nowhere")
+    assert main(["indep-grid-s31", "--work", str(tmp_path / "work")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("indoor_score: indep-grid-s31:") and "no such recording" in err[0]

@@ -1,0 +1,36 @@
+"""`DecodePolicy.chip_notes`: `occloc run` says, with the numbers, when the lights' images show
+too few chips a frame for their packets to be read from their own chips (5-10 kHz chips on
+small or far panels), and which chip rate or image height would; nothing when they show more."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from receiver.io.camera import CameraModel
+from receiver.io.ledmap import parse_map
+from receiver.pipeline import Receiver
+
+
+def _receiver(rate_hz):
+    K = np.array([[1100.0, 0, 640.0], [0, 1100.0, 360.0], [0, 0, 1]])
+    cam = CameraModel(1280, 720, K, np.zeros(5), fps=30.0, row_readout_us=10.0, exposure_us=10.0)
+    led_map = parse_map({"units": "m", "addressing": "map", "leds": [
+        {"id": 7, "mode": "ook", "x": 0.0, "y": 0.0, "z": 3.0, "shape": "square", "size": [0.2, 0.2],
+         "rate_hz": rate_hz}]})
+    return Receiver(cam, led_map)
+
+
+def test_few_chips_a_frame_are_named_with_the_rate_that_would_do():
+    pol = _receiver(5000).policy
+    assert pol.chip_notes() == []                   # nothing seen yet
+    pol.chips_seen[5000.0].extend([6.0] * 9 + [5.0] * 3)   # 120-row images: 6 chips of 5 kHz
+    (note,) = pol.chip_notes()
+    assert "6 chips a frame" in note and "5 kHz" in note and "a packet is 54" in note
+    # 16 chips (the pieces' limit) need 16 / 6 of the rate or of the image height
+    assert "> 13 kHz" in note and "2.7x taller" in note
+
+
+def test_enough_chips_a_frame_give_no_note():
+    pol = _receiver(20000).policy
+    pol.chips_seen[20000.0].extend([24.0] * 20)
+    assert pol.chip_notes() == []
