@@ -226,7 +226,8 @@ def _quiet(seed, **kw):
 def test_saturated_pixels_sit_at_the_white_level_and_bloom_spills_along_columns():
     """Noise-free renders of frames with and without column bloom: the saturated pixels are
     at the white level; bloom adds charge above and below a saturated blob in its columns and
-    none beside it in its rows; the dimmed switch (brightness 1, no bloom) saturates nothing."""
+    none beside it in its rows; the dimmed switch (heads and taillights at brightness 1, no bloom)
+    saturates nothing."""
     on = _quiet(4, light_brightness=3.0, bloom_frac=0.1, bloom_len_px=3.0)
     off = _quiet(4, light_brightness=3.0, bloom_frac=0.0)
     checked = 0
@@ -235,7 +236,7 @@ def test_saturated_pixels_sit_at_the_white_level_and_bloom_spills_along_columns(
         if checked >= 2:
             break
     assert checked >= 2
-    dim = _quiet(4, light_brightness=1.0, bloom_frac=0.0)
+    dim = _quiet(4, light_brightness=1.0, taillight_brightness=1.0, bloom_frac=0.0)
     img_dim, _ = FrameRenderer(dim, seed=4).render(0)
     assert img_dim.max() < WHITE_DN
 
@@ -306,3 +307,29 @@ def test_the_host_wanders_and_changes_lane_as_drawn_and_the_cars_gaps_scale():
         assert gaps == pytest.approx(sorted(spec[1] * road["fv_gap_scale"] for spec in FV_SCRIPT), abs=1e-4)
     still = make_scene("vehicle-random", seed=2, wander_m=0.0, lane_change_m=0.0)
     assert all(still.extra_truth(x)["vehicle"]["hv"]["lateral_m"] == 0.0 for x in (0.0, 3.0, 6.0))
+
+
+def _taillight_peaks(sc, frames):
+    """Peak value around each visible taillight emitter's centre (in the image) over `frames`."""
+    fr = FrameRenderer(sc, seed=1)
+    peaks = []
+    for k in frames:
+        img, truth = fr.render(k)
+        for led in truth["leds"]:
+            if led["id"] <= SL_MAX_ID or not led["visible"]:
+                continue
+            for e in led["emitters"]:
+                x, y = int(round(e["cx"])), int(round(e["cy"]))
+                peaks.append(int(img[max(y - 2, 0):y + 3, max(x - 2, 0):x + 3].max()))
+    return np.array(peaks)
+
+
+def test_lit_taillights_saturate_unless_dimmed():
+    """Every lit taillight (peak well above the background) is at the white level; at
+    brightness 1 none is."""
+    frames = range(0, 40, 4)
+    bright = _taillight_peaks(make_scene("vehicle-random", seed=1, taillight_brightness=2.0), frames)
+    lit = bright[bright > 60]
+    assert len(lit) >= 10 and np.all(lit == WHITE_DN)
+    dim = _taillight_peaks(make_scene("vehicle-random", seed=1, taillight_brightness=1.0), frames)
+    assert np.count_nonzero(dim > 60) >= 10 and dim.max() < WHITE_DN

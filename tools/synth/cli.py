@@ -19,7 +19,7 @@ UNITS = {"width": "px", "height": "px", "fps": "frames/s", "seconds": "s", "dist
          "bloom_frac": "fraction of a clipped pixel's excess", "vignetting": "fraction of light lost at the corners",
          "centre_gain": "fraction brighter at a panel's centre", "bezel_frac": "fraction of a panel's half size",
          "tone_gamma": "exponent of the tone curve", "sharpen": "unsharp-mask amount", "rs_band_rows": "image rows",
-         "turn_rad": "rad", "light_brightness": "times led_peak_dn",
+         "turn_rad": "rad", "light_brightness": "times led_peak_dn", "taillight_brightness": "times led_peak_dn",
          "light_layout": "staggered, one-side or opposite", "head_style": "split or merged",
          "fv_gap_scale": "times the scripted gaps to the cars ahead"}
 

@@ -357,7 +357,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
             taillight_size_m=(0.15, 0.10), taillight_baseline_m=1.4, taillight_height_m=1.0,
             body_size_m=(4.5, 1.8, 1.4), body_z0_m=0.15, curve_radius_m=None, seconds=8.0,
             light_layout="staggered", light_brightness=1.0, slow_shake_rms_deg=0.0, roll_rms_deg=0.0,
-            jitter_deg=0.0, fv_gap_scale=1.0, wander_m=0.0, wander_hz=0.1):
+            jitter_deg=0.0, fv_gap_scale=1.0, wander_m=0.0, wander_hz=0.1, taillight_brightness=1.0):
     """Night road: host vehicle (HV) with a forward camera, S2-PSK street lights (SL), three
     forward vehicles (FV) with opaque bodies that hide each other's taillights.
 
@@ -389,7 +389,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     and a frame-to-frame jitter (`jitter_deg` rms per axis, held over each frame period).
     `light_layout`: "staggered" (the default above), "one-side" (the left row only) or
     "opposite" (both rows at the same s); `light_brightness`: the heads' radiance relative to
-    `led_peak_dn` (above ~1.5 they saturate; with `halo_frac` their blobs then bloom).
+    `led_peak_dn` (above ~1.5 they saturate; with `halo_frac` their blobs then bloom);
+    `taillight_brightness` the same for the taillights.
 
     FVs (IDs in 0x80-0xFF, not in the map; the map's `taillight` block describes them): see
     `FV_SCRIPT` (gaps 46, 24, 34 m, and their rates, times `fv_gap_scale`; FV2 cuts in from
@@ -484,7 +485,7 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     for spec, fid in zip(FV_SCRIPT, fv_ids):
         lights.append(s2psk_pair(rng, int(fid), (0.0, 0.0, taillight_height_m), (-1.0, 0.0, 0.0),
                                  np.array([0.0, 1.0, 0.0]), taillight_size_m, taillight_baseline_m, clk_hz, symclk,
-                                 carrier=spec[0]))
+                                 carrier=spec[0], brightness=taillight_brightness))
     length, width, height = body_size_m
     bodies = [Body(spec[0], length=length, width=width, height=height, z0=body_z0_m) for spec in FV_SCRIPT]
     taillight = {"shape": "rect", "size": list(taillight_size_m), "baseline_m": taillight_baseline_m}
@@ -566,7 +567,7 @@ RANDOM_ROAD = dict(head_spacing_m=(12.5, 40.0), light_height_m=(6.0, 10.0), ligh
                    accel_mps2=(-0.5, 0.8), bloom_frac=(0.02, 0.1), bloom_len_px=(1.0, 4.0),
                    head_half_width_m=(0.2, 0.3), head_sep_m=(0.5, 0.8), taillight_baseline_m=(1.2, 1.7),
                    fv_gap_scale=(0.5, 1.3), wander_m=(0.0, 0.3), wander_hz=(0.05, 0.2),
-                   lane_change_start_s=(1.0, 4.0))
+                   lane_change_start_s=(1.0, 4.0), taillight_brightness=(1.5, 3.0))
 # The host's lane change per seed: left, none or right (m to the left).
 RANDOM_LANE_CHANGES_M = (3.5, 0.0, -3.5)
 RANDOM_LAYOUTS = ("staggered", "one-side", "opposite")
@@ -590,7 +591,7 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                    halo_frac=None, halo_sigma_px=None, accel_mps2=None, bloom_frac=None, bloom_len_px=None,
                    head_style=None, head_half_width_m=None, head_sep_m=None, taillight_baseline_m=None,
                    fv_gap_scale=None, wander_m=None, wander_hz=None, lane_change_m=None, lane_change_start_s=None,
-                   jitter_deg=0.05, cam_height_m=1.3, seconds=8.0):
+                   taillight_brightness=None, jitter_deg=0.05, cam_height_m=1.3, seconds=8.0):
     """`vehicle_road` on a road drawn per seed (`RANDOM_ROAD`, `RANDOM_LAYOUTS`,
     `RANDOM_HEAD_STYLES`; a keyword given is taken instead of drawn, so each effect can be
     switched off or fixed): heads `head_spacing_m` apart along the road (12.5-40 m) in a
@@ -609,7 +610,8 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
     left, not at all or to the right (`lane_change_m` from `RANDOM_LANE_CHANGES_M`) from
     `lane_change_start_s` (1-4 s). The forward vehicles are `vehicle_road`'s with their gaps
     scaled by `fv_gap_scale` (0.5-1.3: the nearest 9-31 m ahead, the farthest 23-65 m), their
-    taillights `taillight_baseline_m` (1.2-1.7 m) apart (the map's `taillight` block). Returns
+    taillights `taillight_baseline_m` (1.2-1.7 m) apart (the map's `taillight` block) and, as
+    the heads, bright enough to saturate (`taillight_brightness` 1.5-3x `led_peak_dn`). Returns
     `vehicle_road`'s dict plus `render` (the drawn sensor values, for `make_scene`) and `road`
     (every drawn value)."""
     # Every value is drawn, given or not, so that fixing one leaves the seed's other values as
@@ -646,7 +648,8 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                 fv_gap_scale=draw("fv_gap_scale", fv_gap_scale), wander_m=draw("wander_m", wander_m),
                 wander_hz=draw("wander_hz", wander_hz),
                 lane_change_m=float(pick(RANDOM_LANE_CHANGES_M, lane_change_m, "lane_change_m", any_value=True)),
-                lane_change_start_s=draw("lane_change_start_s", lane_change_start_s))
+                lane_change_start_s=draw("lane_change_start_s", lane_change_start_s),
+                taillight_brightness=draw("taillight_brightness", taillight_brightness))
     _require_positive(**{k: road[k] for k in ("head_spacing_m", "light_height_m", "head_half_width_m",
                                               "taillight_baseline_m", "fv_gap_scale")})
     if road["head_style"] == "merged" and head_sep_m is None:
@@ -668,7 +671,8 @@ def vehicle_random(rng, cam, head_spacing_m=None, light_layout=None, light_heigh
                          speed0_kmh=road["speed0_kmh"], accel_mps2=road["accel_mps2"],
                          taillight_baseline_m=road["taillight_baseline_m"], fv_gap_scale=road["fv_gap_scale"],
                          wander_m=road["wander_m"], wander_hz=road["wander_hz"], lane_change_m=road["lane_change_m"],
-                         lane_change_start_s=road["lane_change_start_s"], seconds=seconds)
+                         lane_change_start_s=road["lane_change_start_s"],
+                         taillight_brightness=road["taillight_brightness"], seconds=seconds)
     built["render"] = {k: road[k] for k in ROAD_SENSOR_KEYS}
     built["road"] = road
     built["description"] = "night road drawn per seed: " + ", ".join(
