@@ -46,6 +46,10 @@ MAX_RMS_PX = 1.0
 # The radial distortion factor 1 + k1 r^2 + k2 r^4 + k3 r^6 anywhere out to the image corner must
 # stay within these (a wide-angle webcam reaches ~0.7; a factor out of range is an overfit).
 MIN_RADIAL_SCALE, MAX_RADIAL_SCALE = 0.5, 1.5
+# Longest side over shortest side of a camera's frame: sensors are 1:1 to 16:9, panoramic film
+# formats under 3:1. A longer strip is not a camera's view, and OpenCV's chessboard search costs
+# grow without bound with it (a 100x100000 image runs past ten minutes).
+MAX_FRAME_ASPECT = 4.0
 
 
 @dataclass(frozen=True)
@@ -141,6 +145,9 @@ class ViewCollector:
     def add(self, index: int, gray: np.ndarray) -> str:
         """Look at one frame: 'accepted', 'none', 'blurred' or 'duplicate'."""
         h, w = gray.shape[:2]
+        if max(w, h) > MAX_FRAME_ASPECT * min(w, h):
+            raise InputError(f"frame {index} is {w}x{h}: not a camera's frame (sides over "
+                             f"{MAX_FRAME_ASPECT:g}:1), nothing to calibrate")
         if self.size is None:
             self.size = (w, h)
         elif self.size != (w, h):

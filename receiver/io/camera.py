@@ -156,7 +156,7 @@ def check_camera(cam: CameraModel, path: str = "camera") -> CameraModel:
 
 def load_camera(path: str) -> CameraModel:
     """Read a camera file (OpenCV FileStorage YAML)."""
-    from receiver.io.files import MAX_CAMERA_BYTES, check_nesting, read_bytes
+    from receiver.io.files import MAX_CAMERA_BYTES, check_nesting, cv_path, read_bytes
 
     if not os.path.isfile(path):
         raise InputError(f"camera file not found: {path}")
@@ -166,7 +166,7 @@ def load_camera(path: str) -> CameraModel:
         raise InputError(f"{path}: not a readable OpenCV YAML camera file (binary data)")
     check_nesting(text, path, yaml=True)
     try:
-        fs = cv2.FileStorage(path, cv2.FILE_STORAGE_READ)
+        fs = cv2.FileStorage(cv_path(path, "camera file"), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as e:
         # OpenCV's parser raises cv2.error, or SystemError from the binding on binary garbage.
         raise InputError(f"{path}: not a readable OpenCV YAML camera file ({_cv_reason(e)})") from None

@@ -14,6 +14,7 @@ atomic replacement, JSON without NaN/Infinity.
   leaves nothing); a device, FIFO or socket is opened and written directly; a symlink is
   followed; an existing file keeps its mode. `StdoutOutput`: standard output, same interface.
 * `dumps(obj)`: json.dumps with non-finite floats turned into null, allow_nan=False.
+* `cv_path(path, what)`: a file name OpenCV can be given (UTF-8), or a one-line InputError.
 """
 
 from __future__ import annotations
@@ -47,6 +48,19 @@ def check_regular(path: str, what: str = "file") -> None:
         kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode)
                 else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
         raise InputError(f"{path}: {what} is {kind}, not a regular file")
+
+
+def cv_path(path: str, what: str = "file") -> str:
+    """`path` for an OpenCV call that takes a file name (VideoCapture, VideoWriter, FileStorage,
+    imread): InputError when the name is not valid UTF-8 (bytes Python keeps as surrogates,
+    e.g. a Latin-1 name under LANG=C), which OpenCV's binding turns into a segmentation fault."""
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = path.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        raise InputError(f"{shown}: OpenCV cannot open a {what} whose path is not valid UTF-8 "
+                         f"(rename it)") from None
+    return path
 
 
 def read_bytes(path: str, what: str, max_bytes: int) -> bytes:

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from receiver.core.errors import InputError
+from receiver.io.files import cv_path
 
 INSET = (200, 150)  # top-view inset size at scale 1, px
 # A vehicle's inset shows the road map within this many metres of the host (x and y), at least a
@@ -50,6 +51,8 @@ def check_overlay_path(path: str) -> None:
     if ext not in STILLS and ext not in FORMATS:
         raise InputError(f"--overlay {path}: cannot write {ext or 'a file without extension'}; use "
                          f"{', '.join(STILLS + tuple(FORMATS))}")
+    if ext in FORMATS:  # OpenCV's video writer opens it (staged beside it) by name
+        cv_path(os.path.realpath(path), "--overlay video")
 
 
 class _Labels:

@@ -41,6 +41,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from receiver.core.errors import InputError  # noqa: E402
+from receiver.io.files import cv_path  # noqa: E402
 from receiver.core.records import Frame
 
 IMAGE_EXTS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
@@ -200,10 +201,11 @@ class VideoFileSource(FrameSource):
         # FFmpeg warns on every raw YUV frame ("treated as 8UC1"): that is the Y plane we want.
         cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
         try:
+            path = cv_path(self.path, "video")
             if self.threads is None:
-                cap = self._factory(self.path, cv2.CAP_FFMPEG)
+                cap = self._factory(path, cv2.CAP_FFMPEG)
             else:
-                cap = self._factory(self.path, cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, int(self.threads)])
+                cap = self._factory(path, cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, int(self.threads)])
             if not cap.isOpened():
                 raise InputError(f"{self.path}: not a readable video file")
             if not convert:
@@ -529,7 +531,7 @@ class V4l2Source(FrameSource):
         self._warn = warn
         if capture_factory is cv2.VideoCapture and not os.path.exists(path):
             raise InputError(f"no such camera device: {path}")
-        cap = capture_factory(path, cv2.CAP_V4L2)
+        cap = capture_factory(cv_path(path, "camera device"), cv2.CAP_V4L2)
         if cap is None or not cap.isOpened():
             raise InputError(f"{path}: cannot open camera device")
         self._cap = cap

@@ -141,3 +141,47 @@ def test_folder_whose_first_photo_is_damaged_is_not_refused(tmp_path):
     assert p.returncode == 0, err
     assert len(p.stdout.decode().splitlines()) == 2
     assert "skipped corrupt frames: 1" in err and "Premature end" not in err
+
+
+@pytest.mark.parametrize("h, w", [(1, 100000), (100000, 1), (100, 100000)])
+def test_calibration_strip_is_refused_before_the_board_search(monkeypatch, h, w):
+    """OpenCV's chessboard search on a 100x100000 strip runs past ten minutes: a frame whose
+    sides are further apart than any camera's (4:1) is refused before it is searched."""
+    from receiver.calibrate import intrinsics
+    from receiver.core.errors import InputError
+
+    def never(*a, **k):
+        raise AssertionError("the board search ran on a strip")
+    monkeypatch.setattr(intrinsics.cv2, "findChessboardCornersSB", never)
+    monkeypatch.setattr(intrinsics.cv2, "findChessboardCorners", never)
+    col = intrinsics.ViewCollector(intrinsics.parse_board("chess:9x6", 20.0))
+    with pytest.raises(InputError, match=f"{w}x{h}: not a camera's frame"):
+        col.add(0, np.zeros((h, w), np.uint8))
+    assert col.stats.seen == 0
+
+
+def test_calibration_camera_frames_are_still_searched(monkeypatch):
+    from receiver.calibrate import intrinsics
+    seen = []
+
+    def search(gray, *a, **k):
+        seen.append(gray.shape)
+        return False, None
+    monkeypatch.setattr(intrinsics.cv2, "findChessboardCornersSB", search)
+    monkeypatch.setattr(intrinsics.cv2, "findChessboardCorners", lambda *a, **k: (False, None))
+    for shape in ((90, 160), (300, 1200)):   # 16:9 and a 4:1 panorama
+        col = intrinsics.ViewCollector(intrinsics.parse_board("chess:9x6", 20.0))
+        assert col.add(0, np.zeros(shape, np.uint8)) == "none"
+        assert col.stats.seen == 1
+    assert seen == [(90, 160), (300, 1200)]
+
+
+def test_calibrate_command_on_a_strip_png(tmp_path):
+    d = tmp_path / "views"
+    d.mkdir()
+    cv2.imwrite(str(d / "a.png"), np.zeros((1, 100000), np.uint8))
+    p = occloc("calibrate", "intrinsics", d, "--board", "chess:9x6", "--square-mm", "20", "--out", tmp_path / "i.yaml")
+    err = p.stderr.decode()
+    assert p.returncode == 2 and "Traceback" not in err, err
+    assert "100000x1: not a camera's frame" in err.splitlines()[-1], err
+    assert not (tmp_path / "i.yaml").exists()

@@ -247,3 +247,41 @@ def test_closed_stdin_and_stdout_are_one_line_errors():
 def test_json_lines_never_hold_nan():
     from receiver.io.files import dumps
     assert dumps({"a": float("nan"), "b": [float("inf"), 1.5]}) == '{"a": null, "b": [null, 1.5]}'
+
+
+# ------------------------------------------------------------------ file names OpenCV cannot take
+
+def _latin1_tree(tmp_path) -> bytes:
+    """A copy of indoor-static in a folder whose name is Latin-1, not UTF-8 ('caf\\xe9')."""
+    base = os.fsencode(str(tmp_path))
+    rec = base + b"/caf\xe9"
+    os.mkdir(rec)
+    for name in ("camera.yaml", "map.json", "video.avi"):
+        shutil.copy(os.path.join(STATIC, name), rec + b"/" + name.encode())
+    return rec
+
+
+@pytest.mark.parametrize("case", ["run", "check", "calibrate", "camera", "overlay", "synth"])
+def test_non_utf8_file_names_are_refused_not_a_crash(tmp_path, case):
+    """OpenCV's binding segfaults on a file name Python holds with surrogates (bytes that are not
+    UTF-8, under LANG=C as under a UTF-8 locale): every OpenCV call that takes a name goes
+    through receiver.io.files.cv_path, a one-line refusal (exit 2) before any work."""
+    rec = _latin1_tree(tmp_path)
+    cam, map_ = os.path.join(STATIC, "camera.yaml"), os.path.join(STATIC, "map.json")
+    out = os.fsencode(str(tmp_path / "o.jsonl"))
+    argv = {"run": [b"run", rec, b"--max-frames", b"2", b"--camera", cam, b"--out", out],
+            "check": [b"check", rec, b"--max-frames", b"2", b"--camera", cam],
+            "calibrate": [b"calibrate", b"rows", rec, b"--camera", cam, b"--ook-rate", b"20000",
+                          b"--out", os.fsencode(str(tmp_path / "r.yaml"))],
+            "camera": [b"run", STATIC, b"--max-frames", b"2", b"--camera", rec + b"/camera.yaml", b"--out", out],
+            "overlay": [b"run", STATIC, b"--max-frames", b"2", b"--out", out, b"--overlay", rec + b"/o.avi"],
+            "synth": [b"synth", b"indoor-static", b"--frames", b"2", b"--out", rec + b"/new"]}[case]
+    env = dict(os.environ, LANG="C", LC_ALL="C", PYTHONPATH=ROOT)
+    p = subprocess.run([sys.executable, "-m", "receiver.cli", *map(os.fsencode, argv)], cwd=ROOT, env=env,
+                       stdin=subprocess.DEVNULL, capture_output=True, timeout=300)
+    err = p.stderr.decode("utf-8", "replace")
+    assert p.returncode == 2, (p.returncode, err)
+    lines = [ln for ln in err.splitlines() if ln.startswith("occloc: ")]
+    assert len(lines) == 1 and "path is not valid UTF-8" in lines[0], err
+    assert "\\xe9" in lines[0]  # the name is shown, escaped
+    assert not os.path.exists(out) and not os.path.exists(rec + b"/new")

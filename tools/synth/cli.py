@@ -109,6 +109,10 @@ def main(args: argparse.Namespace) -> int:
         raise InputError("--frames must be within 1..1000000")
     if not 0 <= args.seed < 2 ** 32:
         raise InputError(f"--seed must be within 0..{2 ** 32 - 1}, not {args.seed}")
+    import os
+
+    from receiver.io.files import cv_path
+    cv_path(os.path.abspath(args.out), "recording folder")  # OpenCV's video writer opens a file in it
     check_out_dir(args.out, force=args.force)
     try:
         scene = make_scene(args.scene, seed=args.seed, n_frames=args.frames, **parse_overrides(args.set))
