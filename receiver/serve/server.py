@@ -132,11 +132,13 @@ MAX_BATCH = 16
 # 64-LED datagrams, ~1.3 ms; one v2 frame with outlines). A small one behind a run of large ones
 # (another source's flood) waits for at most this much more work.
 MAX_BATCH_BYTES = 32768
-# Datagrams read from the socket into the per-source queues at most between two batches, and the
-# bytes queued at most for one source host and for all (`serve_socket`, `receiver.serve.queues`):
-# a second of one host's 64-LED datagrams at the default --source-rate (300 x ~7 kB), and
-# sixteen such hosts.
-READ_AHEAD = 256
+# Datagrams read from the socket into the per-source queues at most between two batches (what the
+# socket's buffer holds of 4-LED datagrams: after the server was held up, everything waiting is
+# read, ~3 us each, before the next batch, so every host's datagrams join the turns at once),
+# and the bytes queued at most for one source host and for all (`serve_socket`,
+# `receiver.serve.queues`): a second of one host's 64-LED datagrams at the default
+# --source-rate (300 x ~7 kB), and sixteen such hosts.
+READ_AHEAD = 4096
 MAX_SOURCE_QUEUE_BYTES = 2 << 20
 MAX_QUEUE_BYTES = 32 << 20
 POLL_S = 0.1
