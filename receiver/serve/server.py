@@ -136,10 +136,11 @@ MAX_BATCH_BYTES = 32768
 # socket's buffer holds of 4-LED datagrams: after the server was held up, everything waiting is
 # read, ~3 us each, before the next batch, so every host's datagrams join the turns at once),
 # and the bytes queued at most for one source host and for all (`serve_socket`,
-# `receiver.serve.queues`): a second of one host's 64-LED datagrams at the default
-# --source-rate (300 x ~7 kB), and sixteen such hosts.
+# `receiver.serve.queues`): a quarter of a second of one host's 64-LED datagrams at the default
+# --source-rate (75 x ~7 kB; ~1,000 4-LED ones: a deeper queue only adds delay to what an
+# overloaded server serves), and sixty-four such hosts.
 READ_AHEAD = 4096
-MAX_SOURCE_QUEUE_BYTES = 2 << 20
+MAX_SOURCE_QUEUE_BYTES = 512 << 10
 MAX_QUEUE_BYTES = 32 << 20
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
