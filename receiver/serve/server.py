@@ -93,6 +93,7 @@ from receiver.core.errors import InputError
 from receiver.serve.wire import PROTOCOL_VERSION, ProtocolError, REASONS, Request, all_finite, encode
 from receiver.serve.auth import PREFIX as MAC_PREFIX, verify
 from receiver.serve.limits import SourceBuckets
+from receiver.serve.queues import SourceQueues
 from receiver.serve.wire_v2 import VERSION as V2, RequestV2, parse_any, ranges_of
 
 if TYPE_CHECKING:  # the solver is imported once the socket is bound (start-up latency)
@@ -131,6 +132,16 @@ MAX_BATCH = 16
 # 64-LED datagrams, ~1.3 ms; one v2 frame with outlines). A small one behind a run of large ones
 # (another source's flood) waits for at most this much more work.
 MAX_BATCH_BYTES = 32768
+# Datagrams read from the socket into the per-source queues at most between two batches (what the
+# socket's buffer holds of 4-LED datagrams: after the server was held up, everything waiting is
+# read, ~3 us each, before the next batch, so every host's datagrams join the turns at once),
+# and the bytes queued at most for one source host and for all (`serve_socket`,
+# `receiver.serve.queues`): a quarter of a second of one host's 64-LED datagrams at the default
+# --source-rate (75 x ~7 kB; ~1,000 4-LED ones: a deeper queue only adds delay to what an
+# overloaded server serves), and sixty-four such hosts.
+READ_AHEAD = 4096
+MAX_SOURCE_QUEUE_BYTES = 512 << 10
+MAX_QUEUE_BYTES = 32 << 20
 POLL_S = 0.1
 RCVBUF_BYTES = 1 << 22
 RECV_BYTES = 65536
@@ -651,30 +662,31 @@ def bind_udp(host: str, port: int, reuse_port: bool = False) -> socket.socket:
 def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Event, *,
                  max_batch: int = MAX_BATCH, max_batch_bytes: int = MAX_BATCH_BYTES) -> None:
     """Serve `server` on the bound non-blocking UDP socket until `stop` is set (checked every
-    `POLL_S`, and between batches): wait for a datagram, take every datagram already queued behind
-    it (at most `max_batch`, ending after the one that reaches `max_batch_bytes`; drain, then
-    solve: never waiting for more), handle them together
-    (`LightingServer.handle_datagrams`), send the replies, and go on with what queued meanwhile. A plain blocking loop: asyncio's per-datagram callbacks cost more than the
-    datagram's JSON. Socket errors (e.g. ICMP port unreachable for a reply to a device that went
-    away) are counted as `socket_errors`, the batches as `batches`."""
+    `POLL_S`, and between batches): wait for a datagram, read every datagram already queued in
+    the socket (at most READ_AHEAD at a time) into per-source queues (`receiver.serve.queues`:
+    beyond a host's or the whole bound, a datagram is dropped as read, counted `rate_limited`),
+    take a batch from them, a datagram of each source host in turn (at most `max_batch`, ending
+    after the one that reaches `max_batch_bytes`: never waiting for more), handle it
+    (`LightingServer.handle_datagrams`), send the replies, and go on with what queued meanwhile.
+    A plain blocking loop: asyncio's per-datagram callbacks cost more than the datagram's JSON.
+    Socket errors (e.g. ICMP port unreachable for a reply to a device that went away) are
+    counted as `socket_errors`, the batches as `batches`."""
     poller = select.poll()
     poller.register(sock, select.POLLIN)
     recvfrom, sendto = sock.recvfrom, sock.sendto
     counters = server.counters
-    backlog = False                 # the last batch was full: more is likely queued, no poll needed
+    queues = SourceQueues(MAX_SOURCE_QUEUE_BYTES, MAX_QUEUE_BYTES)
     while not stop.is_set():
-        if not backlog:
+        if not queues.count:
             events = poller.poll(POLL_S * 1000)
             if not events:
                 continue
             if events[0][1] & select.POLLNVAL:   # the socket was closed under us: nothing more to serve
                 counters["socket_errors"] += 1
                 return
-        batch = []
-        nbytes = 0
-        while len(batch) < max_batch and nbytes < max_batch_bytes:
+        for _ in range(READ_AHEAD):
             try:
-                item = recvfrom(RECV_BYTES)
+                data, addr = recvfrom(RECV_BYTES)
             except BlockingIOError:
                 break
             except OSError:
@@ -682,9 +694,10 @@ def serve_socket(server: LightingServer, sock: socket.socket, stop: threading.Ev
                 # spin here, away from the `stop` check.
                 counters["socket_errors"] += 1
                 break
-            batch.append(item)
-            nbytes += len(item[0])
-        backlog = len(batch) == max_batch or nbytes >= max_batch_bytes
+            if not queues.put(data, addr):
+                counters["datagrams"] += 1
+                counters["rate_limited"] += 1
+        batch = queues.take(max_batch, max_batch_bytes)
         if not batch:
             continue
         counters["batches"] += 1

@@ -735,6 +735,54 @@ def test_batches_end_at_their_byte_bound(walk_map):
     assert srv.counters["batches"] >= len(dg) / per_batch and srv.counters["replies"] == len(dg)
 
 
+def test_a_sources_queued_flood_does_not_go_before_another_sources_datagram(walk_map):
+    """40 64-LED datagrams from one host queued before a 4-LED one from another host: the
+    sources are taken in turn, so the other host's datagram is solved second (not 41st), and
+    every datagram is answered. The order comes from the server's own fix observer."""
+    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.server import bind_udp, serve_socket
+    flood = four_led_datagrams(walk_map, 40, 4, n_leds=64, prefix="flood-")
+    honest = four_led_datagrams(walk_map, 1, 1, prefix="honest-")
+    srv = LightingServer(walk_map, clock=FakeClock())
+    order = []
+    srv.on_fix = lambda device, *_: order.append(device)
+    sock = bind_udp("127.0.0.1", 0)
+    stop = threading.Event()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as a, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as b:
+        for client, host in ((a, "127.0.0.2"), (b, "127.0.0.3")):
+            client.bind((host, 0))
+            client.settimeout(REPLY_TIMEOUT_S)
+            client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        for _, _, data in flood:
+            a.sendto(data, sock.getsockname())
+        b.sendto(honest[0][2], sock.getsockname())
+        worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
+        worker.start()
+        try:
+            reply = json.loads(b.recv(65536))
+            flood_replies = [json.loads(a.recv(65536)) for _ in flood]
+        finally:
+            stop.set()
+            worker.join(5.0)
+            sock.close()
+    assert reply["device"] == "honest-0" and reply["position"] is not None
+    assert all(r["position"] is not None for r in flood_replies)
+    assert len(order) == 41 and order.index("honest-0") == 1, order[:5]
+    assert [d for d in order if d != "honest-0"] == [dev for dev, _, _ in flood]     # a host's order kept
+
+
+def test_source_queues_bound_each_host_and_the_whole():
+    from receiver.serve.queues import SourceQueues
+    q = SourceQueues(max_host_bytes=10, max_bytes=25)
+    assert q.put(b"aaaa", ("h1", 1)) and q.put(b"bbbb", ("h1", 2)) and not q.put(b"ccc", ("h1", 1))
+    assert q.put(b"dddddddd", ("h2", 1)) and q.put(b"ee", ("h1", 3))
+    assert not q.put(b"ffffffff", ("h3", 1)) and q.put(b"fffffff", ("h3", 1))
+    assert (q.count, q.nbytes) == (5, 25)
+    assert [d for d, _ in q.take(10, 100)] == [b"aaaa", b"dddddddd", b"fffffff", b"bbbb", b"ee"]
+    assert (q.count, q.nbytes) == (0, 0) and q.put(b"ccc", ("h1", 1))
+    assert q.take(10, 1) == [(b"ccc", ("h1", 1))] and q.take(10, 1) == []
+
+
 def test_serve_socket_ends_when_its_socket_is_closed(walk_map):
     """A socket closed under the loop (a persistent error) ends it instead of spinning on the
     error away from the stop check: the thread is gone without `stop` being set."""
