@@ -35,7 +35,8 @@ class Experiment:
     quick, cache) -> dict` one point and seed (module-level, so worker processes can run it);
     `summarize(rows) -> {"thesis", "ours", "why"}` the summary.md cells (`rows` as in the CSV);
     `plot(rows, path, cache=, quick=)` replaces the generic panel plot when given (e.g. time
-    traces, re-made from the cached renders)."""
+    traces, re-made from the cached renders); `tick_label(value) -> str` names the swept values on
+    a log x axis (default `%g`, e.g. "1/2000" for an exposure in s)."""
 
     name: str
     figure: str
@@ -49,6 +50,7 @@ class Experiment:
     summarize: Callable
     logx: bool = False
     plot: Callable | None = None
+    tick_label: Callable | None = None
 
 
 def all_experiments() -> dict[str, Experiment]:
