@@ -19,7 +19,8 @@ class Panel:
     """One plot panel: `series` ((CSV column, legend label), ...) drawn against the parameter,
     the mean over seeds as a line and their min..max as a band; `thesis` ((xs, ys, label), ...)
     reference curves drawn dashed beside ours: the thesis's reported values or trend (labels
-    starting "thesis:") or a theoretical formula (labels naming it)."""
+    starting "thesis:") or a theoretical formula (labels naming it). A `ylabel` starting "fraction"
+    is drawn on the whole 0..1."""
 
     ylabel: str
     series: tuple

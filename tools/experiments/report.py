@@ -131,6 +131,8 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
                 txs, tys = txs[keep], tys[keep]
             ax.plot(txs, tys, "s--" if len(txs) < 10 else "--", color="k" if j == 0 else "0.45", ms=3, lw=1, label=label)
         ax.set_ylabel(panel.ylabel)
+        if panel.ylabel.startswith("fraction"):  # a share of frames: the whole 0..1, so 95 % looks like 95 %
+            ax.set_ylim(-0.03, 1.03)
         if panel.logy:
             ax.set_yscale("log")
             if on_floor:  # room for the zero markers; otherwise the axis spans the data only
