@@ -89,7 +89,7 @@ def summarize_height(rows):
 
 
 EXPERIMENTS = [
-    Experiment("fig32", "Fig. 32", "localization possibility vs ceiling height (10x10 cm panels)", "ceiling_m",
+    Experiment("fig32", "Fig. 32", "localization possibility vs ceiling height (10 and 30 cm square panels)", "ceiling_m",
                "ceiling height (m; camera 1 m above the floor)",
                (3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0), (3.0, 10.0, 40.0),
                measure_height,
@@ -99,6 +99,7 @@ EXPERIMENTS = [
                 Panel("panel image area (px)", (("area_px_10cm", "10 cm"), ("area_px_30cm", "30 cm")), logy=True,
                       thesis=(((10.0, 35.0), (4.0, 1.0), "thesis: 10 cm, 4 px at 10 m, 1 px at 35 m"),)),
                 Panel("OOK chips per frame", (("chips_per_frame_10cm", "10 cm"), ("chips_per_frame_30cm", "30 cm")),
-                      logy=True)),
+                      logy=True, thesis=(((3.0, 40.0), (PACKET_CHIPS, PACKET_CHIPS),
+                                          f"one whole packet ({PACKET_CHIPS} chips)"),))),
                summarize_height, logx=True),
 ]

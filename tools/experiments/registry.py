@@ -19,7 +19,8 @@ class Panel:
     """One plot panel: `series` ((CSV column, legend label), ...) drawn against the parameter,
     the mean over seeds as a line and their min..max as a band; `thesis` ((xs, ys, label), ...)
     reference curves drawn dashed beside ours: the thesis's reported values or trend (labels
-    starting "thesis:") or a theoretical formula (labels naming it)."""
+    starting "thesis:") or a theoretical formula (labels naming it). A `ylabel` starting "fraction"
+    is drawn on the whole 0..1."""
 
     ylabel: str
     series: tuple
@@ -35,7 +36,8 @@ class Experiment:
     quick, cache) -> dict` one point and seed (module-level, so worker processes can run it);
     `summarize(rows) -> {"thesis", "ours", "why"}` the summary.md cells (`rows` as in the CSV);
     `plot(rows, path, cache=, quick=)` replaces the generic panel plot when given (e.g. time
-    traces, re-made from the cached renders)."""
+    traces, re-made from the cached renders); `tick_label(value) -> str` names the swept values on
+    a log x axis (default `%g`, e.g. "1/2000" for an exposure in s)."""
 
     name: str
     figure: str
@@ -49,6 +51,7 @@ class Experiment:
     summarize: Callable
     logx: bool = False
     plot: Callable | None = None
+    tick_label: Callable | None = None
 
 
 def all_experiments() -> dict[str, Experiment]:

@@ -101,10 +101,12 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
         exp.plot(rows, path, cache=cache, quick=quick)
         return
     plt = pyplot()
+    from matplotlib.ticker import FuncFormatter
     n = len(exp.panels)
     fig, axes = plt.subplots(n, 1, figsize=(7.0, 3.2 * n), squeeze=False, sharex=True)
     for ax, panel in zip(axes[:, 0], exp.panels):
         floor = LOG_FLOOR if panel.logy else None
+        on_floor = False
         for i, (col, label) in enumerate(panel.series):
             xs, m, lo, hi = by_point(rows, exp.param, col)
             color = f"C{i}"
@@ -115,6 +117,7 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
                 # drawn as triangles on the axis floor, the band is cut there
                 zero = m <= 0
                 if zero.any():
+                    on_floor = True
                     ax.plot(xs[zero], np.full(zero.sum(), floor), "v", color=color, ms=5, label=f"ours: {label}: 0 seen")
                 m = np.where(zero, np.nan, m)
                 lo, hi = np.maximum(lo, floor), np.maximum(hi, floor)
@@ -127,15 +130,21 @@ def write_png(path: str, exp, rows: list[dict], n_seeds: int, cache=None, quick:
                 keep = tys >= floor
                 txs, tys = txs[keep], tys[keep]
             ax.plot(txs, tys, "s--" if len(txs) < 10 else "--", color="k" if j == 0 else "0.45", ms=3, lw=1, label=label)
-        if floor is not None:
-            ax.set_ylim(bottom=floor / 2)
         ax.set_ylabel(panel.ylabel)
+        if panel.ylabel.startswith("fraction"):  # a share of frames: the whole 0..1, so 95 % looks like 95 %
+            ax.set_ylim(-0.03, 1.03)
         if panel.logy:
             ax.set_yscale("log")
+            if on_floor:  # room for the zero markers; otherwise the axis spans the data only
+                ax.set_ylim(bottom=floor / 2)
         if exp.logx:
-            from matplotlib.ticker import ScalarFormatter
+            from matplotlib.ticker import FixedLocator, NullFormatter
             ax.set_xscale("log")
-            ax.xaxis.set_major_formatter(ScalarFormatter())
+            xs = sorted({float(r[exp.param]) for r in rows})
+            label = exp.tick_label or (lambda v: f"{v:g}")
+            ax.xaxis.set_major_locator(FixedLocator(xs))
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: label(v)))
+            ax.xaxis.set_minor_formatter(NullFormatter())
         ax.grid(True, alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7, loc="best")
