@@ -65,6 +65,9 @@ def summarize_lab(rows):
     ours = (f"{LAB_DIAMETER_M * 100:.0f} cm LED: mean |error| {_fmt_range(list(mean.values()), '%')} where ranged "
             f"({min(mean):g}-{last:g} m, in {ranged[min(mean)]:.0%} -> {ranged[last]:.0%} of frames), worst frame "
             f"{worst:.2f} %")
+    dip = min(mean, key=lambda d: ranged[d])
+    if dip not in (min(mean), last):
+        ours += f"; fewest ranged frames {ranged[dip]:.0%} at {dip:g} m"
     if never:
         rows_px = 2.0 * math.sqrt(area[never[0]] / math.pi)
         ours += f"; never ranged from {never[0]:g} m ({rows_px:.0f} rows, {rows_px * 15e-6 * 20e3:.0f} chips a frame)"
