@@ -739,7 +739,7 @@ def test_a_sources_queued_flood_does_not_go_before_another_sources_datagram(walk
     """40 64-LED datagrams from one host queued before a 4-LED one from another host: the
     sources are taken in turn, so the other host's datagram is solved second (not 41st), and
     every datagram is answered. The order comes from the server's own fix observer."""
-    from receiver.serve.loadgen import four_led_datagrams
+    from receiver.serve.loadcore import four_led_datagrams
     from receiver.serve.server import bind_udp, serve_socket
     flood = four_led_datagrams(walk_map, 40, 4, n_leds=64, prefix="flood-")
     honest = four_led_datagrams(walk_map, 1, 1, prefix="honest-")
