@@ -132,6 +132,8 @@ def _render(scene: ScoreScene, work: Path) -> Path:
     if stamp.is_file() and json.loads(stamp.read_text()) == scene.spec():
         return folder
     if folder.exists():
+        if not stamp.is_file():   # not a render of this tool: never deleted
+            raise FileExistsError(f"{folder} exists and is not a render of tools.indoor_score: give another --work")
         shutil.rmtree(folder)
     built = make_scene(scene.synth, seed=scene.seed, n_frames=scene.frames, **scene.sets)
     with contextlib.redirect_stderr(io.StringIO()):
@@ -203,7 +205,11 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         p.error(f"unknown scene {', '.join(unknown)} (choose from {', '.join(BY_NAME)})")
     work = Path(args.work)
-    work.mkdir(parents=True, exist_ok=True)
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        print(f"indoor_score: --work {work}: {e.strerror or e}", file=sys.stderr)
+        return 1
     rows = []
     for name in args.names or list(BY_NAME):
         sc = BY_NAME[name]

@@ -33,7 +33,11 @@ def bench_instructions(pure: str, instr_frames: int, source: str | None = None) 
         env["OCCLOC_PURE"] = pure
     cmd = [sys.executable, "-m", "receiver.cli", "bench", "--instructions", "--json", "--frames", "20",
            "--instr-frames", str(instr_frames)] + ([source] if source else [])
-    out = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    done = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
+    if done.returncode != 0:
+        said = (done.stderr.strip().splitlines() or [f"exit {done.returncode}"])[-1]
+        raise SystemExit(f"kernel_shares: occloc bench failed ({said})")
+    out = done.stdout
     return {row["case"]: row["instructions_per_frame"] for row in json.loads(out)["cases"]}
 
 
@@ -44,7 +48,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source", help="one recording folder instead of every bench case")
     p.add_argument("--out", help="also write the table to this Markdown file")
     args = p.parse_args(argv)
-    names = args.kernels or [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
+    known = [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
+    unknown = [n for n in args.kernels if n not in known]
+    if unknown:   # OCCLOC_PURE would ignore it: its share would read 0 %, "drop it"
+        p.error(f"unknown kernel {', '.join(unknown)} (choose from {', '.join(known)})")
+    names = args.kernels or known
     print("kernel_shares: all kernels built in ...", file=sys.stderr, flush=True)
     base = bench_instructions("", args.instr_frames, args.source)
     cases = list(base)

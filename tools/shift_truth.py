@@ -190,6 +190,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         for shake, both in result.items():
             for what, r in both.items():
+                if not r["frames"]:   # no truth light seen in two frames the receiver ran
+                    print(f"{shake:>11} vs {what:>6}: no frame to score")
+                    continue
                 print(f"{shake:>11} vs {what:>6}: {r['frames']} frames, median {r['median_px']:.2f} px, "
                       f"p95 {r['p95_px']:.2f} px, {r['over_2px']} frames over {BAD_PX:g} px")
     return 0

@@ -24,7 +24,18 @@ import sys
 
 from receiver.serve.loadcore import DEFAULT_MAP, four_led_datagrams, median_report, one_run
 
+
 def main(argv=None) -> int:
+    """The command; a bad input (an unreadable --map, a bad URL) is one line and exit 2."""
+    from receiver.core.errors import InputError
+    try:
+        return _main(argv)
+    except InputError as e:
+        print(f"loadgen: {e}", file=sys.stderr)
+        return 2
+
+
+def _main(argv=None) -> int:
     from receiver.io.ledmap import load_map
     from receiver.serve.client import parse_udp_url
     p = argparse.ArgumentParser(prog="python -m receiver.serve.loadgen", description=__doc__.split("\n\n")[0])

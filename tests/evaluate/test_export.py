@@ -56,8 +56,8 @@ def test_tum_of_run_and_truth(walk_run, tmp_path, capsys):
 
 def test_evo_reads_the_export_and_scores_it(walk_run, tmp_path):
     """The real evo package (evo_ape's API) on the run's TUM export against the truth's."""
-    file_interface = pytest.importorskip("evo.tools.file_interface")
     from evo.core import metrics, sync
+    from evo.tools import file_interface
 
     run_tum, truth_tum = tmp_path / "run.tum", tmp_path / "truth.tum"
     assert cli(["export", str(walk_run), "--format", "tum", "--out", str(run_tum)]) == 0
@@ -129,7 +129,7 @@ def test_tum_of_photos_numbers_them_and_evo_reads_it(tmp_path, capsys):
     assert cli(["export", str(run), "--format", "tum", "--out", str(out)]) == 0
     assert "t is the frame number" in capsys.readouterr().err
     assert _tum(out)[:, 0].tolist() == [0.0, 1.0, 2.0]
-    file_interface = pytest.importorskip("evo.tools.file_interface")
+    from evo.tools import file_interface   # a test dependency (pyproject.toml): never skipped
     traj = file_interface.read_tum_trajectory_file(str(out))
     assert traj.num_poses == 3 and traj.check()[0]
     timed = [dict(o, t=o["frame"] / 10.0) for o in lines]

@@ -94,3 +94,19 @@ def test_a_missing_recording_is_one_line_and_exit_1(tmp_path, monkeypatch, capsy
     assert main(["indep-grid-s31", "--work", str(tmp_path / "work")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("indoor_score: indep-grid-s31:") and "no such recording" in err[0]
+
+
+def test_a_work_folder_it_did_not_render_is_never_deleted(tmp_path, capsys):
+    """--work names the user's folder: a scene folder there without this tool's stamp is kept
+    and refused in one line (exit 1), before anything is rendered; a file as --work likewise."""
+    mine = tmp_path / "grid-ideal-10us"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    assert main(["grid-ideal-10us", "--work", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a render of tools.indoor_score" in err[0], err
+    assert (mine / "notes.txt").read_text() == "mine"
+    (tmp_path / "afile").write_text("x")
+    assert main(["grid-ideal-10us", "--work", str(tmp_path / "afile")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("indoor_score: --work"), err

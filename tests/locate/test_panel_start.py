@@ -89,9 +89,9 @@ def test_a_lone_square_is_ambiguous_until_a_tracked_orientation_picks_its_side()
 def test_a_lone_small_panel_seen_nearly_square_on_gives_no_wrong_first_fix():
     """A rendered frame (tests/locate/data/lone_small_panel.json: its edge points and centroid,
     undistorted and normalized) with one decoded 0.2 m panel 2 m away, phone tilted 15 degrees.
-    Its tilted-and-shifted pose branches fit about equally; one panel start converged on a
-    branch 0.8 m off while the others stopped short of theirs, and that branch was the fix.
-    Without a track the fix is either right (within 5 cm) or not given."""
+    Its tilted-and-shifted pose branches fit about equally: a panel start that stops short of
+    its branch's optimum lets a branch 0.8 m off win the ambiguity test. Without a track the
+    fix is either right (within 5 cm) or not given."""
     import json
     from pathlib import Path
 

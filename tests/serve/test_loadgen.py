@@ -52,3 +52,12 @@ def test_many_devices_from_many_sources_within_the_default_quota():
         summary = stop_server(proc)
     assert report["replies"] == devices and report["lost"] == 0 and report["errors"] == {}, report
     assert f"{devices} new, 0 forgotten, {devices} held" in summary and "refused: none" in summary, summary
+
+
+def test_a_missing_map_is_one_line_and_exit_2(tmp_path, capsys):
+    from receiver.serve.loadgen import main
+    missing = str(tmp_path / "none.json")
+    for argv in (["--map", missing, "--rate", "10", "--seconds", "1"], ["--map", missing, "--suite", "--figures", "v2"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"loadgen: map file not found: {missing}"], err

@@ -176,3 +176,17 @@ def test_true_motion_signs_from_the_lights(tmp_path):
     for (_, p0, d, whole), dy in zip(out, np.diff(yaw)):
         assert np.allclose(d, whole)
         assert np.allclose(d, [[f * math.radians(dy), 0.0]] * 3)
+
+
+def test_shift_truth_with_no_frame_to_score_says_so(monkeypatch, capsys):
+    """No truth light seen in two frames the receiver ran: a line saying so, not a traceback."""
+    from pathlib import Path
+
+    import tools.shift_truth as tool
+
+    monkeypatch.setattr(tool, "true_motion", lambda *a, **k: [])
+    monkeypatch.setattr(tool, "receiver_shifts", lambda *a, **k: {})
+    rec = Path(__file__).resolve().parents[2] / "recordings" / "vehicle"
+    assert tool.main([str(rec), "--shake", "pairs"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["      pairs vs   turn: no frame to score",
+                                                    "      pairs vs lights: no frame to score"]
