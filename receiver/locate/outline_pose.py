@@ -64,6 +64,12 @@ MAX_CHI2_DOF = 50.0
 # quarter of a square's points or more.
 OUTLIER_SCALES = 6.0
 MAX_OUTLIER_FRACTION = 0.1
+# 1-sigma (px) of an edge's common offset: where a panel's edge is seen moves as a whole with what
+# the point noise does not average out (the half-level crossing of a blurred edge under a tone
+# curve: gamma 1.4-2.0 and blur sigma 0.7-1.5 px move it by 0.3-0.8 px; saturation, bloom and the
+# rolling-shutter shear of a turning phone). The fix's covariance adds its effect on the pose
+# (`_edge_offset_gram`): the points' own noise shrinks with their number, an edge's offset not.
+EDGE_OFFSET_SIGMA_PX = 0.5
 # Levenberg-Marquardt iterations per round (a good start converges in 3-5).
 MAX_ITER = 4
 # Convergence of a Levenberg-Marquardt round: the largest step component (rad, m), or the relative
@@ -682,8 +688,31 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
         return None
     JtJ[3:, 3:] += _FREE_PRIOR
-    cov6 = _covariance6(JtJ) * max(1.0, chi2 / dof)
+    A_inv = _covariance6(JtJ)
+    cov6 = A_inv * max(1.0, chi2 / dof)
+    if EDGE_OFFSET_SIGMA_PX > 0:
+        # ... plus the edges' common offsets (`EDGE_OFFSET_SIGMA_PX`) through the solve's gain.
+        G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
+                              p, focal_px)
+        cov6 = cov6 + (EDGE_OFFSET_SIGMA_PX / focal_px) ** 2 * (A_inv @ G @ A_inv)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
+
+
+def _edge_offset_gram(targets: list[OutlineTarget], p: np.ndarray, focal_px: float) -> np.ndarray:
+    """(6, 6) sum over the square / rect edges at pose p of g g^T, g = sum over the edge's points
+    of J_i / sigma_i (J_i the point's whitened Jacobian row): an offset b (normalized units)
+    common to an edge's points moves the solution by -A^-1 g b (A = J^T J)."""
+    prob = _Problem(targets, focal_px, 1.0, None, 1.0)
+    if not prob.n_poly:
+        return np.zeros((6, 6))
+    prob.assign(p)
+    if not prob.n_use:
+        return np.zeros((6, 6))
+    _, st = prob.residuals(p)
+    # per edge: sum of w^2 (x, y, 1) (rows 2, 4, 5 of OUT6: x w^2, y w^2, w^2) against its line's Jacobian
+    v = np.add.reduceat(prob.OUT6[[2, 4, 5]], prob.starts, axis=1).T
+    g = np.einsum("ea,eak->ek", v, prob._line_jacobian(st))
+    return g.T @ g
 
 
 def _without_outliers(targets: list[OutlineTarget], p: np.ndarray, focal_px: float) -> list[OutlineTarget] | None:
