@@ -672,12 +672,12 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
             return _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets), p0, *args[1:])
         return _solve_numpy(targets if targets is not None else frame.targets, p0, *args[1:])
 
-    p, R, chi2, n_res, JtJ = solve(targets, frame, p0)
+    p, R, chi2, n_res, JtJ, labels = solve(targets, frame, p0)
     kept = None
     if chi2 > MAX_CHI2_DOF * (n_res + 3 - len(p)) and np.all(np.isfinite(p)):
         kept = _without_outliers(targets if targets is not None else frame.targets, p, focal_px)
         if kept is not None:
-            p, R, chi2, n_res, JtJ = solve(kept, None, p.copy())
+            p, R, chi2, n_res, JtJ, labels = solve(kept, None, p.copy())
     C = p[3:].copy()
     z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
@@ -693,19 +693,30 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     if EDGE_OFFSET_SIGMA_PX > 0:
         # ... plus the edges' common offsets (`EDGE_OFFSET_SIGMA_PX`) through the solve's gain.
         G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
-                              p, focal_px)
+                              p, focal_px, labels)
         cov6 = cov6 + (EDGE_OFFSET_SIGMA_PX / focal_px) ** 2 * (A_inv @ G @ A_inv)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
 
 
-def _edge_offset_gram(targets: list[OutlineTarget], p: np.ndarray, focal_px: float) -> np.ndarray:
+def _edge_offset_gram(targets: list[OutlineTarget], p: np.ndarray, focal_px: float,
+                      labels: np.ndarray | None = None) -> np.ndarray:
     """(6, 6) sum over the square / rect edges at pose p of g g^T, g = sum over the edge's points
     of J_i / sigma_i (J_i the point's whitened Jacobian row): an offset b (normalized units)
-    common to an edge's points moves the solution by -A^-1 g b (A = J^T J)."""
+    common to an edge's points moves the solution by -A^-1 g b (A = J^T J). `labels`: the
+    solve's final edge of each point (of the square / rect points, or of every point), else
+    assigned at p."""
     prob = _Problem(targets, focal_px, 1.0, None, 1.0)
     if not prob.n_poly:
         return np.zeros((6, 6))
-    prob.assign(p)
+    n_poly_pts = len(prob.P_all)
+    if labels is not None and len(labels) != n_poly_pts:
+        poly = np.repeat([t.shape != "circle" for t in targets], [len(t.pts) for t in targets])
+        labels = labels[poly] if len(labels) == len(poly) else None
+    if labels is None:
+        prob.assign(p)
+    else:
+        prob.labels = np.asarray(labels, np.int64)
+        prob._group(prob.labels)
     if not prob.n_use:
         return np.zeros((6, 6))
     _, st = prob.residuals(p)
@@ -746,7 +757,8 @@ def _without_outliers(targets: list[OutlineTarget], p: np.ndarray, focal_px: flo
 def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
                  max_iter):
     """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
-    count without the position prior's rows, unweighted J^T J without them)."""
+    count without the position prior's rows, unweighted J^T J without them, the final edge label
+    of each square / rect point (-1: next to a corner))."""
     prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
     if C_prior is not None:
         prob.C_prior, prob.W = np.asarray(C_prior, float), W
@@ -758,7 +770,7 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
         p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
     if prob.C_prior is not None:
         r = r[:-3]
-    return p, st.R, float(r @ r), len(r), prob.gram(st)
+    return p, st.R, float(r @ r), len(r), prob.gram(st), prob.labels
 
 
 _EMPTY = np.zeros(0)
@@ -783,7 +795,8 @@ def _covariance6(JtJ: np.ndarray) -> np.ndarray:
 def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
                   rounds, max_iter):
     """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
-    the same arithmetic per point, summed in another order (results equal to rounding)."""
+    the same arithmetic per point, summed in another order (results equal to rounding); its
+    labels are those of every point of the frame (circles' included)."""
     lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
@@ -794,4 +807,4 @@ def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigm
                               _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
                               rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
                               MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
-    return p, R, chi2, n_res, JtJ
+    return p, R, chi2, n_res, JtJ, lab
