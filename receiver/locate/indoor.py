@@ -126,6 +126,7 @@ class Positioner:
         self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
+        self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
         # PoseFilter, with its Kalman steps and position object compiled where built
         self.pose = pose_filter_class()(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
@@ -306,6 +307,7 @@ class Positioner:
         for other in fits[1:]:
             if (np.linalg.norm(other.C - best.C) > AMBIGUOUS_M
                     and other.chi2 / other.dof < AMBIGUOUS_CHI2_RATIO * max(best.chi2 / best.dof, 1.0)):
+                self._ambiguous = True
                 return None
         return best
 
@@ -356,6 +358,9 @@ class Positioner:
             return "LEDs cut by image edge" if known else "ID not in map"
         if self.pose.handedness_undecided and self.pose.handedness_source == "default":
             return "handedness undecided"
+        if self._ambiguous:
+            # e.g. one square panel without a tracked orientation: it fits from any of its sides
+            return "panel pose ambiguous"
         if len(items) < 3:
             return "too few LEDs"
         return "solver rejected"
@@ -367,6 +372,7 @@ class Positioner:
         return LocateResult(position=position, leds=self.ranger.annotate(leds, items, d, names))
 
     def step(self, t_s: float, leds: list[LedObservation]) -> LocateResult:
+        self._ambiguous = False
         items = self.ranger.usable(leds)
         R_prior = self.pose.R_prior(t_s)
         outline = self.settings.outline and not self.pose.mirrored

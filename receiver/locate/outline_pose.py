@@ -55,6 +55,21 @@ DEFAULT_CENTROID_SIGMA_PX = 1.5
 FREE_SIGMA_M = 1.0
 # A fit whose chi^2 per degree of freedom exceeds this is not trusted (wrong symmetry, wrong ID).
 MAX_CHI2_DOF = 50.0
+# ... unless the excess comes from a few stray edge points: a fit beyond MAX_CHI2_DOF is judged
+# again without the square / rect points whose whitened residual exceeds OUTLIER_SCALES robust
+# scales (1.4826 x the median |residual|, at least 1), when they are at most MAX_OUTLIER_FRACTION
+# of the points (`_without_outliers`). A glare speck or a codec block at a stripe's end gives one
+# or two points 50-100 sigma off, which alone push a frame's chi^2 per dof past the bound (the
+# robust loss keeps them from moving the pose); a wrong symmetry or ID puts whole edges off, a
+# quarter of a square's points or more.
+OUTLIER_SCALES = 6.0
+MAX_OUTLIER_FRACTION = 0.1
+# 1-sigma (px) of an edge's common offset: where a panel's edge is seen moves as a whole with what
+# the point noise does not average out (the half-level crossing of a blurred edge under a tone
+# curve: gamma 1.4-2.0 and blur sigma 0.7-1.5 px move it by 0.3-0.8 px; saturation, bloom and the
+# rolling-shutter shear of a turning phone). The fix's covariance adds its effect on the pose
+# (`_edge_offset_gram`): the points' own noise shrinks with their number, an edge's offset not.
+EDGE_OFFSET_SIGMA_PX = 0.5
 # Levenberg-Marquardt iterations per round (a good start converges in 3-5).
 MAX_ITER = 4
 # Convergence of a Levenberg-Marquardt round: the largest step component (rad, m), or the relative
@@ -415,6 +430,7 @@ class _Problem:
         new = np.empty(len(eg), bool)
         new[0] = True
         np.not_equal(eg[1:], eg[:-1], out=new[1:])
+        self.use = use                                         # point (P_all row) of each residual
         self.starts = np.flatnonzero(new)
         self.cnt = np.diff(np.append(self.starts, len(eg)))
         edges = eg[self.starts]
@@ -630,7 +646,8 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     `targets`: a list of `OutlineTarget` or the packed `OutlineFrame` (targets with fewer than 3
     points are left out). Each of the `rounds` assigns the points to edges at the current pose and runs at most
     `max_iter` Levenberg-Marquardt iterations; a round whose assignment did not change after a
-    converged one is skipped."""
+    converged one is skipped. A fit beyond `MAX_CHI2_DOF` is solved again from its result without
+    its few outlying edge points (`_without_outliers`) and judged on the rest."""
     if isinstance(targets, OutlineFrame):
         frame = targets.with_at_least(3)
         targets = None
@@ -649,11 +666,18 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
     args = (p0, focal_px, centroid_sigma_px / focal_px, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
             rounds, max_iter)
-    if _k is not None and loss in LOSS_CODES:
-        p, R, chi2, n_res, JtJ = _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets),
-                                               *args)
-    else:
-        p, R, chi2, n_res, JtJ = _solve_numpy(targets if targets is not None else frame.targets, *args)
+
+    def solve(targets, frame, p0):
+        if _k is not None and loss in LOSS_CODES:
+            return _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets), p0, *args[1:])
+        return _solve_numpy(targets if targets is not None else frame.targets, p0, *args[1:])
+
+    p, R, chi2, n_res, JtJ, labels = solve(targets, frame, p0)
+    kept = None
+    if chi2 > MAX_CHI2_DOF * (n_res + 3 - len(p)) and np.all(np.isfinite(p)):
+        kept = _without_outliers(targets if targets is not None else frame.targets, p, focal_px)
+        if kept is not None:
+            p, R, chi2, n_res, JtJ, labels = solve(kept, None, p.copy())
     C = p[3:].copy()
     z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
@@ -664,14 +688,77 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     if dof <= 0 or chi2 / dof > MAX_CHI2_DOF:
         return None
     JtJ[3:, 3:] += _FREE_PRIOR
-    cov6 = _covariance6(JtJ) * max(1.0, chi2 / dof)
+    A_inv = _covariance6(JtJ)
+    cov6 = A_inv * max(1.0, chi2 / dof)
+    if EDGE_OFFSET_SIGMA_PX > 0:
+        # ... plus the edges' common offsets (`EDGE_OFFSET_SIGMA_PX`) through the solve's gain.
+        G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
+                              p, focal_px, labels)
+        cov6 = cov6 + (EDGE_OFFSET_SIGMA_PX / focal_px) ** 2 * (A_inv @ G @ A_inv)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
+
+
+def _edge_offset_gram(targets: list[OutlineTarget], p: np.ndarray, focal_px: float,
+                      labels: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6) sum over the square / rect edges at pose p of g g^T, g = sum over the edge's points
+    of J_i / sigma_i (J_i the point's whitened Jacobian row): an offset b (normalized units)
+    common to an edge's points moves the solution by -A^-1 g b (A = J^T J). `labels`: the
+    solve's final edge of each point (of the square / rect points, or of every point), else
+    assigned at p."""
+    prob = _Problem(targets, focal_px, 1.0, None, 1.0)
+    if not prob.n_poly:
+        return np.zeros((6, 6))
+    n_poly_pts = len(prob.P_all)
+    if labels is not None and len(labels) != n_poly_pts:
+        poly = np.repeat([t.shape != "circle" for t in targets], [len(t.pts) for t in targets])
+        labels = labels[poly] if len(labels) == len(poly) else None
+    if labels is None:
+        prob.assign(p)
+    else:
+        prob.labels = np.asarray(labels, np.int64)
+        prob._group(prob.labels)
+    if not prob.n_use:
+        return np.zeros((6, 6))
+    _, st = prob.residuals(p)
+    # per edge: sum of w^2 (x, y, 1) (rows 2, 4, 5 of OUT6: x w^2, y w^2, w^2) against its line's Jacobian
+    v = np.add.reduceat(prob.OUT6[[2, 4, 5]], prob.starts, axis=1).T
+    g = np.einsum("ea,eak->ek", v, prob._line_jacobian(st))
+    return g.T @ g
+
+
+def _without_outliers(targets: list[OutlineTarget], p: np.ndarray, focal_px: float) -> list[OutlineTarget] | None:
+    """The targets without their outlying square / rect edge points at pose p (`OUTLIER_SCALES`),
+    or None when there are none or more than `MAX_OUTLIER_FRACTION` of the points."""
+    prob = _Problem(targets, focal_px, 1.0, None, 1.0)
+    if not prob.n_poly:
+        return None
+    prob.assign(p)
+    if not prob.n_use:
+        return None
+    r = np.abs(prob.residuals(p)[0][:prob.n_use])
+    scale = max(1.0, 1.4826 * float(np.median(r)))
+    bad = prob.use[r > OUTLIER_SCALES * scale]
+    n_all = sum(len(t.pts) for t in targets)
+    if not len(bad) or len(bad) > MAX_OUTLIER_FRACTION * n_all:
+        return None
+    keep = np.ones(len(prob.P_all), bool)
+    keep[bad] = False
+    out, k = [], 0
+    for t in targets:
+        if t.shape == "circle":
+            out.append(t)
+            continue
+        m = keep[k:k + len(t.pts)]
+        k += len(t.pts)
+        out.append(OutlineTarget(t.xyz, t.shape, t.half, t.pts[m], t.sigma[m], t.uv))
+    return [t for t in out if len(t.pts) >= 3]
 
 
 def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
                  max_iter):
     """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
-    count without the position prior's rows, unweighted J^T J without them)."""
+    count without the position prior's rows, unweighted J^T J without them, the final edge label
+    of each square / rect point (-1: next to a corner))."""
     prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
     if C_prior is not None:
         prob.C_prior, prob.W = np.asarray(C_prior, float), W
@@ -683,7 +770,7 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
         p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
     if prob.C_prior is not None:
         r = r[:-3]
-    return p, st.R, float(r @ r), len(r), prob.gram(st)
+    return p, st.R, float(r @ r), len(r), prob.gram(st), prob.labels
 
 
 _EMPTY = np.zeros(0)
@@ -708,7 +795,8 @@ def _covariance6(JtJ: np.ndarray) -> np.ndarray:
 def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
                   rounds, max_iter):
     """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
-    the same arithmetic per point, summed in another order (results equal to rounding)."""
+    the same arithmetic per point, summed in another order (results equal to rounding); its
+    labels are those of every point of the frame (circles' included)."""
     lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
@@ -719,4 +807,4 @@ def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigm
                               _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
                               rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
                               MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
-    return p, R, chi2, n_res, JtJ
+    return p, R, chi2, n_res, JtJ, lab

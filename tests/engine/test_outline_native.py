@@ -86,8 +86,8 @@ def test_native_equals_numpy_with_a_circle_seen_edge_on():
     p0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])       # at the flat circle's height: a degenerate conic
     targets = [flat] + targets[1:]
     args = (p0, 1000.0, 1.5e-3, np.array([0.0, 0.0, 1.0]), 0.17, None, None, "soft_l1", 3.0, 1, 1)
-    p_n, R_n, chi2_n, n_n, JtJ_n = outline_pose._solve_native(outline_pose.OutlineFrame.from_targets(targets), *args)
-    p_p, R_p, chi2_p, n_p, JtJ_p = outline_pose._solve_numpy(targets, *args)
+    p_n, R_n, chi2_n, n_n, JtJ_n, _ = outline_pose._solve_native(outline_pose.OutlineFrame.from_targets(targets), *args)
+    p_p, R_p, chi2_p, n_p, JtJ_p, _ = outline_pose._solve_numpy(targets, *args)
     assert n_n == n_p == sum(len(t.pts) for t in targets) + 3
     assert chi2_p > len(targets[0].pts) * 1e6 * 0.99                  # the 1e3 residuals are in
     assert math.isclose(chi2_n, chi2_p, rel_tol=1e-9)

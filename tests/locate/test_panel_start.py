@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from receiver.core.records import LedObservation
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import parse_map
 from receiver.locate.indoor import Positioner
@@ -79,6 +80,9 @@ def test_a_lone_square_is_ambiguous_until_a_tracked_orientation_picks_its_side()
     pos = Positioner(_camera(), _map())
     lone = _frame(TRUE_R, TRUE_C, partial=False)
     assert pos._panel_fix(lone, None) is None
+    # a frame without a position says so (receiver.cli.run's "no_fix")
+    obs = LedObservation(track=1, cx=640.0, cy=360.0, area_px=900.0, contour=np.zeros((0, 2)), id=100, mode="ook")
+    assert pos._no_fix_reason([obs], pos.ranger.usable([obs])) == "panel pose ambiguous"
     turned = ypr_to_rotation(200.0 + 8.0, 90.0 - 25.0, 2.0)     # the track, 8 degrees off in yaw
     fix = pos._panel_fix(lone, turned)
     assert fix is not None and np.linalg.norm(fix.C - TRUE_C) < 0.01
