@@ -123,6 +123,9 @@ class PairTuning:
     growth_span_frames: int = 8  # growth is extrapolated over at most this many frames
     max_growth: float = 0.08  # and at most 8 % a frame (a head at 10 m at 70 km/h)
     anchor_coast_frames: int = 5  # a far head's pair that coasted this long is not reported until re-placed
+    reanchor_sep_tol: float = 0.1  # a pair of two tracks that explains no blob is re-placed on two seen blobs
+    # whose offset is its baseline within this fraction (+ match_min_px), within the camera-shift search
+    # radius (`PairSettings.shake_radius_px`) per frame it coasted
 
 
 TUNING = PairTuning()
@@ -337,6 +340,7 @@ class Pairer:
         self.width_max_rows, self.baseline_max_ratio = k.width_max_rows, k.baseline_max_ratio
         self.baseline_gain = k.baseline_gain
         self.anchor_coast_frames = k.anchor_coast_frames
+        self.reanchor_sep_tol, self.shake_radius_px = k.reanchor_sep_tol, s.shake_radius_px
         self.growth_gain, self.growth_span_frames, self.max_growth = k.growth_gain, k.growth_span_frames, k.max_growth
         self.head_follow, self.head_gap_frames = k.head_follow, k.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
@@ -668,16 +672,78 @@ class Pairer:
         mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
         return self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged)
 
-    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict) -> list[Pair]:
-        """`_follow` of every pair (the live ones), their blobs found by one kernel call."""
+    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict,
+                    xy: np.ndarray | None = None) -> list[Pair]:
+        """`_follow` of every pair (the live ones), their blobs found by one kernel call (the
+        Python reference `_explain` per pair without the kernel, `xy` the tracks' centroids);
+        a pair of two tracks that explains none is re-placed on two seen blobs one baseline
+        apart that no pair explains (`_reanchor`)."""
         items = []
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
             if pred is not None:
                 items.append((p, pred, exclude.get(p.uid, ())))
-        return [p for (p, pred, _), (expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _)
-                in zip(items, self._explain_batch(items, tracks, False))
-                if self._follow_end(p, shape, pred, expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)]
+        if _k is not None:
+            found = [(expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)
+                     for expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _ in self._explain_batch(items, tracks, False)]
+        else:
+            found = []
+            for p, pred, excl in items:
+                expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, excl)
+                mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
+                found.append((expl, nearby, mean, obs_a, obs_b, merged))
+        taken = {t.track_id for f in found for t in f[0]}
+        out = []
+        for (p, pred, _), (expl, nearby, mean, obs_a, obs_b, merged) in zip(items, found):
+            if mean is None and p.a.track_id != p.b.track_id:
+                again = self._reanchor(p, pred, tracks, taken)
+                if again is not None:
+                    expl, mean, obs_a, obs_b = again
+                    nearby = nearby + [t for t in expl if t not in nearby]
+                    taken.update(t.track_id for t in expl)
+            if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
+                out.append(p)
+        return out
+
+    def _reanchor(self, p: Pair, pred: tuple, tracks: list[Track], taken: set) -> tuple | None:
+        """Pair `p` (two tracks) explained no blob at its prediction `pred`: the camera's shake
+        or the light's own motion may have moved it past its gate while it coasted. Two seen
+        blobs that no pair explains (`taken`: track ids), offset by its baseline within
+        `reanchor_sep_tol` (+ `match_min_px`), of an emitter's size (area within the pairing's
+        `max_area_ratio` of each other, unless saturated), their midpoint within
+        `shake_radius_px` per frame it coasted before this one of its predicted midpoint (none
+        in its first frame without a blob: both emitters are dark in a quarter of the frames,
+        and any two blobs one baseline apart would do), place both its emitters
+        at once (no lone blob can be taken for the wrong one); the nearest such two. Returns
+        (explaining tracks, mean (dx, dy) shift, A's blob, B's blob) or None."""
+        mx, my, hx, hy, single = pred
+        bx, by = 2.0 * hx, 2.0 * hy
+        tol = self.match_min_px + self.reanchor_sep_tol * math.hypot(bx, by)
+        if p.misses < 1:
+            return None  # its first frame without a blob: both emitters dark in a quarter of the frames
+        reach = self.shake_radius_px * p.misses
+        cand = [t for t in tracks if t.seen and t.track_id not in taken
+                and abs(t.cx - mx) <= reach + abs(hx) + tol and abs(t.cy - my) <= reach + abs(hy) + tol]
+        best = None
+        ratio_max = self.geom["max_area_ratio"]
+        for ta in cand:
+            for tb in cand:
+                if tb is ta or math.hypot(tb.cx - ta.cx - bx, tb.cy - ta.cy - by) > tol:
+                    continue
+                ox, oy = 0.5 * (ta.cx + tb.cx) - mx, 0.5 * (ta.cy + tb.cy) - my
+                d = math.hypot(ox, oy)
+                if d > reach:
+                    continue
+                sat = ta.blob.peak >= self.white_gray and tb.blob.peak >= self.white_gray
+                r = max(ta.blob.area_px, 1.0) / max(tb.blob.area_px, 1.0)
+                if not sat and not (1.0 / ratio_max <= r <= ratio_max):
+                    continue
+                if best is None or d < best[0]:
+                    best = (d, ta, tb, (ox, oy))
+        if best is None:
+            return None
+        _, ta, tb, mean = best
+        return [ta, tb], mean, ta.blob, tb.blob
 
     def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
         """`_follow`'s first part: the frame counted, None when the pair gives up, else its
@@ -828,10 +894,7 @@ class Pairer:
                 self.scene_past.append((float(t_s), self.view_sum,
                                         np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
                                         np.array([t.blob.area_px for t in seen], float)))
-        if _k is not None:
-            self.pairs = self._follow_all(tracks, shape, dy, dx, exclude)
-        else:
-            self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+        self.pairs = self._follow_all(tracks, shape, dy, dx, exclude, xy)
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}

@@ -188,3 +188,23 @@ def test_a_saturated_blob_is_its_emitter_whatever_its_area():
         assert p in pr.pairs
         assert (p.misses == 0) is explained
         assert (p.seen_a == p.frames) is explained
+
+
+def test_a_coasting_two_track_pair_is_replaced_on_both_its_emitters_blobs():
+    """A pair of two tracks whose light moved past its gate while it coasted (12 px: a shake step
+    the frame's shift missed) is placed again on two seen blobs one baseline apart, both emitters at
+    once; not in its first frame without a blob (both emitters dark in a quarter of the frames,
+    any two blobs one baseline apart would do), nor on two blobs of another separation."""
+    def run(misses, sep):
+        pr = Pairer()
+        p = _two_track_pair(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        _step(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        for k in range(misses):
+            _step(pr, frame=2 + k)  # nothing seen: it coasts
+        _step(pr, _blob(192.0, 81.0, 6, 4), _blob(192.0 + sep, 81.0, 6, 4), frame=2 + misses)
+        return p
+    p = run(1, 40.0)
+    assert p.misses == 0 and p.anchored
+    assert (p.a.cx, p.b.cx) == pytest.approx((192.0, 232.0))
+    assert run(0, 40.0).misses == 1       # first frame without a blob: not re-placed
+    assert run(1, 52.0).misses == 2       # another separation: another light
