@@ -8,7 +8,8 @@ receiver.evaluate.metrics), S2-PSK wrong IDs, frames with a host fix and its med
 the car distance median relative error (%) and bearing median error (deg). Without FOLDER: the
 independent recordings (../shared/independent/vehicle-*), recordings/vehicle and the
 `vehicle-road` seeds rendered under DIR/road-s1 .. road-s4 (rendered first when missing:
-`occloc synth vehicle-road --seed N`).
+`occloc synth vehicle-road --seed N`). `--truth-shift`: the camera shift from the truth instead
+of the receiver's estimate (tools.truth_shift_run).
 """
 
 from __future__ import annotations
@@ -47,16 +48,18 @@ def render_road(folder: Path) -> None:
                    check=True, cwd=ROOT)
 
 
-def score(folder: Path, runs: Path, rerun: bool) -> dict:
-    """Run (unless its output is there and not `rerun`) and evaluate one recording."""
+def score(folder: Path, runs: Path, rerun: bool, truth_shift: bool = False) -> dict:
+    """Run (unless its output is there and not `rerun`) and evaluate one recording; with
+    `truth_shift`, the camera shift from the truth (tools.truth_shift_run)."""
     name = folder.name
-    out = runs / f"{name}.jsonl"
+    out = runs / (f"{name}.truth-shift.jsonl" if truth_shift else f"{name}.jsonl")
     if name.startswith("road-s"):
         render_road(folder)
     if rerun or not out.is_file():
         out.unlink(missing_ok=True)
-        subprocess.run(_occloc() + ["run", str(folder), "--out", str(out)], check=True, cwd=ROOT,
-                       stderr=subprocess.DEVNULL)
+        cmd = ([sys.executable, "-m", "tools.truth_shift_run", str(folder), str(out)] if truth_shift
+               else _occloc() + ["run", str(folder), "--out", str(out)])
+        subprocess.run(cmd, check=True, cwd=ROOT, stderr=subprocess.DEVNULL)
     res = subprocess.run(_occloc() + ["eval", str(out), "--truth", str(folder / "truth.jsonl"), "--json"],
                          check=True, cwd=ROOT, capture_output=True, text=True)
     m = json.loads(res.stdout)
@@ -104,12 +107,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", default="/tmp/vehicle_score", help="where runs and rendered road seeds go")
     parser.add_argument("--jobs", type=int, default=1, help="recordings scored at once")
     parser.add_argument("--keep", action="store_true", help="reuse a run's output when it is there")
+    parser.add_argument("--truth-shift", action="store_true",
+                        help="the frame's camera shift from the truth camera (tools.truth_shift_run): the "
+                             "pairing apart from the camera-motion estimate")
     args = parser.parse_args(argv)
     runs = Path(args.runs)
     runs.mkdir(parents=True, exist_ok=True)
     folders = [Path(f) for f in args.folders] or default_folders(runs)
+    for f in folders:
+        if not f.name.startswith("road-s") and not (f / "truth.jsonl").is_file():
+            print(f"tools.vehicle_score: {f}: not a recording folder (no truth.jsonl)", file=sys.stderr)
+            return 2
     with ThreadPoolExecutor(max(args.jobs, 1)) as ex:
-        for s in ex.map(lambda f: score(f, runs, not args.keep), folders):
+        for s in ex.map(lambda f: score(f, runs, not args.keep, args.truth_shift), folders):
             print(line(s), flush=True)
     return 0
 
