@@ -43,7 +43,7 @@ from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import pair_dx, vertical_shift
 from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import TUNING, Pairer
-from receiver.vision.profile import mean_in_mask, row_profile
+from receiver.vision.profile import peak_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 from receiver.vision.track import preload as preload_assignment
@@ -202,7 +202,8 @@ _ID = operator.attrgetter("id")
 
 
 def _intensity(gray: np.ndarray, track: Track) -> float:
-    return mean_in_mask(gray, track.blob)
+    """An S2-PSK emitter's intensity: the highest gray in its envelope (profile.peak_in_mask)."""
+    return peak_in_mask(gray, track.blob)
 
 
 class Receiver:
@@ -244,7 +245,8 @@ class Receiver:
         self.scratch = Scratch()  # detection's work buffers, kept across frames
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
-        self.pairer = Pairer(settings=s.pair, new_id=self.tracker.new_id) if plan.s2psk else None
+        self.pairer = (Pairer(settings=s.pair, new_id=self.tracker.new_id, white_gray=s.detect.saturated_gray)
+                       if plan.s2psk else None)
         self.policy = DecodePolicy(camera, led_map, plan, s.policy, ook=s.ook, tone=s.tone, s2psk=s.s2psk,
                                    min_stripe_rows=self.min_stripe_rows)
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
@@ -340,10 +342,10 @@ class Receiver:
 
     def _pairs(self, gray: np.ndarray, frame: Frame, tracks: list[Track]) -> dict:
         """Follow and decode the S2-PSK pairs; {track id: owning pair} of this frame."""
-        from receiver.vision.profile import mean_in_masks  # every emitter of the frame in one call
+        from receiver.vision.profile import peak_in_masks  # every emitter of the frame in one call
 
         def intensities(g, ts):
-            return mean_in_masks(g, [t.blob for t in ts])
+            return peak_in_masks(g, [t.blob for t in ts])
         live = self.pairer.step(gray, tracks, _intensity, shift=self.shift, t_s=frame.t_s, intensities=intensities)
         samples = self.pairer.sample_all(live, gray, intensities)
         # the far heads also read by their whole flux (below), all in one call

@@ -340,6 +340,10 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
                     yaw = math.radians(self._ypr_of(R)[0])
+                if solved is not None and R_prior is None and self.off_road(
+                        yaw, self._sl[pairs[res["idx"][sl_k[0]]].led_id]["head"]):
+                    self.hv_reason = "street-light pose solve failed (its heading is off the road)"
+                elif solved is not None:
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
                                heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])
                                       for k in sl_k])

@@ -48,6 +48,9 @@ OBS_GATE_CHI2 = 16.3            # one light's (u, v, range) into the filter: chi
 # Mapped heads that give the road direction near a light (`_road_heading`): two or three a side
 # of the road, whatever their spacing (a staggered layout's 12.5 m, an alternating one's 30 m).
 ROAD_HEADS = 6
+# deg, a cold pose solve whose heading is farther than this from the map's road line near its
+# heads is a wrong one (heads confused or a degenerate geometry): the host drives along the road.
+ROAD_OFF_MAX_DEG = 45.0
 # Why the host is unplaced, by what the frame holds (`VehicleLocator.hv_reason`).
 NO_LIGHT = "no light in view"
 NOT_DECODED = "lights in view, not decoded yet"
@@ -378,6 +381,15 @@ class HostPlacement:
             ax = np.linalg.eigh(S)[1][:, 1]
         ax = ax if ax[0] >= 0 else -ax
         return math.atan2(float(ax[1]), float(ax[0]))
+
+    def off_road(self, yaw_rad: float, head: np.ndarray) -> bool:
+        """Whether heading `yaw_rad` (map frame) is more than `ROAD_OFF_MAX_DEG` off the map's road
+        line near `head` (either way along it); False when the map gives no road direction."""
+        road = self._road_heading(head)
+        if road is None:
+            return False
+        d = abs(wrap_pi(yaw_rad - road))
+        return min(d, math.pi - d) > math.radians(ROAD_OFF_MAX_DEG)
 
     def _single_observation(self, t_s, pairs, res, k, R_prior):
         """While the road filter runs, one decoded street light updates it directly: the

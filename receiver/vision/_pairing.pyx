@@ -107,7 +107,7 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
                   unsigned char[:, ::1] mine):
     """Pairer._explain of every pair k (row of `pp`) against every track i (row of `tr`).
 
-    tr (N, 8): cx, cy, area_px, x0, x1, y0, y1, seen (1 / 0) of each track's blob.
+    tr (N, 8): cx, cy, area_px, x0, x1, y0, y1, seen (1, 2 when saturated / 0) of each track's blob.
     pp (P, 14): the pair's predicted mx, my, hx, hy, single (px, px^2), misses, emitter A's and
         B's areas, size, A's and B's widths (x1 - x0) and heights (y1 - y0), and the claim
         tolerance (px; < 0: no claims, see below).
@@ -128,7 +128,7 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
     cdef double cx, cy, area, ratio, amax, sx, sy, ex, ey, ctol, dca, dcb
     cdef int wide, nn, ne, nc, ns, obs_a, obs_b, merged
     cdef double match_frac, match_min_px, match_size, miss_growth, merged_ratio, max_merged, max_cut
-    cdef bint vertical_known
+    cdef bint vertical_known, sat
     cdef double[::1] dys
     cdef Py_ssize_t pos = 0, j
     if (tr.shape[1] < 8 or pp.shape[1] < 14 or cfg.shape[0] < 12 or excl.shape[0] != npair
@@ -188,19 +188,20 @@ def explain_pairs(const double[:, ::1] tr, const double[:, ::1] pp, const unsign
             if tr[i, 7] == 0.0 or excl[k, i]:
                 continue
             area = tr[i, 2]
+            sat = tr[i, 7] == 2.0  # saturated: its area is the bloom's (no upper bound)
             wide = _width_class(tr[i, 4] - tr[i, 3], tr[i, 6] - tr[i, 5], pp[k, 9], pp[k, 10],
                                 pp[k, 11], pp[k, 12], hx, cfg)
             if wide == 2 and dm <= tol:
                 ex = mx; ey = my
                 merged = <int>i
             elif dm < (db if db < da else da):
-                if not (merged_ratio * single < area and area <= max_merged * single):
+                if not (merged_ratio * single < area and (sat or area <= max_merged * single)):
                     continue
                 ex = mx; ey = my
                 merged = <int>i
             else:
                 ratio = (area if area > 1.0 else 1.0) / amax
-                if not ((1.0 / max_cut <= ratio and ratio <= merged_ratio) or (wide == 1 and ratio >= 1.0)):
+                if not ((1.0 / max_cut <= ratio and (ratio <= merged_ratio or sat)) or (wide == 1 and ratio >= 1.0)):
                     continue
                 if da <= db:
                     ex = ax; ey = ay
@@ -302,6 +303,40 @@ def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,
                     tot += gray[y, x]
                     n += 1
         out[k] = (<double>tot) / n if n else 0.0
+
+
+def masked_peaks(const unsigned char[:, :] gray, const unsigned char[::1] masks,
+                 const long long[:, ::1] boxes, double[::1] out):
+    """profile.peak_in_mask of many blobs in one call: out[k] = the highest gray of `gray`
+    where blob k's envelope mask is nonzero (0.0 without such pixels); `boxes` as `masked_means`."""
+    cdef Py_ssize_t k, x, y, h = gray.shape[0], w = gray.shape[1]
+    cdef long long x0, y0, x1, y1, off, bw, cx0, cy0, cx1, cy1
+    cdef int best
+    cdef bint any_
+    cdef const unsigned char *row
+    if boxes.shape[1] < 5 or out.shape[0] < boxes.shape[0]:
+        raise ValueError("masked_peaks: boxes must be (B, 5), out (B,)")
+    for k in range(boxes.shape[0]):
+        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
+        if x1 < x0 or y1 < y0 or off < 0 or off + (x1 - x0) * (y1 - y0) > masks.shape[0]:
+            raise ValueError("masked_peaks: a box is inverted or its mask lies outside `masks`")
+    for k in range(boxes.shape[0]):
+        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
+        bw = x1 - x0
+        cx0 = x0 if x0 > 0 else 0
+        cy0 = y0 if y0 > 0 else 0
+        cx1 = x1 if x1 < w else w
+        cy1 = y1 if y1 < h else h
+        best = 0
+        any_ = False
+        for y in range(cy0, cy1):
+            row = &masks[off + (y - y0) * bw - x0]
+            for x in range(cx0, cx1):
+                if row[x]:
+                    any_ = True
+                    if gray[y, x] > best:
+                        best = gray[y, x]
+        out[k] = <double>best if any_ else 0.0
 
 
 def dx_offsets(const double[:, ::1] bl, const double[:, ::1] pp, const double[::1] cfg, double dy,

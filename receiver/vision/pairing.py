@@ -10,27 +10,34 @@ A pair (PROTOCOL.md section 3: two taillights of a car, two halves of a street-l
 Candidates are paired greedily, best score first, each track in at most one pair.
 
 Once formed, a pair follows its two emitters itself instead of relying on the blob tracks. The
-two halves of a street-light head are only ~0.1 m apart: beyond a few tens of metres they
-show as one blob whenever both are lit (symbol 0, half of each clock period), and as one
-single blob on either side otherwise (symbol 1); A and B are never two separate blobs of the
-same frame. Blob tracks then jump between A, B and the merged centroid, so a pair bound to
-two tracks read its intensities in the wrong places and died with them. Instead the pair
-keeps its own geometry: a midpoint moving at constant velocity (px/frame) and a rigid
-baseline vector that only scales with the emitters' size (both ~ 1 / distance), corrected each
-frame from the blobs it explains: a single blob near A or B, a merged blob (area well above
-one emitter's) near the midpoint. Far heads never show two blobs, so their pairs come from
-one track that jumps back and forth by the same baseline (`_pair_jumpers`). Tracks whose blob is explained by a
+two halves of a street-light head may be close (~0.1 m apart): beyond a few tens of metres they
+then show as one blob whenever both are lit (symbol 0, half of each clock period), and as one
+single blob on either side otherwise (symbol 1); or far apart (0.6 m), two blobs at every range,
+paired as two tracks like a car's taillights. Blob tracks jump between A, B and the merged
+centroid, so a pair bound to two tracks read its intensities in the wrong places and died with
+them. Instead the pair keeps its own geometry: a midpoint moving at constant velocity
+(px/frame) and a rigid baseline vector (below), corrected each frame from the blobs it
+explains: a single blob near A or B, a merged blob (area well above one emitter's) near the
+midpoint. Far close-halved heads never show two blobs, so their pairs come from one track that
+jumps back and forth by the same baseline (`_pair_jumpers`). Tracks whose blob is explained by a
 pair are its `tracks` and are not paired again; the pair's two emitters (`Pair.ids`, reported by
 `Pairer.emitters`, lit or dark) carry its ID in the output instead of those tracks. A pair ends after
 `max_missed` frames without such a blob, when an emitter leaves the image, or when it has not
 decoded after `give_up_frames` (a wrong pairing: its two tracks are then never paired again).
 
 What a user sets is `PairSettings` (receiver.vision.settings: geometry gates, time limits, the
-shake estimate); the internal constants are `TUNING` (`PairTuning`), each documented there. A
-far head's (jumper) pair re-measures its baseline whenever both emitters' own blobs are seen in
-one frame, or from a merged blob's width, and grows at the measured rate in between (its area, one
-or two rows, is no measure of its size); a pair of two tracks scales its founding baseline by the
-emitters' size (square root of the blob area).
+shake estimate); the internal constants are `TUNING` (`PairTuning`), each documented there.
+
+One baseline model for every pair: the baseline is measured whenever both emitters' own blobs
+are seen in one frame (or, for a far head, from a merged blob's width), blended into the
+prediction, and grows at the measured rate per frame in between (a light's separation goes as
+1 / range). A pair of two tracks starts from its founding blobs' separation; a far head's
+(jumper) pair, founded on the mean of two jumps, scales that by the emitters' size until its
+first measurement. Blob area is otherwise no measure of size: a far half covers one or two rows,
+and a saturated blob (peak at the sensor's white level, `white_gray`) blooms to 2-3x the
+emitter's area, so a saturated blob is not held to the area gates. The frame's camera shift
+(`step`'s `shift`) moves every pair's prediction before its blobs are matched: a lone lit half
+is A or B by where the shifted pair puts them.
 
 Per frame, each emitter's intensity is the mean gray inside its envelope at its current
 position (also when dark, so no frame is lost); `EmitterLevels` learns its on/off levels from
@@ -116,6 +123,9 @@ class PairTuning:
     growth_span_frames: int = 8  # growth is extrapolated over at most this many frames
     max_growth: float = 0.08  # and at most 8 % a frame (a head at 10 m at 70 km/h)
     anchor_coast_frames: int = 5  # a far head's pair that coasted this long is not reported until re-placed
+    reanchor_sep_tol: float = 0.1  # a pair of two tracks that explains no blob is re-placed on two seen blobs
+    # whose offset is its baseline within this fraction (+ match_min_px), within the camera-shift search
+    # radius (`PairSettings.shake_radius_px`) per frame it coasted
 
 
 TUNING = PairTuning()
@@ -288,10 +298,14 @@ class Pairer:
     overrides of its fields.
     """
 
-    def __init__(self, *, settings: PairSettings | None = None, new_id=None, **overrides):
+    def __init__(self, *, settings: PairSettings | None = None, new_id=None, white_gray: float = math.inf,
+                 **overrides):
         """`new_id() -> int`: fresh LED ids for the pairs' emitters, never a track's id
-        (receiver.vision.track.Tracker.new_id); None: a counter of this pairer's own."""
+        (receiver.vision.track.Tracker.new_id); None: a counter of this pairer's own.
+        `white_gray`: the sensor's white level (receiver.vision.settings.DetectSettings.saturated_gray):
+        a blob peaking there is saturated, its area (bloom, 2-3x the emitter's) no measure of size."""
         s = self.settings = resolve_settings(settings, PairSettings, overrides)
+        self.white_gray = float(white_gray)
         k = TUNING
         self.new_id = new_id if new_id is not None else itertools.count().__next__
         self.report_coast_frames = s.report_coast_frames
@@ -326,6 +340,7 @@ class Pairer:
         self.width_max_rows, self.baseline_max_ratio = k.width_max_rows, k.baseline_max_ratio
         self.baseline_gain = k.baseline_gain
         self.anchor_coast_frames = k.anchor_coast_frames
+        self.reanchor_sep_tol, self.shake_radius_px = k.reanchor_sep_tol, s.shake_radius_px
         self.growth_gain, self.growth_span_frames, self.max_growth = k.growth_gain, k.growth_span_frames, k.max_growth
         self.head_follow, self.head_gap_frames = k.head_follow, k.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
@@ -343,16 +358,15 @@ class Pairer:
 
     def _predict(self, p: Pair) -> tuple[float, float, float, float, float]:
         """(mx, my, hx, hy, single): pair `p`'s predicted midpoint and half baseline (px) and
-        one emitter's area (px^2). Rigid pair: the baseline only scales with the emitters' size
-        (both ~ 1 / distance), so a blob can never pull one emitter onto the other."""
+        one emitter's area (px^2). Rigid pair: the baseline as last measured, grown since at its
+        measured rate (module docstring), so a blob can never pull one emitter onto the other."""
         single = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), p.size, 1.0)
         if p.base is not None:
-            # measured: grown since at the measured rate (a far head's blob area is no measure of
-            # its size: a sub-pixel-tall half covers one or two rows, its area doubling between
-            # frames, while its width holds)
+            # measured: grown since at the measured rate (blob area is no measure of size: a far
+            # half covers one or two rows, a saturated emitter blooms)
             scale = (1.0 + p.growth) ** min(p.frames - p.base_frames, self.growth_span_frames)
             return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base[0], 0.5 * scale * p.base[1], single
-        scale = math.sqrt(single / p.area0)
+        scale = math.sqrt(single / p.area0)  # a far head's jumper pair until its first measurement
         return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
 
     def _predictions(self) -> list[tuple[Pair, tuple]]:
@@ -400,8 +414,10 @@ class Pairer:
                 explaining.append(t)
                 merged = t.blob
                 continue
+            # A saturated blob's area is the bloom's, not the emitter's: no upper bound then
+            sat = t.blob.peak >= self.white_gray
             if dm < min(da, db):
-                if self.merged_ratio * single < t.blob.area_px <= self.max_merged * single:
+                if self.merged_ratio * single < t.blob.area_px and (sat or t.blob.area_px <= self.max_merged * single):
                     shifts.append((t.cx - mx, t.cy - my))  # both lit, one blob
                     explaining.append(t)
                     merged = t.blob
@@ -415,7 +431,8 @@ class Pairer:
             e, x, y = (p.a, ax, ay) if da <= db else (p.b, bx, by)
             ratio = max(t.blob.area_px, 1.0) / max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
             # (by width, also one that covers a row more than its envelope: twice its area)
-            if not (1.0 / self.max_cut <= ratio <= self.merged_ratio or (wide == "single" and ratio >= 1.0)):
+            if not (1.0 / self.max_cut <= ratio and (ratio <= self.merged_ratio or sat)
+                    or (wide == "single" and ratio >= 1.0)):
                 continue  # another light's blob
             shifts.append((t.cx - x, t.cy - y))
             explaining.append(t)
@@ -571,12 +588,14 @@ class Pairer:
 
     def _track_table(self, tracks: list[Track]) -> np.ndarray:
         """(N, 8) cx, cy, area_px, x0, x1, y0, y1, seen of the tracks' blobs (the kernel's
-        `tr`), built once per frame (the tracks do not change within `step`)."""
+        `tr`; seen: 0 unseen, 1 seen, 2 seen and saturated at `white_gray`), built once per frame (the tracks do not change within `step`)."""
         memo = self._table
         if memo is not None and memo[0] is tracks and len(tracks) == memo[1]:
             return memo[2]
+        white = self.white_gray
         tr = np.array([(t.blob.cx, t.blob.cy, t.blob.area_px, t.blob.x0, t.blob.x1, t.blob.y0, t.blob.y1,
-                        t.seen) for t in tracks], float).reshape(-1, 8)
+                        (2.0 if t.blob.peak >= white else 1.0) if t.seen else 0.0) for t in tracks],
+                      float).reshape(-1, 8)
         self._table = (tracks, len(tracks), tr)
         return tr
 
@@ -653,16 +672,78 @@ class Pairer:
         mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
         return self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged)
 
-    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict) -> list[Pair]:
-        """`_follow` of every pair (the live ones), their blobs found by one kernel call."""
+    def _follow_all(self, tracks: list[Track], shape, dy: float, dx: float, exclude: dict,
+                    xy: np.ndarray | None = None) -> list[Pair]:
+        """`_follow` of every pair (the live ones), their blobs found by one kernel call (the
+        Python reference `_explain` per pair without the kernel, `xy` the tracks' centroids);
+        a pair of two tracks that explains none is re-placed on two seen blobs one baseline
+        apart that no pair explains (`_reanchor`)."""
         items = []
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
             if pred is not None:
                 items.append((p, pred, exclude.get(p.uid, ())))
-        return [p for (p, pred, _), (expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _)
-                in zip(items, self._explain_batch(items, tracks, False))
-                if self._follow_end(p, shape, pred, expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)]
+        if _k is not None:
+            found = [(expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)
+                     for expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _ in self._explain_batch(items, tracks, False)]
+        else:
+            found = []
+            for p, pred, excl in items:
+                expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, excl)
+                mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
+                found.append((expl, nearby, mean, obs_a, obs_b, merged))
+        taken = {t.track_id for f in found for t in f[0]}
+        out = []
+        for (p, pred, _), (expl, nearby, mean, obs_a, obs_b, merged) in zip(items, found):
+            if mean is None and p.a.track_id != p.b.track_id:
+                again = self._reanchor(p, pred, tracks, taken)
+                if again is not None:
+                    expl, mean, obs_a, obs_b = again
+                    nearby = nearby + [t for t in expl if t not in nearby]
+                    taken.update(t.track_id for t in expl)
+            if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
+                out.append(p)
+        return out
+
+    def _reanchor(self, p: Pair, pred: tuple, tracks: list[Track], taken: set) -> tuple | None:
+        """Pair `p` (two tracks) explained no blob at its prediction `pred`: the camera's shake
+        or the light's own motion may have moved it past its gate while it coasted. Two seen
+        blobs that no pair explains (`taken`: track ids), offset by its baseline within
+        `reanchor_sep_tol` (+ `match_min_px`), of an emitter's size (area within the pairing's
+        `max_area_ratio` of each other, unless saturated), their midpoint within
+        `shake_radius_px` per frame it coasted before this one of its predicted midpoint (none
+        in its first frame without a blob: both emitters are dark in a quarter of the frames,
+        and any two blobs one baseline apart would do), place both its emitters
+        at once (no lone blob can be taken for the wrong one); the nearest such two. Returns
+        (explaining tracks, mean (dx, dy) shift, A's blob, B's blob) or None."""
+        mx, my, hx, hy, single = pred
+        bx, by = 2.0 * hx, 2.0 * hy
+        tol = self.match_min_px + self.reanchor_sep_tol * math.hypot(bx, by)
+        if p.misses < 1:
+            return None  # its first frame without a blob: both emitters dark in a quarter of the frames
+        reach = self.shake_radius_px * p.misses
+        cand = [t for t in tracks if t.seen and t.track_id not in taken
+                and abs(t.cx - mx) <= reach + abs(hx) + tol and abs(t.cy - my) <= reach + abs(hy) + tol]
+        best = None
+        ratio_max = self.geom["max_area_ratio"]
+        for ta in cand:
+            for tb in cand:
+                if tb is ta or math.hypot(tb.cx - ta.cx - bx, tb.cy - ta.cy - by) > tol:
+                    continue
+                ox, oy = 0.5 * (ta.cx + tb.cx) - mx, 0.5 * (ta.cy + tb.cy) - my
+                d = math.hypot(ox, oy)
+                if d > reach:
+                    continue
+                sat = ta.blob.peak >= self.white_gray and tb.blob.peak >= self.white_gray
+                r = max(ta.blob.area_px, 1.0) / max(tb.blob.area_px, 1.0)
+                if not sat and not (1.0 / ratio_max <= r <= ratio_max):
+                    continue
+                if best is None or d < best[0]:
+                    best = (d, ta, tb, (ox, oy))
+        if best is None:
+            return None
+        _, ta, tb, mean = best
+        return [ta, tb], mean, ta.blob, tb.blob
 
     def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
         """`_follow`'s first part: the frame counted, None when the pair gives up, else its
@@ -676,11 +757,14 @@ class Pairer:
             p.base0 = (p.b.cx - p.a.cx, p.b.cy - p.a.cy)
             p.area0 = max(0.5 * (p.a.blob.area_px + p.b.blob.area_px), 1.0)
             p.mx, p.my = 0.5 * (p.a.cx + p.b.cx), 0.5 * (p.a.cy + p.b.cy)
+            if p.a.track_id != p.b.track_id:
+                # two emitters' own blobs: the founding baseline is a measurement (a far head's
+                # jumping track gives it only as the mean of two jumps: scaled until measured)
+                p.base, p.base_frames = p.base0, p.frames
         mx, my, hx, hy, single = self._predict(p)
-        if p.a.track_id == p.b.track_id:
-            # the horizontal shift (yaw) only for a far head's pair: a pair of two tracks follows
-            # its two emitters' own blobs, wide apart, by its own velocity
-            mx += dx
+        # the camera's shake moves every light alike: a lone lit half is matched to A or B only
+        # after it (a yaw step of half a baseline would otherwise swap them)
+        mx += dx
         my += dy
         return mx, my, hx, hy, single
 
@@ -691,8 +775,7 @@ class Pairer:
         mx, my, hx, hy, single = pred
         self._preds = None  # the pairs move
         p.tracks, p.nearby = explaining, nearby
-        if p.a.track_id == p.b.track_id:
-            self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
+        self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
             p.anchored = True
         elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
@@ -775,7 +858,7 @@ class Pairer:
             n = p.frames - p.base_frames
             if 0 < n <= self.growth_span_frames:
                 r = (max(math.hypot(*meas), 1.0) / max(math.hypot(*pred), 1.0)) ** (1.0 / n) - 1.0
-                p.growth += self.growth_gain * (min(max(r, 0.0), self.max_growth) - p.growth)
+                p.growth += self.growth_gain * (min(max(r, -self.max_growth), self.max_growth) - p.growth)
             g = self.baseline_gain
             meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
         p.base, p.base_frames = meas, p.frames
@@ -811,10 +894,7 @@ class Pairer:
                 self.scene_past.append((float(t_s), self.view_sum,
                                         np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
                                         np.array([t.blob.area_px for t in seen], float)))
-        if _k is not None:
-            self.pairs = self._follow_all(tracks, shape, dy, dx, exclude)
-        else:
-            self.pairs = [p for p in self.pairs if self._follow(p, tracks, xy, shape, dy, dx, exclude.get(p.uid, ()))]
+        self.pairs = self._follow_all(tracks, shape, dy, dx, exclude, xy)
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
         paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}

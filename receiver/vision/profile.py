@@ -75,6 +75,21 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
     return cv2.sumElems(np.multiply(roi, mask))[0] / n if n else 0.0
 
 
+def peak_in_mask(gray: np.ndarray, blob: Blob) -> float:
+    """Highest gray over the blob's envelope (the part inside the frame; 0.0 without any): an
+    S2-PSK emitter's intensity whatever part of its envelope it lights (a saturated emitter's
+    bloom, an envelope a few px off, a clock edge cutting it during the rolling readout)."""
+    mask = envelope_mask(blob)
+    h, w = gray.shape[:2]
+    x0, y0 = max(int(blob.x0), 0), max(int(blob.y0), 0)
+    x1, y1 = min(int(blob.x1), w), min(int(blob.y1), h)
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
+    roi = gray[y0:y1, x0:x1]
+    mask = mask[y0 - int(blob.y0):y1 - int(blob.y0), x0 - int(blob.x0):x1 - int(blob.x0)]
+    return float(roi[mask != 0].max()) if mask.any() else 0.0
+
+
 def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float = 0.0,
                  min_weight_frac: float = 0.3) -> float:
     """Relative modulation (p90 - p10) / (p90 - background) of a row profile over its
@@ -87,18 +102,25 @@ def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float 
     return float((hi - lo) / (hi - background)) if hi > background else 0.0
 
 
-def mean_in_masks(gray: np.ndarray, blobs: list) -> list[float]:
-    """[mean_in_mask(gray, b) for b in blobs], equal to the last bit, in one kernel call: the
-    envelopes' polygons rounded at once and drawn by cv2.fillConvexPoly into one buffer (the
-    masks `envelope_mask` draws), their exact pixel sums in receiver/vision/_pairing.pyx."""
+def peak_in_masks(gray: np.ndarray, blobs: list) -> list[float]:
+    """[peak_in_mask(gray, b) for b in blobs] in one kernel call (as `mean_in_masks`)."""
+    return mean_in_masks(gray, blobs, peak=True)
+
+
+def mean_in_masks(gray: np.ndarray, blobs: list, peak: bool = False) -> list[float]:
+    """[mean_in_mask(gray, b) for b in blobs] (with `peak`: `peak_in_mask`), equal to the last
+    bit, in one kernel call: the envelopes' polygons rounded at once and drawn by
+    cv2.fillConvexPoly into one buffer (the masks `envelope_mask` draws), their exact pixel
+    sums (maxima) in receiver/vision/_pairing.pyx."""
     if not blobs:
         return []
     if _kb is None or gray.dtype != np.uint8 or gray.ndim != 2:
-        return [mean_in_mask(gray, b) for b in blobs]
+        one = peak_in_mask if peak else mean_in_mask
+        return [one(gray, b) for b in blobs]
     boxes = np.array([(b.x0, b.y0, b.x1, b.y1) for b in blobs], np.int64)
     h, w = boxes[:, 3] - boxes[:, 1], boxes[:, 2] - boxes[:, 0]
     if (h < 0).any() or (w < 0).any():
-        return [mean_in_mask(gray, b) for b in blobs]  # (the reference's error)
+        return [(peak_in_mask if peak else mean_in_mask)(gray, b) for b in blobs]  # (the reference's error)
     size = h * w
     ends = np.cumsum(size)
     boxes = np.concatenate((boxes, (ends - size)[:, None]), axis=1)
@@ -112,5 +134,5 @@ def mean_in_masks(gray: np.ndarray, blobs: list) -> list[float]:
             cv2.fillConvexPoly(masks[o:o + hh * ww].reshape(hh, ww), polys[start:start + n], 1)
         start += n
     out = np.empty(len(blobs))
-    _kb.masked_means(gray, masks, boxes, out)
+    (_kb.masked_peaks if peak else _kb.masked_means)(gray, masks, boxes, out)
     return out.tolist()

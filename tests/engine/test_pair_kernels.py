@@ -203,6 +203,26 @@ def test_mean_in_masks_equals_mean_in_mask():
     assert mean_in_masks(view, blobs[:50]) == [mean_in_mask(view, b) for b in blobs[:50]]
 
 
+@needs_kernel
+def test_peak_in_masks_equals_peak_in_mask():
+    """The emitters' S2-PSK intensity (their envelope's highest gray) read in one kernel call
+    equals the reference per envelope, also for envelopes past the frame's edges."""
+    from receiver.vision.pairing import moved
+    from receiver.vision.profile import peak_in_mask, peak_in_masks
+    rng = np.random.default_rng(12)
+    gray = rng.integers(0, 256, size=(90, 160), dtype=np.uint8)
+    blobs = [_envelope(rng, rng.uniform(-3, 163), rng.uniform(-3, 93)) for _ in range(300)]
+    blobs += [moved(b, b.cx + rng.normal(0, 20), b.cy + rng.normal(0, 20)) for b in blobs]
+    want = [peak_in_mask(gray, b) for b in blobs]
+    assert peak_in_masks(gray, blobs) == want
+    assert any(w == 0.0 for w in want) and any(w > 0.0 for w in want)
+    b = blobs[0]
+    x0, y0 = max(b.x0, 0), max(b.y0, 0)
+    inside = gray[y0:max(b.y1, 0), x0:max(b.x1, 0)]
+    assert not inside.size or want[0] <= float(inside.max())
+    assert peak_in_masks(gray, []) == []
+
+
 def test_sample_all_equals_sample():
     from receiver.vision.profile import mean_in_mask, mean_in_masks
     rng = np.random.default_rng(12)

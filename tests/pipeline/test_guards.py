@@ -29,8 +29,10 @@ STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 # vehicle: every live S2-PSK pair reports both emitters every frame (receiver.vision.pairing
 # `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs (was 552/1709).
 # 1719/4393 before soft S2-PSK decoding and the pairs' yaw shift / width size (1749/4412 with the
-# pairing changes alone, 1801/4387 with soft decoding alone).
-VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1791, 4410
+# pairing changes alone, 1801/4387 with soft decoding alone). Measured with every pair's baseline
+# taken from its blobs (never from their area), emitters read by their envelope's highest gray
+# and coasting pairs re-placed on both their emitters' blobs (receiver.vision.pairing).
+VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1832, 4530
 # `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames;
 # was SL 391, FV 114 before pair emitters were reported dark too and new pairs got their backlog;
 # SL 602 before far heads were decoded from their flux with noise-following detection, 635

@@ -26,3 +26,32 @@ def test_a_missing_folder_is_a_one_line_error(tmp_path, capsys):
     assert main([str(tmp_path / "nothing")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "camera" in err
+
+
+def test_truth_shift_is_the_truth_cameras_turn_times_the_focal_length():
+    """tools.truth_shift_run: the frame's shift (px) is the truth camera's yaw and pitch change
+    since the previous frame times the focal length; none for the first frame."""
+    import json
+    import math
+    from types import SimpleNamespace
+
+    from receiver.io.camera import load_camera
+    from tools.truth_shift_run import truth_shift
+
+    shift = truth_shift(str(REC))
+    with open(REC / "truth.jsonl") as f:
+        cams = [json.loads(line)["camera"] for line in f][:3]
+    fx = load_camera(str(REC / "camera.yaml")).fx
+    assert shift(SimpleNamespace(frames=0), []) is None
+    dx, dy = shift(SimpleNamespace(frames=2), [])
+    assert dx == fx * math.radians(cams[2]["yaw"] - cams[1]["yaw"])
+    assert dy == fx * math.radians(cams[2]["pitch"] - cams[1]["pitch"])
+
+
+def test_scoring_tools_refuse_a_folder_without_truth_in_one_line(tmp_path, capsys):
+    from tools.truth_shift_run import main as run_main
+    from tools.vehicle_score import main as score_main
+    assert run_main([str(tmp_path), str(tmp_path / "out.jsonl")]) == 2
+    assert score_main([str(tmp_path), "--runs", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and not (tmp_path / "out.jsonl").exists()

@@ -716,3 +716,29 @@ def test_fv_undecoded_pair_ranged_once_is_forgotten():
             assert alive[0] and not alive[-1], alive
         else:
             assert est == ["fv-track"] * n and all(alive), est
+
+
+def test_a_cold_pose_solve_heading_across_the_road_is_no_fix(monkeypatch):
+    """A cold pose solve (no road filter yet) whose heading lies 90 degrees off the map's road
+    near its heads is a wrong solve (heads confused, a degenerate geometry): the host is not
+    placed from it, with its reason; the same solve along the road places it."""
+    from receiver.locate.pose import rotation_to_ypr_deg
+    lmap = make_map()
+    R, C, psi = camera_pose(41.0)
+    pairs = sl_pairs(lmap, R, C)
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    solve = loc._solve_pose
+
+    def turned(*a, **k):
+        out = solve(*a, **k)
+        if out is None:
+            return None
+        yaw, pitch, roll = rotation_to_ypr_deg(out[0])
+        return (ypr_to_rotation(yaw + 90.0, pitch, roll),) + tuple(out[1:])
+
+    monkeypatch.setattr(loc, "_solve_pose", turned)
+    res = loc.step(0.0, pairs)
+    assert res.vehicle is None or res.vehicle["hv"] is None
+    assert "off the road" in loc.hv_reason
+    ok = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs)
+    assert ok.vehicle["hv"] is not None and ok.vehicle["hv"]["method"] == "pose"

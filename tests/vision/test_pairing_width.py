@@ -139,17 +139,72 @@ def test_a_decoded_far_head_beside_a_blob_it_did_not_take_is_not_reported():
     assert not follow(Pairer(), q, 95.5).beside
 
 
-def test_a_two_track_pair_scales_its_founding_baseline_by_the_area():
-    """A pair of two tracks (taillights, a near head's separate halves) does not re-measure its
-    baseline (only a far head's jumper pair does): its half baseline goes as the square root of
-    the emitters' area since formation, four times the area -> twice the baseline."""
-    pr = Pairer()
-    a0, b0 = _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4)
+def _two_track_pair(pr, a0, b0):
     ta, tb = Track(3, a0, 0, 0), Track(4, b0, 0, 0)
     p = Pair(Track(3, a0, 0, 0), Track(4, b0, 0, 0), fresh=False, tracks=[ta, tb], nearby=[ta, tb], ids=(1, 2))
     pr.pairs = [p]
-    pr.step(None, [Track(3, _blob(180.0, 80.0, 6, 4), 1, 1), Track(4, _blob(220.0, 80.0, 6, 4), 1, 1)],
-            lambda g, t: 0.0, shift=(0.0, 0.0))
-    assert p in pr.pairs and p.base is None  # both own blobs seen, still not measured
-    p.a.blob = p.b.blob = _blob(180.0, 80.0, 12, 8)
-    assert pr._predict(p)[2] == pytest.approx(40.0)
+    return p
+
+
+def _step(pr, *blobs, frame=1):
+    pr.step(None, [Track(3 + k, b, frame, frame) for k, b in enumerate(blobs)], lambda g, t: 0.0,
+            shift=(0.0, 0.0))
+
+
+def test_a_two_track_pair_measures_its_baseline_and_never_scales_it_by_the_area():
+    """A pair of two tracks (taillights, a head's separate halves) takes its baseline from its
+    two emitters' own blobs seen in one frame; the emitters' area (a saturated blob blooms to
+    2-3x the emitter's) does not change it; the next such measurement is blended in and gives
+    the baseline's growth per frame (an approaching light's separation grows as 1 / range)."""
+    pr = Pairer()
+    p = _two_track_pair(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+    _step(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+    assert p in pr.pairs and p.base == pytest.approx((40.0, 0.0))
+    p.a.blob = p.b.blob = _blob(180.0, 80.0, 12, 8)  # four times the area
+    assert pr._predict(p)[2] == pytest.approx(20.0)  # half the baseline, unchanged
+    p.a.blob, p.b.blob = _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4)
+    _step(pr, _blob(176.0, 80.0, 6, 4), _blob(224.0, 80.0, 6, 4), frame=2)
+    assert p in pr.pairs and p.base[0] == pytest.approx(44.0)  # half of the 8 px more, blended in
+    assert p.growth > 0.0
+    # only A's own blob: no measurement, the baseline is predicted at its growth
+    base = p.base
+    _step(pr, _blob(175.0, 80.0, 6, 4), frame=3)
+    assert p in pr.pairs and p.base == base
+    assert pr._predict(p)[2] > 0.5 * base[0]
+
+
+def test_a_saturated_blob_is_its_emitter_whatever_its_area():
+    """A blob that peaks at the sensor's white level (`white_gray`) blooms: three times the
+    emitter's area beside the pair's A is still A's own blob; the same blob unsaturated is
+    another light's (a far bigger emitter)."""
+    for peak, explained in ((255.0, True), (200.0, False)):
+        pr = Pairer(white_gray=250.0)
+        p = _two_track_pair(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        _step(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        big = _blob(180.0, 80.0, 12, 6)
+        big = Blob(big.cx, big.cy, big.area_px, big.hull, big.x0, big.y0, big.x1, big.y1, big.border, peak,
+                   big.level, big.background)
+        _step(pr, big, frame=2)
+        assert p in pr.pairs
+        assert (p.misses == 0) is explained
+        assert (p.seen_a == p.frames) is explained
+
+
+def test_a_coasting_two_track_pair_is_replaced_on_both_its_emitters_blobs():
+    """A pair of two tracks whose light moved past its gate while it coasted (12 px: a shake step
+    the frame's shift missed) is placed again on two seen blobs one baseline apart, both emitters at
+    once; not in its first frame without a blob (both emitters dark in a quarter of the frames,
+    any two blobs one baseline apart would do), nor on two blobs of another separation."""
+    def run(misses, sep):
+        pr = Pairer()
+        p = _two_track_pair(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        _step(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        for k in range(misses):
+            _step(pr, frame=2 + k)  # nothing seen: it coasts
+        _step(pr, _blob(192.0, 81.0, 6, 4), _blob(192.0 + sep, 81.0, 6, 4), frame=2 + misses)
+        return p
+    p = run(1, 40.0)
+    assert p.misses == 0 and p.anchored
+    assert (p.a.cx, p.b.cx) == pytest.approx((192.0, 232.0))
+    assert run(0, 40.0).misses == 1       # first frame without a blob: not re-placed
+    assert run(1, 52.0).misses == 2       # another separation: another light
