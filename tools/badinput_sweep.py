@@ -512,6 +512,10 @@ def build_more_cases(tmp: str, rng) -> list[Case]:
         return f"raw control character {bad[0]!r} on stderr" if bad else ""
     case("run a name with a newline and an escape sequence", occloc("run", "/nonexistent/a\nb\x1b[2Jc"), (),
          expect=(2,), check=one_clean_line, quick=True)
+    def two_json_lines(rc, out, err):
+        return _json_lines_only(rc, out, err) or ("" if len(out.splitlines()) == 2 else "no JSON lines on the pipe")
+    case("run --out /dev/stdout (a pipe)", occloc("run", r, "--max-frames", "2", "--out", "/dev/stdout"),
+         expect=(0,), check=two_json_lines, quick=True)
     case('run "" (an unset variable)', occloc("run", ""), (), expect=(2,), check=_says("empty source name"))
     # -- bounded work: a calibration view that is a strip (OpenCV's board search: minutes)
     for h, w in ((1, 100000), (100, 100000)):
