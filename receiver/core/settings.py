@@ -15,10 +15,11 @@ MAX_SETTING_MAGNITUDE = 1e9
 MAX_IMAGE_SIDE_PX = 1 << 15
 
 
-def knob(default, lo=None, hi=None):
+def knob(default, lo=None, hi=None, *, above=None):
     """A settings field whose values from a file (`settings_from_json`) must lie in [lo, hi]
-    (None: unbounded on that side), for a field a zero or a huge value breaks."""
-    return dataclasses.field(default=default, metadata={"range": (lo, hi)})
+    (None: unbounded on that side), or be over `above` (a spread, which 0 makes singular), for
+    a field a zero or a huge value breaks."""
+    return dataclasses.field(default=default, metadata={"range": (lo, hi), "above": above})
 
 
 
@@ -54,7 +55,7 @@ def settings_from_json(cls, obj, where: str = "settings"):
             raise InputError(f"{where}: {cls.__name__} has no setting {key!r}")
         kw[key] = _from_json(hints[key], value, f"{where}.{key}")
         _check_scalar(hints[key], kw[key], fields[key].default, f"{where}.{key}",
-                      fields[key].metadata.get("range", (None, None)))
+                      fields[key].metadata.get("range", (None, None)), fields[key].metadata.get("above"))
     try:
         return cls(**kw)
     except (TypeError, ValueError) as e:
@@ -71,7 +72,7 @@ def _from_json(tp, value, where: str):
     return value
 
 
-def _check_scalar(tp, value, default, where: str, bounds=(None, None)) -> None:
+def _check_scalar(tp, value, default, where: str, bounds=(None, None), above=None) -> None:
     """InputError unless a number, flag or text setting has its field's type (None where the
     field allows it), is finite, at most MAX_SETTING_MAGNITUDE in size, within the field's
     `knob` bounds, and not negative where the default is not (a count, a length, a time or a
@@ -113,3 +114,5 @@ def _check_scalar(tp, value, default, where: str, bounds=(None, None)) -> None:
             span = (f"{lo:g}..{hi:g}" if lo is not None and hi is not None
                     else f"at least {lo:g}" if lo is not None else f"at most {hi:g}")
             raise InputError(f"{where}: must be {span}, not {value!r}")
+        if above is not None and not value > above:
+            raise InputError(f"{where}: must be over {above:g}, not {value!r}")

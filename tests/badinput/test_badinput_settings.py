@@ -42,6 +42,10 @@ def test_defaults_pass_their_own_checks(cls):
     (PairSettings, "shake_radius_px", 1e9, "must be 0..32768"),
     (PositionerSettings, "accel_psd", 1e300, "at most 1e+09 in size"),
     (PositionerSettings, "edge_model_sigma_px", 1e300, "at most 1e+09 in size"),
+    (PositionerSettings, "pixel_sigma_px", 0.0, "must be over 0"),
+    (PositionerSettings, "tilt_sigma_deg", 0.0, "must be over 0"),
+    (PositionerSettings, "ranging_iterations", 10 ** 9, "must be 0..100"),
+    (PositionerSettings, "ranges_only_iterations", 10 ** 9, "must be 0..100"),
 ])
 def test_out_of_range_setting_is_one_line(cls, key, value, words):
     with pytest.raises(InputError) as e:
@@ -51,7 +55,9 @@ def test_out_of_range_setting_is_one_line(cls, key, value, words):
 
 @pytest.mark.parametrize("cls, key, value", [(DetectSettings, "row_pool", 1), (DetectSettings, "max_detect_px", 10000),
                                              (DetectSettings, "stripe_gap_px", 0), (OokSettings, "norm_chips", 1),
-                                             (PairSettings, "max_area_ratio", 1.0)])
+                                             (PairSettings, "max_area_ratio", 1.0),
+                                             (PositionerSettings, "pixel_sigma_px", 1e-3),
+                                             (PositionerSettings, "ranging_iterations", 100)])
 def test_edge_of_the_range_is_accepted(cls, key, value):
     assert getattr(settings_from_json(cls, {key: value}), key) == value
 
