@@ -104,7 +104,7 @@ class TrackSettings:
     gate_size: float = 1.5
     max_area_ratio: float = knob(4.0, 1.0)
     max_missed: int = 10
-    velocity_gain: float = 0.5
+    velocity_gain: float = knob(0.5, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ def test_defaults_pass_their_own_checks(cls):
     (PairSettings, "shake_radius_px", 1e9, "must be 0..32768"),
     (PositionerSettings, "accel_psd", 1e300, "at most 1e+09 in size"),
     (PositionerSettings, "edge_model_sigma_px", 1e300, "at most 1e+09 in size"),
+    (TrackSettings, "velocity_gain", 1e9, "must be 0..1"),
     (PositionerSettings, "pixel_sigma_px", 0.0, "must be over 0"),
     (PositionerSettings, "tilt_sigma_deg", 0.0, "must be over 0"),
     (PositionerSettings, "ranging_iterations", 10 ** 9, "must be 0..100"),
