@@ -486,6 +486,69 @@ def build_more_cases(tmp: str, rng) -> list[Case]:
              expect=(0, 130, -signal.SIGINT), quick=k == 0)
     case("tx --port /nonexistent", occloc("tx", "--port", "/nonexistent/ttyACM0", "--status"), (), expect=(2,),
          quick=True)
+    # -- help and version text lost on a full disk (argparse drops the error: exit 0)
+    for args in ("--help", "--version", "run --help"):
+        case(f"occloc {args} >/dev/full", f"exec {PY} -m receiver.cli {args} >{full}", shell=True, expect=(2,),
+             check=_says("cannot write standard output"), quick=args == "--help")
+    # -- names OpenCV's binding cannot take (not UTF-8: a segmentation fault inside OpenCV)
+    latin = os.fsencode(tmp) + b"/caf\xe9"
+    os.mkdir(latin)
+    for name in ("camera.yaml", "map.json", "video.avi"):
+        shutil.copy(os.path.join(static, name), latin + b"/" + name.encode())
+    latin_s = os.fsdecode(latin)
+    utf8 = dict(expect=(2,), check=_says("not valid UTF-8"))
+    case("LANG=C run folder named caf\\xe9", f"LANG=C LC_ALL=C exec {PY} -m receiver.cli run '{latin_s}' --max-frames 2",
+         [r], shell=True, quick=True, **utf8)
+    case("run --overlay caf\\xe9/o.avi", occloc("run", r, "--max-frames", "2", "--out", f"{o}/u.jsonl",
+                                             "--overlay", latin_s + "/o.avi"), **utf8)
+    case("run --camera caf\\xe9/camera.yaml", occloc("run", r, "--max-frames", "2", "--camera", latin_s + "/camera.yaml"),
+         **utf8)
+    case("check caf\\xe9", occloc("check", latin_s, "--max-frames", "2"), **utf8)
+    case("synth --out caf\\xe9/new", occloc("synth", "indoor-static", "--frames", "2", "--out", latin_s + "/new"),
+         **utf8)
+    # -- what an error line shows: control characters escaped; an empty name is not the demo
+    def one_clean_line(rc, out, err):
+        bad = [ch for ch in err if (ord(ch) < 32 and ch != "\n") or ord(ch) == 127]
+        return f"raw control character {bad[0]!r} on stderr" if bad else ""
+    case("run a name with a newline and an escape sequence", occloc("run", "/nonexistent/a\nb\x1b[2Jc"), (),
+         expect=(2,), check=one_clean_line, quick=True)
+    def two_json_lines(rc, out, err):
+        return _json_lines_only(rc, out, err) or ("" if len(out.splitlines()) == 2 else "no JSON lines on the pipe")
+    case("run --out /dev/stdout (a pipe)", occloc("run", r, "--max-frames", "2", "--out", "/dev/stdout"),
+         expect=(0,), check=two_json_lines, quick=True)
+    case('run "" (an unset variable)', occloc("run", ""), (), expect=(2,), check=_says("empty source name"))
+    # -- bounded work: a calibration view that is a strip (OpenCV's board search: minutes)
+    for h, w in ((1, 100000), (100, 100000)):
+        sd = outdir(f"strip{h}")
+        cv2.imwrite(os.path.join(sd, "s.png"), np.zeros((h, w), np.uint8))
+        case(f"calibrate intrinsics on one {w}x{h} PNG", occloc("calibrate", "intrinsics", sd, "--board", "chess:9x6",
+                                                              "--square-mm", "20", "--out", f"{o}/strip.yaml"),
+             [sd], expect=(2,), check=_says("not a camera's frame"), quick=h == 100)
+    # -- settings files: seeded hostile numbers in seeded fields (one-line refusal or a clean run)
+    sfile = os.path.join(tmp, "settings.json")
+    subprocess.run(occloc("run", static, "--max-frames", "1", "--settings-out", sfile), cwd=ROOT,
+                   capture_output=True, timeout=TIMEOUT_S)
+    leaves = []
+
+    def walk(d, path):
+        for k, v in d.items():
+            if isinstance(v, dict):
+                walk(v, path + (k,))
+            elif isinstance(v, (int, float)) and not isinstance(v, bool):
+                leaves.append(path + (k,))
+    settings = json.load(open(sfile, encoding="utf-8"))
+    walk(settings, ())
+    for key in [("receiver", "detect", "max_detect_px"), ("receiver", "ook", "norm_chips")] + rng.sample(leaves, 6):
+        value = rng.choice([0, -1, 1e9 + 1, 1e300, 10 ** 12, 0.5])
+        s = json.loads(json.dumps(settings))
+        d = s
+        for k in key[:-1]:
+            d = d[k]
+        d[key[-1]] = value
+        sp = os.path.join(tmp, f"settings-{len(cases)}.json")
+        json.dump(s, open(sp, "w", encoding="utf-8"))
+        case(f"run --settings {'.'.join(key[1:])}={value:g}", occloc("run", r, "--max-frames", "3", "--settings", sp),
+             [r, sp], expect=(0, 2), check=_no_nan, quick=key[-1] == "max_detect_px")
     return cases
 
 

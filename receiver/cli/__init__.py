@@ -39,6 +39,15 @@ DEV_SUBCOMMANDS = {
 
 EXIT_BAD_INPUT = 2
 
+# Control characters (a newline, a terminal's escape sequences) in an error's text, from a file
+# name or an option's value: shown escaped, so the error stays one line and the terminal's own.
+_CONTROL_ESCAPES = {c: f"\\x{c:02x}" for c in (*range(32), 127)}
+
+
+def one_line(text) -> str:
+    """`text` with every control character shown as \\xNN."""
+    return str(text).translate(_CONTROL_ESCAPES)
+
 
 def _source_checkout() -> str | None:
     """The repository root when this package runs from a source checkout with its `tools/`."""
@@ -200,7 +209,7 @@ def _finish_stdout() -> int:
     except (OSError, InputError) as e:
         _devnull_fd(1)
         msg = str(e) if isinstance(e, InputError) else f"cannot write standard output: {e.strerror or e}"
-        print(f"occloc: {msg}", file=sys.stderr)
+        print(f"occloc: {one_line(msg)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     return 0
 
@@ -246,7 +255,7 @@ def _parse_and_run(argv: list[str] | None) -> int:
         args = parser.parse_args(argv)  # a usage error: argparse's SystemExit(2), said on stderr
     except InputError as e:  # --help or --version on a standard output that cannot be written
         _devnull_fd(1)
-        print(f"occloc: {e}", file=sys.stderr)
+        print(f"occloc: {one_line(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SystemExit:  # --help, --version (buffered): their text must reach standard output
         if _finish_stdout():
@@ -268,7 +277,7 @@ def _parse_and_run(argv: list[str] | None) -> int:
         return _finish_stdout() or rc
     except InputError as e:
         _finish_stdout()
-        print(f"occloc: {e}", file=sys.stderr)
+        print(f"occloc: {one_line(e)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("occloc: interrupted", file=sys.stderr)

@@ -399,6 +399,8 @@ def _main(args, stop: "SignalStop") -> int:
 
     from receiver.io.files import StdoutOutput, claim_output
 
+    if args.source == "":  # e.g. `occloc run "$REC"` with REC unset: not the bundled recording
+        raise InputError("empty source name: give a recording folder, video, photo, photo folder or -")
     spec = args.source or default_source()
     if args.max_frames is not None and args.max_frames < 0:
         raise InputError("--max-frames must not be negative")

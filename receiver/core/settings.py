@@ -7,6 +7,21 @@ from __future__ import annotations
 
 import dataclasses
 
+# Largest magnitude of any number in a settings file: above it a value in any unit the settings
+# use (px, frames, s, Hz, m, counts) is a typo, and overflows C integers or squares to infinity.
+MAX_SETTING_MAGNITUDE = 1e9
+# Longest image side in pixels (OpenCV's limit for many functions): a length in pixels beyond
+# it bridges or searches more than any frame holds.
+MAX_IMAGE_SIDE_PX = 1 << 15
+
+
+def knob(default, lo=None, hi=None, *, above=None):
+    """A settings field whose values from a file (`settings_from_json`) must lie in [lo, hi]
+    (None: unbounded on that side), or be over `above` (a spread, which 0 makes singular), for
+    a field a zero or a huge value breaks."""
+    return dataclasses.field(default=default, metadata={"range": (lo, hi), "above": above})
+
+
 
 def resolve_settings(settings, cls, overrides: dict):
     """`settings` (or `cls()` when None) with `overrides` applied; an unknown name is a
@@ -39,7 +54,8 @@ def settings_from_json(cls, obj, where: str = "settings"):
         if key not in fields:
             raise InputError(f"{where}: {cls.__name__} has no setting {key!r}")
         kw[key] = _from_json(hints[key], value, f"{where}.{key}")
-        _check_scalar(hints[key], kw[key], fields[key].default, f"{where}.{key}")
+        _check_scalar(hints[key], kw[key], fields[key].default, f"{where}.{key}",
+                      fields[key].metadata.get("range", (None, None)), fields[key].metadata.get("above"))
     try:
         return cls(**kw)
     except (TypeError, ValueError) as e:
@@ -56,10 +72,11 @@ def _from_json(tp, value, where: str):
     return value
 
 
-def _check_scalar(tp, value, default, where: str) -> None:
+def _check_scalar(tp, value, default, where: str, bounds=(None, None), above=None) -> None:
     """InputError unless a number, flag or text setting has its field's type (None where the
-    field allows it), is finite, and is not negative where the default is not (a count, a
-    length, a time or a threshold: a negative one has no meaning). Other fields pass."""
+    field allows it), is finite, at most MAX_SETTING_MAGNITUDE in size, within the field's
+    `knob` bounds, and not negative where the default is not (a count, a length, a time or a
+    threshold: a negative one has no meaning). Other fields pass."""
     import math
     import types
     import typing
@@ -90,3 +107,12 @@ def _check_scalar(tp, value, default, where: str) -> None:
         if (isinstance(default, (int, float)) and not isinstance(default, bool) and default >= 0
                 and value < 0):
             raise InputError(f"{where}: must not be negative, not {value!r}")
+        if abs(value) > MAX_SETTING_MAGNITUDE:
+            raise InputError(f"{where}: must be at most {MAX_SETTING_MAGNITUDE:g} in size, not {value!r}")
+        lo, hi = bounds
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            span = (f"{lo:g}..{hi:g}" if lo is not None and hi is not None
+                    else f"at least {lo:g}" if lo is not None else f"at most {hi:g}")
+            raise InputError(f"{where}: must be {span}, not {value!r}")
+        if above is not None and not value > above:
+            raise InputError(f"{where}: must be over {above:g}, not {value!r}")

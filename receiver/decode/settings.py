@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from receiver.core.settings import knob
+
 
 @dataclass(frozen=True)
 class OokSettings:
@@ -87,7 +89,7 @@ class OokSettings:
     segment_chips: float = 6.0
     max_period_error: float = 0.08
     min_coherence: float = 0.3
-    norm_chips: int = 8
+    norm_chips: int = knob(8, 1)
     sync_margin: float = 0.3
     align_min: float = 0.7
     align_gap: float = 0.25

@@ -429,13 +429,21 @@ def claim_output(path: str | None, inputs=(), flag: str = "--out", *, others=(),
         return None
     if path == "":
         raise InputError(f"{flag}: empty file name")
-    target = os.path.realpath(path)
     try:
-        st = os.stat(target)
+        st = os.stat(path)  # the kernel follows links, /dev/stdout's /proc/self/fd/1 -> pipe:[N] too
     except FileNotFoundError:
         st = None
     except OSError as e:
         raise InputError(f"cannot write {flag} {path}: {_reason(e)}") from None
+    # A device, FIFO or socket is opened by the name given (a magic link such as /dev/stdout has
+    # no path to resolve to); a file is staged beside the file the links lead to.
+    special = st is not None and not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode)
+    target = path if special else os.path.realpath(path)
+    if st is not None and not special:
+        try:
+            st = os.stat(target)
+        except OSError as e:
+            raise InputError(f"cannot write {flag} {path}: {_reason(e)}") from None
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise InputError(f"{flag} {path} is a folder: give a file name")
     if path.endswith(os.sep) or os.path.basename(path) in ("", ".", ".."):

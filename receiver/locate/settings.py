@@ -4,10 +4,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from receiver.core.settings import knob
+
 from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.pose import DEFAULT_TILT_SIGMA_DEG
 from receiver.locate.ranging import DEFAULT_EDGE_OFFSET_PX
+
+# Most re-rangings of `ranging_iterations` a settings file may ask for (each is a whole re-fit;
+# the ranges settle in a few).
+MAX_RANGING_ITERATIONS = 100
 
 # A blob whose envelope comes this close (px) to the image edge is cut by it: its area and
 # centroid are biased (the detector's `border` flag misses envelopes extrapolated past the edge).
@@ -64,7 +70,7 @@ class PositionerSettings:
 
     ranging: str = "oblique"
     solver: str = "auto"
-    pixel_sigma_px: float = 0.3
+    pixel_sigma_px: float = knob(0.3, above=0.0)
     edge_sigma_px: float = 0.1
     model_rel_sigma: float = 0.002
     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX
@@ -73,12 +79,12 @@ class PositionerSettings:
     max_coast_s: float = DEFAULT_MAX_COAST_S
     loss: str = DEFAULT_LOSS
     f_scale: float = DEFAULT_F_SCALE
-    ranging_iterations: int = 0
+    ranging_iterations: int = knob(0, 0, MAX_RANGING_ITERATIONS)
     border_margin_px: float = DEFAULT_BORDER_MARGIN_PX
     tilt_prior: str = "up"
-    tilt_sigma_deg: float = DEFAULT_TILT_SIGMA_DEG
+    tilt_sigma_deg: float = knob(DEFAULT_TILT_SIGMA_DEG, hi=180.0, above=0.0)
     track_prior: bool = False
-    ranges_only_iterations: int = 3
+    ranges_only_iterations: int = knob(3, 0, MAX_RANGING_ITERATIONS)
     handedness: str | None = None
     outline: bool = True
     centroid_sigma_px: float = 1.5

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from receiver.core.settings import MAX_IMAGE_SIDE_PX, knob
+
+# Fewest pixels of a downsampled search image (100 x 100): fewer leave nothing of a light to find.
+MIN_DETECT_PX = 10_000
+
 
 @dataclass(frozen=True)
 class DetectSettings:
@@ -13,7 +18,8 @@ class DetectSettings:
         the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
       join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
         bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
-      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled.
+      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled (at least
+        MIN_DETECT_PX).
       k_mad [8], min_contrast [24]: threshold, see `auto_level`.
       fine_noise [False]: the noise sigma of that threshold resolved below one gray level
         (`noise_sigma`: a dark, clipped background of MAD 0); the pipeline sets it, with a
@@ -57,9 +63,9 @@ class DetectSettings:
     
     """
 
-    stripe_gap_px: int = 8
-    join_x_px: int = 2
-    max_detect_px: int = 1_200_000
+    stripe_gap_px: int = knob(8, 0, MAX_IMAGE_SIDE_PX)
+    join_x_px: int = knob(2, 0, MAX_IMAGE_SIDE_PX)
+    max_detect_px: int = knob(1_200_000, MIN_DETECT_PX)
     k_mad: float = 8.0
     min_contrast: float = 24.0
     fine_noise: bool = False
@@ -77,7 +83,7 @@ class DetectSettings:
     min_stripe_rows: int = 0
     min_rel_area: float = 0.0
     level: float | None = None
-    row_pool: int = 2
+    row_pool: int = knob(2, 1, 2)
 
 
 @dataclass(frozen=True)
@@ -96,9 +102,9 @@ class TrackSettings:
 
     gate_px: float = 30.0
     gate_size: float = 1.5
-    max_area_ratio: float = 4.0
+    max_area_ratio: float = knob(4.0, 1.0)
     max_missed: int = 10
-    velocity_gain: float = 0.5
+    velocity_gain: float = knob(0.5, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -141,7 +147,7 @@ class PairSettings:
     """
 
     row_band: float = 1.0
-    max_area_ratio: float = 2.5
+    max_area_ratio: float = knob(2.5, 1.0)
     min_baseline: float = 1.2
     max_baseline: float = 25.0
     min_swing: float = 20.0
@@ -152,5 +158,5 @@ class PairSettings:
     report_coast_frames: int = 3
     backlog_frames: int = 90
     shake: str = "pairs"
-    shake_radius_px: float = 14.0
+    shake_radius_px: float = knob(14.0, 0.0, MAX_IMAGE_SIDE_PX)
     flux_floor: float = 2.0

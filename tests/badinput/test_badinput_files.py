@@ -285,3 +285,23 @@ def test_non_utf8_file_names_are_refused_not_a_crash(tmp_path, case):
     assert len(lines) == 1 and "path is not valid UTF-8" in lines[0], err
     assert "\\xe9" in lines[0]  # the name is shown, escaped
     assert not os.path.exists(out) and not os.path.exists(rec + b"/new")
+
+
+# ------------------------------------------------------------------ what an error line shows
+
+@pytest.mark.parametrize("name", ["/nonexistent/a\nb", "/nonexistent/\x1b[2J\x1b[31mred", "/nonexistent/\r\t\x7f"])
+def test_control_characters_in_a_name_are_escaped_in_the_error(capsys, name):
+    """A newline in a file name split the error over two lines, a terminal escape sequence in
+    it cleared or recoloured the user's terminal: control characters are shown as \\xNN."""
+    assert cli(["run", name, "--camera", os.path.join(STATIC, "camera.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.endswith("\n"), repr(err)
+    assert not any(ord(ch) < 32 and ch != "\n" or ord(ch) == 127 for ch in err), repr(err)
+    assert "\\x" in err
+
+
+def test_empty_source_name_is_not_the_bundled_recording(capsys):
+    """`occloc run "$REC"` with REC unset ran the bundled demo recording, exit 0."""
+    assert cli(["run", ""]) == 2
+    assert capsys.readouterr().err == ("occloc: empty source name: give a recording folder, video, photo, "
+                                       "photo folder or -\n")

@@ -197,6 +197,15 @@ def test_run_out_fifo_is_written_not_replaced(rec, tmp_path):
     assert got and len(got[0].splitlines()) == 2
 
 
+def test_run_out_dev_stdout_on_a_pipe_is_written():
+    """/dev/stdout -> /proc/self/fd/1 -> 'pipe:[N]', which is no path: the name given is opened
+    (it was 'cannot write --out /dev/stdout: No such file or directory')."""
+    p = occloc("run", STATIC, "--max-frames", "2", "--out", "/dev/stdout")
+    assert p.returncode == 0, _err(p)
+    lines = p.stdout.decode().splitlines()
+    assert len(lines) == 2 and all(ln.startswith('{"frame":') for ln in lines), lines
+
+
 def test_run_killed_leaves_no_hidden_file(tmp_path):
     """SIGKILL while the run waits for more frames on stdin (its output open): nothing is left,
     neither the output nor a hidden temporary file."""
