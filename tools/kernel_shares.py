@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = ["| kernel | " + " | ".join(cases) + " | max % | keep |",
              "|---|" + "---|" * (len(cases) + 2),
              "| (M instr/frame, all built) | " + " | ".join(f"{base[c] / 1e6:.2f}" for c in cases) + " | | |"]
+    print("\n".join(lines), flush=True)      # each row as it is measured: a long run shows progress
     for name in names:
         print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
         pure = bench_instructions(name, args.instr_frames, args.source)
@@ -66,8 +67,8 @@ def main(argv: list[str] | None = None) -> int:
         best = max(shares)
         lines.append(f"| {name} | " + " | ".join(f"{s:.1f}" for s in shares)
                      + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
+        print(lines[-1], flush=True)
     table = "\n".join(lines)
-    print(table)
     if args.out:
         Path(args.out).write_text(table + "\n")
     return 0
