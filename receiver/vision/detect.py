@@ -143,16 +143,26 @@ def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float
     if not math.isfinite(level) or level >= 255 or gray.size == 0:
         return 0.0
     _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
-    side = 2 * NEAR_LIGHT_PX + 1
-    near = cv2.subtract(cv2.dilate(lit, _ones_kernel(side, side)), lit)
-    hist = cv2.calcHist([gray], [0], near, [256], [0, 256]).ravel()
+    x, y, w, h = cv2.boundingRect(lit)
+    if w == 0:
+        return 0.0
+    # only the lit pixels' box and its rim are read (lights cover a small part of the frame)
+    r = NEAR_LIGHT_PX
+    x0, y0 = max(x - r, 0), max(y - r, 0)
+    x1, y1 = min(x + w + r, gray.shape[1]), min(y + h + r, gray.shape[0])
+    g, lit = gray[y0:y1, x0:x1], lit[y0:y1, x0:x1]
+    near = cv2.subtract(cv2.dilate(lit, _ones_kernel(2 * r + 1, 2 * r + 1)), lit)
     bg = int(math.floor(background))
-    below = hist[:bg + 1]
-    n = float(below.sum())
+    if bg < 0:
+        return 0.0
+    below = cv2.bitwise_and(near, cv2.compare(g, bg, cv2.CMP_LE))
+    n = cv2.countNonZero(below)
     if n < NEAR_LIGHT_MIN_SAMPLES:
         return 0.0
-    dev = background - np.arange(bg + 1, dtype=np.float64)
-    return float(math.sqrt(float((below * dev * dev).sum()) / n))
+    # d = bg - v >= 0 on those pixels; the deviation from `background` is d + its fraction
+    mean, std = cv2.meanStdDev(cv2.subtract(np.full_like(g, bg), g), mask=below)
+    m, sd, frac = float(mean[0, 0]), float(std[0, 0]), background - bg
+    return float(math.sqrt(sd * sd + (m + frac) ** 2))
 
 
 def _native_frame(gray: np.ndarray) -> bool:
