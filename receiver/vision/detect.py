@@ -92,7 +92,9 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     Uses every `sample_step`-th pixel in both directions (the histogram statistics do not need
     all of them). `k_mad`: noise sigmas above the median; `min_contrast`: the level is at
     least this far above the median (a clean dark frame has MAD 0). `fine_noise`: sigma by
-    `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD."""
+    `noise_sigma` (sub-gray-level noise, a background clipped at 0) instead of 1.4826 MAD, and
+    at least the noise next to the lights (`near_light_sigma`: a compressed camera's flat
+    background understates it)."""
     hist = np.empty(256, np.float32)
     if _k is not None and _native_frame(gray) and sample_step >= 1:
         # the same counts, median and MAD in one pass, without the strided copy
@@ -108,7 +110,59 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
         mad = int(np.searchsorted(np.cumsum(dev), half))
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
+    if fine_noise:
+        # a background flattened below the sensor's noise (see `near_light_sigma`) is not the
+        # noise the lights' neighbourhoods carry: the larger of the two sets the level
+        near = near_light_sigma(gray, min(level, 254.0), med)
+        level = max(level, med + k_mad * near)
     return float(min(level, 254.0)), float(med)
+
+
+# Pixels within this many px of a lit one are a light's neighbourhood (`near_light_sigma`):
+# its blur skirt and what the camera's processing did next to an edge (a compressed camera's
+# 8 x 8 blocks, a sharpening kernel's few px).
+NEAR_LIGHT_PX = 4
+# Fewer samples below the background than this in those neighbourhoods say nothing about noise.
+NEAR_LIGHT_MIN_SAMPLES = 64
+
+
+def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float:
+    """Noise sigma (gray levels) next to the lights of an (H, W) uint8 image: the RMS of the
+    deviations below `background` of the pixels within `NEAR_LIGHT_PX` of a pixel above `level`
+    (and not above it themselves); 0 when the lights' neighbourhoods hold fewer than
+    `NEAR_LIGHT_MIN_SAMPLES` pixels at or below the background.
+
+    A camera that compresses or denoises its frames flattens an empty background far below its
+    sensor's noise (MJPEG: a flat 8 gray, sigma 0.25, where the sensor had 1.4), while the
+    blocks that hold a light keep an error of the sensor's size and ring around the light's
+    edges: a threshold from the flat background's sigma then cuts the ringing into specks and
+    joins them to the light. Light only adds to a pixel, so the deviations below the background
+    next to a light are noise alone (a bright light's blur, halo or bloom raise pixels, never
+    lower them) and measure that error where it matters; on a sensor that does not flatten
+    its background they measure its noise again."""
+    if not math.isfinite(level) or level >= 255 or gray.size == 0:
+        return 0.0
+    _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
+    x, y, w, h = cv2.boundingRect(lit)
+    if w == 0:
+        return 0.0
+    # only the lit pixels' box and its rim are read (lights cover a small part of the frame)
+    r = NEAR_LIGHT_PX
+    x0, y0 = max(x - r, 0), max(y - r, 0)
+    x1, y1 = min(x + w + r, gray.shape[1]), min(y + h + r, gray.shape[0])
+    g, lit = gray[y0:y1, x0:x1], lit[y0:y1, x0:x1]
+    near = cv2.subtract(cv2.dilate(lit, _ones_kernel(2 * r + 1, 2 * r + 1)), lit)
+    bg = int(math.floor(background))
+    if bg < 0:
+        return 0.0
+    below = cv2.bitwise_and(near, cv2.compare(g, bg, cv2.CMP_LE))
+    n = cv2.countNonZero(below)
+    if n < NEAR_LIGHT_MIN_SAMPLES:
+        return 0.0
+    # d = bg - v >= 0 on those pixels; the deviation from `background` is d + its fraction
+    mean, std = cv2.meanStdDev(cv2.subtract(np.full_like(g, bg), g), mask=below)
+    m, sd, frac = float(mean[0, 0]), float(std[0, 0]), background - bg
+    return float(math.sqrt(sd * sd + (m + frac) ** 2))
 
 
 def _native_frame(gray: np.ndarray) -> bool:
