@@ -96,6 +96,15 @@ class ModePlan:
         return camera.exposure_us <= min(shortest_us)
 
 
+def map_rates_hz(led_map: LedMap | None) -> tuple[list[float], list[float]]:
+    """The map's OOK chip rates and tone frequencies (Hz) as the receiver decodes them
+    (`ModePlan.from_map`: an OOK light without `rate_hz` runs at the protocol's rate)."""
+    if led_map is None:
+        return [], []
+    plan = ModePlan.from_map(led_map)
+    return list(plan.ook_rates), sorted(set(plan.tone_table.values()))
+
+
 def tone_runs_match(profile: np.ndarray, weights: np.ndarray, freq_hz: float, row_readout_us: float,
                     *, tol: float = TONE_RUN_TOL, min_weight_frac: float = 0.3) -> bool:
     """Do the profile's stripes have the runs of a `freq_hz` square wave? The median length of
