@@ -217,6 +217,26 @@ class DecodePolicy:
             out.append((ok, f"{text} ({how})"))
         return out
 
+    def absorb_notes(self, earlier: "DecodePolicy | None") -> "DecodePolicy":
+        """This policy with `earlier`'s note evidence added (the policy of another receiver of
+        the same map, e.g. an earlier photo's): its chips a frame, and its exposure estimates
+        where this one has not learned the exposure. Call it once this policy is done decoding
+        (its exposure learners also serve its decoders). Returns self, the tally to pass on."""
+        if earlier is None or earlier is self:
+            return self
+        for rate, seen in earlier.chips_seen.items():
+            if rate in self.chips_seen:  # the earlier images first: the deque keeps the latest
+                both = deque(seen, maxlen=CHIPS_SEEN)
+                both.extend(self.chips_seen[rate])
+                self.chips_seen[rate] = both
+        for rate, lr in self.exposure_learners.items():
+            old = earlier.exposure_learners.get(rate)
+            if lr.exposure_rows is None and old is not None:
+                lr.estimates = old.estimates + lr.estimates
+                if len(lr.estimates) >= lr.frames:
+                    lr.exposure_rows = float(np.median(lr.estimates))
+        return self
+
     def chip_notes(self) -> list[str]:
         """Per OOK chip rate whose lights' images showed at most `OokSettings.pieces_max_chips`
         chips a frame (median over the striped light images fed): a line with the numbers and
