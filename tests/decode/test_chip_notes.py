@@ -67,3 +67,26 @@ def test_the_exposure_learned_over_a_photo_folder():
         tally = pol.absorb_notes(tally)
     ((readable, text),) = tally.exposure_notes()
     assert readable and "exposure 30 us" in text and "from the stripes' edges" in text
+
+
+def test_occloc_run_on_a_photo_folder_gives_the_chip_note(tmp_path, capsys):
+    """Twelve photos of small 5 kHz lights (3-4 light images a photo, each photo its own
+    receiver): `occloc run` names the chips a frame from all of them."""
+    import cv2
+
+    from receiver.cli import main as occloc
+    from receiver.io.camera import save_camera
+    from receiver.io.ledmap import save_map
+    from tools.synth import make_scene, render_frames
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    scene = make_scene("indoor-sparse", seed=2, n_frames=12, rate_hz=5000)
+    for img, t in render_frames(scene, seed=4):
+        cv2.imwrite(str(folder / f"{t['frame']:03d}.png"), img)
+    save_map(str(tmp_path / "map.json"), scene.led_map)
+    save_camera(str(tmp_path / "camera.yaml"), scene.camera)
+    assert occloc(["run", str(folder), "--camera", str(tmp_path / "camera.yaml"), "--map", str(tmp_path / "map.json"),
+                   "--out", str(tmp_path / "out.jsonl")]) == 0
+    err = capsys.readouterr().err
+    assert "chips a frame (median) of the 5 kHz OOK chips" in err, err
