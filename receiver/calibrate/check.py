@@ -40,6 +40,7 @@ import numpy as np
 from receiver.calibrate.rows import edge_blur_px, exposure_limit_us, measure_row_time
 from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
 from receiver.decode.ook import rows_per_chip
+from receiver.decode.policy import map_rates_hz
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
 from receiver.vision.profile import row_profile, stripe_depth
@@ -75,13 +76,8 @@ class Finding:
 
 def _chip_rates(led_map) -> list[float]:
     """Unit rates of the map's striped lights: OOK chip rates and twice the tone frequencies."""
-    if led_map is None:
-        return []
-    rates = [float(l.rate_hz) for l in led_map.by_mode("ook") if l.rate_hz]
-    rates += [2.0 * float(l.freq_hz) for l in led_map.by_mode("tone") if l.freq_hz]
-    if led_map.addressing == "xy" and led_map.default_rate_hz:
-        rates.append(float(led_map.default_rate_hz))
-    return rates
+    ook, tone = map_rates_hz(led_map)
+    return ook + [2.0 * f for f in tone]
 
 
 # What to change, by finding and source kind ("v4l2" camera, "images" = photos, else a video file).
@@ -261,10 +257,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     # exposure
     if rolling and rates:
         est, how = None, ""
-        ook = [float(l.rate_hz) for l in led_map.by_mode("ook") if l.rate_hz]
-        if led_map.addressing == "xy" and led_map.default_rate_hz:
-            ook.append(float(led_map.default_rate_hz))
-        tone = [float(l.freq_hz) for l in led_map.by_mode("tone") if l.freq_hz]
+        ook, tone = map_rates_hz(led_map)
         ramp = None
         if stated_exposure_us:
             # the photos' own record of their shutter time: exact, nothing to estimate

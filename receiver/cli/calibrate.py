@@ -251,12 +251,11 @@ def run_rows(args) -> dict:
                   f"row time measured in the frames' rows")
     ook, tones = ([rate], []) if mode == "ook" else ([], [rate])
     if args.map:
+        from receiver.decode.policy import map_rates_hz
         from receiver.io.ledmap import load_map
-        m = load_map(args.map)
-        ook += [led.rate_hz for led in m.by_mode("ook") if led.rate_hz]
-        tones += [led.freq_hz for led in m.by_mode("tone") if led.freq_hz]
-        if m.default_rate_hz:
-            ook.append(m.default_rate_hz)
+        map_ook, map_tones = map_rates_hz(load_map(args.map))
+        ook += map_ook
+        tones += map_tones
     warn = exposure_warning(res.exposure_us, ook, tones)
     if warn:
         from receiver.calibrate.check import exposure_fix

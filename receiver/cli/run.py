@@ -513,6 +513,7 @@ def _main(args, stop: "SignalStop") -> int:
         out = out_file.open() if out_file is not None else StdoutOutput()
         summary = RunSummary()
         told: dict[str, str] = {}   # handedness -> the photo/frame that told it
+        notes = None   # the note evidence of the earlier photos' receivers (DecodePolicy.absorb_notes)
         total = len(images.files) if photos else getattr(images, "frame_count", None) or None
         if args.max_frames is not None and total:
             total = min(total, args.max_frames)
@@ -540,6 +541,7 @@ def _main(args, stop: "SignalStop") -> int:
                     if rx.frames or (pcam.width, pcam.height) != (cam.width, cam.height):
                         if hasattr(positioner, "close"):
                             positioner.close()
+                        notes = rx.policy.absorb_notes(notes)  # the notes speak for every photo
                         rx = build(pcam)
                         positioner, vehicle = rx.positioner, rx.vehicle
                     frame = Frame(frame.index, frame.t_s, gray)
@@ -570,10 +572,11 @@ def _main(args, stop: "SignalStop") -> int:
             if overlay is not None:
                 _close_overlay(overlay, ok)
             out.commit() if ok else out.discard()
+        notes = rx.policy.absorb_notes(notes)
         if cam.exposure_us <= 0:  # learned during the run (before the summary: it stays the last line)
-            for readable, note in rx.policy.exposure_notes():
+            for readable, note in notes.exposure_notes():
                 print(f"occloc: {'' if readable else 'warning: '}{note}", file=sys.stderr)
-        for note in rx.policy.chip_notes():  # lights too short in the image for their chips
+        for note in notes.chip_notes():  # lights too short in the image for their chips
             print(f"occloc: warning: {note}", file=sys.stderr)
         hv_reason = vehicle.run_reason() if vehicle is not None else None
         fv_reason = getattr(vehicle, "fv_reason", None) if vehicle is not None else None

@@ -96,6 +96,15 @@ class ModePlan:
         return camera.exposure_us <= min(shortest_us)
 
 
+def map_rates_hz(led_map: LedMap | None) -> tuple[list[float], list[float]]:
+    """The map's OOK chip rates and tone frequencies (Hz) as the receiver decodes them
+    (`ModePlan.from_map`: an OOK light without `rate_hz` runs at the protocol's rate)."""
+    if led_map is None:
+        return [], []
+    plan = ModePlan.from_map(led_map)
+    return list(plan.ook_rates), sorted(set(plan.tone_table.values()))
+
+
 def tone_runs_match(profile: np.ndarray, weights: np.ndarray, freq_hz: float, row_readout_us: float,
                     *, tol: float = TONE_RUN_TOL, min_weight_frac: float = 0.3) -> bool:
     """Do the profile's stripes have the runs of a `freq_hz` square wave? The median length of
@@ -207,6 +216,26 @@ class DecodePolicy:
             ok, text = exposure_verdict(exp_us, rate)
             out.append((ok, f"{text} ({how})"))
         return out
+
+    def absorb_notes(self, earlier: "DecodePolicy | None") -> "DecodePolicy":
+        """This policy with `earlier`'s note evidence added (the policy of another receiver of
+        the same map, e.g. an earlier photo's): its chips a frame, and its exposure estimates
+        where this one has not learned the exposure. Call it once this policy is done decoding
+        (its exposure learners also serve its decoders). Returns self, the tally to pass on."""
+        if earlier is None or earlier is self:
+            return self
+        for rate, seen in earlier.chips_seen.items():
+            if rate in self.chips_seen:  # the earlier images first: the deque keeps the latest
+                both = deque(seen, maxlen=CHIPS_SEEN)
+                both.extend(self.chips_seen[rate])
+                self.chips_seen[rate] = both
+        for rate, lr in self.exposure_learners.items():
+            old = earlier.exposure_learners.get(rate)
+            if lr.exposure_rows is None and old is not None:
+                lr.estimates = old.estimates + lr.estimates
+                if len(lr.estimates) >= lr.frames:
+                    lr.exposure_rows = float(np.median(lr.estimates))
+        return self
 
     def chip_notes(self) -> list[str]:
         """Per OOK chip rate whose lights' images showed at most `OokSettings.pieces_max_chips`

@@ -86,6 +86,12 @@ class MotionSettings:
     prior_votes: float = 0.5
     max_roll_deg: float = 0.5
 
+    def __post_init__(self):
+        # a count of frames or blobs below one has no meaning (zero would act as one)
+        for name in ("history_frames", "min_matches"):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"{name} must be at least 1, not {getattr(self, name)!r}")
+
 
 @dataclass(frozen=True)
 class MotionEstimate:

@@ -139,3 +139,27 @@ def test_no_stripes_with_an_exposure_longer_than_a_chip_says_why(tmp_path, capsy
         err = capsys.readouterr().err.strip().splitlines()
         assert err[-1].startswith("occloc: no OOK stripes found at 20000 Hz")
         assert ("exposure 87 us is longer than one chip (50 us)" in err[-1]) == hint, err[-1]
+
+
+def test_exposure_warning_counts_a_map_light_without_rate_at_the_protocol_rate(tmp_path, capsys):
+    """A map's OOK light without `rate_hz` is decoded at the protocol's 20 kHz chips: an exposure
+    a 2 kHz tone allows (110 us, under its 250 us half period) but those chips do not (90 us)
+    is warned about when the row time is measured on the tone."""
+    import cv2
+    from tools.synth import make_scene, render_frames
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    scene = make_scene("indoor-static", seed=3, n_frames=10, exposure_us=110.0)
+    for img, t in render_frames(scene, seed=5):
+        cv2.imwrite(str(folder / f"{t['frame']:03d}.png"), img)
+    m = json.loads((REC / "indoor-static" / "map.json").read_text())
+    for led in m["leds"]:
+        led.pop("rate_hz", None)
+    assert {led["mode"] for led in m["leds"]} == {"ook", "tone"}
+    (tmp_path / "map.json").write_text(json.dumps(m))
+    rc = occloc(["calibrate", "rows", str(folder), "--camera", str(REC / "indoor-static" / "camera.yaml"),
+                 "--freq-hz", "2000", "--out", str(tmp_path / "out.yaml"), "--map", str(tmp_path / "map.json")])
+    assert rc == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert 95.0 < line["exposure_us"] < 250.0, line
+    assert line["warning"] and "limit 90 us" in line["warning"], line

@@ -47,6 +47,18 @@ def test_long_exposure():
     assert "20 kHz" in f.text and "<= 90 us" in f.text, f.text
 
 
+def test_long_exposure_is_judged_at_the_rate_run_decodes_a_light_without_rate():
+    """A map's OOK light without `rate_hz` runs at the protocol's chip rate (what `occloc run`
+    decodes it at): the exposure is judged against that chip, not only against the tone."""
+    import dataclasses
+    frames, scene = _render(exposure_us=100.0)
+    leds = {i: dataclasses.replace(l, rate_hz=None) if l.mode == "ook" else l for i, l in scene.led_map.leds.items()}
+    fs = check_frames(frames, scene.camera, dataclasses.replace(scene.led_map, leds=leds))
+    assert "exposure" in {f.name for f in fs if not f.ok}, render_text(fs)
+    f = next(f for f in fs if f.name == "exposure")
+    assert "20 kHz" in f.text and "<= 90 us" in f.text, f.text
+
+
 def test_exposure_the_model_reads_passes():
     """1.4 chips of exposure: readable by the exposure model, and said so."""
     bad, fs = _failed(*_render(exposure_us=70.0))

@@ -64,7 +64,11 @@ def test_run_reads_back_the_settings_it_wrote(tmp_path, capsys):
                                       ('{"locate": {"max_coast_s": "x"}}', "locate.max_coast_s: expected float"),
                                       ('{"receiver": {"detect": {"max_detect_px": -5}}}', "must not be negative"),
                                       ('{"receiver": {"detect": {"max_detect_px": 1e999}}}', "expected int"),
-                                      ('{"locate": {"max_coast_s": NaN}}', "must be a finite number")])
+                                      ('{"locate": {"max_coast_s": NaN}}', "must be a finite number"),
+                                      ('{"receiver": {"motion": {"history_frames": 0}}}',
+                                       "history_frames must be at least 1"),
+                                      ('{"receiver": {"motion": {"min_matches": 0}}}',
+                                       "min_matches must be at least 1")])
 def test_run_settings_errors_are_one_line(tmp_path, capsys, text, msg):
     f = tmp_path / "s.json"
     f.write_text(text)

@@ -34,3 +34,59 @@ def test_enough_chips_a_frame_give_no_note():
     pol = _receiver(20000).policy
     pol.chips_seen[20000.0].extend([24.0] * 20)
     assert pol.chip_notes() == []
+
+
+def test_the_notes_of_a_photo_folder_speak_for_every_photo():
+    """Each photo has a receiver of its own: a few light images each, none enough alone; the
+    notes pool them (`absorb_notes`), the later photos' images kept when the pool is full."""
+    photos = [_receiver(5000).policy for _ in range(4)]
+    tally = None
+    for pol in photos:
+        pol.chips_seen[5000.0].extend([6.0] * 3)
+        assert pol.chip_notes() == []                # 3 images: too few to judge alone
+        tally = pol.absorb_notes(tally)
+    (note,) = tally.chip_notes()
+    assert "6 chips a frame" in note and "5 kHz" in note
+    assert len(tally.chips_seen[5000.0]) == 12
+
+
+def test_the_exposure_learned_over_a_photo_folder():
+    """Without an exposure in the camera file, each photo's stripes give a few estimates; the
+    notes judge the exposure from all the photos' estimates together."""
+    import dataclasses
+    photos = []
+    for _ in range(3):
+        rx = _receiver(20000)
+        rx = Receiver(dataclasses.replace(rx.camera, exposure_us=0.0), rx.led_map)
+        lr = rx.policy.exposure_learners[20000.0]
+        lr.estimates = [3.0, 3.0, 3.0]              # rows: 30 us at 10 us a row
+        photos.append(rx.policy)
+    assert "exposure unknown" in photos[-1].exposure_notes()[0][1]
+    tally = None
+    for pol in photos:
+        tally = pol.absorb_notes(tally)
+    ((readable, text),) = tally.exposure_notes()
+    assert readable and "exposure 30 us" in text and "from the stripes' edges" in text
+
+
+def test_occloc_run_on_a_photo_folder_gives_the_chip_note(tmp_path, capsys):
+    """Twelve photos of small 5 kHz lights (3-4 light images a photo, each photo its own
+    receiver): `occloc run` names the chips a frame from all of them."""
+    import cv2
+
+    from receiver.cli import main as occloc
+    from receiver.io.camera import save_camera
+    from receiver.io.ledmap import save_map
+    from tools.synth import make_scene, render_frames
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    scene = make_scene("indoor-sparse", seed=2, n_frames=12, rate_hz=5000)
+    for img, t in render_frames(scene, seed=4):
+        cv2.imwrite(str(folder / f"{t['frame']:03d}.png"), img)
+    save_map(str(tmp_path / "map.json"), scene.led_map)
+    save_camera(str(tmp_path / "camera.yaml"), scene.camera)
+    assert occloc(["run", str(folder), "--camera", str(tmp_path / "camera.yaml"), "--map", str(tmp_path / "map.json"),
+                   "--out", str(tmp_path / "out.jsonl")]) == 0
+    err = capsys.readouterr().err
+    assert "chips a frame (median) of the 5 kHz OOK chips" in err, err

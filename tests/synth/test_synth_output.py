@@ -136,6 +136,9 @@ def test_cli_writes_recording(tmp_path):
     (("vehicle-random", "--set", "head_style=fused"), "head_style must be split or merged"),
     (("vehicle-random", "--set", "head_sep_m=0.1", "--set", "head_half_width_m=0.3"), "overlap"),
     (("vehicle-random", "--set", "bloom_len_px=0"), "bloom_len_px must be positive"),
+    (("vehicle-road", "--set", "taillight_brightness=-2"), "taillight_brightness must not be negative"),
+    (("vehicle-random", "--set", "wander_hz=-1"), "wander_hz must not be negative"),
+    (("vehicle-road", "--set", "lane_change_start_s=-5"), "lane_change_start_s must not be negative"),
 ])
 def test_cli_bad_input_one_line_exit_2(tmp_path, args, needle):
     out = tmp_path / "rec"

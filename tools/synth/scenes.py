@@ -45,6 +45,15 @@ def _require_positive(**values) -> None:
             raise InputError(f"bad --set value: {key} must be positive, not {value!r}")
 
 
+def _require_non_negative(**values) -> None:
+    """InputError unless every value is a number >= 0 (a brightness, a rate, a start time)."""
+    from receiver.core.errors import InputError
+
+    for key, value in values.items():
+        if not value >= 0:
+            raise InputError(f"bad --set value: {key} must not be negative, not {value!r}")
+
+
 def _drive(rng, mode, led_id, rate_hz, symclk=S2PSK_SYMCLK, pin=0, phase_s=None, ppm=None):
     d = led_drive(mode, led_id, rate_hz, symclk, pin=0)
     phase = float(rng.uniform(0.0, d.period_s)) if phase_s is None else phase_s
@@ -416,6 +425,8 @@ def vehicle_road(rng, cam, road_m=400.0, light_height_m=7.0, light_spacing_m=25.
     occluded_frac (mean hidden fraction of the two taillights)}.
     """
     _require_positive(road_m=road_m, light_spacing_m=light_spacing_m)
+    _require_non_negative(taillight_brightness=taillight_brightness, wander_hz=wander_hz,
+                          lane_change_start_s=lane_change_start_s)
     R_curve = None if curve_radius_m is None else float(curve_radius_m)
     tilt = math.radians(head_tilt_deg)
     if light_layout not in ("staggered", "one-side", "opposite"):
