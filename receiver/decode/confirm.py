@@ -20,9 +20,10 @@ together only where they are neighbours in the stream: the ID is confirmed once 
 neighbouring positions of its packet were shown together by a later frame that fits it, and
 few frames fit it nowhere (the frames that straddle a wrong stretch's ends); a frame that fits
 at several shifts (a stretch of repeated bits) shows only what they all show, and a weak or
-contradicting chip shows nothing. The frames that straddle a wrong stretch's ends are 10-45 %
-of the frames of 12-16 chips, so at least `min_frames` later frames are needed, and at most
-`max_misfit` of them may fit nowhere. Not confirmed within `max_frames` frames, it is dropped.
+contradicting chip shows nothing. At least `min_frames` later frames are needed, and at most
+`max_misfit` of them may fit nowhere (the frames that straddle a wrong stretch's ends are
+10-45 % of the frames of 12-16 chips, but real frames may misfit the right packet as often).
+Not confirmed within `max_frames` frames, it is dropped.
 """
 
 from __future__ import annotations

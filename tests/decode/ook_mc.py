@@ -50,8 +50,9 @@ SCENES = (
 BY_NAME = {s.name: s for s in SCENES}
 
 
-def trial(scene: Scene, rng: np.random.Generator, frames: int) -> tuple[int, int | None, int]:
-    """(ID sent, first ID reported or None, frames fed until then)."""
+def trial(scene: Scene, rng: np.random.Generator, frames: int, **overrides) -> tuple[int, int | None, int]:
+    """(ID sent, first ID reported or None, frames fed until then); `overrides`: OokSettings
+    fields for the decoder."""
     from firmware_tx.schedule import make_schedule
     from receiver.decode.ook import OokDecoder
     from signals import pin_waveform, row_profile
@@ -66,7 +67,7 @@ def trial(scene: Scene, rng: np.random.Generator, frames: int) -> tuple[int, int
     wave = pin_waveform(sch, 0)
     period_s = len(wave) / sch.tick_hz
     phase = rng.uniform(0.0, period_s)
-    dec = OokDecoder(scene.rate_hz, scene.row_us, scene.exposure_us, candidates=cands)
+    dec = OokDecoder(scene.rate_hz, scene.row_us, scene.exposure_us, candidates=cands, **overrides)
     for k in range(frames):
         if scene.candidates:  # the frame times place the pieces: a continuous stream
             y0 = 300 + int(10 * np.sin(k / 7.0))
@@ -81,13 +82,13 @@ def trial(scene: Scene, rng: np.random.Generator, frames: int) -> tuple[int, int
     return led_id, None, frames
 
 
-def monte_carlo(scene: Scene, trials: int, seed: int, frames: int = 60) -> dict:
+def monte_carlo(scene: Scene, trials: int, seed: int, frames: int = 60, **overrides) -> dict:
     """Counts of right and wrong first IDs over `trials` seeded trials, with the wrong ones
     (sent, reported, frame) and the median frames to a right ID."""
     rng = np.random.default_rng(seed)
     right, wrong, when = 0, [], []
     for _ in range(trials):
-        sent, got, k = trial(scene, rng, frames)
+        sent, got, k = trial(scene, rng, frames, **overrides)
         if got == sent:
             right += 1
             when.append(k)
@@ -103,7 +104,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trials", type=int, default=320, help="trials per scene [320]")
     ap.add_argument("--seed", type=int, default=1, help="random seed [1]")
     ap.add_argument("--frames", type=int, default=60, help="frames per trial [60]")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="an OokSettings field for the decoders, e.g. confirm_max_chips=0 (no confirmation)")
     a = ap.parse_args(argv)
+    from receiver.decode.settings import OokSettings
+
+    overrides = {}
+    for item in a.set:
+        name, _, value = item.partition("=")
+        default = getattr(OokSettings(), name, None)
+        if default is None or not value:
+            print(f"ook_mc: --set {item!r}: not NAME=VALUE of an OokSettings field", file=sys.stderr)
+            return 1
+        try:
+            overrides[name] = type(default)(value)
+        except ValueError:
+            print(f"ook_mc: --set {item!r}: {value!r} is not a {type(default).__name__}", file=sys.stderr)
+            return 1
     bad = [n for n in a.scenes if n not in BY_NAME]
     if bad:
         print(f"ook_mc: unknown scene {bad[0]!r} (known: {', '.join(BY_NAME)})", file=sys.stderr)
@@ -111,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| scene | trials | right IDs | wrong IDs | median frames to the ID |")
     print("|---|---|---|---|---|")
     for name in a.scenes or list(BY_NAME):
-        r = monte_carlo(BY_NAME[name], a.trials, a.seed, a.frames)
+        r = monte_carlo(BY_NAME[name], a.trials, a.seed, a.frames, **overrides)
         n = r["trials"]
         print(f"| {name} | {n} | {r['right']} ({100.0 * r['right'] / n:.1f} %) | {len(r['wrong'])} "
               f"({100.0 * len(r['wrong']) / n:.1f} %) | {r['median_frames']} |", flush=True)

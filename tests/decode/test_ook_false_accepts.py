@@ -24,11 +24,11 @@ def _wrong_assembly(led_id: int, rng) -> int:
     return soft_decide(x, np.ones(54), np.ones(54))[0]
 
 
-def _confirmation(led_id: int) -> Confirmation:
+def _confirmation(led_id: int, **kw) -> Confirmation:
     s = OokSettings()
-    return Confirmation(led_id, packet_template(led_id), min_fit=s.verify_min, min_gap=s.confirm_gap,
-                        max_frames=s.confirm_frames, min_chip=s.confirm_min_chip, max_misfit=s.confirm_misfit,
-                        min_frames=s.confirm_min_frames)
+    args = dict(min_fit=s.verify_min, min_gap=s.confirm_gap, max_frames=s.confirm_frames,
+                min_chip=s.confirm_min_chip, max_misfit=s.confirm_misfit, min_frames=s.confirm_min_frames)
+    return Confirmation(led_id, packet_template(led_id), **{**args, **kw})
 
 
 def _feed(c: Confirmation, sent: int, rng, *, n: int = 16, sd: float = 0.4) -> None:
@@ -60,14 +60,16 @@ def test_confirmation_of_the_sent_id_not_of_a_wrong_assembly():
     assert right >= 0.85 * trials
 
 
-def test_a_slip_hidden_in_repeated_pairs_is_not_confirmed():
+def test_a_slip_hidden_in_repeated_pairs_needs_the_misfit_budget():
     """0x92a7's packet is 0x92b3's with positions 28-49 taken a pair on, both ends of that
     stretch inside runs of a repeated pair: every 16-chip window of the wrong packet is a
     window of the sent stream, so only the frames that fit it nowhere (they straddle the
-    stretch's ends) and the neighbours shown together tell them apart."""
+    stretch's ends) tell them apart. With no misfit allowed it is never confirmed. (The
+    default allows any number: frames of real phone renders misfit their own packet too often
+    for this budget, so such packets are a residual risk; see docs/ook-exposure.md.)"""
     rng = np.random.default_rng(6)
     for _ in range(40):
-        c = _confirmation(0x92A7)
+        c = _confirmation(0x92A7, max_misfit=0.0)
         _feed(c, 0x92B3, rng)
         assert not c.done
 
