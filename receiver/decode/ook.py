@@ -35,6 +35,10 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
    reliability = the weakest pair, then CRC-8. An ID whose CRC fails is never reported. A
    packet that relied on a risky alignment (short overlaps: small blobs) is also checked
    against the last frames as a whole template before its ID is reported (`_verified`).
+   A first ID from a packet that chained short frames by alignment (a wrong shift ties the
+   right one too often to trust such a chain) is reported only once the frames after its
+   proposal, each placed against the proposed packet alone, confirm it
+   (receiver.decode.confirm).
 
 With an exposure of half a chip or more, stages 1-2 are replaced by the exposure model
 (receiver.decode.exposure: the profile as the chip stream averaged over the exposure, chips by
@@ -59,7 +63,7 @@ from functools import lru_cache
 import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
-from receiver.decode import exposure, pieces
+from receiver.decode import confirm, exposure, pieces
 from receiver.decode.settings import OokSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
@@ -590,6 +594,16 @@ class OokDecoder:
         self.timing_frac_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self._tpl: tuple[int, np.ndarray] | None = None
         self.timed_frames: deque = deque(maxlen=s.verify_frames)  # (soft, shift) of timed placements
+        # a first ID from a packet chained by alignments of short frames waits for the frames
+        # after its proposal to confirm it (receiver.decode.confirm)
+        self.confirm_max_chips = s.confirm_max_chips
+        self.confirm_frames = s.confirm_frames
+        self.confirm_gap = s.confirm_gap
+        self.confirm_min_chip = s.confirm_min_chip
+        self.confirm_misfit = s.confirm_misfit
+        self.confirm_min_frames = s.confirm_min_frames
+        self._chained = False  # the accumulation holds a short frame placed by alignment
+        self._confirm: confirm.Confirmation | None = None
 
     def _set_exposure(self, exposure_rows: float) -> None:
         """Use this exposure (rows): the exposure model (receiver.decode.exposure) reads the
@@ -810,6 +824,8 @@ class OokDecoder:
                 and self.last_start_row is not None and soft.size >= 2):
             self._add_piece(soft, cw, t_s, y0)
         added = None
+        if self._confirm is not None and soft.size >= SYNC_LEN:
+            self._confirm_step(soft)
         if soft.size >= SYNC_LEN:
             self.recent.append(soft)
             added = self._place(soft, cw)
@@ -882,6 +898,7 @@ class OokDecoder:
             self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
         self._add(soft, cw, shift, trusted=self.anchored and self._last_align_complete)
+        self._chain(soft)
         if not self.anchored:
             q = s + shift if s is not None else self._cyclic_sync()
             if q is not None:
@@ -1087,6 +1104,7 @@ class OokDecoder:
 
     def _place_at(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
         self._add(soft, cw, shift, trusted=self.anchored and self._last_align_complete)
+        self._chain(soft)
         if not self.anchored:
             q = self._cyclic_sync()
             if q is not None:
@@ -1118,6 +1136,7 @@ class OokDecoder:
         self.acc_w[:] = 0.0
         self.trust_w[:] = 0.0
         self.anchored = False
+        self._chained = False
         self._timing_reset()
         self.timed_frames.clear()
 
@@ -1134,6 +1153,37 @@ class OokDecoder:
             return False
         t = packet_template(led_id)
         return all(best_cyclic_match(s, t) >= self.verify_min for s in self.recent)
+
+    def _chain(self, soft: np.ndarray) -> None:
+        """A frame was placed by alignment: a short one read by the exposure model makes the
+        packet's first ID need confirmation (its maximum-likelihood decision names an ID for
+        any chained packet, not only a CRC-valid one)."""
+        self._chained = self._chained or (self.exposure_model and soft.size < self.confirm_max_chips)
+
+    def _propose(self, led_id: int) -> None:
+        """A first ID from a packet chained by alignments of short frames: confirmed by the
+        frames that follow (`_confirm_step`) before it is reported; a new proposal replaces
+        one under confirmation."""
+        if self._confirm is None or self._confirm.led_id != led_id:
+            self._confirm = confirm.Confirmation(
+                led_id, packet_template(led_id), min_fit=self.verify_min, min_gap=self.confirm_gap,
+                max_frames=self.confirm_frames, min_chip=self.confirm_min_chip, max_misfit=self.confirm_misfit,
+                min_frames=self.confirm_min_frames)
+
+    def _confirm_step(self, soft: np.ndarray) -> None:
+        """This frame's part in confirming the proposed ID: reported once confirmed; an ID
+        not confirmed in time is dropped with the accumulation that proposed it (a wrong
+        chain would keep proposing it)."""
+        c = self._confirm
+        c.add(soft)
+        if c.done:
+            self._confirm = None
+            if self.led_id is None:
+                self.led_id = c.led_id
+                self._stale = 0
+        elif c.expired:
+            self._confirm = None
+            self._clear()
 
     def _timed_frames_fit(self, led_id: int) -> bool:
         """Every recent frame placed by timing fits the packet exactly where it was put
@@ -1190,7 +1240,10 @@ class OokDecoder:
         if not self._verified(led_id, soft=soft):
             return
         if self.led_id is None:
-            self.led_id = led_id
+            if self._chained:
+                self._propose(led_id)
+            else:
+                self.led_id = led_id
             return
         self._cand_n = self._cand_n + 1 if led_id == self._cand else 1
         self._cand = led_id

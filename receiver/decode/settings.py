@@ -24,6 +24,23 @@ class OokSettings:
         alignment that could compare every shift), a new ID is reported only when each of the
         last `verify_frames` frames fits its full packet somewhere with normalised correlation
         >= verify_min (`best_cyclic_match`).
+      confirm_max_chips [20], confirm_min_frames [8], confirm_frames [30]: a first ID from a
+        packet for which a frame of fewer than confirm_max_chips chips read by the exposure
+        model was placed by alignment (some wrong shift of its n chips ties the right one
+        with probability about 27 * 2^(-n/2), and one wrong placement builds a wrong,
+        self-consistent packet; the maximum-likelihood decision names an ID for it) is
+        reported only when the frames after its proposal confirm it: at least
+        confirm_min_frames of them, within confirm_frames, else it is dropped with its
+        accumulation (receiver.decode.confirm). Each frame is placed against the proposed
+        packet alone, at every shift within confirm_gap [0.15] of its best fit when that is
+        >= verify_min; its chips agreeing with the packet by confirm_min_chip [0.5] show their
+        positions; every two neighbouring positions from the sync's last chip on must be shown
+        together by one frame, and at most confirm_misfit [1: any] of the frames may fit the
+        packet nowhere (a wrong packet that only moves a stretch within runs of a repeated pair
+        fits every frame but those straddling the stretch's ends, 10-45 % of 12-16-chip frames;
+        but a phone's frames misfit their own packet about as often: 0.25 halved the IDs of
+        the independent grid recording).
+        Seeded Monte Carlo (tests/decode/ook_mc.py, docs/ook-exposure.md).
       period_frames [5]: the refined chip period (rows) of this many frames is fixed by
         their median (it is a camera/LED constant); later frames only measure the phase.
       period_learner [None]: a `PeriodLearner` shared with the other decoders of this rate
@@ -104,6 +121,12 @@ class OokSettings:
     period_frames: int = 5
     verify_frames: int = 16
     verify_min: float = 0.9
+    confirm_max_chips: int = 20
+    confirm_frames: int = 30
+    confirm_gap: float = 0.15
+    confirm_min_chip: float = 0.5
+    confirm_misfit: float = 1.0
+    confirm_min_frames: int = 8
     timing_window: int = 12
     timing_max_gap: int = 6
     timing_frac: float = 0.25

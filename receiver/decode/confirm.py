@@ -1,0 +1,89 @@
+"""Confirmation of an OOK ID by frames that did not build it (PROTOCOL.md section 1).
+
+A light whose image shows few chips a frame is assembled by chaining its frames: each frame
+without a sync is placed at its best cyclic correlation with what is accumulated so far. With n
+chips a frame, a wrong shift matches the accumulated chips as well as the right one with
+probability about 2^(-n/2) (n/2 Manchester pairs, each matching or not), and each alignment
+compares up to 27 shifts of the right pair parity: with 16 chips a frame some wrong shift ties
+or wins in about 27 / 256 of the alignments. One wrong placement makes the accumulation wrong
+but self-consistent; the frames after it are aligned against it and reinforce it, and the
+nearest CRC-valid packet (or the maximum-likelihood one) is then a wrong ID that every frame
+which built it fits. No margin on that accumulation tells it apart: its errors are not noise.
+
+An independent test does. The proposed ID's packet is known in full, so each later frame is
+placed against that fixed packet alone (its best of 54 cyclic shifts, normalised correlation >=
+`min_fit`), not against the accumulation. A wrong assembly is the sent packet with a stretch
+taken a pair off; where the stretch begins and ends, the wrong packet puts side by side chips
+that are not neighbours in the sent stream (the ends may hide inside runs of a repeated pair,
+so that no single position is wrong there). So a frame shows two neighbouring positions
+together only where they are neighbours in the stream: the ID is confirmed once every two
+neighbouring positions of its packet were shown together by a later frame that fits it, and
+few frames fit it nowhere (the frames that straddle a wrong stretch's ends); a frame that fits
+at several shifts (a stretch of repeated bits) shows only what they all show, and a weak or
+contradicting chip shows nothing. At least `min_frames` later frames are needed, and at most
+`max_misfit` of them may fit nowhere (the frames that straddle a wrong stretch's ends are
+10-45 % of the frames of 12-16 chips, but real frames may misfit the right packet as often).
+Not confirmed within `max_frames` frames, it is dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_tx.framing import OOK_PACKET_LEN as PACKET_LEN, SYNC
+
+SYNC_LEN = len(SYNC)  # the same in every packet: covering it tells no ID from another
+
+
+class Confirmation:
+    """One proposed ID awaiting confirmation by the frames that follow its proposal."""
+
+    def __init__(self, led_id: int, template: np.ndarray, *, min_fit: float, min_gap: float,
+                 max_frames: int, min_chip: float, max_misfit: float, min_frames: int):
+        self.led_id = led_id
+        self.template = np.asarray(template, dtype=np.float64)
+        self.min_fit = min_fit
+        self.min_gap = min_gap
+        self.max_frames = max_frames
+        self.min_chip = min_chip
+        self.max_misfit = max_misfit
+        self.min_frames = min_frames
+        self.joins = np.zeros(PACKET_LEN, bool)  # [p]: positions p and p + 1 shown by one frame
+        self.misfits = 0  # later frames that fit the proposed packet nowhere
+        self.frames = 0
+
+    def add(self, soft: np.ndarray) -> None:
+        """One later frame's soft chips (~ +-1). When it fits the proposed packet (best
+        normalised correlation >= min_fit), the positions its chips show: at every shift within
+        `min_gap` of the best one, the chips that agree with the packet by `min_chip`."""
+        self.frames += 1
+        x = np.clip(np.asarray(soft, dtype=np.float64), -1.0, 1.0)
+        den = float(np.abs(x).sum())
+        if den <= 0:
+            return
+        pos = (np.arange(PACKET_LEN)[:, None] + np.arange(x.size)[None, :]) % PACKET_LEN  # (shift, chip)
+        agree = self.template[pos] * x
+        corr = agree.sum(axis=1) / den
+        best = float(corr.max())
+        if best < self.min_fit:
+            self.misfits += 1
+            return
+        shown = np.ones(PACKET_LEN, bool)
+        for s in np.flatnonzero(corr >= best - self.min_gap):
+            at = np.zeros(PACKET_LEN, bool)
+            at[pos[s][agree[s] >= self.min_chip]] = True
+            shown &= at
+        self.joins |= shown & np.roll(shown, -1)
+
+    @property
+    def done(self) -> bool:
+        """At least `min_frames` later frames, at most `max_misfit` of them fitting the
+        proposed packet nowhere, and every two neighbouring packet positions from the last
+        sync chip on shown together by one that fits it."""
+        return (self.frames >= self.min_frames and self.misfits <= self.max_misfit * self.frames
+                and bool(self.joins[SYNC_LEN - 1:].all()))
+
+    @property
+    def expired(self) -> bool:
+        """`max_frames` later frames did not confirm the proposed packet."""
+        return self.frames >= self.max_frames and not self.done

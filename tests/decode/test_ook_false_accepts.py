@@ -1,0 +1,88 @@
+"""No wrong ID from lights that show few chips a frame (packets chained by alignment of short
+frames, receiver.decode.confirm): seeded Monte Carlo runs of ook_mc.py, small enough for CI,
+and the confirmation itself on a wrong but self-consistent packet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ook_mc import BY_NAME, monte_carlo
+from receiver.decode.confirm import Confirmation
+from receiver.decode.ook import packet_template, soft_decide
+from receiver.decode.settings import OokSettings
+
+
+def _wrong_assembly(led_id: int, rng) -> int:
+    """The ID a wrong assembly of `led_id`'s packet yields: a stretch of 10-16 chips taken one
+    Manchester pair further on (one frame placed a pair off, and the frames aligned to it),
+    decided by maximum likelihood over all packets (the nearest CRC-valid one)."""
+    t = packet_template(led_id)
+    x = t.copy()
+    pos = (2 * int(rng.integers(3, 27)) + np.arange(2 * int(rng.integers(5, 9)))) % 54
+    x[pos] = t[(pos + 2) % 54]
+    return soft_decide(x, np.ones(54), np.ones(54))[0]
+
+
+def _confirmation(led_id: int, **kw) -> Confirmation:
+    s = OokSettings()
+    args = dict(min_fit=s.verify_min, min_gap=s.confirm_gap, max_frames=s.confirm_frames,
+                min_chip=s.confirm_min_chip, max_misfit=s.confirm_misfit, min_frames=s.confirm_min_frames)
+    return Confirmation(led_id, packet_template(led_id), **{**args, **kw})
+
+
+def _feed(c: Confirmation, sent: int, rng, *, n: int = 16, sd: float = 0.4) -> None:
+    """Frames of `n` chips of `sent`'s stream at random packet positions, with noise."""
+    t = packet_template(sent)
+    while c.frames < c.max_frames and not c.done:
+        s = int(rng.integers(54))
+        c.add(t[(s + np.arange(n)) % 54] + rng.normal(0.0, sd, n))
+
+
+def test_confirmation_of_the_sent_id_not_of_a_wrong_assembly():
+    """Frames of 16 chips of the sent stream: 300 wrong assemblies' IDs are never confirmed,
+    the sent ID is in >= 85 % of the trials."""
+    rng = np.random.default_rng(4)
+    right = trials = 0
+    for _ in range(300):
+        led_id = int(rng.integers(1 << 16))
+        wrong = _wrong_assembly(led_id, rng)
+        if wrong == led_id:
+            continue  # the stretch held repeated pairs: no error
+        trials += 1
+        c = _confirmation(wrong)
+        _feed(c, led_id, rng)
+        assert not c.done
+        c = _confirmation(led_id)
+        _feed(c, led_id, rng)
+        right += c.done
+    assert trials > 200
+    assert right >= 0.85 * trials
+
+
+def test_a_slip_hidden_in_repeated_pairs_needs_the_misfit_budget():
+    """0x92a7's packet is 0x92b3's with positions 28-49 taken a pair on, both ends of that
+    stretch inside runs of a repeated pair: every 16-chip window of the wrong packet is a
+    window of the sent stream, so only the frames that fit it nowhere (they straddle the
+    stretch's ends) tell them apart. With no misfit allowed it is never confirmed. (The
+    default allows any number: frames of real phone renders misfit their own packet too often
+    for this budget, so such packets are a residual risk; see docs/ook-exposure.md.)"""
+    rng = np.random.default_rng(6)
+    for _ in range(40):
+        c = _confirmation(0x92A7, max_misfit=0.0)
+        _feed(c, 0x92B3, rng)
+        assert not c.done
+
+
+@pytest.mark.parametrize("scene, trials, seed, min_right", [
+    ("20k-40us-60rows", 100, 1, 25),
+    ("20k-80us-60rows", 100, 4, 25),
+])
+def test_short_frames_monte_carlo_never_a_wrong_id(scene, trials, seed, min_right):
+    """Seeded trials of small lights read through a long exposure (~16 chips a frame at
+    20 kHz, pixel noise), random IDs, 60 frames each, each frame at a random phase of the
+    stream: no trial reports a wrong ID (these seeds held two each before the confirmation),
+    and at least `min_right` report the ID sent."""
+    r = monte_carlo(BY_NAME[scene], trials, seed)
+    assert r["wrong"] == []
+    assert r["right"] >= min_right
