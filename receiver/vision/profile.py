@@ -55,15 +55,8 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
     mask = envelope_mask(blob)
     roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
     if roi.shape != mask.shape or not roi.size or blob.x0 < 0 or blob.y0 < 0:
-        # A box past the frame's edges (a pair's emitter moved there): the part inside the
-        # frame, with the mask's matching part (negative starts would wrap around)
-        h, w = gray.shape[:2]
-        x0, y0 = max(int(blob.x0), 0), max(int(blob.y0), 0)
-        x1, y1 = min(int(blob.x1), w), min(int(blob.y1), h)
-        if x1 <= x0 or y1 <= y0:
-            return 0.0
-        roi = gray[y0:y1, x0:x1]
-        mask = mask[y0 - int(blob.y0):y1 - int(blob.y0), x0 - int(blob.x0):x1 - int(blob.x0)]
+        # A box past the frame's edges (a pair's emitter moved there): the part inside the frame
+        roi, mask = _inside(gray, blob, mask)
         n = int(mask.sum())
         return float((roi * mask).sum()) / n if n else 0.0
     # the same exact integer sums (cv2.sumElems adds uint8 values in double, exactly) divided
@@ -79,15 +72,18 @@ def peak_in_mask(gray: np.ndarray, blob: Blob) -> float:
     """Highest gray over the blob's envelope (the part inside the frame; 0.0 without any): an
     S2-PSK emitter's intensity whatever part of its envelope it lights (a saturated emitter's
     bloom, an envelope a few px off, a clock edge cutting it during the rolling readout)."""
-    mask = envelope_mask(blob)
+    roi, mask = _inside(gray, blob, envelope_mask(blob))
+    return float(roi[mask != 0].max()) if mask.any() else 0.0
+
+
+def _inside(gray: np.ndarray, blob: Blob, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The part of the blob's box inside the frame and the mask's matching part (negative box
+    starts would wrap around); both empty when the box lies wholly outside."""
     h, w = gray.shape[:2]
     x0, y0 = max(int(blob.x0), 0), max(int(blob.y0), 0)
-    x1, y1 = min(int(blob.x1), w), min(int(blob.y1), h)
-    if x1 <= x0 or y1 <= y0:
-        return 0.0
-    roi = gray[y0:y1, x0:x1]
-    mask = mask[y0 - int(blob.y0):y1 - int(blob.y0), x0 - int(blob.x0):x1 - int(blob.x0)]
-    return float(roi[mask != 0].max()) if mask.any() else 0.0
+    x1, y1 = max(min(int(blob.x1), w), x0), max(min(int(blob.y1), h), y0)
+    return (gray[y0:y1, x0:x1],
+            mask[y0 - int(blob.y0):y1 - int(blob.y0), x0 - int(blob.x0):x1 - int(blob.x0)])
 
 
 def stripe_depth(profile: np.ndarray, weights: np.ndarray, *, background: float = 0.0,
