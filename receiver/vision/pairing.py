@@ -726,23 +726,23 @@ class Pairer:
                 out.append(p)
         return out
 
-    @staticmethod
-    def _anothers(p: Pair, t: Track, pred: tuple, owners: list) -> bool:
+    def _anothers(self, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
         """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
         another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
         this frame, its own track ids) of the pairs whose own track `t` is. It is another's when
-        not `p`'s own track and another predicts an emitter or midpoint (a merged blob) nearer to
-        it, or when it is the founding track of a decoded pair that explains no blob this frame
-        (the ID was read from that track's light, which the other pair then lost)."""
-        def near(q):
-            mx, my, hx, hy, _ = q
-            return min(math.hypot(t.cx - mx - k * hx, t.cy - my - k * hy) for k in (-1.0, 0.0, 1.0))
+        not `p`'s own track but the founding track of a decoded pair that explains no blob this
+        frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
+        the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
+        other pair has just lost, and `p` may have taken it."""
         if t.track_id in {*p.founding, *(u.track_id for u in p.tracks)}:
             return False
-        d = near(pred)
-        return any(q is not p and (near(qpred) < d or (q.led_id is not None and not explains
-                                                        and t.track_id in q.founding))
-                   for q, qpred, explains, _ in owners)
+        for q, (mx, my, hx, hy, single), explains, _ in owners:
+            if q is p or q.led_id is None or explains or t.track_id not in q.founding:
+                continue
+            d = min(math.hypot(t.cx - mx - k * hx, t.cy - my - k * hy) for k in (-1.0, 1.0))
+            if d <= self.shake_radius_px * (q.misses + 1) + self._claim_tol(single):
+                return True
+        return False
 
     def _reanchor(self, p: Pair, pred: tuple, tracks: list[Track], taken: set) -> tuple | None:
         """Pair `p` (two tracks) explained no blob at its prediction `pred`: the camera's shake
