@@ -117,7 +117,7 @@ def pair_observation(p, white_gray: float = math.inf) -> PairObservation:
     """The record of one live pair in this frame (see `PairObservation`); `white_gray`: the gray
     level at which a blob's peak is clipped (DetectSettings.saturated_gray)."""
     a, b = p.a.blob, p.b.blob
-    return PairObservation(key=p.key, founding=p.founding, led_id=p.led_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
+    return PairObservation(key=p.key, founding=p.founding, led_id=p.reported_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
                            area_a_px=a.area_px, area_b_px=b.area_px,
                            separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen,
                            a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames),
@@ -252,6 +252,8 @@ class Receiver:
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
+        # Pair.uid -> decoders fed from the frame the pair lost `Pair.confirmed` on, until an ID
+        self.confirm_decoders: dict[int, dict] = {}
         self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its far head's flux (Pairer.reads_flux)
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
@@ -386,6 +388,20 @@ class Receiver:
                         self.pair_decoders[p.uid] = early
                 if found is not None:
                     del self.early_decoders[p.uid]
+            if not p.confirmed:
+                # Placed on blobs that may be another light's: only what its emitters send from
+                # then on names it. The decoders that find that ID become the pair's.
+                conf = self.confirm_decoders.get(p.uid)
+                if conf is None:
+                    conf = self.confirm_decoders[p.uid] = self.policy.new_pair_decoders()
+                cfound, _ = self.policy.step_pair(conf, frame.t_s, x)
+                if cfound is not None:
+                    found, p.confirmed = cfound, True
+                    self.pair_decoders[p.uid] = conf
+                    del self.confirm_decoders[p.uid]
+                    self.early_decoders.pop(p.uid, None)
+                else:
+                    found = None
             if found is not None:
                 p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
                 self.flux_decoders.pop(p.uid, None)  # fed only until the pair's first ID
@@ -394,6 +410,7 @@ class Receiver:
             del self.pair_decoders[uid]
             self.early_decoders.pop(uid, None)
             self.flux_decoders.pop(uid, None)
+            self.confirm_decoders.pop(uid, None)
         pair_of = pair_owners(self.pairer.pairs)
         # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
         # this frame (it may have jumped to another light's blob) carries none.
@@ -401,7 +418,7 @@ class Receiver:
             p = pair_of.get(t.track_id)
             light = self._light(t.track_id)
             if p is not None:
-                light.led_id, light.mode = p.led_id, ("s2psk" if p.led_id is not None else light.mode)
+                light.led_id, light.mode = p.reported_id, ("s2psk" if p.reported_id is not None else light.mode)
             elif light.mode == "s2psk":
                 light.led_id, light.mode = None, None
         return pair_of
@@ -469,10 +486,11 @@ class Receiver:
         if self.pairer is not None:
             for oid, b, p in self.pairer.emitters():
                 emitter_of[oid] = p
-                leds.append(led_observation(oid, b.cx, b.cy, b.area_px, b.hull, b.border, p.led_id,
-                                            "s2psk" if p.led_id is not None else None, b.peak, kind=p.kind))
-                if p.led_id is not None:
-                    decoded.add(p.led_id)
+                rid = p.reported_id
+                leds.append(led_observation(oid, b.cx, b.cy, b.area_px, b.hull, b.border, rid,
+                                            "s2psk" if rid is not None else None, b.peak, kind=p.kind))
+                if rid is not None:
+                    decoded.add(rid)
         leds.sort(key=_TRACK)
         white = self.settings.detect.saturated_gray
         pairs = tuple(pair_observation(p, white) for p in self.pairer.pairs) if self.pairer is not None else ()

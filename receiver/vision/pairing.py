@@ -259,6 +259,16 @@ class Pair:
 
     # the key when the founding tracks' ids are a live pair's key already: its emitters' LED ids
     alias: tuple[int, int] | None = None
+    # False from a frame in which it explained another pair's emitter (`Pairer._anothers`: two
+    # cars' taillights close together) until its emitters' samples from then on decode an ID
+    # again (receiver.pipeline): its samples may be another light's since, so the ID it holds
+    # is not reported (`reported_id`) meanwhile.
+    confirmed: bool = True
+
+    @property
+    def reported_id(self) -> int | None:
+        """The ID to report: `led_id` while its own emitters confirm it, else None."""
+        return self.led_id if self.confirmed else None
 
     @property
     def founding(self) -> tuple[int, int]:
@@ -677,7 +687,8 @@ class Pairer:
         """`_follow` of every pair (the live ones), their blobs found by one kernel call (the
         Python reference `_explain` per pair without the kernel, `xy` the tracks' centroids);
         a pair of two tracks that explains none is re-placed on two seen blobs one baseline
-        apart that no pair explains (`_reanchor`)."""
+        apart that no pair explains (`_reanchor`); one that explains another pair's emitter
+        (`_anothers`) loses `Pair.confirmed`."""
         items = []
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
@@ -693,6 +704,14 @@ class Pairer:
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         taken = {t.track_id for f in found for t in f[0]}
+        # every two-track pair's own tracks: those it founded on or explained in the last frame
+        # (a far head's jumper pairs share their one track by design: `_drop_twins`)
+        own = {p.uid: (p, pred, bool(f[0]), {*p.founding, *(t.track_id for t in p.tracks)})
+               for (p, pred, _), f in zip(items, found) if p.a.track_id != p.b.track_id}
+        owners: dict[int, list] = {}
+        for o in own.values():
+            for tid in o[3]:
+                owners.setdefault(tid, []).append(o)
         out = []
         for (p, pred, _), (expl, nearby, mean, obs_a, obs_b, merged) in zip(items, found):
             if mean is None and p.a.track_id != p.b.track_id:
@@ -701,9 +720,29 @@ class Pairer:
                     expl, mean, obs_a, obs_b = again
                     nearby = nearby + [t for t in expl if t not in nearby]
                     taken.update(t.track_id for t in expl)
+            if p.uid in own and any(self._anothers(p, t, pred, owners.get(t.track_id, ())) for t in expl):
+                p.confirmed = False  # another pair's emitter: its samples may be another light's
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
         return out
+
+    def _anothers(self, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
+        """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
+        another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
+        this frame, its own track ids) of the pairs whose own track `t` is. It is another's when
+        not `p`'s own track but the founding track of a decoded pair that explains no blob this
+        frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
+        the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
+        other pair has just lost, and `p` may have taken it."""
+        if t.track_id in {*p.founding, *(u.track_id for u in p.tracks)}:
+            return False
+        for q, (mx, my, hx, hy, single), explains, _ in owners:
+            if q is p or q.led_id is None or explains or t.track_id not in q.founding:
+                continue
+            d = min(math.hypot(t.cx - mx - k * hx, t.cy - my - k * hy) for k in (-1.0, 1.0))
+            if d <= self.shake_radius_px * (q.misses + 1) + self._claim_tol(single):
+                return True
+        return False
 
     def _reanchor(self, p: Pair, pred: tuple, tracks: list[Track], taken: set) -> tuple | None:
         """Pair `p` (two tracks) explained no blob at its prediction `pred`: the camera's shake

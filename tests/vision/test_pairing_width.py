@@ -208,3 +208,49 @@ def test_a_coasting_two_track_pair_is_replaced_on_both_its_emitters_blobs():
     assert (p.a.cx, p.b.cx) == pytest.approx((192.0, 232.0))
     assert run(0, 40.0).misses == 1       # first frame without a blob: not re-placed
     assert run(1, 52.0).misses == 2       # another separation: another light
+
+
+def _tracks_step(pr, tracks, frame):
+    pr.step(None, [Track(tid, b, frame, frame) for tid, b in tracks], lambda g, t: 0.0, shift=(0.0, 0.0))
+
+
+def test_a_pair_on_another_pairs_light_holds_back_its_id():
+    """Two cars' taillight pairs side by side, 20 px apart. A decoded pair that explains the
+    founding track of another decoded pair, which explains no blob in that frame and predicts
+    an emitter within its reach of it (its light may be that one), may be on another light: its
+    ID is kept but not reported (`reported_id`) until its own samples confirm it again
+    (receiver.pipeline). A pair that explains its own tracks' blobs reports its ID; so does one
+    that explains the other's founding track while the other still explains a blob of its own,
+    or while the other is predicted far away (the tracker gave the id to another light)."""
+    def two_pairs(x_other=240.0):
+        pr = Pairer()
+        pa = _two_track_pair(pr, _blob(180.0, 80.0, 6, 4), _blob(220.0, 80.0, 6, 4))
+        tc, td = Track(5, _blob(x_other, 80.0, 6, 4), 0, 0), Track(6, _blob(x_other + 40.0, 80.0, 6, 4), 0, 0)
+        pb = Pair(Track(5, tc.blob, 0, 0), Track(6, td.blob, 0, 0), fresh=False, tracks=[tc, td],
+                  nearby=[tc, td], ids=(7, 8))
+        pr.pairs = [pa, pb]
+        pa.led_id, pb.led_id = 133, 201
+        _tracks_step(pr, [(3, _blob(180.0, 80.0, 6, 4)), (4, _blob(220.0, 80.0, 6, 4)),
+                          (5, _blob(x_other, 80.0, 6, 4)), (6, _blob(x_other + 40.0, 80.0, 6, 4))], 1)
+        return pr, pa, pb
+    pr, pa, pb = two_pairs()
+    assert pa.confirmed and pb.confirmed and (pa.reported_id, pb.reported_id) == (133, 201)
+    # B's founding track 5 now lies on A's right emitter, and B explains no blob: A may be on B's light
+    _tracks_step(pr, [(5, _blob(221.0, 80.0, 6, 4))], 2)
+    assert [t.track_id for t in pa.tracks] == [5]
+    assert not pa.confirmed and pa.led_id == 133 and pa.reported_id is None
+    assert pb.reported_id == 201
+    # its own blobs only: confirmed
+    pr, pa, pb = two_pairs()
+    _tracks_step(pr, [(3, _blob(181.0, 80.0, 6, 4)), (6, _blob(280.0, 80.0, 6, 4))], 2)
+    assert pa.confirmed and pa.reported_id == 133 and pb.reported_id == 201
+    # the same track 5 on A's right emitter while B explains its own left blob (a new track 9)
+    pr, pa, pb = two_pairs()
+    _tracks_step(pr, [(5, _blob(221.0, 80.0, 6, 4)), (9, _blob(240.0, 80.0, 6, 4))], 2)
+    assert [t.track_id for t in pa.tracks] == [5]
+    assert pa.confirmed and pa.reported_id == 133
+    # B far away (200 px): track 5 on A's right emitter is not B's light
+    pr, pa, pb = two_pairs(x_other=420.0)
+    _tracks_step(pr, [(5, _blob(221.0, 80.0, 6, 4))], 2)
+    assert [t.track_id for t in pa.tracks] == [5]
+    assert pa.confirmed and pa.reported_id == 133
