@@ -669,8 +669,20 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     a device's in seq order) waiting before it starts are handled in a few batches, each answered
     once with the position a server handling them one by one gives (to WARM_TOL)."""
     from receiver.serve.loadcore import four_led_datagrams
-    from receiver.serve.server import bind_udp, serve_socket
     dg = four_led_datagrams(walk_map, 120, 12)
+    srv, replies = _serve_queued(walk_map, dg)
+    seqs = {}
+    for r in replies:                                 # a device's replies in its seq order
+        assert r["seq"] > seqs.get(r["device"], -1)
+        seqs[r["device"]] = r["seq"]
+    assert srv.counters["batches"] <= 20 and srv.counters["replies"] == 120
+
+
+def _serve_queued(walk_map, dg):
+    """(server, replies) of `serve_socket` started with every datagram of `dg` (device, seq,
+    bytes) already queued in its socket; asserts each is answered once with the position a
+    server handling them one by one gives (to WARM_TOL)."""
+    from receiver.serve.server import bind_udp, serve_socket
     one_by_one = LightingServer(walk_map, clock=FakeClock())
     expected = {(dev, seq): one_by_one.handle(data) for dev, seq, data in dg}
     srv = LightingServer(walk_map, clock=FakeClock())
@@ -678,7 +690,7 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     stop = threading.Event()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
         client.settimeout(REPLY_TIMEOUT_S)
-        # Room for all 120 replies (~100 kB, more as the kernel counts it): the server thread may
+        # Room for all the replies (~100 kB, more as the kernel counts it): the server thread may
         # send them all before this thread gets the GIL back, and a full buffer drops datagrams.
         client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         for _, _, data in dg:
@@ -694,11 +706,7 @@ def test_queued_datagrams_are_answered_in_batches(walk_map):
     assert sorted((r["device"], r["seq"]) for r in replies) == sorted(expected)
     for r in replies:
         _assert_same(expected[r["device"], r["seq"]]["position"], r["position"], ulp=True)
-    seqs = {}
-    for r in replies:                                 # a device's replies in its seq order
-        assert r["seq"] > seqs.get(r["device"], -1)
-        seqs[r["device"]] = r["seq"]
-    assert srv.counters["batches"] <= 20 and srv.counters["replies"] == 120
+    return srv, replies
 
 
 def test_batches_end_at_their_byte_bound(walk_map):
@@ -706,32 +714,12 @@ def test_batches_end_at_their_byte_bound(walk_map):
     after the datagram that reaches MAX_BATCH_BYTES), so a small datagram behind them waits for
     little work; every one is answered with the position one-by-one handling gives."""
     from receiver.serve.loadcore import four_led_datagrams
-    from receiver.serve.server import MAX_BATCH_BYTES, bind_udp, serve_socket
+    from receiver.serve.server import MAX_BATCH_BYTES
     dg = four_led_datagrams(walk_map, 40, 4, n_leds=64)
     size = min(len(data) for _, _, data in dg)
     per_batch = -(-MAX_BATCH_BYTES // size)             # datagrams that reach the bound, at most
     assert 1 < per_batch < 16
-    one_by_one = LightingServer(walk_map, clock=FakeClock())
-    expected = {(dev, seq): one_by_one.handle(data) for dev, seq, data in dg}
-    srv = LightingServer(walk_map, clock=FakeClock())
-    sock = bind_udp("127.0.0.1", 0)
-    stop = threading.Event()
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
-        client.settimeout(REPLY_TIMEOUT_S)
-        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
-        for _, _, data in dg:
-            client.sendto(data, sock.getsockname())
-        worker = threading.Thread(target=serve_socket, args=(srv, sock, stop), daemon=True)
-        worker.start()
-        try:
-            replies = [json.loads(client.recv(65536)) for _ in dg]
-        finally:
-            stop.set()
-            worker.join(5.0)
-            sock.close()
-    assert sorted((r["device"], r["seq"]) for r in replies) == sorted(expected)
-    for r in replies:
-        _assert_same(expected[r["device"], r["seq"]]["position"], r["position"], ulp=True)
+    srv, _ = _serve_queued(walk_map, dg)
     assert srv.counters["batches"] >= len(dg) / per_batch and srv.counters["replies"] == len(dg)
 
 
