@@ -272,6 +272,19 @@ def shift_votes(const double[:, ::1] xy, const double[:, ::1] pred, double radiu
     return j
 
 
+cdef _check_boxes(const unsigned char[::1] masks, const long long[:, ::1] boxes, Py_ssize_t n_out, str name):
+    """ValueError unless `boxes` is (B, 5) with B <= n_out, each box upright and its mask inside
+    `masks` (the arguments of masked_means and masked_peaks)."""
+    cdef Py_ssize_t k
+    cdef long long x0, y0, x1, y1, off
+    if boxes.shape[1] < 5 or n_out < boxes.shape[0]:
+        raise ValueError(f"{name}: boxes must be (B, 5), out (B,)")
+    for k in range(boxes.shape[0]):
+        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
+        if x1 < x0 or y1 < y0 or off < 0 or off + (x1 - x0) * (y1 - y0) > masks.shape[0]:
+            raise ValueError(f"{name}: a box is inverted or its mask lies outside `masks`")
+
+
 def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,
                  const long long[:, ::1] boxes, double[::1] out):
     """profile.mean_in_mask of many blobs in one call: out[k] = the mean gray of `gray` (H, W)
@@ -282,12 +295,7 @@ def masked_means(const unsigned char[:, :] gray, const unsigned char[::1] masks,
     cdef Py_ssize_t k, x, y, h = gray.shape[0], w = gray.shape[1]
     cdef long long x0, y0, x1, y1, off, bw, cx0, cy0, cx1, cy1, tot, n
     cdef const unsigned char *row
-    if boxes.shape[1] < 5 or out.shape[0] < boxes.shape[0]:
-        raise ValueError("masked_means: boxes must be (B, 5), out (B,)")
-    for k in range(boxes.shape[0]):
-        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
-        if x1 < x0 or y1 < y0 or off < 0 or off + (x1 - x0) * (y1 - y0) > masks.shape[0]:
-            raise ValueError("masked_means: a box is inverted or its mask lies outside `masks`")
+    _check_boxes(masks, boxes, out.shape[0], "masked_means")
     for k in range(boxes.shape[0]):
         x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
         bw = x1 - x0
@@ -314,12 +322,7 @@ def masked_peaks(const unsigned char[:, :] gray, const unsigned char[::1] masks,
     cdef int best
     cdef bint any_
     cdef const unsigned char *row
-    if boxes.shape[1] < 5 or out.shape[0] < boxes.shape[0]:
-        raise ValueError("masked_peaks: boxes must be (B, 5), out (B,)")
-    for k in range(boxes.shape[0]):
-        x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
-        if x1 < x0 or y1 < y0 or off < 0 or off + (x1 - x0) * (y1 - y0) > masks.shape[0]:
-            raise ValueError("masked_peaks: a box is inverted or its mask lies outside `masks`")
+    _check_boxes(masks, boxes, out.shape[0], "masked_peaks")
     for k in range(boxes.shape[0]):
         x0 = boxes[k, 0]; y0 = boxes[k, 1]; x1 = boxes[k, 2]; y1 = boxes[k, 3]; off = boxes[k, 4]
         bw = x1 - x0
