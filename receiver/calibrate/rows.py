@@ -30,6 +30,10 @@ the median E times t_row is the exposure. blur: a Gaussian of the sigma measured
 left and right edges (`edge_blur_px`), as the synthetic camera and a demosaicing/compressing
 camera blur the stripes like any edge (a pure lens blur would not: inside the LED the image is
 uniform and the stripes are in time; then the exposure comes out short by about the blur).
+Past a chip or so of exposure (OOK) the chips cannot be read off the profile any more: then the
+exposure is the one under which the maximum-likelihood chip sequence (the decoder's own
+`receiver.decode.exposure.mlse_chips`) fits the profiles best (`long_exposure_chips`), and a
+warning says the row time may be wrong (`smeared_grid_warning`).
 
 Image rows are sensor rows (frames in sensor orientation, as `receiver.io.sources` delivers them).
 """
@@ -382,6 +386,42 @@ def fit_exposure(seg: Segment, unit: float, delta: float, blur_px: float = 0.0) 
     return None if best is None or not math.isfinite(best[0]) else float(best[1])
 
 
+# Exposures (chips) the chip sequence fit tries (`long_exposure_chips`).
+SEQUENCE_FIT_CHIPS = tuple(np.arange(0.25, 4.01, 0.25))
+# A tried exposure fits when its residual is within this factor of the best one; the shortest
+# that fits is taken (a Manchester pair averages to half ON, so an exposure two chips longer
+# fits about as well: the result is a lower bound).
+SEQUENCE_FIT_TIE = 1.1
+# From this exposure (chips) the sequence fit's value is reported; below it the residuals of
+# the short exposures hardly differ and the stripe fit measures them better.
+LONG_FROM_CHIPS = 1.5
+# Chips over which the sequence fit normalises a profile's ON and OFF levels (at long
+# exposures only the sync's runs reach them).
+SEQUENCE_NORM_CHIPS = 16.0
+
+
+def long_exposure_chips(profiles, unit_rows: float, blur_chips: float) -> float | None:
+    """Exposure (chips) of OOK row profiles by maximum-likelihood chip sequence estimation
+    (`receiver.decode.exposure.mlse_chips`, as the decoder reads long exposures) at each of
+    `SEQUENCE_FIT_CHIPS`: the shortest exposure whose median residual over the profiles is
+    within `SEQUENCE_FIT_TIE` of the best. None without a profile long enough."""
+    from receiver.decode.exposure import linearise, mlse_chips
+    profiles = [np.asarray(x, np.float64) for x in profiles]
+    resid = []
+    for e in SEQUENCE_FIT_CHIPS:
+        r = []
+        for x in profiles:
+            z = linearise(x, unit_rows, e, blur_chips, SEQUENCE_NORM_CHIPS)
+            m = mlse_chips(z, np.ones(z.size), unit_rows, e, blur_chips)
+            if m is not None:
+                r.append(m[3])
+        if not r:
+            return None
+        resid.append(float(np.median(r)))
+    best = min(resid)
+    return float(next(e for e, v in zip(SEQUENCE_FIT_CHIPS, resid) if v <= SEQUENCE_FIT_TIE * best))
+
+
 def unit_range(unit_rate_hz: float) -> tuple[float, float]:
     """(shortest, longest) unit in rows over `ROW_US_RANGE` for a light of `unit_rate_hz` units/s."""
     return 1e6 / (unit_rate_hz * ROW_US_RANGE[1]), 1e6 / (unit_rate_hz * ROW_US_RANGE[0])
@@ -464,15 +504,22 @@ def measure_row_time(frames, *, mode: str, rate_hz: float, prior_row_us: float =
     blurs = [s.blur_px for s in kept if s.blur_px is not None]
     blur = float(np.median(blurs)) if blurs else 0.0
     Es = [e for e in (fit_exposure(s, unit, delta, blur) for s in longest) if e is not None]
+    how = "stripe fit"
     exp_us = float(np.median(Es)) * t_row if Es else None
     exp_spread = float(np.std(Es)) * t_row if len(Es) >= 2 else None
+    if mode == "ook":
+        # the stripe fit reads the chips off the profile: past a chip or so of exposure they are
+        # smeared together and only a fit of the whole chip sequence tells the exposure
+        e_long = long_exposure_chips([s.profile for s in longest], unit, blur / unit)
+        if e_long is not None and e_long >= LONG_FROM_CHIPS:
+            exp_us, exp_spread, how = e_long * unit * t_row, None, "chip sequence fit"
     frames_used = len({s.frame for s in kept})
     return RowTimeResult(t_row, stderr, spread if math.isfinite(spread) else 0.0, unit, frames_used,
                          len(kept), int(sum(int(s.mask.sum()) for s in kept)), exp_us, exp_spread,
                          mode, float(rate_hz),
                          extra={"delta_rows": round(delta, 4), "edge_sigma_rows": round(sigma, 4),
                                 "frames_read": nframes,
-                                "blur_px": round(blur, 3)})
+                                "blur_px": round(blur, 3), "exposure_from": how if exp_us is not None else None})
 
 
 # A tone's stripes keep their full depth up to an exposure of this many half periods: a row
@@ -498,6 +545,25 @@ def exposure_warning(exposure_us: float | None, ook_rates_hz=(), tone_freqs_hz=(
         return None
     return (f"exposure ~{exposure_us:.0f} us is longer than the lights allow (limit {limit:.0f} us: "
             f"OOK chips are read up to a few chips of exposure, a tone's stripes up to its half period)")
+
+
+def smeared_grid_warning(res: "RowTimeResult") -> str | None:
+    """A warning when the exposure measured with an OOK row time spans `MAX_EXPOSURE_CHIPS` chips
+    or more of the measured light: its stripe edges then smear into each other and no longer
+    sit on the chip grid (so the row time may be wrong); None otherwise."""
+    from receiver.decode.exposure import MAX_EXPOSURE_CHIPS
+    if res.mode != "ook" or res.exposure_us is None:
+        return None
+    chip_us = 1e6 / res.rate_hz
+    chips = res.exposure_us / chip_us
+    if chips < MAX_EXPOSURE_CHIPS:
+        return None
+    return (f"the exposure (at least ~{res.exposure_us:.0f} us) spans {chips:.1f} of the {res.rate_hz / 1e3:g} kHz "
+            f"chips ({chip_us:.0f} us) the row time is measured on: their stripe edges smear into each other, so "
+            f"the row time {res.t_row_us:.2f} us may be wrong (and the exposure is a lower bound: one two "
+            f"chips longer fits the stripes as well); "
+            f"record the LED with an exposure under one chip ({chip_us:.0f} us) for the calibration, or "
+            f"measure on a light of a lower chip rate")
 
 
 # Several tone lights of a map in one view (`measure_row_time_tones`): their row times must agree

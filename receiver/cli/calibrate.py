@@ -208,7 +208,7 @@ def _check_updatable(path: str) -> None:
 
 
 def run_rows(args) -> dict:
-    from receiver.calibrate.rows import exposure_warning, measure_row_time
+    from receiver.calibrate.rows import exposure_warning, measure_row_time, smeared_grid_warning
     from receiver.core.errors import InputError
     from receiver.io.camera import load_camera
 
@@ -261,6 +261,10 @@ def run_rows(args) -> dict:
         from receiver.calibrate.check import exposure_fix
         from receiver.calibrate.rows import exposure_limit_us
         print(f"occloc: warning: {warn}; {exposure_fix(src.kind, exposure_limit_us(ook, tones))}", file=sys.stderr)
+    smeared = smeared_grid_warning(res)
+    if smeared:
+        print(f"occloc: warning: {smeared}", file=sys.stderr)
+        warn = f"{warn}; {smeared}" if warn else smeared
     _progress(f"row readout {res.t_row_us:.4f} us +- {res.stderr_us:.4f} (standard error), "
               f"spread {res.spread_us:.4f} us over {res.blobs} blobs in {res.frames} frames; "
               f"exposure ~{res.exposure_us if res.exposure_us is None else round(res.exposure_us, 1)} us")

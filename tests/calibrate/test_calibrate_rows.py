@@ -163,3 +163,33 @@ def test_exposure_warning_counts_a_map_light_without_rate_at_the_protocol_rate(t
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert 95.0 < line["exposure_us"] < 250.0, line
     assert line["warning"] and "limit 90 us" in line["warning"], line
+
+
+@pytest.mark.parametrize("exposure_us", [30.0, 130.0])
+def test_rows_says_when_the_exposure_is_longer_than_the_chips_it_measures(exposure_us, tmp_path, capsys):
+    """OOK at 20 kHz (50 us chips), the camera file fresh from `calibrate intrinsics` (no row
+    time, no exposure): at 30 us the exposure is measured and nothing is warned; at 130 us (2.6
+    chips) the exposure read from the edges is past the decoders' limit (90 us) and the warning
+    says that the stripes are smeared, with the numbers."""
+    import cv2
+    from tools.synth import make_scene, render_frames
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    scene = make_scene("indoor-static", seed=3, n_frames=10, exposure_us=exposure_us)
+    for img, t in render_frames(scene, seed=5):
+        cv2.imwrite(str(folder / f"{t['frame']:03d}.png"), img)
+    text = (REC / "indoor-static" / "camera.yaml").read_text()
+    cam = tmp_path / "cam.yaml"
+    cam.write_text("\n".join("row_readout_us: 0." if ln.startswith("row_readout_us:") else
+                             "exposure_us: 0." if ln.startswith("exposure_us:") else ln for ln in text.splitlines()))
+    assert occloc(["calibrate", "rows", str(folder), "--camera", str(cam), "--ook-rate", "20000",
+                   "--out", str(tmp_path / "out.yaml")]) == 0
+    cap = capsys.readouterr()
+    line = json.loads(cap.out.strip().splitlines()[-1])
+    assert abs(line["row_readout_us"] / 15.0 - 1) < TOL, line   # the scene's row time
+    if exposure_us < 50:
+        assert 0.6 * exposure_us < line["exposure_us"] < 1.4 * exposure_us and line["warning"] is None, line
+    else:
+        assert 100.0 < line["exposure_us"] < 160.0 and line["exposure_from"] == "chip sequence fit", line
+        assert "limit 90 us" in line["warning"] and "chips (50 us) the row time is measured on" in line["warning"]
+        assert "occloc: warning: the exposure (at least ~" in cap.err
