@@ -96,17 +96,41 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
-def _fit_photo(cam, gray):
+def to_camera_orientation(gray, width: int, height: int):
+    """(`gray` in the orientation of a camera of `width` x `height`, turned?): a still whose long
+    side is not the camera's is turned back, assuming portrait = sensor turned clockwise, so that
+    image rows are sensor rows again."""
+    import cv2
+    h, w = gray.shape[:2]
+    if w != h and width != height and (w > h) != (width > height):
+        return cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE), True
+    return gray, False
+
+
+def _fit_photo(cam, gray, exposure_us: float | None = None):
     """(camera fitted to one photo, the photo in sensor orientation): a photo whose long side is
     not the camera's is turned back first, then the camera is scaled to its size
-    (`fit_camera`: InputError when the aspect ratio is not the camera's)."""
-    import cv2
+    (`fit_camera`: InputError when the aspect ratio is not the camera's). `exposure_us`: the
+    photo's own shutter time (its EXIF), which replaces the camera file's."""
+    import dataclasses
     from receiver.io.camera import fit_camera
-    h, w = gray.shape[:2]
-    if w != h and cam.width != cam.height and (w > h) != (cam.width > cam.height):
-        gray = cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE)
+    gray, _ = to_camera_orientation(gray, cam.width, cam.height)
     fitted, _ = fit_camera(cam, (gray.shape[1], gray.shape[0]))
+    if exposure_us is not None:
+        fitted = dataclasses.replace(fitted, exposure_us=float(exposure_us))
     return fitted, gray
+
+
+def _photo_exposure_notes(rx, name: str, exposure_us: float) -> list[str]:
+    """The exposure verdicts (receiver.decode.exposure.exposure_verdict) of one photo's EXIF
+    shutter time against the map's OOK chip rates, for those it is too long for."""
+    from receiver.decode.exposure import exposure_verdict
+    out = []
+    for rate in rx.policy.plan.ook_rates:
+        ok, text = exposure_verdict(exposure_us, rate)
+        if not ok:
+            out.append(f"{name}: {text} (the photo's EXIF)")
+    return out
 
 
 # `no_fix` values of frames without a position that the positioner itself does not explain
@@ -462,6 +486,7 @@ def _main(args, stop: "SignalStop") -> int:
                       threads=n_threads, max_pixels=getattr(args, "max_pixels", None))
     images = getattr(src, "inner", src)
     photos = images.kind == "images"   # independent photos: --realtime has nothing to drop
+    first = None   # the first readable photo
     try:
         if photos and src.size is None:
             first = next(images.photos(), None)
@@ -471,8 +496,17 @@ def _main(args, stop: "SignalStop") -> int:
         if src.size is None:
             raise InputError(f"{spec}: frame size unknown")
         cam0 = cam
+        exif_us = {}   # photo index -> its EXIF shutter time (us), where it records one
+        first_index = None
         if photos:
-            cam, _ = _fit_photo(cam0, np.zeros(src.size[::-1], np.uint8))
+            from receiver.io.imagefile import exif_exposure_us
+
+            def photo_exposure(index):
+                if index not in exif_us:
+                    exif_us[index] = exif_exposure_us(images.files[index])
+                return exif_us[index]
+            first_index = first.index if first is not None else 0
+            cam, _ = _fit_photo(cam0, np.zeros(src.size[::-1], np.uint8), photo_exposure(first_index))
             rotate = False
         else:
             cam, rotate = fit_camera(cam, src.size)
@@ -502,9 +536,10 @@ def _main(args, stop: "SignalStop") -> int:
 
         rx = build(cam)
         positioner, vehicle = rx.positioner, rx.vehicle
-        for readable, note in rx.policy.exposure_notes():
-            if not readable:  # known before the first frame: say so at once
-                print(f"occloc: warning: {note}", file=sys.stderr)
+        if not (photos and exif_us.get(first_index)):   # a photo's EXIF is judged photo by photo
+            for readable, note in rx.policy.exposure_notes():
+                if not readable:  # known before the first frame: say so at once
+                    print(f"occloc: warning: {note}", file=sys.stderr)
         if settings_file is not None:
             write_settings(settings_file, rx)
         explain = positioner is not None and _indoor_lights(led_map)
@@ -529,7 +564,7 @@ def _main(args, stop: "SignalStop") -> int:
                 if photos:
                     name = os.path.basename(images.files[frame.index])
                     try:
-                        pcam, gray = _fit_photo(cam0, frame.gray)
+                        pcam, gray = _fit_photo(cam0, frame.gray, photo_exposure(frame.index))
                     except InputError as e:
                         if len(images.files) == 1:
                             raise InputError(f"{name}: {e}") from None
@@ -538,12 +573,16 @@ def _main(args, stop: "SignalStop") -> int:
                         continue
                     # Every photo gets a fresh receiver (nothing carries over from another photo);
                     # the one built for the settings serves the first photo of its size.
-                    if rx.frames or (pcam.width, pcam.height) != (cam.width, cam.height):
+                    if rx.frames or (pcam.width, pcam.height, pcam.exposure_us) != (
+                            rx.camera.width, rx.camera.height, rx.camera.exposure_us):
                         if hasattr(positioner, "close"):
                             positioner.close()
                         notes = rx.policy.absorb_notes(notes)  # the notes speak for every photo
                         rx = build(pcam)
                         positioner, vehicle = rx.positioner, rx.vehicle
+                    if exif_us.get(frame.index):
+                        for note in _photo_exposure_notes(rx, name, exif_us[frame.index]):
+                            print(f"occloc: warning: {note}", file=sys.stderr)
                     frame = Frame(frame.index, frame.t_s, gray)
                     fields["file"] = name
                 res = rx.process(frame)
