@@ -13,7 +13,8 @@ Views are filtered before calibrating:
 * too few corners (ChArUco: fewer than 6 detected).
 Chessboard corners come from OpenCV's sector-based finder (`cv2.findChessboardCornersSB`, with
 its accuracy flag: sub-pixel corners from the board's own sectors, more accurate than
-`findChessboardCorners` + `cornerSubPix`), the classic finder only where it finds nothing.
+`findChessboardCorners` + `cornerSubPix`), the classic finder only where it finds nothing. A
+view over `MAX_SEARCH_PIXELS` is searched downscaled and its corners refined on the full image.
 Then `cv2.calibrateCameraExtended` on the accepted views (at most `max_views`, spread evenly),
 which gives the RMS reprojection error and the per-view errors; views whose error exceeds
 `VIEW_ERROR_FACTOR` x the median (and `MIN_VIEW_ERROR_PX`) are dropped and the camera calibrated
@@ -46,6 +47,14 @@ MAX_RMS_PX = 1.0
 # The radial distortion factor 1 + k1 r^2 + k2 r^4 + k3 r^6 anywhere out to the image corner must
 # stay within these (a wide-angle webcam reaches ~0.7; a factor out of range is an overfit).
 MIN_RADIAL_SCALE, MAX_RADIAL_SCALE = 0.5, 1.5
+# Largest image OpenCV's chessboard search looks at (pixels): its cost grows with the image
+# (findChessboardCornersSB: about 0.25 GB and 3 s per megapixel; a 33 MP phone photo took 7 GB
+# and three minutes). A larger view is searched downscaled to this size and its corners are
+# refined on the full image (cv2.cornerSubPix), which keeps their full-resolution accuracy.
+MAX_SEARCH_PIXELS = 2_100_000
+# Half-size of the full-resolution refinement window, as a fraction of the corner spacing
+# (well inside a square, so a window never reaches the next corner), and its bounds (px).
+REFINE_WINDOW_FRAC, REFINE_WINDOW_PX = 0.2, (3, 30)
 # Longest side over shortest side of a camera's frame: sensors are 1:1 to 16:9, panoramic film
 # formats under 3:1. A longer strip is not a camera's view, and OpenCV's chessboard search costs
 # grow without bound with it (a 100x100000 image runs past ten minutes).
@@ -130,8 +139,10 @@ class ViewCollector:
     """Detects the board in frames and keeps the sharp, distinct views."""
 
     def __init__(self, board: Board, *, max_blur_px: float = 4.0, min_laplacian_var: float = 20.0,
-                 min_move_frac: float = 0.02):
+                 min_move_frac: float = 0.02, max_search_px: int = MAX_SEARCH_PIXELS):
         self.board = board
+        self.max_search_px = max_search_px
+        self.search_size: tuple[int, int] | None = None  # the downscaled search size, when views are large
         self.max_blur_px = max_blur_px
         self.min_laplacian_var = min_laplacian_var
         self.min_move_frac = min_move_frac
@@ -171,15 +182,29 @@ class ViewCollector:
     def _detect(self, gray):
         b = self.board
         if b.kind == "chess":
+            h, w = gray.shape[:2]
+            small = gray
+            if w * h > self.max_search_px:
+                f = math.sqrt(self.max_search_px / (w * h))
+                self.search_size = (max(1, int(w * f)), max(1, int(h * f)))
+                small = cv2.resize(gray, self.search_size, interpolation=cv2.INTER_AREA)
             ok, corners = cv2.findChessboardCornersSB(
-                gray, (b.cols, b.rows), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+                small, (b.cols, b.rows), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+            crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
             if not ok:
                 flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
-                ok, corners = cv2.findChessboardCorners(gray, (b.cols, b.rows), flags=flags)
+                ok, corners = cv2.findChessboardCorners(small, (b.cols, b.rows), flags=flags)
                 if not ok:
                     return None
-                crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
-                corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
+                if small is gray:
+                    corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), crit)
+            if small is not gray:
+                # pixel centres of the search image back to the full image's, then refined there
+                sx, sy = w / small.shape[1], h / small.shape[0]
+                pts = corners.reshape(-1, 2).astype(np.float64)
+                pts = np.column_stack(((pts[:, 0] + 0.5) * sx - 0.5, (pts[:, 1] + 0.5) * sy - 0.5))
+                corners = cv2.cornerSubPix(gray, pts.astype(np.float32).reshape(-1, 1, 2),
+                                           _refine_window(pts, b.cols), (-1, -1), crit)
             return corners.reshape(-1, 2).astype(np.float32), b.object_points(), None
         cc, cids, _mc, _mids = self._det.detectBoard(gray)
         if cids is None or len(cids) < 6:
@@ -213,6 +238,17 @@ class ViewCollector:
                         float(np.linalg.norm(p[a] - pts[c], axis=1).mean()) < lim:
                     return True
         return False
+
+
+def _refine_window(pts: np.ndarray, cols: int) -> tuple[int, int]:
+    """cornerSubPix's half-window for corners `pts` (row-major, `cols` a row): a fraction of the
+    smallest spacing of neighbouring corners (`REFINE_WINDOW_FRAC`, within `REFINE_WINDOW_PX`)."""
+    grid = pts.reshape(-1, cols, 2)
+    steps = [np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel(),
+             np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel()]
+    spacing = float(np.min(np.concatenate([s for s in steps if s.size]))) if any(s.size for s in steps) else 0.0
+    half = int(np.clip(round(REFINE_WINDOW_FRAC * spacing), *REFINE_WINDOW_PX))
+    return half, half
 
 
 def calibrate_views(col: ViewCollector, *, max_views: int = 40, K0: np.ndarray | None = None,

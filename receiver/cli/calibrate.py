@@ -93,6 +93,40 @@ def _open(spec: str, size):
     return open_source(spec, size=parse_size(size))
 
 
+def _board_frames(src, existing):
+    """The frames board views are looked for in. A folder's photos are every readable one, each
+    turned to the camera's orientation as `occloc run` turns a photo (portrait = sensor turned
+    clockwise): the camera's is EXISTING's (--camera), else landscape (sensors read rows along
+    their long side), so a phone's portrait and landscape shots calibrate one camera. A photo
+    of another size than the first (once turned) is skipped and said. Other sources as they come."""
+    if src.kind != "images":
+        yield from src
+        return
+    from receiver.cli.run import to_camera_orientation
+    from receiver.core.records import Frame
+    size, turned = None, []
+    for f in src.photos():
+        h, w = f.gray.shape[:2]
+        ref = (existing.width, existing.height) if existing is not None else (max(w, h), min(w, h))
+        gray, t = to_camera_orientation(f.gray, *ref)
+        name = os.path.basename(src.files[f.index])
+        if t:
+            turned.append(name)
+        got = (gray.shape[1], gray.shape[0])
+        if size is None:
+            size = got
+        elif got != size:
+            src.skipped += 1
+            print(f"occloc: warning: {name}: {w}x{h}, not the {size[0]}x{size[1]} of the first photo "
+                  f"(in the camera's orientation): skipped (calibrate photos of one size)", file=sys.stderr)
+            continue
+        yield Frame(f.index, f.t_s, gray)
+    if turned:
+        _progress(f"{len(turned)} photo(s) turned to the camera's {'portrait' if size[1] > size[0] else 'landscape'} "
+                  f"orientation ({size[0]}x{size[1]}), as occloc run turns them (portrait = sensor turned "
+                  f"clockwise): {', '.join(turned[:3])}{' ...' if len(turned) > 3 else ''}")
+
+
 def run_intrinsics(args) -> dict:
     import numpy as np
     from receiver.calibrate.intrinsics import ViewCollector, calibrate_views, calibration_problems, parse_board
@@ -107,7 +141,7 @@ def run_intrinsics(args) -> dict:
     col = ViewCollector(board, max_blur_px=args.max_blur_px)
     src = _open(args.source, args.size)
     try:
-        for frame in src:
+        for frame in _board_frames(src, existing):
             if args.max_frames is not None and col.stats.seen >= args.max_frames:
                 break
             what = col.add(frame.index, frame.gray)
@@ -115,6 +149,9 @@ def run_intrinsics(args) -> dict:
                 _progress(f"frame {frame.index}: {what} ({col.stats.accepted} views)")
     finally:
         src.close()
+    if col.search_size is not None:
+        _progress(f"views of {col.size[0]}x{col.size[1]} searched for the board at {col.search_size[0]}x"
+                  f"{col.search_size[1]} (bounded work), corners refined at full resolution")
     res = calibrate_views(col, max_views=args.max_views, min_views=MIN_VIEWS)
     for i, e in zip(res.frames, res.per_view_px):
         _progress(f"view frame {i}: {e:.3f} px")

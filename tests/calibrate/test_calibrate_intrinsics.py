@@ -149,3 +149,77 @@ def test_charuco_views():
         assert col.add(k, img) == "accepted"
     res = calibrate_views(col)
     assert np.isfinite(res.rms_px) and len(res.frames) == 6  # arbitrary homographies: no exact pinhole fit
+
+
+def test_portrait_and_landscape_photos_of_one_camera(board_folder, tmp_path, capsys):
+    """A phone's portrait shots beside its landscape ones: each portrait photo is turned to the
+    camera's (landscape) orientation as `occloc run` turns it, and every view is used."""
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    names = sorted(p.name for p in board_folder.glob("v??.png"))
+    for k, name in enumerate(names):
+        img = cv2.imread(str(board_folder / name), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(mixed / name), cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE) if k % 2 else img)
+    out = tmp_path / "cam.yaml"
+    assert occloc(["calibrate", "intrinsics", str(mixed), "--board", f"chess:{COLS}x{ROWS}",
+                   "--square-mm", "30", "--out", str(out)]) == 0
+    cap = capsys.readouterr()
+    line = json.loads(cap.out.strip().splitlines()[-1])
+    assert line["frames_seen"] == len(names) and line["views"] >= 16, line
+    assert f"{len(names) // 2} photo(s) turned to the camera's landscape orientation (800x600)" in cap.err
+    cam = load_camera(str(out))
+    assert (cam.width, cam.height) == (W, H)
+    for got, want in ((cam.fx, 820.0), (cam.fy, 815.0), (cam.cx, 405.0), (cam.cy, 296.0)):
+        assert abs(got / want - 1) < 0.003, (got, want)
+    assert line["rms_px"] < 0.3
+
+
+def test_portrait_photos_only_follow_the_existing_cameras_orientation(board_folder, tmp_path, capsys):
+    """Only portrait photos and no camera file: landscape (sensor rows along the long side); with
+    a portrait camera file, they stay portrait; a photo of another size is skipped and named."""
+    portrait = tmp_path / "portrait"
+    portrait.mkdir()
+    for name in sorted(p.name for p in board_folder.glob("v??.png"))[:10]:
+        img = cv2.imread(str(board_folder / name), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(portrait / name), cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE))
+    cv2.imwrite(str(portrait / "z_small.png"), np.zeros((300, 400), np.uint8))
+    out = tmp_path / "cam.yaml"
+    assert occloc(["calibrate", "intrinsics", str(portrait), "--board", f"chess:{COLS}x{ROWS}",
+                   "--square-mm", "30", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "z_small.png: 400x300, not the 800x600 of the first photo" in err
+    cam = load_camera(str(out))
+    assert (cam.width, cam.height) == (W, H) and abs(cam.cy / 296.0 - 1) < 0.005
+    from receiver.io.camera import CameraModel, camera_yaml
+    upright = tmp_path / "upright.yaml"
+    upright.write_text(camera_yaml(CameraModel(H, W, np.array([[800.0, 0, 299.5], [0, 800.0, 399.5], [0, 0, 1]]),
+                                               np.zeros(5), row_readout_us=20.0)))
+    out2 = tmp_path / "cam2.yaml"
+    assert occloc(["calibrate", "intrinsics", str(portrait), "--board", f"chess:{COLS}x{ROWS}",
+                   "--square-mm", "30", "--out", str(out2), "--camera", str(upright)]) == 0
+    cam2 = load_camera(str(out2))
+    assert (cam2.width, cam2.height) == (H, W)
+
+
+def test_a_large_view_is_searched_downscaled_and_refined_at_full_resolution(board_folder, monkeypatch):
+    """The board search sees at most `max_search_px` pixels (OpenCV's search costs ~0.25 GB per
+    megapixel: a 33 MP photo took 7 GB), the corners are refined on the full image: the
+    intrinsics stay as accurate as a search at full size."""
+    searched = []
+    real = cv2.findChessboardCornersSB
+
+    def spy(img, *a, **kw):
+        searched.append(img.shape[0] * img.shape[1])
+        return real(img, *a, **kw)
+    monkeypatch.setattr(cv2, "findChessboardCornersSB", spy)
+    limit = W * H // 4
+    col = ViewCollector(parse_board(f"chess:{COLS}x{ROWS}", SQ * 1000), max_search_px=limit)
+    for k, p in enumerate(sorted(board_folder.glob("v??.png"))):
+        col.add(k, cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    assert searched and max(searched) <= limit
+    assert col.search_size is not None and col.search_size[0] * col.search_size[1] <= limit
+    res = calibrate_views(col)
+    K = res.K
+    for got, want in ((K[0, 0], 820.0), (K[1, 1], 815.0), (K[0, 2], 405.0), (K[1, 2], 296.0)):
+        assert abs(got / want - 1) < 0.003, (got, want)
+    assert 0 < res.rms_px < 0.3 and len(res.frames) >= 16
