@@ -10,7 +10,9 @@ that need a clip (drift, banding, timestamps) say they do not apply.
   clip (blobs associated by nearest centroid); OOK and tone lights need deep stripes.
 * exposure: the photos' own EXIF shutter time where they have one, else estimated from the
   stripes (`receiver.calibrate.rows`, else the edge ramps of the LEDs' row profiles,
-  `receiver.decode.exposure.ramp_exposure_rows`) or the camera file's `exposure_us`. OOK chips
+  `receiver.decode.exposure.ramp_exposure_rows`, which saturate near two chips: past a chip or
+  so the chip sequence fit `receiver.calibrate.rows.long_exposure_chips`) or the camera file's
+  `exposure_us`. OOK chips
   are read up to `MAX_EXPOSURE_CHIPS` chips of exposure (the exposure model; `exposure_verdict`
   names the exposure and chip rate that would work), a tone's stripes keep their depth up to
   its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one row
@@ -37,7 +39,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from receiver.calibrate.rows import edge_blur_px, exposure_limit_us, measure_row_time
+from receiver.calibrate.rows import (LONG_FROM_CHIPS, edge_blur_px, exposure_limit_us, long_exposure_chips,
+                                     measure_row_time)
 from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
 from receiver.decode.ook import rows_per_chip
 from receiver.decode.policy import map_rates_hz
@@ -60,6 +63,9 @@ GAP_FACTOR = 1.5
 MOVING_PX = 40.0
 ASSOC_PX = 40.0
 MAX_RAMP_PROFILES = 60
+# Exposures past a chip or so are told by a chip sequence fit over the first this many of them
+# (its cost grows with each profile).
+SEQUENCE_FIT_PROFILES = 12
 
 
 @dataclass
@@ -273,6 +279,13 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
             pass
         elif ramp is not None and ramp >= MODEL_FROM_CHIPS * 1e6 / max(ook):
             est, how = ramp, "edge ramps"
+            # the ramps saturate near two chips (every row's window then holds edges at both
+            # ends): past a chip or so, the chip sequence fit tells a longer exposure
+            per_chip = rows_per_chip(max(ook), camera.row_readout_us)
+            e_long = long_exposure_chips(ook_profiles[:SEQUENCE_FIT_PROFILES], per_chip,
+                                         (float(np.median(blurs)) if blurs else 0.0) / per_chip)
+            if e_long is not None and e_long >= LONG_FROM_CHIPS:
+                est, how = e_long * 1e6 / max(ook), "chip sequence fit"
         else:
             try:
                 mode, rate = ("ook", max(ook)) if ook else ("tone", max(tone))
