@@ -25,14 +25,15 @@ def add_arguments(p) -> None:
 def main(args) -> int:
     from receiver.core.errors import InputError
     from receiver.evaluate import export
-    from receiver.io.files import AtomicWriter, dumps, read_jsonl, refuse_overwrite
+    from receiver.io.files import claim_output, dumps, read_jsonl
 
+    output = claim_output(args.out, [args.run], "--out")
     if args.out is not None:
         ext = os.path.splitext(args.out)[1].lower()
-        if ext not in export.EXTENSIONS[args.format]:
+        # no extension: a device or pipe (/dev/stdout, /dev/null) or a name of the user's choice
+        if ext and ext not in export.EXTENSIONS[args.format]:
             raise InputError(f"--out {args.out}: a {args.format} file ends in "
-                             f"{' or '.join(export.EXTENSIONS[args.format])}, not {ext or 'no extension'}")
-        refuse_overwrite(args.out, [args.run], "--out")
+                             f"{' or '.join(export.EXTENSIONS[args.format])}, not {ext}")
     origin = export.parse_origin(args.origin) if args.format == "geojson" else None
     lines = [obj for _, obj in read_jsonl(args.run, "run")]
     note = ""
@@ -56,13 +57,8 @@ def main(args) -> int:
         sys.stdout.write(text)
         sys.stdout.flush()
     else:
-        out = AtomicWriter(args.out)
-        try:
+        with output.open() as out:
             out.write(text)
-            out.commit()
-        except BaseException:
-            out.discard()
-            raise
     kind = export.trajectory_kind(lines)
     what = {"truth": "truth camera poses", "position": "positions", "hv": "host-vehicle poses"}[kind]
     print(f"occloc: {n} {'rows' if args.format == 'csv' else what} of {len(lines)} lines written"

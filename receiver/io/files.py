@@ -111,14 +111,35 @@ def check_nesting(text: str, where: str, max_depth: int = MAX_NESTING, yaml: boo
             raise InputError(f"{where}: nested more than {max_depth} levels deep")
 
 
-def loads(text: str, where: str):
+class _DuplicateKey(ValueError):
+    pass
+
+
+def _unique_keys(pairs):
+    """object_pairs_hook: the object, or _DuplicateKey when a key is given twice (json.loads
+    keeps the last silently: a map whose second "leds" list replaced the first lost every light
+    of it without a word)."""
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise _DuplicateKey(f"key {k!r} given twice in one object")
+            seen.add(k)
+    return obj
+
+
+def loads(text: str, where: str, *, unique_keys: bool = False):
     """json.loads with a one-line error for malformed text, too deep nesting and integers too
     long for Python (ValueError). NaN/Infinity tokens parse to floats: every field's validator
-    rejects non-finite numbers with its own name."""
+    rejects non-finite numbers with its own name. `unique_keys`: a key given twice in one object
+    is an error (files a user writes by hand: maps, settings)."""
     try:
-        return json.loads(text)
+        return json.loads(text, object_pairs_hook=_unique_keys) if unique_keys else json.loads(text)
     except RecursionError:
         raise InputError(f"{where}: nested too deeply") from None
+    except _DuplicateKey as e:
+        raise InputError(f"{where}: {e}") from None
     except ValueError as e:  # json.JSONDecodeError, huge integers, NaN
         msg = getattr(e, "msg", None) or str(e).splitlines()[0]
         raise InputError(f"{where}: not valid JSON ({msg})") from None
@@ -130,7 +151,7 @@ def load_json(path: str, what: str, max_bytes: int = MAX_JSON_BYTES):
     except UnicodeDecodeError:
         raise InputError(f"{path}: not valid JSON (not UTF-8 text)") from None
     check_nesting(text, path)
-    return loads(text, path)
+    return loads(text, path, unique_keys=True)
 
 
 # Names in an input folder that a command reads: a recording's files and any image or video
