@@ -9,7 +9,6 @@ Everything that goes wrong while reading raises `InputError` with a one-line rea
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import cv2
@@ -156,10 +155,9 @@ def check_camera(cam: CameraModel, path: str = "camera") -> CameraModel:
 
 def load_camera(path: str) -> CameraModel:
     """Read a camera file (OpenCV FileStorage YAML)."""
-    from receiver.io.files import MAX_CAMERA_BYTES, check_nesting, cv_path, read_bytes
+    from receiver.io.files import MAX_CAMERA_BYTES, check_nesting, check_regular, cv_path, read_bytes
 
-    if not os.path.isfile(path):
-        raise InputError(f"camera file not found: {path}")
+    check_regular(path, "camera file")   # missing, or a folder, FIFO or device: said as such
     # cv2.FileStorage recurses per nesting level: 50,000 '[' are a SIGSEGV, not an error.
     text = read_bytes(path, "camera file", MAX_CAMERA_BYTES).decode("utf-8", "replace")
     if "\0" in text or "\ufffd" in text:

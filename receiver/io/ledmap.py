@@ -5,7 +5,6 @@ errors (`parse_map`, `load_map`) and writing (`save_map`).
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -273,10 +272,9 @@ def parse_map(obj, path: str = "map.json") -> LedMap:
 
 def load_map(path: str) -> LedMap:
     """Read and validate a map.json file."""
-    from receiver.io.files import load_json
+    from receiver.io.files import check_regular, load_json
 
-    if not os.path.isfile(path):
-        raise InputError(f"map file not found: {path}")
+    check_regular(path, "map file")   # missing, or a folder, FIFO or device: said as such
     # size and nesting guard, NaN/Infinity and huge integers refused (receiver.io.files)
     return parse_map(load_json(path, "map file"), path)
 

@@ -51,3 +51,15 @@ def test_export_writes_a_fifo_by_its_name(tmp_path, capsys):
     # and an input is never an output
     assert cli(["export", str(run), "--format", "csv", "--out", str(run)]) == 2
     assert json.loads(run.read_text().splitlines()[0])["frame"] == 0
+
+
+def test_a_fifo_or_folder_given_as_camera_or_map_is_named_as_such(tmp_path, capsys):
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    for flag, what in (("--camera", "camera file"), ("--map", "map file")):
+        for path, kind in ((fifo, "a FIFO"), (tmp_path, "a folder")):
+            assert cli(["run", str(STATIC), "--max-frames", "1", flag, str(path)]) == 2
+            assert capsys.readouterr().err.strip().splitlines()[-1] == \
+                f"occloc: {path}: {what} is {kind}, not a regular file"
+    assert cli(["run", str(STATIC), "--camera", str(tmp_path / "none.yaml")]) == 2
+    assert capsys.readouterr().err.strip() == f"occloc: camera file not found: {tmp_path / 'none.yaml'}"
