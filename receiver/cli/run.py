@@ -536,6 +536,15 @@ def _main(args, stop: "SignalStop") -> int:
 
         rx = build(cam)
         positioner, vehicle = rx.positioner, rx.vehicle
+        if given["receiver"] is not None:
+            # The decoders a light and a pair get, built once before the first frame: decoder
+            # settings that do not fit the map's lights (an S2-PSK history shorter than one of its
+            # packets) are a one-line error before any work, not a traceback at the first light.
+            try:
+                rx.policy.new_light()
+                rx.policy.new_pair_decoders()
+            except ValueError as e:
+                raise InputError(f"{args.settings}: {e}") from None
         if not (photos and exif_us.get(first_index)):   # a photo's EXIF is judged photo by photo
             for readable, note in rx.policy.exposure_notes():
                 if not readable:  # known before the first frame: say so at once

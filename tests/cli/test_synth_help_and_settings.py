@@ -75,3 +75,18 @@ def test_run_settings_errors_are_one_line(tmp_path, capsys, text, msg):
     assert cli(["run", str(STATIC), "--settings", str(f), "--out", str(tmp_path / "o.jsonl")]) == 2
     err = capsys.readouterr().err
     assert msg in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("value", [0, 0.5, 1e-9])
+def test_an_s2psk_history_shorter_than_a_packet_is_refused_before_any_work(value, tmp_path, capsys):
+    """The S2-PSK decoder needs a whole packet of samples (2.4 s at the map's 200 Hz clock): a
+    settings file with a shorter history is one line naming the file, not a traceback when the
+    first pair is seen."""
+    veh = ROOT / "recordings" / "vehicle"
+    s = tmp_path / "s.json"
+    s.write_text(json.dumps({"receiver": {"s2psk": {"history_s": value}}}))
+    out = tmp_path / "run.jsonl"
+    assert cli(["run", str(veh), "--max-frames", "40", "--settings", str(s), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"occloc: {s}: history_s must hold a whole packet (2.4 s)"), err
+    assert not out.exists()
