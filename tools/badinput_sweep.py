@@ -4,6 +4,7 @@ hidden temporary file, and keeps standard output clean.
 
     python tools/badinput_sweep.py [--quick] [--seed N] [--budget-s S] [--realtime-runs 20]
                                    [--only SUBSTRING] [--keep]
+    python tools/badinput_sweep.py --settings-probe [--only FIELD-SUBSTRING]
 
 Prints one row per case: input, exit code, first line of stderr, traceback yes/no, input
 intact yes/no, and a closing line `N cases, M held`. Exits 1 when any row has a traceback, a
@@ -12,6 +13,9 @@ folder; the bundled recordings are only read. `--quick`: the cases marked quick 
 every command and class, a few frames each), for CI. `--seed`: the seeded cases (random option
 values, random cuts and byte flips, signal delays) draw from random.Random(seed). `--budget-s`:
 cases not started within this many seconds are counted as not run (said in the closing line).
+`--settings-probe`: instead of the cases, every numeric field of every settings record is set to
+each of `PROBE_VALUES` in a file given to `occloc run --settings` (in this process: thousands of
+runs); each must run cleanly or be refused in one line.
 """
 
 from __future__ import annotations
@@ -261,6 +265,17 @@ def _json_lines_only(rc, out, err):
 
 def _no_nan(rc, out, err):
     return "nan in output" if re.search(r"\bnan\b", out + err, re.I) else ""
+
+
+def _clean_end(rc, out, err):
+    """Exit 0 with no NaN in the output, or a refusal whose last stderr line is our one-line
+    error (which may quote a bad value, NaN included) and no NaN on standard output."""
+    if rc == 0:
+        return _no_nan(rc, out, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    if not lines or not lines[-1].startswith("occloc"):
+        return "no one-line error"
+    return "nan in output" if re.search(r"\bnan\b", out, re.I) else ""
 
 
 def _says(*words):
@@ -552,6 +567,246 @@ def build_more_cases(tmp: str, rng) -> list[Case]:
     return cases
 
 
+def build_extra_cases(tmp: str, rng, quick: bool = False) -> list[Case]:
+    """Cut compressed videos, hostile camera numbers, duplicate and huge maps, full devices as
+    every kind of output, FIFOs and empty files as every kind of input, names in other scripts;
+    `rng` draws the cut points. `quick`: the inputs only the full form uses are not made."""
+    static = os.path.join(REC, "indoor-static")
+    cases: list[Case] = []
+    base = os.path.join(tmp, "extra")
+    os.makedirs(base)
+    r = os.path.join(base, "rec")
+    shutil.copytree(static, r)
+    cam, map_, truth = (os.path.join(r, n) for n in ("camera.yaml", "map.json", "truth.jsonl"))
+    o = os.path.join(base, "outs")
+    os.makedirs(o)
+
+    def case(name, argv, inputs=(r,), **kw):
+        kw.setdefault("clean", [o, r, base])
+        cases.append(Case(name, argv, list(inputs), **kw))
+
+    def write(name, text):
+        pth = os.path.join(base, name)
+        with open(pth, "w", encoding="utf-8") as f:
+            f.write(text)
+        return pth
+
+    one_line = _clean_end
+    # -- compressed videos cut at seeded points (MJPEG in AVI, H.264 in MP4)
+    for codec, ext in ((("mjpeg", "avi"),) if not quick else ()) + (("h264", "mp4"),):
+        made = os.path.join(base, f"synth-{codec}")
+        subprocess.run(occloc("synth", "indoor-static", "--frames", "12", "--codec", codec, "--out", made), cwd=ROOT,
+                       capture_output=True, timeout=TIMEOUT_S)
+        video = next((os.path.join(made, n) for n in sorted(os.listdir(made)) if n.startswith("video."))
+                     if os.path.isdir(made) else None, None)
+        if video is None:
+            continue   # this OpenCV cannot write the codec: nothing to cut
+        data = open(video, "rb").read()
+        for k in range(2):
+            cut = rng.uniform(0.05, 0.95)
+            pth = os.path.join(base, f"cut-{codec}-{k}.{ext}")
+            open(pth, "wb").write(data[:int(len(data) * cut)])
+            case(f"run {codec} video cut at {cut:.2f}", occloc("run", pth, "--camera", cam, "--map", map_),
+                 [pth, r], expect=(0, 2), check=_all(_no_raw_decoder_text, _clean_end), quick=k == 0 and codec == "h264")
+    # -- camera files: negative and non-finite numbers in every key
+    cam_ok = open(cam, encoding="utf-8").read()
+    for key, value in [("image_width", "-1280"), ("image_height", "0"), ("row_readout_us", "-15."),
+                       ("exposure_us", "-20."), ("fps", "-30."), ("fps", ".nan"), ("focal_length_mm", "-3."),
+                       ("pixel_size_um", "0.")]:
+        text = re.sub(rf"(?m)^{key}:.*$", f"{key}: {value}", cam_ok)
+        pth = write(f"cam-{key}{value}.yaml", text)
+        case(f"run --camera {key}: {value}", occloc("run", r, "--max-frames", "2", "--camera", pth),
+             [r, pth], expect=(0, 2), check=_clean_end, quick=key == "row_readout_us")
+    for label, data in [("fx NaN", "[ .nan, 0., 639.5, 0., 1000., 359.5, 0., 0., 1. ]"),
+                        ("fx negative", "[ -1000., 0., 639.5, 0., 1000., 359.5, 0., 0., 1. ]"),
+                        ("cx infinite", "[ 1000., 0., .inf, 0., 1000., 359.5, 0., 0., 1. ]")]:
+        text = re.sub(r"data: \[ 1000\.[^\]]*\]", "data: " + data, cam_ok, count=1)
+        pth = write(f"cam-K-{label.replace(' ', '_')}.yaml", text)
+        case(f"run --camera camera_matrix {label}", occloc("run", r, "--max-frames", "2", "--camera", pth),
+             [r, pth], expect=(2,), check=one_line)
+        case(f"calibrate rows --camera camera_matrix {label}",
+             occloc("calibrate", "rows", r, "--camera", pth, "--ook-rate", "20000", "--max-frames", "3",
+                    "--out", os.path.join(o, "k.yaml")), [r, pth], expect=(2,), check=one_line)
+    # -- maps: duplicate IDs, duplicate keys, NaN coordinates, a huge one
+    m = json.load(open(map_, encoding="utf-8"))
+    dup = json.loads(json.dumps(m))
+    dup["leds"].append(dict(dup["leds"][0]))
+    case("run --map with a duplicate LED id", occloc("run", r, "--max-frames", "2", "--map",
+                                                     write("map-dup.json", json.dumps(dup))),
+         expect=(2,), check=one_line, quick=True)
+    text = json.dumps(m).replace('"leds":', '"leds": [], "leds":', 1)
+    case("run --map with a duplicate key", occloc("run", r, "--max-frames", "2", "--map", write("map-dupkey.json", text)),
+         expect=(2,), check=_all(_clean_end, _says("given twice")))
+    nan = json.dumps(m).replace('"x": ', '"x": NaN, "_x": ', 1)
+    case("run --map with x: NaN", occloc("run", r, "--max-frames", "2", "--map", write("map-nan.json", nan)),
+         expect=(2,), check=one_line)
+    if quick:
+        big = None
+    else:
+        big = {k: v for k, v in m.items() if k != "leds"}
+    if big is not None:
+        led0 = m["leds"][0]
+        big["leds"] = [{**led0, "id": i, "x": (i % 256) * 0.1, "y": (i // 256) * 0.1} for i in range(1 << 16)]
+        hp = write("map-huge.json", json.dumps(big))
+        case("run --map of every ID (65,536 LEDs)", occloc("run", r, "--max-frames", "2", "--map", hp), [r, hp],
+             expect=(0, 2), check=_clean_end)
+        pad = json.dumps(m).replace('"leds":', '"notes": "' + "x" * (80 << 20) + '", "leds":', 1)
+        pp = write("map-80mb.json", pad)
+        case("run --map of 80 MB", occloc("run", r, "--max-frames", "2", "--map", pp), [r, pp], expect=(2,),
+             check=_clean_end)
+    # -- /dev/full as each command's file output (a device: written to, never replaced)
+    run_file = os.path.join(base, "run.jsonl")
+    subprocess.run(occloc("run", static, "--max-frames", "3", "--out", run_file), cwd=ROOT, capture_output=True,
+                   timeout=TIMEOUT_S)
+    full = "/dev/full"
+    for label, argv in [("run --out", ("run", r, "--max-frames", "2", "--out", full)),
+                        ("run --settings-out", ("run", r, "--max-frames", "2", "--out", os.path.join(o, "x.jsonl"),
+                                                "--settings-out", full)),
+                        ("eval --plot", ("eval", run_file, "--truth", truth, "--plot", full)),
+                        ("export --out", ("export", run_file, "--format", "csv", "--out", full)),
+                        ("calibrate rows --out", ("calibrate", "rows", r, "--camera", cam, "--ook-rate", "20000",
+                                                  "--max-frames", "3", "--out", full))]:
+        case(f"{label} /dev/full", occloc(*argv), [r, run_file], expect=(2,),
+             check=lambda rc, out, err: "" if stat.S_ISCHR(os.stat(full).st_mode) else "/dev/full replaced",
+             quick=label == "export --out")
+    # -- FIFOs (no writer) and empty files as every kind of input: never a hang
+    fifo = os.path.join(base, "fifo.yaml")
+    os.mkfifo(fifo)
+    for label, argv in [("run --camera FIFO", ("run", r, "--max-frames", "2", "--camera", fifo)),
+                        ("run --map FIFO", ("run", r, "--max-frames", "2", "--map", fifo)),
+                        ("run --settings FIFO", ("run", r, "--max-frames", "2", "--settings", fifo)),
+                        ("eval --truth FIFO", ("eval", run_file, "--truth", fifo)),
+                        ("export FIFO", ("export", fifo, "--format", "csv"))]:
+        case(label, occloc(*argv), [r], expect=(2,), check=one_line, quick=label == "run --map FIFO")
+    empty = os.path.join(base, "empty")
+    os.makedirs(empty)
+    for n in ("camera.yaml", "map.json", "video.avi", "truth.jsonl", "settings.json", "run.jsonl", "x.png"):
+        open(os.path.join(empty, n), "wb").close()
+    e = lambda n: os.path.join(empty, n)  # noqa: E731
+    for label, argv in [("run a recording of 0-byte files", ("run", empty)),
+                        ("run a 0-byte video", ("run", e("video.avi"), "--camera", cam, "--map", map_)),
+                        ("run a 0-byte photo", ("run", e("x.png"), "--camera", cam, "--map", map_)),
+                        ("run --settings 0-byte", ("run", r, "--max-frames", "2", "--settings", e("settings.json"))),
+                        ("eval a 0-byte run", ("eval", e("run.jsonl"), "--truth", truth)),
+                        ("eval --truth 0-byte", ("eval", run_file, "--truth", e("truth.jsonl"))),
+                        ("export a 0-byte run", ("export", e("run.jsonl"), "--format", "tum")),
+                        ("check a 0-byte video", ("check", e("video.avi"), "--camera", cam, "--map", map_)),
+                        ("calibrate rows --camera 0-byte", ("calibrate", "rows", r, "--camera", e("camera.yaml"),
+                                                            "--ook-rate", "20000", "--out", os.path.join(o, "e.yaml")))]:
+        case(label, occloc(*argv), [r, empty], expect=(0, 2), check=_clean_end,
+             quick=label == "run a recording of 0-byte files")
+    # -- names in other scripts (UTF-8): every command reads and writes them
+    uni = os.path.join(base, "caf\u00e9 \u6d4b\u8bd5 \U0001f4a1")
+    shutil.copytree(static, uni)
+    uo = os.path.join(uni, "\u00e9t\u00e9.jsonl")
+    case("run a folder named in three scripts", occloc("run", uni, "--max-frames", "3", "--out", uo), [r], expect=(0,),
+         check=lambda rc, out, err: "" if os.path.getsize(uo) > 0 else "no output", quick=True)
+    case("eval, export, check, calibrate rows under that name",
+         f"{PY} -m receiver.cli run '{uni}' --max-frames 3 --out '{uni}/r.jsonl' 2>/dev/null && "
+         f"{PY} -m receiver.cli eval '{uni}/r.jsonl' --truth '{uni}/truth.jsonl' >/dev/null && "
+         f"{PY} -m receiver.cli export '{uni}/r.jsonl' --format csv --out '{uni}/r.csv' && "
+         f"{PY} -m receiver.cli check '{uni}' --max-frames 5 >/dev/null; test $? -le 1 && "
+         f"exec {PY} -m receiver.cli calibrate rows '{uni}' --camera '{uni}/camera.yaml' --ook-rate 20000 "
+         f"--max-frames 5 --out '{uni}/c.yaml' >/dev/null", [r], shell=True, expect=(0,))
+    return cases
+
+
+# Values every numeric field of every settings record is tried with (`settings_probe`): zero,
+# the smallest and the largest magnitudes a settings file may hold, a fraction for a count, and
+# one past the largest. A field either refuses a value in one line or runs with it cleanly.
+PROBE_VALUES = (0, -1, 1e-9, 0.5, 1e9, 1e9 + 1)
+
+
+def _leaves(d: dict, path=()) -> list[tuple]:
+    """Paths of the numeric (not boolean) leaves of a settings object, and of those left unset
+    (null: e.g. a tone band's limits, which a user sets to numbers)."""
+    out = []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out += _leaves(v, path + (k,))
+        elif v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)):
+            out.append(path + (k,))
+    return out
+
+
+def settings_probe(tmp: str, *, frames: int = 3, vehicle_frames: int = 40, timeout_s: int = 60,
+                   only: str | None = None, values=PROBE_VALUES) -> list[dict]:
+    """Every numeric or unset field of every settings record (receiver, locate on indoor-static,
+    `frames` frames; vehicle and the S2-PSK decoder on the vehicle recording, `vehicle_frames`:
+    a packet's worth), each of `values`, through `occloc run REC --settings FILE --max-frames N`
+    in this process (a few thousand runs: a process each would
+    take an hour). A row per run: field, value, exit code, first stderr line, problem ('' when
+    it held: exit 0 with no NaN in the output, or exit 2 with one line of error; a traceback,
+    a hang past `timeout_s` or another exit is a problem)."""
+    import contextlib
+    import io
+    import traceback
+
+    from receiver.cli import main as occloc_main
+
+    class Hang(BaseException):
+        pass
+
+    def alarm(signum, frame):
+        raise Hang()
+
+    rows = []
+    old = signal.signal(signal.SIGALRM, alarm)
+    try:
+        for rec in ("indoor-static", "vehicle"):
+            src = os.path.join(REC, rec)
+            base = os.path.join(tmp, f"probe-{rec}.json")
+            occloc_main(["run", src, "--max-frames", "1", "--settings-out", base, "--out", os.devnull])
+            settings = json.load(open(base, encoding="utf-8"))
+            stages = ("receiver", "locate") if rec == "indoor-static" else ("vehicle", "receiver.s2psk")
+            for path in _leaves(settings):
+                name = ".".join(path)
+                if not any(name.startswith(st) for st in stages) or (only and only not in name):
+                    continue
+                if rec == "indoor-static" and name.startswith("receiver.s2psk"):
+                    continue   # no S2-PSK light there: probed on the vehicle recording
+                for value in values:
+                    s = json.loads(json.dumps(settings))
+                    d = s
+                    for k in path[:-1]:
+                        d = d[k]
+                    d[path[-1]] = value
+                    sp, out = os.path.join(tmp, "probe.json"), os.path.join(tmp, "probe.jsonl")
+                    with open(sp, "w", encoding="utf-8") as f:
+                        json.dump(s, f)
+                    err = io.StringIO()
+                    problem, rc = "", None
+                    signal.alarm(timeout_s)
+                    try:
+                        with contextlib.redirect_stderr(err):
+                            n = frames if rec == "indoor-static" else vehicle_frames
+                            rc = occloc_main(["run", src, "--max-frames", str(n), "--settings", sp, "--out", out])
+                    except Hang:
+                        problem = f"no end within {timeout_s} s"
+                    except BaseException as e:   # a traceback a user would have seen
+                        problem = f"traceback: {type(e).__name__}: {str(e)[:80]}"
+                        last = traceback.extract_tb(e.__traceback__)[-1]
+                        problem += f" ({os.path.relpath(last.filename, ROOT)}:{last.lineno})"
+                    finally:
+                        signal.alarm(0)
+                    lines = [ln for ln in err.getvalue().splitlines() if ln.strip()]
+                    if not problem:
+                        if rc == 0:
+                            text = (open(out, encoding="utf-8").read() if os.path.exists(out) else "") + err.getvalue()
+                            if re.search(r"\bnan\b", text, re.I):
+                                problem = "nan in output"
+                        elif rc == 2:
+                            if not lines or not lines[-1].startswith("occloc: "):
+                                problem = "exit 2 without a one-line error"
+                        else:
+                            problem = f"exit {rc}"
+                    rows.append({"field": name, "value": value, "rc": rc, "stderr": lines[-1][:100] if lines else "",
+                                 "problem": problem})
+    finally:
+        signal.signal(signal.SIGALRM, old)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realtime-runs", type=int, default=20, help="realtime runs of each kind (20)")
@@ -560,7 +815,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="only the quick cases (CI)")
     ap.add_argument("--seed", type=int, default=1, help="seed of the drawn cases (1)")
     ap.add_argument("--budget-s", type=float, default=None, help="start no case after this many seconds")
+    ap.add_argument("--settings-probe", action="store_true",
+                    help="instead of the cases: every numeric settings field with zero, tiny, fractional and "
+                         "huge values, run in this process (--only: fields containing this)")
     args = ap.parse_args(argv)
+    if args.settings_probe:
+        return _main_probe(args)
     import random
     tmp = tempfile.mkdtemp(prefix="occloc-sweep-")
     bad = held = skipped = 0
@@ -569,6 +829,7 @@ def main(argv=None) -> int:
         rng = random.Random(args.seed)
         cases = [] if args.quick else build_cases(tmp, args.realtime_runs)
         cases += build_more_cases(tmp, rng)
+        cases += build_extra_cases(tmp, rng, quick=args.quick)
         if args.quick:
             cases = [c for c in cases if c.quick]
         if args.only:
@@ -592,6 +853,23 @@ def main(argv=None) -> int:
             shutil.rmtree(tmp, ignore_errors=True)
     print(f"{bad} problem row(s)" if bad else "no traceback, hang or damaged input")
     print(f"seed {args.seed}: {held + bad} cases, {held} held" + (f", {skipped} not run (budget)" if skipped else ""))
+    return 1 if bad else 0
+
+
+def _main_probe(args) -> int:
+    tmp = tempfile.mkdtemp(prefix="occloc-probe-")
+    try:
+        rows = settings_probe(tmp, only=args.only)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    bad = [r for r in rows if r["problem"]]
+    for r in rows:
+        if r["problem"]:
+            print(f"{r['field'][:50]:50} {r['value']!s:>10} {str(r['rc']):>5}  {r['stderr'][:60]}"
+                  + (f"  <-- {r['problem']}" if r["problem"] else ""), flush=True)
+    fields = len({r["field"] for r in rows})
+    print(f"settings probe: {fields} fields x {len(PROBE_VALUES)} values, {len(rows)} runs, "
+          f"{len(rows) - len(bad)} held, {sum(r['rc'] == 2 for r in rows)} refused in one line")
     return 1 if bad else 0
 
 
