@@ -393,7 +393,12 @@ def test_sigint_while_loading_exits_130_quietly():
         time.sleep(delay)
         p.send_signal(signal.SIGINT)
         _, err = p.communicate(timeout=120)
-        assert "Traceback" not in err.decode(), (delay, err.decode())
+        text = err.decode()
+        if text.startswith("Fatal Python error: init_import_site"):
+            # the interpreter's own start-up (its site module), before any code of the project
+            # runs: on a loaded machine it can still be there after the delay
+            continue
+        assert "Traceback" not in text, (delay, text)
         assert p.returncode in (130, -signal.SIGINT, 0, 1), (delay, p.returncode)
 
 
