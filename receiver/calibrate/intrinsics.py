@@ -143,6 +143,7 @@ class ViewCollector:
         self.board = board
         self.max_search_px = max_search_px
         self.search_size: tuple[int, int] | None = None  # the downscaled search size, when views are large
+        self._search = None   # (search image, x and y scale) of the last view, when downscaled
         self.max_blur_px = max_blur_px
         self.min_laplacian_var = min_laplacian_var
         self.min_move_frac = min_move_frac
@@ -184,6 +185,7 @@ class ViewCollector:
         if b.kind == "chess":
             h, w = gray.shape[:2]
             small = gray
+            self._search = None
             if w * h > self.max_search_px:
                 f = math.sqrt(self.max_search_px / (w * h))
                 self.search_size = (max(1, int(w * f)), max(1, int(h * f)))
@@ -205,6 +207,7 @@ class ViewCollector:
                 pts = np.column_stack(((pts[:, 0] + 0.5) * sx - 0.5, (pts[:, 1] + 0.5) * sy - 0.5))
                 corners = cv2.cornerSubPix(gray, pts.astype(np.float32).reshape(-1, 1, 2),
                                            _refine_window(pts, b.cols), (-1, -1), crit)
+                self._search = (small, sx, sy)
             return corners.reshape(-1, 2).astype(np.float32), b.object_points(), None
         cc, cids, _mc, _mids = self._det.detectBoard(gray)
         if cids is None or len(cids) < 6:
@@ -217,7 +220,13 @@ class ViewCollector:
     def _blurred(self, gray, pts) -> bool:
         b = self.board
         if b.kind == "chess":
-            sharp = cv2.estimateChessboardSharpness(gray, (b.cols, b.rows), pts.reshape(-1, 1, 2))
+            if self._search is not None:
+                # judged where it was searched: `max_blur_px` is an edge width at the search's
+                # scale (a sharp 33 MP photo's edges span more pixels than a webcam's)
+                gray, sx, sy = self._search
+                pts = np.column_stack(((pts[:, 0] + 0.5) / sx - 0.5, (pts[:, 1] + 0.5) / sy - 0.5))
+            sharp = cv2.estimateChessboardSharpness(gray, (b.cols, b.rows),
+                                                    pts.astype(np.float32).reshape(-1, 1, 2))
             return float(sharp[0][0]) > self.max_blur_px
         hull = cv2.convexHull(pts.astype(np.float32)).astype(np.int32)
         mask = np.zeros(gray.shape[:2], np.uint8)

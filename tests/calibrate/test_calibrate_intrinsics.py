@@ -223,3 +223,19 @@ def test_a_large_view_is_searched_downscaled_and_refined_at_full_resolution(boar
     for got, want in ((K[0, 0], 820.0), (K[1, 1], 815.0), (K[0, 2], 405.0), (K[1, 2], 296.0)):
         assert abs(got / want - 1) < 0.003, (got, want)
     assert 0 < res.rms_px < 0.3 and len(res.frames) >= 16
+
+
+def test_sharpness_of_a_large_view_is_judged_at_the_search_scale(board_folder):
+    """A sharp view taken at 3x the resolution has edges three times as many pixels wide: judged
+    on the full image it would be 'blurred'; judged where it is searched, it is accepted, and
+    its full-resolution corners give the intrinsics of the larger image."""
+    col = ViewCollector(parse_board(f"chess:{COLS}x{ROWS}", SQ * 1000), max_search_px=W * H)
+    names = sorted(board_folder.glob("v??.png"))[:8]
+    got = [col.add(k, cv2.resize(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (3 * W, 3 * H),
+                                 interpolation=cv2.INTER_CUBIC)) for k, p in enumerate(names)]
+    assert got.count("accepted") == len(names), got
+    res = calibrate_views(col)
+    K = res.K
+    for got_v, want in ((K[0, 0], 3 * 820.0), (K[1, 1], 3 * 815.0), (K[0, 2], 3 * 405.5 - 0.5),
+                        (K[1, 2], 3 * 296.5 - 0.5)):
+        assert abs(got_v / want - 1) < 0.005, (got_v, want)
