@@ -1,10 +1,12 @@
 """What each compiled kernel saves of a whole frame, in instructions (callgrind), per bench case.
 
-    .venv/bin/python -m tools.kernel_shares [KERNEL ...] [--source DIR] [--instr-frames K] [--out FILE.md]
+    .venv/bin/python -m tools.kernel_shares [KERNEL ...] [--source CASE ...] [--instr-frames K] [--out FILE.md]
 
 Runs `occloc bench --instructions --json` once with every kernel built in, then once per KERNEL
-(default: all of them) with `OCCLOC_PURE=KERNEL` (`--source`: on that one recording only), which sends only that kernel's stage down its
-numpy path. A kernel's share on a case is (pure - native) / native instructions per frame: the
+(default: all of them) with `OCCLOC_PURE=KERNEL`, which sends only that kernel's stage down its
+numpy path. A KERNEL may name several kernels joined by commas (`_kalman,_position`): their
+pure paths together, an upper bound of each one's share. `--source` (repeatable): only those
+cases (a recording folder, or `synthetic` for the built-in scene), each its own bench run. A kernel's share on a case is (pure - native) / native instructions per frame: the
 part of a whole frame the kernel saves there. The house keeps a kernel only where that share is
 at least KEEP_SHARE_PCT on some bundled case. Instruction counts do not depend on the machine's
 load, so the figures are repeatable on a busy machine (slow: minutes per run).
@@ -25,7 +27,18 @@ KEEP_SHARE_PCT = 5.0
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def bench_instructions(pure: str, instr_frames: int, source: str | None = None) -> dict[str, float]:
+def bench_instructions(pure: str, instr_frames: int, sources: list[str] | None = None) -> dict[str, float]:
+    """{case: instructions per frame} of `occloc bench --instructions` with OCCLOC_PURE=pure, on
+    every bundled case or on each of `sources` in turn."""
+    if not sources:
+        return _bench_once(pure, instr_frames, None)
+    out: dict[str, float] = {}
+    for source in sources:
+        out.update(_bench_once(pure, instr_frames, source))
+    return out
+
+
+def _bench_once(pure: str, instr_frames: int, source: str | None) -> dict[str, float]:
     """{case: instructions per frame} of one `occloc bench --instructions` run with OCCLOC_PURE=pure."""
     env = dict(os.environ)
     env.pop("OCCLOC_PURE", None)
@@ -43,13 +56,15 @@ def bench_instructions(pure: str, instr_frames: int, source: str | None = None) 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.kernel_shares", description=__doc__.split("\n\n")[0])
-    p.add_argument("kernels", nargs="*", help="kernel module names, e.g. _tone (default: every kernel)")
+    p.add_argument("kernels", nargs="*",
+                   help="kernel module names, e.g. _tone, or a group _kalman,_position (default: every kernel)")
     p.add_argument("--instr-frames", type=int, default=5, help="frames counted per case (5)")
-    p.add_argument("--source", help="one recording folder instead of every bench case")
+    p.add_argument("--source", action="append",
+                   help="a recording folder or `synthetic` instead of every bench case (repeatable)")
     p.add_argument("--out", help="also write the table to this Markdown file")
     args = p.parse_args(argv)
     known = [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
-    unknown = [n for n in args.kernels if n not in known]
+    unknown = [n for group in args.kernels for n in group.split(",") if n not in known]
     if unknown:   # OCCLOC_PURE would ignore it: its share would read 0 %, "drop it"
         p.error(f"unknown kernel {', '.join(unknown)} (choose from {', '.join(known)})")
     names = args.kernels or known
@@ -59,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = ["| kernel | " + " | ".join(cases) + " | max % | keep |",
              "|---|" + "---|" * (len(cases) + 2),
              "| (M instr/frame, all built) | " + " | ".join(f"{base[c] / 1e6:.2f}" for c in cases) + " | | |"]
-    print("\n".join(lines), flush=True)      # each row as it is measured: a long run shows progress
+    out = open(args.out, "w") if args.out else None
+    _emit(out, "\n".join(lines))       # each row as it is measured: a long run shows progress
     for name in names:
         print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
         pure = bench_instructions(name, args.instr_frames, args.source)
@@ -67,11 +83,18 @@ def main(argv: list[str] | None = None) -> int:
         best = max(shares)
         lines.append(f"| {name} | " + " | ".join(f"{s:.1f}" for s in shares)
                      + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
-        print(lines[-1], flush=True)
-    table = "\n".join(lines)
-    if args.out:
-        Path(args.out).write_text(table + "\n")
+        _emit(out, lines[-1])
+    if out is not None:
+        out.close()
     return 0
+
+
+def _emit(out, text: str) -> None:
+    """Print `text` and append it to the open --out file, both flushed at once."""
+    print(text, flush=True)
+    if out is not None:
+        out.write(text + "\n")
+        out.flush()
 
 
 if __name__ == "__main__":

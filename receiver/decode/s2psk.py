@@ -37,11 +37,6 @@ from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN,
 from receiver.decode.settings import S2pskSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
-from receiver.core.native import load
-
-# the compiled phase search and fold of `S2pskDecoder.folded_sums` (receiver/decode/_s2psk.pyx),
-# or None: the numpy reference below
-_k = load("receiver.decode._s2psk")
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
@@ -384,12 +379,6 @@ class S2pskDecoder:
         else:
             phases = np.array([self._phase])
         self._calls += 1
-        if _k is not None:  # the same sums in the same order, in one call
-            out = np.empty((3, PACKET_LEN))
-            best = _k.folded_sums(t, x, phases, float(self.symbol_s), float(self.guard), PACKET_LEN,
-                                  out[0], out[1], out[2])
-            self._phase = float(phases[best])
-            return out[0], out[1], out[2]
         u = t[None, :] / self.symbol_s - phases[:, None]  # (P, N) time in symbols
         sym = np.floor(u)
         frac = u - sym

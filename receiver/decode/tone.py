@@ -34,15 +34,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from receiver.core.native import load
-from receiver.decode.ook import _native_ok, trim_rows
+from receiver.decode.ook import trim_rows
 from receiver.decode.settings import ToneSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
 
 MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
-_k = load("receiver.decode._tone")  # compiled kernels (receiver/decode/_tone.pyx), or None
-_ko = load("receiver.decode._ook")  # its row trim
 
 
 @lru_cache(maxsize=64)
@@ -108,43 +105,16 @@ def stripe_frequency_hz(profile, row_readout_us: float, weights=None, *, fmin_hz
     fmin_hz (a spectral SNR; pure noise gives ~5-25); freq_hz is nan when there is no usable peak.
     """
     t_row_s = row_readout_us * 1e-6
-    native = (_k is not None and _ko is not None and _native_ok(profile)
-              and (weights is None or (_native_ok(weights) and weights.size == profile.size)))
-    if native:
-        a, b = (0, profile.size) if weights is None else _ko.trim(weights, min_row_frac)
-        n = b - a
-    else:
-        x = np.asarray(profile, dtype=np.float64)
-        a, b = trim_rows(weights, x.size, min_row_frac)
-        x = x[a:b]
-        n = x.size
+    x = np.asarray(profile, dtype=np.float64)
+    a, b = trim_rows(weights, x.size, min_row_frac)
+    x = x[a:b]
+    n = x.size
     k_hi = (0.45 if fmax_hz is None else min(fmax_hz * t_row_s, 0.5))
     k_lo = max(fmin_hz * t_row_s, min_cycles / max(n, 1))
     if n < 8 or k_lo >= k_hi:
         return float("nan"), 0.0
-    if native:
-        k, quality = _peak_native(profile, a, b, k_lo, k_hi, pad_factor)
-    else:
-        k, quality = _peak_cycles_per_row(x, k_lo, k_hi, pad_factor)
+    k, quality = _peak_cycles_per_row(x, k_lo, k_hi, pad_factor)
     return float(k / t_row_s), quality
-
-
-def _peak_native(profile: np.ndarray, a: int, b: int, k_lo: float, k_hi: float, pad_factor: int
-                 ) -> tuple[float, float]:
-    """`_peak_cycles_per_row(profile[a:b], ...)` with the compiled kernels around numpy's FFT
-    and logarithm (the same numbers: tests/engine/test_decode_native.py)."""
-    n = b - a
-    r, rr, win = _ramp_and_window(n)
-    nfft = _nfft(n * pad_factor)
-    z = np.fft.rfft(_k.windowed(profile, a, b, r, rr, win), nfft)
-    res = _k.band_peak(z, int(math.ceil(k_lo * nfft)), int(math.floor(k_hi * nfft)))
-    if res is None:
-        return float("nan"), 0.0
-    kp, quality, s0, s1, s2 = res
-    la, lb, lc = np.log(np.array((s0, s1, s2)) + 1e-30)
-    den = la - 2.0 * lb + lc
-    delta = 0.5 * (la - lc) / den if den < 0 else 0.0
-    return (kp + min(max(delta, -1.0), 1.0)) / nfft, quality
 
 
 def default_spacing_hz(table: dict[int, float]) -> float:

@@ -1,4 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+# Kept: without it the lighting server spends 17 % more CPU per reply (docs/kernels.md).
 """Compiled `position` object of the receiver's frames and the lighting server's replies
 (`receiver.locate.fastfilter`, `receiver.serve.devices`): the dict
 `receiver.locate.fastfilter.position_object` builds (and `PoseFilter.update` before it), with its
@@ -94,9 +95,13 @@ def position(x, P, C, cov, R, str method, int n_leds, handedness):
 
 # ---------------------------------------------------------------- the position object as JSON
 
-from libc.string cimport memcpy
-from libc.math cimport signbit
+from libc.string cimport memcpy, strlen
+from cpython.mem cimport PyMem_Free
 from json.encoder import encode_basestring_ascii as _json_str
+
+cdef extern from "Python.h":
+    char* PyOS_double_to_string(double val, char format_code, int precision, int flags, int* ptype) except NULL
+    int Py_DTSF_ADD_DOT_0
 
 cdef enum:
     BUF = 4096
@@ -125,104 +130,30 @@ cdef int _put_str(Out* o, str s) except -1:
 
 
 cdef int _put_repr(Out* o, double v) except -1:
-    """json's float: repr, NaN and infinities refused (allow_nan=False)."""
+    """json's float: CPython's repr (PyOS_double_to_string, shortest round-trip digits), NaN
+    and infinities refused (allow_nan=False)."""
+    cdef char* s
     if not isfinite(v):
         raise ValueError("Out of range float values are not JSON compliant")
-    return _put_str(o, repr(v))
-
-
-cdef int _put_decimal(Out* o, double r, int n) except -1:
-    """repr of the double nearest to r * 10^-n (r an integer-valued double, |r| < 1e9, n <= 8):
-    the decimal itself, trailing zeros dropped, in repr's notation (exponent when the decimal
-    point position is <= -4 or > 16)."""
-    cdef char digits[24]
-    cdef char tmp[48]
-    cdef long long a = <long long>fabs(r)
-    cdef int L = 0, k = 0, decpt, i, e
-    if a == 0:
-        if signbit(r):
-            return _putb(o, b"-0.0")
-        return _putb(o, b"0.0")
-    while n > 0 and a % 10 == 0:
-        a //= 10
-        n -= 1
-    while a > 0:
-        digits[L] = <char>(48 + a % 10)
-        a //= 10
-        L += 1
-    decpt = L - n                      # the number is 0.d1d2... x 10^decpt
-    while digits[k] == c'0':           # trailing zeros of an integer (n == 0): not digits
-        k += 1
-    # digits[k..L) hold the significant digits, least significant first
-    if signbit(r):
-        tmp[0] = c'-'
-        i = 1
-    else:
-        i = 0
-    if decpt <= -4 or decpt > 16:
-        tmp[i] = digits[L - 1]
-        i += 1
-        if L - 1 > k:
-            tmp[i] = c'.'
-            i += 1
-            for e in range(L - 2, k - 1, -1):
-                tmp[i] = digits[e]
-                i += 1
-        e = decpt - 1
-        tmp[i] = c'e'
-        tmp[i + 1] = c'-' if e < 0 else c'+'
-        i += 2
-        e = -e if e < 0 else e
-        if e >= 100:
-            tmp[i] = <char>(48 + e // 100)
-            i += 1
-        tmp[i] = <char>(48 + (e // 10) % 10)
-        tmp[i + 1] = <char>(48 + e % 10)
-        i += 2
-    elif decpt <= 0:
-        tmp[i] = c'0'
-        tmp[i + 1] = c'.'
-        i += 2
-        for e in range(-decpt):
-            tmp[i] = c'0'
-            i += 1
-        for e in range(L - 1, k - 1, -1):
-            tmp[i] = digits[e]
-            i += 1
-    elif decpt >= L - k:
-        for e in range(L - 1, k - 1, -1):
-            tmp[i] = digits[e]
-            i += 1
-        for e in range(decpt - (L - k)):
-            tmp[i] = c'0'
-            i += 1
-        tmp[i] = c'.'
-        tmp[i + 1] = c'0'
-        i += 2
-    else:
-        for e in range(L - 1, k - 1, -1):
-            if L - 1 - e == decpt:
-                tmp[i] = c'.'
-                i += 1
-            tmp[i] = digits[e]
-            i += 1
-    return _put(o, tmp, i)
+    s = PyOS_double_to_string(v, b'r', 0, Py_DTSF_ADD_DOT_0, NULL)
+    try:
+        _put(o, s, <int>strlen(s))
+    finally:
+        PyMem_Free(s)
+    return 0
 
 
 cdef int _put_py_round(Out* o, double v, int n) except -1:
     """json of Python's round(v, n) (`py_round`)."""
     cdef double y = v * pow10(n)
     if rint_is_round(y):
-        return _put_decimal(o, rint(y), n)
+        return _put_repr(o, rint(y) / pow10(n))
     return _put_repr(o, round(v, n))
 
 
 cdef int _put_np_round(Out* o, double v, int n) except -1:
     """json of numpy's round(v, n) (`np_round`)."""
-    cdef double r = rint(v * pow10(n))
-    if isfinite(r) and fabs(r) < 1e9:
-        return _put_decimal(o, r, n)
-    return _put_repr(o, r / pow10(n))
+    return _put_repr(o, np_round(v, n))
 
 
 cdef int _put_xyz(Out* o, double* v) except -1:

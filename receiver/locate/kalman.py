@@ -14,8 +14,7 @@ squares Jacobian, so nothing is tuned per scene except the documented accelerati
 `KalmanFilter` with the same operations in the same order on plain numpy arrays (`_predict`,
 `_update`), so its state equals filterpy's bit for bit (a test runs both side by side) without
 filterpy's per-call bookkeeping (deep copies, prior / posterior snapshots: most of a
-lighting-server datagram's filter time). The pure functions `cv_predict` / `cv_update` are the
-same maths written as the equations; a test checks that they agree.
+lighting-server datagram's filter time).
 
 filterpy is the tests' reference only: the receiver never imports it (its package imports
 scipy.stats, ~1.5 s of CPU).
@@ -39,9 +38,6 @@ DEFAULT_MAX_REJECTS = 3
 # Coasting longer than this without a fix makes the filter forget the track.
 DEFAULT_MAX_COAST_S = 2.0
 
-H = np.hstack([np.eye(3), np.zeros((3, 3))])
-
-
 _EYE6 = np.eye(6)
 # (6, 6) index of each element's 3x3 block in a 2x2 matrix (row-major), and the identity pattern
 # inside the blocks: `process_noise` without np.block's Python-level assembly.
@@ -61,29 +57,6 @@ def process_noise(dt: float, q: float) -> np.ndarray:
     q * [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]] (each element computed as that expression)."""
     blocks = q * np.array([dt ** 3 / 3, dt ** 2 / 2, dt ** 2 / 2, dt])
     return blocks[_BLOCK_OF] * _IN_BLOCK_EYE
-
-
-def cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pure prediction (eqs. 35-36): returns (x (6,), P (6, 6)) after dt seconds."""
-    F = transition(dt)
-    return F @ x, F @ P @ F.T + process_noise(dt, q)
-
-
-def cv_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pure measurement update (eqs. 37-39) with a position fix z (3,) of covariance R (3, 3).
-    Joseph form, as filterpy uses, so P stays symmetric positive definite."""
-    S = H @ P @ H.T + R
-    K = P @ H.T @ np.linalg.inv(S)
-    x = x + K @ (z - H @ x)
-    IKH = np.eye(6) - K @ H
-    return x, IKH @ P @ IKH.T + K @ R @ K.T
-
-
-def mahalanobis2(x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray) -> float:
-    """Squared Mahalanobis distance of fix z from the predicted position."""
-    S = H @ P @ H.T + R
-    r = z - H @ x
-    return float(r @ np.linalg.solve(S, r))
 
 
 class PositionKalman:
@@ -160,7 +133,8 @@ class PositionKalman:
         self._P = np.dot(np.dot(I_KH, self._P), I_KH.T) + np.dot(np.dot(K, R), K.T)
 
     def _mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> float:
-        """`mahalanobis2` of the current state, with H P H' = P[:3, :3] and H x = x[:3] (exact)."""
+        """Squared Mahalanobis distance of fix z from the current (predicted) position: r' S^-1 r
+        with S = H P H' + R = P[:3, :3] + R and r = z - H x = z - x[:3] (H = [I 0])."""
         r = z - self._x[:3, 0]
         return float(r @ np.linalg.solve(self._P[:3, :3] + R, r))
 
@@ -183,8 +157,8 @@ class PositionKalman:
         return not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s
 
     def _predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(x (6,), P (6, 6)) predicted dt s ahead, the filter unchanged: `cv_predict(x, P, dt,
-        q)` with F, Q from the model cache (the same arrays transition(dt) and process_noise(dt,
+        """(x (6,), P (6, 6)) predicted dt s ahead, the filter unchanged: F x, F P F' + Q
+        with F, Q from the model cache (the same arrays transition(dt) and process_noise(dt,
         q) make; a video's frames are evenly spaced, so the next `step` finds them there too) and
         without copying the state it only reads."""
         F, Ft, Q = self._model(dt)

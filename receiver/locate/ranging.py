@@ -44,9 +44,6 @@ from receiver.core.native import load
 from receiver.core.records import LedObservation
 from receiver.io.camera import CameraModel
 
-# The compiled undistortion (receiver/locate/_undistort.pyx, cv2.undistortPoints' arithmetic), or
-# None: cv2.undistortPoints itself.
-_ku = load("receiver.locate._undistort")
 # The per-frame glue kernels (receiver/locate/_ranging.pyx: the edge-touch test), or None.
 _kr = load("receiver.locate._ranging")
 
@@ -67,22 +64,9 @@ def distance_eq18(area_px: float, area_m2: float, focal_px: float) -> float:
     return focal_px * math.sqrt(area_m2 / area_px)
 
 
-def _kernel_args(camera: CameraModel):
-    """(K, dist) as the compiled undistortion takes them, or None where it does not model the
-    camera (a skewed matrix, a tilted sensor's 14 coefficients) or is not built."""
-    if _ku is None:
-        return None
-    K = np.ascontiguousarray(camera.K, dtype=np.float64)
-    dist = np.ascontiguousarray(np.asarray(camera.dist, dtype=np.float64).ravel())
-    if len(dist) <= 12 and K.shape == (3, 3) and K[0, 1] == 0.0:
-        return K, dist
-    return None
-
-
 def undistort_points(points_px: np.ndarray, camera: CameraModel) -> np.ndarray:
     """(N, 2) distorted pixel coordinates -> (N, 2) normalized image coordinates (x/z, y/z):
-    cv2.undistortPoints, or the compiled kernel with its exact result where the camera has up to
-    12 distortion coefficients (no tilted sensor) and an unskewed camera matrix."""
+    cv2.undistortPoints (`Undistorter`)."""
     return Undistorter(camera)(points_px)
 
 
@@ -101,23 +85,17 @@ class Undistorter:
     points are reprojected (cv2.projectPoints) and those off by more than `UNDISTORT_TOL_PX` are
     undistorted again with `UNDISTORT_MORE_ITERATIONS` iterations."""
 
-    __slots__ = ("camera", "_args", "needs_check")
+    __slots__ = ("camera", "needs_check")
 
     def __init__(self, camera: CameraModel):
         self.camera = camera
-        self._args = _kernel_args(camera)
         self.needs_check = False
         xs, ys = np.meshgrid(np.linspace(0, camera.width - 1, 17), np.linspace(0, camera.height - 1, 9))
         grid = np.column_stack([xs.ravel(), ys.ravel()])
         self.needs_check = bool(self._off_px(grid, self.first_pass(grid)).max(initial=0.0) > UNDISTORT_TOL_PX)
 
     def first_pass(self, pts: np.ndarray) -> np.ndarray:
-        """(N, 2) float64 px -> cv2.undistortPoints' default (5 iterations), by the compiled
-        kernel where it models the camera (its exact numbers), else by OpenCV."""
-        if self._args is not None:
-            out = np.empty_like(pts)
-            _ku.undistort(pts, *self._args, out)
-            return out
+        """(N, 2) float64 px -> cv2.undistortPoints' default (5 iterations)."""
         return cv2.undistortPoints(pts.reshape(-1, 1, 2), self.camera.K, self.camera.dist).reshape(-1, 2)
 
     def _off_px(self, pts: np.ndarray, und: np.ndarray) -> np.ndarray:

@@ -27,12 +27,6 @@ import math
 
 import numpy as np
 
-from receiver.core.native import load
-
-# Compiled prediction and update (`_model`, `_update`); None: the numpy forms below.
-_k = load("receiver.locate._road_kalman")
-
-
 _H_SPEED = np.array([[0.0, 0.0, 0.0, 1.0, 0.0]])      # the speed's measurement row (`update_speed`)
 
 
@@ -81,10 +75,6 @@ class RoadKalman:
 
     @staticmethod
     def _model(s: np.ndarray, P: np.ndarray, dt: float, qa: float, qw: float):
-        if _k is not None:
-            s2, P2 = np.empty(5), np.empty((5, 5))
-            _k.model(s, P, float(dt), float(qa), float(qw), s2, P2)
-            return s2, P2
         x, y, psi, v, w = s
         c, sn = math.cos(psi), math.sin(psi)
         s2 = np.array([x + v * c * dt, y + v * sn * dt, psi + w * dt, v, w])
@@ -127,16 +117,6 @@ class RoadKalman:
         return self.s is None or self.coast_s(t_s) > self.max_coast_s
 
     def _update(self, z: np.ndarray, H: np.ndarray, R: np.ndarray, angle_rows=()) -> float:
-        # the kernel's work arrays hold up to 3 measurement rows (H: m x 5, R: m x m)
-        if _k is not None and len(angle_rows) <= 1 and len(z) <= 3 and np.shape(H) == (len(z), 5) \
-                and np.shape(R) == (len(z), len(z)):
-            s2, P2 = np.empty(5), np.empty((5, 5))
-            ok, m2 = _k.update(self.s, self.P, np.asarray(z, float), np.ascontiguousarray(H, float),
-                               np.ascontiguousarray(R, float), angle_rows[0] if angle_rows else -1, s2, P2)
-            if not ok:
-                raise np.linalg.LinAlgError("Singular matrix")
-            self.s, self.P = s2, P2
-            return m2
         y = z - H @ self.s
         for i in angle_rows:
             y[i] = wrap_pi(y[i])
@@ -229,18 +209,7 @@ class RoadKalman:
         return True
 
     def update_speed(self, speed: float, sigma: float) -> None:
-        if _k is not None:
-            # `_update`'s compiled call with its one row made here (every frame with odometry)
-            s2, P2 = np.empty(5), np.empty((5, 5))
-            ok, _ = _k.update(self.s, self.P, np.array([float(speed)]), _H_SPEED, np.array([[sigma ** 2]]), -1,
-                              s2, P2)
-            if not ok:
-                raise np.linalg.LinAlgError("Singular matrix")
-            self.s, self.P = s2, P2
-            return
-        H = np.zeros((1, 5))
-        H[0, 3] = 1.0
-        self._update(np.array([speed]), H, np.array([[sigma ** 2]]))
+        self._update(np.array([speed]), _H_SPEED, np.array([[sigma ** 2]]))
 
 
 class RangeKalman:

@@ -14,19 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from receiver.core.native import load
-
-# Compiled `vertical_shift` (one call per frame); None: its numpy form below (the reference).
-_k = load("receiver.vision._motion")
-_NO_VOTES = np.zeros((0, 2))
-
-
-def _rows2(a) -> np.ndarray:
-    """`a` as a C-contiguous float64 (K, 2) array (the kernel's input; no copy when it is one)."""
-    if isinstance(a, np.ndarray) and a.dtype == np.float64 and a.ndim == 2 and a.flags.c_contiguous:
-        return a
-    return np.ascontiguousarray(np.asarray(a, float).reshape(-1, 2))
-
 
 def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14.0, bin_px: float = 0.5,
                    refine_px: float = 1.0, min_votes: int = 3, extra: np.ndarray | None = None) -> float | None:
@@ -34,10 +21,6 @@ def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14
     the displacements within `radius_px`. Street-light heads are horizontal,
     so whichever half of a head is lit in either frame, its displacement's vertical part is the
     shift: every head votes right, unlike the horizontal part (ambiguous by the baseline)."""
-    if _k is not None and min_votes >= 1:
-        ex = _NO_VOTES if extra is None or not len(extra) else _rows2(extra)
-        return _k.vertical_shift(_rows2(prev_xy), _rows2(xy), ex, float(radius_px), float(bin_px),
-                                 float(refine_px), int(min_votes))
     d = (xy[None, :, :] - prev_xy[:, None, :]).reshape(-1, 2)
     if extra is not None and len(extra):
         d = np.concatenate((d, np.asarray(extra, float).reshape(-1, 2)))
@@ -55,7 +38,6 @@ def vertical_shift(prev_xy: np.ndarray, xy: np.ndarray, *, radius_px: float = 14
     if len(near) < min_votes:
         return None
     return float(np.median(near))
-
 
 
 def pair_dx(offsets: list, *, radius_px: float = 14.0, sigma_px: float = 1.5, step_px: float = 0.25,

@@ -210,55 +210,6 @@ def test_recording_output_identical(monkeypatch, name):
     assert sum(o["id"] is not None for d in fast for o in d["leds"]) > 20
 
 
-def test_tone_frequency_identical(monkeypatch):
-    """stripe_frequency_hz with the tone kernels (receiver/decode/_tone.pyx) == the pure path,
-    on stripes of random frequency, noise and flat profiles."""
-    import receiver.decode.tone as tone
-    if tone._k is None:
-        pytest.skip("tone kernel not built")
-    rng = np.random.default_rng(31)
-    found = 0
-    for prof, w, p0, _, _ in _profiles(rng, 600):
-        if rng.random() < 0.5:
-            rows = prof.size
-            prof = (100 + 80 * (np.sin(np.arange(rows) * rng.uniform(0.05, 1.2)) > 0)
-                    + rng.normal(0, 4, rows)).astype(prof.dtype)
-        kw = dict(fmin_hz=float(rng.uniform(300, 1500)), fmax_hz=float(rng.uniform(2000, 30000)))
-        fast = tone.stripe_frequency_hz(prof, 15.0, w, **kw)
-        monkeypatch.setattr(tone, "_k", None)
-        pure = tone.stripe_frequency_hz(prof, 15.0, w, **kw)
-        monkeypatch.setattr(tone, "_k", load("receiver.decode._tone"))
-        assert repr(fast) == repr(pure)
-        found += np.isfinite(pure[0])
-    assert found > 100
-
-
-def test_tone_median_selection():
-    import receiver.decode.tone as tone
-    if tone._k is None:
-        pytest.skip("tone kernel not built")
-    rng = np.random.default_rng(32)
-    for _ in range(500):
-        n = int(rng.integers(8, 400))
-        z = (rng.integers(0, 5, n) + 1j * rng.integers(0, 3, n)).astype(np.complex128)  # many ties
-        spec = z.real * z.real + z.imag * z.imag
-        k0 = int(rng.integers(0, n // 2))
-        k1 = int(rng.integers(k0, n + 5))
-        res = tone._k.band_peak(z, k0, k1)
-        k1c = min(k1, n - 1)
-        if k1c - k0 < 3:
-            assert res is None
-            continue
-        kp = k0 + int(spec[k0:k1c + 1].argmax())
-        if kp in (k0, k1c):
-            assert res is None
-            continue
-        tail = spec[k0:]
-        floor = np.partition(tail, tail.size // 2)[tail.size // 2]
-        assert res[0] == min(max(kp, 1), n - 2)
-        assert res[1] == float(spec[kp] / max(floor, 1e-30))
-
-
 def test_best_cyclic_match_other_template_length_takes_the_reference_path():
     """The kernel reads exactly 54 template chips; a template of another length must not let it
     read past the array (it returned a number from beyond it): both paths now agree."""

@@ -199,62 +199,6 @@ def test_range_kernel_equals_python_loop_bit_for_bit(monkeypatch):
     assert n_pairs[0] >= 40
 
 
-import receiver.locate.road_kalman as RK
-
-
-def _road_filter_run(seed: int):
-    """A RoadKalman driven through starts, predictions, position (+heading) fixes, speed updates
-    and gated fixes; returns the (state, covariance) after every operation."""
-    rng = np.random.default_rng(seed)
-    kf = RK.RoadKalman(accel_psd=2.0, yaw_accel_psd=0.05, init_speed_sigma=15.0, init_omega_sigma=0.2,
-                       gate_chi2=13.8, max_rejects=3, max_coast_s=2.0)
-    kf.start(0.0, np.array([3.0, -1.0]), np.diag([0.04, 0.09]), 0.1, 0.02, None, 0.3)
-    out = []
-    t, x, y, psi = 0.0, 3.0, -1.0, 0.1
-    for i in range(60):
-        t += 1 / 30
-        x, y, psi = x + 0.5 * math.cos(psi), y + 0.5 * math.sin(psi), psi + 0.002
-        kf.predict(t)
-        cov = np.array([[0.03, 0.004], [0.004, 0.05]]) * (1 + i % 3)
-        xy = np.array([x, y]) + rng.normal(0, 0.1, 2)
-        if i == 40:
-            xy = xy + 30.0        # gated out
-        kf.update_fix(t, xy, cov, None if i % 4 == 1 else wrap_pi(psi + 3.1 * (i == 7)), 0.02, held_speed=i < 5)
-        if i % 5 == 0:
-            kf.update_speed(15.0 + rng.normal(0, 0.2), 0.3)
-        out.append((kf.s.copy(), kf.P.copy(), kf.rejects))
-    return out
-
-
-def wrap_pi(a):
-    return RK.wrap_pi(a)
-
-
-@pytest.mark.skipif(RK._k is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
-def test_road_kalman_kernel_equals_numpy(monkeypatch):
-    """The compiled prediction and update track the numpy forms to rounding (sums in another
-    order), heading wrap and gating included."""
-    got = _road_filter_run(4)
-    monkeypatch.setattr(RK, "_k", None)
-    ref = _road_filter_run(4)
-    for (s, P, rj), (s0, P0, rj0) in zip(got, ref):
-        assert rj == rj0
-        assert np.allclose(s, s0, rtol=1e-12, atol=1e-12)
-        assert np.allclose(P, P0, rtol=1e-10, atol=1e-14)
-    assert any(r for _, _, r in ref)
-
-
-def test_road_kalman_singular_update_raises_like_numpy(monkeypatch):
-    """A singular innovation covariance raises numpy's LinAlgError on both paths."""
-    for kernel in (RK._k, None):
-        monkeypatch.setattr(RK, "_k", kernel)
-        kf = RK.RoadKalman(accel_psd=2.0, yaw_accel_psd=0.05, init_speed_sigma=15.0, init_omega_sigma=0.2,
-                           gate_chi2=13.8, max_rejects=3, max_coast_s=2.0)
-        kf.start(0.0, np.array([0.0, 0.0]), np.zeros((2, 2)), 0.0, 0.0, 10.0, 0.0)
-        with pytest.raises(np.linalg.LinAlgError):
-            kf.update_fix(0.0, np.array([0.0, 0.0]), np.zeros((2, 2)), None, 0.0)
-
-
 @pytest.mark.skipif(VR._kr is None, reason="compiled kernel not built (or OCCLOC_PURE=1)")
 def test_rays_kernel_equals_numpy_bit_for_bit(monkeypatch):
     rng = np.random.default_rng(3)
