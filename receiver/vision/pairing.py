@@ -184,9 +184,12 @@ def moved(blob: Blob, cx: float, cy: float) -> Blob:
     dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
     if dx == 0 and dy == 0:
         return blob
-    # the record's own constructor (dataclasses.replace walks its fields: ~2x the cost)
-    return Blob(blob.cx + dx, blob.cy + dy, blob.area_px, blob.hull + (dx, dy), blob.x0 + dx, blob.y0 + dy,
-                blob.x1 + dx, blob.y1 + dy, blob.border, blob.peak, blob.level, blob.background)
+    # built as `frozen_record` builds records (the constructor's per-field setattr: ~2x the cost)
+    out = object.__new__(Blob)
+    out.__dict__.update(cx=blob.cx + dx, cy=blob.cy + dy, area_px=blob.area_px, hull=blob.hull + (dx, dy),
+                        x0=blob.x0 + dx, y0=blob.y0 + dy, x1=blob.x1 + dx, y1=blob.y1 + dy, border=blob.border,
+                        peak=blob.peak, level=blob.level, background=blob.background)
+    return out
 
 
 # A pair's baseline counts as measured while both emitters' own blobs were seen within this
@@ -541,25 +544,31 @@ class Pairer:
         self._table = None
         return pitch
 
-    def _first_pass(self, tracks: list[Track], xy: np.ndarray) -> tuple[float, dict]:
+    def _first_pass(self, tracks: list[Track], xy: np.ndarray, pitch: bool = True) -> tuple[float, dict]:
         """(`pitch_shift`, {pair uid: ids of the tracks it must not take}) of this frame, from
         every formed pair's explained blobs at its prediction. A blob that two decoded pairs
         explain (two lights overlapping in the image, a car's taillight on another's) moves
         neither: it would drag one's emitter onto the other light. A blob a decoded pair
-        explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
+        explains is not an undecoded pair's (a wide wrong pairing lying on a head).
+        `pitch` False: the frame's shift is measured elsewhere, the pitch is not computed (0.0)."""
         dys, claims = [], {}
         if _k is not None:
             items = [(p, q, ()) for p, q in self._predictions()]
             if not items:
-                return 0.0 if self.shake_min_pairs > 0 else float(np.median(dys)), {}
+                return 0.0 if self.shake_min_pairs > 0 or not pitch else float(np.median(dys)), {}
             res, mine = self._explain_kernel(items, tracks, True)
-            dys = res[res[:, 0] > 0, 3].tolist()
-            pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            if pitch:
+                dys = res[res[:, 0] > 0, 3].tolist()
+                pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            else:
+                pitch = 0.0
             # the tracks two or more pairs claim: not taken by an undecoded one when a decoded one
             # claims it too, by none of them when two decoded ones do (the loop below)
             c = mine.astype(bool)
-            dec = np.array([p.led_id is not None for p, _, _ in items])
             both = c.sum(axis=0) >= 2
+            if not both.any():  # (most frames) no track claimed twice
+                return pitch, {}
+            dec = np.array([p.led_id is not None for p, _, _ in items])
             n_dec = c[dec].sum(axis=0)
             ex = c & both & ((n_dec >= 2) | ((n_dec >= 1) & ~dec[:, None]))
             exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
@@ -588,7 +597,7 @@ class Pairer:
             for p in ps:
                 if len(decoded) >= 2 or (decoded and p.led_id is None):
                     exclude.setdefault(p.uid, set()).add(tid)
-        pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+        pitch = float(np.median(dys)) if pitch and len(dys) >= self.shake_min_pairs else 0.0
         return pitch, exclude
 
     def _claim_tol(self, single: float) -> float:
@@ -918,7 +927,7 @@ class Pairer:
             xy = table[:, :2]
         else:
             table, xy = None, np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
-        pitch, exclude = self._first_pass(tracks, xy)
+        pitch, exclude = self._first_pass(tracks, xy, pitch=shift is None)
         dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
