@@ -181,13 +181,14 @@ class EmitterLevels:
 
 def moved(blob: Blob, cx: float, cy: float) -> Blob:
     """`blob` translated (by whole pixels, so its envelope mask keeps its shape) to (cx, cy)."""
-    dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
-    if dx == 0 and dy == 0:
+    dx, dy = float(round(cx - blob.cx)), float(round(cy - blob.cy))
+    if dx == 0.0 and dy == 0.0:
         return blob
     # built as `frozen_record` builds records (the constructor's per-field setattr: ~2x the cost)
     out = object.__new__(Blob)
+    ix, iy = int(dx), int(dy)
     out.__dict__.update(cx=blob.cx + dx, cy=blob.cy + dy, area_px=blob.area_px, hull=blob.hull + (dx, dy),
-                        x0=blob.x0 + dx, y0=blob.y0 + dy, x1=blob.x1 + dx, y1=blob.y1 + dy, border=blob.border,
+                        x0=blob.x0 + ix, y0=blob.y0 + iy, x1=blob.x1 + ix, y1=blob.y1 + iy, border=blob.border,
                         peak=blob.peak, level=blob.level, background=blob.background)
     return out
 
@@ -645,11 +646,13 @@ class Pairer:
         indices) with `lists`])."""
         n = len(tracks)
         excl = np.zeros((len(items), n), np.uint8)
-        for k, (_, _, exclude) in enumerate(items):
-            if exclude:
-                for i, t in enumerate(tracks):
-                    if t.track_id in exclude:
-                        excl[k, i] = 1
+        if any(e for _, _, e in items):
+            ids = [t.track_id for t in tracks]
+            for k, (_, _, exclude) in enumerate(items):
+                if exclude:
+                    for i, tid in enumerate(ids):
+                        if tid in exclude:
+                            excl[k, i] = 1
         scratch = np.empty((3, len(items), max(n, 1)), np.int32)
         flat = np.empty(3 * len(items) * max(n, 1), np.int32)
         res = np.empty((len(items), 10))
@@ -729,7 +732,8 @@ class Pairer:
                     expl, mean, obs_a, obs_b = again
                     nearby = nearby + [t for t in expl if t not in nearby]
                     taken.update(t.track_id for t in expl)
-            if p.uid in own and any(self._anothers(p, t, pred, owners.get(t.track_id, ())) for t in expl):
+            if p.uid in own and any(self._anothers(p, t, pred, ow) for t in expl
+                                    if (ow := owners.get(t.track_id)) is not None):
                 p.confirmed = False  # another pair's emitter: its samples may be another light's
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
@@ -743,7 +747,7 @@ class Pairer:
         frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
         the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
         other pair has just lost, and `p` may have taken it."""
-        if t.track_id in {*p.founding, *(u.track_id for u in p.tracks)}:
+        if t.track_id in (p.a.track_id, p.b.track_id) or any(u.track_id == t.track_id for u in p.tracks):
             return False
         for q, (mx, my, hx, hy, single), explains, _ in owners:
             if q is p or q.led_id is None or explains or t.track_id not in q.founding:
@@ -823,8 +827,8 @@ class Pairer:
         mx, my, hx, hy, single = pred
         self._preds = None  # the pairs move
         p.tracks, p.nearby = explaining, nearby
-        self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
+            self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
             p.anchored = True
         elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
             p.anchored = False
@@ -945,7 +949,7 @@ class Pairer:
         self.pairs = self._follow_all(tracks, shape, dy, dx, exclude, xy)
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
-        paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
+        paired = {t.track_id for p in self.pairs for ts in (p.tracks, p.nearby) for t in ts}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
                 del self.levels[tid]
