@@ -716,14 +716,15 @@ class Pairer:
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         taken = {t.track_id for f in found for t in f[0]}
-        # every two-track pair's own tracks: those it founded on or explained in the last frame
-        # (a far head's jumper pairs share their one track by design: `_drop_twins`)
-        own = {p.uid: (p, pred, bool(f[0]), {*p.founding, *(t.track_id for t in p.tracks)})
-               for (p, pred, _), f in zip(items, found) if p.a.track_id != p.b.track_id}
+        # the two-track pairs whose emitter another pair may take (`_anothers`): the decoded ones
+        # that explain no blob at their prediction, by their founding tracks (a far head's
+        # jumper pairs share their one track by design: `_drop_twins`)
         owners: dict[int, list] = {}
-        for o in own.values():
-            for tid in o[3]:
-                owners.setdefault(tid, []).append(o)
+        for (p, pred, _), f in zip(items, found):
+            if p.a.track_id != p.b.track_id and p.led_id is not None and not f[0]:
+                o = (p, pred, False, p.founding)
+                for tid in p.founding:
+                    owners.setdefault(tid, []).append(o)
         out = []
         for (p, pred, _), (expl, nearby, mean, obs_a, obs_b, merged) in zip(items, found):
             if mean is None and p.a.track_id != p.b.track_id:
@@ -732,8 +733,8 @@ class Pairer:
                     expl, mean, obs_a, obs_b = again
                     nearby = nearby + [t for t in expl if t not in nearby]
                     taken.update(t.track_id for t in expl)
-            if p.uid in own and any(self._anothers(p, t, pred, ow) for t in expl
-                                    if (ow := owners.get(t.track_id)) is not None):
+            if owners and p.a.track_id != p.b.track_id and any(
+                    self._anothers(p, t, pred, ow) for t in expl if (ow := owners.get(t.track_id)) is not None):
                 p.confirmed = False  # another pair's emitter: its samples may be another light's
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
@@ -742,8 +743,8 @@ class Pairer:
     def _anothers(self, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
         """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
         another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
-        this frame, its own track ids) of the pairs whose own track `t` is. It is another's when
-        not `p`'s own track but the founding track of a decoded pair that explains no blob this
+        this frame, its founding track ids) of the pairs whose founding track `t` may be. It is
+        another's when not `p`'s own track but the founding track of a decoded pair that explains no blob this
         frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
         the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
         other pair has just lost, and `p` may have taken it."""
