@@ -775,8 +775,10 @@ class Pairer:
         if p.misses < 1:
             return None  # its first frame without a blob: both emitters dark in a quarter of the frames
         reach = self.shake_radius_px * p.misses
-        cand = [t for t in tracks if t.seen and t.track_id not in taken
-                and abs(t.cx - mx) <= reach + abs(hx) + tol and abs(t.cy - my) <= reach + abs(hy) + tol]
+        tr = self._track_table(tracks)  # seen tracks near the prediction, all at once
+        near = np.flatnonzero((tr[:, 7] != 0.0) & (np.abs(tr[:, 0] - mx) <= reach + abs(hx) + tol)
+                              & (np.abs(tr[:, 1] - my) <= reach + abs(hy) + tol))
+        cand = [t for t in map(tracks.__getitem__, near.tolist()) if t.track_id not in taken]
         best = None
         ratio_max = self.geom["max_area_ratio"]
         for ta in cand:
