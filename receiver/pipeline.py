@@ -28,7 +28,7 @@ import numpy as np
 
 from receiver.core.budget import StageTimer
 from receiver.core.native import load
-from receiver.core.records import Frame, FrameResult, LedObservation, PairObservation, led_observation
+from receiver.core.records import Frame, FrameResult, LedObservation, PairObservation, frozen_record, led_observation
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
 from receiver.decode.policy import DecodePolicy, LightDecoder, ModePlan
@@ -117,11 +117,11 @@ def pair_observation(p, white_gray: float = math.inf) -> PairObservation:
     """The record of one live pair in this frame (see `PairObservation`); `white_gray`: the gray
     level at which a blob's peak is clipped (DetectSettings.saturated_gray)."""
     a, b = p.a.blob, p.b.blob
-    return PairObservation(key=p.key, founding=p.founding, led_id=p.reported_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
-                           area_a_px=a.area_px, area_b_px=b.area_px,
-                           separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy), both_visible=p.both_seen,
-                           a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames),
-                           a_saturated=_clipped(p.obs_a, a, white_gray), b_saturated=_clipped(p.obs_b, b, white_gray))
+    return frozen_record(PairObservation, dict(
+        key=p.key, led_id=p.reported_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
+        area_a_px=a.area_px, area_b_px=b.area_px, separation_px=math.hypot(b.cx - a.cx, b.cy - a.cy),
+        both_visible=p.both_seen, a_seen=_seen(p.obs_a, p.frames), b_seen=_seen(p.obs_b, p.frames),
+        founding=p.founding, a_saturated=_clipped(p.obs_a, a, white_gray), b_saturated=_clipped(p.obs_b, b, white_gray)))
 
 
 def _clipped(obs, blob, white_gray: float) -> bool:

@@ -181,12 +181,16 @@ class EmitterLevels:
 
 def moved(blob: Blob, cx: float, cy: float) -> Blob:
     """`blob` translated (by whole pixels, so its envelope mask keeps its shape) to (cx, cy)."""
-    dx, dy = int(round(cx - blob.cx)), int(round(cy - blob.cy))
-    if dx == 0 and dy == 0:
+    dx, dy = float(round(cx - blob.cx)), float(round(cy - blob.cy))
+    if dx == 0.0 and dy == 0.0:
         return blob
-    # the record's own constructor (dataclasses.replace walks its fields: ~2x the cost)
-    return Blob(blob.cx + dx, blob.cy + dy, blob.area_px, blob.hull + (dx, dy), blob.x0 + dx, blob.y0 + dy,
-                blob.x1 + dx, blob.y1 + dy, blob.border, blob.peak, blob.level, blob.background)
+    # built as `frozen_record` builds records (the constructor's per-field setattr: ~2x the cost)
+    out = object.__new__(Blob)
+    ix, iy = int(dx), int(dy)
+    out.__dict__.update(cx=blob.cx + dx, cy=blob.cy + dy, area_px=blob.area_px, hull=blob.hull + (dx, dy),
+                        x0=blob.x0 + ix, y0=blob.y0 + iy, x1=blob.x1 + ix, y1=blob.y1 + iy, border=blob.border,
+                        peak=blob.peak, level=blob.level, background=blob.background)
+    return out
 
 
 # A pair's baseline counts as measured while both emitters' own blobs were seen within this
@@ -541,25 +545,31 @@ class Pairer:
         self._table = None
         return pitch
 
-    def _first_pass(self, tracks: list[Track], xy: np.ndarray) -> tuple[float, dict]:
+    def _first_pass(self, tracks: list[Track], xy: np.ndarray, pitch: bool = True) -> tuple[float, dict]:
         """(`pitch_shift`, {pair uid: ids of the tracks it must not take}) of this frame, from
         every formed pair's explained blobs at its prediction. A blob that two decoded pairs
         explain (two lights overlapping in the image, a car's taillight on another's) moves
         neither: it would drag one's emitter onto the other light. A blob a decoded pair
-        explains is not an undecoded pair's (a wide wrong pairing lying on a head)."""
+        explains is not an undecoded pair's (a wide wrong pairing lying on a head).
+        `pitch` False: the frame's shift is measured elsewhere, the pitch is not computed (0.0)."""
         dys, claims = [], {}
         if _k is not None:
             items = [(p, q, ()) for p, q in self._predictions()]
             if not items:
-                return 0.0 if self.shake_min_pairs > 0 else float(np.median(dys)), {}
+                return 0.0 if self.shake_min_pairs > 0 or not pitch else float(np.median(dys)), {}
             res, mine = self._explain_kernel(items, tracks, True)
-            dys = res[res[:, 0] > 0, 3].tolist()
-            pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            if pitch:
+                dys = res[res[:, 0] > 0, 3].tolist()
+                pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+            else:
+                pitch = 0.0
             # the tracks two or more pairs claim: not taken by an undecoded one when a decoded one
             # claims it too, by none of them when two decoded ones do (the loop below)
             c = mine.astype(bool)
-            dec = np.array([p.led_id is not None for p, _, _ in items])
             both = c.sum(axis=0) >= 2
+            if not both.any():  # (most frames) no track claimed twice
+                return pitch, {}
+            dec = np.array([p.led_id is not None for p, _, _ in items])
             n_dec = c[dec].sum(axis=0)
             ex = c & both & ((n_dec >= 2) | ((n_dec >= 1) & ~dec[:, None]))
             exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
@@ -588,7 +598,7 @@ class Pairer:
             for p in ps:
                 if len(decoded) >= 2 or (decoded and p.led_id is None):
                     exclude.setdefault(p.uid, set()).add(tid)
-        pitch = float(np.median(dys)) if len(dys) >= self.shake_min_pairs else 0.0
+        pitch = float(np.median(dys)) if pitch and len(dys) >= self.shake_min_pairs else 0.0
         return pitch, exclude
 
     def _claim_tol(self, single: float) -> float:
@@ -636,11 +646,13 @@ class Pairer:
         indices) with `lists`])."""
         n = len(tracks)
         excl = np.zeros((len(items), n), np.uint8)
-        for k, (_, _, exclude) in enumerate(items):
-            if exclude:
-                for i, t in enumerate(tracks):
-                    if t.track_id in exclude:
-                        excl[k, i] = 1
+        if any(e for _, _, e in items):
+            ids = [t.track_id for t in tracks]
+            for k, (_, _, exclude) in enumerate(items):
+                if exclude:
+                    for i, tid in enumerate(ids):
+                        if tid in exclude:
+                            excl[k, i] = 1
         scratch = np.empty((3, len(items), max(n, 1)), np.int32)
         flat = np.empty(3 * len(items) * max(n, 1), np.int32)
         res = np.empty((len(items), 10))
@@ -704,14 +716,15 @@ class Pairer:
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         taken = {t.track_id for f in found for t in f[0]}
-        # every two-track pair's own tracks: those it founded on or explained in the last frame
-        # (a far head's jumper pairs share their one track by design: `_drop_twins`)
-        own = {p.uid: (p, pred, bool(f[0]), {*p.founding, *(t.track_id for t in p.tracks)})
-               for (p, pred, _), f in zip(items, found) if p.a.track_id != p.b.track_id}
+        # the two-track pairs whose emitter another pair may take (`_anothers`): the decoded ones
+        # that explain no blob at their prediction, by their founding tracks (a far head's
+        # jumper pairs share their one track by design: `_drop_twins`)
         owners: dict[int, list] = {}
-        for o in own.values():
-            for tid in o[3]:
-                owners.setdefault(tid, []).append(o)
+        for (p, pred, _), f in zip(items, found):
+            if p.a.track_id != p.b.track_id and p.led_id is not None and not f[0]:
+                o = (p, pred, False, p.founding)
+                for tid in p.founding:
+                    owners.setdefault(tid, []).append(o)
         out = []
         for (p, pred, _), (expl, nearby, mean, obs_a, obs_b, merged) in zip(items, found):
             if mean is None and p.a.track_id != p.b.track_id:
@@ -720,7 +733,8 @@ class Pairer:
                     expl, mean, obs_a, obs_b = again
                     nearby = nearby + [t for t in expl if t not in nearby]
                     taken.update(t.track_id for t in expl)
-            if p.uid in own and any(self._anothers(p, t, pred, owners.get(t.track_id, ())) for t in expl):
+            if owners and p.a.track_id != p.b.track_id and any(
+                    self._anothers(p, t, pred, ow) for t in expl if (ow := owners.get(t.track_id)) is not None):
                 p.confirmed = False  # another pair's emitter: its samples may be another light's
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
@@ -729,12 +743,12 @@ class Pairer:
     def _anothers(self, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
         """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
         another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
-        this frame, its own track ids) of the pairs whose own track `t` is. It is another's when
-        not `p`'s own track but the founding track of a decoded pair that explains no blob this
+        this frame, its founding track ids) of the pairs whose founding track `t` may be. It is
+        another's when not `p`'s own track but the founding track of a decoded pair that explains no blob this
         frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
         the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
         other pair has just lost, and `p` may have taken it."""
-        if t.track_id in {*p.founding, *(u.track_id for u in p.tracks)}:
+        if t.track_id in (p.a.track_id, p.b.track_id) or any(u.track_id == t.track_id for u in p.tracks):
             return False
         for q, (mx, my, hx, hy, single), explains, _ in owners:
             if q is p or q.led_id is None or explains or t.track_id not in q.founding:
@@ -761,8 +775,10 @@ class Pairer:
         if p.misses < 1:
             return None  # its first frame without a blob: both emitters dark in a quarter of the frames
         reach = self.shake_radius_px * p.misses
-        cand = [t for t in tracks if t.seen and t.track_id not in taken
-                and abs(t.cx - mx) <= reach + abs(hx) + tol and abs(t.cy - my) <= reach + abs(hy) + tol]
+        tr = self._track_table(tracks)  # seen tracks near the prediction, all at once
+        near = np.flatnonzero((tr[:, 7] != 0.0) & (np.abs(tr[:, 0] - mx) <= reach + abs(hx) + tol)
+                              & (np.abs(tr[:, 1] - my) <= reach + abs(hy) + tol))
+        cand = [t for t in map(tracks.__getitem__, near.tolist()) if t.track_id not in taken]
         best = None
         ratio_max = self.geom["max_area_ratio"]
         for ta in cand:
@@ -814,8 +830,8 @@ class Pairer:
         mx, my, hx, hy, single = pred
         self._preds = None  # the pairs move
         p.tracks, p.nearby = explaining, nearby
-        self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
         if merged is not None or (obs_a is not None and obs_b is not None):
+            self._measure_baseline(p, hx, hy, obs_a, obs_b, merged)
             p.anchored = True
         elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
             p.anchored = False
@@ -918,7 +934,7 @@ class Pairer:
             xy = table[:, :2]
         else:
             table, xy = None, np.array([[t.cx, t.cy] for t in tracks], float).reshape(-1, 2)
-        pitch, exclude = self._first_pass(tracks, xy)
+        pitch, exclude = self._first_pass(tracks, xy, pitch=shift is None)
         dx, dy = (0.0, pitch) if shift is None else shift
         self.shift = (dx, dy) if shift is not None else (0.0, 0.0)  # for the jumps
         self.shift_sum = (self.shift_sum[0] + self.shift[0], self.shift_sum[1] + self.shift[1])
@@ -936,7 +952,7 @@ class Pairer:
         self.pairs = self._follow_all(tracks, shape, dy, dx, exclude, xy)
         self.pairs = self._drop_twins(self.pairs)
         self._mark_beside(tracks)
-        paired = {t.track_id for p in self.pairs for t in p.tracks + p.nearby}
+        paired = {t.track_id for p in self.pairs for ts in (p.tracks, p.nearby) for t in ts}
         for tid in list(self.levels):
             if tid not in live or tid in paired:
                 del self.levels[tid]

@@ -1,13 +1,15 @@
 """The pair stage's cheaper forms of numpy / dataclasses calls give the same values:
-`moved` (the Blob constructor instead of dataclasses.replace), `Pairer.flux_on` (a sorted
-list's middle instead of np.median), the levels cached between adds."""
+`moved` (a record built as `frozen_record` builds it instead of dataclasses.replace),
+`pair_observation` (likewise, instead of the constructor), `Pairer.flux_on` (a sorted list's
+middle instead of np.median), the levels cached between adds."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 
-from receiver.core.records import Blob
+from receiver.core.records import Blob, PairObservation
+from receiver.pipeline import pair_observation
 from receiver.vision.pairing import EmitterLevels, Pair, Pairer, moved
 from receiver.vision.track import Track
 
@@ -183,3 +185,17 @@ def test_predictions_memo_until_a_pair_moves():
     assert pr._predictions() is not again
     pr.step(None, [], lambda g, t: 0.0)
     assert pr._preds is None
+
+
+def test_pair_observation_is_the_constructor():
+    a, b = _blob(100.0, 50.0), _blob(130.0, 52.0)
+    for obs_a, led_id in ((None, None), ((a, 3), 5)):
+        p = Pair(Track(1, a, 0, 0), Track(2, b, 0, 0), led_id=led_id, kind="SL" if led_id else None,
+                 obs_a=obs_a, obs_b=(b, 4), frames=7, both_seen=bool(led_id))
+        got = pair_observation(p, white_gray=200.0)
+        want = PairObservation(key=p.key, led_id=p.reported_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
+                               area_a_px=a.area_px, area_b_px=b.area_px, separation_px=float(np.hypot(30.0, 2.0)),
+                               both_visible=p.both_seen, a_seen=None if obs_a is None else ((a.cx, a.cy), a.area_px, 4),
+                               b_seen=((b.cx, b.cy), b.area_px, 3), founding=(1, 2), a_saturated=True,
+                               b_saturated=True)
+        assert got == want and list(got.__dict__) == list(want.__dict__)
