@@ -143,6 +143,7 @@ class Positioner:
         self._undistort = Undistorter(camera)
         self._row_s = (camera.row_readout_us or 0.0) * 1e-6
         self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
+        self._read_travel = None  # (T, 3) m: the camera's travel to each target's centroid row (`_outline_targets`)
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
@@ -211,7 +212,10 @@ class Positioner:
             else:
                 und = moved
                 self._tau_s = 0.0
+                # the camera's travel from the time stamp to each LED's centroid row, m
+                self._read_travel = np.outer(packed[0][m:, 1] * self._row_s, travel[2])
         if travel is None:
+            self._read_travel = None
             # The instant the points' position information stems from, after the frame's time
             # stamp (their weighted mean read time): `_at_frame_time` moves the fix back to it.
             wt = 1.0 / (sig * sig)
@@ -244,13 +248,16 @@ class Positioner:
                                   tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
                                   C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
 
-    @staticmethod
-    def _with_outline_ranges(ofix, targets, where, d, names):
+    def _with_outline_ranges(self, ofix, targets, where, d, names):
         """The ranges of the fitted LEDs: their distances to the fitted camera centre (np.vecdot:
-        each the number np.linalg.norm gives, in one call for the frame)."""
+        each the number np.linalg.norm gives, in one call for the frame); with the points moved to
+        the first row's view, from where the camera was when the LED's centroid row was read
+        (`_read_travel`)."""
         d = np.array(d, float)
         names = list(names)
         D = targets.xyz - ofix.C
+        if self._read_travel is not None and len(self._read_travel) == len(D):
+            D = D - self._read_travel
         dist = np.sqrt(np.vecdot(D, D)).tolist()
         for k, i in enumerate(where):
             if i is not None:
