@@ -41,7 +41,7 @@ from receiver.vision.camera_motion import CameraMotion, MotionEstimate, MotionSe
 from receiver.vision.detect import Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import pair_dx, vertical_shift
-from receiver.vision.outline import bin_rows_for, stripe_edge_points_batch
+from receiver.vision.outline import stripe_edge_points_batch
 from receiver.vision.pairing import TUNING, Pairer
 from receiver.vision.profile import peak_in_mask, row_profile
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
@@ -243,7 +243,6 @@ class Receiver:
         self.min_stripe_rows = int(math.ceil(plan.stripe_period_px(camera)))
         self.stripe_check = s.policy.stripe_check
         self.scratch = Scratch()  # detection's work buffers, kept across frames
-        self.edge_bin_rows = bin_rows_for(camera.focal_px)  # rows per averaged outline point
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
         self.pairer = (Pairer(settings=s.pair, new_id=self.tracker.new_id, white_gray=s.detect.saturated_gray)
@@ -479,8 +478,7 @@ class Receiver:
         leds, want, want_fields = records(seen, lights, env, pair_of, covered, decoded, self.positioner is not None,
                                           bool(self.plan.tone_table), LedObservation)
         if want:
-            edges = stripe_edge_points_batch(gray, [env[k] for k in want], bin_rows=self.edge_bin_rows,
-                                             scratch=self.scratch)
+            edges = stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)
             for fields, e in zip(want_fields, edges):
                 if fields is not None:
                     fields["edge_px"] = e

@@ -44,22 +44,10 @@ MIN_RUN_PX = 2 * SIDE_PX + 5
 MIN_SIGMA_PX = 0.05
 # Rows per averaged edge point (`stripe_edge_points`' bin_rows).
 DEFAULT_BIN_ROWS = 4
-# ... and at least the rows of this angle of view (rad; `bin_rows_for`): 4 rows at 1000 px focal
-# length, 12 at 3000 (a 4K frame of the same view), so that an LED gives the same number of points
-# whatever the resolution and the pose solve's work does not grow with the frame's pixels.
-BIN_ANGLE_RAD = 4e-3
 # Noise of one pixel's gray value assumed for the sigma (gray levels, incl. quantisation).
 NOISE_GRAY = 2.0
 # A point's sigma times its edge's slope (`sigma = _SIGMA_NUM / slope`), the kernels' form.
 _SIGMA_NUM = NOISE_GRAY * math.sqrt(2.0)
-
-
-def bin_rows_for(focal_px: float) -> int:
-    """`stripe_edge_points`' bin_rows for a camera of focal length `focal_px`: the rows of
-    `BIN_ANGLE_RAD`, at least `DEFAULT_BIN_ROWS`. Along a straight edge the mean of a bin's points
-    lies on the edge and its sigma shrinks with their number, so longer bins at a higher
-    resolution keep the edge's information in fewer points."""
-    return max(DEFAULT_BIN_ROWS, int(round(BIN_ANGLE_RAD * focal_px)))
 
 
 def _bbox(blob_or_contour, shape, pad: int):

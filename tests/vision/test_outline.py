@@ -14,7 +14,7 @@ from receiver.io.sources import open_source
 from receiver.locate.indoor import Positioner
 from receiver.pipeline import Receiver
 from receiver.vision.detect import detect
-from receiver.vision.outline import bin_rows_for, stripe_edge_points
+from receiver.vision.outline import stripe_edge_points
 
 RECORDINGS = Path(__file__).resolve().parents[2] / "recordings"
 
@@ -49,37 +49,3 @@ def test_sparse_tilted_walk_acceptance():
         err.append(np.linalg.norm([r.position[k] - c[k] for k in "xyz"]))
     err = np.array(err)
     assert np.median(err) <= 0.02 and np.percentile(err, 95) <= 0.06 and err.max() <= 0.20, err
-
-
-def _striped_rect(scale: int):
-    """A lit parallelogram (edges slanted by 0.2 px per row) of 60 x 120 px times `scale`, lit
-    in stripes of 4 x `scale` rows, blurred: the same view at `scale` times the resolution."""
-    import cv2
-
-    h, w = 200 * scale, 200 * scale
-    img = np.full((h, w), 10, np.uint8)
-    y = np.arange(40 * scale, 160 * scale)
-    lit = (y // (4 * scale)) % 2 == 0
-    for r in y[lit]:
-        x0 = 70 * scale + 0.2 * (r - 40 * scale)
-        img[r, int(round(x0)):int(round(x0 + 60 * scale))] = 200
-    img = cv2.GaussianBlur(img, (0, 0), 1.0)
-    poly = np.array([[60, 35], [160, 35], [160, 165], [60, 165]], float) * scale
-    return img, poly
-
-
-def test_outline_bins_span_one_angle_of_view():
-    """`bin_rows_for`: 4 rows per point up to ~1100 px focal length, the rows of BIN_ANGLE_RAD
-    beyond; the same LED at three times the resolution gives about as many points, on its edges."""
-    assert [bin_rows_for(f) for f in (500.0, 1000.0, 1112.0, 1500.0, 3000.0)] == [4, 4, 4, 6, 12]
-    counts = []
-    for scale in (1, 3):
-        img, poly = _striped_rect(scale)
-        p, s = stripe_edge_points(img, poly, bin_rows=bin_rows_for(1000.0 * scale))
-        counts.append(len(p))
-        # each point on its slanted edge: x = x0 + 0.2 (y - y0) (+ the width on the right)
-        x_edge = 70 * scale + 0.2 * (p[:, 1] - 40 * scale)
-        right = p[:, 0] > x_edge + 30 * scale
-        off = p[:, 0] - x_edge - np.where(right, 60 * scale, 0) + 0.5
-        assert np.abs(off).max() < 0.5 and np.all(s > 0)
-    assert 0.8 <= counts[1] / counts[0] <= 1.25
