@@ -452,10 +452,12 @@ cdef void circle_param_jacobians(Prob* pr, const double* R, const double* dR, co
 
 
 cdef void normal(Prob* pr, const double* p, const double* r, const double* R, const double* dR,
-                 double* A, double* g, int gram) noexcept nogil:
+                 double* A, double* g, int gram, double* G) noexcept nogil:
     """`_Problem.normal` (gram=0: IRLS-weighted J^T W J, J^T W r) or `_Problem.gram` (gram=1:
     unweighted J^T J without the position prior's rows) at p, whose residuals r, R and dR
-    `evaluate` computed (with the edge / conic work buffers)."""
+    `evaluate` computed (with the edge / conic work buffers). With gram=1 and G not NULL, G (6, 6)
+    also receives `outline_pose._edge_offset_gram`: the sum over the used square / rect edges of
+    g g^T, g = dl^T (sum of w^2 (x, y, 1) over the edge's points), from the same per-edge sums."""
     cdef int i, e, t, k, a, b, j, base
     cdef double wp, ww, sx, sy, rr, rho, u, v, val, cx0, cx1, h, hs, kk, sc, z
     cdef const double* aux
@@ -483,6 +485,9 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
         A[k] = 0.0
     for k in range(6):
         g[k] = 0.0
+    if G != NULL:
+        for k in range(36):
+            G[k] = 0.0
     if pr.N > pr.M:
         circle_param_jacobians(pr, R, dR, C)
     # Circle points: a point's Jacobian row is drdc^T dc6t (d r / d c6 times the circle's d c6 / d p),
@@ -578,6 +583,13 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
             g[a] += dl[a] * S[6] + dl[6 + a] * S[7] + dl[12 + a] * S[8]
             for b in range(a, 6):
                 A[6 * a + b] += dl[a] * SD[b] + dl[6 + a] * SD[6 + b] + dl[12 + a] * SD[12 + b]
+        if G != NULL:
+            # the edge's common-offset row: (x w^2, y w^2, w^2) summed (S[2], S[4], S[5]) through dl
+            for k in range(6):
+                J[k] = S[2] * dl[k] + S[4] * dl[6 + k] + S[5] * dl[12 + k]
+            for a in range(6):
+                for b in range(a, 6):
+                    G[6 * a + b] += J[a] * J[b]
     base = pr.N
     # Centroids.
     for k in range(pr.K):
@@ -618,6 +630,8 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
     for a in range(6):
         for b in range(a):
             A[6 * a + b] = A[6 * b + a]
+            if G != NULL:
+                G[6 * a + b] = G[6 * b + a]
 
 
 cdef int lm(Prob* pr, double* p, double** rp, double* R, double* dR, double** rp_new, double* R_new,
@@ -637,7 +651,7 @@ cdef int lm(Prob* pr, double* p, double** rp, double* R, double* dR, double** rp
     cdef double* r_new = rp_new[0]
     c = evaluate(pr, p, r, R, dR)
     for it in range(max_iter):
-        normal(pr, p, r, R, dR, A, g, 0)
+        normal(pr, p, r, R, dR, A, g, 0, NULL)
         lm_damping(A, dA)
         for k in range(6):
             mg[k] = -g[k]
@@ -679,13 +693,14 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
           double sigc, const double[::1] up, double up_sig, const double[::1] Cp,
           const double[:, ::1] W, int loss, double f_scale, int rounds, int max_iter, double guard2,
           int minor_switches, double minor_fraction, double step_tol, double cost_rtol,
-          double[:, ::1] R_out, double[:, ::1] gram_out):
+          double[:, ::1] R_out, double[:, ::1] gram_out, double[:, ::1] offset_out=None):
     """`solve_outline_pose`'s rounds (edge assignment, then at most `max_iter` LM iterations) from
     p (6,), updated in place, on an `OutlineFrame`'s arrays: targets `xyz` (T, 3) centres, `half`
     (T, 2) half extents along world x, y, `circ` (T,) 1 for a circle, `uv` (T, 2) centroids (NaN:
     none); points `P` (N, 2) of 1-sigma `sigma`, target k's from `ends[k]` to `ends[k + 1]`.
     `lab` (N,) receives the final edge labels, `R_out` (3, 3) R_cw at p, `gram_out` (6, 6) the
-    unweighted J^T J without the position prior. `up` / `Cp` empty: no tilt / position prior.
+    unweighted J^T J without the position prior, `offset_out` (6, 6, or None) the edge-offset
+    gram at p (`outline_pose._edge_offset_gram` of the final labels; `normal`). `up` / `Cp` empty: no tilt / position prior.
     Returns (converged, chi^2 without the position prior's rows, residual count without them)."""
     cdef Prob pr
     cdef int N = P.shape[0], T = xyz.shape[0]
@@ -697,6 +712,8 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
     cdef double dR_new[27]
     cdef double A[36]
     cdef double g[6]
+    cdef double Go[36]
+    cdef double* Gp = NULL
     cdef double sgn[8]
     cdef double* r
     cdef double* r_new
@@ -710,6 +727,10 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
             or circ.shape[0] != T or uv.shape[0] != T or ends.shape[0] != T + 1 or p.shape[0] != 6 \
             or (T and (ends[0] != 0 or ends[T] != N)):
         raise ValueError("inconsistent outline arrays")
+    if offset_out is not None:
+        if offset_out.shape[0] != 6 or offset_out.shape[1] != 6:
+            raise ValueError("offset_out must be 6 x 6")
+        Gp = Go
     for t in range(T):
         if ends[t + 1] < ends[t]:
             raise ValueError("outline target ends must not decrease")
@@ -821,11 +842,14 @@ def solve(double[::1] p, int[::1] lab, const double[:, ::1] P, const double[::1]
                 n_use += 1
         for i in range(N, n - 3 * pr.has_prior):
             chi2 += r[i] * r[i]
-        normal(&pr, &p[0], r, R, dR, A, g, 1)
+        normal(&pr, &p[0], r, R, dR, A, g, 1, Gp)
     for k in range(9):
         R_out[k // 3, k % 3] = R[k]
     for k in range(36):
         gram_out[k // 6, k % 6] = A[k]
+    if Gp != NULL:
+        for k in range(36):
+            offset_out[k // 6, k % 6] = Go[k]
     free(work)
     free(iwork)
     free(wbuf)

@@ -76,6 +76,25 @@ def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s:
     return out
 
 
+def detranslate_rows(uv: np.ndarray, rows_px: np.ndarray, z_plane: np.ndarray, R_cw: np.ndarray, C: np.ndarray,
+                     v: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
+    """Normalized undistorted image points `uv` (N, 2) of a rolling-shutter frame, each read at
+    image row `rows_px` (N,) by a camera of orientation `R_cw` (the reference row's: `derotate_rows`
+    first) moving at `v` (m/s, solving frame), as seen from `C`, its centre at the instant of row
+    `ref_row`. Point i lies on the horizontal plane z = `z_plane[i]` (a face-down ceiling LED's)
+    and was read tau = (row - ref_row) row_s later from C + v tau, at camera depth
+    Z = (z_plane - C_z - v_z tau) / (R^T x)_z along its ray x = (u, v, 1): seen from C it lies on
+    Z x + R v tau. A walking phone moves ~1 cm while a frame's rows are read: at 2 m from the
+    ceiling a shift of 5 mrad between the first and the last rows' LEDs (5 px at 1000 px focal
+    length), which no single camera pose explains."""
+    tau = (np.asarray(rows_px, float) - ref_row) * row_s
+    x = np.column_stack([uv, np.ones(len(uv))])
+    with np.errstate(divide="ignore", invalid="ignore"):     # a ray along the plane: inf / NaN out
+        Z = (np.asarray(z_plane, float) - C[2] - v[2] * tau) / (x @ R_cw[:, 2])
+        Y = x * Z[:, None] + tau[:, None] * (R_cw @ v)[None, :]
+        return Y[:, :2] / Y[:, 2:3]
+
+
 def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
     """(points (M + T, 2) px: every target's edge points in turn, then the T centroids; sigma (M,)
     normalized: hypot(point sigma, model sigma) / focal; ends (T + 1,) int64; centres (T, 3) map
@@ -124,6 +143,7 @@ class Positioner:
         self._undistort = Undistorter(camera)
         self._row_s = (camera.row_readout_us or 0.0) * 1e-6
         self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
+        self._read_travel = None  # (T, 3) m: the camera's travel to each target's centroid row (`_outline_targets`)
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
@@ -149,10 +169,12 @@ class Positioner:
         self._fixtures[led_id] = fx
         return fx
 
-    def _outline_targets(self, t_s, leds, items):
+    def _outline_targets(self, t_s, leds, items, pred=None):
         """(`OutlineFrame` or None, item index or None per target) of the LEDs with measured edge
         points and a known shape and size (receiver.locate.outline_pose); LEDs cut by the image
-        border (not in `items`) come with their edges only."""
+        border (not in `items`) come with their edges only. The points are moved to the view of
+        the frame's first row (`derotate_rows`, `detranslate_rows`) as far as the track knows the
+        camera's motion; `pred`: the filter's prediction at t_s when the caller has it."""
         fixture = self._outline_fixture
         chosen = []
         for obs in leds:
@@ -177,17 +199,46 @@ class Positioner:
             # Every point to the instant of the frame's time stamp (its first row): one camera
             # orientation for the whole frame.
             und = derotate_rows(und, packed[0][:, 1], w, self._row_s, 0.0)
-        # The instant the points' position information stems from, after the frame's time stamp
-        # (their weighted mean read time): `_at_frame_time` moves the fix back to the time stamp.
-        wt = 1.0 / (sig * sig)
-        self._tau_s = float(wt @ packed[0][:m, 1]) / float(wt.sum()) * self._row_s
         L = self.pose.to_solving(xyz)
+        travel = self._travel(t_s, pred) if self._row_s > 0 else None
+        if travel is not None:
+            # ... and one camera centre: the tracked one at the time stamp, from which each point
+            # is seen where the moving camera read it.
+            z = L[:, 2]
+            moved = detranslate_rows(und, packed[0][:, 1], np.concatenate([np.repeat(z, np.diff(ends)), z]), *travel,
+                                     self._row_s, 0.0)
+            if not np.isfinite(moved).all():    # a ray that misses the ceiling plane: a track far off
+                travel = None
+            else:
+                und = moved
+                self._tau_s = 0.0
+                # the camera's travel from the time stamp to each LED's centroid row, m
+                self._read_travel = np.outer(packed[0][m:, 1] * self._row_s, travel[2])
+        if travel is None:
+            self._read_travel = None
+            # The instant the points' position information stems from, after the frame's time
+            # stamp (their weighted mean read time): `_at_frame_time` moves the fix back to it.
+            wt = 1.0 / (sig * sig)
+            self._tau_s = float(wt @ packed[0][:m, 1]) / float(wt.sum()) * self._row_s
         uv = und[m:]
         if None in where:
             uv = uv.copy()
             uv[[k for k, i in enumerate(where) if i is None]] = np.nan
         frame = OutlineFrame(und[:m], sig, ends, L, half, tuple(fx[0].shape for _, _, fx in chosen), uv)
         return frame, where
+
+    def _travel(self, t_s, pred=None):
+        """(R_cw, C, v) of `detranslate_rows` at t_s: the tracked orientation and the filter's
+        predicted position and velocity (solving frame), or None while the track has none."""
+        R = self.pose.R_prior(t_s)
+        if R is None or self.pose.kf is None:
+            return None
+        if pred is None:
+            pred = self.pose.kf.predict_at(t_s)
+        if pred is None:
+            return None
+        x = pred[0].reshape(6)
+        return R, x[:3], x[3:]
 
     def _solve_outline(self, targets, R0, C0, C_prior, C_cov):
         s = self.settings
@@ -197,13 +248,16 @@ class Positioner:
                                   tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
                                   C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
 
-    @staticmethod
-    def _with_outline_ranges(ofix, targets, where, d, names):
+    def _with_outline_ranges(self, ofix, targets, where, d, names):
         """The ranges of the fitted LEDs: their distances to the fitted camera centre (np.vecdot:
-        each the number np.linalg.norm gives, in one call for the frame)."""
+        each the number np.linalg.norm gives, in one call for the frame); with the points moved to
+        the first row's view, from where the camera was when the LED's centroid row was read
+        (`_read_travel`)."""
         d = np.array(d, float)
         names = list(names)
         D = targets.xyz - ofix.C
+        if self._read_travel is not None and len(self._read_travel) == len(D):
+            D = D - self._read_travel
         dist = np.sqrt(np.vecdot(D, D)).tolist()
         for k, i in enumerate(where):
             if i is not None:
@@ -217,11 +271,11 @@ class Positioner:
         centroid solve. Returns (fix, d, names) when that
         fit passes `WARM_OUTLINE_CHI2_DOF`; else (None, (targets, where, the warm candidate or
         None)) for `_outline`, which then tries its other starts only."""
-        targets, where = self._outline_targets(t_s, leds, items)
-        if targets is None:
-            return None, (targets, where, None)
         if pred is None:
             pred = self.pose.kf.predict_at(t_s)
+        targets, where = self._outline_targets(t_s, leds, items, pred)
+        if targets is None:
+            return None, (targets, where, None)
         C_prior = C_cov = None
         if targets.shapes == ("circle",):
             C_prior, C_cov = pred[0][:3], pred[1][:3, :3] + np.eye(3) * 1e-6

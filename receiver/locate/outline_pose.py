@@ -672,12 +672,12 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
             return _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets), p0, *args[1:])
         return _solve_numpy(targets if targets is not None else frame.targets, p0, *args[1:])
 
-    p, R, chi2, n_res, JtJ, labels = solve(targets, frame, p0)
+    p, R, chi2, n_res, JtJ, labels, G = solve(targets, frame, p0)
     kept = None
     if chi2 > MAX_CHI2_DOF * (n_res + 3 - len(p)) and np.all(np.isfinite(p)):
         kept = _without_outliers(targets if targets is not None else frame.targets, p, focal_px)
         if kept is not None:
-            p, R, chi2, n_res, JtJ, labels = solve(kept, None, p.copy())
+            p, R, chi2, n_res, JtJ, labels, G = solve(kept, None, p.copy())
     C = p[3:].copy()
     z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
@@ -692,8 +692,9 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     cov6 = A_inv * max(1.0, chi2 / dof)
     if EDGE_OFFSET_SIGMA_PX > 0:
         # ... plus the edges' common offsets (`EDGE_OFFSET_SIGMA_PX`) through the solve's gain.
-        G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
-                              p, focal_px, labels)
+        if G is None:
+            G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
+                                  p, focal_px, labels)
         cov6 = cov6 + (EDGE_OFFSET_SIGMA_PX / focal_px) ** 2 * (A_inv @ G @ A_inv)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
 
@@ -758,7 +759,8 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
                  max_iter):
     """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
     count without the position prior's rows, unweighted J^T J without them, the final edge label
-    of each square / rect point (-1: next to a corner))."""
+    of each square / rect point (-1: next to a corner), None: the edge-offset gram is left to
+    `_edge_offset_gram`)."""
     prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
     if C_prior is not None:
         prob.C_prior, prob.W = np.asarray(C_prior, float), W
@@ -770,7 +772,7 @@ def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prio
         p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
     if prob.C_prior is not None:
         r = r[:-3]
-    return p, st.R, float(r @ r), len(r), prob.gram(st), prob.labels
+    return p, st.R, float(r @ r), len(r), prob.gram(st), prob.labels, None
 
 
 _EMPTY = np.zeros(0)
@@ -796,15 +798,17 @@ def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigm
                   rounds, max_iter):
     """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
     the same arithmetic per point, summed in another order (results equal to rounding); its
-    labels are those of every point of the frame (circles' included)."""
+    labels are those of every point of the frame (circles' included); its last item the
+    edge-offset gram (`_edge_offset_gram`) from the same per-edge sums."""
     lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
+    G = np.empty((6, 6))
     _, chi2, n_res = _k.solve(p, lab, frame.pts, frame.sigma, frame.ends, frame.xyz, frame.half,
                               np.array([s == "circle" for s in frame.shapes], np.int32), frame.uv, sigma_c,
                               _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float), tilt_sigma_rad,
                               _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float),
                               _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
                               rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
-                              MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ)
-    return p, R, chi2, n_res, JtJ, lab
+                              MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ, G)
+    return p, R, chi2, n_res, JtJ, lab, G

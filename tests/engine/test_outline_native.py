@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -50,6 +51,20 @@ def test_native_equals_numpy_on_recorded_frames(monkeypatch, warm, loss):
     _assert_same(native, pure)
 
 
+def test_native_edge_offset_gram_equals_numpy(warm):
+    """The kernel's edge-offset gram (from its per-edge sums at the final pose) is
+    `_edge_offset_gram` of the same labels and pose, and it moves the covariance (not zero)."""
+    targets, R0, C0, kw = warm
+    frame = outline_pose.OutlineFrame.from_targets(targets)
+    args = (np.concatenate([cv2.Rodrigues(R0)[0].ravel(), C0]), kw["focal_px"], kw["centroid_sigma_px"] / kw["focal_px"],
+            kw["up_prior"], kw["tilt_sigma_rad"], None, None, kw["loss"], kw["f_scale"], 2, outline_pose.MAX_ITER)
+    p, _, _, _, _, lab, G = outline_pose._solve_native(frame, *args)
+    ref = outline_pose._edge_offset_gram(targets, p, kw["focal_px"], lab)
+    assert np.abs(ref).max() > 0.0
+    assert np.allclose(G, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    assert np.array_equal(G, G.T)
+
+
 def test_native_equals_numpy_from_a_far_start(monkeypatch, warm):
     """More iterations, a second assignment round and damping changes: still the same path."""
     targets, R0, C0, kw = warm
@@ -86,8 +101,8 @@ def test_native_equals_numpy_with_a_circle_seen_edge_on():
     p0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])       # at the flat circle's height: a degenerate conic
     targets = [flat] + targets[1:]
     args = (p0, 1000.0, 1.5e-3, np.array([0.0, 0.0, 1.0]), 0.17, None, None, "soft_l1", 3.0, 1, 1)
-    p_n, R_n, chi2_n, n_n, JtJ_n, _ = outline_pose._solve_native(outline_pose.OutlineFrame.from_targets(targets), *args)
-    p_p, R_p, chi2_p, n_p, JtJ_p, _ = outline_pose._solve_numpy(targets, *args)
+    p_n, R_n, chi2_n, n_n, JtJ_n, _, _ = outline_pose._solve_native(outline_pose.OutlineFrame.from_targets(targets), *args)
+    p_p, R_p, chi2_p, n_p, JtJ_p, _, _ = outline_pose._solve_numpy(targets, *args)
     assert n_n == n_p == sum(len(t.pts) for t in targets) + 3
     assert chi2_p > len(targets[0].pts) * 1e6 * 0.99                  # the 1e3 residuals are in
     assert math.isclose(chi2_n, chi2_p, rel_tol=1e-9)
