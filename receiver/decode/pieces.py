@@ -246,23 +246,24 @@ class PieceAssembler:
         return int(self.ids[c]) if seen.all() else None
 
     def _post(self, c: int, ph: int) -> None:
-        """Measure the latest piece's frame jitter under hypothesis (c, ph) for the other lights:
-        where the piece fits the packet near its timestamp's place, against this light's
-        continuous phase (the mean of its pieces' fitted positions about their placements)."""
+        """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the
+        other lights (the latest hypothesis restates the earlier frames too: pieces that came
+        before any light was sure get placed once one is): where the piece fits the packet
+        near its timestamp's place, against this light's continuous phase (the mean of its
+        pieces' fitted positions about their placements)."""
         if self.frame_jitter is None:
             return
-        last = self.pieces[-1]
         base = self.phis[ph]
         phi = base + float(np.mean([_wrap(at - qq - base) for _, qq, at in self._fits(c, ph)]))
         J = self.jitter_chips
-        s0 = int(self._slots(last.q)[ph])
-        window = (s0 + np.arange(-J, J + 1)) % PACKET_LEN
-        vals = last.corr[c, window]
-        i = int(np.argmax(vals))
-        other = np.delete(vals, i).max() if vals.size > 1 else -1.0
-        if vals[i] < self.ref_match or vals[i] - other < self.ref_unique:
-            return
-        self.frame_jitter.post(last.t, self.key, _wrap(float(window[i]) - last.q - phi))
+        offsets = np.arange(-J, J + 1)
+        for p in self.pieces:
+            window = (int(self._slots(p.q)[ph]) + offsets) % PACKET_LEN
+            vals = p.corr[c, window]
+            i = int(np.argmax(vals))
+            other = np.delete(vals, i).max() if vals.size > 1 else -1.0
+            if vals[i] >= self.ref_match and vals[i] - other >= self.ref_unique:
+                self.frame_jitter.post(p.t, self.key, _wrap(float(window[i]) - p.q - phi))
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:
