@@ -17,6 +17,11 @@ that need a clip (drift, banding, timestamps) say they do not apply.
   names the exposure and chip rate that would work), a tone's stripes keep their depth up to
   its half period (`receiver.calibrate.rows.exposure_limit_us`). A stripe fit below one row
   resolved no edge ramp: the camera file's exposure is judged instead.
+* chips: the striped LEDs' median image height against each OOK chip rate: an image showing
+  fewer chips than a packet (54) holds no whole packet, and its IDs need several frames of each
+  light (`receiver.decode.pieces.chips_verdict` gives how many, and which rate or image height
+  would read the packets from the frames' own chips); pieces too short to be aligned by their
+  chips are placed by the frame times among the map's IDs only (a problem with "xy" addressing).
 * auto-exposure / gain drift: the trend of the blobs' median peak and of the frame mean over
   the clip (more than `DRIFT_FRAC` of the level); the background's only while the camera is
   still (the lights' median frame-to-frame step, summed, under `MOVING_PX`) or nothing else
@@ -42,7 +47,10 @@ import numpy as np
 from receiver.calibrate.rows import (LONG_FROM_CHIPS, edge_blur_px, exposure_limit_us, long_exposure_chips,
                                      measure_row_time)
 from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_exposure_rows
+from receiver.core.protocol import OOK_PACKET_LEN
 from receiver.decode.ook import rows_per_chip
+from receiver.decode.pieces import chips_verdict
+from receiver.decode.settings import OokSettings
 from receiver.decode.policy import map_rates_hz
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
@@ -66,6 +74,8 @@ MAX_RAMP_PROFILES = 60
 # Exposures past a chip or so are told by a chip sequence fit over the first this many of them
 # (its cost grows with each profile).
 SEQUENCE_FIT_PROFILES = 12
+# The lights' image heights (the chips a frame) are measured on this many frames.
+HEIGHT_FRAMES = 30
 
 
 @dataclass
@@ -161,6 +171,12 @@ def _receiver_detect(camera, led_map, still: bool):
     the check judges the blobs the receiver would decode."""
     if camera is None or led_map is None or not still:
         return None
+    return _run_detect(camera, led_map, still)
+
+
+def _run_detect(camera, led_map, still: bool):
+    """The detection settings of `occloc run` for this camera and map (a striped light is one
+    blob, its dark stripes bridged)."""
     from receiver.decode.policy import ModePlan
     from receiver.pipeline import Receiver, ReceiverSettings
     return Receiver._resolve(ReceiverSettings(), camera, ModePlan.from_map(led_map), True).detect
@@ -176,11 +192,14 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
     estimate."""
     still = source_kind == "images"
     detect_settings = _receiver_detect(camera, led_map, still)
+    # the lights as `occloc run` sees them (one blob each), for their image heights
+    run_detect = _run_detect(camera, led_map, still) if camera is not None and led_map is not None else None
     times, idx, means, peaks, bgrows = [], [], [], [], []
     tracks: list[dict] = []
     blurs = []
     kept = []
     ook_profiles: list[np.ndarray] = []  # the LEDs' row profiles (well-covered rows), for edge ramps
+    heights: list[int] = []  # the striped LEDs' image heights (rows), for the chips a frame
     dup = 0
     moved_px = 0.0   # the picture's path: the lights' median step, frame to frame, summed
     prev = None
@@ -197,6 +216,8 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         bgrows.append(_background_rows(g))
         kept.append(f)
         blobs = [b for b in detect(g, settings=detect_settings) if not b.border]
+        if run_detect is not None and len(kept) <= HEIGHT_FRAMES:
+            heights.extend(b.y1 - b.y0 for b in detect(g, settings=run_detect) if not b.border and b.y1 - b.y0 >= 6)
         pk = [b.peak for b in blobs if b.peak < 250]
         peaks.append(float(np.median(pk)) if pk else np.nan)
         steps = []   # this frame's lights' steps from the frame before (px)
@@ -330,6 +351,19 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
         out.append(Finding("exposure", not bad, text, exposure_fix(source_kind, fix_us) if bad else "",
                            {"exposure_us": exp, "chip_us": chip_us, "limit_us": round(fix_us, 2),
                             "exposure_chips": None if exp is None else round(exp / chip_us, 3)}))
+    # chips a frame: fewer than a packet are pieced together over frames (receiver.decode.pieces)
+    if rolling and heights and led_map is not None:
+        rows = float(np.median(heights))
+        for r in sorted(set(map_rates_hz(led_map)[0])):
+            chips = rows * r * camera.row_readout_us * 1e-6
+            if chips < OOK_PACKET_LEN:
+                ok_c, text = chips_verdict(chips, r, max_chips=OokSettings.pieces_max_chips,
+                                           min_frames=OokSettings.pieces_min_frames,
+                                           mapped=led_map.addressing != "xy")
+                out.append(Finding("chips", ok_c, f"{text} ({rows:.0f} rows, {camera.row_readout_us:g} us a row)",
+                                   "" if ok_c else "use the map's IDs (addressing \"map\"), faster chips or "
+                                                   "lights larger in the image",
+                                   {"chips_a_frame": round(chips, 2), "rate_hz": r, "rows": rows}))
     # drift
     t = np.asarray(times)
     span = float(t[-1] - t[0]) if len(t) > 1 else 0.0

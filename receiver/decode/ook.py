@@ -500,7 +500,8 @@ class OokDecoder:
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
                  exposure_learner: exposure.ExposureLearner | None = None,
-                 candidates: np.ndarray | None = None, **overrides):
+                 candidates: np.ndarray | None = None, frame_jitter: pieces.FrameJitter | None = None,
+                 **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
@@ -580,12 +581,14 @@ class OokDecoder:
         self.rate_hz = rate_hz
         self.pieces_max_chips = s.pieces_max_chips
         self.pieces = None
+        self.pieces_took = 0  # short pieces the ID was pieced together from (0: not by pieces)
         if candidates is not None and len(candidates) and s.pieces_max_chips > 0:
             ids = np.asarray(candidates, dtype=np.int64)
             self.pieces = pieces.PieceAssembler(
                 ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
                 history=s.pieces_frames, min_frames=s.pieces_min_frames, min_corr=s.pieces_min_corr,
-                min_gap=s.pieces_min_gap, shift_penalty=s.pieces_shift_penalty)
+                min_gap=s.pieces_min_gap, shift_penalty=s.pieces_shift_penalty, jitter=frame_jitter,
+                timed_penalty=s.pieces_timed_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -820,8 +823,8 @@ class OokDecoder:
                 self._t_epoch = clock.epoch
             self._tk = clock.k
             self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
-        if (self.pieces is not None and self.led_id is None and t_s is not None and y0 is not None
-                and self.last_start_row is not None and soft.size >= 2):
+        if (self.pieces is not None and (self.led_id is None or self.pieces.frame_jitter is not None)
+                and t_s is not None and y0 is not None and self.last_start_row is not None and soft.size >= 2):
             self._add_piece(soft, cw, t_s, y0)
         added = None
         if self._confirm is not None and soft.size >= SYNC_LEN:
@@ -909,14 +912,16 @@ class OokDecoder:
 
     def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
         """Keep a short piece (no more than `pieces_max_chips` chips) with its packet time
-        (receiver.decode.pieces) and try the ML choice of the light's ID."""
+        (receiver.decode.pieces) and try the ML choice of the light's ID (once it is known, the
+        piece only measures its frame's jitter for the other lights)."""
         if soft.size > self.pieces_max_chips:
             return  # a long piece: the assembly above places it by its own chips
         q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
-        self.pieces.add(soft, cw, q)
-        led_id = self.pieces.decide()
+        self.pieces.add(soft, cw, q, float(t_s))
+        led_id = self.pieces.decide(fixed=self.led_id)
         if led_id is not None:
             self.led_id = led_id
+            self.pieces_took = self.pieces.added
 
     def _add_timed(self, soft: np.ndarray, cw: np.ndarray, shift: int) -> None:
         """Add a frame placed by the frame clock: trusted once the offsets are tied to packet

@@ -5,22 +5,31 @@ A light whose image shows only a few chips per frame (5-10 kHz chips on a small 
 6-13 chips) rarely shows the sync, and two frames' pieces rarely overlap enough to be aligned
 by their chips. Their times place them instead: frame f's chip 0 sits at packet position
 
-    s_f = phi + q_f (mod 54),   q_f = rate * t_f + Y_f / p,
+    s_f = phi + q_f + j_f (mod 54),   q_f = rate * t_f + Y_f / p,
 
-with t_f the frame's timestamp, Y_f the image row where its chip 0 starts, p rows per chip and
-phi the light's unknown packet phase. The frame's true start differs from its timestamp by the
-camera's jitter (about 100-200 us: one or two chips at 10 kHz), so each piece may sit up to
-`jitter_chips` either side. The light's ID and phase are then chosen by maximum likelihood over
-the map's IDs at this chip rate (`candidates`) and phi: every frame contributes its best
-normalised correlation with the candidate's packet within its jitter window; the winner must
-correlate strongly on average (`min_corr`), beat every other ID by `min_gap`, and its pieces
-must cover the whole packet.
+with t_f the frame's timestamp, Y_f the image row where its chip 0 starts, p rows per chip,
+phi the light's unknown packet phase and j_f the frame's start jitter in chips (the camera's
+true frame start differs from its timestamp by about 100-200 us: one or two chips at 10 kHz).
+
+The jitter is common to every light of a frame (one rolling shutter reads them all), so the
+lights measure it for one another (`FrameJitter`): a light whose best (ID, phase) hypothesis is
+strong finds where its piece fits best near phi + q_f, and posts the difference m_f = s_f -
+q_f - phi. A piece is then placed at q_f + j_f, j_f the consensus of the *other* lights' m_f
+(its own hypothesis never moves its own pieces), within +-1 chip and a steep penalty; a piece
+of a frame no other light measured may sit up to `jitter_chips` either side of q_f with a mild
+penalty per chip (a jitter of one or two chips is likelier than the window's edge; it also
+denies wrong IDs the window's freedom).
+
+The light's ID and phase are chosen by maximum likelihood over the map's IDs at this chip rate
+(`candidates`) and phi: every piece contributes its best normalised correlation with the
+candidate's packet within its window; the winner must correlate strongly on average
+(`min_corr`), beat every other ID by `min_gap`, and its pieces must cover the whole packet.
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import OrderedDict, deque
 
 import numpy as np
 
@@ -29,98 +38,265 @@ PACKET_LEN = 54
 PHASE_STEPS = 4
 
 
+def _wrap(x: float) -> float:
+    """x chips wrapped into [-27, 27)."""
+    return (x + PACKET_LEN / 2) % PACKET_LEN - PACKET_LEN / 2
+
+
+class FrameJitter:
+    """Per-frame start jitter (chips) of one chip rate, measured by the lights of the frame.
+
+    `post(t, key, m)`: light `key` measured m chips (wrapped to +-27) in the frame stamped t; `estimate(t, key)`:
+    the consensus of the other lights' measurements of that frame, or None. The consensus is
+    the median of the largest group of measurements within `agree_chips` of one another; a
+    tie between groups (two lights that disagree) gives none. Only the last `frames` frames
+    are kept."""
+
+    def __init__(self, *, frames: int = 64, agree_chips: float = 0.75):
+        self.frames = frames
+        self.agree = agree_chips
+        self.by_frame: OrderedDict = OrderedDict()
+
+    def post(self, t: float, key: int, m: float) -> None:
+        d = self.by_frame.get(t)
+        if d is None:
+            d = self.by_frame[t] = {}
+            while len(self.by_frame) > self.frames:
+                self.by_frame.popitem(last=False)
+        d[key] = _wrap(float(m))
+
+    def estimate(self, t: float, key: int) -> float | None:
+        d = self.by_frame.get(t)
+        if not d:
+            return None
+        vals = [m for k, m in d.items() if k != key]
+        if not vals:
+            return None
+        if len(vals) == 1:
+            return vals[0]
+        groups = [[v for v in vals if abs(_wrap(v - u)) <= self.agree] for u in vals]
+        sizes = sorted((len(g) for g in groups), reverse=True)
+        best = max(groups, key=len)
+        if sizes[0] == sizes[1] and any(len(g) == sizes[0] and set(g) != set(best) for g in groups):
+            return None
+        return float(np.median(best))
+
+
+class _Piece:
+    """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t; its (K, 54)
+    correlations `corr` (computed once needed), their best within the wide and the narrow
+    window, and the placement its contribution to the likelihood table was made with."""
+
+    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used")
+
+    def __init__(self, x: np.ndarray, q: float, t: float):
+        self.x, self.den, self.q, self.t, self.n = x, float(np.abs(x).sum()), q, t, x.size
+        self.corr = self.wide = self.narrow = None
+        self.used: tuple | None = None  # (placed q, narrow?) of the piece's term in ll
+
+
+def _windowed(corr: np.ndarray, half: int, penalty: float) -> np.ndarray:
+    """The best of `corr` within +-half positions of each, `penalty` off per position away."""
+    best = corr.copy()
+    for d in range(1, half + 1):
+        pen = penalty * d
+        np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
+        np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
+    return best
+
+
 class PieceAssembler:
     """One light's recent pieces and the ML choice of its ID among `candidates`.
 
     templates: (K, 54) +-1 packets of the candidate IDs `ids` (K,). shift_penalty: correlation
-    taken off per chip a piece sits away from its timestamp's place (a jitter of one or two
-    chips is likelier than the window's edge; it also denies wrong IDs the window's freedom)."""
+    taken off per chip a piece sits away from its timestamp's place when its frame's jitter is
+    unknown; timed_penalty: the same, within +-1 chip, when the other lights measured it.
+    jitter: the `FrameJitter` shared by the lights of this rate (None: every piece by its
+    timestamp alone). ref_corr / ref_gap: a light whose best hypothesis has this mean
+    correlation and gap measures the jitter for the others (an accepted one always does);
+    ref_match: its piece must fit there this well, and ref_unique better than elsewhere in
+    its window."""
+
+    _next_key = 0
 
     def __init__(self, ids: np.ndarray, templates: np.ndarray, *, jitter_chips: int, history: int,
-                 min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2):
+                 min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2,
+                 jitter: FrameJitter | None = None, timed_penalty: float = 0.5, ref_corr: float = 0.75,
+                 ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
         self.ids = np.asarray(ids)
         self.templates = np.asarray(templates, dtype=np.float32)
         self._wrapped = None if self.templates.size == 0 else np.concatenate(
             (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
-        self.jitter = int(jitter_chips)
+        self.jitter_chips = int(jitter_chips)
         self.history = history
-        # per piece: (best (K, 54) float32 windowed correlation, weight, q, n)
         self.pieces: deque = deque()
-        self._raw: list = []  # pieces kept until min_frames are there: (x, q)
         self.min_frames = min_frames
         self.min_corr = min_corr
         self.min_gap = min_gap
         self.shift_penalty = shift_penalty
+        self.timed_penalty = timed_penalty
+        self.frame_jitter = jitter
+        self.ref_corr, self.ref_gap, self.ref_match, self.ref_unique = ref_corr, ref_gap, ref_match, ref_unique
+        PieceAssembler._next_key += 1
+        self.key = PieceAssembler._next_key
         self.phis = np.arange(PACKET_LEN * PHASE_STEPS) / PHASE_STEPS
         self.ll: np.ndarray | None = None  # sum over pieces of weight * best[:, s(phi)] (K, 54 * steps)
         self.total = 0.0
         self.score = 0.0  # the latest decision's mean correlation, gap and best ID (diagnostics)
         self.gap = 0.0
         self.best_id: int | None = None
+        self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
+        self.added = 0  # pieces added so far
 
     def _slots(self, q: float) -> np.ndarray:
         """Packet position of a piece's chip 0 under every phase hypothesis."""
         return np.floor(q + self.phis + 0.5).astype(np.int64) % PACKET_LEN
 
-    def add(self, soft: np.ndarray, cw: np.ndarray, q: float) -> None:
-        """Keep a piece (soft chips, weights, packet time q); its correlations with the
-        candidates are computed once `min_frames` pieces are there (a light that shows a short
-        piece for a frame or two, entering the image, costs nothing)."""
+    def add(self, soft: np.ndarray, cw: np.ndarray, q: float, t: float | None = None) -> None:
+        """Keep a piece (soft chips, weights, packet time q, frame stamp t); its correlations
+        with the candidates are computed once `min_frames` pieces are there (a light that shows
+        a short piece for a frame or two, entering the image, costs nothing)."""
         x = (np.clip(soft, -1.0, 1.0) * cw).astype(np.float32)
         if float(np.abs(x).sum()) <= 0 or self.ids.size == 0:
             return
-        self._raw.append((x, float(q) % PACKET_LEN))
-        if len(self.pieces) + len(self._raw) >= self.min_frames:
-            for x, q in self._raw:
-                self._add(x, q)
-            self._raw.clear()
+        self.added += 1
+        if len(self.pieces) >= self.history:
+            old = self.pieces.popleft()
+            if old.used is not None:
+                self._term(old, *old.used, -1.0)
+        self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t)))
 
-    def _add(self, x: np.ndarray, q: float) -> None:
-        den = float(np.abs(x).sum())
-        n = x.size
+    def _correlate(self, p: _Piece) -> None:
         # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54]
         corr = np.zeros((self.ids.size, PACKET_LEN), np.float32)
-        for k in range(n):
-            corr += x[k] * self._wrapped[:, k:k + PACKET_LEN]
-        corr /= den
-        best = corr.copy()
-        for d in range(1, self.jitter + 1):  # the best within the jitter window of each position
-            pen = self.shift_penalty * d
-            np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
-            np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
-        if self.ll is None:  # made with the first piece: most lights never show enough short ones
-            self.ll = np.zeros((self.ids.size, self.phis.size))
-        if len(self.pieces) >= self.history:
-            old, w, q0, _ = self.pieces.popleft()
-            self.ll -= w * old[:, self._slots(q0)]
-            self.total -= w
-        self.pieces.append((best, den, q, n))
-        self.ll += den * best[:, self._slots(q)]
-        self.total += den
+        for k in range(p.n):
+            corr += p.x[k] * self._wrapped[:, k:k + PACKET_LEN]
+        corr /= p.den
+        p.corr = corr
+        p.wide = _windowed(corr, self.jitter_chips, self.shift_penalty)
+        p.narrow = _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)
 
-    def decide(self) -> int | None:
-        """The ID of the best (ID, phase) hypothesis when it passes the checks, else None."""
-        if len(self.pieces) < self.min_frames or self.total <= 0:
+    def _term(self, p: _Piece, qq: float, narrow: bool, sign: float) -> None:
+        best = p.narrow if narrow else p.wide
+        self.ll += (sign * p.den) * best[:, self._slots(qq)]
+        self.total += sign * p.den
+
+    def _place(self, p: _Piece) -> tuple[float, bool]:
+        """(packet time, narrow window?) of a piece: its frame's jitter as the others measured it."""
+        j = None if self.frame_jitter is None else self.frame_jitter.estimate(p.t, self.key)
+        return (p.q, False) if j is None else (p.q + j, True)
+
+    def _update(self) -> None:
+        """Bring the likelihood table up to the pieces' current placements."""
+        if self.ll is None:  # made once needed: most lights never show enough short pieces
+            self.ll = np.zeros((self.ids.size, self.phis.size))
+        timed = 0
+        for p in self.pieces:
+            if p.corr is None:
+                self._correlate(p)
+            want = self._place(p)
+            timed += want[1]
+            if want != p.used:
+                if p.used is not None:
+                    self._term(p, *p.used, -1.0)
+                self._term(p, *want, 1.0)
+                p.used = want
+        self.timed = timed
+
+    def _fits(self, c: int, ph: int):
+        """Per piece: (piece, placed q, packet position where it fits best in its window)."""
+        for p in self.pieces:
+            qq, narrow = p.used
+            s0 = int(self._slots(qq)[ph])
+            half = min(1, self.jitter_chips) if narrow else self.jitter_chips
+            window = (s0 + np.arange(-half, half + 1)) % PACKET_LEN
+            # (the window's correlations are the penalised ones: the place the score used)
+            yield p, qq, int(window[int(np.argmax((p.narrow if narrow else p.wide)[c, window]))])
+
+    def decide(self, fixed: int | None = None) -> int | None:
+        """The ID of the best (ID, phase) hypothesis when it passes the checks, else None.
+        fixed: the light's ID when already known (then only its phase is followed, and the
+        light measures the jitter of its latest frame for the others)."""
+        if len(self.pieces) < self.min_frames:
+            return None
+        self._update()
+        if self.total <= 0:
             return None
         mean = self.ll / self.total
-        c, ph = np.unravel_index(int(np.argmax(mean)), mean.shape)
+        row = None
+        if fixed is not None:
+            hit = np.flatnonzero(self.ids == fixed)
+            if hit.size == 0:
+                return None
+            row = int(hit[0])
+            c, ph = row, int(np.argmax(mean[row]))
+        else:
+            c, ph = np.unravel_index(int(np.argmax(mean)), mean.shape)
         top = float(mean[c, ph])
         second = float(np.delete(mean, c, axis=0).max()) if self.ids.size > 1 else -1.0
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
-        if top < self.min_corr or top - second < self.min_gap:
+        if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
+            self._post(int(c), int(ph))
+        if fixed is not None or top < self.min_corr or top - second < self.min_gap:
             return None
         # the winner's pieces, each where it fits best in its window, must cover the packet
         seen = np.zeros(PACKET_LEN, bool)
-        J = self.jitter
-        for best, _, q, n in self.pieces:
-            s0 = int(self._slots(q)[ph])
-            window = (s0 + np.arange(-J, J + 1)) % PACKET_LEN
-            # (the window's correlations are the penalised ones: the place the score used)
-            at = int(window[int(np.argmax(best[c, window]))]) if J else s0
-            seen[(at + np.arange(n)) % PACKET_LEN] = True
+        for p, _, at in self._fits(int(c), int(ph)):
+            seen[(at + np.arange(p.n)) % PACKET_LEN] = True
         return int(self.ids[c]) if seen.all() else None
+
+    def _post(self, c: int, ph: int) -> None:
+        """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the
+        other lights (the latest hypothesis restates the earlier frames too: pieces that came
+        before any light was sure get placed once one is): where the piece fits the packet
+        near its timestamp's place, against this light's continuous phase (the mean of its
+        pieces' fitted positions about their placements)."""
+        if self.frame_jitter is None:
+            return
+        base = self.phis[ph]
+        phi = base + float(np.mean([_wrap(at - qq - base) for _, qq, at in self._fits(c, ph)]))
+        J = self.jitter_chips
+        offsets = np.arange(-J, J + 1)
+        for p in self.pieces:
+            window = (int(self._slots(p.q)[ph]) + offsets) % PACKET_LEN
+            vals = p.corr[c, window]
+            i = int(np.argmax(vals))
+            other = np.delete(vals, i).max() if vals.size > 1 else -1.0
+            if vals[i] >= self.ref_match and vals[i] - other >= self.ref_unique:
+                self.frame_jitter.post(p.t, self.key, _wrap(float(window[i]) - p.q - phi))
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:
     """Chips either side a piece may sit off its timestamp's place."""
     return int(math.ceil(jitter_us * rate_hz * 1e-6))
+
+
+def frames_needed(chips_a_frame: float, min_frames: int) -> int:
+    """Fewest frames of one light from which its packet can be pieced together: its pieces must
+    cover the 54 chips, and the ML choice waits for `min_frames` of them."""
+    return max(int(math.ceil(PACKET_LEN / max(chips_a_frame, 1e-9))), int(min_frames))
+
+
+def chips_verdict(chips_a_frame: float, rate_hz: float, *, max_chips: float, min_frames: int,
+                  mapped: bool) -> tuple[bool, str]:
+    """(readable, text) for lights whose images show `chips_a_frame` chips of `rate_hz` OOK chips
+    a frame: whether one frame can hold a whole packet, how many frames an ID needs, and the chip
+    rate or image height that would read the packets from their own chips (more than
+    `max_chips` chips a frame; fewer are pieced together by the frame times, which needs the
+    map's IDs: `mapped`)."""
+    c = float(chips_a_frame)
+    khz = rate_hz / 1000.0
+    head = f"the lights' images show {c:.0f} chips a frame (median) of the {khz:g} kHz OOK chips, a packet is {PACKET_LEN}"
+    if c >= PACKET_LEN:
+        return True, f"{head}: one frame holds a whole packet"
+    if c > max_chips:
+        return True, (f"{head}: no single frame holds a packet; it is assembled from the overlaps of at least "
+                      f"{int(math.ceil(PACKET_LEN / c))} frames of each light")
+    more = max_chips / max(c, 1e-9)
+    fix = (f"more than {max_chips:g} chips a frame (chips at > {rate_hz * more / 1000:.0f} kHz, or lights "
+           f"{more:.1f}x taller in the image) are read from their own chips")
+    if not mapped:
+        return False, (f"{head}: no single frame holds a packet, and pieces this short are placed only among the "
+                       f"map's IDs (addressing \"map\"): no ID can be read; {fix}")
+    return True, (f"{head}: no single frame holds a packet; its IDs are pieced together by the frame times over "
+                  f"at least {frames_needed(c, min_frames)} frames of each light; {fix}")

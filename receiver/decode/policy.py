@@ -23,6 +23,7 @@ import numpy as np
 from receiver.core import protocol
 from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, crc8_table
+from receiver.decode.pieces import FrameJitter, chips_verdict
 from receiver.decode.s2psk import S2pskDecoder
 from receiver.decode.settings import OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.decode.tone import ToneDecoder
@@ -148,7 +149,9 @@ class LightDecoder:
 
     `striped`: its row profile has shown stripes (or it needs none); `led_id`, `mode`: the ID
     and mode reported for it (None until decoded); `freq_hz`: the tone decoder's latest
-    measured stripe frequency (NaN when none)."""
+    measured stripe frequency (NaN when none); `pieces_ref`: it shows short pieces of its
+    packet, and so measures the frames' jitter for the other lights (receiver.decode.pieces):
+    it is fed every frame, its ID known or not."""
 
     def __init__(self, decoders: dict):
         self.decoders = decoders  # (mode, rate) -> decoder
@@ -158,6 +161,7 @@ class LightDecoder:
         self.striped = False
         self._tone_last: int | None = None
         self._tone_run = 0
+        self.pieces_ref = False
 
     @property
     def freq_hz(self) -> float:
@@ -190,6 +194,10 @@ class DecodePolicy:
                 ids = sorted(led.id for led in led_map.by_mode("ook")
                              if accept(led_map, "ook", led.id, rate))
                 self.candidates[rate] = np.array(ids, dtype=np.int64)
+        # each frame's start jitter, measured by the lights of the frame for one another
+        self.frame_jitters = {rate: FrameJitter() for rate in self.candidates}
+        # frames each light took to its ID pieced together from short pieces, per rate (`chip_notes`)
+        self.pieces_took: dict = {rate: [] for rate in self.candidates}
         # chips per frame of the striped OOK lights' images, per rate (`chip_notes`)
         self.chips_seen = ({rate: deque(maxlen=CHIPS_SEEN) for rate in plan.ook_rates}
                            if camera.rolling_shutter else {})
@@ -229,6 +237,9 @@ class DecodePolicy:
                 both = deque(seen, maxlen=CHIPS_SEEN)
                 both.extend(self.chips_seen[rate])
                 self.chips_seen[rate] = both
+        for rate, took in earlier.pieces_took.items():
+            if rate in self.pieces_took:
+                self.pieces_took[rate] = took + self.pieces_took[rate]
         for rate, lr in self.exposure_learners.items():
             old = earlier.exposure_learners.get(rate)
             if lr.exposure_rows is None and old is not None:
@@ -239,9 +250,9 @@ class DecodePolicy:
 
     def chip_notes(self) -> list[str]:
         """Per OOK chip rate whose lights' images showed at most `OokSettings.pieces_max_chips`
-        chips a frame (median over the striped light images fed): a line with the numbers and
-        the chip rate or image height that would give more. Such packets are pieced together
-        from short pieces by the frame times (`receiver.decode.pieces`): slowly or not at all."""
+        chips a frame (median over the striped light images fed): a line with the numbers, how
+        many frames an ID needs (`receiver.decode.pieces.chips_verdict`; and how many it took the
+        lights decoded so far), and the chip rate or image height that would give more."""
         out = []
         limit = float(self.ook.pieces_max_chips)
         for rate, seen in self.chips_seen.items():
@@ -250,11 +261,13 @@ class DecodePolicy:
             med = float(np.median(np.fromiter(seen, float)))
             if med > limit or med <= 0:
                 continue
-            more = limit / med
-            out.append(f"the lights' images show {med:.0f} chips a frame (median) of the {rate / 1000:g} kHz OOK "
-                       f"chips, a packet is {protocol.OOK_PACKET_LEN}: its IDs are pieced together over many frames, slowly "
-                       f"or not at all; more than {limit:g} chips a frame (chips at > {rate * more / 1000:.0f} kHz, "
-                       f"or lights {more:.1f}x taller in the image) are read from their own chips")
+            _, text = chips_verdict(med, rate, max_chips=limit, min_frames=self.ook.pieces_min_frames,
+                                    mapped=rate in self.candidates)
+            took = self.pieces_took.get(rate)
+            if took:
+                text += (f" ({len(took)} light{'s' if len(took) > 1 else ''} pieced together here after a median of "
+                         f"{float(np.median(took)):.0f} frames)")
+            out.append(text)
         return out
 
     def new_light(self) -> LightDecoder:
@@ -264,7 +277,8 @@ class DecodePolicy:
             decoders[("ook", rate)] = OokDecoder(rate, cam.row_readout_us, cam.exposure_us, settings=self.ook,
                                                  period_learner=self.period_learners[rate],
                                                  exposure_learner=self.exposure_learners.get(rate),
-                                                 candidates=self.candidates.get(rate))
+                                                 candidates=self.candidates.get(rate),
+                                                 frame_jitter=self.frame_jitters.get(rate))
         if self.plan.tone_table:
             decoders[("tone", 0.0)] = ToneDecoder(self.plan.tone_table, cam.row_readout_us, settings=self.tone)
         return LightDecoder(decoders)
@@ -281,8 +295,9 @@ class DecodePolicy:
 
     def due(self, light: LightDecoder, frame_index: int, track_id: int) -> bool:
         """Decode this light in this frame? A light whose ID is known feeds its decoders only
-        every `redecode_every` frames (staggered by track)."""
-        return self.pair_due(light.led_id, frame_index, track_id)
+        every `redecode_every` frames (staggered by track), unless it measures the frames'
+        jitter for the others (`LightDecoder.pieces_ref`)."""
+        return light.pieces_ref or self.pair_due(light.led_id, frame_index, track_id)
 
     def step_light(self, light: LightDecoder, gray: np.ndarray, blob, profile_wy, t_s: float,
                    ticks: dict | None = None) -> None:
@@ -307,6 +322,8 @@ class DecodePolicy:
                 else:
                     st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
+            if mode == "ook" and not light.pieces_ref and dec.pieces is not None and dec.pieces.frame_jitter is not None:
+                light.pieces_ref = dec.pieces.added > 0
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None
                 if tone_id is not None and self.plan.ook_rates and not tone_runs_match(
@@ -315,6 +332,10 @@ class DecodePolicy:
             elif found is None and accept(self.led_map, mode, st.led_id, rate):
                 found = (mode, st.led_id)
         if found is not None:  # a CRC-checked ID beats a tone match, and stays
+            if light.led_id is None and found[0] == "ook":
+                for (mode, rate), dec in light.decoders.items():
+                    if mode == "ook" and dec.pieces_took and rate in self.pieces_took:
+                        self.pieces_took[rate].append(dec.pieces_took)
             light.mode, light.led_id = found
             return
         if light.mode == "ook":

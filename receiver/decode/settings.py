@@ -88,10 +88,13 @@ class OokSettings:
         floored at soft_sigma_floor [0.05] soft units), and only when every position seen was
         placed by a trusted placement (else the `verify_frames` check). 0 = off.
       Pieces placed by time (receiver.decode.pieces; with the map's IDs at this rate as
-        candidates, map addressing): frames of a light without an ID that show no more than
+        candidates, map addressing): frames of a light (once it has an ID, they measure the
+        frames' jitter for the others) that show no more than
         pieces_max_chips [16] chips (0 = off) are kept (the last pieces_frames [30]), placed
         by their timestamps and image rows within +-pieces_jitter_us [200] (the camera's
-        frame-start jitter; pieces_shift_penalty [0.2] correlation off per chip of shift),
+        frame-start jitter; pieces_shift_penalty [0.2] correlation off per chip of shift), or,
+        when the other lights of the frame measured its jitter (`pieces.FrameJitter`), at
+        that time within +-1 chip and pieces_timed_penalty [1.0] off per chip,
         and the ID and packet phase chosen by maximum likelihood over the candidates, from
         pieces_min_frames [6] pieces, when the mean correlation is >= pieces_min_corr [0.85],
         beats every other ID by pieces_min_gap [0.3] and the pieces cover the packet.
@@ -146,6 +149,7 @@ class OokSettings:
     pieces_min_corr: float = 0.85
     pieces_min_gap: float = 0.3
     pieces_shift_penalty: float = 0.2
+    pieces_timed_penalty: float = 1.0
     model_min_chips: float = 0.5
     blur_rows: float = 1.0
     model_phases: int = 8

@@ -90,3 +90,28 @@ def test_occloc_run_on_a_photo_folder_gives_the_chip_note(tmp_path, capsys):
                    "--out", str(tmp_path / "out.jsonl")]) == 0
     err = capsys.readouterr().err
     assert "chips a frame (median) of the 5 kHz OOK chips" in err, err
+
+
+def test_check_says_how_many_frames_an_id_needs():
+    """`occloc check` on small 5 kHz lights: a finding with the chips a frame, the frames an ID
+    needs and the chip rate that would do; with "xy" addressing the pieces cannot be placed
+    (no candidate IDs): a problem. Lights showing a whole packet a frame give no such finding."""
+    import dataclasses
+
+    from receiver.calibrate.check import check_frames
+    from receiver.core.records import Frame
+    from tools.synth import make_scene, render_frames
+
+    def findings(rate_hz, addressing=None):
+        scene = make_scene("indoor-sparse", seed=2, n_frames=8, rate_hz=rate_hz)
+        frames = [Frame(t["frame"], t["t"], img) for img, t in render_frames(scene, seed=4)]
+        led_map = (scene.led_map if addressing is None
+                   else dataclasses.replace(scene.led_map, addressing=addressing, default_rate_hz=rate_hz))
+        return {f.name: f for f in check_frames(frames, scene.camera, led_map)}
+
+    fs = findings(5000)
+    chips = fs["chips"]
+    assert chips.ok and 3 <= chips.value["chips_a_frame"] <= 16, chips.text
+    assert "frames of each light" in chips.text and "5 kHz" in chips.text and "kHz, or lights" in chips.text
+    assert not findings(5000, addressing="xy")["chips"].ok
+    assert "chips" not in findings(40000)

@@ -88,3 +88,58 @@ def test_pieces_margin_monte_carlo():
             pa.add(t[(s + np.arange(n)) % 54] + rng.normal(0, sd, n), np.ones(n), q)
             got = pa.decide()
             assert got is None or got == tid
+
+
+def test_frame_jitter_is_the_other_lights_consensus():
+    """A light's pieces are placed by the jitter the *other* lights measured in that frame: the
+    median of the largest agreeing group; a tie between two disagreeing lights gives none."""
+    from receiver.decode.pieces import FrameJitter
+
+    fj = FrameJitter(frames=3)
+    assert fj.estimate(0.0, 1) is None
+    fj.post(0.0, 1, 0.4)
+    assert fj.estimate(0.0, 1) is None          # its own measurement never places its pieces
+    assert abs(fj.estimate(0.0, 2) - 0.4) < 1e-9
+    fj.post(0.0, 2, 1.9)
+    assert fj.estimate(0.0, 3) is None          # 0.4 against 1.9: no majority
+    fj.post(0.0, 3, 0.6)
+    fj.post(0.0, 4, 53.8)                       # -0.2 chips, across the packet's wrap
+    assert abs(fj.estimate(0.0, 5) - 0.4) < 1e-9
+    assert abs(fj.estimate(0.0, 2) - 0.4) < 1e-9
+    for t in (1.0, 2.0, 3.0):                   # only the last `frames` frames are kept
+        fj.post(t, 1, 0.0)
+    assert fj.estimate(0.0, 5) is None and abs(fj.estimate(3.0, 5)) < 1e-9
+
+
+def test_lights_of_one_frame_measure_its_jitter_for_one_another():
+    """Five small lights at once (10 chips a frame, 100 us rms frame jitter, crystals +-50 ppm,
+    two of five on average outside the map): the pieces they share the frame times of decode
+    most mapped lights, and no light is ever given a wrong ID (tests/decode/pieces_mc.py)."""
+    from pieces_mc import BY_NAME, monte_carlo
+
+    r = monte_carlo(BY_NAME["10k-100rows"], trials=3, seed=4, frames=45)
+    assert r["wrong"] == []
+    assert r["mapped"] >= 5 and r["right"] >= 0.6 * r["mapped"]
+
+
+def test_unmapped_lights_sharing_frames_are_never_reported():
+    """Lights none of which is in the map measure one another's jitter (their best hypotheses
+    are wrong, yet strong enough to post): still no ID."""
+    from pieces_mc import BY_NAME, monte_carlo
+
+    r = monte_carlo(BY_NAME["5k-120rows-unmapped"], trials=2, seed=6, frames=60)
+    assert r["mapped"] == 0 and r["wrong"] == []
+
+
+def test_the_chip_verdict_names_the_frames_an_id_needs():
+    from receiver.decode.pieces import chips_verdict
+
+    ok, text = chips_verdict(6.0, 5000.0, max_chips=16, min_frames=6, mapped=True)
+    assert ok and "6 chips a frame" in text and "no single frame holds a packet" in text
+    assert "at least 9 frames" in text and "> 13 kHz" in text
+    ok, text = chips_verdict(11.0, 10000.0, max_chips=16, min_frames=6, mapped=False)
+    assert not ok and "no ID can be read" in text
+    ok, text = chips_verdict(30.0, 20000.0, max_chips=16, min_frames=6, mapped=True)
+    assert ok and "at least 2 frames" in text
+    ok, text = chips_verdict(90.0, 20000.0, max_chips=16, min_frames=6, mapped=True)
+    assert ok and "one frame holds a whole packet" in text
