@@ -219,3 +219,17 @@ def test_shift_truth_with_no_frame_to_score_says_so(monkeypatch, capsys):
     assert tool.main([str(rec), "--shake", "pairs"]) == 0
     assert capsys.readouterr().out.splitlines() == ["      pairs vs   turn: no frame to score",
                                                     "      pairs vs lights: no frame to score"]
+
+
+def test_vehicle_score_settings_file_errors_are_one_line(tmp_path, capsys):
+    """`tools.vehicle_score --settings`: a missing file, or one given with --truth-shift, is a
+    one-line error and exit 2 before anything runs."""
+    from tools.vehicle_score import main
+
+    assert main([str(tmp_path), "--runs", str(tmp_path / "runs"), "--settings", str(tmp_path / "no.json")]) == 2
+    f = tmp_path / "s.json"
+    f.write_text('{"receiver": {"pair": {"shake": "motion"}}}')
+    assert main([str(tmp_path), "--runs", str(tmp_path / "runs"), "--settings", str(f), "--truth-shift"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "no such file" in err and "not with --truth-shift" in err
+    assert not (tmp_path / "runs").exists()
