@@ -426,23 +426,29 @@ class Receiver:
     def _frame_shift(self, blobs) -> tuple[float, float] | None:
         """The frame's common image shift (dx, dy) px from the camera's shake, or None (`shake`
         "pitch", or not measurable): `PairSettings.shake` "vertical" or "pairs"
-        (receiver.vision.motion), or "motion" (receiver.vision.camera_motion, from every blob;
-        none in the first frame)."""
+        (receiver.vision.motion), or "motion" (receiver.vision.camera_motion: every blob on
+        the lights it belongs to, the pairs' shift one candidate among the blobs' own; none in
+        the first frame)."""
         shake = self.settings.pair.shake
-        if self.motion is not None:
-            xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
-            est = self.motion_estimate = self.motion.step(xy, np.array([b.area_px for b in blobs], float))
-            if self.motion.frames < 2:
-                return None
-            # one shift for every track: the estimate's at the blobs' mean place (the roll's
-            # part cancels over the blobs)
-            return est.at(*xy.mean(axis=0)) if len(xy) else (est.dx_px, est.dy_px)
-        if self.pairer is None or shake not in ("vertical", "pairs"):
+        if self.pairer is None or shake not in ("vertical", "pairs", "motion"):
             return None
+        xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
+        shift = self._pairs_shift(blobs, xy, "pairs" if shake == "motion" else shake)
+        if self.motion is not None:
+            est = self.motion_estimate = self.motion.step(xy, np.array([b.area_px for b in blobs], float),
+                                                          candidates=() if shift is None else (shift,))
+            shift = (est.dx_px, est.dy_px) if self.motion.frames > 1 else None
+        s_ = shift or (0.0, 0.0)
+        # the older frames' blobs, moved by this frame's shift (as if seen in this view)
+        self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
+        return shift
+
+    def _pairs_shift(self, blobs, xy: np.ndarray, shake: str) -> tuple[float, float] | None:
+        """The shift of `shake` "vertical" (pitch from every blob) or "pairs" (and the yaw that
+        puts the blobs where the pairs expect them)."""
         # Road vibration shifts every far light alike, in pitch and yaw, by up to several px per
         # frame: the blobs' common displacement (receiver.vision.motion) goes into every track's
         # and pair's prediction.
-        xy = np.array([(b.cx, b.cy) for b in blobs], float).reshape(-1, 2)
         ps = self.settings.pair
         r = ps.shake_radius_px
         votes = [self.pairer.shift_votes(xy, r)]
@@ -457,9 +463,6 @@ class Receiver:
             dx = pair_dx(self.pairer.dx_offsets(blobs, xy, dy, r), radius_px=r, sigma_px=k.shake_sigma_px,
                          step_px=k.shake_step_px, zero_rel=k.shake_zero_rel)
             shift = (dx or 0.0, dy)
-        s_ = shift or (0.0, 0.0)
-        # the older frames' blobs, moved by this frame's shift (as if seen in this view)
-        self._prev_xy = [xy] + [old + s_ for old in self._prev_xy[:SHAKE_FRAMES - 1]]
         return shift
 
     def _report(self, gray: np.ndarray, seen: list[Track], lights: list[LightDecoder], env: dict,

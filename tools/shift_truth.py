@@ -10,9 +10,7 @@ The true motion of a frame is what the camera's turn since the previous frame (t
 camera yaw, pitch and roll) does to each truth emitter visible in both frames (`true_motion`):
 the camera's turn alone, not each light's own motion from the forward drive, which a track's
 velocity follows. A frame's error is the median over those emitters of the distance between
-the displacement the receiver predicted for it and the true one. "motion+roll" scores the
-"motion" estimate's roll too (`MotionEstimate.apply` at each emitter), which the tracks do not
-use yet (they take one common shift).
+the displacement the receiver predicted for it and the true one.
 
 Printed per mode, against the camera's turn ("turn") and against each emitter's whole
 displacement, its own motion included ("lights": what a track without a velocity would need):
@@ -84,8 +82,7 @@ def _emitters(obj: dict) -> dict:
 def receiver_shifts(folder: str, shake: str, max_frames: int | None, motion: dict | None = None) -> dict[int, object]:
     """{frame index: displacement(points (K, 2)) -> (K, 2) px} of the receiver with
     `PairSettings(shake=shake)`: the common shift it gave its tracks and pairs (`Receiver.shift`,
-    None as no shift); for "motion+roll", "motion" with the whole estimate at each point
-    (`Receiver.motion_estimate`, roll included)."""
+    None as no shift)."""
     import dataclasses
 
     from receiver.io.camera import fit_camera, load_camera
@@ -102,9 +99,8 @@ def receiver_shifts(folder: str, shake: str, max_frames: int | None, motion: dic
     cam, rotate = fit_camera(cam, src.size)
     if rotate:
         raise InputError(f"{folder}: frames are turned against the camera file")
-    whole = shake == "motion+roll"
     base = ReceiverSettings()
-    pair = dataclasses.replace(base.pair, shake="motion" if whole else shake)
+    pair = dataclasses.replace(base.pair, shake=shake)
     ms = dataclasses.replace(base.motion, **(motion or {}))
     rx = Receiver(cam, led_map, settings=dataclasses.replace(base, pair=pair, motion=ms))
     if rx.pairer is None:
@@ -114,12 +110,8 @@ def receiver_shifts(folder: str, shake: str, max_frames: int | None, motion: dic
         if max_frames is not None and n >= max_frames:
             break
         rx.process(frame)
-        est = rx.motion_estimate
-        if whole and est is not None and rx.shift is not None:
-            out[frame.index] = est.apply
-        else:
-            shift = np.array(rx.shift or (0.0, 0.0))
-            out[frame.index] = (lambda p, s=shift: p + s)
+        shift = np.array(rx.shift or (0.0, 0.0))
+        out[frame.index] = (lambda p, s=shift: p + s)
     return out
 
 
@@ -154,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("recording", help="recording folder (video.*, camera.yaml, map.json, truth.jsonl)")
     parser.add_argument("--shake", nargs="+", default=["pairs", "motion"],
-                        choices=["pairs", "vertical", "pitch", "motion", "motion+roll"],
+                        choices=["pairs", "vertical", "pitch", "motion"],
                         help="PairSettings.shake values to compare (default: pairs motion)")
     parser.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     parser.add_argument("--motion", nargs="+", default=[], metavar="NAME=VALUE",

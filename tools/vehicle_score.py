@@ -9,7 +9,8 @@ the car distance median relative error (%) and bearing median error (deg). Witho
 independent recordings (../shared/independent/vehicle-*), recordings/vehicle and the
 `vehicle-road` seeds rendered under DIR/road-s1 .. road-s4 (rendered first when missing:
 `occloc synth vehicle-road --seed N`). `--truth-shift`: the camera shift from the truth instead
-of the receiver's estimate (tools.truth_shift_run).
+of the receiver's estimate (tools.truth_shift_run); `--settings FILE`: `occloc run`'s settings
+file (e.g. `{"receiver": {"pair": {"shake": "motion"}}}`), its runs kept apart by the file's name.
 """
 
 from __future__ import annotations
@@ -48,17 +49,20 @@ def render_road(folder: Path) -> None:
                    check=True, cwd=ROOT)
 
 
-def score(folder: Path, runs: Path, rerun: bool, truth_shift: bool = False) -> dict:
+def score(folder: Path, runs: Path, rerun: bool, truth_shift: bool = False, settings: Path | None = None) -> dict:
     """Run (unless its output is there and not `rerun`) and evaluate one recording; with
-    `truth_shift`, the camera shift from the truth (tools.truth_shift_run)."""
+    `truth_shift`, the camera shift from the truth (tools.truth_shift_run); with `settings`, that
+    settings file given to `occloc run`."""
     name = folder.name
-    out = runs / (f"{name}.truth-shift.jsonl" if truth_shift else f"{name}.jsonl")
+    tag = ".truth-shift" if truth_shift else (f".{settings.stem}" if settings is not None else "")
+    out = runs / f"{name}{tag}.jsonl"
     if name.startswith("road-s"):
         render_road(folder)
     if rerun or not out.is_file():
         out.unlink(missing_ok=True)
         cmd = ([sys.executable, "-m", "tools.truth_shift_run", str(folder), str(out)] if truth_shift
-               else _occloc() + ["run", str(folder), "--out", str(out)])
+               else _occloc() + ["run", str(folder), "--out", str(out)]
+               + (["--settings", str(settings)] if settings is not None else []))
         subprocess.run(cmd, check=True, cwd=ROOT, stderr=subprocess.DEVNULL)
     res = subprocess.run(_occloc() + ["eval", str(out), "--truth", str(folder / "truth.jsonl"), "--json"],
                          check=True, cwd=ROOT, capture_output=True, text=True)
@@ -110,7 +114,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--truth-shift", action="store_true",
                         help="the frame's camera shift from the truth camera (tools.truth_shift_run): the "
                              "pairing apart from the camera-motion estimate")
+    parser.add_argument("--settings", default=None,
+                        help="settings file for `occloc run` (not with --truth-shift)")
     args = parser.parse_args(argv)
+    settings = Path(args.settings) if args.settings else None
+    if settings is not None and (args.truth_shift or not settings.is_file()):
+        print(f"tools.vehicle_score: --settings {args.settings}: " +
+              ("not with --truth-shift" if args.truth_shift else "no such file"), file=sys.stderr)
+        return 2
     runs = Path(args.runs)
     runs.mkdir(parents=True, exist_ok=True)
     folders = [Path(f) for f in args.folders] or default_folders(runs)
@@ -119,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"tools.vehicle_score: {f}: not a recording folder (no truth.jsonl)", file=sys.stderr)
             return 2
     with ThreadPoolExecutor(max(args.jobs, 1)) as ex:
-        for s in ex.map(lambda f: score(f, runs, not args.keep, args.truth_shift), folders):
+        for s in ex.map(lambda f: score(f, runs, not args.keep, args.truth_shift, settings), folders):
             print(line(s), flush=True)
     return 0
 

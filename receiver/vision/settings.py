@@ -138,8 +138,9 @@ class PairSettings:
     shake ["pairs"]: the camera-shake estimate that moves every track's and pair's prediction:
         "pairs" (pitch from all blobs, yaw from where the pairs expect their blobs,
         receiver.vision.motion), "vertical" (pitch only), "pitch" (the pairs' median vertical
-        offset alone) or "motion" (every blob registered on the last frames' with roll and a
-        Kalman motion model, independent of the pairs: receiver.vision.camera_motion).
+        offset alone) or "motion" (every blob on the light it belongs to, each light with its
+        own motion, the camera's offset kept as several hypotheses; the "pairs" shift is one
+        candidate among the blobs' own: receiver.vision.camera_motion).
     shake_radius_px [14 px]: the largest frame-to-frame image shift searched (0.5 degrees at a
         1500 px focal length).
     flux_floor [2 gray]: above the background, what a far head's flux counts (sensor noise adds
