@@ -306,7 +306,9 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
             e_long = long_exposure_chips(ook_profiles[:SEQUENCE_FIT_PROFILES], per_chip,
                                          (float(np.median(blurs)) if blurs else 0.0) / per_chip)
             if e_long is not None and e_long >= LONG_FROM_CHIPS:
-                est, how = e_long * 1e6 / max(ook), "chip sequence fit"
+                # a lower bound: a Manchester pair averages to half ON, so an exposure two chips
+                # longer fits as well
+                est, how = e_long * 1e6 / max(ook), "chip sequence fit: at least this long"
         else:
             try:
                 mode, rate = ("ook", max(ook)) if ook else ("tone", max(tone))
