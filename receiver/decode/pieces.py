@@ -23,6 +23,7 @@ import math
 from collections import deque
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 PACKET_LEN = 54
 # Sub-chip steps of the packet phase phi searched.
@@ -43,6 +44,11 @@ class PieceAssembler:
         self._wrapped = None if self.templates.size == 0 else np.concatenate(
             (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
         self.jitter = int(jitter_chips)
+        # (K, 55, 54): [:, k] is the packets' window from chip k on (the products' other factor)
+        self._windows = None if self.templates.size == 0 else sliding_window_view(self._wrapped, PACKET_LEN, axis=1)
+        # the shift penalty at each of the jitter window's 2 J + 1 places, float32 (1, 2 J + 1, 1)
+        d = [abs(i - self.jitter) for i in range(2 * self.jitter + 1)]
+        self._pens = np.array([shift_penalty * v for v in d], dtype=np.float32)[None, :, None]
         self.history = history
         # per piece: (best (K, 54) float32 windowed correlation, weight, q, n)
         self.pieces: deque = deque()
@@ -78,16 +84,16 @@ class PieceAssembler:
     def _add(self, x: np.ndarray, q: float) -> None:
         den = float(np.abs(x).sum())
         n = x.size
-        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54]
-        corr = np.zeros((self.ids.size, PACKET_LEN), np.float32)
-        for k in range(n):
-            corr += x[k] * self._wrapped[:, k:k + PACKET_LEN]
+        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54]: all the
+        # products at once (K, n, 54), summed over k in chip order (a reduction over an outer
+        # axis adds its slices one after another, as a loop over k would)
+        corr = np.add.reduce(self._windows[:, :n] * x[None, :, None], axis=1)
         corr /= den
-        best = corr.copy()
-        for d in range(1, self.jitter + 1):  # the best within the jitter window of each position
-            pen = self.shift_penalty * d
-            np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
-            np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
+        # the best within the jitter window of each position, less the penalty of its distance:
+        # corr with J columns of the other end on each side, whose windows are the cyclic shifts
+        J = self.jitter
+        ext = np.concatenate((corr[:, PACKET_LEN - J:], corr, corr[:, :J]), axis=1)
+        best = np.maximum.reduce(sliding_window_view(ext, PACKET_LEN, axis=1) - self._pens, axis=1)
         if self.ll is None:  # made with the first piece: most lights never show enough short ones
             self.ll = np.zeros((self.ids.size, self.phis.size))
         if len(self.pieces) >= self.history:
