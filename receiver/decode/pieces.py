@@ -32,6 +32,7 @@ import math
 from collections import OrderedDict, deque
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 PACKET_LEN = 54
 # Sub-chip steps of the packet phase phi searched.
@@ -96,13 +97,14 @@ class _Piece:
 
 
 def _windowed(corr: np.ndarray, half: int, penalty: float) -> np.ndarray:
-    """The best of `corr` within +-half positions of each, `penalty` off per position away."""
-    best = corr.copy()
-    for d in range(1, half + 1):
-        pen = penalty * d
-        np.maximum(best, np.roll(corr, -d, axis=1) - pen, out=best)
-        np.maximum(best, np.roll(corr, d, axis=1) - pen, out=best)
-    return best
+    """The best of `corr` within +-half positions of each (cyclically), `penalty` off per
+    position away: one max over a sliding window of corr with `half` columns of the other end
+    on each side."""
+    if half <= 0:
+        return corr.copy()
+    ext = np.concatenate((corr[:, corr.shape[1] - half:], corr, corr[:, :half]), axis=1)
+    pens = np.array([penalty * abs(d) for d in range(-half, half + 1)], dtype=corr.dtype)
+    return np.maximum.reduce(sliding_window_view(ext, corr.shape[1], axis=1) - pens[None, :, None], axis=1)
 
 
 class PieceAssembler:
@@ -127,6 +129,8 @@ class PieceAssembler:
         self.templates = np.asarray(templates, dtype=np.float32)
         self._wrapped = None if self.templates.size == 0 else np.concatenate(
             (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
+        # (K, 55, 54): [:, k] is the packets' window from chip k on
+        self._windows = None if self._wrapped is None else sliding_window_view(self._wrapped, PACKET_LEN, axis=1)
         self.jitter_chips = int(jitter_chips)
         self.history = history
         self.pieces: deque = deque()
@@ -167,10 +171,9 @@ class PieceAssembler:
         self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t)))
 
     def _correlate(self, p: _Piece) -> None:
-        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54]
-        corr = np.zeros((self.ids.size, PACKET_LEN), np.float32)
-        for k in range(p.n):
-            corr += p.x[k] * self._wrapped[:, k:k + PACKET_LEN]
+        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54], all the products
+        # at once (K, n, 54) summed over k (a reduction over an outer axis adds its slices in order)
+        corr = np.add.reduce(self._windows[:, :p.n] * p.x[None, :, None], axis=1)
         corr /= p.den
         p.corr = corr
         p.wide = _windowed(corr, self.jitter_chips, self.shift_penalty)

@@ -5,6 +5,8 @@ noise, never yield an ID."""
 
 from __future__ import annotations
 
+import types
+
 import numpy as np
 
 from firmware_tx.schedule import make_schedule
@@ -143,3 +145,27 @@ def test_the_chip_verdict_names_the_frames_an_id_needs():
     assert ok and "at least 2 frames" in text
     ok, text = chips_verdict(90.0, 20000.0, max_chips=16, min_frames=6, mapped=True)
     assert ok and "one frame holds a whole packet" in text
+
+
+def test_piece_correlations_are_the_circular_cross_correlations():
+    """A piece's correlation with every candidate at every packet position is the circular
+    cross-correlation of the piece with each packet (numpy's FFT as the oracle), and its
+    windowed best is the best of the shifted correlations less the penalty per chip away."""
+    from receiver.decode.pieces import _windowed
+
+    rng = np.random.default_rng(7)
+    for _ in range(60):
+        k, n = int(rng.integers(1, 40)), int(rng.integers(2, 17))
+        templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
+        a = PieceAssembler(np.arange(k), templates, jitter_chips=int(rng.integers(0, 4)), history=8,
+                           min_frames=2, min_corr=0.5, min_gap=0.1)
+        x = rng.uniform(-1, 1, n).astype(np.float32)
+        p = types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()))
+        a._correlate(p)
+        xp = np.zeros(54)
+        xp[:n] = x
+        want = np.real(np.fft.ifft(np.conj(np.fft.fft(xp))[None, :] * np.fft.fft(templates, axis=1), axis=1)) / p.den
+        assert np.allclose(p.corr, want, atol=1e-5)
+        for half, pen in ((a.jitter_chips, a.shift_penalty), (2, 0.3)):
+            best = np.max([np.roll(want, -d, axis=1) - pen * abs(d) for d in range(-half, half + 1)], axis=0)
+            assert np.allclose(_windowed(p.corr, half, pen), best, atol=1e-5)
