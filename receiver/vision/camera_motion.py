@@ -82,10 +82,9 @@ class MotionSettings:
     velocity_gain [0.5]: the fraction of a light's own-motion error corrected per sighting
         (its blob's centroid noise against a slowly growing expansion).
     foe_gain [0.1]: the fraction of the focus of expansion's error corrected per frame.
-    given_votes [3 blobs]: what a shift measured elsewhere (the pairs' own, from where each
-        pair expects its emitters) weighs besides the blobs on lights at it: the blobs' vote
-        overrules it when three more of them agree on another shift (a head's two halves and a
-        second light, not one blob's chance match).
+    given_votes [0 blobs]: what a shift measured elsewhere (the pairs' own, from where each
+        pair expects its emitters) weighs besides the blobs on lights at it (0: it is one
+        candidate like a vote peak; its errors come with the pairs' own, not the lights').
     """
 
     radius_px: float = 14.0
@@ -101,7 +100,7 @@ class MotionSettings:
     miss_cost: float = 0.5
     velocity_gain: float = 0.5
     foe_gain: float = 0.1
-    given_votes: float = 3.0
+    given_votes: float = 0.0
 
     def __post_init__(self):
         # a count below one has no meaning (zero would act as one, or keep nothing)
@@ -258,9 +257,7 @@ class CameraMotion:
             best = best[err[best] <= s.gate_px]
             bonus = s.given_votes if k >= len(peaks) else 0.0
             if len(best) >= s.min_matches:
-                # a given shift is judged by the blobs, not moved by them (its source knows its
-                # lights better: the pairs' emitters, their baselines)
-                m = c if k >= len(peaks) else np.median(dd[best], axis=0)
+                m = np.median(dd[best], axis=0)
                 spread = float(np.sqrt(np.mean(np.sum((dd[best] - m) ** 2, axis=1)) / 2.0))
                 out.append((m, len(best), spread, bonus))
             elif k >= len(peaks):
