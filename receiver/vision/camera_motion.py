@@ -110,6 +110,12 @@ class MotionSettings:
         for name in ("radius_px", "match_px", "gate_px", "new_gate_px", "max_area_ratio", "shake_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, not {getattr(self, name)!r}")
+        for name in ("miss_cost", "given_votes", "velocity_gain", "foe_gain"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be a finite number of at least 0, not {getattr(self, name)!r}")
+        for name in ("velocity_gain", "foe_gain"):  # fractions of an error corrected
+            if not getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be at most 1, not {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -120,7 +126,8 @@ class MotionEstimate:
     apart. `sigma_px`: 1-sigma error of the shift per axis (the matched blobs' spread over their
     number; a frame left unmeasured adds the shake's `shake_px`); `var_sum_px2`: the sum of
     every frame's sigma_px^2 so far (see `CameraMotion.sigma_since`); `matches`: blobs that
-    found their light this frame (0: unmeasured, the shift is 0)."""
+    found their light this frame (0: none did; the shift is then 0, or a given candidate's that
+    no light contradicted)."""
 
     dx_px: float
     dy_px: float

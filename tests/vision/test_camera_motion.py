@@ -165,6 +165,15 @@ def test_counts_below_one_are_refused(field):
         MotionSettings(**{field: 0})
 
 
+@pytest.mark.parametrize("field,value,msg", [("shake_px", 0.0, "must be positive"),
+                                              ("velocity_gain", 1.5, "at most 1"),
+                                              ("foe_gain", float("nan"), "finite number"),
+                                              ("miss_cost", -1.0, "at least 0")])
+def test_meaningless_values_are_refused(field, value, msg):
+    with pytest.raises(ValueError, match=msg):
+        MotionSettings(**{field: value})
+
+
 def test_receiver_hook_follows_the_recorded_shake():
     """`PairSettings.shake` "motion" in the receiver on the bundled vehicle recording: the shift
     it gives the tracks follows the camera's true turn (truth.jsonl) over the first 30 frames."""
