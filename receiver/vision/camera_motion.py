@@ -82,10 +82,9 @@ class MotionSettings:
     velocity_gain [0.5]: the fraction of a light's own-motion error corrected per sighting
         (its blob's centroid noise against a slowly growing expansion).
     foe_gain [0.1]: the fraction of the focus of expansion's error corrected per frame.
-    given_votes [3 blobs]: what a shift measured elsewhere (the pairs' own, from where each
-        pair expects its emitters) weighs besides the blobs on lights at it: the blobs' vote
-        overrules it when three more of them agree on another shift (a head's two halves and a
-        second light, not one blob's chance match).
+    given_votes [0 blobs]: what a shift measured elsewhere (the pairs' own, from where each
+        pair expects its emitters) weighs besides the blobs on lights at it (0: it is one
+        candidate like a vote peak; its errors come with the pairs' own, not the lights').
     """
 
     radius_px: float = 14.0
@@ -101,7 +100,7 @@ class MotionSettings:
     miss_cost: float = 0.5
     velocity_gain: float = 0.5
     foe_gain: float = 0.1
-    given_votes: float = 3.0
+    given_votes: float = 0.0
 
     def __post_init__(self):
         # a count below one has no meaning (zero would act as one, or keep nothing)
@@ -111,6 +110,12 @@ class MotionSettings:
         for name in ("radius_px", "match_px", "gate_px", "new_gate_px", "max_area_ratio", "shake_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, not {getattr(self, name)!r}")
+        for name in ("miss_cost", "given_votes", "velocity_gain", "foe_gain"):
+            if not 0 <= getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be a finite number of at least 0, not {getattr(self, name)!r}")
+        for name in ("velocity_gain", "foe_gain"):  # fractions of an error corrected
+            if not getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be at most 1, not {getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -121,7 +126,8 @@ class MotionEstimate:
     apart. `sigma_px`: 1-sigma error of the shift per axis (the matched blobs' spread over their
     number; a frame left unmeasured adds the shake's `shake_px`); `var_sum_px2`: the sum of
     every frame's sigma_px^2 so far (see `CameraMotion.sigma_since`); `matches`: blobs that
-    found their light this frame (0: unmeasured, the shift is 0)."""
+    found their light this frame (0: none did; the shift is then 0, or a given candidate's that
+    no light contradicted)."""
 
     dx_px: float
     dy_px: float
@@ -258,9 +264,7 @@ class CameraMotion:
             best = best[err[best] <= s.gate_px]
             bonus = s.given_votes if k >= len(peaks) else 0.0
             if len(best) >= s.min_matches:
-                # a given shift is judged by the blobs, not moved by them (its source knows its
-                # lights better: the pairs' emitters, their baselines)
-                m = c if k >= len(peaks) else np.median(dd[best], axis=0)
+                m = np.median(dd[best], axis=0)
                 spread = float(np.sqrt(np.mean(np.sum((dd[best] - m) ** 2, axis=1)) / 2.0))
                 out.append((m, len(best), spread, bonus))
             elif k >= len(peaks):

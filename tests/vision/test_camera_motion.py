@@ -106,7 +106,7 @@ def test_cars_moving_on_their_own_are_left_out():
 def test_a_wrong_shift_from_elsewhere_is_refused():
     """A shift measured elsewhere (the pairs' own estimate) that is 6 px off in every frame is
     one candidate among the vote's: where more lights agree on another shift, it is refused
-    (it weighs `given_votes` blobs: it still wins where few lights are lit)."""
+    (it still wins some frames where few lights are lit)."""
     rng = np.random.default_rng(5)
     frames, shifts = _road(rng, 120)
     wrong = [((s[0] + 6.0, s[1]),) for s in shifts]
@@ -117,15 +117,15 @@ def test_a_wrong_shift_from_elsewhere_is_refused():
 
 def test_a_right_shift_from_elsewhere_is_taken_in_sparse_frames():
     """Two heads only (often one blob a frame, ambiguous by a head's baseline): a right shift
-    given from elsewhere is taken where the blobs agree with it, and the estimate is better
-    than without it."""
+    given from elsewhere is a candidate the blobs agree with, and the estimate is better than
+    without it."""
     rng = np.random.default_rng(6)
     frames, shifts = _road(rng, 150, n_heads=2)
     right = [((s[0] + rng.normal(0, 0.3), s[1] + rng.normal(0, 0.3)),) for s in shifts]
     err_with, _ = _errors(frames, shifts, candidates=right)
     err_alone, _ = _errors(frames, shifts)
-    assert np.median(err_with) < 0.6
-    assert np.mean(err_with > 2.0) < np.mean(err_alone > 2.0)
+    assert np.median(err_with) < np.median(err_alone)
+    assert np.mean(err_with > 2.0) < np.mean(err_alone > 2.0) - 0.1
 
 
 def test_dark_frames_widen_the_uncertainty():
@@ -165,6 +165,15 @@ def test_counts_below_one_are_refused(field):
         MotionSettings(**{field: 0})
 
 
+@pytest.mark.parametrize("field,value,msg", [("shake_px", 0.0, "must be positive"),
+                                              ("velocity_gain", 1.5, "at most 1"),
+                                              ("foe_gain", float("nan"), "finite number"),
+                                              ("miss_cost", -1.0, "at least 0")])
+def test_meaningless_values_are_refused(field, value, msg):
+    with pytest.raises(ValueError, match=msg):
+        MotionSettings(**{field: value})
+
+
 def test_receiver_hook_follows_the_recorded_shake():
     """`PairSettings.shake` "motion" in the receiver on the bundled vehicle recording: the shift
     it gives the tracks follows the camera's true turn (truth.jsonl) over the first 30 frames."""
@@ -180,7 +189,7 @@ def test_receiver_hook_follows_the_recorded_shake():
     err = [np.median(np.hypot(*(got[f](p0) - p0 - d).T)) for f, p0, d, _ in truth if f in got and len(p0)]
     assert len(err) == 29
     # the scene pitches by up to 1.1 px per frame: a shift of the wrong sign is 2 px off
-    assert np.median(err) < 0.6
+    assert np.median(err) < 1.0
     assert np.mean(np.array(err) > 2.0) < 0.1
 
 
