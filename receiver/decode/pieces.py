@@ -47,11 +47,11 @@ def _wrap(x: float) -> float:
 class FrameJitter:
     """Per-frame start jitter (chips) of one chip rate, measured by the lights of the frame.
 
-    `post(t, key, m)`: light `key` measured m chips (wrapped to +-27) in the frame stamped t; `estimate(t, key)`:
-    the consensus of the other lights' measurements of that frame, or None. The consensus is
-    the median of the largest group of measurements within `agree_chips` of one another; a
-    tie between groups (two lights that disagree) gives none. Only the last `frames` frames
-    are kept."""
+    `post(t, key, m)`: light `key` measured m chips (wrapped to +-27) in the frame stamped t;
+    `estimate(t, key)`: the consensus of the other lights' measurements of that frame, or
+    None. The consensus is the median of the largest group of measurements within
+    `agree_chips` of one another; a tie between groups (two lights that disagree) gives none.
+    Only the last `frames` frames are kept."""
 
     def __init__(self, *, frames: int = 64, agree_chips: float = 0.75):
         self.frames = frames
@@ -289,7 +289,8 @@ def chips_verdict(chips_a_frame: float, rate_hz: float, *, max_chips: float, min
     map's IDs: `mapped`)."""
     c = float(chips_a_frame)
     khz = rate_hz / 1000.0
-    head = f"the lights' images show {c:.0f} chips a frame (median) of the {khz:g} kHz OOK chips, a packet is {PACKET_LEN}"
+    head = (f"the lights' images show {c:.0f} chips a frame (median) of the {khz:g} kHz OOK chips, "
+            f"a packet is {PACKET_LEN}")
     if c >= PACKET_LEN:
         return True, f"{head}: one frame holds a whole packet"
     if c > max_chips:

@@ -322,7 +322,7 @@ class DecodePolicy:
                 else:
                     st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
-            if mode == "ook" and not light.pieces_ref and dec.pieces is not None and dec.pieces.frame_jitter is not None:
+            if mode == "ook" and not light.pieces_ref and getattr(dec.pieces, "frame_jitter", None) is not None:
                 light.pieces_ref = dec.pieces.added > 0
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None

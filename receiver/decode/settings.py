@@ -103,6 +103,11 @@ class OokSettings:
         them, 25 decisions a light: in 25,000 decisions the largest gap of a wrong best ID
         with mean correlation >= 0.8 was 0.230 (in 10,000 with >= 0.85: 0.191); a light in
         the map passes 0.85 / 0.3 in 15 % of its decisions (it needs one).
+        Group Monte Carlo with the jitter measured by the lights of each frame
+        (`python tests/decode/pieces_mc.py --trials 20`: 5 lights a trial, 40 % outside a map
+        of 60-300 IDs, 100-200 us rms jitter, +-50 ppm crystals, 5-10 kHz, 70-120 rows): 0
+        wrong IDs among 700 lights (200 of them in scenes with no light in the map); 68-99 %
+        of the mapped lights decoded, after a median of 14-35 frames.
     """
 
     min_row_frac: float = 0.25

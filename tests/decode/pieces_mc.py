@@ -153,10 +153,11 @@ def main(argv: list[str] | None = None) -> int:
                     sel = (m[:, 0] >= corr) & (m[:, 3] >= lo) & (m[:, 3] < hi)
                     bad = sel & (m[:, 2] == 0)
                     good = sel & (m[:, 2] == 1)
-                    print(f"    mean >= {corr}, placed by jitter {lo:.1f}-{min(hi, 1):.1f}: {int(bad.sum())} wrong-best "
-                          f"decisions, largest gap {m[bad, 1].max() if bad.any() else float('nan'):.3f}; "
-                          f"{int(good.sum())} right-best, median gap {np.median(m[good, 1]) if good.any() else float('nan'):.3f}",
-                          flush=True)
+                    worst = m[bad, 1].max() if bad.any() else float("nan")
+                    typical = np.median(m[good, 1]) if good.any() else float("nan")
+                    print(f"    mean >= {corr}, placed by jitter {lo:.1f}-{min(hi, 1):.1f}: {int(bad.sum())} "
+                          f"wrong-best decisions, largest gap {worst:.3f}; {int(good.sum())} right-best, "
+                          f"median gap {typical:.3f}", flush=True)
     return 0
 
 
