@@ -110,9 +110,11 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
         mad = int(np.searchsorted(np.cumsum(dev), half))
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
-    if fine_noise:
+    if fine_noise and med + k_mad * med > level:
         # a background flattened below the sensor's noise (see `near_light_sigma`) is not the
-        # noise the lights' neighbourhoods carry: the larger of the two sets the level
+        # noise the lights' neighbourhoods carry: the larger of the two sets the level. That
+        # noise is at most the background itself (pixels below it deviate by at most its
+        # value), so it is measured only where it could raise the level (not on a black one).
         near = near_light_sigma(gray, min(level, 254.0), med)
         level = max(level, med + k_mad * near)
     return float(min(level, 254.0)), float(med)
@@ -142,8 +144,13 @@ def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float
     its background they measure its noise again."""
     if not math.isfinite(level) or level >= 255 or gray.size == 0:
         return 0.0
-    _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
-    x, y, w, h = cv2.boundingRect(lit)
+    if _k is not None and _native_frame(gray):
+        # the same mask (> level) and its box in one pass
+        lit = np.empty_like(gray)
+        x, y, w, h = _k.search_mask(gray, 1, min(max(math.floor(level) + 1, 0), 256), lit)
+    else:
+        _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
+        x, y, w, h = cv2.boundingRect(lit)
     if w == 0:
         return 0.0
     # only the lit pixels' box and its rim are read (lights cover a small part of the frame)
