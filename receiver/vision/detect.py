@@ -110,9 +110,11 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
         mad = int(np.searchsorted(np.cumsum(dev), half))
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
-    if fine_noise:
+    if fine_noise and med + k_mad * med > level:
         # a background flattened below the sensor's noise (see `near_light_sigma`) is not the
-        # noise the lights' neighbourhoods carry: the larger of the two sets the level
+        # noise the lights' neighbourhoods carry: the larger of the two sets the level. That
+        # noise is at most the background itself (pixels below it deviate by at most its
+        # value), so it is measured only where it could raise the level (not on a black one).
         near = near_light_sigma(gray, min(level, 254.0), med)
         level = max(level, med + k_mad * near)
     return float(min(level, 254.0)), float(med)
@@ -142,8 +144,13 @@ def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float
     its background they measure its noise again."""
     if not math.isfinite(level) or level >= 255 or gray.size == 0:
         return 0.0
-    _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
-    x, y, w, h = cv2.boundingRect(lit)
+    if _k is not None and _native_frame(gray):
+        # the same mask (> level) and its box in one pass
+        lit = np.empty_like(gray)
+        x, y, w, h = _k.search_mask(gray, 1, min(max(math.floor(level) + 1, 0), 256), lit)
+    else:
+        _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
+        x, y, w, h = cv2.boundingRect(lit)
     if w == 0:
         return 0.0
     # only the lit pixels' box and its rim are read (lights cover a small part of the frame)
@@ -692,10 +699,34 @@ def _masked_boxes(gray, small_shape, contours, boxes, f, scratch: Scratch | None
         if cv2.countNonZero(crop) == crop.size:  # the mask covers the box (a panel): a plain copy
             out[y0:y0 + bh, x0:x0 + bw] = gray[y0:y0 + bh, x0:x0 + bw]
             continue
-        up = cv2.resize(crop, ((j1 - j0) * f, (i1 - i0) * f), interpolation=cv2.INTER_NEAREST)
+        g, o = gray[y0:y0 + bh, x0:x0 + bw], out[y0:y0 + bh, x0:x0 + bw]
         ox, oy = x0 - (j0 - pad) * f, y0 - (i0 - pad) * f
-        cv2.bitwise_and(gray[y0:y0 + bh, x0:x0 + bw], up[oy:oy + bh, ox:ox + bw], dst=out[y0:y0 + bh, x0:x0 + bw])
+        if f in _WIDE and bh * bw >= WIDE_MIN_PX and ox == 0 and oy == 0:
+            _and_blocks(g, crop, f, o)
+            continue
+        up = cv2.resize(crop, ((j1 - j0) * f, (i1 - i0) * f), interpolation=cv2.INTER_NEAREST)
+        cv2.bitwise_and(g, up[oy:oy + bh, ox:ox + bw], dst=o)
     return out
+
+
+# Factors whose f x f blocks `_and_blocks` makes without a resize: the unsigned type of f bytes
+# and the multiplier that repeats a 0 / 255 byte f times in it.
+_WIDE = {2: (np.uint16, 0x0101), 4: (np.uint32, 0x01010101), 8: (np.uint64, 0x0101010101010101)}
+# Boxes of at least this many pixels are masked by `_and_blocks`; on smaller ones its f calls
+# cost more than the resize saves (crossover measured at 10-14 k px for f = 2 and 4).
+WIDE_MIN_PX = 12_000
+
+
+def _and_blocks(g: np.ndarray, crop: np.ndarray, f: int, out: np.ndarray) -> None:
+    """out = g AND the 0 / 255 mask `crop` with each pixel an f x f block (f in `_WIDE`), for a
+    box `g` starting on a block corner: the INTER_NEAREST resize's result without its per-pixel
+    table (each mask byte widened to f bytes by one multiplication, and the mask row shared by
+    the box rows i, i + f, i + 2 f, ... of each phase i)."""
+    bh, bw = g.shape
+    kind, ones = _WIDE[f]
+    wide = (crop.astype(kind) * kind(ones)).view(np.uint8)
+    for i in range(min(f, bh)):
+        cv2.bitwise_and(g[i::f], wide[:(bh - i + f - 1) // f, :bw], dst=out[i::f])
 
 
 def _isolated(rects: np.ndarray) -> np.ndarray:

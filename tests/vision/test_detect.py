@@ -442,3 +442,39 @@ def test_mean_in_mask_is_the_mean_of_the_envelope_pixels():
         assert mean_in_mask(gray, b) == want
         checked += 1
     assert checked > 150 and edge > 0
+
+
+@pytest.mark.parametrize("f", [2, 4, 8])
+def test_mask_blocks_without_resize_equal_the_nearest_neighbour_resize(f):
+    """`_and_blocks` (each mask byte widened to an f x f block) gives what the INTER_NEAREST
+    resize and AND give, for boxes cut short at the right and bottom (a frame edge)."""
+    from receiver.vision.detect import _and_blocks
+    rng = np.random.default_rng(f)
+    for hs, ws in ((1, 1), (3, 7), (17, 23)):
+        comp = np.where(rng.random((hs + 4, ws + 4)) < 0.6, 255, 0).astype(np.uint8)
+        crop = comp[2:2 + hs, 1:1 + ws]  # a strided view, as `_masked_boxes` cuts it
+        gray = rng.integers(0, 256, (hs * f + 5, ws * f + 9), dtype=np.uint8)
+        for bh, bw in ((hs * f, ws * f), (hs * f - f + 1, ws * f - 1)):
+            g = gray[3:3 + bh, 2:2 + bw]
+            want = cv2.bitwise_and(g, cv2.resize(crop, (ws * f, hs * f), interpolation=cv2.INTER_NEAREST)[:bh, :bw])
+            out = np.full((bh + 2, bw + 2), 7, np.uint8)
+            _and_blocks(g, crop, f, out[1:1 + bh, 1:1 + bw])
+            assert np.array_equal(out[1:1 + bh, 1:1 + bw], want)
+            assert (out[0] == 7).all() and (out[-1] == 7).all() and (out[:, 0] == 7).all() and (out[:, -1] == 7).all()
+
+
+def test_downsampled_search_gives_the_same_blobs_with_and_without_the_block_masks(monkeypatch):
+    """A 4K frame (factor 4) and a 1080p one (factor 2) with big striped lights: the boxes
+    masked by `_and_blocks` give the blobs the resize gives."""
+    import receiver.vision.detect as detect_mod
+    for w, h, r in ((3840, 2160, 160.0), (1920, 1080, 90.0)):
+        img = blank(w, h, noise=2.0)
+        for x, y in ((w * 0.25, h * 0.3), (w * 0.7, h * 0.6), (w * 0.5, h * 0.85)):
+            draw_led(img, x, y, r, period_rows=24)
+        g = u8(img)
+        monkeypatch.setattr(detect_mod, "WIDE_MIN_PX", 0)
+        fast = detect(g, stripe_gap_px=14)
+        monkeypatch.setattr(detect_mod, "WIDE_MIN_PX", 10 ** 12)
+        slow = detect(g, stripe_gap_px=14)
+        assert len(fast) == 3 and len(slow) == 3
+        assert all(_same_blob(a, b) for a, b in zip(fast, slow))

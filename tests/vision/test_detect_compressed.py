@@ -94,3 +94,47 @@ def test_a_background_clipped_at_black_or_no_light_leaves_the_level_alone():
     assert near_light_sigma(lit, 4.0, 0.0) == 0.0  # nothing below a black background
     got = auto_level(lit, k_mad=12.0, min_contrast=4.0, fine_noise=True)
     assert got == pytest.approx(auto_level(dark, k_mad=12.0, min_contrast=4.0, fine_noise=True), abs=0.05)
+
+
+@pytest.mark.parametrize("bg", [0.0, 2.0, 8.0, 40.0])
+def test_near_light_noise_is_at_most_the_background(bg):
+    """The noise next to the lights is measured from the deviations below the background, so it
+    never exceeds the background (auto_level skips it where k_mad times that could not raise
+    the level): on raw and compressed frames with a wide noise, and the level is the same with
+    and without the skip."""
+    import receiver.vision.detect as detect_mod
+    for seed in range(4):
+        for img in (_frame(seed, sigma=6.0, bg=bg), _jpeg(_frame(seed, sigma=6.0, bg=bg), 50)):
+            med = float(np.median(img))
+            for level in (med + 3.0, med + 20.0, 100.0):
+                assert near_light_sigma(img, level, med) <= med + 1e-9
+            got = auto_level(img, fine_noise=True, min_contrast=4.0, k_mad=12.0)
+            want = _level_always_measured(img, detect_mod)
+            assert got == want
+
+
+def _level_always_measured(img, detect_mod):
+    """auto_level's level with the noise next to the lights always measured (no skip)."""
+    hist = np.empty(256, np.float32)
+    sample = np.ascontiguousarray(img[::4, ::4])
+    hist = cv2.calcHist([sample], [0], None, [256], [0, 256]).ravel()
+    cdf = np.cumsum(hist)
+    med = int(np.searchsorted(cdf, cdf[-1] / 2.0))
+    dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
+    mad = int(np.searchsorted(np.cumsum(dev), cdf[-1] / 2.0))
+    level = max(med + 12.0 * detect_mod.noise_sigma(hist, med, mad), med + 4.0)
+    near = near_light_sigma(img, min(level, 254.0), med)
+    return float(min(max(level, med + 12.0 * near), 254.0)), float(med)
+
+
+def test_near_light_sigma_kernel_equals_opencv(monkeypatch):
+    """The compiled mask and box pass gives near_light_sigma the same value as cv2.threshold and
+    cv2.boundingRect (without the kernels both sides take the OpenCV path)."""
+    import receiver.vision.detect as detect_mod
+    imgs = [_jpeg(_frame(s, sigma=3.0, bg=b), 60) for s, b in ((1, 8.0), (2, 20.0))]
+    imgs.append(np.zeros((H, W), np.uint8))
+    native = [near_light_sigma(img, lv, float(np.median(img))) for img in imgs for lv in (12.5, 30.0, 254.0)]
+    monkeypatch.setattr(detect_mod, "_k", None)
+    pure = [near_light_sigma(img, lv, float(np.median(img))) for img in imgs for lv in (12.5, 30.0, 254.0)]
+    assert native == pure
+    assert any(v > 0 for v in native)
