@@ -540,7 +540,7 @@ class Receiver:
             # `DecodePolicy.due` written out (a light with an ID is fed every `redecode_every`
             # frames, staggered by track, unless it measures the frames' jitter for the others):
             # most lights of a frame are skipped here
-            if (light.led_id is not None and (k + tid) % every and not light.pieces_ref) or not light.decoders:
+            if (light.led_id is not None and (k + tid) % every and not light.measures_jitter()) or not light.decoders:
                 continue
             blob = env[tid]
             prof = profiles.get(tid)

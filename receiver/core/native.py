@@ -3,7 +3,7 @@
 A stage imports its kernel module with `load("receiver.vision._edges")` and calls it when the
 result is not None; otherwise it runs its pure numpy path, which stays the tested reference the
 kernel must equal. `OCCLOC_PURE=1` in the environment forces the pure path everywhere (for A/B
-measurements and the equality tests); `OCCLOC_PURE=_tone,_pnp` (module names, without their
+measurements and the equality tests); `OCCLOC_PURE=_ook,_pnp` (module names, without their
 package) forces it for those kernels only, to measure what one kernel saves
 (`tools/kernel_shares.py`); `status()` says which kernels are in use.
 
@@ -31,7 +31,7 @@ def pure_forced() -> bool:
 
 
 def _named_pure() -> set[str]:
-    """The kernels OCCLOC_PURE names (`_tone,_pnp`); empty for "1" or unset."""
+    """The kernels OCCLOC_PURE names (`_ook,_pnp`); empty for "1" or unset."""
     value = os.environ.get("OCCLOC_PURE", "")
     return set() if value in ("", "1") else {n.strip() for n in value.split(",") if n.strip()}
 

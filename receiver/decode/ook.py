@@ -917,6 +917,8 @@ class OokDecoder:
         if soft.size > self.pieces_max_chips:
             return  # a long piece: the assembly above places it by its own chips
         q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
+        if self.led_id is None and self.pieces.frame_jitter is not None:
+            self.pieces.frame_jitter.want()
         self.pieces.add(soft, cw, q, float(t_s))
         led_id = self.pieces.decide(fixed=self.led_id)
         if led_id is not None:

@@ -29,7 +29,7 @@ candidate's packet within its window; the winner must correlate strongly on aver
 from __future__ import annotations
 
 import math
-from collections import OrderedDict, deque
+from collections import deque
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -51,20 +51,34 @@ class FrameJitter:
     `estimate(t, key)`: the consensus of the other lights' measurements of that frame, or
     None. The consensus is the median of the largest group of measurements within
     `agree_chips` of one another; a tie between groups (two lights that disagree) gives none.
-    Only the last `frames` frames are kept."""
+    Only the last `frames` frames (the newest stamps) are kept.
+    `wanted()`: a light still without its ID asked for an estimate within the last
+    `want_frames` frames measured: only then do lights whose ID is known need measuring."""
 
-    def __init__(self, *, frames: int = 64, agree_chips: float = 0.75):
+    def __init__(self, *, frames: int = 64, agree_chips: float = 0.75, want_frames: int = 8):
         self.frames = frames
         self.agree = agree_chips
-        self.by_frame: OrderedDict = OrderedDict()
+        self.want_frames = want_frames
+        self.by_frame: dict = {}
+        self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
         d = self.by_frame.get(t)
         if d is None:
             d = self.by_frame[t] = {}
-            while len(self.by_frame) > self.frames:
-                self.by_frame.popitem(last=False)
+            if self._since_want is not None:
+                self._since_want += 1
+            if len(self.by_frame) > self.frames:
+                for old in sorted(self.by_frame)[:len(self.by_frame) - self.frames]:
+                    del self.by_frame[old]
         d[key] = _wrap(float(m))
+
+    def wanted(self) -> bool:
+        return self._since_want is not None and self._since_want <= self.want_frames
+
+    def want(self) -> None:
+        """A light without its ID shows a piece this frame: the others' measurements are needed."""
+        self._since_want = 0
 
     def estimate(self, t: float, key: int) -> float | None:
         d = self.by_frame.get(t)
@@ -123,7 +137,7 @@ class PieceAssembler:
 
     def __init__(self, ids: np.ndarray, templates: np.ndarray, *, jitter_chips: int, history: int,
                  min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2,
-                 jitter: FrameJitter | None = None, timed_penalty: float = 0.5, ref_corr: float = 0.75,
+                 jitter: FrameJitter | None = None, timed_penalty: float = 1.0, ref_corr: float = 0.75,
                  ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
         self.ids = np.asarray(ids)
         self.templates = np.asarray(templates, dtype=np.float32)
@@ -131,7 +145,8 @@ class PieceAssembler:
             (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
         # (K, 55, 54): [:, k] is the packets' window from chip k on
         self._windows = None if self._wrapped is None else sliding_window_view(self._wrapped, PACKET_LEN, axis=1)
-        self.jitter_chips = int(jitter_chips)
+        # a window of half the packet or more would meet itself round the cycle
+        self.jitter_chips = min(int(jitter_chips), PACKET_LEN // 2 - 1)
         self.history = history
         self.pieces: deque = deque()
         self.min_frames = min_frames

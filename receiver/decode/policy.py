@@ -150,8 +150,9 @@ class LightDecoder:
     `striped`: its row profile has shown stripes (or it needs none); `led_id`, `mode`: the ID
     and mode reported for it (None until decoded); `freq_hz`: the tone decoder's latest
     measured stripe frequency (NaN when none); `pieces_ref`: it shows short pieces of its
-    packet, and so measures the frames' jitter for the other lights (receiver.decode.pieces):
-    it is fed every frame, its ID known or not."""
+    packet, and so can measure the frames' jitter for the other lights (receiver.decode.pieces):
+    while a light without its ID wants that (`measures_jitter`), it is fed every frame, its ID
+    known or not."""
 
     def __init__(self, decoders: dict):
         self.decoders = decoders  # (mode, rate) -> decoder
@@ -162,6 +163,11 @@ class LightDecoder:
         self._tone_last: int | None = None
         self._tone_run = 0
         self.pieces_ref = False
+        self.jitters: tuple = ()  # the FrameJitter of each rate it shows pieces of
+
+    def measures_jitter(self) -> bool:
+        """It shows short pieces, and a light still without its ID wants the frames' jitter."""
+        return self.pieces_ref and any(j.wanted() for j in self.jitters)
 
     @property
     def freq_hz(self) -> float:
@@ -296,8 +302,8 @@ class DecodePolicy:
     def due(self, light: LightDecoder, frame_index: int, track_id: int) -> bool:
         """Decode this light in this frame? A light whose ID is known feeds its decoders only
         every `redecode_every` frames (staggered by track), unless it measures the frames'
-        jitter for the others (`LightDecoder.pieces_ref`)."""
-        return light.pieces_ref or self.pair_due(light.led_id, frame_index, track_id)
+        jitter for the others (`LightDecoder.measures_jitter`)."""
+        return light.measures_jitter() or self.pair_due(light.led_id, frame_index, track_id)
 
     def step_light(self, light: LightDecoder, gray: np.ndarray, blob, profile_wy, t_s: float,
                    ticks: dict | None = None) -> None:
@@ -322,8 +328,10 @@ class DecodePolicy:
                 else:
                     st = dec.step(profile, weights, t_s, y0=y0)
             light.states[(mode, rate)] = st
-            if mode == "ook" and not light.pieces_ref and getattr(dec.pieces, "frame_jitter", None) is not None:
-                light.pieces_ref = dec.pieces.added > 0
+            jitter = getattr(dec.pieces, "frame_jitter", None) if mode == "ook" else None
+            if jitter is not None and jitter not in light.jitters and dec.pieces.added > 0:
+                light.pieces_ref = True
+                light.jitters += (jitter,)
             if mode == "tone":
                 tone_id = st.led_id if accept(self.led_map, mode, st.led_id) else None
                 if tone_id is not None and self.plan.ook_rates and not tone_runs_match(

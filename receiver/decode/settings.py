@@ -148,13 +148,13 @@ class OokSettings:
     soft_min_chips: int = 30
     soft_sigma_floor: float = 0.05
     pieces_max_chips: float = 16.0
-    pieces_jitter_us: float = 200.0
-    pieces_frames: int = 30
-    pieces_min_frames: int = 6
+    pieces_jitter_us: float = knob(200.0, 0.0, 1e5)
+    pieces_frames: int = knob(30, 1, 1000)
+    pieces_min_frames: int = knob(6, 1, 1000)
     pieces_min_corr: float = 0.85
     pieces_min_gap: float = 0.3
     pieces_shift_penalty: float = 0.2
-    pieces_timed_penalty: float = 1.0
+    pieces_timed_penalty: float = knob(1.0, 0.0)
     model_min_chips: float = 0.5
     blur_rows: float = 1.0
     model_phases: int = 8

@@ -12,7 +12,7 @@ squares Jacobian, so nothing is tuned per scene except the documented accelerati
 
 `PositionKalman` (the streaming stage) runs the predict / update steps of filterpy's
 `KalmanFilter` with the same operations in the same order on plain numpy arrays (`_predict`,
-`_update`), so its state equals filterpy's bit for bit (a test runs both side by side) without
+`_update`), so its state equals filterpy's to rounding (a test runs both side by side) without
 filterpy's per-call bookkeeping (deep copies, prior / posterior snapshots: most of a
 lighting-server datagram's filter time).
 

@@ -55,12 +55,18 @@ _BIN_PX = 0.5
 _KAPPA_RANGE = (-0.01, 0.2)
 
 
+# The largest pixel distance a gate may name (beyond any camera's frame), and the largest
+# frame-to-frame shift searched (a vote grid of (2 * 200 / _BIN_PX)^2 cells).
+MAX_DISTANCE_PX = 10000.0
+MAX_RADIUS_PX = 200.0
+
+
 @dataclass(frozen=True)
 class MotionSettings:
     """The camera-motion estimate's knobs.
 
     radius_px [14 px]: the largest frame-to-frame image shift searched (0.5 degrees of shake at a
-        1500 px focal length).
+        1500 px focal length; at most 200 px, and at least match_px).
     match_px [1.5 px]: half-width of the vote's smoothing window (a far half's centroid noise of
         about 0.5 px plus the error of a light's own-motion prediction).
     gate_px [2 px]: how far from a light's prediction a blob may be and still be that light.
@@ -110,6 +116,14 @@ class MotionSettings:
         for name in ("radius_px", "match_px", "gate_px", "new_gate_px", "max_area_ratio", "shake_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, not {getattr(self, name)!r}")
+        for name in ("gate_px", "new_gate_px", "shake_px"):
+            if not getattr(self, name) <= MAX_DISTANCE_PX:
+                raise ValueError(f"{name} must be at most {MAX_DISTANCE_PX:g} px, not {getattr(self, name)!r}")
+        # the vote grid is (2 radius / bin)^2 cells: a search wider than MAX_RADIUS_PX is no shake
+        if not self.radius_px <= MAX_RADIUS_PX:
+            raise ValueError(f"radius_px must be at most {MAX_RADIUS_PX:g} px, not {self.radius_px!r}")
+        if not self.match_px <= self.radius_px:
+            raise ValueError(f"match_px must be at most radius_px ({self.radius_px:g}), not {self.match_px!r}")
         for name in ("miss_cost", "given_votes", "velocity_gain", "foe_gain"):
             if not 0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be a finite number of at least 0, not {getattr(self, name)!r}")

@@ -169,3 +169,40 @@ def test_piece_correlations_are_the_circular_cross_correlations():
         for half, pen in ((a.jitter_chips, a.shift_penalty), (2, 0.3)):
             best = np.max([np.roll(want, -d, axis=1) - pen * abs(d) for d in range(-half, half + 1)], axis=0)
             assert np.allclose(_windowed(p.corr, half, pen), best, atol=1e-5)
+
+
+def test_frame_jitter_is_wanted_only_while_a_light_without_id_shows_pieces():
+    """Lights whose ID is known measure the frames' jitter only while some light without its ID
+    asked within the last `want_frames` frames measured; the frames kept are the newest stamps,
+    whatever order they are posted in."""
+    from receiver.decode.pieces import FrameJitter
+
+    fj = FrameJitter(frames=4, want_frames=2)
+    assert not fj.wanted()
+    fj.want()
+    assert fj.wanted()
+    for t in (1.0, 2.0):
+        fj.post(t, 1, 0.0)
+    assert fj.wanted()
+    fj.post(3.0, 1, 0.0)
+    assert not fj.wanted()
+    fj.post(3.0, 2, 0.0)        # a frame already measured does not count again
+    assert not fj.wanted()
+    for t in (4.0, 5.0, 0.5):   # a late post of an old frame does not push out a newer one
+        fj.post(t, 1, 0.0)
+    assert sorted(fj.by_frame) == [2.0, 3.0, 4.0, 5.0]
+
+
+def test_pieces_settings_that_mean_nothing_are_refused():
+    import pytest
+
+    from receiver.core.errors import InputError
+    from receiver.core.settings import settings_from_json
+    from receiver.decode.settings import OokSettings
+
+    for name, value in (("pieces_frames", 0), ("pieces_min_frames", 0), ("pieces_jitter_us", -1.0)):
+        with pytest.raises(InputError):
+            settings_from_json(OokSettings, {name: value})
+    a = PieceAssembler(np.arange(2), np.ones((2, 54), np.float32), jitter_chips=500, history=4,
+                       min_frames=2, min_corr=0.5, min_gap=0.1)
+    assert a.jitter_chips == 26

@@ -242,3 +242,16 @@ def test_vehicle_score_settings_file_errors_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 2 and "no such file" in err and "not with --truth-shift" in err
     assert not (tmp_path / "runs").exists()
+
+
+def test_search_distances_past_any_shake_are_refused():
+    """A search radius past MAX_RADIUS_PX (its vote grid would not fit in memory) or a smoothing
+    window wider than the search is a one-line ValueError, not an overflow mid-run."""
+    import pytest
+
+    from receiver.vision.camera_motion import MAX_RADIUS_PX, MotionSettings
+
+    MotionSettings(radius_px=MAX_RADIUS_PX, match_px=MAX_RADIUS_PX)
+    for kw in ({"radius_px": 1e9}, {"match_px": 15.0}, {"gate_px": 1e9}):
+        with pytest.raises(ValueError):
+            MotionSettings(**kw)
