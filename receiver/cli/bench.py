@@ -169,8 +169,10 @@ def scaled_scene(name: str, size: tuple[int, int], n_frames: int):
     except ImportError:
         raise InputError(f"--scale-scene {name} needs the tools package of a source checkout") from None
     base = CAMERA_DEFAULTS[name]
+    # each band of 4 rows drawn at the camera pose of its own read time, as a rolling shutter reads
+    # a moving camera's image (the receiver's outline fit models it)
     scene = make_scene(name, seed=1, n_frames=n_frames, width=w, height=h, focal_px=base["focal_px"] * w / 1280.0,
-                       row_readout_us=base["row_readout_us"] * 720.0 / h)
+                       row_readout_us=base["row_readout_us"] * 720.0 / h, rs_band_rows=4)
     fps = scene.camera.fps or 30.0
     frames = [Frame(k, k / fps, img) for k, (img, _) in enumerate(render_frames(scene, n_frames=n_frames, seed=1))]
     return scene.camera, scene.led_map, frames, False
