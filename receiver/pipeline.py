@@ -252,6 +252,9 @@ class Receiver:
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
         self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
+        # Pair.uid -> time after which the early decoders hold no sample from before the pair formed
+        # (then they are the pair's own decoders again, and are dropped)
+        self.early_until: dict[int, float] = {}
         # Pair.uid -> decoders fed from the frame the pair lost `Pair.confirmed` on, until an ID
         self.confirm_decoders: dict[int, dict] = {}
         self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its far head's flux (Pairer.reads_flux)
@@ -362,6 +365,7 @@ class Receiver:
                     # founding tracks may have followed other blobs before (a wrong history
                     # must not hold the pair's own samples back); whichever decodes first wins.
                     early = self.early_decoders[p.uid] = self.policy.new_pair_decoders()
+                    self.early_until[p.uid] = frame.t_s + max(d.history_s for d in early.values())
                     for t_s, *ab in p.backlog:
                         self.policy.step_pair(early, t_s, pair_xor(*ab))
                     p.backlog = []
@@ -381,6 +385,9 @@ class Receiver:
                 if found is None and ffound is not None and p.led_id is None:
                     found = ffound
             early = self.early_decoders.get(p.uid)
+            if early is not None and frame.t_s > self.early_until[p.uid]:
+                del self.early_decoders[p.uid]
+                early = None
             if early is not None:
                 if found is None:
                     found, _ = self.policy.step_pair(early, frame.t_s, x)
@@ -409,6 +416,7 @@ class Receiver:
         for uid in [u for u in self.pair_decoders if u not in uids]:
             del self.pair_decoders[uid]
             self.early_decoders.pop(uid, None)
+            self.early_until.pop(uid, None)
             self.flux_decoders.pop(uid, None)
             self.confirm_decoders.pop(uid, None)
         pair_of = pair_owners(self.pairer.pairs)
