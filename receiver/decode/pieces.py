@@ -29,6 +29,7 @@ candidate's packet within its window; the winner must correlate strongly on aver
 from __future__ import annotations
 
 import math
+import statistics
 from collections import deque
 
 import numpy as np
@@ -60,6 +61,7 @@ class FrameJitter:
         self.agree = agree_chips
         self.want_frames = want_frames
         self.by_frame: dict = {}
+        self._known: dict = {}  # t -> {key: estimate}, dropped when frame t gets a measurement
         self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
@@ -71,7 +73,9 @@ class FrameJitter:
             if len(self.by_frame) > self.frames:
                 for old in sorted(self.by_frame)[:len(self.by_frame) - self.frames]:
                     del self.by_frame[old]
+                    self._known.pop(old, None)
         d[key] = _wrap(float(m))
+        self._known.pop(t, None)
 
     def wanted(self) -> bool:
         return self._since_want is not None and self._since_want <= self.want_frames
@@ -84,6 +88,12 @@ class FrameJitter:
         d = self.by_frame.get(t)
         if not d:
             return None
+        known = self._known.setdefault(t, {})
+        if key not in known:
+            known[key] = self._consensus(d, key)
+        return known[key]
+
+    def _consensus(self, d: dict, key: int) -> float | None:
         vals = [m for k, m in d.items() if k != key]
         if not vals:
             return None
@@ -94,7 +104,7 @@ class FrameJitter:
         best = max(groups, key=len)
         if sizes[0] == sizes[1] and any(len(g) == sizes[0] and set(g) != set(best) for g in groups):
             return None
-        return float(np.median(best))
+        return float(statistics.median(best))
 
 
 class _Piece:
@@ -102,11 +112,14 @@ class _Piece:
     correlations `corr` (computed once needed), their best within the wide and the narrow
     window, and the placement its contribution to the likelihood table was made with."""
 
-    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used")
+    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used", "by_phase")
 
     def __init__(self, x: np.ndarray, q: float, t: float):
         self.x, self.den, self.q, self.t, self.n = x, float(np.abs(x).sum()), q, t, x.size
         self.corr = self.wide = self.narrow = None
+        # {narrow?: (K, 2 * 54 * PHASE_STEPS)}: each packet position's correlations repeated for
+        # its PHASE_STEPS phases, twice round: any placement's (K, 54 * PHASE_STEPS) is a slice
+        self.by_phase: dict = {}
         self.used: tuple | None = None  # (placed q, narrow?) of the piece's term in ll
 
 
@@ -195,8 +208,15 @@ class PieceAssembler:
         p.narrow = _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)
 
     def _term(self, p: _Piece, qq: float, narrow: bool, sign: float) -> None:
-        best = p.narrow if narrow else p.wide
-        self.ll += (sign * p.den) * best[:, self._slots(qq)]
+        """Add (sign +1) or take back (-1) a piece's term placed at qq: weight * best[:, s(phi)]
+        for every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`) is the
+        repeated table's slice from floor(PHASE_STEPS (qq + 1/2)) on."""
+        rep = p.by_phase.get(narrow)
+        if rep is None:
+            best = p.narrow if narrow else p.wide
+            rep = p.by_phase[narrow] = np.tile(np.repeat(best, PHASE_STEPS, axis=1), 2)
+        m = int(math.floor(PHASE_STEPS * (qq + 0.5))) % self.phis.size
+        self.ll += (sign * p.den) * rep[:, m:m + self.phis.size]
         self.total += sign * p.den
 
     def _place(self, p: _Piece) -> tuple[float, bool]:
@@ -274,14 +294,23 @@ class PieceAssembler:
         base = self.phis[ph]
         phi = base + float(np.mean([_wrap(at - qq - base) for _, qq, at in self._fits(c, ph)]))
         J = self.jitter_chips
-        offsets = np.arange(-J, J + 1)
-        for p in self.pieces:
-            window = (int(self._slots(p.q)[ph]) + offsets) % PACKET_LEN
-            vals = p.corr[c, window]
-            i = int(np.argmax(vals))
-            other = np.delete(vals, i).max() if vals.size > 1 else -1.0
-            if vals[i] >= self.ref_match and vals[i] - other >= self.ref_unique:
-                self.frame_jitter.post(p.t, self.key, _wrap(float(window[i]) - p.q - phi))
+        pieces = list(self.pieces)
+        # every piece's window about its timestamp's place under phase ph: (pieces, 2 J + 1)
+        qs = np.array([p.q for p in pieces])
+        starts = np.floor(qs + self.phis[ph] + 0.5).astype(np.int64) % PACKET_LEN
+        window = (starts[:, None] + np.arange(-J, J + 1)[None, :]) % PACKET_LEN
+        vals = np.take_along_axis(np.stack([p.corr[c] for p in pieces]), window, axis=1)
+        i = np.argmax(vals, axis=1)
+        top = vals[np.arange(len(pieces)), i]
+        if J > 0:
+            rest = vals.copy()
+            rest[np.arange(len(pieces)), i] = -np.inf
+            other = rest.max(axis=1)
+        else:
+            other = np.full(len(pieces), -1.0)
+        for k in np.flatnonzero((top >= self.ref_match) & (top - other >= self.ref_unique)):
+            p = pieces[k]
+            self.frame_jitter.post(p.t, self.key, _wrap(float(window[k, i[k]]) - p.q - phi))
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:
