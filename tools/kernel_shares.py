@@ -6,7 +6,11 @@ Runs `occloc bench --instructions --json` once with every kernel built in, then 
 (default: all of them) with `OCCLOC_PURE=KERNEL`, which sends only that kernel's stage down its
 numpy path. A KERNEL may name several kernels joined by commas (`_kalman,_position`): their
 pure paths together, an upper bound of each one's share. `--source` (repeatable): only those
-cases (a recording folder, or `synthetic` for the built-in scene), each its own bench run. A kernel's share on a case is (pure - native) / native instructions per frame: the
+cases (a recording folder, or `synthetic` for the built-in scene), each its own bench run.
+`--skip-uncalled`: first count, per case, which kernels its counted frames call (each kernel
+function wrapped in a counter before the stages import it), and measure a kernel only on the
+cases that call it; elsewhere its share is 0 by construction (the frame runs the same code
+either way) and the table says `-`. A kernel's share on a case is (pure - native) / native instructions per frame: the
 part of a whole frame the kernel saves there. The house keeps a kernel only where that share is
 at least KEEP_SHARE_PCT on some bundled case. Instruction counts do not depend on the machine's
 load, so the figures are repeatable on a busy machine (slow: minutes per run).
@@ -54,6 +58,64 @@ def _bench_once(pure: str, instr_frames: int, source: str | None) -> dict[str, f
     return {row["case"]: row["instructions_per_frame"] for row in json.loads(out)["cases"]}
 
 
+class _Counted:
+    """A kernel function that records its kernel's name in `called` when it runs; indexing (a
+    fused function's specialisation) gives a counted specialisation."""
+
+    def __init__(self, f, name: str, called: set):
+        self.f, self.name, self.called = f, name, called
+
+    def __call__(self, *args, **kwargs):
+        self.called.add(self.name)
+        return self.f(*args, **kwargs)
+
+    def __getitem__(self, key):
+        return _Counted(self.f[key], self.name, self.called)
+
+
+def _calls_child(spec: str, warm: int, k: int) -> int:
+    """Print the kernels (JSON list) that frames [warm, warm + k) of case `spec` call, as
+    `occloc bench --instructions` counts them: every kernel's functions are wrapped before any
+    stage imports them."""
+    import importlib
+    called: set[str] = set()
+    counting: set[str] = set()
+    for name in native.kernel_sources():
+        mod = native.load(name)
+        if mod is None:
+            continue
+        short = name.rsplit(".", 1)[-1]
+        for attr in dir(mod):
+            f = getattr(mod, attr)
+            if not attr.startswith("__") and callable(f) and not isinstance(f, type):
+                setattr(mod, attr, _Counted(f, short, counting))
+    bench = importlib.import_module("receiver.cli.bench")
+    from receiver.io.output import frame_line
+    cam, led_map, frames, still = bench.load_case(spec, warm + k)
+    warm = min(warm, max(0, len(frames) - k))
+    rx = bench.whole_receiver(cam, led_map, still=still)
+    for f in frames[:warm]:
+        frame_line(rx.process(f))
+    counting.clear()
+    for f in frames[warm:warm + k]:
+        frame_line(rx.process(f))
+    called |= counting
+    print(json.dumps(sorted(called)))
+    return 0
+
+
+def kernels_called(source: str, instr_frames: int) -> set[str]:
+    """The kernels the counted frames of case `source` call (`_calls_child`, its own process)."""
+    from receiver.cli.bench import INSTR_WARM_FRAMES
+    cmd = [sys.executable, "-m", "tools.kernel_shares", "--_calls", source, str(INSTR_WARM_FRAMES), str(instr_frames)]
+    env = {k: v for k, v in os.environ.items() if k != "OCCLOC_PURE"}
+    done = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
+    if done.returncode != 0:
+        said = (done.stderr.strip().splitlines() or [f"exit {done.returncode}"])[-1]
+        raise SystemExit(f"kernel_shares: counting the calls of {source} failed ({said})")
+    return set(json.loads(done.stdout.strip().splitlines()[-1]))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.kernel_shares", description=__doc__.split("\n\n")[0])
     p.add_argument("kernels", nargs="*",
@@ -62,14 +124,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--source", action="append",
                    help="a recording folder or `synthetic` instead of every bench case (repeatable)")
     p.add_argument("--out", help="also write the table to this Markdown file")
+    p.add_argument("--skip-uncalled", action="store_true",
+                   help="measure a kernel only on the cases whose counted frames call it (`-` elsewhere)")
+    p.add_argument("--_calls", nargs=3, metavar=("CASE", "W", "K"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args._calls:
+        return _calls_child(args._calls[0], int(args._calls[1]), int(args._calls[2]))
     known = [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
     unknown = [n for group in args.kernels for n in group.split(",") if n not in known]
     if unknown:   # OCCLOC_PURE would ignore it: its share would read 0 %, "drop it"
         p.error(f"unknown kernel {', '.join(unknown)} (choose from {', '.join(known)})")
     names = args.kernels or known
+    sources, calls = args.source, None
+    if args.skip_uncalled:
+        from receiver.cli import bench
+        sources = sources or bench.bundled_recordings() + [bench.SCENE]
+        print("kernel_shares: counting which kernels each case calls ...", file=sys.stderr, flush=True)
+        calls = {bench._case_name(src): kernels_called(src, args.instr_frames) for src in sources}
     print("kernel_shares: all kernels built in ...", file=sys.stderr, flush=True)
-    base = bench_instructions("", args.instr_frames, args.source)
+    base = bench_instructions("", args.instr_frames, sources)
     cases = list(base)
     lines = ["| kernel | " + " | ".join(cases) + " | max % | keep |",
              "|---|" + "---|" * (len(cases) + 2),
@@ -78,10 +151,15 @@ def main(argv: list[str] | None = None) -> int:
     _emit(out, "\n".join(lines))       # each row as it is measured: a long run shows progress
     for name in names:
         print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
-        pure = bench_instructions(name, args.instr_frames, args.source)
-        shares = [100.0 * (pure[c] - base[c]) / base[c] for c in cases]
-        best = max(shares)
-        lines.append(f"| {name} | " + " | ".join(f"{s:.1f}" for s in shares)
+        if calls is None:
+            pure = bench_instructions(name, args.instr_frames, args.source)
+        else:   # only the cases that call one of the group's kernels
+            group = set(name.split(","))
+            todo = [src for src, c in zip(sources, cases) if group & calls[c]]
+            pure = bench_instructions(name, args.instr_frames, todo) if todo else {}
+        shares = {c: 100.0 * (pure[c] - base[c]) / base[c] for c in cases if c in pure}
+        best = max(shares.values(), default=0.0)
+        lines.append(f"| {name} | " + " | ".join(f"{shares[c]:.1f}" if c in shares else "-" for c in cases)
                      + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
         _emit(out, lines[-1])
     if out is not None:
