@@ -365,7 +365,7 @@ class Receiver:
                     # founding tracks may have followed other blobs before (a wrong history
                     # must not hold the pair's own samples back); whichever decodes first wins.
                     early = self.early_decoders[p.uid] = self.policy.new_pair_decoders()
-                    self.early_until[p.uid] = frame.t_s + max(d.history_s for d in early.values())
+                    self.early_until[p.uid] = frame.t_s + max(getattr(d, "history_s", math.inf) for d in early.values())
                     for t_s, *ab in p.backlog:
                         self.policy.step_pair(early, t_s, pair_xor(*ab))
                     p.backlog = []
