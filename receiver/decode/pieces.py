@@ -180,9 +180,11 @@ class PieceAssembler:
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
 
-    def _slots(self, q: float) -> np.ndarray:
-        """Packet position of a piece's chip 0 under every phase hypothesis."""
-        return np.floor(q + self.phis + 0.5).astype(np.int64) % PACKET_LEN
+    def _slots(self, q, ph=None) -> np.ndarray:
+        """Packet position of a piece's chip 0 (q: packet time, or an array of them) under every
+        phase hypothesis, or under phase index `ph` alone."""
+        phi = self.phis if ph is None else self.phis[ph]
+        return np.floor(q + phi + 0.5).astype(np.int64) % PACKET_LEN
 
     def add(self, soft: np.ndarray, cw: np.ndarray, q: float, t: float | None = None) -> None:
         """Keep a piece (soft chips, weights, packet time q, frame stamp t); its correlations
@@ -245,7 +247,7 @@ class PieceAssembler:
         """Per piece: (piece, placed q, packet position where it fits best in its window)."""
         for p in self.pieces:
             qq, narrow = p.used
-            s0 = int(self._slots(qq)[ph])
+            s0 = int(self._slots(qq, ph))
             half = min(1, self.jitter_chips) if narrow else self.jitter_chips
             window = (s0 + np.arange(-half, half + 1)) % PACKET_LEN
             # (the window's correlations are the penalised ones: the place the score used)
@@ -297,7 +299,7 @@ class PieceAssembler:
         pieces = list(self.pieces)
         # every piece's window about its timestamp's place under phase ph: (pieces, 2 J + 1)
         qs = np.array([p.q for p in pieces])
-        starts = np.floor(qs + self.phis[ph] + 0.5).astype(np.int64) % PACKET_LEN
+        starts = self._slots(qs, ph)
         window = (starts[:, None] + np.arange(-J, J + 1)[None, :]) % PACKET_LEN
         vals = np.take_along_axis(np.stack([p.corr[c] for p in pieces]), window, axis=1)
         i = np.argmax(vals, axis=1)
