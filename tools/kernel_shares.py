@@ -19,6 +19,7 @@ load, so the figures are repeatable on a busy machine (slow: minutes per run).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -147,23 +148,21 @@ def main(argv: list[str] | None = None) -> int:
     lines = ["| kernel | " + " | ".join(cases) + " | max % | keep |",
              "|---|" + "---|" * (len(cases) + 2),
              "| (M instr/frame, all built) | " + " | ".join(f"{base[c] / 1e6:.2f}" for c in cases) + " | | |"]
-    out = open(args.out, "w") if args.out else None
-    _emit(out, "\n".join(lines))       # each row as it is measured: a long run shows progress
-    for name in names:
-        print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
-        if calls is None:
-            pure = bench_instructions(name, args.instr_frames, args.source)
-        else:   # only the cases that call one of the group's kernels
-            group = set(name.split(","))
-            todo = [src for src, c in zip(sources, cases) if group & calls[c]]
-            pure = bench_instructions(name, args.instr_frames, todo) if todo else {}
-        shares = {c: 100.0 * (pure[c] - base[c]) / base[c] for c in cases if c in pure}
-        best = max(shares.values(), default=0.0)
-        lines.append(f"| {name} | " + " | ".join(f"{shares[c]:.1f}" if c in shares else "-" for c in cases)
-                     + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
-        _emit(out, lines[-1])
-    if out is not None:
-        out.close()
+    with (open(args.out, "w") if args.out else contextlib.nullcontext()) as out:
+        _emit(out, "\n".join(lines))       # each row as it is measured: a long run shows progress
+        for name in names:
+            print(f"kernel_shares: {name} pure ...", file=sys.stderr, flush=True)
+            if calls is None:
+                pure = bench_instructions(name, args.instr_frames, args.source)
+            else:   # only the cases that call one of the group's kernels
+                group = set(name.split(","))
+                todo = [src for src, c in zip(sources, cases) if group & calls[c]]
+                pure = bench_instructions(name, args.instr_frames, todo) if todo else {}
+            shares = {c: 100.0 * (pure[c] - base[c]) / base[c] for c in cases if c in pure}
+            best = max(shares.values(), default=0.0)
+            lines.append(f"| {name} | " + " | ".join(f"{shares[c]:.1f}" if c in shares else "-" for c in cases)
+                         + f" | {best:.1f} | {'yes' if best >= KEEP_SHARE_PCT else 'no'} |")
+            _emit(out, lines[-1])
     return 0
 
 
