@@ -21,7 +21,7 @@ from receiver.locate.outline_pose import (
     solve_outline_pose,
 )
 from receiver.locate.pose import align_rays
-from receiver.locate.fastfilter import pose_filter_class
+from receiver.locate.posefilter import PoseFilter
 from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
@@ -147,8 +147,7 @@ class Positioner:
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
-        # PoseFilter, with its Kalman steps and position object compiled where built
-        self.pose = pose_filter_class()(handedness=s.handedness or led_map.handedness,
+        self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
                                accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
                                tilt_prior=s.tilt_prior, tilt_sigma_deg=s.tilt_sigma_deg, track_prior=s.track_prior)
