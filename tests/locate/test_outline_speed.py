@@ -18,6 +18,7 @@ from receiver.io.ledmap import load_map
 from receiver.io.sources import open_source
 from receiver.locate import outline_pose
 from receiver.locate.indoor import Positioner
+from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.pipeline import Receiver
 from receiver.vision.detect import detect
 from receiver.vision.outline import stripe_edge_points, stripe_edge_points_batch
@@ -77,8 +78,9 @@ def _warm_problem(folder, k):
             break
     targets, R0, C0 = seen["warm"]
     s = pos.settings
-    kw = {"focal_px": cam.focal_px, "centroid_sigma_px": s.centroid_sigma_px, "up_prior": np.array([0.0, 0.0, 1.0]),
-          "tilt_sigma_rad": np.radians(s.tilt_sigma_deg), "loss": s.loss, "f_scale": s.f_scale}
+    kw = {"focal_px": cam.focal_px, "centroid_sigma_px": outline_pose.DEFAULT_CENTROID_SIGMA_PX,
+          "up_prior": np.array([0.0, 0.0, 1.0]), "tilt_sigma_rad": np.radians(s.tilt_sigma_deg),
+          "loss": DEFAULT_LOSS, "f_scale": DEFAULT_F_SCALE}
     return targets, R0, C0, kw
 
 
