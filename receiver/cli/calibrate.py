@@ -102,7 +102,7 @@ def _board_frames(src, existing):
     if src.kind != "images":
         yield from src
         return
-    from receiver.cli.run import to_camera_orientation
+    from receiver.io.imagefile import to_camera_orientation
     from receiver.core.records import Frame
     size, turned = None, []
     for f in src.photos():

@@ -96,17 +96,6 @@ def _rotated(source):
         yield Frame(f.index, f.t_s, cv2.rotate(f.gray, cv2.ROTATE_90_COUNTERCLOCKWISE))
 
 
-def to_camera_orientation(gray, width: int, height: int):
-    """(`gray` in the orientation of a camera of `width` x `height`, turned?): a still whose long
-    side is not the camera's is turned back, assuming portrait = sensor turned clockwise, so that
-    image rows are sensor rows again."""
-    import cv2
-    h, w = gray.shape[:2]
-    if w != h and width != height and (w > h) != (width > height):
-        return cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE), True
-    return gray, False
-
-
 def _fit_photo(cam, gray, exposure_us: float | None = None):
     """(camera fitted to one photo, the photo in sensor orientation): a photo whose long side is
     not the camera's is turned back first, then the camera is scaled to its size
@@ -114,6 +103,7 @@ def _fit_photo(cam, gray, exposure_us: float | None = None):
     photo's own shutter time (its EXIF), which replaces the camera file's."""
     import dataclasses
     from receiver.io.camera import fit_camera
+    from receiver.io.imagefile import to_camera_orientation
     gray, _ = to_camera_orientation(gray, cam.width, cam.height)
     fitted, _ = fit_camera(cam, (gray.shape[1], gray.shape[0]))
     if exposure_us is not None:

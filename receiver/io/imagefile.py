@@ -7,6 +7,8 @@ short refused, and the decoder's own messages kept off the user's standard error
   (a file cut short: libjpeg would fill the missing rows with grey and only warn).
 * `read_gray(path, max_pixels)`: (8-bit gray image, None) or (None, reason).
 * `exif_exposure_us(path)`: the shutter time a photo's EXIF records, us (None without one).
+* `to_camera_orientation(gray, width, height)`: a portrait photo turned back to a landscape
+  camera's rows (and the other way round).
 """
 
 from __future__ import annotations
@@ -191,3 +193,13 @@ def exif_exposure_us(path: str) -> float | None:
     except Exception:   # no Pillow, no EXIF, a damaged header: the photo simply does not say
         return None
     return us if 0.0 < us < 1e8 else None
+
+
+def to_camera_orientation(gray, width: int, height: int):
+    """(`gray` in the orientation of a camera of `width` x `height`, turned?): a still whose long
+    side is not the camera's is turned back, assuming portrait = sensor turned clockwise, so that
+    image rows are sensor rows again."""
+    h, w = gray.shape[:2]
+    if w != h and width != height and (w > h) != (width > height):
+        return cv2.rotate(gray, cv2.ROTATE_90_COUNTERCLOCKWISE), True
+    return gray, False

@@ -1,12 +1,9 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 # Kept: without it the lighting server spends 71 % more CPU per reply (docs/kernels.md).
-"""Compiled steps of the constant-velocity Kalman filter of the receiver's positioner and the
-lighting server's devices
-(`receiver.locate.fastfilter.FastKalman`): the same equations as `receiver.locate.kalman`
-(`PositionKalman._predict`, `_update`, `_mahalanobis2`: eqs. 35-39, Joseph form, H = [I 0]) on
+"""The steps of the constant-velocity Kalman filter of the receiver's positioner and the lighting
+server's devices (`receiver.locate.kalman.PositionKalman`; eqs. 35-39, Joseph form, H = [I 0]) on
 one device's state in place, as plain loops over the 6 x 6 covariance instead of a dozen numpy
-calls. Sums are taken in another order than BLAS takes them: the numbers agree to rounding (the
-tests compare both).
+calls. tests/locate/test_kalman.py compares them with filterpy's `KalmanFilter` (to rounding).
 
 x: (6, 1) state [m, m/s]; P: (6, 6) covariance; z (3,) a position fix [m], R (3, 3) its
 covariance [m^2]; dt [s]; q the acceleration spectral density [m^2/s^3].

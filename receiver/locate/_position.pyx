@@ -1,15 +1,12 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 # Kept: without it the lighting server spends 17 % more CPU per reply (docs/kernels.md).
-"""Compiled `position` object of the receiver's frames and the lighting server's replies
-(`receiver.locate.fastfilter`, `receiver.serve.devices`): the dict
-`receiver.locate.fastfilter.position_object` builds (and `PoseFilter.update` before it), with its
-numbers rounded in C instead of ~40 Python-level `round` calls, each a decimal conversion there.
-
-Equal to the Python builder by construction (tests compare both):
-* Python's and numpy's rounding: receiver/core/_pyround.pxd (why rint(v * 10^n) / 10^n is
-  Python's round(v, n) where it is used);
-* yaw / pitch / roll: `fastfilter.ypr_deg` with the C library's asin / cos / atan2 (what Python's
-  math module calls) and math.degrees' factor 180 / pi.
+"""The INTERFACES.md `position` object of the receiver's frames and the lighting server's
+replies (`receiver.locate.posefilter.PoseFilter`, `receiver.serve.devices`), with its numbers
+rounded in C instead of ~40 Python-level `round` calls, each a decimal conversion there:
+* Python's and numpy's rounding: receiver/core/_pyround.pxd (rint(v * 10^n) / 10^n is Python's
+  round(v, n) where it is used);
+* yaw / pitch / roll: `receiver.locate.pose.rotation_to_ypr_deg`'s formulas with the C library's
+  asin / cos / atan2 (what Python's math module calls) and math.degrees' factor 180 / pi.
 """
 
 from libc.math cimport asin, atan2, cos, fabs, isfinite, rint, sqrt
@@ -47,7 +44,7 @@ cdef void _ypr(const double* Rb, double* yaw, double* theta, double* roll) noexc
 
 
 def position(x, P, C, cov, R, str method, int n_leds, handedness):
-    """`fastfilter.position_object`: x (6,) and P (6, 6) the filter state (both None without a
+    """The position object of x (6,) and P (6, 6) the filter state (both None without a
     track); C (3,), cov (3, 3) and R (3, 3) or None of the frame's fix (C None: no fix); method
     its `method` (or "kalman-coast"); handedness the map's, or None while undecided."""
     cdef double xb[6]

@@ -14,6 +14,7 @@ from receiver.core.records import LedObservation, LocateResult
 from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.outline_pose import (
     OutlineFrame,
     fixture_half_extents,
@@ -21,13 +22,24 @@ from receiver.locate.outline_pose import (
     solve_outline_pose,
 )
 from receiver.locate.pose import align_rays
-from receiver.locate.fastfilter import pose_filter_class
+from receiver.locate.posefilter import PoseFilter
 from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
 # The compiled packing of a frame's outline targets (receiver/locate/_ranging.pyx), or None.
 _kr = load("receiver.locate._ranging")
 
+# With "oblique" ranging, how often a frame's ranges are recomputed with the orientation of its own
+# fix and the fix solved again (the first pass uses the previous frame's orientation, or "looking
+# straight up"): none, as each re-solve is a least-squares run and moves the walk's median error by
+# ~3 mm; the reported distances use the frame's own orientation anyway (no re-solve needed). The
+# ranges-only solver has no other source of orientation (its tilt feeds the foreshortening): 3.
+RANGING_ITERATIONS = 0
+RANGES_ONLY_ITERATIONS = 3
+# Added in quadrature to each outline edge point's own sigma (px) for what the outline model leaves
+# out, chiefly the rolling shutter: the camera moves while the rows are read (the bundled walk's
+# outline residuals are ~0.3 px RMS against ~0.04 px of noise on the still indoor-static scene).
+EDGE_MODEL_SIGMA_PX = 0.25
 # An outline fit this good (chi^2 per dof) is taken without trying the other starting poses.
 GOOD_OUTLINE_CHI2_DOF = 4.0
 # ... and this good when it started from the tracked pose (`Positioner._outline_warm`): a warm start
@@ -51,6 +63,8 @@ TURN_RATE_DEG_S = 60.0
 # POLISH_GAIN, at most POLISH_SOLVES times (`Positioner._polished`).
 POLISH_SOLVES = 3
 POLISH_GAIN = 0.05
+# The tilt prior's "up": a phone held up at the ceiling (world z).
+_UP = np.array([0.0, 0.0, 1.0])
 
 
 def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s: float, ref_row: float) -> np.ndarray:
@@ -121,13 +135,7 @@ class Positioner:
     """Decoded LEDs of one frame -> distances and camera position, Kalman-filtered over frames.
 
     Tunables: `PositionerSettings` (receiver.locate.settings), given as `settings=` or as keyword
-    overrides of its fields.
-
-    `border_margin_px`: blobs whose envelope comes this close to the image edge are left out, as
-        are blobs flagged `border`: their area and centroid are cut by the frame edge.
-    LEDs whose ID the map does not know are counted in `unknown_ids`.
-    `handedness`: "right" or "left" overrides the map's own (`PoseFilter`); None: the map's, or
-        told from the images when the map does not say.
+    overrides of its fields. LEDs whose ID the map does not know are counted in `unknown_ids`.
     """
 
     def __init__(self, camera: CameraModel, led_map: LedMap, *, settings: PositionerSettings | None = None,
@@ -137,8 +145,6 @@ class Positioner:
             raise ValueError(f"unknown ranging estimator {s.ranging!r}")
         self.camera, self.led_map = camera, led_map
         self.ranging, self.solver = s.ranging, s.solver
-        self.ranging_iterations = s.ranging_iterations
-        self.ranges_only_iterations = s.ranges_only_iterations
         self.ranger = Ranger(camera, led_map, s)
         self._undistort = Undistorter(camera)
         self._row_s = (camera.row_readout_us or 0.0) * 1e-6
@@ -147,11 +153,9 @@ class Positioner:
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
-        # PoseFilter, with its Kalman steps and position object compiled where built
-        self.pose = pose_filter_class()(handedness=s.handedness or led_map.handedness,
+        self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
                                sigma_uv=s.pixel_sigma_px / camera.focal_px, solver=s.solver, kalman=s.kalman,
-                               accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, loss=s.loss, f_scale=s.f_scale,
-                               tilt_prior=s.tilt_prior, tilt_sigma_deg=s.tilt_sigma_deg, track_prior=s.track_prior)
+                               accel_psd=s.accel_psd, max_coast_s=s.max_coast_s, tilt_sigma_deg=s.tilt_sigma_deg)
 
     def _outline_fixture(self, led_id: int):
         """(map LED, (hx, hy) half extents, (x, y, z) map m) of an LED the outline solve can fit
@@ -189,7 +193,7 @@ class Positioner:
             return None, []
         index = {id(o): i for i, (o, _, _) in enumerate(items)}
         where = [index.get(id(o)) for o, _, _ in chosen]
-        packed = _pack_outline(chosen, self.settings.edge_model_sigma_px, self.camera.focal_px)
+        packed = _pack_outline(chosen, EDGE_MODEL_SIGMA_PX, self.camera.focal_px)
         # One undistortion for every edge point and centroid of the frame.
         und = self._undistort(packed[0])
         w = self.pose.angular_rate(t_s) if self._row_s > 0 else None
@@ -241,12 +245,9 @@ class Positioner:
         return R, x[:3], x[3:]
 
     def _solve_outline(self, targets, R0, C0, C_prior, C_cov):
-        s = self.settings
-        up = np.eye(3)[:, 2] if s.tilt_prior == "up" else R0[:, 2]
-        return solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px,
-                                  centroid_sigma_px=s.centroid_sigma_px, up_prior=up,
-                                  tilt_sigma_rad=math.radians(s.tilt_sigma_deg), C_prior=C_prior,
-                                  C_prior_cov=C_cov, loss=s.loss, f_scale=s.f_scale)
+        return solve_outline_pose(targets, R0, C0, focal_px=self.camera.focal_px, up_prior=_UP,
+                                  tilt_sigma_rad=math.radians(self.settings.tilt_sigma_deg), C_prior=C_prior,
+                                  C_prior_cov=C_cov, loss=DEFAULT_LOSS, f_scale=DEFAULT_F_SCALE)
 
     def _with_outline_ranges(self, ofix, targets, where, d, names):
         """The ranges of the fitted LEDs: their distances to the fitted camera centre (np.vecdot:
@@ -446,7 +447,7 @@ class Positioner:
             L = np.array([led.xyz for _, led, _ in items])
             uv = self.ranger.image_points(items)
             fix = self.pose.solve(t_s, L, uv, d, sd, R_prior)
-            n_iter = self.ranges_only_iterations if self.solver == "multilateration" else self.ranging_iterations
+            n_iter = RANGES_ONLY_ITERATIONS if self.solver == "multilateration" else RANGING_ITERATIONS
             for _ in range(n_iter if self.ranging == "oblique" else 0):
                 if fix is None:
                     break

@@ -10,11 +10,10 @@ The motion model is a continuous white-noise acceleration of spectral density ``
 ``z = H x + v`` with ``H = [I 0]`` and ``v ~ N(0, R)``, R the fix's own covariance from the least
 squares Jacobian, so nothing is tuned per scene except the documented acceleration density.
 
-`PositionKalman` (the streaming stage) runs the predict / update steps of filterpy's
-`KalmanFilter` with the same operations in the same order on plain numpy arrays (`_predict`,
-`_update`), so its state equals filterpy's to rounding (a test runs both side by side) without
-filterpy's per-call bookkeeping (deep copies, prior / posterior snapshots: most of a
-lighting-server datagram's filter time).
+`PositionKalman` runs filterpy's `KalmanFilter` predict / update equations (Joseph form) as the
+compiled steps of receiver/locate/_kalman.pyx on plain arrays, without filterpy's per-call
+bookkeeping (deep copies, prior / posterior snapshots); its states equal filterpy's to rounding
+(tests/locate/test_kalman.py runs both side by side).
 
 filterpy is the tests' reference only: the receiver never imports it (its package imports
 scipy.stats, ~1.5 s of CPU).
@@ -25,6 +24,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from receiver.locate import _kalman
 
 # A walking person holding a phone: accelerations of about 1 m/s^2 that persist for ~0.5 s,
 # i.e. q ~ sigma_a^2 * tau = 0.5 m^2/s^3 (white-noise-acceleration equivalent).
@@ -37,27 +38,6 @@ DEFAULT_GATE_CHI2 = 16.27
 DEFAULT_MAX_REJECTS = 3
 # Coasting longer than this without a fix makes the filter forget the track.
 DEFAULT_MAX_COAST_S = 2.0
-
-_EYE6 = np.eye(6)
-# (6, 6) index of each element's 3x3 block in a 2x2 matrix (row-major), and the identity pattern
-# inside the blocks: `process_noise` without np.block's Python-level assembly.
-_BLOCK_OF = (np.arange(6)[:, None] // 3) * 2 + np.arange(6)[None, :] // 3
-_IN_BLOCK_EYE = np.tile(np.eye(3), (2, 2))
-
-
-def transition(dt: float) -> np.ndarray:
-    """(6, 6) constant-velocity transition over dt seconds."""
-    F = _EYE6.copy()
-    F[0, 3] = F[1, 4] = F[2, 5] = dt
-    return F
-
-
-def process_noise(dt: float, q: float) -> np.ndarray:
-    """(6, 6) process noise of white acceleration with spectral density q (m^2/s^3) over dt s:
-    q * [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]] (each element computed as that expression)."""
-    blocks = q * np.array([dt ** 3 / 3, dt ** 2 / 2, dt ** 2 / 2, dt])
-    return blocks[_BLOCK_OF] * _IN_BLOCK_EYE
-
 
 class PositionKalman:
     """Streaming constant-velocity filter over position fixes.
@@ -87,8 +67,6 @@ class PositionKalman:
         self.t_fix_s: float | None = None
         self.rejects = 0
         self.last_accepted = False
-        self._model_dt: float | None = None
-        self._model_FQ: tuple | None = None
 
     def reset(self) -> None:
         self._x, self._P, self.t_s, self.t_fix_s, self.rejects = None, None, None, None, 0
@@ -104,39 +82,22 @@ class PositionKalman:
         self._x, self._P = np.concatenate([z, np.zeros(3)]).reshape(6, 1), P
         self.t_s, self.t_fix_s, self.rejects = t_s, t_s, 0
 
-    def _model(self, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(F, F', Q) over dt, kept for the next call with the same dt (a video's frames are
-        evenly spaced): the same arrays `transition` and `process_noise` make, read only."""
-        if self._model_dt != dt:
-            F = transition(dt)
-            self._model_dt, self._model_FQ = dt, (F, F.T, process_noise(dt, self.q))
-        return self._model_FQ
-
     def _predict(self, dt: float) -> None:
-        """filterpy `KalmanFilter.predict` with F = transition(dt), Q = process_noise(dt, q)
-        (eqs. 35-36): x = F x, P = F P F' + Q."""
-        F, Ft, Q = self._model(dt)
-        self._x = np.dot(F, self._x)
-        self._P = np.dot(np.dot(F, self._P), Ft) + Q
+        """x = F x, P = F P F' + Q over dt (eqs. 35-36), in place."""
+        _kalman.predict(self._x, self._P, dt, self.q)
 
     def _update(self, z: np.ndarray, R: np.ndarray) -> None:
-        """filterpy `KalmanFilter.update` (eqs. 37-39, Joseph form) with H = [I 0]: P H' is
-        P[:, :3], H P H' is P[:3, :3], H x is x[:3] and K H is [K 0] exactly (products with
-        the 0/1 entries of H are exact), the rest the same numpy calls in the same order."""
-        y = z.reshape(3, 1) - self._x[:3]
-        PHT = self._P[:, :3]
-        S = PHT[:3] + R
-        K = np.dot(PHT, np.linalg.inv(S))
-        self._x = self._x + np.dot(K, y)
-        I_KH = _EYE6.copy()
-        I_KH[:, :3] -= K
-        self._P = np.dot(np.dot(I_KH, self._P), I_KH.T) + np.dot(np.dot(K, R), K.T)
+        """The fix z of covariance R (eqs. 37-39, Joseph form, H = [I 0]), in place."""
+        if not _kalman.update(self._x, self._P, z, R):
+            raise np.linalg.LinAlgError("singular innovation covariance")
 
     def _mahalanobis2(self, z: np.ndarray, R: np.ndarray) -> float:
         """Squared Mahalanobis distance of fix z from the current (predicted) position: r' S^-1 r
-        with S = H P H' + R = P[:3, :3] + R and r = z - H x = z - x[:3] (H = [I 0])."""
-        r = z - self._x[:3, 0]
-        return float(r @ np.linalg.solve(self._P[:3, :3] + R, r))
+        with S = H P H' + R = P[:3, :3] + R and r = z - x[:3]."""
+        m2 = _kalman.mahalanobis2(self._x, self._P, z, R)
+        if math.isnan(m2):
+            raise np.linalg.LinAlgError("singular innovation covariance")
+        return m2
 
     @property
     def state(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -157,12 +118,10 @@ class PositionKalman:
         return not self.tracking or t_s < self.t_s or t_s - self.t_fix_s > self.max_coast_s
 
     def _predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(x (6,), P (6, 6)) predicted dt s ahead, the filter unchanged: F x, F P F' + Q
-        with F, Q from the model cache (the same arrays transition(dt) and process_noise(dt,
-        q) make; a video's frames are evenly spaced, so the next `step` finds them there too) and
-        without copying the state it only reads."""
-        F, Ft, Q = self._model(dt)
-        return F @ self._x.reshape(6), F @ self._P @ Ft + Q
+        """(x (6,), P (6, 6)) predicted dt s ahead, the filter unchanged."""
+        x, P = self._x.copy(), self._P.copy()
+        _kalman.predict(x, P, dt, self.q)
+        return x.reshape(6), P
 
     def predict_position(self, t_s: float) -> np.ndarray | None:
         """The predicted position (3,) at t_s (x + v dt, no covariance: a solver's starting
@@ -206,7 +165,3 @@ class PositionKalman:
             return None
         return self.state
 
-
-def position_std(P: np.ndarray) -> list[float]:
-    """1-sigma of x, y, z from a (>=3, >=3) covariance."""
-    return [math.sqrt(max(0.0, v)) for v in np.diagonal(P)[:3].tolist()]

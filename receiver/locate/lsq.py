@@ -1,5 +1,5 @@
-"""Least squares shared by the solvers: a small robust Levenberg-Marquardt (`robust_lm`, IRLS
-with scipy's loss definitions), the fix covariance from the whitened Jacobian (`_covariance`),
+"""Least squares shared by the solvers: a small robust Levenberg-Marquardt (`lm_normal`,
+`lm_iterate`, `lm_batch`: IRLS with scipy's loss definitions), the fix covariance from the whitened Jacobian (`_covariance`),
 and the unfiltered solution record `Fix`.
 
 Fix covariance: ``cov = s^2 (J^T J)^-1`` at the solution, ``s^2 = max(1, chi^2/dof)``.
@@ -8,7 +8,6 @@ Fix covariance: ``cov = s^2 (J^T J)^-1`` at the solution, ``s^2 = max(1, chi^2/d
 from __future__ import annotations
 
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +37,8 @@ _LOSSES = {
     "huber": (lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
               lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))),
 }
-# Levenberg-Marquardt damping bounds (`lm_iterate`) and stopping rule of `robust_lm`.
+# Levenberg-Marquardt damping bounds (`lm_iterate`) and stopping rule (a relative step below
+# LM_XTOL or a relative cost decrease below LM_FTOL: `lm_batch`, receiver/locate/_pnp.pyx).
 LM_LAMBDA0, LM_LAMBDA_MAX = 1e-3, 1e8
 LM_XTOL = 1e-8     # relative step
 LM_FTOL = 1e-8     # relative cost decrease (scipy's ftol)
@@ -60,8 +60,8 @@ def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOS
     g = J' W r (w: the loss weights per residual); `done(dp, p, c, c_new) -> bool`: the
     stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r,
     state) at p; converged is False when `max_iter` ran out.
-    Compiled twins of this loop (keep them in step; their tests run both): receiver/locate/_pnp.pyx
-    (`pose.refine_pose` with `_lm_done`), _outline.pyx (`outline_pose`)."""
+    The same loop, compiled: receiver/locate/_pnp.pyx (`pose.refine_pose`), _outline.pyx
+    (`outline_pose`)."""
     rho, wfun = _LOSSES[loss]
 
     def cost_z(r):
@@ -111,40 +111,6 @@ def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_sca
     return lm_normal(fun_jac, _jacobian_normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
-def _lm_done(dp, p, c, c_new) -> bool:
-    """`robust_lm`'s stopping rule: relative step below LM_XTOL or relative cost decrease below
-    LM_FTOL."""
-    return (math.sqrt(float(dp @ dp)) <= LM_XTOL * (1.0 + math.sqrt(float(p @ p)))
-            or c - c_new <= LM_FTOL * c)
-
-
-def robust_lm_rj(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-                 max_iter: int = 50) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`robust_lm`, returning (p, r, J): the solution with its (whitened, loss-free) residuals
-    and Jacobian, which the caller's covariance then needs not evaluate again."""
-    if loss not in _LOSSES:
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: receiver.vision.track.preload)
-        p = least_squares(fun, p0, jac=jac, loss=loss, f_scale=f_scale, method="trf").x
-        return p, fun(p), jac(p)
-    # `fun.fun_jac` (e.g. receiver.locate.pose._joint_fun): both from one evaluation of the pose.
-    fun_jac = getattr(fun, "fun_jac", None) if jac is getattr(fun, "jac", None) else None
-    if fun_jac is None:
-        def fun_jac(q):
-            return fun(q), jac(q)
-    p, _, r, J = lm_iterate(fun_jac, p0, _lm_done, loss=loss, f_scale=f_scale, max_iter=max_iter)
-    return p, r, J
-
-
-def robust_lm(fun, jac, p0: np.ndarray, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-              max_iter: int = 50) -> np.ndarray:
-    """`lm_iterate` on residuals `fun(p)` with Jacobian `jac(p)`, stopping on a relative step
-    below `LM_XTOL` or a relative cost decrease below `LM_FTOL`.
-    Why not least_squares itself: for these 3-6 parameter problems its per-iteration overhead
-    (~0.5 ms) dominated the frame time; this converges to the same minimum in a fraction of it.
-    Losses other than those in _LOSSES fall back to least_squares."""
-    return robust_lm_rj(fun, jac, p0, loss=loss, f_scale=f_scale, max_iter=max_iter)[0]
-
-
 def covariance_at(r: np.ndarray, J: np.ndarray, n_params: int) -> tuple[np.ndarray, float, int]:
     """(cov, chi2, dof) of a solution from its whitened residuals r and Jacobian J (module doc)."""
     dof = len(r) - n_params
@@ -182,7 +148,7 @@ class Fix:
 def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
              xtol: float = LM_XTOL, ftol: float = LM_FTOL, lam0: float = LM_LAMBDA0, max_rounds: int = 100):
     """Levenberg-Marquardt on B independent problems at once, each with its own damping and
-    stopping (the `robust_lm` rule: a relative step below `xtol` -- then the problem stops where
+    stopping (a relative step below `xtol` -- then the problem stops where
     it is, without evaluating that step: nothing is left to gain -- or a kept step's relative
     cost decrease below `ftol`), so that numpy's per-call overhead is paid once per round for all
     of them. `lam0`: the initial damping (relative to

@@ -38,15 +38,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from receiver.core.native import load
-from receiver.locate.lsq import (
-    _LOSSES,
-    BELOW_CEILING_M,
-    DEFAULT_F_SCALE,
-    DEFAULT_LOSS,
-    Fix,
-    lm_normal,
-)
+from receiver.locate import _outline
+from receiver.locate.lsq import BELOW_CEILING_M, DEFAULT_F_SCALE, DEFAULT_LOSS, Fix
 
 CORNER_GUARD_PX = 2.0
 DEFAULT_CENTROID_SIGMA_PX = 1.5
@@ -68,7 +61,7 @@ MAX_OUTLIER_FRACTION = 0.1
 # the point noise does not average out (the half-level crossing of a blurred edge under a tone
 # curve: gamma 1.4-2.0 and blur sigma 0.7-1.5 px move it by 0.3-0.8 px; saturation, bloom and the
 # rolling-shutter shear of a turning phone). The fix's covariance adds its effect on the pose
-# (`_edge_offset_gram`): the points' own noise shrinks with their number, an edge's offset not.
+# (`_solve_native`'s G): the points' own noise shrinks with their number, an edge's offset not.
 EDGE_OFFSET_SIGMA_PX = 0.5
 # Levenberg-Marquardt iterations per round (a good start converges in 3-5).
 MAX_ITER = 4
@@ -82,9 +75,6 @@ COST_RTOL = 1e-6
 MINOR_SWITCHES = 0
 MINOR_SWITCH_FRACTION = 0.0
 
-# The compiled solve (receiver/locate/_outline.pyx: assignment, residuals, normal equations and
-# the LM rounds in one call), or None: the numpy `_Problem` path below, its tested reference.
-_k = load("receiver.locate._outline")
 # The robust losses the compiled solve implements (`receiver.locate.lsq._LOSSES`), by its codes.
 LOSS_CODES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
 
@@ -146,7 +136,7 @@ class OutlineFrame:
 
     @property
     def targets(self) -> list[OutlineTarget]:
-        """The same targets one by one (the numpy path's and the tests' form)."""
+        """The same targets one by one (`_without_outliers`' and the tests' form)."""
         return [self.target(k) for k in range(len(self))]
 
     @classmethod
@@ -294,36 +284,25 @@ _CROSS = np.array([[[0, 0, 0], [0, 0, -1], [0, 1, 0]],
 _I6, _J6 = np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2])
 
 
-_SYM3 = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])
-
-
-def _sym3(u6: np.ndarray) -> np.ndarray:
-    """(6, E) distinct entries (xx, xy, x1, yy, y1, 11) -> (E, 3, 3) symmetric matrices."""
-    return u6[_SYM3].T.reshape(-1, 3, 3)
-
-
 class _State:
-    """One evaluation of the pose p (`_Problem.residuals`): what its normal equations reuse."""
+    """One evaluation of the pose p (`_Problem.residuals`)."""
 
     __slots__ = ("R", "dRk", "C", "m", "rho", "nh", "circ", "Y", "X", "z")
 
 
 class _Problem:
-    """The whitened residuals of one frame's outline solve and the Gauss-Newton normal equations
-    of their analytic Jacobian, over p = (Rodrigues vector of R_cw, C), vectorised over all
-    points of all LEDs.
+    """The whitened residuals of one frame's outline solve over p = (Rodrigues vector of R_cw, C),
+    vectorised over all points of all LEDs: what `_without_outliers` judges a fit's points by
+    (the solve itself is receiver/locate/_outline.pyx, on the same model).
 
     Squares / rects: every point of every such target is stacked once (`P_all` (M, 2), its
     target `tix`); `assign` labels the points with their edges at a pose (no Python loop over
     LEDs) and the residual of a labelled point is its distance to the image line of its edge:
     the plane through the camera centre and the edge's corners A, B has the camera-frame
     normal n = R m with m = (A - C) x (B - C) = A x B + C x (A - B), the line
-    l = (n0, n1, n2) / |(n0, n1)|. The residual w (x, y, 1) . l is linear in its edge's line, so
-    J^T W J and J^T W r are summed per edge from the points' moments (`normal`): per point only
-    the residual and its weight, the 3 x 6 Jacobian of each line once per edge.
-    Circles (module doc): Sampson distances to the conic Ci = R Q(C) R^T (Q in `_circles`), the
-    Jacobian analytic through Ci's six distinct entries.
-    The envelope centroids, the tilt prior and the position prior form a small dense block."""
+    l = (n0, n1, n2) / |(n0, n1)|; the residual is w (x, y, 1) . l.
+    Circles (module doc): Sampson distances to the conic Ci = R Q(C) R^T (Q in `_circles`).
+    Then the envelope centroids, the tilt prior and the position prior."""
 
     def __init__(self, targets, focal_px, sigma_c, up, up_sigma):
         self.focal_px = focal_px
@@ -418,8 +397,7 @@ class _Problem:
     def _group(self, lab) -> None:
         """The labelled points sorted by edge: their whitened rows w (x, y, 1) as (3, M') planes
         (`SW`), the points per used edge (`cnt`) and where each edge's run starts (`starts`), the
-        six distinct products of each row's outer product (`OUT6`) and their per-edge sums
-        (`Q0`, for the covariance), the used edges' constants (`AxB_u`, `dm_dC_u`)."""
+        used edges' constants (`AxB_u`, `dm_dC_u`)."""
         use = np.flatnonzero(lab >= 0)
         self.n_use = len(use)
         if not self.n_use:
@@ -438,13 +416,11 @@ class _Problem:
         P = self.P_all[use]
         sx, sy = P[:, 0] * w, P[:, 1] * w
         self.SW = np.stack([sx, sy, w])
-        self.OUT6 = np.stack([sx * sx, sx * sy, sx * w, sy * sy, sy * w, w * w])
-        self.Q0 = _sym3(np.add.reduceat(self.OUT6, self.starts, axis=1))
         self.AxB_u, self.dm_dC_u = self.AxB[edges], self.dm_dC[edges]
 
     def residuals(self, p):
         """(r, state): the whitened residuals at p (edge points, circle points, centroids (u, v)
-        interleaved, tilt prior, position prior) and what `normal` needs of this evaluation."""
+        interleaved, tilt prior, position prior) and the pose's intermediate terms."""
         R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
         C = p[3:]
         st = _State()
@@ -500,140 +476,6 @@ class _Problem:
             r[flat[self.cix]] = 1e3
         return r, (d, cz, flat, QRt, val, cx0, cx1, h)
 
-    def _circle_jacobian(self, st) -> np.ndarray:
-        """(Nc, 6) Jacobian of `_circles`' residuals: d r / d c6 per point times d c6 / d p per
-        circle (dCi/drvec_k = dR_k Q R^T + its transpose, dCi/dC_j = R dQ/dC_j R^T)."""
-        d, cz, flat, QRt, val, cx0, cx1, h = st.circ
-        R, dRk = st.R, st.dRk
-        X = dRk[None] @ QRt[:, None]                                           # (Tc, 3, 3, 3)
-        dCi = np.empty((len(cz), 6, 3, 3))
-        dCi[:, :3] = X + X.swapaxes(-1, -2)
-        # dQ/dC_j: d alpha = (-1/c, 0, a/c^2), d beta = (0, -1/c, b/c^2),
-        # d (alpha^2 + beta^2 - r^2/c^2) = 2 alpha d alpha + 2 beta d beta - 2 r^2 / c^3 (0, 0, 1).
-        ic = 1.0 / cz
-        dal = np.zeros((len(cz), 3))
-        dbe = np.zeros((len(cz), 3))
-        dal[:, 0] = -ic
-        dal[:, 2] = d[:, 0] * ic * ic
-        dbe[:, 1] = -ic
-        dbe[:, 2] = d[:, 1] * ic * ic
-        ds = 2.0 * (d[:, 0, None] * ic[:, None]) * dal + 2.0 * (d[:, 1, None] * ic[:, None]) * dbe
-        ds[:, 2] -= 2.0 * self.c_r2 * ic ** 3
-        dQ = np.zeros((len(cz), 3, 3, 3))
-        dQ[:, :, 0, 2] = dQ[:, :, 2, 0] = -dal
-        dQ[:, :, 1, 2] = dQ[:, :, 2, 1] = -dbe
-        dQ[:, :, 2, 2] = ds
-        dCi[:, 3:] = R @ dQ @ R.T
-        dc6 = dCi[:, :, _I6, _J6]                                              # (Tc, 6 params, 6)
-        # r = val / (2 h sigma), h = |(Ci x)_0, (Ci x)_1|: dr/dc6 = (phi - val/h^2 h dh/dc6) / (2 h sigma).
-        hs = np.maximum(h, 5e-13)
-        k = val / (hs * hs)
-        drdc = (self.c_phi - (k * cx0)[:, None] * self.c_b0 - (k * cx1)[:, None] * self.c_b1) \
-            * (self.c_isig / (2.0 * hs))[:, None]
-        J = np.einsum("nc,npc->np", drdc, dc6[self.cix])
-        if flat.any():
-            J[flat[self.cix]] = 0.0
-        return J
-
-    def _line_jacobian(self, st) -> np.ndarray:
-        """(E', 3, 6) Jacobian of the used edges' image lines l = n / |(n0, n1)|."""
-        m, R, rho, nh = st.m, st.R, st.rho, st.nh
-        dn = np.empty((len(m), 3, 6))
-        dn[:, :, :3] = (m @ st.dRk.transpose(0, 2, 1)).transpose(1, 2, 0)   # (dRk[k] @ m_e)[a]
-        dn[:, :, 3:] = R @ self.dm_dC_u                                     # R (e_j x D_e)
-        drho = (nh[:, 0, None] * dn[:, 0] + nh[:, 1, None] * dn[:, 1]) / rho[:, None]
-        return dn / rho[:, None, None] - nh[:, :, None] * drho[:, None, :]
-
-    def _dense_jacobian(self, st, prior: bool = True) -> np.ndarray | None:
-        """Jacobian rows of the circles, centroids, tilt prior and (`prior`) position prior."""
-        parts = []
-        if self.n_circ:
-            parts.append(self._circle_jacobian(st))
-        if len(self.L):
-            Y, X, z, R = st.Y, st.X, st.z, st.R
-            dX = np.empty((len(Y), 3, 6))
-            dX[:, :, :3] = np.einsum("kab,nb->nak", st.dRk, Y)
-            dX[:, :, 3:] = -R[None]
-            du = (dX[:, 0] - (X[:, 0] / z)[:, None] * dX[:, 2]) / z[:, None]
-            dv = (dX[:, 1] - (X[:, 1] / z)[:, None] * dX[:, 2]) / z[:, None]
-            parts.append(np.stack([du, dv], axis=1).reshape(-1, 6) / self.sigma_c)
-        if self.up is not None:
-            J_up = np.zeros((3, 6))
-            J_up[:, :3] = st.dRk[:, :, 2].T / self.up_sigma
-            parts.append(J_up)
-        if prior and self.C_prior is not None:
-            J_c = np.zeros((3, 6))
-            J_c[:, 3:] = self.W
-            parts.append(J_c)
-        return np.concatenate(parts) if parts else None
-
-    def normal(self, st, r, wf):
-        """(J^T W J, J^T W r) at the evaluation `st` with residuals r and per-residual weights wf
-        (the robust loss's IRLS weights), J never formed for the edge points (class doc)."""
-        A = np.zeros((6, 6))
-        g = np.zeros(6)
-        k = self.n_use
-        if k:
-            dl = self._line_jacobian(st)
-            wp = wf[:k]
-            tmp = np.empty((9, k))
-            np.multiply(self.OUT6, wp, out=tmp[:6])
-            np.multiply(self.SW, wp * r[:k], out=tmp[6:])
-            sums = np.add.reduceat(tmp, self.starts, axis=1)                # (9, E')
-            D = dl.reshape(-1, 6)
-            A = D.T @ (_sym3(sums[:6]) @ dl).reshape(-1, 6)
-            g = D.T @ sums[6:].T.ravel()
-        Jd = self._dense_jacobian(st)
-        if Jd is not None:
-            Jw = Jd * wf[k:, None]
-            A = A + Jd.T @ Jw
-            g = g + Jw.T @ r[k:]
-        return A, g
-
-    def gram(self, st) -> np.ndarray:
-        """Unweighted J^T J at `st` without the position prior's rows (for the covariance)."""
-        A = np.zeros((6, 6))
-        if self.n_use:
-            dl = self._line_jacobian(st)
-            A = dl.reshape(-1, 6).T @ (self.Q0 @ dl).reshape(-1, 6)
-        Jd = self._dense_jacobian(st, prior=False)
-        if Jd is not None:
-            A = A + Jd.T @ Jd
-        return A
-
-    def __call__(self, p, jac: bool = True):
-        """Residuals at p and (`jac`) their full Jacobian (tests, and scipy's solver for losses
-        the small one does not have)."""
-        r, st = self.residuals(p)
-        if not jac:
-            return r
-        parts = []
-        if self.n_use:
-            parts.append(np.einsum("ji,ijk->ik", self.SW, np.repeat(self._line_jacobian(st), self.cnt, axis=0)))
-        Jd = self._dense_jacobian(st)
-        if Jd is not None:
-            parts.append(Jd)
-        return r, np.concatenate(parts)
-
-
-def _lm(prob: _Problem, p0, loss, f_scale, max_iter):
-    """`receiver.locate.lsq.lm_normal`'s Levenberg-Marquardt on the problem's normal equations
-    (`_Problem.normal`, built from per-edge sums rather than a stacked Jacobian),
-    stopping once a step moves the pose by less than `STEP_TOL` (m, rad) or lowers the cost by
-    less than `COST_RTOL` of it (a warm start from the last frame's pose gets there in 1-3
-    iterations). Returns (p, converged, r, state) with the residuals and evaluation at p."""
-    if loss not in _LOSSES:
-        from scipy.optimize import least_squares  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: receiver.vision.track.preload)
-        p = least_squares(lambda q: prob(q, False), np.asarray(p0, float), jac=lambda q: prob(q)[1], loss=loss,
-                          f_scale=f_scale, method="trf").x
-        r, st = prob.residuals(p)
-        return p, True, r, st
-
-    def done(dp, p, c, c_new):
-        return float(np.max(np.abs(dp))) <= STEP_TOL or c - c_new <= COST_RTOL * c
-
-    return lm_normal(prob.residuals, prob.normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
-
 
 def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarray, C0: np.ndarray, *, focal_px: float,
                        centroid_sigma_px: float = DEFAULT_CENTROID_SIGMA_PX, up_prior: np.ndarray | None = None,
@@ -647,7 +489,10 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     points are left out). Each of the `rounds` assigns the points to edges at the current pose and runs at most
     `max_iter` Levenberg-Marquardt iterations; a round whose assignment did not change after a
     converged one is skipped. A fit beyond `MAX_CHI2_DOF` is solved again from its result without
-    its few outlying edge points (`_without_outliers`) and judged on the rest."""
+    its few outlying edge points (`_without_outliers`) and judged on the rest. `loss`: one of
+    `LOSS_CODES` (else ValueError)."""
+    if loss not in LOSS_CODES:
+        raise ValueError(f"unknown loss {loss!r}: one of {', '.join(LOSS_CODES)}")
     if isinstance(targets, OutlineFrame):
         frame = targets.with_at_least(3)
         targets = None
@@ -668,16 +513,14 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
             rounds, max_iter)
 
     def solve(targets, frame, p0):
-        if _k is not None and loss in LOSS_CODES:
-            return _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets), p0, *args[1:])
-        return _solve_numpy(targets if targets is not None else frame.targets, p0, *args[1:])
+        return _solve_native(frame if frame is not None else OutlineFrame.from_targets(targets), p0, *args[1:])
 
-    p, R, chi2, n_res, JtJ, labels, G = solve(targets, frame, p0)
+    p, R, chi2, n_res, JtJ, G = solve(targets, frame, p0)
     kept = None
     if chi2 > MAX_CHI2_DOF * (n_res + 3 - len(p)) and np.all(np.isfinite(p)):
         kept = _without_outliers(targets if targets is not None else frame.targets, p, focal_px)
         if kept is not None:
-            p, R, chi2, n_res, JtJ, labels, G = solve(kept, None, p.copy())
+            p, R, chi2, n_res, JtJ, G = solve(kept, None, p.copy())
     C = p[3:].copy()
     z_min = float(frame.xyz[:, 2].min()) if frame is not None else min(float(t.xyz[2]) for t in targets)
     if not np.all(np.isfinite(C)) or C[2] > z_min - BELOW_CEILING_M:
@@ -692,39 +535,8 @@ def solve_outline_pose(targets: list[OutlineTarget] | OutlineFrame, R0: np.ndarr
     cov6 = A_inv * max(1.0, chi2 / dof)
     if EDGE_OFFSET_SIGMA_PX > 0:
         # ... plus the edges' common offsets (`EDGE_OFFSET_SIGMA_PX`) through the solve's gain.
-        if G is None:
-            G = _edge_offset_gram(kept if kept is not None else (targets if targets is not None else frame.targets),
-                                  p, focal_px, labels)
         cov6 = cov6 + (EDGE_OFFSET_SIGMA_PX / focal_px) ** 2 * (A_inv @ G @ A_inv)
     return Fix(C, cov6[3:, 3:], R, "outline", len(shapes), chi2, dof)
-
-
-def _edge_offset_gram(targets: list[OutlineTarget], p: np.ndarray, focal_px: float,
-                      labels: np.ndarray | None = None) -> np.ndarray:
-    """(6, 6) sum over the square / rect edges at pose p of g g^T, g = sum over the edge's points
-    of J_i / sigma_i (J_i the point's whitened Jacobian row): an offset b (normalized units)
-    common to an edge's points moves the solution by -A^-1 g b (A = J^T J). `labels`: the
-    solve's final edge of each point (of the square / rect points, or of every point), else
-    assigned at p."""
-    prob = _Problem(targets, focal_px, 1.0, None, 1.0)
-    if not prob.n_poly:
-        return np.zeros((6, 6))
-    n_poly_pts = len(prob.P_all)
-    if labels is not None and len(labels) != n_poly_pts:
-        poly = np.repeat([t.shape != "circle" for t in targets], [len(t.pts) for t in targets])
-        labels = labels[poly] if len(labels) == len(poly) else None
-    if labels is None:
-        prob.assign(p)
-    else:
-        prob.labels = np.asarray(labels, np.int64)
-        prob._group(prob.labels)
-    if not prob.n_use:
-        return np.zeros((6, 6))
-    _, st = prob.residuals(p)
-    # per edge: sum of w^2 (x, y, 1) (rows 2, 4, 5 of OUT6: x w^2, y w^2, w^2) against its line's Jacobian
-    v = np.add.reduceat(prob.OUT6[[2, 4, 5]], prob.starts, axis=1).T
-    g = np.einsum("ea,eak->ek", v, prob._line_jacobian(st))
-    return g.T @ g
 
 
 def _without_outliers(targets: list[OutlineTarget], p: np.ndarray, focal_px: float) -> list[OutlineTarget] | None:
@@ -755,60 +567,40 @@ def _without_outliers(targets: list[OutlineTarget], p: np.ndarray, focal_px: flo
     return [t for t in out if len(t.pts) >= 3]
 
 
-def _solve_numpy(targets, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale, rounds,
-                 max_iter):
-    """The rounds of `solve_outline_pose` on `_Problem` (numpy): (p, R_cw, chi^2 and residual
-    count without the position prior's rows, unweighted J^T J without them, the final edge label
-    of each square / rect point (-1: next to a corner), None: the edge-offset gram is left to
-    `_edge_offset_gram`)."""
-    prob = _Problem(targets, focal_px, sigma_c, up_prior, tilt_sigma_rad)
-    if C_prior is not None:
-        prob.C_prior, prob.W = np.asarray(C_prior, float), W
-    converged = False
-    for k in range(rounds):
-        changed = prob.assign(p, keep_minor=k > 0 and converged)
-        if k > 0 and converged and not changed:
-            break
-        p, converged, r, st = _lm(prob, p, loss, f_scale, max_iter)
-    if prob.C_prior is not None:
-        r = r[:-3]
-    return p, st.R, float(r @ r), len(r), prob.gram(st), prob.labels, None
-
-
 _EMPTY = np.zeros(0)
 _NO_W = np.zeros((3, 3))
 _FREE_PRIOR = np.eye(3) / FREE_SIGMA_M ** 2
 # The compiled path inverts J^T J by Cholesky where it is this well conditioned (smallest pivot^2
 # over the largest diagonal entry; the inverse then equals the pseudo-inverse to ~1e-8 relative
-# at worst, ~1e-13 on the recordings), else takes numpy's pseudo-inverse as the numpy path does.
+# at worst, ~1e-13 on the recordings), else takes numpy's pseudo-inverse.
 SPD_MIN_PIVOT_RATIO = 1e-8
 
 
 def _covariance6(JtJ: np.ndarray) -> np.ndarray:
     """(J^T J)^+ of the fix: np.linalg.pinv, or the compiled Cholesky inverse where J^T J is
     well conditioned (`SPD_MIN_PIVOT_RATIO`): the same matrix to rounding, at 1 % of the cost."""
-    if _k is not None:
-        out = np.empty((6, 6))
-        if _k.spd_inverse(JtJ, out, SPD_MIN_PIVOT_RATIO):
-            return out
+    out = np.empty((6, 6))
+    if _outline.spd_inverse(JtJ, out, SPD_MIN_PIVOT_RATIO):
+        return out
     return np.linalg.pinv(JtJ)
 
 
 def _solve_native(frame: OutlineFrame, p, focal_px, sigma_c, up_prior, tilt_sigma_rad, C_prior, W, loss, f_scale,
                   rounds, max_iter):
-    """`_solve_numpy` in the compiled kernel (receiver/locate/_outline.pyx) on the packed frame:
-    the same arithmetic per point, summed in another order (results equal to rounding); its
-    labels are those of every point of the frame (circles' included); its last item the
-    edge-offset gram (`_edge_offset_gram`) from the same per-edge sums."""
+    """The rounds of `solve_outline_pose` in the kernel (receiver/locate/_outline.pyx) on the
+    packed frame: (p, R_cw, chi^2 and residual count without the position prior's rows,
+    unweighted J^T J without them, G): G the (6, 6) sum over the square / rect edges of g g^T,
+    g = the sum over the edge's points of J_i / sigma_i (J_i a point's whitened Jacobian row):
+    an offset b common to an edge's points moves the solution by -A^-1 g b (A = J^T J)."""
     lab = np.empty(len(frame.pts), np.int32)
     R = np.empty((3, 3))
     JtJ = np.empty((6, 6))
     G = np.empty((6, 6))
-    _, chi2, n_res = _k.solve(p, lab, frame.pts, frame.sigma, frame.ends, frame.xyz, frame.half,
+    _, chi2, n_res = _outline.solve(p, lab, frame.pts, frame.sigma, frame.ends, frame.xyz, frame.half,
                               np.array([s == "circle" for s in frame.shapes], np.int32), frame.uv, sigma_c,
                               _EMPTY if up_prior is None else np.ascontiguousarray(up_prior, float), tilt_sigma_rad,
                               _EMPTY if C_prior is None else np.ascontiguousarray(C_prior, float),
                               _NO_W if W is None else np.ascontiguousarray(W, float), LOSS_CODES[loss], f_scale,
                               rounds, max_iter, (CORNER_GUARD_PX / focal_px) ** 2, MINOR_SWITCHES,
                               MINOR_SWITCH_FRACTION, STEP_TOL, COST_RTOL, R, JtJ, G)
-    return p, R, chi2, n_res, JtJ, lab, G
+    return p, R, chi2, n_res, JtJ, G

@@ -31,12 +31,12 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
 * one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
   filter coasting, method ``"kalman-coast"``, or is None).
 
-Compiled path (`_k`, receiver/locate/_pnp.pyx): `refine_pose`'s whole robust Levenberg-Marquardt
-(residuals, analytic Jacobian, loss weights, damping and stopping rule of `lsq.lm_normal`) and the
-scoring of `solve_fix`'s PnP candidates run in one kernel call each; `_joint_fun` + `robust_lm_rj`
-stay the reference (tests/engine/test_pnp_kernel.py: fixes equal to 1e-9 m / rad). When the stream is
-tracked, the outline solve (receiver.locate.indoor) runs instead of these: on the bundled walks the
-centroid solves are the cold starts of the first frames (and the handedness check's mirror solve).
+The refinement (`refine_pose`: residuals, analytic Jacobian, loss weights, damping and stopping
+rule of `lsq.lm_normal`) and the scoring of `solve_fix`'s PnP candidates are receiver/locate/_pnp.pyx,
+one kernel call each (tests/locate/test_refine_pose.py: known poses recovered, angles-only fixes
+equal to OpenCV's `solvePnP`). When the stream is tracked, the outline solve
+(receiver.locate.indoor) runs instead: on the bundled walks these are the cold starts of the
+first frames (and the handedness check's mirror solve).
 
 Fix covariance: ``cov = s^2 (J^T J)^-1`` from the whitened residual Jacobian at the solution,
 ``s^2 = max(1, chi^2/dof)`` (the sigma model, inflated when the residuals say it is optimistic);
@@ -52,18 +52,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from receiver.core.native import load
 from receiver.locate.ranging import ray_unit
-from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, LM_FTOL, LM_XTOL, _covariance, covariance_at,
-                                 covariance_batch, lm_batch, robust_lm_rj)
+from receiver.locate import _pnp
+from receiver.locate.lsq import (DEFAULT_F_SCALE, DEFAULT_LOSS, LM_FTOL, LM_XTOL, covariance_at, covariance_batch,
+                                 lm_batch)
 from receiver.locate.multilat import multilaterate
 from receiver.locate.lsq import BELOW_CEILING_M, Fix
 
-# The compiled refinement (`refine_pose`, `solve_fix`'s candidate scores), or None: the numpy path.
-_k = load("receiver.locate._pnp")
-# Robust losses the kernel implements, by its codes (the others: scipy's least_squares).
+# The robust losses of the refinement (`receiver.locate.lsq._LOSSES`), by the kernel's codes.
 KERNEL_LOSSES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
-# `robust_lm_rj`'s iteration limit (its default), which the kernel keeps too.
+# The refinement's iteration limit (`lsq.robust_lm_rj`'s).
 REFINE_MAX_ITER = 50
 _NO_PRIOR3 = np.empty(0)
 _NO_W = np.empty((0, 3))
@@ -178,7 +176,9 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     (world up seen from the camera vs `up_prior`, / up_sigma) and the position prior (whitened by
     C_prior_cov). The returned function carries its analytic Jacobian as `fun.jac(p)` (the
     Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences; and
-    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `robust_lm` iterates on)."""
+    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `lsq.lm_iterate` iterates
+    on). The vehicle's host placement (receiver.locate.vehicle_host) solves with it; the indoor
+    refinement's kernel (`_kernel_args`) evaluates the same residuals."""
     has_d = np.isfinite(d)
     wd = 1.0 / sigma_d[has_d]
     W = None if C_prior is None else _whitening(C_prior_cov)
@@ -261,22 +261,23 @@ def _kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior=None, C_prio
 
 
 def _refine_native(args: tuple, p0: np.ndarray, loss: str, f_scale: float):
-    """`robust_lm_rj` on `_joint_fun(*args)` by the kernel: (p, r, J) at the solution."""
+    """The robust Levenberg-Marquardt refinement of the problem `args` from p0: (p, r, J) at the
+    solution."""
     m_max = 3 * len(args[0]) + 6                  # 2 per LED, 1 per range, 3 per prior
     p = np.array(p0, float)
     r, J = np.empty(m_max), np.empty((m_max, 6))
-    m, _ = _k.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
+    m, _ = _pnp.refine(*args, p, KERNEL_LOSSES[loss], float(f_scale), REFINE_MAX_ITER, LM_XTOL, LM_FTOL, r, J)
     return p, r[:m], J[:m]
 
 
 def _evaluate_native(args: tuple, P: np.ndarray, jacobian: bool = False):
-    """`_joint_fun(*args)` at each pose P[k] (6,) by the kernel: r (K, m) and, with `jacobian`,
+    """The residuals of the problem `args` at each pose P[k] (6,): r (K, m) and, with `jacobian`,
     J (K, m, 6)."""
     m_max = 3 * len(args[0]) + 6
     P = np.ascontiguousarray(P, dtype=float).reshape(-1, 6)
     r = np.empty((len(P), m_max))
     J = np.empty((len(P), m_max, 6) if jacobian else (0, 0, 6))
-    m = _k.evaluate(*args, P, r, J)
+    m = _pnp.evaluate(*args, P, r, J)
     return r[:, :m], J[:, :m]
 
 
@@ -291,24 +292,20 @@ def refine_pose(L, uv, sigma_uv: float, d, sigma_d, R0, C0, *, loss=DEFAULT_LOSS
 
     The returned covariance leaves the position prior out (it is the prediction of the filter the
     fix is fed to: counting it twice would make the filter overconfident); the weak tilt prior
-    stays in, so a direction the LEDs cannot see gets a large but finite variance."""
+    stays in, so a direction the LEDs cannot see gets a large but finite variance.
+    `loss`: one of `KERNEL_LOSSES` (else ValueError)."""
+    if loss not in KERNEL_LOSSES:
+        raise ValueError(f"unknown loss {loss!r}: one of {', '.join(KERNEL_LOSSES)}")
     up = None if R_prior is None else np.asarray(R_prior, float)[:, 2]
     rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
     p0 = np.concatenate([rvec.ravel(), np.asarray(C0, float)])
-    native = _k is not None and loss in KERNEL_LOSSES
-    if native:
-        x, r, J = _refine_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov),
-                                 p0, loss, f_scale)
-    else:
-        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov)
-        x, r, J = robust_lm_rj(fun, fun.jac, p0, loss=loss, f_scale=f_scale)
+    x, r, J = _refine_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad, C_prior, C_prior_cov),
+                             p0, loss, f_scale)
     R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
-    if C_prior is not None and native:
+    if C_prior is not None:
         r0, J0 = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x, jacobian=True)
         cov6, chi2, dof = covariance_at(r0[0], J0[0], len(x))
-    elif C_prior is not None:
-        cov6, chi2, dof = _covariance(_joint_fun(L, uv, sigma_uv, d, sigma_d, up, tilt_sigma_rad), x)
-    else:   # the solver's own residuals and Jacobian at x: what _covariance would evaluate again
+    else:   # the solver's own residuals and Jacobian at x
         cov6, chi2, dof = covariance_at(r, J, len(x))
     return R, x[3:].copy(), cov6[3:, 3:], chi2, dof
 
@@ -495,14 +492,10 @@ def solve_warm_batch(problems: list[WarmProblem], *, loss: str = DEFAULT_LOSS,
 
 
 def _best_candidate(cands, L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior):
-    """The PnP candidate (R, C) that explains angles (and ranges: `_joint_fun`'s residuals) best;
+    """The PnP candidate (R, C) that explains angles (and ranges: `refine_pose`'s residuals) best;
     ties broken by the prior position C_prior (None: none)."""
     P = [np.concatenate([cv2.Rodrigues(R)[0].ravel(), C]) for R, C in cands]
-    if _k is not None:
-        rows = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma), np.array(P))[0]
-    else:
-        fun = _joint_fun(L, uv, sigma_uv, d, sigma_d, up, up_sigma)
-        rows = [fun(p) for p in P]
+    rows = _evaluate_native(_kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma), np.array(P))[0]
 
     def score(i):
         r = rows[i]

@@ -12,20 +12,14 @@ import numpy as np
 
 import cv2
 
-from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, PositionKalman, position_std
+from receiver.locate import _position
+from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S, PositionKalman
 from receiver.locate.ranging import R_LOOKING_UP
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.lsq import Fix
 from receiver.locate.pose import (DEFAULT_TILT_SIGMA_DEG, SOLVERS, WarmProblem, _is_collinear_cached,
-                                  rotation_to_ypr_deg, solve_fix, solve_warm_batch, warm_problem)
+                                  solve_fix, solve_warm_batch, warm_problem)
 from receiver.locate.pose import preload as preload_solvers
-
-
-# ---------------------------------------------------------------- the streaming stage
-
-def _xyz(v) -> dict:
-    x, y, z = np.asarray(v)[:3].tolist()
-    return {"x": round(x, 5), "y": round(y, 5), "z": round(z, 5)}
 
 
 # Mirror of the world's y axis and of the camera's x axis (image columns reversed): a map drawn in
@@ -224,48 +218,45 @@ class PoseFilter:
                 self.handedness_undecided = False
         return fix
 
-    def update(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
-        """Feed one frame's fix (or None) to the filter; the INTERFACES.md `position` object
-        (map frame) or None."""
+    def _step(self, t_s: float, fix: Fix | None):
+        """One frame's fix (or None) into the filter: its state (x (6,), P (6, 6)) or None."""
         if fix is not None:
             self.n_fixes += 1
             self._C, self._t_C = fix.C, t_s
             if fix.R_cw is not None:
                 self.keep_orientation(t_s, fix.R_cw)
-        state = None
-        if self.kf is not None:
-            state = self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+        if self.kf is None:
+            return None
+        return self.kf.step(t_s, None if fix is None else fix.C, None if fix is None else fix.cov)
+
+    def _position_args(self, state, fix: Fix | None, n_leds: int) -> tuple:
+        """The arguments of receiver/locate/_position.pyx's `position` (and `position_json`): the
+        filter state and the fix in the map's frame (a left-handed map's mirrored back: sign
+        flips, exact), the fix's method ("kalman-coast" without one), the LED count and the
+        handedness (None while undecided)."""
+        x, P = (None, None) if state is None else state
+        C, cov, R = (None, None, None) if fix is None else (fix.C, fix.cov, fix.R_cw)
+        if self.mirrored:
+            if x is not None:
+                x = np.concatenate([MIRROR_WORLD @ x[:3], MIRROR_WORLD @ x[3:]])
+                P = P.copy()
+                P[:3, :3] = MIRROR_WORLD @ P[:3, :3] @ MIRROR_WORLD
+            if C is not None:
+                C = MIRROR_WORLD @ C
+            if R is not None:
+                R = MIRROR_CAM @ R @ MIRROR_WORLD
+        return (x, P, C, cov, R, "kalman-coast" if fix is None else fix.method, n_leds,
+                None if self.handedness_source == "default" else self.handedness)
+
+    def update(self, t_s: float, fix: Fix | None, n_leds: int) -> dict | None:
+        """Feed one frame's fix (or None) to the filter; the INTERFACES.md `position` object
+        (map frame) or None. Its numbers: position, raw fix and their 1-sigma to 5 decimals (m),
+        covariance to 8, velocity to 4 (m/s), R_wc (camera-to-world, columns = camera axes) to
+        6, yaw / pitch / roll (`receiver.locate.pose.rotation_to_ypr_deg`) to 3 (deg)."""
+        state = self._step(t_s, fix)
         if fix is None and state is None:
             return None
-        mirrored = self.mirrored
-
-        def to_map(v):                     # solving frame -> map frame (exact: F is a sign flip)
-            return MIRROR_WORLD @ v if mirrored else v
-
-        if state is not None:
-            x, P = state
-            P3 = MIRROR_WORLD @ P[:3, :3] @ MIRROR_WORLD if mirrored else P[:3, :3]
-            pos = _xyz(to_map(x[:3]))
-            pos.update(method=fix.method if fix is not None else "kalman-coast", n_leds=n_leds,
-                       filtered=True, std_m=[round(s, 5) for s in position_std(P3)],
-                       cov=P3.round(8).tolist(),
-                       velocity_mps=[round(v, 4) for v in to_map(x[3:]).tolist()])
-        else:
-            pos = _xyz(to_map(fix.C))
-            pos.update(method=fix.method, n_leds=n_leds, filtered=False)
-        if fix is not None:
-            pos["raw"] = _xyz(to_map(fix.C))
-            pos["raw_std_m"] = [round(s, 5) for s in position_std(fix.cov)]
-            if fix.R_cw is not None:
-                R = MIRROR_CAM @ fix.R_cw @ MIRROR_WORLD if mirrored else fix.R_cw
-                pos["R_wc"] = R.T.round(6).tolist()   # camera-to-world, columns = camera axes
-                yaw, pitch, roll = rotation_to_ypr_deg(R)
-                pos.update(yaw_deg=round(yaw, 3), pitch_deg=round(pitch, 3), roll_deg=round(roll, 3))
-        else:
-            pos["raw"] = None
-        if self.handedness_source != "default":
-            pos["handedness"] = self.handedness
-        return pos
+        return _position.position(*self._position_args(state, fix, n_leds))
 
 
 def solve_batch(frames) -> list[Fix | None]:

@@ -51,6 +51,9 @@ ESTIMATORS = ("eq18", "oblique")
 
 # Contour through the boundary pixel centres: the true edge is half a pixel further out.
 DEFAULT_EDGE_OFFSET_PX = 0.5
+# Relative 1-sigma of a range for what the area model leaves out (the small-patch approximation,
+# residual calibration error): 0.2 %.
+MODEL_REL_SIGMA = 0.002
 # LEDs are mounted on the ceiling facing down (world frame, z up).
 LED_NORMAL_WORLD = np.array([0.0, 0.0, -1.0])
 # A camera looking straight up with image x along world x: camera axes = world axes.
@@ -221,7 +224,7 @@ def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
 
 
 def range_sigma_m(distance_m: float, area_px: float, perimeter_px: float,
-                  edge_sigma_px: float = 0.1, model_rel_sigma: float = 0.002) -> float:
+                  edge_sigma_px: float = 0.1, model_rel_sigma: float = MODEL_REL_SIGMA) -> float:
     """Expected 1-sigma error of a range, metres.
 
     d ~ eta^-1/2, so sigma_d / d = sigma_eta / (2 eta); an edge located to within `edge_sigma_px`
@@ -309,7 +312,7 @@ class Ranger:
     Callable on its own (`range_leds`), and the one API both the local positioner
     (receiver.locate.indoor) and the lighting-server client (receiver.serve.client) use.
     `settings`: the locate stage's `PositionerSettings` (its `ranging` estimator, `edge_sigma_px`,
-    `model_rel_sigma`, `edge_offset_px`, `border_margin_px`). IDs the map does not know are
+    `edge_offset_px`, `border_margin_px`). IDs the map does not know are
     counted in `unknown_ids`.
     """
 
@@ -318,7 +321,7 @@ class Ranger:
             raise ValueError(f"unknown ranging estimator {settings.ranging!r}")
         self.camera, self.led_map = camera, led_map
         self.estimator = settings.ranging
-        self.edge_sigma_px, self.model_rel_sigma = settings.edge_sigma_px, settings.model_rel_sigma
+        self.edge_sigma_px = settings.edge_sigma_px
         self.edge_offset_px = settings.edge_offset_px
         self.border_margin_px = settings.border_margin_px
         self.unknown_ids: set[int] = set()
@@ -410,7 +413,7 @@ class Ranger:
                 names[i] = "eq18"
                 area_px = obs.area_px
                 perim = 4.0 * math.sqrt(max(area_px, 0.0))   # square-ish blob without a contour
-            sd[i] = range_sigma_m(d[i], area_px, perim, self.edge_sigma_px, self.model_rel_sigma)
+            sd[i] = range_sigma_m(d[i], area_px, perim, self.edge_sigma_px)
         return d, sd, names
 
     def image_points(self, items) -> np.ndarray:

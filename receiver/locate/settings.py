@@ -7,13 +7,8 @@ from dataclasses import dataclass
 from receiver.core.settings import knob
 
 from receiver.locate.kalman import DEFAULT_ACCEL_PSD, DEFAULT_MAX_COAST_S
-from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.pose import DEFAULT_TILT_SIGMA_DEG
 from receiver.locate.ranging import DEFAULT_EDGE_OFFSET_PX
-
-# Most re-rangings of `ranging_iterations` a settings file may ask for (each is a whole re-fit;
-# the ranges settle in a few).
-MAX_RANGING_ITERATIONS = 100
 
 # A blob whose envelope comes this close (px) to the image edge is cut by it: its area and
 # centroid are biased (the detector's `border` flag misses envelopes extrapolated past the edge).
@@ -24,71 +19,33 @@ DEFAULT_BORDER_MARGIN_PX = 10.0
 
 @dataclass(frozen=True)
 class PositionerSettings:
-    """Tunables of `Positioner` (defaults in brackets).
+    """What a user sets for indoor positioning (`receiver.locate.indoor.Positioner`); the
+    solver's model constants are in receiver.locate.indoor, pose and outline_pose."""
 
-    `ranging`: "oblique" (default, see receiver.locate.ranging) or "eq18".
-    `solver`: "auto" (ranges + angles), "multilateration" (ranges only) or "pnp" (angles only).
-    `pixel_sigma_px`: 1-sigma of an LED image point, px (0.3: envelope centroids of blobs of
-        hundreds of pixels are good to a fraction of a pixel).
-    `edge_sigma_px`, `model_rel_sigma`: range error model (receiver.locate.ranging.range_sigma_m).
-    `edge_offset_px`: contour-to-true-edge offset for the area bias (receiver.locate.ranging).
-    `kalman`: filter the fixes (PositionKalman with `accel_psd` m^2/s^3, `max_coast_s`).
-    `loss`, `f_scale`: robust loss of the refinements (scipy names; f_scale in sigmas).
-    `ranging_iterations`: with "oblique" ranging, how often the ranges are recomputed with the
-        orientation of the frame's own fix and the fix solved again (the first pass uses the
-        previous frame's orientation, or "looking straight up"). Default 0: each re-solve costs
-        a least-squares run (~5 ms) and moves the walk's median error by only ~3 mm; the
-        reported distances always use the frame's own orientation (no re-solve needed for that).
-    `ranges_only_iterations`: the same for the "multilateration" solver, whose ranges have no
-        other source of orientation (the tilt feeds back into the foreshortening term).
-    `tilt_prior`: "up" (default: a phone held up at the ceiling, within `tilt_sigma_deg` of
-        vertical) or "previous" (the previous frame's orientation): the prior that fixes the
-        rotation about the LED line when the usable LEDs are collinear (a single row of panels,
-        the common case on the bundled walk) or only 2. Chaining "previous" lets the tilt random
-        walk; a fixed weak prior does not.
-    `track_prior`: also pull collinear fixes toward the Kalman prediction (off by default: the
-        filter already fuses the fix, whose covariance is large along the unobserved direction).
-
-    `border_margin_px`: blobs whose envelope comes this close to the image edge are left out, as
-        are blobs flagged `border`: their area and centroid are cut by the frame edge.
-    LEDs whose ID the map does not know are counted in `unknown_ids`.
-    `handedness`: "right" or "left" overrides the map's own (`PoseFilter`); None: the map's, or
-        told from the images when the map does not say.
-    `outline` [True]: where the pipeline measured a decoded LED's stripe edge points
-        (`LedObservation.edge_px`) and the map knows its shape and size, the pose is refined on
-        the LEDs' outlines (receiver.locate.outline_pose; LEDs cut by the image border still
-        contribute their visible edges) and those LEDs' ranges are the distances to the fitted
-        fixtures (`distance_estimator` "outline"); the others keep `ranging`. False: today's
-        centroid + area solve only.
-    `centroid_sigma_px` [1.5]: 1-sigma of an envelope centroid in the outline solve (its caps
-        can miss up to two chips).
-    `edge_model_sigma_px` [0.25]: added in quadrature to each edge point's own sigma for what the
-        outline model leaves out, chiefly the rolling shutter: the camera moves while the rows
-        are read (the bundled walk's outline residuals are ~0.3 px RMS against ~0.04 px of
-        noise on the still indoor-static scene).
-    """
-
+    # LED ranges from blob areas: "oblique" (foreshortened by the orientation) or "eq18" (thesis eq. 18)
     ranging: str = "oblique"
+    # "auto" (ranges + image angles), "multilateration" (ranges only) or "pnp" (angles only)
     solver: str = "auto"
+    # px, 1-sigma of an LED's image point: envelope centroids of blobs of hundreds of px
     pixel_sigma_px: float = knob(0.3, above=0.0)
+    # px, 1-sigma of a blob's contour all around, in the range error model (ranging.range_sigma_m)
     edge_sigma_px: float = 0.1
-    model_rel_sigma: float = 0.002
+    # px, offset of the true edge outside the contour, corrected in the area (ranging module doc)
     edge_offset_px: float = DEFAULT_EDGE_OFFSET_PX
-    kalman: bool = True
-    accel_psd: float = DEFAULT_ACCEL_PSD
-    max_coast_s: float = DEFAULT_MAX_COAST_S
-    loss: str = DEFAULT_LOSS
-    f_scale: float = DEFAULT_F_SCALE
-    ranging_iterations: int = knob(0, 0, MAX_RANGING_ITERATIONS)
+    # px, blobs this close to the image edge (or flagged `border`) are left out: cut area and centroid
     border_margin_px: float = DEFAULT_BORDER_MARGIN_PX
-    tilt_prior: str = "up"
+    # filter the fixes over frames (constant-velocity Kalman, receiver.locate.kalman); False: raw fixes
+    kalman: bool = True
+    # m^2/s^3, the filter's white-acceleration density: a walking phone, ~1 m/s^2 over ~0.5 s
+    accel_psd: float = DEFAULT_ACCEL_PSD
+    # s, the filter coasts (and the last orientation stays a prior) this long without a fix
+    max_coast_s: float = DEFAULT_MAX_COAST_S
+    # deg, a phone held up at the ceiling: the prior that fixes the turn about a line of LEDs
     tilt_sigma_deg: float = knob(DEFAULT_TILT_SIGMA_DEG, hi=180.0, above=0.0)
-    track_prior: bool = False
-    ranges_only_iterations: int = knob(3, 0, MAX_RANGING_ITERATIONS)
+    # "right" or "left" overrides the map's handedness; None: the map's, or told from the images
     handedness: str | None = None
+    # refine the pose on the LEDs' outlines where the map knows their shape and size; False: centroids only
     outline: bool = True
-    centroid_sigma_px: float = 1.5
-    edge_model_sigma_px: float = 0.25
 
 
 @dataclass(frozen=True)

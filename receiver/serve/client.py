@@ -13,7 +13,7 @@ the latest one for `max_coast_s` seconds, the rule of `PoseFilter.R_prior`. With
 received, the distances and positions equal those of a local `Positioner` with the same options.
 
 What the server does not know: `solver` (always "auto") and the ranging re-solve loop
-(`ranging_iterations` 0), and the filter options (the server uses `PoseFilter`'s defaults), so
+(`receiver.locate.indoor.RANGING_ITERATIONS` 0), and the filter options (the server uses `PoseFilter`'s defaults), so
 only the ranging and image-point options of `Positioner` are accepted (`CLIENT_OPTIONS`).
 At most `receiver.serve.wire.MAX_LEDS` LEDs (the first, in track order) are sent per frame.
 
@@ -56,8 +56,7 @@ MAX_REPLY_BYTES = 65535
 MAX_ABS_COORD_M = 1e6
 ROTATION_TOL = 1e-5
 # The local Positioner's options the client may set: ranging and image points only.
-CLIENT_OPTIONS = frozenset({"ranging", "pixel_sigma_px", "edge_sigma_px", "model_rel_sigma",
-                            "edge_offset_px", "border_margin_px"})
+CLIENT_OPTIONS = frozenset({"ranging", "pixel_sigma_px", "edge_sigma_px", "edge_offset_px", "border_margin_px"})
 # A server that keeps failing is reported on stderr at most this often (s, wall clock) while the
 # run goes on; the first failure of each kind is reported at once.
 REPORT_EVERY_S = 5.0

@@ -1,8 +1,6 @@
-"""The lighting server's per-device state: `receiver.locate.fastfilter.CompiledPoseFilter` (the
-Kalman steps and the `position` object compiled, as the receiver's positioner runs them) with the
-server's warm-start problem and its reply JSON written by the position kernel (`ServerPoseFilter`).
-`pose_filter_class()` is `ServerPoseFilter` when the kernels are built, else `PoseFilter` itself
-(OCCLOC_PURE=1: the reference the tests compare with).
+"""The lighting server's per-device state: `receiver.locate.posefilter.PoseFilter` (as the
+receiver's positioner runs it) with the server's warm-start problem and its reply JSON written by
+the position kernel (`ServerPoseFilter`).
 
 Imported by the server once its socket is bound (it pulls in the solver: start-up latency).
 """
@@ -13,15 +11,14 @@ import math
 
 import numpy as np
 
-from receiver.locate import fastfilter
-from receiver.locate.fastfilter import CompiledPoseFilter
+from receiver.locate import _position
+from receiver.locate.posefilter import PoseFilter
 from receiver.locate.pose import WarmProblem, _is_collinear_cached
 from receiver.locate.ranging import R_LOOKING_UP
-from receiver.serve.wire import encode
 
 
-class ServerPoseFilter(CompiledPoseFilter):
-    """`CompiledPoseFilter` with the server's warm-start problem and reply JSON."""
+class ServerPoseFilter(PoseFilter):
+    """`PoseFilter` with the server's warm-start problem and reply JSON."""
 
     def warm_problem(self, t_s: float, L_map: np.ndarray, uv: np.ndarray | None, d: np.ndarray,
                      sigma_d: np.ndarray, R_prior: np.ndarray | None = None) -> WarmProblem | None:
@@ -44,20 +41,17 @@ class ServerPoseFilter(CompiledPoseFilter):
 
     def rotation_json(self, R: np.ndarray) -> bytes:
         """`wire.encode(R.tolist())`; a NaN or infinity: ValueError."""
-        return self._position.rotation_json(R) if self._position is not None else encode(R.tolist())
+        return _position.rotation_json(R)
 
     def update_json(self, t_s: float, fix, n_leds: int) -> bytes | None:
         """`update`, its position object encoded (`wire.encode`'s bytes), or None; a NaN or
         infinity in it: ValueError."""
-        if self.mirrored or self._position is None:
-            pos = self.update(t_s, fix, n_leds)
-            return None if pos is None else encode(pos)
         state = self._step(t_s, fix)
         if fix is None and state is None:
             return None
-        return self._position.position_json(*self._position_args(state, fix, n_leds))
+        return _position.position_json(*self._position_args(state, fix, n_leds))
 
 
 def pose_filter_class():
-    """`ServerPoseFilter` bound to the compiled kernels, or `PoseFilter` without them."""
-    return fastfilter.pose_filter_class(ServerPoseFilter)
+    """The class of a device's pose filter (`ServerPoseFilter`)."""
+    return ServerPoseFilter

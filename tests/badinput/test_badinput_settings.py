@@ -41,12 +41,11 @@ def test_defaults_pass_their_own_checks(cls):
     (TrackSettings, "max_area_ratio", 0.5, "must be at least 1"),
     (PairSettings, "shake_radius_px", 1e9, "must be 0..32768"),
     (PositionerSettings, "accel_psd", 1e300, "at most 1e+09 in size"),
-    (PositionerSettings, "edge_model_sigma_px", 1e300, "at most 1e+09 in size"),
+    (PositionerSettings, "edge_sigma_px", 1e300, "at most 1e+09 in size"),
     (TrackSettings, "velocity_gain", 1e9, "must be 0..1"),
     (PositionerSettings, "pixel_sigma_px", 0.0, "must be over 0"),
     (PositionerSettings, "tilt_sigma_deg", 0.0, "must be over 0"),
-    (PositionerSettings, "ranging_iterations", 10 ** 9, "must be 0..100"),
-    (PositionerSettings, "ranges_only_iterations", 10 ** 9, "must be 0..100"),
+    (PositionerSettings, "tilt_sigma_deg", 1e9, "must be"),
 ])
 def test_out_of_range_setting_is_one_line(cls, key, value, words):
     with pytest.raises(InputError) as e:
@@ -58,7 +57,7 @@ def test_out_of_range_setting_is_one_line(cls, key, value, words):
                                              (DetectSettings, "stripe_gap_px", 0), (OokSettings, "norm_chips", 1),
                                              (PairSettings, "max_area_ratio", 1.0),
                                              (PositionerSettings, "pixel_sigma_px", 1e-3),
-                                             (PositionerSettings, "ranging_iterations", 100)])
+                                             (PositionerSettings, "tilt_sigma_deg", 180.0)])
 def test_edge_of_the_range_is_accepted(cls, key, value):
     assert getattr(settings_from_json(cls, {key: value}), key) == value
 

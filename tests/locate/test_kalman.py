@@ -4,7 +4,18 @@
 import numpy as np
 import pytest
 
-from receiver.locate.kalman import PositionKalman, process_noise, transition
+from receiver.locate.kalman import PositionKalman
+
+
+def transition(dt):
+    """The constant-velocity transition F = [[I, dt I], [0, I]] over dt s."""
+    return np.block([[np.eye(3), dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+
+
+def process_noise(dt, q):
+    """filterpy's process noise of white acceleration of density q over dt, state [x, y, z, v]."""
+    from filterpy.common import Q_continuous_white_noise
+    return Q_continuous_white_noise(dim=2, dt=dt, spectral_density=q, block_size=3, order_by_dim=False)
 
 
 def simulate(rng, n=400, dt=0.05, q=0.5, sigma=0.03):
@@ -31,8 +42,9 @@ def test_process_noise_is_the_integral_of_white_acceleration():
 
 
 def test_stage_equals_filterpy():
-    """PositionKalman runs filterpy's KalmanFilter predict / update without filterpy: the same
-    state and covariance to rounding, through starts, fixes of varying covariance and coasts."""
+    """PositionKalman runs filterpy's KalmanFilter predict / update (compiled, without filterpy):
+    the same state and covariance to rounding, through starts, fixes of varying covariance and
+    coasts."""
     from filterpy.kalman import KalmanFilter
 
     rng = np.random.default_rng(5)
