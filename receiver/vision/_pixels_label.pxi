@@ -3,6 +3,15 @@
 
 # ------------------------------------------------------------------ components by runs
 
+from libc.stdlib cimport qsort
+
+
+cdef int _cmp_u64(const void *a, const void *b) noexcept nogil:
+    """qsort's order of two uint64 keys."""
+    cdef uint64_t x = (<const uint64_t *>a)[0], y = (<const uint64_t *>b)[0]
+    return (x > y) - (x < y)
+
+
 cdef extern from *:
     """
     /* The runs of nonzero bytes of p[0..n): their first and last columns appended to a, b from
@@ -234,7 +243,7 @@ def label_boxes(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, in
             if o[7 * i + 6] < 0 or o[7 * i + 6] >= (<int64_t>1 << 52):
                 return -1
             keys[i] = ((<uint64_t>o[7 * i + 6]) << 11) | <uint64_t>i
-        occ_sort_u64(keys, n)
+        qsort(keys, n, sizeof(uint64_t), _cmp_u64)
         memcpy(tmp, o, n * 7 * sizeof(int64_t))
         for i in range(n):
             j = <Py_ssize_t>(keys[n - 1 - i] & 0x7FF)

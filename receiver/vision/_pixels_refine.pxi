@@ -5,9 +5,10 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
                                 double level, double refine_frac, double saturated_gray, double saturated_frac,
                                 double min_refine_contrast, double *peak, double *blob_level, int64_t *found,
                                 double *stats, int64_t *bounds, double[:, ::1] poly, int64_t *pstart) except -2:
-    """`refine_alone` into n peaks, levels, found, (n, 3) stats, (n, 4) bounds and n + 1 pstart."""
-    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, wmax = 0, nf = 0, pos = 0
-    cdef unsigned char mx, v, on
+    """`refine_alone_blobs`' pass into n peaks, levels, found, (n, 3) stats, (n, 4) bounds and n + 1 pstart;
+    -1 where it declines."""
+    cdef Py_ssize_t n = rects.shape[0], i, r, x0, y0, bw, bh, m, k, j, hmax = 0, nf = 0, pos = 0
+    cdef unsigned char on
     cdef double pk, bl, u, lv, clipped, sat = saturated_frac * (255.0 - bg), fo
     cdef Py_ssize_t first
     if not _boxes_inside(rects, gray.shape[0], gray.shape[1]) or poly.shape[0] < 2 * _total_rows(rects):
@@ -20,8 +21,6 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
             return -1
         if bh > hmax:
             hmax = bh
-        if bw > wmax:
-            wmax = bw
         pk = occ_u8_max_box_any(&gray[y0, x0], gray.shape[1], bh, bw) if bh > 0 else 0
         # np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1)), NaN-propagating
         u = bg + refine_frac * (pk - bg)
@@ -32,21 +31,17 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
         peak[i] = pk
         blob_level[i] = bl
     cdef int32_t *iw32 = <int32_t *>malloc((8 * hmax + 8) * sizeof(int32_t))
-    cdef uint64_t *keys = <uint64_t *>malloc((2 * hmax + 2) * sizeof(uint64_t))
-    cdef int *iw = <int *>malloc((8 * hmax + 16) * sizeof(int))
-    cdef double *dw = <double *>malloc((14 * hmax + 8) * sizeof(double))
-    cdef int *cnt = <int *>malloc((wmax + 2) * sizeof(int))
+    cdef int *st = <int *>malloc((4 * hmax + 4) * sizeof(int))
+    cdef double *hx = <double *>malloc((4 * hmax + 4) * sizeof(double))
     cdef int32_t *px
     cdef int32_t *py
-    cdef int *hull
-    cdef double *hx
     cdef double *hy
-    if iw32 == NULL or keys == NULL or iw == NULL or dw == NULL or cnt == NULL:
-        free(iw32); free(keys); free(iw); free(dw); free(cnt)
+    if iw32 == NULL or st == NULL or hx == NULL:
+        free(iw32); free(st); free(hx)
         raise MemoryError()
+    # px: the rows' left ends, then their right ends; py: the rows (box coordinates)
     px, py = iw32, iw32 + 2 * hmax + 2
-    hull = iw + 6 * hmax + 8
-    hx, hy = dw + 10 * hmax + 4, dw + 12 * hmax + 6
+    hy = hx + 2 * hmax + 2
     try:
         pstart[0] = 0
         for i in range(n):
@@ -66,27 +61,9 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
             if m == 0:
                 continue
             for j in range(m):
-                r = py[j]
-                px[m + j] = <int32_t>occ_u8_last_ge(&gray[y0 + r, x0], bw, on)
-                py[m + j] = <int32_t>r
-            # sorted by (x, y, index) in O(points + width): the rows interleaved (left end j,
-            # right end m + j: by row, then index), then a stable counting sort by column
-            memset(cnt, 0, (bw + 1) * sizeof(int))
-            for j in range(2 * m):
-                cnt[px[j] + 1] += 1
-            for j in range(bw):
-                cnt[j + 1] += cnt[j]
-            for j in range(m):
-                iw[cnt[px[j]]] = <int>j
-                cnt[px[j]] += 1
-                iw[cnt[px[m + j]]] = <int>(m + j)
-                cnt[px[m + j]] += 1
-            k = occ_convex_hull(px, py, <int>(2 * m), NULL, iw, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6,
-                                iw + 2 * hmax + 2, hull)
-            for j in range(k):
-                hx[j] = px[hull[j]]
-                hy[j] = py[hull[j]]
-            occ_hull_stats(hx, hy, k, dw, &stats[3 * nf], &stats[3 * nf + 1], &stats[3 * nf + 2])
+                px[m + j] = <int32_t>occ_u8_last_ge(&gray[y0 + py[j], x0], bw, on)
+            k = occ_row_hull(px, px + m, py, <int>m, iw32 + 4 * hmax + 4, iw32 + 6 * hmax + 6, st, hx, hy)
+            occ_hull_stats(hx, hy, k, &stats[3 * nf], &stats[3 * nf + 1], &stats[3 * nf + 2])
             stats[3 * nf + 0] += <double>x0
             stats[3 * nf + 1] += <double>y0
             bounds[4 * nf + 0] = bounds[4 * nf + 1] = 1 << 62
@@ -107,31 +84,8 @@ cdef Py_ssize_t _refine_alone_c(const unsigned char[:, ::1] gray, const int64_t[
             nf += 1
             pstart[nf] = pos
     finally:
-        free(iw32); free(keys); free(iw); free(dw); free(cnt)
+        free(iw32); free(st); free(hx)
     return nf
-
-
-def refine_alone(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
-                 double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
-                 double[::1] peak, double[::1] blob_level, int64_t[::1] found, double[:, ::1] stats,
-                 int64_t[:, ::1] bounds, double[:, ::1] poly, int64_t[::1] pstart):
-    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
-    and blob level (peak[i], blob_level[i]), the hull of its rows' leftmost and rightmost pixels
-    above that level (`occ_convex_hull`, cv2.convexHull's vertices and order) and the hull's
-    stats. Blobs with a hull are found[j] (ascending), j < the returned count: stats[j] = cx,
-    cy, area_px (image coordinates), bounds[j] = x0, y0, x1, y1 (the hull's floor / +1 box),
-    their vertices (image coordinates) poly[pstart[j]:pstart[j + 1]]. poly needs 2 * (sum of
-    heights) rows. Returns -1 (nothing else defined) when a box is not inside the frame or
-    is 2^20 px or more, or a blob level is negative or not finite: the caller's numpy path."""
-    cdef Py_ssize_t n = rects.shape[0]
-    if pstart.shape[0] < n + 1 or peak.shape[0] < n or blob_level.shape[0] < n or found.shape[0] < n \
-            or stats.shape[0] < n or stats.shape[1] != 3 or bounds.shape[0] < n or bounds.shape[1] != 4:
-        return -1
-    if n == 0:
-        pstart[0] = 0
-        return 0
-    return _refine_alone_c(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast,
-                           &peak[0], &blob_level[0], &found[0], &stats[0, 0], &bounds[0, 0], poly, &pstart[0])
 
 
 _object_new = object.__new__
@@ -144,11 +98,14 @@ cdef extern from "Python.h":
 def refine_alone_blobs(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, double bg, double level,
                        double refine_frac, double saturated_gray, double saturated_frac, double min_refine_contrast,
                        object blob_type, object empty):
-    """`refine_alone`, and the result as `detect._refine_alone_batch` gives it: a list of N
-    `blob_type` records (receiver.core.records.Blob; None where a box has no hull), each built
-    as `records.frozen_record` builds one (a new object of the class and its field dict), the
-    hulls (K, 2) float64 views of one array from `empty` (numpy.empty); None where
-    `refine_alone` declines (-1)."""
+    """`detect._refine_alone_batch` of N isolated boxes (x, y, w, h) in one pass: each box's peak
+    and blob level, the convex hull of its rows' leftmost and rightmost pixels above that level
+    (`occ_row_hull`) and the hull's centroid and area (`occ_hull_stats`). A list of N
+    `blob_type` records (receiver.core.records.Blob; None where a box has no lit pixel), each
+    built as `records.frozen_record` builds one (a new object of the class and its field dict),
+    the hulls (K, 2) float64 views of one array from `empty` (numpy.empty). None (declined)
+    when a box is not inside the frame or is 2^20 px or more, or a blob level is negative or
+    not finite."""
     cdef Py_ssize_t n = rects.shape[0], nf, j, i, h = gray.shape[0], w = gray.shape[1]
     cdef int64_t x0, y0, x1, y1
     cdef double *work

@@ -42,7 +42,7 @@ import operator
 import cv2
 import numpy as np
 from receiver.core.native import load
-from receiver.core.records import Blob, frozen_record
+from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
@@ -387,7 +387,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         batch = [i for i in keep if iso[i]]
         batch_rects = full[batch]
         gray_b = _masked_boxes(gray, small.shape, [contours[i] for i in batch], batch_rects, f, scratch)
-    done = _refine_alone_batch(gray if f == 1 else gray_b, batch_rects, bg, level, s.refine_frac, scratch=scratch,
+    done = _refine_alone_batch(gray if f == 1 else gray_b, batch_rects, bg, level, s.refine_frac,
                                **sat_kw)
     refined = dict(zip(batch, done)) if done is not None else {}
     blobs = []
@@ -744,132 +744,21 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     return ov.sum(axis=1) == 1  # only itself
 
 
-def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast):
-    """Per-blob edge level (gray) for peak gray values `peak` (float or (N,) array), see `detect`."""
-    clipped = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
-    normal = np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1))
-    return np.where(peak >= saturated_gray, clipped, normal)
-
-
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
-                        saturated_frac=0.03, min_refine_contrast=6.0,
-                        scratch: Scratch | None = None) -> list[Blob | None] | None:
-    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
-
-    The compiled kernel does it all in one call (`_refine_alone_native`: peaks, levels, the
-    leftmost / rightmost lit pixel of every row, OpenCV's convex hull and its stats); without
-    it the boxes' pixels are stacked row by row into one (sum h, max w) strip and those are a
-    handful of array operations for all blobs (`_refine_strip`, `_strip_hulls`), the convex
-    hull per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
-    is negative (odd tunables): the caller then refines one by one."""
-    n = len(rects)
-    if n == 0:
+                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once, by
+    one call of the compiled kernel (`_pixels.refine_alone_blobs`: peaks, levels, the leftmost /
+    rightmost lit pixel of every row, their convex hull and its stats, the Blob records): the
+    same hull as `_refine`'s cv2.convexHull (vertices and orientation), its stats within float
+    rounding. None where the kernel does not answer (not built, a frame it does not take, a box
+    outside the frame, a negative or NaN level): the caller then refines one by one."""
+    if len(rects) == 0:
         return []
-    if _k is not None and _native_frame(gray):
-        out = _refine_alone_native(gray, rects, float(bg), float(level), float(refine_frac), float(saturated_gray),
-                                   float(saturated_frac), float(min_refine_contrast))
-        if out is not None:
-            return out
-    h, w = gray.shape[:2]
-    strip, starts, peak = _refine_strip(gray, rects, scratch)
-    blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
-                             min_refine_contrast)
-    # the zero padding would count as lit, and a NaN level (bad settings) would read as 0 in
-    # the kernel: not batchable
-    if blob_level.min() < 0 or not np.isfinite(blob_level).all():
+    if _k is None or not _native_frame(gray):
         return None
-    # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
-    # uint8 comparison is several times faster than against a float level
-    first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
-    peak_l, level_l = peak.tolist(), blob_level.tolist()
-    bgf = float(bg)
-    out: list[Blob | None] = [None] * n
-    if not found:
-        return out
-    cx, cy, area, poly, pstart = _hull_stats_points(hulls)
-    # all hulls at once: moved to image coordinates (the same sums as one by one) and their
-    # boxes (integer vertices: the floor / +1 box of `_refine`)
-    origin = rects[found, :2]
-    poly += np.repeat(origin, np.diff(np.append(pstart, len(poly))), axis=0)
-    lo = np.minimum.reduceat(poly, pstart, axis=0).astype(np.int64)
-    hi = np.maximum.reduceat(poly, pstart, axis=0).astype(np.int64) + 1
-    cx += origin[:, 0]
-    cy += origin[:, 1]
-    ps = pstart.tolist() + [len(poly)]
-    for j, (i, cxj, cyj, aj, (px0, py0), (px1, py1)) in enumerate(zip(
-            found, cx.tolist(), cy.tolist(), area.tolist(), lo.tolist(), hi.tolist())):
-        border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
-        out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
-                      peak_l[i], level_l[i], bgf)
-    return out
-
-
-def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, background) -> Blob:
-    """Blob(...) by `records.frozen_record` (the frozen dataclass's __init__ costs more than the
-    blob's whole refinement in the kernel)."""
-    return frozen_record(Blob, {
-        "cx": cx, "cy": cy, "area_px": area_px, "hull": hull, "x0": x0, "y0": y0, "x1": x1, "y1": y1,
-        "border": border, "peak": peak, "level": level, "background": background})
-
-
-def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
-                         min_refine_contrast) -> list[Blob | None] | None:
-    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone_blobs`: peaks, levels, row
-    extremes, OpenCV's convex hull and its stats for every box, and the Blob records as
-    `_new_blob` builds them), or None when the kernel declines (a box outside the frame, a
-    negative or NaN level: the numpy path decides)."""
-    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), bg, level, refine_frac, saturated_gray,
-                                 saturated_frac, min_refine_contrast, Blob, np.empty)
-
-
-def _refine_strip(gray, rects, scratch: Scratch | None):
-    """The boxes' pixels stacked row by row into one zero-padded (sum h, max w) uint8 strip, the
-    first strip row of each box, starts (N + 1,) int64, and each box's peak gray (N,) float64
-    (the numpy path of `_refine_alone_batch`)."""
-    n = len(rects)
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum(rects[:, 3], out=starts[1:])
-    if scratch is None:
-        scratch = Scratch()
-    strip = scratch.get("refine_strip", (int(starts[-1]), int(rects[:, 2].max())))
-    strip.fill(0)  # 0 pads: never above a level
-    peak = np.empty(n)
-    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
-        roi = gray[y:y + hh, x:x + ww]
-        strip[r0:r0 + hh, :ww] = roi
-        peak[i] = cv2.minMaxLoc(roi)[1]
-    return strip, starts, peak
-
-
-def _strip_hulls(strip, starts, first_on, bh, scratch: Scratch | None):
-    """(found, hulls): the boxes of `_refine_strip`'s strip with a pixel >= first_on[i] (box
-    i's level) and the convex hulls of their rows' leftmost and rightmost such pixels, in box
-    coordinates (the numpy path of `_refine_alone_batch`)."""
-    n = len(first_on)
-    shape = strip.shape
-    if scratch is None:
-        scratch = Scratch()
-    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
-        strip[np.repeat(first_on > 255, bh)] = 0
-    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
-                           out=scratch.get("refine_lit", shape).view(bool))
-    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
-    left = left_all[rows]
-    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
-    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
-    owner = np.searchsorted(starts, rows, side="right") - 1
-    local_y = rows - starts[owner]
-    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
-    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
-    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
-    segl = seg.tolist()
-    found = [i for i in range(n) if segl[i] < segl[i + 1]]
-    # the hulls in ROI coordinates as in `_refine` (same points, same order)
-    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
-                            .reshape(-1, 1, 2)) for i in found]
-    return found, hulls
+    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), float(bg), float(level),
+                                 float(refine_frac), float(saturated_gray), float(saturated_frac),
+                                 float(min_refine_contrast), Blob, np.empty)
 
 
 def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,

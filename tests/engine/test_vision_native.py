@@ -1,6 +1,7 @@
-"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against their pure numpy
-references: the same numbers bit for bit, on frames of every bundled recording and on random
-scenes (the pure path runs with the module's `_k` set to None)."""
+"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against the OpenCV / numpy
+paths the stage takes where the kernel does not answer (`_k` set to None): the same blobs
+(`same_blob`: same boxes and decisions, same hull vertices, centroid and area within float
+rounding) and the same edge points, on frames of every bundled recording and on random scenes."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from receiver.pipeline import Receiver
 from receiver.vision import detect as detect_mod
 from receiver.vision import outline
 from receiver.vision.detect import detect
+from tests.vision.test_detect import same_blob
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDINGS = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle")
@@ -51,9 +53,7 @@ def _settings(name: str):
 def _same_blobs(a, b):
     assert len(a) == len(b)
     for p, q in zip(a, b):
-        assert (p.cx, p.cy, p.area_px, p.x0, p.y0, p.x1, p.y1, p.border, p.peak, p.level, p.background) == \
-            (q.cx, q.cy, q.area_px, q.x0, q.y0, q.x1, q.y1, q.border, q.peak, q.level, q.background)
-        assert p.hull.dtype == q.hull.dtype and np.array_equal(p.hull, q.hull)
+        assert same_blob(p, q), (p, q)
 
 
 def _same_points(a, b):
