@@ -24,6 +24,13 @@ from receiver.core.settings import resolve_settings
 
 # Cost standing in for "not allowed" in the assignment matrix (finite: scipy needs a solution).
 _FORBIDDEN = 1e9
+# The gate grows by this many blob diameters (sqrt(area)) beyond `TrackSettings.gate_px`, so big
+# near lights may move more per frame than small far ones.
+GATE_SIZE = 1.5
+# A larger area change between frames (either way) is another light.
+MAX_AREA_RATIO = 4.0
+# Smoothing of the px/frame velocity estimate (1 = the last step only).
+VELOCITY_GAIN = 0.5
 
 # the compiled step (receiver/vision/_track.pyx): the one implementation of `Tracker.step`'s
 # assignment and updates
@@ -100,10 +107,10 @@ class Tracker:
     def __init__(self, *, settings: TrackSettings | None = None, **overrides):
         s = self.settings = resolve_settings(settings, TrackSettings, overrides)
         self.gate_px = s.gate_px
-        self.gate_size = s.gate_size
-        self.max_area_ratio = s.max_area_ratio
+        self.gate_size = GATE_SIZE
+        self.max_area_ratio = MAX_AREA_RATIO
         self.max_missed = s.max_missed
-        self.velocity_gain = s.velocity_gain
+        self.velocity_gain = VELOCITY_GAIN
         self.tracks: list[Track] = []
         self._next_id = 0
         self.ended: list[Track] = []  # tracks dropped in the latest step
@@ -122,9 +129,9 @@ class Tracker:
         velocities (a track's velocity is its light's own motion). All tracks x blobs at once, by
         the compiled kernel (receiver/vision/_track.pyx): a track's predicted centroid is its
         blob's plus velocity times the frame gap plus the shift since its blob; pairs within the
-        gate `gate_px + gate_size * sqrt(area)` and the area ratio bounds are the candidates,
+        gate `gate_px + GATE_SIZE * sqrt(area)` and the area ratio bounds are the candidates,
         `gated_assignment` picks among them, and each assigned track's velocity is blended by
-        `velocity_gain` (its first step taken whole)."""
+        VELOCITY_GAIN (its first step taken whole)."""
         if shift is not None:
             self.shift_sum = (self.shift_sum[0] + shift[0], self.shift_sum[1] + shift[1])
         sx, sy = self.shift_sum

@@ -320,8 +320,10 @@ def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
     real_search = detect_mod._search
     for _ in range(40):
         gray = _lit_scene(rng, int(rng.integers(30, 160)), int(rng.integers(30, 200)))
-        kw = dict(stripe_gap_px=int(rng.integers(0, 14)), join_x_px=int(rng.integers(0, 4)),
-                  row_pool=int(rng.integers(1, 3)), min_fill=float(rng.uniform(0.2, 0.9)), min_area_px=4.0)
+        kw = dict(stripe_gap_px=int(rng.integers(0, 14)), min_area_px=4.0)
+        monkeypatch.setattr(detect_mod, "JOIN_X_PX", int(rng.integers(0, 4)))
+        monkeypatch.setattr(detect_mod, "ROW_POOL", int(rng.integers(1, 3)))
+        monkeypatch.setattr(detect_mod, "MIN_FILL", float(rng.uniform(0.2, 0.9)))
         calls = []  # (outlines asked for, contours returned)
         with monkeypatch.context() as m:
             m.setattr(detect_mod, "_search",

@@ -18,7 +18,7 @@ from receiver.pipeline import Receiver
 from receiver.vision import detect as detect_mod
 from receiver.vision import outline
 from receiver.vision.detect import detect
-from tests.vision.test_detect import same_blob
+from tests.vision.test_detect import detect_with_pool, same_blob
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDINGS = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle")
@@ -129,13 +129,13 @@ def test_edge_points_kernel_equals_numpy_on_random_scenes(monkeypatch):
 def test_detect_kernels_equal_numpy_on_recordings(name, monkeypatch):
     """`detect` with the compiled box scans (peaks, row ends, the pooled search's boxes) gives
     the numpy path's blobs, on the pipeline's settings of each recording and at full resolution
-    (row_pool 1)."""
+    (ROW_POOL 1)."""
     s = _settings(name)
     n = 0
     for gray in _frames(name):
-        for pool in (s.row_pool, 1):
-            a = detect(gray, settings=s, row_pool=pool)
-            b = _pure(detect_mod, monkeypatch, detect, gray, settings=s, row_pool=pool)
+        for pool in (detect_mod.ROW_POOL, 1):
+            a = detect_with_pool(gray, pool, settings=s)
+            b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, settings=s)
             _same_blobs(a, b)
             n += len(a)
     assert n > 0
@@ -147,10 +147,11 @@ def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
     n = 0
     for _ in range(40):
         gray = _random_scene(rng, n=int(rng.integers(0, 9)))
-        kw = {"stripe_gap_px": int(rng.integers(0, 20)), "row_pool": int(rng.integers(1, 3)),
+        pool = int(rng.integers(1, 3))
+        kw = {"stripe_gap_px": int(rng.integers(0, 20)),
               "fine_noise": bool(rng.integers(0, 2)), "min_contrast": float(rng.uniform(3, 30))}
-        a = detect(gray, **kw)
-        b = _pure(detect_mod, monkeypatch, detect, gray, **kw)
+        a = detect_with_pool(gray, pool, **kw)
+        b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, **kw)
         _same_blobs(a, b)
         n += len(a)
     assert n > 20

@@ -9,8 +9,20 @@ import numpy as np
 import pytest
 
 from receiver.cli.benchscene import bench_scene, render_bench_frame
+from receiver.vision import detect as detect_mod
 from receiver.vision.detect import auto_level, detect, detect_scale
 from receiver.vision.profile import envelope_mask, row_profile, stripe_depth
+
+
+
+def detect_with_pool(gray, pool, **kw):
+    """detect() with its row pooling (detect.ROW_POOL) set to `pool` for this call."""
+    old = detect_mod.ROW_POOL
+    detect_mod.ROW_POOL = pool
+    try:
+        return detect(gray, **kw)
+    finally:
+        detect_mod.ROW_POOL = old
 
 
 def draw_led(img, cx, cy, r, *, on=230.0, period_rows=0, phase_rows=0, square=False):
@@ -97,7 +109,7 @@ def test_rejects_specks_lines_and_flat_saturated_regions():
     draw_led(img, 450.0, 150.0, 30.0, on=255.0)  # flat: no stripes
     striped = draw_led(img, 450.0, 350.0, 30.0, on=255.0, period_rows=8)
     assert len(detect(u8(img), stripe_gap_px=5)) == 2  # flat disc kept without stripe check
-    blobs = detect(u8(img), stripe_gap_px=5, expect_stripes=True)
+    blobs = detect(u8(img), stripe_gap_px=5, stripe_check_rows=1)
     assert len(blobs) == 1
     assert blobs[0].cy == pytest.approx(striped["cy"], abs=1.0)
 
@@ -175,7 +187,7 @@ def load_photo(luxapose, name):
 def test_real_photos_find_every_led_and_nothing_else(luxapose, name):
     g = load_photo(luxapose, name)
     # 2 kHz stripes of the Lumia 1020 (21.03 us rows): 12-row dark half-periods.
-    blobs = detect(g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24, min_rel_area=0.25)
+    blobs = detect(g, stripe_gap_px=14, stripe_check_rows=24, min_rel_area=0.25)
     want = PHOTO_LEDS[name]
     assert len(blobs) == len(want)
     for x, y in want:
@@ -187,13 +199,13 @@ def test_real_photos_find_every_led_and_nothing_else(luxapose, name):
 def test_bench_detect_1280x720_16_leds(benchmark):
     leds = bench_scene()
     g = render_bench_frame(leds, 0, rng=np.random.default_rng(0))
-    blobs = benchmark(detect, g, stripe_gap_px=12, expect_stripes=True, min_stripe_rows=20)
+    blobs = benchmark(detect, g, stripe_gap_px=12, stripe_check_rows=20)
     assert len(blobs) == 16
 
 
 def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
     g = load_photo(luxapose, "x_0_y_1.27.jpg")
-    blobs = benchmark(detect, g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24)
+    blobs = benchmark(detect, g, stripe_gap_px=14, stripe_check_rows=24)
     assert len(blobs) == 5
 
 
@@ -310,7 +322,7 @@ def test_envelope_history_equals_merging_each_track_alone(batch_min, monkeypatch
 
 
 def test_row_pooled_search_finds_the_same_envelopes():
-    """The component search on pooled rows (detect's row_pool) yields the full-resolution
+    """The component search on pooled rows (detect.ROW_POOL) yields the full-resolution
     search's blobs exactly: isolated ones, ones whose boxes overlap (component masks) and
     border-cut ones, on striped lights at every row phase; clipped lights too, whose edge level
     is just above the noisy background (a box row too many would let noise into the hull)."""
@@ -322,9 +334,9 @@ def test_row_pooled_search_finds_the_same_envelopes():
         img[270 + i, 118 + i:122 + i] = 230
     draw_led(img, 400.0, 477.0, 20.0, period_rows=10)  # cut by the bottom edge
     g = u8(img)
-    full = detect(g, stripe_gap_px=8, row_pool=1)
+    full = detect_with_pool(g, 1, stripe_gap_px=8)
     assert len(full) >= 6
-    pooled = detect(g, stripe_gap_px=8, row_pool=2)
+    pooled = detect_with_pool(g, 2, stripe_gap_px=8)
     assert [(b.x0, b.y0, b.x1, b.y1, b.border) for b in pooled] == \
         [(b.x0, b.y0, b.x1, b.y1, b.border) for b in full]
     for a, b in zip(pooled, full):
@@ -340,7 +352,7 @@ def test_row_pooled_search_bridges_every_gap_up_to_stripe_gap_px():
             img = blank(w=200, h=200)
             img[start - 20:start, 80:120] = 230
             img[start + gap:start + gap + 20, 80:120] = 230
-            n = len(detect(u8(img), stripe_gap_px=gap_px, row_pool=pool, max_aspect=0))
+            n = len(detect_with_pool(u8(img), pool, stripe_gap_px=gap_px, max_aspect=0))
             assert n == (1 if gap <= gap_px else 2), (gap, start, n)
 
 
@@ -360,14 +372,9 @@ def test_row_pooled_search_equals_full_resolution_at_the_top_and_bottom_edges(he
         g = u8(img)
         def key(blobs):
             return [(b.x0, b.y0, b.x1, b.y1, b.border, b.cx, b.cy, b.area_px) for b in blobs]
-        full = key(detect(g, stripe_gap_px=8, row_pool=1))
+        full = key(detect_with_pool(g, 1, stripe_gap_px=8))
         assert len(full) >= 2
-        assert key(detect(g, stripe_gap_px=8, row_pool=2)) == full, seed
-
-
-def test_row_pool_other_than_1_or_2_is_refused():
-    with pytest.raises(ValueError):
-        detect(np.zeros((50, 50), np.uint8), row_pool=3)
+        assert key(detect_with_pool(g, 2, stripe_gap_px=8)) == full, seed
 
 
 @pytest.mark.parametrize("pool", [1, 2])
