@@ -1,8 +1,8 @@
 """The track stage's compiled kernels (receiver/vision/_envelope.pyx) against their references:
 the convex hull against cv2.convexHull (same vertices, same order, same start, on random,
-repeated, collinear and nearly collinear points), the whole envelope history against its pure
-numpy path (`_k` set to None) bit for bit; the compiled tracker step (receiver/vision/_track.pyx)
-against the known lights of a stream."""
+repeated, collinear and nearly collinear points), the whole envelope history against the
+OpenCV merge of one light at a time (`_k` set to None) bit for bit; the compiled tracker step
+(receiver/vision/_track.pyx) against the known lights of a stream."""
 
 from __future__ import annotations
 

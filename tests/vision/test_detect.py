@@ -276,11 +276,8 @@ def _merge_reference(blob, others, shape):
                 bool(border), blob.peak, blob.level, blob.background)
 
 
-@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
-def test_merging_many_envelopes_equals_merging_one_by_one(batch_min, monkeypatch):
-    from receiver.vision import envelope
+def test_merging_many_envelopes_equals_merging_one_by_one():
     from receiver.vision.envelope import merge_envelopes_many
-    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
     leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
@@ -295,15 +292,12 @@ def test_merging_many_envelopes_equals_merging_one_by_one(batch_min, monkeypatch
     assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
 
 
-@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
-def test_envelope_history_equals_merging_each_track_alone(batch_min, monkeypatch):
-    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in a few array
-    operations) gives each track the merge of its own hull with its hulls of the last frames,
+def test_envelope_history_equals_merging_each_track_alone():
+    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in one compiled call)
+    gives each track the merge of its own hull with its hulls of the last frames,
     each moved by the track's velocity times the frames since, as one merge per track does."""
-    from receiver.vision import envelope
     from receiver.vision.envelope import EnvelopeHistory
     from receiver.vision.track import Track
-    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
     leds = bench_scene(n_leds=5, radius_px=30.0, seed=6)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(4)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
