@@ -38,7 +38,7 @@ from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySet
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.camera_motion import CameraMotion, MotionEstimate, MotionSettings
-from receiver.vision.detect import Scratch, detect
+from receiver.vision.detect import SATURATED_GRAY, Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.motion import pair_dx, vertical_shift
 from receiver.vision.outline import stripe_edge_points_batch
@@ -115,7 +115,7 @@ def pair_owners(pairs) -> dict[int, object]:
 
 def pair_observation(p, white_gray: float = math.inf) -> PairObservation:
     """The record of one live pair in this frame (see `PairObservation`); `white_gray`: the gray
-    level at which a blob's peak is clipped (DetectSettings.saturated_gray)."""
+    level at which a blob's peak is clipped (receiver.vision.detect.SATURATED_GRAY)."""
     a, b = p.a.blob, p.b.blob
     return frozen_record(PairObservation, dict(
         key=p.key, led_id=p.reported_id, kind=p.kind, a_px=(a.cx, a.cy), b_px=(b.cx, b.cy),
@@ -245,7 +245,7 @@ class Receiver:
         self.scratch = Scratch()  # detection's work buffers, kept across frames
         self.tracker = Tracker(settings=s.track)
         self.envelopes = EnvelopeHistory(s.envelope_frames)
-        self.pairer = (Pairer(settings=s.pair, new_id=self.tracker.new_id, white_gray=s.detect.saturated_gray)
+        self.pairer = (Pairer(settings=s.pair, new_id=self.tracker.new_id, white_gray=SATURATED_GRAY)
                        if plan.s2psk else None)
         self.policy = DecodePolicy(camera, led_map, plan, s.policy, ook=s.ook, tone=s.tone, s2psk=s.s2psk,
                                    min_stripe_rows=self.min_stripe_rows)
@@ -293,8 +293,8 @@ class Receiver:
             if still:
                 # One photo: no tracking to weed out reflections, so detection itself drops
                 # flat regions first and then blobs much smaller than the biggest light.
-                kw.update(expect_stripes=stripe_check, min_stripe_rows=int(math.ceil(plan.stripe_period_px(camera))),
-                          min_stripe_depth=pol.min_stripe_depth, min_rel_area=STILL_MIN_REL_AREA)
+                kw.update(stripe_check_rows=max(1, int(math.ceil(plan.stripe_period_px(camera)))) if stripe_check else 0,
+                          min_rel_area=STILL_MIN_REL_AREA)
             det = DetectSettings(**kw)
         s2 = dataclasses.replace(s.s2psk, inverted=True) if s.s2psk_inverted else s.s2psk
         return dataclasses.replace(s, detect=det, policy=pol, envelope_frames=max(1, int(env)), s2psk=s2)
@@ -503,7 +503,7 @@ class Receiver:
                 if rid is not None:
                     decoded.add(rid)
         leds.sort(key=_TRACK)
-        white = self.settings.detect.saturated_gray
+        white = SATURATED_GRAY
         pairs = tuple(pair_observation(p, white) for p in self.pairer.pairs) if self.pairer is not None else ()
         return leds, emitter_of, pairs
 

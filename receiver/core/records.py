@@ -67,7 +67,7 @@ class PairObservation:
     age 0 give the pair's separation to a fraction of a pixel. `founding`: the founding tracks'
     ids (the key unless the pair is aliased: receiver.vision.pairing `Pair.alias`; None: the key).
     `a_saturated`, `b_saturated`: emitter A's / B's own blob, when last seen, peaked at the
-    sensor's white level (DetectSettings.saturated_gray): its area is then blur and bloom (2-3x
+    sensor's white level (receiver.vision.detect.SATURATED_GRAY): its area is then blur and bloom (2-3x
     the emitter's true image area), no measure of range or size (False: unknown or unclipped).
     """
 

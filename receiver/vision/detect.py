@@ -16,8 +16,8 @@ Stages (each a plain function on numpy arrays):
    (`_pixels.label_runs`: boxes, first points and the outer contours' exact areas without
    tracing them); the outlines are traced only where they are needed (a downsampled search,
    boxes that overlap, a component with a hole).
-4. Per blob, in a full-resolution ROI: a blob level `background + refine_frac * (peak -
-   background)` (half-maximum edge for `refine_frac` = 0.5; clipped blobs use a level just
+4. Per blob, in a full-resolution ROI: a blob level `background + REFINE_FRAC * (peak -
+   background)` (half-maximum edge for REFINE_FRAC = 0.5; clipped blobs use a level just
    above the background, see `detect`), the lit pixels of this blob only,
    and their convex hull = the filled envelope of the stripes. Its area is the LED's
    projected area eta of thesis eq. 18 (not the lit pixels); the hull runs through pixel
@@ -27,7 +27,7 @@ Stages (each a plain function on numpy arrays):
    strip so the per-pixel work is a few array operations per frame, not per blob.
    Limitation: when the LED's top or bottom cap falls in a dark stripe, the envelope stops at
    the last lit row (up to one stripe gap short).
-5. Rejections: specks (`min_area_px`), regions too big to be a light (`max_area_frac`),
+5. Rejections: specks (`min_area_px`), regions too big to be a light (MAX_AREA_FRAC),
    implausible shapes (`max_aspect`), and, when stripes are expected (rolling shutter with
    OOK/tone lights), flat saturated regions whose row profile shows no stripes.
 
@@ -42,7 +42,7 @@ import operator
 import cv2
 import numpy as np
 from receiver.core.native import load
-from receiver.core.records import Blob, frozen_record
+from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
@@ -52,6 +52,40 @@ _k = load("receiver.vision._pixels")
 
 # 1.4826 * MAD estimates sigma for Gaussian noise.
 MAD_TO_SIGMA = 1.4826
+
+# The detector's constants (DetectSettings holds what a user sets).
+# Horizontal gaps (full-resolution columns; at least one search pixel) bridged, so a stripe
+# broken by a dark spot of the diffuser stays one light.
+JOIN_X_PX = 2
+# A blob's edge level between background (0) and peak (1): half maximum is the edge of a
+# blurred sharp-edged light (symmetric PSF), so the hull through the outermost lit pixel centres
+# lies half a pixel inside it on average.
+REFINE_FRAC = 0.5
+# A blob whose peak reaches this gray is clipped (a saturated core in a dimmer, still striped
+# glow): its edge level is background + max(SATURATED_FRAC * (255 - background),
+# MIN_REFINE_CONTRAST), which keeps the glow and gives the decoders more stripe rows. Also the
+# sensor's white level the pipeline reports.
+SATURATED_GRAY = 250.0
+SATURATED_FRAC = 0.03
+MIN_REFINE_CONTRAST = 6.0
+# Envelopes larger than this fraction of the frame are a window or a lamp, not a transmitter.
+MAX_AREA_FRAC = 0.05
+# The stripe-bridged component's contour fills at least this fraction of its box (a disc 0.79,
+# a 45-degree square 0.5, a thin diagonal bar almost nothing); border blobs are exempt.
+MIN_FILL = 0.25
+# A flat blob (`DetectSettings.stripe_check_rows`): its row profile's stripe depth is under this.
+MIN_STRIPE_DEPTH = 0.8
+# At full resolution with stripes to bridge (stripe_gap_px >= 4), components are searched on the
+# maximum of every 2 rows: the close and contour pass cost half as much. Every gap the
+# full-resolution search bridges is bridged, the boxes are the full-resolution search's and the
+# envelopes are taken in full resolution within them, so the blobs are the same (a frame where
+# component boxes overlap is searched in full resolution), except that the pooled rows may join
+# lights the full-resolution search keeps apart: stacked up to 4 rows closer than
+# stripe_gap_px, touching diagonally (within JOIN_X_PX columns) across a pair of pooled rows, or
+# within a row or two of each other at the top or bottom edge; and the MIN_FILL test uses the
+# pooled component's area (times 2). 1 = full resolution. Only 1 and 2: with 3 rows the pooled
+# close can reach the bottom edge from a row less far than the full-resolution one.
+ROW_POOL = 2
 
 
 def detect_scale(shape: tuple[int, int], max_detect_px: int = 1_200_000) -> int:
@@ -335,44 +369,38 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     stream; the results never refer to them), or None.
     """
     s = resolve_settings(settings, DetectSettings, overrides)
-    level = s.level
-    if s.row_pool not in (1, 2):
-        raise ValueError(f"row_pool must be 1 or 2, not {s.row_pool!r}")
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, s.max_detect_px)
     small = search_image(gray, f)
-    if level is None:
-        level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast, fine_noise=s.fine_noise)
-    else:
-        bg = float(np.median(small[::4, ::4]))
+    level, bg = auto_level(small, k_mad=s.k_mad, min_contrast=s.min_contrast, fine_noise=s.fine_noise)
     # Downsampling averages the stripes with their gaps: the LED's mean is about half its peak,
     # so the coarse search uses a level halfway down to the background.
     coarse = level if f == 1 else bg + 0.5 * (level - bg)
-    pool = s.row_pool if f == 1 and s.row_pool > 1 and s.stripe_gap_px >= 2 * s.row_pool else 1
+    pool = ROW_POOL if f == 1 and ROW_POOL > 1 and s.stripe_gap_px >= 2 * ROW_POOL else 1
     # the components' outlines are needed to map a downsampled search back (f > 1) and to mask
     # a component whose box it shares with another; isolated ones need only boxes and areas
     outlines = f > 1
-    contours, rects, areas, alone = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+    contours, rects, areas, alone = _search(small, coarse, s.stripe_gap_px, JOIN_X_PX, f, pool, scratch, outlines)
     if alone is None:
         alone = _isolated(rects)
     if pool > 1 and not alone.all():
         # overlapping boxes are refined within their component's mask, which must be the
         # full-resolution one for the same envelopes: search this frame in full resolution
         pool = 1
-        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, outlines)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, JOIN_X_PX, f, pool, scratch, outlines)
         alone = _isolated(rects)
     if contours is None and not alone.all():
         # the same components (boxes, order), now with their outlines
-        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, s.join_x_px, f, pool, scratch, True)
+        contours, rects, areas, _ = _search(small, coarse, s.stripe_gap_px, JOIN_X_PX, f, pool, scratch, True)
         alone = _isolated(rects)
-    max_area = s.max_area_frac * h * w
+    max_area = MAX_AREA_FRAC * h * w
     rect_l, alone_l = rects.tolist(), alone.tolist()
     area_l = areas.tolist() if areas is not None else None
     # boxes (full-resolution px) that can hold an envelope of min_area_px .. max_area
     lo_px, hi_px, ff = s.min_area_px * 0.5, 4 * max_area, f * f
     keep = [i for i, r in enumerate(rect_l) if lo_px <= r[2] * r[3] * ff <= hi_px]
-    sat_kw = dict(saturated_gray=s.saturated_gray, saturated_frac=s.saturated_frac,
-                  min_refine_contrast=s.min_refine_contrast)
+    sat_kw = dict(saturated_gray=SATURATED_GRAY, saturated_frac=SATURATED_FRAC,
+                  min_refine_contrast=MIN_REFINE_CONTRAST)
     # Isolated components (the common case) are refined together in one vectorised pass
     # (`_refine_alone_batch`) in their full-resolution boxes; the rest one by one (`_refine`).
     if f == 1:
@@ -387,15 +415,15 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
         batch = [i for i in keep if iso[i]]
         batch_rects = full[batch]
         gray_b = _masked_boxes(gray, small.shape, [contours[i] for i in batch], batch_rects, f, scratch)
-    done = _refine_alone_batch(gray if f == 1 else gray_b, batch_rects, bg, level, s.refine_frac, scratch=scratch,
+    done = _refine_alone_batch(gray if f == 1 else gray_b, batch_rects, bg, level, REFINE_FRAC,
                                **sat_kw)
     refined = dict(zip(batch, done)) if done is not None else {}
     blobs = []
-    min_area_px, max_aspect, shape_min_rows, min_fill = s.min_area_px, s.max_aspect, s.shape_min_rows, s.min_fill
+    min_area_px, max_aspect, shape_min_rows, min_fill = s.min_area_px, s.max_aspect, s.shape_min_rows, MIN_FILL
     for i in keep:
         c, (bx, by, bw, bh) = contours[i] if contours is not None else None, rect_l[i]
         blob = refined[i] if i in refined else _refine(gray, c, (bx, by, bw, bh), f, bg, level,
-                                                       s.refine_frac, alone_l[i], **sat_kw)
+                                                       REFINE_FRAC, alone_l[i], **sat_kw)
         if blob is None or blob.area_px < min_area_px or blob.area_px > max_area:
             continue
         # Shape test on the stripe-bridged component (one lit stripe alone may be a thin bar):
@@ -407,9 +435,9 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
                                              or pool * (cv2.contourArea(c) if area_l is None else area_l[i])
                                              < min_fill * bw * bh):
             continue
-        if s.expect_stripes and blob.y1 - blob.y0 >= max(s.min_stripe_rows, 3):
+        if s.stripe_check_rows and blob.y1 - blob.y0 >= max(s.stripe_check_rows, 3):
             prof, wts, _ = row_profile(gray, blob)
-            if stripe_depth(prof, wts, background=blob.background) < s.min_stripe_depth:
+            if stripe_depth(prof, wts, background=blob.background) < MIN_STRIPE_DEPTH:
                 continue
         blobs.append(blob)
     if s.min_rel_area > 0 and blobs:
@@ -744,132 +772,21 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     return ov.sum(axis=1) == 1  # only itself
 
 
-def _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac, min_refine_contrast):
-    """Per-blob edge level (gray) for peak gray values `peak` (float or (N,) array), see `detect`."""
-    clipped = bg + max(saturated_frac * (255.0 - bg), min_refine_contrast)
-    normal = np.maximum(bg + refine_frac * (peak - bg), np.minimum(level, peak - 1))
-    return np.where(peak >= saturated_gray, clipped, normal)
-
-
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
-                        saturated_frac=0.03, min_refine_contrast=6.0,
-                        scratch: Scratch | None = None) -> list[Blob | None] | None:
-    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once.
-
-    The compiled kernel does it all in one call (`_refine_alone_native`: peaks, levels, the
-    leftmost / rightmost lit pixel of every row, OpenCV's convex hull and its stats); without
-    it the boxes' pixels are stacked row by row into one (sum h, max w) strip and those are a
-    handful of array operations for all blobs (`_refine_strip`, `_strip_hulls`), the convex
-    hull per blob. Same points, same hull, same numbers as `_refine`. None when a blob level
-    is negative (odd tunables): the caller then refines one by one."""
-    n = len(rects)
-    if n == 0:
+                        saturated_frac=0.03, min_refine_contrast=6.0) -> list[Blob | None] | None:
+    """`_refine` for N isolated full-resolution components (boxes (N, 4) x, y, w, h) at once, by
+    one call of the compiled kernel (`_pixels.refine_alone_blobs`: peaks, levels, the leftmost /
+    rightmost lit pixel of every row, their convex hull and its stats, the Blob records): the
+    same hull as `_refine`'s cv2.convexHull (vertices and orientation), its stats within float
+    rounding. None where the kernel does not answer (not built, a frame it does not take, a box
+    outside the frame, a negative or NaN level): the caller then refines one by one."""
+    if len(rects) == 0:
         return []
-    if _k is not None and _native_frame(gray):
-        out = _refine_alone_native(gray, rects, float(bg), float(level), float(refine_frac), float(saturated_gray),
-                                   float(saturated_frac), float(min_refine_contrast))
-        if out is not None:
-            return out
-    h, w = gray.shape[:2]
-    strip, starts, peak = _refine_strip(gray, rects, scratch)
-    blob_level = _blob_level(peak, bg, level, refine_frac, saturated_gray, saturated_frac,
-                             min_refine_contrast)
-    # the zero padding would count as lit, and a NaN level (bad settings) would read as 0 in
-    # the kernel: not batchable
-    if blob_level.min() < 0 or not np.isfinite(blob_level).all():
+    if _k is None or not _native_frame(gray):
         return None
-    # gray > level (cv2.threshold THRESH_BINARY) is gray >= floor(level) + 1 for uint8; the
-    # uint8 comparison is several times faster than against a float level
-    first_on = np.minimum(np.floor(blob_level) + 1, 256)
-    found, hulls = _strip_hulls(strip, starts, first_on, rects[:, 3], scratch)
-    peak_l, level_l = peak.tolist(), blob_level.tolist()
-    bgf = float(bg)
-    out: list[Blob | None] = [None] * n
-    if not found:
-        return out
-    cx, cy, area, poly, pstart = _hull_stats_points(hulls)
-    # all hulls at once: moved to image coordinates (the same sums as one by one) and their
-    # boxes (integer vertices: the floor / +1 box of `_refine`)
-    origin = rects[found, :2]
-    poly += np.repeat(origin, np.diff(np.append(pstart, len(poly))), axis=0)
-    lo = np.minimum.reduceat(poly, pstart, axis=0).astype(np.int64)
-    hi = np.maximum.reduceat(poly, pstart, axis=0).astype(np.int64) + 1
-    cx += origin[:, 0]
-    cy += origin[:, 1]
-    ps = pstart.tolist() + [len(poly)]
-    for j, (i, cxj, cyj, aj, (px0, py0), (px1, py1)) in enumerate(zip(
-            found, cx.tolist(), cy.tolist(), area.tolist(), lo.tolist(), hi.tolist())):
-        border = px0 <= 0 or py0 <= 0 or px1 >= w or py1 >= h
-        out[i] = Blob(cxj, cyj, aj, poly[ps[j]:ps[j + 1]], px0, py0, px1, py1, border,
-                      peak_l[i], level_l[i], bgf)
-    return out
-
-
-def _new_blob(cx, cy, area_px, hull, x0, y0, x1, y1, border, peak, level, background) -> Blob:
-    """Blob(...) by `records.frozen_record` (the frozen dataclass's __init__ costs more than the
-    blob's whole refinement in the kernel)."""
-    return frozen_record(Blob, {
-        "cx": cx, "cy": cy, "area_px": area_px, "hull": hull, "x0": x0, "y0": y0, "x1": x1, "y1": y1,
-        "border": border, "peak": peak, "level": level, "background": background})
-
-
-def _refine_alone_native(gray, rects, bg, level, refine_frac, saturated_gray, saturated_frac,
-                         min_refine_contrast) -> list[Blob | None] | None:
-    """`_refine_alone_batch` by one kernel call (`_pixels.refine_alone_blobs`: peaks, levels, row
-    extremes, OpenCV's convex hull and its stats for every box, and the Blob records as
-    `_new_blob` builds them), or None when the kernel declines (a box outside the frame, a
-    negative or NaN level: the numpy path decides)."""
-    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), bg, level, refine_frac, saturated_gray,
-                                 saturated_frac, min_refine_contrast, Blob, np.empty)
-
-
-def _refine_strip(gray, rects, scratch: Scratch | None):
-    """The boxes' pixels stacked row by row into one zero-padded (sum h, max w) uint8 strip, the
-    first strip row of each box, starts (N + 1,) int64, and each box's peak gray (N,) float64
-    (the numpy path of `_refine_alone_batch`)."""
-    n = len(rects)
-    starts = np.zeros(n + 1, np.int64)
-    np.cumsum(rects[:, 3], out=starts[1:])
-    if scratch is None:
-        scratch = Scratch()
-    strip = scratch.get("refine_strip", (int(starts[-1]), int(rects[:, 2].max())))
-    strip.fill(0)  # 0 pads: never above a level
-    peak = np.empty(n)
-    for i, ((x, y, ww, hh), r0) in enumerate(zip(rects.tolist(), starts[:-1].tolist())):
-        roi = gray[y:y + hh, x:x + ww]
-        strip[r0:r0 + hh, :ww] = roi
-        peak[i] = cv2.minMaxLoc(roi)[1]
-    return strip, starts, peak
-
-
-def _strip_hulls(strip, starts, first_on, bh, scratch: Scratch | None):
-    """(found, hulls): the boxes of `_refine_strip`'s strip with a pixel >= first_on[i] (box
-    i's level) and the convex hulls of their rows' leftmost and rightmost such pixels, in box
-    coordinates (the numpy path of `_refine_alone_batch`)."""
-    n = len(first_on)
-    shape = strip.shape
-    if scratch is None:
-        scratch = Scratch()
-    if first_on.max() > 255:  # a level at 255 or above: nothing is lit (uint8 cannot say so)
-        strip[np.repeat(first_on > 255, bh)] = 0
-    lit = np.greater_equal(strip, np.repeat(np.minimum(first_on, 255).astype(np.uint8), bh)[:, None],
-                           out=scratch.get("refine_lit", shape).view(bool))
-    left_all = lit.argmax(axis=1)  # 0 also for an empty row: told apart by the pixel value
-    rows = ((left_all != 0) | lit[:, 0]).nonzero()[0]  # lit rows: a first lit pixel, or column 0 lit
-    left = left_all[rows]
-    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("refine_flip", shape))
-    right = lit.shape[1] - 1 - flipped.view(bool)[rows].argmax(axis=1)
-    owner = np.searchsorted(starts, rows, side="right") - 1
-    local_y = rows - starts[owner]
-    lpts = np.stack((left, local_y), axis=1).astype(np.int32)
-    rpts = np.stack((right, local_y), axis=1).astype(np.int32)
-    seg = np.searchsorted(owner, np.arange(n + 1))  # rows of blob i: seg[i]:seg[i + 1]
-    segl = seg.tolist()
-    found = [i for i in range(n) if segl[i] < segl[i + 1]]
-    # the hulls in ROI coordinates as in `_refine` (same points, same order)
-    hulls = [cv2.convexHull(np.concatenate((lpts[segl[i]:segl[i + 1]], rpts[segl[i]:segl[i + 1]]))
-                            .reshape(-1, 1, 2)) for i in found]
-    return found, hulls
+    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), float(bg), float(level),
+                                 float(refine_frac), float(saturated_gray), float(saturated_frac),
+                                 float(min_refine_contrast), Blob, np.empty)
 
 
 def _refine(gray, contour, rect, f, bg, level, refine_frac, alone=False, *, saturated_gray=250.0,

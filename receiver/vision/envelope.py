@@ -14,11 +14,6 @@ from receiver.vision.detect import _hull_stats_many
 # the compiled merge of all lights of a frame (receiver/vision/_envelope.pyx), or None: `_merge`
 _k = load("receiver.vision._envelope")
 
-# Merged lights in a frame from which their earlier hulls are moved, boxed and copied in a few
-# array operations rather than one by one (callgrind, EnvelopeHistory.step: 16 lights 2.51 ->
-# 2.25 M instructions a frame batched, but 4-5 lights 0.68 -> 0.74 M).
-BATCH_MIN_LIGHTS = 8
-
 
 def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tuple[int, int]) -> list[Blob]:
     """Each `blob` of (blob, others) with its envelope replaced by the convex hull of its own and
@@ -36,43 +31,9 @@ def merge_envelopes_many(items: list[tuple[Blob, list[np.ndarray]]], shape: tupl
 def _merge(items, merged: list[int], pieces: list[np.ndarray], counts: list[int], moves, shape) -> list[Blob]:
     """`merge_envelopes_many` of the items `merged` (indices into `items`), whose polygons are
     `pieces` in order: counts[j] consecutive ones (the blob's own hull first) for merged[j].
-    `moves`: None, or (len(pieces), 2) px added to each piece's points (0 for the own hulls)."""
+    `moves`: None, or (len(pieces), 2) px added to each piece's points (0 for the own hulls).
+    One light at a time, with OpenCV (the path where the compiled merge does not answer)."""
     out = [blob for blob, _ in items]
-    if not merged:
-        return out
-    h, w = shape[:2]
-    if len(merged) < BATCH_MIN_LIGHTS:
-        return _merge_each(out, merged, pieces, counts, moves, shape)
-    # one float32 array of all points, each light's points a contiguous run of it
-    sizes = [len(p) for p in pieces]
-    pts = np.concatenate(pieces)
-    if moves is not None:  # every earlier hull moved in one operation (the same sums as one by one)
-        pts = pts + np.repeat(np.array(moves), sizes, axis=0)
-    pts = pts.astype(np.float32)
-    ends = np.cumsum(sizes)[np.cumsum(counts) - 1].tolist()
-    hulls = [cv2.convexHull(pts[a:b].reshape(-1, 1, 2)) for a, b in zip([0] + ends[:-1], ends)]
-    cxs, cys, areas = (v.tolist() for v in _hull_stats_many(hulls))
-    # all hulls' vertices in one array: their boxes (boundingRect of float points: floor of the
-    # extremes, width floor(max) - floor(min) + 1) and float64 copies in a few operations
-    verts = np.concatenate(hulls).reshape(-1, 2)
-    hstarts = np.cumsum([0] + [len(hh) for hh in hulls])
-    lo = np.floor(np.minimum.reduceat(verts, hstarts[:-1], axis=0)).astype(np.int64)
-    hi = np.floor(np.maximum.reduceat(verts, hstarts[:-1], axis=0)).astype(np.int64) + 1
-    verts64 = verts.astype(np.float64)
-    hs = hstarts.tolist()
-    for j, (i, cx, cy, area, (x0, y0), (x1, y1)) in enumerate(zip(merged, cxs, cys, areas, lo.tolist(), hi.tolist())):
-        blob = items[i][0]
-        # An envelope carried in from earlier frames can reach past the edge even when this
-        # frame's blob does not: its area and centroid are then cut just the same.
-        border = blob.border or x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h
-        out[i] = Blob(cx, cy, area, verts64[hs[j]:hs[j + 1]], max(x0, 0), max(y0, 0),
-                      min(x1, w), min(y1, h), border, blob.peak, blob.level, blob.background)
-    return out
-
-
-def _merge_each(out: list[Blob], merged, pieces, counts, moves, shape) -> list[Blob]:
-    """`_merge` one light at a time (fewer than BATCH_MIN_LIGHTS: the vectorised moves and
-    boxes cost more than they save); the same hulls, boxes and numbers."""
     h, w = shape[:2]
     hulls, a = [], 0
     for c in counts:
@@ -104,9 +65,9 @@ class EnvelopeHistory:
     The history is one record per frame (the seen tracks' ids and hulls, all in one array),
     kept while a later frame can still use it: frame indices must grow (gaps are fine); a frame
     index at or below an earlier one starts the history afresh. All lights of a frame are merged
-    by one call of the compiled kernel (receiver/vision/_envelope.pyx) when it is built, else by
-    `_merge` (the reference it equals bit for bit). An ended track's hulls age out with
-    their frame's record (track ids are never reused)."""
+    by one call of the compiled kernel (receiver/vision/_envelope.pyx) when it is built, else
+    (or where it declines a hull) one by one with OpenCV (`_merge`: the same numbers). An
+    ended track's hulls age out with their frame's record (track ids are never reused)."""
 
     def __init__(self, frames: int):
         self.frames = max(1, int(frames))

@@ -317,7 +317,7 @@ class Pairer:
                  **overrides):
         """`new_id() -> int`: fresh LED ids for the pairs' emitters, never a track's id
         (receiver.vision.track.Tracker.new_id); None: a counter of this pairer's own.
-        `white_gray`: the sensor's white level (receiver.vision.settings.DetectSettings.saturated_gray):
+        `white_gray`: the sensor's white level (receiver.vision.detect.SATURATED_GRAY):
         a blob peaking there is saturated, its area (bloom, 2-3x the emitter's) no measure of size."""
         s = self.settings = resolve_settings(settings, PairSettings, overrides)
         self.white_gray = float(white_gray)

@@ -12,99 +12,60 @@ MIN_DETECT_PX = 10_000
 
 @dataclass(frozen=True)
 class DetectSettings:
-    """Tunables of `detect` (defaults in brackets).
+    """What a user may set of `detect` (receiver.vision.detect), each [default]: the pipeline
+    sets them from the camera, the map and the kind of input. The detector's fixed constants
+    (half-maximum edges, the clipped-light level, the shape tests, the row pooling) are
+    receiver.vision.detect's module constants, each documented there.
 
-      stripe_gap_px [8]: longest dark stripe (rows, full resolution) bridged inside one LED;
-        the pipeline sets it from the chip/tone period. Larger also merges LEDs stacked closer.
-      join_x_px [2]: horizontal gaps (columns, full resolution; at least one search pixel)
-        bridged, so a stripe broken by a dark spot of the diffuser stays one LED.
-      max_detect_px [1.2e6]: frames above this pixel count are searched downsampled (at least
-        MIN_DETECT_PX).
-      k_mad [8], min_contrast [24]: threshold, see `auto_level`.
-      fine_noise [False]: the noise sigma of that threshold resolved below one gray level
-        (`noise_sigma`: a dark, clipped background of MAD 0); the pipeline sets it, with a
-        small `min_contrast`, for S2-PSK maps, whose far emitters peak 20-50 gray over ~0.4.
-      refine_frac [0.5]: per-blob edge level between background (0) and peak (1): half
-        maximum is the true edge of a blurred sharp-edged light (symmetric PSF), so the hull
-        through the outermost lit pixel centres lies half a pixel inside it on average.
-      saturated_gray [250], saturated_frac [0.03], min_refine_contrast [6]: a blob whose
-        peak reaches `saturated_gray` is clipped (real phone photos: a saturated core in a
-        dimmer, still striped glow); its edge level is background + max(saturated_frac *
-        (255 - background), min_refine_contrast), which keeps the glow and gives the decoders
-        many more stripe rows.
-      min_area_px [12]: smaller envelopes are specks. max_area_frac [0.05]: larger than this
-        fraction of the frame is a window or a lamp, not a transmitter.
-      max_aspect [4], min_fill [0.25]: the stripe-bridged component's bounding box may be at
-        most this elongated, and its contour must fill at least this fraction of the box (a
-        disc fills 0.79, a 45-degree square 0.5, a thin diagonal bar almost nothing); border
-        blobs are exempt, and so are components under shape_min_rows [0] rows tall (full
-        resolution; the pipeline sets 3 for S2-PSK maps: far street-light heads seen from below
-        are one or two rows tall and several px wide).
-      expect_stripes [False]: reject blobs whose row profile is flat (stripe depth below
-        `min_stripe_depth` [0.8]) when they span at least `min_stripe_rows` rows (set it to
-        about one stripe period; 0 = always checked).
-      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest blob
-        (for single photos of a lamp set, where reflections look like small dim lamps;
-        0 = off, since a moving camera sees near and far lights together).
-      level [None]: fixed global threshold instead of `auto_level`.
-      row_pool [2]: 2 = at full resolution, with stripes to bridge (stripe_gap_px >= 4), the
-        components are searched on the maximum of every 2 rows: the close and contour pass
-        cost half as much. Every gap the full-resolution search bridges is bridged, the boxes
-        are the full-resolution search's and the envelopes are taken in full resolution within
-        them, so the blobs are the same (a frame where component boxes overlap is searched in
-        full resolution), except that the pooled rows may join lights the full-resolution
-        search keeps apart: stacked up to 4 rows closer than stripe_gap_px, touching diagonally
-        (within join_x_px columns) across a pair of pooled rows, or within a row or two of
-        each other at the top or bottom edge (the pooled close reaches the edge from up to 2
-        rows farther); and the `min_fill` test uses the pooled component's area (times 2),
-        which can decide otherwise within a few % of `min_fill`. 1 = off (full resolution).
-        Other values are refused: with 3 rows the pooled close can reach the bottom edge from
-        a row less far than the full-resolution one and split what it joins.
-    
+      stripe_gap_px [8 rows]: longest dark stripe (full resolution) bridged inside one light:
+        about a chip or tone half-period of rows (the pipeline sets it); larger also merges
+        lights stacked closer than that.
+      max_detect_px [1.2e6 px]: frames larger than this are searched on a downsampled copy
+        (an integer factor), the envelopes then refined in full resolution; at least
+        MIN_DETECT_PX. Cost: the search is linear in the pixels searched.
+      k_mad [8 sigmas], min_contrast [24 gray]: the threshold is the background median plus
+        k_mad noise sigmas, at least min_contrast above it (`auto_level`; a clean dark frame
+        has no measurable noise).
+      fine_noise [False]: that noise sigma resolved below one gray level (`noise_sigma`, for a
+        dark, clipped background) and at least the noise next to the lights: for S2-PSK
+        maps, whose far emitters peak 20-50 gray over ~0.4.
+      min_area_px [12 px^2]: smaller envelopes are specks.
+      max_aspect [4]: the stripe-bridged component's box may be at most this elongated (0:
+        no shape test); components under shape_min_rows [0 rows] are exempt (far
+        street-light heads seen from below are one or two rows tall).
+      stripe_check_rows [0 rows]: a blob spanning at least this many rows (about a stripe
+        period) whose row profile is flat (stripe depth under detect.MIN_STRIPE_DEPTH) is not
+        a transmitter (single photos, where nothing is tracked); 0 = no check.
+      min_rel_area [0]: drop blobs smaller than this fraction of the frame's largest (single
+        photos of a lamp set, where reflections look like small dim lamps; 0 = off, since a
+        moving camera sees near and far lights together).
     """
 
     stripe_gap_px: int = knob(8, 0, MAX_IMAGE_SIDE_PX)
-    join_x_px: int = knob(2, 0, MAX_IMAGE_SIDE_PX)
     max_detect_px: int = knob(1_200_000, MIN_DETECT_PX)
     k_mad: float = 8.0
     min_contrast: float = 24.0
     fine_noise: bool = False
-    refine_frac: float = 0.5
-    saturated_gray: float = 250.0
-    saturated_frac: float = 0.03
-    min_refine_contrast: float = 6.0
     min_area_px: float = 12.0
-    max_area_frac: float = 0.05
     max_aspect: float = 4.0
-    min_fill: float = 0.25
     shape_min_rows: int = 0
-    expect_stripes: bool = False
-    min_stripe_depth: float = 0.8
-    min_stripe_rows: int = 0
+    stripe_check_rows: int = knob(0, 0, MAX_IMAGE_SIDE_PX)
     min_rel_area: float = 0.0
-    level: float | None = None
-    row_pool: int = knob(2, 1, 2)
 
 
 @dataclass(frozen=True)
 class TrackSettings:
-    """Tunables of `Tracker` (defaults in brackets).
+    """What a user may set of `Tracker` (receiver.vision.track), each [default]; the gate's
+    growth with the light's size, the area ratio and the velocity smoothing are
+    receiver.vision.track's module constants.
 
-      gate_px [30]: fixed part of the association gate, px.
-      gate_size [1.5]: plus this many blob diameters (sqrt(area)), so big near lights may move
-        more per frame than small far ones.
-      max_area_ratio [4]: larger area change between frames is another light.
-      max_missed [10]: frames a track survives without a blob (an S2-PSK emitter is dark in
-        about half the frames, a blob may also leave the view briefly).
-      velocity_gain [0.5]: smoothing of the px/frame velocity estimate (1 = last step only).
-    
+      gate_px [30 px]: fixed part of the association gate (a light's motion between frames).
+      max_missed [10 frames]: frames a track survives without a blob (an S2-PSK emitter is
+        dark in about half the frames, a blob may also leave the view briefly).
     """
 
-    gate_px: float = 30.0
-    gate_size: float = 1.5
-    max_area_ratio: float = knob(4.0, 1.0)
+    gate_px: float = knob(30.0, 0.0, MAX_IMAGE_SIDE_PX)
     max_missed: int = 10
-    velocity_gain: float = knob(0.5, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -17,16 +17,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import Blob
 from receiver.vision.settings import TrackSettings
 from receiver.core.settings import resolve_settings
 
 # Cost standing in for "not allowed" in the assignment matrix (finite: scipy needs a solution).
 _FORBIDDEN = 1e9
+# The gate grows by this many blob diameters (sqrt(area)) beyond `TrackSettings.gate_px`, so big
+# near lights may move more per frame than small far ones.
+GATE_SIZE = 1.5
+# A larger area change between frames (either way) is another light.
+MAX_AREA_RATIO = 4.0
+# Smoothing of the px/frame velocity estimate (1 = the last step only).
+VELOCITY_GAIN = 0.5
 
-# the compiled step (receiver/vision/_track.pyx), or None: `Tracker._assign_update`
-_k = load("receiver.vision._track")
+# the compiled step (receiver/vision/_track.pyx): the one implementation of `Tracker.step`'s
+# assignment and updates
+_k = require("receiver.vision._track")
 
 
 @dataclass
@@ -81,7 +89,8 @@ def gated_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
 
 
 def _solver_assignment(d: np.ndarray, ok: np.ndarray) -> dict[int, int]:
-    """`gated_assignment` by the solver alone (the reference its shortcut must equal)."""
+    """`gated_assignment` by the solver alone (the compiled step calls it when a gate holds two
+    candidates)."""
     cost = np.where(ok, d, _FORBIDDEN)
     from scipy.optimize import linear_sum_assignment  # lazy: scipy.optimize costs ~0.8 s to import (a stream preloads it: `preload` below)
     rows, cols = linear_sum_assignment(cost)
@@ -98,10 +107,10 @@ class Tracker:
     def __init__(self, *, settings: TrackSettings | None = None, **overrides):
         s = self.settings = resolve_settings(settings, TrackSettings, overrides)
         self.gate_px = s.gate_px
-        self.gate_size = s.gate_size
-        self.max_area_ratio = s.max_area_ratio
+        self.gate_size = GATE_SIZE
+        self.max_area_ratio = MAX_AREA_RATIO
         self.max_missed = s.max_missed
-        self.velocity_gain = s.velocity_gain
+        self.velocity_gain = VELOCITY_GAIN
         self.tracks: list[Track] = []
         self._next_id = 0
         self.ended: list[Track] = []  # tracks dropped in the latest step
@@ -117,19 +126,19 @@ class Tracker:
         """Assign this frame's blobs; returns the live tracks (those with `seen` True got a blob).
         `shift`: this frame's common image shift (dx, dy) px from the previous frame (camera
         shake, receiver.vision.motion) or None: added to every prediction, and taken out of the
-        velocities (a track's velocity is its light's own motion). All tracks x blobs at once:
-        by the compiled kernel (receiver/vision/_track.pyx) when built, else `_assign_update`
-        (the reference it equals)."""
+        velocities (a track's velocity is its light's own motion). All tracks x blobs at once, by
+        the compiled kernel (receiver/vision/_track.pyx): a track's predicted centroid is its
+        blob's plus velocity times the frame gap plus the shift since its blob; pairs within the
+        gate `gate_px + GATE_SIZE * sqrt(area)` and the area ratio bounds are the candidates,
+        `gated_assignment` picks among them, and each assigned track's velocity is blended by
+        VELOCITY_GAIN (its first step taken whole)."""
         if shift is not None:
             self.shift_sum = (self.shift_sum[0] + shift[0], self.shift_sum[1] + shift[1])
         sx, sy = self.shift_sum
         shifted = shift is not None or bool(sx) or bool(sy)
-        if _k is not None:
-            alive, self.ended, used = _k.step(self.tracks, blobs, frame_index, sx, sy, self.shift_sum, shifted,
-                                              self.gate_px, self.gate_size, self.max_area_ratio,
-                                              self.velocity_gain, self.max_missed, _solver_assignment)
-        else:
-            alive, self.ended, used = self._assign_update(frame_index, blobs, shifted)
+        alive, self.ended, used = _k.step(self.tracks, blobs, frame_index, sx, sy, self.shift_sum, shifted,
+                                          self.gate_px, self.gate_size, self.max_area_ratio,
+                                          self.velocity_gain, self.max_missed, _solver_assignment)
         if 0 in used:  # a blob no track took (most frames: none) starts a new track
             for j, b in enumerate(blobs):
                 if not used[j]:
@@ -137,47 +146,3 @@ class Tracker:
                     self._next_id += 1
         self.tracks = alive
         return alive
-
-    def _assign_update(self, frame_index: int, blobs: list[Blob], shifted: bool):
-        """The assignment of `step` and the tracks' updates: (alive, ended, used) with `used`
-        1 for each blob that went to a track (numpy over all pairs; the pure reference)."""
-        sx, sy = self.shift_sum
-        tracks = self.tracks
-        assigned_blob: dict[int, int] = {}
-        if tracks and blobs:
-            # all track x blob pairs at once (the same arithmetic as one track at a time)
-            bxy = np.array([[b.cx, b.cy, b.area_px] for b in blobs])
-            tst = np.array([[t.blob.cx, t.blob.cy, t.vx, t.vy, frame_index - t.last_frame, t.blob.area_px]
-                            for t in tracks])
-            px = tst[:, 0] + tst[:, 2] * tst[:, 4]
-            py = tst[:, 1] + tst[:, 3] * tst[:, 4]
-            if shifted:
-                px = px + np.array([sx - t.shift0[0] for t in tracks])
-                py = py + np.array([sy - t.shift0[1] for t in tracks])
-            d = np.hypot(bxy[None, :, 0] - px[:, None], bxy[None, :, 1] - py[:, None])
-            tarea = np.maximum(tst[:, 5], 1.0)
-            gate = self.gate_px + self.gate_size * np.sqrt(tarea)
-            ratio = np.maximum(bxy[None, :, 2], 1.0) / tarea[:, None]
-            ok = (d <= gate[:, None]) & (ratio <= self.max_area_ratio) & (ratio >= 1.0 / self.max_area_ratio)
-            assigned_blob = gated_assignment(d, ok)
-        used = bytearray(len(blobs))
-        alive, ended = [], []
-        for i, t in enumerate(tracks):
-            if i in assigned_blob:
-                b = blobs[assigned_blob[i]]
-                used[assigned_blob[i]] = 1
-                dt = max(frame_index - t.last_frame, 1)
-                g = self.velocity_gain if t.hits > 1 else 1.0
-                ox, oy = sx - t.shift0[0], sy - t.shift0[1]
-                t.vx = (1 - g) * t.vx + g * (b.cx - t.blob.cx - ox) / dt
-                t.vy = (1 - g) * t.vy + g * (b.cy - t.blob.cy - oy) / dt
-                t.blob, t.last_frame, t.seen = b, frame_index, True
-                t.shift0 = self.shift_sum
-                t.hits += 1
-                t.misses = 0
-                alive.append(t)
-            else:
-                t.seen = False
-                t.misses += 1
-                (alive if t.misses <= self.max_missed else ended).append(t)
-        return alive, ended, used

@@ -32,17 +32,15 @@ def test_defaults_pass_their_own_checks(cls):
 
 @pytest.mark.parametrize("cls, key, value, words", [
     (DetectSettings, "max_detect_px", 0, "must be at least 10000, not 0"),
-    (DetectSettings, "row_pool", 0, "must be 1..2, not 0"),
-    (DetectSettings, "row_pool", 3, "must be 1..2, not 3"),
     (DetectSettings, "stripe_gap_px", 10 ** 9, "must be 0..32768"),
-    (DetectSettings, "join_x_px", 10 ** 12, "at most 1e+09 in size"),
+    (DetectSettings, "stripe_check_rows", 10 ** 9, "must be 0..32768"),
     (OokSettings, "norm_chips", 0, "must be at least 1, not 0"),
     (PairSettings, "max_area_ratio", 0.0, "must be at least 1"),
-    (TrackSettings, "max_area_ratio", 0.5, "must be at least 1"),
+    (TrackSettings, "max_missed", -1, "must not be negative"),
     (PairSettings, "shake_radius_px", 1e9, "must be 0..32768"),
     (PositionerSettings, "accel_psd", 1e300, "at most 1e+09 in size"),
     (PositionerSettings, "edge_sigma_px", 1e300, "at most 1e+09 in size"),
-    (TrackSettings, "velocity_gain", 1e9, "must be 0..1"),
+    (TrackSettings, "gate_px", 1e9, "must be 0..32768"),
     (PositionerSettings, "pixel_sigma_px", 0.0, "must be over 0"),
     (PositionerSettings, "tilt_sigma_deg", 0.0, "must be over 0"),
     (PositionerSettings, "tilt_sigma_deg", 1e9, "must be"),
@@ -53,7 +51,7 @@ def test_out_of_range_setting_is_one_line(cls, key, value, words):
     assert str(e.value).startswith(f"s.json.{key}: ") and words in str(e.value), str(e.value)
 
 
-@pytest.mark.parametrize("cls, key, value", [(DetectSettings, "row_pool", 1), (DetectSettings, "max_detect_px", 10000),
+@pytest.mark.parametrize("cls, key, value", [(DetectSettings, "stripe_check_rows", 0), (DetectSettings, "max_detect_px", 10000),
                                              (DetectSettings, "stripe_gap_px", 0), (OokSettings, "norm_chips", 1),
                                              (PairSettings, "max_area_ratio", 1.0),
                                              (PositionerSettings, "pixel_sigma_px", 1e-3),

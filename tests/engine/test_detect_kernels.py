@@ -1,6 +1,6 @@
-"""Detection's whole-frame kernels (receiver/vision/_pixels.pyx) against what they replace:
-OpenCV's convex hull (vertices and their order), the numpy hull statistics, and the Blob
-records of the numpy path, bit for bit (the pure path runs with detect's `_k` set to None)."""
+"""Detection's whole-frame kernels (receiver/vision/_pixels.pyx) against OpenCV and numpy: the
+envelopes of isolated blobs against `_refine` (cv2.threshold and cv2.convexHull), the search
+and labelling against cv2.findContours, the masks and histograms against numpy."""
 
 from __future__ import annotations
 
@@ -13,63 +13,10 @@ import pytest
 from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.vision import detect as detect_mod
-from receiver.vision.detect import _hull_stats_points, _new_blob, _refine_alone_batch
+from receiver.vision.detect import _refine_alone_batch
 
 _px = load("receiver.vision._pixels")
 needs_kernel = pytest.mark.skipif(_px is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
-
-
-def _point_sets(rng, count):
-    """Random integer point sets: clouds with many equal points, collinear runs, tiny grids and
-    the row-extreme sets detection builds (left ends top to bottom, then right ends)."""
-    for t in range(count):
-        n = int(rng.integers(1, 12 if t % 5 == 0 else 160))
-        kind = t % 4
-        if kind == 0:
-            pts = rng.integers(0, int(rng.integers(1, 60)), size=(n, 2))
-        elif kind == 1:
-            h = max(1, n // 2)
-            rows = np.sort(rng.choice(np.arange(h + 5), size=h, replace=False))
-            half = rng.uniform(1, 30) * np.sqrt(np.clip(1 - ((rows - h / 2) / (h / 2 + 1)) ** 2, 0, 1))
-            left = np.maximum(np.rint(30 - half + rng.integers(-1, 2, h)), 0).astype(int)
-            right = np.maximum(left, np.rint(30 + half + rng.integers(-1, 2, h)).astype(int))
-            pts = np.concatenate([np.stack([left, rows], 1), np.stack([right, rows], 1)])
-        elif kind == 2:
-            d = rng.integers(-3, 4, size=2)
-            pts = np.clip(rng.integers(20, 40, size=2) + np.outer(rng.integers(0, 8, n), d), 0, None)
-        else:
-            pts = rng.integers(0, 3, size=(n, 2)) + int(rng.integers(0, 100))
-        yield np.ascontiguousarray(pts, np.int32)
-
-
-@needs_kernel
-def test_convex_hull_equals_opencv_vertices_and_order():
-    rng = np.random.default_rng(3)
-    n_rot = 0
-    for pts in _point_sets(rng, 6000):
-        want = cv2.convexHull(pts.reshape(-1, 1, 2)).reshape(-1, 2).tolist()
-        got = [list(p) for p in _px.convex_hull(pts)]
-        assert got == want, pts.tolist()
-        n_rot += len(want) >= 3 and want[0] != min(want)
-    assert n_rot > 100  # the cyclic shift was exercised
-
-
-@needs_kernel
-def test_convex_hull_refuses_points_it_cannot_key():
-    with pytest.raises(ValueError):
-        _px.convex_hull(np.array([[-1, 0], [2, 3]], np.int32))
-    assert _px.convex_hull(np.zeros((0, 2), np.int32)) == []
-
-
-@needs_kernel
-def test_hull_stats_equal_numpy_reduceat_sums():
-    rng = np.random.default_rng(4)
-    hulls = [cv2.convexHull(p.reshape(-1, 1, 2)) for p in _point_sets(rng, 3000)]
-    hulls += [np.array([[[5, 5]]], np.int32), np.array([[[1, 1]], [[4, 1]]], np.int32)]  # flat ones
-    cx, cy, area, poly, starts = _hull_stats_points(hulls)
-    out = np.empty((len(hulls), 3))
-    _px.hull_stats(np.ascontiguousarray(poly), np.append(starts, len(poly)), out)
-    assert np.array_equal(out[:, 0], cx) and np.array_equal(out[:, 1], cy) and np.array_equal(out[:, 2], area)
 
 
 def _scene(rng, h=200, w=300):
@@ -86,56 +33,71 @@ def _scene(rng, h=200, w=300):
     return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8)), np.array(rects, np.int64)
 
 
-def _fields(b):
-    return None if b is None else (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level,
-                                   b.background, b.hull.dtype, b.hull.shape, b.hull.tobytes())
+def _cyclic(hull: np.ndarray) -> list:
+    """A polygon's vertices from its largest (x, y) one: the same list for any start vertex."""
+    pts = [tuple(p) for p in np.asarray(hull).reshape(-1, 2).tolist()]
+    k = pts.index(max(pts))
+    return pts[k:] + pts[:k]
 
 
 @needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_refine_alone_kernel_equals_numpy_batch(seed, monkeypatch, simd):
+def test_refine_alone_kernel_gives_the_opencv_refinement(seed, simd):
+    """The kernel's envelopes against `_refine` (cv2.threshold, the row extremes and
+    cv2.convexHull): the same blobs, the same hull vertices in the same orientation, centroid
+    and area within float rounding; the records are the dataclass's instances."""
     rng = np.random.default_rng(seed)
     gray, rects = _scene(rng)
+    n_start = 0
     for level, frac in ((30.0, 0.5), (15.0, 0.2), (60.0, 0.9)):
         got = _refine_alone_batch(gray, rects, 10.0, level, frac)
-        with monkeypatch.context() as m:
-            m.setattr(detect_mod, "_k", None)
-            want = _refine_alone_batch(gray, rects, 10.0, level, frac)
-        assert [_fields(b) for b in got] == [_fields(b) for b in want]
+        want = [detect_mod._refine(gray, None, tuple(r), 1, 10.0, level, frac, True) for r in rects.tolist()]
+        assert [b is None for b in got] == [b is None for b in want]
         assert sum(b is not None for b in got) >= 4
-        # the kernel's records are the dataclass's instances (the field dict in field order,
-        # each value of the numpy path's type: Python float / int / bool, a float64 hull)
         names = [f.name for f in dataclasses.fields(Blob)]
         for a, b in zip(got, want):
-            if a is not None:
-                assert type(a) is Blob and list(a.__dict__) == names and a == a
-                assert [type(v) for v in a.__dict__.values()] == [type(v) for v in b.__dict__.values()]
-                assert dataclasses.replace(a, cx=1.0).cx == 1.0 and repr(a) == repr(dataclasses.replace(a))
+            if a is None:
+                continue
+            assert _cyclic(a.hull) == _cyclic(b.hull)
+            n_start += np.array_equal(a.hull, b.hull)
+            assert (a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background) == \
+                (b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background)
+            assert a.cx == pytest.approx(b.cx, abs=1e-9) and a.cy == pytest.approx(b.cy, abs=1e-9)
+            assert a.area_px == pytest.approx(b.area_px, rel=1e-12)
+            # the field dict in field order, each value of the dataclass's type
+            assert type(a) is Blob and list(a.__dict__) == names and a.hull.dtype == np.float64
+            assert [type(v) for v in a.__dict__.values()] == [type(v) for v in b.__dict__.values()]
+            assert dataclasses.replace(a, cx=1.0).cx == 1.0 and repr(a) == repr(dataclasses.replace(a))
+    assert n_start > 0  # where cv2.convexHull starts at its largest-x vertex, the same vertex list
 
 
 @needs_kernel
-def test_refine_alone_kernel_declines_what_numpy_decides():
-    """A box past the frame or a negative level: the kernel returns -1 and the numpy path
-    answers (None for the negative level: the caller refines one by one)."""
+def test_refine_alone_kernel_hull_of_lines_and_points():
+    """Degenerate envelopes: one pixel, a row, a column, a diagonal (collinear rows)."""
+    gray = np.zeros((40, 60), np.uint8)
+    gray[2, 3] = 200  # a pixel
+    gray[10, 5:15] = 200  # a row
+    gray[20:30, 2] = 200  # a column
+    for i in range(8):  # a diagonal, one pixel per row
+        gray[30 + i, 30 + 2 * i] = 200
+    rects = np.array([(0, 0, 8, 5), (4, 8, 14, 4), (0, 18, 5, 14), (28, 29, 20, 10)], np.int64)
+    got = _refine_alone_batch(gray, rects, 0.0, 50.0, 0.5)
+    for a, r in zip(got, rects.tolist()):
+        b = detect_mod._refine(gray, None, tuple(r), 1, 0.0, 50.0, 0.5, True)
+        assert _cyclic(a.hull) == _cyclic(b.hull)
+        assert a.cx == pytest.approx(b.cx, abs=1e-9) and a.area_px == pytest.approx(b.area_px, rel=1e-12)
+    assert [len(b.hull) for b in got] == [1, 2, 2, 2]
+
+
+@needs_kernel
+def test_refine_alone_kernel_declines_what_it_does_not_take():
+    """A box past the frame, a negative or a NaN level: the kernel declines (None) and the
+    caller refines one by one."""
     gray = np.full((20, 20), 40, np.uint8)
     assert _refine_alone_batch(gray, np.array([(0, 0, 5, 5)], np.int64), -100.0, 20.0, 0.5,
                                min_refine_contrast=-500.0, saturated_gray=30.0) is None
-    args = [np.empty(1), np.empty(1), np.empty(1, np.int64), np.empty((1, 3)), np.empty((1, 4), np.int64),
-            np.empty((40, 2)), np.empty(2, np.int64)]
-    assert _px.refine_alone(gray, np.array([(18, 0, 5, 5)], np.int64), 0.0, 20.0, 0.5, 250.0, 0.03, 6.0, *args) == -1
-    assert _px.refine_alone(gray, np.array([(0, 0, 5, 5)], np.int64), 0.0, float("nan"), 0.5, 250.0, 0.03, 6.0,
-                            *args) == -1
-
-
-def test_new_blob_is_the_dataclass_instance():
-    assert not hasattr(Blob, "__post_init__") and not hasattr(Blob, "__slots__")
-    values = (1.5, 2.5, 30.0, np.zeros((3, 2)), 1, 2, 3, 4, False, 200.0, 100.0, 5.0)
-    a, b = _new_blob(*values), Blob(*values)
-    assert type(a) is Blob and list(a.__dict__) == list(b.__dict__) == [f.name for f in dataclasses.fields(Blob)]
-    assert all(x is y for x, y in zip(a.__dict__.values(), b.__dict__.values()))
-    assert dataclasses.replace(a, cx=9.0).cx == 9.0 and repr(a) == repr(b)
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        a.cx = 0.0
+    assert _refine_alone_batch(gray, np.array([(18, 0, 5, 5)], np.int64), 0.0, 20.0, 0.5) is None
+    assert _refine_alone_batch(gray, np.array([(0, 0, 5, 5)], np.int64), 0.0, float("nan"), 0.5) is None
 
 
 def _lit_scene(rng, h, w):
@@ -358,8 +320,10 @@ def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
     real_search = detect_mod._search
     for _ in range(40):
         gray = _lit_scene(rng, int(rng.integers(30, 160)), int(rng.integers(30, 200)))
-        kw = dict(stripe_gap_px=int(rng.integers(0, 14)), join_x_px=int(rng.integers(0, 4)),
-                  row_pool=int(rng.integers(1, 3)), min_fill=float(rng.uniform(0.2, 0.9)), min_area_px=4.0)
+        kw = dict(stripe_gap_px=int(rng.integers(0, 14)), min_area_px=4.0)
+        monkeypatch.setattr(detect_mod, "JOIN_X_PX", int(rng.integers(0, 4)))
+        monkeypatch.setattr(detect_mod, "ROW_POOL", int(rng.integers(1, 3)))
+        monkeypatch.setattr(detect_mod, "MIN_FILL", float(rng.uniform(0.2, 0.9)))
         calls = []  # (outlines asked for, contours returned)
         with monkeypatch.context() as m:
             m.setattr(detect_mod, "_search",
@@ -428,11 +392,3 @@ def test_search_mask_and_histogram_same_with_and_without_avx2(simd):
             _px.sample_hist(gray, step, got)
             want = np.bincount(gray[::step, ::step].ravel(), minlength=256).astype(np.float32)
             assert np.array_equal(got, want), (h, w, step)
-
-
-
-@needs_kernel
-def test_hull_perimeter_table_gives_hypots_bits():
-    """The hull perimeter's hypot table (integer differences under 64) and its fall-back to
-    hypot (fractional, negative, larger differences) give libm hypot's own results."""
-    assert _px.hypot_table_equals_hypot()

@@ -1,6 +1,7 @@
-"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against their pure numpy
-references: the same numbers bit for bit, on frames of every bundled recording and on random
-scenes (the pure path runs with the module's `_k` set to None)."""
+"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against the OpenCV / numpy
+paths the stage takes where the kernel does not answer (`_k` set to None): the same blobs
+(`same_blob`: same boxes and decisions, same hull vertices, centroid and area within float
+rounding) and the same edge points, on frames of every bundled recording and on random scenes."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from receiver.pipeline import Receiver
 from receiver.vision import detect as detect_mod
 from receiver.vision import outline
 from receiver.vision.detect import detect
+from tests.vision.test_detect import detect_with_pool, same_blob
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDINGS = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle")
@@ -51,9 +53,7 @@ def _settings(name: str):
 def _same_blobs(a, b):
     assert len(a) == len(b)
     for p, q in zip(a, b):
-        assert (p.cx, p.cy, p.area_px, p.x0, p.y0, p.x1, p.y1, p.border, p.peak, p.level, p.background) == \
-            (q.cx, q.cy, q.area_px, q.x0, q.y0, q.x1, q.y1, q.border, q.peak, q.level, q.background)
-        assert p.hull.dtype == q.hull.dtype and np.array_equal(p.hull, q.hull)
+        assert same_blob(p, q), (p, q)
 
 
 def _same_points(a, b):
@@ -129,13 +129,13 @@ def test_edge_points_kernel_equals_numpy_on_random_scenes(monkeypatch):
 def test_detect_kernels_equal_numpy_on_recordings(name, monkeypatch):
     """`detect` with the compiled box scans (peaks, row ends, the pooled search's boxes) gives
     the numpy path's blobs, on the pipeline's settings of each recording and at full resolution
-    (row_pool 1)."""
+    (ROW_POOL 1)."""
     s = _settings(name)
     n = 0
     for gray in _frames(name):
-        for pool in (s.row_pool, 1):
-            a = detect(gray, settings=s, row_pool=pool)
-            b = _pure(detect_mod, monkeypatch, detect, gray, settings=s, row_pool=pool)
+        for pool in (detect_mod.ROW_POOL, 1):
+            a = detect_with_pool(gray, pool, settings=s)
+            b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, settings=s)
             _same_blobs(a, b)
             n += len(a)
     assert n > 0
@@ -147,10 +147,11 @@ def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
     n = 0
     for _ in range(40):
         gray = _random_scene(rng, n=int(rng.integers(0, 9)))
-        kw = {"stripe_gap_px": int(rng.integers(0, 20)), "row_pool": int(rng.integers(1, 3)),
+        pool = int(rng.integers(1, 3))
+        kw = {"stripe_gap_px": int(rng.integers(0, 20)),
               "fine_noise": bool(rng.integers(0, 2)), "min_contrast": float(rng.uniform(3, 30))}
-        a = detect(gray, **kw)
-        b = _pure(detect_mod, monkeypatch, detect, gray, **kw)
+        a = detect_with_pool(gray, pool, **kw)
+        b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, **kw)
         _same_blobs(a, b)
         n += len(a)
     assert n > 20

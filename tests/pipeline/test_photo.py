@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from receiver.vision.detect import detect, detect_scale, search_image
+from tests.vision.test_detect import same_blob
 
 
 def _block_means(gray: np.ndarray, f: int) -> np.ndarray:
@@ -104,7 +105,7 @@ def test_percentile_is_numpys(n):
 @pytest.mark.parametrize("shape", [(2160, 3840), (1080, 1920), (4352, 7712)])
 def test_a_downsampled_search_refines_in_one_batch_as_one_by_one(shape, monkeypatch):
     """Isolated components of a downsampled search are refined together (their boxes mapped back
-    to full resolution, masked as `_refine` masks them) with the same blobs, to the bit, as
+    to full resolution, masked as `_refine` masks them) with the same blobs (`same_blob`) as
     `_refine` one by one: clipped lights with a glow (refined near the background, where the
     mask decides), lights in the frame's corners, and two lights close enough to share a box."""
     import receiver.vision.detect as det
@@ -130,6 +131,4 @@ def test_a_downsampled_search_refines_in_one_batch_as_one_by_one(shape, monkeypa
     assert calls and calls[0] >= 4  # the isolated ones did go through the batch
     assert len(batched) == len(one_by_one) >= 6
     for a, b in zip(batched, one_by_one):
-        assert (a.cx, a.cy, a.area_px, a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level) == \
-               (b.cx, b.cy, b.area_px, b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level)
-        assert np.array_equal(a.hull, b.hull)
+        assert same_blob(a, b)

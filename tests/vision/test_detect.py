@@ -9,8 +9,20 @@ import numpy as np
 import pytest
 
 from receiver.cli.benchscene import bench_scene, render_bench_frame
+from receiver.vision import detect as detect_mod
 from receiver.vision.detect import auto_level, detect, detect_scale
 from receiver.vision.profile import envelope_mask, row_profile, stripe_depth
+
+
+
+def detect_with_pool(gray, pool, **kw):
+    """detect() with its row pooling (detect.ROW_POOL) set to `pool` for this call."""
+    old = detect_mod.ROW_POOL
+    detect_mod.ROW_POOL = pool
+    try:
+        return detect(gray, **kw)
+    finally:
+        detect_mod.ROW_POOL = old
 
 
 def draw_led(img, cx, cy, r, *, on=230.0, period_rows=0, phase_rows=0, square=False):
@@ -97,7 +109,7 @@ def test_rejects_specks_lines_and_flat_saturated_regions():
     draw_led(img, 450.0, 150.0, 30.0, on=255.0)  # flat: no stripes
     striped = draw_led(img, 450.0, 350.0, 30.0, on=255.0, period_rows=8)
     assert len(detect(u8(img), stripe_gap_px=5)) == 2  # flat disc kept without stripe check
-    blobs = detect(u8(img), stripe_gap_px=5, expect_stripes=True)
+    blobs = detect(u8(img), stripe_gap_px=5, stripe_check_rows=1)
     assert len(blobs) == 1
     assert blobs[0].cy == pytest.approx(striped["cy"], abs=1.0)
 
@@ -175,7 +187,7 @@ def load_photo(luxapose, name):
 def test_real_photos_find_every_led_and_nothing_else(luxapose, name):
     g = load_photo(luxapose, name)
     # 2 kHz stripes of the Lumia 1020 (21.03 us rows): 12-row dark half-periods.
-    blobs = detect(g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24, min_rel_area=0.25)
+    blobs = detect(g, stripe_gap_px=14, stripe_check_rows=24, min_rel_area=0.25)
     want = PHOTO_LEDS[name]
     assert len(blobs) == len(want)
     for x, y in want:
@@ -187,13 +199,13 @@ def test_real_photos_find_every_led_and_nothing_else(luxapose, name):
 def test_bench_detect_1280x720_16_leds(benchmark):
     leds = bench_scene()
     g = render_bench_frame(leds, 0, rng=np.random.default_rng(0))
-    blobs = benchmark(detect, g, stripe_gap_px=12, expect_stripes=True, min_stripe_rows=20)
+    blobs = benchmark(detect, g, stripe_gap_px=12, stripe_check_rows=20)
     assert len(blobs) == 16
 
 
 def test_bench_detect_33_megapixel_photo(benchmark, luxapose):
     g = load_photo(luxapose, "x_0_y_1.27.jpg")
-    blobs = benchmark(detect, g, stripe_gap_px=14, expect_stripes=True, min_stripe_rows=24)
+    blobs = benchmark(detect, g, stripe_gap_px=14, stripe_check_rows=24)
     assert len(blobs) == 5
 
 
@@ -206,15 +218,27 @@ def _coarse_components(gray, stripe_gap_px=8, join_x_px=2, pool=1):
     return contours, rects, level, bg
 
 
-def _same_blob(a, b):
-    return (a.cx == b.cx and a.cy == b.cy and a.area_px == b.area_px and np.array_equal(a.hull, b.hull)
-            and (a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background)
-            == (b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background))
+def cyclic(hull) -> list:
+    """A polygon's vertices from its largest (x, y) one: the same list for any start vertex."""
+    pts = [tuple(p) for p in np.asarray(hull).reshape(-1, 2).tolist()]
+    k = pts.index(max(pts))
+    return pts[k:] + pts[:k]
+
+
+def same_blob(a, b) -> bool:
+    """The same envelope: the same box, border, peak, level and background, the same hull
+    vertices in the same orientation (any start vertex), centroid within 1e-9 px and area within
+    1e-12 of itself (sums in another order)."""
+    return ((a.x0, a.y0, a.x1, a.y1, a.border, a.peak, a.level, a.background)
+            == (b.x0, b.y0, b.x1, b.y1, b.border, b.peak, b.level, b.background)
+            and a.hull.dtype == b.hull.dtype and cyclic(a.hull) == cyclic(b.hull)
+            and abs(a.cx - b.cx) <= 1e-9 and abs(a.cy - b.cy) <= 1e-9
+            and abs(a.area_px - b.area_px) <= 1e-12 * abs(b.area_px))
 
 
 @pytest.mark.parametrize("pool", [1, 2])
 def test_batched_refinement_equals_the_per_blob_one(pool):
-    """The vectorised refinement of isolated blobs gives exactly `_refine`'s envelopes: striped
+    """The batched refinement of isolated blobs gives `_refine`'s envelopes (`same_blob`): striped
     discs of several sizes, a clipped one, one on the border, a speck and a square; also on
     the boxes of a row-pooled search, which both tighten to the same rows."""
     from receiver.vision.detect import _refine, _refine_alone_batch
@@ -232,7 +256,7 @@ def test_batched_refinement_equals_the_per_blob_one(pool):
     for c, r, got in zip(contours, rects.tolist(), batch):
         want = _refine(gray, c, tuple(r), 1, bg, level, 0.5, True)
         assert (want is None) == (got is None)
-        assert want is None or _same_blob(want, got)
+        assert want is None or same_blob(want, got)
 
 
 def _merge_reference(blob, others, shape):
@@ -252,11 +276,8 @@ def _merge_reference(blob, others, shape):
                 bool(border), blob.peak, blob.level, blob.background)
 
 
-@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
-def test_merging_many_envelopes_equals_merging_one_by_one(batch_min, monkeypatch):
-    from receiver.vision import envelope
+def test_merging_many_envelopes_equals_merging_one_by_one():
     from receiver.vision.envelope import merge_envelopes_many
-    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
     leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
@@ -267,19 +288,16 @@ def test_merging_many_envelopes_equals_merging_one_by_one(batch_min, monkeypatch
     items.append((per_frame[2][1], [np.array([[1e4, 1e4]])]))  # clipped to the frame
     got = merge_envelopes_many(items, frames[0].shape)
     for (blob, others), g in zip(items, got):
-        assert _same_blob(_merge_reference(blob, others, frames[0].shape), g)
+        assert same_blob(_merge_reference(blob, others, frames[0].shape), g)
     assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
 
 
-@pytest.mark.parametrize("batch_min", [1, 100])  # vectorised / one light at a time
-def test_envelope_history_equals_merging_each_track_alone(batch_min, monkeypatch):
-    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in a few array
-    operations) gives each track the merge of its own hull with its hulls of the last frames,
+def test_envelope_history_equals_merging_each_track_alone():
+    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in one compiled call)
+    gives each track the merge of its own hull with its hulls of the last frames,
     each moved by the track's velocity times the frames since, as one merge per track does."""
-    from receiver.vision import envelope
     from receiver.vision.envelope import EnvelopeHistory
     from receiver.vision.track import Track
-    monkeypatch.setattr(envelope, "BATCH_MIN_LIGHTS", batch_min)
     leds = bench_scene(n_leds=5, radius_px=30.0, seed=6)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(4)]
     per_frame = [detect(g, stripe_gap_px=12) for g in frames]
@@ -292,13 +310,13 @@ def test_envelope_history_equals_merging_each_track_alone(batch_min, monkeypatch
         got = hist.step(tracks[:4] if k == 2 else tracks, k, frames[0].shape)  # track 4 missed frame 2
         for t in (tracks[:4] if k == 2 else tracks):
             others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in seen.get(t.track_id, []) if 0 < k - kh < 3]
-            assert _same_blob(_merge_reference(t.blob, others, frames[0].shape), got[t.track_id])
+            assert same_blob(_merge_reference(t.blob, others, frames[0].shape), got[t.track_id])
             seen.setdefault(t.track_id, []).append((k, t.blob.hull))
     assert any(len(v) == 4 for v in seen.values())
 
 
 def test_row_pooled_search_finds_the_same_envelopes():
-    """The component search on pooled rows (detect's row_pool) yields the full-resolution
+    """The component search on pooled rows (detect.ROW_POOL) yields the full-resolution
     search's blobs exactly: isolated ones, ones whose boxes overlap (component masks) and
     border-cut ones, on striped lights at every row phase; clipped lights too, whose edge level
     is just above the noisy background (a box row too many would let noise into the hull)."""
@@ -310,9 +328,9 @@ def test_row_pooled_search_finds_the_same_envelopes():
         img[270 + i, 118 + i:122 + i] = 230
     draw_led(img, 400.0, 477.0, 20.0, period_rows=10)  # cut by the bottom edge
     g = u8(img)
-    full = detect(g, stripe_gap_px=8, row_pool=1)
+    full = detect_with_pool(g, 1, stripe_gap_px=8)
     assert len(full) >= 6
-    pooled = detect(g, stripe_gap_px=8, row_pool=2)
+    pooled = detect_with_pool(g, 2, stripe_gap_px=8)
     assert [(b.x0, b.y0, b.x1, b.y1, b.border) for b in pooled] == \
         [(b.x0, b.y0, b.x1, b.y1, b.border) for b in full]
     for a, b in zip(pooled, full):
@@ -328,7 +346,7 @@ def test_row_pooled_search_bridges_every_gap_up_to_stripe_gap_px():
             img = blank(w=200, h=200)
             img[start - 20:start, 80:120] = 230
             img[start + gap:start + gap + 20, 80:120] = 230
-            n = len(detect(u8(img), stripe_gap_px=gap_px, row_pool=pool, max_aspect=0))
+            n = len(detect_with_pool(u8(img), pool, stripe_gap_px=gap_px, max_aspect=0))
             assert n == (1 if gap <= gap_px else 2), (gap, start, n)
 
 
@@ -348,14 +366,9 @@ def test_row_pooled_search_equals_full_resolution_at_the_top_and_bottom_edges(he
         g = u8(img)
         def key(blobs):
             return [(b.x0, b.y0, b.x1, b.y1, b.border, b.cx, b.cy, b.area_px) for b in blobs]
-        full = key(detect(g, stripe_gap_px=8, row_pool=1))
+        full = key(detect_with_pool(g, 1, stripe_gap_px=8))
         assert len(full) >= 2
-        assert key(detect(g, stripe_gap_px=8, row_pool=2)) == full, seed
-
-
-def test_row_pool_other_than_1_or_2_is_refused():
-    with pytest.raises(ValueError):
-        detect(np.zeros((50, 50), np.uint8), row_pool=3)
+        assert key(detect_with_pool(g, 2, stripe_gap_px=8)) == full, seed
 
 
 @pytest.mark.parametrize("pool", [1, 2])
@@ -477,4 +490,4 @@ def test_downsampled_search_gives_the_same_blobs_with_and_without_the_block_mask
         monkeypatch.setattr(detect_mod, "WIDE_MIN_PX", 10 ** 12)
         slow = detect(g, stripe_gap_px=14)
         assert len(fast) == 3 and len(slow) == 3
-        assert all(_same_blob(a, b) for a, b in zip(fast, slow))
+        assert all(same_blob(a, b) for a, b in zip(fast, slow))

@@ -85,7 +85,8 @@ def test_tracker_follows_a_light_through_the_shake_with_the_shift():
 
     shakes = [(0, 0), (6, -5), (-7, 4), (5, 6), (-6, -6)]
     for use_shift, same in ((True, True), (False, False)):
-        tr = Tracker(gate_px=3.0, gate_size=0.0)
+        tr = Tracker(gate_px=3.0)
+        tr.gate_size = 0.0  # a fixed gate (track.GATE_SIZE)
         pos = np.array([100.0, 100.0])
         ids = set()
         for k, s in enumerate(shakes):

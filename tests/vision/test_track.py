@@ -51,7 +51,8 @@ def test_track_coasts_through_dark_frames_then_ends():
 
 
 def test_gate_and_area_change_start_new_tracks():
-    tr = Tracker(gate_px=10.0, gate_size=0.5)
+    tr = Tracker(gate_px=10.0)
+    tr.gate_size = 0.5  # blob diameters added to the gate (track.GATE_SIZE)
     tr.step(0, [blob(100, 100)])
     tracks = tr.step(1, [blob(200, 100)])  # far outside the gate
     assert len(tracks) == 2 and {t.track_id for t in tracks if t.seen} == {1}
