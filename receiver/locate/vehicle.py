@@ -125,7 +125,7 @@ from receiver.locate.vehicle_assoc import MapAssociation
 from receiver.locate.vehicle_cars import CarsAhead, ZONES, FV_CONFIRM_S, FV_SL_GATE_DEG  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_host import (ACCEL_PSD, GATE_CHI2, INIT_OMEGA_SIGMA_RPS, INIT_SPEED_SIGMA_MPS,
                                           MAX_REJECTS, MIN_LIGHTS, NO_LIGHT, NOT_DECODED, ONE_LIGHT,  # noqa: F401
-                                          POSE_TRACK_ITER, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
+                                          POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
                                           _with_attitude_prior, eq44_47)  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_ranging import (DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
                                              _r, _rays, _sides, fv_measured, level_rotation, nominal_rotation)
@@ -343,6 +343,8 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                 if solved is not None and R_prior is None and self.off_road(
                         yaw, self._sl[pairs[res["idx"][sl_k[0]]].led_id]["head"]):
                     self.hv_reason = "street-light pose solve failed (its heading is off the road)"
+                elif solved is not None and R_prior is None and not self._reprojects(pairs, res, sl_k, R, C):
+                    self.hv_reason = REPROJ_FAILED
                 elif solved is not None:
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
                                heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])

@@ -51,10 +51,16 @@ ROAD_HEADS = 6
 # deg, a cold pose solve whose heading is farther than this from the map's road line near its
 # heads is a wrong one (heads confused or a degenerate geometry): the host drives along the road.
 ROAD_OFF_MAX_DEG = 45.0
+# A cold pose solve (no road filter yet) is a fix only if it puts every decoded head's midpoint
+# where the image shows it (`_reprojects`): Mahalanobis^2 per head within this (chi-square 2 dof,
+# 99.9 %). Ranges alone fit the camera mirrored across the heads' line as well as the true one
+# (thesis eqs. 44-47's two sides); the robust loss can settle there with the angles as outliers.
+REPROJ_GATE_CHI2 = 13.8
 # Why the host is unplaced, by what the frame holds (`VehicleLocator.hv_reason`).
 NO_LIGHT = "no light in view"
 NOT_DECODED = "lights in view, not decoded yet"
 ONE_LIGHT = "one street light decoded, waiting for a second"
+REPROJ_FAILED = "street-light pose solve failed (it does not reproject the decoded heads)"
 
 
 def _split_pairs(fun, n_pairs: int, sep_gain: float):
@@ -354,6 +360,26 @@ class HostPlacement:
             return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
         return R, C, cov
 
+    def _reprojects(self, pairs, res, sl_k, R: np.ndarray, C: np.ndarray) -> bool:
+        """Whether the camera (R_cw, C) puts each decoded head k of `sl_k` where it is seen: the
+        mapped head (its emitters' mean) projected against the measured midpoint of its two
+        emitters (normalized, undistorted), within their uncertainty: the midpoint's
+        (`centroid_sigma_px` / sqrt 2 per axis) and the head's model error `FIX_FLOOR_M` seen
+        at its distance. Mahalanobis^2 per head at most `REPROJ_GATE_CHI2`; a head behind the
+        camera fails."""
+        csig2 = 0.5 * (self.s.centroid_sigma_px / self.focal) ** 2
+        for k in sl_k:
+            X = R @ (self._sl[pairs[res["idx"][k]].led_id]["head"] - C)
+            z = float(X[2])
+            if not z > 0.0:
+                return False
+            ex = float(X[0]) / z - 0.5 * float(res["ua"][k][0] + res["ub"][k][0])
+            ey = float(X[1]) / z - 0.5 * float(res["ua"][k][1] + res["ub"][k][1])
+            sig2 = csig2 + FIX_FLOOR_M ** 2 / float(X @ X)
+            if not (ex * ex + ey * ey) / sig2 <= REPROJ_GATE_CHI2:
+                return False
+        return True
+
     def _road_heading(self, head: np.ndarray) -> float | None:
         """The map's road direction (rad, counter-clockwise from +x) near a street-light head,
         whatever the heads' spacing: the `ROAD_HEADS` mapped heads nearest to it, split by the
@@ -492,6 +518,9 @@ class HostPlacement:
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
         R, C, cov = solved
+        if R_prior is None and not self._reprojects(pairs, res, [k], R, C):
+            self.hv_reason = REPROJ_FAILED
+            return None, aligned, res
         if float(np.trace(cov)) > SL1_START_MAX_STD_M ** 2:
             # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
             # the single-light observations that follow would be linearised metres off.
