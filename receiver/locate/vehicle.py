@@ -104,8 +104,8 @@ pair already tracked as an FV is not one either: at 50+ m one taillight of each 
 by side also passes the area test (tiny blobs read large, the cross baseline short).
 
 Cost (`range_core`, `_pair_geometry`): a frame has 1-15 pairs, so the per-pair math is scalar
-Python; only what numpy rounds differently from scalar math (matrix products, cos/sin/tan,
-x**3) stays in numpy calls, so the numbers are the former vectorised form's to the last bit.
+Python (numpy's per-call overhead would dominate small arrays); the host's pose solve is compiled
+(receiver.locate._vehicle_pose, its one implementation; docs/kernels.md).
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ from receiver.locate.vehicle_cars import CarsAhead, ZONES, FV_CONFIRM_S, FV_SL_G
 from receiver.locate.vehicle_host import (ACCEL_PSD, GATE_CHI2, INIT_OMEGA_SIGMA_RPS, INIT_SPEED_SIGMA_MPS,
                                           MAX_REJECTS, MIN_LIGHTS, NO_LIGHT, NOT_DECODED, ONE_LIGHT,  # noqa: F401
                                           POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
-                                          _with_attitude_prior, eq44_47)  # noqa: F401 (re-exported)
+                                          eq44_47)  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_ranging import (DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
                                              _r, _rays, _sides, fv_measured, level_rotation, nominal_rotation)
 from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
@@ -228,7 +228,6 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
-        self._heads_t = {i: c["head_t"] for i, c in self._sl.items() if c["em"] is not None}    # `_pose_ranges`
         # The heads of the lights with mapped emitters, their IDs and baselines (`_associate`).
         em_ids = [i for i, c in self._sl.items() if c["em"] is not None]
         self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),

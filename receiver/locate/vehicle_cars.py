@@ -12,7 +12,7 @@ import numpy as np
 
 from receiver.core.records import PairObservation
 from receiver.locate.road_kalman import RangeKalman
-from receiver.locate.vehicle_ranging import SATURATED_AREA_SPAN, _kr, _r, _rays, fv_measured
+from receiver.locate.vehicle_ranging import SATURATED_AREA_SPAN, _r, _rays, fv_measured
 
 # Model constants of the cars ahead (what the model assumes, not what a user sets), unit and why.
 FV_ACCEL_PSD = 4.0              # m^2/s^3, relative acceleration of a car ahead
@@ -262,9 +262,6 @@ class CarsAhead:
         if not len(P):
             return False
         g2 = math.tan(math.radians(FV_SL_GATE_DEG)) ** 2
-        if _kr is not None and P.flags.c_contiguous:
-            (ax, ay), (bx, by) = ua.tolist(), ub.tolist()
-            return _kr.near_any(P, ax, ay, bx, by, g2)
         for u in (ua, ub):
             d = P - u
             if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:

@@ -545,8 +545,15 @@ def test_a_pose_solve_with_an_infinite_covariance_is_no_fix(monkeypatch):
     R, C, psi = camera_pose(3.0)
     pairs = sl_pairs(lmap, R, C)
     assert VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs).vehicle["hv"] is not None
-    monkeypatch.setattr(vehicle_mod, "_fix_covariance", lambda r, J: np.full((J.shape[1], J.shape[1]), np.inf))
-    monkeypatch.setattr(vehicle_mod, "_k", None)       # the compiled solve checks its own (test_vehicle_native)
+    solve = vehicle_mod._solve_native
+
+    def rank_deficient(*a, **k):
+        # The kernel's status for J' J not positive definite: the pseudo-inverse decides.
+        x, r, J, R_, cov6, status = solve(*a, **k)
+        return x, r, J, R_, cov6, 3 if status == 0 else status
+
+    monkeypatch.setattr(vehicle_mod, "_solve_native", rank_deficient)
+    monkeypatch.setattr(vehicle_mod, "covariance_at", lambda r, J, n: (np.full((n, n), np.inf), None))
     loc = VehicleLocator(CAM, lmap, SETTINGS)
     res = loc.step(0.0, pairs)
     assert res.vehicle["hv"] is None and loc.hv_reason == "street-light pose solve failed"
