@@ -9,6 +9,9 @@ import math
 import cv2
 import numpy as np
 
+from receiver.locate.vehicle_host import PITCH_SIGMA_DEG, YAW_SHAKE_SIGMA_DEG
+from receiver.locate.vehicle_ranging import CENTROID_SIGMA_PX
+
 
 # Model constants of the association, unit and why.
 ASSOC_MAX_STD_M = 1.0           # m, undecoded pairs are matched to mapped heads only while the filter's 2D std is at most this
@@ -31,7 +34,6 @@ class MapAssociation:
         Mahalanobis^2 to its midpoint is within `ASSOC_GATE_CHI2`, when no other head is in
         that gate, no other pair is in the head's, and its separation is within
         `ASSOC_SEP_TOL` of the head's predicted one (f B / distance). Ambiguity: no match."""
-        s = self.s
         cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible
                 and p.a_seen is not None and p.b_seen is not None
                 and max(int(p.a_seen[2]), int(p.b_seen[2])) <= ASSOC_MAX_AGE]
@@ -61,8 +63,8 @@ class MapAssociation:
         dX = -R[:, :2]                                       # (3, 2)
         J = (dX[None, :2, :] - u[:, :, None] * dX[None, 2:3, :]) / z[:, None, None]     # (n, 2, 2)
         cov = J @ Pxy @ np.transpose(J, (0, 2, 1))
-        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
-        csig = (s.centroid_sigma_px / self.focal) ** 2
+        ang = math.radians(YAW_SHAKE_SIGMA_DEG) ** 2 + math.radians(PITCH_SIGMA_DEG) ** 2
+        csig = (CENTROID_SIGMA_PX / self.focal) ** 2
         cov = cov + np.eye(2) * (ang + csig)
         inv = np.linalg.inv(cov)
         sep_pred = self.focal * Bl / np.sqrt(np.sum(V * V, axis=1))

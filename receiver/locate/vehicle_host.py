@@ -15,10 +15,16 @@ from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_a
 from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.road_kalman import wrap_pi
 
-from receiver.locate.vehicle_ranging import NAN, ORIENT_SIGMA_PRIOR_DEG, SL_SEPARATION_SIGMA_PX, SQRT2, _r, _rays
+from receiver.locate.vehicle_ranging import (CENTROID_SIGMA_PX, NAN, ORIENT_SIGMA_PRIOR_DEG, SL_SEPARATION_SIGMA_PX,
+                                             SQRT2, _r, _rays)
 
 # Model constants of host placement (what the model assumes, not what a user sets), unit and why.
 CAMERA_HEIGHT_SIGMA_M = 0.3     # m, the camera height prior's 1-sigma (load, suspension, mount)
+YAW_SHAKE_SIGMA_DEG = 0.3       # deg, camera yaw about the host heading (mount, shake ~0.3 deg rms)
+PITCH_SIGMA_DEG = 0.5           # deg, camera pitch about the last solved one (shake, braking)
+ROLL_SIGMA_DEG = 1.0            # deg, camera roll about 0 (mount, body roll)
+ROAD_HEADING_SIGMA_DEG = 3.0    # deg, host heading about the map's road direction (lane changes)
+MAX_COAST_S = 2.0               # s, the host track is forgotten after this long without a fix
 TILT_SIGMA_DEG = 10.0           # deg, weak tilt prior of the pose solve (matters with one light only)
 MIN_LIGHTS = 2                  # decoded heads a full pose solve needs (one: `_single_fix`, `_single_observation`)
 POSE_F_SCALE = 3.0              # sigmas, the soft-L1 loss's knee
@@ -194,7 +200,7 @@ class HostPlacement:
         if self._W is None:
             hs = CAMERA_HEIGHT_SIGMA_M
             self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
-        x, r, J, R, cov6, status = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds),
+        x, r, J, R, cov6, status = _solve_native(L, uv, CENTROID_SIGMA_PX / self.focal, np.array(ds), np.array(sds),
                                                  self._up, math.radians(TILT_SIGMA_DEG), C_prior, self._W, m,
                                                  self._sep_gain, attitude, p0, n_iter)
         if status == 3:
@@ -213,10 +219,10 @@ class HostPlacement:
         """Whether the camera (R_cw, C) puts each decoded head k of `sl_k` where it is seen: the
         mapped head (its emitters' mean) projected against the measured midpoint of its two
         emitters (normalized, undistorted), within their uncertainty: the midpoint's
-        (`centroid_sigma_px` / sqrt 2 per axis) and the head's model error `FIX_FLOOR_M` seen
+        (`CENTROID_SIGMA_PX` / sqrt 2 per axis) and the head's model error `FIX_FLOOR_M` seen
         at its distance. Mahalanobis^2 per head at most `REPROJ_GATE_CHI2`; a head behind the
         camera fails."""
-        csig2 = 0.5 * (self.s.centroid_sigma_px / self.focal) ** 2
+        csig2 = 0.5 * (CENTROID_SIGMA_PX / self.focal) ** 2
         for k in sl_k:
             X = R @ (self._sl[pairs[res["idx"][k]].led_id]["head"] - C)
             z = float(X[2])
@@ -272,17 +278,16 @@ class HostPlacement:
         (m), predicted from the filter's (x, y, heading) with the camera at the last solved
         height and pitch (`pitch_ref` when a full pose gave one), roll 0 and yaw = heading. What
         those assumptions leave out is folded into the noise through the measurement's
-        Jacobian on each: the camera's yaw about the heading (`yaw_shake_sigma_deg`), pitch
-        (`pitch_sigma_deg`, else `ORIENT_SIGMA_PRIOR_DEG`), roll (`roll_sigma_deg`) and height
+        Jacobian on each: the camera's yaw about the heading (`YAW_SHAKE_SIGMA_DEG`), pitch
+        (`PITCH_SIGMA_DEG`, else `ORIENT_SIGMA_PRIOR_DEG`), roll (`ROLL_SIGMA_DEG`) and height
         (`CAMERA_HEIGHT_SIGMA_M`); the midpoint carries the centroids' sigma
-        (`centroid_sigma_px` / sqrt 2 per axis). A pose fix would need the heading prior from
+        (`CENTROID_SIGMA_PX` / sqrt 2 per axis). A pose fix would need the heading prior from
         this same filter, and its position fed back would count that prior twice. Returns the
         fix record for `_update_hv` ("sl-1", n 1)."""
-        s = self.s
         head = self._sl[pairs[res["idx"][k]].led_id]["head"]
         z0 = self.z_last
         pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
-        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else ORIENT_SIGMA_PRIOR_DEG)
+        psig = math.radians(PITCH_SIGMA_DEG if self.pitch_ref is not None else ORIENT_SIGMA_PRIOR_DEG)
 
         rots = {}       # the rotations asked so far: 7 distinct ones among the ~16 calls of a frame
 
@@ -307,11 +312,11 @@ class HostPlacement:
         x, y, psi = float(st[0]), float(st[1]), float(st[2])
         um = 0.5 * (np.asarray(res["ua"][k]) + np.asarray(res["ub"][k]))
         z = np.array([um[0], um[1], res["fused"][k]])
-        sm = s.centroid_sigma_px / SQRT2 / self.focal
+        sm = CENTROID_SIGMA_PX / SQRT2 / self.focal
         d = float(res["fused"][k])
         Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (SL1_RANGE_FLOOR_REL * d) ** 2])
-        for j, (sig, e) in enumerate(((math.radians(s.yaw_shake_sigma_deg), 1e-5), (psig, 1e-5),
-                                      (math.radians(s.roll_sigma_deg), 1e-5), (CAMERA_HEIGHT_SIGMA_M, 1e-3))):
+        for j, (sig, e) in enumerate(((math.radians(YAW_SHAKE_SIGMA_DEG), 1e-5), (psig, 1e-5),
+                                      (math.radians(ROLL_SIGMA_DEG), 1e-5), (CAMERA_HEIGHT_SIGMA_M, 1e-3))):
             a = [0.0, 0.0, 0.0, 0.0]
             a[j] = e
             jp = g(x, y, psi, *a)
@@ -329,8 +334,8 @@ class HostPlacement:
         """One decoded street light's two emitters (4 image coordinates, their ranges) with the
         camera-height and tilt priors of `_solve_pose` and a heading prior: while the road
         filter runs, its predicted heading (sigma: its own and the camera's yaw shake,
-        `yaw_shake_sigma_deg`), else the map's road direction near the light
-        (`road_heading_sigma_deg`). Returns (fix | None, aligned, res); the fix's covariance is
+        `YAW_SHAKE_SIGMA_DEG`), else the map's road direction near the light
+        (`ROAD_HEADING_SIGMA_DEG`). Returns (fix | None, aligned, res); the fix's covariance is
         the solve's (lateral ~ range x heading sigma). Its yaw is the prior's echo, so the
         filter takes the position only (`fix["yaw_free"]`)."""
         s = self.s
@@ -338,7 +343,7 @@ class HostPlacement:
         if R_prior is not None:
             pred, P = self.kf.predict_at(t_s)
             yaw0 = float(pred[2])
-            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(s.yaw_shake_sigma_deg) ** 2)
+            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(YAW_SHAKE_SIGMA_DEG) ** 2)
             pitch = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
             R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
             C0 = np.array([pred[0], pred[1], self.z_last])
@@ -347,7 +352,7 @@ class HostPlacement:
             if yaw0 is None:
                 self.hv_reason = f"{ONE_LIGHT} (the map gives no road direction near it)"
                 return None, aligned, res
-            ysig = math.radians(s.road_heading_sigma_deg)
+            ysig = math.radians(ROAD_HEADING_SIGMA_DEG)
             pitch = self.s.camera_pitch_deg if self.pitch_ref is None else math.degrees(self.pitch_ref)
             R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
             ray = _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
@@ -358,10 +363,10 @@ class HostPlacement:
         if not math.isfinite(res["fused"][k]):
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
-        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg)),
+        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(ROLL_SIGMA_DEG)),
                "mid_range": (head, float(res["fused"][k]), float(res["fused_sigma"][k]))}
         if self.pitch_ref is not None:
-            att["pitch"] = (self.pitch_ref, math.radians(s.pitch_sigma_deg))
+            att["pitch"] = (self.pitch_ref, math.radians(PITCH_SIGMA_DEG))
         solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att, emitter_ranges=False)
         if solved is None:
             self.hv_reason = "street-light pose solve failed"
@@ -383,7 +388,7 @@ class HostPlacement:
     def _sep_gain(self) -> float:
         """Weight of a head's centroid difference relative to the centroids' own sigma:
         sqrt(2) sigma_c / sqrt(2 sigma_c^2 + sigma_sep^2) (`SL_SEPARATION_SIGMA_PX`)."""
-        c = self.s.centroid_sigma_px
+        c = CENTROID_SIGMA_PX
         return SQRT2 * c / math.sqrt(2 * c * c + SL_SEPARATION_SIGMA_PX ** 2)
 
     def _pose_ranges(self, pairs, ranges, fix):
@@ -443,7 +448,7 @@ class HostPlacement:
             if fix.get("yaw_free"):
                 # A single light's yaw is its heading prior's echo: the filter takes the position
                 # only; a filter started from it takes the prior's sigma.
-                psig = math.radians(s.road_heading_sigma_deg)
+                psig = math.radians(ROAD_HEADING_SIGMA_DEG)
             if not kf.started:
                 accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             else:

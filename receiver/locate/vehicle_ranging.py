@@ -18,6 +18,7 @@ from receiver.locate.settings import VehicleSettings
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 DOWN = np.array([0.0, 0.0, -1.0])
 # Model constants of ranging (what the model assumes, not what a user sets), unit and why.
+CENTROID_SIGMA_PX = 0.2         # px, 1-sigma of a street-light emitter's centroid (sub-pixel envelope)
 SL_SEPARATION_SIGMA_PX = 0.3    # px, a head's centroid difference: one half lit at a time, the other's centroid a frame or more old
 FV_CENTROID_SIGMA_PX = 0.2      # px, a taillight centroid measured this frame (`fv_measured`; separation error ~0.4 % of 44-125 px)
 FV_AREA_MODEL_REL = 0.05        # eq. 18 model error of a taillight's striped 10-50 px envelope cut by clock edges, relative
@@ -145,7 +146,7 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and `circle` (N,)
     bool (`_area_range`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
     n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel (N,); centroid_sigma_px,
-    area_model_rel: scalars or (N,) (default: the settings'). Returns a dict of length-N lists
+    area_model_rel: scalars or (N,) (default: `CENTROID_SIGMA_PX`, `AREA_MODEL_REL`). Returns a dict of length-N lists
     of floats (NaN where unavailable; `flip`: B reversed) and the unit rays `ra`, `rb` (N, 3).
     Scalar math per pair (a frame has 1-15 pairs: numpy's per-call overhead dominated the
     vectorised form, ~220 calls); the rays and cos(alpha)^3 stay vectorised (numpy's own
@@ -157,7 +158,7 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     cos3 = (r2[:, 2] ** 3).tolist()
     R2 = r2.tolist()
     amr = AREA_MODEL_REL if area_model_rel is None else area_model_rel
-    csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
+    csig = CENTROID_SIGMA_PX if centroid_sigma_px is None else centroid_sigma_px
     cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel, amr, csig,
                                     ua, ub, S1, S2, B_cam, n_cam)]
     cols += [circle.tolist() if isinstance(circle, np.ndarray) else list(circle), R2[:n], R2[n:], cos3[:n], cos3[n:]]
