@@ -32,7 +32,7 @@ from receiver.core.records import Frame, FrameResult, LedObservation, PairObserv
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
 from receiver.decode.policy import DecodePolicy, LightDecoder, ModePlan
-from receiver.decode.s2psk import flux_xor, pair_xor
+from receiver.decode.pair_decoding import PairDecoding
 from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySettings, S2pskSettings,
                                       ToneSettings)
 from receiver.io.camera import CameraModel
@@ -250,14 +250,7 @@ class Receiver:
         self.policy = DecodePolicy(camera, led_map, plan, s.policy, ook=s.ook, tone=s.tone, s2psk=s.s2psk,
                                    min_stripe_rows=self.min_stripe_rows)
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
-        self.pair_decoders: dict[int, dict] = {}  # Pair.uid -> its S2-PSK decoders
-        self.early_decoders: dict[int, dict] = {}  # Pair.uid -> decoders fed its backlog too, until an ID
-        # Pair.uid -> time after which the early decoders hold no sample from before the pair formed
-        # (then they are the pair's own decoders again, and are dropped)
-        self.early_until: dict[int, float] = {}
-        # Pair.uid -> decoders fed from the frame the pair lost `Pair.confirmed` on, until an ID
-        self.confirm_decoders: dict[int, dict] = {}
-        self.flux_decoders: dict[int, dict] = {}  # Pair.uid -> decoders of its far head's flux (Pairer.reads_flux)
+        self.pair_decoding = PairDecoding(self.policy)  # every live pair's S2-PSK decoders
         self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
                        if s.policy.frame_clock and camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
@@ -357,68 +350,9 @@ class Receiver:
         by_flux = [p for p in live if p.led_id is None and self.pairer.reads_flux(p)]
         fluxes = dict(zip([p.uid for p in by_flux], self.pairer.sample_fluxes(by_flux, gray)))
         for p, (a, b) in zip(live, samples):
-            decs = self.pair_decoders.get(p.uid)
-            if decs is None:
-                decs = self.pair_decoders[p.uid] = self.policy.new_pair_decoders()
-                if p.backlog:
-                    # The frames before the pair formed go to a second set of decoders: the
-                    # founding tracks may have followed other blobs before (a wrong history
-                    # must not hold the pair's own samples back); whichever decodes first wins.
-                    early = self.early_decoders[p.uid] = self.policy.new_pair_decoders()
-                    self.early_until[p.uid] = frame.t_s + max(getattr(d, "history_s", math.inf) for d in early.values())
-                    for t_s, *ab in p.backlog:
-                        self.policy.step_pair(early, t_s, pair_xor(*ab))
-                    p.backlog = []
-            (a_on, a_off), (b_on, b_off) = p.levels_a.on_off(), p.levels_b.on_off()
-            x = pair_xor(a, b, a_on, b_on, a_off, b_off)
-            due = self.policy.pair_due(p.led_id, frame.index, p.uid)
-            found, _ = self.policy.step_pair(decs, frame.t_s, x, due)
-            if p.led_id is None and self.pairer.reads_flux(p):
-                # A far head also read by its whole flux (receiver.vision.pairing.Pairer.head_flux:
-                # no side needed, so the yaw shake does not matter): a third decoder set, fed
-                # until the pair has an ID; whichever set decodes first wins.
-                fx = flux_xor(fluxes[p.uid], self.pairer.flux_on(p))
-                fdecs = self.flux_decoders.get(p.uid)
-                if fdecs is None:
-                    fdecs = self.flux_decoders[p.uid] = self.policy.new_pair_decoders()
-                ffound, _ = self.policy.step_pair(fdecs, frame.t_s, fx, due)
-                if found is None and ffound is not None and p.led_id is None:
-                    found = ffound
-            early = self.early_decoders.get(p.uid)
-            if early is not None and frame.t_s > self.early_until[p.uid]:
-                del self.early_decoders[p.uid]
-                early = None
-            if early is not None:
-                if found is None:
-                    found, _ = self.policy.step_pair(early, frame.t_s, x)
-                    if found is not None:  # from now on the decoders that found the ID
-                        self.pair_decoders[p.uid] = early
-                if found is not None:
-                    del self.early_decoders[p.uid]
-            if not p.confirmed:
-                # Placed on blobs that may be another light's: only what its emitters send from
-                # then on names it. The decoders that find that ID become the pair's.
-                conf = self.confirm_decoders.get(p.uid)
-                if conf is None:
-                    conf = self.confirm_decoders[p.uid] = self.policy.new_pair_decoders()
-                cfound, _ = self.policy.step_pair(conf, frame.t_s, x)
-                if cfound is not None:
-                    found, p.confirmed = cfound, True
-                    self.pair_decoders[p.uid] = conf
-                    del self.confirm_decoders[p.uid]
-                    self.early_decoders.pop(p.uid, None)
-                else:
-                    found = None
-            if found is not None:
-                p.led_id, p.kind = found.led_id, getattr(found, "kind", None)
-                self.flux_decoders.pop(p.uid, None)  # fed only until the pair's first ID
-        uids = {p.uid for p in live}
-        for uid in [u for u in self.pair_decoders if u not in uids]:
-            del self.pair_decoders[uid]
-            self.early_decoders.pop(uid, None)
-            self.early_until.pop(uid, None)
-            self.flux_decoders.pop(uid, None)
-            self.confirm_decoders.pop(uid, None)
+            flux = (fluxes[p.uid], self.pairer.flux_on(p)) if p.uid in fluxes else None
+            self.pair_decoding.step(p, frame.t_s, frame.index, a, b, flux)
+        self.pair_decoding.keep({p.uid for p in live})
         pair_of = pair_owners(self.pairer.pairs)
         # An S2-PSK ID belongs to the pair, not to a blob track: a track no pair explains
         # this frame (it may have jumped to another light's blob) carries none.

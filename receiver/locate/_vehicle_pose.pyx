@@ -1,10 +1,10 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled host-pose solve of the vehicle stage (receiver.locate.vehicle.VehicleLocator._solve_pose).
-
-The pure reference is vehicle.py's `_split_pairs(_joint_fun(...))` (+ `_with_attitude_prior`)
-iterated by receiver.locate.lsq.lm_iterate with the soft-L1 loss and the solve's stopping rule;
-this kernel runs the same residuals, Jacobian and damped normal-equation steps in C (a frame's
-solve is 2-4 evaluations of 8-30 residual rows: numpy's per-call overhead was most of it).
+"""Host-pose solve of the vehicle stage (receiver.locate.vehicle_host._solve_native), its one
+implementation: a damped soft-L1 Levenberg-Marquardt (receiver.locate.lsq.lm_normal's steps) on
+the residuals below, with their analytic Jacobian (a frame's solve is 2-4 evaluations of 8-30
+residual rows, where numpy's per-call overhead would be most of the cost).
+tests/engine/test_vehicle_native.py checks the residuals against the geometry, the Jacobian
+against finite differences and the solution against scipy.optimize.least_squares.
 
 Pose p = (Rodrigues vector of R_cw (3), camera centre C (3), m). Residual rows, in order:
 * angles: per point (x, y) normalized image error / sigma_uv; the first 4 n_pairs rows (points
@@ -14,10 +14,10 @@ Pose p = (Rodrigues vector of R_cw (3), camera centre C (3), m). Residual rows, 
 * tilt prior: (R[:, 2] - up) / up_sigma (3 rows);
 * position prior: W (C - C_prior) (3 rows);
 * attitude rows `att` (kind 0 yaw, 1 pitch, 2 roll, 3 midpoint range; columns kind, v0, sigma,
-  Mx, My, Mz, D, sigma_D), `_with_attitude_prior`'s.
+  Mx, My, Mz, D, sigma_D): yaw = the optical axis's azimuth atan2(R[2, 1], R[2, 0]) (wrapped),
+  pitch = asin(R[2, 2]), roll = atan2(-R[0, 2], -R[1, 2]) (receiver.locate.pose.ypr_to_rotation's
+  angles), midpoint range = |M - C| - D.
 Rodrigues' rotation and derivative are OpenCV's formulas (cv::Rodrigues, 3x9 row-major dR/drvec).
-Differences to the numpy path: summation order (BLAS products, pairwise sums, LU pivoting), i.e.
-a few ulps; tests/engine/test_vehicle_native.py compares the two.
 """
 
 from libc.math cimport sqrt, sin, cos, atan2, asin, fabs, fmod, M_PI, isfinite
@@ -405,7 +405,7 @@ def solve_pose(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1]
                double sep_gain, double[:, ::1] att, double f_scale, double[::1] p, int max_iter,
                double rot_tol, double pos_tol, double ftol, double lam0, double lam_max,
                double[::1] r_out, double[:, ::1] J_out, double[:, ::1] R_out, double[:, ::1] cov_out):
-    """`solve`, then vehicle.VehicleLocator._pose_result's checks: returns 0 with R_out (the
+    """`solve`, then the checks of a usable fix: returns 0 with R_out (the
     solved R_cw, Rodrigues of p[:3]) and cov_out (6, 6, `covariance`); 1: p not finite; 2: the
     camera at or above the lowest point of L; 3: J' J not positive definite (R_out set; the
     caller's pinv decides from r_out, J_out); 4: the position covariance not finite."""

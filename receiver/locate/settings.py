@@ -50,28 +50,21 @@ class PositionerSettings:
 
 @dataclass(frozen=True)
 class VehicleSettings:
-    """What a user sets for vehicle positioning (receiver.locate.vehicle): the camera's mounting
-    and shake, the detector's centroid noise, odometry, when to report, and the warning zones
-    of thesis Figure 27. Emitter geometry (head emitters, sizes, normals, the taillight block)
-    comes from the map; the locator's model constants are in receiver.locate.vehicle."""
+    """What a user sets for vehicle positioning (receiver.locate.vehicle): the camera's mounting,
+    the detector's edge offset, odometry, when to report, the tallest taillights, and the
+    warning zones of thesis Figure 27. Emitter geometry (head emitters, sizes, normals, the
+    taillight block) comes from the map; the model's constants (centroid noise, camera shake,
+    road heading, coasting and forgetting times) are in the receiver.locate.vehicle_* modules."""
 
-    camera_height_m: float = 1.2        # m above the road; thesis Table 2's car camera
-    camera_pitch_deg: float = 0.0       # deg, nominal pitch (up positive; roll taken as 0) until a pose is solved
-    centroid_sigma_px: float = 0.2      # px, 1-sigma of a street-light emitter's centroid (sub-pixel envelope)
-    edge_offset_px: float = 0.0         # px, blob envelope beyond the emitter's true edge (0: lens blur offsets it)
-    yaw_shake_sigma_deg: float = 0.3    # deg, camera yaw about the host heading (mount, shake ~0.3 deg rms)
-    pitch_sigma_deg: float = 0.5        # deg, camera pitch about the last solved one (shake, braking)
-    roll_sigma_deg: float = 1.0         # deg, camera roll about 0 (mount, body roll)
-    road_heading_sigma_deg: float = 3.0  # deg, host heading about the map's road direction (lane changes)
-    speed_sigma_mps: float = 0.3        # m/s, odometry speed 1-sigma (when a speed source is given)
-    hv_max_std_m: float = 1.0           # m, the host is reported only while its filtered 2D std is at most this
-    max_coast_s: float = 2.0            # s, the host track is forgotten after this long without a fix
-    fv_min_height_m: float = 0.0        # m, an undecoded pair is taken for taillights only between these
-    fv_max_height_m: float = 2.5        # m, ... heights above the road (cars' lamps; trucks' up to 2.5 m)
-    fv_drop_s: float = 1.0              # s, a car unseen this long is forgotten
-    headway_safe_s: float = 2.0         # s, Figure 27 "safe" at this headway or more (the two-second rule)
-    headway_min_s: float = 1.0          # s, "min" down to this, "critical" below
+    camera_height_m: float = 1.2        # m above the road; 1.2: a car's dash camera (thesis Table 2)
+    camera_pitch_deg: float = 0.0       # deg, nominal pitch (up +) until a pose is solved; 0: dash cameras look level
+    edge_offset_px: float = 0.0         # px, envelope beyond the emitter's true edge; 0: lens blur offsets the half pixel
+    speed_sigma_mps: float = 0.3        # m/s, 1-sigma of the --odometry speed; 0.3: a wheel-speed log
+    hv_max_std_m: float = 1.0           # m, the host is reported only this sure (filtered 2D std); 1: tells the lane
+    fv_max_height_m: float = 2.5        # m, highest taillights an undecoded pair may be; 2.5: trucks' lamps
+    headway_safe_s: float = 2.0         # s, Figure 27 "safe" at this headway or more; 2: the two-second rule
+    headway_min_s: float = 1.0          # s, "min" down to this headway, "critical" below (thesis Figure 27)
     ttc_critical_s: float = 2.0         # s, time to collision below this is "critical" whatever the headway
-    ttc_min_s: float = 4.0              # s, ... below this at least "min"
-    safe_distance_m: float = 30.0       # m, without the host speed: "safe" at this distance or more
-    min_distance_m: float = 15.0        # m, ... "min" down to this, "critical" below
+    ttc_min_s: float = 4.0              # s, time to collision below this is at least "min"
+    safe_distance_m: float = 30.0       # m, without the host speed: "safe" at this distance or more (2 s at 54 km/h)
+    min_distance_m: float = 15.0        # m, ... "min" down to this, "critical" below (1 s at 54 km/h)

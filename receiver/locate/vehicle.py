@@ -92,7 +92,7 @@ filter predicts; a per-pair `RangeKalman` gives the range rate
 thesis Figure 27 ("safe", "min", "critical") from the time headway d / V_HV (distance thresholds
 when V_HV is unknown), tightened by ttc; ``road_x``, ``road_y`` = P_HV + rotation(heading) (x, y)
 (eq. 53) when the HV is placed. A pair still undecoded (kind None) is taken as an FV when its
-midpoint, ranged as a taillight pair, lies between `fv_min_height_m` and `fv_max_height_m`
+midpoint, ranged as a taillight pair, lies between `FV_MIN_HEIGHT_M` and `fv_max_height_m`
 above the road (once the camera's tilt is known) and its area and baseline ranges agree (a street
 light's emitters are ~7x larger for their spacing than taillights; two far heads paired across
 the road clash likewise: scale-free, so it holds before the tilt is known), its two emitters are
@@ -104,8 +104,8 @@ pair already tracked as an FV is not one either: at 50+ m one taillight of each 
 by side also passes the area test (tiny blobs read large, the cross baseline short).
 
 Cost (`range_core`, `_pair_geometry`): a frame has 1-15 pairs, so the per-pair math is scalar
-Python; only what numpy rounds differently from scalar math (matrix products, cos/sin/tan,
-x**3) stays in numpy calls, so the numbers are the former vectorised form's to the last bit.
+Python (numpy's per-call overhead would dominate small arrays); the host's pose solve is compiled
+(receiver.locate._vehicle_pose, its one implementation; docs/kernels.md).
 """
 
 from __future__ import annotations
@@ -125,9 +125,9 @@ from receiver.locate.vehicle_assoc import MapAssociation
 from receiver.locate.vehicle_cars import CarsAhead, ZONES, FV_CONFIRM_S, FV_SL_GATE_DEG  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_host import (ACCEL_PSD, GATE_CHI2, INIT_OMEGA_SIGMA_RPS, INIT_SPEED_SIGMA_MPS,
                                           MAX_REJECTS, MIN_LIGHTS, NO_LIGHT, NOT_DECODED, ONE_LIGHT,  # noqa: F401
-                                          POSE_TRACK_ITER, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
-                                          _with_attitude_prior, eq44_47)  # noqa: F401 (re-exported)
-from receiver.locate.vehicle_ranging import (DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
+                                          MAX_COAST_S, POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
+                                          eq44_47)  # noqa: F401 (re-exported)
+from receiver.locate.vehicle_ranging import (CENTROID_SIGMA_PX, DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
                                              _r, _rays, _sides, fv_measured, level_rotation, nominal_rotation)
 from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
 
@@ -169,8 +169,8 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         self.s = settings
         self.focal = camera.focal_px
         # Per-emitter centroid sigma whose sqrt(2) multiple is a head's separation sigma
-        # (`SL_SEPARATION_SIGMA_PX` with the two centroids' own `centroid_sigma_px`).
-        self._sl_csig = math.sqrt(settings.centroid_sigma_px ** 2 + 0.5 * SL_SEPARATION_SIGMA_PX ** 2)
+        # (`SL_SEPARATION_SIGMA_PX` with the two centroids' own `CENTROID_SIGMA_PX`).
+        self._sl_csig = math.sqrt(CENTROID_SIGMA_PX ** 2 + 0.5 * SL_SEPARATION_SIGMA_PX ** 2)
         self.R_nominal = nominal_rotation(settings)
         self._up = np.ascontiguousarray(self.R_nominal[:, 2])      # world up seen by the nominal camera
         self._W: np.ndarray | None = None                          # the pose's position-prior whitening
@@ -179,7 +179,7 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                              init_speed_sigma=INIT_SPEED_SIGMA_MPS,
                              init_omega_sigma=INIT_OMEGA_SIGMA_RPS,
                              gate_chi2=GATE_CHI2, max_rejects=MAX_REJECTS,
-                             max_coast_s=settings.max_coast_s)
+                             max_coast_s=MAX_COAST_S)
         self.R_last: np.ndarray | None = None     # last solved camera orientation
         self.z_last = settings.camera_height_m    # ... and height (m)
         self._tilt: tuple | None = None            # ... its pitch and roll (deg; `R_tilt`): the mounting, kept
@@ -228,7 +228,6 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         heads = [c["head"] if c["em"] is not None else np.asarray(c["xyz"], float) for c in self._sl.values()
                  if c["em"] is not None or c["xyz"] is not None]
         self._sl_heads = np.array(heads, float).reshape(-1, 3)
-        self._heads_t = {i: c["head_t"] for i, c in self._sl.items() if c["em"] is not None}    # `_pose_ranges`
         # The heads of the lights with mapped emitters, their IDs and baselines (`_associate`).
         em_ids = [i for i, c in self._sl.items() if c["em"] is not None]
         self._em_heads = (em_ids, np.array([self._sl[i]["head"] for i in em_ids], float).reshape(-1, 3),
@@ -343,6 +342,8 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                 if solved is not None and R_prior is None and self.off_road(
                         yaw, self._sl[pairs[res["idx"][sl_k[0]]].led_id]["head"]):
                     self.hv_reason = "street-light pose solve failed (its heading is off the road)"
+                elif solved is not None and R_prior is None and not self._reprojects(pairs, res, sl_k, R, C):
+                    self.hv_reason = REPROJ_FAILED
                 elif solved is not None:
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
                                heads=[(pairs[res["idx"][k]].key, self._sl[pairs[res["idx"][k]].led_id]["head"])

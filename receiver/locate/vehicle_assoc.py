@@ -9,11 +9,10 @@ import math
 import cv2
 import numpy as np
 
-from receiver.core.native import load
+from receiver.locate.vehicle_host import PITCH_SIGMA_DEG, YAW_SHAKE_SIGMA_DEG
+from receiver.locate.vehicle_ranging import CENTROID_SIGMA_PX
 
 
-# Compiled map-aided association (`MapAssociation._associate`); None: its numpy form.
-_ka = load("receiver.locate._vehicle_step")
 # Model constants of the association, unit and why.
 ASSOC_MAX_STD_M = 1.0           # m, undecoded pairs are matched to mapped heads only while the filter's 2D std is at most this
 ASSOC_GATE_CHI2 = 9.21          # ... Mahalanobis^2 gate of a pair's midpoint to a projected head (chi-square 2 dof, 99 %)
@@ -35,7 +34,6 @@ class MapAssociation:
         Mahalanobis^2 to its midpoint is within `ASSOC_GATE_CHI2`, when no other head is in
         that gate, no other pair is in the head's, and its separation is within
         `ASSOC_SEP_TOL` of the head's predicted one (f B / distance). Ambiguity: no match."""
-        s = self.s
         cand = [i for i, p in enumerate(pairs) if p.led_id is None and p.both_visible
                 and p.a_seen is not None and p.b_seen is not None
                 and max(int(p.a_seen[2]), int(p.b_seen[2])) <= ASSOC_MAX_AGE]
@@ -47,18 +45,13 @@ class MapAssociation:
             return {}
         decoded = {p.led_id for p in pairs if p.led_id is not None}
         ids, H, Bl = self._em_heads
-        if _ka is not None:
-            return self._associate_native(pairs, cand, st, Pxy, decoded, R_prior)
         keep = [i not in decoded for i in ids]
         if not all(keep):
             ids, H, Bl = [i for i, k in zip(ids, keep) if k], H[keep], Bl[keep]
         if not ids:
             return {}
-        dpsi = float(st[2]) - float(self.kf.s[2])          # heading change since the last update
-        c, sn = math.cos(dpsi), math.sin(dpsi)
-        R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
-        C = np.array([float(st[0]), float(st[1]), self.z_last])
-        V = H - C
+        R, C = self._prior_camera(st, R_prior)
+        V = H - np.array(C)
         X = V @ R.T
         ok = X[:, 2] > 1.0
         if not np.any(ok):
@@ -70,8 +63,8 @@ class MapAssociation:
         dX = -R[:, :2]                                       # (3, 2)
         J = (dX[None, :2, :] - u[:, :, None] * dX[None, 2:3, :]) / z[:, None, None]     # (n, 2, 2)
         cov = J @ Pxy @ np.transpose(J, (0, 2, 1))
-        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
-        csig = (s.centroid_sigma_px / self.focal) ** 2
+        ang = math.radians(YAW_SHAKE_SIGMA_DEG) ** 2 + math.radians(PITCH_SIGMA_DEG) ** 2
+        csig = (CENTROID_SIGMA_PX / self.focal) ** 2
         cov = cov + np.eye(2) * (ang + csig)
         inv = np.linalg.inv(cov)
         sep_pred = self.focal * Bl / np.sqrt(np.sum(V * V, axis=1))
@@ -105,23 +98,3 @@ class MapAssociation:
         c, sn = math.cos(dpsi), math.sin(dpsi)
         R = R_prior @ np.array([[c, sn, 0.0], [-sn, c, 0.0], [0.0, 0.0, 1.0]])    # turned by dpsi about z
         return R, (float(st[0]), float(st[1]), self.z_last)
-
-    def _associate_native(self, pairs, cand, st, Pxy, decoded, R_prior) -> dict:
-        """`_associate` after its early checks, by the compiled kernel
-        (receiver.locate._vehicle_step.associate): one call for every head and candidate."""
-        s = self.s
-        ids, H, Bl = self._em_heads
-        use = bytes([i not in decoded for i in ids])
-        if not any(use):
-            return {}
-        R, (cx, cy, cz) = self._prior_camera(st, R_prior)
-        ang = math.radians(s.yaw_shake_sigma_deg) ** 2 + math.radians(s.pitch_sigma_deg) ** 2
-        csig = (s.centroid_sigma_px / self.focal) ** 2
-        und = self._undistorted_mids(pairs, cand)
-        sep = np.array([float(pairs[i].separation_px) for i in cand])
-        hit = np.empty(len(cand), np.int_)
-        if not _ka.associate(H, Bl, use, np.ascontiguousarray(R), cx, cy, cz, np.ascontiguousarray(Pxy),
-                             ang + csig, float(self.focal), np.ascontiguousarray(und, float), sep,
-                             float(ASSOC_GATE_CHI2), float(ASSOC_SEP_TOL), hit):
-            return {}
-        return {i: ids[h] for i, h in zip(cand, hit.tolist()) if h >= 0}

@@ -12,10 +12,12 @@ import numpy as np
 
 from receiver.core.records import PairObservation
 from receiver.locate.road_kalman import RangeKalman
-from receiver.locate.vehicle_ranging import SATURATED_AREA_SPAN, _kr, _r, _rays, fv_measured
+from receiver.locate.vehicle_ranging import SATURATED_AREA_SPAN, _r, _rays, fv_measured
 
 # Model constants of the cars ahead (what the model assumes, not what a user sets), unit and why.
 FV_ACCEL_PSD = 4.0              # m^2/s^3, relative acceleration of a car ahead
+FV_MIN_HEIGHT_M = 0.0           # m, an undecoded pair is taken for taillights only this high or higher (the road)
+FV_DROP_S = 1.0                 # s, a car unseen this long is forgotten
 FV_RATE_SIGMA_MPS = 10.0        # m/s, initial range-rate 1-sigma
 FV_CONFIRM_S = 0.6              # s, an undecoded pair ranged once and not again within this is forgotten (no car's taillights)
 FV_GATE_CHI2 = 9.0              # range innovation gate of a car's track (3 sigma)
@@ -141,7 +143,7 @@ class CarsAhead:
                         # Height window only once the camera's tilt is known (the nominal tilt
                         # may be off by degrees: metres of height at 30 m).
                         z = s.camera_height_m + d * lev[2]
-                        if not s.fv_min_height_m <= z <= s.fv_max_height_m:
+                        if not FV_MIN_HEIGHT_M <= z <= s.fv_max_height_m:
                             not_fv.add(i)
                             continue
                     m = fv_measured(p)[0]
@@ -204,7 +206,7 @@ class CarsAhead:
                         "x": _r(x), "y": _r(y), "std_m": _r(std), "rel_speed_mps": _r(rate, 3),
                         "ttc_s": _r(ttc, 3), "zone": zone, "road_x": _r(road_x), "road_y": _r(road_y),
                         "coasting": meas is None})
-        for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > s.fv_drop_s]:
+        for key in [k for k, tr in self.fv_tracks.items() if k not in seen and t_s - tr["kf"].t_meas > FV_DROP_S]:
             del self.fv_tracks[key]
         return self._dedupe_fv(out), not_fv, tracked
 
@@ -262,9 +264,6 @@ class CarsAhead:
         if not len(P):
             return False
         g2 = math.tan(math.radians(FV_SL_GATE_DEG)) ** 2
-        if _kr is not None and P.flags.c_contiguous:
-            (ax, ay), (bx, by) = ua.tolist(), ub.tolist()
-            return _kr.near_any(P, ax, ay, bx, by, g2)
         for u in (ua, ub):
             d = P - u
             if float(np.min(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])) < g2:

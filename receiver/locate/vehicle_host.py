@@ -10,18 +10,21 @@ import math
 import cv2
 import numpy as np
 
-from receiver.core.native import load
-from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at, lm_iterate
-from receiver.locate.pose import _joint_fun, rotation_to_ypr_deg, ypr_to_rotation
+from receiver.locate import _vehicle_pose as _k
+from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at
+from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.road_kalman import wrap_pi
-from receiver.locate.settings import VehicleSettings
 
-from receiver.locate.vehicle_ranging import NAN, ORIENT_SIGMA_PRIOR_DEG, SL_SEPARATION_SIGMA_PX, SQRT2, _kr, _r, _rays
+from receiver.locate.vehicle_ranging import (CENTROID_SIGMA_PX, NAN, ORIENT_SIGMA_PRIOR_DEG, SL_SEPARATION_SIGMA_PX,
+                                             SQRT2, _r, _rays)
 
-# Compiled host-pose solve (`_solve_native`); None: the numpy path (`_solve_pose`).
-_k = load("receiver.locate._vehicle_pose")
 # Model constants of host placement (what the model assumes, not what a user sets), unit and why.
 CAMERA_HEIGHT_SIGMA_M = 0.3     # m, the camera height prior's 1-sigma (load, suspension, mount)
+YAW_SHAKE_SIGMA_DEG = 0.3       # deg, camera yaw about the host heading (mount, shake ~0.3 deg rms)
+PITCH_SIGMA_DEG = 0.5           # deg, camera pitch about the last solved one (shake, braking)
+ROLL_SIGMA_DEG = 1.0            # deg, camera roll about 0 (mount, body roll)
+ROAD_HEADING_SIGMA_DEG = 3.0    # deg, host heading about the map's road direction (lane changes)
+MAX_COAST_S = 2.0               # s, the host track is forgotten after this long without a fix
 TILT_SIGMA_DEG = 10.0           # deg, weak tilt prior of the pose solve (matters with one light only)
 MIN_LIGHTS = 2                  # decoded heads a full pose solve needs (one: `_single_fix`, `_single_observation`)
 POSE_F_SCALE = 3.0              # sigmas, the soft-L1 loss's knee
@@ -51,59 +54,23 @@ ROAD_HEADS = 6
 # deg, a cold pose solve whose heading is farther than this from the map's road line near its
 # heads is a wrong one (heads confused or a degenerate geometry): the host drives along the road.
 ROAD_OFF_MAX_DEG = 45.0
+# A cold pose solve (no road filter yet) is a fix only if it puts every decoded head's midpoint
+# where the image shows it (`_reprojects`): Mahalanobis^2 per head within this (chi-square 2 dof,
+# 99.9 %). Ranges alone fit the camera mirrored across the heads' line as well as the true one
+# (thesis eqs. 44-47's two sides); the robust loss can settle there with the angles as outliers.
+REPROJ_GATE_CHI2 = 13.8
 # Why the host is unplaced, by what the frame holds (`VehicleLocator.hv_reason`).
 NO_LIGHT = "no light in view"
 NOT_DECODED = "lights in view, not decoded yet"
 ONE_LIGHT = "one street light decoded, waiting for a second"
-
-
-def _split_pairs(fun, n_pairs: int, sep_gain: float):
-    """The joint residuals `fun` (receiver.locate.pose._joint_fun, the angle rows first: per
-    point x, y; points a, b of each pair in turn) with each pair's four angle rows turned into
-    its midpoint (x, y; weight unchanged: an orthonormal turn) and its centroid difference
-    (x, y) scaled by `sep_gain` (< 1: the separation of a head's centroids is far less sure
-    than their midpoint, SL_SEPARATION_SIGMA_PX). Same interface: fun(p),
-    fun.jac(p), fun.fun_jac(p)."""
-    m = 4 * n_pairs
-    h = 1.0 / SQRT2
-    T = np.array([[h, 0, h, 0], [0, h, 0, h], [-h * sep_gain, 0, h * sep_gain, 0], [0, -h * sep_gain, 0, h * sep_gain]])
-
-    def turn(a):
-        head = a[:m].reshape(n_pairs, 4, -1)
-        out = a.copy()
-        out[:m] = np.einsum("ij,kj...->ki...", T, head).reshape(out[:m].shape)
-        return out
-
-    def f(p):
-        return turn(fun(p))
-
-    def jac(p):
-        return turn(fun.jac(p))
-
-    def fun_jac(p):
-        r, J = fun.fun_jac(p)
-        return turn(r), turn(J)
-
-    f.jac, f.fun_jac = jac, fun_jac
-    return f
-
-
-def _fix_covariance(r: np.ndarray, J: np.ndarray) -> np.ndarray:
-    """(6, 6) covariance of a pose solution from its whitened residuals and Jacobian
-    (receiver.locate.lsq.covariance_at; compiled: by Cholesky when J' J is positive definite)."""
-    if _k is not None:
-        out = np.empty((6, 6))
-        if _k.covariance(r, J, out) == 0:
-            return out
-    with np.errstate(over="ignore", invalid="ignore"):
-        return covariance_at(r, J, J.shape[1])[0]
+REPROJ_FAILED = "street-light pose solve failed (it does not reproject the decoded heads)"
 
 
 _W_CACHE: dict = {}
 
 
 def _prior_whitening(cov: np.ndarray) -> np.ndarray:
-    """W with W^T W = cov^-1 (receiver.locate.pose._joint_fun's), kept per covariance."""
+    """W with W^T W = cov^-1, kept per covariance."""
     key = cov.tobytes()
     W = _W_CACHE.get(key)
     if W is None:
@@ -111,13 +78,21 @@ def _prior_whitening(cov: np.ndarray) -> np.ndarray:
     return W
 
 
-def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, attitude, p0,
-                  max_iter, s: VehicleSettings):
-    """The compiled form (receiver.locate._vehicle_pose) of `_solve_pose`'s soft-L1 solve:
-    `_split_pairs(_joint_fun(...))` with `_with_attitude_prior`'s rows, iterated as
-    `lm_iterate` with the solve's stopping rule (W: the position prior's whitening,
-    `_prior_whitening`), and `_pose_result`'s checks. Returns (x, r, J, R, cov6, status) at the
-    solution (status: `receiver.locate._vehicle_pose.solve_pose`'s, 0 = a fix)."""
+def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep_gain, attitude, p0, max_iter):
+    """The host pose by the compiled soft-L1 Levenberg-Marquardt (receiver.locate._vehicle_pose,
+    whose module doc lists the residual rows): the angles of the M points L (M, 3) seen at uv
+    (M, 2, normalized; each of the first `n_pairs` pairs as its midpoint and its centroid
+    difference times `sep_gain`), the finite ranges d (sigma sd), the tilt prior (world up
+    `up`, sigma `up_sigma`), the position prior C_prior whitened by W (`_prior_whitening`) and
+    `attitude`'s rows: {"yaw"|"pitch"|"roll": (rad, sigma rad), "mid_range": (M (3,), D m,
+    sigma m)}. With a single street light the image fixes the camera on a circle around the
+    head: the heading prior picks the point (lateral sigma ~ range x sigma), the roll and pitch
+    priors keep the two emitters' slant from turning the camera, and the head's midpoint range
+    stands in for its two emitters' own (noisy) area ranges, whose difference would turn the
+    camera (the bundled recording: yaw 3-5 deg off). From p0 (Rodrigues vector, C) for at most
+    `max_iter` steps, stopping once a step turns the camera by less than `POSE_ROT_TOL_RAD` and
+    moves it by less than `POSE_POS_TOL_M`. Returns (x, r, J, R, cov6, status) at the solution
+    (status: `solve_pose`'s; 0 = a fix)."""
     att = np.zeros((0, 8))
     if attitude:
         rows = []
@@ -145,63 +120,6 @@ def _solve_native(L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W, n_pairs, sep
 def camera_yaw(R_cw: np.ndarray) -> float:
     """Azimuth (rad, counter-clockwise from world +x) of the optical axis (R_cw's third row)."""
     return math.atan2(float(R_cw[2, 1]), float(R_cw[2, 0]))
-
-
-def _with_attitude_prior(fun, yaw=None, pitch=None, roll=None, mid_range=None):
-    """The residuals `fun` (pose p = Rodrigues vector, C) with a row per given prior, each
-    (value rad, sigma rad): the optical axis's azimuth (`camera_yaw`; wrapped), its elevation
-    asin(R[2, 2]) (pitch, up positive) and the roll atan2(-R[0, 2], -R[1, 2]) (the angles of
-    receiver.locate.pose.ypr_to_rotation). With a single street light the image fixes the camera
-    on a circle around the head: the heading prior picks the point (lateral sigma ~ range x
-    sigma), the roll and pitch priors keep the two emitters' slant from turning the camera.
-    Jacobians from cv2.Rodrigues' derivative of R (its 3x9, row-major elements of R).
-    `mid_range`: (M (3,), D m, sigma m), one more row (|M - C| - D) / sigma: a single head's
-    range to its midpoint, in place of its two emitters' own (noisy) area ranges, whose
-    difference would turn the camera (the bundled recording: yaw 3-5 deg off)."""
-    rows = [(k, v) for k, v in (("yaw", yaw), ("pitch", pitch), ("roll", roll), ("range", mid_range))
-            if v is not None]
-
-    def extra(p):
-        R, dR = cv2.Rodrigues(np.asarray(p[:3], float).reshape(3, 1))
-        r = np.empty(len(rows))
-        J = np.zeros((len(rows), len(p)))
-        for i, (kind, (v0, *sig)) in enumerate(rows):
-            sig = sig[0] if len(sig) == 1 else sig
-            if kind == "yaw":
-                a, b = float(R[2, 0]), float(R[2, 1])
-                n2 = max(a * a + b * b, 1e-12)
-                r[i] = wrap_pi(math.atan2(b, a) - v0) / sig
-                J[i, :3] = (a * dR[:, 7] - b * dR[:, 6]) / n2 / sig
-            elif kind == "range":
-                M, D, sig_d = v0, sig[0], sig[1]
-                Vm = np.asarray(M, float) - p[3:]
-                dm = math.sqrt(float(Vm @ Vm))
-                r[i] = (dm - D) / sig_d
-                J[i, 3:] = -Vm / max(dm, 1e-9) / sig_d
-            elif kind == "pitch":
-                z = min(max(float(R[2, 2]), -1.0 + 1e-12), 1.0 - 1e-12)
-                r[i] = (math.asin(z) - v0) / sig
-                J[i, :3] = dR[:, 8] / math.sqrt(1.0 - z * z) / sig
-            else:
-                a, b = -float(R[0, 2]), -float(R[1, 2])
-                n2 = max(a * a + b * b, 1e-12)
-                r[i] = wrap_pi(math.atan2(a, b) - v0) / sig
-                J[i, :3] = (b * -dR[:, 2] - a * -dR[:, 5]) / n2 / sig
-        return r, J
-
-    def f(p):
-        return np.append(fun(p), extra(p)[0])
-
-    def jac(p):
-        return np.vstack([fun.jac(p), extra(p)[1]])
-
-    def fun_jac(p):
-        r, J = fun.fun_jac(p)
-        r1, j1 = extra(p)
-        return np.append(r, r1), np.vstack([J, j1])
-
-    f.jac, f.fun_jac = jac, fun_jac
-    return f
 
 
 def eq44_47(D1: float, D2: float, sl1: np.ndarray, sl2: np.ndarray, cam_height: float,
@@ -252,56 +170,10 @@ class HostPlacement:
             np.array([C[0], C[1], self.s.camera_height_m])
 
     def _solve_pose(self, pairs, res, sl_k, R0, C0, max_iter=None, attitude=None, emitter_ranges=True):
-        """Robust joint solve over the SL emitters (module doc). Returns (R, C, cov3) or None.
-        `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad)} priors, residuals of their own
-        (`_with_attitude_prior`; the single-light solve, whose yaw the image leaves free)."""
-        if _k is not None:
-            return self._solve_pose_native(pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges)
-        Ls, uvs, ds, sds = [], [], [], []
-        flip = res["flip"]
-        for k in sl_k:
-            c = self._sl[pairs[res["idx"][k]].led_id]
-            em = c["em"]
-            ea, eb = (em[1], em[0]) if flip[k] else (em[0], em[1])
-            Ls += [ea, eb]
-            uvs += [res["ua"][k], res["ub"][k]]
-            ds += [res["d_a"][k], res["d_b"][k]]
-            sds += [res["s_a"][k], res["s_b"][k]]
-        L = np.array(Ls)
-        uv = np.array(uvs)
-        d = np.array(ds)
-        sd = np.array(sds)
-        bad = ~(np.isfinite(d) & np.isfinite(sd) & (sd > 0)) | (not emitter_ranges)
-        d[bad] = np.nan
-        sd[bad] = 1.0
-        sigma_uv = self.s.centroid_sigma_px / self.focal
-        hs = CAMERA_HEIGHT_SIGMA_M
-        C_prior = np.array([C0[0], C0[1], self.s.camera_height_m])
-        cov = np.diag([1e8, 1e8, hs * hs])
-        up = self.R_nominal[:, 2]
-        rvec, _ = cv2.Rodrigues(np.asarray(R0, float))
-        p0 = np.concatenate([rvec.ravel(), C0])
-        n_iter = POSE_MAX_ITER if max_iter is None else max_iter
-        fun = _split_pairs(_joint_fun(L, uv, sigma_uv, d, sd, up, math.radians(TILT_SIGMA_DEG), C_prior, cov),
-                           len(sl_k), self._sep_gain)
-        if attitude:
-            fun = _with_attitude_prior(fun, **attitude)
-        rot_tol, pos_tol = POSE_ROT_TOL_RAD, POSE_POS_TOL_M
-
-        def done(dp, q, c, c_new):
-            # Converged once a step moves the camera by less than the output's resolution
-            # (a warm start from the road filter's prediction: 1-3 steps).
-            return (float(np.max(np.abs(dp[:3]))) <= rot_tol and float(np.max(np.abs(dp[3:]))) <= pos_tol) \
-                or c - c_new <= LM_FTOL * c
-
-        # Absurd ranges may overflow the whitened residuals: no fix then (below), no warning.
-        with np.errstate(over="ignore", invalid="ignore"):
-            x, _, r, J = lm_iterate(fun.fun_jac, p0, done, loss="soft_l1", f_scale=POSE_F_SCALE, max_iter=n_iter)
-        return self._pose_result(x, r, J, L)
-
-    def _solve_pose_native(self, pairs, res, sl_k, R0, C0, max_iter, attitude, emitter_ranges):
-        """`_solve_pose` by the compiled solve (`_solve_native`): the same inputs, gathered as
-        plain floats."""
+        """Robust joint solve over the SL emitters (module doc; `_solve_native`) from (R0, C0).
+        Returns (R, C, cov3) or None. `attitude`: {"yaw"|"pitch"|"roll": (rad, sigma rad),
+        "mid_range": (M, D, sigma)} priors, rows of their own (the single-light solve, whose yaw
+        the image leaves free); `emitter_ranges` False: no emitter range rows."""
         idx, flip, d_a, d_b, s_a, s_b = res["idx"], res["flip"], res["d_a"], res["d_b"], res["s_a"], res["s_b"]
         Lf, ds, sds = [], [], []
         fin = math.isfinite
@@ -328,31 +200,40 @@ class HostPlacement:
         if self._W is None:
             hs = CAMERA_HEIGHT_SIGMA_M
             self._W = _prior_whitening(np.diag([1e8, 1e8, hs * hs]))
-        x, r, J, R, cov6, status = _solve_native(L, uv, s.centroid_sigma_px / self.focal, np.array(ds), np.array(sds),
+        x, r, J, R, cov6, status = _solve_native(L, uv, CENTROID_SIGMA_PX / self.focal, np.array(ds), np.array(sds),
                                                  self._up, math.radians(TILT_SIGMA_DEG), C_prior, self._W, m,
-                                                 self._sep_gain, attitude, p0, n_iter, s)
+                                                 self._sep_gain, attitude, p0, n_iter)
         if status == 3:
-            return self._pose_result(x, r, J, L)     # J' J not positive definite: the pinv decides
+            # J' J not positive definite: the covariance by the pseudo-inverse decides.
+            with np.errstate(over="ignore", invalid="ignore"):
+                cov = covariance_at(r, J, J.shape[1])[0][3:5, 3:5]
+            if not np.all(np.isfinite(cov)):
+                return None     # residuals overflowed (absurd centroids): no fix, not an infinite sigma
+            return cv2.Rodrigues(x[:3].reshape(3, 1))[0], x[3:].copy(), cov
         if status:
             return None
         self._rvec_of = (R, x[:3].copy())
         return R, x[3:].copy(), cov6[3:5, 3:5]
 
-    @staticmethod
-    def _pose_result(x, r, J, L):
-        """(R, C, cov3) of a solved pose x (Rodrigues vector, C) with its final residuals r and
-        Jacobian J, or None (not finite, the camera above a head, an unusable covariance)."""
-        if not np.all(np.isfinite(x)):
-            return None
-        R, _ = cv2.Rodrigues(x[:3].reshape(3, 1))
-        C = x[3:].copy()
-        if C[2] >= float(L[:, 2].min()):
-            return None
-        # Covariance from the final residuals and Jacobian (not evaluated again).
-        cov = _fix_covariance(r, J)[3:5, 3:5]
-        if not np.all(np.isfinite(cov)):
-            return None         # residuals overflowed (absurd centroids): no fix, not an infinite sigma
-        return R, C, cov
+    def _reprojects(self, pairs, res, sl_k, R: np.ndarray, C: np.ndarray) -> bool:
+        """Whether the camera (R_cw, C) puts each decoded head k of `sl_k` where it is seen: the
+        mapped head (its emitters' mean) projected against the measured midpoint of its two
+        emitters (normalized, undistorted), within their uncertainty: the midpoint's
+        (`CENTROID_SIGMA_PX` / sqrt 2 per axis) and the head's model error `FIX_FLOOR_M` seen
+        at its distance. Mahalanobis^2 per head at most `REPROJ_GATE_CHI2`; a head behind the
+        camera fails."""
+        csig2 = 0.5 * (CENTROID_SIGMA_PX / self.focal) ** 2
+        for k in sl_k:
+            X = R @ (self._sl[pairs[res["idx"][k]].led_id]["head"] - C)
+            z = float(X[2])
+            if not z > 0.0:
+                return False
+            ex = float(X[0]) / z - 0.5 * float(res["ua"][k][0] + res["ub"][k][0])
+            ey = float(X[1]) / z - 0.5 * float(res["ua"][k][1] + res["ub"][k][1])
+            sig2 = csig2 + FIX_FLOOR_M ** 2 / float(X @ X)
+            if not (ex * ex + ey * ey) / sig2 <= REPROJ_GATE_CHI2:
+                return False
+        return True
 
     def _road_heading(self, head: np.ndarray) -> float | None:
         """The map's road direction (rad, counter-clockwise from +x) near a street-light head,
@@ -397,17 +278,16 @@ class HostPlacement:
         (m), predicted from the filter's (x, y, heading) with the camera at the last solved
         height and pitch (`pitch_ref` when a full pose gave one), roll 0 and yaw = heading. What
         those assumptions leave out is folded into the noise through the measurement's
-        Jacobian on each: the camera's yaw about the heading (`yaw_shake_sigma_deg`), pitch
-        (`pitch_sigma_deg`, else `ORIENT_SIGMA_PRIOR_DEG`), roll (`roll_sigma_deg`) and height
+        Jacobian on each: the camera's yaw about the heading (`YAW_SHAKE_SIGMA_DEG`), pitch
+        (`PITCH_SIGMA_DEG`, else `ORIENT_SIGMA_PRIOR_DEG`), roll (`ROLL_SIGMA_DEG`) and height
         (`CAMERA_HEIGHT_SIGMA_M`); the midpoint carries the centroids' sigma
-        (`centroid_sigma_px` / sqrt 2 per axis). A pose fix would need the heading prior from
+        (`CENTROID_SIGMA_PX` / sqrt 2 per axis). A pose fix would need the heading prior from
         this same filter, and its position fed back would count that prior twice. Returns the
         fix record for `_update_hv` ("sl-1", n 1)."""
-        s = self.s
         head = self._sl[pairs[res["idx"][k]].led_id]["head"]
         z0 = self.z_last
         pitch0 = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
-        psig = math.radians(s.pitch_sigma_deg if self.pitch_ref is not None else ORIENT_SIGMA_PRIOR_DEG)
+        psig = math.radians(PITCH_SIGMA_DEG if self.pitch_ref is not None else ORIENT_SIGMA_PRIOR_DEG)
 
         rots = {}       # the rotations asked so far: 7 distinct ones among the ~16 calls of a frame
 
@@ -432,11 +312,11 @@ class HostPlacement:
         x, y, psi = float(st[0]), float(st[1]), float(st[2])
         um = 0.5 * (np.asarray(res["ua"][k]) + np.asarray(res["ub"][k]))
         z = np.array([um[0], um[1], res["fused"][k]])
-        sm = s.centroid_sigma_px / SQRT2 / self.focal
+        sm = CENTROID_SIGMA_PX / SQRT2 / self.focal
         d = float(res["fused"][k])
         Rm = np.diag([sm * sm, sm * sm, res["fused_sigma"][k] ** 2 + (SL1_RANGE_FLOOR_REL * d) ** 2])
-        for j, (sig, e) in enumerate(((math.radians(s.yaw_shake_sigma_deg), 1e-5), (psig, 1e-5),
-                                      (math.radians(s.roll_sigma_deg), 1e-5), (CAMERA_HEIGHT_SIGMA_M, 1e-3))):
+        for j, (sig, e) in enumerate(((math.radians(YAW_SHAKE_SIGMA_DEG), 1e-5), (psig, 1e-5),
+                                      (math.radians(ROLL_SIGMA_DEG), 1e-5), (CAMERA_HEIGHT_SIGMA_M, 1e-3))):
             a = [0.0, 0.0, 0.0, 0.0]
             a[j] = e
             jp = g(x, y, psi, *a)
@@ -454,8 +334,8 @@ class HostPlacement:
         """One decoded street light's two emitters (4 image coordinates, their ranges) with the
         camera-height and tilt priors of `_solve_pose` and a heading prior: while the road
         filter runs, its predicted heading (sigma: its own and the camera's yaw shake,
-        `yaw_shake_sigma_deg`), else the map's road direction near the light
-        (`road_heading_sigma_deg`). Returns (fix | None, aligned, res); the fix's covariance is
+        `YAW_SHAKE_SIGMA_DEG`), else the map's road direction near the light
+        (`ROAD_HEADING_SIGMA_DEG`). Returns (fix | None, aligned, res); the fix's covariance is
         the solve's (lateral ~ range x heading sigma). Its yaw is the prior's echo, so the
         filter takes the position only (`fix["yaw_free"]`)."""
         s = self.s
@@ -463,7 +343,7 @@ class HostPlacement:
         if R_prior is not None:
             pred, P = self.kf.predict_at(t_s)
             yaw0 = float(pred[2])
-            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(s.yaw_shake_sigma_deg) ** 2)
+            ysig = math.sqrt(max(float(P[2, 2]), 0.0) + math.radians(YAW_SHAKE_SIGMA_DEG) ** 2)
             pitch = rotation_to_ypr_deg(R_prior)[1] if self.pitch_ref is None else math.degrees(self.pitch_ref)
             R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
             C0 = np.array([pred[0], pred[1], self.z_last])
@@ -472,7 +352,7 @@ class HostPlacement:
             if yaw0 is None:
                 self.hv_reason = f"{ONE_LIGHT} (the map gives no road direction near it)"
                 return None, aligned, res
-            ysig = math.radians(s.road_heading_sigma_deg)
+            ysig = math.radians(ROAD_HEADING_SIGMA_DEG)
             pitch = self.s.camera_pitch_deg if self.pitch_ref is None else math.degrees(self.pitch_ref)
             R0 = ypr_to_rotation(math.degrees(yaw0), pitch, 0.0)
             ray = _rays(0.5 * (res["ua"][k:k + 1] + res["ub"][k:k + 1]))[0]
@@ -483,15 +363,18 @@ class HostPlacement:
         if not math.isfinite(res["fused"][k]):
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
-        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(s.roll_sigma_deg)),
+        att = {"yaw": (yaw0, ysig), "roll": (0.0, math.radians(ROLL_SIGMA_DEG)),
                "mid_range": (head, float(res["fused"][k]), float(res["fused_sigma"][k]))}
         if self.pitch_ref is not None:
-            att["pitch"] = (self.pitch_ref, math.radians(s.pitch_sigma_deg))
+            att["pitch"] = (self.pitch_ref, math.radians(PITCH_SIGMA_DEG))
         solved = self._solve_pose(pairs, res, [k], R0, C0, attitude=att, emitter_ranges=False)
         if solved is None:
             self.hv_reason = "street-light pose solve failed"
             return None, aligned, res
         R, C, cov = solved
+        if R_prior is None and not self._reprojects(pairs, res, [k], R, C):
+            self.hv_reason = REPROJ_FAILED
+            return None, aligned, res
         if float(np.trace(cov)) > SL1_START_MAX_STD_M ** 2:
             # Too unsure to start the filter on (a far head, lateral ~ range x heading sigma):
             # the single-light observations that follow would be linearised metres off.
@@ -505,7 +388,7 @@ class HostPlacement:
     def _sep_gain(self) -> float:
         """Weight of a head's centroid difference relative to the centroids' own sigma:
         sqrt(2) sigma_c / sqrt(2 sigma_c^2 + sigma_sep^2) (`SL_SEPARATION_SIGMA_PX`)."""
-        c = self.s.centroid_sigma_px
+        c = CENTROID_SIGMA_PX
         return SQRT2 * c / math.sqrt(2 * c * c + SL_SEPARATION_SIGMA_PX ** 2)
 
     def _pose_ranges(self, pairs, ranges, fix):
@@ -514,9 +397,6 @@ class HostPlacement:
         sight). Far more exact than either image measurement of a small, foreshortened head."""
         (cx, cy, cz), ((c00, c01), (c10, c11)) = fix["pose"][0].tolist(), fix["pose"][1].tolist()
         hs = CAMERA_HEIGHT_SIGMA_M
-        if _kr is not None:
-            _kr.pose_ranges(pairs, self._heads_t, cx, cy, cz, c00, c01, c10, c11, hs, ranges)
-            return
         for i, p in enumerate(pairs):
             c = self._sl.get(p.led_id) if p.kind == "SL" or (p.led_id is not None and p.led_id <= 0x7F) else None
             if c is None or c["em"] is None:
@@ -568,7 +448,7 @@ class HostPlacement:
             if fix.get("yaw_free"):
                 # A single light's yaw is its heading prior's echo: the filter takes the position
                 # only; a filter started from it takes the prior's sigma.
-                psig = math.radians(s.road_heading_sigma_deg)
+                psig = math.radians(ROAD_HEADING_SIGMA_DEG)
             if not kf.started:
                 accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             else:

@@ -10,7 +10,6 @@ import math
 import cv2
 import numpy as np
 
-from receiver.core.native import load
 from receiver.core.records import PairObservation
 from receiver.io.camera import CameraModel
 from receiver.locate.pose import ypr_to_rotation
@@ -18,9 +17,8 @@ from receiver.locate.settings import VehicleSettings
 
 ESTIMATORS = ("eq18", "oblique", "baseline", "fused")
 DOWN = np.array([0.0, 0.0, -1.0])
-# Compiled per-pair ranging loop (`range_core`); None: its Python loop.
-_kr = load("receiver.locate._vehicle_range")
 # Model constants of ranging (what the model assumes, not what a user sets), unit and why.
+CENTROID_SIGMA_PX = 0.2         # px, 1-sigma of a street-light emitter's centroid (sub-pixel envelope)
 SL_SEPARATION_SIGMA_PX = 0.3    # px, a head's centroid difference: one half lit at a time, the other's centroid a frame or more old
 FV_CENTROID_SIGMA_PX = 0.2      # px, a taillight centroid measured this frame (`fv_measured`; separation error ~0.4 % of 44-125 px)
 FV_AREA_MODEL_REL = 0.05        # eq. 18 model error of a taillight's striped 10-50 px envelope cut by clock edges, relative
@@ -56,11 +54,6 @@ def _r(v, nd=4):
     return None if v is None else round(v, nd)
 
 
-_r_py = _r
-if _kr is not None:
-    _r = _kr.rnd            # noqa: F811 -- the same numbers, compiled (tests/engine/test_vehicle_native.py)
-
-
 def level_rotation(R_cw: np.ndarray) -> np.ndarray:
     """(3, 3) rotation turning camera-frame vectors into the camera's level frame (module doc):
     rows are the level axes (ahead, left, up) expressed in the camera frame."""
@@ -88,10 +81,6 @@ def _undistort(camera: CameraModel, a_px: np.ndarray, b_px: np.ndarray):
 
 
 def _rays(u: np.ndarray) -> np.ndarray:
-    if _kr is not None and u.ndim == 2 and u.shape[1] == 2:
-        out = np.empty((len(u), 3))
-        _kr.rays(np.ascontiguousarray(u, float), out)
-        return out
     v = np.empty((len(u), 3))
     v[:, :2] = u
     v[:, 2] = 1.0
@@ -157,7 +146,7 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     eta_a, eta_b (N,) px^2; area_m2 (N,); S1, S2 (N, 3) emitter side vectors and `circle` (N,)
     bool (`_area_range`); B_cam (N, 3) baseline a -> b (sign fixed here from the image);
     n_cam (N, 3) emitter normals; orient_sigma_rad, base_model_rel (N,); centroid_sigma_px,
-    area_model_rel: scalars or (N,) (default: the settings'). Returns a dict of length-N lists
+    area_model_rel: scalars or (N,) (default: `CENTROID_SIGMA_PX`, `AREA_MODEL_REL`). Returns a dict of length-N lists
     of floats (NaN where unavailable; `flip`: B reversed) and the unit rays `ra`, `rb` (N, 3).
     Scalar math per pair (a frame has 1-15 pairs: numpy's per-call overhead dominated the
     vectorised form, ~220 calls); the rays and cos(alpha)^3 stay vectorised (numpy's own
@@ -169,17 +158,13 @@ def range_core(ua, ub, ja, jb, eta_a, eta_b, area_m2, S1, S2, circle, B_cam, n_c
     cos3 = (r2[:, 2] ** 3).tolist()
     R2 = r2.tolist()
     amr = AREA_MODEL_REL if area_model_rel is None else area_model_rel
-    csig = s.centroid_sigma_px if centroid_sigma_px is None else centroid_sigma_px
+    csig = CENTROID_SIGMA_PX if centroid_sigma_px is None else centroid_sigma_px
     cols = [_floats(v, n) for v in (ja, jb, eta_a, eta_b, area_m2, orient_sigma_rad, base_model_rel, amr, csig,
                                     ua, ub, S1, S2, B_cam, n_cam)]
     cols += [circle.tolist() if isinstance(circle, np.ndarray) else list(circle), R2[:n], R2[n:], cos3[:n], cos3[n:]]
     off, esig, cons = s.edge_offset_px, EDGE_SIGMA_PX, CONSISTENCY_SIGMAS
     keys = ("eq18", "eq18_sigma", "oblique", "oblique_sigma", "baseline", "baseline_sigma", "fused", "fused_sigma",
             "d_a", "d_b", "s_a", "s_b", "flip", "base_fused_only", "area_clash")
-    if _kr is not None:
-        out = dict(zip(keys, _kr.range_rows(*cols, float(focal_px), float(off), float(esig), float(cons))))
-        out.update(ra=ra, rb=rb)
-        return out
     rows = []
     for (ja_i, jb_i, eta_a_i, eta_b_i, A, osig, bm, amr_i, csig_i, (uax, uay), (ubx, uby), S1i, S2i, (bx, by, bz),
          (nx, ny, nz), circ, (rax, ray, raz), (rbx, rby, rbz), cos3_a, cos3_b) in zip(*cols):

@@ -84,9 +84,9 @@ def _pair_xor(a, b, a_on, b_on, a_off=0.0, b_off=0.0):
 
 @pytest.fixture
 def stand_in(monkeypatch):
-    # the decoder the policy makes and the soft XOR the pipeline computes
+    # the decoder the policy makes and the soft XOR the pair decoding computes
     monkeypatch.setattr("receiver.decode.policy.S2pskDecoder", StandInDecoder)
-    monkeypatch.setattr("receiver.pipeline.pair_xor", _pair_xor)
+    monkeypatch.setattr("receiver.decode.pair_decoding.pair_xor", _pair_xor)
     StandInDecoder.instances = []
 
 

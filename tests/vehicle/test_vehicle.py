@@ -545,8 +545,15 @@ def test_a_pose_solve_with_an_infinite_covariance_is_no_fix(monkeypatch):
     R, C, psi = camera_pose(3.0)
     pairs = sl_pairs(lmap, R, C)
     assert VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs).vehicle["hv"] is not None
-    monkeypatch.setattr(vehicle_mod, "_fix_covariance", lambda r, J: np.full((J.shape[1], J.shape[1]), np.inf))
-    monkeypatch.setattr(vehicle_mod, "_k", None)       # the compiled solve checks its own (test_vehicle_native)
+    solve = vehicle_mod._solve_native
+
+    def rank_deficient(*a, **k):
+        # The kernel's status for J' J not positive definite: the pseudo-inverse decides.
+        x, r, J, R_, cov6, status = solve(*a, **k)
+        return x, r, J, R_, cov6, 3 if status == 0 else status
+
+    monkeypatch.setattr(vehicle_mod, "_solve_native", rank_deficient)
+    monkeypatch.setattr(vehicle_mod, "covariance_at", lambda r, J, n: (np.full((n, n), np.inf), None))
     loc = VehicleLocator(CAM, lmap, SETTINGS)
     res = loc.step(0.0, pairs)
     assert res.vehicle["hv"] is None and loc.hv_reason == "street-light pose solve failed"
@@ -742,3 +749,69 @@ def test_a_cold_pose_solve_heading_across_the_road_is_no_fix(monkeypatch):
     assert "off the road" in loc.hv_reason
     ok = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs)
     assert ok.vehicle["hv"] is not None and ok.vehicle["hv"]["method"] == "pose"
+
+
+def _one_side_scene():
+    """Two decoded heads on the road's left side only (the map's even heads) and the camera
+    that sees them; the camera mirrored across the heads' line sees them at the same ranges."""
+    lmap = make_map()
+    R, C, psi = camera_pose(20.0)
+    pairs = [p for p in sl_pairs(lmap, R, C, max_range=70.0) if p.led_id % 2 == 0][:2]
+    assert len(pairs) == 2
+    heads = [np.asarray(lmap.leds[p.led_id].emitters).mean(0) for p in pairs]
+    y_line = heads[0][1]
+    assert abs(heads[1][1] - y_line) < 1e-9
+    C_mirror = C.copy()
+    C_mirror[1] = 2 * y_line - C[1]
+    assert all(abs(np.linalg.norm(h - C) - np.linalg.norm(h - C_mirror)) < 1e-9 for h in heads)
+    return lmap, pairs, R, C, C_mirror
+
+
+def test_a_cold_two_light_solve_is_a_fix_only_where_it_reprojects_the_heads():
+    """Two heads on one side of the road: the camera mirrored across their line fits their
+    ranges exactly (thesis eqs. 44-47's other side) and sees them on the wrong side. The
+    reprojection check passes the true camera and fails the mirrored one."""
+    lmap, pairs, R, C, C_mirror = _one_side_scene()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    aligned, res = loc._range_pairs(pairs, R, True)
+    sl_k = [k for k, r in enumerate(res["roles"]) if r == "SL"]
+    assert len(sl_k) == 2
+    assert loc._reprojects(pairs, res, sl_k, R, C)
+    assert not loc._reprojects(pairs, res, sl_k, R, C_mirror)
+    # A camera 0.1 m off still reprojects (the heads' model error), 1 m off does not.
+    assert loc._reprojects(pairs, res, sl_k, R, C + np.array([0.0, 0.1, 0.0]))
+    assert not loc._reprojects(pairs, res, sl_k, R, C + np.array([0.0, 1.0, 0.0]))
+
+
+def test_a_cold_solve_converged_to_the_mirror_places_no_host(monkeypatch):
+    """The cold pose solve settling on the mirrored camera (what a robust loss may do with the
+    angles as outliers) is no fix, with its reason; the true solve places the host."""
+    lmap, pairs, R, C, C_mirror = _one_side_scene()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    solve = loc._solve_pose
+
+    def mirrored(*a, **k):
+        out = solve(*a, **k)
+        return None if out is None else (out[0], C_mirror.copy(), out[2])
+
+    monkeypatch.setattr(loc, "_solve_pose", mirrored)
+    res = loc.step(0.0, pairs)
+    assert res.vehicle is None or res.vehicle["hv"] is None
+    assert loc.hv_reason == V.REPROJ_FAILED
+    hv = VehicleLocator(CAM, lmap, SETTINGS).step(0.0, pairs).vehicle["hv"]
+    # Two heads on one line leave the camera's place along it to the priors: within its std.
+    assert hv is not None and math.hypot(hv["raw"]["x"] - C[0], hv["raw"]["y"] - C[1]) < hv["std_m"]
+
+
+def test_a_cold_solve_started_at_the_mirror_gives_the_truth_or_nothing(monkeypatch):
+    """Started from the mirrored camera, the cold two-light solve either finds the true camera
+    or places nothing: never the mirrored one."""
+    lmap, pairs, R, C, C_mirror = _one_side_scene()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    monkeypatch.setattr(loc, "_init_pose", lambda P_cam, L: (R, C_mirror.copy()))
+    res = loc.step(0.0, pairs)
+    hv = None if res.vehicle is None else res.vehicle["hv"]
+    if hv is None:
+        assert loc.hv_reason == V.REPROJ_FAILED
+    else:
+        assert math.hypot(hv["raw"]["x"] - C[0], hv["raw"]["y"] - C[1]) < hv["std_m"]

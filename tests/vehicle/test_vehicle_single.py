@@ -11,10 +11,7 @@ import numpy as np
 import pytest
 
 from tests.vehicle.test_vehicle import SETTINGS, camera_pose, make_map, sl_pairs
-from receiver.locate.vehicle import VehicleLocator, _with_attitude_prior
-from receiver.locate.pose import _joint_fun, ypr_to_rotation, rotation_to_ypr_deg
-
-import cv2
+from receiver.locate.vehicle import VehicleLocator
 
 
 def _drive(lmap, n_frames, speed=14.0, radius=None, shake_deg=0.15, px_sigma=0.2, seed=3, keep=1,
@@ -82,31 +79,6 @@ def test_a_wrong_range_is_gated_not_followed():
         hv = loc.step(k / 30.0, [bad]).vehicle["hv"]
         assert hv is not None and math.hypot(hv["x"] - C[0], hv["y"] - C[1]) < 0.5
         assert hv["method"] == "kalman-coast"
-
-
-def test_attitude_prior_jacobian_matches_finite_differences():
-    """`_with_attitude_prior`'s analytic rows (yaw, pitch, roll) against central differences."""
-    L = np.array([[30.0, 5.0, 7.0], [30.0, 5.5, 7.0]])
-    R = ypr_to_rotation(12.0, 7.0, 1.5)
-    C = np.array([1.0, -0.5, 1.2])
-    X = (L - C) @ R.T
-    uv = X[:, :2] / X[:, 2:]
-    fun = _joint_fun(L, uv, 1e-4, np.array([np.nan, np.nan]), np.ones(2))
-    f = _with_attitude_prior(fun, yaw=(0.1, 0.05), pitch=(0.12, 0.01), roll=(0.0, 0.02))
-    rvec, _ = cv2.Rodrigues(R)
-    p = np.concatenate([rvec.ravel() + [0.01, -0.02, 0.015], C])
-    J = f.jac(p)[-3:]
-    num = np.zeros_like(J)
-    for j in range(6):
-        d = np.zeros(6)
-        d[j] = 1e-6
-        num[:, j] = (f(p + d)[-3:] - f(p - d)[-3:]) / 2e-6
-    assert np.allclose(J, num, atol=1e-4 * np.abs(num).max())
-    Rp, _ = cv2.Rodrigues(p[:3])
-    yaw, pitch, roll = rotation_to_ypr_deg(Rp)
-    assert f(p)[-3] == pytest.approx((math.radians(yaw) - 0.1) / 0.05)
-    assert f(p)[-2] == pytest.approx((math.radians(pitch) - 0.12) / 0.01)
-    assert f(p)[-1] == pytest.approx(math.radians(roll) / 0.02)
 
 
 @pytest.mark.parametrize("radius", [None, 300.0])
