@@ -99,6 +99,10 @@ class FrameJitter:
             return None
         if len(vals) == 1:
             return vals[0]
+        if len(vals) == 2:  # (the groups below for two: both or a tie; the median is the mean)
+            a, b = vals
+            ok = abs(_wrap(b - a)) <= self.agree or abs(_wrap(a - b)) <= self.agree
+            return (a + b) / 2 if ok else None
         groups = [[v for v in vals if abs(_wrap(v - u)) <= self.agree] for u in vals]
         sizes = sorted((len(g) for g in groups), reverse=True)
         best = max(groups, key=len)
@@ -110,9 +114,10 @@ class FrameJitter:
 class _Piece:
     """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t; its (K, 54)
     correlations `corr` (computed once needed), their best within the wide and the narrow
-    window, and the placement its contribution to the likelihood table was made with."""
+    window, its latest placement, and the phase-table slice its term in the likelihood table
+    was made with."""
 
-    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used", "by_phase")
+    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used", "term", "by_phase")
 
     def __init__(self, x: np.ndarray, q: float, t: float):
         self.x, self.den, self.q, self.t, self.n = x, float(np.abs(x).sum()), q, t, x.size
@@ -120,18 +125,23 @@ class _Piece:
         # {narrow?: (K, 2 * 54 * PHASE_STEPS)}: each packet position's correlations repeated for
         # its PHASE_STEPS phases, twice round: any placement's (K, 54 * PHASE_STEPS) is a slice
         self.by_phase: dict = {}
-        self.used: tuple | None = None  # (placed q, narrow?) of the piece's term in ll
+        self.used: tuple | None = None  # (placed q, narrow?) of the latest decision
+        self.term: tuple | None = None  # (slice start, narrow?) of the piece's term in ll
 
 
 def _windowed(corr: np.ndarray, half: int, penalty: float) -> np.ndarray:
     """The best of `corr` within +-half positions of each (cyclically), `penalty` off per
-    position away: one max over a sliding window of corr with `half` columns of the other end
-    on each side."""
+    position away: the running maximum of the 2 half + 1 shifted copies of corr (with `half`
+    columns of the other end on each side), each less its penalty."""
     if half <= 0:
         return corr.copy()
-    ext = np.concatenate((corr[:, corr.shape[1] - half:], corr, corr[:, :half]), axis=1)
+    n = corr.shape[1]
+    ext = np.concatenate((corr[:, n - half:], corr, corr[:, :half]), axis=1)
     pens = np.array([penalty * abs(d) for d in range(-half, half + 1)], dtype=corr.dtype)
-    return np.maximum.reduce(sliding_window_view(ext, corr.shape[1], axis=1) - pens[None, :, None], axis=1)
+    out = ext[:, 0:n] - pens[0]
+    for i in range(1, 2 * half + 1):
+        np.maximum(out, ext[:, i:i + n] - pens[i], out=out)
+    return out
 
 
 class PieceAssembler:
@@ -196,8 +206,8 @@ class PieceAssembler:
         self.added += 1
         if len(self.pieces) >= self.history:
             old = self.pieces.popleft()
-            if old.used is not None:
-                self._term(old, *old.used, -1.0)
+            if old.term is not None:
+                self._term(old, *old.term, -1.0)
         self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t)))
 
     def _correlate(self, p: _Piece) -> None:
@@ -209,15 +219,20 @@ class PieceAssembler:
         p.wide = _windowed(corr, self.jitter_chips, self.shift_penalty)
         p.narrow = _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)
 
-    def _term(self, p: _Piece, qq: float, narrow: bool, sign: float) -> None:
-        """Add (sign +1) or take back (-1) a piece's term placed at qq: weight * best[:, s(phi)]
-        for every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`) is the
-        repeated table's slice from floor(PHASE_STEPS (qq + 1/2)) on."""
+    def _start(self, qq: float) -> int:
+        """The phase table's slice start of a piece placed at qq: weight * best[:, s(phi)] for
+        every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`), is the repeated
+        table's slice from floor(PHASE_STEPS (qq + 1/2)) on (placements with one start give
+        one term)."""
+        return int(math.floor(PHASE_STEPS * (qq + 0.5))) % self.phis.size
+
+    def _term(self, p: _Piece, m: int, narrow: bool, sign: float) -> None:
+        """Add (sign +1) or take back (-1) a piece's term: its slice from `m` (`_start`) of its
+        narrow or wide best correlations, repeated PHASE_STEPS times and twice round."""
         rep = p.by_phase.get(narrow)
         if rep is None:
             best = p.narrow if narrow else p.wide
             rep = p.by_phase[narrow] = np.tile(np.repeat(best, PHASE_STEPS, axis=1), 2)
-        m = int(math.floor(PHASE_STEPS * (qq + 0.5))) % self.phis.size
         self.ll += (sign * p.den) * rep[:, m:m + self.phis.size]
         self.total += sign * p.den
 
@@ -234,24 +249,31 @@ class PieceAssembler:
         for p in self.pieces:
             if p.corr is None:
                 self._correlate(p)
-            want = self._place(p)
-            timed += want[1]
-            if want != p.used:
-                if p.used is not None:
-                    self._term(p, *p.used, -1.0)
-                self._term(p, *want, 1.0)
-                p.used = want
+            p.used = qq, narrow = self._place(p)
+            timed += narrow
+            term = (self._start(qq), narrow)
+            if term != p.term:
+                if p.term is not None:
+                    self._term(p, *p.term, -1.0)
+                self._term(p, *term, 1.0)
+                p.term = term
         self.timed = timed
 
-    def _fits(self, c: int, ph: int):
-        """Per piece: (piece, placed q, packet position where it fits best in its window)."""
-        for p in self.pieces:
-            qq, narrow = p.used
-            s0 = int(self._slots(qq, ph))
-            half = min(1, self.jitter_chips) if narrow else self.jitter_chips
-            window = (s0 + np.arange(-half, half + 1)) % PACKET_LEN
-            # (the window's correlations are the penalised ones: the place the score used)
-            yield p, qq, int(window[int(np.argmax((p.narrow if narrow else p.wide)[c, window]))])
+    def _fits(self, c: int, ph: int) -> tuple[np.ndarray, np.ndarray]:
+        """(placed q, packet position where the piece fits best in its window) per piece, (P,)
+        each, under hypothesis (candidate c, phase index ph); the window's correlations are the
+        penalised ones (the place the score used)."""
+        J = self.jitter_chips
+        half = min(1, J)
+        pieces = self.pieces
+        qq = np.array([p.used[0] for p in pieces])
+        narrow = np.array([p.used[1] for p in pieces], dtype=bool)
+        offs = np.arange(-J, J + 1)
+        window = (self._slots(qq, ph)[:, None] + offs[None, :]) % PACKET_LEN  # (P, 2 J + 1)
+        vals = np.take_along_axis(np.stack([(p.narrow if p.used[1] else p.wide)[c] for p in pieces]),
+                                  window, axis=1)
+        vals[narrow[:, None] & (np.abs(offs) > half)[None, :]] = -np.inf  # narrow: +-1 chip only
+        return qq, window[np.arange(len(pieces)), np.argmax(vals, axis=1)]
 
     def decide(self, fixed: int | None = None) -> int | None:
         """The ID of the best (ID, phase) hypothesis when it passes the checks, else None.
@@ -281,7 +303,7 @@ class PieceAssembler:
             return None
         # the winner's pieces, each where it fits best in its window, must cover the packet
         seen = np.zeros(PACKET_LEN, bool)
-        for p, _, at in self._fits(int(c), int(ph)):
+        for p, at in zip(self.pieces, self._fits(int(c), int(ph))[1].tolist()):
             seen[(at + np.arange(p.n)) % PACKET_LEN] = True
         return int(self.ids[c]) if seen.all() else None
 
@@ -294,7 +316,8 @@ class PieceAssembler:
         if self.frame_jitter is None:
             return
         base = self.phis[ph]
-        phi = base + float(np.mean([_wrap(at - qq - base) for _, qq, at in self._fits(c, ph)]))
+        qq, at = self._fits(c, ph)
+        phi = base + float(np.mean(_wrap(at - qq - base)))
         J = self.jitter_chips
         pieces = list(self.pieces)
         # every piece's window about its timestamp's place under phase ph: (pieces, 2 J + 1)
