@@ -39,7 +39,7 @@ class OokSettings:
         proposed packet against a wrong assembly must reach confirm_min_llr [0.75]: a fitting
         frame adds log((1 - r) / (1 - w)), a frame fitting nowhere log(r / w), with r =
         confirm_misfit_right [0.2] the share of a phone's frames that misfit their own packet
-        (interior chips: 9-17 % on phone renders) and w = confirm_misfit_wrong [0.4] the share
+        (without the end chips: 4-17 % on phone renders) and w = confirm_misfit_wrong [0.4] the share
         that misfit a wrong assembly (the frames straddling its moved stretch's ends, 10-45 %
         of 12-16-chip frames): 3 fitting frames confirm, more than 29 % misfits never do.
         Seeded Monte Carlo (tests/decode/ook_mc.py, docs/ook-exposure.md).
