@@ -20,9 +20,20 @@ together only where they are neighbours in the stream: the ID is confirmed once 
 neighbouring positions of its packet were shown together by a later frame that fits it, and
 few frames fit it nowhere (the frames that straddle a wrong stretch's ends); a frame that fits
 at several shifts (a stretch of repeated bits) shows only what they all show, and a weak or
-contradicting chip shows nothing. At least `min_frames` later frames are needed, and at most
-`max_misfit` of them may fit nowhere (the frames that straddle a wrong stretch's ends are
-10-45 % of the frames of 12-16 chips, but real frames may misfit the right packet as often).
+contradicting chip shows nothing.
+
+How many later frames are enough is a sequential likelihood-ratio test on fitting and misfitting
+frames: the frames that straddle a wrong stretch's ends fit it nowhere, 10-45 % of the frames of
+12-16 chips (`misfit_wrong` of them), while a phone's frames misfit their own packet too, but
+less often (`misfit_right`). Each fitting frame adds log((1 - misfit_right) / (1 - misfit_wrong))
+to the log-likelihood ratio of "the proposed packet" against "a wrong assembly", each misfit adds
+log(misfit_right / misfit_wrong) (negative); the ID is confirmed once that sum reaches `min_llr`
+and every join was shown. A light whose later frames all fit confirms as soon as its joins are
+shown (3 frames at the defaults), one whose frames misfit waits, and a share of misfits above
+log((1 - r) / (1 - w)) / (that + log(w / r)) (29 % at the defaults) never confirms. The fit
+leaves out `end_chips` chips at each end of a frame: the panel's edge (blur, bezel, diffuser
+falloff) dims the rows at a profile's ends, so an ON chip there reads OFF (the end chips of phone
+renders read wrong in 16-23 % of frames, the inner ones in 0.2-1.4 %).
 Not confirmed within `max_frames` frames, it is dropped.
 """
 
@@ -39,25 +50,32 @@ class Confirmation:
     """One proposed ID awaiting confirmation by the frames that follow its proposal."""
 
     def __init__(self, led_id: int, template: np.ndarray, *, min_fit: float, min_gap: float,
-                 max_frames: int, min_chip: float, max_misfit: float, min_frames: int):
+                 max_frames: int, min_chip: float, misfit_right: float, misfit_wrong: float, min_llr: float,
+                 end_chips: int = 0):
         self.led_id = led_id
         self.template = np.asarray(template, dtype=np.float64)
         self.min_fit = min_fit
         self.min_gap = min_gap
         self.max_frames = max_frames
         self.min_chip = min_chip
-        self.max_misfit = max_misfit
-        self.min_frames = min_frames
+        self.min_llr = min_llr
+        self.end_chips = end_chips
+        # log-likelihood ratio (right packet : wrong assembly) of a fitting and of a misfitting frame
+        self.fit_llr = float(np.log((1.0 - misfit_right) / (1.0 - misfit_wrong)))
+        self.misfit_llr = float(np.log(misfit_right / misfit_wrong))
         self.joins = np.zeros(PACKET_LEN, bool)  # [p]: positions p and p + 1 shown by one frame
         self.misfits = 0  # later frames that fit the proposed packet nowhere
         self.frames = 0
 
     def add(self, soft: np.ndarray) -> None:
-        """One later frame's soft chips (~ +-1). When it fits the proposed packet (best
-        normalised correlation >= min_fit), the positions its chips show: at every shift within
-        `min_gap` of the best one, the chips that agree with the packet by `min_chip`."""
+        """One later frame's soft chips (~ +-1), less `end_chips` at each end. When it fits the
+        proposed packet (best normalised correlation >= min_fit), the positions its chips show:
+        at every shift within `min_gap` of the best one, the chips that agree with the packet by
+        `min_chip`."""
         self.frames += 1
         x = np.clip(np.asarray(soft, dtype=np.float64), -1.0, 1.0)
+        if self.end_chips and x.size > 2 * self.end_chips + SYNC_LEN:
+            x = x[self.end_chips:x.size - self.end_chips]
         den = float(np.abs(x).sum())
         if den <= 0:
             return
@@ -76,12 +94,16 @@ class Confirmation:
         self.joins |= shown & np.roll(shown, -1)
 
     @property
+    def llr(self) -> float:
+        """Log-likelihood ratio of the proposed packet against a wrong assembly from the later
+        frames' fits and misfits (module docstring)."""
+        return (self.frames - self.misfits) * self.fit_llr + self.misfits * self.misfit_llr
+
+    @property
     def done(self) -> bool:
-        """At least `min_frames` later frames, at most `max_misfit` of them fitting the
-        proposed packet nowhere, and every two neighbouring packet positions from the last
-        sync chip on shown together by one that fits it."""
-        return (self.frames >= self.min_frames and self.misfits <= self.max_misfit * self.frames
-                and bool(self.joins[SYNC_LEN - 1:].all()))
+        """The later frames' log-likelihood ratio reached `min_llr`, and every two neighbouring
+        packet positions from the last sync chip on were shown together by one that fits."""
+        return self.llr >= self.min_llr and bool(self.joins[SYNC_LEN - 1:].all())
 
     @property
     def expired(self) -> bool:

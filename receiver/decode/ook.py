@@ -603,8 +603,10 @@ class OokDecoder:
         self.confirm_frames = s.confirm_frames
         self.confirm_gap = s.confirm_gap
         self.confirm_min_chip = s.confirm_min_chip
-        self.confirm_misfit = s.confirm_misfit
-        self.confirm_min_frames = s.confirm_min_frames
+        self.confirm_misfit_right = s.confirm_misfit_right
+        self.confirm_misfit_wrong = s.confirm_misfit_wrong
+        self.confirm_min_llr = s.confirm_min_llr
+        self.confirm_end_chips = s.confirm_end_chips
         self._chained = False  # the accumulation holds a short frame placed by alignment
         self._confirm: confirm.Confirmation | None = None
 
@@ -1174,8 +1176,9 @@ class OokDecoder:
         if self._confirm is None or self._confirm.led_id != led_id:
             self._confirm = confirm.Confirmation(
                 led_id, packet_template(led_id), min_fit=self.verify_min, min_gap=self.confirm_gap,
-                max_frames=self.confirm_frames, min_chip=self.confirm_min_chip, max_misfit=self.confirm_misfit,
-                min_frames=self.confirm_min_frames)
+                max_frames=self.confirm_frames, min_chip=self.confirm_min_chip,
+                misfit_right=self.confirm_misfit_right, misfit_wrong=self.confirm_misfit_wrong,
+                min_llr=self.confirm_min_llr, end_chips=self.confirm_end_chips)
 
     def _confirm_step(self, soft: np.ndarray) -> None:
         """This frame's part in confirming the proposed ID: reported once confirmed; an ID

@@ -24,22 +24,24 @@ class OokSettings:
         alignment that could compare every shift), a new ID is reported only when each of the
         last `verify_frames` frames fits its full packet somewhere with normalised correlation
         >= verify_min (`best_cyclic_match`).
-      confirm_max_chips [20], confirm_min_frames [8], confirm_frames [30]: a first ID from a
+      confirm_max_chips [20], confirm_frames [30]: a first ID from a
         packet for which a frame of fewer than confirm_max_chips chips read by the exposure
         model was placed by alignment (some wrong shift of its n chips ties the right one
         with probability about 27 * 2^(-n/2), and one wrong placement builds a wrong,
         self-consistent packet; the maximum-likelihood decision names an ID for it) is
-        reported only when the frames after its proposal confirm it: at least
-        confirm_min_frames of them, within confirm_frames, else it is dropped with its
-        accumulation (receiver.decode.confirm). Each frame is placed against the proposed
-        packet alone, at every shift within confirm_gap [0.15] of its best fit when that is
-        >= verify_min; its chips agreeing with the packet by confirm_min_chip [0.5] show their
-        positions; every two neighbouring positions from the sync's last chip on must be shown
-        together by one frame, and at most confirm_misfit [1: any] of the frames may fit the
-        packet nowhere (a wrong packet that only moves a stretch within runs of a repeated pair
-        fits every frame but those straddling the stretch's ends, 10-45 % of 12-16-chip frames;
-        but a phone's frames misfit their own packet about as often: 0.25 halved the IDs of
-        the independent grid recording).
+        reported only when the frames after its proposal confirm it within confirm_frames,
+        else it is dropped with its accumulation (receiver.decode.confirm). Each frame, less
+        confirm_end_chips [1] chips at each end (dimmed by the panel's edge), is placed against
+        the proposed packet alone, at every shift within confirm_gap [0.15] of its best fit
+        when that is >= verify_min; its chips agreeing with the packet by confirm_min_chip
+        [0.5] show their positions; every two neighbouring positions from the sync's last chip
+        on must be shown together by one frame, and the frames' log-likelihood ratio of the
+        proposed packet against a wrong assembly must reach confirm_min_llr [0.75]: a fitting
+        frame adds log((1 - r) / (1 - w)), a frame fitting nowhere log(r / w), with r =
+        confirm_misfit_right [0.2] the share of a phone's frames that misfit their own packet
+        (without the end chips: 4-17 % on phone renders) and w = confirm_misfit_wrong [0.4] the share
+        that misfit a wrong assembly (the frames straddling its moved stretch's ends, 10-45 %
+        of 12-16-chip frames): 3 fitting frames confirm, more than 29 % misfits never do.
         Seeded Monte Carlo (tests/decode/ook_mc.py, docs/ook-exposure.md).
       period_frames [5]: the refined chip period (rows) of this many frames is fixed by
         their median (it is a camera/LED constant); later frames only measure the phase.
@@ -133,8 +135,10 @@ class OokSettings:
     confirm_frames: int = 30
     confirm_gap: float = 0.15
     confirm_min_chip: float = 0.5
-    confirm_misfit: float = 1.0
-    confirm_min_frames: int = 8
+    confirm_misfit_right: float = 0.2
+    confirm_misfit_wrong: float = 0.4
+    confirm_min_llr: float = 0.75
+    confirm_end_chips: int = 1
     timing_window: int = 12
     timing_max_gap: int = 6
     timing_frac: float = 0.25
