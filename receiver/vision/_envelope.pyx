@@ -4,12 +4,14 @@ one frame in one call.
 
 Per light: its own hull and its hulls of the previous frames (each moved by the light's velocity
 times the frame gap, in float64, then rounded to float32 as the reference does), the convex hull
-of all those points (`convex_hull_f32`: OpenCV's cv::convexHull for float points, same vertices
-in the same order, start vertex included), the hull's centroid and area
+of all those points (`convex_hull_f32`: a monotone chain giving cv2.convexHull's vertices in its
+orientation and, where its input order does not shift it, from its start vertex), the hull's
+centroid and area
 (receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim, summed in
 numpy's reduceat order) and its box (floor of the float32 extremes, cv2.boundingRect of float
-points). The pure reference is `receiver.vision.envelope._merge`; tests/engine/test_track_kernels.py
-asserts both give the same numbers bit for bit and that the hull equals cv2.convexHull.
+points). Where it declines, `receiver.vision.envelope._merge` merges one light at a time with
+OpenCV; tests/engine/test_track_kernels.py compares the two (the same hull vertices, centroid and
+area within float rounding) and the hull with cv2.convexHull.
 """
 
 from receiver.core._buf cimport fresh_data
@@ -23,10 +25,6 @@ from receiver.core._npsum cimport pw_sum
 import numpy as np
 
 cdef double QUARTER_PI = 0.7853981633974483  # math.pi / 4.0
-
-
-cdef inline int _sgn(double a) noexcept nogil:
-    return (a > 0) - (a < 0)
 
 
 cdef inline unsigned int _bits(float f) noexcept nogil:
@@ -125,101 +123,29 @@ cdef void _sort(const unsigned long long *key, int *a, int *tmp, int *bounds, in
         nr = k
 
 
-cdef inline void _normalize(float x, float y, float *ox, float *oy) noexcept nogil:
-    """cv::normalize of a Vec2f: the norm in double, each component scaled in double, stored
-    as float."""
-    cdef double s = 0.0
-    cdef double v = x
-    s += v * v
-    v = y
-    s += v * v
-    cdef double nv = sqrt(s)
-    cdef double k = 1.0 / nv if nv != 0 else 0.0
-    ox[0] = <float>(x * k)
-    oy[0] = <float>(y * k)
-
-
-cdef int _sklansky(const float *X, const float *Y, int start, int end, int *stack, int nsign,
-                   int sign2) noexcept nogil:
-    """OpenCV's Sklansky_<float, double> (as OpenCV 5.0 has it: the turn tested on the two
-    edge vectors normalised, repeated points not skipped) over the sorted points X, Y."""
-    cdef int incr = 1 if end > start else -1
-    cdef int pprev = start, pcur = start + incr, pnext = start + 2 * incr
-    cdef int stacksize = 3
-    cdef float by, ax, ay, bx, a0, a1, b0, b1
-    cdef double convexity, cross, ab2
-    cdef int sgn_conv
-    cdef bint nonzero, skip
-    if start == end or (X[start] == X[end] and Y[start] == Y[end]):
-        stack[0] = start
-        return 1
-    stack[0] = pprev
-    stack[1] = pcur
-    stack[2] = pnext
-    end += incr
-    while pnext != end:
-        by = Y[pnext] - Y[pcur]
-        # CV_SIGN(by) == nsign
-        skip = by < 0 if nsign < 0 else by > 0
-        if not skip:
-            ax = X[pcur] - X[pprev]
-            ay = Y[pcur] - Y[pprev]
-            bx = X[pnext] - X[pcur]
-            # The products of floats are exact in double, so `cross` has the exact turn's sign;
-            # the normalised vectors' (OpenCV's test) differs from it by less than 1e-6 of
-            # |a| |b|: outside that band the exact sign is theirs, inside it their arithmetic.
-            cross = <double>ay * bx - <double>ax * by
-            ab2 = (<double>ax * ax + <double>ay * ay) * (<double>bx * bx + <double>by * by)
-            if cross * cross > 1e-10 * ab2:
-                sgn_conv = (cross > 0) - (cross < 0)
-                nonzero = True
-            elif (ax == 0 and ay == 0) or (bx == 0 and by == 0):  # a zero vector stays zero
-                sgn_conv = 0
-                nonzero = ax != 0 or ay != 0
-            else:
-                _normalize(ax, ay, &a0, &a1)
-                _normalize(bx, by, &b0, &b1)
-                convexity = <double>a1 * b0 - <double>a0 * b1
-                sgn_conv = _sgn(convexity)
-                nonzero = a0 != 0 or a1 != 0
-            if sgn_conv == sign2 and nonzero:
-                pprev = pcur
-                pcur = pnext
-                pnext += incr
-                stack[stacksize] = pnext
-                stacksize += 1
-            else:
-                if pprev == start:
-                    pcur = pnext
-                    stack[1] = pcur
-                    pnext += incr
-                    stack[2] = pnext
-                else:
-                    stack[stacksize - 2] = pnext
-                    pcur = pprev
-                    pprev = stack[stacksize - 4]
-                    stacksize -= 1
-        else:
-            pnext += incr
-            stack[stacksize - 1] = pnext
-    stacksize -= 1
-    return stacksize
+cdef inline bint _turns_left(const float *X, const float *Y, int o, int a, int b) noexcept nogil:
+    """The turn o -> a -> b of sorted points bends to positive x dy - y dx: the cross product of
+    the float differences in double, a turn within 1e-7 of |oa| |ab| (relative) counted as
+    straight, so nearly collinear points drop out as OpenCV's test on normalised float vectors
+    drops them."""
+    cdef double ax = <double>X[a] - X[o], ay = <double>Y[a] - Y[o]
+    cdef double bx = <double>X[b] - X[a], by = <double>Y[b] - Y[a]
+    cdef double cross = ax * by - ay * bx
+    return cross > 0 and cross * cross > 1e-14 * ((ax * ax + ay * ay) * (bx * bx + by * by))
 
 
 cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullbuf,
                unsigned long long *key, float *X) noexcept nogil:
     """cv::convexHull(points, clockwise=false, returnPoints=true) of the n float points P
-    (x, y interleaved): writes the hull's vertices as input positions to hullbuf, returns
-    their number. Work buffers: srt, tmp, key (n), stack (2 n + 4), X (2 n). Finite points only."""
+    (x, y interleaved): the hull's vertices as input positions into hullbuf; returns their
+    number. Andrew's monotone chain over the points sorted as OpenCV sorts them (x, y, input
+    position), repeated points once; the vertices in OpenCV's orientation from its start (the
+    largest x, then y), then OpenCV's cyclic shift towards ascending or descending input
+    positions where one exists. Work buffers: srt, tmp, key (n), stack (2 n + 4), X (2 n).
+    Finite points only."""
     cdef float *Y = X + n
-    cdef int i, j, nout = 0, miny = 0, maxy = 0
-    cdef int *tl
-    cdef int *tr
-    cdef int *bl
-    cdef int *br
-    cdef int tlc, trc, blc, brc, stop_idx, check_idx, t
+    cdef int i, j, k = 0, t, top, nout
     cdef int min_idx, max_idx, lt, idx, mmdist, ascending, i0, curr_idx, next_j, next_idx
-    cdef float y
     if n <= 0:
         return 0
     for i in range(n):
@@ -229,57 +155,30 @@ cdef int _hull(const float *P, int n, int *srt, int *tmp, int *stack, int *hullb
     for i in range(n):
         X[i] = P[2 * srt[i]]
         Y[i] = P[2 * srt[i] + 1]
-    for i in range(1, n):
-        y = Y[i]
-        if Y[miny] > y:
-            miny = i
-        if Y[maxy] < y:
-            maxy = i
-    # (OpenCV compares these two through int pointers: the float bits)
-    if _bits(X[0]) == _bits(X[n - 1]) and _bits(Y[0]) == _bits(Y[n - 1]):
-        hullbuf[0] = 0
+    # the lower chain (sorted positions), then the upper one back
+    for i in range(n):
+        if i > 0 and key[srt[i]] == key[srt[i - 1]]:
+            continue
+        while k >= 2 and not _turns_left(X, Y, stack[k - 2], stack[k - 1], i):
+            k -= 1
+        stack[k] = i
+        k += 1
+    if k == 1:
+        hullbuf[0] = srt[stack[0]]
         return 1
-    # upper half
-    tl = stack
-    tlc = _sklansky(X, Y, 0, maxy, tl, -1, 1)
-    tr = stack + tlc
-    trc = _sklansky(X, Y, n - 1, maxy, tr, -1, -1)
-    # counter-clockwise: swapped
-    tl, tr = tr, tl
-    t = tlc
-    tlc = trc
-    trc = t
-    for i in range(tlc - 1):
-        hullbuf[nout] = srt[tl[i]]
-        nout += 1
-    i = trc - 1
-    while i > 0:
-        hullbuf[nout] = srt[tr[i]]
-        nout += 1
+    top = k - 1  # the last sorted point: OpenCV's first vertex
+    t = k + 1
+    i = n - 2
+    while i >= 0:
+        if key[srt[i]] != key[srt[i + 1]]:
+            while k >= t and not _turns_left(X, Y, stack[k - 2], stack[k - 1], i):
+                k -= 1
+            stack[k] = i
+            k += 1
         i -= 1
-    stop_idx = tr[1] if trc > 2 else (tl[tlc - 2] if tlc > 2 else -1)
-    # lower half
-    bl = stack
-    blc = _sklansky(X, Y, 0, miny, bl, 1, -1)
-    br = stack + blc
-    brc = _sklansky(X, Y, n - 1, miny, br, 1, 1)
-    if stop_idx >= 0:
-        check_idx = bl[1] if blc > 2 else (br[2 - blc] if blc + brc > 2 else -1)
-        if check_idx == stop_idx or (check_idx >= 0 and
-                                     _bits(X[check_idx]) == _bits(X[stop_idx]) and
-                                     _bits(Y[check_idx]) == _bits(Y[stop_idx])):
-            if blc > 2:
-                blc = 2
-            if brc > 2:
-                brc = 2
-    for i in range(blc - 1):
-        hullbuf[nout] = srt[bl[i]]
-        nout += 1
-    i = brc - 1
-    while i > 0:
-        hullbuf[nout] = srt[br[i]]
-        nout += 1
-        i -= 1
+    nout = k - 1  # the first point closes the chain
+    for j in range(nout):
+        hullbuf[j] = srt[stack[(top + j) % nout]]
     # the cyclic shift that makes the input positions ascending or descending, if one does
     if nout >= 3:
         min_idx = 0
