@@ -7,6 +7,10 @@ measurements and the equality tests); `OCCLOC_PURE=_ook,_pnp` (module names, wit
 package) forces it for those kernels only, to measure what one kernel saves
 (`tools/kernel_shares.py`); `status()` says which kernels are in use.
 
+A kernel that is the one implementation of its computation (no numpy twin) is imported with
+`require(name)` instead: always used, whatever OCCLOC_PURE says, and an ImportError naming the
+build command when it is not built (receiver.locate._vehicle_pose).
+
 Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
 `tool.setuptools.ext-modules`): the remaining cost of a frame is interpreter and numpy dispatch
 on small per-LED arrays (thousands of calls per frame), which numpy and OpenCV cannot remove.
@@ -46,6 +50,15 @@ def load(name: str) -> ModuleType | None:
         except ImportError:
             _LOADED[name] = None
     return _LOADED[name]
+
+
+def require(name: str) -> ModuleType:
+    """The compiled module `name`, which has no pure path (OCCLOC_PURE does not apply)."""
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        raise ImportError(f"the compiled kernel {name} is not built (pip install -e . builds it; "
+                          f"tools/dev does it all): {exc}") from None
 
 
 def kernel_sources() -> list[str]:

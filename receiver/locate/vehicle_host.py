@@ -10,7 +10,7 @@ import math
 import cv2
 import numpy as np
 
-from receiver.locate import _vehicle_pose as _k
+from receiver.core.native import require
 from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at
 from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.road_kalman import wrap_pi
@@ -66,6 +66,7 @@ ONE_LIGHT = "one street light decoded, waiting for a second"
 REPROJ_FAILED = "street-light pose solve failed (it does not reproject the decoded heads)"
 
 
+_k = require("receiver.locate._vehicle_pose")     # the pose solve's one implementation
 _W_CACHE: dict = {}
 
 
