@@ -67,6 +67,10 @@ Host vehicle (`hv`):
   fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
   (method ``"kalman-coast"``). ``raw`` is the unfiltered fix. Without odometry the speed comes
   from the first two fixes `SPEED_INIT_MIN_DT_S` apart (`_speed_from_fixes`).
+* A filter whose predicted 2D position std exceeds `MAX_TRACK_STD_M` is no prior: its heads
+  are solved cold (no warm start, no map-aided association, the reprojection check), and such a
+  fix updates the filter or, when its gate rejects it, restarts it. The filter is forgotten
+  `MAX_COAST_S` after its last fix.
 * One decoded light: while the filter runs and is sure (`SL1_MAX_STD_M`), the
   head's undistorted midpoint and its range update it directly (``"sl-1"``,
   `_single_observation`: an EKF measurement whose noise carries the camera's yaw shake, pitch,
@@ -125,7 +129,7 @@ from receiver.locate.vehicle_assoc import MapAssociation
 from receiver.locate.vehicle_cars import CarsAhead, ZONES, FV_CONFIRM_S, FV_SL_GATE_DEG  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_host import (ACCEL_PSD, GATE_CHI2, INIT_OMEGA_SIGMA_RPS, INIT_SPEED_SIGMA_MPS,
                                           MAX_REJECTS, MIN_LIGHTS, NO_LIGHT, NOT_DECODED, ONE_LIGHT,  # noqa: F401
-                                          MAX_COAST_S, POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
+                                          MAX_COAST_S, MAX_TRACK_STD_M, POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
                                           eq44_47)  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_ranging import (CENTROID_SIGMA_PX, DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
                                              _r, _rays, _sides, fv_measured, level_rotation, nominal_rotation)
@@ -288,7 +292,10 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         if self.kf.started and not tracked:
             self.kf.reset()
             self.R_last = None
-        R_prior = self.R_last if tracked else None
+        # A track this unsure is no prior (warm start, association): the decoded heads are
+        # solved cold, and a fix from them updates the filter, or restarts it if gated out.
+        unsure = tracked and self.kf.position_std_m(t_s) > MAX_TRACK_STD_M
+        R_prior = self.R_last if tracked and not unsure else None
         given = pairs
         assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None else {}
         if assoc:
@@ -364,6 +371,7 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         self._keep_separations(t_s, given)
         if fix is not None:
             fix["n_assoc"] = sum(1 for k in sl_k if res["idx"][k] in assoc)
+            fix["over_unsure"] = unsure
         hv = self._update_hv(t_s, fix, speed_mps)
         if assoc:
             # The undecoded pairs matched to mapped heads served the host only: to the rest of
