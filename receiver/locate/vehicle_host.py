@@ -43,12 +43,14 @@ MAX_REJECTS = 3                 # consecutive gated fixes that restart the filte
 SL1_RANGE_FLOOR_REL = 0.05      # added in quadrature to a single light's range sigma: one head's range error persists over frames
 SL1_MAX_STD_M = 1.5             # m, a single light updates the filter only while its predicted 2D std is at most this
 SL1_START_MAX_STD_M = 0.7       # m, ... and starts it only from a single-light pose this sure
-# m, a road filter whose predicted 2D position std exceeds this is no prior: the decoded heads
-# are solved cold (`_reprojects` checked) and a fix from them updates the filter, or restarts it
-# when the gate rejects it (the heads are trusted over a prediction this unsure); without a fix it
-# coasts until `MAX_COAST_S` after its last one. Past the single-light update limit only a pose
-# solve can correct it, and at this std a 99.9 % gate (3.7 sigma) reaches about half the 12.5 m
-# spacing of staggered heads: a warm start or an association could take a neighbouring head.
+# m, a road filter whose predicted 2D position std exceeds this is no prior for associating
+# undecoded heads nor for a `POSE_TRACK_ITER` warm start: the decoded heads get a full solve
+# from its prediction with a cold solve's checks (`off_road`, `_reprojects`), and a fix from them
+# updates the filter, or restarts it when the gate rejects it (the heads are trusted over a
+# prediction this unsure); without a fix it coasts until `MAX_COAST_S` after its last one. Past
+# the single-light update limit only a pose solve can correct it, and at this std a 99.9 % gate
+# (3.7 sigma) reaches about half the 12.5 m spacing of staggered heads: a short warm start or an
+# association could take a neighbouring head.
 MAX_TRACK_STD_M = SL1_MAX_STD_M
 SPEED_INIT_MIN_DT_S = 0.12      # s, the first two fixes this far apart give the speed (one frame apart, fix noise dominates)
 SPEED_HIST_S = 0.3              # s, the heads' image growth over this long gives the speed at a start without odometry

@@ -310,7 +310,8 @@ def test_a_track_too_unsure_is_restarted_cold_from_the_decoded_heads():
     """The host brakes from 15 to 3 m/s while no street light is seen and no odometry comes: the
     road filter coasts on at 15 m/s, its position std growing. Once that std passes
     MAX_TRACK_STD_M (before MAX_COAST_S has passed) the filter is no prior: the next decoded heads
-    are solved cold and restart it where the host is, not where the filter thought."""
+    get a full solve with a cold solve's checks and restart it where the host is, not where the
+    filter thought."""
     lmap = make_map()
     loc = VehicleLocator(CAM, lmap, SETTINGS)
     fps, v0, v1 = 30, 15.0, 3.0
