@@ -9,7 +9,8 @@ package) forces it for those kernels only, to measure what one kernel saves
 
 A kernel that is the one implementation of its computation (no numpy twin) is imported with
 `require(name)` instead: always used, whatever OCCLOC_PURE says, and an ImportError naming the
-build command when it is not built (receiver.vision._track).
+build command when it is not built (receiver.vision._track, receiver.locate._vehicle_pose; the
+locate stage imports _outline, _pnp, _kalman and _position directly, for the same reason).
 
 Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
 `tool.setuptools.ext-modules`): the remaining cost of a frame is interpreter and numpy dispatch

@@ -113,6 +113,11 @@ class RoadKalman:
     def coast_s(self, t_s: float) -> float:
         return math.inf if self.t_fix is None else t_s - self.t_fix
 
+    def position_std_m(self, t_s: float) -> float:
+        """2D position std (m, sqrt of the x, y variances' sum) predicted to t_s."""
+        P = self.predict_at(t_s)[1]
+        return math.sqrt(max(float(P[0, 0] + P[1, 1]), 0.0))
+
     def expired(self, t_s: float) -> bool:
         return self.s is None or self.coast_s(t_s) > self.max_coast_s
 

@@ -67,6 +67,11 @@ Host vehicle (`hv`):
   fix (x, y, camera yaw) and the odometry speed V_HV of eq. 48; it coasts between fixes
   (method ``"kalman-coast"``). ``raw`` is the unfiltered fix. Without odometry the speed comes
   from the first two fixes `SPEED_INIT_MIN_DT_S` apart (`_speed_from_fixes`).
+* A filter whose predicted 2D position std exceeds `MAX_TRACK_STD_M` is no prior for the
+  map-aided association nor a few-iteration warm start: its decoded heads get a full solve from
+  its prediction with a cold solve's checks (heading along the road, reprojection; a single
+  light: `_single_fix`), and such a fix updates the filter or, when its gate rejects it,
+  restarts it. The filter is forgotten `MAX_COAST_S` after its last fix.
 * One decoded light: while the filter runs and is sure (`SL1_MAX_STD_M`), the
   head's undistorted midpoint and its range update it directly (``"sl-1"``,
   `_single_observation`: an EKF measurement whose noise carries the camera's yaw shake, pitch,
@@ -125,7 +130,7 @@ from receiver.locate.vehicle_assoc import MapAssociation
 from receiver.locate.vehicle_cars import CarsAhead, ZONES, FV_CONFIRM_S, FV_SL_GATE_DEG  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_host import (ACCEL_PSD, GATE_CHI2, INIT_OMEGA_SIGMA_RPS, INIT_SPEED_SIGMA_MPS,
                                           MAX_REJECTS, MIN_LIGHTS, NO_LIGHT, NOT_DECODED, ONE_LIGHT,  # noqa: F401
-                                          MAX_COAST_S, POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
+                                          MAX_COAST_S, MAX_TRACK_STD_M, POSE_TRACK_ITER, REPROJ_FAILED, SPEED_HIST_S, YAW_ACCEL_PSD, HostPlacement,
                                           eq44_47)  # noqa: F401 (re-exported)
 from receiver.locate.vehicle_ranging import (CENTROID_SIGMA_PX, DOWN, ESTIMATORS, SL_SEPARATION_SIGMA_PX, PairRanging, _pick,  # noqa: F401
                                              _r, _rays, _sides, fv_measured, level_rotation, nominal_rotation)
@@ -288,9 +293,14 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         if self.kf.started and not tracked:
             self.kf.reset()
             self.R_last = None
+        # A track this unsure is no prior for association nor a few-iteration warm start: its
+        # heads get a full solve from its prediction and a cold solve's checks, and a fix from
+        # them updates the filter, or restarts it if gated out.
+        unsure = tracked and self.kf.position_std_m(t_s) > MAX_TRACK_STD_M
         R_prior = self.R_last if tracked else None
+        cold = R_prior is None or unsure
         given = pairs
-        assoc = self._associate(t_s, pairs, R_prior) if R_prior is not None else {}
+        assoc = self._associate(t_s, pairs, R_prior) if not cold else {}
         if assoc:
             pairs = [dataclasses.replace(p, led_id=assoc[i], kind="SL") if i in assoc else p
                      for i, p in enumerate(pairs)]
@@ -308,10 +318,10 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                 self.hv_reason = "the map gives no emitter positions for the street lights in view"
             elif not sl_k:
                 self.hv_reason = self._unplaced_reason(pairs)
-            elif len(sl_k) < MIN_LIGHTS and R_prior is not None:
+            elif len(sl_k) < MIN_LIGHTS and not cold:
                 fix = self._single_observation(t_s, pairs, res, sl_k[0], R_prior)
             elif len(sl_k) < MIN_LIGHTS:
-                fix, aligned, res = self._single_fix(t_s, pairs, aligned, res, sl_k[0], R_prior)
+                fix, aligned, res = self._single_fix(t_s, pairs, aligned, res, sl_k[0], None)
             else:
                 if R_prior is not None:
                     pred = self.kf.predict_at(t_s)[0]
@@ -329,7 +339,7 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                         aligned, res = out
                 # Warm start from the filter's prediction while tracking: a few iterations do.
                 solved = None if init is None else self._solve_pose(
-                    pairs, res, sl_k, *init, max_iter=POSE_TRACK_ITER if R_prior is not None else None)
+                    pairs, res, sl_k, *init, max_iter=None if cold else POSE_TRACK_ITER)
                 if solved is None:
                     self.hv_reason = "street-light pose solve failed"
                 else:
@@ -339,10 +349,10 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
                         # the previous frame's orientation stand (one frame of rotation: negligible).
                         aligned, res = self._range_pairs(pairs, R, True)
                     yaw = math.radians(self._ypr_of(R)[0])
-                if solved is not None and R_prior is None and self.off_road(
+                if solved is not None and cold and self.off_road(
                         yaw, self._sl[pairs[res["idx"][sl_k[0]]].led_id]["head"]):
                     self.hv_reason = "street-light pose solve failed (its heading is off the road)"
-                elif solved is not None and R_prior is None and not self._reprojects(pairs, res, sl_k, R, C):
+                elif solved is not None and cold and not self._reprojects(pairs, res, sl_k, R, C):
                     self.hv_reason = REPROJ_FAILED
                 elif solved is not None:
                     fix = dict(pose=(C, cov, yaw, R), n=len(sl_k),
@@ -364,6 +374,7 @@ class VehicleLocator(PairRanging, HostPlacement, MapAssociation, CarsAhead):
         self._keep_separations(t_s, given)
         if fix is not None:
             fix["n_assoc"] = sum(1 for k in sl_k if res["idx"][k] in assoc)
+            fix["over_unsure"] = unsure
         hv = self._update_hv(t_s, fix, speed_mps)
         if assoc:
             # The undecoded pairs matched to mapped heads served the host only: to the rest of

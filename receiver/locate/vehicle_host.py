@@ -10,7 +10,7 @@ import math
 import cv2
 import numpy as np
 
-from receiver.locate import _vehicle_pose as _k
+from receiver.core.native import require
 from receiver.locate.lsq import LM_FTOL, LM_LAMBDA0, LM_LAMBDA_MAX, covariance_at
 from receiver.locate.pose import rotation_to_ypr_deg, ypr_to_rotation
 from receiver.locate.road_kalman import wrap_pi
@@ -43,6 +43,15 @@ MAX_REJECTS = 3                 # consecutive gated fixes that restart the filte
 SL1_RANGE_FLOOR_REL = 0.05      # added in quadrature to a single light's range sigma: one head's range error persists over frames
 SL1_MAX_STD_M = 1.5             # m, a single light updates the filter only while its predicted 2D std is at most this
 SL1_START_MAX_STD_M = 0.7       # m, ... and starts it only from a single-light pose this sure
+# m, a road filter whose predicted 2D position std exceeds this is no prior for associating
+# undecoded heads nor for a `POSE_TRACK_ITER` warm start: the decoded heads get a full solve
+# from its prediction with a cold solve's checks (`off_road`, `_reprojects`), and a fix from them
+# updates the filter, or restarts it when the gate rejects it (the heads are trusted over a
+# prediction this unsure); without a fix it coasts until `MAX_COAST_S` after its last one. Past
+# the single-light update limit only a pose solve can correct it, and at this std a 99.9 % gate
+# (3.7 sigma) reaches about half the 12.5 m spacing of staggered heads: a short warm start or an
+# association could take a neighbouring head.
+MAX_TRACK_STD_M = SL1_MAX_STD_M
 SPEED_INIT_MIN_DT_S = 0.12      # s, the first two fixes this far apart give the speed (one frame apart, fix noise dominates)
 SPEED_HIST_S = 0.3              # s, the heads' image growth over this long gives the speed at a start without odometry
 SPEED_HIST_MIN = 5              # ... from at least this many separations
@@ -66,6 +75,7 @@ ONE_LIGHT = "one street light decoded, waiting for a second"
 REPROJ_FAILED = "street-light pose solve failed (it does not reproject the decoded heads)"
 
 
+_k = require("receiver.locate._vehicle_pose")     # the pose solve's one implementation
 _W_CACHE: dict = {}
 
 
@@ -456,7 +466,7 @@ class HostPlacement:
                 held = self._speed_from_fixes(t_s, xy, cov) if speed is None else False
                 accepted = kf.update_fix(t_s, xy, cov, None if fix.get("yaw_free") else yaw, psig,
                                          held_speed=held)
-                if not accepted and kf.rejects >= MAX_REJECTS:
+                if not accepted and (fix.get("over_unsure") or kf.rejects >= MAX_REJECTS):
                     kf.reset()
                     accepted = self._start(t_s, xy, cov, yaw, psig, speed, fix)
             if accepted:

@@ -5,6 +5,8 @@ otherwise fall back to the pure path silently and every benchmark would measure 
 import re
 from pathlib import Path
 
+import pytest
+
 from receiver.core import native
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -51,3 +53,11 @@ def test_pure_forced_for_named_kernels_only(monkeypatch):
     assert native.load("receiver.locate._kalman") is None
     assert native.load("receiver.serve._wire") is None
     assert native.load("receiver.locate._position") is not None
+
+
+def test_require_ignores_occloc_pure_and_names_the_build_when_missing(monkeypatch):
+    monkeypatch.setenv("OCCLOC_PURE", "1")
+    kernel = native.require("receiver.locate._vehicle_pose")
+    assert kernel.__file__.endswith((".so", ".pyd"))
+    with pytest.raises(ImportError, match=r"receiver\.locate\._absent is not built \(pip install -e \."):
+        native.require("receiver.locate._absent")

@@ -306,6 +306,37 @@ def test_kalman_coasts_between_fixes_and_fuses_odometry():
     assert res.vehicle["hv"] is None and loc.hv_reason
 
 
+def test_a_track_too_unsure_is_restarted_cold_from_the_decoded_heads():
+    """The host brakes from 15 to 3 m/s while no street light is seen and no odometry comes: the
+    road filter coasts on at 15 m/s, its position std growing. Once that std passes
+    MAX_TRACK_STD_M (before MAX_COAST_S has passed) the filter is no prior: the next decoded heads
+    get a full solve with a cold solve's checks and restart it where the host is, not where the
+    filter thought."""
+    lmap = make_map()
+    loc = VehicleLocator(CAM, lmap, SETTINGS)
+    fps, v0, v1 = 30, 15.0, 3.0
+    for i in range(fps + 1):
+        t = i / fps
+        R, C, psi = camera_pose(v0 * t)
+        hv = loc.step(t, sl_pairs(lmap, R, C)).vehicle["hv"]
+    assert hv["method"] == "pose" and hv["std_m"] < 0.3
+    t_fix, s_fix = t, v0 * t
+    while loc.kf.position_std_m(t) <= V.MAX_TRACK_STD_M:
+        i += 1
+        t = i / fps
+        R, C, psi = camera_pose(s_fix + v1 * (t - t_fix))
+        loc.step(t, [fv_pair((25.0, 0.0), R, C, psi)[0]])
+        assert loc.kf.started
+    assert t - t_fix < V.MAX_COAST_S
+    gap_m = abs(loc.kf.predict_at(t)[0][0] - C[0])
+    assert gap_m > 5.0                            # the coasting filter is far off the host
+    t += 1 / fps
+    R, C, psi = camera_pose(s_fix + v1 * (t - t_fix))
+    hv = loc.step(t, sl_pairs(lmap, R, C)).vehicle["hv"]
+    assert hv is not None and hv["method"] == "pose" and hv["std_m"] < 0.3
+    assert abs(hv["x"] - C[0]) < 0.1 and abs(hv["y"] - C[1]) < 0.1
+
+
 # ------------------------------------------------------------------------------ forward vehicles
 
 @pytest.mark.parametrize("with_pose", [False, True])
