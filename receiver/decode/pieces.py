@@ -33,7 +33,7 @@ import statistics
 from collections import deque
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
+from numpy.lib.stride_tricks import as_strided, sliding_window_view
 
 PACKET_LEN = 54
 # Sub-chip steps of the packet phase phi searched.
@@ -112,36 +112,32 @@ class FrameJitter:
 
 
 class _Piece:
-    """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t; its (K, 54)
-    correlations `corr` (computed once needed), their best within the wide and the narrow
-    window, its latest placement, and the phase-table slice its term in the likelihood table
-    was made with."""
+    """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t, its slot
+    in the light's correlation tables; its (K, 54) correlations `corr` (views of those tables
+    once computed), its latest placement, and the slice its term in the likelihood table was
+    made with."""
 
-    __slots__ = ("x", "den", "q", "t", "n", "corr", "wide", "narrow", "used", "term", "by_phase")
+    __slots__ = ("x", "den", "q", "t", "n", "slot", "corr", "used", "term")
 
-    def __init__(self, x: np.ndarray, q: float, t: float):
-        self.x, self.den, self.q, self.t, self.n = x, float(np.abs(x).sum()), q, t, x.size
-        self.corr = self.wide = self.narrow = None
-        # {narrow?: (K, 2 * 54 * PHASE_STEPS)}: each packet position's correlations repeated for
-        # its PHASE_STEPS phases, twice round: any placement's (K, 54 * PHASE_STEPS) is a slice
-        self.by_phase: dict = {}
+    def __init__(self, x: np.ndarray, q: float, t: float, slot: int):
+        self.x, self.den, self.q, self.t, self.n, self.slot = x, float(np.abs(x).sum()), q, t, x.size, slot
+        self.corr = None
         self.used: tuple | None = None  # (placed q, narrow?) of the latest decision
         self.term: tuple | None = None  # (slice start, narrow?) of the piece's term in ll
 
 
 def _windowed(corr: np.ndarray, half: int, penalty: float) -> np.ndarray:
     """The best of `corr` within +-half positions of each (cyclically), `penalty` off per
-    position away: the running maximum of the 2 half + 1 shifted copies of corr (with `half`
-    columns of the other end on each side), each less its penalty."""
+    position away: the maximum over a sliding window (a strided view) of corr with `half`
+    columns of the other end on each side, each shift less its penalty."""
     if half <= 0:
         return corr.copy()
-    n = corr.shape[1]
+    k, n = corr.shape
     ext = np.concatenate((corr[:, n - half:], corr, corr[:, :half]), axis=1)
-    pens = np.array([penalty * abs(d) for d in range(-half, half + 1)], dtype=corr.dtype)
-    out = ext[:, 0:n] - pens[0]
-    for i in range(1, 2 * half + 1):
-        np.maximum(out, ext[:, i:i + n] - pens[i], out=out)
-    return out
+    shifts = as_strided(ext, (k, 2 * half + 1, n), (ext.strides[0], ext.strides[1], ext.strides[1]),
+                        writeable=False)  # [:, i] = ext[:, i:i + n]
+    pens = (penalty * np.abs(np.arange(-half, half + 1))).astype(corr.dtype)
+    return (shifts - pens[None, :, None]).max(axis=1)
 
 
 class PieceAssembler:
@@ -189,6 +185,14 @@ class PieceAssembler:
         self.best_id: int | None = None
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
+        # per piece slot (history + 1 of them, `_Piece.slot`): its correlations (slots, K, 54);
+        # their best within the wide [0] and the narrow [1] window repeated for the phases
+        # (`_rep`, (2, slots, K, 2 * 54 * steps)), and `_best` (2, slots, K, 54) a view of it
+        self._corr: np.ndarray | None = None
+        self._rep: np.ndarray | None = None
+        self._best: np.ndarray | None = None
+        self._evicted: list = []  # terms of dropped pieces not yet taken back
+        self._placed: tuple = ()  # (placed q, narrow?, slot) of the pieces at the latest update
 
     def _slots(self, q, ph=None) -> np.ndarray:
         """Packet position of a piece's chip 0 (q: packet time, or an array of them) under every
@@ -205,36 +209,60 @@ class PieceAssembler:
             return
         self.added += 1
         if len(self.pieces) >= self.history:
+            if self._evicted:  # its table slot comes round again below: take its term back now
+                self._terms(self._evicted)
+                self._evicted = []
             old = self.pieces.popleft()
             if old.term is not None:
-                self._term(old, *old.term, -1.0)
-        self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t)))
+                self._evicted.append((old, *old.term, -1.0))
+        # history + 1 slots: the piece just dropped keeps its slot until its term is taken back
+        self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t),
+                                  (self.added - 1) % (self.history + 1)))
 
     def _correlate(self, p: _Piece) -> None:
+        if self._corr is None:
+            slots = self.history + 1
+            self._corr = np.empty((slots, self.ids.size, PACKET_LEN), np.float32)
+            self._rep = np.empty((2, slots, self.ids.size, 2 * PACKET_LEN * PHASE_STEPS), np.float32)
+            self._best = self._rep[..., 0:PACKET_LEN * PHASE_STEPS:PHASE_STEPS]
         # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54], all the products
         # at once (K, n, 54) summed over k (a reduction over an outer axis adds its slices in order)
         corr = np.add.reduce(self._windows[:, :p.n] * p.x[None, :, None], axis=1)
         corr /= p.den
-        p.corr = corr
-        p.wide = _windowed(corr, self.jitter_chips, self.shift_penalty)
-        p.narrow = _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)
+        self._corr[p.slot] = corr
+        best = np.stack((_windowed(corr, self.jitter_chips, self.shift_penalty),
+                         _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)))
+        # each packet position's best repeated for its PHASE_STEPS phases, twice round: any
+        # placement's (K, 54 * PHASE_STEPS) term is a slice (`_start`)
+        rep = self._rep[:, p.slot]
+        half = PACKET_LEN * PHASE_STEPS
+        rep[..., :half] = np.repeat(best, PHASE_STEPS, axis=2)
+        rep[..., half:] = rep[..., :half]
+        p.corr = self._corr[p.slot]
 
     def _start(self, qq: float) -> int:
         """The phase table's slice start of a piece placed at qq: weight * best[:, s(phi)] for
-        every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`), is the repeated
-        table's slice from floor(PHASE_STEPS (qq + 1/2)) on (placements with one start give
-        one term)."""
+        every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`), is the slice
+        from floor(PHASE_STEPS (qq + 1/2)) on of its repeated table (`_rep`; placements with
+        one start give one term)."""
         return int(math.floor(PHASE_STEPS * (qq + 0.5))) % self.phis.size
 
-    def _term(self, p: _Piece, m: int, narrow: bool, sign: float) -> None:
-        """Add (sign +1) or take back (-1) a piece's term: its slice from `m` (`_start`) of its
-        narrow or wide best correlations, repeated PHASE_STEPS times and twice round."""
-        rep = p.by_phase.get(narrow)
-        if rep is None:
-            best = p.narrow if narrow else p.wide
-            rep = p.by_phase[narrow] = np.tile(np.repeat(best, PHASE_STEPS, axis=1), 2)
-        self.ll += (sign * p.den) * rep[:, m:m + self.phis.size]
-        self.total += sign * p.den
+    def _terms(self, terms: list) -> None:
+        """Add (sign +1) or take back (-1) pieces' terms, in order: each (piece, slice start m
+        (`_start`), narrow?, sign) adds sign * weight times the slice from m of its narrow or
+        wide repeated table. (A reduction over the outer axis adds its slices in order: the
+        same sums as one term at a time.)"""
+        if not terms:
+            return
+        n = self.phis.size
+        parts, coef = [], []
+        for p, m, narrow, sign in terms:
+            parts.append(self._rep[int(narrow), p.slot, :, m:m + n])
+            coef.append(sign * p.den)
+            self.total += sign * p.den
+        scaled = np.concatenate(parts).reshape(len(terms), self.ids.size, n)  # (T, K, 54 * steps)
+        scaled *= np.array(coef, np.float32)[:, None, None]
+        self.ll = np.add.reduce(np.concatenate((self.ll[None], scaled)), axis=0)
 
     def _place(self, p: _Piece) -> tuple[float, bool]:
         """(packet time, narrow window?) of a piece: its frame's jitter as the others measured it."""
@@ -246,34 +274,37 @@ class PieceAssembler:
         if self.ll is None:  # made once needed: most lights never show enough short pieces
             self.ll = np.zeros((self.ids.size, self.phis.size))
         timed = 0
+        changes, self._evicted = self._evicted, []
+        qqs, narrows = [], []
         for p in self.pieces:
             if p.corr is None:
                 self._correlate(p)
             p.used = qq, narrow = self._place(p)
+            qqs.append(qq)
+            narrows.append(narrow)
             timed += narrow
             term = (self._start(qq), narrow)
             if term != p.term:
                 if p.term is not None:
-                    self._term(p, *p.term, -1.0)
-                self._term(p, *term, 1.0)
+                    changes.append((p, *p.term, -1.0))
+                changes.append((p, *term, 1.0))
                 p.term = term
+        self._terms(changes)
         self.timed = timed
+        self._placed = (np.array(qqs), np.array(narrows, np.intp), np.array([p.slot for p in self.pieces]))
 
     def _fits(self, c: int, ph: int) -> tuple[np.ndarray, np.ndarray]:
         """(placed q, packet position where the piece fits best in its window) per piece, (P,)
         each, under hypothesis (candidate c, phase index ph); the window's correlations are the
         penalised ones (the place the score used)."""
         J = self.jitter_chips
-        half = min(1, J)
-        pieces = self.pieces
-        qq = np.array([p.used[0] for p in pieces])
-        narrow = np.array([p.used[1] for p in pieces], dtype=bool)
+        qq, narrow, slots = self._placed
         offs = np.arange(-J, J + 1)
         window = (self._slots(qq, ph)[:, None] + offs[None, :]) % PACKET_LEN  # (P, 2 J + 1)
-        vals = np.take_along_axis(np.stack([(p.narrow if p.used[1] else p.wide)[c] for p in pieces]),
-                                  window, axis=1)
-        vals[narrow[:, None] & (np.abs(offs) > half)[None, :]] = -np.inf  # narrow: +-1 chip only
-        return qq, window[np.arange(len(pieces)), np.argmax(vals, axis=1)]
+        rows = np.arange(qq.size)[:, None]
+        vals = self._best[narrow, slots, c][rows, window]
+        vals[(narrow[:, None] != 0) & (np.abs(offs) > min(1, J))[None, :]] = -np.inf  # narrow: +-1 chip
+        return qq, window[rows[:, 0], np.argmax(vals, axis=1)]
 
     def decide(self, fixed: int | None = None) -> int | None:
         """The ID of the best (ID, phase) hypothesis when it passes the checks, else None.
@@ -295,7 +326,11 @@ class PieceAssembler:
         else:
             c, ph = np.unravel_index(int(np.argmax(mean)), mean.shape)
         top = float(mean[c, ph])
-        second = float(np.delete(mean, c, axis=0).max()) if self.ids.size > 1 else -1.0
+        second = -1.0
+        if self.ids.size > 1:
+            row_best = mean.max(axis=1)
+            row_best[c] = -np.inf
+            second = float(row_best.max())
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
         if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
             self._post(int(c), int(ph))
@@ -324,18 +359,19 @@ class PieceAssembler:
         qs = np.array([p.q for p in pieces])
         starts = self._slots(qs, ph)
         window = (starts[:, None] + np.arange(-J, J + 1)[None, :]) % PACKET_LEN
-        vals = np.take_along_axis(np.stack([p.corr[c] for p in pieces]), window, axis=1)
+        rows = np.arange(len(pieces))
+        vals = self._corr[self._placed[2], c][rows[:, None], window]
         i = np.argmax(vals, axis=1)
-        top = vals[np.arange(len(pieces)), i]
+        top = vals[rows, i]
         if J > 0:
-            rest = vals.copy()
-            rest[np.arange(len(pieces)), i] = -np.inf
-            other = rest.max(axis=1)
+            vals[rows, i] = -np.inf
+            other = vals.max(axis=1)
         else:
             other = np.full(len(pieces), -1.0)
-        for k in np.flatnonzero((top >= self.ref_match) & (top - other >= self.ref_unique)):
+        at = window[rows, i].tolist()
+        for k in np.flatnonzero((top >= self.ref_match) & (top - other >= self.ref_unique)).tolist():
             p = pieces[k]
-            self.frame_jitter.post(p.t, self.key, _wrap(float(window[k, i[k]]) - p.q - phi))
+            self.frame_jitter.post(p.t, self.key, _wrap(float(at[k]) - p.q - phi))
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:

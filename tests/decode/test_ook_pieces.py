@@ -160,7 +160,7 @@ def test_piece_correlations_are_the_circular_cross_correlations():
         a = PieceAssembler(np.arange(k), templates, jitter_chips=int(rng.integers(0, 4)), history=8,
                            min_frames=2, min_corr=0.5, min_gap=0.1)
         x = rng.uniform(-1, 1, n).astype(np.float32)
-        p = types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()))
+        p = types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=0)
         a._correlate(p)
         xp = np.zeros(54)
         xp[:n] = x
