@@ -123,6 +123,8 @@ class PairTuning:
     growth_span_frames: int = 8  # growth is extrapolated over at most this many frames
     max_growth: float = 0.08  # and at most 8 % a frame (a head at 10 m at 70 km/h)
     anchor_coast_frames: int = 5  # a far head's pair that coasted this long is not reported until re-placed
+    lone_sigmas: float = 2.0  # a decoded two-track pair's lone smaller blob moves it within this many sigmas
+    shift_sigma_px: float = 1.5  # 1-sigma error (px per axis) of a frame's measured shift (`motion.pair_dx`'s blob noise)
     reanchor_sep_tol: float = 0.1  # a pair of two tracks that explains no blob is re-placed on two seen blobs
     # whose offset is its baseline within this fraction (+ match_min_px), within the camera-shift search
     # radius (`PairSettings.shake_radius_px`) per frame it coasted
@@ -356,6 +358,7 @@ class Pairer:
         self.baseline_gain = k.baseline_gain
         self.anchor_coast_frames = k.anchor_coast_frames
         self.reanchor_sep_tol, self.shake_radius_px = k.reanchor_sep_tol, s.shake_radius_px
+        self.lone_sigmas, self.shift_sigma_px = k.lone_sigmas, k.shift_sigma_px
         self.growth_gain, self.growth_span_frames, self.max_growth = k.growth_gain, k.growth_span_frames, k.max_growth
         self.head_follow, self.head_gap_frames = k.head_follow, k.head_gap_frames
         # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
@@ -716,6 +719,7 @@ class Pairer:
                 expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, excl)
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
+        found = [self._lone_checked(p, f) for (p, _, _), f in zip(items, found)]
         taken = {t.track_id for f in found for t in f[0]}
         # the two-track pairs whose emitter another pair may take (`_anothers`): the decoded ones
         # that explain no blob at their prediction, by their founding tracks (a far head's
@@ -740,6 +744,33 @@ class Pairer:
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
         return out
+
+    def _lone_gate_px(self, p: Pair) -> float:
+        """How far (px) a lone blob may lie from where decoded two-track pair `p` predicts its
+        emitter and still move it: the centroid noise (`match_min_px`) plus `lone_sigmas` x the
+        prediction's 1-sigma error, `shift_sigma_px` per frame since its last blob (the frame's
+        shift estimate; the errors of the frames it coasted add up)."""
+        return self.match_min_px + self.lone_sigmas * self.shift_sigma_px * math.sqrt(1.0 + p.misses)
+
+    def _lone_checked(self, p: Pair, found: tuple) -> tuple:
+        """`found` (explaining, nearby, mean shift, A's blob, B's blob, merged blob) of pair `p`,
+        or nothing explained when `p` is a decoded pair of two tracks that explains one lone blob
+        smaller than its emitters (under 1 / `merged_ratio` of the larger envelope) farther than
+        `_lone_gate_px` from its prediction. Such a blob is a clock edge's cut of its own
+        emitter, or another, farther light's blob beside it (a car behind, its taillight a few
+        px from this one's while this one's is dark or hidden): with no partner blob one
+        baseline away it cannot tell which, and a pair moved onto another light carries its
+        ID there. The pair coasts instead; its own emitters are found where it predicts them,
+        or both at once one baseline apart (`_reanchor`). A whole blob, or one within the gate,
+        moves it as before."""
+        expl, nearby, mean, obs_a, obs_b, merged = found
+        if (p.led_id is None or p.a.track_id == p.b.track_id or len(expl) != 1 or merged is not None
+                or mean is None or math.hypot(*mean) <= self._lone_gate_px(p)):
+            return found
+        whole = max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
+        if max(expl[0].blob.area_px, 1.0) >= whole / self.merged_ratio:
+            return found
+        return [], nearby, None, None, None, None
 
     def _anothers(self, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
         """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
