@@ -111,7 +111,7 @@ def width_class(g, p: Pair, blob: Blob, hx: float) -> str | None:
 
 def claim_tol(g, single: float) -> float:
     """How near (px) a blob must be to a decoded pair's emitter to be claimed by it
-    (`_first_pass`), for one emitter's area `single` px^2."""
+    (`Pairer._first_pass`), for one emitter's area `single` px^2."""
     return max(g.match_min_px, g.match_size * math.sqrt(single))
 
 
@@ -126,12 +126,12 @@ def lone_checked(g, p: Pair, found: tuple) -> tuple:
     """`found` (explaining, nearby, mean shift, A's blob, B's blob, merged blob) of pair `p`,
     or nothing explained when `p` is a decoded pair of two tracks that explains one lone blob
     smaller than its emitters (under 1 / `merged_ratio` of the larger envelope) farther than
-    `_lone_gate_px` from its prediction. Such a blob is a clock edge's cut of its own
+    `lone_gate_px` from its prediction. Such a blob is a clock edge's cut of its own
     emitter, or another, farther light's blob beside it (a car behind, its taillight a few
     px from this one's while this one's is dark or hidden): with no partner blob one
     baseline away it cannot tell which, and a pair moved onto another light carries its
     ID there. The pair coasts instead; its own emitters are found where it predicts them,
-    or both at once one baseline apart (`_reanchor`). A whole blob, or one within the gate,
+    or both at once one baseline apart (`reanchor`). A whole blob, or one within the gate,
     moves it as before."""
     expl, nearby, mean, obs_a, obs_b, merged = found
     if (p.led_id is None or p.a.track_id == p.b.track_id or len(expl) != 1 or merged is not None
@@ -148,7 +148,7 @@ def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
     this frame, its founding track ids) of the pairs whose founding track `t` may be. It is
     another's when not `p`'s own track but the founding track of a decoded pair that explains no blob this
     frame, within that pair's reach of its prediction (`shake_radius_px` a frame coasted and
-    the claim tolerance `_claim_tol`): the ID was read from that track's light, which the
+    the claim tolerance `claim_tol`): the ID was read from that track's light, which the
     other pair has just lost, and `p` may have taken it."""
     if t.track_id in (p.a.track_id, p.b.track_id) or any(u.track_id == t.track_id for u in p.tracks):
         return False

@@ -1,4 +1,5 @@
-"""The S2-PSK pair as a record and its baseline model (receiver.vision.pairing: the per-frame flow).
+"""The S2-PSK pair as a record, its baseline model and its update from the blobs it explains in
+a frame (receiver.vision.pairing: the per-frame flow).
 
 One baseline model for every pair: the baseline is measured whenever both emitters' own blobs
 are seen in one frame (or, for a far head, from a merged blob's width), blended into the
@@ -152,6 +153,9 @@ def moved(blob: Blob, cx: float, cy: float) -> Blob:
                         peak=blob.peak, level=blob.level, background=blob.background)
     return out
 
+
+# what becomes of a pair in a frame (`follow_update`)
+LIVE, ENDED, WRONG = "live", "ended", "wrong"
 
 # A pair's baseline counts as measured while both emitters' own blobs were seen within this
 # many frames, the latest in this frame (receiver.core.records.PairObservation.both_visible).
@@ -310,3 +314,69 @@ def measure_baseline(g, p: Pair, hx: float, hy: float, obs_a, obs_b, merged) -> 
         g = g.baseline_gain
         meas = (pred[0] + g * (meas[0] - pred[0]), pred[1] + g * (meas[1] - pred[1]))
     p.base, p.base_frames = meas, p.frames
+
+
+def follow_update(g, p: Pair, shape, pred: tuple, explaining: list, nearby: list, mean,
+                  obs_a, obs_b, merged) -> str:
+    """Pair `p` moved by the blobs it explains at its prediction `pred` (mx, my, hx, hy,
+    single) (receiver.vision.pair_match.explain; `mean`: the mean (dx, dy) of their shifts, None
+    without any): its baseline measured, its envelopes placed, its misses counted. Returns
+    LIVE, ENDED (coasted too long or an emitter left the image of `shape`) or WRONG (an
+    undecoded two-track pair one of whose emitters never showed a blob of its own for
+    `unseen_give_up_frames`: its two tracks are never paired again)."""
+    mx, my, hx, hy, single = pred
+    p.tracks, p.nearby = explaining, nearby
+    if merged is not None or (obs_a is not None and obs_b is not None):
+        measure_baseline(g, p, hx, hy, obs_a, obs_b, merged)
+        p.anchored = True
+    elif g.anchor_coast_frames and p.misses + (not p.tracks) >= g.anchor_coast_frames:
+        p.anchored = False
+    if obs_a is not None:
+        p.seen_a = p.frames
+        p.obs_a = (obs_a, p.frames)
+    if obs_b is not None:
+        p.seen_b = p.frames
+        p.obs_b = (obs_b, p.frames)
+    p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
+        p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
+    if (g.unseen_give_up_frames and p.led_id is None and p.a.track_id != p.b.track_id
+            and min(p.frames - min(p.seen_a, p.seen_b), p.frames) > g.unseen_give_up_frames):
+        # one end of an undecoded two-track pair without a blob of its own for that long:
+        # a wrong pairing (`PairSettings.unseen_give_up_frames`), as after give_up_frames
+        return WRONG
+    if p.tracks and p.kind == "SL":
+        # A near street light grows by several % a frame, and while both its halves are lit
+        # they show as one merged blob that leaves the emitters' envelopes as they were: the
+        # next single or merged blob, grown past `merged_ratio` / `max_merged` of them, was
+        # then "another light's" and the pair lost its head within a few frames. Its size
+        # follows every blob it explains instead (`predict`, receiver.vision.pair_match.explain).
+        t = p.tracks[0]
+        if math.hypot(t.cx - mx, t.cy - my) < min(math.hypot(t.cx - mx + hx, t.cy - my + hy),
+                                                  math.hypot(t.cx - mx - hx, t.cy - my - hy)):
+            p.size = 0.5 * t.blob.area_px  # both lit, one blob
+        elif obs_a is not None or obs_b is not None:
+            p.size = t.blob.area_px
+    if mean is None:
+        p.misses += 1
+        sx = sy = 0.0
+    else:
+        p.misses = 0
+        sx, sy = mean
+        p.vx += g.velocity_gain * sx
+        p.vy += g.velocity_gain * sy
+    p.mx, p.my = mx + sx, my + sy
+    for e, obs, sign in ((p.a, obs_a, -1.0), (p.b, obs_b, 1.0)):
+        # An emitter's own single blob becomes its envelope (shape and size); it sits at
+        # the rigid pair's position, to the nearest whole pixel (`moved`: its centroid stays
+        # the mask's, so sub-pixel steps add up instead of being rounded away every frame).
+        x, y = p.mx + sign * hx, p.my + sign * hy
+        blob = obs if obs is not None else e.blob
+        e.blob = moved(blob, x, y)
+    if p.misses > g.max_missed:
+        return ENDED
+    if shape is not None:
+        h, w = shape[:2]
+        for e in (p.a, p.b):
+            if e.blob.x0 < 0 or e.blob.y0 < 0 or e.blob.x1 > w or e.blob.y1 > h:
+                return ENDED
+    return LIVE

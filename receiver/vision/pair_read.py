@@ -1,5 +1,5 @@
-"""What is read and reported of the S2-PSK pairs: their emitters in the output and a far
-head's flux (receiver.vision.pairing: the per-frame flow).
+"""What is read and reported of the S2-PSK pairs: their emitters in the output, their
+intensities and a far head's flux (receiver.vision.pairing: the per-frame flow).
 
 `g`: the gates a function reads, by the names of `PairTuning` / `PairSettings` (a
 receiver.vision.pairing.Pairer holds them).
@@ -100,3 +100,31 @@ def flux_box(g, p: Pair, shape) -> tuple[int, int, int, int, float]:
     x0, x1 = max(int(math.floor(cx - base - mx)), 0), min(int(math.ceil(cx + base + mx)) + 1, w)
     y0, y1 = max(int(math.floor(cy - half_h - my)), 0), min(int(math.ceil(cy + half_h + my)) + 1, h)
     return x0, x1, y0, y1, float(p.a.blob.background) + g.flux_floor
+
+
+def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:
+    """This frame's (a, b) intensities of a pair; updates its levels."""
+    if p.fresh:
+        p.fresh = False
+        return p.levels_a.values[-1], p.levels_b.values[-1]
+    ia, ib = intensity(gray, p.a), intensity(gray, p.b)
+    p.levels_a.add(ia)
+    p.levels_b.add(ib)
+    return ia, ib
+
+
+def sample_all(pairs: list[Pair], gray: np.ndarray, intensities) -> list[tuple[float, float]]:
+    """`sample` of every pair of `pairs`, their emitters read by one
+    `intensities(gray, tracks) -> list of float` call."""
+    vals = iter(intensities(gray, [e for p in pairs if not p.fresh for e in (p.a, p.b)]))
+    out = []
+    for p in pairs:
+        if p.fresh:
+            p.fresh = False
+            out.append((p.levels_a.values[-1], p.levels_b.values[-1]))
+            continue
+        ia, ib = next(vals), next(vals)
+        p.levels_a.add(ia)
+        p.levels_b.add(ib)
+        out.append((ia, ib))
+    return out

@@ -33,9 +33,10 @@ The frame's camera shift (`step`'s `shift`) moves every pair's prediction before
 matched: a lone lit half is A or B by where the shifted pair puts them.
 
 Layout: receiver.vision.pair_model (the `Pair` record, `EmitterLevels`, `PairTuning`, the
-baseline model), pair_match (which blobs a pair explains, lone blobs, re-anchoring),
-pair_found (new pairs' backlogs, a far head's twin pairs), pair_read (the emitters reported, a
-far head's flux); `Pairer` here: the per-frame flow and the compiled kernels' calls.
+baseline model, a pair's update from the blobs it explains), pair_match (which blobs a pair
+explains, lone blobs, re-anchoring), pair_found (a far head's jumper pairs, new pairs'
+backlogs, twin pairs), pair_read (the emitters reported, their intensities, a far head's flux);
+`Pairer` here: the per-frame flow and the compiled kernels' calls.
 
 Cost: the loops over pairs x blobs run compiled (receiver/vision/_pairing.pyx), once per
 pass and frame, not per pair: `_explain` of every pair with `_first_pass`'s claims
@@ -56,11 +57,13 @@ import numpy as np
 from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.core.settings import resolve_settings
-from receiver.vision.pair_found import drop_twins, head_backlog, jumper_backlog, mark_beside, two_track_backlog
+from receiver.vision.pair_found import JumpWatch, drop_twins, head_backlog, jumper_pair, mark_beside, two_track_backlog
 from receiver.vision.pair_match import anothers, claim_tol, explain, lone_checked, lone_gate_px, reanchor, width_class
-from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, TUNING, EmitterLevels, Pair, PairTuning, _emitter,
-                                        measure_baseline, moved, pair_score, predict)
+from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, LIVE, TUNING, WRONG, EmitterLevels, Pair, PairTuning,
+                                        _emitter, follow_update, measure_baseline, moved, pair_score, predict)
 from receiver.vision.pair_read import emitters, flux_box, flux_on, head_flux
+from receiver.vision.pair_read import sample as read_sample
+from receiver.vision.pair_read import sample_all as read_sample_all
 from receiver.vision.settings import PairSettings
 from receiver.vision.track import Track
 
@@ -132,8 +135,7 @@ class Pairer:
         # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
         self.scene_past: deque = deque(maxlen=max(self.backlog_frames, 1))
         self.view_sum = (0.0, 0.0)  # every frame's image shift added up (measured or `pitch_shift`), px
-        self.last_seen: dict[int, tuple] = {}  # per track, its latest blob and shift_sum then (for jumps)
-        self.jumps: dict[int, tuple[float, float]] = {}  # per track, its latest qualifying jump, px
+        self.jump_watch = JumpWatch()  # per track, its latest blob and jump (a far head's jumper pairs)
         self.shift = (0.0, 0.0)  # the latest frame's common image shift, px
         self.shift_sum = (0.0, 0.0)  # the measured shifts added up, px (jumps over dark frames)
         self.vertical_known = False  # this frame's vertical shift was measured (step's `shift`)
@@ -454,67 +456,13 @@ class Pairer:
 
     def _follow_end(self, p: Pair, shape, pred: tuple, explaining: list, nearby: list, mean,
                     obs_a, obs_b, merged) -> bool:
-        """`_follow`'s second part, from the blobs pair `p` explains at its prediction `pred`
-        (`_explain`; `mean`: the mean (dx, dy) of their shifts, None without any)."""
-        mx, my, hx, hy, single = pred
+        """`_follow`'s second part (receiver.vision.pair_model.follow_update); False when the
+        pair ends (its founding tracks banned when it was a wrong pairing)."""
         self._preds = None  # the pairs move
-        p.tracks, p.nearby = explaining, nearby
-        if merged is not None or (obs_a is not None and obs_b is not None):
-            measure_baseline(self, p, hx, hy, obs_a, obs_b, merged)
-            p.anchored = True
-        elif self.anchor_coast_frames and p.misses + (not p.tracks) >= self.anchor_coast_frames:
-            p.anchored = False
-        if obs_a is not None:
-            p.seen_a = p.frames
-            p.obs_a = (obs_a, p.frames)
-        if obs_b is not None:
-            p.seen_b = p.frames
-            p.obs_b = (obs_b, p.frames)
-        p.both_seen = p.frames - max(p.seen_a, p.seen_b) <= 0 and \
-            p.frames - min(p.seen_a, p.seen_b) < BOTH_SEEN_FRAMES
-        if (self.unseen_give_up_frames and p.led_id is None and p.a.track_id != p.b.track_id
-                and min(p.frames - min(p.seen_a, p.seen_b), p.frames) > self.unseen_give_up_frames):
-            # one end of an undecoded two-track pair without a blob of its own for that long:
-            # a wrong pairing (`PairSettings.unseen_give_up_frames`), as after give_up_frames
+        fate = follow_update(self, p, shape, pred, explaining, nearby, mean, obs_a, obs_b, merged)
+        if fate == WRONG:
             self.banned.add(p.founding)
-            return False
-        if p.tracks and p.kind == "SL":
-            # A near street light grows by several % a frame, and while both its halves are lit
-            # they show as one merged blob that leaves the emitters' envelopes as they were: the
-            # next single or merged blob, grown past `merged_ratio` / `max_merged` of them, was
-            # then "another light's" and the pair lost its head within a few frames. Its size
-            # follows every blob it explains instead (`_predict`, `_explain`).
-            t = p.tracks[0]
-            if math.hypot(t.cx - mx, t.cy - my) < min(math.hypot(t.cx - mx + hx, t.cy - my + hy),
-                                                      math.hypot(t.cx - mx - hx, t.cy - my - hy)):
-                p.size = 0.5 * t.blob.area_px  # both lit, one blob
-            elif obs_a is not None or obs_b is not None:
-                p.size = t.blob.area_px
-        if mean is None:
-            p.misses += 1
-            sx = sy = 0.0
-        else:
-            p.misses = 0
-            sx, sy = mean
-            p.vx += self.velocity_gain * sx
-            p.vy += self.velocity_gain * sy
-        p.mx, p.my = mx + sx, my + sy
-        for e, obs, sign in ((p.a, obs_a, -1.0), (p.b, obs_b, 1.0)):
-            # An emitter's own single blob becomes its envelope (shape and size); it sits at
-            # the rigid pair's position, to the nearest whole pixel (`moved`: its centroid stays
-            # the mask's, so sub-pixel steps add up instead of being rounded away every frame).
-            x, y = p.mx + sign * hx, p.my + sign * hy
-            blob = obs if obs is not None else e.blob
-            e.blob = moved(blob, x, y)
-        if p.misses > self.max_missed:
-            return False
-        if shape is not None:
-            h, w = shape[:2]
-            for e in (p.a, p.b):
-                if e.blob.x0 < 0 or e.blob.y0 < 0 or e.blob.x1 > w or e.blob.y1 > h:
-                    return False
-        return True
-
+        return fate == LIVE
     def _measure_baseline(self, p: Pair, hx: float, hy: float, obs_a, obs_b, merged) -> None:
         """receiver.vision.pair_model.measure_baseline with this pairer's gates."""
         measure_baseline(self, p, hx, hy, obs_a, obs_b, merged)
@@ -611,71 +559,16 @@ class Pairer:
     def _pair_jumpers(self, tracks: list[Track], busy: set[int]) -> None:
         """Pairs from single tracks that jump between two places: a far head's halves are
         never two blobs of one frame (module docstring), so one track takes the blob of
-        whichever half is lit. Two jumps of about the same baseline between single-emitter-
-        sized blobs (either direction) make a pair at the two places."""
-        live = {t.track_id for t in tracks}
-        for d in (self.last_seen, self.jumps):
-            for tid in [tid for tid in d if tid not in live]:
-                del d[tid]
-        for t in tracks:
-            last = self.last_seen.get(t.track_id)
-            if not t.seen:
-                continue
-            self.last_seen[t.track_id] = (t.blob, self.shift_sum)
-            if last is None or t.track_id in busy:
-                continue
-            # the jump without the camera's shake since the track's previous blob (it may have
-            # been dark for a few frames)
-            last, s0 = last
-            ox, oy = self.shift_sum[0] - s0[0], self.shift_sum[1] - s0[1]
-            jx, jy = t.cx - last.cx - ox, t.cy - last.cy - oy
-            if jx < 0:
-                jx, jy = -jx, -jy  # left-to-right baseline either way
-            diam = math.sqrt(max(0.5 * (t.blob.area_px + last.area_px), 1.0))
-            ratio = max(t.blob.area_px, 1.0) / max(last.area_px, 1.0)
-            if not (self.geom["min_baseline"] * diam <= jx <= self.jump_max_baseline * diam
-                    and abs(jy) <= self.geom["row_band"] * diam
-                    and 1.0 / self.merged_ratio <= ratio <= self.merged_ratio):
-                continue
-            prev = self.jumps.get(t.track_id)
-            self.jumps[t.track_id] = (jx, jy)
-            # Each jump is the baseline plus the light's motion over one frame, in opposite
-            # directions for a back-and-forth track (B -> A, A -> B): the left-to-right jumps
-            # then differ by about twice that motion. The camera's pitch vibration moves lights
-            # by 1-2 px per frame, mostly vertically, so `jump_agree_y_px` of the vertical
-            # difference is forgiven before the two must agree within jump_agree diameters.
-            if prev is None or math.hypot(jx - prev[0], max(abs(jy - prev[1]) - self.jump_agree_y_px, 0.0)
-                                          ) > self.jump_agree * diam:
-                continue
-            # their mean is the baseline without the motion
-            jx, jy = 0.5 * (jx + prev[0]), 0.5 * (jy + prev[1])
-            right = t.cx - last.cx - ox > 0  # the current blob is the right-hand emitter
-            ax, ay = (t.cx - jx, t.cy - jy) if right else (t.cx, t.cy)
+        whichever half is lit (receiver.vision.pair_found.JumpWatch); `busy`: the track ids
+        that are a pair's already, this frame's new jumper pairs' added."""
+        for t, last, ax, ay, jx, jy in self.jump_watch.jumps(self, tracks, busy, self.shift_sum):
             if (t.track_id, t.track_id) in self.banned:
                 continue
-            a, b = _emitter(t), _emitter(t)
-            a.blob = moved(t.blob, ax, ay)
-            b.blob = moved(t.blob, ax + jx, ay + jy)
-            p = Pair(a, b, fresh=False, tracks=[t], nearby=[t], ids=(self.new_id(), self.new_id()))
-            lv = self.levels.get(t.track_id)
-            if lv is not None and t.blob.area_px >= self.jumper_levels_min_area_px:
-                # A near head (halves of >= jumper_levels_min_area_px): its track's learned
-                # on / off levels (lit when it had a half's blob, dark otherwise) seed both
-                # emitters', so its first samples are read against them, not against one or
-                # two values (a wrong sign each, folded into the packet's first estimate). A far
-                # head's per-emitter reads stay neutral until its own levels are learned: which
-                # half is lit cannot be told under the yaw shake (its flux is read instead).
-                for v in (lv.on, lv.off):
-                    p.levels_a.add(v)
-                    p.levels_b.add(v)
-            p.backlog = jumper_backlog(self, self.past.pop(t.track_id, ()), t.blob.area_px, last.area_px)
-            head = head_backlog(self, ax + 0.5 * jx, ay + 0.5 * jy, jx, max(0.5 * (t.blob.area_px + last.area_px), 1.0))
-            if len(head) > len(p.backlog):
-                p.backlog = head
+            p = jumper_pair(self, t, last, (ax, ay), (jx, jy), (self.new_id(), self.new_id()),
+                            self.levels.get(t.track_id), self.past.pop(t.track_id, ()))
             self.pairs.append(p)
             busy.add(t.track_id)
-            self.jumps.pop(t.track_id, None)
-
+            self.jump_watch.last_jump.pop(t.track_id, None)
     def _head_backlog(self, mx: float, my: float, base_px: float, single: float) -> list[tuple]:
         """receiver.vision.pair_found.head_backlog from this pairer's frame history."""
         return head_backlog(self, mx, my, base_px, single)
@@ -685,33 +578,8 @@ class Pairer:
         receiver.vision.pair_read.emitters of the live pairs."""
         return emitters(self, self.pairs)
 
-    @staticmethod
-    def sample(p: Pair, gray: np.ndarray, intensity) -> tuple[float, float]:
-        """This frame's (a, b) intensities of a pair; updates its levels."""
-        if p.fresh:
-            p.fresh = False
-            return p.levels_a.values[-1], p.levels_b.values[-1]
-        ia, ib = intensity(gray, p.a), intensity(gray, p.b)
-        p.levels_a.add(ia)
-        p.levels_b.add(ib)
-        return ia, ib
-
-    @staticmethod
-    def sample_all(pairs: list[Pair], gray: np.ndarray, intensities) -> list[tuple[float, float]]:
-        """`sample` of every pair of `pairs`, their emitters read by one
-        `intensities(gray, tracks) -> list of float` call."""
-        vals = iter(intensities(gray, [e for p in pairs if not p.fresh for e in (p.a, p.b)]))
-        out = []
-        for p in pairs:
-            if p.fresh:
-                p.fresh = False
-                out.append((p.levels_a.values[-1], p.levels_b.values[-1]))
-                continue
-            ia, ib = next(vals), next(vals)
-            p.levels_a.add(ia)
-            p.levels_b.add(ib)
-            out.append((ia, ib))
-        return out
+    sample = staticmethod(read_sample)
+    sample_all = staticmethod(read_sample_all)
 
     def sample_flux(self, p: Pair, gray: np.ndarray) -> float:
         """This frame's `head_flux` of pair `p` (gray x px), kept in `Pair.flux`."""
