@@ -92,8 +92,6 @@ class PairSettings:
     unseen_give_up_frames [60 frames]: an undecoded two-track pair one of whose emitters never had
         a blob of its own for this long ends too (each emitter is lit alone in ~1/4 of the
         frames); 0 = never.
-    report_coast_frames [3 frames]: a pair's emitters are reported while it explained a blob within
-        this many frames (the longest both-dark run).
     backlog_frames [90 frames]: history kept per unpaired track so a new pair's decoder starts
         from the light's first frames (3 s: longer than one 2.4 s packet); 0 = off.
     shake ["pairs"]: the camera-shake estimate that moves every track's and pair's prediction:
@@ -104,8 +102,6 @@ class PairSettings:
         candidate among the blobs' own: receiver.vision.camera_motion).
     shake_radius_px [14 px]: the largest frame-to-frame image shift searched (0.5 degrees at a
         1500 px focal length).
-    flux_floor [2 gray]: above the background, what a far head's flux counts (sensor noise adds
-        nothing).
     """
 
     row_band: float = 1.0
@@ -117,8 +113,6 @@ class PairSettings:
     max_missed: int = 10
     give_up_frames: int = 200
     unseen_give_up_frames: int = 60
-    report_coast_frames: int = 3
     backlog_frames: int = 90
     shake: str = "pairs"
     shake_radius_px: float = knob(14.0, 0.0, MAX_IMAGE_SIDE_PX)
-    flux_floor: float = 2.0

@@ -286,7 +286,8 @@ def test_sample_fluxes_equal_head_flux():
     gray = rng.integers(0, 256, size=(120, 200), dtype=np.uint8)
     gray[rng.random(gray.shape) < 0.7] = 3  # mostly background, as around a far head
     for margins in ((4.0, 3.0), (0.0, 0.0)):
-        pr = Pairer(flux_floor=float(rng.uniform(0, 5)))
+        pr = Pairer()
+        pr.flux_floor = float(rng.uniform(0, 5))
         pr.flux_margin_px, pr.flux_margin_y_px = margins
         _check_fluxes(rng, gray, pr)
 
