@@ -7,7 +7,8 @@ blob (peak at the sensor's white level, `white_gray`) blooms to 2-3x the emitter
 saturated blob is not held to the area gates. A decoded pair's lone smaller blob far from its
 prediction does not move it (`lone_checked`); a coasting pair of two tracks is re-placed on two
 blobs one baseline apart (`reanchor`); a pair that takes another pair's emitter is found by
-`anothers`.
+`anothers`. Also the Python reference of the frame's first pass over all pairs
+(`pitch_and_claims`) and of the camera-shift votes (`shift_votes_of`, `dx_offsets_of`).
 
 `g`: the gates a function reads, by the names of `PairTuning` / `PairSettings`, and this frame's
 `vertical_known` (a receiver.vision.pairing.Pairer holds them). This Python code is the
@@ -201,3 +202,72 @@ def reanchor(g, p: Pair, pred: tuple, tracks: list[Track], table: np.ndarray, ta
         return None
     _, ta, tb, mean = best
     return [ta, tb], mean, ta.blob, tb.blob
+
+
+def shift_votes_of(pred: np.ndarray, xy: np.ndarray, radius_px: float) -> np.ndarray:
+    """`Pairer.shift_votes` of the predictions `pred` (P, 4) mx, my, hx, hy and the blob
+    centroids `xy` (N, 2), px: (K, 2) votes."""
+    # all pairs at once, in the order of a loop over the pairs: per pair its blobs' offsets
+    # d, then d + (hx, hy), then d - (hx, hy), each in the blobs' order
+    d = xy[None, :, :] - pred[:, None, :2]  # (P, N, 2)
+    reach = radius_px + np.abs(pred[:, 2:])  # (P, 2)
+    keep = (np.abs(d[:, :, 0]) <= reach[:, None, 0]) & (np.abs(d[:, :, 1]) <= reach[:, None, 1])
+    h = pred[:, None, 2:]
+    votes = np.stack((d, d + h, d - h), axis=1)  # (P, 3, N, 2)
+    return votes[np.broadcast_to(keep[:, None, :], votes.shape[:3])]
+
+
+def dx_offsets_of(g, preds: list, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
+    """`Pairer.dx_offsets` of the pairs' predictions `preds` ((pair, (mx, my, hx, hy, single)),
+    px, px^2): per blob of `blobs` (centroids `xy` (N, 2)) near one, its candidate horizontal
+    shifts (px)."""
+    out = []
+    for p, (mx, my, hx, hy, single) in preds:
+        my += dy
+        sel = np.flatnonzero((np.abs(xy[:, 1] - my) <= g.match_min_px + abs(hy))
+                             & (np.abs(xy[:, 0] - mx) <= radius_px + abs(hx)))
+        for j in sel:
+            b = blobs[j]
+            kind = width_class(g, p, b, hx)
+            if kind is None:
+                r = b.area_px / single
+                kind = ("merged" if g.merged_ratio < r <= g.max_merged else
+                        "single" if 1.0 / g.max_cut <= r <= g.merged_ratio else None)
+            if kind == "merged":
+                out.append(np.array([xy[j, 0] - mx]))
+            elif kind == "single":
+                out.append(np.array([xy[j, 0] - mx + hx, xy[j, 0] - mx - hx]))
+    return out
+
+
+def pitch_and_claims(g, preds: list, tracks: list[Track], xy: np.ndarray, pitch: bool) -> tuple[float, dict]:
+    """`Pairer._first_pass` of the pairs' predictions `preds` ((pair, (mx, my, hx, hy, single)))
+    against `tracks` (centroids `xy` (N, 2), px): (the median vertical offset of the pairs'
+    explained blobs, px, with `pitch` and at least `shake_min_pairs` of them, else 0.0;
+    {pair uid: ids of the tracks it must not take})."""
+    dys, claims = [], {}
+    for p, pred in preds:
+        mx, my, hx, hy, single = pred
+        expl, _, shifts, _, _, _ = explain(g, p, tracks, xy, *pred)
+        if shifts:
+            dys.append(float(np.mean([d[1] for d in shifts])))
+        mine = {t.track_id for t in expl}
+        if p.led_id is not None and len(xy):
+            # a decoded pair also claims the blobs on its own emitters that it did not take
+            # (another light's blob merged with one of them)
+            tol = claim_tol(g, single)
+            d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
+                           np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
+            mine.update(tracks[i].track_id for i in np.flatnonzero(d <= tol) if tracks[i].seen)
+        for tid in mine:
+            claims.setdefault(tid, []).append(p)
+    exclude: dict[int, set] = {}
+    for tid, ps in claims.items():
+        if len(ps) < 2:
+            continue
+        decoded = [p for p in ps if p.led_id is not None]
+        for p in ps:
+            if len(decoded) >= 2 or (decoded and p.led_id is None):
+                exclude.setdefault(p.uid, set()).add(tid)
+    pitch = float(np.median(dys)) if pitch and len(dys) >= g.shake_min_pairs else 0.0
+    return pitch, exclude

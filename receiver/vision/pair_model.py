@@ -64,7 +64,7 @@ class PairTuning:
     shake_zero_rel: float = 0.15  # dx 0 when that scores within 15 % of the best (no yaw: no noise)
     flux_margin_px: float = 10.0  # a far head's flux box: one baseline plus this either side ...
     flux_margin_y_px: float = 2.0  # ... and this above and below its envelopes (yaw moves it more)
-    flux_floor: float = 2.0  # above the background, what a far head's flux counts (gray; sensor noise adds nothing)
+    flux_floor: float = 2.0  # gray above the background a far head's flux counts from (sensor noise adds nothing)
     flux_min: float = 4.0  # fluxes above this count as lit (gray x px)
     flux_recent: int = 12  # the both-lit flux from the last this many lit fluxes (heads approach)
     jumper_levels_min_area_px: float = 16.0  # a near head's jumper pair inherits its track's levels
@@ -79,7 +79,7 @@ class PairTuning:
     growth_gain: float = 0.2  # smoothing of the baseline's growth per frame (an approaching light)
     growth_span_frames: int = 8  # growth is extrapolated over at most this many frames
     max_growth: float = 0.08  # and at most 8 % a frame (a head at 10 m at 70 km/h)
-    report_coast_frames: int = 3  # a pair's emitters are reported while it explained a blob this recently (longest both-dark run)
+    report_coast_frames: int = 3  # emitters reported while the pair explained a blob this recently (both-dark run)
     anchor_coast_frames: int = 5  # a far head's pair that coasted this long is not reported until re-placed
     lone_sigmas: float = 2.0  # a decoded two-track pair's lone smaller blob moves it within this many sigmas
     shift_sigma_px: float = 1.5  # 1-sigma error (px per axis) of a frame's measured shift (`motion.pair_dx`'s blob noise)

@@ -58,7 +58,8 @@ from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.core.settings import resolve_settings
 from receiver.vision.pair_found import JumpWatch, drop_twins, head_backlog, jumper_pair, mark_beside, two_track_backlog
-from receiver.vision.pair_match import anothers, claim_tol, explain, lone_checked, lone_gate_px, reanchor, width_class
+from receiver.vision.pair_match import (anothers, claim_tol, dx_offsets_of, explain, lone_checked, lone_gate_px,
+                                        pitch_and_claims, reanchor, shift_votes_of, width_class)
 from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, LIVE, TUNING, WRONG, EmitterLevels, Pair, PairTuning,
                                         _emitter, follow_update, measure_baseline, moved, pair_score, predict)
 from receiver.vision.pair_read import emitters, flux_box, flux_on, head_flux
@@ -178,14 +179,7 @@ class Pairer:
         if _k is not None:
             out = np.empty((3 * len(pred) * len(xy), 2))
             return out[:_k.shift_votes(np.ascontiguousarray(xy, float), pred, float(radius_px), out)]
-        # all pairs at once, in the order of a loop over the pairs: per pair its blobs' offsets
-        # d, then d + (hx, hy), then d - (hx, hy), each in the blobs' order
-        d = xy[None, :, :] - pred[:, None, :2]  # (P, N, 2)
-        reach = radius_px + np.abs(pred[:, 2:])  # (P, 2)
-        keep = (np.abs(d[:, :, 0]) <= reach[:, None, 0]) & (np.abs(d[:, :, 1]) <= reach[:, None, 1])
-        h = pred[:, None, 2:]
-        votes = np.stack((d, d + h, d - h), axis=1)  # (P, 3, N, 2)
-        return votes[np.broadcast_to(keep[:, None, :], votes.shape[:3])]
+        return shift_votes_of(pred, xy, radius_px)
 
     def dx_offsets(self, blobs: list, xy: np.ndarray, dy: float, radius_px: float) -> list[np.ndarray]:
         """Per blob near a formed pair's prediction (moved down by this frame's vertical shift
@@ -206,22 +200,7 @@ class Pairer:
             res = np.full((len(items) * len(bl), 2), np.inf)
             n = _k.dx_offsets(bl, self._pair_rows(items, False), self._cfg(), float(dy), float(radius_px), res)
             return res[:n]
-        for p, (mx, my, hx, hy, single) in self._predictions():
-            my += dy
-            sel = np.flatnonzero((np.abs(xy[:, 1] - my) <= self.match_min_px + abs(hy))
-                                 & (np.abs(xy[:, 0] - mx) <= radius_px + abs(hx)))
-            for j in sel:
-                b = blobs[j]
-                kind = self._width_class(p, b, hx)
-                if kind is None:
-                    r = b.area_px / single
-                    kind = ("merged" if self.merged_ratio < r <= self.max_merged else
-                            "single" if 1.0 / self.max_cut <= r <= self.merged_ratio else None)
-                if kind == "merged":
-                    out.append(np.array([xy[j, 0] - mx]))
-                elif kind == "single":
-                    out.append(np.array([xy[j, 0] - mx + hx, xy[j, 0] - mx - hx]))
-        return out
+        return dx_offsets_of(self, self._predictions(), blobs, xy, dy, radius_px)
 
     def pitch_shift(self, tracks: list[Track], xy: np.ndarray) -> float:
         """This frame's common vertical image shift (px, + down): the median over the pairs that
@@ -243,7 +222,7 @@ class Pairer:
         neither: it would drag one's emitter onto the other light. A blob a decoded pair
         explains is not an undecoded pair's (a wide wrong pairing lying on a head).
         `pitch` False: the frame's shift is measured elsewhere, the pitch is not computed (0.0)."""
-        dys, claims = [], {}
+        dys = []
         if _k is not None:
             items = [(p, q, ()) for p, q in self._predictions()]
             if not items:
@@ -255,7 +234,7 @@ class Pairer:
             else:
                 pitch = 0.0
             # the tracks two or more pairs claim: not taken by an undecoded one when a decoded one
-            # claims it too, by none of them when two decoded ones do (the loop below)
+            # claims it too, by none of them when two decoded ones do (pair_match.pitch_and_claims)
             c = mine.astype(bool)
             both = c.sum(axis=0) >= 2
             if not both.any():  # (most frames) no track claimed twice
@@ -266,31 +245,7 @@ class Pairer:
             exclude = {items[k][0].uid: {tracks[i].track_id for i in np.flatnonzero(ex[k])}
                        for k in np.flatnonzero(ex.any(axis=1))}
             return pitch, exclude
-        for p, pred in self._predictions():
-            mx, my, hx, hy, single = pred
-            expl, _, shifts, _, _, _ = self._explain(p, tracks, xy, *pred)
-            if shifts:
-                dys.append(float(np.mean([d[1] for d in shifts])))
-            mine = {t.track_id for t in expl}
-            if p.led_id is not None and len(xy):
-                # a decoded pair also claims the blobs on its own emitters that it did not take
-                # (another light's blob merged with one of them)
-                tol = claim_tol(self, single)
-                d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
-                               np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
-                mine.update(tracks[i].track_id for i in np.flatnonzero(d <= tol) if tracks[i].seen)
-            for tid in mine:
-                claims.setdefault(tid, []).append(p)
-        exclude: dict[int, set] = {}
-        for tid, ps in claims.items():
-            if len(ps) < 2:
-                continue
-            decoded = [p for p in ps if p.led_id is not None]
-            for p in ps:
-                if len(decoded) >= 2 or (decoded and p.led_id is None):
-                    exclude.setdefault(p.uid, set()).add(tid)
-        pitch = float(np.median(dys)) if pitch and len(dys) >= self.shake_min_pairs else 0.0
-        return pitch, exclude
+        return pitch_and_claims(self, self._predictions(), tracks, xy, pitch)
 
     def _track_table(self, tracks: list[Track]) -> np.ndarray:
         """(N, 8) cx, cy, area_px, x0, x1, y0, y1, seen of the tracks' blobs (the kernel's
