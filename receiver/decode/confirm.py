@@ -34,6 +34,16 @@ log((1 - r) / (1 - w)) / (that + log(w / r)) (29 % at the defaults) never confir
 leaves out `end_chips` chips at each end of a frame: the panel's edge (blur, bezel, diffuser
 falloff) dims the rows at a profile's ends, so an ON chip there reads OFF (the end chips of phone
 renders read wrong in 16-23 % of frames, the inner ones in 0.2-1.4 %).
+
+Where the runs of a repeated pair are longer than a frame, the ends of a moved stretch hide in
+them: every frame that fits the sent packet fits the wrong one too, and the joins test passes
+either way (no frame clock ties the frames' offsets together to tell them apart). The wrong
+assemblies to fear are known in advance, though: the packets of the other IDs that are the
+proposed packet with a stretch moved by a pair (`twins`, receiver.decode.ook.moved_pair_twins).
+Each one must be told apart: later frames that fit the proposed packet better than the twin by
+`min_gap` (best normalised correlations) must outnumber those that fit the twin better by
+`twin_frames`. A twin no frame can tell apart (its differences only inside runs longer than a
+frame) keeps the ID unconfirmed.
 Not confirmed within `max_frames` frames, it is dropped.
 """
 
@@ -51,7 +61,7 @@ class Confirmation:
 
     def __init__(self, led_id: int, template: np.ndarray, *, min_fit: float, min_gap: float,
                  max_frames: int, min_chip: float, misfit_right: float, misfit_wrong: float, min_llr: float,
-                 end_chips: int = 0):
+                 end_chips: int = 0, twins=(), twin_frames: int = 0):
         self.led_id = led_id
         self.template = np.asarray(template, dtype=np.float64)
         self.min_fit = min_fit
@@ -66,6 +76,9 @@ class Confirmation:
         self.joins = np.zeros(PACKET_LEN, bool)  # [p]: positions p and p + 1 shown by one frame
         self.misfits = 0  # later frames that fit the proposed packet nowhere
         self.frames = 0
+        self.twins = [np.asarray(t, dtype=np.float64) for t in twins]
+        self.twin_frames = twin_frames
+        self.told_apart = np.zeros(len(self.twins), np.int64)  # [k]: frames for the packet - for twin k
 
     def add(self, soft: np.ndarray) -> None:
         """One later frame's soft chips (~ +-1), less `end_chips` at each end. When it fits the
@@ -83,6 +96,12 @@ class Confirmation:
         agree = self.template[pos] * x
         corr = agree.sum(axis=1) / den
         best = float(corr.max())
+        for k, t in enumerate(self.twins):
+            tbest = float((t[pos] * x).sum(axis=1).max()) / den
+            if best >= tbest + self.min_gap:
+                self.told_apart[k] += 1
+            elif tbest >= best + self.min_gap:
+                self.told_apart[k] -= 1
         if best < self.min_fit:
             self.misfits += 1
             return
@@ -102,8 +121,10 @@ class Confirmation:
     @property
     def done(self) -> bool:
         """The later frames' log-likelihood ratio reached `min_llr`, and every two neighbouring
-        packet positions from the last sync chip on were shown together by one that fits."""
-        return self.llr >= self.min_llr and bool(self.joins[SYNC_LEN - 1:].all())
+        packet positions from the last sync chip on were shown together by one that fits, and
+        every twin was told apart by `twin_frames` frames net."""
+        return (self.llr >= self.min_llr and bool(self.joins[SYNC_LEN - 1:].all())
+                and bool((self.told_apart >= self.twin_frames).all()))
 
     @property
     def expired(self) -> bool:

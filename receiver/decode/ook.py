@@ -368,6 +368,28 @@ def packet_template(led_id: int) -> np.ndarray:
     return np.concatenate((_SYNC_T, data))
 
 
+@lru_cache(maxsize=256)
+def moved_pair_twins(led_id: int) -> tuple:
+    """The other IDs whose packets are this ID's packet with one Manchester pair taken out at
+    one place and one put in at another (a stretch of the data moved by a pair): what a chained
+    assembly gives when one stretch of its frames was placed two chips off
+    (receiver.decode.confirm). Sorted; mostly empty or one or two IDs (each candidate passes
+    the CRC-8 with probability 1/256)."""
+    table = crc8_table()
+    value = (led_id << CRC_BITS) | int(table[led_id])
+    bits = [(value >> (N_BITS - 1 - i)) & 1 for i in range(N_BITS)]
+    out = set()
+    for a in range(N_BITS):
+        rest = bits[:a] + bits[a + 1:]
+        for b in range(N_BITS):
+            for v in (0, 1):
+                t = int("".join(map(str, rest[:b] + [v] + rest[b:])), 2)
+                tid = t >> CRC_BITS
+                if tid != led_id and int(table[tid]) == t & ((1 << CRC_BITS) - 1):
+                    out.add(tid)
+    return tuple(sorted(out))
+
+
 @lru_cache(maxsize=16)
 def _templates(ids: tuple) -> np.ndarray:
     """(K, 54) +-1 packets of the IDs (shared by the decoders of one map and rate)."""
@@ -607,6 +629,7 @@ class OokDecoder:
         self.confirm_misfit_wrong = s.confirm_misfit_wrong
         self.confirm_min_llr = s.confirm_min_llr
         self.confirm_end_chips = s.confirm_end_chips
+        self.confirm_twin_frames = s.confirm_twin_frames
         self._chained = False  # the accumulation holds a short frame placed by alignment
         self._confirm: confirm.Confirmation | None = None
 
@@ -1178,7 +1201,9 @@ class OokDecoder:
                 led_id, packet_template(led_id), min_fit=self.verify_min, min_gap=self.confirm_gap,
                 max_frames=self.confirm_frames, min_chip=self.confirm_min_chip,
                 misfit_right=self.confirm_misfit_right, misfit_wrong=self.confirm_misfit_wrong,
-                min_llr=self.confirm_min_llr, end_chips=self.confirm_end_chips)
+                min_llr=self.confirm_min_llr, end_chips=self.confirm_end_chips,
+                twins=[packet_template(t) for t in moved_pair_twins(led_id)],
+                twin_frames=self.confirm_twin_frames)
 
     def _confirm_step(self, soft: np.ndarray) -> None:
         """This frame's part in confirming the proposed ID: reported once confirmed; an ID

@@ -42,6 +42,11 @@ class OokSettings:
         (without the end chips: 4-17 % on phone renders) and w = confirm_misfit_wrong [0.4] the share
         that misfit a wrong assembly (the frames straddling its moved stretch's ends, 10-45 %
         of 12-16-chip frames): 3 fitting frames confirm, more than 29 % misfits never do.
+        confirm_twin_frames [1]: each other ID whose packet is the proposed one with a stretch
+        moved by a pair (receiver.decode.ook.moved_pair_twins) must be told apart by this many
+        more later frames fitting the proposed packet better (by confirm_gap) than fitting the
+        twin better: inside runs of a repeated pair longer than a frame, the stretch's ends show in
+        no frame, and a wrong assembly fits every frame.
         Seeded Monte Carlo (tests/decode/ook_mc.py, docs/ook-exposure.md).
       period_frames [5]: the refined chip period (rows) of this many frames is fixed by
         their median (it is a camera/LED constant); later frames only measure the phase.
@@ -139,6 +144,7 @@ class OokSettings:
     confirm_misfit_wrong: float = 0.4
     confirm_min_llr: float = 0.75
     confirm_end_chips: int = 1
+    confirm_twin_frames: int = 1
     timing_window: int = 12
     timing_max_gap: int = 6
     timing_frac: float = 0.25
