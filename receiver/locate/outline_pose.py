@@ -70,8 +70,8 @@ MAX_ITER = 4
 STEP_TOL = 2e-4
 COST_RTOL = 1e-6
 # A second round (`solve_outline_pose`) is run only when more points than this (count, fraction)
-# changed edges at the first round's pose (0: any; skipping a handful of corner points moved the
-# walk median 0.51 -> 0.62 cm).
+# changed edges at the first round's pose (0: any; a handful of corner points already move the
+# indoor walk's median by about 0.1 cm).
 MINOR_SWITCHES = 0
 MINOR_SWITCH_FRACTION = 0.0
 
