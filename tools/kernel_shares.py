@@ -131,10 +131,12 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args._calls:
         return _calls_child(args._calls[0], int(args._calls[1]), int(args._calls[2]))
-    known = [n.rsplit(".", 1)[-1] for n in native.kernel_sources()]
+    known = [n for n in (m.rsplit(".", 1)[-1] for m in native.kernel_sources())
+             if n not in native.ONE_IMPLEMENTATION]
     unknown = [n for group in args.kernels for n in group.split(",") if n not in known]
     if unknown:   # OCCLOC_PURE would ignore it: its share would read 0 %, "drop it"
-        p.error(f"unknown kernel {', '.join(unknown)} (choose from {', '.join(known)})")
+        p.error(f"kernel {', '.join(unknown)} has no numpy path to measure against or does not exist "
+                f"(choose from {', '.join(known)})")
     names = args.kernels or known
     sources, calls = args.source, None
     if args.skip_uncalled:

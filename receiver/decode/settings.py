@@ -140,8 +140,8 @@ class OokSettings:
     confirm_frames: int = 30
     confirm_gap: float = 0.15
     confirm_min_chip: float = 0.5
-    confirm_misfit_right: float = 0.2
-    confirm_misfit_wrong: float = 0.4
+    confirm_misfit_right: float = knob(0.2, None, 0.99, above=0.0)
+    confirm_misfit_wrong: float = knob(0.4, None, 0.99, above=0.0)
     confirm_min_llr: float = 0.75
     confirm_end_chips: int = 1
     confirm_twin_frames: int = 1
@@ -169,6 +169,11 @@ class OokSettings:
     blur_rows: float = 1.0
     model_phases: int = 8
     model_min_fit: float = 0.3
+
+    def __post_init__(self):
+        if self.confirm_misfit_right >= self.confirm_misfit_wrong:
+            raise ValueError("confirm_misfit_right must be below confirm_misfit_wrong (a wrong assembly "
+                             "misfits more of its frames than the right packet does)")
 
 
 @dataclass(frozen=True)
@@ -297,7 +302,8 @@ class PolicySettings:
     stripe_check [None = from the map and camera, `ModePlan.expect_stripes`]: when every light
         must show rolling-shutter stripes, a new track is reported and decoded only once its
         row profile shows stripes (depth >= `min_stripe_depth` [0.8]) or it is shorter than a
-        stripe period; flat bright regions (lamps, windows) stay silent.
+        stripe period; flat bright regions (lamps, windows) stay silent. (A single photo has no
+        tracks: there detection drops flat blobs itself, at `detect.MIN_STRIPE_DEPTH`, the same 0.8.)
     tone_confirm_frames [None: 1 for a tone-only map or photos, else 3]: consecutive frames a
         tone match must hold before it is reported; with OOK lights in the map, an OOK stripe
         pattern can show a spectral line near a listed tone for a frame or two.

@@ -1,16 +1,15 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled outline-pose solve (`receiver.locate.outline_pose.solve_outline_pose`): the edge
-assignment, the whitened residuals, the IRLS normal equations (per-edge moments for squares /
-rects, analytic Jacobians for circles, centroids and priors) and the Levenberg-Marquardt rounds
-of one frame in one call, with the arithmetic of the pure numpy path (`_Problem`, `lm_normal`).
-Only the summation order differs (sequential sums here, numpy's pairwise sums and BLAS there):
-the results agree to rounding, and positions to far below 0.1 mm (tests/engine/test_outline_native.py).
+"""Outline-pose solve (`receiver.locate.outline_pose.solve_outline_pose`), its one
+implementation: the edge assignment, the whitened residuals, the IRLS normal equations
+(per-edge moments for squares / rects, analytic Jacobians for circles, centroids and priors) and
+the Levenberg-Marquardt rounds of one frame in one call (tests/locate/test_outline_solve.py:
+known poses, the covariance against np.linalg.pinv).
 
 Parameters p = (Rodrigues vector of R_cw, C); normalized image coordinates. Input: every target's
 edge points in turn (`outline_pose.OutlineFrame`), each target a square / rect (4 straight edges)
 or a circle. Residuals: one per edge point (in the frame's order; a square / rect point near a
 corner unused, 0), the centroids (u, v) of the targets that have one, the tilt prior (3), the
-position prior (3): the pure path's, grouped squares / rects first, then circles."""
+position prior (3): grouped squares / rects first, then circles."""
 
 from libc.math cimport sqrt, cos, sin, fabs
 from receiver.locate._rodrigues cimport rodrigues, cam_point

@@ -1,15 +1,11 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled centroid + range pose refinement (`receiver.locate.pose.refine_pose`): the whitened
-residuals of `pose._joint_fun` -- reprojection (2 per LED, normalized units / sigma_uv), the finite
-ranges (/ sigma_d), the tilt prior (3), the position prior (3) -- their analytic Jacobian, and
-`lsq.robust_lm_rj`'s robust Levenberg-Marquardt (`lsq.lm_normal`: IRLS weights rho'(z), damping
+"""Centroid + range pose refinement (`receiver.locate.pose.refine_pose`), its one implementation:
+the whitened residuals -- reprojection (2 per LED, normalized units / sigma_uv), the finite
+ranges (/ sigma_d), the tilt prior (3), the position prior (3) -- their analytic Jacobian, and a
+robust Levenberg-Marquardt (IRLS weights rho'(z) of scipy's losses, damping
 lam * max(diag A, 1e-12) from 1e-3, x10 on a rejected step up to 1e8, / 10 on a kept one down to
 1e-12, stop on a relative step below LM_XTOL or a relative cost decrease below LM_FTOL) in one call.
-
-The arithmetic is the pure path's, term by term; the robust cost is summed as numpy sums (pairwise,
-8 accumulators); only the normal equations' sums (BLAS there, sequential here), the 6 x 6 solve
-(LAPACK there, `_solve6` here) and the Rodrigues formulas (cv2 there, `_rodrigues` here) may round
-differently: fixes agree to ~1e-12 (tests/engine/test_pnp_kernel.py).
+tests/locate/test_refine_pose.py checks it against known poses and cv2.solvePnP.
 
 Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 

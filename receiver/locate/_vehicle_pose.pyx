@@ -1,6 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """Host-pose solve of the vehicle stage (receiver.locate.vehicle_host._solve_native), its one
-implementation: a damped soft-L1 Levenberg-Marquardt (receiver.locate.lsq.lm_normal's steps) on
+implementation: a damped soft-L1 Levenberg-Marquardt (the damping rule of receiver.locate.lsq.lm_batch) on
 the residuals below, with their analytic Jacobian (a frame's solve is 2-4 evaluations of 8-30
 residual rows, where numpy's per-call overhead would be most of the cost).
 tests/engine/test_vehicle_native.py checks the residuals against the geometry, the Jacobian
@@ -229,7 +229,7 @@ def solve(double[:, ::1] L, double[:, ::1] uv, double sigma_uv, double[::1] d, d
           double sep_gain, double[:, ::1] att, double f_scale, double[::1] p, int max_iter,
           double rot_tol, double pos_tol, double ftol, double lam0, double lam_max,
           double[::1] r_out, double[:, ::1] J_out):
-    """The damped soft-L1 Levenberg-Marquardt of `receiver.locate.lsq.lm_normal` on the module
+    """The damped soft-L1 Levenberg-Marquardt (`receiver.locate.lsq.lm_batch`'s damping rule) on the module
     doc's residuals, from p (6,) (overwritten by the solution); stops after an accepted step
     smaller than rot_tol (rad) and pos_tol (m) in every component or one whose relative cost
     decrease is at most ftol, when the damping exceeds lam_max, or after max_iter steps.

@@ -1,5 +1,5 @@
-"""Least squares shared by the solvers: a small robust Levenberg-Marquardt (`lm_normal`,
-`lm_iterate`, `lm_batch`: IRLS with scipy's loss definitions), the fix covariance from the whitened Jacobian (`_covariance`),
+"""Least squares shared by the solvers: a small robust Levenberg-Marquardt over a batch of
+problems (`lm_batch`: IRLS with scipy's loss definitions), the fix covariance from the whitened Jacobian (`_covariance`),
 and the unfiltered solution record `Fix`.
 
 Fix covariance: ``cov = s^2 (J^T J)^-1`` at the solution, ``s^2 = max(1, chi^2/dof)``.
@@ -37,7 +37,7 @@ _LOSSES = {
     "huber": (lambda z: np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0),
               lambda z: np.where(z <= 1.0, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))),
 }
-# Levenberg-Marquardt damping bounds (`lm_iterate`) and stopping rule (a relative step below
+# Levenberg-Marquardt damping bounds and stopping rule (a relative step below
 # LM_XTOL or a relative cost decrease below LM_FTOL: `lm_batch`, receiver/locate/_pnp.pyx).
 LM_LAMBDA0, LM_LAMBDA_MAX = 1e-3, 1e8
 LM_XTOL = 1e-8     # relative step
@@ -49,66 +49,6 @@ def _loss_cost(rho, r: np.ndarray, f_scale: float):
     with z = (r / f_scale)^2 (scipy.optimize.least_squares' robust cost)."""
     z = (r / f_scale) ** 2
     return 0.5 * f_scale ** 2 * rho(z).sum(axis=-1), z
-
-
-def lm_normal(evaluate, normal, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS,
-              f_scale: float = DEFAULT_F_SCALE, max_iter: int = 50):
-    """Minimise sum rho((r/f_scale)^2) (the cost of scipy.optimize.least_squares with the same
-    loss, one of `_LOSSES`) by Levenberg-Marquardt on iteratively reweighted normal equations,
-    damped by lam * max(diag A, 1e-12). `evaluate(p) -> (r, state)`: residuals and whatever
-    `normal(state, r, w) -> (A, g)` needs to build the weighted normal equations A = J' W J,
-    g = J' W r (w: the loss weights per residual); `done(dp, p, c, c_new) -> bool`: the
-    stopping rule after an accepted step dp from p (cost c -> c_new). Returns (p, converged, r,
-    state) at p; converged is False when `max_iter` ran out.
-    The same loop, compiled: receiver/locate/_pnp.pyx (`pose.refine_pose`), _outline.pyx
-    (`outline_pose`)."""
-    rho, wfun = _LOSSES[loss]
-
-    def cost_z(r):
-        c, z = _loss_cost(rho, r, f_scale)
-        return float(c), z
-
-    p = np.asarray(p0, float).copy()
-    r, st = evaluate(p)
-    c, z = cost_z(r)
-    lam = LM_LAMBDA0
-    diag = np.arange(p.size), np.arange(p.size)
-    for _ in range(max_iter):
-        A, g = normal(st, r, wfun(z))
-        dA = np.maximum(A[diag], 1e-12)
-        while True:
-            Ad = A.copy()
-            Ad[diag] += lam * dA
-            try:
-                dp = np.linalg.solve(Ad, -g)
-            except np.linalg.LinAlgError:
-                dp = np.zeros_like(p)
-            p_new = p + dp
-            r_new, st_new = evaluate(p_new)
-            c_new, z_new = cost_z(r_new)
-            if c_new <= c:
-                break
-            lam *= 10.0
-            if lam > LM_LAMBDA_MAX:
-                return p, True, r, st
-        stop = done(dp, p, c, c_new)
-        p, r, st, c, z = p_new, r_new, st_new, c_new, z_new
-        lam = max(lam / 10.0, 1e-12)
-        if stop:
-            return p, True, r, st
-    return p, False, r, st
-
-
-def _jacobian_normal(J: np.ndarray, r: np.ndarray, w: np.ndarray):
-    Jw = J * w[:, None]
-    return J.T @ Jw, Jw.T @ r
-
-
-def lm_iterate(fun_jac, p0: np.ndarray, done, *, loss: str = DEFAULT_LOSS, f_scale: float = DEFAULT_F_SCALE,
-               max_iter: int = 50):
-    """`lm_normal` on a stacked Jacobian: `fun_jac(p) -> (r, J)`. Returns (p, converged, r, J)
-    with the residuals and Jacobian at p."""
-    return lm_normal(fun_jac, _jacobian_normal, p0, done, loss=loss, f_scale=f_scale, max_iter=max_iter)
 
 
 def covariance_at(r: np.ndarray, J: np.ndarray, n_params: int) -> tuple[np.ndarray, float, int]:

@@ -63,7 +63,7 @@ ROAD_HEADS = 6
 # deg, a cold pose solve whose heading is farther than this from the map's road line near its
 # heads is a wrong one (heads confused or a degenerate geometry): the host drives along the road.
 ROAD_OFF_MAX_DEG = 45.0
-# A cold pose solve (no road filter yet) is a fix only if it puts every decoded head's midpoint
+# A cold pose solve (no road filter yet, or one too unsure to be a prior) is a fix only if it puts every decoded head's midpoint
 # where the image shows it (`_reprojects`): Mahalanobis^2 per head within this (chi-square 2 dof,
 # 99.9 %). Ranges alone fit the camera mirrored across the heads' line as well as the true one
 # (thesis eqs. 44-47's two sides); the robust loss can settle there with the angles as outliers.

@@ -163,8 +163,8 @@ def _solve_batch():
 
 
 def _pose_filter_class():
-    """The devices' `receiver.locate.posefilter.PoseFilter` (`receiver.serve.devices`: with the
-    compiled Kalman steps when built), imported on first use: it pulls in the solver and
+    """The devices' `receiver.locate.posefilter.PoseFilter` (`receiver.serve.devices`),
+    imported on first use: it pulls in the solver and
     the Kalman filter's SciPy (about 2 s), which `occloc serve` loads after it has announced
     itself (`LightingServer.warm_up`)."""
     from receiver.serve.devices import pose_filter_class

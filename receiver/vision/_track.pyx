@@ -1,13 +1,11 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled tracker step (receiver.vision.track.Tracker.step): the gated assignment of all
-tracks x blobs and the assigned tracks' updates in one call per frame.
-
-The pure reference is `Tracker._step_pure`; this does the same arithmetic in the same order
+"""Tracker step (receiver.vision.track.Tracker.step), its one implementation: the gated
+assignment of all tracks x blobs and the assigned tracks' updates in one call per frame
 (predicted centroid cx + vx dt plus the accumulated shift since the track's blob, distance by
-hypot, gate gate_px + gate_size sqrt(area), area ratio bounds; the velocity blend), and the same
+hypot, gate gate_px + gate_size sqrt(area), area ratio bounds; the velocity blend). The
 assignment: the gated pairs themselves when no track and no blob has two, else the solver the
 caller passes (scipy's, `receiver.vision.track._solver_assignment`) on the same costs.
-tests/engine/test_track_kernels.py runs both on the same streams and asserts equal tracks.
+tests/engine/test_track_kernels.py checks it on streams where each light is known.
 """
 
 from libc.math cimport sqrt, hypot, fabs, isfinite

@@ -227,7 +227,7 @@ class Pair:
 
     # the key when the founding tracks' ids are a live pair's key already: its emitters' LED ids
     alias: tuple[int, int] | None = None
-    # False from a frame in which it explained another pair's emitter (`Pairer._anothers`: two
+    # False from a frame in which it explained another pair's emitter (`pair_match.anothers`: two
     # cars' taillights close together) until its emitters' samples from then on decode an ID
     # again (receiver.pipeline): its samples may be another light's since, so the ID it holds
     # is not reported (`reported_id`) meanwhile.

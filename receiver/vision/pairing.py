@@ -262,7 +262,7 @@ class Pairer:
 
     def _pair_rows(self, items: list, claims: bool) -> np.ndarray:
         """(P, 14) the kernel's `pp` rows of (pair, prediction, exclude) `items`; the claim
-        tolerance (`_claim_tol`) with `claims` for the decoded pairs, else -1."""
+        tolerance (`pair_match.claim_tol`) with `claims` for the decoded pairs, else -1."""
         rows = []
         for p, (mx, my, hx, hy, single), _ in items:
             a, b = p.a.blob, p.b.blob
@@ -340,8 +340,8 @@ class Pairer:
         """`_follow` of every pair (the live ones), their blobs found by one kernel call (the
         Python reference `_explain` per pair without the kernel, `xy` the tracks' centroids);
         a pair of two tracks that explains none is re-placed on two seen blobs one baseline
-        apart that no pair explains (`_reanchor`); one that explains another pair's emitter
-        (`_anothers`) loses `Pair.confirmed`."""
+        apart that no pair explains (`pair_match.reanchor`); one that explains another pair's emitter
+        (`pair_match.anothers`) loses `Pair.confirmed`."""
         items = []
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
@@ -358,7 +358,7 @@ class Pairer:
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         found = [lone_checked(self, p, f) for (p, _, _), f in zip(items, found)]
         taken = {t.track_id for f in found for t in f[0]}
-        # the two-track pairs whose emitter another pair may take (`_anothers`): the decoded ones
+        # the two-track pairs whose emitter another pair may take (`pair_match.anothers`): the decoded ones
         # that explain no blob at their prediction, by their founding tracks (a far head's
         # jumper pairs share their one track by design: `_drop_twins`)
         owners: dict[int, list] = {}

@@ -73,3 +73,13 @@ def test_run_with_a_zero_max_detect_px_settings_file(tmp_path):
     assert p.returncode == 2 and "Traceback" not in err, err
     assert err.strip() == f"occloc: {path}: receiver.detect.max_detect_px: must be at least 10000, not 0", err
     assert p.stdout == b""
+
+
+@pytest.mark.parametrize("obj", [{"confirm_misfit_wrong": 0.0}, {"confirm_misfit_right": 1.0},
+                                 {"confirm_misfit_right": 0.5, "confirm_misfit_wrong": 0.4}])
+def test_confirmation_misfit_shares_out_of_order_are_one_line(obj):
+    """The confirmation's likelihood ratio takes log(right / wrong) and log((1 - right) / (1 - wrong)):
+    shares of 0 or 1, or a right share not below the wrong one, are refused before a run starts."""
+    with pytest.raises(InputError) as e:
+        settings_from_json(OokSettings, obj, "s.json")
+    assert str(e.value).startswith("s.json") and "\n" not in str(e.value), str(e.value)

@@ -44,7 +44,7 @@ def test_pure_forced(monkeypatch):
     monkeypatch.setenv("OCCLOC_PURE", "1")
     assert native.pure_forced()
     assert all(native.load(n) is None for n in native.kernel_sources())
-    assert native.status() == "pure (OCCLOC_PURE=1)"
+    assert native.status().startswith("pure (OCCLOC_PURE=1, except the one-implementation kernels _track")
 
 
 def test_pure_forced_for_named_kernels_only(monkeypatch):
@@ -61,3 +61,8 @@ def test_require_ignores_occloc_pure_and_names_the_build_when_missing(monkeypatc
     assert kernel.__file__.endswith((".so", ".pyd"))
     with pytest.raises(ImportError, match=r"receiver\.locate\._absent is not built \(pip install -e \."):
         native.require("receiver.locate._absent")
+
+
+def test_one_implementation_kernels_are_kernels_of_this_checkout():
+    names = {n.rsplit(".", 1)[-1] for n in native.kernel_sources()}
+    assert set(native.ONE_IMPLEMENTATION) <= names
