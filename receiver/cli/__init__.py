@@ -225,6 +225,24 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # e.g. while a command module is imported
         print("occloc: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:
+        # Ctrl-C inside a class body's hook while a module loads (a dataclass field's
+        # __set_name__) reaches here as the RuntimeError it was wrapped in.
+        if not _caused_by_interrupt(e):
+            raise
+        print("occloc: interrupted", file=sys.stderr)
+        return 130
+
+
+def _caused_by_interrupt(e: BaseException | None) -> bool:
+    """True when a KeyboardInterrupt is in `e`'s chain of causes and contexts."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def _main(argv: list[str] | None) -> int:

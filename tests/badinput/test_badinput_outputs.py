@@ -436,3 +436,30 @@ def test_sigterm_in_eval_leaves_no_hidden_file(tmp_path):
     _, err = p.communicate(timeout=120)
     assert "Traceback" not in err.decode()
     assert _hidden(tmp_path) == []
+
+
+def test_ctrl_c_wrapped_by_a_class_hook_while_loading_exits_130(monkeypatch, capsys):
+    """Ctrl-C while a dataclass's field hook runs (a module being imported) arrives as a
+    RuntimeError caused by the KeyboardInterrupt: the command still ends with exit 130 and one line."""
+    import receiver.cli as cli
+
+    def interrupted(argv):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError("Error calling __set_name__ on 'Field' instance") from e
+
+    monkeypatch.setattr(cli, "_main", interrupted)
+    assert cli.main(["check", "x"]) == 130
+    assert capsys.readouterr().err == "occloc: interrupted\n"
+
+
+def test_other_errors_are_not_taken_for_ctrl_c(monkeypatch):
+    import receiver.cli as cli
+
+    def broken(argv):
+        raise RuntimeError("not an interrupt")
+
+    monkeypatch.setattr(cli, "_main", broken)
+    with pytest.raises(RuntimeError):
+        cli.main(["check", "x"])
