@@ -123,6 +123,7 @@ def lone_gate_px(g, p: Pair) -> float:
     shift estimate; the errors of the frames it coasted add up)."""
     return g.match_min_px + g.lone_sigmas * g.shift_sigma_px * math.sqrt(1.0 + p.misses)
 
+
 def lone_checked(g, p: Pair, found: tuple) -> tuple:
     """`found` (explaining, nearby, mean shift, A's blob, B's blob, merged blob) of pair `p`,
     or nothing explained when `p` is a decoded pair of two tracks that explains one lone blob
@@ -143,6 +144,7 @@ def lone_checked(g, p: Pair, found: tuple) -> tuple:
         return found
     return [], nearby, None, None, None, None
 
+
 def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
     """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
     another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
@@ -160,6 +162,7 @@ def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
         if d <= g.shake_radius_px * (q.misses + 1) + claim_tol(g, single):
             return True
     return False
+
 
 def reanchor(g, p: Pair, pred: tuple, tracks: list[Track], table: np.ndarray, taken: set) -> tuple | None:
     """Pair `p` (two tracks) explained no blob at its prediction `pred`: the camera's shake

@@ -15,6 +15,25 @@ from receiver.core.records import Blob
 from receiver.vision.pair_model import Pair
 
 
+def live_pairs(g, pairs: list[Pair]) -> list[Pair]:
+    """The pairs that explained a blob within the last `report_coast_frames` frames."""
+    return [p for p in pairs if p.misses <= g.report_coast_frames]
+
+
+def decoded_emitters(g, live: list[Pair]) -> list[tuple[int, Blob, Pair, bool]]:
+    """(LED id, envelope, pair, seen this frame) of each emitter of the decoded pairs in `live`
+    that may be reported. A far head's (jumper) pair may sit a baseline aside (which half a
+    blob was cannot be told): its emitter that has not had a blob of its own for
+    `jumper_unseen_frames` frames lies beside the head, on nobody's light, and is not reported
+    (0 = off). One that coasted may now sit a baseline aside, one emitter on the head behind or
+    beside it: not reported until a blob both lit places it again (`anchor_coast_frames`)."""
+    return [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
+            for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
+            if not (g.jumper_unseen_frames and p.a.track_id == p.b.track_id
+                    and p.frames - seen > g.jumper_unseen_frames)
+            and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
+
+
 def emitters(g, pairs: list[Pair]) -> list[tuple[int, Blob, Pair]]:
     """This frame's S2-PSK emitter observations: (LED id, envelope at the emitter's current
     position, its pair) for both emitters of every live pair that explained a blob within
@@ -25,19 +44,10 @@ def emitters(g, pairs: list[Pair]) -> list[tuple[int, Blob, Pair]]:
     pair knows where they are (it reads their intensities there), and its ID belongs to
     both. An undecoded pair's emitter within `match_min_px` of a decoded pair's emitter is
     left out (one head followed by two pairs: the LED is the decoded one's)."""
-    live = [p for p in pairs if p.misses <= g.report_coast_frames]
+    live = live_pairs(g, pairs)
     if not live:
         return []
-    # A far head's (jumper) pair may sit a baseline aside (which half a blob was cannot be
-    # told): its emitter that has not had a blob of its own for `jumper_unseen_frames`
-    # frames lies beside the head, on nobody's light, and is not reported (0 = off).
-    # One that coasted may now sit a baseline aside, one emitter on the head behind or
-    # beside it: not reported until a blob both lit places it again (`anchor_coast_frames`).
-    dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
-           for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
-           if not (g.jumper_unseen_frames and p.a.track_id == p.b.track_id
-                   and p.frames - seen > g.jumper_unseen_frames)
-           and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
+    dec = decoded_emitters(g, live)
     xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
     owner = np.array([id(p) for _, _, p, _ in dec])
     size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)

@@ -58,7 +58,7 @@ from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.core.settings import resolve_settings
 from receiver.vision.pair_found import JumpWatch, drop_twins, head_backlog, jumper_pair, mark_beside, two_track_backlog
-from receiver.vision.pair_match import (anothers, claim_tol, dx_offsets_of, explain, lone_checked, lone_gate_px,
+from receiver.vision.pair_match import (anothers, claim_tol, dx_offsets_of, explain, lone_checked,
                                         pitch_and_claims, reanchor, shift_votes_of, width_class)
 from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, LIVE, TUNING, WRONG, EmitterLevels, Pair, PairTuning,
                                         _emitter, follow_update, measure_baseline, moved, pair_score, predict)
@@ -381,10 +381,6 @@ class Pairer:
             if self._follow_end(p, shape, pred, expl, nearby, mean, obs_a, obs_b, merged):
                 out.append(p)
         return out
-
-    def _lone_gate_px(self, p: Pair) -> float:
-        """receiver.vision.pair_match.lone_gate_px with this pairer's gates."""
-        return lone_gate_px(self, p)
 
     def _follow_start(self, p: Pair, dx: float, dy: float) -> tuple | None:
         """`_follow`'s first part: the frame counted, None when the pair gives up, else its

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from receiver.core.records import Blob
+from receiver.vision.pair_match import lone_gate_px
 from receiver.vision.pairing import Pair, Pairer
 from receiver.vision.track import Track
 
@@ -47,7 +48,7 @@ def test_a_smaller_blob_beside_a_hidden_emitters_partner_does_not_take_the_pair(
 def test_its_own_emitters_blobs_still_move_it():
     pr = Pairer()
     p = _decoded_pair(pr)
-    gate = pr._lone_gate_px(p)
+    gate = lone_gate_px(pr, p)
     # a whole blob of its emitter a shake step beyond the gate: its own, it moves the pair
     _frame(pr, [_blob(560.0 + gate + 2.0, 440.0, 7, 7)])
     assert abs(p.b.cx - (560.0 + gate + 2.0)) <= 1.0

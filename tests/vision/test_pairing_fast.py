@@ -10,6 +10,7 @@ import pytest
 
 from receiver.core.records import Blob, PairObservation
 from receiver.pipeline import pair_observation
+from receiver.vision import pair_read
 from receiver.vision.pairing import EmitterLevels, Pair, Pairer, moved
 from receiver.vision.track import Track
 
@@ -79,13 +80,10 @@ def _ref_shift_votes(pr, xy, radius_px):
 
 
 def _ref_emitters(pr):
-    """Pairer.emitters with a loop per emitter (the reference)."""
-    live = [p for p in pr.pairs if p.misses <= pr.report_coast_frames]
-    dec = [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
-           for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
-           if not (pr.jumper_unseen_frames and p.a.track_id == p.b.track_id
-                   and p.frames - seen > pr.jumper_unseen_frames)
-           and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
+    """Pairer.emitters with a loop per emitter for the overlap checks (the reference; which
+    emitters may be reported at all is `pair_read.decoded_emitters`, shared)."""
+    live = pair_read.live_pairs(pr, pr.pairs)
+    dec = pair_read.decoded_emitters(pr, live)
     xy = np.array([(b.cx, b.cy) for _, b, _, _ in dec], float).reshape(-1, 2)
     owner = np.array([id(p) for _, _, p, _ in dec])
     size = np.array([max(p.a.blob.area_px, p.b.blob.area_px) for _, _, p, _ in dec], float)
