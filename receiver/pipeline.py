@@ -33,8 +33,7 @@ from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
 from receiver.decode.policy import DecodePolicy, LightDecoder, ModePlan
 from receiver.decode.pair_decoding import PairDecoding
-from receiver.decode.settings import (FrameClockSettings, OokSettings, PolicySettings, S2pskSettings,
-                                      ToneSettings)
+from receiver.decode.settings import OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
 from receiver.vision.camera_motion import CameraMotion, MotionEstimate, MotionSettings
@@ -48,22 +47,22 @@ from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
 from receiver.vision.track import Track, Tracker
 from receiver.vision.track import preload as preload_assignment
 
-# Faint far emitters (the S2-PSK default detection; it was a fixed 24-gray floor and 6 px^2): the threshold
-# follows the measured background noise (receiver.vision.detect.noise_sigma: 12 sigma, ~5 gray on
-# a dark sensor of ~0.4 gray noise; 12, not 8: a truncated noise of 2 gray gave single-pixel
-# specks at 8) with a floor of 4 gray (8-bit rounding), so a far head half of 1-5 px^2 peaking
-# 20-50 gray is found; noise then lights no pixel, so the area floor is one lit pixel (hull area
-# with the half-pixel rim: pi / 4). Components under 3 rows skip the shape test (a
-# sub-pixel-tall panel seen from below is one or two rows several px wide) and the aspect limit
-# is 12 (two blurred halves of a far head side by side are ~18 x 4 px; a near head seen from
-# below is a 23 x 6 px bar at 27 m). Default together with PairSettings(shake="vertical") and the
-# far-head backlog (Pairer._head_backlog), measured (README "S2-PSK pairs", resolvable light-frames):
-# recordings/vehicle SL 604 -> 635 of 658, FV 156/156; hil --mode s2psk seeds 1-4 SL
-# 789/746/703/702 -> 873/852/876/808, FV 216/155/214/212 -> 216/155/214/214 (216/214/214/214 with
-# S2pskSettings.sync_margin 0.25); vehicle-road seeds
-# 1/2 SL 0/0 -> 92/17 of 644/638, FV 58/0 -> 136/166 of 287/284; 0 wrong everywhere; HV filtered
-# 2D median 0.04 -> 0.05 m (p95 0.17 -> 0.21 m).
+# Detection of faint far emitters, the default with S2-PSK lights in the map (a far street-light
+# head's half is 1-5 px^2 peaking 20-50 gray): the threshold follows the measured background
+# noise (receiver.vision.detect.noise_sigma, resolved below one gray) at 12 sigmas, ~5 gray on a
+# dark sensor of ~0.4 gray noise (at 8 a truncated noise of 2 gray lights single-pixel specks),
+# with a floor of 4 gray (8-bit rounding); noise then lights no pixel, so the area floor is one
+# lit pixel (hull area with the half-pixel rim: pi / 4). Components under 3 rows skip the shape
+# test (a sub-pixel-tall panel seen from below is one or two rows several px wide) and the aspect
+# limit is 12 (two blurred halves of a far head side by side are ~18 x 4 px; a near head seen
+# from below is a 23 x 6 px bar at 27 m).
 S2PSK_FAINT_DETECT = dict(min_area_px=0.75, k_mad=12.0, fine_noise=True, min_contrast=4.0, shape_min_rows=3, max_aspect=12.0)
+# While some track has no ID, the CLOCK_REFS tallest decoded OOK tracks of each chip rate are
+# measured every frame (their packet position, `OokDecoder.row0_coordinate`) to give the frame's
+# clock (receiver.decode.frameclock), the timing hint that lets small lights whose frames barely
+# overlap be assembled. Rolling shutter only. Cost: one row profile and packet match per reference
+# per frame, only while a light lacks its ID; more references outvote a slipped one.
+CLOCK_REFS = 3
 # Frames whose blobs vote for the camera's frame-to-frame shift (receiver.vision.motion).
 SHAKE_FRAMES = 3
 # Photos: blobs smaller than this fraction of the biggest are reflections (receiver.vision.detect).
@@ -91,7 +90,6 @@ class ReceiverSettings:
     ook: OokSettings = field(default_factory=OokSettings)
     tone: ToneSettings = field(default_factory=ToneSettings)
     s2psk: S2pskSettings = field(default_factory=S2pskSettings)
-    frame_clock: FrameClockSettings = field(default_factory=FrameClockSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
     envelope_frames: int | None = None
     s2psk_inverted: bool = False
@@ -220,7 +218,7 @@ class Receiver:
     still [False]: the frames are unrelated photos (see STILL_MIN_REL_AREA).
     settings: ReceiverSettings; `overrides`: its top-level fields by name (e.g.
         `envelope_frames=1`), and the policy's (`redecode_every`, `stripe_check`,
-        `min_stripe_depth`, `tone_confirm_frames`, `frame_clock`, `clock_refs`).
+        `tone_confirm_frames`).
     """
 
     def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None, vehicle=None, speed=None,
@@ -251,8 +249,8 @@ class Receiver:
                                    min_stripe_rows=self.min_stripe_rows)
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoding = PairDecoding(self.policy)  # every live pair's S2-PSK decoders
-        self.clocks = ({rate: FrameClock(settings=s.frame_clock) for rate in plan.ook_rates}
-                       if s.policy.frame_clock and camera.rolling_shutter and not still else {})
+        self.clocks = ({rate: FrameClock() for rate in plan.ook_rates}
+                       if camera.rolling_shutter and not still else {})
         self._prev_xy: list = []  # the last frames' blob centroids, shifted to the previous frame's view
         self.shift = None  # this frame's common image shift, px (S2-PSK maps)
         # the camera-motion estimate from all blobs (`shake` "motion"), and its latest frame's
@@ -325,7 +323,7 @@ class Receiver:
             refs.sort(key=lambda t: t.blob.y1 - t.blob.y0, reverse=True)
             n = 0
             for t in refs:
-                if n >= self.settings.policy.clock_refs:
+                if n >= CLOCK_REFS:
                     break
                 prof = profiles.get(t.track_id)
                 if prof is None:

@@ -553,7 +553,7 @@ def build_more_cases(tmp: str, rng) -> list[Case]:
                 leaves.append(path + (k,))
     settings = json.load(open(sfile, encoding="utf-8"))
     walk(settings, ())
-    for key in [("receiver", "detect", "max_detect_px"), ("receiver", "ook", "norm_chips")] + rng.sample(leaves, 6):
+    for key in [("receiver", "detect", "max_detect_px"), ("receiver", "ook", "pieces_jitter_us")] + rng.sample(leaves, 6):
         value = rng.choice([0, -1, 1e9 + 1, 1e300, 10 ** 12, 0.5])
         s = json.loads(json.dumps(settings))
         d = s

@@ -50,7 +50,7 @@ from receiver.decode.exposure import MODEL_FROM_CHIPS, exposure_verdict, ramp_ex
 from receiver.core.protocol import OOK_PACKET_LEN
 from receiver.decode.ook import rows_per_chip
 from receiver.decode.pieces import chips_verdict
-from receiver.decode.settings import OokSettings
+from receiver.decode.settings import OOK_TUNING, OokSettings
 from receiver.decode.policy import map_rates_hz
 from receiver.core.errors import InputError
 from receiver.vision.detect import auto_level, detect
@@ -360,7 +360,7 @@ def check_frames(frames, camera=None, led_map=None, *, fps: float = 0.0, max_fra
             chips = rows * r * camera.row_readout_us * 1e-6
             if chips < OOK_PACKET_LEN:
                 ok_c, text = chips_verdict(chips, r, max_chips=OokSettings.pieces_max_chips,
-                                           min_frames=OokSettings.pieces_min_frames,
+                                           min_frames=OOK_TUNING.pieces_min_frames,
                                            mapped=led_map.addressing != "xy")
                 out.append(Finding("chips", ok_c, f"{text} ({rows:.0f} rows, {camera.row_readout_us:g} us a row)",
                                    "" if ok_c else "use the map's IDs (addressing \"map\"), faster chips or "

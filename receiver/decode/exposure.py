@@ -225,7 +225,8 @@ class ExposureLearner:
 # Longest exposure (chips) whose chips the model still reads: at two chips a row averages a
 # whole Manchester pair (always half ON), and only the pair boundaries carry the data.
 MAX_EXPOSURE_CHIPS = 1.8
-# From this exposure (chips) up, the exposure model reads the chips (OokSettings.model_min_chips).
+# From this exposure (chips) up, the exposure model reads the chips (`OokSettings.exposure_model`
+# "auto"): shorter exposures leave flat chip middles, which the plain sampler reads.
 MODEL_FROM_CHIPS = 0.5
 
 

@@ -15,7 +15,7 @@ per frame at 30 fps; on recordings/indoor-static the residual of a line fit is <
 
 `FrameClock` turns the u of the reference lights of each frame into one clock value c_k (mod
 54): the u of a reference, made continuous across references by each reference's fitted
-offset d_r(k) = u_r - c (a line over its last `window` frames). A decoder then learns its own
+offset d_r(k) = u_r - c (a line over its last `WINDOW_FRAMES` frames). A decoder then learns its own
 light's offset o(k) = u_i - c_k the same way (`OokDecoder`, timing hint) and places a frame
 without sync and without enough overlap for a correlation at shift = round(c_k + Y / p + o(k)).
 
@@ -25,7 +25,7 @@ epoch are then meaningless and decoders drop them.
 
 Safety: a reference's u is only reported for a frame placed by its sync or by a unique, strong
 match with its CRC-valid packet (`OokDecoder.row0_coordinate`); references that disagree with
-the consensus by more than `max_resid` chips are dropped (and the frame has no clock value if
+the consensus by more than `MAX_RESID_CHIPS` chips are dropped (and the frame has no clock value if
 no majority is left).
 """
 
@@ -37,8 +37,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from receiver.decode.ook import DIAGNOSTICS_LEN, PACKET_LEN, line_predict, wrap_chips as wrap
-from receiver.decode.settings import FrameClockSettings
-from receiver.core.settings import resolve_settings
+
+# Frames of a reference's offset history in its line fit (its crystal drift is linear over them).
+WINDOW_FRAMES = 12
+# A reference unseen for more frames than this loses its offset (the drift is then unknown).
+MAX_GAP_FRAMES = 6
+# Chips a reference may disagree with the consensus before it is dropped as slipped.
+MAX_RESID_CHIPS = 0.2
 
 
 def _mean(vals: list[float]) -> float:
@@ -69,17 +74,14 @@ class FrameClock:
     """Per-frame clock of one OOK chip rate, fed by reference lights.
 
     Per frame: `begin(k)`, then `observe(key, u)` for each reference light (u from
-    `OokDecoder.row0_coordinate`), then `close()` -> ClockTick or None.
-
-    Tunables: `FrameClockSettings` (receiver.decode.settings), given as `settings=` or as
-    keyword overrides of its fields.
+    `OokDecoder.row0_coordinate`), then `close()` -> ClockTick or None. Its constants are
+    this module's WINDOW_FRAMES, MAX_GAP_FRAMES and MAX_RESID_CHIPS.
     """
 
-    def __init__(self, *, settings: FrameClockSettings | None = None, **overrides):
-        s = self.settings = resolve_settings(settings, FrameClockSettings, overrides)
-        self.window = s.window
-        self.max_gap = s.max_gap
-        self.max_resid = s.max_resid
+    def __init__(self):
+        self.window = WINDOW_FRAMES
+        self.max_gap = MAX_GAP_FRAMES
+        self.max_resid = MAX_RESID_CHIPS
         self.epoch = 0
         self.refs: dict = {}  # key -> deque of (k, d) with d = u - c (unwrapped)
         self.k: int | None = None
@@ -104,7 +106,7 @@ class FrameClock:
                 for key in self._obs if key in self.refs}
         resid = 0.0
         if cand:
-            # consensus: the largest group of candidates within max_resid of one another
+            # consensus: the largest group of candidates within MAX_RESID_CHIPS of one another
             # (ties: the group with the longer histories; a full tie gives no clock)
             def group(key):
                 return [o for o in cand if abs(wrap(cand[o] - cand[key])) <= self.max_resid]

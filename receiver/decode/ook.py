@@ -64,7 +64,7 @@ import numpy as np
 
 from firmware_tx.framing import OOK_ID_BITS, OOK_PACKET_LEN, SYNC, SYNC_EDGE_TO_DATA
 from receiver.decode import confirm, exposure, pieces
-from receiver.decode.settings import OokSettings
+from receiver.decode.settings import OOK_TUNING, OokSettings, OokTuning
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
 from receiver.core.native import load
@@ -94,7 +94,7 @@ N_BITS = (PACKET_LEN - SYNC_LEN) // 2  # 24 = 16 ID bits + 8 CRC bits
 CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
-PERIOD_FRAMES = OokSettings.period_frames  # refined periods whose median fixes rows per chip
+PERIOD_FRAMES = OOK_TUNING.period_frames  # refined periods whose median fixes rows per chip
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
@@ -516,46 +516,47 @@ class OokDecoder:
     """Per-blob OOK packet assembler (one per tracked blob; call `step` every frame).
 
     Tunables: `OokSettings` (receiver.decode.settings), given as `settings=` or as keyword
-    overrides of its fields.
+    overrides of its fields; `tuning`: the internal constants (`OokTuning`, for tests and
+    studies).
     """
 
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
                  exposure_learner: exposure.ExposureLearner | None = None,
                  candidates: np.ndarray | None = None, frame_jitter: pieces.FrameJitter | None = None,
-                 **overrides):
+                 tuning: OokTuning = OOK_TUNING, **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
+        k = self.tuning = tuning
         if rate_hz <= 0 or row_readout_us <= 0:
             raise ValueError("rate_hz and row_readout_us must be positive")
         self.period0_rows = rows_per_chip(rate_hz, row_readout_us)
         self._phasor = np.zeros(0, dtype=np.complex128)
-        self._learner = period_learner if period_learner is not None else PeriodLearner(s.period_frames)
+        self._learner = period_learner if period_learner is not None else PeriodLearner(k.period_frames)
         self._period: float | None = None  # learned rows per chip
         self.last_start_row: float | None = None  # frame chip 0's first row (frame_chips)
-        self._model_mode, self._model_min_chips = s.exposure_model, s.model_min_chips
+        self._model_mode, self._model_min_chips = s.exposure_model, exposure.MODEL_FROM_CHIPS
         # exposure_us <= 0: unknown, learned from the stripes' edges (shared per rate and camera)
         self.exposure_learner = (None if exposure_us > 0 else exposure_learner if exposure_learner is not None
                                  else exposure.ExposureLearner())
         self._set_exposure(max(exposure_us, 0.0) / row_readout_us)
-        self.blur_rows = s.blur_rows
-        self.model_phases = s.model_phases
-        self.model_min_fit = s.model_min_fit
+        self.blur_rows = k.blur_rows
+        self.model_phases = k.model_phases
+        self.model_min_fit = k.model_min_fit
         self.model_fit: float | None = None  # the latest frame's fit (1 - residual / variance)
-        self.min_row_frac = s.min_row_frac
-        self.segment_chips = s.segment_chips
-        self.max_period_error = s.max_period_error
-        self.min_coherence = s.min_coherence
-        self.norm_chips = s.norm_chips
-        self.sync_margin = s.sync_margin
-        self.align_min = s.align_min
-        self.align_gap = s.align_gap
-        self.align_min_chips = s.align_min_chips
+        self.min_row_frac = k.min_row_frac
+        self.segment_chips = k.segment_chips
+        self.max_period_error = k.max_period_error
+        self.min_coherence = k.min_coherence
+        self.norm_chips = k.norm_chips
+        self.sync_margin = k.sync_margin
+        self.align_min = k.align_min
+        self.align_gap = k.align_gap
+        self.align_min_chips = k.align_min_chips
         self.decay = s.decay
-        self.min_margin = s.min_margin
+        self.min_margin = k.min_margin
         self.switch_frames = s.switch_frames
-        self.parity_gap = s.parity_gap
-        self.stale_frames = s.stale_frames
-        self.align_when_decoded = s.align_when_decoded
+        self.parity_gap = k.parity_gap
+        self.stale_frames = k.stale_frames
         self._stale = 0
         # the four accumulators are the rows of one array (one buffer for the kernels); every
         # update of them is in place, so these views stay theirs
@@ -566,8 +567,8 @@ class OokDecoder:
         # for which every cyclic shift overlapped enough known chips to be judged
         self.trust_w = self._acc4[2]
         self._last_align_complete = False
-        self.pending: deque = deque(maxlen=s.pending_frames)
-        self.recent: deque = deque(maxlen=s.verify_frames)  # soft chips of the latest frames
+        self.pending: deque = deque(maxlen=k.pending_frames)
+        self.recent: deque = deque(maxlen=k.verify_frames)  # soft chips of the latest frames
         self.verify_min = s.verify_min
         self.anchored = False  # accumulator positions are packet positions (sync at 0)
         self.frames = 0
@@ -577,15 +578,14 @@ class OokDecoder:
         self._cand_n = 0
         # frame-clock timing (receiver.decode.frameclock): offsets o = shift - (clock coordinate of
         # frame chip 0) of placed frames, in accumulator coordinates
-        self.timing_window = s.timing_window
-        self.timing_max_gap = s.timing_max_gap
-        self.timing_frac = s.timing_frac
-        self.timing_conflict = s.timing_conflict
-        self.timing_min_overlap = s.timing_min_overlap
-        self.timing_min_corr = s.timing_min_corr
-        self.trust_timed = s.trust_timed
+        self.timing_window = k.timing_window
+        self.timing_max_gap = k.timing_max_gap
+        self.timing_frac = k.timing_frac
+        self.timing_conflict = k.timing_conflict
+        self.timing_min_overlap = k.timing_min_overlap
+        self.timing_min_corr = k.timing_min_corr
         self.timing_ok = True  # False for good after a timing disagreement
-        self._tobs: deque = deque(maxlen=s.timing_window)  # (k, o)
+        self._tobs: deque = deque(maxlen=k.timing_window)  # (k, o)
         self._t_epoch: int | None = None
         self._t_confirmed = False  # the offsets are tied to packet coordinates by a sync frame
         self._t_strong = False  # some offset came from a sync-placed frame
@@ -594,9 +594,9 @@ class OokDecoder:
         self.timed_w = self._acc4[3]  # weight of timed placements not yet confirmed
         self.acc_sq = np.zeros(PACKET_LEN)  # sum of weighted squared soft chips (exposure model only)
         self.soft_min_z = s.soft_min_z
-        self.soft_min_snr = s.soft_min_snr
-        self.soft_min_chips = s.soft_min_chips
-        self.soft_sigma_floor = s.soft_sigma_floor
+        self.soft_min_snr = k.soft_min_snr
+        self.soft_min_chips = k.soft_min_chips
+        self.soft_sigma_floor = k.soft_sigma_floor
         self.soft_z = 0.0  # the latest soft decision's margin (noise sds)
         # pieces placed by the frame times (receiver.decode.pieces), for lights showing few
         # chips a frame; only with candidate IDs (the map's at this rate)
@@ -608,9 +608,9 @@ class OokDecoder:
             ids = np.asarray(candidates, dtype=np.int64)
             self.pieces = pieces.PieceAssembler(
                 ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
-                history=s.pieces_frames, min_frames=s.pieces_min_frames, min_corr=s.pieces_min_corr,
-                min_gap=s.pieces_min_gap, shift_penalty=s.pieces_shift_penalty, jitter=frame_jitter,
-                timed_penalty=s.pieces_timed_penalty)
+                history=k.pieces_frames, min_frames=k.pieces_min_frames, min_corr=k.pieces_min_corr,
+                min_gap=s.pieces_min_gap, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
+                timed_penalty=k.pieces_timed_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}
         # Diagnostics of the latest frames, chips (bounded: a decoder lives as long as its
@@ -618,24 +618,24 @@ class OokDecoder:
         self.timing_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self.timing_frac_resid: deque = deque(maxlen=DIAGNOSTICS_LEN)
         self._tpl: tuple[int, np.ndarray] | None = None
-        self.timed_frames: deque = deque(maxlen=s.verify_frames)  # (soft, shift) of timed placements
+        self.timed_frames: deque = deque(maxlen=k.verify_frames)  # (soft, shift) of timed placements
         # a first ID from a packet chained by alignments of short frames waits for the frames
         # after its proposal to confirm it (receiver.decode.confirm)
         self.confirm_max_chips = s.confirm_max_chips
-        self.confirm_frames = s.confirm_frames
-        self.confirm_gap = s.confirm_gap
-        self.confirm_min_chip = s.confirm_min_chip
-        self.confirm_misfit_right = s.confirm_misfit_right
-        self.confirm_misfit_wrong = s.confirm_misfit_wrong
-        self.confirm_min_llr = s.confirm_min_llr
-        self.confirm_end_chips = s.confirm_end_chips
-        self.confirm_twin_frames = s.confirm_twin_frames
+        self.confirm_frames = k.confirm_frames
+        self.confirm_gap = k.confirm_gap
+        self.confirm_min_chip = k.confirm_min_chip
+        self.confirm_misfit_right = k.confirm_misfit_right
+        self.confirm_misfit_wrong = k.confirm_misfit_wrong
+        self.confirm_min_llr = k.confirm_min_llr
+        self.confirm_end_chips = k.confirm_end_chips
+        self.confirm_twin_frames = k.confirm_twin_frames
         self._chained = False  # the accumulation holds a short frame placed by alignment
         self._confirm: confirm.Confirmation | None = None
 
     def _set_exposure(self, exposure_rows: float) -> None:
         """Use this exposure (rows): the exposure model (receiver.decode.exposure) reads the
-        chips where the exposure averages them, from `model_min_chips` of a chip up."""
+        chips where the exposure averages them, from `exposure.MODEL_FROM_CHIPS` of a chip up."""
         self.exposure_rows = exposure_rows
         self.exposure_model = self._model_mode == "on" or (
             self._model_mode == "auto" and exposure_rows >= self._model_min_chips * self.period0_rows)
@@ -901,7 +901,7 @@ class OokDecoder:
             if self._tc is not None:  # (_t_observe does nothing without this frame's clock)
                 self._t_observe((-s) % PACKET_LEN, sync=True)
             return True
-        if s is None and self.led_id is not None and not self.align_when_decoded:
+        if s is None and self.led_id is not None:
             self.pending.clear()  # decoded: frames without sync add little, cost alignments
             return False
         shift = self._timed_shift(soft)
@@ -955,7 +955,7 @@ class OokDecoder:
         coordinates by a sync frame, else kept apart (`timed_w`) until one confirms them."""
         self.timing_stats["timed"] += 1
         sure = self.anchored and self._t_confirmed
-        self._add(soft, cw, shift, trusted=self.trust_timed and sure, timed=self.trust_timed and not sure)
+        self._add(soft, cw, shift, trusted=sure, timed=not sure)
         self.timed_frames.append((soft, shift))
 
     def _rotate(self, q: int) -> None:

@@ -25,10 +25,11 @@ from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, crc8_table
 from receiver.decode.pieces import FrameJitter, chips_verdict
 from receiver.decode.s2psk import S2pskDecoder
-from receiver.decode.settings import OokSettings, PolicySettings, S2pskSettings, ToneSettings
+from receiver.decode.settings import OOK_TUNING, OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.decode.tone import ToneDecoder
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.vision.detect import MIN_STRIPE_DEPTH
 from receiver.vision.profile import stripe_depth
 from receiver.vision.tone_profile import tone_profile
 
@@ -191,7 +192,7 @@ class DecodePolicy:
             crc8_table()  # built once here, not inside the first decoded frame
         # Rows per chip is a constant of this camera and the rate: one learner per rate serves
         # every track, so a new track does not refine it again for its first frames.
-        self.period_learners = {rate: PeriodLearner(ook.period_frames) for rate in plan.ook_rates}
+        self.period_learners = {rate: PeriodLearner(OOK_TUNING.period_frames) for rate in plan.ook_rates}
         # the map's IDs per OOK rate (map addressing): the candidates of a light whose frames
         # show only short pieces of its packet (receiver.decode.pieces)
         self.candidates = {}
@@ -267,7 +268,7 @@ class DecodePolicy:
             med = float(np.median(np.fromiter(seen, float)))
             if med > limit or med <= 0:
                 continue
-            _, text = chips_verdict(med, rate, max_chips=limit, min_frames=self.ook.pieces_min_frames,
+            _, text = chips_verdict(med, rate, max_chips=limit, min_frames=OOK_TUNING.pieces_min_frames,
                                     mapped=rate in self.candidates)
             took = self.pieces_took.get(rate)
             if took:
@@ -312,7 +313,7 @@ class DecodePolicy:
         profile, weights, y0 = profile_wy
         if not light.striped:
             tall = blob.y1 - blob.y0 >= max(self.min_stripe_rows, 3)
-            if tall and stripe_depth(profile, weights, background=blob.background) < self.settings.min_stripe_depth:
+            if tall and stripe_depth(profile, weights, background=blob.background) < MIN_STRIPE_DEPTH:
                 return
             light.striped = True
         found: tuple[str, int] | None = None

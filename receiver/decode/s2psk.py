@@ -6,21 +6,22 @@ the defaults, about 2.4 frames at 30 fps) and the camera is not synchronised, so
 comes from the frame timestamps:
 
 1. keep the last `history_s` seconds of (t, soft XOR) samples;
-2. for each candidate phase of the symbol grid (`n_phases` over one symbol) give every sample
-   a symbol number floor((t - phase) / T); samples within `guard` of a boundary are left out
+2. for each candidate phase of the symbol grid (`N_PHASES` over one symbol) give every sample
+   a symbol number floor((t - phase) / T); samples within `GUARD` of a boundary are left out
    (their exposure may straddle a symbol change). The right phase is the one under which the
    samples of each symbol agree best: maximum of sum |sum of the symbol's samples|;
 3. fold the symbols modulo the 30-symbol packet (the stream repeats with no gap), find the
-   sync `111000` by cyclic search (every sync symbol right by `sync_margin`), Manchester-decode
+   sync `111000` by cyclic search (every sync symbol right by `SYNC_MARGIN`), Manchester-decode
    the 12 data bits by soft decision on each symbol pair, and check CRC-4;
 4. accept only when every packet position has been seen, every pair and sync symbol is right
-   by `min_margin`, and the CRC holds. CRC-4 alone passes 1 in 16 random packets, so the
+   by `MIN_MARGIN`, and the CRC holds. CRC-4 alone passes 1 in 16 random packets, so the
    margins carry most of the protection against wrong IDs;
 5. (decoder "soft", the default) a packet the margins reject is scored by maximum likelihood
    against every valid packet at every shift (`soft_stats`: one matrix product over the
    7,680 hypotheses, weighted by each position's sample count, noise fitted per packet) and
    accepted when its margin over every other ID is large in units of that noise
-   (`decode_soft`; the thresholds and their false-accept rates are in S2pskSettings).
+   (`decode_soft`; the thresholds are `S2pskSettings.soft_min_z` and this module's SOFT_*
+   constants, their false-accept rates are in docs/s2psk-pairs.md).
 
 IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
 """
@@ -37,6 +38,27 @@ from firmware_tx.framing import S2PSK_CRC_BITS, S2PSK_ID_BITS, S2PSK_PACKET_LEN,
 from receiver.decode.settings import S2pskSettings
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
+
+# Symbol-grid phases tried over one symbol: 1/16 symbol = 5 ms steps at the defaults, well under
+# the frames' timestamp jitter. Cost: the phase search is N_PHASES decodes' worth of binning.
+N_PHASES = 16
+# Fraction of a symbol at each end whose samples are not used (timestamp jitter and exposures
+# straddling a symbol change).
+GUARD = 0.12
+# The hard rule: every sync symbol must be right by SYNC_MARGIN and every Manchester pair by
+# MIN_MARGIN (soft units of a folded symbol mean, -1..1); random folded packets (N(0, sd) clipped
+# to [-1, 1]) pass them and CRC-4 in 0, 0 and 2 of 10^5 at sd 0.3, 0.6 and 1.0.
+SYNC_MARGIN = 0.25
+MIN_MARGIN = 0.3
+# Samples each packet position needs before a decode is attempted.
+MIN_SAMPLES = 1
+# The soft rule's evidence floors besides `S2pskSettings.soft_min_z`: the fitted amplitude at
+# least SOFT_MIN_SNR noise sds (noise alone fits some codeword with a small amplitude), no
+# position contradicting the packet by more than SOFT_MAX_CONTRADICTION noise sds (the code
+# corrects nothing), and the noise sd at least SOFT_SIGMA_FLOOR soft units.
+SOFT_MIN_SNR = 1.0
+SOFT_MAX_CONTRADICTION = 2.0
+SOFT_SIGMA_FLOOR = 0.05
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
@@ -154,26 +176,20 @@ def best_per_id(scores: np.ndarray) -> np.ndarray:
 
 
 def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
-               sigma_floor: float = 0.05, position_dof: float = 0.0,
-               exact_from: float = -np.inf) -> SoftStats:
+               sigma_floor: float = SOFT_SIGMA_FLOOR, exact_from: float = -np.inf) -> SoftStats:
     """Maximum-likelihood scoring of every valid packet (256 IDs x 30 shifts) against folded
     packets; sums, counts, squares: (B, 30) or (30,) sum of the soft samples, their number and
     the sum of their squares per folded position (`S2pskDecoder.folded_sums`).
 
     Model: a sample at position p is x = a s_p + n, s_p = +-1 the hypothesis' symbol (the XOR of
     thesis eq. 42 read as +-1), a > 0 one amplitude for the packet, n white noise of variance
-    v_p. The log-likelihood of a hypothesis is then const + a sum_p s_p S_p / v_p with S_p the
-    sum of position p's samples: the ML hypothesis has the largest weighted correlation
-    sum_p s_p S_p / v_p (a mean of c_p samples has variance v_p / c_p), all 7,680 of them one
-    matrix product. The packet's noise sigma^2 is fitted under the best equal-weight hypothesis
-    (a = score / N, sigma^2 = residual sum of squares / (N - 1), N = sum c_p, floored by
-    `sigma_floor`), so samples that disagree with each other or with the codeword raise it.
-    `position_dof` 0: v_p = sigma^2 for every position; > 0: v_p = (SSW_p + d sigma^2) /
-    (c_p - 1 + d), d = position_dof, SSW_p = sum of squares of position p's samples about their
-    mean: a position whose samples disagree (one of two flipped reads 0) weighs less, one whose
-    samples agree more, shrunk towards sigma^2 with d prior degrees of freedom (a position of
-    one sample keeps sigma^2; SSW does not depend on the hypothesis). Between the best
-    hypothesis h1 and another h, the score difference is 2 sum_{p: s1 != s} s1_p S_p / v_p, of
+    v_p = sigma^2 (one noise for the packet). The log-likelihood of a hypothesis is then const +
+    a sum_p s_p S_p / v_p with S_p the sum of position p's samples: the ML hypothesis has the
+    largest weighted correlation sum_p s_p S_p / v_p (a mean of c_p samples has variance
+    v_p / c_p), all 7,680 of them one matrix product. The packet's noise sigma^2 is fitted
+    under the best hypothesis (a = score / N, sigma^2 = residual sum of squares / (N - 1),
+    N = sum c_p, floored by `sigma_floor`), so samples that disagree with each other or with the
+    codeword raise it. Between the best hypothesis h1 and another h, the score difference is 2 sum_{p: s1 != s} s1_p S_p / v_p, of
     sd 2 sqrt(W) under h1, W = sum of c_p / v_p over the positions where they differ (unseen
     positions count 0, so an alternative that differs only where nothing was seen has z = 0);
     its z = (score1 - score_h) / (2 sqrt(W)), and `z` is the smallest over every h of a
@@ -195,16 +211,9 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     amp = score1 / n
     rss = np.maximum(q.sum(axis=1) - score1 * amp, 0.0)
     var = np.maximum(rss / np.maximum(n - 1.0, 1.0), sigma_floor ** 2)
-    if position_dof > 0:
-        ssw = np.maximum(q - s ** 2 / np.maximum(c, 1.0), 0.0)
-        v = (ssw + position_dof * var[:, None]) / (np.maximum(c - 1.0, 0.0) + position_dof)
-        scores = (s / v) @ book.T
-        h1 = np.argmax(scores, axis=1)
-        score1 = scores[rows, h1]
-    else:
-        v = np.repeat(var[:, None], s.shape[1], axis=1)
-        scores = scores / var[:, None]
-        score1 = score1 / var
+    v = np.repeat(var[:, None], s.shape[1], axis=1)
+    scores = scores / var[:, None]
+    score1 = score1 / var
     led_id = book_id[h1]
     s1 = book[h1]  # (B, 30)
     cu = c / v
@@ -229,16 +238,15 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
 
 
 def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, min_z: float,
-                min_snr: float, max_contradiction: float, sigma_floor: float = 0.05,
-                position_dof: float = 0.0) -> tuple[int | None, float]:
+                min_snr: float, max_contradiction: float,
+                sigma_floor: float = SOFT_SIGMA_FLOOR) -> tuple[int | None, float]:
     """ID of one folded packet by `soft_stats`, or None: accepted only when (a) its margin over
     every other ID is at least `min_z` noise sds, (b) its amplitude is at least `min_snr` noise
     sds (the absolute evidence floor: noise alone fits some codeword with a small amplitude) and
     (c) no position contradicts it by more than `max_contradiction` noise sds (the code corrects
     nothing: a few strongly wrong symbols, a mixed or slipped history, are rejected as the hard
     decoder rejects them). Returns (id or None, z)."""
-    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, position_dof=position_dof,
-                    exact_from=min_z)
+    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, exact_from=min_z)
     z = float(st.z[0])
     if z >= min_z and float(st.snr[0]) >= min_snr and float(st.contradiction[0]) <= max_contradiction:
         return int(st.led_id[0]), z
@@ -293,11 +301,11 @@ class S2pskDecoder:
             # A decode needs a whole packet of samples (it waits for PACKET_LEN - 2 symbols).
             raise ValueError(f"history_s must hold a whole packet ({PACKET_LEN * self.symbol_s:g} s), "
                              f"not {self.history_s:g} s")
-        self.n_phases = s.n_phases
-        self.guard = s.guard
-        self.sync_margin = s.sync_margin
-        self.min_margin = s.min_margin
-        self.min_samples = s.min_samples
+        self.n_phases = N_PHASES
+        self.guard = GUARD
+        self.sync_margin = SYNC_MARGIN
+        self.min_margin = MIN_MARGIN
+        self.min_samples = MIN_SAMPLES
         self.switch_steps = s.switch_steps
         if s.decoder not in ("hard", "soft"):
             raise ValueError(f"decoder must be 'hard' or 'soft', not {s.decoder!r}")
@@ -369,7 +377,7 @@ class S2pskDecoder:
     def folded_sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sum of the soft samples, their count and the sum of their squares per stream
         position mod 30, (30,) each, at the best symbol-grid phase (zeros when there are no
-        samples). The phase is searched over all `n_phases` every `phase_every` calls and
+        samples). The phase is searched over all `N_PHASES` every `phase_every` calls and
         reused in between (it only drifts with the emitter's clock error)."""
         t, x = self._t, self._x
         if t.size == 0:
@@ -433,9 +441,8 @@ class S2pskDecoder:
                                       min_margin=self.min_margin)
         if led_id is None and self.settings.decoder == "soft":
             s = self.settings
-            led_id, conf = decode_soft(sums, c, squares, min_z=s.soft_min_z, min_snr=s.soft_min_snr,
-                                       max_contradiction=s.soft_max_contradiction,
-                                       sigma_floor=s.soft_sigma_floor, position_dof=s.soft_position_dof)
+            led_id, conf = decode_soft(sums, c, squares, min_z=s.soft_min_z, min_snr=SOFT_MIN_SNR,
+                                       max_contradiction=SOFT_MAX_CONTRADICTION, sigma_floor=SOFT_SIGMA_FLOOR)
         self.confidence = conf
         if led_id is not None and led_id != self.led_id:
             if self.led_id is None:

@@ -37,6 +37,11 @@ import numpy as np
 from receiver.decode.ook import trim_rows
 from receiver.decode.settings import ToneSettings
 from receiver.core.settings import resolve_settings
+
+# The frequency band a decoder searches: from FMIN_SHARE of the map's lowest tone to FMAX_SHARE
+# of its highest (the envelope's and the harmonics' lines stay outside).
+FMIN_SHARE = 0.5
+FMAX_SHARE = 1.5
 from receiver.core import protocol
 
 MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
@@ -168,8 +173,8 @@ class ToneDecoder:
         self.min_quality = s.min_quality
         self.memory = s.memory
         f = list(self.table.values()) or [1000.0]
-        self.fmin_hz = 0.5 * min(f) if s.fmin_hz is None else s.fmin_hz
-        self.fmax_hz = 1.5 * max(f) if s.fmax_hz is None else s.fmax_hz
+        self.fmin_hz = FMIN_SHARE * min(f)
+        self.fmax_hz = FMAX_SHARE * max(f)
         self.frames = 0
         self._sum = 0.0
         self._w = 0.0

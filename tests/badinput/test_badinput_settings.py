@@ -16,7 +16,7 @@ import pytest
 
 from receiver.core.errors import InputError
 from receiver.core.settings import settings_from_json, settings_json
-from receiver.decode.settings import OokSettings
+from receiver.decode.settings import OokSettings, OokTuning
 from receiver.locate.settings import PositionerSettings, VehicleSettings
 from receiver.pipeline import ReceiverSettings
 from receiver.vision.settings import DetectSettings, PairSettings, TrackSettings
@@ -34,7 +34,7 @@ def test_defaults_pass_their_own_checks(cls):
     (DetectSettings, "max_detect_px", 0, "must be at least 10000, not 0"),
     (DetectSettings, "stripe_gap_px", 10 ** 9, "must be 0..32768"),
     (DetectSettings, "stripe_check_rows", 10 ** 9, "must be 0..32768"),
-    (OokSettings, "norm_chips", 0, "must be at least 1, not 0"),
+    (OokSettings, "pieces_jitter_us", 1e6, "must be 0..100000, not 1000000.0"),
     (PairSettings, "max_area_ratio", 0.0, "must be at least 1"),
     (TrackSettings, "max_missed", -1, "must not be negative"),
     (PairSettings, "shake_radius_px", 1e9, "must be 0..32768"),
@@ -52,7 +52,7 @@ def test_out_of_range_setting_is_one_line(cls, key, value, words):
 
 
 @pytest.mark.parametrize("cls, key, value", [(DetectSettings, "stripe_check_rows", 0), (DetectSettings, "max_detect_px", 10000),
-                                             (DetectSettings, "stripe_gap_px", 0), (OokSettings, "norm_chips", 1),
+                                             (DetectSettings, "stripe_gap_px", 0), (OokSettings, "pieces_jitter_us", 1e5),
                                              (PairSettings, "max_area_ratio", 1.0),
                                              (PositionerSettings, "pixel_sigma_px", 1e-3),
                                              (PositionerSettings, "tilt_sigma_deg", 180.0)])
@@ -75,11 +75,14 @@ def test_run_with_a_zero_max_detect_px_settings_file(tmp_path):
     assert p.stdout == b""
 
 
-@pytest.mark.parametrize("obj", [{"confirm_misfit_wrong": 0.0}, {"confirm_misfit_right": 1.0},
-                                 {"confirm_misfit_right": 0.5, "confirm_misfit_wrong": 0.4}])
-def test_confirmation_misfit_shares_out_of_order_are_one_line(obj):
+@pytest.mark.parametrize("kw", [{"confirm_misfit_wrong": 0.0}, {"confirm_misfit_right": 1.0},
+                                {"confirm_misfit_right": 0.5, "confirm_misfit_wrong": 0.4}])
+def test_confirmation_misfit_shares_out_of_order_are_refused(kw):
     """The confirmation's likelihood ratio takes log(right / wrong) and log((1 - right) / (1 - wrong)):
-    shares of 0 or 1, or a right share not below the wrong one, are refused before a run starts."""
+    shares of 0 or 1, or a right share not below the wrong one, are refused when the internal
+    constants are made (they are no settings: a settings file cannot name them)."""
+    with pytest.raises(ValueError, match="confirm_misfit_right"):
+        OokTuning(**kw)
     with pytest.raises(InputError) as e:
-        settings_from_json(OokSettings, obj, "s.json")
-    assert str(e.value).startswith("s.json") and "\n" not in str(e.value), str(e.value)
+        settings_from_json(OokSettings, kw, "s.json")
+    assert str(e.value).startswith("s.json: OokSettings has no setting 'confirm_misfit_"), str(e.value)

@@ -105,21 +105,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="random seed [1]")
     ap.add_argument("--frames", type=int, default=60, help="frames per trial [60]")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="an OokSettings field for the decoders, e.g. confirm_max_chips=0 (no confirmation)")
+                    help="an OokSettings or OokTuning field for the decoders, e.g. confirm_max_chips=0 (no confirmation)")
     a = ap.parse_args(argv)
-    from receiver.decode.settings import OokSettings
+    from receiver.decode.settings import OOK_TUNING, OokSettings, OokTuning
 
-    overrides = {}
+    overrides, tuning = {}, {}
     for item in a.set:
         name, _, value = item.partition("=")
-        default = getattr(OokSettings(), name, None)
+        default = getattr(OokSettings(), name, getattr(OOK_TUNING, name, None))
         if default is None or not value:
-            print(f"ook_mc: --set {item!r}: not NAME=VALUE of an OokSettings field", file=sys.stderr)
+            print(f"ook_mc: --set {item!r}: not NAME=VALUE of an OokSettings or OokTuning field", file=sys.stderr)
             return 1
         try:
-            overrides[name] = type(default)(value)
+            (overrides if hasattr(OokSettings, name) else tuning)[name] = type(default)(value)
         except ValueError:
             print(f"ook_mc: --set {item!r}: {value!r} is not a {type(default).__name__}", file=sys.stderr)
+            return 1
+    if tuning:
+        try:
+            overrides["tuning"] = OokTuning(**tuning)
+        except ValueError as e:
+            print(f"ook_mc: --set: {e}", file=sys.stderr)
             return 1
     bad = [n for n in a.scenes if n not in BY_NAME]
     if bad:

@@ -6,6 +6,7 @@ import pytest
 from firmware_tx.crc import crc8
 from firmware_tx.framing import OOK_PACKET_LEN
 from receiver.decode.ook import OokDecoder, chip_grid, crc8_table, rows_per_chip
+from receiver.decode.settings import OokTuning
 from signals import ook_frames
 
 VECTOR_IDS = [0x0000, 0x002A, 0xBEEF]
@@ -189,7 +190,7 @@ def test_period_learner_shared_by_decoders():
     late = OokDecoder(RATE, T_ROW, T_EXP, period_learner=learner)
     late.step(*frames[3])
     assert late.rows_per_chip == learner.period
-    alone = OokDecoder(RATE, T_ROW, T_EXP, period_frames=3)
+    alone = OokDecoder(RATE, T_ROW, T_EXP, tuning=OokTuning(period_frames=3))
     for p, w in frames[:3]:
         assert alone.rows_per_chip == alone.period0_rows
         alone.step(p, w)

@@ -147,9 +147,9 @@ def test_soft_decision_margin_on_noise_and_misassembly():
     wrong assembly), never reach the acceptance margin with a wrong ID; a true packet seen at
     40 of 54 positions through noise is accepted."""
     from receiver.decode.ook import soft_decide
-    from receiver.decode.settings import OokSettings
+    from receiver.decode.settings import OOK_TUNING, OokSettings
 
-    z_min, snr_min = OokSettings.soft_min_z, OokSettings.soft_min_snr
+    z_min, snr_min = OokSettings.soft_min_z, OOK_TUNING.soft_min_snr
     rng = np.random.default_rng(7)
     for trial in range(120):
         tid = int(rng.integers(0, 1 << 16))

@@ -10,7 +10,7 @@ import pytest
 from ook_mc import BY_NAME, monte_carlo, trial
 from receiver.decode.confirm import Confirmation
 from receiver.decode.ook import moved_pair_twins, packet_template, soft_decide
-from receiver.decode.settings import OokSettings
+from receiver.decode.settings import OOK_TUNING, OokSettings
 
 
 def _wrong_assembly(led_id: int, rng) -> int:
@@ -25,11 +25,11 @@ def _wrong_assembly(led_id: int, rng) -> int:
 
 
 def _confirmation(led_id: int, **kw) -> Confirmation:
-    s = OokSettings()
-    args = dict(min_fit=s.verify_min, min_gap=s.confirm_gap, max_frames=s.confirm_frames,
-                min_chip=s.confirm_min_chip, misfit_right=s.confirm_misfit_right,
-                misfit_wrong=s.confirm_misfit_wrong, min_llr=s.confirm_min_llr, end_chips=s.confirm_end_chips,
-                twins=[packet_template(t) for t in moved_pair_twins(led_id)], twin_frames=s.confirm_twin_frames)
+    s, k = OokSettings(), OOK_TUNING
+    args = dict(min_fit=s.verify_min, min_gap=k.confirm_gap, max_frames=k.confirm_frames,
+                min_chip=k.confirm_min_chip, misfit_right=k.confirm_misfit_right,
+                misfit_wrong=k.confirm_misfit_wrong, min_llr=k.confirm_min_llr, end_chips=k.confirm_end_chips,
+                twins=[packet_template(t) for t in moved_pair_twins(led_id)], twin_frames=k.confirm_twin_frames)
     return Confirmation(led_id, packet_template(led_id), **{**args, **kw})
 
 

@@ -68,7 +68,7 @@ def test_pieces_margin_monte_carlo():
     """Seeded Monte Carlo of the ML choice itself (a small version of the calibration in
     OokSettings): pieces of 5-13 chips with 100 us rms jitter from lights in and out of the
     candidates; a wrong best ID never passes the acceptance gap."""
-    from receiver.decode.settings import OokSettings
+    from receiver.decode.settings import OOK_TUNING, OokSettings
 
     rng = np.random.default_rng(2)
     for trial in range(16):
@@ -80,8 +80,8 @@ def test_pieces_margin_monte_carlo():
         rate = float(rng.choice([5000.0, 10000.0]))
         pa = PieceAssembler(cands, np.stack([packet_template(int(i)) for i in cands]),
                             jitter_chips=int(np.ceil(OokSettings.pieces_jitter_us * rate * 1e-6)), history=30,
-                            min_frames=6, min_corr=OokSettings.pieces_min_corr, min_gap=OokSettings.pieces_min_gap,
-                            shift_penalty=OokSettings.pieces_shift_penalty)
+                            min_frames=6, min_corr=OOK_TUNING.pieces_min_corr, min_gap=OokSettings.pieces_min_gap,
+                            shift_penalty=OOK_TUNING.pieces_shift_penalty)
         phi, sd = rng.uniform(0, 54), rng.uniform(0.1, 0.8)
         for f in range(30):
             n = int(rng.integers(5, 14))
@@ -200,7 +200,7 @@ def test_pieces_settings_that_mean_nothing_are_refused():
     from receiver.core.settings import settings_from_json
     from receiver.decode.settings import OokSettings
 
-    for name, value in (("pieces_frames", 0), ("pieces_min_frames", 0), ("pieces_jitter_us", -1.0)):
+    for name, value in (("pieces_jitter_us", -1.0), ("pieces_jitter_us", 1e6)):
         with pytest.raises(InputError):
             settings_from_json(OokSettings, {name: value})
     a = PieceAssembler(np.arange(2), np.ones((2, 54), np.float32), jitter_chips=500, history=4,

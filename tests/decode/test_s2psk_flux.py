@@ -148,24 +148,22 @@ def test_fine_noise_threshold_of_a_truncated_noisy_background_stays_near_the_noi
 
 
 def test_a_weak_sync_symbol_decodes_but_a_wrong_one_never():
-    """The default S2-PSK sync margin (0.25) takes a sync symbol read at 0.28 (two samples, one
-    straddling: hil seed 2's car 228 lost 59 light-frames at 0.3); a wrong symbol anywhere is
-    still rejected with every other symbol strong, at the default margins."""
+    """The S2-PSK sync margin (0.25) takes a sync symbol read at 0.28 (two samples, one
+    straddling, as a lane-changing car in `occloc hil --mode s2psk` shows), which a margin of 0.3
+    rejects; a wrong symbol anywhere is still rejected with every other symbol strong."""
     from firmware_tx.framing import s2psk_packet
-    from receiver.decode.settings import S2pskSettings
-    from receiver.decode.s2psk import decode_symbols
-    s = S2pskSettings()
+    from receiver.decode.s2psk import MIN_MARGIN, SYNC_MARGIN, decode_symbols
     for led_id in (0x1C, 0xE4):
         m = (np.array(s2psk_packet(led_id), dtype=np.float64) * 2 - 1) * 0.9
         for pos in range(6):  # the sync symbols
             weak = m.copy()
             weak[pos] = 0.28 * np.sign(weak[pos])
-            assert decode_symbols(weak, sync_margin=s.sync_margin, min_margin=s.min_margin)[0] == led_id
-            assert decode_symbols(weak, sync_margin=0.3, min_margin=s.min_margin)[0] is None
+            assert decode_symbols(weak, sync_margin=SYNC_MARGIN, min_margin=MIN_MARGIN)[0] == led_id
+            assert decode_symbols(weak, sync_margin=0.3, min_margin=MIN_MARGIN)[0] is None
         for pos in range(30):
             bad = m.copy()
             bad[pos] = -bad[pos]
-            assert decode_symbols(bad, sync_margin=s.sync_margin, min_margin=s.min_margin)[0] is None
+            assert decode_symbols(bad, sync_margin=SYNC_MARGIN, min_margin=MIN_MARGIN)[0] is None
 
 
 def test_a_given_up_aliased_pair_bans_its_founding_tracks():

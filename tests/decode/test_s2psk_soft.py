@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from firmware_tx.framing import s2psk_packet
-from receiver.decode.s2psk import PACKET_LEN, S2pskDecoder, codebook, decode_soft, decode_symbols, soft_stats
+from receiver.decode.s2psk import (MIN_MARGIN, PACKET_LEN, SOFT_MAX_CONTRADICTION, SOFT_MIN_SNR, SOFT_SIGMA_FLOOR,
+                                   SYNC_MARGIN, S2pskDecoder, codebook, decode_soft, decode_symbols, soft_stats)
 from receiver.decode.settings import S2pskSettings
 
 S = S2pskSettings()
@@ -17,13 +18,12 @@ PACKETS = np.array([list(s2psk_packet(i)) for i in range(256)], dtype=np.float64
 
 
 def soft(sums, counts, squares, settings=S):
-    return decode_soft(sums, counts, squares, min_z=settings.soft_min_z, min_snr=settings.soft_min_snr,
-                       max_contradiction=settings.soft_max_contradiction, sigma_floor=settings.soft_sigma_floor,
-                       position_dof=settings.soft_position_dof)
+    return decode_soft(sums, counts, squares, min_z=settings.soft_min_z, min_snr=SOFT_MIN_SNR,
+                       max_contradiction=SOFT_MAX_CONTRADICTION, sigma_floor=SOFT_SIGMA_FLOOR)
 
 
-def hard(mean, settings=S):
-    return decode_symbols(mean, sync_margin=settings.sync_margin, min_margin=settings.min_margin)
+def hard(mean):
+    return decode_symbols(mean, sync_margin=SYNC_MARGIN, min_margin=MIN_MARGIN)
 
 
 def folded(samples):
@@ -48,8 +48,8 @@ def random_packets(rng, n, sd, ids=None, amp=1.0):
 
 
 def accepted(st, settings=S):
-    return ((st.z >= settings.soft_min_z) & (st.snr >= settings.soft_min_snr)
-            & (st.contradiction <= settings.soft_max_contradiction))
+    return ((st.z >= settings.soft_min_z) & (st.snr >= SOFT_MIN_SNR)
+            & (st.contradiction <= SOFT_MAX_CONTRADICTION))
 
 
 def test_codebook_distances():
@@ -74,32 +74,23 @@ def test_codebook_distances():
             assert np.array_equal(np.roll(CODEBOOK[PACKET_LEN * led_id + r], -r), PACKETS[led_id])
 
 
-@pytest.mark.parametrize("dof", [0.0, 2.0])
-def test_statistics_match_brute_force(dof):
+def test_statistics_match_brute_force():
     """z is the smallest margin over every different-ID hypothesis, also when only the packets
-    whose margin over the best-scoring other ID reaches `exact_from` are searched in full;
-    `position_dof` > 0 weighs each position by its own samples' spread shrunk to the packet's."""
+    whose margin over the best-scoring other ID reaches `exact_from` are searched in full."""
     rng = np.random.default_rng(3)
     ids = rng.integers(0, 256, 60)
     sums, counts, squares = random_packets(rng, 60, 0.5, ids, amp=0.6)
     counts[0, 5] = sums[0, 5] = squares[0, 5] = 0.0  # an unseen position
-    st = soft_stats(sums, counts, squares, position_dof=dof)
-    quick = soft_stats(sums, counts, squares, position_dof=dof, exact_from=2.0)
+    st = soft_stats(sums, counts, squares)
+    quick = soft_stats(sums, counts, squares, exact_from=2.0)
     for i in range(60):
         sc = CODEBOOK @ sums[i]
         h1 = int(np.argmax(sc))
         n = counts[i].sum()
         amp = sc[h1] / n
-        sigma = max(np.sqrt((squares[i].sum() - sc[h1] * amp) / (n - 1)), S.soft_sigma_floor)
+        sigma = max(np.sqrt((squares[i].sum() - sc[h1] * amp) / (n - 1)), SOFT_SIGMA_FLOOR)
         v = np.full(PACKET_LEN, sigma ** 2)
-        if dof:
-            c = np.maximum(counts[i], 1)
-            ssw = squares[i] - sums[i] ** 2 / c
-            v = (ssw + dof * sigma ** 2) / (np.maximum(counts[i] - 1, 0) + dof)
-            sc = CODEBOOK @ (sums[i] / v)
-            h1 = int(np.argmax(sc))
-        else:
-            sc = sc / sigma ** 2
+        sc = sc / sigma ** 2
         w = (counts[i] / v * (CODEBOOK != CODEBOOK[h1])).sum(axis=1)
         z = (sc[h1] - sc) / (2 * np.sqrt(np.maximum(w, 1e-12)))
         z[CODE_ID == CODE_ID[h1]] = np.inf
@@ -152,7 +143,7 @@ def test_strong_wrong_symbols_are_never_turned_into_a_wrong_id():
     for led_id in range(256):
         bad = np.tile(PACKETS[led_id] * 0.9, (PACKET_LEN, 1))
         bad[np.arange(PACKET_LEN), np.arange(PACKET_LEN)] *= -1  # row k: symbol k flipped
-        st = soft_stats(bad * c, c, c * bad ** 2, position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
+        st = soft_stats(bad * c, c, c * bad ** 2, exact_from=S.soft_min_z)
         assert not accepted(st).any(), led_id
     dist = (PACKET_LEN - CODEBOOK @ PACKETS.T) / 2  # every row vs shift 0 of every id
     rng = np.random.default_rng(2)
@@ -168,17 +159,17 @@ def test_strong_wrong_symbols_are_never_turned_into_a_wrong_id():
 
 
 def test_monte_carlo_no_wrong_id():
-    """Seeded Monte Carlo (the full study, 10^6 noise packets per sd, is in S2pskSettings):
+    """Seeded Monte Carlo (the full study, 10^6 noise packets per sd, is in docs/s2psk-pairs.md):
     random folded packets never decode; noisy packets of a true ID decode right more often
     under the decoder's rule (hard or soft) than under the hard rule alone, never wrong."""
     rng = np.random.default_rng(2026)
     for sd in (0.3, 0.6, 1.0):
-        st = soft_stats(*random_packets(rng, 1500, sd), position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
+        st = soft_stats(*random_packets(rng, 1500, sd), exact_from=S.soft_min_z)
         assert not accepted(st).any(), sd
     for sd, amp, most_hard, least_soft in ((0.3, 0.5, 0.25, 0.45), (0.6, 1.0, 0.7, 0.8), (1.0, 1.0, 0.1, 0.04)):
         ids = rng.integers(0, 256, 600)
         sums, counts, squares = random_packets(rng, 600, sd, ids, amp)
-        st = soft_stats(sums, counts, squares, position_dof=S.soft_position_dof, exact_from=S.soft_min_z)
+        st = soft_stats(sums, counts, squares, exact_from=S.soft_min_z)
         by_hard = np.array([-1 if (h := hard(s / c)[0]) is None else h for s, c in zip(sums, counts)])
         by_soft = np.where(by_hard >= 0, by_hard, np.where(accepted(st), st.led_id, -1))
         assert not ((by_soft >= 0) & (by_soft != ids)).any() and not ((by_hard >= 0) & (by_hard != ids)).any()
@@ -202,7 +193,7 @@ def test_decoder_setting_selects_the_rule():
 
 def test_settings_carry_the_soft_defaults():
     s = dataclasses.asdict(S2pskSettings())
-    assert s["decoder"] == "soft" and s["soft_min_z"] > 0 and s["soft_min_snr"] > 0
+    assert s["decoder"] == "soft" and s["soft_min_z"] > 0 and SOFT_MIN_SNR > 0
 
 
 def test_noisy_pairs_decode_soft_never_wrong():
