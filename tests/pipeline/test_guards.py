@@ -1,16 +1,15 @@
-"""Guards of what matters (architecture issue, "Tests that must guard what matters"): pipeline-level
-tests through the public entry points only (`Receiver(camera, led_map)` with its defaults,
-`occloc run`, `occloc eval --json`), each failing when the property it names is lost.
+"""Guards of what matters: pipeline-level tests through the public entry points only
+(`Receiver(camera, led_map)` with its defaults, `occloc run`, `occloc eval --json`), each failing
+when the property it names is lost.
 
-- The OOK frame clock (receiver.decode.frameclock), on by default: on recordings/indoor-static it
-  lifts the right LED-frames after a track's 3rd frame from 68 to 103 of 216 (README, "OOK frame
-  clock"); switched off by default, the count falls back to 68 and the test fails.
-- The README's measured ID results are regression thresholds: indoor-static >= 103/216 and
-  vehicle >= 552/1709 right LED-frames after a track's 3rd frame, 0 wrong (scored by
+- The OOK frame clock (receiver.decode.frameclock): on recordings/indoor-static it lifts the
+  right LED-frames after a track's 3rd frame to 103 of 216 (68 without it); a frame clock that
+  stops placing frames brings the count back towards 68 and the test fails.
+- The measured ID results are regression thresholds: indoor-static >= 103/216 and
+  vehicle >= 1832/4530 right LED-frames after a track's 3rd frame, 0 wrong (scored by
   tests/pipeline/test_recordings.py's `_score`, the acceptance scorer); indoor-static's distance error
   median <= 1.0 % (`occloc eval --json`: `distance_rel_error.p50`; every decoded LED of that
-  recording is over 400 px, so the overall median is the README's "LEDs > 400 px" figure).
-"""
+  recording is over 400 px, so the overall median is the "LEDs > 400 px" figure)."""
 
 from __future__ import annotations
 
@@ -23,26 +22,15 @@ import pytest
 from receiver.cli import main as cli
 from tests.pipeline.test_recordings import RECORDINGS, _score, score_resolvable
 
-# README "Measured": right LED-frames after a track's 3rd frame / all of them.
+# Measured: right LED-frames after a track's 3rd frame / all of them.
 STATIC_RIGHT_AFTER3, STATIC_TOTAL_AFTER3 = 103, 216
 STATIC_RIGHT_WITHOUT_FRAME_CLOCK = 68
 # vehicle: every live S2-PSK pair reports both emitters every frame (receiver.vision.pairing
-# `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs (was 552/1709).
-# 1719/4393 before soft S2-PSK decoding and the pairs' yaw shift / width size (1749/4412 with the
-# pairing changes alone, 1801/4387 with soft decoding alone). Measured with every pair's baseline
-# taken from its blobs (never from their area), emitters read by their envelope's highest gray
-# and coasting pairs re-placed on both their emitters' blobs (receiver.vision.pairing).
+# `Pairer.emitters`), dark ones too, so there are more LED-frames than blobs.
 VEHICLE_RIGHT_AFTER3, VEHICLE_TOTAL_AFTER3 = 1832, 4530
-# `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames;
-# was SL 391, FV 114 before pair emitters were reported dark too and new pairs got their backlog;
-# SL 602 before far heads were decoded from their flux with noise-following detection, 635
-# before a decoded street light's pair followed its size, `PairSettings.follow_size`, 641 before
-# near jumper pairs' levels were seeded, `jumper_levels_min_area_px`, 646 before the pairs' yaw
-# shift, size by width and measured baselines, PairSettings shake "pairs", width_size,
-# measure_baseline, and soft S2-PSK decoding, S2pskSettings.decoder "soft": 650 with the pairing
-# changes alone, 648 with soft decoding alone).
+# `occloc eval`'s S2-PSK resolvable ID rate on recordings/vehicle (right / qualifying light-frames).
 VEHICLE_RESOLVABLE = {"SL": (652, 658), "FV": (156, 156)}
-STATIC_DISTANCE_MEDIAN_MAX = 0.010     # README: 0.96 %; measured by occloc eval: 0.79 %
+STATIC_DISTANCE_MEDIAN_MAX = 0.010     # measured by occloc eval: 0.79 %
 
 
 @pytest.fixture(scope="module")
@@ -50,13 +38,13 @@ def static():
     return _score("indoor-static")
 
 
-def test_frame_clock_on_by_default_lifts_indoor_static(static):
+def test_frame_clock_lifts_indoor_static(static):
     """Small lights whose successive frames barely overlap are assembled by the frame clock:
     without it (68 right) the track-after-3rd-frame count is far below 103."""
     assert static["total_after3"] == STATIC_TOTAL_AFTER3, static
     assert static["right_after3"] > STATIC_RIGHT_WITHOUT_FRAME_CLOCK + 20, (
         f"{static['right_after3']}/{static['total_after3']} right after a track's 3rd frame: the "
-        f"OOK frame clock looks switched off (README: {STATIC_RIGHT_WITHOUT_FRAME_CLOCK} without it, "
+        f"OOK frame clock places no frames (measured: {STATIC_RIGHT_WITHOUT_FRAME_CLOCK} without it, "
         f"{STATIC_RIGHT_AFTER3} with it)")
 
 
@@ -64,7 +52,7 @@ def test_indoor_static_ids_no_worse_than_measured(static):
     assert static["wrong"] == 0, static
     assert static["right_after3"] >= STATIC_RIGHT_AFTER3, (
         f"indoor-static: {static['right_after3']}/{static['total_after3']} right LED-frames after a "
-        f"track's 3rd frame, README measured {STATIC_RIGHT_AFTER3}/{STATIC_TOTAL_AFTER3}")
+        f"track's 3rd frame, measured {STATIC_RIGHT_AFTER3}/{STATIC_TOTAL_AFTER3}")
 
 
 def test_vehicle_ids_no_worse_than_measured():
@@ -73,7 +61,7 @@ def test_vehicle_ids_no_worse_than_measured():
     assert s["total_after3"] == VEHICLE_TOTAL_AFTER3, s
     assert s["right_after3"] >= VEHICLE_RIGHT_AFTER3, (
         f"vehicle: {s['right_after3']}/{s['total_after3']} right LED-frames after a track's 3rd "
-        f"frame, README measured {VEHICLE_RIGHT_AFTER3}/{VEHICLE_TOTAL_AFTER3}")
+        f"frame, measured {VEHICLE_RIGHT_AFTER3}/{VEHICLE_TOTAL_AFTER3}")
 
 
 def test_vehicle_resolvable_id_rate_no_worse_than_measured():
@@ -103,5 +91,5 @@ def test_indoor_static_distance_error_median(tmp_path):
     assert d["n"] >= 100, d
     assert d["p50"] <= STATIC_DISTANCE_MEDIAN_MAX, (
         f"indoor-static distance error median {100 * d['p50']:.2f} % > "
-        f"{100 * STATIC_DISTANCE_MEDIAN_MAX:.1f} % (README: 0.96 %)")
+        f"{100 * STATIC_DISTANCE_MEDIAN_MAX:.1f} % (measured: 0.79 %)")
     assert m["wrong_ids"] == 0

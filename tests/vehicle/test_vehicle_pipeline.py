@@ -61,8 +61,7 @@ def test_forward_vehicles_ranged_and_s2psk_leds_carry_distances(run_lines):
             assert fv["zone"] in ("safe", "min", "critical")
             if fv["id"] in tv and fv["distance_m"] is not None:
                 rel.append(abs(fv["distance_m"] / tv[fv["id"]]["distance_m"] - 1))
-    # measured: 148 decoded entries, median 0.57 % (ranged from the emitters' measured centroids;
-    # from the pairing's rigid-model positions it was 2.2 %)
+    # measured: 148 decoded entries, median 0.57 % (ranged from the emitters' measured centroids)
     assert len(rel) >= 100 and np.median(rel) <= 0.01
     ranged = [o for rec in run_lines for o in rec["leds"] if o["mode"] == "s2psk" and o["distance_m"] is not None]
     assert ranged and all(o["distance_estimator"] for o in ranged)
@@ -170,5 +169,5 @@ def test_forward_vehicles_from_the_pairs_first_frame_and_no_phantoms(run_lines):
             if fv["distance_m"] is not None:
                 first_range.setdefault(near["id"], rec["frame"])
     assert set(first_range) == set(first_seen)
-    # measured: 4 frames for both FVs (was 5 and 7)
+    # measured: 4 frames for both FVs
     assert all(first_range[i] - first_seen[i] <= 5 for i in first_seen)
