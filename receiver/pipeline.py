@@ -78,10 +78,10 @@ class ReceiverSettings:
     stripe (rolling shutter, no S2-PSK, not photos), else 1]: a striped LED's envelope is the
     hull of its blobs in the last this many frames (receiver.vision.envelope; the rows hidden
     by OFF chips in one frame are lit in another, so the caps, area eta and centroid, are
-    recovered); `s2psk_inverted` [False]: PROTOCOL.md's inverted polarity (thesis polarity by
-    default); `motion`: the camera-motion estimate of `PairSettings.shake` "motion"
-    (receiver.vision.camera_motion). `Receiver.settings` holds the resolved record: no None left where a default was
-    derived.
+    recovered); `motion`: the camera-motion estimate of `PairSettings.shake` "motion"
+    (receiver.vision.camera_motion); PROTOCOL.md's inverted S2-PSK polarity is
+    `S2pskSettings.inverted`. `Receiver.settings` holds the resolved record: no None left where
+    a default was derived.
     """
 
     detect: DetectSettings | None = None
@@ -92,7 +92,6 @@ class ReceiverSettings:
     s2psk: S2pskSettings = field(default_factory=S2pskSettings)
     policy: PolicySettings = field(default_factory=PolicySettings)
     envelope_frames: int | None = None
-    s2psk_inverted: bool = False
     motion: MotionSettings = field(default_factory=MotionSettings)
 
 
@@ -287,8 +286,7 @@ class Receiver:
                 kw.update(stripe_check_rows=max(1, int(math.ceil(plan.stripe_period_px(camera)))) if stripe_check else 0,
                           min_rel_area=STILL_MIN_REL_AREA)
             det = DetectSettings(**kw)
-        s2 = dataclasses.replace(s.s2psk, inverted=True) if s.s2psk_inverted else s.s2psk
-        return dataclasses.replace(s, detect=det, policy=pol, envelope_frames=max(1, int(env)), s2psk=s2)
+        return dataclasses.replace(s, detect=det, policy=pol, envelope_frames=max(1, int(env)))
 
     def _light(self, track_id: int) -> LightDecoder:
         light = self.lights.get(track_id)

@@ -37,7 +37,8 @@ def test_every_user_setting_is_documented():
                                       (OokSettings, "trust_timed"), (OokSettings, "align_when_decoded"),
                                       (S2pskSettings, "sync_margin"), (S2pskSettings, "soft_position_dof"),
                                       (ToneSettings, "fmin_hz"), (PolicySettings, "frame_clock"),
-                                      (PolicySettings, "clock_refs"), (ReceiverSettings, "frame_clock")])
+                                      (PolicySettings, "clock_refs"), (ReceiverSettings, "frame_clock"),
+                                      (ReceiverSettings, "s2psk_inverted")])
 def test_an_internal_constant_or_deleted_flag_is_no_setting(cls, key):
     with pytest.raises(InputError) as e:
         settings_from_json(cls, {key: 1}, "s.json")

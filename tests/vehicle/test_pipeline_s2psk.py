@@ -18,7 +18,8 @@ from firmware_tx.framing import s2psk_packet
 from firmware_tx.schedule import make_schedule
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import parse_map
-from receiver.pipeline import Receiver
+from receiver.decode.settings import S2pskSettings
+from receiver.pipeline import Receiver, ReceiverSettings
 from receiver.core.records import Frame
 
 LED_ID = 0x2A
@@ -124,7 +125,7 @@ def test_pair_found_fed_every_frame_and_id_on_both_tracks(stand_in):
 
 
 def test_inverted_polarity_option_reaches_the_decoder(stand_in):
-    rx = Receiver(_camera(), _map(), s2psk_inverted=True)
+    rx = Receiver(_camera(), _map(), settings=ReceiverSettings(s2psk=S2pskSettings(inverted=True)))
     rng = np.random.default_rng(6)
     for k in range(12):
         rx.process(Frame(k, k / FPS, _render(k, rng)[0]))
