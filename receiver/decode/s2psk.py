@@ -105,7 +105,7 @@ def flux_xor(flux: float, on: float, off: float = 0.0) -> float:
     return 1.0 - 4.0 * abs(n - 0.5)
 
 
-def decode_symbols(m: np.ndarray, *, sync_margin: float = 0.3, min_margin: float = 0.25
+def decode_symbols(m: np.ndarray, *, sync_margin: float = SYNC_MARGIN, min_margin: float = MIN_MARGIN
                    ) -> tuple[int | None, float]:
     """CRC-4-checked ID from 30 folded soft symbols in arbitrary cyclic order, or None.
 
