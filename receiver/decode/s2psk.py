@@ -42,6 +42,10 @@ from receiver.core import protocol
 # Symbol-grid phases tried over one symbol: 1/16 symbol = 5 ms steps at the defaults, well under
 # the frames' timestamp jitter. Cost: the phase search is N_PHASES decodes' worth of binning.
 N_PHASES = 16
+# The full phase search runs every PHASE_EVERY decodes; the decodes between reuse the phase found
+# (it drifts only with the emitter's clock error). Cost: a full search bins the samples at
+# N_PHASES phases instead of one.
+PHASE_EVERY = 8
 # Fraction of a symbol at each end whose samples are not used (timestamp jitter and exposures
 # straddling a symbol change).
 GUARD = 0.12
@@ -318,7 +322,7 @@ class S2pskDecoder:
         self._last = -np.inf  # the latest time: while the times only grow, a trim is a slice
         self._rising = True
         self._t0: float | None = None
-        self.phase_every = s.phase_every
+        self.phase_every = PHASE_EVERY
         self._phase: float | None = None  # symbol-grid phase in symbols, from the last search
         self._calls = 0
         self.samples = 0
@@ -377,7 +381,7 @@ class S2pskDecoder:
     def folded_sums(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Sum of the soft samples, their count and the sum of their squares per stream
         position mod 30, (30,) each, at the best symbol-grid phase (zeros when there are no
-        samples). The phase is searched over all `N_PHASES` every `phase_every` calls and
+        samples). The phase is searched over all `N_PHASES` every `PHASE_EVERY` calls and
         reused in between (it only drifts with the emitter's clock error)."""
         t, x = self._t, self._x
         if t.size == 0:

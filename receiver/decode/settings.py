@@ -166,10 +166,6 @@ class S2pskSettings:
         cost of a decode grows with it.
       switch_steps [10 decodes]: consecutive decodes a different valid ID needs to replace the
         decoded one (a decoded pair is decoded every `PolicySettings.redecode_every` frames).
-      phase_every [8 decodes]: the symbol-grid phase is searched over all phases every this many
-        decodes and reused in between (it drifts only with the emitter's clock error). 1 =
-        every decode; a full search bins the samples at receiver.decode.s2psk.N_PHASES (16)
-        phases instead of one.
       decoder ["soft"]: "hard" accepts a packet only when every sync symbol and Manchester pair
         clears the margins (`decode_symbols`); "soft" also tries a packet the hard rule rejects
         by maximum likelihood over every valid packet (`decode_soft`: 256 IDs x 30 shifts,
@@ -184,7 +180,6 @@ class S2pskSettings:
     inverted: bool = False
     history_s: float | None = None
     switch_steps: int = 10
-    phase_every: int = 8
     decoder: str = "soft"
     soft_min_z: float = 3.5
 

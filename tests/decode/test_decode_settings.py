@@ -36,6 +36,7 @@ def test_every_user_setting_is_documented():
 @pytest.mark.parametrize("cls, key", [(OokSettings, "align_min"), (OokSettings, "norm_chips"),
                                       (OokSettings, "trust_timed"), (OokSettings, "align_when_decoded"),
                                       (S2pskSettings, "sync_margin"), (S2pskSettings, "soft_position_dof"),
+                                      (S2pskSettings, "phase_every"),
                                       (ToneSettings, "fmin_hz"), (PolicySettings, "frame_clock"),
                                       (PolicySettings, "clock_refs"), (ReceiverSettings, "frame_clock"),
                                       (ReceiverSettings, "s2psk_inverted")])
