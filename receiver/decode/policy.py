@@ -192,7 +192,7 @@ class DecodePolicy:
             crc8_table()  # built once here, not inside the first decoded frame
         # Rows per chip is a constant of this camera and the rate: one learner per rate serves
         # every track, so a new track does not refine it again for its first frames.
-        self.period_learners = {rate: PeriodLearner(OOK_TUNING.period_frames) for rate in plan.ook_rates}
+        self.period_learners = {rate: PeriodLearner() for rate in plan.ook_rates}
         # the map's IDs per OOK rate (map addressing): the candidates of a light whose frames
         # show only short pieces of its packet (receiver.decode.pieces)
         self.candidates = {}

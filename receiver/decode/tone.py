@@ -37,14 +37,13 @@ import numpy as np
 from receiver.decode.ook import trim_rows
 from receiver.decode.settings import ToneSettings
 from receiver.core.settings import resolve_settings
+from receiver.core import protocol
 
+MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
 # The frequency band a decoder searches: from FMIN_SHARE of the map's lowest tone to FMAX_SHARE
 # of its highest (the envelope's and the harmonics' lines stay outside).
 FMIN_SHARE = 0.5
 FMAX_SHARE = 1.5
-from receiver.core import protocol
-
-MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
 
 
 @lru_cache(maxsize=64)
