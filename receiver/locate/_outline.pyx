@@ -635,9 +635,10 @@ cdef void normal(Prob* pr, const double* p, const double* r, const double* R, co
 
 cdef int lm(Prob* pr, double* p, double** rp, double* R, double* dR, double** rp_new, double* R_new,
             double* dR_new, int max_iter, double step_tol, double cost_rtol) noexcept nogil:
-    """`lsq.lm_normal` with the outline stopping rule (`outline_pose._lm`): p, R, dR and the
-    residual buffer *rp end at the returned pose (an accepted step swaps *rp and *rp_new instead
-    of copying the buffers). Returns 1 when converged."""
+    """Levenberg-Marquardt (`lm_damping`, `lm_step`) with the outline stopping rule
+    (outline_pose.STEP_TOL, COST_RTOL): p, R, dR and the residual buffer *rp end at the returned
+    pose (an accepted step swaps *rp and *rp_new instead of copying the buffers). Returns 1 when
+    converged."""
     cdef double A[36]
     cdef double g[6]
     cdef double mg[6]

@@ -17,7 +17,7 @@ from receiver.locate._solve6 cimport lm_damping, lm_step
 from receiver.locate._loss cimport loss_rho, loss_w
 from receiver.core._npsum cimport pw_sum
 
-# lsq.LM_LAMBDA0, LM_LAMBDA_MAX (the pure path's constants; tests compare both paths).
+# lsq.LM_LAMBDA0, LM_LAMBDA_MAX (the damping bounds of lsq.lm_batch, the same rule).
 DEF LAMBDA0 = 1e-3
 DEF LAMBDA_MAX = 1e8
 
@@ -141,8 +141,9 @@ cdef double cost_of(const double* r, int m, int loss, double fs, double* z) noex
 
 cdef int lm(const Prob* pr, double* p, double* r, double* J, double* z, double* r_new, double* z_new,
             int loss, double fs, int max_iter, double xtol, double ftol) noexcept nogil:
-    """`lsq.lm_normal` with `lsq._lm_done`: p, r, J end at the returned pose (J at p). Returns 1
-    when converged (also when the damping ran out), 0 when max_iter ran out."""
+    """Robust Levenberg-Marquardt (module doc; `lsq.lm_batch`'s rule for one problem): p, r, J
+    end at the returned pose (J at p). Returns 1 when converged (also when the damping ran out),
+    0 when max_iter ran out."""
     cdef double A[36]
     cdef double g[6]
     cdef double mg[6]
@@ -264,9 +265,9 @@ def refine(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, con
            const double[::1] sigma_d, const double[::1] up, double up_sigma, const double[:, ::1] W,
            const double[::1] Cp, double[::1] p, int loss, double f_scale, int max_iter, double xtol, double ftol,
            double[::1] r_out, double[:, ::1] J_out):
-    """`lsq.robust_lm_rj` on `_joint_fun`'s problem from p (6,), updated in place to the solution;
-    the first m entries of r_out (>= m,) and rows of J_out (>= m, 6): the residuals and Jacobian
-    there (m as `evaluate` returns it). Returns (m, converged)."""
+    """Robust Levenberg-Marquardt (`lm`) on `_joint_fun`'s problem from p (6,), updated in place
+    to the solution; the first m entries of r_out (>= m,) and rows of J_out (>= m, 6): the
+    residuals and Jacobian there (m as `evaluate` returns it). Returns (m, converged)."""
     cdef Prob pr
     cdef int m, ok
     cdef double* work

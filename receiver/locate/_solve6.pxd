@@ -1,7 +1,7 @@
 # cython: language_level=3
 """A 6 x 6 linear solve for the locate kernels' Levenberg-Marquardt steps (receiver.locate._outline,
 _pnp, _vehicle_pose): Gaussian elimination with partial pivoting, LAPACK gesv's method; and the
-damped step of receiver.locate.lsq.lm_normal built on it."""
+damped step built on it (`lm_damping`, `lm_step`: receiver.locate.lsq.lm_batch's damping)."""
 
 from libc.math cimport fabs
 

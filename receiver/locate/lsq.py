@@ -94,8 +94,8 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
     of them. `lam0`: the initial damping (relative to
     the normal matrix' diagonal).
 
-    The cost and the iteratively reweighted normal equations are `lm_iterate`'s (sum
-    rho((r/f_scale)^2), scipy's losses; weights rho'(z)). (scipy's curvature-corrected weights
+    The cost is sum rho((r/f_scale)^2) with scipy's losses, minimised through iteratively
+    reweighted normal equations (weights rho'(z)). (scipy's curvature-corrected weights
     rho' + 2 z rho'' took 7 rounds on average from the lighting server's warm starts, these 4.)
     `state`: the B problems' parameters in the caller's form (e.g. a tuple of stacked arrays);
     `fun_jac(state) -> (r (B, M), J (B, M, P))` whitened residuals and their Jacobian with
@@ -103,7 +103,7 @@ def lm_batch(fun_jac, step, state, p_norm, *, loss: str = DEFAULT_LOSS, f_scale:
     zero where nothing is to change); `p_norm(state) -> (B,)` the parameter norm of the relative
     step test. Residual rows that are all zero (padding) change nothing.
     A round tries one damped step for every unfinished problem: kept where the cost does not grow
-    (damping / 10), else the damping * 10, as `lm_iterate` does. Returns (state, r, J, ok (B,)):
+    (damping / 10), else the damping * 10. Returns (state, r, J, ok (B,)):
     ok False where `max_rounds` ran out or the normal equations were singular."""
     rho, wfun = _LOSSES[loss]
 

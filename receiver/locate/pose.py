@@ -32,7 +32,7 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
   filter coasting, method ``"kalman-coast"``, or is None).
 
 The refinement (`refine_pose`: residuals, analytic Jacobian, loss weights, damping and stopping
-rule of `lsq.lm_normal`) and the scoring of `solve_fix`'s PnP candidates are receiver/locate/_pnp.pyx,
+rule of `lsq.lm_batch`) and the scoring of `solve_fix`'s PnP candidates are receiver/locate/_pnp.pyx,
 one kernel call each (tests/locate/test_refine_pose.py: known poses recovered, angles-only fixes
 equal to OpenCV's `solvePnP`). When the stream is tracked, the outline solve
 (receiver.locate.indoor) runs instead: on the bundled walks these are the cold starts of the
@@ -61,7 +61,7 @@ from receiver.locate.lsq import BELOW_CEILING_M, Fix
 
 # The robust losses of the refinement (`receiver.locate.lsq._LOSSES`), by the kernel's codes.
 KERNEL_LOSSES = {"linear": 0, "soft_l1": 1, "cauchy": 2, "huber": 3}
-# The refinement's iteration limit (`lsq.robust_lm_rj`'s).
+# The refinement's iteration limit (Levenberg-Marquardt iterations of `refine_pose`'s kernel).
 REFINE_MAX_ITER = 50
 _NO_PRIOR3 = np.empty(0)
 _NO_W = np.empty((0, 3))
@@ -176,9 +176,9 @@ def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior
     (world up seen from the camera vs `up_prior`, / up_sigma) and the position prior (whitened by
     C_prior_cov). The returned function carries its analytic Jacobian as `fun.jac(p)` (the
     Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences; and
-    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)` (what `lsq.lm_iterate` iterates
-    on). The vehicle's host placement (receiver.locate.vehicle_host) solves with it; the indoor
-    refinement's kernel (`_kernel_args`) evaluates the same residuals."""
+    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)`. The vehicle's host placement
+    (receiver.locate.vehicle_host) solves with it; the indoor refinement's kernel
+    (`_kernel_args`) evaluates the same residuals."""
     has_d = np.isfinite(d)
     wd = 1.0 / sigma_d[has_d]
     W = None if C_prior is None else _whitening(C_prior_cov)
