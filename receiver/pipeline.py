@@ -216,8 +216,7 @@ class Receiver:
     clock: seconds, monotonic; stamps the stages (tests inject a fake).
     still [False]: the frames are unrelated photos (see STILL_MIN_REL_AREA).
     settings: ReceiverSettings; `overrides`: its top-level fields by name (e.g.
-        `envelope_frames=1`), and the policy's (`redecode_every`, `stripe_check`,
-        `tone_confirm_frames`).
+        `envelope_frames=1`), and the policy's (`redecode_every_frames`, `stripe_check`).
     """
 
     def __init__(self, camera: CameraModel, led_map: LedMap, *, positioner=None, vehicle=None, speed=None,
@@ -245,7 +244,7 @@ class Receiver:
         self.pairer = (Pairer(settings=s.pair, new_id=self.tracker.new_id, white_gray=SATURATED_GRAY)
                        if plan.s2psk else None)
         self.policy = DecodePolicy(camera, led_map, plan, s.policy, ook=s.ook, tone=s.tone, s2psk=s.s2psk,
-                                   min_stripe_rows=self.min_stripe_rows)
+                                   min_stripe_rows=self.min_stripe_rows, still=still)
         self.lights: dict[int, LightDecoder] = {}  # track id -> its decoding state
         self.pair_decoding = PairDecoding(self.policy)  # every live pair's S2-PSK decoders
         self.clocks = ({rate: FrameClock() for rate in plan.ook_rates}
@@ -265,11 +264,8 @@ class Receiver:
         """The settings with every map- and camera-derived default filled in."""
         pol = s.policy
         stripe_check = plan.expect_stripes(camera) if pol.stripe_check is None else pol.stripe_check
-        tone_confirm = pol.tone_confirm_frames
-        if tone_confirm is None:
-            tone_confirm = 1 if still or not (plan.ook_rates or plan.s2psk) else 3
-        pol = dataclasses.replace(pol, stripe_check=stripe_check, tone_confirm_frames=max(1, int(tone_confirm)),
-                                  redecode_every=max(1, int(pol.redecode_every)))
+        pol = dataclasses.replace(pol, stripe_check=stripe_check,
+                                  redecode_every_frames=max(1, int(pol.redecode_every_frames)))
         env = s.envelope_frames
         if env is None:
             env = 3 if camera.rolling_shutter and not plan.s2psk and not still else 1
@@ -467,7 +463,7 @@ class Receiver:
         ticks = self._clock_frame(gray, seen, env, k, pair_of, profiles, lights) if self.clocks else {}
         policy = self.policy
         stripe_check = self.stripe_check
-        every = policy.settings.redecode_every
+        every = policy.settings.redecode_every_frames
         t_s = frame.t_s
         for t, light in zip(seen, lights):
             tid = t.track_id
@@ -475,7 +471,7 @@ class Receiver:
                 continue
             if not stripe_check:
                 light.striped = True
-            # `DecodePolicy.due` written out (a light with an ID is fed every `redecode_every`
+            # `DecodePolicy.due` written out (a light with an ID is fed every `redecode_every_frames`
             # frames, staggered by track, unless it measures the frames' jitter for the others):
             # most lights of a frame are skipped here
             if (light.led_id is not None and (k + tid) % every and not light.measures_jitter()) or not light.decoders:

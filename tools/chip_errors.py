@@ -5,7 +5,7 @@ chips (`OokDecoder.frame_chips`, stages 1-2 or the exposure model). Each frame o
 ends the run with an ID that the recording's truth holds is placed at its best cyclic fit to that
 ID's packet; a chip whose sign disagrees with the packet there is a wrong chip. Printed per
 recording: the frames, the share that fits its packet with normalised correlation >= 0.9 (the
-decoder's `verify_min`), with all chips and without the end chip at each end, and the wrong-chip
+decoder's `OokTuning.verify_min`), with all chips and without the end chip at each end, and the wrong-chip
 rate of the first and last chips of a frame, by distance from the end, and of the chips inside.
 Frames fitting below 0.5 (a light's track swapped or a frame misread as a whole) are left out of
 the rates.

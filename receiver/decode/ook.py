@@ -552,7 +552,7 @@ class OokDecoder:
         self.align_min = k.align_min
         self.align_gap = k.align_gap
         self.align_min_chips = k.align_min_chips
-        self.decay = s.decay
+        self.decay = s.decay_per_frame
         self.min_margin = k.min_margin
         self.switch_frames = s.switch_frames
         self.parity_gap = k.parity_gap
@@ -569,7 +569,7 @@ class OokDecoder:
         self._last_align_complete = False
         self.pending: deque = deque(maxlen=k.pending_frames)
         self.recent: deque = deque(maxlen=k.verify_frames)  # soft chips of the latest frames
-        self.verify_min = s.verify_min
+        self.verify_min = k.verify_min
         self.anchored = False  # accumulator positions are packet positions (sync at 0)
         self.frames = 0
         self.led_id: int | None = None
@@ -609,7 +609,7 @@ class OokDecoder:
             self.pieces = pieces.PieceAssembler(
                 ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
                 history=k.pieces_frames, min_frames=k.pieces_min_frames, min_corr=k.pieces_min_corr,
-                min_gap=s.pieces_min_gap, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
+                min_gap=k.pieces_min_gap, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
                 timed_penalty=k.pieces_timed_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}

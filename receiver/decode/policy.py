@@ -45,6 +45,10 @@ STRIPE_GAP_MARGIN_ROWS = 2
 GLOBAL_SHUTTER_GAP_PX = 2
 # Tone match check in maps that also hold OOK lights: stripe runs within this of half a period.
 TONE_RUN_TOL = 0.35
+# Consecutive frames a tone match must hold before it is reported when the map also holds OOK or
+# S2-PSK lights (tone has no CRC, and an OOK stripe pattern can show a spectral line near a
+# listed tone for a frame or two); with a tone-only map or photos the first match is reported.
+TONE_CONFIRM_FRAMES = 3
 # A rate in the map matches a decoder's rate within this relative tolerance.
 RATE_MATCH_REL = 0.01
 
@@ -184,8 +188,11 @@ class DecodePolicy:
     `PairDecoder` dict per S2-PSK pair) by `PolicySettings` and the map's `ModePlan`."""
 
     def __init__(self, camera: CameraModel, led_map: LedMap, plan: ModePlan, settings: PolicySettings,
-                 *, ook: OokSettings, tone: ToneSettings, s2psk: S2pskSettings, min_stripe_rows: int):
+                 *, ook: OokSettings, tone: ToneSettings, s2psk: S2pskSettings, min_stripe_rows: int,
+                 still: bool = False):
         self.camera, self.led_map, self.plan, self.settings = camera, led_map, plan, settings
+        # frames a tone match holds before it is reported (TONE_CONFIRM_FRAMES); `still`: photos
+        self.tone_confirm_frames = 1 if still or not (plan.ook_rates or plan.s2psk) else TONE_CONFIRM_FRAMES
         self.ook, self.tone, self.s2psk = ook, tone, s2psk
         self.min_stripe_rows = min_stripe_rows
         if plan.ook_rates:
@@ -296,13 +303,13 @@ class DecodePolicy:
 
     def pair_due(self, led_id: int | None, frame_index: int, uid: int) -> bool:
         """Decode an S2-PSK pair's samples in this frame? One whose ID is known only every
-        `redecode_every` frames (staggered by pair); its samples are stored every frame.
+        `redecode_every_frames` frames (staggered by pair); its samples are stored every frame.
         (`due` asks the same of a light, staggered by its track id.)"""
-        return led_id is None or not (frame_index + uid) % self.settings.redecode_every
+        return led_id is None or not (frame_index + uid) % self.settings.redecode_every_frames
 
     def due(self, light: LightDecoder, frame_index: int, track_id: int) -> bool:
         """Decode this light in this frame? A light whose ID is known feeds its decoders only
-        every `redecode_every` frames (staggered by track), unless it measures the frames'
+        every `redecode_every_frames` frames (staggered by track), unless it measures the frames'
         jitter for the others (`LightDecoder.measures_jitter`)."""
         return light.measures_jitter() or self.pair_due(light.led_id, frame_index, track_id)
 
@@ -354,7 +361,7 @@ class DecodePolicy:
         same = tone_id is not None and tone_id == light._tone_last
         light._tone_run = light._tone_run + 1 if same else int(tone_id is not None)
         light._tone_last = tone_id
-        ok = tone_id is not None and light._tone_run >= self.settings.tone_confirm_frames
+        ok = tone_id is not None and light._tone_run >= self.tone_confirm_frames
         light.led_id, light.mode = (tone_id, "tone") if ok else (None, None)
 
     def step_pair(self, decoders: dict, t_s: float, xor: float, decode: bool = True):

@@ -16,7 +16,7 @@ comes from the frame timestamps:
 4. accept only when every packet position has been seen, every pair and sync symbol is right
    by `MIN_MARGIN`, and the CRC holds. CRC-4 alone passes 1 in 16 random packets, so the
    margins carry most of the protection against wrong IDs;
-5. (decoder "soft", the default) a packet the margins reject is scored by maximum likelihood
+5. (`S2pskSettings.soft_min_z` over 0, the default) a packet the margins reject is scored by maximum likelihood
    against every valid packet at every shift (`soft_stats`: one matrix product over the
    7,680 hypotheses, weighted by each position's sample count, noise fitted per packet) and
    accepted when its margin over every other ID is large in units of that noise
@@ -269,8 +269,8 @@ class S2pskState:
     """`led_id`: CRC-4-valid ID or None (stays until another valid ID persists for
     `switch_steps` steps); `kind`: 'SL' | 'FV' | None; `samples`: frames fed;
     `confidence`: margin of the latest packet estimate under the rule that decided it: the
-    weakest Manchester pair reliability (`decode_symbols`) when the hard rule accepts or the
-    decoder is 'hard', else the soft margin z in noise sds (`decode_soft`)."""
+    weakest Manchester pair reliability (`decode_symbols`) when the hard rule accepts or
+    soft_min_z is 0, else the soft margin z in noise sds (`decode_soft`)."""
 
     led_id: int | None
     kind: str | None
@@ -311,8 +311,6 @@ class S2pskDecoder:
         self.min_margin = MIN_MARGIN
         self.min_samples = MIN_SAMPLES
         self.switch_steps = s.switch_steps
-        if s.decoder not in ("hard", "soft"):
-            raise ValueError(f"decoder must be 'hard' or 'soft', not {s.decoder!r}")
         # the samples' times (s, from the first) and signed soft XORs: a ring of two buffers
         # whose live part is [_lo, _hi) (`_t`, `_x`), appended in place instead of np.append
         self._tb = np.empty(_RING0)
@@ -443,7 +441,7 @@ class S2pskDecoder:
             return _state(self.led_id, self.samples, 0.0)
         led_id, conf = decode_symbols(sums / np.maximum(c, 1e-12), sync_margin=self.sync_margin,
                                       min_margin=self.min_margin)
-        if led_id is None and self.settings.decoder == "soft":
+        if led_id is None and self.settings.soft_min_z > 0:
             s = self.settings
             led_id, conf = decode_soft(sums, c, squares, min_z=s.soft_min_z, min_snr=SOFT_MIN_SNR,
                                        max_contradiction=SOFT_MAX_CONTRADICTION, sigma_floor=SOFT_SIGMA_FLOOR)

@@ -20,22 +20,18 @@ class OokSettings:
         by the plain sampler (shorter exposures leave flat chip middles, which it reads); "on":
         always the model; "off": never. Cost: the model fits `OokTuning.model_phases` sub-chip
         offsets per frame.
-      decay [0.9 per frame]: the packet accumulator is multiplied by this each frame before the
-        frame is added (about 1 / (1 - decay) = 10 frames of memory). Larger: faint lights sum
-        more frames, a changed LED takes longer to take over.
+      decay_per_frame [0.9]: the packet accumulator is multiplied by this each frame before the
+        frame is added (about 1 / (1 - decay_per_frame) = 10 frames of memory). Larger: faint
+        lights sum more frames, a changed LED takes longer to take over. At most 1 (above it,
+        old frames would outweigh new ones).
       switch_frames [3 frames]: consecutive frames a different CRC-valid ID needs to replace
         the decoded one. Larger: a glitch never replaces an ID, a real change shows later.
-      verify_min [0.9]: least normalised correlation of a frame with a proposed packet for the
-        frame to count as fitting it. A new ID assembled by alignment (not by each frame's
-        own sync) is reported only when each of the last `OokTuning.verify_frames` frames fits
-        it, and the confirmation below counts fitting frames by it. Higher: fewer wrong IDs
-        from a misassembled packet, more right ones rejected from noisy frames.
       confirm_max_chips [20 chips]: a first ID from a packet in which a frame of fewer chips
         was placed by alignment (a wrong shift of n chips ties the right one with probability
         about 27 * 2^(-n/2), and builds a wrong, CRC-valid packet) is reported only once the
-        frames after it confirm it (receiver.decode.confirm: `OokTuning`'s confirm_* fields);
-        0 = no confirmation. Cost: such IDs come some frames later; seeded Monte Carlo
-        (tests/decode/ook_mc.py) in docs/ook-exposure.md.
+        frames after it confirm it (receiver.decode.confirm: `OokTuning`'s verify_min and
+        confirm_* fields); 0 = no confirmation. Cost: such IDs come some frames later; seeded
+        Monte Carlo (tests/decode/ook_mc.py) in docs/ook-exposure.md.
       soft_min_z [4.0 noise sds]: with the exposure model, a light without an ID whose packet
         the CRC rule rejects is decided by maximum likelihood over all 65,536 packets
         (`receiver.decode.ook.soft_decide`), accepted only when the best ID beats every other by
@@ -48,22 +44,15 @@ class OokSettings:
       pieces_jitter_us [200 us]: the camera's frame-start jitter: pieces are placed within
         +- this of their timestamps (the frame's other decoded lights narrow it to +- 1 chip,
         `pieces.FrameJitter`). Larger: tolerates a worse camera clock, more shifts searched.
-      pieces_min_gap [0.3]: a pieced-together ID must beat every other candidate's mean
-        correlation by this much (and reach `OokTuning.pieces_min_corr`). Seeded Monte Carlo
-        (tests/decode/test_ook_pieces.py, pieces_mc.py): the largest gap of a wrong best ID
-        with mean correlation >= 0.85 was 0.19 in 10,000 decisions. Lower: more IDs sooner,
-        risk of wrong ones.
     """
 
     exposure_model: str = "auto"
-    decay: float = 0.9
+    decay_per_frame: float = knob(0.9, 0.0, 1.0)
     switch_frames: int = 3
-    verify_min: float = 0.9
     confirm_max_chips: int = 20
     soft_min_z: float = 4.0
     pieces_max_chips: float = 16.0
     pieces_jitter_us: float = knob(200.0, 0.0, 1e5)
-    pieces_min_gap: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -89,6 +78,7 @@ class OokTuning:
     parity_gap: float = 2.0  # Manchester pair-grid evidence (pairs) that restricts an alignment to one parity
     pending_frames: int = 8  # unplaceable frames kept and retried as the packet fills
     stale_frames: int = 10  # a full accumulator without a CRC-valid packet this long is cleared
+    verify_min: float = 0.9  # least normalised correlation of a frame with a proposed packet that it fits
     verify_frames: int = 16  # frames each of which must fit an alignment-assembled new ID (`verify_min`)
     # frame-clock timing (receiver.decode.frameclock), only with a clock hint
     timing_window: int = 12  # frames of offsets in the offset line fit
@@ -118,6 +108,7 @@ class OokTuning:
     pieces_frames: int = 30  # pieces kept
     pieces_min_frames: int = 6  # pieces before a decision
     pieces_min_corr: float = 0.85  # least mean correlation of the chosen ID
+    pieces_min_gap: float = 0.3  # ... beating every other candidate's by this (wrong IDs' gaps: docs/ook-exposure.md)
     pieces_shift_penalty: float = 0.2  # correlation off per chip of shift from the timestamp
     pieces_timed_penalty: float = 1.0  # ... per chip from the time the frame's other lights measured
 
@@ -132,24 +123,19 @@ OOK_TUNING = OokTuning()
 
 @dataclass(frozen=True)
 class ToneSettings:
-    """What a user may set of `ToneDecoder` (receiver.decode.tone), each [default]. The
-    frequency band searched (half the lowest to 1.5 times the highest listed frequency, so
-    harmonics and the envelope stay out) is receiver.decode.tone's FMIN_SHARE / FMAX_SHARE.
+    """What a user may set of `ToneDecoder` (receiver.decode.tone), each [default]. A measured
+    frequency matches a listed one within half the map's channel spacing (the smallest gap
+    between its frequencies, at least 50 Hz); the band searched (FMIN_SHARE / FMAX_SHARE of the
+    listed frequencies) and the least spectral peak quality (MIN_QUALITY) are
+    receiver.decode.tone's constants.
 
-    spacing_hz [None: the smallest gap between the map's frequencies, at least 50 Hz]: a
-        measured frequency matches a listed one within half this. Smaller: fewer wrong matches
-        between close tones, more frames before a noisy light matches.
-    min_quality [30]: frames whose spectral peak quality (its power over the spectrum's median
-        power) is below this are ignored. Tone has no CRC, so this gate keeps non-LED blobs
-        out: pure noise profiles of 30-300 rows reach about 25.
-    memory [0.8 per frame]: the running frequency mean is multiplied by this each frame before
-        the new frame is added, so a blob that changes LED is followed (about 1 / (1 - memory)
-        = 5 frames of memory). Larger: steadier, slower to follow a change.
+    decay_per_frame [0.8]: the running frequency mean is multiplied by this each frame before
+        the new frame is added, so a blob that changes LED is followed (about
+        1 / (1 - decay_per_frame) = 5 frames of memory). Larger: steadier, slower to follow a
+        change. At most 1.
     """
 
-    spacing_hz: float | None = None
-    min_quality: float = 30.0
-    memory: float = 0.8
+    decay_per_frame: float = knob(0.8, 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -165,22 +151,22 @@ class S2pskSettings:
         samples per symbol for faint or rarely seen pairs, slower to follow a changed ID; the
         cost of a decode grows with it.
       switch_steps [10 decodes]: consecutive decodes a different valid ID needs to replace the
-        decoded one (a decoded pair is decoded every `PolicySettings.redecode_every` frames).
-      decoder ["soft"]: "hard" accepts a packet only when every sync symbol and Manchester pair
-        clears the margins (`decode_symbols`); "soft" also tries a packet the hard rule rejects
-        by maximum likelihood over every valid packet (`decode_soft`: 256 IDs x 30 shifts,
-        docs/s2psk-pairs.md). Cost of "soft": one 7680 x 30 matrix product per rejected packet
-        (a second only when the first margin passes), about 0.1-0.25 ms each.
-      soft_min_z [3.5 noise sds]: the soft rule accepts an ID only when it beats every other ID
-        by this margin. Lower: more and earlier IDs from faint pairs, more wrong ones (pure-noise
-        packets reach z 2.3; the largest z of a wrong best ID with a true ID in heavy noise
-        was 3.35 in a seeded Monte Carlo of 1.4 million packets).
+        decoded one (a decoded pair is decoded every `PolicySettings.redecode_every_frames`
+        frames).
+      soft_min_z [3.5 noise sds]: a packet the hard rule rejects (every sync symbol and
+        Manchester pair must clear the margins, `decode_symbols`) is decided by maximum
+        likelihood over every valid packet (`decode_soft`: 256 IDs x 30 shifts,
+        docs/s2psk-pairs.md), accepted only when the best ID beats every other by this margin;
+        0 = no soft decision (the hard rule alone). Lower: more and earlier IDs from faint
+        pairs, more wrong ones (pure-noise packets reach z 2.3; the largest z of a wrong best ID
+        with a true ID in heavy noise was 3.35 in a seeded Monte Carlo of 1.4 million packets).
+        Cost: one 7680 x 30 matrix product per rejected packet (a second only when the first
+        margin passes), about 0.1-0.25 ms each.
     """
 
     inverted: bool = False
     history_s: float | None = None
     switch_steps: int = 10
-    decoder: str = "soft"
     soft_min_z: float = 3.5
 
 
@@ -188,10 +174,11 @@ class S2pskSettings:
 class PolicySettings:
     """What a user may set of the decoding policy (`receiver.decode.policy`), each [default].
     The frame clock's fixed constants are receiver.decode.frameclock's; how many decoded lights
-    measure it is receiver.pipeline.CLOCK_REFS.
+    measure it is receiver.pipeline.CLOCK_REFS; the frames a tone match holds before it is
+    reported are receiver.decode.policy.TONE_CONFIRM_FRAMES.
 
-    redecode_every [8 frames]: a track whose ID is known feeds its decoders only every this
-        many frames (staggered by track); tracks without an ID are decoded every frame. 8
+    redecode_every_frames [8 frames]: a track whose ID is known feeds its decoders only every
+        this many frames (staggered by track); tracks without an ID are decoded every frame. 8
         re-checks a known ID every 0.27 s at 30 fps, and a changed ID is taken after the
         decoder's `switch_frames` (OOK) or `switch_steps` (S2-PSK) such checks. 1 = every
         frame. Cost: decoded lights' decoding time is divided by it (it keeps the frame budget
@@ -203,12 +190,7 @@ class PolicySettings:
         its row profile shows stripes (depth at least receiver.vision.detect.MIN_STRIPE_DEPTH)
         or it is shorter than a stripe period, so flat bright regions (lamps, windows) stay
         silent. False: every track is decoded. Cost: one stripe-depth measure per new track.
-    tone_confirm_frames [None: 1 for a tone-only map or photos, else 3]: consecutive frames a
-        tone match must hold before it is reported (tone has no CRC; with OOK lights in the
-        map an OOK stripe pattern can show a spectral line near a listed tone for a frame or
-        two). Larger: fewer wrong tone IDs, later first IDs.
     """
 
-    redecode_every: int = 8
+    redecode_every_frames: int = 8
     stripe_check: bool | None = None
-    tone_confirm_frames: int | None = None

@@ -44,6 +44,10 @@ MIN_SPACING_HZ = protocol.TONE_MIN_SPACING_HZ
 # of its highest (the envelope's and the harmonics' lines stay outside).
 FMIN_SHARE = 0.5
 FMAX_SHARE = 1.5
+# Least spectral peak quality (the peak's power over the spectrum's median power) of a frame the
+# decoder averages. Tone has no CRC, so this gate keeps non-LED blobs out: pure noise profiles of
+# 30-300 rows reach about 25.
+MIN_QUALITY = 30.0
 
 
 @lru_cache(maxsize=64)
@@ -156,8 +160,9 @@ class ToneState:
 class ToneDecoder:
     """Per-blob tone decoder: averages the stripe frequency over frames, then matches it.
 
-    table: {id: freq_hz} of the map's tone LEDs; row_readout_us: t_row.
-    Tunables: `ToneSettings` (receiver.decode.settings), given as `settings=` or as keyword
+    table: {id: freq_hz} of the map's tone LEDs; row_readout_us: t_row. A frequency matches a
+    listed one within half the map's spacing (`default_spacing_hz`); frames below MIN_QUALITY
+    are ignored. Tunables: `ToneSettings` (receiver.decode.settings), given as `settings=` or as keyword
     overrides of its fields.
     """
 
@@ -168,9 +173,8 @@ class ToneDecoder:
             raise ValueError("tone decoding needs a rolling shutter (row_readout_us > 0)")
         self.table = dict(table)
         self.row_readout_us = row_readout_us
-        self.spacing_hz = s.spacing_hz
-        self.min_quality = s.min_quality
-        self.memory = s.memory
+        self.min_quality = MIN_QUALITY
+        self.decay_per_frame = s.decay_per_frame
         f = list(self.table.values()) or [1000.0]
         self.fmin_hz = FMIN_SHARE * min(f)
         self.fmax_hz = FMAX_SHARE * max(f)
@@ -178,7 +182,7 @@ class ToneDecoder:
         self._sum = 0.0
         self._w = 0.0
         # the table's spacing and frequencies, once (match_tone derived them every frame)
-        self._spacing = default_spacing_hz(self.table) if self.spacing_hz is None else self.spacing_hz
+        self._spacing = default_spacing_hz(self.table)
         self._ids = list(self.table)
         self._freqs = [float(self.table[i]) for i in self._ids]
 
@@ -187,8 +191,8 @@ class ToneDecoder:
         self.frames += 1
         f, q = stripe_frequency_hz(profile, self.row_readout_us, weights, fmin_hz=self.fmin_hz,
                                    fmax_hz=self.fmax_hz)
-        self._sum *= self.memory
-        self._w *= self.memory
+        self._sum *= self.decay_per_frame
+        self._w *= self.decay_per_frame
         if np.isfinite(f) and q >= self.min_quality:
             self._sum += q * f
             self._w += q
@@ -198,8 +202,8 @@ class ToneDecoder:
         return ToneState(self._match(fm), fm, self.frames)
 
     def _match(self, freq_hz: float) -> int | None:
-        """`match_tone(freq_hz, self.table, spacing_hz=self.spacing_hz)` in plain floats (the
-        same arithmetic: the first nearest frequency, within half the spacing)."""
+        """`match_tone(freq_hz, self.table)` in plain floats (the same arithmetic: the first
+        nearest frequency, within half the map's spacing)."""
         if not self._ids or not math.isfinite(freq_hz):
             return None
         d = [abs(f - freq_hz) for f in self._freqs]

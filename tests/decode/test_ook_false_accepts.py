@@ -10,7 +10,7 @@ import pytest
 from ook_mc import BY_NAME, monte_carlo, trial
 from receiver.decode.confirm import Confirmation
 from receiver.decode.ook import moved_pair_twins, packet_template, soft_decide
-from receiver.decode.settings import OOK_TUNING, OokSettings
+from receiver.decode.settings import OOK_TUNING
 
 
 def _wrong_assembly(led_id: int, rng) -> int:
@@ -25,8 +25,8 @@ def _wrong_assembly(led_id: int, rng) -> int:
 
 
 def _confirmation(led_id: int, **kw) -> Confirmation:
-    s, k = OokSettings(), OOK_TUNING
-    args = dict(min_fit=s.verify_min, min_gap=k.confirm_gap, max_frames=k.confirm_frames,
+    k = OOK_TUNING
+    args = dict(min_fit=k.verify_min, min_gap=k.confirm_gap, max_frames=k.confirm_frames,
                 min_chip=k.confirm_min_chip, misfit_right=k.confirm_misfit_right,
                 misfit_wrong=k.confirm_misfit_wrong, min_llr=k.confirm_min_llr, end_chips=k.confirm_end_chips,
                 twins=[packet_template(t) for t in moved_pair_twins(led_id)], twin_frames=k.confirm_twin_frames)

@@ -66,7 +66,7 @@ def test_a_light_not_in_the_map_is_never_reported():
 
 def test_pieces_margin_monte_carlo():
     """Seeded Monte Carlo of the ML choice itself (a small version of the calibration in
-    OokSettings): pieces of 5-13 chips with 100 us rms jitter from lights in and out of the
+    docs/ook-exposure.md): pieces of 5-13 chips with 100 us rms jitter from lights in and out of the
     candidates; a wrong best ID never passes the acceptance gap."""
     from receiver.decode.settings import OOK_TUNING, OokSettings
 
@@ -80,7 +80,7 @@ def test_pieces_margin_monte_carlo():
         rate = float(rng.choice([5000.0, 10000.0]))
         pa = PieceAssembler(cands, np.stack([packet_template(int(i)) for i in cands]),
                             jitter_chips=int(np.ceil(OokSettings.pieces_jitter_us * rate * 1e-6)), history=30,
-                            min_frames=6, min_corr=OOK_TUNING.pieces_min_corr, min_gap=OokSettings.pieces_min_gap,
+                            min_frames=6, min_corr=OOK_TUNING.pieces_min_corr, min_gap=OOK_TUNING.pieces_min_gap,
                             shift_penalty=OOK_TUNING.pieces_shift_penalty)
         phi, sd = rng.uniform(0, 54), rng.uniform(0.1, 0.8)
         for f in range(30):

@@ -178,22 +178,20 @@ def test_monte_carlo_no_wrong_id():
             (sd, amp, hard_right, soft_right)
 
 
-def test_decoder_setting_selects_the_rule():
-    with pytest.raises(ValueError, match="decoder"):
-        S2pskDecoder(decoder="fuzzy")
+def test_soft_min_z_zero_is_the_hard_rule_alone():
     weak = PACKETS[0x2A] * 0.9
     weak[[8, 9]] *= 0.2 / 0.9  # one Manchester pair at 0.2 < min_margin 0.3, right sign
-    for decoder, want in (("soft", 0x2A), ("hard", None)):
-        dec = S2pskDecoder(decoder=decoder)
+    for min_z, want in ((S2pskSettings.soft_min_z, 0x2A), (0.0, None)):
+        dec = S2pskDecoder(soft_min_z=min_z)
         for t in np.arange(0.0, 6.0, 1 / 30):  # a 2.4 s packet, clean samples
             st = dec.step(t, float(weak[int(t / dec.symbol_s) % PACKET_LEN]))
             assert st.led_id in (None, 0x2A)
-        assert dec.led_id == want, decoder
+        assert dec.led_id == want, min_z
 
 
 def test_settings_carry_the_soft_defaults():
     s = dataclasses.asdict(S2pskSettings())
-    assert s["decoder"] == "soft" and s["soft_min_z"] > 0 and SOFT_MIN_SNR > 0
+    assert s["soft_min_z"] > 0 and SOFT_MIN_SNR > 0
 
 
 def test_noisy_pairs_decode_soft_never_wrong():
@@ -206,12 +204,13 @@ def test_noisy_pairs_decode_soft_never_wrong():
 
     rng = np.random.default_rng(21)
     decoded = {"hard": 0, "soft": 0}
+    min_z = {"hard": 0.0, "soft": S2pskSettings.soft_min_z}
     for _ in range(10):
         led_id = int(rng.integers(0, 256))
         t, a, b = s2psk_samples(led_id, 200, 16, 150, rng, jitter_s=0.003, noise=40.0)
         x = [pair_xor(a[i], b[i], 190.0, 155.0, 10.0, 15.0) for i in range(t.size)]
         for mode in decoded:
-            dec = S2pskDecoder(decoder=mode)
+            dec = S2pskDecoder(soft_min_z=min_z[mode])
             for ti, xi in zip(t, x):
                 assert dec.step(ti, xi).led_id in (None, led_id), (mode, led_id)
             decoded[mode] += dec.led_id == led_id

@@ -130,7 +130,7 @@ def test_flat_lamp_stays_silent_when_every_light_must_stripe():
 
 def test_decoded_tracks_keep_their_id_between_rechecks():
     leds = bench_scene(n_leds=4, radius_px=40.0, seed=2)
-    rx = Receiver(bench_camera(), bench_map(leds), redecode_every=4)
+    rx = Receiver(bench_camera(), bench_map(leds), redecode_every_frames=4)
     seen = {}
     for f in _frames(leds, 12, seed=2):
         for o in rx.process(f).leds:
