@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from receiver.core.budget import StageTimer
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import Frame, FrameResult, LedObservation, PairObservation, frozen_record, led_observation
 from receiver.core.settings import resolve_settings
 from receiver.decode.frameclock import FrameClock
@@ -150,47 +150,9 @@ def _with_pair_ranges(leds: list[LedObservation], pair_of: dict, pairs: list, ra
     return out
 
 
-# the compiled LED records of `_report` (receiver/vision/_track.pyx `led_records`), or None:
-# `_led_records` below, its tested reference
-_kt = load("receiver.vision._track")
-
-
-def _led_records(seen: list[Track], lights: list[LightDecoder], env: dict, pair_of, covered, decoded: set,
-                 locate: bool, tones: bool, cls=LedObservation) -> tuple[list, list, list]:
-    """The seen tracks' LED observations of a frame (`Receiver._report`): (records in track
-    order, `want`: the track ids whose outline points the positioner gets, `want_fields`: the
-    `__dict__` of each one's record, None when it is not reported). Tracks of an S2-PSK pair
-    (`pair_of`), near a reported pair (`covered`) or not striped give no record; each record's ID
-    goes into `decoded`. `tones`: the map has tone lights (else no light has a tone state, and
-    freq_hz is None). Records are built by `frozen_record`'s construction, each `__dict__`
-    filled in place (edge_px, None here, is set once measured)."""
-    new = object.__new__
-    leds, want, want_fields = [], [], []
-    for t, light in zip(seen, lights):
-        tid = t.track_id
-        if tid in pair_of or not light.striped:
-            continue
-        led_id = light.led_id
-        fields = None
-        if tid not in covered:
-            b = env[tid]
-            freq = None
-            if tones and light.states:
-                f = light.freq_hz
-                if math.isfinite(f):
-                    freq = round(f, 1)
-            o = new(cls)
-            fields = o.__dict__
-            fields.update(track=tid, cx=b.cx, cy=b.cy, area_px=b.area_px, contour=b.hull, border=b.border,
-                          id=led_id, mode=light.mode, peak=b.peak, distance_m=None, distance_estimator=None,
-                          freq_hz=freq, kind=None, edge_px=None)
-            leds.append(o)
-            if led_id is not None:
-                decoded.add(led_id)
-        if locate and led_id is not None and light.mode != "s2psk":
-            want.append(tid)
-            want_fields.append(fields)
-    return leds, want, want_fields
+# the compiled LED records of `_report` (receiver/vision/_track.pyx `led_records`), the one
+# implementation (the module is `Tracker.step`'s too)
+_kt = require("receiver.vision._track")
 
 
 # an observation's sort key (its track id), read in C
@@ -411,8 +373,7 @@ class Receiver:
         decoded = self.decoded_ids
         # The LED records, and the outline points of decoded OOK / tone LEDs for the positioner
         # (receiver.vision.outline: `want`, measured in one batch, then set in their records).
-        records = _kt.led_records if _kt is not None else _led_records
-        leds, want, want_fields = records(seen, lights, env, pair_of, covered, decoded, self.positioner is not None,
+        leds, want, want_fields = _kt.led_records(seen, lights, env, pair_of, covered, decoded, self.positioner is not None,
                                           bool(self.plan.tone_table), LedObservation)
         if want:
             edges = stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)

@@ -1,5 +1,6 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled kernels of receiver.decode.ook (the pure numpy functions there are the reference).
+"""Compiled kernels of receiver.decode.ook, the decoder's one implementation of these steps (they save
+over 5 % of a frame: docs/kernels.md); tests/engine/test_decode_native.py checks them.
 
 `frame_chips`: trim rows + chip grid at a learned period + soft chips of one row profile, the
 numbers of `trim_rows`, `chip_grid(..., segment_chips=0)` and `soft_chips` bit for bit: sums

@@ -67,23 +67,26 @@ from receiver.decode import confirm, exposure, pieces
 from receiver.decode.settings import OOK_TUNING, OokSettings, OokTuning
 from receiver.core.settings import resolve_settings
 from receiver.core import protocol
-from receiver.core.native import load
+from receiver.core.native import require
 
-_k = load("receiver.decode._ook")  # compiled kernels (receiver/decode/_ook.pyx), or None
+# the compiled kernels (receiver/decode/_ook.pyx): the one implementation of the accumulator
+# updates, alignment, packet decision and timing checks, and of the frame's chips once the period
+# is learned (its share of a frame: docs/kernels.md)
+_k = require("receiver.decode._ook")
 
 
 def _specialised(fn, names: dict) -> dict:
     """{dtype chars: the compiled fused-type function's specialisation} ("f" float32, "d"
     float64): called directly they skip the fused dispatch (its signature matching costs
-    about what the kernel's own work does on a small blob); {} when not available."""
+    about what the kernel's own work does on a small blob)."""
     sigs = getattr(fn, "__signatures__", None) or {}
     return {key: sigs[sig] for key, sig in names.items() if sig in sigs}
 
 
 _CT = {"f": "float", "d": "double"}
 # frame_chips by (profile, weights) dtype chars, trim by the weights' dtype char
-_FRAME_CHIPS = _specialised(_k.frame_chips, {(x, w): f"{_CT[x]}|{_CT[w]}" for x in "fd" for w in "fd"}) if _k else {}
-_TRIM = _specialised(_k.trim, {c: _CT[c] for c in "fd"}) if _k else {}
+_FRAME_CHIPS = _specialised(_k.frame_chips, {(x, w): f"{_CT[x]}|{_CT[w]}" for x in "fd" for w in "fd"})
+_TRIM = _specialised(_k.trim, {c: _CT[c] for c in "fd"})
 
 _new = object.__new__
 PACKET_LEN = OOK_PACKET_LEN  # 54 chips
@@ -110,7 +113,7 @@ def wrap_chips(x: float) -> float:
 def line_predict(obs, k: float, window: int) -> float:
     """Value at k of a least-squares line through the last `window` (k_i, v_i) of `obs`
     (v continuous, already unwrapped); the last value when they span fewer than 2 frames."""
-    if _k is not None and 0 < window <= 64:
+    if 0 < window <= 64:
         return _k.line_predict(obs, k, window)  # the same numbers (numpy's pairwise sums)
     pts = list(obs)[-window:]
     if len(pts) == 1 or pts[-1][0] - pts[0][0] < 2:
@@ -210,12 +213,6 @@ def chip_grid(x: np.ndarray, period0_rows: float, *, segment_chips: float = 6.0,
     return period, phase, coherence
 
 
-def _native_ok(a) -> bool:
-    """Does the compiled kernel take this array as it is (1-D contiguous float32/float64)?"""
-    return (type(a) is np.ndarray and a.ndim == 1 and a.dtype.char in "fd"
-            and a.flags.c_contiguous)
-
-
 def _is_f64(a) -> bool:
     """A 1-D contiguous float64 array (what the accumulator kernels take)?"""
     return type(a) is np.ndarray and a.ndim == 1 and a.dtype.char == "d" and a.flags.c_contiguous
@@ -301,7 +298,7 @@ def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None
     frame shows the sync more than once the occurrences must be a whole packet apart.
     Returns (index, margin of the weakest sync chip).
     """
-    if _k is not None and _is_f64(soft):
+    if _is_f64(soft):
         return _k.find_sync(soft, sync_margin)
     if soft.size < SYNC_LEN:
         return None, 0.0
@@ -404,7 +401,7 @@ def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
     # the kernel reads exactly PACKET_LEN template chips (a template of another length: numpy)
-    if _k is not None and _is_f64(soft) and _is_f64(template) and template.shape == (PACKET_LEN,):
+    if _is_f64(soft) and _is_f64(template) and template.shape == (PACKET_LEN,):
         r = _k.best_two(template, soft)
         return r[1] if r is not None else 0.0
     s = _clip1(soft)
@@ -658,7 +655,7 @@ class OokDecoder:
             self._learn_exposure(profile, weights)
         if self.exposure_model:
             return self._model_chips(profile, weights)
-        if _k is not None and (self._period is not None or self._learner.period is not None):
+        if self._period is not None or self._learner.period is not None:
             fast = self._frame_chips_native(profile, weights)
             if fast is not None:
                 return fast
@@ -735,7 +732,7 @@ class OokDecoder:
     def _frame_chips_native(self, profile, weights) -> tuple[np.ndarray, np.ndarray] | None:
         """`frame_chips` once the period is learned, by the compiled kernel (the same numbers);
         None for inputs it does not take (not a contiguous float32/float64 array)."""
-        # _native_ok(profile) and _native_ok(weights), written out (once per decoded light a frame)
+        # 1-D contiguous float32/float64 arrays only (checked inline: once per decoded light a frame)
         if not (type(profile) is np.ndarray and profile.ndim == 1 and profile.dtype.char in "fd"
                 and profile.flags.c_contiguous):
             return None
@@ -769,38 +766,10 @@ class OokDecoder:
         correlation with the accumulated packet; None when weak or ambiguous. Sets
         `_last_align_complete` when every shift overlapped >= align_min_chips known chips
         (then the true shift was among those compared, and the choice can be trusted)."""
-        self._last_align_complete = False
-        if _k is not None:
-            shift, self._last_align_complete = _k.align(
-                self.acc, self.acc_w, soft, self.anchored, self.align_min_chips, self.parity_gap,
-                self.align_min, self.align_gap)
-            return shift
-        known = self.acc_w > 0
-        if np.count_nonzero(known) < self.align_min_chips:
-            return None
-        m = self._mean_packet(known)
-        s = _clip1(soft)
-        idx = _cyclic_index(s.size)
-        num = m[idx] @ s
-        den = np.abs(m)[idx] @ np.abs(s)
-        overlap = np.add.reduce(known[idx], axis=1)
-        corr = np.where((den > 0) & (overlap >= self.align_min_chips), num / np.maximum(den, 1e-12),
-                        -1.0)
-        pf = pair_parity(s, parity_gap=self.parity_gap)
-        if pf is not None:  # the accumulator's parity only matters against the frame's
-            pa = 0 if self.anchored else pair_parity(m, cyclic=True, parity_gap=self.parity_gap)
-            if pa is not None:
-                # frame chip k starts a pair when k = pf (mod 2); it lands on k + shift, which
-                # starts a pair when k + shift = pa (mod 2), so shift = pa - pf (mod 2)
-                corr[(pa - pf + 1) % 2::2] = -1.0
-        self._last_align_complete = bool(overlap.min() >= self.align_min_chips)
-        # best and runner-up; tied bests fail the gap whichever of them is taken
-        i = int(corr.argmax())
-        best = corr[i]
-        corr[i] = -np.inf
-        if best >= self.align_min and best - corr.max() >= self.align_gap:
-            return i
-        return None
+        shift, self._last_align_complete = _k.align(
+            self.acc, self.acc_w, soft, self.anchored, self.align_min_chips, self.parity_gap,
+            self.align_min, self.align_gap)
+        return shift
 
     def _mean_packet(self, known: np.ndarray) -> np.ndarray:
         """Mean accumulated soft chip per packet position, 0 where nothing is known
@@ -811,17 +780,7 @@ class OokDecoder:
              timed: bool = False) -> None:
         if self.exposure_model:  # the squares, for the soft decision's noise fit
             self.acc_sq += np.bincount(_cyclic_index(soft.size)[shift % PACKET_LEN], cw * soft * soft, PACKET_LEN)
-        if _k is not None:
-            _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
-            return
-        pos = _cyclic_index(soft.size)[shift % PACKET_LEN]
-        self.acc += np.bincount(pos, cw * soft, PACKET_LEN)
-        w = np.bincount(pos, cw, PACKET_LEN)
-        self.acc_w += w
-        if trusted:
-            self.trust_w += w
-        elif timed:
-            self.timed_w += w
+        _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
 
     def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
         """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
@@ -833,13 +792,7 @@ class OokDecoder:
         (`_timed_shift`)."""
         self.frames += 1
         self.acc_sq *= self.decay
-        if _k is not None:
-            _k.decay4(self._acc4, self.decay)
-        else:
-            self.acc *= self.decay
-            self.acc_w *= self.decay
-            self.trust_w *= self.decay
-            self.timed_w *= self.decay
+        _k.decay4(self._acc4, self.decay)
         soft, cw = self.frame_chips(profile, weights)
         self._tc = None
         if clock is not None and y0 is not None and self.last_start_row is not None and self.timing_ok:
@@ -865,12 +818,7 @@ class OokDecoder:
             self._decode()
         elif self._stale:  # nothing new to decode, but a failing packet keeps ageing
             self._age_stale()
-        if not self.anchored:
-            known = 0
-        elif _k is not None:
-            known = _k.known_count(self.acc_w)
-        else:
-            known = int(np.count_nonzero(self.acc_w))
+        known = _k.known_count(self.acc_w) if self.anchored else 0
         # OokState(...) by records.frozen_record's construction (every field, in order)
         st = _new(OokState)
         st.__dict__.update(led_id=self.led_id, frames=self.frames, chips_known=known, confidence=self.confidence)
@@ -885,9 +833,9 @@ class OokDecoder:
         rotated to packet coordinates as soon as the sync shows in it. So two frames that
         each show only part of the sync can still be combined.
         """
-        s, _ = (_k.find_sync(soft, self.sync_margin) if _k is not None and _is_f64(soft)
+        s, _ = (_k.find_sync(soft, self.sync_margin) if _is_f64(soft)
                 else find_sync(soft, sync_margin=self.sync_margin))
-        if not (_k.any_nonzero(self.acc_w) if _k is not None else self.acc_w.any()):  # (weights are never negative)
+        if not _k.any_nonzero(self.acc_w):  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
                 self.anchored = False
@@ -1049,23 +997,12 @@ class OokDecoder:
             return None
         self.timing_frac_resid.append(abs(v - r))
         shift = int(r) % PACKET_LEN
-        if _k is not None:
-            n_ov, c = _k.overlap_corr(self.acc, self.acc_w, self.trust_w, self.timed_w, soft, shift)
-            if n_ov >= self.timing_min_overlap and c is not None and c < self.timing_min_corr:
-                self._disable_timing("overlap_conflict")
-                return None
-            return shift
-        pos = (np.arange(soft.size) + shift) % PACKET_LEN
         # judged against the chips that were placed mostly where they surely belong (sync,
         # complete alignment, confirmed timing): a short-overlap alignment may be the wrong one
-        ov = self.trust_w[pos] + self.timed_w[pos] > 0.5 * self.acc_w[pos]
-        if ov.sum() >= self.timing_min_overlap:
-            m = self.acc[pos[ov]] / self.acc_w[pos[ov]]
-            x = _clip1(soft[ov])
-            den = float(np.abs(m) @ np.abs(x))
-            if den > 0 and float(m @ x) / den < self.timing_min_corr:
-                self._disable_timing("overlap_conflict")
-                return None
+        n_ov, c = _k.overlap_corr(self.acc, self.acc_w, self.trust_w, self.timed_w, soft, shift)
+        if n_ov >= self.timing_min_overlap and c is not None and c < self.timing_min_corr:
+            self._disable_timing("overlap_conflict")
+            return None
         return shift
 
     def row0_coordinate(self, profile, weights, y0: int, *, min_chips: int = 16,
@@ -1082,21 +1019,10 @@ class OokDecoder:
             return None
         if self._tpl is None or self._tpl[0] != self.led_id:
             self._tpl = (self.led_id, packet_template(self.led_id))
-        if _k is not None:
-            r = _k.best_two(self._tpl[1], soft)
-            if r is None or r[1] < min_corr or r[1] - r[2] < min_gap:
-                return None
-            return float((r[0] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
-        x = _clip1(soft)
-        den = float(np.abs(x).sum())
-        if den <= 0:
+        r = _k.best_two(self._tpl[1], soft)
+        if r is None or r[1] < min_corr or r[1] - r[2] < min_gap:
             return None
-        corr = (self._tpl[1][_cyclic_index(x.size)] @ x) / den
-        order = np.argsort(corr)
-        best, second = corr[order[-1]], corr[order[-2]]
-        if best < min_corr or best - second < min_gap:
-            return None
-        return float((order[-1] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
+        return float((r[0] - (y0 + self.last_start_row) / self.rows_per_chip) % PACKET_LEN)
 
     def _unanchored_chips(self) -> tuple[np.ndarray, np.ndarray]:
         """The unanchored accumulator as one pseudo-frame (known run of chips) for retrying."""
@@ -1229,13 +1155,8 @@ class OokDecoder:
             return True
         t = packet_template(led_id)
         for soft, shift in self.timed_frames:
-            if _k is not None:
-                c = _k.corr_at(t, soft, shift)
-                misfit = c is not None and c < self.verify_min
-            else:
-                x = _clip1(soft)
-                den = float(np.abs(x).sum())
-                misfit = den > 0 and float(t[(np.arange(x.size) + shift) % PACKET_LEN] @ x) / den < self.verify_min
+            c = _k.corr_at(t, soft, shift)
+            misfit = c is not None and c < self.verify_min
             if misfit:
                 if self.timing_ok:
                     self._disable_timing("verify_conflict")
@@ -1247,16 +1168,10 @@ class OokDecoder:
     def _decode(self) -> None:
         complete = False
         led_id, conf = None, 0.0
-        if _k is not None:
-            table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
-            r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
-            if r is not None:
-                (led_id, conf), complete = r, True
-        else:
-            known = self.acc_w > 0
-            if self.anchored and known[SYNC_LEN:].all():
-                m = self._mean_packet(known)
-                (led_id, conf), complete = decode_packet(m, min_margin=self.min_margin), True
+        table = _CRC8_TABLE if _CRC8_TABLE is not None else crc8_table()
+        r = _k.decode_acc(self.acc, self.acc_w, self.min_margin, table) if self.anchored else None
+        if r is not None:
+            (led_id, conf), complete = r, True
         soft = False
         if led_id is None and self._soft_due():
             led_id, soft = self._soft_decode(), True

@@ -5,7 +5,8 @@ ranges (/ sigma_d), the tilt prior (3), the position prior (3) -- their analytic
 robust Levenberg-Marquardt (IRLS weights rho'(z) of scipy's losses, damping
 lam * max(diag A, 1e-12) from 1e-3, x10 on a rejected step up to 1e8, / 10 on a kept one down to
 1e-12, stop on a relative step below LM_XTOL or a relative cost decrease below LM_FTOL) in one call.
-tests/locate/test_refine_pose.py checks it against known poses and cv2.solvePnP.
+tests/locate/test_refine_pose.py checks it against known poses, cv2.projectPoints, finite
+differences and cv2.solvePnP.
 
 Parameters p = (Rodrigues vector of R_cw (3), C (3) world m)."""
 
@@ -29,7 +30,7 @@ cdef struct Prob:
     const double* uv       # (n, 2) normalized
     const double* d        # (n,) ranges m, NaN / inf: none
     const double* sd       # (n,) their 1-sigma m
-    double sig             # sigma_uv (divided by, as the pure path does)
+    double sig             # sigma_uv (divided by)
     int has_up
     double up[3]
     double up_sig
@@ -51,7 +52,7 @@ cdef inline double offset(const double* L, const double* C, double* Y) noexcept 
 
 
 cdef void residuals(const Prob* pr, const double* p, double* r, double* R, double* dR) noexcept nogil:
-    """`_joint_fun`'s whitened residuals r (m,) at p; R, dR: Rodrigues of p[:3] and its Jacobian."""
+    """The whitened residuals r (m,) at p (module doc); R, dR: Rodrigues of p[:3] and its Jacobian."""
     cdef int i, k, j = 2 * pr.n
     cdef double z, nrm
     cdef double Y[3]
@@ -79,7 +80,7 @@ cdef void residuals(const Prob* pr, const double* p, double* r, double* R, doubl
 
 
 cdef void jacobian(const Prob* pr, const double* p, const double* R, const double* dR, double* J) noexcept nogil:
-    """`_joint_fun`'s Jacobian J (m, 6) row-major at p (R, dR from `residuals` at p)."""
+    """The residuals' Jacobian J (m, 6) row-major at p (R, dR from `residuals` at p)."""
     cdef int i, k, a, j = 2 * pr.n
     cdef double z, xz, yz, nrm, wd
     cdef double Y[3]
@@ -241,7 +242,7 @@ cdef int setup(Prob* pr, const double[:, ::1] L, const double[:, ::1] uv, double
 def evaluate(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, const double[::1] d,
              const double[::1] sigma_d, const double[::1] up, double up_sigma, const double[:, ::1] W,
              const double[::1] Cp, const double[:, ::1] P, double[:, ::1] r_out, double[:, :, ::1] J_out):
-    """`_joint_fun`'s residuals (and, when J_out has rows, Jacobians) at each pose P[k] (6,):
+    """The whitened residuals (and, when J_out has rows, Jacobians) at each pose P[k] (6,):
     r_out (K, >= m), J_out (K, >= m, 6) or (0, 0, 6), their first m columns / rows filled.
     `up` / `Cp` empty: no tilt / position prior (W (3, 3): the prior's whitening, W^T W = cov^-1).
     Returns m: 2 per LED, 1 per finite range, 3 per prior (at most 3 n + 6)."""
@@ -265,9 +266,9 @@ def refine(const double[:, ::1] L, const double[:, ::1] uv, double sigma_uv, con
            const double[::1] sigma_d, const double[::1] up, double up_sigma, const double[:, ::1] W,
            const double[::1] Cp, double[::1] p, int loss, double f_scale, int max_iter, double xtol, double ftol,
            double[::1] r_out, double[:, ::1] J_out):
-    """Robust Levenberg-Marquardt (`lm`) on `_joint_fun`'s problem from p (6,), updated in place
-    to the solution; the first m entries of r_out (>= m,) and rows of J_out (>= m, 6): the
-    residuals and Jacobian there (m as `evaluate` returns it). Returns (m, converged)."""
+    """The robust Levenberg-Marquardt (module doc) on the problem from p (6,), updated in place to the solution;
+    the first m entries of r_out (>= m,) and rows of J_out (>= m, 6): the residuals and Jacobian
+    there (m as `evaluate` returns it). Returns (m, converged)."""
     cdef Prob pr
     cdef int m, ok
     cdef double* work

@@ -25,9 +25,9 @@ Solvers (`solve_fix`, chosen by the number of usable LEDs n and ranges k):
   the LED line, blind to a rotation of the rig about it; "range+angle" with a weak tilt prior
   (a phone held up at the ceiling, `DEFAULT_TILT_SIGMA_DEG`) picks the point, and the fix
   covariance is large along the blind direction so the Kalman filter leans on its prediction.
-  This, not the image-point convention, was the ~0.5 m error of the first version: it chained
-  the previous frame's orientation as the prior (a random walk of the tilt) and used blobs cut
-  by the image edge whose `border` flag was not set (their area gives ranges off by 10-25 %).
+  The prior is the phone's tilt, not the previous frame's orientation (chaining that would let
+  the tilt random-walk), and blobs cut by the image edge are flagged `border` and not ranged
+  (their area gives ranges off by 10-25 %).
 * one LED: range only -- no position fix (`LocateResult.position` then comes from the Kalman
   filter coasting, method ``"kalman-coast"``, or is None).
 
@@ -170,86 +170,13 @@ def align_rays(rays_cam: np.ndarray, dirs_world: np.ndarray) -> np.ndarray:
     return U @ D @ Vt
 
 
-def _joint_fun(L, uv, sigma_uv, d, sigma_d, up_prior=None, up_sigma=1.0, C_prior=None, C_prior_cov=None):
-    """Whitened residuals of a pose p = (Rodrigues vector of R_cw (3), C (3)): reprojection
-    (normalized units / sigma_uv, 2 per LED), the finite ranges of d / sigma_d, the tilt prior
-    (world up seen from the camera vs `up_prior`, / up_sigma) and the position prior (whitened by
-    C_prior_cov). The returned function carries its analytic Jacobian as `fun.jac(p)` (the
-    Rodrigues derivative from cv2.Rodrigues): the solver then needs no finite differences; and
-    both from one pose evaluation as `fun.fun_jac(p) -> (r, J)`. The vehicle's host placement
-    (receiver.locate.vehicle_host) solves with it; the indoor refinement's kernel
-    (`_kernel_args`) evaluates the same residuals."""
-    has_d = np.isfinite(d)
-    wd = 1.0 / sigma_d[has_d]
-    W = None if C_prior is None else _whitening(C_prior_cov)
-
-    def _pose(p):
-        R, dR = cv2.Rodrigues(p[:3].reshape(3, 1))
-        Y = L - p[3:]
-        X = Y @ R.T
-        z = np.where(X[:, 2] > 1e-6, X[:, 2], 1e-6)     # behind the camera: huge residual
-        return R, dR, Y, X, z
-
-    def _residuals(p, pose):
-        R, _, Y, X, z = pose
-        r_ang = ((X[:, :2] / z[:, None]) - uv).ravel() / sigma_uv
-        r_rng = (np.linalg.norm(Y[has_d], axis=1) - d[has_d]) * wd
-        parts = [r_ang, r_rng]
-        if up_prior is not None:
-            # World up seen from the camera vs the prior's: a tilt prior, blind to yaw.
-            parts.append((R[:, 2] - up_prior) / up_sigma)
-        if W is not None:
-            parts.append(W @ (p[3:] - C_prior))
-        return np.concatenate(parts)
-
-    def _jacobian(pose):
-        R, dR, Y, X, z = pose
-        n = len(L)
-        dRk = dR.reshape(3, 3, 3)                        # dRk[k] = dR / d rvec_k
-        # dX_i / d rvec_k = dRk[k] @ Y_i ; dX_i / dC = -R
-        dX = np.empty((n, 3, 6))
-        dX[:, :, :3] = np.einsum("kab,nb->nak", dRk, Y)
-        dX[:, :, 3:] = -R[None, :, :]
-        x, y = X[:, 0], X[:, 1]
-        # d(x/z) = (dx - x/z dz) / z, d(y/z) likewise
-        du = (dX[:, 0, :] - (x / z)[:, None] * dX[:, 2, :]) / z[:, None]
-        dv = (dX[:, 1, :] - (y / z)[:, None] * dX[:, 2, :]) / z[:, None]
-        J_ang = np.stack([du, dv], axis=1).reshape(2 * n, 6) / sigma_uv
-        Yd = Y[has_d]
-        J_rng = np.zeros((len(Yd), 6))
-        J_rng[:, 3:] = -(Yd / np.linalg.norm(Yd, axis=1, keepdims=True)) * wd[:, None]
-        parts = [J_ang, J_rng]
-        if up_prior is not None:
-            J_up = np.zeros((3, 6))
-            J_up[:, :3] = dRk[:, :, 2].T / up_sigma       # d R[:, 2] / d rvec_k
-            parts.append(J_up)
-        if W is not None:
-            J_c = np.zeros((3, 6))
-            J_c[:, 3:] = W
-            parts.append(J_c)
-        return np.vstack(parts)
-
-    def fun(p):
-        return _residuals(p, _pose(p))
-
-    def jac(p):
-        return _jacobian(_pose(p))
-
-    def fun_jac(p):
-        pose = _pose(p)
-        return _residuals(p, pose), _jacobian(pose)
-
-    fun.jac, fun.fun_jac = jac, fun_jac
-    return fun
-
-
 def _whitening(C_prior_cov) -> np.ndarray:
     """Whitening of a position prior: r = W (C - C_prior) with W^T W = cov^-1."""
     return np.linalg.cholesky(np.linalg.inv(C_prior_cov)).T
 
 
 def _kernel_args(L, uv, sigma_uv, d, sigma_d, up, up_sigma, C_prior=None, C_prior_cov=None) -> tuple:
-    """`_joint_fun`'s problem as the kernel's leading arguments (contiguous float64 arrays)."""
+    """The refinement's problem as the kernel's leading arguments (contiguous float64 arrays)."""
     f = np.ascontiguousarray
     if C_prior is None:
         W, Cp = _NO_W, _NO_PRIOR3

@@ -1,17 +1,15 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled envelope merge (receiver.vision.envelope): every tracked light's merged envelope of
-one frame in one call.
+"""Compiled envelope merge (receiver.vision.envelope), its one implementation (it saves over
+5 % of a frame: docs/kernels.md): every tracked light's merged envelope of one frame in one call.
 
 Per light: its own hull and its hulls of the previous frames (each moved by the light's velocity
-times the frame gap, in float64, then rounded to float32 as the reference does), the convex hull
-of all those points (`convex_hull_f32`: a monotone chain giving cv2.convexHull's vertices in its
-orientation and, where its input order does not shift it, from its start vertex), the hull's
-centroid and area
-(receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim, summed in
-numpy's reduceat order) and its box (floor of the float32 extremes, cv2.boundingRect of float
-points). Where it declines, `receiver.vision.envelope._merge` merges one light at a time with
-OpenCV; tests/engine/test_track_kernels.py compares the two (the same hull vertices, centroid and
-area within float rounding) and the hull with cv2.convexHull.
+times the frame gap, in float64, then rounded to float32), the convex hull of all those points
+(`convex_hull_f32`: a monotone chain giving cv2.convexHull's vertices in its orientation and,
+where its input order does not shift it, from its start vertex), the hull's centroid and area
+(as receiver.vision.detect._hull_stats_many: Green's theorem plus the half-pixel rim) and its
+box (floor of the float32 extremes, cv2.boundingRect of float points). `merge` returns None for
+hulls it does not take (not (K, 2) float64). tests/engine/test_track_kernels.py checks the hull
+against cv2.convexHull and the merged envelopes against OpenCV's hull of the moved points.
 """
 
 from receiver.core._buf cimport fresh_data
@@ -338,7 +336,7 @@ def merge(list tracks, long long k, list hist, long long width, long long height
     and this frame's record for the next frames: (env {track id: Blob}, ids (n,) int64,
     starts (n + 1,) int64, points (sum K_i, 2) float64: the tracks' blob hulls in order, hulls
     [the blobs' hull arrays]); None when a blob's hull is not a (K, 2) float64 array (the
-    caller's pure path then merges). A track's Blob is its own blob when it has no earlier hull.
+    caller raises). A track's Blob is its own blob when it has no earlier hull.
 
     k: this frame's index; hist: the earlier frames' records, oldest first, each (frame index,
     ids (m,) int64, starts (m + 1,) int64, points (., 2) float64, ...) as returned here (the

@@ -162,9 +162,13 @@ def step(list tracks, list blobs, long long frame_index, double sx, double sy, o
 
 def led_records(list seen, list lights, dict env, object pair_of, object covered, set decoded, bint locate,
                 bint tones, type cls):
-    """`receiver.pipeline._led_records` (its tested reference; the same records, lists and
-    `decoded` set): the seen tracks' LED observations of one frame, built in one call instead of
-    a Python loop over the tracks (receiver.pipeline.Receiver._report)."""
+    """The seen tracks' LED observations of one frame (receiver.pipeline.Receiver._report), in
+    one call: (records in track order, `want`: the track ids whose outline points the positioner
+    gets, `want_fields`: the `__dict__` of each one's record, None when it is not reported).
+    Tracks of an S2-PSK pair (`pair_of`), near a reported pair (`covered`) or not striped give no
+    record; each record's ID goes into `decoded`. `tones`: the map has tone lights (else freq_hz
+    is None; a finite frequency is rounded to 0.1 Hz). Records are `cls` instances whose
+    `__dict__` is filled in place (edge_px, None here, is set once measured)."""
     cdef Py_ssize_t i, n = len(seen)
     cdef list leds = [], want = [], want_fields = []
     cdef dict fields, bd

@@ -1,22 +1,22 @@
 """The OOK decoder's four accumulators live as the rows of one (4, 54) array: the packed
-kernels (decay4, add4) equal the numpy path, and every update keeps the views."""
+kernels (decay4, add4) equal np.bincount sums and a row-wise decay, and every update keeps the
+views."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.decode.ook import PACKET_LEN, OokDecoder, _cyclic_index
 
-_k = load("receiver.decode._ook")
-needs_kernel = pytest.mark.skipif(_k is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+_k = require("receiver.decode._ook")
 
 
-@needs_kernel
 @pytest.mark.parametrize("extra", [-1, 2, 3])
-def test_packed_kernels_equal_the_numpy_path(extra):
-    """add4 / decay4 equal OokDecoder._add's np.bincount sums and its row-wise decay, bit for bit."""
+def test_packed_kernels_equal_bincount_sums(extra):
+    """add4 / decay4 equal np.bincount sums of the chips at their packet positions and a row-wise
+    decay, bit for bit."""
     rng = np.random.default_rng(extra + 5)
     acc4 = rng.normal(size=(4, PACKET_LEN))
     rows = acc4.copy()

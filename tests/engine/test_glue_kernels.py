@@ -172,49 +172,49 @@ def test_annotate_kernel_equals_python(monkeypatch):
                 a.distance_m = 1.0
 
 
-def test_led_records_kernel_equals_the_python_loop():
-    """The report's LED records (receiver/vision/_track.pyx `led_records`) equal `pipeline._led_records`
-    (its reference): the same records, want lists and decoded IDs, on random frames of tracks in
-    pairs, near pairs, unstriped, undecoded, tone lights with and without a measured frequency."""
+def test_led_records_follow_the_report_rules():
+    """The report's LED records (receiver/vision/_track.pyx `led_records`) on a hand-made frame:
+    paired and unstriped tracks give nothing, a covered one only its `want` entry (no record),
+    a decoded OOK / tone light its record and its outline request, an S2-PSK one no request;
+    tone frequencies rounded to 0.1 Hz (None without tone lights or a finite frequency); any
+    envelope with a Blob's attributes is read; the decoded IDs are added to `decoded`."""
     from types import SimpleNamespace
 
     from receiver import pipeline
-    from receiver.decode.policy import LightDecoder
     from receiver.core.records import Blob
+    from receiver.decode.policy import LightDecoder
 
-    if pipeline._kt is None:
-        pytest.skip("compiled records not built (or OCCLOC_PURE=1)")
-    rng = np.random.default_rng(3)
-    for _ in range(300):
-        n = int(rng.integers(0, 20))
-        ids = sorted(rng.choice(1000, n, replace=False).tolist())
-        seen = [SimpleNamespace(track_id=i) for i in ids]
-        lights, env = [], {}
-        for i in ids:
-            light = LightDecoder({})
-            light.striped = bool(rng.random() < 0.85)
-            light.led_id = int(rng.integers(0, 5)) if rng.random() < 0.6 else None
-            light.mode = str(rng.choice(["ook", "tone", "s2psk"])) if light.led_id is not None else None
-            if rng.random() < 0.5:
-                light.states = {("tone", 0.0): SimpleNamespace(freq_hz=float(rng.choice([np.nan, rng.uniform(100, 900)])))}
-            elif rng.random() < 0.3:
-                light.states = {("tone", 0.0): SimpleNamespace()}
-            lights.append(light)
-            env[i] = Blob(float(rng.uniform(0, 99)), float(rng.uniform(0, 99)), float(rng.uniform(1, 9)),
-                          np.zeros((3, 2)), 0, 0, 1, 1, bool(rng.random() < 0.2), 200.0, 50.0, 3.0)
-            if rng.random() < 0.1:  # any envelope with these attributes (the kernel reads a Blob's __dict__)
-                env[i] = SimpleNamespace(**env[i].__dict__)
-        pair_of = {i: None for i in ids if rng.random() < 0.1}
-        covered = {i for i in ids if rng.random() < 0.1} if rng.random() < 0.5 else ()
-        locate, tones = bool(rng.random() < 0.7), bool(rng.random() < 0.5)
-        out = []
-        for fn in (pipeline._kt.led_records, pipeline._led_records):
-            decoded = {99}
-            leds, want, fields = fn(seen, lights, env, pair_of, covered, decoded, locate, tones, LedObservation)
-            out.append((leds, want, fields, decoded))
-            assert all(type(o) is LedObservation for o in leds)
-            assert [f is None or any(f is o.__dict__ for o in leds) for f in fields] == [True] * len(fields)
-        (l1, w1, f1, d1), (l0, w0, f0, d0) = out
-        assert [o.__dict__ for o in l1] == [o.__dict__ for o in l0] and l1 == l0
-        assert w1 == w0 and f1 == f0 and d1 == d0
-        assert [list(o.__dict__) for o in l1] == [list(o.__dict__) for o in l0]
+    def light(striped, led_id, mode=None, freq=None):
+        out = LightDecoder({})
+        out.striped, out.led_id, out.mode = striped, led_id, mode
+        if freq is not None:
+            out.states = {("tone", 0.0): SimpleNamespace(freq_hz=freq)}
+        return out
+
+    ids = [1, 2, 3, 4, 5, 6, 7, 8]
+    lights = [light(True, 10, "ook"), light(True, 11, "ook"), light(False, 12, "ook"), light(True, 13, "ook"),
+              light(True, None), light(True, 14, "tone", 433.26), light(True, 15, "s2psk"),
+              light(True, 16, "tone", float("nan"))]
+    env = {i: Blob(float(i), 2.0 * i, 3.0, np.zeros((3, 2)), 0, 0, 1, 1, i == 5, 200.0 + i, 50.0, 3.0) for i in ids}
+    env[8] = SimpleNamespace(**env[8].__dict__)
+    seen = [SimpleNamespace(track_id=i) for i in ids]
+    for locate, tones in ((True, True), (False, False)):
+        decoded = {99}
+        leds, want, fields = pipeline._kt.led_records(seen, lights, env, {2: None}, {4}, decoded, locate, tones,
+                                                       LedObservation)
+        assert [o.track for o in leds] == [1, 5, 6, 7, 8] and all(type(o) is LedObservation for o in leds)
+        assert [o.id for o in leds] == [10, None, 14, 15, 16] and decoded == {99, 10, 14, 15, 16}
+        assert [(o.cx, o.cy, o.area_px, o.border, o.peak, o.mode) for o in leds] == [
+            (1.0, 2.0, 3.0, False, 201.0, "ook"), (5.0, 10.0, 3.0, True, 205.0, None),
+            (6.0, 12.0, 3.0, False, 206.0, "tone"), (7.0, 14.0, 3.0, False, 207.0, "s2psk"),
+            (8.0, 16.0, 3.0, False, 208.0, "tone")]
+        assert all(o.contour is env[o.track].hull for o in leds)
+        assert all(o.distance_m is None and o.distance_estimator is None and o.kind is None and o.edge_px is None
+                   for o in leds)
+        assert [o.freq_hz for o in leds] == ([None, None, 433.3, None, None] if tones else [None] * 5)
+        by_track = {o.track: o for o in leds}
+        assert want == ([1, 4, 6, 8] if locate else [])
+        assert fields == ([by_track[1].__dict__, None, by_track[6].__dict__, by_track[8].__dict__] if locate else [])
+        assert all(f is None or any(f is o.__dict__ for o in leds) for f in fields)
+    with pytest.raises(ValueError):
+        pipeline._kt.led_records(seen, lights[:-1], env, {}, (), set(), True, True, LedObservation)

@@ -1,8 +1,8 @@
-"""The track stage's compiled kernels (receiver/vision/_envelope.pyx) against their references:
-the convex hull against cv2.convexHull (the same polygon, on random,
-repeated, collinear and nearly collinear points: `same_hull`), the whole envelope history against
-the OpenCV merge of one light at a time (`_k` set to None: `_same`); the compiled tracker step
-(receiver/vision/_track.pyx) against the known lights of a stream."""
+"""The track stage's compiled kernels (receiver/vision/_envelope.pyx) against OpenCV: the convex
+hull against cv2.convexHull (the same polygon, on random, repeated, collinear and nearly
+collinear points: `same_hull`), the whole envelope history against OpenCV's hull of each light's
+moved points (`_merge_reference`, `_same`); the compiled tracker step (receiver/vision/_track.pyx)
+against the known lights of a stream."""
 
 from __future__ import annotations
 
@@ -11,14 +11,13 @@ import numpy as np
 import pytest
 
 from receiver.cli.benchscene import bench_scene, render_bench_frame
-from receiver.core.native import load
-from receiver.vision import envelope
-from receiver.vision.detect import detect
+from receiver.core.native import require
+from receiver.core.records import Blob
+from receiver.vision.detect import _hull_geometry, detect
 from receiver.vision.envelope import EnvelopeHistory
 from receiver.vision.track import Track
 
-_env = load("receiver.vision._envelope")
-needs_kernel = pytest.mark.skipif(_env is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+_env = require("receiver.vision._envelope")
 
 
 def _point_sets(rng, n_cases):
@@ -65,7 +64,6 @@ def same_hull(got: np.ndarray, want: np.ndarray) -> bool:
     return k >= 0 and np.array_equal(np.roll(want, -k, axis=0), got)
 
 
-@needs_kernel
 def test_convex_hull_equals_opencv():
     rng = np.random.default_rng(7)
     kinds, exact = set(), 0
@@ -91,41 +89,50 @@ def _same(a, b) -> bool:
             and abs(a.area_px - b.area_px) <= 1e-7 * abs(b.area_px))
 
 
-def _run(frames_blobs, shape, vel, skip, frame_index):
-    hist = EnvelopeHistory(3)
-    out = []
-    for j, blobs in enumerate(frames_blobs):
-        k = frame_index[j]
-        tracks = [Track(i, b, 0, k, vx=vel[i % len(vel)][0], vy=vel[i % len(vel)][1])
-                  for i, b in enumerate(blobs) if (j, i) not in skip]
-        out.append(hist.step(tracks, k, shape))
-    return out
+def _merge_reference(blob, others, shape):
+    """One light's merged envelope by OpenCV: cv2.convexHull of its own and its moved earlier
+    hulls' points (float32), its centroid and area (`_hull_geometry`), the box floored and
+    clipped to the frame, `border` when the box reaches the edge."""
+    if not others:
+        return blob
+    pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
+    cx, cy, area, poly = _hull_geometry(pts)
+    h, w = shape[:2]
+    x0, y0 = np.floor(poly.min(axis=0)).astype(int)
+    x1, y1 = np.floor(poly.max(axis=0)).astype(int) + 1
+    border = blob.border or x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h
+    return Blob(cx, cy, area, poly, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h),
+                bool(border), blob.peak, blob.level, blob.background)
 
 
-@needs_kernel
 @pytest.mark.parametrize("n_leds,static", [(5, False), (12, True), (12, False)])
-def test_envelope_history_kernel_equals_pure(n_leds, static, monkeypatch):
-    """Static tracks (velocity 0: the earlier hulls repeat the own one point for point) and
-    moving ones, a track missing a frame, a dropped frame (index gap), a light past the edge."""
+def test_envelope_history_is_opencvs_hull_of_the_moved_hulls(n_leds, static):
+    """Each track's envelope is OpenCV's merge of its own hull with its hulls of the last two
+    frames, each moved by its velocity times the frames since: static tracks (velocity 0: the
+    earlier hulls repeat the own one point for point) and moving ones, a track missing a frame,
+    a dropped frame (index gap), a light past the edge."""
     leds = bench_scene(n_leds=n_leds, radius_px=30.0, seed=6)
     frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(6)]
-    blobs = [detect(g, stripe_gap_px=12) for g in frames]
+    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
     vel = [(0.0, 0.0)] if static else [(0.0, 0.0), (-1000.0, -800.0), (1.25, -0.5), (-2.0, 0.75), (0.3, 0.1), (0.0, 3.5)]
     skip = {(2, 1), (3, 1), (4, 0)}
     index = [0, 1, 2, 3, 5, 6]
-    native = _run(blobs, frames[0].shape, vel, skip, index)
-    with monkeypatch.context() as m:
-        m.setattr(envelope, "_k", None)
-        pure = _run(blobs, frames[0].shape, vel, skip, index)
-    merged = 0
-    for a, b in zip(native, pure):
-        assert a.keys() == b.keys()
-        for tid in a:
-            assert _same(a[tid], b[tid]), tid
-            merged += a[tid] is not b[tid] and len(a[tid].hull) > 0
+    shape = frames[0].shape
+    hist, seen, merged, border = EnvelopeHistory(3), {}, 0, False
+    for j, blobs in enumerate(per_frame):
+        k = index[j]
+        tracks = [Track(i, b, 0, k, vx=vel[i % len(vel)][0], vy=vel[i % len(vel)][1])
+                  for i, b in enumerate(blobs) if (j, i) not in skip]
+        got = hist.step(tracks, k, shape)
+        assert sorted(got) == [t.track_id for t in tracks]
+        for t in tracks:
+            others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in seen.get(t.track_id, []) if 0 < k - kh < 3]
+            assert _same(got[t.track_id], _merge_reference(t.blob, others, shape)), (k, t.track_id)
+            merged += bool(others)
+            border |= got[t.track_id].border
+            seen.setdefault(t.track_id, []).append((k, t.blob.hull))
     assert merged > n_leds  # most lights were merged with earlier hulls
-    if not static:
-        assert any(e.border for d in native for e in d.values())
+    assert border or static
 
 
 def test_envelope_history_restarts_on_an_older_frame_index():
@@ -141,7 +148,6 @@ def test_envelope_history_restarts_on_an_older_frame_index():
     assert all(e is not t.blob for t, e in zip(tracks, merged.values()))
 
 
-@needs_kernel
 def test_kernel_blobs_are_plain_frozen_blobs():
     """The kernel builds merged Blobs from the blob's attribute dict: they must be equal to,
     compare like and stay as frozen as Blobs made by the constructor."""
@@ -229,7 +235,6 @@ def test_tracker_follows_each_light(seed, monkeypatch):
     assert calls and n_ended > 0 and tracker._next_id > 14
 
 
-@needs_kernel
 def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
     """The Blobs' edge points in one compiled call (`_pixels.edge_points_blobs`: the boxes of
     merged envelopes, some past the image edge, one too narrow for a run, and their points)

@@ -320,28 +320,6 @@ def test_s2psk_lights_are_not_indoor_fixtures():
     assert res.position is None and _distances(res) == {}
 
 
-def test_joint_residual_jacobian_is_the_derivative():
-    """The analytic Jacobian the solver uses (`fun.jac`) equals central differences, with and
-    without the tilt and position priors and a missing range."""
-    from receiver.locate.lsq import _jacobian
-    from receiver.locate.pose import _joint_fun
-    import cv2
-    rng = np.random.default_rng(0)
-    L = np.array([[0, 0, 3.0], [1.2, 0, 3], [0, 1.2, 3], [1.2, 1.2, 3], [0.6, 2.4, 3]])
-    C, R = np.array([0.5, 0.4, 1.0]), ypr_to_rotation(20, 80, 3)
-    X = (L - C) @ R.T
-    uv = X[:, :2] / X[:, 2:] + rng.normal(0, 1e-3, (5, 2))
-    d = np.linalg.norm(L - C, axis=1)
-    d[2] = np.nan
-    rv, _ = cv2.Rodrigues(R)
-    p = np.concatenate([rv.ravel() + 0.05, C + 0.03])
-    for kw in ({}, dict(up_prior=np.array([0, 0.1, 0.99]), up_sigma=0.2),
-               dict(C_prior=C + 0.1, C_prior_cov=np.eye(3) * 0.01)):
-        f = _joint_fun(L, uv, 3e-4, d, np.full(5, 0.01), **kw)
-        Jn = _jacobian(f, p)
-        assert np.abs(f.jac(p) - Jn).max() < 1e-7 * np.abs(Jn).max()
-
-
 def _warm_problems(n_problems=12, seed=1):
     """Random frames of 3-6 ceiling LEDs (some ranges missing) with starts near the truth: the
     problems, and `refine_pose`'s answers (R, C, cov, chi2, dof) from the same starts."""

@@ -1,5 +1,6 @@
 """The centroid + range pose refinement (receiver/locate/_pnp.pyx through `pose.refine_pose`,
-`solve_fix`): its residuals those of `pose._joint_fun`, known poses recovered from noise-free scenes with every robust loss and prior,
+`solve_fix`): its residuals the model's (reprojection as OpenCV projects) and its Jacobian
+their derivative, known poses recovered from noise-free scenes with every robust loss and prior,
 angles-only fixes equal to OpenCV's `solvePnP` on the same points, the right P3P candidate
 picked, unknown losses and bad arrays refused with a one-line error."""
 
@@ -38,23 +39,45 @@ def _start(R, C, seed, turn_rad=0.05, shift_m=0.1):
     return cv2.Rodrigues(rng.normal(0, turn_rad, 3))[0] @ R, C + rng.normal(0, shift_m, 3)
 
 
+def _expected_residuals(p, L, uv, sigma_uv, d, sd, up, up_sigma, C_prior, W):
+    """The whitened residuals at pose p from their definition: reprojection by OpenCV's
+    `projectPoints` (identity camera: normalised units), the finite ranges, the tilt prior (world
+    up seen from the camera) and the position prior."""
+    R = cv2.Rodrigues(p[:3])[0]
+    tvec = -R @ p[3:]
+    proj = cv2.projectPoints(L.reshape(-1, 1, 3), p[:3], tvec, np.eye(3), None)[0].reshape(-1, 2)
+    parts = [((proj - uv) / sigma_uv).ravel()]
+    has = np.isfinite(d)
+    parts.append((np.linalg.norm(L[has] - p[3:], axis=1) - d[has]) / sd[has])
+    if up is not None:
+        parts.append((R[:, 2] - up) / up_sigma)
+    if C_prior is not None:
+        parts.append(W @ (p[3:] - C_prior))
+    return np.concatenate(parts)
+
+
 @pytest.mark.parametrize("prior", ["none", "tilt", "tilt+position"])
-def test_kernel_residuals_are_joint_funs(prior):
-    """The kernel's residuals and Jacobian are those of `pose._joint_fun` (the vehicle's host
-    placement solves with it): one model for both, to rounding."""
+def test_kernel_residuals_are_the_model_and_the_jacobian_its_derivative(prior):
+    """The kernel's residuals are the model's (reprojection as cv2.projectPoints, ranges, priors)
+    to rounding, and its analytic Jacobian equals their central differences."""
+    from receiver.locate.lsq import _jacobian
     L, uv, d, sd, R, C = _scene(3, 5, missing=(2,), px_noise=3e-4)
     up = np.array([0.0, 0.1, 0.99]) if prior != "none" else None
-    kw = dict(C_prior=C + 0.1, C_prior_cov=np.diag([0.01, 0.02, 0.04]) + 0.001) if prior == "tilt+position" else {}
-    fun = pose._joint_fun(L, uv, 3e-4, d, sd, up, 0.2, **kw)
+    C_prior, cov = (C + 0.1, np.diag([0.01, 0.02, 0.04]) + 0.001) if prior == "tilt+position" else (None, None)
+    W = None if cov is None else np.linalg.cholesky(np.linalg.inv(cov)).T   # W^T W = cov^-1
     rv = cv2.Rodrigues(R)[0].ravel()
     P = np.array([np.concatenate([rv + 0.05, C + 0.03]), np.concatenate([rv, C]), np.concatenate([-rv, C - 0.1])])
-    args = pose._kernel_args(L, uv, 3e-4, d, sd, up, 0.2, kw.get("C_prior"), kw.get("C_prior_cov"))
+    args = pose._kernel_args(L, uv, 3e-4, d, sd, up, 0.2, C_prior, cov)
     r, J = pose._evaluate_native(args, P, jacobian=True)
+
+    def fun(q):
+        return pose._evaluate_native(args, q)[0][0]
     for k, p in enumerate(P):
-        r_ref, J_ref = fun(p), fun.jac(p)
-        assert r[k].shape == r_ref.shape and J[k].shape == J_ref.shape
-        assert np.abs(r[k] - r_ref).max() <= 1e-12 * max(1.0, np.abs(r_ref).max())
-        assert np.abs(J[k] - J_ref).max() <= 1e-12 * np.abs(J_ref).max()
+        want = _expected_residuals(p, L, uv, 3e-4, d, sd, up, 0.2, C_prior, W)
+        assert r[k].shape == want.shape and J[k].shape == (len(want), 6)
+        assert np.abs(r[k] - want).max() <= 1e-9 * max(1.0, np.abs(want).max())
+        Jn = _jacobian(fun, p)
+        assert np.abs(J[k] - Jn).max() <= 1e-6 * np.abs(Jn).max()
 
 
 @pytest.mark.parametrize("loss", sorted(KERNEL_LOSSES))

@@ -259,62 +259,6 @@ def test_batched_refinement_equals_the_per_blob_one(pool):
         assert want is None or same_blob(want, got)
 
 
-def _merge_reference(blob, others, shape):
-    """Plain one-blob envelope merge (hull of all points, box floored, clipped to the frame,
-    border when the box reaches the edge): the reference the batched merge must equal."""
-    from receiver.core.records import Blob
-    from receiver.vision.detect import _hull_geometry
-    if not others:
-        return blob
-    pts = np.concatenate([blob.hull] + list(others)).astype(np.float32).reshape(-1, 1, 2)
-    cx, cy, area, poly = _hull_geometry(pts)
-    h, w = shape[:2]
-    x0, y0 = np.floor(poly.min(axis=0)).astype(int)
-    x1, y1 = np.floor(poly.max(axis=0)).astype(int) + 1
-    border = blob.border or x0 <= 0 or y0 <= 0 or x1 >= w or y1 >= h
-    return Blob(cx, cy, area, poly, max(int(x0), 0), max(int(y0), 0), min(int(x1), w), min(int(y1), h),
-                bool(border), blob.peak, blob.level, blob.background)
-
-
-def test_merging_many_envelopes_equals_merging_one_by_one():
-    from receiver.vision.envelope import merge_envelopes_many
-    leds = bench_scene(n_leds=6, radius_px=35.0, seed=4)
-    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(3)]
-    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
-    assert all(len(b) == 6 for b in per_frame)
-    items = [(b, [per_frame[1][i].hull + (0.35, 0.15), per_frame[0][i].hull + (0.7, 0.3)])
-             for i, b in enumerate(per_frame[2])]
-    items.append((per_frame[2][0], []))  # nothing to merge: the blob itself
-    items.append((per_frame[2][1], [np.array([[1e4, 1e4]])]))  # clipped to the frame
-    got = merge_envelopes_many(items, frames[0].shape)
-    for (blob, others), g in zip(items, got):
-        assert same_blob(_merge_reference(blob, others, frames[0].shape), g)
-    assert not per_frame[2][1].border and got[-1].border  # merged past the edge: flagged
-
-
-def test_envelope_history_equals_merging_each_track_alone():
-    """EnvelopeHistory.step (all tracks' earlier hulls moved and merged in one compiled call)
-    gives each track the merge of its own hull with its hulls of the last frames,
-    each moved by the track's velocity times the frames since, as one merge per track does."""
-    from receiver.vision.envelope import EnvelopeHistory
-    from receiver.vision.track import Track
-    leds = bench_scene(n_leds=5, radius_px=30.0, seed=6)
-    frames = [render_bench_frame(leds, k, rng=np.random.default_rng(k)) for k in range(4)]
-    per_frame = [detect(g, stripe_gap_px=12) for g in frames]
-    assert all(len(b) == 5 for b in per_frame)
-    hist = EnvelopeHistory(3)
-    vel = [(0.0, 0.0), (1.25, -0.5), (-2.0, 0.75), (0.3, 0.1), (0.0, 3.5)]
-    seen = {}
-    for k, blobs in enumerate(per_frame):
-        tracks = [Track(i, b, 0, k, vx=vx, vy=vy) for i, (b, (vx, vy)) in enumerate(zip(blobs, vel))]
-        got = hist.step(tracks[:4] if k == 2 else tracks, k, frames[0].shape)  # track 4 missed frame 2
-        for t in (tracks[:4] if k == 2 else tracks):
-            others = [h + (t.vx * (k - kh), t.vy * (k - kh)) for kh, h in seen.get(t.track_id, []) if 0 < k - kh < 3]
-            assert same_blob(_merge_reference(t.blob, others, frames[0].shape), got[t.track_id])
-            seen.setdefault(t.track_id, []).append((k, t.blob.hull))
-    assert any(len(v) == 4 for v in seen.values())
-
-
 def test_row_pooled_search_finds_the_same_envelopes():
     """The component search on pooled rows (detect.ROW_POOL) yields the full-resolution
     search's blobs exactly: isolated ones, ones whose boxes overlap (component masks) and
