@@ -95,10 +95,11 @@ CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
 PERIOD_FRAMES = OokSettings.period_frames  # refined periods whose median fixes rows per chip
-# Frames of up to this many chips (every frame that does not hold a whole packet) are pieces
-# (receiver.decode.pieces), also those longer than `pieces_max_chips` (which fewer chips only
-# pieces can read): placed by the frame times among the map's IDs, they name a light as soon as
-# its frames cover the packet, and a light with its ID measures the frames' jitter with them.
+# A light whose chips the exposure model reads keeps as pieces (receiver.decode.pieces) also its
+# frames longer than `pieces_max_chips`, up to this many chips (every frame that does not hold a
+# whole packet): placed by the frame times among the map's IDs, they name it as soon as its
+# frames cover the packet, while its assembly waits for syncs, alignments and the confirmation
+# of chained frames; once it has its ID they measure the frames' jitter for the other lights.
 PIECES_MAX_CHIPS = OOK_PACKET_LEN - 1
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
@@ -941,10 +942,11 @@ class OokDecoder:
         return True
 
     def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
-        """Keep a piece (a frame short of a whole packet: `PIECES_MAX_CHIPS`) with its packet
-        time (receiver.decode.pieces) and try the ML choice of the light's ID (once it is known,
-        the piece only measures its frame's jitter for the other lights)."""
-        if soft.size > max(self.pieces_max_chips, PIECES_MAX_CHIPS):
+        """Keep a piece with its packet time (receiver.decode.pieces) and try the ML choice of
+        the light's ID (once it is known, the piece only measures its frame's jitter for the
+        other lights): a short one (no more than `pieces_max_chips` chips), or, when the
+        exposure model reads the chips, any frame short of a whole packet (`PIECES_MAX_CHIPS`)."""
+        if soft.size > (PIECES_MAX_CHIPS if self.exposure_model else self.pieces_max_chips):
             return  # a long piece: the assembly above places it by its own chips
         q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
         if self.led_id is None and self.pieces.frame_jitter is not None:
