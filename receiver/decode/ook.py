@@ -43,9 +43,12 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
 With an exposure of half a chip or more, stages 1-2 are replaced by the exposure model
 (receiver.decode.exposure: the profile as the chip stream averaged over the exposure, chips by
 maximum-likelihood sequence estimation), and a packet that stage 5 rejects may still be decided
-by maximum likelihood over all 65,536 packets (`soft_decide`, with a margin that noise and wrong
-assemblies do not reach). The exposure comes from the camera file or, when it is 0, from the
-stripes' edge ramps (`exposure.ExposureLearner`).
+by maximum likelihood over all 65,536 packets (`soft_decide`); its margin assumes white noise on
+the soft chips, which the exposure model's chips of 20-30 chip frames do not have (3 wrong IDs
+among 22 such decisions in `pieces_mc.py 20k-56us-110rows-unmapped --trials 20`), so its ID,
+as one from a chained packet, is reported only once the later frames confirm it. The exposure
+comes from the camera file or, when it is 0, from the stripes' edge ramps
+(`exposure.ExposureLearner`).
 
 A single wrong chip changes at most one Manchester pair, so it is either outvoted in the
 accumulator or it yields one wrong bit, which CRC-8 always detects (any CRC whose polynomial has
@@ -1200,9 +1203,9 @@ class OokDecoder:
         self._chained = self._chained or (self.exposure_model and soft.size < self.confirm_max_chips)
 
     def _propose(self, led_id: int) -> None:
-        """A first ID from a packet chained by alignments of short frames: confirmed by the
-        frames that follow (`_confirm_step`) before it is reported; a new proposal replaces
-        one under confirmation."""
+        """A first ID from a packet chained by alignments of short frames, or from the soft
+        decision (`_soft_decode`): confirmed by the frames that follow (`_confirm_step`) before
+        it is reported; a new proposal replaces one under confirmation."""
         if self._confirm is None or self._confirm.led_id != led_id:
             self._confirm = confirm.Confirmation(
                 led_id, packet_template(led_id), min_fit=self.verify_min, min_gap=self.confirm_gap,
@@ -1282,7 +1285,7 @@ class OokDecoder:
         if not self._verified(led_id, soft=soft):
             return
         if self.led_id is None:
-            if self._chained:
+            if self._chained or soft:
                 self._propose(led_id)
             else:
                 self.led_id = led_id
