@@ -43,9 +43,12 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
 With an exposure of half a chip or more, stages 1-2 are replaced by the exposure model
 (receiver.decode.exposure: the profile as the chip stream averaged over the exposure, chips by
 maximum-likelihood sequence estimation), and a packet that stage 5 rejects may still be decided
-by maximum likelihood over all 65,536 packets (`soft_decide`, with a margin that noise and wrong
-assemblies do not reach). The exposure comes from the camera file or, when it is 0, from the
-stripes' edge ramps (`exposure.ExposureLearner`).
+by maximum likelihood over all 65,536 packets (`soft_decide`); its margin assumes white noise on
+the soft chips, which the exposure model's chips of 20-30 chip frames do not have (3 wrong IDs
+among 22 such decisions in `pieces_mc.py 20k-56us-110rows-unmapped --trials 20`), so its ID,
+as one from a chained packet, is reported only once the later frames confirm it. The exposure
+comes from the camera file or, when it is 0, from the stripes' edge ramps
+(`exposure.ExposureLearner`).
 
 A single wrong chip changes at most one Manchester pair, so it is either outvoted in the
 accumulator or it yields one wrong bit, which CRC-8 always detects (any CRC whose polynomial has
@@ -98,6 +101,12 @@ CRC_BITS = N_BITS - OOK_ID_BITS
 # Entries kept of a decoder's (and the frame clock's) timing diagnostics.
 DIAGNOSTICS_LEN = 1000
 PERIOD_FRAMES = OOK_TUNING.period_frames  # refined periods whose median fixes rows per chip
+# A light whose chips the exposure model reads keeps as pieces (receiver.decode.pieces) also its
+# frames longer than `pieces_max_chips`, up to this many chips (every frame that does not hold a
+# whole packet): placed by the frame times among the map's IDs, they name it as soon as its
+# frames cover the packet, while its assembly waits for syncs, alignments and the confirmation
+# of chained frames; once it has its ID they measure the frames' jitter for the other lights.
+PIECES_MAX_CHIPS = OOK_PACKET_LEN - 1
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
@@ -884,10 +893,11 @@ class OokDecoder:
         return True
 
     def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
-        """Keep a short piece (no more than `pieces_max_chips` chips) with its packet time
-        (receiver.decode.pieces) and try the ML choice of the light's ID (once it is known, the
-        piece only measures its frame's jitter for the other lights)."""
-        if soft.size > self.pieces_max_chips:
+        """Keep a piece with its packet time (receiver.decode.pieces) and try the ML choice of
+        the light's ID (once it is known, the piece only measures its frame's jitter for the
+        other lights): a short one (no more than `pieces_max_chips` chips), or, when the
+        exposure model reads the chips, any frame short of a whole packet (`PIECES_MAX_CHIPS`)."""
+        if soft.size > (PIECES_MAX_CHIPS if self.exposure_model else self.pieces_max_chips):
             return  # a long piece: the assembly above places it by its own chips
         q = self.rate_hz * float(t_s) + (y0 + self.last_start_row) / self.rows_per_chip
         if self.led_id is None and self.pieces.frame_jitter is not None:
@@ -1119,9 +1129,9 @@ class OokDecoder:
         self._chained = self._chained or (self.exposure_model and soft.size < self.confirm_max_chips)
 
     def _propose(self, led_id: int) -> None:
-        """A first ID from a packet chained by alignments of short frames: confirmed by the
-        frames that follow (`_confirm_step`) before it is reported; a new proposal replaces
-        one under confirmation."""
+        """A first ID from a packet chained by alignments of short frames, or from the soft
+        decision (`_soft_decode`): confirmed by the frames that follow (`_confirm_step`) before
+        it is reported; a new proposal replaces one under confirmation."""
         if self._confirm is None or self._confirm.led_id != led_id:
             self._confirm = confirm.Confirmation(
                 led_id, packet_template(led_id), min_fit=self.verify_min, min_gap=self.confirm_gap,
@@ -1190,7 +1200,7 @@ class OokDecoder:
         if not self._verified(led_id, soft=soft):
             return
         if self.led_id is None:
-            if self._chained:
+            if self._chained or soft:
                 self._propose(led_id)
             else:
                 self.led_id = led_id

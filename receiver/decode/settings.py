@@ -35,12 +35,15 @@ class OokSettings:
       soft_min_z [4.0 noise sds]: with the exposure model, a light without an ID whose packet
         the CRC rule rejects is decided by maximum likelihood over all 65,536 packets
         (`receiver.decode.ook.soft_decide`), accepted only when the best ID beats every other by
-        this margin; 0 = no soft decision. Lower: earlier IDs from noisy frames, more wrong.
+        this margin, and reported only once the later frames confirm it (as an ID from a
+        chained packet); 0 = no soft decision. Lower: earlier IDs from noisy frames, more wrong.
       pieces_max_chips [16 chips]: with the map's IDs at this rate as candidates (map
         addressing, rolling shutter), the frames of a light that show no more than this many
         chips are kept as pieces and placed by their timestamps (receiver.decode.pieces); the ID
-        is chosen by maximum likelihood over the candidates. 0 = off. Cost: one correlation
-        table per piece against every candidate (grows with the map's IDs at the rate).
+        is chosen by maximum likelihood over the candidates. When the exposure model reads the
+        chips, every frame short of a whole packet is a piece (`ook.PIECES_MAX_CHIPS`). 0 = off.
+        Cost: one correlation table per piece against every candidate (grows with the map's IDs
+        at the rate).
       pieces_jitter_us [200 us]: the camera's frame-start jitter: pieces are placed within
         +- this of their timestamps (the frame's other decoded lights narrow it to +- 1 chip,
         `pieces.FrameJitter`). Larger: tolerates a worse camera clock, more shifts searched.

@@ -46,6 +46,8 @@ SCENES = (
     Scene("10k-10us-130rows", 10000.0, 10.0, 10.0, 130, noise=2.0),
     Scene("10k-56us-130rows", 10000.0, 10.0, 56.0, 130, noise=2.0),
     Scene("10k-10us-100rows-map", 10000.0, 10.0, 10.0, 100, noise=2.0, candidates=60),
+    Scene("20k-56us-110rows-map", 20000.0, 10.0, 56.0, 110, candidates=100),
+    Scene("20k-87us-140rows-map", 20000.0, 10.0, 87.0, 140, candidates=100),
 )
 BY_NAME = {s.name: s for s in SCENES}
 

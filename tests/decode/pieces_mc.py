@@ -52,6 +52,12 @@ SCENES = (
     Scene("5k-120rows-noisy", 5000.0, 10.0, 10.0, 120, noise=12.0, candidates=300),
     Scene("10k-100rows-unmapped", 10000.0, 10.0, 10.0, 100, outside=1.0),
     Scene("5k-120rows-unmapped", 5000.0, 10.0, 10.0, 120, outside=1.0, candidates=300),
+    Scene("20k-20us-110rows", 20000.0, 10.0, 20.0, 110, noise=8.0, candidates=100),
+    Scene("20k-56us-110rows", 20000.0, 10.0, 56.0, 110, noise=8.0, candidates=100),
+    Scene("20k-87us-140rows", 20000.0, 10.0, 87.0, 140, noise=8.0, candidates=100),
+    Scene("20k-20us-110rows-unmapped", 20000.0, 10.0, 20.0, 110, noise=8.0, outside=1.0, candidates=300),
+    Scene("20k-56us-110rows-unmapped", 20000.0, 10.0, 56.0, 110, noise=8.0, outside=1.0, candidates=300),
+    Scene("20k-87us-140rows-unmapped", 20000.0, 10.0, 87.0, 140, noise=8.0, outside=1.0, candidates=300),
 )
 BY_NAME = {s.name: s for s in SCENES}
 
