@@ -5,7 +5,8 @@ or B, a merged blob (area well above one emitter's, or one baseline wider) near 
 Blob area is otherwise no measure of size: a far half covers one or two rows, and a saturated
 blob (peak at the sensor's white level, `white_gray`) blooms to 2-3x the emitter's area, so a
 saturated blob is not held to the area gates. A decoded pair's lone smaller blob far from its
-prediction does not move it (`lone_checked`); a coasting pair of two tracks is re-placed on two
+prediction does not move it (`lone_checked`), nor does a saturated blob well above its own
+saturated emitters (`bloom_checked`: a nearer light's lamp); a coasting pair of two tracks is re-placed on two
 blobs one baseline apart (`reanchor`); a pair that takes another pair's emitter is found by
 `anothers`. Also the Python reference of the frame's first pass over all pairs
 (`pitch_and_claims`) and of the camera-shift votes (`shift_votes_of`, `dx_offsets_of`).
@@ -143,6 +144,57 @@ def lone_checked(g, p: Pair, found: tuple) -> tuple:
     if max(expl[0].blob.area_px, 1.0) >= whole / g.merged_ratio:
         return found
     return [], nearby, None, None, None, None
+
+
+def bloom_checked(g, p: Pair, pred: tuple, found: tuple) -> tuple:
+    """`found` (as `lone_checked`) of a pair `p` of two tracks at its prediction `pred` (mx, my,
+    hx, hy, single), without the saturated blobs taken as one emitter that are more than
+    `merged_ratio` x the larger of its emitters' envelopes, once those envelopes saturate too
+    (peak at `white_gray`), and without a "merged" blob (both emitters lit as one) shorter than
+    half its baseline. A saturated blob's area is the bloom's, so it is no measure of one
+    emitter against an unsaturated envelope; but a pair's two lamps are alike and at one range,
+    so once its own blobs bloom, its next ones bloom alike. The envelopes are grown by the
+    square of the baseline's measured growth per frame since the pair's last blob (area goes
+    as the baseline squared). A blob well above that is a nearer light's lamp beside a hidden
+    emitter (a car in front covering this car's taillight with its own taillight a few px
+    away): taken, it moves the pair onto that light, which then carries this pair's ID. The
+    mean shift is that of the blobs kept (offsets from the emitter or midpoint each explains).
+    Cost: a loop over the pair's few explaining blobs."""
+    expl, nearby, mean, obs_a, obs_b, merged = found
+    if p.a.track_id == p.b.track_id or not expl:
+        return found
+    bloomed = max(p.a.blob.peak, p.b.blob.peak) >= g.white_gray
+    mx, my, hx, hy, _ = pred
+    whole = max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0)
+    grow = (1.0 + max(p.growth, 0.0)) ** (2 * min(p.misses + 1, g.growth_span_frames))
+    bound = g.merged_ratio * whole * grow
+    keep, shifts = [], []
+    for t in expl:
+        if t.blob is merged:
+            # both emitters lit as one blob span the baseline: a blob shorter than half of it
+            # is one lamp at the midpoint (another light's), whatever its area
+            extent = max(t.blob.x1 - t.blob.x0, t.blob.y1 - t.blob.y0)
+            if extent < math.hypot(hx, hy):
+                merged = None
+                continue
+            keep.append(t)
+            shifts.append((t.cx - mx, t.cy - my))
+            continue
+        da = math.hypot(t.cx - (mx - hx), t.cy - (my - hy))
+        db = math.hypot(t.cx - (mx + hx), t.cy - (my + hy))
+        if bloomed and t.blob.peak >= g.white_gray and t.blob.area_px > bound:
+            if t.blob is obs_a:
+                obs_a = None
+            if t.blob is obs_b:
+                obs_b = None
+            continue
+        keep.append(t)
+        x, y = (mx - hx, my - hy) if da <= db else (mx + hx, my + hy)
+        shifts.append((t.cx - x, t.cy - y))
+    if len(keep) == len(expl):
+        return found
+    mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
+    return keep, nearby, mean, obs_a, obs_b, merged
 
 
 def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:

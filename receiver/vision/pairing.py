@@ -58,7 +58,7 @@ from receiver.core.native import load
 from receiver.core.records import Blob
 from receiver.core.settings import resolve_settings
 from receiver.vision.pair_found import JumpWatch, drop_twins, head_backlog, jumper_pair, mark_beside, two_track_backlog
-from receiver.vision.pair_match import (anothers, claim_tol, dx_offsets_of, explain, lone_checked,
+from receiver.vision.pair_match import (anothers, bloom_checked, claim_tol, dx_offsets_of, explain, lone_checked,
                                         pitch_and_claims, reanchor, shift_votes_of, width_class)
 from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, LIVE, TUNING, WRONG, EmitterLevels, Pair, PairTuning,
                                         _emitter, follow_update, measure_baseline, moved, pair_score, predict)
@@ -356,7 +356,7 @@ class Pairer:
                 expl, nearby, shifts, obs_a, obs_b, merged = self._explain(p, tracks, xy, *pred, excl)
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
-        found = [lone_checked(self, p, f) for (p, _, _), f in zip(items, found)]
+        found = [bloom_checked(self, p, pred, lone_checked(self, p, f)) for (p, pred, _), f in zip(items, found)]
         taken = {t.track_id for f in found for t in f[0]}
         # the two-track pairs whose emitter another pair may take (`pair_match.anothers`): the decoded ones
         # that explain no blob at their prediction, by their founding tracks (a far head's
