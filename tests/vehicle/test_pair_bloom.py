@@ -76,4 +76,3 @@ def test_a_lamp_at_the_midpoint_of_a_wide_pair_is_not_both_its_emitters_lit():
     p = _decoded_pair(pr)
     _frame(pr, [_blob(533.0, 474.0, 13, 13)])
     assert p.tracks == [] and abs(p.a.cx - 500.5) <= 0.5 and abs(p.b.cx - 558.5) <= 0.5
-
