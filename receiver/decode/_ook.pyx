@@ -348,7 +348,9 @@ def known_count(const double[::1] acc_w):
 def decode_acc(const double[::1] acc, const double[::1] acc_w, double min_margin,
                const unsigned char[::1] crc_table):
     """`OokDecoder._decode`'s packet: None when a data chip is unknown, else (id or None,
-    confidence) of `decode_packet` on the mean packet (0 where unknown)."""
+    confidence) of the mean packet m (0 where unknown). Bit i comes from the Manchester pair
+    (m[6+2i], m[7+2i]) as sign(a - b), its reliability |a - b| / 2; the ID is accepted only when
+    every pair and every sync chip is right by `min_margin` and the CRC-8 matches."""
     cdef double m[PACKET_LEN]
     cdef double r, conf = 0.0, sync = 0.0, v
     cdef Py_ssize_t i
@@ -378,7 +380,11 @@ def decode_acc(const double[::1] acc, const double[::1] acc_w, double min_margin
 
 
 cdef int _parity(const double *x, Py_ssize_t n, bint cyclic, double gap) noexcept nogil:
-    """`ook.pair_parity` of already clipped chips: 0, 1, or -1 (unclear)."""
+    """Which chips of already clipped chips x start Manchester pairs: 0 (even indices), 1 (odd)
+    or -1 (unclear). Inside Manchester data a pair's two chips are opposite, while chips across a
+    pair boundary are equal whenever two successive bits are, so the right grid scores about +1
+    per pair and the wrong one about 0; a score gap of `gap` pairs is needed (alternating bits
+    are Manchester-consistent on both grids and stay unclear)."""
     cdef Py_ssize_t np_ = n if cyclic else n - 1, i, n0 = 0, n1 = 0
     cdef double *p0
     cdef double *p1

@@ -31,8 +31,8 @@ Stages, each a small function on numpy arrays (all vectorised; no loops over row
    own sync-placed frames: small lights whose successive frames barely overlap are then
    assembled without correlation (`_timed_shift`; checked against the chips it overlaps, and
    every timed frame must fit the decoded packet at its own shift before the ID is reported).
-5. `decode_packet`: Manchester soft decision per data bit (difference of the pair's two chips),
-   reliability = the weakest pair, then CRC-8. An ID whose CRC fails is never reported. A
+5. The packet decision (`_ook.decode_acc`): Manchester soft decision per data bit (difference
+   of the pair's two chips), reliability = the weakest pair, then CRC-8. An ID whose CRC fails is never reported. A
    packet that relied on a risky alignment (short overlaps: small blobs) is also checked
    against the last frames as a whole template before its ID is reported (`_verified`).
    A first ID from a packet that chained short frames by alignment (a wrong shift ties the
@@ -110,7 +110,6 @@ PIECES_MAX_CHIPS = OOK_PACKET_LEN - 1
 SOFT_CLIP = 2.0  # soft chips are clipped to +-this: one outlier row must not outvote a packet
 _SYNC_T = np.array([1.0 if c else -1.0 for c in SYNC])
 _SYNC_CODE = bytes(1 if c else 0xFF for c in SYNC)  # the sync as int8 chip signs (+1 / -1)
-_BIT_WEIGHTS = (1 << np.arange(N_BITS - 1, -1, -1)).astype(np.int64)  # MSB first
 _CRC8_TABLE: np.ndarray | None = None
 
 
@@ -326,44 +325,6 @@ def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None
     score = [float((soft[k:k + SYNC_LEN] * _SYNC_T).min()) for k in hits]
     best = int(np.argmax(score))
     return int(hits[best]), score[best]
-
-
-def pair_parity(soft: np.ndarray, *, cyclic: bool = False, parity_gap: float = 2.0) -> int | None:
-    """Which chips start Manchester pairs: 0 (even indices) or 1 (odd), or None if unclear.
-
-    Inside Manchester data the two chips of a pair are always opposite, while chips across a
-    pair boundary are equal whenever two successive bits are equal, so the right grid scores
-    about +1 per pair and the wrong one about 0. Needs a score gap of `parity_gap` (pairs);
-    data of alternating bits is Manchester-consistent on both grids and stays unclear.
-    """
-    x = _clip1(soft)
-    if cyclic:
-        x = np.concatenate((x, x[:1]))
-    p = x[:-1] * x[1:]  # p[k] ~ -1 when chips k, k+1 are opposite
-    s0, s1 = -np.add.reduce(p[0::2]), -np.add.reduce(p[1::2])
-    if abs(s0 - s1) < parity_gap:
-        return None
-    return 0 if s0 > s1 else 1
-
-
-def decode_packet(m: np.ndarray, *, min_margin: float = 0.25) -> tuple[int | None, float]:
-    """CRC-checked ID from a 54-chip soft packet (sync first), or None.
-
-    m: float (54,), mean soft chip per packet position (0 = unknown). Bit i comes from the
-    Manchester pair (m[6+2i], m[7+2i]) as sign(a - b); its reliability is |a - b| / 2. The
-    packet is accepted only when every pair and every sync chip is right by `min_margin` and
-    the CRC-8 matches. Returns (id or None, weakest pair reliability).
-    """
-    r = 0.5 * (m[DATA_START::2] - m[DATA_START + 1::2])
-    conf = float(np.abs(r).min())
-    sync_ok = float((m[:SYNC_LEN] * _SYNC_T).min()) >= min_margin
-    if conf < min_margin or not sync_ok:
-        return None, conf
-    value = int(_BIT_WEIGHTS @ (r > 0))
-    led_id, crc = value >> CRC_BITS, value & ((1 << CRC_BITS) - 1)
-    if crc8_table()[led_id] != crc:
-        return None, conf
-    return led_id, conf
 
 
 def packet_template(led_id: int) -> np.ndarray:
