@@ -2,36 +2,16 @@
 that car's taillight: once the pair's own blobs saturate, a saturated blob well above them
 (more than `merged_ratio` x its envelope) is another light's (pair_match.bloom_checked)."""
 
-import numpy as np
-
-from receiver.core.records import Blob
-from receiver.vision.pairing import Pair, Pairer
-from receiver.vision.track import Track
+from receiver.vision.pairing import Pairer
+from tests.vehicle.test_pair_lone_blob import _blob, _frame
+from tests.vehicle.test_pair_lone_blob import _decoded_pair as _pair_at
 
 WHITE = 255.0
 
 
-def _blob(cx, cy, w, h, peak=WHITE):
-    x0, y0 = int(round(cx - w / 2)), int(round(cy - h / 2))
-    hull = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + h - 1], [x0, y0 + h - 1]], float)
-    return Blob(cx=float(cx), cy=float(cy), area_px=float(w * h), hull=hull, x0=x0, y0=y0, x1=x0 + w, y1=y0 + h,
-                border=False, peak=peak, level=10.0, background=2.0)
-
-
 def _decoded_pair(pr, peak=WHITE):
     """A decoded car ~37 m ahead: taillights of 7 x 7 px at x 500 and 558, y 470."""
-    p = Pair(Track(3, _blob(500.0, 470.0, 7, 7, peak), 0, 0), Track(4, _blob(558.0, 470.0, 7, 7, peak), 0, 0),
-             ids=(10, 11))
-    p.led_id, p.kind = 216, "FV"
-    pr.pairs = [p]
-    pr._follow_all([], (720, 1280), 0.0, 0.0, {}, np.zeros((0, 2)))  # its first frame: the baseline
-    return p
-
-
-def _frame(pr, blobs):
-    tracks = [Track(20 + i, b, 0, 0) for i, b in enumerate(blobs)]
-    xy = np.array([(t.cx, t.cy) for t in tracks], float).reshape(-1, 2)
-    return pr._follow_all(tracks, (720, 1280), 0.0, 0.0, {}, xy)
+    return _pair_at(pr, xb=558.0, y=470.0, peak=peak, led_id=216)
 
 
 def _hidden_a_frame(pr):

@@ -11,17 +11,18 @@ from receiver.vision.pairing import Pair, Pairer
 from receiver.vision.track import Track
 
 
-def _blob(cx, cy, w, h):
+def _blob(cx, cy, w, h, peak=255.0):
     x0, y0 = int(round(cx - w / 2)), int(round(cy - h / 2))
     hull = np.array([[x0, y0], [x0 + w - 1, y0], [x0 + w - 1, y0 + h - 1], [x0, y0 + h - 1]], float)
     return Blob(cx=float(cx), cy=float(cy), area_px=float(w * h), hull=hull, x0=x0, y0=y0, x1=x0 + w, y1=y0 + h,
-                border=False, peak=255.0, level=10.0, background=2.0)
+                border=False, peak=peak, level=10.0, background=2.0)
 
 
-def _decoded_pair(pr):
-    """A decoded car: taillights of 7 x 7 px at x 500 and 560, y 440 (a car ~40 m ahead)."""
-    p = Pair(Track(3, _blob(500.0, 440.0, 7, 7), 0, 0), Track(4, _blob(560.0, 440.0, 7, 7), 0, 0), ids=(10, 11))
-    p.led_id, p.kind = 209, "FV"
+def _decoded_pair(pr, xb=560.0, y=440.0, peak=255.0, led_id=209):
+    """A decoded car: taillights of 7 x 7 px at x 500 and `xb`, y `y` (60 px apart: a car ~40 m
+    ahead)."""
+    p = Pair(Track(3, _blob(500.0, y, 7, 7, peak), 0, 0), Track(4, _blob(xb, y, 7, 7, peak), 0, 0), ids=(10, 11))
+    p.led_id, p.kind = led_id, "FV"
     pr.pairs = [p]
     pr._follow_all([], (720, 1280), 0.0, 0.0, {}, np.zeros((0, 2)))  # its first frame: the baseline
     return p
