@@ -57,37 +57,49 @@ def correlate(const float[:, ::1] wrapped, const float[::1] x, double den, float
               double pen_narrow):
     """One piece x (n,) against the packets twice round `wrapped` (K, 108), into its slot of
     the tables: corr[slot, k, s] = sum_j x[j] T[k, (s + j) % 54] / den (float32, chips in
-    order), and rep[w, slot] (K, 432) its best within the wide (w = 0) and the narrow (1) window, each of 54 positions repeated
-    for its 4 phases, twice round: best[s] = max over d in [-half, half] of corr[(s + d) % 54]
-    - float32(penalty |d|)."""
-    cdef Py_ssize_t K = wrapped.shape[0], n = x.shape[0], k, j, s, i, w
+    order), and rep[w, slot] (K, 432) its best within the wide (w = 0) and the narrow (1)
+    window, each of 54 positions repeated for its 4 phases, twice round: best[s] = max over d
+    in [-half, half] of corr[(s + d) % 54] - float32(penalty |d|)."""
+    cdef Py_ssize_t K = wrapped.shape[0], n = x.shape[0], k, j, jj, s, i, w
     cdef int d, half
-    cdef float acc, v, b, fden = <float>den
-    cdef float pens[PACKET]
+    cdef float xj, fden = <float>den
+    cdef float acc[PACKET]
+    cdef float ext[3 * PACKET]  # the row's correlations with up to 54 of the other end each side
     cdef float best[PACKET]
+    cdef float v, pen_d
     cdef double pen
     for k in range(K):
+        # the chips in order for every position at once (each position's sum is its own)
+        xj = x[0]
         for s in range(PACKET):
-            acc = wrapped[k, s] * x[0]
-            for j in range(1, n):
-                acc = acc + wrapped[k, s + j] * x[j]
-            corr[slot, k, s] = acc / fden
+            acc[s] = wrapped[k, s] * xj
+        for j in range(1, n):
+            xj = x[j]
+            jj = j % PACKET  # (a piece longer than the packet goes round it)
+            for s in range(PACKET):
+                acc[s] = acc[s] + wrapped[k, s + jj] * xj
+        for s in range(PACKET):
+            acc[s] = acc[s] / fden
+            corr[slot, k, s] = acc[s]
+            ext[s] = acc[s]
+            ext[s + PACKET] = acc[s]
+            ext[s + 2 * PACKET] = acc[s]
         for w in range(2):
             half = half_wide if w == 0 else half_narrow
             pen = pen_wide if w == 0 else pen_narrow
             if half <= 0:
                 for s in range(PACKET):
-                    best[s] = corr[slot, k, s]
+                    best[s] = acc[s]
             else:
-                for d in range(half + 1):
-                    pens[d] = <float>(pen * d)
+                # shifts d = -half .. half in order: best[s] = max of ext[54 + s + d] - pen |d|
+                pen_d = <float>(pen * half)
                 for s in range(PACKET):
-                    b = corr[slot, k, _mod(s - half, PACKET)] - pens[half]
-                    for d in range(-half + 1, half + 1):
-                        v = corr[slot, k, _mod(s + d, PACKET)] - pens[d if d >= 0 else -d]
-                        if v > b:
-                            b = v
-                    best[s] = b
+                    best[s] = ext[PACKET + s - half] - pen_d
+                for d in range(-half + 1, half + 1):
+                    pen_d = <float>(pen * (d if d >= 0 else -d))
+                    for s in range(PACKET):
+                        v = ext[PACKET + s + d] - pen_d
+                        best[s] = v if v > best[s] else best[s]
             for i in range(PHASES):
                 rep[w, slot, k, i] = best[i // STEPS]
                 rep[w, slot, k, i + PHASES] = best[i // STEPS]

@@ -69,17 +69,23 @@ class FrameJitter:
         self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
-        d = self.by_frame.get(t)
-        if d is None:
-            d = self.by_frame[t] = {}
-            if self._since_want is not None:
-                self._since_want += 1
-            if len(self.by_frame) > self.frames:
-                for old in sorted(self.by_frame)[:len(self.by_frame) - self.frames]:
-                    del self.by_frame[old]
-                    self._known.pop(old, None)
-        d[key] = _wrap(float(m))
-        self._known.pop(t, None)
+        self.post_all(key, [(t, m)])
+
+    def post_all(self, key: int, measured: list) -> None:
+        """`post` each (t, m) of `measured` in order."""
+        by_frame, known = self.by_frame, self._known
+        for t, m in measured:
+            d = by_frame.get(t)
+            if d is None:
+                d = by_frame[t] = {}
+                if self._since_want is not None:
+                    self._since_want += 1
+                if len(by_frame) > self.frames:
+                    for old in sorted(by_frame)[:len(by_frame) - self.frames]:
+                        del by_frame[old]
+                        known.pop(old, None)
+            d[key] = _wrap(float(m))
+            known.pop(t, None)
 
     def wanted(self) -> bool:
         return self._since_want is not None and self._since_want <= self.want_frames
@@ -236,9 +242,9 @@ class PieceAssembler:
         # the winner's pieces, each where it fits best in its window, must cover the packet
         P = len(self.pieces)
         _k.fits(self._rep, self._qq, self._narrow, P, self.added, c, ph, self.jitter_chips, self._at)
-        seen = np.zeros(PACKET_LEN, bool)
-        for p, at in zip(self.pieces, self._at[:P].tolist()):
-            seen[(at + np.arange(p.n)) % PACKET_LEN] = True
+        # packet position s is covered by a piece fitted at `at` with n chips when (s - at) % 54 < n
+        n = np.array([p.n for p in self.pieces])
+        seen = ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
         return int(self.ids[c]) if seen.all() else None
 
     def _post(self, c: int, ph: int) -> None:
@@ -250,9 +256,9 @@ class PieceAssembler:
         if self.frame_jitter is None:
             return
         pieces = self.pieces
-        for k, m in _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
-                               c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at):
-            self.frame_jitter.post(pieces[k].t, self.key, m)
+        measured = _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
+                              c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at)
+        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured])
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:
