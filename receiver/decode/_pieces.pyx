@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-# Share: 29 % of an indoor-static frame's instructions (3.8 of 13.2 M a frame; docs/kernels.md).
+# Share: 34 % of an indoor-static frame's instructions (4.5 of 13.2 M a frame; docs/kernels.md).
 """The likelihood tables of receiver.decode.pieces.PieceAssembler, their one implementation (a
 share of a frame is in docs/kernels.md): a piece's correlations with the candidates' packets
 and their windowed best (`correlate`), the table of every (ID, phase) hypothesis kept up to the

@@ -105,7 +105,8 @@ class FrameJitter:
 
 class _Piece:
     """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t, its slot
-    in the light's tables (the a-th piece added sits in slot (a - 1) % (history + 1))."""
+    in the light's tables (the a-th piece added sits in slot (a - 1) % history, the slot of the
+    piece it drops)."""
 
     __slots__ = ("x", "den", "q", "t", "n", "slot")
 
@@ -142,7 +143,7 @@ class PieceAssembler:
                  ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
         self.ids = np.asarray(ids)
         self._row = {int(v): i for i, v in reversed(list(enumerate(self.ids.tolist())))}  # ID -> first row
-        self.templates = np.asarray(templates, dtype=np.float32)
+        self.templates = np.asarray(templates, dtype=np.float32).reshape(-1, PACKET_LEN)
         # the packets twice: cyclic windows as slices
         self._wrapped = np.ascontiguousarray(np.concatenate((self.templates, self.templates), axis=1))
         # a window of half the packet or more would meet itself round the cycle
@@ -166,11 +167,12 @@ class PieceAssembler:
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
         self._fresh = 0  # the newest pieces whose correlations are not computed yet
-        slots = history + 1  # the piece just dropped keeps its slot until its term is taken back
-        self._den = np.zeros(slots)  # per slot: the piece's weight, packet time, and its term's
-        self._q = np.zeros(slots)  # slice start (-1: none) and window (1: narrow) in ll
-        self._term_m = np.full(slots, -1, np.int64)
-        self._term_n = np.zeros(slots, np.int64)
+        # per slot: the piece's weight and packet time, its term's slice start in ll (-1: none)
+        # and window (1: narrow)
+        self._den = np.zeros(history)
+        self._q = np.zeros(history)
+        self._term_m = np.full(history, -1, np.int64)
+        self._term_n = np.zeros(history, np.int64)
         self._qq = np.zeros(history)  # the latest update's placements (packet time, narrow?)
         self._narrow = np.zeros(history, np.uint8)
         self._at = np.zeros(history, np.int64)
@@ -186,12 +188,12 @@ class PieceAssembler:
         if den <= 0 or self.ids.size == 0:
             return
         self.added += 1
-        if len(self.pieces) >= self.history:
+        if len(self.pieces) >= self.history:  # the oldest piece goes, its term taken back
             old = self.pieces.popleft()
             if self.ll is not None:
                 self.total = _k.take_back(self.ll, self._rep, self._den, self._term_m, self._term_n,
                                           old.slot, self.total)
-        p = _Piece(x, den, float(q) % PACKET_LEN, q if t is None else float(t), (self.added - 1) % (self.history + 1))
+        p = _Piece(x, den, float(q) % PACKET_LEN, q if t is None else float(t), (self.added - 1) % self.history)
         self.pieces.append(p)
         self._den[p.slot], self._q[p.slot] = p.den, p.q
         self._fresh = min(self._fresh + 1, len(self.pieces))
@@ -199,9 +201,8 @@ class PieceAssembler:
     def _correlate(self, p: _Piece) -> None:
         """The piece's correlations and their windowed best into its slot of the tables."""
         if self._corr is None:
-            slots = self.history + 1
-            self._corr = np.empty((slots, self.ids.size, PACKET_LEN), np.float32)
-            self._rep = np.empty((2, slots, self.ids.size, 2 * PACKET_LEN * PHASE_STEPS), np.float32)
+            self._corr = np.empty((self.history, self.ids.size, PACKET_LEN), np.float32)
+            self._rep = np.empty((2, self.history, self.ids.size, 2 * PACKET_LEN * PHASE_STEPS), np.float32)
         _k.correlate(self._wrapped, p.x, p.den, self._corr, self._rep, p.slot, self.jitter_chips,
                      self.shift_penalty, min(1, self.jitter_chips), self.timed_penalty)
 
