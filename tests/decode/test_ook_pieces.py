@@ -170,7 +170,7 @@ def test_piece_correlations_are_the_circular_cross_correlations():
                            min_frames=2, min_corr=0.5, min_gap=0.1, shift_penalty=float(rng.uniform(0, 0.5)),
                            timed_penalty=float(rng.uniform(0, 2)))
         x = rng.uniform(-1, 1, n).astype(np.float32)
-        slot = int(rng.integers(0, 9))
+        slot = int(rng.integers(0, 8))  # (history 8: slots 0-7)
         a._correlate(types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=slot))
         want, wide = _fft_best(x, templates, a.jitter_chips, a.shift_penalty)
         _, narrow = _fft_best(x, templates, min(1, a.jitter_chips), a.timed_penalty)
