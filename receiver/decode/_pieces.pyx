@@ -68,6 +68,8 @@ def correlate(const float[:, ::1] wrapped, const float[::1] x, double den, float
     cdef float best[PACKET]
     cdef float v, pen_d
     cdef double pen
+    if not (0 <= slot < corr.shape[0] and corr.shape[1] == K and rep.shape[2] == K and n > 0):
+        raise IndexError(f"piece slot {slot} or a table's shape does not fit the tables")
     for k in range(K):
         # the chips in order for every position at once (each position's sum is its own)
         xj = x[0]
@@ -120,6 +122,8 @@ cdef inline double _term(double[:, ::1] ll, const float[:, :, :, ::1] rep, Py_ss
 def take_back(double[:, ::1] ll, const float[:, :, :, ::1] rep, const double[::1] den,
               long long[::1] term_m, long long[::1] term_n, Py_ssize_t slot, double total):
     """Take a dropped piece's term (if any) out of the table; returns the new total weight."""
+    if not 0 <= slot < den.shape[0]:
+        raise IndexError(f"piece slot {slot} outside the tables")
     if term_m[slot] >= 0:
         total += _term(ll, rep, slot, term_m[slot], term_n[slot], -den[slot])
         term_m[slot] = -1

@@ -179,6 +179,10 @@ def test_piece_correlations_are_the_circular_cross_correlations():
             rep = a._rep[w, slot]  # each position's best repeated for its 4 phases, twice round
             assert np.allclose(rep[:, :216:4], best, atol=1e-5)
             assert np.array_equal(rep, np.tile(np.repeat(rep[:, :216:4], 4, axis=1), 2))
+    import pytest
+
+    with pytest.raises(IndexError):  # a slot outside the tables is refused, never written
+        a._correlate(types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=8))
 
 
 def test_the_likelihood_table_is_the_sum_of_the_pieces_terms():
