@@ -10,8 +10,8 @@ package) forces it for those kernels only, to measure what one kernel saves
 A kernel that is the one implementation of its computation (no numpy twin) is imported with
 `require(name)` instead: always used, whatever OCCLOC_PURE says, and an ImportError naming the
 build command when it is not built (receiver.vision._track, _envelope, receiver.decode._ook,
-receiver.locate._vehicle_pose; the locate stage imports _outline, _pnp, _kalman and _position
-directly, for the same reason).
+_pieces, receiver.locate._vehicle_pose; the locate stage imports _outline, _pnp, _kalman and
+_position directly, for the same reason).
 
 Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
 `tool.setuptools.ext-modules`): the remaining cost of a frame is interpreter and numpy dispatch
@@ -32,7 +32,7 @@ _LOADED: dict[str, ModuleType | None] = {}
 
 # Kernels that are the one implementation of their computation (no numpy path): OCCLOC_PURE
 # does not switch them off, and `tools/kernel_shares` cannot measure them.
-ONE_IMPLEMENTATION = ("_track", "_envelope", "_ook", "_vehicle_pose", "_outline", "_pnp", "_kalman", "_position")
+ONE_IMPLEMENTATION = ("_track", "_envelope", "_ook", "_pieces", "_vehicle_pose", "_outline", "_pnp", "_kalman", "_position")
 
 
 def pure_forced() -> bool:

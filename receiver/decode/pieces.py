@@ -29,15 +29,19 @@ candidate's packet within its window; the winner must correlate strongly on aver
 from __future__ import annotations
 
 import math
-import statistics
 from collections import deque
 
 import numpy as np
-from numpy.lib.stride_tricks import as_strided, sliding_window_view
+
+from receiver.core.native import require
+
+# the compiled tables (receiver/decode/_pieces.pyx): the one implementation of the likelihood
+_k = require("receiver.decode._pieces")
 
 PACKET_LEN = 54
 # Sub-chip steps of the packet phase phi searched.
 PHASE_STEPS = 4
+assert (_k.PACKET_LEN, _k.PHASE_STEPS) == (PACKET_LEN, PHASE_STEPS)
 
 
 def _wrap(x: float) -> float:
@@ -65,17 +69,23 @@ class FrameJitter:
         self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
-        d = self.by_frame.get(t)
-        if d is None:
-            d = self.by_frame[t] = {}
-            if self._since_want is not None:
-                self._since_want += 1
-            if len(self.by_frame) > self.frames:
-                for old in sorted(self.by_frame)[:len(self.by_frame) - self.frames]:
-                    del self.by_frame[old]
-                    self._known.pop(old, None)
-        d[key] = _wrap(float(m))
-        self._known.pop(t, None)
+        self.post_all(key, [(t, m)])
+
+    def post_all(self, key: int, measured: list) -> None:
+        """`post` each (t, m) of `measured` in order."""
+        by_frame, known = self.by_frame, self._known
+        for t, m in measured:
+            d = by_frame.get(t)
+            if d is None:
+                d = by_frame[t] = {}
+                if self._since_want is not None:
+                    self._since_want += 1
+                if len(by_frame) > self.frames:
+                    for old in sorted(by_frame)[:len(by_frame) - self.frames]:
+                        del by_frame[old]
+                        known.pop(old, None)
+            d[key] = _wrap(float(m))
+            known.pop(t, None)
 
     def wanted(self) -> bool:
         return self._since_want is not None and self._since_want <= self.want_frames
@@ -85,59 +95,23 @@ class FrameJitter:
         self._since_want = 0
 
     def estimate(self, t: float, key: int) -> float | None:
-        d = self.by_frame.get(t)
-        if not d:
-            return None
-        known = self._known.setdefault(t, {})
-        if key not in known:
-            known[key] = self._consensus(d, key)
-        return known[key]
+        return self.estimates([t], key)[0]
 
-    def _consensus(self, d: dict, key: int) -> float | None:
-        vals = [m for k, m in d.items() if k != key]
-        if not vals:
-            return None
-        if len(vals) == 1:
-            return vals[0]
-        if len(vals) == 2:  # (the groups below for two: both or a tie; the median is the mean)
-            a, b = vals
-            ok = abs(_wrap(b - a)) <= self.agree or abs(_wrap(a - b)) <= self.agree
-            return (a + b) / 2 if ok else None
-        groups = [[v for v in vals if abs(_wrap(v - u)) <= self.agree] for u in vals]
-        sizes = sorted((len(g) for g in groups), reverse=True)
-        best = max(groups, key=len)
-        if sizes[0] == sizes[1] and any(len(g) == sizes[0] and set(g) != set(best) for g in groups):
-            return None
-        return float(statistics.median(best))
+    def estimates(self, ts: list, key: int) -> list:
+        """`estimate` of each frame stamp in ts (one call for a light's pieces; the consensus
+        is the compiled kernel's, receiver/decode/_pieces.pyx)."""
+        return _k.estimates(self.by_frame, self._known, ts, key, self.agree)
 
 
 class _Piece:
     """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t, its slot
-    in the light's correlation tables; its (K, 54) correlations `corr` (views of those tables
-    once computed), its latest placement, and the slice its term in the likelihood table was
-    made with."""
+    in the light's tables (the a-th piece added sits in slot (a - 1) % history, the slot of the
+    piece it drops)."""
 
-    __slots__ = ("x", "den", "q", "t", "n", "slot", "corr", "used", "term")
+    __slots__ = ("x", "den", "q", "t", "n", "slot")
 
-    def __init__(self, x: np.ndarray, q: float, t: float, slot: int):
-        self.x, self.den, self.q, self.t, self.n, self.slot = x, float(np.abs(x).sum()), q, t, x.size, slot
-        self.corr = None
-        self.used: tuple | None = None  # (placed q, narrow?) of the latest decision
-        self.term: tuple | None = None  # (slice start, narrow?) of the piece's term in ll
-
-
-def _windowed(corr: np.ndarray, half: int, penalty: float) -> np.ndarray:
-    """The best of `corr` within +-half positions of each (cyclically), `penalty` off per
-    position away: the maximum over a sliding window (a strided view) of corr with `half`
-    columns of the other end on each side, each shift less its penalty."""
-    if half <= 0:
-        return corr.copy()
-    k, n = corr.shape
-    ext = np.concatenate((corr[:, n - half:], corr, corr[:, :half]), axis=1)
-    shifts = as_strided(ext, (k, 2 * half + 1, n), (ext.strides[0], ext.strides[1], ext.strides[1]),
-                        writeable=False)  # [:, i] = ext[:, i:i + n]
-    pens = (penalty * np.abs(np.arange(-half, half + 1))).astype(corr.dtype)
-    return (shifts - pens[None, :, None]).max(axis=1)
+    def __init__(self, x: np.ndarray, den: float, q: float, t: float, slot: int):
+        self.x, self.den, self.q, self.t, self.n, self.slot = x, den, q, t, x.size, slot
 
 
 class PieceAssembler:
@@ -150,7 +124,16 @@ class PieceAssembler:
     timestamp alone). ref_corr / ref_gap: a light whose best hypothesis has this mean
     correlation and gap measures the jitter for the others (an accepted one always does);
     ref_match: its piece must fit there this well, and ref_unique better than elsewhere in
-    its window."""
+    its window.
+
+    The tables and their sums are the compiled kernel receiver/decode/_pieces.pyx (the one
+    implementation): per piece slot its correlations with the candidates `_corr` (slots, K,
+    54) and their best within the wide [0] and the narrow [1] window, each position repeated
+    for its PHASE_STEPS phases twice round, `_rep` (2, slots, K, 2 * 54 * PHASE_STEPS): a
+    piece placed at packet time qq adds weight times the slice from floor(PHASE_STEPS (qq +
+    1/2)) % (54 PHASE_STEPS) of it to the likelihood table `ll` (K, 54 PHASE_STEPS), its
+    score at every phase phi (position floor(qq + phi + 1/2) % 54), and a piece whose
+    placement moves has its old slice taken back."""
 
     _next_key = 0
 
@@ -159,11 +142,10 @@ class PieceAssembler:
                  jitter: FrameJitter | None = None, timed_penalty: float = 1.0, ref_corr: float = 0.75,
                  ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
         self.ids = np.asarray(ids)
-        self.templates = np.asarray(templates, dtype=np.float32)
-        self._wrapped = None if self.templates.size == 0 else np.concatenate(
-            (self.templates, self.templates), axis=1)  # the packets twice: cyclic windows as slices
-        # (K, 55, 54): [:, k] is the packets' window from chip k on
-        self._windows = None if self._wrapped is None else sliding_window_view(self._wrapped, PACKET_LEN, axis=1)
+        self._row = {int(v): i for i, v in reversed(list(enumerate(self.ids.tolist())))}  # ID -> first row
+        self.templates = np.asarray(templates, dtype=np.float32).reshape(-1, PACKET_LEN)
+        # the packets twice: cyclic windows as slices
+        self._wrapped = np.ascontiguousarray(np.concatenate((self.templates, self.templates), axis=1))
         # a window of half the packet or more would meet itself round the cycle
         self.jitter_chips = min(int(jitter_chips), PACKET_LEN // 2 - 1)
         self.history = history
@@ -177,7 +159,6 @@ class PieceAssembler:
         self.ref_corr, self.ref_gap, self.ref_match, self.ref_unique = ref_corr, ref_gap, ref_match, ref_unique
         PieceAssembler._next_key += 1
         self.key = PieceAssembler._next_key
-        self.phis = np.arange(PACKET_LEN * PHASE_STEPS) / PHASE_STEPS
         self.ll: np.ndarray | None = None  # sum over pieces of weight * best[:, s(phi)] (K, 54 * steps)
         self.total = 0.0
         self.score = 0.0  # the latest decision's mean correlation, gap and best ID (diagnostics)
@@ -185,126 +166,59 @@ class PieceAssembler:
         self.best_id: int | None = None
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
-        # per piece slot (history + 1 of them, `_Piece.slot`): its correlations (slots, K, 54);
-        # their best within the wide [0] and the narrow [1] window repeated for the phases
-        # (`_rep`, (2, slots, K, 2 * 54 * steps)), and `_best` (2, slots, K, 54) a view of it
+        self._fresh = 0  # the newest pieces whose correlations are not computed yet
+        # per slot: the piece's weight and packet time, its term's slice start in ll (-1: none)
+        # and window (1: narrow)
+        self._den = np.zeros(history)
+        self._q = np.zeros(history)
+        self._term_m = np.full(history, -1, np.int64)
+        self._term_n = np.zeros(history, np.int64)
+        self._qq = np.zeros(history)  # the latest update's placements (packet time, narrow?)
+        self._narrow = np.zeros(history, np.uint8)
+        self._at = np.zeros(history, np.int64)
         self._corr: np.ndarray | None = None
         self._rep: np.ndarray | None = None
-        self._best: np.ndarray | None = None
-        self._evicted: list = []  # terms of dropped pieces not yet taken back
-        self._placed: tuple = ()  # (placed q, narrow?, slot) of the pieces at the latest update
-
-    def _slots(self, q, ph=None) -> np.ndarray:
-        """Packet position of a piece's chip 0 (q: packet time, or an array of them) under every
-        phase hypothesis, or under phase index `ph` alone."""
-        phi = self.phis if ph is None else self.phis[ph]
-        return np.floor(q + phi + 0.5).astype(np.int64) % PACKET_LEN
 
     def add(self, soft: np.ndarray, cw: np.ndarray, q: float, t: float | None = None) -> None:
         """Keep a piece (soft chips, weights, packet time q, frame stamp t); its correlations
         with the candidates are computed once `min_frames` pieces are there (a light that shows
         a short piece for a frame or two, entering the image, costs nothing)."""
         x = (np.clip(soft, -1.0, 1.0) * cw).astype(np.float32)
-        if float(np.abs(x).sum()) <= 0 or self.ids.size == 0:
+        den = float(np.abs(x).sum())
+        if den <= 0 or self.ids.size == 0:
             return
         self.added += 1
-        if len(self.pieces) >= self.history:
-            if self._evicted:  # its table slot comes round again below: take its term back now
-                self._terms(self._evicted)
-                self._evicted = []
+        if len(self.pieces) >= self.history:  # the oldest piece goes, its term taken back
             old = self.pieces.popleft()
-            if old.term is not None:
-                self._evicted.append((old, *old.term, -1.0))
-        # history + 1 slots: the piece just dropped keeps its slot until its term is taken back
-        self.pieces.append(_Piece(x, float(q) % PACKET_LEN, q if t is None else float(t),
-                                  (self.added - 1) % (self.history + 1)))
+            if self.ll is not None:
+                self.total = _k.take_back(self.ll, self._rep, self._den, self._term_m, self._term_n,
+                                          old.slot, self.total)
+        p = _Piece(x, den, float(q) % PACKET_LEN, q if t is None else float(t), (self.added - 1) % self.history)
+        self.pieces.append(p)
+        self._den[p.slot], self._q[p.slot] = p.den, p.q
+        self._fresh = min(self._fresh + 1, len(self.pieces))
 
     def _correlate(self, p: _Piece) -> None:
+        """The piece's correlations and their windowed best into its slot of the tables."""
         if self._corr is None:
-            slots = self.history + 1
-            self._corr = np.empty((slots, self.ids.size, PACKET_LEN), np.float32)
-            self._rep = np.empty((2, slots, self.ids.size, 2 * PACKET_LEN * PHASE_STEPS), np.float32)
-            self._best = self._rep[..., 0:PACKET_LEN * PHASE_STEPS:PHASE_STEPS]
-        # (K, 54): the piece at each packet position, sum_k x_k T[:, (s + k) % 54], all the products
-        # at once (K, n, 54) summed over k (a reduction over an outer axis adds its slices in order)
-        corr = np.add.reduce(self._windows[:, :p.n] * p.x[None, :, None], axis=1)
-        corr /= p.den
-        self._corr[p.slot] = corr
-        best = np.stack((_windowed(corr, self.jitter_chips, self.shift_penalty),
-                         _windowed(corr, min(1, self.jitter_chips), self.timed_penalty)))
-        # each packet position's best repeated for its PHASE_STEPS phases, twice round: any
-        # placement's (K, 54 * PHASE_STEPS) term is a slice (`_start`)
-        rep = self._rep[:, p.slot]
-        half = PACKET_LEN * PHASE_STEPS
-        rep[..., :half] = np.repeat(best, PHASE_STEPS, axis=2)
-        rep[..., half:] = rep[..., :half]
-        p.corr = self._corr[p.slot]
-
-    def _start(self, qq: float) -> int:
-        """The phase table's slice start of a piece placed at qq: weight * best[:, s(phi)] for
-        every phase phi, where s(phi) = floor(qq + phi + 1/2) % 54 (`_slots`), is the slice
-        from floor(PHASE_STEPS (qq + 1/2)) on of its repeated table (`_rep`; placements with
-        one start give one term)."""
-        return int(math.floor(PHASE_STEPS * (qq + 0.5))) % self.phis.size
-
-    def _terms(self, terms: list) -> None:
-        """Add (sign +1) or take back (-1) pieces' terms, in order: each (piece, slice start m
-        (`_start`), narrow?, sign) adds sign * weight times the slice from m of its narrow or
-        wide repeated table. (A reduction over the outer axis adds its slices in order: the
-        same sums as one term at a time.)"""
-        if not terms:
-            return
-        n = self.phis.size
-        parts, coef = [], []
-        for p, m, narrow, sign in terms:
-            parts.append(self._rep[int(narrow), p.slot, :, m:m + n])
-            coef.append(sign * p.den)
-            self.total += sign * p.den
-        scaled = np.concatenate(parts).reshape(len(terms), self.ids.size, n)  # (T, K, 54 * steps)
-        scaled *= np.array(coef, np.float32)[:, None, None]
-        self.ll = np.add.reduce(np.concatenate((self.ll[None], scaled)), axis=0)
-
-    def _place(self, p: _Piece) -> tuple[float, bool]:
-        """(packet time, narrow window?) of a piece: its frame's jitter as the others measured it."""
-        j = None if self.frame_jitter is None else self.frame_jitter.estimate(p.t, self.key)
-        return (p.q, False) if j is None else (p.q + j, True)
+            self._corr = np.empty((self.history, self.ids.size, PACKET_LEN), np.float32)
+            self._rep = np.empty((2, self.history, self.ids.size, 2 * PACKET_LEN * PHASE_STEPS), np.float32)
+        _k.correlate(self._wrapped, p.x, p.den, self._corr, self._rep, p.slot, self.jitter_chips,
+                     self.shift_penalty, min(1, self.jitter_chips), self.timed_penalty)
 
     def _update(self) -> None:
-        """Bring the likelihood table up to the pieces' current placements."""
+        """Bring the likelihood table up to the pieces' current placements: each at its frame's
+        jitter as the other lights measured it (narrow window), else at its timestamp's place."""
         if self.ll is None:  # made once needed: most lights never show enough short pieces
-            self.ll = np.zeros((self.ids.size, self.phis.size))
-        timed = 0
-        changes, self._evicted = self._evicted, []
-        qqs, narrows = [], []
-        for p in self.pieces:
-            if p.corr is None:
-                self._correlate(p)
-            p.used = qq, narrow = self._place(p)
-            qqs.append(qq)
-            narrows.append(narrow)
-            timed += narrow
-            term = (self._start(qq), narrow)
-            if term != p.term:
-                if p.term is not None:
-                    changes.append((p, *p.term, -1.0))
-                changes.append((p, *term, 1.0))
-                p.term = term
-        self._terms(changes)
-        self.timed = timed
-        self._placed = (np.array(qqs), np.array(narrows, np.intp), np.array([p.slot for p in self.pieces]))
-
-    def _fits(self, c: int, ph: int) -> tuple[np.ndarray, np.ndarray]:
-        """(placed q, packet position where the piece fits best in its window) per piece, (P,)
-        each, under hypothesis (candidate c, phase index ph); the window's correlations are the
-        penalised ones (the place the score used)."""
-        J = self.jitter_chips
-        qq, narrow, slots = self._placed
-        offs = np.arange(-J, J + 1)
-        window = (self._slots(qq, ph)[:, None] + offs[None, :]) % PACKET_LEN  # (P, 2 J + 1)
-        rows = np.arange(qq.size)[:, None]
-        vals = self._best[narrow, slots, c][rows, window]
-        vals[(narrow[:, None] != 0) & (np.abs(offs) > min(1, J))[None, :]] = -np.inf  # narrow: +-1 chip
-        return qq, window[rows[:, 0], np.argmax(vals, axis=1)]
+            self.ll = np.zeros((self.ids.size, PACKET_LEN * PHASE_STEPS))
+        for i in range(len(self.pieces) - self._fresh, len(self.pieces)):
+            self._correlate(self.pieces[i])
+        self._fresh = 0
+        fj = self.frame_jitter
+        ts = [p.t for p in self.pieces]
+        js = [None] * len(ts) if fj is None else fj.estimates(ts, self.key)
+        self.total, self.timed = _k.update(self.ll, self._rep, self._den, self._q, self._term_m, self._term_n,
+                                           js, self.added, self.total, self._qq, self._narrow)
 
     def decide(self, fixed: int | None = None) -> int | None:
         """The ID of the best (ID, phase) hypothesis when it passes the checks, else None.
@@ -315,31 +229,23 @@ class PieceAssembler:
         self._update()
         if self.total <= 0:
             return None
-        mean = self.ll / self.total
-        row = None
+        row = -1
         if fixed is not None:
-            hit = np.flatnonzero(self.ids == fixed)
-            if hit.size == 0:
+            row = self._row.get(fixed, -1)
+            if row < 0:
                 return None
-            row = int(hit[0])
-            c, ph = row, int(np.argmax(mean[row]))
-        else:
-            c, ph = np.unravel_index(int(np.argmax(mean)), mean.shape)
-        top = float(mean[c, ph])
-        second = -1.0
-        if self.ids.size > 1:
-            row_best = mean.max(axis=1)
-            row_best[c] = -np.inf
-            second = float(row_best.max())
+        c, ph, top, second = _k.choose(self.ll, self.total, row)
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
         if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
-            self._post(int(c), int(ph))
+            self._post(c, ph)
         if fixed is not None or top < self.min_corr or top - second < self.min_gap:
             return None
         # the winner's pieces, each where it fits best in its window, must cover the packet
-        seen = np.zeros(PACKET_LEN, bool)
-        for p, at in zip(self.pieces, self._fits(int(c), int(ph))[1].tolist()):
-            seen[(at + np.arange(p.n)) % PACKET_LEN] = True
+        P = len(self.pieces)
+        _k.fits(self._rep, self._qq, self._narrow, P, self.added, c, ph, self.jitter_chips, self._at)
+        # packet position s is covered by a piece fitted at `at` with n chips when (s - at) % 54 < n
+        n = np.array([p.n for p in self.pieces])
+        seen = ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
         return int(self.ids[c]) if seen.all() else None
 
     def _post(self, c: int, ph: int) -> None:
@@ -347,31 +253,13 @@ class PieceAssembler:
         other lights (the latest hypothesis restates the earlier frames too: pieces that came
         before any light was sure get placed once one is): where the piece fits the packet
         near its timestamp's place, against this light's continuous phase (the mean of its
-        pieces' fitted positions about their placements)."""
+        pieces' fitted positions about their placements; `_pieces.measure`)."""
         if self.frame_jitter is None:
             return
-        base = self.phis[ph]
-        qq, at = self._fits(c, ph)
-        phi = base + float(np.mean(_wrap(at - qq - base)))
-        J = self.jitter_chips
-        pieces = list(self.pieces)
-        # every piece's window about its timestamp's place under phase ph: (pieces, 2 J + 1)
-        qs = np.array([p.q for p in pieces])
-        starts = self._slots(qs, ph)
-        window = (starts[:, None] + np.arange(-J, J + 1)[None, :]) % PACKET_LEN
-        rows = np.arange(len(pieces))
-        vals = self._corr[self._placed[2], c][rows[:, None], window]
-        i = np.argmax(vals, axis=1)
-        top = vals[rows, i]
-        if J > 0:
-            vals[rows, i] = -np.inf
-            other = vals.max(axis=1)
-        else:
-            other = np.full(len(pieces), -1.0)
-        at = window[rows, i].tolist()
-        for k in np.flatnonzero((top >= self.ref_match) & (top - other >= self.ref_unique)).tolist():
-            p = pieces[k]
-            self.frame_jitter.post(p.t, self.key, _wrap(float(at[k]) - p.q - phi))
+        pieces = self.pieces
+        measured = _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
+                              c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at)
+        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured])
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:

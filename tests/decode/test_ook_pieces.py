@@ -147,28 +147,123 @@ def test_the_chip_verdict_names_the_frames_an_id_needs():
     assert ok and "one frame holds a whole packet" in text
 
 
+def _fft_best(x, templates, half, penalty):
+    """numpy's FFT oracle: a piece's circular cross-correlation with each packet over its
+    weight, and its best within +-half positions less penalty per position away."""
+    xp = np.zeros(54)
+    xp[:x.size] = x
+    corr = np.real(np.fft.ifft(np.conj(np.fft.fft(xp))[None, :] * np.fft.fft(templates, axis=1), axis=1))
+    corr /= np.abs(x).sum()
+    return corr, np.max([np.roll(corr, -d, axis=1) - penalty * abs(d) for d in range(-half, half + 1)], axis=0)
+
+
 def test_piece_correlations_are_the_circular_cross_correlations():
     """A piece's correlation with every candidate at every packet position is the circular
     cross-correlation of the piece with each packet (numpy's FFT as the oracle), and its
-    windowed best is the best of the shifted correlations less the penalty per chip away."""
-    from receiver.decode.pieces import _windowed
-
+    windowed best (wide: +-jitter_chips, shift_penalty; narrow: +-1, timed_penalty) is the
+    best of the shifted correlations less the penalty per chip away."""
     rng = np.random.default_rng(7)
     for _ in range(60):
         k, n = int(rng.integers(1, 40)), int(rng.integers(2, 17))
         templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
         a = PieceAssembler(np.arange(k), templates, jitter_chips=int(rng.integers(0, 4)), history=8,
-                           min_frames=2, min_corr=0.5, min_gap=0.1)
+                           min_frames=2, min_corr=0.5, min_gap=0.1, shift_penalty=float(rng.uniform(0, 0.5)),
+                           timed_penalty=float(rng.uniform(0, 2)))
         x = rng.uniform(-1, 1, n).astype(np.float32)
-        p = types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=0)
-        a._correlate(p)
-        xp = np.zeros(54)
-        xp[:n] = x
-        want = np.real(np.fft.ifft(np.conj(np.fft.fft(xp))[None, :] * np.fft.fft(templates, axis=1), axis=1)) / p.den
-        assert np.allclose(p.corr, want, atol=1e-5)
-        for half, pen in ((a.jitter_chips, a.shift_penalty), (2, 0.3)):
-            best = np.max([np.roll(want, -d, axis=1) - pen * abs(d) for d in range(-half, half + 1)], axis=0)
-            assert np.allclose(_windowed(p.corr, half, pen), best, atol=1e-5)
+        slot = int(rng.integers(0, 8))  # (history 8: slots 0-7)
+        a._correlate(types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=slot))
+        want, wide = _fft_best(x, templates, a.jitter_chips, a.shift_penalty)
+        _, narrow = _fft_best(x, templates, min(1, a.jitter_chips), a.timed_penalty)
+        assert np.allclose(a._corr[slot], want, atol=1e-5)
+        for w, best in ((0, wide), (1, narrow)):
+            rep = a._rep[w, slot]  # each position's best repeated for its 4 phases, twice round
+            assert np.allclose(rep[:, :216:4], best, atol=1e-5)
+            assert np.array_equal(rep, np.tile(np.repeat(rep[:, :216:4], 4, axis=1), 2))
+    import pytest
+
+    with pytest.raises(IndexError):  # a slot outside the tables is refused, never written
+        a._correlate(types.SimpleNamespace(x=x, n=n, den=float(np.abs(x).sum()), slot=8))
+
+
+def test_the_likelihood_table_is_the_sum_of_the_pieces_terms():
+    """After pieces come and go (history 5) and their frames' jitter is measured, moved and
+    restated, the table holds exactly the live pieces' terms: for every candidate and phase phi,
+    the sum over pieces of weight times its best correlation (FFT oracle) at position
+    floor(qq + phi + 1/2) % 54, qq its packet time plus the jitter when measured (narrow window)
+    or its timestamp's place (wide); and the decision is the table's argmax."""
+    from receiver.decode.pieces import FrameJitter
+
+    rng = np.random.default_rng(11)
+    for trial in range(12):
+        k = int(rng.integers(2, 9))
+        templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
+        fj = FrameJitter(frames=8)
+        a = PieceAssembler(np.arange(k) + 100, templates, jitter_chips=int(rng.integers(1, 4)), history=5,
+                           min_frames=2, min_corr=0.99, min_gap=0.5, jitter=fj, timed_penalty=0.7)
+        kept = []
+        for f in range(14):
+            n = int(rng.integers(3, 15))
+            soft, cw, q = rng.uniform(-1.5, 1.5, n), rng.uniform(0.1, 1, n), float(rng.uniform(-100, 100))
+            a.add(soft, cw, q, float(f))
+            kept = (kept + [(f, q % 54, (np.clip(soft, -1, 1) * cw).astype(np.float32))])[-5:]
+            for g in rng.choice(f + 1, 3):  # other lights measure (and restate) frames' jitter
+                fj.post(float(g), -1, float(rng.uniform(-1.5, 1.5)))
+            if a.decide() is None and len(kept) < 2:
+                continue
+            phis = np.arange(216) / 4
+            ll = np.zeros((k, 216))
+            for g, qf, x in kept:
+                j = fj.estimate(float(g), a.key)
+                qq = qf if j is None else qf + j
+                best = _fft_best(x, templates, a.jitter_chips if j is None else 1, 0.2 if j is None else 0.7)[1]
+                ll += np.abs(x).sum() * best[:, np.floor(qq + phis + 0.5).astype(int) % 54]
+            total = sum(float(np.abs(x).sum()) for _, _, x in kept)
+            assert np.isclose(a.total, total)
+            assert np.allclose(a.ll, ll, atol=1e-4)
+            c = int(np.argmax(a.ll.max(axis=1)))  # (near ties: the table's own argmax)
+            assert a.best_id == 100 + c and a.score == a.ll.max() / a.total
+
+
+def test_a_sure_light_posts_its_frames_jitter_about_its_mean_phase():
+    """A light whose pieces are its packet's chips, each frame started j_f chips off its
+    timestamp (integers within the window), measures j_f minus their mean (its phase absorbs
+    the mean) for each frame it is sure of."""
+    from receiver.decode.pieces import FrameJitter
+
+    rng = np.random.default_rng(3)
+    for trial in range(10):
+        templates = rng.choice([-1.0, 1.0], size=(6, 54)).astype(np.float32)
+        fj = FrameJitter()
+        a = PieceAssembler(np.arange(6), templates, jitter_chips=3, history=12, min_frames=4, min_corr=0.5,
+                           min_gap=0.1, jitter=fj)
+        tid, phi = int(rng.integers(6)), int(rng.integers(54))
+        js = rng.integers(-2, 3, 12)
+        for f in range(12):
+            q = float(rng.integers(0, 5000))
+            s = (int(q) + phi + int(js[f])) % 54
+            a.add(templates[tid][(s + np.arange(16)) % 54], np.ones(16), q, float(f))
+        a.decide(fixed=tid)
+        posted = {t: d[a.key] for t, d in fj.by_frame.items()}
+        assert len(posted) >= 6
+        for t, m in posted.items():
+            assert abs(m - (js[int(t)] - js.mean())) < 1e-9
+
+
+def test_the_consensus_is_the_median_of_the_largest_agreeing_group():
+    """Three or more lights: the median of the largest group within agree_chips of one of
+    them (odd and even counts); two largest groups of the same measurements are no tie, two of
+    different ones are."""
+    from receiver.decode.pieces import FrameJitter
+
+    cases = (([0.0, 0.5, 0.3], 0.3), ([0.0, 0.7, 1.4], 0.7), ([0.0, 0.2, 0.4, 0.6], 0.3),
+             ([0.0, 0.7, 0.2, 5.0], 0.2), ([0.0, 0.7, 5.0, 5.5], None), ([26.9, -26.9, -26.5, 10.0], -26.5),
+             ([1.0, 1.0, 9.0], 1.0))
+    for vals, want in cases:
+        fj = FrameJitter()
+        for key, v in enumerate(vals):
+            fj.post(0.0, key, v)
+        got = fj.estimate(0.0, 99)
+        assert (got is None) if want is None else abs(got - want) < 1e-12, (vals, got)
 
 
 def test_frame_jitter_is_wanted_only_while_a_light_without_id_shows_pieces():
