@@ -299,7 +299,7 @@ def soft_chips(x: np.ndarray, w: np.ndarray | None, period: float, phase: float,
     return soft, cw
 
 
-def find_sync(soft: np.ndarray, *, sync_margin: float = 0.3) -> tuple[int | None, float]:
+def find_sync(soft: np.ndarray, *, sync_margin: float = OOK_TUNING.sync_margin) -> tuple[int | None, float]:
     """Index of the first chip of `111000` in the frame's soft chips, or None.
 
     Every one of the 6 chips must be on the right side by at least `sync_margin`. When the
@@ -803,8 +803,7 @@ class OokDecoder:
         rotated to packet coordinates as soon as the sync shows in it. So two frames that
         each show only part of the sync can still be combined.
         """
-        s, _ = (_k.find_sync(soft, self.sync_margin) if _is_f64(soft)
-                else find_sync(soft, sync_margin=self.sync_margin))
+        s, _ = find_sync(soft, sync_margin=self.sync_margin)
         if not _k.any_nonzero(self.acc_w):  # (weights are never negative)
             if s is None:
                 self._add(soft, cw, 0)
