@@ -23,7 +23,8 @@ denies wrong IDs the window's freedom).
 The light's ID and phase are chosen by maximum likelihood over the map's IDs at this chip rate
 (`candidates`) and phi: every piece contributes its best normalised correlation with the
 candidate's packet within its window; the winner must correlate strongly on average
-(`min_corr`), beat every other ID by `min_gap`, and its pieces must cover the whole packet.
+(`min_corr`), beat every other ID by `min_gap`, and its pieces must show the packet's bits
+(either chip of a Manchester pair shows its bit; all but `MAX_UNSEEN_BITS`: `bits_seen`).
 """
 
 from __future__ import annotations
@@ -33,12 +34,20 @@ from collections import deque
 
 import numpy as np
 
+from firmware_tx.framing import SYNC
 from receiver.core.native import require
 
 # the compiled tables (receiver/decode/_pieces.pyx): the one implementation of the likelihood
 _k = require("receiver.decode._pieces")
 
 PACKET_LEN = 54
+SYNC_LEN = len(SYNC)  # the packet's sync chips; then 24 Manchester bits, two chips each (PROTOCOL.md)
+# Any two packets' 24 bits (16 ID + CRC-8) differ in at least this many (a linear code: the
+# least weight of a nonzero ID's bits; tests/decode/test_ook_pieces.py enumerates them).
+CRC_MIN_DISTANCE_BITS = 4
+# Bits of the winner's packet its pieces may leave unseen: with one, every other packet, of the
+# map or not, still differs from the winner in at least 3 seen bits (6 chips).
+MAX_UNSEEN_BITS = 1
 # Sub-chip steps of the packet phase phi searched.
 PHASE_STEPS = 4
 assert (_k.PACKET_LEN, _k.PHASE_STEPS) == (PACKET_LEN, PHASE_STEPS)
@@ -240,13 +249,13 @@ class PieceAssembler:
             self._post(c, ph)
         if fixed is not None or top < self.min_corr or top - second < self.min_gap:
             return None
-        # the winner's pieces, each where it fits best in its window, must cover the packet
+        # the winner's pieces, each where it fits best in its window, must show every bit
         P = len(self.pieces)
         _k.fits(self._rep, self._qq, self._narrow, P, self.added, c, ph, self.jitter_chips, self._at)
         # packet position s is covered by a piece fitted at `at` with n chips when (s - at) % 54 < n
         n = np.array([p.n for p in self.pieces])
         seen = ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
-        return int(self.ids[c]) if seen.all() else None
+        return int(self.ids[c]) if bits_seen(seen) else None
 
     def _post(self, c: int, ph: int) -> None:
         """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the
@@ -260,6 +269,14 @@ class PieceAssembler:
         measured = _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
                               c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at)
         self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured])
+
+
+def bits_seen(seen: np.ndarray) -> bool:
+    """Whether the packet positions `seen` (54,) show all of the packet's bits but at most
+    `MAX_UNSEEN_BITS`: a Manchester bit's two chips are complements, so either one shows it;
+    the sync is the same in every packet and tells no ID from another."""
+    data = np.asarray(seen, bool)[SYNC_LEN:]
+    return int((~(data[0::2] | data[1::2])).sum()) <= MAX_UNSEEN_BITS
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:
