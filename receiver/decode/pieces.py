@@ -286,8 +286,9 @@ def jitter_chips(jitter_us: float, rate_hz: float) -> int:
 
 def frames_needed(chips_a_frame: float, min_frames: int) -> int:
     """Fewest frames of one light from which its packet can be pieced together: its pieces must
-    cover the 54 chips, and the ML choice waits for `min_frames` of them."""
-    return max(int(math.ceil(PACKET_LEN / max(chips_a_frame, 1e-9))), int(min_frames))
+    show the packet's bits, which take the 48 chips after the sync (`bits_seen`), and the ML
+    choice waits for `min_frames` of them."""
+    return max(int(math.ceil((PACKET_LEN - SYNC_LEN) / max(chips_a_frame, 1e-9))), int(min_frames))
 
 
 def chips_verdict(chips_a_frame: float, rate_hz: float, *, max_chips: float, min_frames: int,

@@ -138,7 +138,7 @@ def test_the_chip_verdict_names_the_frames_an_id_needs():
 
     ok, text = chips_verdict(6.0, 5000.0, max_chips=16, min_frames=6, mapped=True)
     assert ok and "6 chips a frame" in text and "no single frame holds a packet" in text
-    assert "at least 9 frames" in text and "> 13 kHz" in text
+    assert "at least 8 frames" in text and "> 13 kHz" in text  # 48 data chips, 6 a frame
     ok, text = chips_verdict(11.0, 10000.0, max_chips=16, min_frames=6, mapped=False)
     assert not ok and "no ID can be read" in text
     ok, text = chips_verdict(30.0, 20000.0, max_chips=16, min_frames=6, mapped=True)
