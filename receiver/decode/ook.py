@@ -367,6 +367,14 @@ def _templates(ids: tuple) -> np.ndarray:
     return t
 
 
+def candidate_tables(candidates) -> pieces.Candidates:
+    """`pieces.Candidates` of candidate IDs (an array of them, or such tables already made)."""
+    if isinstance(candidates, pieces.Candidates):
+        return candidates
+    ids = np.asarray(candidates, dtype=np.int64)
+    return pieces.Candidates(ids, _templates(tuple(ids.tolist())) if ids.size else np.zeros((0, PACKET_LEN)))
+
+
 def best_cyclic_match(soft: np.ndarray, template: np.ndarray) -> float:
     """Best normalised correlation sum(s * t) / sum(|s|) of a frame's soft chips with a
     fully known +-1 periodic packet over all cyclic shifts (1 = the frame fits somewhere)."""
@@ -490,7 +498,7 @@ class OokDecoder:
     def __init__(self, rate_hz: float = protocol.OOK_RATE_HZ, row_readout_us: float = 15.0, exposure_us: float = 0.0, *,
                  period_learner: PeriodLearner | None = None, settings: OokSettings | None = None,
                  exposure_learner: exposure.ExposureLearner | None = None,
-                 candidates: np.ndarray | None = None, frame_jitter: pieces.FrameJitter | None = None,
+                 candidates: np.ndarray | pieces.Candidates | None = None, frame_jitter: pieces.FrameJitter | None = None,
                  tuning: OokTuning = OOK_TUNING, **overrides):
         s = self.settings = resolve_settings(settings, OokSettings, overrides)
         k = self.tuning = tuning
@@ -572,9 +580,8 @@ class OokDecoder:
         self.pieces = None
         self.pieces_took = 0  # short pieces the ID was pieced together from (0: not by pieces)
         if candidates is not None and len(candidates) and s.pieces_max_chips > 0:
-            ids = np.asarray(candidates, dtype=np.int64)
             self.pieces = pieces.PieceAssembler(
-                ids, _templates(tuple(ids.tolist())), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
+                candidate_tables(candidates), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
                 history=k.pieces_frames, min_frames=k.pieces_min_frames, min_corr=k.pieces_min_corr,
                 min_gap=k.pieces_min_gap, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
                 timed_penalty=k.pieces_timed_penalty)

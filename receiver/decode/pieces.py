@@ -112,6 +112,24 @@ class FrameJitter:
         return _k.estimates(self.by_frame, self._known, ts, key, self.agree)
 
 
+class Candidates:
+    """The candidate IDs of one map and chip rate with what every light's `PieceAssembler`
+    reads of them, made once and shared: `ids` (K,) int64, `templates` (K, 54) float32 +-1
+    packets, `wrapped` (K, 108) the packets twice (cyclic windows as slices) and `row` {ID:
+    its first row}."""
+
+    __slots__ = ("ids", "templates", "wrapped", "row")
+
+    def __init__(self, ids: np.ndarray, templates: np.ndarray):
+        self.ids = np.asarray(ids)
+        self.templates = np.asarray(templates, dtype=np.float32).reshape(-1, PACKET_LEN)
+        self.wrapped = np.ascontiguousarray(np.concatenate((self.templates, self.templates), axis=1))
+        self.row = {int(v): i for i, v in reversed(list(enumerate(self.ids.tolist())))}
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+
 class _Piece:
     """One frame's piece: weighted chips x, weight den, packet time q, frame stamp t, its slot
     in the light's tables (the a-th piece added sits in slot (a - 1) % history, the slot of the
@@ -126,7 +144,8 @@ class _Piece:
 class PieceAssembler:
     """One light's recent pieces and the ML choice of its ID among `candidates`.
 
-    templates: (K, 54) +-1 packets of the candidate IDs `ids` (K,). shift_penalty: correlation
+    ids: the candidate IDs (K,), templates their (K, 54) +-1 packets; or ids a `Candidates`
+    (the tables of many lights, made once) and templates None. shift_penalty: correlation
     taken off per chip a piece sits away from its timestamp's place when its frame's jitter is
     unknown; timed_penalty: the same, within +-1 chip, when the other lights measured it.
     jitter: the `FrameJitter` shared by the lights of this rate (None: every piece by its
@@ -146,15 +165,15 @@ class PieceAssembler:
 
     _next_key = 0
 
-    def __init__(self, ids: np.ndarray, templates: np.ndarray, *, jitter_chips: int, history: int,
+    def __init__(self, ids: np.ndarray | Candidates, templates: np.ndarray | None = None, *, jitter_chips: int,
+                 history: int,
                  min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2,
                  jitter: FrameJitter | None = None, timed_penalty: float = 1.0, ref_corr: float = 0.75,
                  ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
-        self.ids = np.asarray(ids)
-        self._row = {int(v): i for i, v in reversed(list(enumerate(self.ids.tolist())))}  # ID -> first row
-        self.templates = np.asarray(templates, dtype=np.float32).reshape(-1, PACKET_LEN)
-        # the packets twice: cyclic windows as slices
-        self._wrapped = np.ascontiguousarray(np.concatenate((self.templates, self.templates), axis=1))
+        cands = ids if isinstance(ids, Candidates) else Candidates(ids, templates)
+        self.ids, self.templates = cands.ids, cands.templates
+        self._row = cands.row  # ID -> first row
+        self._wrapped = cands.wrapped  # the packets twice: cyclic windows as slices
         # a window of half the packet or more would meet itself round the cycle
         self.jitter_chips = min(int(jitter_chips), PACKET_LEN // 2 - 1)
         self.history = history

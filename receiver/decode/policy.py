@@ -22,7 +22,7 @@ import numpy as np
 
 from receiver.core import protocol
 from receiver.decode.exposure import ExposureLearner, exposure_verdict
-from receiver.decode.ook import OokDecoder, PeriodLearner, crc8_table
+from receiver.decode.ook import OokDecoder, PeriodLearner, candidate_tables, crc8_table
 from receiver.decode.pieces import FrameJitter, chips_verdict
 from receiver.decode.s2psk import S2pskDecoder
 from receiver.decode.settings import OOK_TUNING, OokSettings, PolicySettings, S2pskSettings, ToneSettings
@@ -207,7 +207,8 @@ class DecodePolicy:
             for rate in plan.ook_rates:
                 ids = sorted(led.id for led in led_map.by_mode("ook")
                              if accept(led_map, "ook", led.id, rate))
-                self.candidates[rate] = np.array(ids, dtype=np.int64)
+                # their tables made once, shared by every light's decoder
+                self.candidates[rate] = candidate_tables(np.array(ids, dtype=np.int64))
         # each frame's start jitter, measured by the lights of the frame for one another
         self.frame_jitters = {rate: FrameJitter() for rate in self.candidates}
         # frames each light took to its ID pieced together from short pieces, per rate (`chip_notes`)
