@@ -105,8 +105,13 @@ def detranslate_rows(uv: np.ndarray, rows_px: np.ndarray, z_plane: np.ndarray, R
     x = np.column_stack([uv, np.ones(len(uv))])
     with np.errstate(divide="ignore", invalid="ignore"):     # a ray along the plane: inf / NaN out
         Z = (np.asarray(z_plane, float) - C[2] - v[2] * tau) / (x @ R_cw[:, 2])
-        Y = x * Z[:, None] + tau[:, None] * (R_cw @ v)[None, :]
-        return Y[:, :2] / Y[:, 2:3]
+        # Y = x Z + tau R v, column by column (x's third column is 1: Y_z = Z + tau (R v)_z)
+        rv = (R_cw @ v).tolist()
+        yz = Z + tau * rv[2]
+        out = np.empty((len(uv), 2))
+        np.divide(x[:, 0] * Z + tau * rv[0], yz, out=out[:, 0])
+        np.divide(x[:, 1] * Z + tau * rv[1], yz, out=out[:, 1])
+        return out
 
 
 def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
