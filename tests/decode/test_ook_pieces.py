@@ -10,8 +10,8 @@ import types
 import numpy as np
 
 from firmware_tx.schedule import make_schedule
-from receiver.decode.ook import OokDecoder
-from receiver.decode.pieces import PieceAssembler
+from receiver.decode.ook import OokDecoder, candidate_tables
+from receiver.decode.pieces import Candidates, PieceAssembler
 from receiver.decode.ook import packet_template
 from signals import pin_waveform, row_profile
 
@@ -25,7 +25,8 @@ def _run(led_id, candidates, seed, *, frames=45, n_rows=100, jitter_us=100.0, no
     sch = make_schedule("ook", led_id, int(RATE_HZ))
     wave = pin_waveform(sch, 0)
     phase = rng.uniform(0.0, len(wave) / sch.tick_hz)
-    dec = OokDecoder(RATE_HZ, ROW_US, 10.0, candidates=np.asarray(candidates))
+    dec = OokDecoder(RATE_HZ, ROW_US, 10.0,
+                     candidates=candidates if isinstance(candidates, Candidates) else np.asarray(candidates))
     st = None
     for k in range(frames):
         y0 = 300 + int(10 * np.sin(k / 7.0))  # the image moves a little
@@ -51,6 +52,26 @@ def test_short_pieces_decode_among_the_map_ids():
         assert found in (None, led_id)
         got.append(found == led_id)
     assert sum(got) >= 2
+
+
+def test_shared_candidate_tables_decide_as_the_ids_do():
+    """Decoders sharing one `Candidates` (as DecodePolicy gives every light) decide frame by
+    frame as decoders given the ID array each, and leave the shared tables unchanged."""
+    rng = np.random.default_rng(5)
+    cands = [int(v) for v in rng.choice(1 << 16, 60, replace=False)]
+    shared = candidate_tables(np.asarray(cands, np.int64))
+    wrapped = shared.wrapped.copy()
+    decided = 0
+    for seed in range(4):
+        led_id = cands[seed * 7]
+        found_ids, dec_ids = _run(led_id, cands, seed, frames=90)
+        found_shared, dec_shared = _run(led_id, shared, seed, frames=90)
+        assert dec_shared.pieces._wrapped is shared.wrapped
+        assert found_shared == found_ids and dec_shared.frames == dec_ids.frames
+        assert dec_shared.pieces.score == dec_ids.pieces.score and dec_shared.pieces.added == dec_ids.pieces.added
+        decided += found_ids is not None
+    assert decided >= 1
+    assert np.array_equal(shared.wrapped, wrapped)
 
 
 def test_a_light_not_in_the_map_is_never_reported():
