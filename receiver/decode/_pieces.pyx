@@ -297,21 +297,23 @@ cdef inline long long _fit(const float[:, :, ::1] corr, Py_ssize_t slot, Py_ssiz
 
 def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, ::1] wrapped, list xs,
            const double[::1] qq, const unsigned char[::1] narrow, long long added, Py_ssize_t c, int ph,
-           int J, double pen_wide, double pen_narrow, double[::1] evidence, double[::1] differ):
+           int J, double pen_wide, double pen_narrow, double[::1] evidence, double[::1] differ,
+           double[::1] differ_sq):
     """The winner (candidate c, phase index ph) against every other candidate k at its own best
     phase (the first maximum of ll[k]), on the chips where their packets differ: each of the
     latest P = len(xs) pieces (weighted chips xs[i], placed at qq[i] in the wide (+-J,
     pen_wide) or narrow (+-min(1, J), pen_narrow) window) is fitted under each hypothesis
-    (`_fit`); differ[k] = the sum of |x| over the chips whose two fitted packets' chips differ,
+    (`_fit`); differ[k] = the sum of |x| over the chips whose two fitted packets' chips differ
+    (differ_sq[k]: of x squared),
     evidence[k] = (ll[c, ph] - ll[k, best]) / 2: the sum over those chips of x times c's chip,
     less half the two fits' difference of window penalties. For c itself both are 0."""
     cdef Py_ssize_t K = ll.shape[0], P = len(xs), S = corr.shape[0], k, i, j, slot, n, o
     cdef long long fc, fk
     cdef int half, phk, p, near = J if J < 1 else 1
-    cdef double pen, d, top, v
+    cdef double pen, d, d2, top, v
     cdef const float[::1] x
     if not (0 <= c < K and corr.shape[1] == K and wrapped.shape[0] == K and evidence.shape[0] == K
-            and differ.shape[0] == K and qq.shape[0] >= P and narrow.shape[0] >= P and ll.shape[1] == PHASES):
+            and differ.shape[0] == K and differ_sq.shape[0] == K and qq.shape[0] >= P and narrow.shape[0] >= P and ll.shape[1] == PHASES):
         raise IndexError("candidate or a table's shape does not fit the tables")
     top = ll[c, ph]
     # the pieces' |x| one after another (start of piece i: offs[i]) and c's fit of each
@@ -331,6 +333,7 @@ def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, 
         if k == c:
             evidence[k] = 0.0
             differ[k] = 0.0
+            differ_sq[k] = 0.0
             continue
         phk = 0
         v = ll[k, 0]
@@ -338,6 +341,7 @@ def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, 
             if ll[k, p] > v:
                 v, phk = ll[k, p], p
         d = 0.0
+        d2 = 0.0
         for i in range(P):
             slot = _mod(added - P + i, S)
             half = near if narrow[i] else J
@@ -349,8 +353,10 @@ def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, 
             for j in range(n):
                 if wrapped[c, fc + j % PACKET] != wrapped[k, fk + j % PACKET]:
                     d += ax[o + j]
+                    d2 += ax[o + j] * <double>ax[o + j]
         evidence[k] = (top - v) / 2.0
         differ[k] = d
+        differ_sq[k] = d2
 
 
 

@@ -176,7 +176,7 @@ class PieceAssembler:
         self.score = 0.0  # the latest decision's mean correlation, gap and best ID (diagnostics)
         self.gap = 0.0
         self.best_id: int | None = None
-        self.agree = self.z = float("nan")  # ... the agreement and evidence (sds) against its weakest rival
+        self.agree = self.z = float("nan")  # ... the least agreement and evidence (sds) over its rivals
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
         self._fresh = 0  # the newest pieces whose correlations are not computed yet
@@ -270,22 +270,22 @@ class PieceAssembler:
         gap is the evidence E_k = sum of x times c's chip over those chips (less half the window
         penalties' difference), D_k = sum of |x| over them. A soft chip is the chip plus noise,
         so E_k is the log-likelihood ratio of c over k up to the noise variance; with chips
-        that tell c from k no better than chance it is about 0 with sd at most sqrt(D_k). The
+        that tell c from k no better than chance (each term +-|x| at random) it is about 0
+        with sd sqrt(V_k), V_k the sum of x squared over those chips. The
         winner needs, against every rival, agreement E_k / D_k >= `min_agree` and evidence
-        E_k / sqrt(D_k) >= `min_z`. Sets `agree` and `z` of the weakest rival."""
+        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals."""
         K = self.ids.size
         if K < 2:
             return True
-        ev, df = np.empty(K), np.empty(K)
+        ev, df, df2 = np.empty(K), np.empty(K), np.empty(K)
         _k.rivals(self.ll, self._corr, self._wrapped, [p.x for p in self.pieces], self._qq, self._narrow,
-                  self.added, c, ph, self.jitter_chips, self.shift_penalty, self.timed_penalty, ev, df)
-        ok = df > 0
+                  self.added, c, ph, self.jitter_chips, self.shift_penalty, self.timed_penalty, ev, df, df2)
+        ok = df2 > 0
         agree = np.where(ok, ev / np.where(ok, df, 1.0), -np.inf)
-        z = np.where(ok, ev / np.sqrt(np.where(ok, df, 1.0)), -np.inf)
+        z = np.where(ok, ev / np.sqrt(np.where(ok, df2, 1.0)), -np.inf)
         agree[c] = z[c] = np.inf
-        w = int(np.argmin(np.minimum(agree / self.min_agree, z / self.min_z)))
-        self.agree, self.z = float(agree[w]), float(z[w])
-        return bool(agree.min() >= self.min_agree and z.min() >= self.min_z)
+        self.agree, self.z = float(agree.min()), float(z.min())
+        return self.agree >= self.min_agree and self.z >= self.min_z
 
     def _post(self, c: int, ph: int) -> None:
         """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the

@@ -115,7 +115,7 @@ class OokTuning:
     # agree with the winner by this on average (7 of 8 agree; a right ID's chips agree there as
     # elsewhere, a wrong best ID fits worst where it differs: docs/ook-exposure.md) ...
     pieces_min_agree: float = 0.75
-    # ... with this many noise sds of evidence there (wrong best IDs that agree so reach 2.3)
+    # ... with this many noise sds of evidence there (wrong best IDs that agree so reach 2.1)
     pieces_min_z: float = 3.0
     pieces_shift_penalty: float = 0.2  # correlation off per chip of shift from the timestamp
     pieces_timed_penalty: float = 1.0  # ... per chip from the time the frame's other lights measured

@@ -395,9 +395,9 @@ def test_the_winner_against_each_rival_on_the_chips_where_their_packets_differ()
         P = len(a.pieces)
         flat = int(np.argmax(a.ll))
         c, ph = divmod(flat, 216)
-        ev, df = np.empty(k), np.empty(k)
+        ev, df, df2 = np.empty(k), np.empty(k), np.empty(k)
         pmod._k.rivals(a.ll, a._corr, a._wrapped, [p.x for p in a.pieces], a._qq, a._narrow, a.added, c, ph,
-                       a.jitter_chips, pw, pn, ev, df)
+                       a.jitter_chips, pw, pn, ev, df, df2)
         fits = []  # per piece: (x, window half, penalty, corr (k, 54))
         for i, p in enumerate(a.pieces):
             narrow = bool(a._narrow[i])
@@ -411,10 +411,10 @@ def test_the_winner_against_each_rival_on_the_chips_where_their_packets_differ()
 
         for kk in range(k):
             if kk == c:
-                assert ev[kk] == 0 and df[kk] == 0
+                assert ev[kk] == 0 and df[kk] == 0 and df2[kk] == 0
                 continue
             phk = int(np.argmax(a.ll[kk]))
-            d = e = 0.0
+            d = d2 = e = 0.0
             for x, half, pen, corr, qq in fits:
                 sc = int(np.floor(qq + ph / 4 + 0.5)) % 54
                 sk = int(np.floor(qq + phk / 4 + 0.5)) % 54
@@ -423,17 +423,18 @@ def test_the_winner_against_each_rival_on_the_chips_where_their_packets_differ()
                 tc, tk = templates[c][(fc + j) % 54], templates[kk][(fk + j) % 54]
                 diff = tc != tk
                 d += np.abs(x[diff]).sum()
+                d2 += (x[diff].astype(float) ** 2).sum()
                 pc = pen * abs(_wrap_chips(fc - sc))
                 pk = pen * abs(_wrap_chips(fk - sk))
                 e += (x[diff] * tc[diff]).sum() - 0.5 * np.abs(x).sum() * (pc - pk)
-            assert np.isclose(df[kk], d, atol=1e-4)
+            assert np.isclose(df[kk], d, atol=1e-4) and np.isclose(df2[kk], d2, atol=1e-4)
             assert np.isclose(ev[kk], (a.ll[c, ph] - a.ll[kk, phk]) / 2, atol=1e-9)
             assert np.isclose(ev[kk], e, atol=1e-3)
     import pytest
 
     with pytest.raises(IndexError):
         pmod._k.rivals(a.ll, a._corr, a._wrapped, [p.x for p in a.pieces], a._qq, a._narrow, a.added, k, 0,
-                       a.jitter_chips, pw, pn, ev, df)
+                       a.jitter_chips, pw, pn, ev, df, df2)
 
 
 def _wrap_chips(d):
