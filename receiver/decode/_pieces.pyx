@@ -4,7 +4,8 @@
 share of a frame is in docs/kernels.md): a piece's correlations with the candidates' packets
 and their windowed best (`correlate`), the table of every (ID, phase) hypothesis kept up to the
 pieces' placements (`update`, `take_back`), its best hypothesis (`choose`), where each piece
-fits under one (`fits`) and the frame jitter it measures (`measure`).
+fits under one (`fits`), the frame jitter it measures (`measure`) and the best hypothesis against
+every other candidate on the chips where their packets differ (`rivals`).
 
 Every value is numpy's own for the same expressions: float32 products and sums where the tables
 are float32 (a piece's correlation adds its chips in order, as a reduction over an outer axis
@@ -12,7 +13,8 @@ does), float64 likelihood sums adding the terms in order, numpy's pairwise summa
 mean (receiver/core/_npsum.pxd), first maxima as argmax's, comparisons of float32 values with a
 threshold in float32 (numpy's rule for a Python float beside a float32 array). Built with
 -ffp-contract=off so no product-sum is fused. tests/decode/test_ook_pieces.py checks the
-correlations against numpy's FFT and the tables against sums of the terms.
+correlations against numpy's FFT, the tables against sums of the terms and the rivals' chips
+against a numpy fit of each piece.
 """
 
 from libc.math cimport fabs, floor, fmod, INFINITY
@@ -272,6 +274,89 @@ def measure(const float[:, :, ::1] corr, const float[:, :, :, ::1] rep, const do
         if ok:
             out.append((i, _wrap((best_s - q[slot]) - phi)))
     return out
+
+
+
+cdef inline long long _fit(const float[:, :, ::1] corr, Py_ssize_t slot, Py_ssize_t k, long long start, int half,
+                           double pen) noexcept nogil:
+    """Packet position where a piece placed at `start` fits candidate k best: the first
+    maximum over d in [-half, half] of corr[slot, k, (start + d) % 54] - float32(pen |d|) (the
+    windowed best `correlate` keeps)."""
+    cdef long long best_s = _mod(start - half, PACKET), s
+    cdef float b = corr[slot, k, best_s] - <float>(pen * half), v
+    cdef int d
+    if half <= 0:
+        return _mod(start, PACKET)
+    for d in range(-half + 1, half + 1):
+        s = _mod(start + d, PACKET)
+        v = corr[slot, k, s] - <float>(pen * (d if d >= 0 else -d))
+        if v > b:
+            b, best_s = v, s
+    return best_s
+
+
+def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, ::1] wrapped, list xs,
+           const double[::1] qq, const unsigned char[::1] narrow, long long added, Py_ssize_t c, int ph,
+           int J, double pen_wide, double pen_narrow, double[::1] evidence, double[::1] differ,
+           double[::1] differ_sq):
+    """The winner (candidate c, phase index ph) against every other candidate k at its own best
+    phase (the first maximum of ll[k]), on the chips where their packets differ: each of the
+    latest P = len(xs) pieces (weighted chips xs[i], placed at qq[i] in the wide (+-J,
+    pen_wide) or narrow (+-min(1, J), pen_narrow) window) is fitted under each hypothesis
+    (`_fit`); differ[k] = the sum of |x| over the chips whose two fitted packets' chips differ
+    (differ_sq[k]: of x squared),
+    evidence[k] = (ll[c, ph] - ll[k, best]) / 2: the sum over those chips of x times c's chip,
+    less half the two fits' difference of window penalties. For c itself both are 0."""
+    cdef Py_ssize_t K = ll.shape[0], P = len(xs), S = corr.shape[0], k, i, j, slot, n, o
+    cdef long long fc, fk
+    cdef int half, phk, p, near = J if J < 1 else 1
+    cdef double pen, d, d2, top, v
+    cdef const float[::1] x
+    if not (0 <= c < K and corr.shape[1] == K and wrapped.shape[0] == K and evidence.shape[0] == K
+            and differ.shape[0] == K and differ_sq.shape[0] == K and qq.shape[0] >= P and narrow.shape[0] >= P and ll.shape[1] == PHASES):
+        raise IndexError("candidate or a table's shape does not fit the tables")
+    top = ll[c, ph]
+    # the pieces' |x| one after another (start of piece i: offs[i]) and c's fit of each
+    offs_a = np.zeros(P + 1, np.int64)
+    for i in range(P):
+        offs_a[i + 1] = offs_a[i] + len(xs[i])
+    ax_a = np.abs(np.concatenate(xs)) if P else np.zeros(0, np.float32)
+    fc_a = np.empty(P, np.int64)
+    cdef long long[::1] offs = offs_a, fcv = fc_a
+    cdef const float[::1] ax = ax_a.astype(np.float32, copy=False)
+    for i in range(P):
+        slot = _mod(added - P + i, S)
+        half = near if narrow[i] else J
+        pen = pen_narrow if narrow[i] else pen_wide
+        fcv[i] = _fit(corr, slot, c, _position(qq[i], ph), half, pen)
+    for k in range(K):
+        if k == c:
+            evidence[k] = 0.0
+            differ[k] = 0.0
+            differ_sq[k] = 0.0
+            continue
+        phk = 0
+        v = ll[k, 0]
+        for p in range(1, PHASES):
+            if ll[k, p] > v:
+                v, phk = ll[k, p], p
+        d = 0.0
+        d2 = 0.0
+        for i in range(P):
+            slot = _mod(added - P + i, S)
+            half = near if narrow[i] else J
+            pen = pen_narrow if narrow[i] else pen_wide
+            fc = fcv[i]
+            fk = _fit(corr, slot, k, _position(qq[i], phk), half, pen)
+            o = offs[i]
+            n = offs[i + 1] - o
+            for j in range(n):
+                if wrapped[c, fc + j % PACKET] != wrapped[k, fk + j % PACKET]:
+                    d += ax[o + j]
+                    d2 += ax[o + j] * <double>ax[o + j]
+        evidence[k] = (top - v) / 2.0
+        differ[k] = d
+        differ_sq[k] = d2
 
 
 

@@ -583,7 +583,7 @@ class OokDecoder:
             self.pieces = pieces.PieceAssembler(
                 candidate_tables(candidates), jitter_chips=pieces.jitter_chips(s.pieces_jitter_us, rate_hz),
                 history=k.pieces_frames, min_frames=k.pieces_min_frames, min_corr=k.pieces_min_corr,
-                min_gap=k.pieces_min_gap, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
+                min_agree=k.pieces_min_agree, min_z=k.pieces_min_z, shift_penalty=k.pieces_shift_penalty, jitter=frame_jitter,
                 timed_penalty=k.pieces_timed_penalty)
         self.timing_stats = {"timed": 0, "frac": 0, "conflict": 0, "overlap_conflict": 0,
                              "weak_reset": 0, "verify_conflict": 0}

@@ -23,8 +23,11 @@ denies wrong IDs the window's freedom).
 The light's ID and phase are chosen by maximum likelihood over the map's IDs at this chip rate
 (`candidates`) and phi: every piece contributes its best normalised correlation with the
 candidate's packet within its window; the winner must correlate strongly on average
-(`min_corr`), beat every other ID by `min_gap`, and its pieces must show the packet's bits
-(either chip of a Manchester pair shows its bit; all but `MAX_UNSEEN_BITS`: `bits_seen`).
+(`min_corr`), its pieces must show the packet's bits (either chip of a Manchester pair shows its
+bit; all but `MAX_UNSEEN_BITS`: `bits_seen`), and it must beat every other ID on the chips where
+their two packets differ, by the chips' agreement and by the evidence in noise sds
+(`PieceAssembler._beats_rivals`): two packets at the code's least distance differ in 8 of 54
+chips, so a test over all chips (a flat gap of mean correlations) could not tell them apart.
 """
 
 from __future__ import annotations
@@ -167,7 +170,7 @@ class PieceAssembler:
 
     def __init__(self, ids: np.ndarray | Candidates, templates: np.ndarray | None = None, *, jitter_chips: int,
                  history: int,
-                 min_frames: int, min_corr: float, min_gap: float, shift_penalty: float = 0.2,
+                 min_frames: int, min_corr: float, min_agree: float, min_z: float, shift_penalty: float = 0.2,
                  jitter: FrameJitter | None = None, timed_penalty: float = 1.0, ref_corr: float = 0.75,
                  ref_gap: float = 0.1, ref_match: float = 0.75, ref_unique: float = 0.3):
         cands = ids if isinstance(ids, Candidates) else Candidates(ids, templates)
@@ -180,7 +183,7 @@ class PieceAssembler:
         self.pieces: deque = deque()
         self.min_frames = min_frames
         self.min_corr = min_corr
-        self.min_gap = min_gap
+        self.min_agree, self.min_z = min_agree, min_z
         self.shift_penalty = shift_penalty
         self.timed_penalty = timed_penalty
         self.frame_jitter = jitter
@@ -192,6 +195,7 @@ class PieceAssembler:
         self.score = 0.0  # the latest decision's mean correlation, gap and best ID (diagnostics)
         self.gap = 0.0
         self.best_id: int | None = None
+        self.agree = self.z = float("nan")  # ... the least agreement and evidence (sds) over its rivals
         self.timed = 0  # pieces of the latest decision placed by the other lights' jitter
         self.added = 0  # pieces added so far
         self._fresh = 0  # the newest pieces whose correlations are not computed yet
@@ -266,7 +270,8 @@ class PieceAssembler:
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
         if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
             self._post(c, ph)
-        if fixed is not None or top < self.min_corr or top - second < self.min_gap:
+        self.agree = self.z = float("nan")
+        if fixed is not None or top < self.min_corr:
             return None
         # the winner's pieces, each where it fits best in its window, must show every bit
         P = len(self.pieces)
@@ -274,7 +279,32 @@ class PieceAssembler:
         # packet position s is covered by a piece fitted at `at` with n chips when (s - at) % 54 < n
         n = np.array([p.n for p in self.pieces])
         seen = ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
-        return int(self.ids[c]) if bits_seen(seen) else None
+        if not bits_seen(seen):
+            return None
+        return int(self.ids[c]) if self._beats_rivals(c, ph) else None
+
+    def _beats_rivals(self, c: int, ph: int) -> bool:
+        """Whether hypothesis (c, ph) beats every other candidate k, at k's own best phase and
+        fits, on the chips where their two packets differ (`_pieces.rivals`): half the table's
+        gap is the evidence E_k = sum of x times c's chip over those chips (less half the window
+        penalties' difference), D_k = sum of |x| over them. A soft chip is the chip plus noise,
+        so E_k is the log-likelihood ratio of c over k up to the noise variance; with chips
+        that tell c from k no better than chance (each term +-|x| at random) it is about 0
+        with sd sqrt(V_k), V_k the sum of x squared over those chips. The
+        winner needs, against every rival, agreement E_k / D_k >= `min_agree` and evidence
+        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals."""
+        K = self.ids.size
+        if K < 2:
+            return True
+        ev, df, df2 = np.empty(K), np.empty(K), np.empty(K)
+        _k.rivals(self.ll, self._corr, self._wrapped, [p.x for p in self.pieces], self._qq, self._narrow,
+                  self.added, c, ph, self.jitter_chips, self.shift_penalty, self.timed_penalty, ev, df, df2)
+        ok = df2 > 0
+        agree = np.where(ok, ev / np.where(ok, df, 1.0), -np.inf)
+        z = np.where(ok, ev / np.sqrt(np.where(ok, df2, 1.0)), -np.inf)
+        agree[c] = z[c] = np.inf
+        self.agree, self.z = float(agree.min()), float(z.min())
+        return self.agree >= self.min_agree and self.z >= self.min_z
 
     def _post(self, c: int, ph: int) -> None:
         """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the

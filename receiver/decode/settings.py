@@ -111,7 +111,12 @@ class OokTuning:
     pieces_frames: int = 30  # pieces kept
     pieces_min_frames: int = 6  # pieces before a decision
     pieces_min_corr: float = 0.85  # least mean correlation of the chosen ID
-    pieces_min_gap: float = 0.3  # ... beating every other candidate's by this (wrong IDs' gaps: docs/ook-exposure.md)
+    # ... and beating every other candidate on the chips where their packets differ: those chips
+    # agree with the winner by this on average (7 of 8 agree; a right ID's chips agree there as
+    # elsewhere, a wrong best ID fits worst where it differs: docs/ook-exposure.md) ...
+    pieces_min_agree: float = 0.75
+    # ... with this many noise sds of evidence there (wrong best IDs that agree so reach 2.1)
+    pieces_min_z: float = 3.0
     pieces_shift_penalty: float = 0.2  # correlation off per chip of shift from the timestamp
     pieces_timed_penalty: float = 1.0  # ... per chip from the time the frame's other lights measured
 

@@ -66,7 +66,8 @@ def trial(scene: Scene, rng: np.random.Generator, frames: int, margins: list | N
           **overrides) -> list[tuple[int, bool, int | None, int]]:
     """Per light: (ID sent, in the map, first ID reported or None, frames fed until then).
     `margins`: a list to append every decision of a light without an ID to: (mean correlation,
-    gap, best ID is the one sent, share of the pieces placed by the other lights' jitter).
+    gap, best ID is the one sent, share of the pieces placed by the other lights' jitter, and
+    against the weakest rival the agreement and evidence in sds, nan when not tested).
     `overrides`: OokSettings fields for the decoders."""
     from firmware_tx.schedule import make_schedule
     from receiver.decode.ook import OokDecoder
@@ -103,7 +104,8 @@ def trial(scene: Scene, rng: np.random.Generator, frames: int, margins: list | N
             got = lt["dec"].step(prof, w, k / FPS, y0=y0).led_id
             pa = lt["dec"].pieces
             if margins is not None and got is None and pa.ll is not None and pa.best_id is not None:
-                margins.append((pa.score, pa.gap, pa.best_id == lt["id"], pa.timed / max(len(pa.pieces), 1)))
+                margins.append((pa.score, pa.gap, pa.best_id == lt["id"], pa.timed / max(len(pa.pieces), 1),
+                                pa.agree, pa.z))
                 pa.best_id = None  # (recorded once per decision)
             if got is not None and lt["got"] is None:
                 lt["got"], lt["k"] = got, k + 1
@@ -135,9 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1, help="random seed [1]")
     ap.add_argument("--frames", type=int, default=60, help="frames per trial [60]")
     ap.add_argument("--margins", action="store_true",
-                    help="also the largest gap of a wrong best ID among the decisions of lights without an ID, "
-                         "by mean correlation and share of pieces placed by the other lights' jitter")
+                    help="also, among the decisions of lights without an ID that reached the test against the "
+                         "rivals, the largest evidence of a wrong best ID with the accepted agreement")
     a = ap.parse_args(argv)
+    from receiver.decode.settings import OOK_TUNING
     bad = [n for n in a.scenes if n not in BY_NAME]
     if bad:
         print(f"pieces_mc: unknown scene {bad[0]!r} (known: {', '.join(BY_NAME)})", file=sys.stderr)
@@ -154,16 +157,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  wrong: {sent:#06x} reported as {got:#06x} at frame {k}", file=sys.stderr)
         if margins:
             m = np.array(margins, float)
-            for corr in (0.8, 0.85, 0.9):
-                for lo, hi in ((0.0, 0.5), (0.5, 0.8), (0.8, 1.01)):
-                    sel = (m[:, 0] >= corr) & (m[:, 3] >= lo) & (m[:, 3] < hi)
-                    bad = sel & (m[:, 2] == 0)
-                    good = sel & (m[:, 2] == 1)
-                    worst = m[bad, 1].max() if bad.any() else float("nan")
-                    typical = np.median(m[good, 1]) if good.any() else float("nan")
-                    print(f"    mean >= {corr}, placed by jitter {lo:.1f}-{min(hi, 1):.1f}: {int(bad.sum())} "
-                          f"wrong-best decisions, largest gap {worst:.3f}; {int(good.sum())} right-best, "
-                          f"median gap {typical:.3f}", flush=True)
+            k = OOK_TUNING
+            tested = m[~np.isnan(m[:, 4])]
+            for right, what in ((0, "wrong"), (1, "right")):
+                v = tested[tested[:, 2] == right]
+                agree = v[:, 4] >= k.pieces_min_agree
+                z_max = v[agree, 5].max() if agree.any() else float("nan")
+                passed = int((agree & (v[:, 5] >= k.pieces_min_z)).sum())
+                print(f"    {what}-best decisions tested against their rivals: {len(v)}; agreement >= "
+                      f"{k.pieces_min_agree}: {int(agree.sum())}, their largest evidence {z_max:.2f} sds; "
+                      f"passed: {passed}", flush=True)
     return 0
 
 

@@ -44,7 +44,7 @@ def test_every_user_setting_is_documented():
 @pytest.mark.parametrize("cls, key", [(OokSettings, "align_min"), (OokSettings, "norm_chips"),
                                       (OokSettings, "trust_timed"), (OokSettings, "align_when_decoded"),
                                       (S2pskSettings, "sync_margin"), (S2pskSettings, "soft_position_dof"),
-                                      (OokSettings, "verify_min"), (OokSettings, "pieces_min_gap"),
+                                      (OokSettings, "verify_min"), (OokSettings, "pieces_min_z"),
                                       (OokSettings, "decay"),
                                       (S2pskSettings, "phase_every"), (S2pskSettings, "decoder"),
                                       (ToneSettings, "fmin_hz"), (ToneSettings, "spacing_hz"),
@@ -60,7 +60,7 @@ def test_an_internal_constant_or_deleted_flag_is_no_setting(cls, key):
 
 def test_the_tuning_record_holds_what_left_the_settings():
     assert OOK_TUNING.align_min == 0.7 and OOK_TUNING.verify_frames == 16
-    assert OOK_TUNING.verify_min == 0.9 and OOK_TUNING.pieces_min_gap == 0.3
+    assert OOK_TUNING.verify_min == 0.9 and OOK_TUNING.pieces_min_z == 3.0
     assert not set(f.name for f in dataclasses.fields(OOK_TUNING)) & set(f.name for f in dataclasses.fields(OokSettings))
 
 

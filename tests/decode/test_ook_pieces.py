@@ -101,7 +101,8 @@ def test_pieces_margin_monte_carlo():
         rate = float(rng.choice([5000.0, 10000.0]))
         pa = PieceAssembler(cands, np.stack([packet_template(int(i)) for i in cands]),
                             jitter_chips=int(np.ceil(OokSettings.pieces_jitter_us * rate * 1e-6)), history=30,
-                            min_frames=6, min_corr=OOK_TUNING.pieces_min_corr, min_gap=OOK_TUNING.pieces_min_gap,
+                            min_frames=6, min_corr=OOK_TUNING.pieces_min_corr, min_agree=OOK_TUNING.pieces_min_agree,
+                            min_z=OOK_TUNING.pieces_min_z,
                             shift_penalty=OOK_TUNING.pieces_shift_penalty)
         phi, sd = rng.uniform(0, 54), rng.uniform(0.1, 0.8)
         for f in range(30):
@@ -188,7 +189,7 @@ def test_piece_correlations_are_the_circular_cross_correlations():
         k, n = int(rng.integers(1, 40)), int(rng.integers(2, 17))
         templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
         a = PieceAssembler(np.arange(k), templates, jitter_chips=int(rng.integers(0, 4)), history=8,
-                           min_frames=2, min_corr=0.5, min_gap=0.1, shift_penalty=float(rng.uniform(0, 0.5)),
+                           min_frames=2, min_corr=0.5, min_agree=0.5, min_z=1.0, shift_penalty=float(rng.uniform(0, 0.5)),
                            timed_penalty=float(rng.uniform(0, 2)))
         x = rng.uniform(-1, 1, n).astype(np.float32)
         slot = int(rng.integers(0, 8))  # (history 8: slots 0-7)
@@ -220,7 +221,7 @@ def test_the_likelihood_table_is_the_sum_of_the_pieces_terms():
         templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
         fj = FrameJitter(frames=8)
         a = PieceAssembler(np.arange(k) + 100, templates, jitter_chips=int(rng.integers(1, 4)), history=5,
-                           min_frames=2, min_corr=0.99, min_gap=0.5, jitter=fj, timed_penalty=0.7)
+                           min_frames=2, min_corr=0.99, min_agree=0.9, min_z=9.0, jitter=fj, timed_penalty=0.7)
         kept = []
         for f in range(14):
             n = int(rng.integers(3, 15))
@@ -256,7 +257,7 @@ def test_a_sure_light_posts_its_frames_jitter_about_its_mean_phase():
         templates = rng.choice([-1.0, 1.0], size=(6, 54)).astype(np.float32)
         fj = FrameJitter()
         a = PieceAssembler(np.arange(6), templates, jitter_chips=3, history=12, min_frames=4, min_corr=0.5,
-                           min_gap=0.1, jitter=fj)
+                           min_agree=0.5, min_z=1.0, jitter=fj)
         tid, phi = int(rng.integers(6)), int(rng.integers(54))
         js = rng.integers(-2, 3, 12)
         for f in range(12):
@@ -320,7 +321,7 @@ def test_pieces_settings_that_mean_nothing_are_refused():
         with pytest.raises(InputError):
             settings_from_json(OokSettings, {name: value})
     a = PieceAssembler(np.arange(2), np.ones((2, 54), np.float32), jitter_chips=500, history=4,
-                       min_frames=2, min_corr=0.5, min_gap=0.1)
+                       min_frames=2, min_corr=0.5, min_agree=0.5, min_z=1.0)
     assert a.jitter_chips == 26
 
 
@@ -362,7 +363,7 @@ def _fixed_pieces(led_id, cands, starts, n):
     packet positions `starts`, each at its exact packet time (no jitter window)."""
     t = packet_template(led_id)
     pa = PieceAssembler(np.asarray(cands), np.stack([packet_template(int(i)) for i in cands]),
-                        jitter_chips=0, history=30, min_frames=6, min_corr=0.85, min_gap=0.3)
+                        jitter_chips=0, history=30, min_frames=6, min_corr=0.85, min_agree=0.75, min_z=3.5)
     got = None
     for s in starts:
         pa.add(t[(s + np.arange(n)) % 54], np.ones(n), float(s))
@@ -387,3 +388,98 @@ def test_pieces_that_miss_one_chip_of_some_pairs_decode():
             got, pa = _fixed_pieces(led_id, cands, starts, 4)
             assert pa.best_id == led_id and pa.score >= 0.85 and pa.gap >= 0.3
             assert got == (led_id if len(unseen) == 2 else None)
+
+
+def test_the_winner_against_each_rival_on_the_chips_where_their_packets_differ():
+    """For the table's best hypothesis (c, phase) and every other candidate k at its own best
+    phase: each piece fitted under each (the first best of its correlation less the window's
+    penalty, FFT oracle), `differ` is the weight of the chips whose two fitted packets' chips
+    differ and `evidence` half the table's gap, which is the sum of x times c's chip over those
+    chips less half the pieces' difference of window penalties."""
+    from receiver.decode import pieces as pmod
+    from receiver.decode.pieces import FrameJitter
+
+    rng = np.random.default_rng(23)
+    for trial in range(12):
+        k = int(rng.integers(2, 9))
+        templates = rng.choice([-1.0, 1.0], size=(k, 54)).astype(np.float32)
+        fj = FrameJitter(frames=10)
+        pw, pn = float(rng.uniform(0, 0.5)), float(rng.uniform(0.3, 1.5))
+        a = PieceAssembler(np.arange(k), templates, jitter_chips=int(rng.integers(0, 4)), history=6,
+                           min_frames=2, min_corr=0.99, min_agree=0.9, min_z=9.0, jitter=fj, shift_penalty=pw, timed_penalty=pn)
+        for f in range(9):
+            n = int(rng.integers(3, 15))
+            a.add(rng.uniform(-1.5, 1.5, n), rng.uniform(0.1, 1, n), float(rng.uniform(-100, 100)), float(f))
+            if rng.uniform() < 0.5:
+                fj.post(float(f), -1, float(rng.uniform(-1.5, 1.5)))
+        a.decide()
+        P = len(a.pieces)
+        flat = int(np.argmax(a.ll))
+        c, ph = divmod(flat, 216)
+        ev, df, df2 = np.empty(k), np.empty(k), np.empty(k)
+        pmod._k.rivals(a.ll, a._corr, a._wrapped, [p.x for p in a.pieces], a._qq, a._narrow, a.added, c, ph,
+                       a.jitter_chips, pw, pn, ev, df, df2)
+        fits = []  # per piece: (x, window half, penalty, corr (k, 54))
+        for i, p in enumerate(a.pieces):
+            narrow = bool(a._narrow[i])
+            half = min(1, a.jitter_chips) if narrow else a.jitter_chips
+            fits.append((p.x, half, pn if narrow else pw, _fft_best(p.x, templates, half, 0.0)[0], a._qq[i]))
+
+        def fit(corr, kk, start, half, pen):
+            ds = np.arange(-half, half + 1)
+            return (start + ds[np.argmax(corr[kk, (start + ds) % 54].astype(np.float32) -
+                                         (pen * np.abs(ds)).astype(np.float32))]) % 54, half
+
+        for kk in range(k):
+            if kk == c:
+                assert ev[kk] == 0 and df[kk] == 0 and df2[kk] == 0
+                continue
+            phk = int(np.argmax(a.ll[kk]))
+            d = d2 = e = 0.0
+            for x, half, pen, corr, qq in fits:
+                sc = int(np.floor(qq + ph / 4 + 0.5)) % 54
+                sk = int(np.floor(qq + phk / 4 + 0.5)) % 54
+                fc, fk = fit(corr, c, sc, half, pen)[0], fit(corr, kk, sk, half, pen)[0]
+                j = np.arange(x.size)
+                tc, tk = templates[c][(fc + j) % 54], templates[kk][(fk + j) % 54]
+                diff = tc != tk
+                d += np.abs(x[diff]).sum()
+                d2 += (x[diff].astype(float) ** 2).sum()
+                pc = pen * abs(_wrap_chips(fc - sc))
+                pk = pen * abs(_wrap_chips(fk - sk))
+                e += (x[diff] * tc[diff]).sum() - 0.5 * np.abs(x).sum() * (pc - pk)
+            assert np.isclose(df[kk], d, atol=1e-4) and np.isclose(df2[kk], d2, atol=1e-4)
+            assert np.isclose(ev[kk], (a.ll[c, ph] - a.ll[kk, phk]) / 2, atol=1e-9)
+            assert np.isclose(ev[kk], e, atol=1e-3)
+    import pytest
+
+    with pytest.raises(IndexError):
+        pmod._k.rivals(a.ll, a._corr, a._wrapped, [p.x for p in a.pieces], a._qq, a._narrow, a.added, k, 0,
+                       a.jitter_chips, pw, pn, ev, df, df2)
+
+
+def _wrap_chips(d):
+    return (d + 27) % 54 - 27
+
+
+def test_a_light_is_told_from_its_twin_at_the_least_distance():
+    """Two map IDs whose packets differ in the code's least 4 bits (8 of 54 chips) correlate
+    1 - 16/54 = 0.70, so with pieces covering the packet evenly the winner's gap of mean
+    correlations is 0.296: below the flat 0.3 once required, yet all 8 differing chips agree
+    with the winner three times over. Each of the twins is decided as itself; a twin missing from the
+    map is never given the other's ID."""
+    from firmware_tx.crc import crc8
+
+    d = next(i for i in range(1, 1 << 16) if bin((i << 8) | crc8(i, 16)).count("1") == 4)
+    rng = np.random.default_rng(31)
+    starts = list(range(0, 54, 6)) * 3  # 6-chip pieces: every chip seen three times
+    for a in rng.choice(1 << 16, 4, replace=False).tolist():
+        b = a ^ d
+        assert int((packet_template(a) != packet_template(b)).sum()) == 8
+        others = [int(v) for v in rng.choice(1 << 16, 18, replace=False) if v not in (a, b)]
+        for sent, twin in ((a, b), (b, a)):
+            got, pa = _fixed_pieces(sent, [twin, sent] + others, starts, 6)
+            assert pa.best_id == sent and abs(pa.gap - 16 / 54) < 1e-6 and got == sent
+            assert pa.agree == 1.0 and abs(pa.z - 24 ** 0.5) < 1e-9
+            got, pa = _fixed_pieces(sent, [twin] + others, starts, 6)
+            assert got is None
