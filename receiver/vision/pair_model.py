@@ -2,7 +2,8 @@
 a frame (receiver.vision.pairing: the per-frame flow).
 
 One baseline model for every pair: the baseline is measured whenever both emitters' own blobs
-are seen in one frame (or, for a far head, from a merged blob's width), blended into the
+are seen in one frame (for a pair of two tracks, any two blobs it explains at its two ends,
+whatever their areas: `both_ends`; for a far head, a merged blob's width), blended into the
 prediction, and grows at the measured rate per frame in between (a light's separation goes as
 1 / range). A pair of two tracks starts from its founding blobs' separation; a far head's
 (jumper) pair, founded on the mean of two jumps, scales that by the emitters' size until its
@@ -283,18 +284,45 @@ def predict(p: Pair, growth_span_frames: int) -> tuple[float, float, float, floa
     return p.mx + p.vx, p.my + p.vy, 0.5 * scale * p.base0[0], 0.5 * scale * p.base0[1], single
 
 
-def measure_baseline(g, p: Pair, hx: float, hy: float, obs_a, obs_b, merged) -> None:
+def both_ends(p: Pair, pred: tuple, explaining: list, merged) -> tuple | None:
+    """(A's blob, B's blob): of a pair `p` of two tracks (a head whose halves are separate
+    blobs), two of the blobs it explains in this frame at its prediction `pred` (mx, my, hx,
+    hy, single), one on each side of its midpoint, whatever their areas (each the nearest to
+    its end), or None. A far half covers one or two rows, so its blob's area halves or doubles
+    from frame to frame, and a blob cut by a clock edge during the rolling readout loses rows,
+    not columns: neither is a whole emitter's envelope, but each sits on its emitter's column,
+    so two of them in one frame measure the baseline's horizontal part. (A far head's jumper
+    pair, whose halves merge, is measured by its merged blob's width.)"""
+    mx, my, hx, hy, _ = pred
+    best_a = best_b = None
+    for t in explaining:
+        if t.blob is merged:
+            continue
+        da = math.hypot(t.cx - mx + hx, t.cy - my + hy)
+        db = math.hypot(t.cx - mx - hx, t.cy - my - hy)
+        if da <= db:
+            if best_a is None or da < best_a[0]:
+                best_a = (da, t.blob)
+        elif best_b is None or db < best_b[0]:
+            best_b = (db, t.blob)
+    if best_a is None or best_b is None:
+        return None
+    return best_a[1], best_b[1]
+
+
+def measure_baseline(g, p: Pair, hx: float, hy: float, obs_a, obs_b, merged, whole: bool = True) -> None:
     """Re-measure a jumper pair's (one jumping track's: a far head) baseline from this frame's
     blobs, free of the camera's shake (both ends in one frame): A's and B's own blobs, or a
     merged blob's width less one emitter's envelope width (horizontal part; the vertical one is
     kept).
-    `hx`, `hy`: the predicted half baseline, px. The baseline was otherwise only scaled by the
-    emitters' area from formation, and a far head's area is no measure of its size (one or
-    two rows): on vehicle-road it fell 20-40 % short, merged blobs then read as one emitter
+    `hx`, `hy`: the predicted half baseline, px. `whole` False: A's and B's blobs are
+    `both_ends` (not whole envelopes): only the horizontal part is measured. The baseline was
+    otherwise only scaled by the emitters' area from formation, and a far head's area is no
+    measure of its size (one or two rows): on vehicle-road it fell 20-40 % short, merged blobs then read as one emitter
     of twice its size and the pair lost its head at 45-60 m."""
     meas = None
     if obs_a is not None and obs_b is not None:
-        meas = (obs_b.cx - obs_a.cx, obs_b.cy - obs_a.cy)
+        meas = (obs_b.cx - obs_a.cx, obs_b.cy - obs_a.cy if whole else 2.0 * hy)
     elif merged is not None:
         w1 = max(p.a.blob.x1 - p.a.blob.x0, p.b.blob.x1 - p.b.blob.x0)
         d = (merged.x1 - merged.x0) - w1
@@ -326,8 +354,13 @@ def follow_update(g, p: Pair, shape, pred: tuple, explaining: list, nearby: list
     `unseen_give_up_frames`: its two tracks are never paired again)."""
     mx, my, hx, hy, single = pred
     p.tracks, p.nearby = explaining, nearby
-    if merged is not None or (obs_a is not None and obs_b is not None):
-        measure_baseline(g, p, hx, hy, obs_a, obs_b, merged)
+    ends = (both_ends(p, pred, explaining, merged)
+            if p.a.track_id != p.b.track_id and (obs_a is None or obs_b is None) else None)
+    if merged is not None or (obs_a is not None and obs_b is not None) or ends is not None:
+        if ends is not None and merged is None:
+            measure_baseline(g, p, hx, hy, *ends, None, whole=False)
+        else:
+            measure_baseline(g, p, hx, hy, obs_a, obs_b, merged)
         p.anchored = True
     elif g.anchor_coast_frames and p.misses + (not p.tracks) >= g.anchor_coast_frames:
         p.anchored = False
