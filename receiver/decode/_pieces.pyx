@@ -282,11 +282,13 @@ cdef inline long long _fit(const float[:, :, ::1] corr, Py_ssize_t slot, Py_ssiz
     """Packet position where a piece placed at `start` fits candidate k best: the first
     maximum over d in [-half, half] of corr[slot, k, (start + d) % 54] - float32(pen |d|) (the
     windowed best `correlate` keeps)."""
-    cdef long long best_s = _mod(start - half, PACKET), s
-    cdef float b = corr[slot, k, best_s] - <float>(pen * half), v
+    cdef long long best_s, s
+    cdef float b, v
     cdef int d
     if half <= 0:
         return _mod(start, PACKET)
+    best_s = _mod(start - half, PACKET)
+    b = corr[slot, k, best_s] - <float>(pen * half)
     for d in range(-half + 1, half + 1):
         s = _mod(start + d, PACKET)
         v = corr[slot, k, s] - <float>(pen * (d if d >= 0 else -d))
@@ -307,28 +309,31 @@ def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, 
     (differ_sq[k]: of x squared),
     evidence[k] = (ll[c, ph] - ll[k, best]) / 2: the sum over those chips of x times c's chip,
     less half the two fits' difference of window penalties. For c itself both are 0."""
-    cdef Py_ssize_t K = ll.shape[0], P = len(xs), S = corr.shape[0], k, i, j, slot, n, o
+    cdef Py_ssize_t K = ll.shape[0], P = len(xs), S = corr.shape[0], k, i, j, n, o
     cdef long long fc, fk
-    cdef int half, phk, p, near = J if J < 1 else 1
-    cdef double pen, d, d2, top, v
+    cdef int phk, p, near = J if J < 1 else 1
+    cdef double d, d2, top, v
     cdef const float[::1] x
     if not (0 <= c < K and corr.shape[1] == K and wrapped.shape[0] == K and evidence.shape[0] == K
             and differ.shape[0] == K and differ_sq.shape[0] == K and qq.shape[0] >= P and narrow.shape[0] >= P and ll.shape[1] == PHASES):
         raise IndexError("candidate or a table's shape does not fit the tables")
     top = ll[c, ph]
-    # the pieces' |x| one after another (start of piece i: offs[i]) and c's fit of each
+    # the pieces' |x| one after another (start of piece i: offs[i]), each piece's slot, window
+    # and penalty, and c's fit of each
     offs_a = np.zeros(P + 1, np.int64)
     for i in range(P):
         offs_a[i + 1] = offs_a[i] + len(xs[i])
     ax_a = np.abs(np.concatenate(xs)) if P else np.zeros(0, np.float32)
-    fc_a = np.empty(P, np.int64)
-    cdef long long[::1] offs = offs_a, fcv = fc_a
+    fc_a, slot_a, half_a, pen_a = np.empty(P, np.int64), np.empty(P, np.int64), np.empty(P, np.intc), np.empty(P)
+    cdef long long[::1] offs = offs_a, fcv = fc_a, slots = slot_a
+    cdef int[::1] halves = half_a
+    cdef double[::1] pens = pen_a
     cdef const float[::1] ax = ax_a.astype(np.float32, copy=False)
     for i in range(P):
-        slot = _mod(added - P + i, S)
-        half = near if narrow[i] else J
-        pen = pen_narrow if narrow[i] else pen_wide
-        fcv[i] = _fit(corr, slot, c, _position(qq[i], ph), half, pen)
+        slots[i] = _mod(added - P + i, S)
+        halves[i] = near if narrow[i] else J
+        pens[i] = pen_narrow if narrow[i] else pen_wide
+        fcv[i] = _fit(corr, slots[i], c, _position(qq[i], ph), halves[i], pens[i])
     for k in range(K):
         if k == c:
             evidence[k] = 0.0
@@ -343,11 +348,8 @@ def rivals(const double[:, ::1] ll, const float[:, :, ::1] corr, const float[:, 
         d = 0.0
         d2 = 0.0
         for i in range(P):
-            slot = _mod(added - P + i, S)
-            half = near if narrow[i] else J
-            pen = pen_narrow if narrow[i] else pen_wide
             fc = fcv[i]
-            fk = _fit(corr, slot, k, _position(qq[i], phk), half, pen)
+            fk = _fit(corr, slots[i], k, _position(qq[i], phk), halves[i], pens[i])
             o = offs[i]
             n = offs[i + 1] - o
             for j in range(n):
