@@ -197,6 +197,32 @@ def bloom_checked(g, p: Pair, pred: tuple, found: tuple) -> tuple:
     return keep, nearby, mean, obs_a, obs_b, merged
 
 
+def other_lamps(g, p: Pair, pred: tuple, found: tuple, tracks: list[Track], xy: np.ndarray) -> list[int]:
+    """Ids of the tracks that are another light's lamp beside pair `p` (two tracks) at its
+    prediction `pred` (mx, my, hx, hy, single), from this frame's `found` (as `bloom_checked`
+    returns; `xy`: the tracks' centroids (N, 2), px): when the pair is placed by blobs of its
+    own, the seen saturated blobs within one baseline of either emitter that it does not
+    explain, larger than `merged_ratio` x both its envelopes (grown as in `bloom_checked`) and
+    the blobs it explains. A pair's two lamps are alike and at one range, so in one frame
+    they bloom alike; a much larger lamp beside them is a nearer light's (a car in front whose
+    taillight is about to cover one of this car's). Its track is that light for as long as the
+    tracker follows it (`Pair.others`): in a later frame it may sit on the hidden emitter, at a
+    size a clock edge has cut under any bound. Not the pair's founding tracks."""
+    expl = found[0]
+    if p.a.track_id == p.b.track_id or not expl or not len(xy):
+        return []
+    mx, my, hx, hy, _ = pred
+    grow = (1.0 + max(p.growth, 0.0)) ** (2 * min(p.misses + 1, g.growth_span_frames))
+    bound = g.merged_ratio * max(max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0) * grow,
+                                 max(t.blob.area_px for t in expl))
+    reach = 2.0 * math.hypot(hx, hy)
+    d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
+                   np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
+    mine = {t.track_id for t in expl} | set(p.founding)
+    return [t.track_id for t in map(tracks.__getitem__, np.flatnonzero(d <= reach).tolist())
+            if t.seen and t.track_id not in mine and t.blob.peak >= g.white_gray and t.blob.area_px > bound]
+
+
 def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:
     """Track `t`, explained by pair `p` at its prediction `pred` (mx, my, hx, hy, single), is
     another two-track pair's emitter. `owners`: (pair, its prediction, it explains a blob
@@ -225,8 +251,15 @@ def reanchor(g, p: Pair, pred: tuple, tracks: list[Track], table: np.ndarray, ta
     `shake_radius_px` per frame it coasted before this one of its predicted midpoint (none
     in its first frame without a blob: both emitters are dark in a quarter of the frames,
     and any two blobs one baseline apart would do), place both its emitters
-    at once (no lone blob can be taken for the wrong one); the nearest such two. Returns
-    (explaining tracks, mean (dx, dy) shift, A's blob, B's blob) or None."""
+    at once (no lone blob can be taken for the wrong one); the nearest such two. A decoded
+    pair carries its ID onto them, so for it the two must be lamps that could found a pair of
+    that baseline (`pair_score`): at most the pairing's
+    `max_baseline` blob diameters apart, their rows within `row_band` diameters of the pair's
+    (its roll kept), a diameter measured as the blob's width (a clock edge during the rolling
+    readout cuts rows, not columns). A lamp is never that much smaller for its spacing: two far
+    lights' one-row blobs a near car's baseline apart are not its taillights. Tracks in
+    `Pair.others` are never taken. Returns (explaining tracks, mean (dx, dy) shift, A's blob,
+    B's blob) or None."""
     mx, my, hx, hy, single = pred
     bx, by = 2.0 * hx, 2.0 * hy
     tol = g.match_min_px + g.reanchor_sep_tol * math.hypot(bx, by)
@@ -236,7 +269,7 @@ def reanchor(g, p: Pair, pred: tuple, tracks: list[Track], table: np.ndarray, ta
     tr = table  # seen tracks near the prediction, all at once
     near = np.flatnonzero((tr[:, 7] != 0.0) & (np.abs(tr[:, 0] - mx) <= reach + abs(hx) + tol)
                           & (np.abs(tr[:, 1] - my) <= reach + abs(hy) + tol))
-    cand = [t for t in map(tracks.__getitem__, near.tolist()) if t.track_id not in taken]
+    cand = [t for t in map(tracks.__getitem__, near.tolist()) if t.track_id not in taken and t.track_id not in p.others]
     best = None
     ratio_max = g.geom["max_area_ratio"]
     for ta in cand:
@@ -251,6 +284,11 @@ def reanchor(g, p: Pair, pred: tuple, tracks: list[Track], table: np.ndarray, ta
             r = max(ta.blob.area_px, 1.0) / max(tb.blob.area_px, 1.0)
             if not sat and not (1.0 / ratio_max <= r <= ratio_max):
                 continue
+            # a clock edge cuts a lamp's rows, not its columns: its width is its diameter
+            diam = 0.5 * ((ta.blob.x1 - ta.blob.x0) + (tb.blob.x1 - tb.blob.x0))
+            if p.led_id is not None and (abs(tb.cx - ta.cx) > g.geom["max_baseline"] * diam or
+                                         abs(tb.cy - ta.cy - by) > g.geom["row_band"] * diam):
+                continue  # lamps too small for their spacing, or not level (`pair_score`)
             if best is None or d < best[0]:
                 best = (d, ta, tb, (ox, oy))
     if best is None:

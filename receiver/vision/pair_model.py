@@ -71,7 +71,7 @@ class PairTuning:
     jumper_levels_min_area_px: float = 16.0  # a near head's jumper pair inherits its track's levels
     head_follow: float = 0.2  # a far head's backlog follows its blobs by this much per frame
     head_gap_frames: int = 4  # ... until this many frames in a row without a blob
-    jumper_unseen_frames: int = 12  # a far head's emitter without its own blob this long: not reported
+    jumper_unseen_frames: int = 12  # an emitter without its own blob this long: not reported (hidden, or a far head's pair a baseline aside)
     width_tol: float = 0.25  # a short (far) blob's width within 25 % (+1 px) of one emitter's / a merged
     width_min_px: float = 2.0  # merged one's (at least 2 px wider)
     width_max_rows: int = 3  # blobs of at most 3 rows are judged by width (a far half is 1-2 rows)
@@ -233,6 +233,10 @@ class Pair:
     # again (receiver.pipeline): its samples may be another light's since, so the ID it holds
     # is not reported (`reported_id`) meanwhile.
     confirmed: bool = True
+    # tracks found to be another light's (`pair_match.other_lamps`: a nearer light's bloomed
+    # lamp beside its emitters): a light does not turn into this pair's emitter later, so their
+    # blobs are only nearby for it (`pair_match.explain`'s `exclude`) and never re-place it
+    others: set = field(default_factory=set)
 
     @property
     def reported_id(self) -> int | None:

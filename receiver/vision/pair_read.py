@@ -22,15 +22,16 @@ def live_pairs(g, pairs: list[Pair]) -> list[Pair]:
 
 def decoded_emitters(g, live: list[Pair]) -> list[tuple[int, Blob, Pair, bool]]:
     """(LED id, envelope, pair, seen this frame) of each emitter of the decoded pairs in `live`
-    that may be reported. A far head's (jumper) pair may sit a baseline aside (which half a
-    blob was cannot be told): its emitter that has not had a blob of its own for
-    `jumper_unseen_frames` frames lies beside the head, on nobody's light, and is not reported
-    (0 = off). One that coasted may now sit a baseline aside, one emitter on the head behind or
+    that may be reported. An emitter that has not had a blob of its own for
+    `jumper_unseen_frames` frames is not reported (0 = off): S2-PSK lights each emitter in half
+    of the symbols, so it is hidden (a nearer car in front of one taillight, its own lamp
+    perhaps right there) or, for a far head's (jumper) pair, which may sit a baseline aside
+    (which half a blob was cannot be told), beside the head on nobody's light; where the pair
+    predicts it is a guess either way. One that coasted may now sit a baseline aside, one emitter on the head behind or
     beside it: not reported until a blob both lit places it again (`anchor_coast_frames`)."""
     return [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
             for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
-            if not (g.jumper_unseen_frames and p.a.track_id == p.b.track_id
-                    and p.frames - seen > g.jumper_unseen_frames)
+            if not (g.jumper_unseen_frames and p.frames - seen > g.jumper_unseen_frames)
             and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
 
 

@@ -59,7 +59,7 @@ from receiver.core.records import Blob
 from receiver.core.settings import resolve_settings
 from receiver.vision.pair_found import JumpWatch, drop_twins, head_backlog, jumper_pair, mark_beside, two_track_backlog
 from receiver.vision.pair_match import (anothers, bloom_checked, claim_tol, dx_offsets_of, explain, lone_checked,
-                                        pitch_and_claims, reanchor, shift_votes_of, width_class)
+                                        other_lamps, pitch_and_claims, reanchor, shift_votes_of, width_class)
 from receiver.vision.pair_model import (BOTH_SEEN_FRAMES, LIVE, TUNING, WRONG, EmitterLevels, Pair, PairTuning,
                                         _emitter, follow_update, measure_baseline, moved, pair_score, predict)
 from receiver.vision.pair_read import emitters, flux_box, flux_on, head_flux
@@ -351,7 +351,8 @@ class Pairer:
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
             if pred is not None:
-                items.append((p, pred, exclude.get(p.uid, ())))
+                excl = exclude.get(p.uid, ())
+                items.append((p, pred, p.others.union(excl) if p.others else excl))
         if _k is not None:
             found = [(expl, nearby, (sx, sy) if ns else None, obs_a, obs_b, merged)
                      for expl, nearby, ns, sx, sy, _, obs_a, obs_b, merged, _ in self._explain_batch(items, tracks, False)]
@@ -362,6 +363,8 @@ class Pairer:
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         found = [bloom_checked(self, p, pred, lone_checked(self, p, f)) for (p, pred, _), f in zip(items, found)]
+        for (p, pred, _), f in zip(items, found):
+            p.others.update(other_lamps(self, p, pred, f, tracks, xy))
         taken = {t.track_id for f in found for t in f[0]}
         # the two-track pairs whose emitter another pair may take (`pair_match.anothers`): the decoded ones
         # that explain no blob at their prediction, by their founding tracks (a far head's
