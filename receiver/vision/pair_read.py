@@ -27,12 +27,35 @@ def decoded_emitters(g, live: list[Pair]) -> list[tuple[int, Blob, Pair, bool]]:
     of the symbols, so it is hidden (a nearer car in front of one taillight, its own lamp
     perhaps right there) or, for a far head's (jumper) pair, which may sit a baseline aside
     (which half a blob was cannot be told), beside the head on nobody's light; where the pair
-    predicts it is a guess either way. One that coasted may now sit a baseline aside, one emitter on the head behind or
-    beside it: not reported until a blob both lit places it again (`anchor_coast_frames`)."""
+    predicts it is a guess either way. A car whose hidden taillight lies behind a nearer car
+    (`behind`) sits at that car's edge: its other taillight is reported only in the frames it
+    is seen (when dark, it may be behind that car as well). One that coasted may now sit a
+    baseline aside, one emitter on the head behind or beside it: not reported until a blob both
+    lit places it again (`anchor_coast_frames`)."""
+    hidden = {p.uid for p in live if g.jumper_unseen_frames and behind(g, p, live)}
     return [(i, e.blob, p, seen == p.frames) for p in live if p.led_id is not None
             for i, e, seen in zip(p.ids, (p.a, p.b), (p.seen_a, p.seen_b))
             if not (g.jumper_unseen_frames and p.frames - seen > g.jumper_unseen_frames)
+            and (seen == p.frames or p.uid not in hidden)
             and (p.anchored or p.a.track_id != p.b.track_id) and not p.beside]
+
+
+def behind(g, p: Pair, live: list[Pair]) -> bool:
+    """Car `p` (a taillight pair) has a taillight without a blob of its own for
+    `jumper_unseen_frames` frames that lies behind a nearer car: between the taillights of a
+    pair in `live` with a longer baseline, within half that baseline of their row (a car's
+    body is about as tall as its lamps are apart)."""
+    if p.kind != "FV" or p.a.track_id == p.b.track_id:
+        return False
+    for e, seen in ((p.a, p.seen_a), (p.b, p.seen_b)):
+        if p.frames - seen <= g.jumper_unseen_frames:
+            continue
+        for q in live:
+            w = q.b.cx - q.a.cx
+            if (q is not p and q.a.track_id != q.b.track_id and w > p.b.cx - p.a.cx
+                    and q.a.cx <= e.cx <= q.b.cx and abs(e.cy - 0.5 * (q.a.cy + q.b.cy)) <= 0.5 * w):
+                return True
+    return False
 
 
 def emitters(g, pairs: list[Pair]) -> list[tuple[int, Blob, Pair]]:

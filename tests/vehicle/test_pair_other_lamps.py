@@ -83,3 +83,30 @@ def test_a_coasting_car_is_not_re_placed_on_two_far_lights_pixels():
     # its own lamps one baseline apart 10 px above (the camera pitched) move it
     _frame(pr, [(42, _blob(603.0, 460.0, 10, 10)), (43, _blob(693.0, 460.0, 10, 10))])
     assert sorted(t.track_id for t in p.tracks) == [42, 43] and abs(p.a.cy - 460.0) <= 1.0
+
+
+def test_a_car_half_behind_a_nearer_car_reports_its_other_lamp_only_when_seen():
+    """Car 185's left taillight is hidden between the taillights of nearer car 216; its right
+    one, at 216's edge, may go behind 216 any frame: reported in the frames it is seen, not
+    where the pair predicts it while it is dark."""
+    pr = Pairer(white_gray=WHITE)
+    near = _decoded_pair(pr, xa=790.0, xb=878.0, y=455.0, side=10, led_id=216)
+    a, b = _blob(840.0, 447.0, 7, 7), _blob(893.0, 447.0, 7, 7)
+    far = Pair(Track(5, a, 0, 0), Track(6, b, 0, 0), ids=(12, 13))
+    far.led_id, far.kind, near.kind = 185, "FV", "FV"
+    pr.pairs = [near, far]
+    lamps_216 = [(3, _blob(790.0, 455.0, 10, 10)), (4, _blob(878.0, 455.0, 10, 10))]
+    _frame(pr, lamps_216 + [(5, a), (6, b)])
+    reported = []
+    for k in range(pr.jumper_unseen_frames + 3):
+        lit_b = k % 2 == 0  # 185's right taillight lit every other frame; its left one hidden
+        _frame(pr, lamps_216 + ([(6, _blob(893.0, 447.0, 7, 7))] if lit_b else []))
+        reported.append((lit_b, sorted(i for i, _, p in pr.emitters() if p is far)))
+    assert reported[0] == (True, [12, 13])
+    assert reported[-1] == (True, [13]) and reported[-2] == (False, [])
+    # a car not behind another reports its seen taillight when dark too (S2-PSK's dark half)
+    other = Pairer(white_gray=WHITE)
+    p = _decoded_pair(other)
+    for k in range(other.jumper_unseen_frames + 4):
+        _frame(other, [(30, _blob(500.5, 470.0, 7, 7))] if k % 2 == 0 else [])
+    assert p.tracks == [] and sorted(i for i, _, _ in other.emitters()) == [10]
