@@ -197,11 +197,11 @@ def bloom_checked(g, p: Pair, pred: tuple, found: tuple) -> tuple:
     return keep, nearby, mean, obs_a, obs_b, merged
 
 
-def other_lamps(g, p: Pair, pred: tuple, found: tuple, tracks: list[Track], xy: np.ndarray) -> list[int]:
+def other_lamps(g, p: Pair, pred: tuple, found: tuple, lamps: list[Track]) -> list[int]:
     """Ids of the tracks that are another light's lamp beside pair `p` (two tracks) at its
     prediction `pred` (mx, my, hx, hy, single), from this frame's `found` (as `bloom_checked`
-    returns; `xy`: the tracks' centroids (N, 2), px): when the pair is placed by blobs of its
-    own, the seen saturated blobs within one baseline of either emitter that it does not
+    returns) and its seen saturated tracks `lamps` (peak at `white_gray`): when the pair is
+    placed by blobs of its own, those within one baseline of either emitter that it does not
     explain, larger than `merged_ratio` x both its envelopes (grown as in `bloom_checked`) and
     the blobs it explains. A pair's two lamps are alike and at one range, so in one frame
     they bloom alike; a much larger lamp beside them is a nearer light's (a car in front whose
@@ -209,18 +209,17 @@ def other_lamps(g, p: Pair, pred: tuple, found: tuple, tracks: list[Track], xy: 
     tracker follows it (`Pair.others`): in a later frame it may sit on the hidden emitter, at a
     size a clock edge has cut under any bound. Not the pair's founding tracks."""
     expl = found[0]
-    if p.a.track_id == p.b.track_id or not expl or not len(xy):
+    if p.a.track_id == p.b.track_id or not expl or not lamps:
         return []
     mx, my, hx, hy, _ = pred
     grow = (1.0 + max(p.growth, 0.0)) ** (2 * min(p.misses + 1, g.growth_span_frames))
     bound = g.merged_ratio * max(max(p.a.blob.area_px, p.b.blob.area_px, p.size, 1.0) * grow,
                                  max(t.blob.area_px for t in expl))
     reach = 2.0 * math.hypot(hx, hy)
-    d = np.minimum(np.hypot(xy[:, 0] - (mx - hx), xy[:, 1] - (my - hy)),
-                   np.hypot(xy[:, 0] - (mx + hx), xy[:, 1] - (my + hy)))
     mine = {t.track_id for t in expl} | set(p.founding)
-    return [t.track_id for t in map(tracks.__getitem__, np.flatnonzero(d <= reach).tolist())
-            if t.seen and t.track_id not in mine and t.blob.peak >= g.white_gray and t.blob.area_px > bound]
+    return [t.track_id for t in lamps
+            if t.blob.area_px > bound and t.track_id not in mine
+            and min(math.hypot(t.cx - mx + hx, t.cy - my + hy), math.hypot(t.cx - mx - hx, t.cy - my - hy)) <= reach]
 
 
 def anothers(g, p: Pair, t: Track, pred: tuple, owners: list) -> bool:

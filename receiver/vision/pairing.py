@@ -363,8 +363,10 @@ class Pairer:
                 mean = tuple(float(v) for v in np.mean(shifts, axis=0)) if shifts else None
                 found.append((expl, nearby, mean, obs_a, obs_b, merged))
         found = [bloom_checked(self, p, pred, lone_checked(self, p, f)) for (p, pred, _), f in zip(items, found)]
+        lamps = [t for t in tracks if t.seen and t.blob.peak >= self.white_gray]  # `other_lamps`
         for (p, pred, _), f in zip(items, found):
-            p.others.update(other_lamps(self, p, pred, f, tracks, xy))
+            if lamps and f[0]:
+                p.others.update(other_lamps(self, p, pred, f, lamps))
         taken = {t.track_id for f in found for t in f[0]}
         # the two-track pairs whose emitter another pair may take (`pair_match.anothers`): the decoded ones
         # that explain no blob at their prediction, by their founding tracks (a far head's
