@@ -6,9 +6,10 @@ Blob area is otherwise no measure of size: a far half covers one or two rows, an
 blob (peak at the sensor's white level, `white_gray`) blooms to 2-3x the emitter's area, so a
 saturated blob is not held to the area gates. A decoded pair's lone smaller blob far from its
 prediction does not move it (`lone_checked`), nor does a saturated blob well above its own
-saturated emitters (`bloom_checked`: a nearer light's lamp); a coasting pair of two tracks is re-placed on two
-blobs one baseline apart (`reanchor`); a pair that takes another pair's emitter is found by
-`anothers`. Also the Python reference of the frame's first pass over all pairs
+saturated emitters (`bloom_checked`: a nearer light's lamp), and a much larger saturated lamp
+seen beside a placed pair stays another light's for as long as its track lives (`other_lamps`);
+a coasting pair of two tracks is re-placed on two blobs one baseline apart (`reanchor`); a pair
+that takes another pair's emitter is found by `anothers`. Also the Python reference of the frame's first pass over all pairs
 (`pitch_and_claims`) and of the camera-shift votes (`shift_votes_of`, `dx_offsets_of`).
 
 `g`: the gates a function reads, by the names of `PairTuning` / `PairSettings`, and this frame's

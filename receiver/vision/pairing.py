@@ -346,7 +346,8 @@ class Pairer:
         Python reference `_explain` per pair without the kernel, `xy` the tracks' centroids);
         a pair of two tracks that explains none is re-placed on two seen blobs one baseline
         apart that no pair explains (`pair_match.reanchor`); one that explains another pair's emitter
-        (`pair_match.anothers`) loses `Pair.confirmed`."""
+        (`pair_match.anothers`) loses `Pair.confirmed`; the nearer lights' lamps seen beside a
+        placed pair join its `Pair.others` (`pair_match.other_lamps`), never explained by it."""
         items = []
         for p in self.pairs:
             pred = self._follow_start(p, dx, dy)
