@@ -70,13 +70,15 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     n = x.size
     r, rr, win = _ramp_and_window(n)
     x = x - np.add.reduce(x) / n  # x.mean(), without its Python-level wrapper
-    x = x - r * ((r @ x) / rr)  # linear trend of the brightness envelope
-    xw = x * win
+    x -= r * ((r @ x) / rr)  # linear trend of the brightness envelope
+    x *= win
     nfft = _nfft(n * pad_factor)
-    z = np.fft.rfft(xw, nfft)
-    spec = z.real * z.real + z.imag * z.imag
-    k0 = int(np.ceil(k_lo * nfft))
-    k1 = min(int(np.floor(k_hi * nfft)), spec.size - 1)
+    z = np.fft.rfft(x, nfft)
+    re, im = z.real, z.imag
+    spec = re * re
+    spec += im * im
+    k0 = math.ceil(k_lo * nfft)
+    k1 = min(math.floor(k_hi * nfft), spec.size - 1)
     if k1 - k0 < 3:
         return float("nan"), 0.0
     kp = k0 + int(spec[k0:k1 + 1].argmax())
@@ -93,7 +95,7 @@ def _peak_cycles_per_row(x: np.ndarray, k_lo: float, k_hi: float, pad_factor: in
     # parabola through the log power of the padded bins around the peak: the Hann main lobe
     # is close to a Gaussian, whose log is a parabola, so this is nearly unbiased
     kp = min(max(kp, 1), spec.size - 2)
-    la, lb, lc = np.log(spec[kp - 1:kp + 2] + 1e-30)
+    la, lb, lc = np.log(spec[kp - 1:kp + 2] + 1e-30).tolist()
     den = la - 2.0 * lb + lc
     delta = 0.5 * (la - lc) / den if den < 0 else 0.0
     return (kp + min(max(delta, -1.0), 1.0)) / nfft, quality

@@ -24,6 +24,7 @@ Image coordinates: px, x right, y down (rows = rolling-shutter rows, one `row_re
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from receiver.core.records import Blob
@@ -58,17 +59,20 @@ def tone_profile(gray: np.ndarray, blob: Blob, *, extend_frac: float = 0.6, core
     if y1 <= y0 or x1 <= x0:
         z = np.zeros(0, np.float32)
         return z, z.copy(), int(y0)
-    band = gray[y0:y1, x0:x1]
-    # band.mean(axis=1, dtype=np.float32) as numpy computes it (float32 sums divided by the
-    # np.intp count), without its Python-level wrapper
-    mean = np.add.reduce(band, axis=1, dtype=np.float32)
-    np.true_divide(mean, np.intp(band.shape[1]), out=mean, casting="unsafe")
+    # band.mean(axis=1, dtype=np.float32): each row's sum is an integer below 2^24, exact in
+    # float32 and int32 alike, so OpenCV's integer row sums divided in float64 and rounded to
+    # float32 are numpy's numbers (its float32 sum divided by the np.intp count)
+    sums = cv2.reduce(gray[y0:y1, x0:x1], 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1)
+    mean = (sums / float(x1 - x0)).astype(np.float32)
     mean -= np.float32(blob.background)
     level = max(lit_gray, lit_frac * float(np.maximum.reduce(mean)))
     lit = (mean > level).nonzero()[0]
     if lit.size:
         a, b = int(lit[0]), int(lit[-1]) + 1
         mean, y0 = mean[a:b], y0 + a
-    profile = np.log(np.maximum(mean, 0.0) + np.float32(log_offset_gray)).astype(np.float32)
+    # log(max(mean, 0) + offset) in float32, in place
+    np.maximum(mean, np.float32(0.0), out=mean)
+    mean += np.float32(log_offset_gray)
+    profile = np.log(mean, out=mean)
     weights = np.full(profile.size, float(x1 - x0), np.float32)
     return profile, weights, int(y0)
