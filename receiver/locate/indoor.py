@@ -80,13 +80,32 @@ def derotate_rows(uv: np.ndarray, rows_px: np.ndarray, w_cam: np.ndarray, row_s:
     k0, k1, k2 = (np.asarray(w_cam, float) / rate).tolist()
     a = (np.asarray(rows_px, float) - ref_row) * (-row_s * rate)
     c, s = np.cos(a), np.sin(a)
-    u, v = uv[:, 0], uv[:, 1]
-    kx = (k0 * u + k1 * v + k2) * (1.0 - c)
-    # Rodrigues: x c + (k x x) s + k (k . x) (1 - c), x = (u, v, 1)
-    z = c + (k0 * v - k1 * u) * s + k2 * kx
+    u, v = uv.T.copy()  # both columns contiguous, once
+    # Rodrigues: x c + (k x x) s + k (k . x) (1 - c), x = (u, v, 1); each sum in the order
+    # written, accumulated in place
+    kx = k0 * u                                 # (k0 u + k1 v + k2) (1 - c)
+    kx += k1 * v
+    kx += k2
+    kx *= 1.0 - c
+    z = k0 * v                                  # c + (k0 v - k1 u) s + k2 kx
+    z -= k1 * u
+    z *= s
+    z += c
+    z += k2 * kx
     out = np.empty((len(u), 2))
-    out[:, 0] = (u * c + (k1 - k2 * v) * s + k0 * kx) / z
-    out[:, 1] = (v * c + (k2 * u - k0) * s + k1 * kx) / z
+    t = np.subtract(k1, k2 * v)                 # (u c + (k1 - k2 v) s + k0 kx) / z
+    t *= s
+    t += u * c
+    t += k0 * kx
+    t /= z
+    out[:, 0] = t
+    t = k2 * u                                  # (v c + (k2 u - k0) s + k1 kx) / z
+    t -= k0
+    t *= s
+    t += v * c
+    t += k1 * kx
+    t /= z
+    out[:, 1] = t
     return out
 
 
