@@ -38,16 +38,9 @@ def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, i
     # per row, the envelope's pixel count and gray sum in one pass (exact integers in float32);
     # a row without envelope pixels sums to 0, so dividing it by 1 gives its 0 profile
     sums, weights = np.empty(mask.shape[0], np.float32), np.empty(mask.shape[0], np.float32)
-    _k.masked_row_sums(_rows(roi), mask, sums, weights)
+    # (a uint8 frame; its rows made contiguous only when they are not)
+    _k.masked_row_sums(roi if roi.strides[1] == 1 else np.ascontiguousarray(roi), mask, sums, weights)
     return sums / np.maximum(weights, 1.0), weights, int(blob.y0)
-
-
-def _rows(roi: np.ndarray) -> np.ndarray:
-    """A uint8 box of a frame as the compiled sums take it (contiguous rows; a copy only when
-    they are not); TypeError for another kind of image."""
-    if roi.dtype != np.uint8:
-        raise TypeError(f"expected a uint8 image, got {roi.dtype}")
-    return roi if roi.strides[1] == 1 else np.ascontiguousarray(roi)
 
 
 def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
@@ -60,7 +53,7 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
         n = int(mask.sum())
         return float((roi * mask).sum()) / n if n else 0.0
     # the exact integer sum and count in one pass (S2-PSK reads ~30 of these a frame)
-    total, n = _k.masked_sum(_rows(roi), mask)
+    total, n = _k.masked_sum(roi if roi.strides[1] == 1 else np.ascontiguousarray(roi), mask)
     return total / n if n else 0.0
 
 
