@@ -376,7 +376,7 @@ class Receiver:
         leds, want, want_fields = _kt.led_records(seen, lights, env, pair_of, covered, decoded, self.positioner is not None,
                                           bool(self.plan.tone_table), LedObservation)
         if want:
-            edges = stripe_edge_points_batch(gray, [env[k] for k in want], scratch=self.scratch)
+            edges = stripe_edge_points_batch(gray, [env[k] for k in want])
             for fields, e in zip(want_fields, edges):
                 if fields is not None:
                     fields["edge_px"] = e

@@ -14,6 +14,12 @@ either way) and the table says `-`. A kernel's share on a case is (pure - native
 part of a whole frame the kernel saves there. The house keeps a kernel only where that share is
 at least KEEP_SHARE_PCT on some bundled case. Instruction counts do not depend on the machine's
 load, so the figures are repeatable on a busy machine (slow: minutes per run).
+
+`--inside`: instead, one callgrind run per case with every kernel built, and for each kernel
+module the share of the counted frames' instructions spent inside it: its functions' own
+instructions plus what their calls into other objects (CPython, numpy, libm) cost, calls between
+its own functions counted once. That is what a kernel without a numpy path (the one
+implementation) costs of a frame, not what it saves.
 """
 
 from __future__ import annotations
@@ -117,6 +123,98 @@ def kernels_called(source: str, instr_frames: int) -> set[str]:
     return set(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
+def inside_costs(path: str) -> tuple[dict[str, int], int]:
+    """({object file: instructions inside it}, total) of a callgrind output file: each object's
+    functions' own instructions plus the inclusive cost of their calls into other objects."""
+    names: dict[tuple[str, str], str] = {}
+    inside: dict[str, int] = {}
+    total, ob, fn_ob, call_ob, pending_cob, in_call = 0, "", "", "", None, False
+
+    def name(kind: str, rest: str) -> str:   # "(id) name" or "(id)": callgrind's name compression
+        if rest.startswith("("):
+            key, _, text = rest.partition(")")
+            key = (kind, key + ")")
+            if text.strip():
+                names[key] = text.strip()
+            return names.get(key, "")
+        return rest.strip()
+
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            c = line[:1]
+            if c.isdigit() or c in "+-*":
+                parts = line.split()
+                cost = int(parts[1]) if len(parts) > 1 else 0
+                if in_call:
+                    if call_ob != fn_ob:
+                        inside[fn_ob] = inside.get(fn_ob, 0) + cost
+                    in_call = False
+                else:
+                    inside[fn_ob] = inside.get(fn_ob, 0) + cost
+                    total += cost
+            elif line.startswith("ob="):
+                ob = name("ob", line[3:])
+            elif line.startswith("fn="):
+                fn_ob, pending_cob = ob, None
+            elif line.startswith("cob="):
+                pending_cob = name("ob", line[4:])
+            elif line.startswith("calls="):
+                call_ob, pending_cob, in_call = (pending_cob if pending_cob is not None else fn_ob), None, True
+    return inside, total
+
+
+def kernel_inside_shares(path: str) -> dict[str, float]:
+    """{kernel short name: % of the counted instructions inside its module} of a callgrind file."""
+    inside, total = inside_costs(path)
+    out: dict[str, float] = {}
+    for obj, cost in inside.items():
+        base = os.path.basename(obj)
+        short = base.split(".", 1)[0]
+        if short.startswith("_") and base.endswith(".so") and f"{os.sep}receiver{os.sep}" in obj:
+            out[short] = out.get(short, 0.0) + 100.0 * cost / total
+    return out
+
+
+def inside_table(sources: list[str] | None, instr_frames: int, out) -> int:
+    """Print (and write to `out`) each kernel's share of a frame spent inside it, per case."""
+    import tempfile
+    from receiver.cli import bench
+    sources = sources or bench.bundled_recordings() + [bench.SCENE]
+    shares: dict[str, dict[str, float]] = {}
+    per_frame: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="occloc-inside-") as tmp:
+        for src in sources:
+            case = bench._case_name(src)
+            print(f"kernel_shares: {case} under callgrind ...", file=sys.stderr, flush=True)
+            keep = os.path.join(tmp, case + ".out")
+            got = bench.count_instructions(src, instr_frames, keep=keep)
+            if got["instructions_per_frame"] is None:
+                raise SystemExit(f"kernel_shares: {case}: {got['note']}")
+            per_frame[case] = got["instructions_per_frame"]
+            shares[case] = kernel_inside_shares(keep)
+    cases = list(shares)
+    built = {n.rsplit(".", 1)[-1] for n in native.kernel_sources()}   # uncalled ones: 0
+    kernels = sorted(built | {k for s in shares.values() for k in s},
+                     key=lambda k: (-max(s.get(k, 0) for s in shares.values()), k))
+    _emit(out, "| kernel | lines | " + " | ".join(cases) + " | max % |")
+    _emit(out, "|---|---|" + "---|" * (len(cases) + 1))
+    _emit(out, "| (M instr/frame, all built) | | " + " | ".join(f"{per_frame[c] / 1e6:.2f}" for c in cases) + " | |")
+    for k in kernels:
+        _emit(out, f"| {k} | {kernel_lines(k)} | " + " | ".join(f"{shares[c].get(k, 0.0):.1f}" for c in cases)
+              + f" | {max(s.get(k, 0.0) for s in shares.values()):.1f} |")
+    return 0
+
+
+def kernel_lines(short: str) -> int:
+    """Lines of a kernel's .pyx and the .pxi files it includes (`_name_*.pxi` beside it)."""
+    for mod in native.kernel_sources():
+        if mod.rsplit(".", 1)[-1] == short:
+            pyx = ROOT.joinpath(*mod.split(".")).with_suffix(".pyx")
+            files = [pyx] + sorted(pyx.parent.glob(short + "_*.pxi"))
+            return sum(len(p.read_text(encoding="utf-8").splitlines()) for p in files)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.kernel_shares", description=__doc__.split("\n\n")[0])
     p.add_argument("kernels", nargs="*",
@@ -127,10 +225,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", help="also write the table to this Markdown file")
     p.add_argument("--skip-uncalled", action="store_true",
                    help="measure a kernel only on the cases whose counted frames call it (`-` elsewhere)")
+    p.add_argument("--inside", action="store_true",
+                   help="each kernel's share of a frame spent inside it (one callgrind run per case, all built)")
     p.add_argument("--_calls", nargs=3, metavar=("CASE", "W", "K"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args._calls:
         return _calls_child(args._calls[0], int(args._calls[1]), int(args._calls[2]))
+    if args.inside:
+        with (open(args.out, "w") if args.out else contextlib.nullcontext()) as out:
+            return inside_table(args.source, args.instr_frames, out)
     known = [n for n in (m.rsplit(".", 1)[-1] for m in native.kernel_sources())
              if n not in native.ONE_IMPLEMENTATION]
     unknown = [n for group in args.kernels for n in group.split(",") if n not in known]

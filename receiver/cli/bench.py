@@ -244,9 +244,10 @@ def _count_child(args) -> int:
 
 
 def count_instructions(spec: str, k: int, *, warm: int = INSTR_WARM_FRAMES, camera=None, map_path=None,
-                       valgrind: str | None = None) -> dict:
+                       valgrind: str | None = None, keep: str | None = None) -> dict:
     """{"instructions_per_frame", "frames"} of the case's frames [warm, warm+k) under callgrind,
-    or {"instructions_per_frame": None, "note": why} when valgrind is absent or fails."""
+    or {"instructions_per_frame": None, "note": why} when valgrind is absent or fails. `keep`: a
+    path to copy callgrind's output file to (for a per-function reading of the counted frames)."""
     from receiver.core.budget import BLAS_THREAD_VARS
     valgrind = valgrind or shutil.which("valgrind")
     if valgrind is None:
@@ -270,6 +271,8 @@ def count_instructions(spec: str, k: int, *, warm: int = INSTR_WARM_FRAMES, came
             return {"instructions_per_frame": None, "note": f"callgrind run failed: {last}"}
         frames = json.loads(proc.stdout.strip().splitlines()[-1])["frames"]
         total = callgrind_total(out)
+        if keep:
+            shutil.copyfile(out, keep)
     if not frames or not total:
         return {"instructions_per_frame": None,
                 "note": f"callgrind collected nothing (no {INSTR_TOGGLE} symbol in this Python?)"}

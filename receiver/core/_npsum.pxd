@@ -1,7 +1,8 @@
 # cython: language_level=3
 """numpy's pairwise summation (DOUBLE_pairwise_sum / CDOUBLE_pairwise_sum of numpy's loops:
 8 accumulators, blocks of 128 scalars, halves above that), for kernels whose sums must equal
-numpy's bit for bit (receiver.decode._ook, _tone, receiver.locate._pnp, receiver.vision._pairing)."""
+numpy's bit for bit (receiver.decode._ook, _pieces, receiver.locate._pnp, receiver.vision._envelope,
+_pairing)."""
 
 cdef enum:
     PW_BLOCKSIZE = 128

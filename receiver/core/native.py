@@ -3,14 +3,14 @@
 A stage imports its kernel module with `load("receiver.vision._edges")` and calls it when the
 result is not None; otherwise it runs its pure numpy path, which stays the tested reference the
 kernel must equal. `OCCLOC_PURE=1` in the environment forces the pure path everywhere (for A/B
-measurements and the equality tests); `OCCLOC_PURE=_pixels,_ranging` (module names, without their
+measurements and the equality tests); `OCCLOC_PURE=_pairing,_wire` (module names, without their
 package) forces it for those kernels only, to measure what one kernel saves
 (`tools/kernel_shares.py`); `status()` says which kernels are in use.
 
 A kernel that is the one implementation of its computation (no numpy twin) is imported with
 `require(name)` instead: always used, whatever OCCLOC_PURE says, and an ImportError naming the
-build command when it is not built (receiver.vision._track, _envelope, receiver.decode._ook,
-_pieces, receiver.locate._vehicle_pose; the locate stage imports _outline, _pnp, _kalman and
+build command when it is not built (receiver.vision._pixels, _track, _envelope,
+receiver.decode._ook, _pieces, receiver.locate._ranging, _vehicle_pose; the locate stage imports _outline, _pnp, _kalman and
 _position directly, for the same reason).
 
 Why Cython (pinned in pyproject.toml's build requirements, modules listed there under
@@ -32,7 +32,7 @@ _LOADED: dict[str, ModuleType | None] = {}
 
 # Kernels that are the one implementation of their computation (no numpy path): OCCLOC_PURE
 # does not switch them off, and `tools/kernel_shares` cannot measure them.
-ONE_IMPLEMENTATION = ("_track", "_envelope", "_ook", "_pieces", "_vehicle_pose", "_outline", "_pnp", "_kalman", "_position")
+ONE_IMPLEMENTATION = ("_pixels", "_ranging", "_track", "_envelope", "_ook", "_pieces", "_vehicle_pose", "_outline", "_pnp", "_kalman", "_position")
 
 
 def pure_forced() -> bool:
@@ -41,7 +41,7 @@ def pure_forced() -> bool:
 
 
 def _named_pure() -> set[str]:
-    """The kernels OCCLOC_PURE names (`_pixels,_ranging`); empty for "1" or unset."""
+    """The kernels OCCLOC_PURE names (`_pairing,_wire`); empty for "1" or unset."""
     value = os.environ.get("OCCLOC_PURE", "")
     return set() if value in ("", "1") else {n.strip() for n in value.split(",") if n.strip()}
 

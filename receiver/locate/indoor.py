@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import LedObservation, LocateResult
 from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
@@ -26,8 +26,8 @@ from receiver.locate.posefilter import PoseFilter
 from receiver.locate.ranging import ESTIMATORS, Ranger, Undistorter, ray_unit
 from receiver.locate.settings import PositionerSettings
 
-# The compiled packing of a frame's outline targets (receiver/locate/_ranging.pyx), or None.
-_kr = load("receiver.locate._ranging")
+# the compiled packing of a frame's outline targets (receiver/locate/_ranging.pyx)
+_kr = require("receiver.locate._ranging")
 
 # With "oblique" ranging, how often a frame's ranges are recomputed with the orientation of its own
 # fix and the fix solved again (the first pass uses the previous frame's orientation, or "looking
@@ -137,22 +137,13 @@ def _pack_outline(chosen, model_sigma_px: float, focal_px: float):
     """(points (M + T, 2) px: every target's edge points in turn, then the T centroids; sigma (M,)
     normalized: hypot(point sigma, model sigma) / focal; ends (T + 1,) int64; centres (T, 3) map
     m; half extents (T, 2)) of `Positioner._outline_targets`' (observation, edges, fixture)
-    list: the compiled packing (receiver/locate/_ranging.pyx) where the edge arrays are float64
-    and contiguous, else numpy (its reference)."""
-    if _kr is not None:
-        try:
-            return _kr.pack_outline(chosen, model_sigma_px, focal_px)
-        except (ValueError, TypeError):
-            pass
-    n = len(chosen)
-    pts = [e[0] for _, e, _ in chosen]
-    counts = [len(q) for q in pts]
-    pts.append(np.array([(o.cx, o.cy) for o, _, _ in chosen], float))
-    ends = np.zeros(n + 1, np.int64)
-    np.cumsum(counts, out=ends[1:])
-    sig = np.hypot(np.concatenate([e[1] for _, e, _ in chosen]).ravel(), model_sigma_px) / focal_px
-    return (np.concatenate(pts), sig, ends, np.array([fx[2] for _, _, fx in chosen], float).reshape(-1, 3),
-            np.array([fx[1] for _, _, fx in chosen], float).reshape(-1, 2))
+    list, by the compiled packing; edge arrays that are not float64 C-contiguous are converted first."""
+    try:
+        return _kr.pack_outline(chosen, model_sigma_px, focal_px)
+    except (ValueError, TypeError, BufferError):
+        f64 = [(o, (np.ascontiguousarray(e[0], np.float64).reshape(-1, 2), np.ascontiguousarray(e[1], np.float64).ravel()),
+                fx) for o, e, fx in chosen]
+        return _kr.pack_outline(f64, model_sigma_px, focal_px)
 
 
 class Positioner:

@@ -40,12 +40,12 @@ import math
 import cv2
 import numpy as np
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import LedObservation
 from receiver.io.camera import CameraModel
 
-# The per-frame glue kernels (receiver/locate/_ranging.pyx: the edge-touch test), or None.
-_kr = load("receiver.locate._ranging")
+# the per-frame glue (receiver/locate/_ranging.pyx): edge touch, polygon sums, the ranges' records
+_kr = require("receiver.locate._ranging")
 
 ESTIMATORS = ("eq18", "oblique")
 
@@ -124,12 +124,9 @@ class Undistorter:
 
 
 def _polygon_sums(p: np.ndarray, perimeter: bool):
-    """(sum of cross products, perimeter, sum (x_i + x_j) cross_i, sum (y_i + y_j) cross_i) of a
-    closed (K >= 3, 2) float64 polygon by the compiled kernel (receiver/locate/_ranging.pyx: the
-    same elementwise products and np.sum's pairwise order, so the same numbers), or None."""
-    if _kr is not None and p.dtype == np.float64 and p.flags.c_contiguous:
-        return _kr.polygon_sums(p, perimeter)
-    return None
+    """(sum of cross products, perimeter or 0.0, sum (x_i + x_j) cross_i, sum (y_i + y_j) cross_i)
+    of a closed (K >= 3, 2) polygon: its area, perimeter and centroid from one compiled pass."""
+    return _kr.polygon_sums(np.ascontiguousarray(p, np.float64), perimeter)
 
 
 def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
@@ -138,12 +135,7 @@ def polygon_area_perimeter(poly: np.ndarray) -> tuple[float, float]:
     if len(p) < 3:
         return 0.0, 0.0
     sums = _polygon_sums(p, True)
-    if sums is not None:
-        return 0.5 * abs(sums[0]), sums[1]
-    q = np.roll(p, -1, axis=0)
-    area = 0.5 * abs(float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1])))
-    perim = float(np.sum(np.hypot(*(q - p).T)))
-    return area, perim
+    return 0.5 * abs(sums[0]), sums[1]
 
 
 def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
@@ -152,17 +144,10 @@ def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
     if len(p) < 3:
         return None
     sums = _polygon_sums(p, False)
-    if sums is not None:
-        a = 0.5 * sums[0]
-        if abs(a) < 1e-12:
-            return None
-        return np.array([sums[2], sums[3]]) / (6 * a)
-    q = np.roll(p, -1, axis=0)
-    cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
-    a = 0.5 * float(np.sum(cross))
+    a = 0.5 * sums[0]
     if abs(a) < 1e-12:
         return None
-    return np.array([np.sum((p[:, 0] + q[:, 0]) * cross), np.sum((p[:, 1] + q[:, 1]) * cross)]) / (6 * a)
+    return np.array([sums[2], sums[3]]) / (6 * a)
 
 
 def steiner_area(area: float, perimeter: float, offset: float) -> float:
@@ -207,14 +192,10 @@ def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
     if area_px <= 0:
         return None
     und = (undistort or Undistorter(camera))(c)
-    sums = _polygon_sums(und, False)
-    if sums is not None:        # polygon_area_perimeter's area and polygon_centroid from one pass
-        area_n = 0.5 * abs(sums[0])
-        a = 0.5 * sums[0]
-        cen = None if abs(a) < 1e-12 else np.array([sums[2], sums[3]]) / (6 * a)
-    else:
-        area_n, _ = polygon_area_perimeter(und)
-        cen = polygon_centroid(und)
+    sums = _polygon_sums(und, False)   # polygon_area_perimeter's area and polygon_centroid in one pass
+    area_n = 0.5 * abs(sums[0])
+    a = 0.5 * sums[0]
+    cen = None if abs(a) < 1e-12 else np.array([sums[2], sums[3]]) / (6 * a)
     if area_n <= 0 or cen is None:
         return None
     # The edge bias is a pixel-scale effect, so it is applied as a ratio measured in pixels.
@@ -330,28 +311,16 @@ class Ranger:
 
     def _touching_edge(self, obs_list) -> list[bool]:
         """For each observation: does its envelope come within `border_margin_px` of the image
-        edge? (All envelopes' extremes in one pass; no contour: False.) The compiled pass
-        (receiver/locate/_ranging.pyx) where every contour is a float64 (K, 2) array, else numpy."""
+        edge? (All envelopes' extremes in one compiled pass; no contour: False.) Contours that
+        are not (K, 2) float64 arrays are converted first."""
         m = self.border_margin_px
-        if _kr is not None:
-            try:
-                return _kr.cut_by_edge([o.contour for o in obs_list], m, self.camera.width - 1 - m,
-                                       self.camera.height - 1 - m)
-            except (ValueError, TypeError, BufferError):
-                pass
-        polys = [np.asarray(o.contour).reshape(-1, 2) if o.contour is not None else None for o in obs_list]
-        has = [p is not None and len(p) > 0 for p in polys]
-        out = [False] * len(obs_list)
-        if not any(has):
-            return out
-        use = [p for p, h in zip(polys, has) if h]
-        starts = np.cumsum([0] + [len(p) for p in use[:-1]])
-        pts = np.concatenate(use)
-        lo, hi = np.minimum.reduceat(pts, starts), np.maximum.reduceat(pts, starts)
-        near = ((lo[:, 0] <= m) | (lo[:, 1] <= m) | (hi[:, 0] >= self.camera.width - 1 - m)
-                | (hi[:, 1] >= self.camera.height - 1 - m)).tolist()
-        it = iter(near)
-        return [bool(next(it)) if h else False for h in has]
+        w1, h1 = self.camera.width - 1 - m, self.camera.height - 1 - m
+        contours = [o.contour for o in obs_list]
+        try:
+            return _kr.cut_by_edge(contours, m, w1, h1)
+        except (ValueError, TypeError, BufferError):
+            return _kr.cut_by_edge([None if c is None else np.ascontiguousarray(np.asarray(c, np.float64).reshape(-1, 2))
+                                    for c in contours], m, w1, h1)
 
     def _lookup(self, led_id: int):
         """The map's LED of this ID or None, looked up once per ID (the map does not change
@@ -427,20 +396,7 @@ class Ranger:
         """`leds` with `distance_m` (rounded to 10 um) and `distance_estimator` set on every
         item with a finite range; the others unchanged."""
         dl = np.asarray(d, dtype=np.float64).tolist()
-        if _kr is not None and type(leds) is list and type(items) is list and type(names) is list:
-            return _kr.annotate(leds, items, dl, names, LedObservation, _with_range)
-        ranged = {}
-        for (obs, _, _), v, name in zip(items, dl, names):
-            if v - v == 0.0:  # finite
-                ranged[id(obs)] = (round(v, 5), name)
-        if not ranged:
-            return list(leds)
-        get = ranged.get
-        out = []
-        for o in leds:
-            r = get(id(o))
-            out.append(o if r is None else _with_range(o, r[0], r[1]))
-        return out
+        return _kr.annotate(list(leds), list(items), dl, list(names), LedObservation, _with_range)
 
     def range_leds(self, leds, R_cw: np.ndarray | None = None) -> list:
         """Ranging without a positioner: `leds` with the ranges of the rangeable ones."""

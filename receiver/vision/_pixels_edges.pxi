@@ -18,7 +18,7 @@ cdef inline Py_ssize_t _clampi(Py_ssize_t v, Py_ssize_t hi) noexcept nogil:
 cdef bint _edge_point_clamped(const unsigned char *p, Py_ssize_t start, int side, Py_ssize_t w1,
                               double *pos, float *contrast) noexcept nogil:
     """`_edge_point` with its samples clamped into the row [0, w1] (a run near the box's edge),
-    as the reference gathers them."""
+    the row's own pixels at the clamped columns."""
     cdef float plateau = (<float>p[_clampi(start - 2 * side, w1)] + <float>p[_clampi(start - 3 * side, w1)]) / <float>2.0
     cdef float outside = (<float>p[_clampi(start + 3 * side, w1)] + <float>p[_clampi(start + 4 * side, w1)]) / <float>2.0
     cdef float thr = <float>0.5 * (plateau + outside)
@@ -50,8 +50,8 @@ cdef inline bint _edge_point(const unsigned char *p, Py_ssize_t start, int side,
     straddles the half level.
 
     Where every sample lies inside the row (start - 4 >= 0 and start + 4 <= w1: none clamped,
-    no column repeated) the level test runs on integers: the reference's float sums of u8
-    values, their halves and quarters are exact, so its v >= thr is 4 v >= (the four samples'
+    no column repeated) the level test runs on integers: the float sums of u8
+    values, their halves and quarters are exact, so v >= thr is 4 v >= (the four samples'
     sum) and the plateau - outside contrast is half the sums' difference; the crossing's
     fraction is then the same float division of the same exact numbers. Elsewhere
     `_edge_point_clamped`."""
@@ -78,7 +78,7 @@ cdef inline bint _edge_point(const unsigned char *p, Py_ssize_t start, int side,
         k, va, vb = 2, q3, q4
     else:
         return False
-    # va > vb here: d >= 1, never the reference's 1e-6 floor
+    # va > vb here: d >= 1, no floor needed
     thr = <float>S * <float>0.25
     frac = (<float>va - thr) / <float>(va - vb)
     pos[0] = <double>(start + k * side) + <double>side * <double>frac

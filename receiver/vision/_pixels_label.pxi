@@ -213,7 +213,7 @@ def label_boxes(const unsigned char[:, ::1] img, const int64_t[:, ::1] crops, in
     contour's area, 1 if isolated else 0, and the first-point key (out: (cap, 7) int64).
     Returns the count; -1 where `label_runs` does not answer (more components than out has rows,
     a component with a hole: the caller traces the outlines), -2 where `pooled_boxes` does not
-    (the caller's numpy path decides)."""
+    (the caller's `_pooled_boxes_exact` decides)."""
     cdef Py_ssize_t cap = out.shape[0], n, i, j, hole = 0
     cdef uint64_t *keys
     cdef int64_t *o

@@ -25,8 +25,8 @@ def pooled_boxes(const unsigned char[:, ::1] gray, const int64_t[:, ::1] rects, 
     """`detect._pooled_boxes_exact` (boxes found on `pool`-row maxima -> the full-resolution
     search's): out[i] = x, first row, w, rows of the box's first to last row with a pixel >= on,
     a first row within `reach` of the top moved to 0, a last within `reach` of the bottom to the
-    last row. Returns False when a box holds no such pixel (the caller's reference path then
-    reports it)."""
+    last row. Returns False when a box holds no such pixel (the caller's numpy loop then finds
+    its rows)."""
     cdef Py_ssize_t i, n = rects.shape[0]
     if rects.shape[1] < 4 or out.shape[0] < n or out.shape[1] < 4:
         raise ValueError("pooled_boxes: rects and out (n, 4) needed")

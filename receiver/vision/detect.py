@@ -41,14 +41,15 @@ import operator
 
 import cv2
 import numpy as np
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import Blob
 from receiver.vision.profile import row_profile, stripe_depth
 from receiver.vision.settings import DetectSettings
 from receiver.core.settings import resolve_settings
 
-# the compiled pixel scans (receiver/vision/_pixels.pyx), or None: the numpy paths below
-_k = load("receiver.vision._pixels")
+# the compiled pixel scans (receiver/vision/_pixels.pyx): the one implementation of the frame's
+# histogram, threshold masks, run labelling, mosaic and the isolated blobs' envelopes
+_k = require("receiver.vision._pixels")
 
 # 1.4826 * MAD estimates sigma for Gaussian noise.
 MAD_TO_SIGMA = 1.4826
@@ -130,18 +131,8 @@ def auto_level(gray: np.ndarray, *, k_mad: float = 8.0, min_contrast: float = 24
     at least the noise next to the lights (`near_light_sigma`: a compressed camera's flat
     background understates it)."""
     hist = np.empty(256, np.float32)
-    if _k is not None and _native_frame(gray) and sample_step >= 1:
-        # the same counts, median and MAD in one pass, without the strided copy
-        med, mad = _k.sample_stats(gray, sample_step, hist)
-    else:
-        sample = gray[::sample_step, ::sample_step]
-        hist = cv2.calcHist([np.ascontiguousarray(sample)], [0], None, [256], [0, 256]).ravel()
-        cdf = np.cumsum(hist)
-        half = cdf[-1] / 2.0
-        med = int(np.searchsorted(cdf, half))
-        # Histogram of |x - med| by folding the histogram around the median.
-        dev = np.bincount(np.abs(np.arange(256) - med), weights=hist, minlength=256)
-        mad = int(np.searchsorted(np.cumsum(dev), half))
+    # the sampled pixels' histogram, their median and MAD (integers) in one pass
+    med, mad = _k.sample_stats(_as_frame(gray), max(int(sample_step), 1), hist)
     sigma = noise_sigma(hist, med, mad) if fine_noise else MAD_TO_SIGMA * mad
     level = max(med + k_mad * sigma, med + min_contrast)
     if fine_noise and med + k_mad * med > level:
@@ -178,13 +169,10 @@ def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float
     its background they measure its noise again."""
     if not math.isfinite(level) or level >= 255 or gray.size == 0:
         return 0.0
-    if _k is not None and _native_frame(gray):
-        # the same mask (> level) and its box in one pass
-        lit = np.empty_like(gray)
-        x, y, w, h = _k.search_mask(gray, 1, min(max(math.floor(level) + 1, 0), 256), lit)
-    else:
-        _, lit = cv2.threshold(gray, level, 255, cv2.THRESH_BINARY)
-        x, y, w, h = cv2.boundingRect(lit)
+    # the mask (> level, 0 / 255) and its lit pixels' box in one pass
+    gray = _as_frame(gray)
+    lit = np.empty_like(gray)
+    x, y, w, h = _k.search_mask(gray, 1, min(max(math.floor(level) + 1, 0), 256), lit)
     if w == 0:
         return 0.0
     # only the lit pixels' box and its rim are read (lights cover a small part of the frame)
@@ -209,6 +197,16 @@ def near_light_sigma(gray: np.ndarray, level: float, background: float) -> float
 def _native_frame(gray: np.ndarray) -> bool:
     """A frame the compiled scans take: (H, W) uint8, C-contiguous."""
     return gray.ndim == 2 and gray.dtype == np.uint8 and gray.flags.c_contiguous
+
+
+def _as_frame(gray: np.ndarray) -> np.ndarray:
+    """`gray` as the compiled scans take it ((H, W) uint8, C-contiguous; a copy only when it is
+    not); TypeError for another kind of image."""
+    if _native_frame(gray):
+        return gray
+    if gray.ndim != 2 or gray.dtype != np.uint8:
+        raise TypeError(f"expected an (H, W) uint8 image, got {gray.dtype} {gray.shape}")
+    return np.ascontiguousarray(gray)
 
 
 def noise_sigma(hist: np.ndarray, med: int, mad: int) -> float:
@@ -369,6 +367,7 @@ def detect(gray: np.ndarray, *, settings: DetectSettings | None = None, scratch:
     stream; the results never refer to them), or None.
     """
     s = resolve_settings(settings, DetectSettings, overrides)
+    gray = _as_frame(gray)
     h, w = gray.shape[:2]
     f = detect_scale(gray.shape, s.max_detect_px)
     small = search_image(gray, f)
@@ -455,9 +454,9 @@ def _components(image: np.ndarray, level: float, stripe_gap_px: int, join_x_px: 
                 pool: int = 1, scratch: Scratch | None = None) -> tuple[list, np.ndarray]:
     """Stripe-bridged components of the search image (`detect` steps 2-3): their outer
     contours (search pixels) and bounding boxes (N, 4) x, y, w, h. `pool` > 1: `image` is the
-    full-resolution frame, searched on its `pool`-row maxima (`_row_max`; with the compiled
-    kernel, maxima, threshold and the lit box are one pass, `_pixels.search_mask_cells`, and the
-    close and contour search run on a mosaic of the lit groups, `_search_mosaic`); the boxes
+    full-resolution frame, searched on the maxima of each `pool` rows (pool 1 or 2: maxima,
+    threshold and the lit box are one pass, `_pixels.search_mask_cells`, and the close and
+    contour search run on a mosaic of the lit groups, `_search_mosaic`); the boxes
     are those of the full-resolution search (`_pooled_boxes_exact`), the contours' rows are
     pooled rows. `scratch`: reused work buffers (`Scratch`), or None (fresh ones)."""
     return _search(image, level, stripe_gap_px, join_x_px, f, pool, scratch)[:2]
@@ -470,26 +469,23 @@ def _search(image, level, stripe_gap_px, join_x_px, f, pool=1, scratch: Scratch 
     caller's to ask). `outlines` False: the contours are not needed, None may stand for them
     (the compiled run labelling, `_label`, then gives the boxes, areas and isolation in
     findContours' order without tracing the outlines)."""
-    if _k is not None and pool in (1, 2) and _native_frame(image) and math.isfinite(level):
-        # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
-        ho, w = -(-image.shape[0] // pool), image.shape[1]
-        mask = _buf(scratch, "mask", (ho, w))
-        cells = _buf(scratch, "cells", (ho, -(-w // 32)))
-        on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
-        box = _k.search_mask_cells(image, pool, on, mask, cells)
-        found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines, image, level)
-        if found is None:
-            return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch,
-                                       outlines)
-        contours, rects, areas, alone = found
-        if pool > 1 and len(rects) and alone is None:
-            rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
-        return contours, rects, areas, alone
-    search = _row_max(image, pool, scratch) if pool > 1 else image
-    dst = scratch.get("mask", search.shape) if scratch is not None else None
-    _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY, dst=dst)
-    return _components_of_mask(image, mask, cv2.boundingRect(mask), level, stripe_gap_px, join_x_px, f,
-                               pool, scratch)
+    if pool not in (1, 2) or not math.isfinite(level):
+        raise ValueError(f"row pooling {pool} (1 or 2) at level {level} (finite)")
+    image = _as_frame(image)
+    # pooled maximum, threshold, the lit box and the lit 32-column cells in one pass
+    ho, w = -(-image.shape[0] // pool), image.shape[1]
+    mask = _buf(scratch, "mask", (ho, w))
+    cells = _buf(scratch, "cells", (ho, -(-w // 32)))
+    on = min(max(math.floor(level) + 1, 0), 256)  # > level for uint8 (cv2.threshold's floor)
+    box = _k.search_mask_cells(image, pool, on, mask, cells)
+    found = _search_mosaic(mask, cells, box, stripe_gap_px, join_x_px, f, pool, scratch, outlines, image, level)
+    if found is None:
+        return _components_of_mask(image, mask, box, level, stripe_gap_px, join_x_px, f, pool, scratch,
+                                   outlines)
+    contours, rects, areas, alone = found
+    if pool > 1 and len(rects) and alone is None:
+        rects = _pooled_boxes_exact(image, rects, level, pool, _close_reach(stripe_gap_px))
+    return contours, rects, areas, alone
 
 
 def _buf(scratch: Scratch | None, name: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -603,15 +599,15 @@ def _label(closed: np.ndarray, crops: np.ndarray | None, n_crops: int, ox: int, 
     labelling of the closed mask (`_pixels.label_boxes`, no outline traced); coordinates moved
     by (ox, oy), or by the `mosaic` crops when n_crops > 0; with pool > 1 the boxes are the
     full-resolution search's (`_pooled_boxes_exact` of the frame `image` at `level`, `reach`),
-    and alone is `_isolated` of the boxes. None where it does not answer: no kernel, a component with a hole (its outer
+    and alone is `_isolated` of the boxes. None where it does not answer: a component with a hole (its outer
     contour's area covers the hole, and a component inside it would have no outer contour of
-    its own), more than LABEL_MAX_COMPONENTS components."""
-    if _k is None or not _native_frame(closed) or (pool > 1 and (image is None or not _native_frame(image))):
+    its own), more than LABEL_MAX_COMPONENTS components, a mask that is not C-contiguous."""
+    if not _native_frame(closed) or (pool > 1 and (image is None or not _native_frame(image))):
         return None
     out = np.empty((LABEL_MAX_COMPONENTS, 7), np.int64)
     on = min(math.floor(level) + 1, 255) if pool > 1 else 0
     n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, image, on, pool, reach, out)
-    if n == -2:  # a box without a lit pixel: the numpy path of the full-resolution boxes decides
+    if n == -2:  # a box without a lit pixel: `_pooled_boxes_exact` decides
         n = _k.label_boxes(closed, _NO_CROPS if crops is None else crops, n_crops, ox, oy, None, 0, 1, 0, out)
         rects = _pooled_boxes_exact(image, out[:n, :4], level, pool, reach)
         return rects, out[:n, 4] * 0.5, _isolated(rects)
@@ -638,11 +634,12 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     or bottom row when that is within `reach` rows (`_close_reach`). Those rows are among a box's
     first and last `pool` rows (its top and bottom pooled rows hold a lit pixel), except where
     the pooled close itself reached the image edge: such boxes are searched whole."""
-    if _k is not None and _native_frame(gray):
-        out = np.empty((len(rects), 4), np.int64)
-        on = min(math.floor(level) + 1, 255)
-        if _k.pooled_boxes(gray, np.ascontiguousarray(rects, np.int64), on, pool, reach, out):
-            return out
+    # the compiled pass, and numpy where it declines (a box with no lit pixel in its first or last
+    # `pool` rows, or past the frame)
+    out = np.empty((len(rects), 4), np.int64)
+    on = min(math.floor(level) + 1, 255)
+    if _k.pooled_boxes(_as_frame(gray), np.ascontiguousarray(rects, np.int64), on, pool, reach, out):
+        return out
     h = gray.shape[0]
     x, w = rects[:, 0], rects[:, 2]
     y = rects[:, 1] * pool
@@ -667,26 +664,6 @@ def _pooled_boxes_exact(gray: np.ndarray, rects: np.ndarray, level: float, pool:
     top = np.where(top <= reach, 0, top)
     bottom = np.where(h - 1 - bottom <= reach, h - 1, bottom)
     return np.stack((x, top, w, bottom - top + 1), axis=1)
-
-
-def _row_max(gray: np.ndarray, pool: int, scratch: Scratch | None = None) -> np.ndarray:
-    """(ceil(H / pool), W) uint8: maximum over each run of `pool` rows of an (H, W) uint8 image
-    (a lit pixel anywhere in the run lights the pooled pixel; the last run may be shorter).
-    Written into a `scratch` buffer when given."""
-    h = gray.shape[0]
-    ho = -(-h // pool)
-    out = scratch.get("pool", (ho, gray.shape[1])) if scratch is not None else np.empty((ho, gray.shape[1]), np.uint8)
-    first = gray[0::pool]
-    if pool == 1:
-        out[:] = first
-        return out
-    for r in range(1, pool):
-        part = gray[r::pool]  # the last run is short when pool does not divide H: its own rows
-        n = part.shape[0]
-        cv2.max(first[:n] if r == 1 else out[:n], part, dst=out[:n])
-        if r == 1 and n < ho:
-            out[n:] = first[n:]
-    return out
 
 
 def _full_res_boxes(rects: np.ndarray, f: int, w: int, h: int, pad: int = 1) -> np.ndarray:
@@ -761,15 +738,9 @@ def _isolated(rects: np.ndarray) -> np.ndarray:
     """(N,) bool: bounding box (x, y, w, h) i overlaps no other box."""
     if len(rects) > 2000:  # a noise storm: skip the O(N^2) test, mask every blob
         return np.zeros(len(rects), bool)
-    if _k is not None:
-        out = np.empty(len(rects), bool)
-        _k.isolated(np.ascontiguousarray(rects, np.int64), out.view(np.uint8))
-        return out
-    x0, y0 = rects[:, 0], rects[:, 1]
-    x1, y1 = x0 + rects[:, 2], y0 + rects[:, 3]
-    ov = ((x0[:, None] < x1[None, :]) & (x0[None, :] < x1[:, None])
-          & (y0[:, None] < y1[None, :]) & (y0[None, :] < y1[:, None]))
-    return ov.sum(axis=1) == 1  # only itself
+    out = np.empty(len(rects), bool)
+    _k.isolated(np.ascontiguousarray(rects, np.int64), out.view(np.uint8))
+    return out
 
 
 def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=250.0,
@@ -778,13 +749,11 @@ def _refine_alone_batch(gray, rects, bg, level, refine_frac, *, saturated_gray=2
     one call of the compiled kernel (`_pixels.refine_alone_blobs`: peaks, levels, the leftmost /
     rightmost lit pixel of every row, their convex hull and its stats, the Blob records): the
     same hull as `_refine`'s cv2.convexHull (vertices and orientation), its stats within float
-    rounding. None where the kernel does not answer (not built, a frame it does not take, a box
-    outside the frame, a negative or NaN level): the caller then refines one by one."""
+    rounding. None where the kernel does not answer (a box outside the frame, a negative or NaN
+    level): the caller then refines one by one."""
     if len(rects) == 0:
         return []
-    if _k is None or not _native_frame(gray):
-        return None
-    return _k.refine_alone_blobs(gray, np.ascontiguousarray(rects, np.int64), float(bg), float(level),
+    return _k.refine_alone_blobs(_as_frame(gray), np.ascontiguousarray(rects, np.int64), float(bg), float(level),
                                  float(refine_frac), float(saturated_gray), float(saturated_frac),
                                  float(min_refine_contrast), Blob, np.empty)
 

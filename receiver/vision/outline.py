@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 
-from receiver.core.native import load
-from receiver.vision.detect import Scratch
+from receiver.core.native import require
 
-# the compiled row scans (receiver/vision/_pixels.pyx), or None: the numpy path below
-_k = load("receiver.vision._pixels")
+# the compiled row scans (receiver/vision/_pixels.pyx: `edge_points`, `edge_points_blobs`), the
+# one implementation of the edge points; they sample SIDE_PX = 2 and need MIN_RUN_PX = 9
+_k = require("receiver.vision._pixels")
 
 # Smallest contrast (gray levels) between the lit plateau and the outside for a row to count.
 MIN_CONTRAST = 20.0
@@ -119,132 +118,30 @@ def stripe_edge_points(gray: np.ndarray, blob_or_contour, *, pad: int = 4, borde
 
 
 def stripe_edge_points_batch(gray: np.ndarray, blobs, *, pad: int = 4, border_px: int = 2,
-                             min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS,
-                             scratch: Scratch | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """`stripe_edge_points` of every blob (or envelope polygon) of one frame, in one pass: the
-    bounding-box rows of all blobs are gathered into one (rows, widest box) uint8 array (zero
-    padded: never lit) and every step after that is one numpy operation over all rows of all
-    blobs. `scratch`: work buffers kept across frames (receiver.vision.detect.Scratch), or None.
-    Returns one (points, sigma) pair per blob, in order. With the compiled kernels, Blobs with
-    float64 hulls take one call (`_pixels.edge_points_blobs`: boxes and points), other items
-    `_boxes` and the box kernel (`_edge_points_native`); this numpy path is their reference."""
-    if _k is not None and blobs and SIDE_PX == 2 and MIN_RUN_PX == 9:
+                             min_contrast: float = MIN_CONTRAST, bin_rows: int = DEFAULT_BIN_ROWS
+                             ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`stripe_edge_points` of every blob (or envelope polygon) of one (H, W) uint8 frame, by the
+    compiled row scans. Returns one (points, sigma) pair per blob, in order. Blobs with float64 hulls
+    take one call (`_pixels.edge_points_blobs`: boxes and points), other items `_boxes` and the
+    box kernel (`_edge_points_native`). `min_contrast` is compared in float32."""
+    if gray.ndim != 2 or gray.dtype != np.uint8:
+        raise TypeError(f"expected an (H, W) uint8 frame, got {gray.dtype} {gray.shape}")
+    if blobs:
         # Blobs (float64 hulls) of a uint8 frame: boxes and points in one compiled call
         got = _k.edge_points_blobs(gray, blobs, int(pad), int(border_px), float(min_contrast), int(bin_rows),
                                    MIN_SIGMA_PX, _SIGMA_NUM, MIN_RUN_PX + 2)
         if got is not None:
             return got
-    empty = (np.zeros((0, 2)), np.zeros(0))
-    out = [empty] * len(blobs)
-    h, w = gray.shape[:2]
+    out = [(np.zeros((0, 2)), np.zeros(0))] * len(blobs)
     boxes = _boxes(gray, blobs, pad)
     if not boxes:
         return out
-    if (_k is not None and SIDE_PX == 2 and MIN_RUN_PX == 9 and gray.ndim == 2 and gray.dtype == np.uint8
-            and np.float32(min_contrast) == min_contrast):
-        return _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows)
-    if scratch is None:
-        scratch = Scratch()
-    nb = len(boxes)
-    bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
-    X0, X1, Y0, Y1 = bx.T
-    Rb, Wb = Y1 - Y0, X1 - X0
-    r_off = np.concatenate([[0], np.cumsum(Rb)])
-    Wmax = int(Wb.max())
-    nrows = int(r_off[-1])
-    buf = scratch.get("edge_rows", (nrows, Wmax))
-    for (_, x0, x1, y0, y1, _), r0, r1 in zip(boxes, r_off[:-1].tolist(), r_off[1:].tolist()):
-        buf[r0:r1, :x1 - x0] = gray[y0:y1, x0:x1]
-        buf[r0:r1, x1 - x0:] = 0
-    # Per-row constants of each row's blob.
-    led = np.repeat(np.arange(nb), Rb)
-    bg = np.repeat(np.array([b[5] for b in boxes], dtype=np.float32), Rb)
-    Wr1 = (Wb - 1)[led]
-    rmax = buf.max(axis=1).astype(np.float32)
-    thr_lit = bg + np.float32(0.5) * (rmax - bg)
-    # uint8 v >= thr  <=>  v >= ceil(thr); rows with thr outside 0..255 fail `has` below.
-    lit = np.greater_equal(buf, np.clip(np.ceil(thr_lit), 0, 255).astype(np.uint8)[:, None],
-                           out=scratch.get("edge_lit", (nrows, Wmax)).view(bool))
-    has = (rmax - bg) >= min_contrast
-    # Coarse crossings: first and last lit pixel of each row (the zero padding is never lit
-    # for a row that has contrast).
-    first = np.argmax(lit, axis=1)
-    flipped = cv2.flip(lit.view(np.uint8), 1, dst=scratch.get("edge_flip", (nrows, Wmax)))
-    last = np.minimum(Wmax - 1 - np.argmax(flipped.view(bool), axis=1), Wr1)
-    ok = has & (last - first + 1 >= MIN_RUN_PX)
-    rows = np.flatnonzero(ok)
-    if rows.size == 0:
-        return out
-    n = rows.size
-    # Both sides at once: the left ends, then the right ends.
-    rows2 = np.concatenate([rows, rows])
-    start = np.concatenate([first[rows], last[rows]])
-    side = np.repeat(np.array([-1, 1]), n)
-    led2 = led[rows2]
-    W1 = Wr1[rows2]
-    # One gather of every pixel used, per point along its side's outward direction: the
-    # plateau (SIDE_PX pixels from 2 px inside the coarse crossing), the outside (SIDE_PX pixels
-    # from 3 px outside it) and the walk -1..3 (clamped into the box; clear of the ~0.6 px blur).
-    # Offsets along axis 0, points along axis 1 (long rows: no per-point inner loops).
-    ar = np.arange(SIDE_PX)
-    offs = np.concatenate([-(2 + ar), 3 + ar, np.arange(-1, 4)])
-    cols = np.minimum(np.maximum(offs[:, None] * side + start, 0), W1)
-    vals = buf.ravel()[cols + rows2 * Wmax].astype(np.float32)
-    plateau = vals[:SIDE_PX].sum(axis=0) / np.float32(SIDE_PX)
-    outside = vals[SIDE_PX:2 * SIDE_PX].sum(axis=0) / np.float32(SIDE_PX)
-    thr = 0.5 * (plateau + outside)
-    # The straddling pair around `start`: the first of the walk's pixel pairs (nearer the inside,
-    # one pixel further out) that crosses the half level, at most 3 px out.
-    a, v = cols[2 * SIDE_PX:], vals[2 * SIDE_PX:]
-    hit = (v[:-1] >= thr) & (v[1:] < thr) & (a[:-1] != a[1:])
-    k = np.zeros(2 * n, np.int64)
-    for j in range(len(hit) - 1, 0, -1):          # the first pair that hits (0 when none)
-        k[hit[j]] = j
-    k[hit[0]] = 0
-    ii = np.arange(2 * n)
-    va, vb = v[k, ii], v[k + 1, ii]
-    frac = (va - thr) / np.maximum(va - vb, 1e-6)
-    pos = np.where(hit[k, ii], a[k, ii] + side * frac, np.nan)
-    contrast = plateau - outside
-    good = np.isfinite(pos) & (contrast >= min_contrast)
-    s = np.maximum(MIN_SIGMA_PX, NOISE_GRAY * np.sqrt(2.0) / np.maximum(0.5 * contrast, 1e-3))
-    x0r, x1r = X0[led2], X1[led2]
-    x = pos + x0r
-    yl = rows2 - r_off[led2]                          # row within its box
-    y = (yl + Y0[led2]).astype(np.float64)
-    good &= (x >= border_px) & (x <= w - 1 - border_px) & (y >= border_px) & (y <= h - 1 - border_px)
-    # An edge pixel sampled at the box's own border (the blob reaches past it) is not an edge.
-    good &= (x > x0r + 1) & (x < x1r - 2)
-    s = s.astype(np.float64)
-    if bin_rows > 1:
-        # Bins of `bin_rows` rows per blob and side, numbered blob by blob, left side first.
-        nbin = (Rb + bin_rows - 1) // bin_rows
-        b_off = np.concatenate([[0], np.cumsum(2 * nbin)])
-        key = (b_off[led2] + (side > 0) * nbin[led2] + yl // bin_rows)[good]
-        m = int(b_off[-1])
-        cnt = np.bincount(key, minlength=m)
-        used = np.flatnonzero(cnt)
-        c = cnt[used]
-        px = np.bincount(key, x[good], m)[used] / c
-        py = np.bincount(key, y[good], m)[used] / c
-        ps = np.sqrt(np.bincount(key, (s * s)[good], m)[used]) / c
-        owner = np.searchsorted(b_off, used, side="right") - 1
-    else:
-        order = np.argsort(led2 * 2 + (side > 0), kind="stable")
-        sel = order[good[order]]
-        px, py, ps, owner = x[sel], y[sel], s[sel], led2[sel]
-    pts = np.column_stack([px, py])
-    ends = np.searchsorted(owner, np.arange(nb + 1), side="left")
-    for k in range(nb):
-        e0, e1 = ends[k], ends[k + 1]
-        if e1 > e0:
-            out[boxes[k][0]] = (pts[e0:e1], ps[e0:e1])
-    return out
+    return _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows)
 
 
 def _edge_points_native(gray, boxes, out, border_px, min_contrast, bin_rows):
     """`stripe_edge_points_batch` by the compiled kernel (`_pixels.edge_points`), row by row
-    straight from the frame: the same points and sigmas, bit for bit (tests/vision/test_outline.py)."""
+    straight from the frame."""
     bx = np.array([b[1:5] for b in boxes], dtype=np.int64)
     x0, x1, y0, y1 = (np.ascontiguousarray(c) for c in bx.T)
     bg = np.array([b[5] for b in boxes], dtype=np.float32)

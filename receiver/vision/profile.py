@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from receiver.core.native import load
+from receiver.core.native import load, require
 from receiver.core.records import Blob
 
-# the compiled masked sums (receiver/vision/_pixels.pyx), or None: the OpenCV path below
-_k = load("receiver.vision._pixels")
+# the compiled masked sums (receiver/vision/_pixels.pyx)
+_k = require("receiver.vision._pixels")
 # the batched masked means of the S2-PSK pair stage (receiver/vision/_pairing.pyx), or None
 _kb = load("receiver.vision._pairing")
 
@@ -35,19 +35,12 @@ def row_profile(gray: np.ndarray, blob: Blob) -> tuple[np.ndarray, np.ndarray, i
     if roi.shape != mask.shape or roi.size == 0:  # envelope on the last row/column: no pixels
         z = np.zeros(mask.shape[0], np.float32)
         return z, z.copy(), int(blob.y0)
-    if _k is not None and roi.dtype == np.uint8 and roi.strides[1] == 1:
-        # per row, the envelope's pixel count and gray sum in one pass (exact integers, as
-        # cv2.reduce's float32 sums below)
-        sums, weights = np.empty(mask.shape[0], np.float32), np.empty(mask.shape[0], np.float32)
-        _k.masked_row_sums(roi, mask, sums, weights)
-        return sums / np.maximum(weights, 1.0), weights, int(blob.y0)
-    weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
-    # roi * mask (0/1) never exceeds 255: numpy's uint8 product is cv2.multiply's, several
-    # times cheaper on a large envelope
-    sums = cv2.reduce(np.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+    # per row, the envelope's pixel count and gray sum in one pass (exact integers in float32);
     # a row without envelope pixels sums to 0, so dividing it by 1 gives its 0 profile
-    profile = sums / np.maximum(weights, 1.0)
-    return profile, weights, int(blob.y0)
+    sums, weights = np.empty(mask.shape[0], np.float32), np.empty(mask.shape[0], np.float32)
+    # (a uint8 frame; its rows made contiguous only when they are not)
+    _k.masked_row_sums(roi if roi.strides[1] == 1 else np.ascontiguousarray(roi), mask, sums, weights)
+    return sums / np.maximum(weights, 1.0), weights, int(blob.y0)
 
 
 def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
@@ -59,13 +52,9 @@ def mean_in_mask(gray: np.ndarray, blob: Blob) -> float:
         roi, mask = _inside(gray, blob, mask)
         n = int(mask.sum())
         return float((roi * mask).sum()) / n if n else 0.0
-    # the same exact integer sums (cv2.sumElems adds uint8 values in double, exactly) divided
-    # once, without numpy's reduction wrappers (S2-PSK reads ~30 of these a frame)
-    if _k is not None and roi.dtype == np.uint8 and roi.strides[1] == 1:
-        total, n = _k.masked_sum(roi, mask)  # the same exact sums in one pass
-        return total / n if n else 0.0
-    n = cv2.countNonZero(mask)
-    return cv2.sumElems(np.multiply(roi, mask))[0] / n if n else 0.0
+    # the exact integer sum and count in one pass (S2-PSK reads ~30 of these a frame)
+    total, n = _k.masked_sum(roi if roi.strides[1] == 1 else np.ascontiguousarray(roi), mask)
+    return total / n if n else 0.0
 
 
 def peak_in_mask(gray: np.ndarray, blob: Blob) -> float:

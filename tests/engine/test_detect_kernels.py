@@ -1,6 +1,7 @@
-"""Detection's whole-frame kernels (receiver/vision/_pixels.pyx) against OpenCV and numpy: the
-envelopes of isolated blobs against `_refine` (cv2.threshold and cv2.convexHull), the search
-and labelling against cv2.findContours, the masks and histograms against numpy."""
+"""Detection's whole-frame kernels (receiver/vision/_pixels.pyx) against OpenCV, numpy and their
+definitions: the envelopes of isolated blobs against `_refine` (cv2.threshold and
+cv2.convexHull), the search and labelling against cv2.findContours, the masks and histograms
+against numpy, the sampled median and MAD against order statistics, box overlap pair by pair."""
 
 from __future__ import annotations
 
@@ -10,13 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.core.records import Blob
 from receiver.vision import detect as detect_mod
 from receiver.vision.detect import _refine_alone_batch
 
-_px = load("receiver.vision._pixels")
-needs_kernel = pytest.mark.skipif(_px is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+_px = require("receiver.vision._pixels")
 
 
 def _scene(rng, h=200, w=300):
@@ -40,7 +40,6 @@ def _cyclic(hull: np.ndarray) -> list:
     return pts[k:] + pts[:k]
 
 
-@needs_kernel
 @pytest.mark.parametrize("seed", range(6))
 def test_refine_alone_kernel_gives_the_opencv_refinement(seed, simd):
     """The kernel's envelopes against `_refine` (cv2.threshold, the row extremes and
@@ -71,7 +70,6 @@ def test_refine_alone_kernel_gives_the_opencv_refinement(seed, simd):
     assert n_start > 0  # where cv2.convexHull starts at its largest-x vertex, the same vertex list
 
 
-@needs_kernel
 def test_refine_alone_kernel_hull_of_lines_and_points():
     """Degenerate envelopes: one pixel, a row, a column, a diagonal (collinear rows)."""
     gray = np.zeros((40, 60), np.uint8)
@@ -89,7 +87,6 @@ def test_refine_alone_kernel_hull_of_lines_and_points():
     assert [len(b.hull) for b in got] == [1, 2, 2, 2]
 
 
-@needs_kernel
 def test_refine_alone_kernel_declines_what_it_does_not_take():
     """A box past the frame, a negative or a NaN level: the kernel declines (None) and the
     caller refines one by one."""
@@ -117,7 +114,6 @@ def _lit_scene(rng, h, w):
     return np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8))
 
 
-@needs_kernel
 @pytest.mark.parametrize("seed", range(8))
 def test_mosaic_search_equals_the_lit_box_search(seed, monkeypatch):
     """The close and contour search on a mosaic of the lit groups (`_search_mosaic`) gives the
@@ -145,10 +141,16 @@ def test_mosaic_search_equals_the_lit_box_search(seed, monkeypatch):
     assert used >= 1  # the mosaic was taken, not only the fallback (3000 scenes checked once: no difference)
 
 
-@needs_kernel
-def test_auto_level_kernel_equals_numpy(monkeypatch):
-    """`_pixels.sample_stats` (histogram, median and MAD in one pass) gives auto_level's
-    numbers, on noisy, flat, clipped and tiny frames, every sampling step."""
+def _lower_median(v: np.ndarray) -> int:
+    """The smallest value with at least half the samples at or below it (an order statistic)."""
+    v = np.sort(v.ravel())
+    return int(v[max(-(-v.size // 2) - 1, 0)])
+
+
+def test_sample_stats_are_the_sampled_pixels_histogram_median_and_mad():
+    """`_pixels.sample_stats` (what auto_level reads): the histogram of every step-th pixel in
+    both directions, its lower median and the lower median of the absolute deviations from it,
+    on noisy, flat, clipped and tiny frames, every sampling step; auto_level's level from them."""
     rng = np.random.default_rng(5)
     frames = [np.zeros((1, 1), np.uint8), np.full((7, 9), 255, np.uint8)]
     for _ in range(40):
@@ -158,29 +160,35 @@ def test_auto_level_kernel_equals_numpy(monkeypatch):
         frames.append(np.ascontiguousarray(np.clip(np.rint(g), 0, 255).astype(np.uint8)))
     for gray in frames:
         for step in (1, 2, 3, 4, 5):
-            for fine in (False, True):
-                got = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
-                with monkeypatch.context() as m:
-                    m.setattr(detect_mod, "_k", None)
-                    want = detect_mod.auto_level(gray, sample_step=step, fine_noise=fine)
-                assert got == want
+            sample = gray[::step, ::step].astype(np.int64)
+            hist = np.empty(256, np.float32)
+            med, mad = _px.sample_stats(gray, step, hist)
+            assert np.array_equal(hist, np.bincount(sample.ravel(), minlength=256).astype(np.float32))
+            assert med == _lower_median(sample) and mad == _lower_median(np.abs(sample - med))
+            level, bg = detect_mod.auto_level(gray, sample_step=step)
+            assert bg == med and level == min(max(med + 8.0 * (1.4826 * mad), med + 24.0), 254.0)
 
 
-@needs_kernel
-def test_isolated_kernel_equals_numpy(monkeypatch):
+def _overlap_free(rects: np.ndarray) -> list[bool]:
+    """Box i (x, y, w, h) overlaps exactly one box, pair by pair: itself and no other (an empty
+    box does not overlap itself)."""
+    r = rects.tolist()
+
+    def over(a, b):
+        return a[0] < b[0] + b[2] and b[0] < a[0] + a[2] and a[1] < b[1] + b[3] and b[1] < a[1] + a[3]
+    return [sum(over(a, b) for b in r) == 1 for a in r]
+
+
+def test_isolated_boxes_overlap_no_other():
     rng = np.random.default_rng(6)
     for _ in range(300):
         n = int(rng.integers(0, 30))
         rects = np.stack([rng.integers(0, 100, n), rng.integers(0, 100, n),
                           rng.integers(0, 25, n), rng.integers(0, 25, n)], axis=1).astype(np.int64).reshape(-1, 4)
         got = detect_mod._isolated(rects)
-        with monkeypatch.context() as m:
-            m.setattr(detect_mod, "_k", None)
-            want = detect_mod._isolated(rects)
-        assert got.dtype == want.dtype == bool and np.array_equal(got, want)
+        assert got.dtype == bool and got.tolist() == _overlap_free(rects)
 
 
-@needs_kernel
 def test_search_mask_cells_marks_the_lit_32_column_cells():
     rng = np.random.default_rng(8)
     for _ in range(200):
@@ -217,7 +225,6 @@ def _masks(rng, count):
         yield np.ascontiguousarray(m)
 
 
-@needs_kernel
 def test_label_runs_equals_find_contours():
     """`_pixels.label_runs` gives every 8-connected component's bounding box, first point and
     hole count as findContours (RETR_CCOMP: outer contours and their holes) does, and for those
@@ -250,13 +257,12 @@ def test_label_runs_equals_find_contours():
     assert checked > 10000 and holed > 500
 
 
-@needs_kernel
 @pytest.mark.parametrize("seed", range(6))
-def test_search_without_outlines_equals_the_contour_search(seed, monkeypatch):
+def test_search_without_outlines_equals_the_contour_search(seed):
     """`_search(..., outlines=False)` (run labelling, on the mosaic or the lit box) gives the
     boxes, in the same order, and the contour areas of the contour search; None for the
-    contours only when it took the labelling, and then which boxes are isolated (the numpy
-    `_isolated` of the contour search's boxes)."""
+    contours only when it took the labelling, and then which boxes are isolated (pair by pair,
+    of the contour search's boxes)."""
     rng = np.random.default_rng(100 + seed)
     labelled = isolated = 0
     for _ in range(25):
@@ -272,15 +278,11 @@ def test_search_without_outlines_equals_the_contour_search(seed, monkeypatch):
         if got[0] is None:
             labelled += 1
             assert got[2].tolist() == want_areas
-            with monkeypatch.context() as m:
-                m.setattr(detect_mod, "_k", None)
-                want_alone = detect_mod._isolated(want[1])
-            assert got[3].dtype == bool and np.array_equal(got[3], want_alone)
+            assert got[3].dtype == bool and got[3].tolist() == _overlap_free(want[1])
             isolated += int(got[3].sum())
     assert labelled >= 15 and isolated > 50
 
 
-@needs_kernel
 def test_label_says_which_boxes_overlap():
     """`_label`'s isolation flags: an L and a dot inside its box overlap, a far square does not;
     boxes in findContours' order (by descending first point)."""
@@ -293,7 +295,6 @@ def test_label_says_which_boxes_overlap():
     assert alone.tolist() == [True, False, False] and areas.tolist()[:2] == [16.0, 1.0]
 
 
-@needs_kernel
 def test_label_runs_refuses_short_outputs():
     m = np.full((3, 3), 255, np.uint8)
     with pytest.raises(ValueError):
@@ -309,7 +310,6 @@ def _blob_tuple(b):
             b.peak, b.level, b.background)
 
 
-@needs_kernel
 @pytest.mark.parametrize("seed", range(4))
 def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
     """detect() with the run labelling (`_label`) gives the blobs of the contour search, also
@@ -338,7 +338,6 @@ def test_detect_with_run_labelling_equals_the_contour_search(seed, monkeypatch):
     assert labelled >= 20 and fell_back >= 1
 
 
-@needs_kernel
 def test_mosaic_declines_a_box_mostly_lit():
     """`_pixels.mosaic` gives up early when more than max_fill of the lit box's cells are lit,
     and packs the same groups when allowed."""
@@ -364,7 +363,6 @@ def simd(request):
     _px.avx2(True)
 
 
-@needs_kernel
 def test_search_mask_and_histogram_same_with_and_without_avx2(simd):
     """The threshold (mask, lit box, 32-column cells) and the sampled histogram of random frames
     of every width from 1 to 200 (all the vector loops' tails) and a 1280 x 720 frame, by the

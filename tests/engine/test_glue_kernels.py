@@ -1,10 +1,12 @@
 """The per-frame glue around the kernels: `records.led_observation` against the record's own
-constructor, and the positioner's compiled glue (receiver/locate/_ranging.pyx) against numpy."""
+constructor, and the positioner's compiled glue (receiver/locate/_ranging.pyx) against its
+definitions, known truth and OpenCV."""
 
 from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 import pytest
 
@@ -29,147 +31,98 @@ def test_led_observation_is_the_record():
 
 from receiver.locate import indoor, ranging  # noqa: E402
 
-ranging_native = pytest.mark.skipif(ranging._kr is None, reason="compiled glue not built (or OCCLOC_PURE=1)")
-
 
 class _Cam:
     width, height = 640, 480
 
 
-def _contours(rng, n):
-    out = []
-    for _ in range(n):
-        r = rng.random()
-        if r < 0.1:
-            out.append(None)
-        elif r < 0.15:
-            out.append(np.zeros((0, 2)))
-        else:
-            c = rng.uniform(-5, 650, size=(int(rng.integers(1, 12)), 2))
-            if rng.random() < 0.3:
-                c = np.round(c)  # on the margin exactly
-            if rng.random() < 0.05:
-                c[int(rng.integers(len(c))), int(rng.integers(2))] = np.nan
-            out.append(c)
-    return out
-
-
-@ranging_native
-def test_edge_touch_kernel_equals_numpy(monkeypatch):
+def test_edge_touch_is_any_envelope_point_within_the_margin():
+    """`Ranger._touching_edge` against its definition, point by point: an envelope touches the
+    edge when one of its points lies within `border_margin_px` of it (no contour: False)."""
     rng = np.random.default_rng(2)
-    for k in range(400):
-        margin = float(rng.choice([0.0, 1.0, 2.5, 3.0]))
-        ranger = ranging.Ranger.__new__(ranging.Ranger)
-        ranger.camera, ranger.border_margin_px = _Cam(), margin
-        obs = [LedObservation(i, 0.0, 0.0, 1.0, c) for i, c in enumerate(_contours(rng, int(rng.integers(0, 8))))]
-        native = ranger._touching_edge(obs)
-        with monkeypatch.context() as m:
-            m.setattr(ranging, "_kr", None)
-            pure = ranger._touching_edge(obs)
-        assert native == pure and all(type(v) is bool for v in native)
-    # contours the kernel does not read (float32, (K, 1, 2), lists) take the numpy path
-    odd = [LedObservation(0, 0.0, 0.0, 1.0, np.zeros((3, 1, 2), np.float32)),
-           LedObservation(1, 0.0, 0.0, 1.0, [[5.0, 5.0], [700.0, 5.0]])]
     ranger = ranging.Ranger.__new__(ranging.Ranger)
-    ranger.camera, ranger.border_margin_px = _Cam(), 2.0
-    assert ranger._touching_edge(odd) == [True, True]
+    ranger.camera = _Cam()
+    for k in range(300):
+        m = ranger.border_margin_px = float(rng.choice([0.0, 1.0, 2.5, 3.0]))
+        contours = []
+        for _ in range(int(rng.integers(0, 8))):
+            r = rng.random()
+            c = None if r < 0.1 else np.zeros((0, 2)) if r < 0.15 else rng.uniform(-5, 650, (int(rng.integers(1, 12)), 2))
+            if c is not None and len(c) and rng.random() < 0.3:
+                c = np.round(c)  # on the margin exactly
+            contours.append(c)
+        obs = [LedObservation(i, 0.0, 0.0, 1.0, c) for i, c in enumerate(contours)]
+        want = [c is not None and any(x <= m or y <= m or x >= 639 - m or y >= 479 - m for x, y in c.tolist())
+                for c in contours]
+        assert ranger._touching_edge(obs) == want
+    odd = [LedObservation(0, 0.0, 0.0, 1.0, np.zeros((3, 1, 2), np.float32)),
+           LedObservation(1, 0.0, 0.0, 1.0, [[5.0, 5.0], [700.0, 5.0]]),
+           LedObservation(2, 0.0, 0.0, 1.0, [[50.0, 50.0], [60.0, 70.0]])]
+    ranger.border_margin_px = 2.0
+    assert ranger._touching_edge(odd) == [True, True, False]
 
 
-@ranging_native
-def test_outline_packing_kernel_equals_numpy(monkeypatch):
-    rng = np.random.default_rng(4)
-    # a frame's sigmas repeat (the kernel keeps the last 8 distinct ones and their hypot): pools of
-    # 2 to 12 values, -0.0 and 0.0 among them, as well as all-different ones
-    pool = np.concatenate([rng.uniform(0, 2, 10), [0.0, -0.0]])
-    for k in range(200):
-        chosen = []
-        for i in range(int(rng.integers(1, 6))):
-            n = int(rng.integers(0, 30))
-            sig = (rng.uniform(0, 2, size=n) if k % 2 else
-                   rng.choice(pool[:int(rng.integers(2, len(pool) + 1))], size=n))
-            edges = (rng.uniform(0, 1000, size=(n, 2)), sig)
-            obs = LedObservation(i, float(rng.uniform(0, 1000)), np.float64(rng.uniform(0, 1000)), 1.0, None)
-            fx = (None, (float(rng.uniform(0.01, 1)), float(rng.uniform(0.01, 1))), tuple(rng.normal(size=3).tolist()))
-            chosen.append((obs, edges, fx))
-        native = indoor._pack_outline(chosen, 0.3, 1234.5)
-        with monkeypatch.context() as m:
-            m.setattr(indoor, "_kr", None)
-            pure = indoor._pack_outline(chosen, 0.3, 1234.5)
-        for a, b in zip(native, pure):
-            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
-    # edge arrays the kernel does not read take the numpy path, with the same arrays
-    chosen = [(LedObservation(0, 1.0, 2.0, 1.0, None), (np.ones((3, 2), np.float32), np.ones((3, 1))),
-               (None, (0.5, 0.5), (1.0, 2.0, 3.0)))]
-    got = indoor._pack_outline(chosen, 0.3, 10.0)
-    assert got[0].shape == (4, 2) and got[1].shape == (3,) and got[2].tolist() == [0, 3]
+def test_outline_packing_of_two_targets():
+    """`indoor._pack_outline` on a hand-made frame: the edge points in turn, then the centroids;
+    sigma = hypot(point sigma, model sigma) / focal; the ends, map centres and half extents."""
+    o1, o2 = LedObservation(0, 10.0, 20.0, 1.0, None), LedObservation(1, 30.0, 40.0, 1.0, None)
+    e1 = (np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([0.4, 0.0]))
+    e2 = (np.array([[5.0, 6.0]], np.float32), np.array([1.2]))
+    chosen = [(o1, e1, (None, (0.5, 0.25), (1.0, 2.0, 3.0))), (o2, e2, (None, (0.1, 0.2), (4.0, 5.0, 6.0)))]
+    pts, sig, ends, centres, half = indoor._pack_outline(chosen, 0.3, 10.0)
+    assert pts.tolist() == [[1, 2], [3, 4], [5, 6], [10, 20], [30, 40]] and pts.dtype == np.float64
+    np.testing.assert_allclose(sig, [0.05, 0.03, np.hypot(1.2, 0.3) / 10], rtol=1e-15)
+    assert ends.tolist() == [0, 2, 3] and ends.dtype == np.int64
+    assert centres.tolist() == [[1, 2, 3], [4, 5, 6]] and half.tolist() == [[0.5, 0.25], [0.1, 0.2]]
 
 
-@ranging_native
-def test_polygon_sums_kernel_equals_numpy(monkeypatch):
-    """Area, perimeter, centroid and a contour's whole geometry: the same numbers bit for bit
-    (the kernel sums in np.sum's pairwise order), for polygons of 3 to 400 points (numpy's
-    sequential, 8-accumulator and halving branches)."""
-    from receiver.io.camera import CameraModel
-
-    cam = CameraModel(K=np.array([[900.0, 0, 640], [0, 905.0, 360], [0, 0, 1]]),
-                      dist=np.array([-0.2, 0.05, 0.001, -0.001, 0.0]), width=1280, height=720)
+def test_polygon_area_perimeter_and_centroid_of_regular_polygons():
+    """Known truth: a regular n-gon of circumradius r has area n r^2 sin(2 pi / n) / 2, perimeter
+    2 n r sin(pi / n) and its centre as centroid, whatever its orientation and vertex order; a
+    polygon of no area has no centroid. OpenCV's contourArea and arcLength agree (float32)."""
     rng = np.random.default_rng(9)
-    for k in range(1500):
+    for k in range(300):
         n = int(rng.integers(3, 400))
-        a = np.sort(rng.uniform(0, 2 * np.pi, n))
-        r = rng.uniform(1, 200) * (1 + 0.1 * rng.random(n))
-        poly = np.column_stack([640 + r * np.cos(a), 360 + r * np.sin(a)]) * 10.0 ** rng.integers(-2, 2)
-        if k % 50 == 0:
-            poly[:, 1] = poly[0, 1]  # degenerate: no area, no centroid
-        native = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
-                  ranging.contour_geometry(poly, cam, 0.5))
-        with monkeypatch.context() as m:
-            m.setattr(ranging, "_kr", None)
-            pure = (ranging.polygon_area_perimeter(poly), ranging.polygon_centroid(poly),
-                    ranging.contour_geometry(poly, cam, 0.5))
-        assert native[0] == pure[0]
-        assert (native[1] is None) == (pure[1] is None) and (pure[1] is None or np.array_equal(native[1], pure[1]))
-        assert (native[2] is None) == (pure[2] is None)
-        if pure[2] is not None:
-            assert native[2].keys() == pure[2].keys()
-            assert all(np.array_equal(native[2][key], pure[2][key]) for key in pure[2])
-    # what the kernel does not read (float32, strided) is summed by numpy
+        r, c = float(rng.uniform(1, 200)), rng.uniform(-500, 1500, 2)
+        a = np.arange(n) * 2 * np.pi / n + rng.uniform(0, 2 * np.pi)
+        poly = c + r * np.column_stack([np.cos(a), np.sin(a)])
+        if k % 2:
+            poly = poly[::-1]
+        area, perim = ranging.polygon_area_perimeter(poly)
+        assert area == pytest.approx(0.5 * n * r * r * np.sin(2 * np.pi / n), rel=1e-9)
+        assert perim == pytest.approx(2 * n * r * np.sin(np.pi / n), rel=1e-9)
+        np.testing.assert_allclose(ranging.polygon_centroid(poly), c, rtol=0, atol=1e-9 * (r + np.abs(c).max()))
+        p32 = poly.astype(np.float32)
+        assert area == pytest.approx(cv2.contourArea(p32), rel=1e-4)
+        assert perim == pytest.approx(cv2.arcLength(p32, True), rel=1e-4)
+    line = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+    assert ranging.polygon_centroid(line) is None and ranging.polygon_area_perimeter(line)[0] == 0.0
     tri = np.array([[0, 0], [4, 0], [0, 3]], np.float32)
     assert ranging.polygon_area_perimeter(tri) == (6.0, 12.0)
     assert ranging.polygon_area_perimeter(np.array([[0, 0, 4, 0, 0, 3.0]]).reshape(3, 2)[::-1]) == (6.0, 12.0)
 
 
-@ranging_native
-def test_annotate_kernel_equals_python(monkeypatch):
-    """`Ranger.annotate`: the same records (fields, untouched ones the same objects) with the
-    compiled copies; another record type goes through `_with_range`."""
+def test_annotate_rounds_finite_ranges_to_10_um_and_leaves_the_rest():
+    """`Ranger.annotate`: an item with a finite range gets it rounded to 10 um (Python's round)
+    and its estimator; the others are the same objects; another record type is copied too."""
     @dataclasses.dataclass(frozen=True)
     class Other:
         track: int
         distance_m: float | None = None
         distance_estimator: str | None = None
 
-    rng = np.random.default_rng(1)
-    for k in range(200):
-        leds = [LedObservation(i, float(i), 2.0, 3.0, None, id=i) if rng.random() < 0.9 else Other(i)
-                for i in range(int(rng.integers(0, 8)))]
-        items = [(o, None, None) for o in leds if rng.random() < 0.7]
-        hard = [1.000005, np.nextafter(1.000005, 2), np.nextafter(1.000005, 0), 12.34565, 2.675, 1e12, 0.0, -0.0,
-                -3.0000049, 1e-320]      # near round(v, 5)'s ties, huge, signed zeros, subnormal
-        d = np.array([rng.choice([np.nan, np.inf, float(rng.uniform(0, 9)), float(rng.choice(hard))]) for _ in items])
-        names = [str(rng.choice(["outline", "eq18"])) for _ in items]
-        native = ranging.Ranger.annotate(leds, items, d, names)
-        with monkeypatch.context() as m:
-            m.setattr(ranging, "_kr", None)
-            pure = ranging.Ranger.annotate(leds, items, d, names)
-        assert len(native) == len(pure) == len(leds)
-        for a, b, o in zip(native, pure, leds):
-            assert type(a) is type(b) and a == b and a.__dict__ == b.__dict__
-            assert repr(a.distance_m) == repr(b.distance_m)      # the same rounding, to the sign of a zero
-            assert (a is o) == (b is o)
-        for a in native:
-            with pytest.raises(dataclasses.FrozenInstanceError):
-                a.distance_m = 1.0
+    leds = [LedObservation(i, float(i), 2.0, 3.0, None, id=i) for i in range(5)] + [Other(5)]
+    d = np.array([1.000005, np.nan, 2.675, np.inf, -0.0, 12.34565])
+    names = ["outline", "eq18", "eq18", "eq18", "eq18", "oblique-up"]
+    items = [(o, None, None) for o in leds]
+    got = ranging.Ranger.annotate(leds, items, d, names)
+    assert [type(o) for o in got] == [type(o) for o in leds]
+    assert got[1] is leds[1] and got[3] is leds[3]
+    for i in (0, 2, 4, 5):
+        assert repr(got[i].distance_m) == repr(round(float(d[i]), 5)) and got[i].distance_estimator == names[i]
+        assert got[i].track == leds[i].track
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got[0].distance_m = 1.0
 
 
 def test_led_records_follow_the_report_rules():

@@ -235,11 +235,11 @@ def test_tracker_follows_each_light(seed, monkeypatch):
     assert calls and n_ended > 0 and tracker._next_id > 14
 
 
-def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
+def test_edge_points_of_blobs_in_one_call_equal_the_box_path():
     """The Blobs' edge points in one compiled call (`_pixels.edge_points_blobs`: the boxes of
     merged envelopes, some past the image edge, one too narrow for a run, and their points)
-    equal the numpy path's (`_boxes`, then the row gathers) bit for bit; hulls the call does not
-    take (int32) go the general way, to the same points."""
+    equal those of the boxes `outline._boxes` gives (floor / ceil of the hulls' extremes) read by
+    the box kernel; hulls the call does not take (int32) go that way."""
     import dataclasses
     from receiver.vision import outline
     leds = bench_scene(n_leds=8, radius_px=30.0, seed=3)
@@ -250,20 +250,16 @@ def test_edge_points_of_blobs_boxes_kernel_equals_numpy(monkeypatch):
         env = list(hist.step(tracks, k, g.shape).values())
     narrow = dataclasses.replace(env[0], hull=env[0].hull[:1])
     items = env + [narrow]
+    gray = frames[-1]
     for kw in ({}, {"bin_rows": 1}, {"pad": 1, "border_px": 0}):
-        a = outline.stripe_edge_points_batch(frames[-1], items, **kw)
-        with monkeypatch.context() as m:
-            m.setattr(outline, "_k", None)
-            b = outline.stripe_edge_points_batch(frames[-1], items, **kw)
+        full = dict(dict(pad=4, border_px=2, min_contrast=outline.MIN_CONTRAST, bin_rows=outline.DEFAULT_BIN_ROWS), **kw)
+        a = outline.stripe_edge_points_batch(gray, items, **kw)
+        b = outline._edge_points_native(gray, outline._boxes(gray, items, full["pad"]),
+                                        [(np.zeros((0, 2)), np.zeros(0))] * len(items),
+                                        full["border_px"], full["min_contrast"], full["bin_rows"])
         ints = [dataclasses.replace(e, hull=np.round(e.hull).astype(np.int32)) for e in items]
-        assert outline._k.edge_points_blobs(frames[-1], ints, 4, 2, 20.0, 4, 0.05, 2.0, 11) is None
-        c = outline.stripe_edge_points_batch(frames[-1], ints, **kw)
-        with monkeypatch.context() as m:
-            m.setattr(outline, "_k", None)
-            d = outline.stripe_edge_points_batch(frames[-1], ints, **kw)
-        for (pa, sa), (pb, sb) in zip(c, d):
-            assert np.array_equal(pa, pb) and np.array_equal(sa, sb)
-        assert sum(len(p) for p, _ in c) > 50
+        assert outline._k.edge_points_blobs(gray, ints, 4, 2, 20.0, 4, 0.05, 2.0, 11) is None
+        assert sum(len(p) for p, _ in outline.stripe_edge_points_batch(gray, ints, **kw)) > 50
         assert len(a) == len(b) == len(items)
         for (pa, sa), (pb, sb) in zip(a, b):
             assert np.array_equal(pa, pb) and np.array_equal(sa, sb)

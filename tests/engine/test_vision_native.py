@@ -1,29 +1,31 @@
-"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against the OpenCV / numpy
-paths the stage takes where the kernel does not answer (`_k` set to None): the same blobs
-(`same_blob`: same boxes and decisions, same hull vertices, centroid and area within float
-rounding) and the same edge points, on frames of every bundled recording and on random scenes."""
+"""The image side's compiled kernels (receiver/vision/_pixels.pyx) against OpenCV and numpy, on
+frames of every bundled recording and on random scenes: each blob's envelope is cv2.convexHull
+of its lit pixels with cv2.moments' centroid and cv2.contourArea / cv2.arcLength's area and
+rim; masks and histograms are cv2.threshold's and cv2.calcHist's; the row profiles and mask
+means OpenCV's sums."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import math
+
+import cv2
 import numpy as np
 import pytest
 
-from receiver.core.native import load
+from receiver.core.native import require
 from receiver.io.camera import load_camera
 from receiver.io.ledmap import load_map
 from receiver.io.sources import open_source
 from receiver.pipeline import Receiver
 from receiver.vision import detect as detect_mod
-from receiver.vision import outline
 from receiver.vision.detect import detect
-from tests.vision.test_detect import detect_with_pool, same_blob
+from tests.vision.test_detect import cyclic, detect_with_pool, same_blob
 
 ROOT = Path(__file__).resolve().parents[2]
 RECORDINGS = ("indoor-walk", "indoor-static", "indoor-sparse", "vehicle")
-_px = load("receiver.vision._pixels")
-needs_kernel = pytest.mark.skipif(_px is None, reason="kernels not built or OCCLOC_PURE=1 (test_native checks the build)")
+_px = require("receiver.vision._pixels")
 
 
 def _frames(name: str, every: int = 9, limit: int = 5):
@@ -35,12 +37,6 @@ def _frames(name: str, every: int = 9, limit: int = 5):
             if len(out) == limit:
                 break
     return out
-
-
-def _pure(module, monkeypatch, fn, *args, **kw):
-    with monkeypatch.context() as m:
-        m.setattr(module, "_k", None)
-        return fn(*args, **kw)
 
 
 def _settings(name: str):
@@ -56,11 +52,30 @@ def _same_blobs(a, b):
         assert same_blob(p, q), (p, q)
 
 
-def _same_points(a, b):
-    assert len(a) == len(b)
-    for (p, s), (q, t) in zip(a, b):
-        assert p.shape == q.shape and s.shape == t.shape
-        assert np.array_equal(p, q) and np.array_equal(s, t)
+def _opencv_envelopes(gray, blobs) -> int:
+    """Each blob whose box overlaps no other blob's against OpenCV: its hull is cv2.convexHull of
+    the pixels above its level in its box (the same vertices, any start), its centroid
+    cv2.moments' (1e-6 px), its area cv2.contourArea + cv2.arcLength / 2 + pi / 4 (1e-6
+    relative), its peak at least the box's maximum. Returns how many were checked."""
+    rects = np.array([(b.x0, b.y0, b.x1 - b.x0, b.y1 - b.y0) for b in blobs], np.int64).reshape(-1, 4)
+    alone = detect_mod._isolated(rects).tolist() if len(rects) else []
+    n = 0
+    for b, ok in zip(blobs, alone):
+        if not ok:
+            continue
+        roi = gray[b.y0:b.y1, b.x0:b.x1]
+        pts = cv2.findNonZero((roi > b.level).astype(np.uint8))
+        hull = cv2.convexHull(pts).reshape(-1, 2).astype(np.float64) + (b.x0, b.y0)
+        assert cyclic(hull) == cyclic(b.hull) or cyclic(hull[::-1]) == cyclic(b.hull)
+        h32 = hull.astype(np.float32)   # integer pixel centres: exact in float32
+        if len(hull) >= 3 and cv2.contourArea(h32) > 1e-6:
+            m = cv2.moments(h32)
+            assert abs(b.cx - m["m10"] / m["m00"]) <= 1e-6 and abs(b.cy - m["m01"] / m["m00"]) <= 1e-6
+            rim = cv2.contourArea(h32) + 0.5 * cv2.arcLength(h32, True) + math.pi / 4
+            assert b.area_px == pytest.approx(rim, rel=1e-6)  # arcLength sums in float32
+        assert b.peak >= float(roi.max())
+        n += 1
+    return n
 
 
 def _random_scene(rng, h=240, w=320, n=6):
@@ -79,7 +94,6 @@ def _random_scene(rng, h=240, w=320, n=6):
     return np.ascontiguousarray(np.rint(g).astype(np.uint8))
 
 
-@needs_kernel
 def test_byte_scans_equal_numpy():
     rng = np.random.default_rng(1)
     for n in list(range(0, 40)) + [63, 64, 65, 200]:
@@ -93,56 +107,20 @@ def test_byte_scans_equal_numpy():
             assert last == (int(on[-1]) if on.size else -1)
 
 
-@needs_kernel
 @pytest.mark.parametrize("name", RECORDINGS)
-def test_edge_points_kernel_equals_numpy_on_recordings(name, monkeypatch):
-    total = 0
-    for gray in _frames(name):
-        blobs = detect(gray)
-        for bin_rows in (1, 4):
-            a = outline.stripe_edge_points_batch(gray, blobs, bin_rows=bin_rows)
-            b = _pure(outline, monkeypatch, outline.stripe_edge_points_batch, gray, blobs, bin_rows=bin_rows)
-            _same_points(a, b)
-            total += sum(len(p) for p, _ in a)
-    assert total > 0 or name == "vehicle"  # S2-PSK heads are too small for runs
-
-
-@needs_kernel
-def test_edge_points_kernel_equals_numpy_on_random_scenes(monkeypatch):
-    rng = np.random.default_rng(7)
-    total = 0
-    for _ in range(30):
-        gray = _random_scene(rng)
-        blobs = detect(gray, stripe_gap_px=12)
-        polys = [b.hull + rng.normal(0, 2, b.hull.shape) for b in blobs]  # polygons: own background
-        for items in (blobs, polys):
-            for kw in ({}, {"bin_rows": 3}, {"border_px": 0, "min_contrast": 8.0}, {"bin_rows": 1, "pad": 1}):
-                a = outline.stripe_edge_points_batch(gray, items, **kw)
-                b = _pure(outline, monkeypatch, outline.stripe_edge_points_batch, gray, items, **kw)
-                _same_points(a, b)
-                total += sum(len(p) for p, _ in a)
-    assert total > 100
-
-
-@needs_kernel
-@pytest.mark.parametrize("name", RECORDINGS)
-def test_detect_kernels_equal_numpy_on_recordings(name, monkeypatch):
-    """`detect` with the compiled box scans (peaks, row ends, the pooled search's boxes) gives
-    the numpy path's blobs, on the pipeline's settings of each recording and at full resolution
-    (ROW_POOL 1)."""
+def test_detect_envelopes_are_opencv_hulls_on_recordings(name):
+    """`detect`'s envelopes on each recording (the pipeline's settings; row-pooled and full
+    resolution search) against OpenCV (`_opencv_envelopes`); both searches find the same blobs."""
     s = _settings(name)
     n = 0
     for gray in _frames(name):
-        for pool in (detect_mod.ROW_POOL, 1):
-            a = detect_with_pool(gray, pool, settings=s)
-            b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, settings=s)
-            _same_blobs(a, b)
-            n += len(a)
+        a, b = (detect_with_pool(gray, pool, settings=s) for pool in (detect_mod.ROW_POOL, 1))
+        assert [(p.x0, p.y0, p.x1, p.y1) for p in a] == [(q.x0, q.y0, q.x1, q.y1) for q in b]
+        n += _opencv_envelopes(gray, a)
     assert n > 0
 
 
-@needs_kernel
-def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
+def test_detect_envelopes_are_opencv_hulls_on_random_scenes():
     rng = np.random.default_rng(11)
     n = 0
     for _ in range(40):
@@ -150,23 +128,23 @@ def test_detect_kernels_equal_numpy_on_random_scenes(monkeypatch):
         pool = int(rng.integers(1, 3))
         kw = {"stripe_gap_px": int(rng.integers(0, 20)),
               "fine_noise": bool(rng.integers(0, 2)), "min_contrast": float(rng.uniform(3, 30))}
-        a = detect_with_pool(gray, pool, **kw)
-        b = _pure(detect_mod, monkeypatch, detect_with_pool, gray, pool, **kw)
-        _same_blobs(a, b)
-        n += len(a)
+        n += _opencv_envelopes(gray, detect_with_pool(gray, pool, **kw))
     assert n > 20
 
 
-@needs_kernel
+def _row_max(gray: np.ndarray, pool: int) -> np.ndarray:
+    """The maximum of each `pool` rows (the last group may be shorter)."""
+    return np.stack([gray[i:i + pool].max(axis=0) for i in range(0, gray.shape[0], pool)])
+
+
 def test_search_mask_equals_threshold_of_the_row_maxima():
-    """`_pixels.search_mask` = cv2.threshold of `_row_max` (pool 1, 2; odd heights, narrow and
+    """`_pixels.search_mask` = cv2.threshold of the row maxima (pool 1, 2; odd heights, narrow and
     odd widths, levels below 0 and at 255) and cv2.boundingRect of that mask."""
-    import cv2
     rng = np.random.default_rng(5)
     for h, w in ((1, 1), (3, 5), (7, 16), (9, 17), (30, 33), (31, 64), (120, 200)):
         gray = np.ascontiguousarray((rng.integers(0, 256, (h, w)) * (rng.random((h, w)) < 0.1)).astype(np.uint8))
         for pool in (1, 2):
-            search = detect_mod._row_max(gray, pool) if pool > 1 else gray
+            search = _row_max(gray, pool)
             for level in (-3.0, 0.0, 0.5, 24.0, 100.7, 254.2, 255.0, 300.0):
                 _, want = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
                 mask = np.empty_like(want)
@@ -176,9 +154,7 @@ def test_search_mask_equals_threshold_of_the_row_maxima():
                 assert tuple(box) == tuple(cv2.boundingRect(want))
 
 
-@needs_kernel
 def test_sample_histogram_equals_calchist():
-    import cv2
     rng = np.random.default_rng(9)
     for h, w in ((1, 1), (5, 7), (720, 1280), (33, 65)):
         gray = np.ascontiguousarray(rng.integers(0, 256, (h, w)).astype(np.uint8))
@@ -189,12 +165,11 @@ def test_sample_histogram_equals_calchist():
             assert got.dtype == want.dtype and np.array_equal(got, want)
 
 
-@needs_kernel
 @pytest.mark.parametrize("name", RECORDINGS)
-def test_row_profile_and_mask_mean_kernels_equal_opencv(name, monkeypatch):
-    """`row_profile` and `mean_in_mask` by the compiled masked sums equal the OpenCV path (the
-    profile's dtype and every value), on each recording's blobs and on boxes moved past the
-    frame's edges (a pair's predicted emitter)."""
+def test_row_profile_and_mask_mean_are_opencv_sums(name):
+    """`row_profile` and `mean_in_mask` (the compiled masked sums) against OpenCV's sums of the
+    envelope's pixels (cv2.reduce per row, cv2.sumElems / cv2.countNonZero), on each recording's
+    blobs and on boxes moved past the frame's edges (a pair's predicted emitter)."""
     from dataclasses import replace
     from receiver.vision import profile
     s = _settings(name)
@@ -206,17 +181,23 @@ def test_row_profile_and_mask_mean_kernels_equal_opencv(name, monkeypatch):
                      replace(b, hull=b.hull - (0, b.y0 + 1), y0=-1, y1=b.y1 - b.y0 - 1)]
             for blob in moved:
                 p, wt, y0 = profile.row_profile(gray, blob)
-                q, wq, z0 = _pure(profile, monkeypatch, profile.row_profile, gray, blob)
-                assert p.dtype == q.dtype and wt.dtype == wq.dtype and y0 == z0
-                assert np.array_equal(p, q) and np.array_equal(wt, wq)
-                a = profile.mean_in_mask(gray, blob)
-                assert a == _pure(profile, monkeypatch, profile.mean_in_mask, gray, blob)
-                assert type(a) is float
+                mask = profile.envelope_mask(blob)
+                roi = gray[blob.y0:blob.y1, blob.x0:blob.x1]
+                assert p.dtype == wt.dtype == np.float32 and y0 == blob.y0
+                if roi.shape == mask.shape and roi.size:
+                    weights = cv2.reduce(mask, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+                    sums = cv2.reduce(np.multiply(roi, mask), 1, cv2.REDUCE_SUM, dtype=cv2.CV_32F).ravel()
+                    assert np.array_equal(wt, weights) and np.array_equal(p, sums / np.maximum(weights, 1.0))
+                    k = cv2.countNonZero(mask)
+                    want = cv2.sumElems(np.multiply(roi, mask))[0] / k if k else 0.0
+                    assert profile.mean_in_mask(gray, blob) == want
+                else:
+                    assert not p.any() and not wt.any()
+                assert type(profile.mean_in_mask(gray, blob)) is float
                 n += 1
     assert n > 0
 
 
-@needs_kernel
 def test_box_kernels_refuse_boxes_outside_the_frame():
     """The box scans never read outside the frame: pooled_boxes says False (its caller takes the
     numpy path), refine_alone -1 (tests/engine/test_detect_kernels.py)."""
@@ -226,7 +207,6 @@ def test_box_kernels_refuse_boxes_outside_the_frame():
         assert _px.pooled_boxes(gray, rects, 1, 2, 0, np.empty((1, 4), np.int64)) is False
 
 
-@needs_kernel
 def test_edge_points_kernel_refuses_boxes_outside_the_frame_or_short_outputs():
     """edge_points reads its boxes and writes pts / sig / ends unchecked: mis-sized input raises."""
     gray = np.zeros((20, 30), np.uint8)
@@ -245,7 +225,6 @@ def test_edge_points_kernel_refuses_boxes_outside_the_frame_or_short_outputs():
             call(**bad)
 
 
-@needs_kernel
 @pytest.mark.parametrize("name", RECORDINGS)
 def test_detect_same_with_and_without_avx2(name):
     """detect() on each recording gives the same blobs with the byte loops' AVX2 versions

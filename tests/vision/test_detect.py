@@ -321,7 +321,7 @@ def test_cropped_close_and_contours_equal_the_whole_frame_search(pool):
     in reused buffers: its contours (in order) and boxes equal those of a close and contour
     search of the whole frame, also for lights at every edge and corner (the close treats the
     outside of the frame as lit) and for an empty frame."""
-    from receiver.vision.detect import Scratch, _close_reach, _close_size, _components, _pooled_boxes_exact, _row_max
+    from receiver.vision.detect import Scratch, _close_reach, _close_size, _components, _pooled_boxes_exact
     rng = np.random.default_rng(7)
     scratch = Scratch()
     for trial in range(12):
@@ -334,7 +334,7 @@ def test_cropped_close_and_contours_equal_the_whole_frame_search(pool):
         level, _ = auto_level(gray)
         for gap, join in ((8, 2), (3, 0), (0, 0)):
             got_c, got_r = _components(gray, level, gap, join, 1, pool, scratch)
-            search = _row_max(gray, pool) if pool > 1 else gray
+            search = np.stack([gray[i:i + pool].max(axis=0) for i in range(0, gray.shape[0], pool)])
             gap_y = math.ceil((2 * _close_reach(gap) + 1) / pool) - 1 if pool > 1 else gap
             _, mask = cv2.threshold(search, level, 255, cv2.THRESH_BINARY)
             if gap_y >= 1 or join >= 1:

@@ -129,14 +129,24 @@ def _level_always_measured(img, detect_mod):
     return float(min(max(level, med + 12.0 * near), 254.0)), float(med)
 
 
-def test_near_light_sigma_kernel_equals_opencv(monkeypatch):
-    """The compiled mask and box pass gives near_light_sigma the same value as cv2.threshold and
-    cv2.boundingRect (without the kernels both sides take the OpenCV path)."""
+def test_near_light_sigma_is_the_rms_below_the_background_next_to_the_lights():
+    """near_light_sigma against its definition with OpenCV on the whole frame: the pixels above
+    the level (cv2.threshold), those within NEAR_LIGHT_PX of one (cv2.dilate) and not lit, at or
+    below the background: the RMS of their deviations below it (0 under NEAR_LIGHT_MIN_SAMPLES)."""
     import receiver.vision.detect as detect_mod
     imgs = [_jpeg(_frame(s, sigma=3.0, bg=b), 60) for s, b in ((1, 8.0), (2, 20.0))]
     imgs.append(np.zeros((H, W), np.uint8))
-    native = [near_light_sigma(img, lv, float(np.median(img))) for img in imgs for lv in (12.5, 30.0, 254.0)]
-    monkeypatch.setattr(detect_mod, "_k", None)
-    pure = [near_light_sigma(img, lv, float(np.median(img))) for img in imgs for lv in (12.5, 30.0, 254.0)]
-    assert native == pure
-    assert any(v > 0 for v in native)
+    got = []
+    for img in imgs:
+        bg = float(np.median(img))
+        for lv in (12.5, 30.0, 254.0):
+            v = near_light_sigma(img, lv, bg)
+            _, lit = cv2.threshold(img, lv, 255, cv2.THRESH_BINARY)
+            r = detect_mod.NEAR_LIGHT_PX
+            near = (cv2.dilate(lit, np.ones((2 * r + 1, 2 * r + 1), np.uint8)) > 0) & (lit == 0)
+            below = near & (img <= np.floor(bg))
+            dev = bg - img[below].astype(np.float64)
+            want = float(np.sqrt(np.mean(dev * dev))) if dev.size >= detect_mod.NEAR_LIGHT_MIN_SAMPLES else 0.0
+            assert v == pytest.approx(want, rel=1e-9, abs=1e-12)
+            got.append(v)
+    assert any(v > 0 for v in got)
