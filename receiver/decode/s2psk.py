@@ -29,6 +29,7 @@ IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,9 @@ MIN_SAMPLES = 1
 SOFT_MIN_SNR = 1.0
 SOFT_MAX_CONTRADICTION = 2.0
 SOFT_SIGMA_FLOOR = 0.05
+# `decode_soft` scores no hypothesis when `snr_bound` is below SOFT_MIN_SNR x this: the bound is
+# exact in real numbers, the slack covers the rounding of the two computations (~1e-15).
+SNR_BOUND_SLACK = 1.0 - 1e-9
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
@@ -137,11 +141,15 @@ def decode_symbols(m: np.ndarray, *, sync_margin: float = SYNC_MARGIN, min_margi
 def codebook() -> tuple[np.ndarray, np.ndarray]:
     """Every valid packet at every cyclic shift as +-1 rows: (7680, 30) float and the row's ID.
     Row 30 * id + r is the packet of `id` read from folded position r on (np.roll by -r).
-    Built on the first soft decode (~3 ms), not at import: indoor runs and photos never need it."""
+    Built on first use (~1 ms: receiver.decode.policy.DecodePolicy builds it when the map has
+    S2-PSK lights), not at import: indoor runs and photos never need it."""
     n_ids = 1 << S2PSK_ID_BITS
     packets = np.array([list(s2psk_packet(i)) for i in range(n_ids)], dtype=np.float64) * 2.0 - 1.0
-    rot = (np.arange(PACKET_LEN)[None, :] - np.arange(PACKET_LEN)[:, None]) % PACKET_LEN  # [r, p]
-    return packets[:, rot].reshape(-1, PACKET_LEN), np.repeat(np.arange(n_ids), PACKET_LEN)
+    book = np.empty((n_ids, PACKET_LEN, PACKET_LEN))  # [id, r, p] = packets[id, (p - r) % 30]
+    for r in range(PACKET_LEN):  # one slice copy per shift (a fancy index of all is ~10x slower)
+        book[:, r, :r] = packets[:, PACKET_LEN - r:]
+        book[:, r, r:] = packets[:, :PACKET_LEN - r]
+    return book.reshape(-1, PACKET_LEN), np.repeat(np.arange(n_ids), PACKET_LEN)
 
 
 # Minimum symbol distance between packets of two different IDs at any pair of cyclic shifts: 4
@@ -241,6 +249,19 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     return SoftStats(led_id, z, amp / sigma, amp, sigma, contra)
 
 
+def snr_bound(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray,
+              sigma_floor: float = SOFT_SIGMA_FLOOR) -> float:
+    """The largest `soft_stats` snr any hypothesis of one folded packet ((30,) sums, counts,
+    squares) can have, without scoring them: a hypothesis' score sum_p s_p S_p is at most
+    sum_p |S_p| (every sign right), and the fitted snr grows with the score (the amplitude
+    score / N rises, the residual sum of squares falls)."""
+    top = sum(map(abs, np.asarray(sums, float).tolist()))
+    n = max(sum(np.asarray(counts, float).tolist()), 1.0)
+    amp = top / n
+    var = max(max(sum(np.asarray(squares, float).tolist()) - top * amp, 0.0) / max(n - 1.0, 1.0), sigma_floor ** 2)
+    return amp / math.sqrt(var)
+
+
 def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, min_z: float,
                 min_snr: float, max_contradiction: float,
                 sigma_floor: float = SOFT_SIGMA_FLOOR) -> tuple[int | None, float]:
@@ -249,7 +270,10 @@ def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, mi
     sds (the absolute evidence floor: noise alone fits some codeword with a small amplitude) and
     (c) no position contradicts it by more than `max_contradiction` noise sds (the code corrects
     nothing: a few strongly wrong symbols, a mixed or slipped history, are rejected as the hard
-    decoder rejects them). Returns (id or None, z)."""
+    decoder rejects them). Returns (id or None, z); z is 0.0 when no hypothesis can reach
+    `min_snr` (`snr_bound`: then none is scored)."""
+    if snr_bound(sums, counts, squares, sigma_floor) < min_snr * SNR_BOUND_SLACK:
+        return None, 0.0
     st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, exact_from=min_z)
     z = float(st.z[0])
     if z >= min_z and float(st.snr[0]) >= min_snr and float(st.contradiction[0]) <= max_contradiction:
