@@ -24,7 +24,7 @@ from receiver.core import protocol
 from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, candidate_tables, crc8_table
 from receiver.decode.pieces import FrameJitter, chips_verdict
-from receiver.decode.s2psk import S2pskDecoder
+from receiver.decode.s2psk import S2pskDecoder, codebook
 from receiver.decode.settings import OOK_TUNING, OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.decode.tone import ToneDecoder
 from receiver.io.camera import CameraModel
@@ -197,6 +197,8 @@ class DecodePolicy:
         self.min_stripe_rows = min_stripe_rows
         if plan.ook_rates:
             crc8_table()  # built once here, not inside the first decoded frame
+        if plan.s2psk and s2psk.soft_min_z > 0:
+            codebook()  # the soft decoder's hypotheses: here, not inside the first soft decode
         # Rows per chip is a constant of this camera and the rate: one learner per rate serves
         # every track, so a new track does not refine it again for its first frames.
         self.period_learners = {rate: PeriodLearner() for rate in plan.ook_rates}

@@ -29,6 +29,7 @@ IDs 0x00-0x7F are street lights (SL), 0x80-0xFF vehicles (FV).
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,9 @@ MIN_SAMPLES = 1
 SOFT_MIN_SNR = 1.0
 SOFT_MAX_CONTRADICTION = 2.0
 SOFT_SIGMA_FLOOR = 0.05
+# `decode_soft` scores no hypothesis when `snr_bound` is below SOFT_MIN_SNR x this: the bound is
+# exact in real numbers, the slack covers the rounding of the two computations (~1e-15).
+SNR_BOUND_SLACK = 1.0 - 1e-9
 
 PACKET_LEN = S2PSK_PACKET_LEN  # 30 symbols
 SYNC_LEN = len(SYNC)
@@ -137,11 +141,15 @@ def decode_symbols(m: np.ndarray, *, sync_margin: float = SYNC_MARGIN, min_margi
 def codebook() -> tuple[np.ndarray, np.ndarray]:
     """Every valid packet at every cyclic shift as +-1 rows: (7680, 30) float and the row's ID.
     Row 30 * id + r is the packet of `id` read from folded position r on (np.roll by -r).
-    Built on the first soft decode (~3 ms), not at import: indoor runs and photos never need it."""
+    Built on first use (~1 ms: receiver.decode.policy.DecodePolicy builds it when the map has
+    S2-PSK lights), not at import: indoor runs and photos never need it."""
     n_ids = 1 << S2PSK_ID_BITS
     packets = np.array([list(s2psk_packet(i)) for i in range(n_ids)], dtype=np.float64) * 2.0 - 1.0
-    rot = (np.arange(PACKET_LEN)[None, :] - np.arange(PACKET_LEN)[:, None]) % PACKET_LEN  # [r, p]
-    return packets[:, rot].reshape(-1, PACKET_LEN), np.repeat(np.arange(n_ids), PACKET_LEN)
+    book = np.empty((n_ids, PACKET_LEN, PACKET_LEN))  # [id, r, p] = packets[id, (p - r) % 30]
+    for r in range(PACKET_LEN):  # one slice copy per shift (a fancy index of all is ~10x slower)
+        book[:, r, :r] = packets[:, PACKET_LEN - r:]
+        book[:, r, r:] = packets[:, :PACKET_LEN - r]
+    return book.reshape(-1, PACKET_LEN), np.repeat(np.arange(n_ids), PACKET_LEN)
 
 
 # Minimum symbol distance between packets of two different IDs at any pair of cyclic shifts: 4
@@ -180,7 +188,8 @@ def best_per_id(scores: np.ndarray) -> np.ndarray:
 
 
 def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
-               sigma_floor: float = SOFT_SIGMA_FLOOR, exact_from: float = -np.inf) -> SoftStats:
+               sigma_floor: float = SOFT_SIGMA_FLOOR, exact_from: float = -np.inf, min_snr: float = -np.inf,
+               max_contradiction: float = np.inf) -> SoftStats:
     """Maximum-likelihood scoring of every valid packet (256 IDs x 30 shifts) against folded
     packets; sums, counts, squares: (B, 30) or (30,) sum of the soft samples, their number and
     the sum of their squares per folded position (`S2pskDecoder.folded_sums`).
@@ -202,6 +211,8 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     `exact_from`: z is first taken against the best-scoring hypothesis of another ID only; the
     search over all 7,680 (one more matrix product) runs only for packets where that z is
     >= exact_from (below, the returned z is an upper bound of the smallest: enough to reject).
+    `min_snr`, `max_contradiction`: when no packet has snr >= min_snr and contradiction <=
+    max_contradiction (none can be accepted whatever its margin), no margin is computed: z is 0.
     """
     s = np.atleast_2d(np.asarray(sums, dtype=np.float64))
     c = np.atleast_2d(np.asarray(counts, dtype=np.float64))
@@ -216,10 +227,15 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
     rss = np.maximum(q.sum(axis=1) - score1 * amp, 0.0)
     var = np.maximum(rss / np.maximum(n - 1.0, 1.0), sigma_floor ** 2)
     v = np.repeat(var[:, None], s.shape[1], axis=1)
-    scores = scores / var[:, None]
-    score1 = score1 / var
     led_id = book_id[h1]
     s1 = book[h1]  # (B, 30)
+    sigma = np.sqrt(var)
+    contra = -(s * s1 / np.sqrt(np.maximum(c, 1.0) * v)).min(axis=1)
+    snr = amp / sigma
+    if not ((snr >= min_snr) & (contra <= max_contradiction)).any():
+        return SoftStats(led_id, np.zeros(len(rows)), snr, amp, sigma, contra)
+    scores = scores / var[:, None]
+    score1 = score1 / var
     cu = c / v
     # the best hypothesis of another ID: W = sum_p c_p / v_p [s_h,p != s1_p]
     per_id = scores.reshape(s.shape[0], -1, PACKET_LEN)
@@ -236,9 +252,20 @@ def soft_stats(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *,
         zf = (score1[full, None] - scores[full]) / (2.0 * np.sqrt(np.maximum(w, 1e-12)))
         zf[book_id[None, :] == led_id[full, None]] = np.inf
         z[full] = zf.min(axis=1)
-    sigma = np.sqrt(var)
-    contra = -(s * s1 / np.sqrt(np.maximum(c, 1.0) * v)).min(axis=1)
-    return SoftStats(led_id, z, amp / sigma, amp, sigma, contra)
+    return SoftStats(led_id, z, snr, amp, sigma, contra)
+
+
+def snr_bound(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray,
+              sigma_floor: float = SOFT_SIGMA_FLOOR) -> float:
+    """The largest `soft_stats` snr any hypothesis of one folded packet ((30,) sums, counts,
+    squares) can have, without scoring them: a hypothesis' score sum_p s_p S_p is at most
+    sum_p |S_p| (every sign right), and the fitted snr grows with the score (the amplitude
+    score / N rises, the residual sum of squares falls)."""
+    top = sum(map(abs, np.asarray(sums, float).tolist()))
+    n = max(sum(np.asarray(counts, float).tolist()), 1.0)
+    amp = top / n
+    var = max(max(sum(np.asarray(squares, float).tolist()) - top * amp, 0.0) / max(n - 1.0, 1.0), sigma_floor ** 2)
+    return amp / math.sqrt(var)
 
 
 def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, min_z: float,
@@ -249,8 +276,13 @@ def decode_soft(sums: np.ndarray, counts: np.ndarray, squares: np.ndarray, *, mi
     sds (the absolute evidence floor: noise alone fits some codeword with a small amplitude) and
     (c) no position contradicts it by more than `max_contradiction` noise sds (the code corrects
     nothing: a few strongly wrong symbols, a mixed or slipped history, are rejected as the hard
-    decoder rejects them). Returns (id or None, z)."""
-    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, exact_from=min_z)
+    decoder rejects them). Returns (id or None, z); z is 0.0 when (b) or (c) fails (no
+    hypothesis can reach `min_snr` by `snr_bound`: none is scored; or the best one fails them:
+    no margin is computed)."""
+    if snr_bound(sums, counts, squares, sigma_floor) < min_snr * SNR_BOUND_SLACK:
+        return None, 0.0
+    st = soft_stats(sums, counts, squares, sigma_floor=sigma_floor, exact_from=min_z, min_snr=min_snr,
+                    max_contradiction=max_contradiction)
     z = float(st.z[0])
     if z >= min_z and float(st.snr[0]) >= min_snr and float(st.contradiction[0]) <= max_contradiction:
         return int(st.led_id[0]), z

@@ -24,11 +24,32 @@ MS_DECIMALS = 3
 T_DECIMALS = 6
 
 
+# 10 ** nd as exact floats, the divisors of `_num`'s short path
+_TEN = tuple(10.0 ** nd for nd in range(10))
+# |v| x 10 ** nd below this: the product's rounding error (<= 2^-23) is far under `_TIE_MARGIN`
+_SHORT_MAX = 2.0 ** 30
+_TIE_MARGIN = 1e-6
+
+
 def _num(v, nd):
+    """round(float(v), nd), or None for None and non-finite values. Short path, the same value:
+    the integer k nearest v x 10^nd, then k / 10^nd (one correctly rounded division: the double
+    nearest the decimal, as round's); round itself near a tie, for large values and for 0."""
     if v is None:
         return None
     v = float(v)
-    return round(v, nd) if math.isfinite(v) else None
+    if not math.isfinite(v):
+        return None
+    s = _TEN[nd]
+    y = v * s
+    if -_SHORT_MAX < y < _SHORT_MAX:
+        k = math.floor(y)
+        f = y - k
+        if abs(f - 0.5) > _TIE_MARGIN:
+            k += f > 0.5
+            if k:
+                return k / s
+    return round(v, nd)
 
 
 def frame_record(res: FrameResult, *, profile: bool = False) -> dict:

@@ -61,6 +61,21 @@ def drop_twins(g, pairs: list[Pair]) -> list[Pair]:
     return out
 
 
+def _sums(rows: list) -> tuple[float, float, float]:
+    """The sums of the rows' area, cx and cy ([cx, cy, area] each) as numpy sums them (an
+    area array's sum, the centroids' mean over axis 0): in order from 0.0 under 8 rows,
+    numpy itself from 8 (its pairwise summation)."""
+    if len(rows) >= 8:
+        arr = np.array(rows, float)
+        return float(arr[:, 2].copy().sum()), *(float(v) for v in arr[:, :2].copy().sum(axis=0))
+    a = x = y = 0.0
+    for bx, by, ba in rows:
+        a += ba
+        x += bx
+        y += by
+    return a, x, y
+
+
 def head_backlog(g, mx: float, my: float, base_px: float, single: float) -> list[tuple]:
     """`Pair.backlog` of a new far-head pair (midpoint (mx, my) and horizontal baseline
     `base_px` in this frame's view, one emitter's area `single` px^2) from every blob of the
@@ -78,22 +93,22 @@ def head_backlog(g, mx: float, my: float, base_px: float, single: float) -> list
     tol_y = g.match_min_px
     cx, cy = mx, my
     out, kept, empty = [], 0, 0
-    for t_s, (sx, sy), xy, area in reversed(hist):
+    for t_s, (sx, sy), blobs in reversed(hist):
         ox, oy = sx_now - sx, sy_now - sy
         px, py = cx - ox, cy - oy
-        sel = (np.abs(xy[:, 0] - px) <= tol_x) & (np.abs(xy[:, 1] - py) <= tol_y) if len(xy) else np.zeros(0, bool)
-        if not sel.any():
+        near = [b for b in blobs if abs(b[0] - px) <= tol_x and abs(b[1] - py) <= tol_y]
+        if not near:
             empty += 1
             if empty > g.head_gap_frames:  # lost (or not yet detected): stop there
                 break
             out.append((t_s, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0))
             continue
         empty, kept = 0, len(out) + 1
-        both = float(area[sel].sum()) > g.merged_ratio * single
+        area, mx_, my_ = _sums(near)
+        both = area > g.merged_ratio * single
         out.append((t_s, 1.0, 1.0 if both else 0.0, 1.0, 1.0, 0.0, 0.0))
-        c = xy[sel].mean(axis=0)
-        cx += g.head_follow * (c[0] + ox - cx)
-        cy += g.head_follow * (c[1] + oy - cy)
+        cx += g.head_follow * (mx_ / len(near) + ox - cx)
+        cy += g.head_follow * (my_ / len(near) + oy - cy)
     return out[:kept][::-1]  # from the oldest frame with a blob
 
 

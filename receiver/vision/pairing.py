@@ -138,7 +138,7 @@ class Pairer:
         self.lone_sigmas, self.shift_sigma_px = k.lone_sigmas, k.shift_sigma_px
         self.growth_gain, self.growth_span_frames, self.max_growth = k.growth_gain, k.growth_span_frames, k.max_growth
         self.head_follow, self.head_gap_frames = k.head_follow, k.head_gap_frames
-        # every frame's seen blobs, (t_s, view_sum then, (N, 2) centroids, (N,) areas), for the
+        # every frame's seen blobs, (t_s, view_sum then, [cx, cy, area_px] per blob), for the
         # backlog of a far head's new pair whatever tracks followed it (`_head_backlog`)
         self.scene_past: deque = deque(maxlen=max(self.backlog_frames, 1))
         self.view_sum = (0.0, 0.0)  # every frame's image shift added up (measured or `pitch_shift`), px
@@ -453,13 +453,10 @@ class Pairer:
         self.view_sum = (self.view_sum[0] + dx, self.view_sum[1] + dy)
         if t_s is not None and self.backlog_frames > 0:
             if table is not None:
-                lit = table[table[:, 7] != 0.0]
-                self.scene_past.append((float(t_s), self.view_sum, lit[:, :2], lit[:, 2]))
+                lit = table[table[:, 7] != 0.0, :3].tolist()
             else:
-                seen = [t for t in tracks if t.seen]
-                self.scene_past.append((float(t_s), self.view_sum,
-                                        np.array([(t.cx, t.cy) for t in seen], float).reshape(-1, 2),
-                                        np.array([t.blob.area_px for t in seen], float)))
+                lit = [[float(t.cx), float(t.cy), float(t.blob.area_px)] for t in tracks if t.seen]
+            self.scene_past.append((float(t_s), self.view_sum, lit))
         self.pairs = self._follow_all(tracks, shape, dy, dx, exclude, xy)
         self.pairs = drop_twins(self, self.pairs)
         mark_beside(self, self.pairs, tracks)

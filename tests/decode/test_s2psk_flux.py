@@ -127,7 +127,7 @@ def test_head_backlog_reads_every_blob_near_the_head_and_stops_where_it_was_not_
             x = {"a": 97.0, "b": 103.0, "ab": 100.0}[st]
             xy.append((x, 50.0 + dy))
             area.append(single if st != "ab" else 2.2 * single)
-        pr.scene_past.append((k / 30.0, (0.0, dy), np.array(xy), np.array(area)))
+        pr.scene_past.append((k / 30.0, (0.0, dy), [[x, y, a] for (x, y), a in zip(xy, area)]))
     pr.view_sum = (0.0, float(len(states) - 1))
     # the pair forms in the last frame ("ab"), midpoint (100, 50 + 11), baseline 6 px
     out = pr._head_backlog(100.0, 50.0 + len(states) - 1, 6.0, single)
@@ -176,3 +176,17 @@ def test_a_given_up_aliased_pair_bans_its_founding_tracks():
     p.frames = pr.give_up_frames
     assert not pr._follow(p, [], np.zeros((0, 2)), (24, 80))
     assert (7, 7) in pr.banned and (901, 902) not in pr.banned
+
+
+def test_head_backlog_sums_are_numpys():
+    """The head's blob sums (`pair_found._sums`, plain floats) are numpy's to the bit: an area
+    array's sum and the centroids' mean over axis 0, under and from numpy's 8-value blocks."""
+    from receiver.vision.pair_found import _sums
+    rng = np.random.default_rng(5)
+    for n in range(1, 13):
+        for _ in range(50):
+            rows = (rng.random((n, 3)) * [1280.0, 720.0, 400.0]).tolist()
+            xy, area = np.array([r[:2] for r in rows]), np.array([r[2] for r in rows])
+            a, x, y = _sums(rows)
+            mean = xy.mean(axis=0)
+            assert a == area.sum() and x / n == mean[0] and y / n == mean[1], n

@@ -9,7 +9,8 @@ import pytest
 
 from firmware_tx.framing import s2psk_packet
 from receiver.decode.s2psk import (MIN_MARGIN, PACKET_LEN, SOFT_MAX_CONTRADICTION, SOFT_MIN_SNR, SOFT_SIGMA_FLOOR,
-                                   SYNC_MARGIN, S2pskDecoder, codebook, decode_soft, decode_symbols, soft_stats)
+                                   SYNC_MARGIN, S2pskDecoder, codebook, decode_soft, decode_symbols, snr_bound,
+                                   soft_stats)
 from receiver.decode.settings import S2pskSettings
 
 S = S2pskSettings()
@@ -215,3 +216,21 @@ def test_noisy_pairs_decode_soft_never_wrong():
                 assert dec.step(ti, xi).led_id in (None, led_id), (mode, led_id)
             decoded[mode] += dec.led_id == led_id
     assert decoded["soft"] >= 8 and decoded["hard"] <= 6, decoded
+
+
+def test_snr_bound_never_below_a_fitted_snr():
+    """`snr_bound` (decode_soft's shortcut) is at least the snr soft_stats fits, on noise and on
+    noisy packets of true IDs, so a packet it turns away would have failed SOFT_MIN_SNR anyway;
+    decode_soft decides as the full statistics do."""
+    rng = np.random.default_rng(7)
+    ids = rng.integers(0, 256, 400)
+    for sd, amp in ((0.3, 0.0), (0.6, 0.0), (1.0, 0.0), (0.3, 0.5), (0.6, 1.0), (1.0, 1.0)):
+        sums, counts, squares = random_packets(rng, 400, sd, ids if amp else None, amp)
+        st = soft_stats(sums, counts, squares, exact_from=S.soft_min_z)
+        bound = np.array([snr_bound(*row) for row in zip(sums, counts, squares)])
+        assert (bound >= st.snr * (1 - 1e-12)).all(), sd
+        if amp == 0:  # it does turn noise away
+            assert (bound < SOFT_MIN_SNR).mean() > 0.2, sd
+        full = np.where(accepted(st), st.led_id, -1)
+        got = [soft(*row)[0] for row in zip(sums, counts, squares)]
+        assert [-1 if g is None else g for g in got] == full.tolist(), sd
