@@ -315,9 +315,11 @@ class DecodePolicy:
         return light.measures_jitter() or self.pair_due(light.led_id, frame_index, track_id)
 
     def step_light(self, light: LightDecoder, gray: np.ndarray, blob, profile_wy, t_s: float,
-                   ticks: dict | None = None) -> None:
+                   ticks: dict | None = None, near: tuple = ()) -> None:
         """Feed one frame of one light: `blob` its envelope, `profile_wy` its row profile
-        (profile, weights, y0) as `receiver.vision.profile.row_profile` gives it."""
+        (profile, weights, y0) as `receiver.vision.profile.row_profile` gives it; `near` the map
+        IDs the tracked pose puts where the light is (receiver.locate.map_prior), which its
+        OOK decoders' pieces may be tested against."""
         profile, weights, y0 = profile_wy
         if not light.striped:
             tall = blob.y1 - blob.y0 >= max(self.min_stripe_rows, 3)
@@ -333,9 +335,9 @@ class DecodePolicy:
                 if rate in self.chips_seen:  # this image's chips a frame (`chip_notes`)
                     self.chips_seen[rate].append(len(profile) * rate * self.camera.row_readout_us * 1e-6)
                 if ticks and ticks.get(rate) is not None:
-                    st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
+                    st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0, near=near)
                 else:
-                    st = dec.step(profile, weights, t_s, y0=y0)
+                    st = dec.step(profile, weights, t_s, y0=y0, near=near)
             light.states[(mode, rate)] = st
             jitter = getattr(dec.pieces, "frame_jitter", None) if mode == "ook" else None
             if jitter is not None and jitter not in light.jitters and dec.pieces.added > 0:
