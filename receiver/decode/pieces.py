@@ -81,14 +81,17 @@ class FrameJitter:
         self.agree = agree_chips
         self.want_frames = want_frames
         self.by_frame: dict = {}
+        self.sure: set = set()  # the lights that posted with their ID accepted (`post_all`'s sure)
         self._known: dict = {}  # t -> {key: estimate}, dropped when frame t gets a measurement
         self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
         self.post_all(key, [(t, m)])
 
-    def post_all(self, key: int, measured: list) -> None:
-        """`post` each (t, m) of `measured` in order."""
+    def post_all(self, key: int, measured: list, sure: bool = False) -> None:
+        """`post` each (t, m) of `measured` in order; `sure`: light `key` has its ID."""
+        if sure:
+            self.sure.add(key)
         by_frame, known = self.by_frame, self._known
         for t, m in measured:
             d = by_frame.get(t)
@@ -112,6 +115,14 @@ class FrameJitter:
 
     def estimate(self, t: float, key: int) -> float | None:
         return self.estimates([t], key)[0]
+
+    def by_sure(self, t: float, key: int, est: float | None) -> bool:
+        """Whether a light other than `key` that has its ID measured frame t within
+        `agree_chips` of the estimate `est`."""
+        d = self.by_frame.get(t)
+        if d is None or est is None:
+            return False
+        return any(k != key and k in self.sure and abs(_wrap(m - est)) <= self.agree for k, m in d.items())
 
     def estimates(self, ts: list, key: int) -> list:
         """`estimate` of each frame stamp in ts (one call for a light's pieces; the consensus
@@ -277,7 +288,7 @@ class PieceAssembler:
         c, ph, top, second = _k.choose(self.ll, self.total, row)
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
         if not few and (fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap)):
-            self._post(c, ph)
+            self._post(c, ph, fixed is not None)
         self.agree = self.z = float("nan")
         if fixed is not None:
             return None
@@ -312,9 +323,7 @@ class PieceAssembler:
         never given c. The pieces must still choose c: it must be the strict best of
         all K candidates (a map ID outside `near` that fits them as well or better refuses it:
         the pose never picks between IDs the chips cannot tell apart), correlate by `min_corr`,
-        beat each other ID of `near` by the rivals' test, and every other map ID by its
-        agreement (a map light the pose misplaced, whose chips fit c only where c's packet
-        agrees with its own, shows a low agreement where they differ)."""
+        and beat each other ID of `near` by the rivals' test."""
         rows = sorted({self._row[v] for v in near if v in self._row})
         if c not in rows or top < self.min_corr or not top > second:
             return None
@@ -322,7 +331,7 @@ class PieceAssembler:
             return None
         if not self._beats_every_packet(c):
             return None
-        if not self._beats_rivals(c, ph, rows):
+        if len(rows) > 1 and not self._beats_rivals(c, ph, rows):
             return None
         return int(self.ids[c])
 
@@ -337,27 +346,38 @@ class PieceAssembler:
         sqrt(sum y_b^2) under it; c needs E / sum d_b >= `min_agree` and E / sqrt(sum y_b^2) >=
         `min_z` (the rivals' test, against that null). Another packet differs from c in the
         bits of a nonzero code word w: c needs a chip of those bits seen (w . d > 0: the chips
-        can tell the two apart) and the rivals' agreement there, w . e >= `min_agree` w . d (a
+        can tell the two apart, `shows_every_difference`) and the rivals' agreement there,
+        w . e >= `min_agree` w . d, met by every w when every bit's is (else tried on all; a
         light sending c's twin, which differs from c in a bit or two, shows those chips against
-        c: agreement about -1). That test reads only the pieces placed by the frame jitter the
-        other lights measured (the narrow window), or with no window at all: a piece free to
-        move a chip within its wide window reads a Manchester pair's bit as its neighbour's,
-        and so can fit a twin's chips to c's."""
+        c: agreement about -1). That test reads only the pieces placed by the frame jitter
+        that other lights with their IDs measured (the narrow window, `FrameJitter.by_sure`), or
+        with no window at all: a piece free to move a chip within its wide window, or placed by
+        a jitter that lights without their IDs measured under a wrong hypothesis, can read a
+        Manchester pair's bit as its neighbour's, and so fit a twin's chips to c's."""
         P = len(self.pieces)
         tpl = self.templates[c]
-        e, d = np.zeros((2, PACKET_LEN)), np.zeros((2, PACKET_LEN))  # [0] every piece, [1] the timed ones
-        for p, at, timed in zip(self.pieces, self._at[:P].tolist(), self._narrow[:P].tolist()):
+        fj = self.frame_jitter
+        if self.jitter_chips and fj is not None:  # the pieces placed by the jitter lights with an ID measured
+            ts = [p.t for p in self.pieces]
+            pinned = [bool(nar) and fj.by_sure(t, self.key, j)
+                      for t, j, nar in zip(ts, fj.estimates(ts, self.key), self._narrow[:P].tolist())]
+        else:
+            pinned = [not self.jitter_chips] * P
+        e, d = np.zeros((2, PACKET_LEN)), np.zeros((2, PACKET_LEN))  # [0] every piece, [1] the pinned ones
+        for p, at, pin in zip(self.pieces, self._at[:P].tolist(), pinned):
             pos = (at + np.arange(p.n)) % PACKET_LEN
             x = p.x.astype(np.float64)
-            for k in range(1 + bool(timed or not self.jitter_chips)):
+            for k in range(1 + pin):
                 np.add.at(e[k], pos, x * tpl[pos])
                 np.add.at(d[k], pos, np.abs(x))
         yb, db = e[:, SYNC_LEN::2] + e[:, SYNC_LEN + 1::2], d[:, SYNC_LEN::2] + d[:, SYNC_LEN + 1::2]  # (2, 24)
         E, V, D = float(yb[0].sum()), float((yb[0] * yb[0]).sum()), float(db[0].sum())
         if V <= 0 or E < self.min_agree * D or E * E < self.min_z ** 2 * V or E <= 0:
             return False
-        ED = _code_bits() @ np.stack([yb[1] - self.min_agree * db[1], db[1]], axis=1).astype(np.float32)
-        return bool((ED[:, 1] > 0).all() and (ED[:, 0] >= 0).all())
+        if not shows_every_difference(db[1] > 0):
+            return False
+        a = yb[1] - self.min_agree * db[1]  # a packet differing in bits w: agreement met when w . a >= 0
+        return bool((a >= 0).all() or (_code_bits() @ a.astype(np.float32)).min() >= 0)
 
     def _beats_rivals(self, c: int, ph: int, rows: list | None = None) -> bool:
         """Whether hypothesis (c, ph) beats every other candidate k, at k's own best phase and
@@ -368,9 +388,8 @@ class PieceAssembler:
         that tell c from k no better than chance (each term +-|x| at random) it is about 0
         with sd sqrt(V_k), V_k the sum of x squared over those chips. The
         winner needs, against every rival, agreement E_k / D_k >= `min_agree` and evidence
-        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals. With
-        `rows` (the candidates the pose allows, `_decide_near`), the evidence is asked only
-        against those, and the agreement against every rival the chips can tell from c."""
+        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals (over
+        the candidates of `rows` only when given: those the pose allows, `_decide_near`)."""
         K = self.ids.size
         if K < 2:
             return True
@@ -382,12 +401,11 @@ class PieceAssembler:
         z = np.where(ok, ev / np.sqrt(np.where(ok, df2, 1.0)), -np.inf)
         agree[c] = z[c] = np.inf
         if rows is not None:
-            agree = np.where(ok, agree, np.inf)
-            z = z[rows]
+            agree, z = agree[rows], z[rows]
         self.agree, self.z = float(agree.min()), float(z.min())
         return self.agree >= self.min_agree and self.z >= self.min_z
 
-    def _post(self, c: int, ph: int) -> None:
+    def _post(self, c: int, ph: int, sure: bool = False) -> None:
         """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the
         other lights (the latest hypothesis restates the earlier frames too: pieces that came
         before any light was sure get placed once one is): where the piece fits the packet
@@ -398,7 +416,7 @@ class PieceAssembler:
         pieces = self.pieces
         measured = _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
                               c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at)
-        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured])
+        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured], sure)
 
 
 def bits_seen(seen: np.ndarray, unseen: int = MAX_UNSEEN_BITS) -> bool:
@@ -435,6 +453,25 @@ def _code_bits() -> np.ndarray:
 
 
 _DIFFS: np.ndarray | None = None
+
+
+def shows_every_difference(bits: np.ndarray) -> bool:
+    """Whether the packet bits `bits` (24,) seen tell every packet from every other: no nonzero
+    code word is zero on them, i.e. the 16 single-bit IDs' words restricted to them are
+    independent over GF(2) (rank 16; at least 16 bits seen)."""
+    mask = int((np.asarray(bits, bool).astype(np.int64) << np.arange(23, -1, -1)).sum())
+    rows = [int(w) & mask for w in _code_words()[1 << np.arange(16)]]
+    rank = 0
+    for bit in range(23, -1, -1):
+        pivot = next((i for i in range(rank, len(rows)) if rows[i] >> bit & 1), None)
+        if pivot is None:
+            continue
+        rows[rank], rows[pivot] = rows[pivot], rows[rank]
+        for i in range(len(rows)):
+            if i != rank and rows[i] >> bit & 1:
+                rows[i] ^= rows[rank]
+        rank += 1
+    return rank == 16
 
 
 def unseen_bits_allowed(n_candidates: int, n_near: int) -> int:

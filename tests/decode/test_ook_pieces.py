@@ -155,6 +155,18 @@ def test_unmapped_lights_sharing_frames_are_never_reported():
     assert r["mapped"] == 0 and r["wrong"] == []
 
 
+def test_lights_given_ids_by_the_pose_are_never_given_a_wrong_one():
+    """Each light also given one map ID as the pose's (tests/decode/pieces_mc.py `near`): lights
+    outside the map given a map ID, and mapped lights given another one's, get no ID; mapped
+    lights given their own decode, none wrongly."""
+    from pieces_mc import BY_NAME, monte_carlo
+
+    r = monte_carlo(BY_NAME["5k-120rows-unmapped"], trials=2, seed=6, frames=60, near=1, near_wrong=1.0)
+    assert r["mapped"] == 0 and r["wrong"] == []
+    r = monte_carlo(BY_NAME["5k-120rows"], trials=3, seed=4, frames=60, near=1, near_wrong=0.5)
+    assert r["wrong"] == [] and r["right"] >= 0.6 * r["mapped"]
+
+
 def test_the_chip_verdict_names_the_frames_an_id_needs():
     from receiver.decode.pieces import chips_verdict
 
@@ -556,3 +568,26 @@ def test_the_pose_s_id_is_never_given_to_a_light_whose_packet_differs_only_in_un
             assert _near_pieces(sent, [twin] + others, pairs * 3, 2, near)[0] is None
             assert _near_pieces(sent, others, pairs * 3, 2, near)[0] is None
         assert _near_pieces(sent, others, list(range(0, 54, 2)) * 3, 2, (sent,))[0] == sent
+
+
+def test_the_bits_seen_tell_every_packet_apart_exactly_when_no_code_word_hides_in_the_rest():
+    """`shows_every_difference` against all 65,536 packets (firmware_tx's CRC): for random sets
+    of seen bits it holds exactly when no two packets agree on every seen bit."""
+    from firmware_tx.crc import crc8
+    from receiver.decode.pieces import shows_every_difference
+
+    ids = np.arange(1, 1 << 16)
+    words = (ids << 8) | np.array([crc8(int(i), 16) for i in ids])  # = the differences from ID 0
+    rng = np.random.default_rng(9)
+    seen_all = np.ones(24, bool)
+    assert shows_every_difference(seen_all)
+    verdicts = set()
+    for n_unseen in (1, 2, 4, 6, 8, 9):
+        for _ in range(6):
+            seen = np.ones(24, bool)
+            seen[rng.choice(24, n_unseen, replace=False)] = False
+            mask = int((seen.astype(np.int64) << np.arange(23, -1, -1)).sum())
+            want = bool(((words & mask) != 0).all())
+            assert shows_every_difference(seen) == want
+            verdicts.add(want)
+    assert verdicts == {True, False}
