@@ -430,7 +430,7 @@ def bits_seen(seen: np.ndarray, unseen: int = MAX_UNSEEN_BITS) -> bool:
 _CODE: np.ndarray | None = None  # the 24-bit words (16 ID + CRC-8) of every ID, made once needed
 
 
-def _code_words() -> np.ndarray:
+def code_words() -> np.ndarray:
     """(65536,) int64: the 24 bits of every ID's packet (ID << 8 | CRC-8); a linear code, so the
     XOR combinations of the 16 single-bit IDs' words."""
     global _CODE
@@ -447,7 +447,7 @@ def _code_bits() -> np.ndarray:
     i.e. of every difference between two packets (the code is linear); made once needed."""
     global _DIFFS
     if _DIFFS is None:
-        w = _code_words()[1:]
+        w = code_words()[1:]
         _DIFFS = ((w[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
     return _DIFFS
 
@@ -460,7 +460,7 @@ def shows_every_difference(bits: np.ndarray) -> bool:
     code word is zero on them, i.e. the 16 single-bit IDs' words restricted to them are
     independent over GF(2) (rank 16; at least 16 bits seen)."""
     mask = int((np.asarray(bits, bool).astype(np.int64) << np.arange(23, -1, -1)).sum())
-    rows = [int(w) & mask for w in _code_words()[1 << np.arange(16)]]
+    rows = [int(w) & mask for w in code_words()[1 << np.arange(16)]]
     rank = 0
     for bit in range(23, -1, -1):
         pivot = next((i for i in range(rank, len(rows)) if rows[i] >> bit & 1), None)

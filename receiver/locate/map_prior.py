@@ -36,7 +36,8 @@ class MapPrior:
     map IDs in front of the camera, `px` (K, 2) their predicted centres in image pixels (with the
     lens distortion, where detection sees them), `sigma_px` (K,) the isotropic pixel sigma of
     each prediction (pose covariance, orientation, and the panel's half size: a blob cut by the
-    image border or still showing part of its panel has its centroid off the centre)."""
+    image border or still showing part of its panel has its centroid off the centre; the
+    position's share is bounded by the covariance's largest eigenvalue)."""
 
     t_s: float
     ids: np.ndarray
@@ -56,13 +57,10 @@ def predict(camera, ids: np.ndarray, L: np.ndarray, half_m: np.ndarray, R_cw: np
     P, ids, half_m = P[front], np.asarray(ids)[front], np.asarray(half_m, float)[front]
     z = P[:, 2]
     uv = P[:, :2] / z[:, None]
-    # d uv / d C = -(1/z) [I2 | -uv] R: the position covariance's largest eigenvalue per light
-    Jc = -(np.concatenate([np.broadcast_to(np.eye(2), (len(z), 2, 2)), -uv[:, :, None]], axis=2)
-           @ R_cw) / z[:, None, None]
-    S = Jc @ np.asarray(C_cov, float) @ Jc.transpose(0, 2, 1)
-    tr, det = S[:, 0, 0] + S[:, 1, 1], S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-    pos_var = 0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))
     r2 = np.einsum("ij,ij->i", uv, uv)
+    # d uv / d C = -(1/z) [I2 | -uv] R, whose largest singular value is sqrt(1 + |uv|^2) / z: the
+    # position's share is at most the covariance's largest eigenvalue times its square
+    pos_var = float(np.linalg.eigvalsh(np.asarray(C_cov, float))[-1]) * (1.0 + r2) / (z * z)
     var = pos_var + (orient_sigma_rad * (1.0 + r2)) ** 2 + (half_m / z) ** 2  # normalized units
     px = cv2.projectPoints(np.column_stack([uv, np.ones(len(z))]), np.zeros(3), np.zeros(3), camera.K,
                            camera.dist)[0].reshape(-1, 2)
