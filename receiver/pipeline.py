@@ -432,7 +432,7 @@ class Receiver:
         # Where the map's lights should be in this frame, from the pose tracked so far
         # (receiver.locate.map_prior), while a light that shows short pieces lacks its ID.
         prior = None
-        if self._map_prior is not None and any(li.led_id is None and li.pieces_ref for li in lights):
+        if self._map_prior is not None and any(li.wants_near() for li in lights):
             prior = self._map_prior(frame.t_s)
         every = policy.settings.redecode_every_frames
         t_s = frame.t_s
@@ -449,7 +449,7 @@ class Receiver:
                 continue
             blob = env[tid]
             prof = profiles.get(tid)
-            near = near_ids(prior, blob.cx, blob.cy) if prior is not None and light.led_id is None else ()
+            near = near_ids(prior, blob.cx, blob.cy) if prior is not None and light.wants_near() else ()
             policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob), t_s, ticks,
                               near)
         timer.stamp("decode")

@@ -52,9 +52,6 @@ CRC_MIN_DISTANCE_BITS = 4
 # Bits of the winner's packet its pieces may leave unseen: with one, every other packet, of the
 # map or not, still differs from the winner in at least 3 seen bits (6 chips).
 MAX_UNSEEN_BITS = 1
-# Pieces before a light is tested against the IDs the pose allows (`PieceAssembler._decide_near`):
-# a piece is at most `OokSettings.pieces_max_chips` (16) chips, so one alone never shows the bits.
-NEAR_MIN_PIECES = 2
 # Sub-chip steps of the packet phase phi searched.
 PHASE_STEPS = 4
 assert (_k.PACKET_LEN, _k.PHASE_STEPS) == (PACKET_LEN, PHASE_STEPS)
@@ -272,10 +269,8 @@ class PieceAssembler:
         fixed: the light's ID when already known (then only its phase is followed, and the
         light measures the jitter of its latest frame for the others). near: the map IDs the
         tracked pose puts where this light is (receiver.locate.map_prior), tested by
-        `_decide_near` when the choice among all candidates does not pass; that test's bits
-        rule, not `min_frames`, says when it has pieces enough (from `NEAR_MIN_PIECES` on)."""
-        few = len(self.pieces) < self.min_frames  # too few for the choice among all candidates
-        if few and (fixed is not None or not near or len(self.pieces) < NEAR_MIN_PIECES):
+        `_decide_near` when the choice among all candidates does not pass."""
+        if len(self.pieces) < self.min_frames:
             return None
         self._update()
         if self.total <= 0:
@@ -287,13 +282,13 @@ class PieceAssembler:
                 return None
         c, ph, top, second = _k.choose(self.ll, self.total, row)
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
-        if not few and (fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap)):
+        if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
             self._post(c, ph, fixed is not None)
         self.agree = self.z = float("nan")
         if fixed is not None:
             return None
         # the winner's pieces, each where it fits best in its window, must show every bit
-        if not few and top >= self.min_corr and bits_seen(self._seen(c, ph)) and self._beats_rivals(c, ph):
+        if top >= self.min_corr and bits_seen(self._seen(c, ph)) and self._beats_rivals(c, ph):
             return int(self.ids[c])
         return self._decide_near(near, c, ph, top, second) if near else None
 

@@ -170,6 +170,17 @@ class LightDecoder:
         self.pieces_ref = False
         self.jitters: tuple = ()  # the FrameJitter of each rate it shows pieces of
 
+    def wants_near(self) -> bool:
+        """It has no ID, and an OOK decoder of it holds pieces enough that this frame's makes a
+        decision (`PieceAssembler.decide`): only then are the pose's map IDs asked for."""
+        if self.led_id is not None or not self.pieces_ref:
+            return False
+        for (mode, _), dec in self.decoders.items():
+            pa = dec.pieces if mode == "ook" else None
+            if pa is not None and len(pa.pieces) + 1 >= pa.min_frames:
+                return True
+        return False
+
     def measures_jitter(self) -> bool:
         """It shows short pieces, and a light still without its ID wants the frames' jitter."""
         return self.pieces_ref and any(j.wanted() for j in self.jitters)
