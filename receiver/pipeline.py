@@ -8,7 +8,9 @@ Stages, each stamped with the injected clock (`FrameResult.stage_ms`, receiver.c
 `detect` (receiver.vision.detect), `track` (receiver.vision.track and the envelope merge,
 receiver.vision.envelope), `pair` (S2-PSK pairs, receiver.vision.pairing, and their soft XOR
 decoded by receiver.decode.s2psk), `decode` (row profiles -> OOK / tone decoders, by the
-policy of receiver.decode.policy), `report` (the frame's LED and pair observations), `locate`
+policy of receiver.decode.policy; a light still without its ID is also told which map IDs the
+positioner's tracked pose puts where it is, `MapPrior` of receiver.locate.map_prior, made from
+the frames before this one), `report` (the frame's LED and pair observations), `locate`
 (the positioner, when one is given: it returns the observations with their ranges).
 
 Data between stages are the records of receiver.core.records; every tunable is in
@@ -36,6 +38,7 @@ from receiver.decode.pair_decoding import PairDecoding
 from receiver.decode.settings import OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.locate.map_prior import near_ids
 from receiver.vision.camera_motion import CameraMotion, MotionEstimate, MotionSettings
 from receiver.vision.detect import SATURATED_GRAY, Scratch, detect
 from receiver.vision.envelope import EnvelopeHistory
@@ -191,6 +194,8 @@ class Receiver:
             s = dataclasses.replace(s, policy=dataclasses.replace(s.policy, **policy_kw))
         self.camera, self.led_map = camera, led_map
         self.positioner = positioner
+        # the positioner's prediction of where the map's lights appear (`map_prior`), if it has one
+        self._map_prior = getattr(positioner, "map_prior", None) if not still else None
         if not still:             # before the first frame, not inside the second one's latency
             preload_assignment()
         self.speed = speed
@@ -424,6 +429,11 @@ class Receiver:
         ticks = self._clock_frame(gray, seen, env, k, pair_of, profiles, lights) if self.clocks else {}
         policy = self.policy
         stripe_check = self.stripe_check
+        # Where the map's lights should be in this frame, from the pose tracked so far
+        # (receiver.locate.map_prior), while a light that shows short pieces lacks its ID.
+        prior = None
+        if self._map_prior is not None and any(li.wants_near() for li in lights):
+            prior = self._map_prior(frame.t_s)
         every = policy.settings.redecode_every_frames
         t_s = frame.t_s
         for t, light in zip(seen, lights):
@@ -439,7 +449,9 @@ class Receiver:
                 continue
             blob = env[tid]
             prof = profiles.get(tid)
-            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob), t_s, ticks)
+            near = near_ids(prior, blob.cx, blob.cy) if prior is not None and light.wants_near() else ()
+            policy.step_light(light, gray, blob, prof if prof is not None else row_profile(gray, blob), t_s, ticks,
+                              near)
         timer.stamp("decode")
 
         leds, emitter_of, pairs = self._report(gray, seen, lights, env, pair_of)

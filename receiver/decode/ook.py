@@ -759,14 +759,15 @@ class OokDecoder:
             self.acc_sq += np.bincount(_cyclic_index(soft.size)[shift % PACKET_LEN], cw * soft * soft, PACKET_LEN)
         _k.add4(self._acc4, 2 if trusted else 3 if timed else -1, soft, cw, shift)
 
-    def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None) -> OokState:
+    def step(self, profile, weights=None, t_s=None, *, clock=None, y0: int | None = None, near: tuple = ()) -> OokState:
         """Feed one frame's row profile (float (R,), rows top to bottom, one per sensor row)
         and its per-row pixel counts `weights` (R,) or None. `t_s`: the frame's timestamp (s),
         used with `y0` to place short pieces by time (receiver.decode.pieces) when the decoder
         has candidate IDs.
         Optional timing hint: `clock` (receiver.decode.frameclock.ClockTick of this frame) and `y0`
         (image row of the profile's first row); with them, frames are also placed by timing
-        (`_timed_shift`)."""
+        (`_timed_shift`). `near`: the map IDs the tracked pose puts where this light is
+        (receiver.locate.map_prior), for the pieces' choice (`PieceAssembler.decide`)."""
         self.frames += 1
         self.acc_sq *= self.decay
         _k.decay4(self._acc4, self.decay)
@@ -780,7 +781,7 @@ class OokDecoder:
             self._tc = clock.value + (y0 + self.last_start_row) / self.rows_per_chip
         if (self.pieces is not None and (self.led_id is None or self.pieces.frame_jitter is not None)
                 and t_s is not None and y0 is not None and self.last_start_row is not None and soft.size >= 2):
-            self._add_piece(soft, cw, t_s, y0)
+            self._add_piece(soft, cw, t_s, y0, near)
         added = None
         if self._confirm is not None and soft.size >= SYNC_LEN:
             self._confirm_step(soft)
@@ -859,7 +860,7 @@ class OokDecoder:
         self._t_observe(shift, sync=False)
         return True
 
-    def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int) -> None:
+    def _add_piece(self, soft: np.ndarray, cw: np.ndarray, t_s: float, y0: int, near: tuple = ()) -> None:
         """Keep a piece with its packet time (receiver.decode.pieces) and try the ML choice of
         the light's ID (once it is known, the piece only measures its frame's jitter for the
         other lights): a short one (no more than `pieces_max_chips` chips), or, when the
@@ -870,7 +871,7 @@ class OokDecoder:
         if self.led_id is None and self.pieces.frame_jitter is not None:
             self.pieces.frame_jitter.want()
         self.pieces.add(soft, cw, q, float(t_s))
-        led_id = self.pieces.decide(fixed=self.led_id)
+        led_id = self.pieces.decide(fixed=self.led_id, near=near)
         if led_id is not None:
             self.led_id = led_id
             self.pieces_took = self.pieces.added

@@ -37,6 +37,7 @@ from collections import deque
 
 import numpy as np
 
+from firmware_tx.crc import crc8
 from firmware_tx.framing import SYNC
 from receiver.core.native import require
 
@@ -77,14 +78,17 @@ class FrameJitter:
         self.agree = agree_chips
         self.want_frames = want_frames
         self.by_frame: dict = {}
+        self.sure: set = set()  # the lights that posted with their ID accepted (`post_all`'s sure)
         self._known: dict = {}  # t -> {key: estimate}, dropped when frame t gets a measurement
         self._since_want: int | None = None  # frames measured since a light without ID asked
 
     def post(self, t: float, key: int, m: float) -> None:
         self.post_all(key, [(t, m)])
 
-    def post_all(self, key: int, measured: list) -> None:
-        """`post` each (t, m) of `measured` in order."""
+    def post_all(self, key: int, measured: list, sure: bool = False) -> None:
+        """`post` each (t, m) of `measured` in order; `sure`: light `key` has its ID."""
+        if sure:
+            self.sure.add(key)
         by_frame, known = self.by_frame, self._known
         for t, m in measured:
             d = by_frame.get(t)
@@ -108,6 +112,14 @@ class FrameJitter:
 
     def estimate(self, t: float, key: int) -> float | None:
         return self.estimates([t], key)[0]
+
+    def by_sure(self, t: float, key: int, est: float | None) -> bool:
+        """Whether a light other than `key` that has its ID measured frame t within
+        `agree_chips` of the estimate `est`."""
+        d = self.by_frame.get(t)
+        if d is None or est is None:
+            return False
+        return any(k != key and k in self.sure and abs(_wrap(m - est)) <= self.agree for k, m in d.items())
 
     def estimates(self, ts: list, key: int) -> list:
         """`estimate` of each frame stamp in ts (one call for a light's pieces; the consensus
@@ -252,10 +264,12 @@ class PieceAssembler:
         self.total, self.timed = _k.update(self.ll, self._rep, self._den, self._q, self._term_m, self._term_n,
                                            js, self.added, self.total, self._qq, self._narrow)
 
-    def decide(self, fixed: int | None = None) -> int | None:
+    def decide(self, fixed: int | None = None, near: tuple = ()) -> int | None:
         """The ID of the best (ID, phase) hypothesis when it passes the checks, else None.
         fixed: the light's ID when already known (then only its phase is followed, and the
-        light measures the jitter of its latest frame for the others)."""
+        light measures the jitter of its latest frame for the others). near: the map IDs the
+        tracked pose puts where this light is (receiver.locate.map_prior), tested by
+        `_decide_near` when the choice among all candidates does not pass."""
         if len(self.pieces) < self.min_frames:
             return None
         self._update()
@@ -269,21 +283,98 @@ class PieceAssembler:
         c, ph, top, second = _k.choose(self.ll, self.total, row)
         self.score, self.gap, self.best_id = top, top - second, int(self.ids[c])
         if fixed is not None or (top >= self.ref_corr and top - second >= self.ref_gap):
-            self._post(c, ph)
+            self._post(c, ph, fixed is not None)
         self.agree = self.z = float("nan")
-        if fixed is not None or top < self.min_corr:
+        if fixed is not None:
             return None
         # the winner's pieces, each where it fits best in its window, must show every bit
+        if top >= self.min_corr and bits_seen(self._seen(c, ph)) and self._beats_rivals(c, ph):
+            return int(self.ids[c])
+        return self._decide_near(near, c, ph, top, second) if near else None
+
+    def _seen(self, c: int, ph: int) -> np.ndarray:
+        """The packet positions (54,) the pieces cover under hypothesis (c, ph), each piece
+        where it fits best in its window (its fitted start in `_at`)."""
         P = len(self.pieces)
         _k.fits(self._rep, self._qq, self._narrow, P, self.added, c, ph, self.jitter_chips, self._at)
         # packet position s is covered by a piece fitted at `at` with n chips when (s - at) % 54 < n
         n = np.array([p.n for p in self.pieces])
-        seen = ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
-        if not bits_seen(seen):
-            return None
-        return int(self.ids[c]) if self._beats_rivals(c, ph) else None
+        return ((np.arange(PACKET_LEN)[None, :] - self._at[:P, None]) % PACKET_LEN < n[:, None]).any(axis=0)
 
-    def _beats_rivals(self, c: int, ph: int) -> bool:
+    def _decide_near(self, near: tuple, c: int, ph: int, top: float, second: float) -> int | None:
+        """Candidate c (at phase index ph, mean correlation top; the other candidates' best
+        second), the choice among all K candidates, when it is one of `near` (the k map IDs the
+        pose allows here) and its pieces confirm it, else None.
+
+        The choice among all candidates guards against K x phases hypotheses with every bit but
+        `MAX_UNSEEN_BITS` seen: a packet unrelated to the winner matches its seen bits at one
+        phase with probability 2^-seen, so its bound is K x phases x 2^-(24 - MAX_UNSEEN_BITS).
+        Among k IDs the same bound holds with log2(K / k) fewer bits seen
+        (`unseen_bits_allowed`), and the pieces must confirm c against such a packet by the
+        rivals' agreement and evidence. That bound is for packets unrelated to c; the packets
+        nearest c (its twins, of the map or not) are tested one by one: the chips seen must
+        tell c from every other packet and agree with c where the two differ
+        (`_beats_every_packet`), so a light whose packet is c's twin but for bits unseen is
+        never given c. The pieces must still choose c: it must be the strict best of
+        all K candidates (a map ID outside `near` that fits them as well or better refuses it:
+        the pose never picks between IDs the chips cannot tell apart), correlate by `min_corr`,
+        and beat each other ID of `near` by the rivals' test."""
+        rows = sorted({self._row[v] for v in near if v in self._row})
+        if c not in rows or top < self.min_corr or not top > second:
+            return None
+        if not bits_seen(self._seen(c, ph), unseen_bits_allowed(self.ids.size, len(rows))):
+            return None
+        if not self._beats_every_packet(c):
+            return None
+        if len(rows) > 1 and not self._beats_rivals(c, ph, rows):
+            return None
+        return int(self.ids[c])
+
+    def _beats_every_packet(self, c: int) -> bool:
+        """Whether the pieces, where `_seen` fitted them (`_at`), confirm candidate c's packet
+        against a packet unrelated to it, and tell it from every other packet there is (65,535:
+        the map's IDs and all others) at those placements.
+
+        Per bit b of the packet, its chips' sums e_b of x times c's chip, v_b of x squared and
+        d_b of |x|. An unrelated packet's bits are c's or their complements at random, each
+        Manchester bit's two chips together: with y_b = e_b, E = sum y_b has mean 0 and sd
+        sqrt(sum y_b^2) under it; c needs E / sum d_b >= `min_agree` and E / sqrt(sum y_b^2) >=
+        `min_z` (the rivals' test, against that null). Another packet differs from c in the
+        bits of a nonzero code word w: c needs a chip of those bits seen (w . d > 0: the chips
+        can tell the two apart, `shows_every_difference`) and the rivals' agreement there,
+        w . e >= `min_agree` w . d, met by every w when every bit's is (else tried on all; a
+        light sending c's twin, which differs from c in a bit or two, shows those chips against
+        c: agreement about -1). That test reads only the pieces placed by the frame jitter
+        that other lights with their IDs measured (the narrow window, `FrameJitter.by_sure`), or
+        with no window at all: a piece free to move a chip within its wide window, or placed by
+        a jitter that lights without their IDs measured under a wrong hypothesis, can read a
+        Manchester pair's bit as its neighbour's, and so fit a twin's chips to c's."""
+        P = len(self.pieces)
+        tpl = self.templates[c]
+        fj = self.frame_jitter
+        if self.jitter_chips and fj is not None:  # the pieces placed by the jitter lights with an ID measured
+            ts = [p.t for p in self.pieces]
+            pinned = [bool(nar) and fj.by_sure(t, self.key, j)
+                      for t, j, nar in zip(ts, fj.estimates(ts, self.key), self._narrow[:P].tolist())]
+        else:
+            pinned = [not self.jitter_chips] * P
+        e, d = np.zeros((2, PACKET_LEN)), np.zeros((2, PACKET_LEN))  # [0] every piece, [1] the pinned ones
+        for p, at, pin in zip(self.pieces, self._at[:P].tolist(), pinned):
+            pos = (at + np.arange(p.n)) % PACKET_LEN
+            x = p.x.astype(np.float64)
+            for k in range(1 + pin):
+                np.add.at(e[k], pos, x * tpl[pos])
+                np.add.at(d[k], pos, np.abs(x))
+        yb, db = e[:, SYNC_LEN::2] + e[:, SYNC_LEN + 1::2], d[:, SYNC_LEN::2] + d[:, SYNC_LEN + 1::2]  # (2, 24)
+        E, V, D = float(yb[0].sum()), float((yb[0] * yb[0]).sum()), float(db[0].sum())
+        if V <= 0 or E < self.min_agree * D or E * E < self.min_z ** 2 * V or E <= 0:
+            return False
+        if not shows_every_difference(db[1] > 0):
+            return False
+        a = yb[1] - self.min_agree * db[1]  # a packet differing in bits w: agreement met when w . a >= 0
+        return bool((a >= 0).all() or (_code_bits() @ a.astype(np.float32)).min() >= 0)
+
+    def _beats_rivals(self, c: int, ph: int, rows: list | None = None) -> bool:
         """Whether hypothesis (c, ph) beats every other candidate k, at k's own best phase and
         fits, on the chips where their two packets differ (`_pieces.rivals`): half the table's
         gap is the evidence E_k = sum of x times c's chip over those chips (less half the window
@@ -292,7 +383,8 @@ class PieceAssembler:
         that tell c from k no better than chance (each term +-|x| at random) it is about 0
         with sd sqrt(V_k), V_k the sum of x squared over those chips. The
         winner needs, against every rival, agreement E_k / D_k >= `min_agree` and evidence
-        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals."""
+        E_k / sqrt(V_k) >= `min_z`. Sets `agree` and `z`: their least over the rivals (over
+        the candidates of `rows` only when given: those the pose allows, `_decide_near`)."""
         K = self.ids.size
         if K < 2:
             return True
@@ -303,10 +395,12 @@ class PieceAssembler:
         agree = np.where(ok, ev / np.where(ok, df, 1.0), -np.inf)
         z = np.where(ok, ev / np.sqrt(np.where(ok, df2, 1.0)), -np.inf)
         agree[c] = z[c] = np.inf
+        if rows is not None:
+            agree, z = agree[rows], z[rows]
         self.agree, self.z = float(agree.min()), float(z.min())
         return self.agree >= self.min_agree and self.z >= self.min_z
 
-    def _post(self, c: int, ph: int) -> None:
+    def _post(self, c: int, ph: int, sure: bool = False) -> None:
         """Measure the frame jitter of each kept piece's frame under hypothesis (c, ph) for the
         other lights (the latest hypothesis restates the earlier frames too: pieces that came
         before any light was sure get placed once one is): where the piece fits the packet
@@ -317,15 +411,71 @@ class PieceAssembler:
         pieces = self.pieces
         measured = _k.measure(self._corr, self._rep, self._q, self._qq, self._narrow, len(pieces), self.added,
                               c, ph, self.jitter_chips, self.ref_match, self.ref_unique, self._at)
-        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured])
+        self.frame_jitter.post_all(self.key, [(pieces[k].t, m) for k, m in measured], sure)
 
 
-def bits_seen(seen: np.ndarray) -> bool:
+def bits_seen(seen: np.ndarray, unseen: int = MAX_UNSEEN_BITS) -> bool:
     """Whether the packet positions `seen` (54,) show all of the packet's bits but at most
-    `MAX_UNSEEN_BITS`: a Manchester bit's two chips are complements, so either one shows it;
+    `unseen`: a Manchester bit's two chips are complements, so either one shows it;
     the sync is the same in every packet and tells no ID from another."""
     data = np.asarray(seen, bool)[SYNC_LEN:]
-    return int((~(data[0::2] | data[1::2])).sum()) <= MAX_UNSEEN_BITS
+    return int((~(data[0::2] | data[1::2])).sum()) <= unseen
+
+
+_CODE: np.ndarray | None = None  # the 24-bit words (16 ID + CRC-8) of every ID, made once needed
+
+
+def code_words() -> np.ndarray:
+    """(65536,) int64: the 24 bits of every ID's packet (ID << 8 | CRC-8); a linear code, so the
+    XOR combinations of the 16 single-bit IDs' words."""
+    global _CODE
+    if _CODE is None:
+        words = np.zeros(1, np.int64)
+        for b in range(16):
+            words = np.concatenate((words, words ^ (((1 << b) << 8) | crc8(1 << b, 16))))
+        _CODE = words
+    return _CODE
+
+
+def _code_bits() -> np.ndarray:
+    """(65535, 24) float32 0/1: the bits (packet order, MSB first) of every nonzero code word,
+    i.e. of every difference between two packets (the code is linear); made once needed."""
+    global _DIFFS
+    if _DIFFS is None:
+        w = code_words()[1:]
+        _DIFFS = ((w[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
+    return _DIFFS
+
+
+_DIFFS: np.ndarray | None = None
+
+
+def shows_every_difference(bits: np.ndarray) -> bool:
+    """Whether the packet bits `bits` (24,) seen tell every packet from every other: no nonzero
+    code word is zero on them, i.e. the 16 single-bit IDs' words restricted to them are
+    independent over GF(2) (rank 16; at least 16 bits seen)."""
+    mask = int((np.asarray(bits, bool).astype(np.int64) << np.arange(23, -1, -1)).sum())
+    rows = [int(w) & mask for w in code_words()[1 << np.arange(16)]]
+    rank = 0
+    for bit in range(23, -1, -1):
+        pivot = next((i for i in range(rank, len(rows)) if rows[i] >> bit & 1), None)
+        if pivot is None:
+            continue
+        rows[rank], rows[pivot] = rows[pivot], rows[rank]
+        for i in range(len(rows)):
+            if i != rank and rows[i] >> bit & 1:
+                rows[i] ^= rows[rank]
+        rank += 1
+    return rank == 16
+
+
+def unseen_bits_allowed(n_candidates: int, n_near: int) -> int:
+    """Bits a choice among `n_near` of the `n_candidates` IDs may leave unseen at the false-accept
+    bound of the choice among all of them (`PieceAssembler._decide_near`): `MAX_UNSEEN_BITS`
+    plus floor(log2(n_candidates / n_near)) (never fewer than `MAX_UNSEEN_BITS`)."""
+    if n_near <= 0 or n_candidates <= n_near:
+        return MAX_UNSEEN_BITS
+    return MAX_UNSEEN_BITS + int(math.floor(math.log2(n_candidates / n_near) + 1e-12))
 
 
 def jitter_chips(jitter_us: float, rate_hz: float) -> int:

@@ -23,7 +23,7 @@ import numpy as np
 from receiver.core import protocol
 from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, candidate_tables, crc8_table
-from receiver.decode.pieces import FrameJitter, chips_verdict
+from receiver.decode.pieces import FrameJitter, chips_verdict, code_words
 from receiver.decode.s2psk import S2pskDecoder, codebook
 from receiver.decode.settings import OOK_TUNING, OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.decode.tone import ToneDecoder
@@ -170,6 +170,17 @@ class LightDecoder:
         self.pieces_ref = False
         self.jitters: tuple = ()  # the FrameJitter of each rate it shows pieces of
 
+    def wants_near(self) -> bool:
+        """It has no ID, and an OOK decoder of it holds pieces enough that this frame's makes a
+        decision (`PieceAssembler.decide`): only then are the pose's map IDs asked for."""
+        if self.led_id is not None or not self.pieces_ref:
+            return False
+        for (mode, _), dec in self.decoders.items():
+            pa = dec.pieces if mode == "ook" else None
+            if pa is not None and len(pa.pieces) + 1 >= pa.min_frames:
+                return True
+        return False
+
     def measures_jitter(self) -> bool:
         """It shows short pieces, and a light still without its ID wants the frames' jitter."""
         return self.pieces_ref and any(j.wanted() for j in self.jitters)
@@ -211,6 +222,8 @@ class DecodePolicy:
                              if accept(led_map, "ook", led.id, rate))
                 # their tables made once, shared by every light's decoder
                 self.candidates[rate] = candidate_tables(np.array(ids, dtype=np.int64))
+            if self.candidates:
+                code_words()  # the 65,536 packets' bits (`PieceAssembler._decide_near`), not inside a frame
         # each frame's start jitter, measured by the lights of the frame for one another
         self.frame_jitters = {rate: FrameJitter() for rate in self.candidates}
         # frames each light took to its ID pieced together from short pieces, per rate (`chip_notes`)
@@ -317,9 +330,11 @@ class DecodePolicy:
         return light.measures_jitter() or self.pair_due(light.led_id, frame_index, track_id)
 
     def step_light(self, light: LightDecoder, gray: np.ndarray, blob, profile_wy, t_s: float,
-                   ticks: dict | None = None) -> None:
+                   ticks: dict | None = None, near: tuple = ()) -> None:
         """Feed one frame of one light: `blob` its envelope, `profile_wy` its row profile
-        (profile, weights, y0) as `receiver.vision.profile.row_profile` gives it."""
+        (profile, weights, y0) as `receiver.vision.profile.row_profile` gives it; `near` the map
+        IDs the tracked pose puts where the light is (receiver.locate.map_prior), which its
+        OOK decoders' pieces may be tested against."""
         profile, weights, y0 = profile_wy
         if not light.striped:
             tall = blob.y1 - blob.y0 >= max(self.min_stripe_rows, 3)
@@ -335,9 +350,9 @@ class DecodePolicy:
                 if rate in self.chips_seen:  # this image's chips a frame (`chip_notes`)
                     self.chips_seen[rate].append(len(profile) * rate * self.camera.row_readout_us * 1e-6)
                 if ticks and ticks.get(rate) is not None:
-                    st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0)
+                    st = dec.step(profile, weights, t_s, clock=ticks[rate], y0=y0, near=near)
                 else:
-                    st = dec.step(profile, weights, t_s, y0=y0)
+                    st = dec.step(profile, weights, t_s, y0=y0, near=near)
             light.states[(mode, rate)] = st
             jitter = getattr(dec.pieces, "frame_jitter", None) if mode == "ook" else None
             if jitter is not None and jitter not in light.jitters and dec.pieces.added > 0:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
 from receiver.core.native import require
@@ -14,6 +15,7 @@ from receiver.core.records import LedObservation, LocateResult
 from receiver.core.settings import resolve_settings
 from receiver.io.camera import CameraModel
 from receiver.io.ledmap import LedMap
+from receiver.locate import map_prior
 from receiver.locate.lsq import DEFAULT_F_SCALE, DEFAULT_LOSS
 from receiver.locate.outline_pose import (
     OutlineFrame,
@@ -166,6 +168,7 @@ class Positioner:
         self._tau_s = 0.0       # the last outline frame's mean point read time after its first row's, s
         self._read_travel = None  # (T, 3) m: the camera's travel to each target's centroid row (`_outline_targets`)
         self._fixtures: dict = {}  # LED id -> `_outline_fixture` (the map does not change during a run)
+        self._prior_lights = None  # (ids, solving-frame positions, half sizes m) of `map_prior`
         self.last_reason: str | None = None  # why the last frame had no position (`_no_fix_reason`)
         self._ambiguous = False  # the frame's panel start gave poses that fit alike (`_panel_fix`)
         self.pose = PoseFilter(handedness=s.handedness or led_map.handedness,
@@ -405,6 +408,33 @@ class Positioner:
         if state is None or not self._tau_s:
             return fix
         return dataclasses.replace(fix, C=fix.C - self._tau_s * state[0].reshape(6)[3:])
+
+    def map_prior(self, t_s: float) -> map_prior.MapPrior | None:
+        """Where the map's lights should appear in the frame stamped `t_s` (`receiver.locate.map_prior`),
+        from the filter's prediction and the last fix's orientation turned on by the tracked rate;
+        None without a tracked pose (or with the handedness still undecided)."""
+        pose = self.pose
+        R = pose.R_prior(t_s)
+        if R is None or pose.kf is None or pose.handedness_source == "default":
+            return None
+        pred = pose.kf.predict_at(t_s)
+        if pred is None:
+            return None
+        age = pose.orientation_age_s(t_s) or 0.0
+        w = pose.angular_rate(t_s)
+        if w is not None and age > 0:
+            R = cv2.Rodrigues(np.asarray(w, float) * age)[0] @ R
+        if self._prior_lights is None:
+            leds = [led for led in self.led_map.leds.values() if led.mode != "s2psk"]
+            half = [max(fixture_half_extents(led.shape, led.size) or (0.0, 0.0)) for led in leds]
+            self._prior_lights = (np.array([led.id for led in leds], np.int64),
+                                  pose.to_solving(np.array([led.xyz for led in leds]).reshape(-1, 3)),
+                                  np.array(half, float))
+        ids, L, half = self._prior_lights
+        if not len(ids):
+            return None
+        return map_prior.predict(self.camera, ids, L, half, R, pred[0][:3], pred[1][:3, :3],
+                                 map_prior.orient_sigma_rad(age), t_s)
 
     @property
     def unknown_ids(self) -> set[int]:

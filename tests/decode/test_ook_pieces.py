@@ -155,6 +155,18 @@ def test_unmapped_lights_sharing_frames_are_never_reported():
     assert r["mapped"] == 0 and r["wrong"] == []
 
 
+def test_lights_given_ids_by_the_pose_are_never_given_a_wrong_one():
+    """Each light also given one map ID as the pose's (tests/decode/pieces_mc.py `near`): lights
+    outside the map given a map ID, and mapped lights given another one's, get no ID; mapped
+    lights given their own decode, none wrongly."""
+    from pieces_mc import BY_NAME, monte_carlo
+
+    r = monte_carlo(BY_NAME["5k-120rows-unmapped"], trials=2, seed=6, frames=60, near=1, near_wrong=1.0)
+    assert r["mapped"] == 0 and r["wrong"] == []
+    r = monte_carlo(BY_NAME["5k-120rows"], trials=3, seed=4, frames=60, near=1, near_wrong=0.5)
+    assert r["wrong"] == [] and r["right"] >= 0.6 * r["mapped"]
+
+
 def test_the_chip_verdict_names_the_frames_an_id_needs():
     from receiver.decode.pieces import chips_verdict
 
@@ -483,3 +495,99 @@ def test_a_light_is_told_from_its_twin_at_the_least_distance():
             assert pa.agree == 1.0 and abs(pa.z - 24 ** 0.5) < 1e-9
             got, pa = _fixed_pieces(sent, [twin] + others, starts, 6)
             assert got is None
+
+
+def _near_pieces(led_id, cands, starts, n, near):
+    """`_fixed_pieces` with the map IDs `near` given as the pose's at every decision."""
+    t = packet_template(led_id)
+    pa = PieceAssembler(np.asarray(cands), np.stack([packet_template(int(i)) for i in cands]),
+                        jitter_chips=0, history=60, min_frames=6, min_corr=0.85, min_agree=0.75, min_z=3.0)
+    got = None
+    for s in starts:
+        pa.add(t[(s + np.arange(n)) % 54], np.ones(n), float(s))
+        got = pa.decide(near=near)
+        if got is not None:
+            break
+    return got, pa
+
+
+def test_fewer_bits_may_stay_unseen_among_fewer_ids_at_the_same_bound():
+    """Among k of K IDs the bound K x phases x 2^-(24 - MAX_UNSEEN_BITS) of the choice among all
+    holds with floor(log2(K / k)) more unseen bits, and never with more."""
+    from receiver.decode.pieces import MAX_UNSEEN_BITS, unseen_bits_allowed
+
+    for K in (1, 2, 3, 60, 225, 360, 4096):
+        for k in (1, 2, 3, 5, 400):
+            u = unseen_bits_allowed(K, k)
+            assert u >= MAX_UNSEEN_BITS
+            if k < K:  # k x 2^-(24 - u) <= K x 2^-(24 - MAX): k 2^u <= K 2^MAX, and one more bit breaks it
+                assert k * 2.0 ** u <= K * 2.0 ** MAX_UNSEEN_BITS < k * 2.0 ** (u + 1)
+            else:
+                assert u == MAX_UNSEEN_BITS
+
+
+def test_the_pose_s_id_is_confirmed_by_its_chips_with_fewer_bits_seen():
+    """Noiseless 6-chip pieces, each chip seen twice, that leave 6 of the 24 bits unseen: the
+    choice among all 225 IDs decides none; given the light's own ID as the pose's, it is
+    decided (225 / 1: 7 more bits may stay unseen, and every other packet differs from it in
+    a seen bit); given another ID (the pose wrong), or 225 IDs, none."""
+    from receiver.decode.pieces import SYNC_LEN
+
+    rng = np.random.default_rng(41)
+    cands = [int(v) for v in rng.choice(1 << 16, 225, replace=False)]
+    starts = list(range(0, 42, 6))  # packet chips 0-41 seen: bits 18-23 (chips 42-53) unseen
+    seen = np.zeros(54, bool)
+    for s in starts:
+        seen[s:s + 6] = True
+    assert int((~seen[SYNC_LEN:][0::2]).sum()) == 6
+    for sent in cands[:4]:
+        assert _near_pieces(sent, cands, starts * 2, 6, ())[0] is None
+        assert _near_pieces(sent, cands, starts * 2, 6, (sent,))[0] == sent
+        other = next(v for v in cands if v != sent)
+        assert _near_pieces(sent, cands, starts * 2, 6, (other,))[0] is None
+        assert _near_pieces(sent, cands, starts * 2, 6, tuple(cands))[0] is None
+
+
+def test_the_pose_s_id_is_never_given_to_a_light_whose_packet_differs_only_in_unseen_bits():
+    """Pieces that show every bit of the light's packet but the 4 in which a twin's (a packet
+    at the code's least distance) differs: given the twin's ID as the pose's, none, whether
+    the twin is in the map or not; given the light's own, none either (the chips cannot tell
+    the two apart), while with those bits seen it is decided."""
+    from firmware_tx.crc import crc8
+
+    d = next(i for i in range(1, 1 << 16) if bin((i << 8) | crc8(i, 16)).count("1") == 4)
+    rng = np.random.default_rng(43)
+    cands = [int(v) for v in rng.choice(1 << 16, 225, replace=False)]
+    for sent in cands[:3]:
+        twin = sent ^ d
+        differ = np.flatnonzero(packet_template(sent) != packet_template(twin))
+        pairs = [s for s in range(0, 54, 2) if s not in differ]  # the sync's and every other bit's chips
+        assert len(differ) == 8 and len(pairs) == 27 - 4
+        others = [v for v in cands if v != twin]
+        for near in ((twin,), (sent,)):
+            assert _near_pieces(sent, [twin] + others, pairs * 3, 2, near)[0] is None
+            assert _near_pieces(sent, others, pairs * 3, 2, near)[0] is None
+        assert _near_pieces(sent, others, list(range(0, 54, 2)) * 3, 2, (sent,))[0] == sent
+
+
+def test_the_bits_seen_tell_every_packet_apart_exactly_when_no_code_word_hides_in_the_rest():
+    """`shows_every_difference` against all 65,536 packets (firmware_tx's CRC): for random sets
+    of seen bits it holds exactly when no two packets agree on every seen bit."""
+    from firmware_tx.crc import crc8
+    from receiver.decode.pieces import shows_every_difference
+
+    ids = np.arange(1, 1 << 16)
+    words = (ids << 8) | np.array([crc8(int(i), 16) for i in ids])  # = the differences from ID 0
+    rng = np.random.default_rng(9)
+    seen_all = np.ones(24, bool)
+    assert shows_every_difference(seen_all)
+    verdicts = set()
+    for n_unseen in (1, 2, 4, 6, 8, 9):
+        for _ in range(6):
+            seen = np.ones(24, bool)
+            seen[rng.choice(24, n_unseen, replace=False)] = False
+            mask = int((seen.astype(np.int64) << np.arange(23, -1, -1)).sum())
+            want = bool(((words & mask) != 0).all())
+            assert shows_every_difference(seen) == want
+            verdicts.add(want)
+    assert verdicts == {True, False}
