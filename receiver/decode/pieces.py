@@ -444,25 +444,22 @@ def code_words() -> np.ndarray:
     return _CODE
 
 
-def _code_bits() -> np.ndarray:
-    """(65535, 24) float32 0/1: the bits (packet order, MSB first) of every nonzero code word,
-    i.e. of every difference between two packets (the code is linear); made once needed."""
-    global _DIFFS
-    if _DIFFS is None:
-        w = code_words()[1:]
-        _DIFFS = ((w[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
-    return _DIFFS
-
-
-_DIFFS: np.ndarray | None = None
-_WORDS: np.ndarray | None = None  # (65536, 24) float32 0/1: the bits of every packet, row = ID
-
-
 def _word_bits() -> np.ndarray:
+    """(65536, 24) float32 0/1: the bits (packet order, MSB first) of every ID's packet, row =
+    ID; made once needed."""
     global _WORDS
     if _WORDS is None:
         _WORDS = ((code_words()[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
     return _WORDS
+
+
+_WORDS: np.ndarray | None = None
+
+
+def _code_bits() -> np.ndarray:
+    """(65535, 24): the bits of every nonzero code word, i.e. of every difference between two
+    packets (the code is linear: `_word_bits` but ID 0's)."""
+    return _word_bits()[1:]
 
 
 def _shifted_chips() -> tuple:
