@@ -379,7 +379,7 @@ class PieceAssembler:
         a = yb[1] - self.min_agree * db[1]  # a packet differing in bits w: agreement met when w . a >= 0
         if not ((a >= 0).all() or (_code_bits() @ a.astype(np.float32)).min() >= 0):
             return False
-        return beats_every_shifted_packet(tpl > 0, e[1] - self.min_agree * d[1], int(self.ids[c]))
+        return beats_every_shifted_packet(tpl > 0, e[1] - self.min_agree * d[1], d[1] > 0, int(self.ids[c]))
 
     def _beats_rivals(self, c: int, ph: int, rows: list | None = None) -> bool:
         """Whether hypothesis (c, ph) beats every other candidate k, at k's own best phase and
@@ -483,34 +483,39 @@ def _shifted_chips() -> tuple:
 _SHIFTED: tuple | None = None
 
 
-def beats_every_shifted_packet(c_chips: np.ndarray, a: np.ndarray, c_id: int) -> bool:
-    """Whether chips that agree with packet `c_chips` (54,) 0/1 by a_i = e_i - min_agree d_i at
-    c's placements (e_i the sum of x times c's chip, d_i of |x|; 0 where unseen) tell c from
+def beats_every_shifted_packet(c_chips: np.ndarray, a: np.ndarray, seen: np.ndarray, c_id: int) -> bool:
+    """Whether the chips `seen` (54,), which agree with packet `c_chips` (54,) 0/1 by a_i = e_i -
+    min_agree d_i at c's placements (e_i the sum of x times c's chip, d_i of |x|), tell c from
     every packet of another ID sent at any other phase (the same pieces, each moved by the same
     1 to 53 chips: the light's phase is only the winner's best, and a packet whose copy a chip
     pair or more later matches c's but for a few chips fits them almost as well), and agree with
-    c where the two differ: sum over the differing chips of a_i > 0 (0 when no seen chip
-    differs: a_i is 0 on the unseen).
+    c where the two differ: a seen chip differs, and the sum over the differing chips of a_i
+    (unseen: 0) is >= 0.
 
     Packet w moved by s chips shows at c's chip i its own chip (i - s) % 54: a sync chip (a
     constant) or its bit b or that bit's complement; so with u_i = c_i XOR (complemented?) the
-    chip differs from c by u_i + w_b (1 - 2 u_i), and the sum is affine in w's 24 bits, const_s
-    + w . g_s. A shift whose least over all 2^24 words, const_s + sum min(0, g_s), is positive
-    passes; the others are tried on every packet but c's own."""
+    chip differs from c by u_i + w_b (1 - 2 u_i), and a sum over the differing chips is affine
+    in w's 24 bits, const_s + w . g_s (the count of seen ones in integers, exact). A shift whose
+    least over all 2^24 words, const_s + sum min(0, g_s), passes both passes; the others are
+    tried on every packet but c's own."""
     c = np.asarray(c_chips, np.int64)
-    a = np.asarray(a, np.float64)
+    v = np.stack((np.asarray(a, np.float64), np.asarray(seen, bool).astype(np.float64)))  # (2, 54)
     is_sync, sync, comp, rows, bits = _shifted_chips()
-    u = c[None, :] ^ comp
-    const = np.where(is_sync, (sync ^ c[None, :]) * a[None, :], u * a[None, :]).sum(axis=1)
-    g = np.zeros((PACKET_LEN - 1, 24))
-    np.add.at(g, (rows, bits), ((1 - 2 * u) * a[None, :])[~is_sync])
-    low = const + np.minimum(g, 0.0).sum(axis=1)
-    hard = np.flatnonzero(low <= 0)
+    u = c[None, :] ^ comp  # (53, 54)
+    const = np.where(is_sync[None], (sync ^ c[None, :])[None] * v[:, None, :], u[None] * v[:, None, :]).sum(axis=2)
+    g = np.zeros((2, PACKET_LEN - 1, 24))
+    for k in range(2):
+        np.add.at(g[k], (rows, bits), ((1 - 2 * u) * v[k][None, :])[~is_sync])
+    low = const + np.minimum(g, 0.0).sum(axis=2)  # (2, 53)
+    hard = np.flatnonzero((low[0] < 0) | (low[1] < 1))
     if hard.size == 0:
         return True
-    sums = _word_bits() @ g[hard].T.astype(np.float32) + const[hard].astype(np.float32)[None, :]
-    sums[c_id] = np.inf  # c's own packet at another phase is still c's ID
-    return bool(sums.min() > 0)
+    words = _word_bits()
+    sums = words @ g[0, hard].T.astype(np.float32) + const[0, hard].astype(np.float32)[None, :]
+    count = words @ g[1, hard].T.astype(np.float32) + const[1, hard].astype(np.float32)[None, :]  # integers
+    ok = (sums >= 0) & (count > 0.5)
+    ok[c_id] = True  # c's own packet at another phase is still c's ID
+    return bool(ok.all())
 
 
 def shows_every_difference(bits: np.ndarray) -> bool:
