@@ -313,12 +313,13 @@ class PieceAssembler:
         (`unseen_bits_allowed`), and the pieces must confirm c against such a packet by the
         rivals' agreement and evidence. That bound is for packets unrelated to c; the packets
         nearest c (its twins, of the map or not) are tested one by one: the chips seen must
-        tell c from every other packet and agree with c where the two differ
-        (`_beats_every_packet`), so a light whose packet is c's twin but for bits unseen is
-        never given c. The pieces must still choose c: it must be the strict best of
-        all K candidates (a map ID outside `near` that fits them as well or better refuses it:
-        the pose never picks between IDs the chips cannot tell apart), correlate by `min_corr`,
-        and beat each other ID of `near` by the rivals' test."""
+        tell c from every other packet, at c's phase and at every other, and agree with c where
+        the two differ (`_beats_every_packet`), so a light whose packet is c's twin but for bits
+        unseen, or c's but for a few chips once moved by a pair (0xfff3 a pair later is 0x7ff9
+        but for 4 chips), is never given c. The pieces must still choose c: it must be the
+        strict best of all K candidates (a map ID outside `near` that fits them as well or
+        better refuses it: the pose never picks between IDs the chips cannot tell apart),
+        correlate by `min_corr`, and beat each other ID of `near` by the rivals' test."""
         rows = sorted({self._row[v] for v in near if v in self._row})
         if c not in rows or top < self.min_corr or not top > second:
             return None
@@ -348,7 +349,11 @@ class PieceAssembler:
         that other lights with their IDs measured (the narrow window, `FrameJitter.by_sure`), or
         with no window at all: a piece free to move a chip within its wide window, or placed by
         a jitter that lights without their IDs measured under a wrong hypothesis, can read a
-        Manchester pair's bit as its neighbour's, and so fit a twin's chips to c's."""
+        Manchester pair's bit as its neighbour's, and so fit a twin's chips to c's. The same
+        pinned chips must tell c from every other packet sent at any other phase, agreeing with c
+        where they differ (`beats_every_shifted_packet`): the light's phase is only c's best,
+        and all pieces moved together by a pair fit a packet whose copy a pair later is c's but
+        for chips they left unseen or read against c."""
         P = len(self.pieces)
         tpl = self.templates[c]
         fj = self.frame_jitter
@@ -372,7 +377,9 @@ class PieceAssembler:
         if not shows_every_difference(db[1] > 0):
             return False
         a = yb[1] - self.min_agree * db[1]  # a packet differing in bits w: agreement met when w . a >= 0
-        return bool((a >= 0).all() or (_code_bits() @ a.astype(np.float32)).min() >= 0)
+        if not ((a >= 0).all() or (_code_bits() @ a.astype(np.float32)).min() >= 0):
+            return False
+        return beats_every_shifted_packet(tpl > 0, e[1] - self.min_agree * d[1], d[1] > 0, int(self.ids[c]))
 
     def _beats_rivals(self, c: int, ph: int, rows: list | None = None) -> bool:
         """Whether hypothesis (c, ph) beats every other candidate k, at k's own best phase and
@@ -437,17 +444,78 @@ def code_words() -> np.ndarray:
     return _CODE
 
 
+def _word_bits() -> np.ndarray:
+    """(65536, 24) float32 0/1: the bits (packet order, MSB first) of every ID's packet, row =
+    ID; made once needed."""
+    global _WORDS
+    if _WORDS is None:
+        _WORDS = ((code_words()[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
+    return _WORDS
+
+
+_WORDS: np.ndarray | None = None
+
+
 def _code_bits() -> np.ndarray:
-    """(65535, 24) float32 0/1: the bits (packet order, MSB first) of every nonzero code word,
-    i.e. of every difference between two packets (the code is linear); made once needed."""
-    global _DIFFS
-    if _DIFFS is None:
-        w = code_words()[1:]
-        _DIFFS = ((w[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
-    return _DIFFS
+    """(65535, 24): the bits of every nonzero code word, i.e. of every difference between two
+    packets (the code is linear: `_word_bits` but ID 0's)."""
+    return _word_bits()[1:]
 
 
-_DIFFS: np.ndarray | None = None
+def _shifted_chips() -> tuple:
+    """What packet w moved by s = 1..53 chips shows at chip i (53, 54) of another packet's
+    placements: its chip (i - s) % 54, a sync chip of value `sync` (0/1; -1: a data chip) or
+    the packet bit `bit` (Manchester: bit b is chips SYNC_LEN + 2b, the bit, and SYNC_LEN + 2b +
+    1, its complement: `comp`). Made once."""
+    global _SHIFTED
+    if _SHIFTED is None:
+        sync = np.full(PACKET_LEN, -1, np.int64)
+        sync[:SYNC_LEN] = list(SYNC)
+        k = np.arange(PACKET_LEN) - SYNC_LEN
+        bit, comp = np.where(k >= 0, k // 2, -1), ((k >= 0) & (k % 2 == 1)).astype(np.int64)
+        j = (np.arange(PACKET_LEN)[None, :] - np.arange(1, PACKET_LEN)[:, None]) % PACKET_LEN
+        is_sync = sync[j] >= 0
+        rows = np.broadcast_to(np.arange(PACKET_LEN - 1)[:, None], j.shape)
+        _SHIFTED = (is_sync, sync[j], comp[j], rows[~is_sync], bit[j][~is_sync])
+    return _SHIFTED
+
+
+_SHIFTED: tuple | None = None
+
+
+def beats_every_shifted_packet(c_chips: np.ndarray, a: np.ndarray, seen: np.ndarray, c_id: int) -> bool:
+    """Whether the chips `seen` (54,), which agree with packet `c_chips` (54,) 0/1 by a_i = e_i -
+    min_agree d_i at c's placements (e_i the sum of x times c's chip, d_i of |x|), tell c from
+    every packet of another ID sent at any other phase (the same pieces, each moved by the same
+    1 to 53 chips: the light's phase is only the winner's best, and a packet whose copy a chip
+    pair or more later matches c's but for a few chips fits them almost as well), and agree with
+    c where the two differ: a seen chip differs, and the sum over the differing chips of a_i
+    (unseen: 0) is >= 0.
+
+    Packet w moved by s chips shows at c's chip i its own chip (i - s) % 54: a sync chip (a
+    constant) or its bit b or that bit's complement; so with u_i = c_i XOR (complemented?) the
+    chip differs from c by u_i + w_b (1 - 2 u_i), and a sum over the differing chips is affine
+    in w's 24 bits, const_s + w . g_s (the count of seen ones in integers, exact). A shift whose
+    least over all 2^24 words, const_s + sum min(0, g_s), passes both passes; the others are
+    tried on every packet but c's own."""
+    c = np.asarray(c_chips, np.int64)
+    v = np.stack((np.asarray(a, np.float64), np.asarray(seen, bool).astype(np.float64)))  # (2, 54)
+    is_sync, sync, comp, rows, bits = _shifted_chips()
+    u = c[None, :] ^ comp  # (53, 54)
+    const = np.where(is_sync[None], (sync ^ c[None, :])[None] * v[:, None, :], u[None] * v[:, None, :]).sum(axis=2)
+    g = np.zeros((2, PACKET_LEN - 1, 24))
+    for k in range(2):
+        np.add.at(g[k], (rows, bits), ((1 - 2 * u) * v[k][None, :])[~is_sync])
+    low = const + np.minimum(g, 0.0).sum(axis=2)  # (2, 53)
+    hard = np.flatnonzero((low[0] < 0) | (low[1] < 1))
+    if hard.size == 0:
+        return True
+    words = _word_bits()
+    sums = words @ g[0, hard].T.astype(np.float32) + const[0, hard].astype(np.float32)[None, :]
+    count = words @ g[1, hard].T.astype(np.float32) + const[1, hard].astype(np.float32)[None, :]  # integers
+    ok = (sums >= 0) & (count > 0.5)
+    ok[c_id] = True  # c's own packet at another phase is still c's ID
+    return bool(ok.all())
 
 
 def shows_every_difference(bits: np.ndarray) -> bool:

@@ -591,3 +591,52 @@ def test_the_bits_seen_tell_every_packet_apart_exactly_when_no_code_word_hides_i
             assert shows_every_difference(seen) == want
             verdicts.add(want)
     assert verdicts == {True, False}
+
+
+def test_the_pose_s_id_is_never_given_to_a_light_whose_packet_is_it_shifted_by_a_bit():
+    """0xfff3's packet a Manchester pair later is 0x7ff9's but for 4 chips (two of the sync's,
+    one of bit 0's, one of bit 23's). Pieces that show those 4 chips once and the others but
+    0x7ff9's bits 18-23 three times fit 0x7ff9 at the shifted phase best of 225 IDs, with a
+    mean correlation above `min_corr` and every seen bit but bit 0 agreeing with it at those
+    placements; too few bits for the choice among all IDs. Given 0x7ff9 as the pose's, a light
+    sending 0xfff3 (not in the map) gets no ID: its chips tell 0xfff3 a pair later from 0x7ff9
+    and agree with it there. A light sending 0x7ff9 with the same pieces gets its ID."""
+    sent, shifted = 0xFFF3, 0x7FF9
+    t, c = packet_template(sent), packet_template(shifted)
+    differ = np.flatnonzero(np.roll(c, -2) != t)
+    assert differ.tolist() == [1, 2, 5, 52]
+    once = sorted({int(i) // 2 * 2 for i in differ})
+    pairs = once + [s for s in range(0, 54, 2) if s not in once and not 40 <= s <= 50] * 3
+    rng = np.random.default_rng(47)
+    others = [int(v) for v in rng.choice(1 << 16, 224, replace=False) if v not in (sent, shifted)]
+    assert _near_pieces(sent, [shifted] + others, pairs, 2, ())[0] is None
+    got, pa = _near_pieces(sent, [shifted] + others, pairs, 2, (shifted,))
+    assert pa.best_id == shifted and pa.score >= pa.min_corr and got is None
+    assert _near_pieces(shifted, [shifted] + others, pairs, 2, (shifted,))[0] == shifted
+
+
+def test_every_packet_at_every_other_phase_is_tried():
+    """`beats_every_shifted_packet` against all 65,536 packets (ook.packet_template) moved by
+    each of 1-53 chips, on the chips where they differ from the winner: its verdict is whether
+    every such packet but the winner's own ID's differs in a seen chip with a sum >= 0."""
+    from receiver.decode.pieces import beats_every_shifted_packet
+
+    rng = np.random.default_rng(53)
+    packets = (np.stack([packet_template(i) for i in range(1 << 16)]) > 0).astype(np.int8)
+    verdicts = set()
+    for c_id, n_bad, n_unseen in ((0xFFF3, 4, 12), (0x7FF9, 3, 12), (int(rng.integers(1 << 16)), 3, 12),
+                                  (0x5555, 2, 12), (0x0F0F, 1, 12), (0xFFF3, 0, 12), (0x7FF9, 0, 36)):
+        c = packets[c_id]
+        a = rng.uniform(0.2, 1.0, 54)
+        a[rng.choice(54, n_unseen, replace=False)] = 0.0  # unseen chips
+        a[rng.choice(54, n_bad, replace=False)] = -2.0  # chips that disagree
+        seen = a != 0
+        want = True
+        for s in range(1, 54):
+            differ = np.roll(packets, s, axis=1) ^ c
+            ok = (differ @ a >= 0) & (differ @ seen.astype(np.int64) > 0)
+            ok[c_id] = True
+            want &= bool(ok.all())
+        assert beats_every_shifted_packet(c > 0, a, seen, c_id) == want
+        verdicts.add(want)
+    assert verdicts == {True, False}
