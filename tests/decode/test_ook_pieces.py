@@ -370,16 +370,22 @@ def test_a_bit_is_seen_by_either_chip_of_its_manchester_pair():
     assert not bits_seen(seen)
 
 
-def _fixed_pieces(led_id, cands, starts, n):
+def _fixed_pieces(led_id, cands, starts, n, near=None, history=30, min_z=3.5):
     """The ML decision over `cands` after noiseless n-chip pieces of `led_id`'s packet at
-    packet positions `starts`, each at its exact packet time (no jitter window)."""
+    packet positions `starts`, each at its exact packet time (no jitter window). near: the map
+    IDs given as the pose's at every decision; then the first ID decided is kept."""
     t = packet_template(led_id)
     pa = PieceAssembler(np.asarray(cands), np.stack([packet_template(int(i)) for i in cands]),
-                        jitter_chips=0, history=30, min_frames=6, min_corr=0.85, min_agree=0.75, min_z=3.5)
+                        jitter_chips=0, history=history, min_frames=6, min_corr=0.85, min_agree=0.75, min_z=min_z)
     got = None
     for s in starts:
         pa.add(t[(s + np.arange(n)) % 54], np.ones(n), float(s))
-        got = pa.decide()
+        if near is None:
+            got = pa.decide()
+            continue
+        got = pa.decide(near=near)
+        if got is not None:
+            break
     return got, pa
 
 
@@ -499,16 +505,7 @@ def test_a_light_is_told_from_its_twin_at_the_least_distance():
 
 def _near_pieces(led_id, cands, starts, n, near):
     """`_fixed_pieces` with the map IDs `near` given as the pose's at every decision."""
-    t = packet_template(led_id)
-    pa = PieceAssembler(np.asarray(cands), np.stack([packet_template(int(i)) for i in cands]),
-                        jitter_chips=0, history=60, min_frames=6, min_corr=0.85, min_agree=0.75, min_z=3.0)
-    got = None
-    for s in starts:
-        pa.add(t[(s + np.arange(n)) % 54], np.ones(n), float(s))
-        got = pa.decide(near=near)
-        if got is not None:
-            break
-    return got, pa
+    return _fixed_pieces(led_id, cands, starts, n, near=near, history=60, min_z=3.0)
 
 
 def test_fewer_bits_may_stay_unseen_among_fewer_ids_at_the_same_bound():
