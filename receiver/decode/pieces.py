@@ -32,6 +32,7 @@ chips, so a test over all chips (a flat gap of mean correlations) could not tell
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 
@@ -429,58 +430,43 @@ def bits_seen(seen: np.ndarray, unseen: int = MAX_UNSEEN_BITS) -> bool:
     return int((~(data[0::2] | data[1::2])).sum()) <= unseen
 
 
-_CODE: np.ndarray | None = None  # the 24-bit words (16 ID + CRC-8) of every ID, made once needed
-
-
+@functools.cache
 def code_words() -> np.ndarray:
     """(65536,) int64: the 24 bits of every ID's packet (ID << 8 | CRC-8); a linear code, so the
     XOR combinations of the 16 single-bit IDs' words."""
-    global _CODE
-    if _CODE is None:
-        words = np.zeros(1, np.int64)
-        for b in range(16):
-            words = np.concatenate((words, words ^ (((1 << b) << 8) | crc8(1 << b, 16))))
-        _CODE = words
-    return _CODE
+    words = np.zeros(1, np.int64)
+    for b in range(16):
+        words = np.concatenate((words, words ^ (((1 << b) << 8) | crc8(1 << b, 16))))
+    return words
 
 
-def _word_bits() -> np.ndarray:
+@functools.cache
+def word_bits() -> np.ndarray:
     """(65536, 24) float32 0/1: the bits (packet order, MSB first) of every ID's packet, row =
-    ID; made once needed."""
-    global _WORDS
-    if _WORDS is None:
-        _WORDS = ((code_words()[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
-    return _WORDS
-
-
-_WORDS: np.ndarray | None = None
+    ID (about 15 ms to make: receiver.decode.policy makes it before a video's first frame)."""
+    return ((code_words()[:, None] >> np.arange(23, -1, -1)[None, :]) & 1).astype(np.float32)
 
 
 def _code_bits() -> np.ndarray:
     """(65535, 24): the bits of every nonzero code word, i.e. of every difference between two
-    packets (the code is linear: `_word_bits` but ID 0's)."""
-    return _word_bits()[1:]
+    packets (the code is linear: `word_bits` but ID 0's)."""
+    return word_bits()[1:]
 
 
+@functools.cache
 def _shifted_chips() -> tuple:
     """What packet w moved by s = 1..53 chips shows at chip i (53, 54) of another packet's
     placements: its chip (i - s) % 54, a sync chip of value `sync` (0/1; -1: a data chip) or
     the packet bit `bit` (Manchester: bit b is chips SYNC_LEN + 2b, the bit, and SYNC_LEN + 2b +
     1, its complement: `comp`). Made once."""
-    global _SHIFTED
-    if _SHIFTED is None:
-        sync = np.full(PACKET_LEN, -1, np.int64)
-        sync[:SYNC_LEN] = list(SYNC)
-        k = np.arange(PACKET_LEN) - SYNC_LEN
-        bit, comp = np.where(k >= 0, k // 2, -1), ((k >= 0) & (k % 2 == 1)).astype(np.int64)
-        j = (np.arange(PACKET_LEN)[None, :] - np.arange(1, PACKET_LEN)[:, None]) % PACKET_LEN
-        is_sync = sync[j] >= 0
-        rows = np.broadcast_to(np.arange(PACKET_LEN - 1)[:, None], j.shape)
-        _SHIFTED = (is_sync, sync[j], comp[j], rows[~is_sync], bit[j][~is_sync])
-    return _SHIFTED
-
-
-_SHIFTED: tuple | None = None
+    sync = np.full(PACKET_LEN, -1, np.int64)
+    sync[:SYNC_LEN] = list(SYNC)
+    k = np.arange(PACKET_LEN) - SYNC_LEN
+    bit, comp = np.where(k >= 0, k // 2, -1), ((k >= 0) & (k % 2 == 1)).astype(np.int64)
+    j = (np.arange(PACKET_LEN)[None, :] - np.arange(1, PACKET_LEN)[:, None]) % PACKET_LEN
+    is_sync = sync[j] >= 0
+    rows = np.broadcast_to(np.arange(PACKET_LEN - 1)[:, None], j.shape)
+    return is_sync, sync[j], comp[j], rows[~is_sync], bit[j][~is_sync]
 
 
 def beats_every_shifted_packet(c_chips: np.ndarray, a: np.ndarray, seen: np.ndarray, c_id: int) -> bool:
@@ -510,7 +496,7 @@ def beats_every_shifted_packet(c_chips: np.ndarray, a: np.ndarray, seen: np.ndar
     hard = np.flatnonzero((low[0] < 0) | (low[1] < 1))
     if hard.size == 0:
         return True
-    words = _word_bits()
+    words = word_bits()
     sums = words @ g[0, hard].T.astype(np.float32) + const[0, hard].astype(np.float32)[None, :]
     count = words @ g[1, hard].T.astype(np.float32) + const[1, hard].astype(np.float32)[None, :]  # integers
     ok = (sums >= 0) & (count > 0.5)

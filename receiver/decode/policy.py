@@ -23,7 +23,7 @@ import numpy as np
 from receiver.core import protocol
 from receiver.decode.exposure import ExposureLearner, exposure_verdict
 from receiver.decode.ook import OokDecoder, PeriodLearner, candidate_tables, crc8_table
-from receiver.decode.pieces import FrameJitter, chips_verdict, code_words
+from receiver.decode.pieces import FrameJitter, chips_verdict, word_bits
 from receiver.decode.s2psk import S2pskDecoder, codebook
 from receiver.decode.settings import OOK_TUNING, OokSettings, PolicySettings, S2pskSettings, ToneSettings
 from receiver.decode.tone import ToneDecoder
@@ -222,8 +222,8 @@ class DecodePolicy:
                              if accept(led_map, "ook", led.id, rate))
                 # their tables made once, shared by every light's decoder
                 self.candidates[rate] = candidate_tables(np.array(ids, dtype=np.int64))
-            if self.candidates:
-                code_words()  # the 65,536 packets' bits (`PieceAssembler._decide_near`), not inside a frame
+            if self.candidates and not still:  # a video's lights may be decided near the pose
+                word_bits()  # the 65,536 packets' bits (`PieceAssembler._decide_near`), not inside a frame
         # each frame's start jitter, measured by the lights of the frame for one another
         self.frame_jitters = {rate: FrameJitter() for rate in self.candidates}
         # frames each light took to its ID pieced together from short pieces, per rate (`chip_notes`)
