@@ -143,7 +143,11 @@ def polygon_centroid(poly: np.ndarray) -> np.ndarray | None:
     p = np.asarray(poly, dtype=np.float64).reshape(-1, 2)
     if len(p) < 3:
         return None
-    sums = _polygon_sums(p, False)
+    return _centroid(_polygon_sums(p, False))
+
+
+def _centroid(sums) -> np.ndarray | None:
+    """The centroid of a polygon from its `_polygon_sums`, or None when its area is about 0."""
     a = 0.5 * sums[0]
     if abs(a) < 1e-12:
         return None
@@ -193,9 +197,7 @@ def contour_geometry(contour_px: np.ndarray, camera: CameraModel,
         return None
     und = (undistort or Undistorter(camera))(c)
     sums = _polygon_sums(und, False)   # polygon_area_perimeter's area and polygon_centroid in one pass
-    area_n = 0.5 * abs(sums[0])
-    a = 0.5 * sums[0]
-    cen = None if abs(a) < 1e-12 else np.array([sums[2], sums[3]]) / (6 * a)
+    area_n, cen = 0.5 * abs(sums[0]), _centroid(sums)
     if area_n <= 0 or cen is None:
         return None
     # The edge bias is a pixel-scale effect, so it is applied as a ratio measured in pixels.
